@@ -1,0 +1,31 @@
+"""photax: photogrammetry on JAX.
+
+Importing photax turns on JAX's 64-bit mode: ground coordinates are large
+(UTM ~1e6 m) and image measurements fine (0.1 px), so photax computes in
+float64.  See ``docs/conventions.md`` for every frame, angle and unit.
+"""
+
+import importlib.metadata
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+
+from .camera import FrameCamera as FrameCamera
+from .collinearity import (
+    ExteriorOrientation as ExteriorOrientation,
+    depth as depth,
+    image_to_ground as image_to_ground,
+    look_at as look_at,
+    project as project,
+)
+from .dem import DEM as DEM
+from .rotation import (
+    angles_from_matrix as angles_from_matrix,
+    axis_angle_to_matrix as axis_angle_to_matrix,
+    convert_angles as convert_angles,
+    matrix_to_axis_angle as matrix_to_axis_angle,
+    rotation_matrix as rotation_matrix,
+)
+
+__version__ = importlib.metadata.version("photax")

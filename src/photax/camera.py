@@ -1,0 +1,205 @@
+"""Interior orientation: principal distance, principal point, lens distortion,
+and the conversion between pixel and image-plane coordinates.
+
+Frames (see ``docs/conventions.md``):
+
+* **camera frame**: x right, y up, z backwards (the camera looks along -z);
+  origin at the projection centre.
+* **image plane**: x right, y up, origin at the image centre (fiducial
+  centre), in the camera's length unit (mm, m or pixels: whatever the focal
+  length is given in).  The principal point ``(x0, y0)`` is given in it.
+* **pixels**: (column, row), origin at the *centre* of the top-left pixel,
+  row down (the OpenCV / scikit-image / ``map_coordinates`` convention).  The
+  image centre is at ``((width - 1) / 2, (height - 1) / 2)``.
+
+Distortion is Brown–Conrady on *normalised* coordinates ``(x - x0)/f``, as in
+OpenCV and in the BAL camera, so the coefficients do not depend on the unit::
+
+    r^2 = xn^2 + yn^2
+    xd  = xn (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 xn yn + p2 (r^2 + 2 xn^2)
+    yd  = yn (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 yn^2) + 2 p2 xn yn
+
+with ``y`` up.  OpenCV's ``y`` points down, so its ``p1`` is minus ours
+(radial terms and ``p2`` are the same).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+
+def _f64(x) -> Array:
+    return jnp.asarray(x, dtype=float)
+
+
+def _like(v: Array, x: Array) -> Array:
+    """``v`` (shape ``(k,)``) with leading axes so it broadcasts against ``x``."""
+    return jnp.reshape(v, (1,) * (x.ndim - 1) + v.shape)
+
+
+def _concrete(x) -> bool:
+    """True when ``x`` has a value now (not a tracer inside jit/vmap/grad)."""
+    return not isinstance(x, jax.core.Tracer)
+
+
+class FrameCamera(eqx.Module):
+    """A frame (pinhole) camera with optional Brown–Conrady distortion.
+
+    Attributes:
+        focal_length: principal distance ``f`` (scalar), image-plane unit.
+        principal_point: ``(2,)`` principal point ``(x0, y0)`` on the image
+            plane, same unit, relative to the image centre.
+        distortion: ``(5,)`` ``(k1, k2, k3, p1, p2)`` on normalised
+            coordinates (dimensionless).  Zeros for an ideal camera.
+        pixel_size: ``(2,)`` image-plane units per pixel along columns and
+            rows, or ``None`` if the camera is not tied to a pixel grid.
+        image_size: ``(width, height)`` in pixels, or ``None``.
+    """
+
+    focal_length: Array
+    principal_point: Array
+    distortion: Array
+    pixel_size: Array | None
+    image_size: tuple[int, int] | None = eqx.field(static=True)
+
+    def __init__(
+        self,
+        focal_length,
+        principal_point=(0.0, 0.0),
+        distortion=None,
+        *,
+        pixel_size=None,
+        image_size: tuple[int, int] | None = None,
+    ):
+        self.focal_length = _f64(focal_length)
+        self.principal_point = _f64(principal_point)
+        self.distortion = _f64(np.zeros(5) if distortion is None else distortion)
+        if pixel_size is not None:
+            pixel_size = jnp.broadcast_to(_f64(pixel_size), (2,))
+        self.pixel_size = pixel_size
+        self.image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
+        if self.focal_length.shape != ():
+            raise ValueError(f"focal_length must be a scalar, got shape {self.focal_length.shape}")
+        if self.principal_point.shape != (2,):
+            raise ValueError(f"principal_point must be (x0, y0), got shape {self.principal_point.shape}")
+        if self.distortion.shape != (5,):
+            raise ValueError(
+                f"distortion must be (k1, k2, k3, p1, p2), got shape {self.distortion.shape}"
+            )
+        if _concrete(self.focal_length) and not float(self.focal_length) > 0:
+            raise ValueError(f"focal_length must be positive, got {float(self.focal_length)}")
+
+    @classmethod
+    def from_pixels(
+        cls,
+        focal_length_px: float,
+        image_size: tuple[int, int],
+        principal_point_px: tuple[float, float] | None = None,
+        distortion=None,
+    ) -> "FrameCamera":
+        """A camera whose image-plane unit is the pixel.
+
+        Args:
+            focal_length_px: principal distance in pixels.
+            image_size: ``(width, height)`` in pixels.
+            principal_point_px: ``(column, row)`` of the principal point;
+                default the image centre ``((w - 1)/2, (h - 1)/2)``.
+            distortion: ``(k1, k2, k3, p1, p2)`` with p1 in photax's y-up
+                sense (minus OpenCV's p1).
+        """
+        w, h = image_size
+        if principal_point_px is None:
+            x0 = y0 = 0.0
+        else:
+            x0 = principal_point_px[0] - (w - 1) / 2.0
+            y0 = -(principal_point_px[1] - (h - 1) / 2.0)
+        return cls(focal_length_px, (x0, y0), distortion, pixel_size=1.0, image_size=(w, h))
+
+    @property
+    def has_distortion(self) -> bool:
+        return bool(np.any(np.asarray(self.distortion) != 0))
+
+    # --- pixel <-> image plane -------------------------------------------------
+
+    def _pixel_grid(self) -> tuple[Array, Array]:
+        if self.pixel_size is None or self.image_size is None:
+            raise ValueError(
+                "this camera has no pixel grid: give pixel_size and image_size "
+                "(or build it with FrameCamera.from_pixels)"
+            )
+        w, h = self.image_size
+        centre = jnp.array([(w - 1) / 2.0, (h - 1) / 2.0])
+        return centre, self.pixel_size
+
+    def pixel_to_image(self, colrow: Array) -> Array:
+        """``(..., 2)`` pixel (column, row) -> image-plane (x right, y up)."""
+        centre, size = self._pixel_grid()
+        colrow = jnp.asarray(colrow, dtype=float)
+        d = (colrow - _like(centre, colrow)) * _like(size, colrow)
+        return jnp.stack([d[..., 0], -d[..., 1]], axis=-1)
+
+    def image_to_pixel(self, xy: Array) -> Array:
+        """``(..., 2)`` image-plane (x right, y up) -> pixel (column, row)."""
+        centre, size = self._pixel_grid()
+        xy = jnp.asarray(xy, dtype=float)
+        d = jnp.stack([xy[..., 0], -xy[..., 1]], axis=-1) / _like(size, xy)
+        return d + _like(centre, xy)
+
+    # --- distortion ------------------------------------------------------------
+
+    def distort_normalised(self, xn: Array) -> Array:
+        """Apply Brown–Conrady distortion to ``(..., 2)`` normalised coords."""
+        k1, k2, k3, p1, p2 = (self.distortion[i] for i in range(5))
+        x, y = xn[..., 0], xn[..., 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+        return jnp.stack([xd, yd], axis=-1)
+
+    def undistort_normalised(self, xd: Array, iterations: int = 20) -> Array:
+        """Invert :meth:`distort_normalised` by fixed-point iteration.
+
+        ``xn <- xd - (distort(xn) - xn)``; converges for the moderate
+        distortion of metric and consumer cameras (as OpenCV's
+        ``undistortPoints``).
+        """
+
+        def body(_, xn):
+            return xd - (self.distort_normalised(xn) - xn)
+
+        return jax.lax.fori_loop(0, iterations, body, xd)
+
+    # --- camera frame <-> image plane ---------------------------------------
+
+    def project(self, points_in_camera: Array) -> Array:
+        """Camera-frame points ``(..., 3)`` -> image-plane ``(..., 2)``.
+
+        ``x = x0 - f Xc/Zc`` (and likewise y), then distortion.  Points must
+        lie in front of the camera (``Zc < 0``); behind it the formula still
+        gives numbers, so callers check the depth (see
+        :func:`photax.collinearity.depth`).
+        """
+        p = jnp.asarray(points_in_camera)
+        xn = -p[..., :2] / p[..., 2:3]
+        xd = self.distort_normalised(xn)
+        return _like(self.principal_point, xd) + self.focal_length * xd
+
+    def normalised(self, xy: Array) -> Array:
+        """Image-plane ``(..., 2)`` -> undistorted normalised coordinates."""
+        xy = jnp.asarray(xy, dtype=float)
+        xd = (xy - _like(self.principal_point, xy)) / self.focal_length
+        return self.undistort_normalised(xd)
+
+    def ray(self, xy: Array) -> Array:
+        """Image-plane ``(..., 2)`` -> camera-frame ray directions ``(..., 3)``.
+
+        The direction ``(xn, yn, -1)`` of the undistorted normalised point,
+        not unit length.
+        """
+        xn = self.normalised(xy)
+        return jnp.concatenate([xn, -jnp.ones_like(xn[..., :1])], axis=-1)

@@ -1,0 +1,210 @@
+"""Exterior orientation and the collinearity equations.
+
+Ground -> image (DESIGN.md, with ``R = world_from_camera``)::
+
+    x - x0 = -f [a1 dX + b1 dY + c1 dZ] / [a3 dX + b3 dY + c3 dZ]
+    y - y0 = -f [a2 dX + b2 dY + c2 dZ] / [a3 dX + b3 dY + c3 dZ]
+
+with ``(dX, dY, dZ) = (X - Xs, Y - Ys, Z - Zs)``; the bracketed sums are the
+components of ``R^T d``, the ground offset in the camera frame.  Distortion is
+applied on top (see :mod:`photax.camera`).
+
+Image -> ground (monoplotting): the ray ``R (xn, yn, -1)`` from the
+projection centre, intersected with a horizontal plane or, iteratively, with
+a DEM.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from .camera import FrameCamera
+from .dem import DEM
+from .rotation import (
+    Convention,
+    angles_from_matrix_unchecked,
+    check_convention,
+    rotation_matrix,
+)
+
+
+class ExteriorOrientation(eqx.Module):
+    """Projection centre and attitude of an image.
+
+    Attributes:
+        position: ``(..., 3)`` projection centre ``(Xs, Ys, Zs)`` in the
+            ground frame (metres, or the ground CRS unit).
+        angles: ``(..., 3)`` radians, in the order the convention names:
+            (phi, omega, kappa) or (omega, phi, kappa).
+        convention: ``"phi-omega-kappa"`` (default) or ``"omega-phi-kappa"``.
+
+    Use :attr:`X` ... :attr:`kappa` for named access whatever the convention.
+    A leading batch shape is allowed (e.g. from :func:`photax.resect_batch`).
+    """
+
+    position: Array
+    angles: Array
+    convention: str = eqx.field(static=True, default="phi-omega-kappa")
+
+    def __init__(self, position, angles, convention: Convention = "phi-omega-kappa"):
+        self.position = jnp.asarray(position, dtype=float)
+        self.angles = jnp.asarray(angles, dtype=float)
+        self.convention = check_convention(convention)
+        if self.position.shape[-1:] != (3,) or self.angles.shape[-1:] != (3,):
+            raise ValueError(
+                f"position and angles must have shape (..., 3), got {self.position.shape} "
+                f"and {self.angles.shape}"
+            )
+
+    @classmethod
+    def from_rotation(cls, position, matrix, convention: Convention = "phi-omega-kappa"):
+        """From a projection centre and a ``world_from_camera`` matrix."""
+        from .rotation import angles_from_matrix
+
+        return cls(position, angles_from_matrix(matrix, convention), convention)
+
+    @property
+    def rotation(self) -> Array:
+        """``(..., 3, 3)`` ``world_from_camera`` matrix."""
+        return rotation_matrix(self.angles, self.convention)  # type: ignore[arg-type]
+
+    def _angle(self, name: str) -> Array:
+        order = self.convention.split("-")
+        return self.angles[..., order.index(name)]
+
+    X = property(lambda self: self.position[..., 0], doc="Projection centre X (easting).")
+    Y = property(lambda self: self.position[..., 1], doc="Projection centre Y (northing).")
+    Z = property(lambda self: self.position[..., 2], doc="Projection centre Z (height).")
+    phi = property(lambda self: self._angle("phi"), doc="phi, radians.")
+    omega = property(lambda self: self._angle("omega"), doc="omega, radians.")
+    kappa = property(lambda self: self._angle("kappa"), doc="kappa, radians.")
+
+    def to_convention(self, convention: Convention) -> "ExteriorOrientation":
+        """The same orientation with angles in another convention.
+
+        Raises where the target convention is in gimbal lock.
+        """
+        if convention == self.convention:
+            return self
+        return ExteriorOrientation.from_rotation(self.position, self.rotation, convention)
+
+    def to_vector(self) -> Array:
+        """``(..., 6)`` ``(X, Y, Z, a1, a2, a3)``, angles in convention order."""
+        return jnp.concatenate([self.position, self.angles], axis=-1)
+
+    @classmethod
+    def from_vector(cls, vector, convention: Convention = "phi-omega-kappa"):
+        vector = jnp.asarray(vector, dtype=float)
+        return cls(vector[..., :3], vector[..., 3:], convention)
+
+    def points_in_camera(self, ground_xyz: Array) -> Array:
+        """``(n, 3)`` ground points -> camera frame (``R^T (X - Xs)``)."""
+        d = jnp.asarray(ground_xyz, dtype=float) - self.position[..., None, :]
+        return jnp.einsum("...ij,...ni->...nj", self.rotation, d)
+
+
+def project(ground_xyz: Array, exterior: ExteriorOrientation, camera: FrameCamera) -> Array:
+    """The collinearity equations: ground points -> image-plane coordinates.
+
+    Vectorised, differentiable, and safe under ``jit`` / ``vmap``.
+
+    Args:
+        ground_xyz: ``(n, 3)`` ground coordinates.
+        exterior: the image's exterior orientation.
+        camera: the interior orientation.
+
+    Returns:
+        ``(n, 2)`` image-plane ``(x, y)`` in the camera's unit, y up.
+        Points behind the camera give numbers too: check :func:`depth`.
+    """
+    return camera.project(exterior.points_in_camera(ground_xyz))
+
+
+def depth(ground_xyz: Array, exterior: ExteriorOrientation) -> Array:
+    """``(n,)`` distance of each point in front of the camera along its axis.
+
+    Positive in front of the camera, negative behind it.
+    """
+    return -exterior.points_in_camera(ground_xyz)[..., 2]
+
+
+def image_to_ground(
+    image_xy: Array,
+    exterior: ExteriorOrientation,
+    camera: FrameCamera,
+    height: float | Array | None = None,
+    dem: DEM | None = None,
+    *,
+    iterations: int = 30,
+    tol: float = 1e-4,
+) -> Array:
+    """Monoplotting: image points -> ground, on a height or a DEM.
+
+    With ``height`` the ray is cut with the plane ``Z = height``.  With a
+    ``dem`` the ray is cut iteratively: start at the DEM's mean height,
+    then ``Z <- dem(X, Y)`` until the height changes by less than ``tol``.
+    Points that do not converge in ``iterations`` steps, or whose ray leaves
+    the DEM, are NaN.
+
+    Args:
+        image_xy: ``(n, 2)`` image-plane coordinates.
+        exterior, camera: orientation of the image.
+        height: scalar or ``(n,)`` ground height(s).
+        dem: a :class:`photax.DEM`.
+
+    Returns:
+        ``(n, 3)`` ground coordinates.
+    """
+    if (height is None) == (dem is None):
+        raise ValueError("give exactly one of height= or dem=")
+    direction = jnp.einsum("ij,nj->ni", exterior.rotation, camera.ray(image_xy))
+    centre = exterior.position
+
+    def on_plane(z):
+        lam = (z - centre[2]) / direction[:, 2]
+        pts = centre[None, :] + lam[:, None] * direction
+        # A plane behind the camera (lam < 0) is not where the ray meets it.
+        return jnp.where((lam > 0)[:, None], pts, jnp.nan)
+
+    if dem is not None:
+        z0 = jnp.full(direction.shape[0], jnp.nanmean(dem.heights))
+
+        def body(carry):
+            z, _, k = carry
+            p = on_plane(z)
+            z_new = dem.height(p[:, 0], p[:, 1])
+            return z_new, jnp.abs(z_new - z), k + 1
+
+        def cond(carry):
+            _, step, k = carry
+            return (k < iterations) & jnp.any(step > tol)
+
+        z, step, _ = jax.lax.while_loop(cond, body, (z0, jnp.full_like(z0, jnp.inf), 0))
+        pts = on_plane(z)
+        return jnp.where((step <= tol)[:, None], pts, jnp.nan)
+    z = jnp.broadcast_to(jnp.asarray(height, dtype=float), direction.shape[:1])
+    return on_plane(z)
+
+
+def look_at(
+    position: Array, target: Array, kappa_up: Array | None = None, convention: Convention = "phi-omega-kappa"
+) -> ExteriorOrientation:
+    """An orientation at ``position`` whose optical axis points at ``target``.
+
+    Convenient for synthetic scenes.  The camera's y axis is as close to the
+    ground +Y as the viewing direction allows (north up), unless
+    ``kappa_up`` gives another ground direction for it.
+    """
+    position = jnp.asarray(position, dtype=float)
+    back = position - jnp.asarray(target, dtype=float)
+    z = back / jnp.linalg.norm(back)  # camera +z points away from the scene
+    up = jnp.array([0.0, 1.0, 0.0]) if kappa_up is None else jnp.asarray(kappa_up, dtype=float)
+    x = jnp.cross(up, z)
+    x = x / jnp.linalg.norm(x)
+    y = jnp.cross(z, x)
+    matrix = jnp.stack([x, y, z], axis=-1)
+    angles, _ = angles_from_matrix_unchecked(matrix, convention)
+    return ExteriorOrientation(position, angles, convention)

@@ -1,0 +1,89 @@
+"""Digital elevation models: a height grid with an affine georeference.
+
+The affine transform is GDAL's / rasterio's: for a pixel *corner* at
+(column c, row r), ``X = a c + b r + xoff`` and ``Y = d c + e r + yoff``,
+stored as ``(a, b, xoff, d, e, yoff)`` (``rasterio.Affine`` order).  A height
+``heights[r, c]`` belongs to the pixel *centre* ``(c + 0.5, r + 0.5)``.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+
+class DEM(eqx.Module):
+    """A gridded height model, sampled bilinearly.
+
+    Attributes:
+        heights: ``(rows, cols)`` heights; nodata cells hold NaN.
+        transform: ``(6,)`` affine ``(a, b, xoff, d, e, yoff)`` of the grid.
+        crs: the CRS as text (WKT, PROJ or EPSG), or ``None``.
+    """
+
+    heights: Array
+    transform: Array
+    crs: str | None = eqx.field(static=True, default=None)
+
+    def __init__(self, heights, transform, crs: str | None = None, nodata: float | None = None):
+        h = np.asarray(heights, dtype=float)
+        if h.ndim != 2 or min(h.shape) < 2:
+            raise ValueError(f"heights must be a 2-D grid of at least 2 x 2, got shape {h.shape}")
+        if nodata is not None and not np.isnan(nodata):
+            h = np.where(h == nodata, np.nan, h)
+        t = np.asarray(tuple(transform)[:6], dtype=float)
+        if t.shape != (6,):
+            raise ValueError("transform must have 6 affine coefficients (a, b, xoff, d, e, yoff)")
+        if abs(t[0] * t[4] - t[1] * t[3]) == 0:
+            raise ValueError("transform is singular")
+        self.heights = jnp.asarray(h)
+        self.transform = jnp.asarray(t)
+        self.crs = crs
+
+    @classmethod
+    def flat(cls, height: float, bounds: tuple[float, float, float, float]) -> "DEM":
+        """A constant-height DEM over ``(xmin, ymin, xmax, ymax)``."""
+        xmin, ymin, xmax, ymax = bounds
+        return cls(np.full((2, 2), float(height)), (xmax - xmin, 0, xmin, 0, -(ymax - ymin), ymax))
+
+    def ground_to_pixel(self, x: Array, y: Array) -> tuple[Array, Array]:
+        """Ground (X, Y) -> fractional (column, row) of pixel centres."""
+        a, b, c, d, e, f = (self.transform[i] for i in range(6))
+        det = a * e - b * d
+        dx, dy = x - c, y - f
+        col = (e * dx - b * dy) / det
+        row = (-d * dx + a * dy) / det
+        return col - 0.5, row - 0.5
+
+    def height(self, x: Array, y: Array) -> Array:
+        """Bilinear height at ground ``(x, y)`` (any broadcastable shapes).
+
+        NaN outside the grid (beyond the outermost pixel centres) and where a
+        neighbouring cell is nodata.
+        """
+        col, row = self.ground_to_pixel(jnp.asarray(x, dtype=float), jnp.asarray(y, dtype=float))
+        rows, cols = self.heights.shape
+        inside = (col >= 0) & (col <= cols - 1) & (row >= 0) & (row <= rows - 1)
+        c0 = jnp.clip(jnp.floor(col), 0, cols - 2)
+        r0 = jnp.clip(jnp.floor(row), 0, rows - 2)
+        tc, tr = col - c0, row - r0
+        ci, ri = c0.astype(int), r0.astype(int)
+        hz = self.heights
+        z = (
+            hz[ri, ci] * (1 - tc) * (1 - tr)
+            + hz[ri, ci + 1] * tc * (1 - tr)
+            + hz[ri + 1, ci] * (1 - tc) * tr
+            + hz[ri + 1, ci + 1] * tc * tr
+        )
+        return jnp.where(inside, z, jnp.nan)
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """``(xmin, ymin, xmax, ymax)`` of the grid's outer pixel edges."""
+        rows, cols = self.heights.shape
+        a, b, c, d, e, f = np.asarray(self.transform)
+        xs = [c, c + a * cols, c + b * rows, c + a * cols + b * rows]
+        ys = [f, f + d * cols, f + e * rows, f + d * cols + e * rows]
+        return min(xs), min(ys), max(xs), max(ys)
