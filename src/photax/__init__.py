@@ -20,6 +20,7 @@ from .collinearity import (
     project as project,
 )
 from .dem import DEM as DEM
+from .errors import ConvergenceError as ConvergenceError
 from .rotation import (
     angles_from_matrix as angles_from_matrix,
     axis_angle_to_matrix as axis_angle_to_matrix,
