@@ -1,0 +1,294 @@
+"""Ground control point files: a CSV with a header, or OpenDroneMap's ``gcp_list.txt``.
+
+Both give, per measurement, a point name, the image it is measured in, its
+ground coordinates and its image coordinates.  They are read into a
+:class:`GCPTable`; ``table.select(image).image_plane(camera)`` gives what
+:func:`photax.resect` wants.
+
+**CSV** (comma-separated, one header line; blank lines and lines starting with
+``#`` are skipped).  Columns are found by name, case-insensitively:
+
+=============== ================================================================
+column          accepted names
+=============== ================================================================
+point name      ``name`` (optional: default ``gcp1, gcp2, ...`` by ground point)
+image           ``image`` (optional: ``""`` for a single-image file)
+ground          ``E``/``easting``/``X``, ``N``/``northing``/``Y``, ``h``/``height``/``Z``
+pixel           ``col``/``column`` and ``row`` (photax pixels, see below)
+image plane     ``x`` and ``y`` (or ``image_x``, ``image_y``), camera units, y up
+a-priori sigma  ``sigma`` (optional; same unit as the image measurements)
+role            ``role`` (optional): ``control`` (default) or ``check``
+=============== ================================================================
+
+``x``/``y`` are ambiguous: when both ``X`` and ``x`` are present the upper-case
+one is the ground coordinate; a lone ``x`` is the ground easting unless the
+file names its easting ``E``/``easting``, in which case it is image-plane.
+A file gives pixels *or* image-plane coordinates, not both.  Unknown columns
+are an error (a misspelt ``sigma`` must not be silently ignored).
+
+**OpenDroneMap** ``gcp_list.txt``: the first line is the CRS (``EPSG:32722``
+or a PROJ string), then one measurement per line, whitespace-separated::
+
+    E N h col row image [name] [extra ...]
+
+ODM's pixel coordinates are OpenSfM's, whose ``normalized_image_coordinates``
+adds 0.5 to them: integer values are pixel *centres*, row down, exactly the
+photax pixel convention (``docs/conventions.md``), so the numbers are kept as
+they are.  Extra columns after the name are ignored, as ODM does.
+
+Malformed lines (wrong number of columns, non-numeric or non-finite values,
+an unknown role) raise ``ValueError`` naming the file and the line number.
+A point measured twice in one image is kept (real lists have such slips: the
+ODM sample measures HV11 twice in IMG_5352) and reported by
+:meth:`GCPTable.duplicates`; a robust resection then flags the wrong one.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+import pathlib
+from typing import Literal
+
+import numpy as np
+
+_ROLES = ("control", "check")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class GCPTable:
+    """Ground control measurements, one row per (point, image) pair.
+
+    Attributes:
+        names: ``(n,)`` point names.
+        images: ``(n,)`` image names (``""`` when the file has no image column).
+        ground: ``(n, 3)`` ground ``(X, Y, Z)`` (easting, northing, height), float64.
+        pixel: ``(n, 2)`` pixel ``(column, row)``, integer = pixel centre,
+            row down; or ``None`` when the file gives image-plane coordinates.
+        image_xy: ``(n, 2)`` image-plane ``(x, y)`` (y up, camera units), or
+            ``None`` when the file gives pixels.
+        sigma: ``(n,)`` a-priori standard deviation of an image coordinate, in
+            the unit of the measurements (pixels or image-plane); NaN when
+            not given.
+        role: ``(n,)`` ``"control"`` or ``"check"``.
+        crs: the ground CRS as text (EPSG code or PROJ string), or ``None``.
+        lines: ``(n,)`` line numbers in the source file (0 when built in memory).
+        source: the file it was read from, if any (for messages).
+    """
+
+    names: np.ndarray
+    images: np.ndarray
+    ground: np.ndarray
+    pixel: np.ndarray | None
+    image_xy: np.ndarray | None
+    sigma: np.ndarray
+    role: np.ndarray
+    crs: str | None = None
+    lines: np.ndarray | None = None
+    source: str | None = None
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    @property
+    def image_names(self) -> list[str]:
+        """The distinct image names, in file order."""
+        return list(dict.fromkeys(self.images.tolist()))
+
+    @property
+    def check(self) -> np.ndarray:
+        """``(n,)`` bool, True for check points."""
+        return self.role == "check"
+
+    def select(self, image: str) -> "GCPTable":
+        """The measurements in one image."""
+        keep = self.images == image
+        if not keep.any():
+            raise ValueError(f"image {image!r} is not in {self.source or 'the GCP table'}; "
+                             f"it has {self.image_names}")
+        return self.subset(keep)
+
+    def subset(self, keep) -> "GCPTable":
+        """The rows where the boolean (or index) array ``keep`` selects."""
+        take = lambda a: None if a is None else a[keep]  # noqa: E731
+        return dataclasses.replace(
+            self, names=self.names[keep], images=self.images[keep], ground=self.ground[keep],
+            pixel=take(self.pixel), image_xy=take(self.image_xy), sigma=self.sigma[keep],
+            role=self.role[keep], lines=take(self.lines))
+
+    def duplicates(self) -> list[str]:
+        """Messages for points measured more than once in the same image."""
+        lines = self.lines if self.lines is not None else np.zeros(len(self), dtype=int)
+        first: dict[tuple[str, str], int] = {}
+        out = []
+        for name, image, line in zip(self.names.tolist(), self.images.tolist(), lines.tolist()):
+            if (name, image) in first:
+                where = f" in image {image!r}" if image else ""
+                out.append(f"point {name!r} measured twice{where} (lines {first[name, image]} and {line})")
+            first.setdefault((name, image), line)
+        return out
+
+    def image_plane(self, camera) -> np.ndarray:
+        """``(n, 2)`` image-plane coordinates: as given, or ``camera.pixel_to_image(pixel)``."""
+        if self.image_xy is not None:
+            return self.image_xy
+        return np.asarray(camera.pixel_to_image(self.pixel))
+
+    def image_plane_sigma(self, camera) -> np.ndarray:
+        """``(n,)`` a-priori sigma in image-plane units (pixels times the mean pixel size)."""
+        if self.image_xy is not None:
+            return self.sigma
+        return self.sigma * float(np.mean(np.asarray(camera._pixel_grid()[1])))
+
+
+def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTable:
+    """Read a GCP file (CSV with header, or OpenDroneMap ``gcp_list.txt``).
+
+    Args:
+        path: the file.
+        format: ``"csv"``, ``"odm"``, or ``"auto"``: CSV when the first
+            non-blank line contains a comma, else ODM.
+
+    Returns:
+        a :class:`GCPTable`.
+
+    Raises:
+        ValueError: naming the file and line of the first malformed line.
+    """
+    path = pathlib.Path(path)
+    lines = path.read_text(encoding="utf-8-sig").splitlines()
+    numbered = [(i + 1, s) for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")]
+    if not numbered:
+        raise ValueError(f"{path}: empty GCP file")
+    if format == "auto":
+        format = "csv" if "," in numbered[0][1] else "odm"
+    if format == "csv":
+        rows = _parse_csv(path, numbered)
+        crs = None
+    elif format == "odm":
+        crs = numbered[0][1].strip()
+        rows = _parse_odm(path, numbered[1:])
+    else:
+        raise ValueError(f"format must be 'auto', 'csv' or 'odm', got {format!r}")
+    if not rows["names"]:
+        raise ValueError(f"{path}: no GCP measurements")
+    arr = lambda k, shape: np.asarray(rows[k], dtype=float).reshape(shape)  # noqa: E731
+    n = len(rows["names"])
+    return GCPTable(
+        names=np.asarray(rows["names"], dtype=str), images=np.asarray(rows["images"], dtype=str),
+        ground=arr("ground", (n, 3)),
+        pixel=arr("pixel", (n, 2)) if rows["pixel"] else None,
+        image_xy=arr("image_xy", (n, 2)) if rows["image_xy"] else None,
+        sigma=arr("sigma", (n,)), role=np.asarray(rows["role"], dtype=str), crs=crs,
+        lines=np.asarray(rows["lines"], dtype=int), source=str(path))
+
+
+def _number(path, line: int, text: str, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{path}, line {line}: {what} is not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{path}, line {line}: {what} is not finite: {text!r}")
+    return value
+
+
+def _empty_rows() -> dict[str, list]:
+    return {k: [] for k in ("names", "images", "ground", "pixel", "image_xy", "sigma", "role", "lines")}
+
+
+def _auto_names(rows) -> None:
+    """Name unnamed points ``gcp1, gcp2, ...`` by distinct ground coordinates."""
+    ids: dict[tuple, str] = {}
+    for i, name in enumerate(rows["names"]):
+        if name is None:
+            rows["names"][i] = ids.setdefault(tuple(rows["ground"][i]), f"gcp{len(ids) + 1}")
+
+
+def _parse_odm(path, numbered) -> dict[str, list]:
+    rows = _empty_rows()
+    for line, text in numbered:
+        f = text.split()
+        if len(f) < 6:
+            raise ValueError(f"{path}, line {line}: expected 'E N h col row image [name]', "
+                             f"got {len(f)} columns: {text.strip()!r}")
+        try:
+            values = [_number(path, line, f[k], w) for k, w in enumerate(("E", "N", "h", "col", "row"))]
+        except ValueError as exc:
+            raise ValueError(f"{exc} (columns are 'E N h col row image [name]')") from None
+        rows["ground"].append(values[:3])
+        rows["pixel"].append(values[3:])
+        rows["images"].append(f[5])
+        rows["names"].append(f[6] if len(f) > 6 else None)
+        rows["sigma"].append(math.nan)
+        rows["role"].append("control")
+        rows["lines"].append(line)
+    _auto_names(rows)
+    return rows
+
+
+_GROUND = {"e": ("easting", "e", "x"), "n": ("northing", "n", "y"), "h": ("height", "h", "z")}
+_OTHER = {"name", "image", "col", "column", "row", "sigma", "role", "image_x", "image_y"}
+
+
+def _csv_columns(path, header: list[str]) -> dict[str, int]:
+    """Map our field names to column indices (see the module docstring)."""
+    low = [h.strip().lower() for h in header]
+    raw = [h.strip() for h in header]
+    cols: dict[str, int] = {}
+    both_case = {"X", "x"} <= set(raw)
+    named_en = bool({"easting", "e"} & set(low))
+    for i, (r, lo) in enumerate(zip(raw, low)):
+        if lo in ("x", "y"):
+            ground = (r.isupper() if both_case else not named_en)
+            key = ({"x": "e", "y": "n"}[lo]) if ground else lo
+        elif lo in ("image_x", "image_y"):
+            key = lo[-1]
+        elif lo in ("col", "column"):
+            key = "col"
+        else:
+            key = next((k for k, names in _GROUND.items() if lo in names), lo if lo in _OTHER else None)
+        if key is None:
+            raise ValueError(f"{path}, line 1: unknown column {r!r}; accepted: name, image, "
+                             "E/easting/X, N/northing/Y, h/height/Z, col/column, row, x, y, sigma, role")
+        if key in cols:
+            raise ValueError(f"{path}, line 1: two columns mean the same thing: {raw[cols[key]]!r} and {r!r}")
+        cols[key] = i
+    missing = [w for w, k in (("easting", "e"), ("northing", "n"), ("height", "h")) if k not in cols]
+    if missing:
+        raise ValueError(f"{path}, line 1: no {'/'.join(missing)} column in {raw}")
+    has_px, has_xy = {"col", "row"} <= cols.keys(), {"x", "y"} <= cols.keys()
+    if has_px == has_xy:
+        raise ValueError(f"{path}, line 1: give pixel columns (col, row) or image-plane columns "
+                         f"(x, y), exactly one pair; header is {raw}")
+    return cols
+
+
+def _parse_csv(path, numbered) -> dict[str, list]:
+    (_, head), body = numbered[0], numbered[1:]
+    header = next(csv.reader([head]))
+    cols = _csv_columns(path, header)
+    pix = "col" in cols
+    rows = _empty_rows()
+    for line, text in body:
+        f = [s.strip() for s in next(csv.reader([text]))]
+        if len(f) != len(header):
+            raise ValueError(f"{path}, line {line}: expected {len(header)} columns, got {len(f)}")
+        num = lambda k: _number(path, line, f[cols[k]], header[cols[k]].strip())  # noqa: E731
+        rows["ground"].append([num("e"), num("n"), num("h")])
+        rows["pixel" if pix else "image_xy"].append([num("col"), num("row")] if pix else [num("x"), num("y")])
+        rows["images"].append(f[cols["image"]] if "image" in cols else "")
+        rows["names"].append(f[cols["name"]] or None if "name" in cols else None)
+        sigma = num("sigma") if "sigma" in cols and f[cols["sigma"]] else math.nan
+        if not sigma > 0 and not math.isnan(sigma):
+            raise ValueError(f"{path}, line {line}: sigma must be positive, got {sigma}")
+        rows["sigma"].append(sigma)
+        role = f[cols["role"]].lower() if "role" in cols and f[cols["role"]] else "control"
+        if role not in _ROLES:
+            raise ValueError(f"{path}, line {line}: role must be 'control' or 'check', got {role!r}")
+        rows["role"].append(role)
+        rows["lines"].append(line)
+    _auto_names(rows)
+    return rows
+

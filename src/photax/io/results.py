@@ -1,0 +1,69 @@
+"""Results as JSON: estimates, precision and residuals in a file any tool reads."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import pathlib
+
+import numpy as np
+
+from .atomic import atomic_write
+
+
+def to_jsonable(obj):
+    """``obj`` as plain JSON types.
+
+    Objects with ``.to_dict()`` use it; dataclasses (and equinox modules) become
+    dicts of their fields; numpy/JAX arrays become (nested) lists; paths
+    become strings.  Non-finite floats become ``null``: JSON has no NaN, and a
+    NaN written as ``NaN`` is unreadable by strict parsers.
+    """
+    if hasattr(obj, "to_dict") and callable(obj.to_dict):
+        return to_jsonable(obj.to_dict())
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, (str, bool)) or obj is None:
+        return obj
+    if isinstance(obj, pathlib.PurePath):
+        return str(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if hasattr(obj, "__array__"):  # numpy and JAX arrays
+        arr = np.asarray(obj)
+        return to_jsonable(arr.item() if arr.ndim == 0 else arr.tolist())
+    raise TypeError(f"cannot write a {type(obj).__name__} as JSON")
+
+
+def write_json(obj, path, *, inputs=()) -> pathlib.Path:
+    """Write ``obj`` (a dict, or anything with ``.to_dict()``) as JSON, atomically.
+
+    Args:
+        obj: the result; converted with :func:`to_jsonable`.
+        path: output file.
+        inputs: the files this run read; ``path`` may not be one of them.
+
+    Returns:
+        the path written.
+    """
+    data = to_jsonable(obj)
+    with atomic_write(path, inputs=inputs, encoding="utf-8") as fh:
+        json.dump(data, fh, indent=2, allow_nan=False)
+        fh.write("\n")
+    return pathlib.Path(path)
+
+
+def read_json(path):
+    """Read a JSON file; a syntax error names the file and line."""
+    path = pathlib.Path(path)
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
