@@ -21,6 +21,13 @@ from .collinearity import (
 )
 from .dem import DEM as DEM
 from .errors import ConvergenceError as ConvergenceError
+from .io import (
+    read_camera as read_camera,
+    read_gcps as read_gcps,
+    read_json as read_json,
+    write_camera as write_camera,
+    write_json as write_json,
+)
 from .rotation import (
     angles_from_matrix as angles_from_matrix,
     axis_angle_to_matrix as axis_angle_to_matrix,
