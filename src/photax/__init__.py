@@ -28,6 +28,7 @@ from .io import (
     write_camera as write_camera,
     write_json as write_json,
 )
+from .resample import resample as resample
 from .rotation import (
     angles_from_matrix as angles_from_matrix,
     axis_angle_to_matrix as axis_angle_to_matrix,
