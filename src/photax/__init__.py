@@ -28,6 +28,12 @@ from .io import (
     write_camera as write_camera,
     write_json as write_json,
 )
+from .polynomial import (
+    PolynomialModel as PolynomialModel,
+    ProjectiveModel as ProjectiveModel,
+    fit_polynomial as fit_polynomial,
+    fit_projective as fit_projective,
+)
 from .resample import resample as resample
 from .rotation import (
     angles_from_matrix as angles_from_matrix,

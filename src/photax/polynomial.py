@@ -1,0 +1,427 @@
+"""Plane-to-plane models fitted to control points: polynomials of order 1-5
+and the 8-parameter projective transform.
+
+Polynomial of order ``n`` (DESIGN.md, "Polynomial rectification")::
+
+    X = sum_{i+j<=n} a_ij x^i y^j,    Y = sum_{i+j<=n} b_ij x^i y^j
+
+with ``u = (n+1)(n+2)/2`` = 3, 6, 10, 15, 21 coefficients per axis, so at
+least ``u`` points.  Raw monomials of projected coordinates (x ~ 5e5 m) are
+hopelessly ill-conditioned (x^5 ~ 3e28 next to 1), so both point sets are
+centred and scaled to about [-1, 1] per axis *inside* the model, the fit is
+solved by SVD least squares (never normal equations), and the model maps
+original units to original units.
+
+Which direction to fit: rectification is indirect (DESIGN.md): for every
+*output* (map) pixel the rectifier needs the *input* image position.  So fit
+``fit_polynomial(map_xy, pixel_xy, order)`` (output -> input) and hand the
+model to the rectifier; use ``model.inverse()`` only for the other way
+(a polynomial's inverse is not a polynomial, see ``PolynomialModel.inverse``).
+
+Projective transform (reprojection of a plane, e.g. a façade or a floor)::
+
+    X = (h11 x + h12 y + h13) / (h31 x + h32 y + h33)
+    Y = (h21 x + h22 y + h23) / (h31 x + h32 y + h33)
+
+fitted by the Hartley-normalised DLT (Hartley & Zisserman 2003, alg. 4.2)
+from 4+ points and refined by Gauss-Newton on the geometric error in the
+destination plane; its inverse is the matrix inverse.
+
+Reported quality (both models): ``residuals = dst - model(src)`` (n, 2) in
+destination units, ``rmse`` and ``rmse_dof`` (see the class docstrings),
+``condition`` of the normalised design matrix.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+MAX_ORDER = 5
+
+
+def exponents(order: int) -> np.ndarray:
+    """``(u, 2)`` exponents ``(i, j)`` of ``x^i y^j`` with ``i + j <= order``,
+    by total degree: 1, x, y, x^2, x y, y^2, x^3, ..."""
+    return np.array([(d - j, j) for d in range(order + 1) for j in range(d + 1)], dtype=int)
+
+
+def n_coefficients(order: int) -> int:
+    """Coefficients per axis of a polynomial of ``order``: (n+1)(n+2)/2."""
+    return (order + 1) * (order + 2) // 2
+
+
+def _points(name: str, xy) -> np.ndarray:
+    p = np.asarray(xy, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 2:
+        raise ValueError(f"{name} must have shape (n, 2), got {p.shape}")
+    bad = ~np.isfinite(p).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{name} has NaN or infinite values at rows {np.flatnonzero(bad).tolist()}")
+    return p
+
+
+def _check_pairs(src_xy, dst_xy, weights, minimum: int, what: str):
+    src, dst = _points("src_xy", src_xy), _points("dst_xy", dst_xy)
+    if src.shape != dst.shape:
+        raise ValueError(f"src_xy and dst_xy must have the same shape, got {src.shape} and {dst.shape}")
+    n = src.shape[0]
+    if n < minimum:
+        raise ValueError(f"{what} needs at least {minimum} points, got {n}")
+    _, first, counts = np.unique(src, axis=0, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        dup = sorted(first[counts > 1].tolist())
+        raise ValueError(f"src_xy has duplicated points (first occurrences at rows {dup}); remove them")
+    if weights is None:
+        w = np.ones(n)
+    else:
+        w = np.asarray(weights, dtype=float)
+        if w.shape != (n,):
+            raise ValueError(f"weights must have shape ({n},), got {w.shape}")
+        if not (np.isfinite(w).all() and (w > 0).all()):
+            raise ValueError("weights must be finite and positive")
+    return src, dst, w
+
+
+def _normaliser(p: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Centre (mean) and per-axis scale (max |deviation|) mapping ``p`` into
+    [-1, 1]."""
+    centre = p.mean(axis=0)
+    scale = np.abs(p - centre).max(axis=0)
+    if (scale == 0).any():
+        axis = "xy"[int(np.argmin(scale))]
+        raise ValueError(f"{name} points all have the same {axis}: the fit is degenerate")
+    return centre, scale
+
+
+def _design(u: np.ndarray, exps: np.ndarray) -> np.ndarray:
+    return np.stack([u[:, 0] ** i * u[:, 1] ** j for i, j in exps], axis=-1)
+
+
+def _hat_diag(a_weighted: np.ndarray) -> np.ndarray:
+    """Diagonal of the hat matrix ``A (A^T A)^-1 A^T`` via thin QR."""
+    q, _ = np.linalg.qr(a_weighted)
+    return np.sum(q * q, axis=1)
+
+
+class PolynomialModel(eqx.Module):
+    """A 2-D polynomial mapping fitted by :func:`fit_polynomial`.
+
+    ``model(xy)`` maps ``(..., 2)`` source points to ``(..., 2)`` destination
+    points (jit/vmap friendly; float64).  Internally
+    ``model(p) = M((p - src_centre) / src_scale) @ coef * dst_scale + dst_centre``
+    where ``M`` holds the monomials of :func:`exponents`.
+
+    Attributes:
+        order: polynomial order n (static).
+        coef: ``(u, 2)`` coefficients of the normalised model (columns X, Y).
+        src_centre, src_scale, dst_centre, dst_scale: ``(2,)`` normalisation.
+        residuals: ``(n, 2)`` ``dst - model(src)`` at the fitting points,
+            destination units.
+        rmse: radial RMS residual ``sqrt(sum_i |v_i|^2 / n)`` (unweighted).
+        rmse_dof: ``sqrt(sum_i w_i |v_i|^2 / (2 (n - u)))``: the a-posteriori
+            standard deviation of unit weight of one coordinate (per axis,
+            X and Y pooled), adjusted for the ``u`` coefficients per axis;
+            NaN without redundancy (``n == u``).
+        condition: 2-norm condition number of the normalised, weighted design
+            matrix (what the solver actually sees).
+        condition_raw: the same for raw monomials of the unnormalised source
+            coordinates, for comparison (can be astronomically large).
+        loo_residuals: ``(n, 2)`` leave-one-out residuals: ``dst_i`` minus the
+            prediction of the model fitted without point ``i``, computed as
+            ``v_i / (1 - h_ii)`` from the hat matrix; NaN where point ``i`` is
+            needed to determine the fit (``h_ii = 1``).
+    """
+
+    order: int = eqx.field(static=True)
+    coef: Array
+    src_centre: Array
+    src_scale: Array
+    dst_centre: Array
+    dst_scale: Array
+    residuals: Array
+    rmse: Array
+    rmse_dof: Array
+    condition: Array
+    condition_raw: Array
+    loo_residuals: Array
+    src_xy: Array
+    dst_xy: Array
+
+    def __call__(self, xy) -> Array:
+        """``(..., 2)`` source points -> ``(..., 2)`` destination points."""
+        p = jnp.asarray(xy, dtype=float)
+        if p.shape[-1:] != (2,):
+            raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
+        return jnp.stack(self.transform(p[..., 0], p[..., 1]), axis=-1)
+
+    def transform(self, x, y) -> tuple[Array, Array]:
+        """Separate-coordinate form ``X, Y = model.transform(x, y)`` for
+        arrays of one common shape (e.g. a whole output grid).
+
+        Horner's scheme in ``x`` of Horner polynomials in ``y``,
+        ``X = sum_i x^i (sum_j c_ij y^j)``: ``u`` multiply-adds per axis and
+        no ``(..., u)`` monomial array, so a 4096^2 grid costs no more memory
+        than its output.
+        """
+        x, y = jnp.asarray(x, dtype=float), jnp.asarray(y, dtype=float)
+        ux = (x - self.src_centre[0]) / self.src_scale[0]
+        uy = (y - self.src_centre[1]) / self.src_scale[1]
+        index = {(int(i), int(j)): k for k, (i, j) in enumerate(exponents(self.order))}
+        out = []
+        for axis in range(2):
+            c = self.coef[:, axis]
+            acc = None
+            for i in range(self.order, -1, -1):
+                inner = None
+                for j in range(self.order - i, -1, -1):
+                    cij = c[index[i, j]]
+                    inner = cij if inner is None else inner * uy + cij
+                acc = inner if acc is None else acc * ux + inner
+            out.append(acc * self.dst_scale[axis] + self.dst_centre[axis])
+        return out[0], out[1]
+
+    def inverse(self, method: str = "newton", *, order: int | None = None, samples: int = 50) -> "PolynomialInverse":
+        """The inverse mapping (destination -> source), with its error.
+
+        The inverse of a polynomial is not a polynomial, so it is either
+
+        * ``"fit"``: a polynomial of ``order`` (default: this model's order)
+          fitted destination -> source on a ``samples x samples`` grid over
+          the bounding box of the fitting points (an approximation), or
+        * ``"newton"`` (default): the fitted inverse refined by 5 Newton
+          steps on the forward model (exact to round-off wherever the
+          forward model is invertible and the start is close).
+
+        The returned :class:`PolynomialInverse` reports ``max_error`` and
+        ``rms_error``: round-trip error ``|p - inverse(model(p))|`` over the
+        same grid, source units.
+        """
+        if method not in ("fit", "newton"):
+            raise ValueError(f"method must be 'fit' or 'newton', got {method!r}")
+        order = self.order if order is None else order
+        src = np.asarray(self.src_xy)
+        lo, hi = src.min(axis=0), src.max(axis=0)
+        gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], samples), np.linspace(lo[1], hi[1], samples))
+        grid = np.stack([gx.ravel(), gy.ravel()], axis=1)
+        fwd = np.asarray(self(grid))
+        start = fit_polynomial(fwd, grid, order)
+        inv = PolynomialInverse(self, start, 5 if method == "newton" else 0, jnp.nan, jnp.nan)
+        err = np.linalg.norm(np.asarray(inv(fwd)) - grid, axis=1)
+        return PolynomialInverse(self, start, inv.newton_steps, jnp.asarray(err.max()), jnp.asarray(np.sqrt(np.mean(err**2))))
+
+
+class PolynomialInverse(eqx.Module):
+    """Inverse of a :class:`PolynomialModel`; see :meth:`PolynomialModel.inverse`.
+
+    Attributes:
+        forward: the model being inverted.
+        start: polynomial fitted destination -> source (the ``"fit"``
+            inverse, and the Newton start).
+        newton_steps: Newton iterations on ``forward`` (0 for ``"fit"``).
+        max_error, rms_error: round-trip error over the fitting domain,
+            source units.
+    """
+
+    forward: PolynomialModel
+    start: PolynomialModel
+    newton_steps: int = eqx.field(static=True)
+    max_error: Array
+    rms_error: Array
+
+    def __call__(self, xy) -> Array:
+        """``(..., 2)`` destination points -> ``(..., 2)`` source points."""
+        q = jnp.asarray(xy, dtype=float)
+        p = self.start(q)
+        jac = jax.vmap(jax.jacfwd(self.forward))
+        flat_q = q.reshape(-1, 2)
+        flat_p = p.reshape(-1, 2)
+        for _ in range(self.newton_steps):
+            step = jnp.linalg.solve(jac(flat_p), (self.forward(flat_p) - flat_q)[..., None])[..., 0]
+            flat_p = flat_p - step
+        return flat_p.reshape(q.shape)
+
+
+def fit_polynomial(src_xy, dst_xy, order: int, *, weights=None) -> PolynomialModel:
+    """Least-squares polynomial ``dst = P(src)`` of ``order`` 1..5.
+
+    Args:
+        src_xy: ``(n, 2)`` source points (for indirect rectification: map /
+            output coordinates; see the module docstring).
+        dst_xy: ``(n, 2)`` destination points (e.g. input-image pixels).
+        order: 1 (affine) .. 5; needs ``n >= (order+1)(order+2)/2``.
+        weights: ``(n,)`` positive weights (inverse variances), default 1.
+
+    Raises:
+        ValueError: wrong shapes, NaN/inf, too few or duplicated points, or a
+            rank-deficient design (points on a line or a curve that cannot
+            determine the polynomial).
+    """
+    if not isinstance(order, (int, np.integer)) or not 1 <= order <= MAX_ORDER:
+        raise ValueError(f"order must be an integer from 1 to {MAX_ORDER}, got {order!r}")
+    order = int(order)
+    u = n_coefficients(order)
+    src, dst, w = _check_pairs(src_xy, dst_xy, weights, u, f"a polynomial of order {order}")
+    n = src.shape[0]
+    exps = exponents(order)
+    sc, ss = _normaliser(src, "src_xy")
+    dc, ds = _normaliser(dst, "dst_xy")
+    a = _design((src - sc) / ss, exps)
+    sw = np.sqrt(w)[:, None]
+    aw = a * sw
+    sv = np.linalg.svd(aw, compute_uv=False)
+    if sv[-1] <= 1e-10 * sv[0]:
+        raise ValueError(
+            f"rank-deficient design for order {order}: the {n} src_xy points cannot determine the polynomial "
+            f"(condition {sv[0] / max(sv[-1], 1e-300):.1e}; collinear or too few distinct points?)"
+        )
+    coef, *_ = np.linalg.lstsq(aw, ((dst - dc) / ds) * sw, rcond=None)
+    v = dst - ((a @ coef) * ds + dc)
+    h = _hat_diag(aw)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        loo = np.where((1 - h)[:, None] > 1e-10, v / (1 - h)[:, None], np.nan)
+    sraw = np.linalg.svd(_design(src, exps), compute_uv=False)
+    rmse_dof = np.sqrt(np.sum(w[:, None] * v**2) / (2 * (n - u))) if n > u else np.nan
+    f = jnp.asarray
+    return PolynomialModel(
+        order=order, coef=f(coef), src_centre=f(sc), src_scale=f(ss), dst_centre=f(dc), dst_scale=f(ds),
+        residuals=f(v), rmse=f(np.sqrt(np.sum(v**2) / n)), rmse_dof=f(rmse_dof),
+        condition=f(sv[0] / sv[-1]), condition_raw=f(sraw[0] / sraw[-1] if sraw[-1] > 0 else np.inf),
+        loo_residuals=f(loo), src_xy=f(src), dst_xy=f(dst),
+    )
+
+
+def _hartley(p: np.ndarray, name: str) -> np.ndarray:
+    """3x3 similarity moving ``p``'s centroid to 0 and its mean distance to
+    sqrt(2) (Hartley 1997)."""
+    c = p.mean(axis=0)
+    d = np.linalg.norm(p - c, axis=1).mean()
+    if d == 0:
+        raise ValueError(f"{name} points are all identical")
+    s = np.sqrt(2) / d
+    return np.array([[s, 0, -s * c[0]], [0, s, -s * c[1]], [0, 0, 1.0]])
+
+
+def _apply_h(h: Array, p: Array) -> Array:
+    """Homography ``h`` (3, 3) on ``(..., 2)`` points."""
+    x, y = p[..., 0], p[..., 1]
+    den = h[2, 0] * x + h[2, 1] * y + h[2, 2]
+    return jnp.stack([(h[0, 0] * x + h[0, 1] * y + h[0, 2]) / den, (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / den], axis=-1)
+
+
+class ProjectiveModel(eqx.Module):
+    """A plane projective transform fitted by :func:`fit_projective`.
+
+    ``model(xy)`` maps ``(..., 2)`` source points to destination points.
+    Internally ``T_dst^-1 H_n T_src`` with Hartley normalisations ``T``.
+
+    Attributes:
+        h_normalised: ``(3, 3)`` homography between normalised points.
+        src_norm, dst_norm: ``(3, 3)`` Hartley similarity transforms.
+        residuals: ``(n, 2)`` ``dst - model(src)``.
+        rmse: ``sqrt(sum_i |v_i|^2 / n)``.
+        rmse_dof: ``sqrt(sum_i w_i |v_i|^2 / (2n - 8))``, NaN for 4 points.
+        condition: ratio of the largest to the 8th singular value of the
+            normalised DLT matrix (the 9th is ~0 for a consistent fit).
+    """
+
+    h_normalised: Array
+    src_norm: Array
+    dst_norm: Array
+    residuals: Array
+    rmse: Array
+    rmse_dof: Array
+    condition: Array
+
+    @property
+    def matrix(self) -> Array:
+        """``(3, 3)`` homography in original units, scaled to ``h33 = 1``
+        (as OpenCV's ``findHomography`` and scikit-image report it)."""
+        h = jnp.linalg.solve(self.dst_norm, self.h_normalised @ self.src_norm)
+        return h / h[2, 2]
+
+    def __call__(self, xy) -> Array:
+        """``(..., 2)`` source points -> ``(..., 2)`` destination points."""
+        p = jnp.asarray(xy, dtype=float)
+        if p.shape[-1:] != (2,):
+            raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
+        q = _apply_h(self.h_normalised, _apply_h(self.src_norm, p))
+        return _apply_h(jnp.linalg.inv(self.dst_norm), q)
+
+    def inverse(self) -> "ProjectiveModel":
+        """The exact inverse (destination -> source), by matrix inversion.
+
+        The quality figures (``residuals``, ``rmse``, ...) are those of the
+        forward fit, in destination units.
+        """
+        return ProjectiveModel(
+            jnp.linalg.inv(self.h_normalised), self.dst_norm, self.src_norm,
+            self.residuals, self.rmse, self.rmse_dof, self.condition,
+        )
+
+
+def fit_projective(src_xy, dst_xy, *, weights=None, refine: bool = True) -> ProjectiveModel:
+    """Projective (homography) ``dst = H(src)`` from 4+ point pairs.
+
+    Hartley-normalised DLT (H&Z alg. 4.2): each pair gives two rows of
+    ``A h = 0``, ``h`` is the right singular vector of the smallest singular
+    value.  With more than 4 points and ``refine=True`` the 8 parameters are
+    then refined by Gauss-Newton on the geometric (destination) error, which
+    the DLT's algebraic error only approximates.
+
+    Raises:
+        ValueError: wrong shapes, NaN/inf, fewer than 4 or duplicated points,
+            or a degenerate configuration (3 of 4 points collinear).
+    """
+    src, dst, w = _check_pairs(src_xy, dst_xy, weights, 4, "a projective transform")
+    n = src.shape[0]
+    ts, td = _hartley(src, "src_xy"), _hartley(dst, "dst_xy")
+    ps = src @ ts[:2, :2].T + ts[:2, 2][None, :]
+    pd = dst @ td[:2, :2].T + td[:2, 2][None, :]
+    one, zero = np.ones(n), np.zeros(n)
+    x, y, xd, yd = ps[:, 0], ps[:, 1], pd[:, 0], pd[:, 1]
+    rows_x = np.stack([x, y, one, zero, zero, zero, -xd * x, -xd * y, -xd], axis=1)
+    rows_y = np.stack([zero, zero, zero, x, y, one, -yd * x, -yd * y, -yd], axis=1)
+    sw = np.sqrt(w)[:, None]
+    a = np.concatenate([rows_x * sw, rows_y * sw])
+    _, sv, vt = np.linalg.svd(a)
+    if sv[7] <= 1e-10 * sv[0]:
+        raise ValueError("degenerate configuration for a projective transform: 3 or more points collinear")
+    hn = vt[-1].reshape(3, 3)
+    hn = hn / hn[2, 2] if abs(hn[2, 2]) > 1e-12 * np.abs(hn).max() else hn / np.abs(hn).max()
+    if refine and n > 4:
+        hn = _refine(hn, ps, pd, w)
+    model = ProjectiveModel(jnp.asarray(hn), jnp.asarray(ts), jnp.asarray(td), *(jnp.zeros(()),) * 4)
+    v = dst - np.asarray(model(src))
+    rmse_dof = np.sqrt(np.sum(w[:, None] * v**2) / (2 * n - 8)) if n > 4 else np.nan
+    f = jnp.asarray
+    return ProjectiveModel(f(hn), f(ts), f(td), f(v), f(np.sqrt(np.sum(v**2) / n)), f(rmse_dof), f(sv[0] / sv[7]))
+
+
+def _refine(hn: np.ndarray, ps: np.ndarray, pd: np.ndarray, w: np.ndarray, steps: int = 20) -> np.ndarray:
+    """Gauss-Newton on ``sum w |pd - H(ps)|^2`` over 8 entries of ``H``
+    (``h33`` fixed to the DLT's value), normalised coordinates."""
+    fixed = jnp.asarray(hn[2, 2])
+
+    def resid(p8):
+        h = jnp.concatenate([p8, fixed[None]]).reshape(3, 3)
+        return ((pd - _apply_h(h, ps)) * np.sqrt(w)[:, None]).reshape(-1)
+
+    jac = jax.jacfwd(resid)
+    p = jnp.asarray(hn.reshape(-1)[:8])
+    cost = float(jnp.sum(resid(p) ** 2))
+    for _ in range(steps):
+        r, j = resid(p), jac(p)
+        step, *_ = np.linalg.lstsq(np.asarray(j), -np.asarray(r), rcond=None)
+        cand = p + jnp.asarray(step)
+        new = float(jnp.sum(resid(cand) ** 2))
+        if not new < cost:  # no further decrease: keep the best estimate
+            break
+        done = cost - new <= 1e-14 * max(cost, 1e-300)
+        p, cost = cand, new
+        if done:
+            break
+    return np.concatenate([np.asarray(p), np.asarray(fixed)[None]]).reshape(3, 3)
