@@ -1,0 +1,148 @@
+"""Orthority's camera files (interior YAML, exterior CSV + .prj).
+
+These are the formats of the NGI aerial test data (orthority's tests) and of
+``orthority`` itself.  Their conventions, read from orthority 0.7's source
+(``camera.py``, ``param_io.py``), map onto photax's exactly:
+
+* **Exterior angles**: orthority's ``(omega, phi, kappa)`` build
+  ``R = Rx(omega) Ry(phi) Rz(kappa)`` rotating from its "PATB" camera frame
+  (x right, y up, z backwards) to the world: that is photax's
+  ``"omega-phi-kappa"`` ``world_from_camera`` in the same camera frame
+  (``docs/conventions.md``), so the angles are taken over unchanged (degrees
+  -> radians).  orthority flips y and z afterwards only to use OpenCV's
+  intrinsic matrix.
+* **Interior**: focal length in pixels ``f * im_size / sensor_size`` per
+  axis, so photax's ``pixel_size = sensor_size / im_size``.  The principal
+  point in pixels is ``(im_size - 1)/2 + max(im_size) * (cx, cy)`` (row
+  down): ``cx, cy`` are offsets from the image centre normalised by the
+  larger image dimension, ``cy`` positive downwards.
+* **Pixels**: integer coordinates at pixel centres, origin at the top-left
+  pixel centre, as photax.  No half-pixel shift is needed.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import pathlib
+
+import numpy as np
+
+from ..camera import FrameCamera
+from ..collinearity import ExteriorOrientation
+
+
+def _camera_from_params(path, name: str, p: dict) -> FrameCamera:
+    kind = str(p.get("type", "")).lower()
+    if kind not in ("pinhole",):
+        raise ValueError(
+            f"{path}: camera {name!r} has type {p.get('type')!r}; photax reads orthority 'pinhole' "
+            "cameras only (brown/opencv/fisheye distortion models are not converted)"
+        )
+    try:
+        w, h = (int(v) for v in p["im_size"])
+        focal = np.broadcast_to(np.asarray(p["focal_len"], dtype=float), (2,))
+        sensor = p.get("sensor_size")
+        cx, cy = float(p.get("cx", 0.0)), float(p.get("cy", 0.0))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: camera {name!r}: missing or malformed parameter ({exc})") from None
+    if sensor is None:
+        # orthority: focal_len normalised by the image width, square pixels.
+        fx, fy = focal * w
+        size = np.array([1.0, fx / fy])
+        f = fx
+    else:
+        sw, sh = (float(v) for v in sensor)
+        # Focal lengths in pixels fx = f_x w / sw, fy = f_y h / sh; photax keeps one
+        # principal distance, f_x, and puts any difference into the pixel height.
+        f = focal[0]
+        size = np.array([sw / w, sh / h * focal[0] / focal[1]])
+    if not (f > 0 and np.all(size > 0)):
+        raise ValueError(f"{path}: camera {name!r}: focal_len and sensor_size must be positive")
+    m = max(w, h)
+    principal_point = (cx * m * size[0], -cy * m * size[1])  # y up in photax
+    return FrameCamera(f, principal_point, pixel_size=size, image_size=(w, h))
+
+
+def read_orthority_interior(path) -> dict[str, FrameCamera]:
+    """Read orthority's interior-parameter YAML: ``{camera name: FrameCamera}``.
+
+    Each entry has ``type: pinhole``, ``im_size: [w, h]``, ``focal_len``
+    (scalar or ``[fx, fy]``), ``sensor_size: [w, h]`` in the focal length's
+    unit, and ``cx``, ``cy`` (see the module docstring).  The photax camera
+    works in the focal length's unit (e.g. mm).
+    """
+    import yaml
+
+    path = pathlib.Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: not valid YAML ({exc})") from None
+    if not isinstance(data, dict) or not data or not all(isinstance(v, dict) for v in data.values()):
+        raise ValueError(f"{path}: expected a mapping of camera names to parameter mappings")
+    if "type" in data and not isinstance(data["type"], dict):  # a single, unnamed camera
+        data = {None: data}
+    return {name: _camera_from_params(path, name, p) for name, p in data.items()}
+
+
+_COLUMNS = ["filename", "x", "y", "z", "omega", "phi", "kappa"]
+
+
+def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation]:
+    """Read orthority's exterior CSV: ``{file stem: ExteriorOrientation}``.
+
+    Columns ``filename, x, y, z, omega, phi, kappa`` (with or without that
+    header line; comma, tab, semicolon or space separated; an optional
+    ``camera`` column is ignored).  Positions are in the CRS of the ``.prj``
+    beside the file (see :func:`read_orthority_crs`); angles are degrees in
+    orthority's omega-phi-kappa, which is photax's ``"omega-phi-kappa"``
+    convention unchanged (module docstring).  Keys are file names without
+    extension, as orthority matches them.
+    """
+    path = pathlib.Path(csv_path)
+    text = path.read_text()
+    lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip() and not ln.startswith("#")]
+    if not lines:
+        raise ValueError(f"{path}: no exterior orientations")
+    try:
+        dialect = csv.Sniffer().sniff(lines[0][1], delimiters=",;\t ")
+    except csv.Error:
+        dialect = csv.excel
+    rows = [(n, [c.strip() for c in row]) for (n, ln) in lines for row in csv.reader([ln], dialect)]
+    header = [c.lower() for c in rows[0][1]]
+    if "filename" in header:
+        rows = rows[1:]
+        missing = [c for c in _COLUMNS if c not in header]
+        if missing:
+            raise ValueError(f"{path}, line {lines[0][0]}: header lacks the columns {missing}")
+        index = [header.index(c) for c in _COLUMNS]
+    else:
+        index = list(range(7))
+    out: dict[str, ExteriorOrientation] = {}
+    for n, row in rows:
+        try:
+            name, *vals = (row[i] for i in index)
+            x, y, z, omega, phi, kappa = (float(v) for v in vals)
+        except (IndexError, ValueError):
+            raise ValueError(f"{path}, line {n}: expected {', '.join(_COLUMNS)}, got {row}") from None
+        if not all(math.isfinite(v) for v in (x, y, z, omega, phi, kappa)):
+            raise ValueError(f"{path}, line {n}: non-finite value")
+        key = pathlib.PurePath(name).stem
+        if key in out:
+            raise ValueError(f"{path}, line {n}: duplicate file name {key!r}")
+        out[key] = ExteriorOrientation((x, y, z), np.radians([omega, phi, kappa]), "omega-phi-kappa")
+    if prj is not None and not pathlib.Path(prj).is_file():
+        raise FileNotFoundError(f"no such .prj file: {prj}")
+    return out
+
+
+def read_orthority_crs(csv_path, prj=None) -> str | None:
+    """The CRS text of an exterior CSV: ``prj`` or the ``.prj`` beside it, else None."""
+    prj = pathlib.Path(prj) if prj is not None else pathlib.Path(csv_path).with_suffix(".prj")
+    if not prj.is_file():
+        return None
+    text = prj.read_text().strip()
+    if not text:
+        raise ValueError(f"{prj}: empty CRS file")
+    return text

@@ -1,0 +1,91 @@
+"""GeoTIFF (and any GDAL raster) reading and writing through rasterio.
+
+Arrays are ``(bands, rows, cols)`` (rasterio layout).  Georeference is the
+GDAL affine ``(a, b, xoff, d, e, yoff)`` at pixel corners
+(``docs/conventions.md``).  Writing is atomic (:mod:`photax.io.atomic`).
+"""
+
+from __future__ import annotations
+
+import pathlib
+
+import numpy as np
+
+from ..dem import DEM
+from .atomic import atomic_path
+
+
+def _open(path):
+    import rasterio
+
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no such raster file: {path}")
+    try:
+        return rasterio.open(path)
+    except rasterio.errors.RasterioIOError as exc:
+        raise ValueError(f"{path}: not a raster GDAL can read ({exc})") from None
+
+
+def read_geotiff(path) -> tuple[np.ndarray, dict]:
+    """Read all bands of a raster.
+
+    Returns:
+        ``(array, profile)``: ``array`` is ``(bands, rows, cols)`` in the
+        file's dtype; ``profile`` is rasterio's profile dict (``transform``
+        as ``rasterio.Affine``, ``crs``, ``nodata``, ``dtype``, ...).
+    """
+    with _open(path) as src:
+        return src.read(), dict(src.profile)
+
+
+def read_dem(path, band: int = 1) -> DEM:
+    """Read a DEM raster as a :class:`photax.DEM` (nodata cells -> NaN).
+
+    The CRS is kept as WKT text.  Only heights and the georeference are
+    used: vertical datum conversions (geoid/ellipsoid) are up to the caller.
+    """
+    with _open(path) as src:
+        if not 1 <= band <= src.count:
+            raise ValueError(f"{path}: band {band} does not exist (the file has {src.count})")
+        heights = src.read(band).astype(float)
+        crs = src.crs.to_wkt() if src.crs else None
+        nodata = src.nodata
+        transform = tuple(src.transform)[:6]
+    if nodata is not None and not np.isnan(nodata):
+        heights[heights == nodata] = np.nan
+    return DEM(heights, transform, crs)
+
+
+def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), compress: str | None = "deflate") -> pathlib.Path:
+    """Write a ``(bands, rows, cols)`` or ``(rows, cols)`` array as a GeoTIFF, atomically.
+
+    Args:
+        path: output file; written to a temporary file beside it and renamed,
+            so a failure leaves no partial file.  Refuses to overwrite any
+            path in ``inputs``.
+        array: the pixels, in the dtype to store.
+        transform: affine ``(a, b, xoff, d, e, yoff)`` (or a rasterio.Affine).
+        crs: anything rasterio accepts (EPSG code, WKT, PROJ string), or None.
+        nodata: the nodata value to record, or None.
+        compress: GeoTIFF compression, or None.
+    """
+    import rasterio
+    from rasterio import Affine
+
+    a = np.asarray(array)
+    if a.ndim == 2:
+        a = a[None]
+    if a.ndim != 3 or min(a.shape) < 1:
+        raise ValueError(f"array must be (bands, rows, cols) or (rows, cols), got shape {np.shape(array)}")
+    profile = dict(
+        driver="GTiff", width=a.shape[2], height=a.shape[1], count=a.shape[0], dtype=a.dtype,
+        transform=Affine(*tuple(transform)[:6]), crs=crs, nodata=nodata, BIGTIFF="IF_SAFER",
+    )
+    if a.shape[1] >= 256 and a.shape[2] >= 256:
+        profile.update(tiled=True, blockxsize=256, blockysize=256)
+    if compress:
+        profile["compress"] = compress
+    with atomic_path(path, inputs) as tmp, rasterio.open(tmp, "w", **profile) as dst:
+        dst.write(a)
+    return pathlib.Path(path)

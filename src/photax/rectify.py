@@ -1,0 +1,625 @@
+"""Whole-image rectification and orthorectification.
+
+**Indirect mapping** (output -> input; the default, DESIGN.md): for every
+output pixel centre take its map/ground coordinate from the output
+:class:`Grid`, find its position in the input image with a *model*
+``(..., 2) map (X, Y) -> (..., 2) input pixel (column, row)``, and
+interpolate the grey value there (:func:`photax.resample.resample`).  Every
+output pixel gets a value, so there are no holes.
+
+**Direct mapping** (input -> output), kept for comparison: every input pixel
+centre is sent forward with the *inverse* model and its value dropped into
+the nearest output pixel.  When the output is finer than the input (or the
+map stretches the image) some output pixels are never hit: holes.
+
+**Orthorectification** is indirect mapping with the collinearity model: a
+ground point ``(X, Y)`` of the output grid gets its height ``Z`` from the DEM
+(bilinear), and ``(X, Y, Z)`` is projected into the image with the
+collinearity equations (:func:`photax.collinearity.project`) and converted
+to pixels (:meth:`photax.FrameCamera.image_to_pixel`).  This removes relief
+displacement, which no plane-to-plane polynomial can.  Occlusion is **not**
+handled: a ground point hidden behind a hill still receives the grey value
+of whatever the camera saw along that ray (a "ghost"), as in orthority and
+most DEM (non-true) orthophoto software.
+
+The output is processed in tiles of ``tile x tile`` pixels, so memory stays
+bounded; each tile's mapping (grid -> ground -> pixel) is one jitted
+function.  The ``*_file`` variants stream through rasterio windows: per
+output tile they read only the input window it needs (plus a margin for the
+interpolation kernel), so images far larger than memory can be processed.
+
+Frames and conventions: ``docs/conventions.md`` (pixel centres at integer
+pixel coordinates; raster georeference at pixel corners).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable, Literal
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from rasterio import Affine
+
+from .camera import FrameCamera
+from .collinearity import ExteriorOrientation, depth, image_to_ground, project
+from .dem import DEM
+
+Resampling = Literal["nearest", "bilinear", "cubic", "lanczos", "bspline"]
+# Input pixels around a sample position that the kernel reads, plus one: the
+# margin a windowed read needs to give the same result as the whole image.
+# The B-spline prefilter is recursive (pole 0.268), so its influence decays
+# by 1e-14 over 24 pixels but never quite ends: file and memory agree to ~1e-7
+# (resample pads the window edge, not the image's, before the prefilter).
+_MARGIN = {"nearest": 2, "bilinear": 2, "cubic": 3, "lanczos": 4, "bspline": 24}
+_FAR = -1e6  # a pixel position far outside any image: resample gives nodata
+
+
+def _check_resampling(resampling: str) -> str:
+    if resampling not in _MARGIN:
+        raise ValueError(f"resampling must be one of {tuple(_MARGIN)}, got {resampling!r}")
+    return resampling
+
+
+@dataclasses.dataclass(frozen=True)
+class Grid:
+    """An output raster grid: georeference, size and CRS.
+
+    Attributes:
+        transform: GDAL/rasterio affine ``(a, b, xoff, d, e, yoff)``
+            (``rasterio.Affine``) from raster coordinates to map coordinates,
+            georeferenced at pixel *corners*: the centre of pixel
+            ``[row, col]`` is at ``transform * (col + 0.5, row + 0.5)``.
+        shape: ``(rows, cols)``.
+        crs: the map CRS (anything rasterio accepts), or ``None``.
+    """
+
+    transform: Affine
+    shape: tuple[int, int]
+    crs: Any = None
+
+    def __post_init__(self):
+        t = tuple(float(v) for v in tuple(self.transform)[:6])
+        if len(t) != 6 or not all(math.isfinite(v) for v in t):
+            raise ValueError(f"transform must hold 6 finite affine coefficients, got {self.transform!r}")
+        if t[0] * t[4] - t[1] * t[3] == 0:
+            raise ValueError(f"transform is singular: {t}")
+        shape = tuple(int(n) for n in self.shape)
+        if len(shape) != 2 or min(shape) < 1:
+            raise ValueError(f"shape must be (rows, cols) with both >= 1, got {self.shape!r}")
+        object.__setattr__(self, "transform", Affine(*t))
+        object.__setattr__(self, "shape", shape)
+
+    @classmethod
+    def from_bounds(cls, bounds, resolution, crs=None) -> "Grid":
+        """A north-up grid covering ``bounds``, snapped to the resolution.
+
+        Args:
+            bounds: ``(xmin, ymin, xmax, ymax)`` in map units.
+            resolution: pixel size, a scalar or ``(x_size, y_size)``, > 0.
+            crs: the map CRS.
+
+        The edges are moved outwards to whole multiples of the resolution,
+        so grids of the same resolution line up pixel for pixel.
+        """
+        xmin, ymin, xmax, ymax = (float(v) for v in bounds)
+        rx, ry = (float(v) for v in np.broadcast_to(np.asarray(resolution, dtype=float), (2,)))
+        if not (rx > 0 and ry > 0):
+            raise ValueError(f"resolution must be positive, got {resolution!r}")
+        if not (xmax > xmin and ymax > ymin):
+            raise ValueError(f"bounds must be (xmin, ymin, xmax, ymax) with max > min, got {bounds!r}")
+        x0, x1 = math.floor(xmin / rx) * rx, math.ceil(xmax / rx) * rx
+        y0, y1 = math.floor(ymin / ry) * ry, math.ceil(ymax / ry) * ry
+        shape = (max(round((y1 - y0) / ry), 1), max(round((x1 - x0) / rx), 1))
+        return cls(Affine(rx, 0.0, x0, 0.0, -ry, y1), shape, crs)
+
+    @property
+    def height(self) -> int:
+        return self.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.shape[1]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """``(xmin, ymin, xmax, ymax)`` of the outer pixel edges."""
+        rows, cols = self.shape
+        xs, ys = zip(*(self.transform * (c, r) for c in (0, cols) for r in (0, rows)))
+        return min(xs), min(ys), max(xs), max(ys)
+
+    def xy(self, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
+        """Map coordinates of the pixel centres of a window.
+
+        Args:
+            rows, cols: slices of the grid (default: all of it).
+
+        Returns:
+            ``(h, w, 2)`` float64 ``(X, Y)``.
+        """
+        r = np.arange(self.shape[0], dtype=float)[rows] + 0.5
+        c = np.arange(self.shape[1], dtype=float)[cols] + 0.5
+        a, b, xoff, d, e, yoff = tuple(self.transform)[:6]
+        x = xoff + a * c[None, :] + b * r[:, None]
+        y = yoff + d * c[None, :] + e * r[:, None]
+        return np.stack([x, y], axis=-1)
+
+
+# --- the per-tile work (jitted) ------------------------------------------------
+
+
+@eqx.filter_jit
+def _map_tile(model, transform: Array, offset: Array, shape: tuple[int, int]) -> tuple[Array, Array]:
+    """Input pixel (cols, rows), each ``shape``, of an output tile at ``offset`` (row, col)."""
+    r = offset[0] + jnp.arange(shape[0], dtype=float) + 0.5
+    c = offset[1] + jnp.arange(shape[1], dtype=float) + 0.5
+    a, b, xoff, d, e, yoff = (transform[i] for i in range(6))
+    x = xoff + a * c[None, :] + b * r[:, None]
+    y = yoff + d * c[None, :] + e * r[:, None]
+    colrow = jnp.asarray(model(jnp.stack([x, y], axis=-1)))
+    return colrow[..., 0], colrow[..., 1]
+
+
+def _resample_valid(image, cols, rows, origin, size, method, fill):
+    """Resample ``image`` (a window at ``origin`` (row, col) of an image of
+    ``size`` (H, W)) at full-image positions (cols, rows); ``fill`` outside the
+    image footprint ``[-0.5, W-0.5] x [-0.5, H-0.5]`` (resample's) and where the
+    model gave NaN/inf."""
+    from .resample import resample
+
+    valid = jnp.isfinite(cols) & jnp.isfinite(rows)
+    valid &= (cols >= -0.5) & (cols <= size[1] - 0.5) & (rows >= -0.5) & (rows <= size[0] - 0.5)
+    cols = jnp.where(valid, cols - origin[1], _FAR)
+    rows = jnp.where(valid, rows - origin[0], _FAR)
+    out = resample(image, cols, rows, method)
+    valid = valid.reshape((1,) * (image.ndim - 2) + valid.shape)
+    return jnp.where(valid, out, fill)
+
+
+_resample_tile = eqx.filter_jit(_resample_valid)
+
+
+@eqx.filter_jit
+def _rectify_tile(model, image, transform, offset, shape, method, fill):
+    cols, rows = _map_tile(model, transform, offset, shape)
+    size = jnp.asarray(image.shape[-2:], dtype=float)
+    return _resample_valid(image, cols, rows, jnp.zeros(2), size, method, fill)
+
+
+def _fill_value(dtype: np.dtype, nodata) -> np.ndarray:
+    """The nodata value as a 0-d array of ``dtype`` (default NaN, or 0 for integers)."""
+    dtype = np.dtype(dtype)
+    if nodata is None:
+        nodata = np.nan if np.issubdtype(dtype, np.floating) else 0
+    if np.isnan(nodata) and not np.issubdtype(dtype, np.floating):
+        raise ValueError(f"nodata=NaN needs a floating-point image, got {dtype}")
+    value = np.asarray(nodata, dtype=dtype)
+    if not np.isnan(nodata) and float(value) != float(nodata):
+        raise ValueError(f"nodata={nodata!r} is not representable in the image dtype {dtype}")
+    return value
+
+
+def _tiles(shape: tuple[int, int], tile: int):
+    """``(r0, c0, h, w)`` of the tiles covering ``shape``, row by row."""
+    if int(tile) < 1:
+        raise ValueError(f"tile must be a positive number of pixels, got {tile!r}")
+    for r0 in range(0, shape[0], tile):
+        for c0 in range(0, shape[1], tile):
+            yield r0, c0, min(tile, shape[0] - r0), min(tile, shape[1] - c0)
+
+
+def _progress(total: int, enabled: bool, desc: str):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, disable=not enabled, desc=desc, unit="tile", leave=False)
+
+
+def _check_model(model):
+    if not callable(model):
+        raise ValueError(f"model must be a callable (..., 2) map -> (..., 2) pixel, got {type(model).__name__}")
+
+
+def rectify(
+    image,
+    model: Callable[[Array], Array],
+    grid: Grid,
+    *,
+    resampling: Resampling = "bilinear",
+    nodata=None,
+    tile: int = 1024,
+    progress: bool = False,
+    mapping: Literal["indirect", "direct"] = "indirect",
+    inverse: Callable[[Array], Array] | None = None,
+):
+    """Resample an image onto a map grid through a geometric model.
+
+    Indirect mapping (default): output pixel centre -> map ``(X, Y)`` from
+    ``grid`` -> input pixel ``(col, row) = model(X, Y)`` -> grey value by
+    ``resampling``.  Output pixels whose position is outside the image, or
+    where the model returns NaN (e.g. no DEM height), get ``nodata``.
+
+    Direct mapping (``mapping="direct"``, for comparison): every input pixel
+    centre is sent to the map by ``inverse`` (pixel -> map) and its value put
+    into the nearest output pixel (later input pixels win).  Without
+    ``inverse`` a polynomial of order 3 fitted to ``model`` on the output grid
+    is used (or ``model.inverse()`` when the model has one).  Returns the image and the number of *holes*: output pixels
+    inside the image footprint (where the indirect mapping has a value) that
+    no input pixel hit.
+
+    Args:
+        image: ``(..., H, W)`` array, leading axes are bands (rasterio layout).
+        model: callable ``(..., 2)`` map ``(X, Y)`` -> ``(..., 2)`` input
+            pixel ``(col, row)`` (integer = pixel centre), jax-traceable,
+            e.g. a :class:`photax.PolynomialModel` fitted map -> pixel.
+        grid: the output :class:`Grid`.
+        resampling: ``"nearest"``, ``"bilinear"``, ``"cubic"`` (Keys,
+            a = -0.5), ``"lanczos"`` or ``"bspline"``.
+        nodata: value for output pixels without data; default NaN for
+            floating-point images, 0 for integer ones.
+        tile: output tile edge in pixels; memory grows with ``tile**2``.
+        progress: show a tqdm progress bar over the tiles.
+        mapping: ``"indirect"`` or ``"direct"``.
+        inverse: pixel -> map callable, for ``mapping="direct"`` only.
+
+    Returns:
+        ``(..., rows, cols)`` numpy array in the input dtype; with
+        ``mapping="direct"`` the tuple ``(array, holes)``.
+    """
+    _check_resampling(resampling)
+    _check_model(model)
+    if not isinstance(grid, Grid):
+        raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
+    image = jnp.asarray(image)
+    if image.ndim < 2 or min(image.shape[-2:]) < 1:
+        raise ValueError(f"image must have shape (..., H, W), got {image.shape}")
+    fill = _fill_value(image.dtype, nodata)
+    if mapping == "direct":
+        return _rectify_direct(image, model, grid, fill, tile, progress, inverse)
+    if mapping != "indirect":
+        raise ValueError(f"mapping must be 'indirect' or 'direct', got {mapping!r}")
+    tile = int(tile)
+    out = np.empty(image.shape[:-2] + grid.shape, dtype=image.dtype)
+    transform = jnp.asarray(tuple(grid.transform)[:6])
+    # Every call gets the full tile shape (edge tiles are cropped): one compilation.
+    shape = (min(tile, grid.height), min(tile, grid.width))
+    fill_j = jnp.asarray(fill)
+    tiles = list(_tiles(grid.shape, tile))
+    with _progress(len(tiles), progress, "rectify") as bar:
+        for r0, c0, h, w in tiles:
+            block = _rectify_tile(model, image, transform, jnp.array([r0, c0], dtype=float), shape, resampling, fill_j)
+            out[..., r0 : r0 + h, c0 : c0 + w] = np.asarray(block)[..., :h, :w]
+            bar.update()
+    return out
+
+
+@eqx.filter_jit
+def _forward_rows(inverse, offset: Array, shape: tuple[int, int]) -> Array:
+    r = offset + jnp.arange(shape[0], dtype=float)
+    c = jnp.arange(shape[1], dtype=float)
+    colrow = jnp.stack(jnp.broadcast_arrays(c[None, :], r[:, None]), axis=-1)
+    return jnp.asarray(inverse(colrow))
+
+
+def _fit_inverse(model, grid: Grid, order: int = 3):
+    """A pixel -> map polynomial fitted to ``model`` on a 33 x 33 lattice of the grid."""
+    from .polynomial import fit_polynomial
+
+    rows = np.linspace(0, grid.height - 1, 33).round().astype(int)
+    cols = np.linspace(0, grid.width - 1, 33).round().astype(int)
+    xy = grid.xy()[rows][:, cols].reshape(-1, 2)
+    pix = np.asarray(model(jnp.asarray(xy)))
+    ok = np.all(np.isfinite(pix), axis=-1)
+    return fit_polynomial(jnp.asarray(pix[ok]), jnp.asarray(xy[ok]), order)
+
+
+def _rectify_direct(image, model, grid, fill, tile, progress, inverse):
+    if inverse is None:
+        inverse = model.inverse() if callable(getattr(model, "inverse", None)) else _fit_inverse(model, grid)
+    _check_model(inverse)
+    H, W = image.shape[-2:]
+    img = np.asarray(image)
+    out = np.full(image.shape[:-2] + grid.shape, fill, dtype=image.dtype)
+    hit = np.zeros(grid.shape, dtype=bool)
+    back = ~grid.transform  # map -> raster coordinates (pixel k spans [k, k+1))
+    step = max(1, int(tile) ** 2 // W)
+    with _progress(math.ceil(H / step), progress, "direct mapping") as bar:
+        for r0 in range(0, H, step):
+            h = min(step, H - r0)
+            xy = np.asarray(_forward_rows(inverse, jnp.asarray(float(r0)), (h, W)))
+            gc, gr = back * (xy[..., 0], xy[..., 1])
+            gc, gr = np.floor(gc), np.floor(gr)
+            ok = (gc >= 0) & (gc < grid.width) & (gr >= 0) & (gr < grid.height)
+            ri, ci = gr[ok].astype(np.intp), gc[ok].astype(np.intp)
+            out[..., ri, ci] = img[..., r0 : r0 + h, :][..., ok]
+            hit[ri, ci] = True
+            bar.update()
+    # Holes: pixels the indirect mapping would fill (inside the image) but no
+    # input pixel reached.
+    holes = 0
+    transform = jnp.asarray(tuple(grid.transform)[:6])
+    for r0, c0, h, w in _tiles(grid.shape, int(tile)):
+        cols, rows = (np.asarray(v) for v in _map_tile(model, transform, jnp.array([r0, c0], dtype=float), (h, w)))
+        inside = (cols >= -0.5) & (cols <= W - 0.5) & (rows >= -0.5) & (rows <= H - 0.5)
+        holes += int(np.count_nonzero(inside & ~hit[r0 : r0 + h, c0 : c0 + w]))
+    return out, holes
+
+
+# --- orthorectification --------------------------------------------------------
+
+
+class OrthoModel(eqx.Module):
+    """Ground ``(X, Y)`` -> image pixel ``(col, row)`` through a DEM.
+
+    ``Z = dem.height(X, Y)`` (bilinear), then the collinearity equations and
+    ``camera.image_to_pixel``.  NaN where the DEM has no height or the
+    ground point is behind the camera.  No occlusion test.
+    """
+
+    exterior: ExteriorOrientation
+    camera: FrameCamera
+    dem: DEM
+
+    def __call__(self, xy: Array) -> Array:
+        xy = jnp.asarray(xy, dtype=float)
+        flat = xy.reshape(-1, 2)
+        z = self.dem.height(flat[:, 0], flat[:, 1])
+        ground = jnp.concatenate([flat, z[:, None]], axis=-1)
+        pix = self.camera.image_to_pixel(project(ground, self.exterior, self.camera))
+        ok = jnp.isfinite(z) & (depth(ground, self.exterior) > 0)
+        return jnp.where(ok[:, None], pix, jnp.nan).reshape(xy.shape)
+
+
+_to_ground = eqx.filter_jit(image_to_ground)
+
+
+def _shoelace(p: np.ndarray) -> float:
+    return 0.5 * abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(np.roll(p[:, 0], -1), p[:, 1])))
+
+
+def ortho_grid(
+    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, resolution=None, *, per_side: int = 16
+) -> Grid:
+    """The grid covering an image's footprint on a DEM.
+
+    The image outline (``per_side`` points per edge, on the outer pixel
+    edges) is cut with the DEM by :func:`photax.image_to_ground`; rays that
+    miss the DEM are cut with the plane at the DEM's mean height.  The
+    bounds are clipped to the DEM and snapped to the resolution.
+
+    Args:
+        resolution: ground pixel size; default the mean ground sampling
+            distance ``sqrt(footprint area / image area in pixels)``.
+    """
+    if camera.image_size is None:
+        raise ValueError("camera must have an image_size to find the image footprint")
+    w, h = camera.image_size
+    t = np.linspace(0.0, 1.0, per_side, endpoint=False)
+    x0, x1, y0, y1 = -0.5, w - 0.5, -0.5, h - 0.5
+    px = np.concatenate(
+        [
+            np.stack([x0 + t * (x1 - x0), np.full_like(t, y0)], -1),
+            np.stack([np.full_like(t, x1), y0 + t * (y1 - y0)], -1),
+            np.stack([x1 - t * (x1 - x0), np.full_like(t, y1)], -1),
+            np.stack([np.full_like(t, x0), y1 - t * (y1 - y0)], -1),
+        ]
+    )
+    img = camera.pixel_to_image(jnp.asarray(px))
+    ground = np.asarray(_to_ground(img, exterior, camera, dem=dem))
+    flat = np.asarray(_to_ground(img, exterior, camera, height=jnp.nanmean(dem.heights)))
+    ground = np.where(np.isfinite(ground), ground, flat)[:, :2]
+    if not np.all(np.isfinite(ground)):
+        raise ValueError("the image outline does not reach the ground (camera looks above the horizon)")
+    if resolution is None:
+        resolution = math.sqrt(_shoelace(ground) / _shoelace(px))
+    dxmin, dymin, dxmax, dymax = dem.bounds
+    bounds = (
+        max(ground[:, 0].min(), dxmin),
+        max(ground[:, 1].min(), dymin),
+        min(ground[:, 0].max(), dxmax),
+        min(ground[:, 1].max(), dymax),
+    )
+    if not (bounds[2] > bounds[0] and bounds[3] > bounds[1]):
+        raise ValueError("the image footprint does not overlap the DEM")
+    return Grid.from_bounds(bounds, resolution, crs=dem.crs)
+
+
+def orthorectify(
+    image,
+    exterior: ExteriorOrientation,
+    camera: FrameCamera,
+    dem: DEM,
+    grid: Grid | None = None,
+    *,
+    resolution=None,
+    resampling: Resampling = "bilinear",
+    nodata=None,
+    tile: int = 1024,
+    progress: bool = False,
+) -> tuple[np.ndarray, Grid]:
+    """Orthorectify a frame image with its orientation and a DEM.
+
+    For every ground pixel centre ``(X, Y)`` of the output grid:
+    ``Z = DEM(X, Y)`` (bilinear), ``(x, y) = project((X, Y, Z))`` by the
+    collinearity equations, ``(col, row) = camera.image_to_pixel(x, y)``, and
+    the grey value is resampled there.  Output pixels are ``nodata`` where
+    the point falls outside the image, where the DEM is nodata or absent, and
+    behind the camera.
+
+    Occlusion is NOT handled: ground hidden from the camera by relief gets
+    the grey value of the surface that hides it (double mapping).
+
+    Args:
+        image: ``(..., H, W)`` with ``(W, H) == camera.image_size``.
+        exterior, camera: the image's orientation (``docs/conventions.md``).
+        dem: heights in the same ground CRS and vertical datum as ``exterior``.
+        grid: output grid; default the image footprint on the DEM
+            (:func:`ortho_grid`) at ``resolution``.
+        resolution: ground pixel size when ``grid`` is not given; default
+            the mean ground sampling distance.
+        resampling, nodata, tile, progress: as in :func:`rectify`.
+
+    Returns:
+        ``(ortho, grid)``: the ``(..., rows, cols)`` orthophoto in the input
+        dtype and its grid.
+    """
+    image = jnp.asarray(image)
+    _check_image_size(image.shape, camera)
+    if grid is None:
+        grid = ortho_grid(exterior, camera, dem, resolution)
+    model = OrthoModel(exterior, camera, dem)
+    out = rectify(image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress)
+    return out, grid
+
+
+def _check_image_size(shape, camera: FrameCamera):
+    if camera.image_size is not None and tuple(shape[-2:][::-1]) != tuple(camera.image_size):
+        raise ValueError(
+            f"image is {shape[-1]} x {shape[-2]} pixels but the camera's image_size is "
+            f"{camera.image_size[0]} x {camera.image_size[1]}"
+        )
+
+
+# --- streaming through files ---------------------------------------------------
+
+
+def _source_window(cols: np.ndarray, rows: np.ndarray, width: int, height: int, margin: int, bucket: int = 256):
+    """The input window ``(row_off, col_off, h, w)`` an output tile needs, or None.
+
+    Sizes are rounded up to multiples of ``bucket`` (shifting the window
+    back inside the image rather than padding it) so the jitted resampler
+    sees few distinct shapes.
+    """
+    ok = np.isfinite(cols) & np.isfinite(rows)
+    ok &= (cols > -margin) & (cols < width - 1 + margin) & (rows > -margin) & (rows < height - 1 + margin)
+    if not ok.any():
+        return None
+    out = []
+    for v, n in ((rows[ok], height), (cols[ok], width)):
+        lo = max(int(np.floor(v.min())) - margin, 0)
+        hi = min(int(np.ceil(v.max())) + margin + 1, n)
+        size = min(-(-(hi - lo) // bucket) * bucket, n)
+        out.append((min(lo, n - size), size))
+    (r0, h), (c0, w) = out
+    return r0, c0, h, w
+
+
+def rectify_file(
+    src_path,
+    dst_path,
+    model: Callable[[Array], Array],
+    grid: Grid,
+    *,
+    resampling: Resampling = "bilinear",
+    nodata=None,
+    tile: int = 1024,
+    progress: bool = False,
+    compress: str | None = "deflate",
+    inputs=(),
+) -> Grid:
+    """:func:`rectify` from one raster file to a GeoTIFF, window by window.
+
+    For each output tile only the input window its pixels map into (plus a
+    kernel margin) is read, and the tile is written with
+    ``dst.write(window=...)`` into a temporary file renamed onto
+    ``dst_path`` at the end (:func:`photax.io.atomic.atomic_path`): no
+    partial output on failure, and ``dst_path`` may not be ``src_path`` (or
+    one of ``inputs``).  Memory is bounded by the tile size, whatever the
+    image size.  The result equals :func:`rectify` on the whole image (to
+    rounding for ``"bspline"``, whose prefilter sees only the window).
+
+    Args:
+        src_path: input raster (any GDAL format); all bands are rectified.
+        dst_path: output GeoTIFF (tiled, BigTIFF if needed).
+        nodata: default the input's nodata, else NaN/0 as in :func:`rectify`.
+        compress: GeoTIFF compression (``"deflate"``, ``"lzw"``, None...).
+        inputs: further paths the output must not overwrite (e.g. a DEM).
+
+    Returns:
+        ``grid``.
+    """
+    import rasterio
+    from rasterio.windows import Window
+
+    from .io.atomic import atomic_path
+
+    _check_resampling(resampling)
+    _check_model(model)
+    tile = int(tile)
+    with rasterio.open(src_path) as src, atomic_path(dst_path, inputs=(src_path, *inputs)) as tmp:
+        if nodata is None:
+            nodata = src.nodata
+        fill = _fill_value(src.dtypes[0], nodata)
+        profile = dict(
+            driver="GTiff", width=grid.width, height=grid.height, count=src.count, dtype=src.dtypes[0],
+            transform=grid.transform, crs=grid.crs, nodata=fill.item(), tiled=True, blockxsize=256,
+            blockysize=256, BIGTIFF="IF_SAFER",
+        )
+        if compress:
+            profile["compress"] = compress
+        transform = jnp.asarray(tuple(grid.transform)[:6])
+        shape = (min(tile, grid.height), min(tile, grid.width))
+        fill_j = jnp.asarray(fill)
+        size = jnp.array([src.height, src.width], dtype=float)
+        tiles = list(_tiles(grid.shape, tile))
+        with rasterio.open(tmp, "w", **profile) as dst, _progress(len(tiles), progress, "rectify") as bar:
+            for r0, c0, h, w in tiles:
+                cols, rows = _map_tile(model, transform, jnp.array([r0, c0], dtype=float), shape)
+                cols, rows = np.asarray(cols)[:h, :w], np.asarray(rows)[:h, :w]
+                win = _source_window(cols, rows, src.width, src.height, _MARGIN[resampling])
+                if win is None:
+                    block = np.full((src.count, h, w), fill, dtype=fill.dtype)
+                else:
+                    data = src.read(window=Window(win[1], win[0], win[3], win[2]))
+                    origin = jnp.array(win[:2], dtype=float)
+                    block = np.asarray(
+                        _resample_tile(data, jnp.asarray(cols), jnp.asarray(rows), origin, size, resampling, fill_j)
+                    )
+                dst.write(block, window=Window(c0, r0, w, h))
+                bar.update()
+    return grid
+
+
+def orthorectify_file(
+    src_path,
+    dst_path,
+    exterior: ExteriorOrientation,
+    camera: FrameCamera,
+    dem,
+    grid: Grid | None = None,
+    *,
+    resolution=None,
+    resampling: Resampling = "bilinear",
+    nodata=None,
+    tile: int = 1024,
+    progress: bool = False,
+    compress: str | None = "deflate",
+) -> Grid:
+    """:func:`orthorectify` from an image file to a GeoTIFF, window by window.
+
+    ``dem`` is a :class:`photax.DEM` or the path of a DEM raster (read with
+    :func:`photax.io.read_dem`, which may not be overwritten either).  The
+    output CRS is ``grid.crs`` (default the DEM's).  See
+    :func:`rectify_file` for the streaming and atomic writing.
+
+    Returns:
+        the output grid.
+    """
+    import rasterio
+
+    inputs = ()
+    if not isinstance(dem, DEM):
+        from .io.raster import read_dem
+
+        inputs = (dem,)
+        dem = read_dem(dem)
+    with rasterio.open(src_path) as src:
+        _check_image_size((src.height, src.width), camera)
+    if grid is None:
+        grid = ortho_grid(exterior, camera, dem, resolution)
+    return rectify_file(
+        src_path, dst_path, OrthoModel(exterior, camera, dem), grid, resampling=resampling, nodata=nodata,
+        tile=tile, progress=progress, compress=compress, inputs=inputs,
+    )
