@@ -11,6 +11,12 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
+from .bundle import (
+    BundleProblem as BundleProblem,
+    BundleResult as BundleResult,
+    bundle_adjust as bundle_adjust,
+    initialize_block as initialize_block,
+)
 from .camera import FrameCamera as FrameCamera
 from .collinearity import (
     ExteriorOrientation as ExteriorOrientation,
@@ -21,6 +27,7 @@ from .collinearity import (
 )
 from .dem import DEM as DEM
 from .errors import ConvergenceError as ConvergenceError
+from .intersection import intersect as intersect
 from .io import (
     read_camera as read_camera,
     read_gcps as read_gcps,

@@ -1,0 +1,1085 @@
+"""Bundle adjustment: the problem, a Schur-complement Levenberg–Marquardt
+solver, robust losses, self-calibration and precision.
+
+The model is the collinearity equations (``docs/conventions.md``) of
+:func:`photax.project`: observation ``o`` of point ``X_p`` on image ``i``
+(camera ``c = image_camera[i]``) has the residual::
+
+    r_o = (project(X_p; R_i, C_i, camera_c) - xy_o) / sigma_o       (2,)
+
+and the solver minimises (Ceres' convention, 0.5 times the sum of squares)::
+
+    cost = 0.5 sum_o rho(|r_o|^2) + 0.5 sum_{control p} |(X_p - X_p^survey) / sigma_p|^2
+
+with ``rho(s) = s`` (no loss), Huber ``rho(s) = s`` for ``s <= d^2`` else
+``2 d sqrt(s) - d^2``, or Cauchy ``rho(s) = d^2 log(1 + s / d^2)``
+(``d = loss_scale``, in units of the observation's sigma).  Robust losses
+are applied by iteratively reweighting (IRLS): each linearisation scales the
+observation's residual and Jacobian by ``sqrt(rho'(s))``, as Ceres' loss
+functions do without their second-order correction.
+
+Parameters (analysed once on the numpy side, then solved by jitted steps):
+
+* per image: the projection centre ``C`` (ground unit) and the attitude
+  ``R`` (world_from_camera), updated on the manifold ``R <- R Exp(dr)``
+  with ``dr`` a rotation vector about the camera axes, so any orientation
+  works (BAL cameras look everywhere);
+* per camera (shared by its images): ``f, x0, y0, k1, k2, k3, p1, p2``,
+  each free or fixed (self-calibration);
+* per point: ``X, Y, Z``.  Tie and check points are free; control points
+  are free with a prior ``sigma`` (pseudo-observations), or fixed when
+  their sigma is 0.  Check points are adjusted as tie points and compared
+  with their surveyed coordinates afterwards.
+
+Each LM step solves ``(J^T J + lambda D) dx = -J^T r`` with
+``D = diag(J^T J)`` clamped to ``[1e-6, 1e32]`` (Ceres).  Ordering camera
+unknowns ``c`` before points ``p``::
+
+    [U  W] [dc]   [-g_c]                  S  = U - W V^-1 W^T
+    [W' V] [dp] = [-g_p]      ->          S dc = -g_c + W V^-1 g_p
+                                          dp = -V^-1 (g_p + W^T dc)
+
+``V`` is block diagonal (3x3 per point), so ``V^-1`` is a batch of 3x3
+inverses and ``S`` (the reduced camera system) is accumulated from
+per-observation blocks with segment sums over pairs of observations of the
+same point.  ``S`` is solved by a dense Cholesky (fast up to a few thousand
+camera unknowns: 49 BAL images x 9 = 441).  References: Triggs et al.,
+"Bundle adjustment — a modern synthesis" (2000); Agarwal et al., "Bundle
+adjustment in the large" (ECCV 2010); Ceres Solver's trust-region minimiser.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import sys
+import time
+from typing import Literal, NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from .camera import FrameCamera
+from .collinearity import ExteriorOrientation
+from .errors import ConvergenceError
+from .rotation import angles_from_matrix_unchecked, axis_angle_to_matrix
+
+ROLES = ("tie", "control", "check")
+#: Interior-orientation parameters of a camera, in this order.
+INTRINSICS = ("f", "x0", "y0", "k1", "k2", "k3", "p1", "p2")
+#: Exterior parameters of an image: the projection centre and the rotation
+#: increments about the camera's own x, y, z axes.
+EXTERIOR = ("X", "Y", "Z", "rx", "ry", "rz")
+
+Loss = Literal["none", "huber", "cauchy"]
+Gauge = Literal["fix_first_camera", "damped"]
+
+
+# --------------------------------------------------------------------------
+# The problem
+# --------------------------------------------------------------------------
+
+
+def _as_exterior(exterior, n: int | None = None) -> ExteriorOrientation:
+    if isinstance(exterior, ExteriorOrientation):
+        eo = exterior
+    else:
+        eo_list = list(exterior)
+        if not eo_list or not all(isinstance(e, ExteriorOrientation) for e in eo_list):
+            raise ValueError("exterior must be an ExteriorOrientation (batched) or a list of them")
+        conv = eo_list[0].convention
+        eo_list = [e.to_convention(conv) if np.all(np.isfinite(np.asarray(e.angles))) else e for e in eo_list]
+        eo = ExteriorOrientation(
+            np.stack([np.asarray(e.position) for e in eo_list]), np.stack([np.asarray(e.angles) for e in eo_list]), conv
+        )
+    if eo.position.ndim != 2:
+        raise ValueError(f"exterior must hold one orientation per image, shape (n_images, 3); got {eo.position.shape}")
+    return eo
+
+
+class BundleProblem:
+    """A block of images to adjust: cameras, orientations, points, observations.
+
+    Build it from arrays (below), from a BAL file (:func:`photax.read_bal`)
+    or from a block folder (:func:`read_block`).  All arrays are copied to
+    float64 / int64 numpy arrays; the problem is immutable by convention
+    (use :meth:`replace`).
+
+    Args:
+        cameras: one :class:`photax.FrameCamera` or a sequence of ``n_cameras``.
+        exterior: ``n_images`` exterior orientations, a batched
+            :class:`photax.ExteriorOrientation` of shape ``(n_images,)`` or a
+            list.  NaN rows are unknown: :func:`initialize_block` fills them
+            by resection from control points.  The result reports
+            orientations in the same angle convention.
+        points: ``(n_points, 3)`` ground coordinates: the surveyed values of
+            control and check points, approximate values of tie points (NaN
+            rows: unknown, filled by forward intersection).
+        obs_image, obs_point: ``(k,)`` integer image and point index of each
+            observation.
+        obs_xy: ``(k, 2)`` measured **image-plane** coordinates (x right, y up,
+            the camera's unit; :meth:`FrameCamera.pixel_to_image` converts
+            pixels).
+        obs_sigma: scalar, ``(k,)`` or ``(k, 2)`` standard deviation of the
+            measurements, image-plane unit.  Default 1.
+        image_camera: ``(n_images,)`` camera index of each image.  Default:
+            all images share camera 0 when there is one camera, image ``i``
+            uses camera ``i`` when there are as many cameras as images.
+        roles: ``(n_points,)`` of ``"tie"``, ``"control"``, ``"check"``
+            (default all ``"tie"``).
+        point_sigma: scalar, ``(n_points,)`` or ``(n_points, 3)`` ground
+            standard deviation of control points (ignored for the others);
+            0 fixes the point.  Default 0 (fixed control).
+        free_intrinsics: names from :data:`INTRINSICS` estimated for every
+            camera (e.g. ``("f", "k1", "k2")``), or an ``(n_cameras, 8)`` bool
+            mask.  Default: interior orientation fixed.
+        fixed_exterior: ``(n_images,)`` or ``(n_images, 6)`` bool, parameters
+            of :data:`EXTERIOR` held at their given values.  Default none.
+        image_names, point_names: optional labels used in reports.
+    """
+
+    def __init__(
+        self,
+        cameras,
+        exterior,
+        points,
+        obs_image,
+        obs_point,
+        obs_xy,
+        *,
+        obs_sigma=1.0,
+        image_camera=None,
+        roles=None,
+        point_sigma=0.0,
+        free_intrinsics: Sequence[str] | np.ndarray = (),
+        fixed_exterior=None,
+        image_names: Sequence[str] | None = None,
+        point_names: Sequence[str] | None = None,
+    ):
+        cams = (cameras,) if isinstance(cameras, FrameCamera) else tuple(cameras)
+        if not cams or not all(isinstance(c, FrameCamera) for c in cams):
+            raise ValueError("cameras must be a FrameCamera or a non-empty sequence of them")
+        eo = _as_exterior(exterior)
+        n_img, n_cam = eo.position.shape[0], len(cams)
+        pts = np.array(points, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must have shape (n_points, 3), got {pts.shape}")
+        n_pts = len(pts)
+        oi, op = np.asarray(obs_image), np.asarray(obs_point)
+        xy = np.array(obs_xy, dtype=float)
+        k = len(xy)
+        if xy.shape != (k, 2) or oi.shape != (k,) or op.shape != (k,):
+            raise ValueError(
+                f"obs_xy must be (k, 2) and obs_image, obs_point (k,); got {xy.shape}, {oi.shape}, {op.shape}"
+            )
+        for name, idx, n in (("obs_image", oi, n_img), ("obs_point", op, n_pts)):
+            if k and (not np.issubdtype(idx.dtype, np.integer) or idx.min() < 0 or idx.max() >= n):
+                raise ValueError(f"{name} must be integers in [0, {n}), got range [{idx.min()}, {idx.max()}]")
+        if not np.all(np.isfinite(xy)):
+            raise ValueError(f"obs_xy has non-finite values at observation {int(np.argmax(~np.isfinite(xy).all(1)))}")
+        sig = np.asarray(obs_sigma, dtype=float)
+        sig = np.broadcast_to(sig[:, None] if sig.ndim == 1 else sig, (k, 2)).copy()
+        if not np.all(sig > 0):
+            raise ValueError("obs_sigma must be positive")
+        if image_camera is None:
+            if n_cam == 1:
+                image_camera = np.zeros(n_img, dtype=np.int64)
+            elif n_cam == n_img:
+                image_camera = np.arange(n_img)
+            else:
+                raise ValueError(f"image_camera is needed: {n_cam} cameras for {n_img} images")
+        ic = np.asarray(image_camera)
+        if ic.shape != (n_img,) or not np.issubdtype(ic.dtype, np.integer) or ic.min() < 0 or ic.max() >= n_cam:
+            raise ValueError(f"image_camera must be (n_images,) = ({n_img},) integers in [0, {n_cam})")
+        role = np.array(["tie"] * n_pts if roles is None else [str(r) for r in roles], dtype=object)
+        if role.shape != (n_pts,) or not set(role.tolist()) <= set(ROLES):
+            bad = sorted(set(role.tolist()) - set(ROLES))
+            raise ValueError(f"roles must be (n_points,) of {ROLES}; got shape {role.shape}, unknown {bad}")
+        psig = np.asarray(point_sigma, dtype=float)
+        psig = np.broadcast_to(psig[:, None] if psig.ndim == 1 else psig, (n_pts, 3)).copy()
+        if np.any(psig < 0) or np.any(np.isnan(psig)):
+            raise ValueError("point_sigma must be >= 0 (0 fixes a control point)")
+        if isinstance(free_intrinsics, np.ndarray) and free_intrinsics.dtype == bool:
+            free = np.broadcast_to(free_intrinsics, (n_cam, 8)).copy()
+        else:
+            unknown = set(free_intrinsics) - set(INTRINSICS)
+            if unknown or isinstance(free_intrinsics, str):
+                raise ValueError(f"free_intrinsics must be names from {INTRINSICS}, got {free_intrinsics!r}")
+            free = np.zeros((n_cam, 8), dtype=bool)
+            free[:, [INTRINSICS.index(n) for n in free_intrinsics]] = True
+        fixed = np.zeros((n_img, 6), dtype=bool) if fixed_exterior is None else np.asarray(fixed_exterior, dtype=bool)
+        if fixed.shape == (n_img,):
+            fixed = np.repeat(fixed[:, None], 6, axis=1)
+        if fixed.shape != (n_img, 6):
+            raise ValueError(f"fixed_exterior must be (n_images,) or (n_images, 6), got {fixed.shape}")
+        # Every point needs a datum: two rays, or one ray plus a control prior.
+        counts = np.bincount(op, minlength=n_pts)
+        weak = (counts < 2) & (role != "control")
+        if np.any(weak):
+            i = int(np.argmax(weak))
+            label = point_names[i] if point_names is not None else i
+            raise ValueError(
+                f"point {label} ({role[i]}) is observed on {counts[i]} image(s): tie and check points need "
+                "at least 2 to be intersected; drop it or make it a control point"
+            )
+        ctrl = role == "control"
+        if np.any(ctrl & ~np.all(np.isfinite(pts), axis=1)):
+            raise ValueError("control points need finite surveyed coordinates")
+        self.cameras: tuple[FrameCamera, ...] = cams
+        self.exterior = eo
+        self.points = pts
+        self.obs_image, self.obs_point = oi.astype(np.int64), op.astype(np.int64)
+        self.obs_xy, self.obs_sigma = xy, sig
+        self.image_camera = ic.astype(np.int64)
+        self.roles = role
+        self.point_sigma = psig
+        self.free_intrinsics = free
+        self.fixed_exterior = fixed
+        self.image_names = tuple(image_names) if image_names is not None else tuple(f"image {i}" for i in range(n_img))
+        self.point_names = tuple(point_names) if point_names is not None else tuple(f"point {i}" for i in range(n_pts))
+        if len(self.image_names) != n_img or len(self.point_names) != n_pts:
+            raise ValueError("image_names / point_names must have one entry per image / point")
+
+    n_images = property(lambda self: self.exterior.position.shape[0])
+    n_cameras = property(lambda self: len(self.cameras))
+    n_points = property(lambda self: len(self.points))
+    n_observations = property(lambda self: len(self.obs_xy))
+
+    def replace(self, **changes) -> "BundleProblem":
+        """A copy with some constructor arguments changed."""
+        args = dict(
+            cameras=self.cameras, exterior=self.exterior, points=self.points, obs_image=self.obs_image,
+            obs_point=self.obs_point, obs_xy=self.obs_xy, obs_sigma=self.obs_sigma,
+            image_camera=self.image_camera, roles=self.roles, point_sigma=self.point_sigma,
+            free_intrinsics=self.free_intrinsics, fixed_exterior=self.fixed_exterior,
+            image_names=self.image_names, point_names=self.point_names,
+        )  # fmt: skip
+        args.update(changes)
+        return BundleProblem(**args)
+
+    def __repr__(self) -> str:
+        n_ctrl = int(np.sum(self.roles == "control"))
+        n_chk = int(np.sum(self.roles == "check"))
+        return (
+            f"BundleProblem({self.n_images} images, {self.n_cameras} cameras, {self.n_points} points "
+            f"({n_ctrl} control, {n_chk} check), {self.n_observations} observations)"
+        )
+
+
+# --------------------------------------------------------------------------
+# Structure analysis (numpy, once per problem)
+# --------------------------------------------------------------------------
+
+
+class _Structure(NamedTuple):
+    """Index arrays and masks of a problem; a pytree of arrays for jit."""
+
+    obs_image: Array  # (k,)
+    obs_point: Array  # (k,)
+    obs_xy: Array  # (k, 2)
+    obs_sigma: Array  # (k, 2)
+    image_ext: Array  # (n_img, w) unknown index of each image's camera-side column
+    mask_c: Array  # (N,) 1 free, 0 fixed
+    mask_p: Array  # (n_pts, 3)
+    prior_xyz: Array  # (n_pts, 3) surveyed control coordinates (local origin)
+    prior_w: Array  # (n_pts, 3) 1/sigma^2 of control priors, 0 elsewhere
+    pair_a: Array  # (n_pairs,) observations a < b of the same point
+    pair_b: Array
+    pair_key: Array  # (n_pairs,) sorted id of the image pair (img_a, img_b)
+    key_a: Array  # (n_keys,) images of each pair id
+    key_b: Array
+    active: Array  # (a,) indices into INTRINSICS estimated for some camera
+    image_camera: Array  # (n_img,)
+
+
+class _State(NamedTuple):
+    rot: Array  # (n_img, 3, 3) world_from_camera
+    centre: Array  # (n_img, 3) local origin
+    intr: Array  # (n_cam, 8)
+    xyz: Array  # (n_pts, 3) local origin
+
+
+def _pairs(obs_point: np.ndarray, obs_image: np.ndarray, n_img: int):
+    """All pairs a < b of observations of one point, sorted by image pair."""
+    order = np.argsort(obs_point, kind="stable")
+    counts = np.bincount(obs_point)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    pa, pb = [], []
+    for n in np.unique(counts):
+        if n < 2:
+            continue
+        sel = starts[counts == n]
+        ia, ib = np.triu_indices(n, 1)
+        pa.append(order[(sel[:, None] + ia[None, :]).ravel()])
+        pb.append(order[(sel[:, None] + ib[None, :]).ravel()])
+    pa = np.concatenate(pa) if pa else np.zeros(0, np.int64)
+    pb = np.concatenate(pb) if pb else np.zeros(0, np.int64)
+    key = obs_image[pa] * n_img + obs_image[pb]
+    srt = np.argsort(key, kind="stable")
+    pa, pb, key = pa[srt], pb[srt], key[srt]
+    uniq, key_id = np.unique(key, return_inverse=True)
+    return pa, pb, key_id, uniq // n_img, uniq % n_img
+
+
+def _analyse(problem: BundleProblem, fixed_extra: np.ndarray, origin: np.ndarray) -> tuple[_Structure, int, int]:
+    """Index arrays, masks and sizes; returns (structure, n_unknowns_c, width)."""
+    n_img, n_cam = problem.n_images, problem.n_cameras
+    active = np.flatnonzero(problem.free_intrinsics.any(axis=0))
+    a = len(active)
+    w = 6 + a
+    cols = np.empty((n_img, w), dtype=np.int64)
+    cols[:, :6] = 6 * np.arange(n_img)[:, None] + np.arange(6)[None, :]
+    cols[:, 6:] = 6 * n_img + a * problem.image_camera[:, None] + np.arange(a)[None, :]
+    n_c = 6 * n_img + a * n_cam
+    mask_c = np.concatenate([(~(problem.fixed_exterior | fixed_extra)).ravel(), problem.free_intrinsics[:, active].ravel()])
+    ctrl = problem.roles == "control"
+    hard = ctrl[:, None] & (problem.point_sigma == 0)
+    soft = ctrl[:, None] & (problem.point_sigma > 0)
+    prior_w = np.where(soft, 1.0 / np.where(soft, problem.point_sigma, 1.0) ** 2, 0.0)
+    prior = np.where(ctrl[:, None], problem.points - origin[None, :], 0.0)
+    pa, pb, key, ka, kb = _pairs(problem.obs_point, problem.obs_image, n_img)
+    s = _Structure(
+        *(jnp.asarray(v) for v in (problem.obs_image, problem.obs_point, problem.obs_xy, problem.obs_sigma, cols)),
+        jnp.asarray(mask_c, dtype=float), jnp.asarray(~hard, dtype=float), jnp.asarray(prior),
+        jnp.asarray(prior_w), *(jnp.asarray(v) for v in (pa, pb, key, ka, kb, active, problem.image_camera)),
+    )  # fmt: skip
+    return s, n_c, w
+
+
+# --------------------------------------------------------------------------
+# Numerics (jitted; sizes are static, so same-shaped problems share a compile)
+# --------------------------------------------------------------------------
+
+
+def _project_one(z: Array, rot: Array, centre: Array, intr: Array, xyz: Array, active: Array) -> Array:
+    """Image-plane projection after the increment ``z = (dr, dC, d_intr_active, dX)``."""
+    a = active.shape[0]
+    r = rot @ axis_angle_to_matrix(z[0:3])
+    k = intr.at[active].add(z[6 : 6 + a])
+    cam = FrameCamera(k[0], k[1:3], k[3:8])
+    pc = r.T @ (xyz + z[6 + a :] - centre - z[3:6])
+    return cam.project(pc)
+
+
+def _residuals(state: _State, s: _Structure) -> Array:
+    """``(k, 2)`` weighted residuals ``(projected - observed) / sigma``."""
+    zero = jnp.zeros(9 + s.active.shape[0])
+    proj = jax.vmap(_project_one, in_axes=(None, 0, 0, 0, 0, None))(
+        zero, state.rot[s.obs_image], state.centre[s.obs_image], state.intr[s.image_camera[s.obs_image]],
+        state.xyz[s.obs_point], s.active,
+    )  # fmt: skip
+    return (proj - s.obs_xy) / s.obs_sigma
+
+
+def _rho(sq: Array, loss: str, scale: float) -> tuple[Array, Array]:
+    """Loss ``rho(s)`` and its derivative for squared norms ``s``."""
+    if loss == "huber":
+        d2 = scale * scale
+        root = jnp.sqrt(jnp.maximum(sq, d2))
+        return jnp.where(sq <= d2, sq, 2.0 * scale * root - d2), jnp.where(sq <= d2, 1.0, scale / root)
+    if loss == "cauchy":
+        d2 = scale * scale
+        return d2 * jnp.log1p(sq / d2), 1.0 / (1.0 + sq / d2)
+    return sq, jnp.ones_like(sq)
+
+
+def _prior_residuals(state: _State, s: _Structure) -> Array:
+    return (state.xyz - s.prior_xyz) * jnp.sqrt(s.prior_w)
+
+
+@functools.partial(jax.jit, static_argnames=("loss", "scale"))
+def _cost(state: _State, s: _Structure, loss: str, scale: float) -> Array:
+    r = _residuals(state, s)
+    rho, _ = _rho(jnp.sum(r * r, axis=1), loss, scale)
+    return 0.5 * jnp.sum(rho) + 0.5 * jnp.sum(_prior_residuals(state, s) ** 2)
+
+
+class _Lin(NamedTuple):
+    cost: Array
+    r: Array  # (k, 2) IRLS-scaled residuals
+    weight: Array  # (k,) IRLS weights rho'
+    jc: Array  # (k, 2, w)
+    jp: Array  # (k, 2, 3)
+    u_img: Array  # (n_img, w, w) sum of Jc^T Jc per image
+    v: Array  # (n_pts, 3, 3)
+    g_img: Array  # (n_img, w)
+    g_c: Array  # (N,)
+    g_p: Array  # (n_pts, 3)
+    d_c: Array  # (N,) diag(J^T J), clamped
+    d_p: Array  # (n_pts, 3)
+
+
+@functools.partial(jax.jit, static_argnames=("loss", "scale", "n_c"))
+def _linearise(state: _State, s: _Structure, loss: str, scale: float, n_c: int) -> _Lin:
+    n_img, n_pts = state.centre.shape[0], state.xyz.shape[0]
+    w = 6 + s.active.shape[0]
+    zero = jnp.zeros(w + 3)
+    args = (state.rot[s.obs_image], state.centre[s.obs_image], state.intr[s.image_camera[s.obs_image]], state.xyz[s.obs_point])
+    proj = jax.vmap(_project_one, in_axes=(None, 0, 0, 0, 0, None))(zero, *args, s.active)
+    jac = jax.vmap(jax.jacfwd(_project_one), in_axes=(None, 0, 0, 0, 0, None))(zero, *args, s.active)
+    r = (proj - s.obs_xy) / s.obs_sigma
+    jac = jac / s.obs_sigma[:, :, None]
+    rho, weight = _rho(jnp.sum(r * r, axis=1), loss, scale)
+    rp = _prior_residuals(state, s)
+    cost = 0.5 * jnp.sum(rho) + 0.5 * jnp.sum(rp * rp)
+    sw = jnp.sqrt(weight)[:, None]
+    r = r * sw
+    jac = jac * sw[:, :, None]
+    jc = jac[:, :, :w] * s.mask_c[s.image_ext[s.obs_image]][:, None, :]
+    jp = jac[:, :, w:] * s.mask_p[s.obs_point][:, None, :]
+    seg = functools.partial(jax.ops.segment_sum, num_segments=n_img)
+    segp = functools.partial(jax.ops.segment_sum, num_segments=n_pts)
+    u_img = seg(jnp.einsum("kri,krj->kij", jc, jc), s.obs_image)
+    g_img = seg(jnp.einsum("kri,kr->ki", jc, r), s.obs_image)
+    pw = s.prior_w * s.mask_p
+    v = segp(jnp.einsum("kri,krj->kij", jp, jp), s.obs_point) + pw[:, :, None] * jnp.eye(3)[None, :, :]
+    g_p = segp(jnp.einsum("kri,kr->ki", jp, r), s.obs_point) + pw * (state.xyz - s.prior_xyz)
+    flat = s.image_ext.ravel()
+    g_c = jnp.zeros(n_c).at[flat].add(g_img.ravel())
+    d_c = jnp.zeros(n_c).at[flat].add(jnp.diagonal(u_img, axis1=1, axis2=2).ravel())
+    d_p = jnp.diagonal(v, axis1=1, axis2=2)
+    clamp = functools.partial(jnp.clip, min=1e-6, max=1e32)
+    return _Lin(cost, r, weight, jc, jp, u_img, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p))
+
+
+def _reduced_system(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+    """Schur complement ``S`` and right-hand side, damped by ``lam``."""
+    n_img = lin.u_img.shape[0]
+    w = lin.u_img.shape[1]
+    eye3 = jnp.eye(3)[None, :, :]
+    v = lin.v + (lam * lin.d_p * s.mask_p + (1.0 - s.mask_p))[:, :, None] * eye3
+    vinv = jnp.linalg.inv(v)
+    wo = jnp.einsum("kri,krj->kij", lin.jc, lin.jp)  # (k, w, 3)
+    y = jnp.einsum("kij,kjl->kil", wo, vinv[s.obs_point])  # W V^-1 per observation
+    # Diagonal blocks: U - sum_o Y_o W_o^T per image; off-diagonal: pairs.
+    diag = lin.u_img - jax.ops.segment_sum(jnp.einsum("kil,kjl->kij", y, wo), s.obs_image, num_segments=n_img)
+    n_keys = s.key_a.shape[0]
+    off = -jax.ops.segment_sum(
+        jnp.einsum("pil,pjl->pij", y[s.pair_a], wo[s.pair_b]), s.pair_key, num_segments=n_keys, indices_are_sorted=True
+    )
+    ext = s.image_ext
+    S = jnp.zeros((n_c, n_c))
+    S = S.at[ext[:, :, None], ext[:, None, :]].add(diag)
+    ra, cb = ext[s.key_a], ext[s.key_b]
+    S = S.at[ra[:, :, None], cb[:, None, :]].add(off)
+    S = S.at[cb[:, :, None], ra[:, None, :]].add(jnp.swapaxes(off, 1, 2))
+    rhs_img = lin.g_img - jax.ops.segment_sum(
+        jnp.einsum("kil,kl->ki", y, lin.g_p[s.obs_point]), s.obs_image, num_segments=n_img
+    )
+    rhs = jnp.zeros(n_c).at[ext.ravel()].add(rhs_img.ravel())
+    del w
+    return S, rhs, vinv, wo
+
+
+@functools.partial(jax.jit, static_argnames=("loss", "scale", "n_c"))
+def _trial(state: _State, lin: _Lin, s: _Structure, lam: Array, loss: str, scale: float, n_c: int):
+    """One damped step: returns the candidate state, its cost, the predicted
+    decrease, the step norm and the parameter norm."""
+    S, rhs, vinv, wo = _reduced_system(lin, s, lam, n_c)
+    S = S + jnp.diag(lam * lin.d_c * s.mask_c + (1.0 - s.mask_c))
+    chol = jax.scipy.linalg.cho_factor(S, lower=True)
+    dc = -jax.scipy.linalg.cho_solve(chol, rhs) * s.mask_c
+    dce = dc[s.image_ext]  # (n_img, w)
+    wdc = jax.ops.segment_sum(
+        jnp.einsum("kij,ki->kj", wo, dce[s.obs_image]), s.obs_point, num_segments=state.xyz.shape[0]
+    )
+    dp = -jnp.einsum("pij,pj->pi", vinv, lin.g_p + wdc) * s.mask_p
+    n_img, n_cam = state.centre.shape[0], state.intr.shape[0]
+    a = s.active.shape[0]
+    dimg = dc[: 6 * n_img].reshape(n_img, 6)
+    dintr = dc[6 * n_img :].reshape(n_cam, a)
+    new = _State(
+        state.rot @ axis_angle_to_matrix(dimg[:, :3]),
+        state.centre + dimg[:, 3:],
+        state.intr.at[:, s.active].add(dintr),
+        state.xyz + dp,
+    )
+    # Model decrease L(0) - L(h) = 0.5 h^T (lam D h - g)  (Madsen et al. 2004).
+    pred = 0.5 * (jnp.sum(dc * (lam * lin.d_c * dc - lin.g_c)) + jnp.sum(dp * (lam * lin.d_p * dp - lin.g_p)))
+    step = jnp.sqrt(jnp.sum(dc * dc) + jnp.sum(dp * dp))
+    xnorm = jnp.sqrt(jnp.sum(new.centre**2) + jnp.sum(new.intr**2) + jnp.sum(new.xyz**2))
+    new_cost = _cost(new, s, loss, scale)
+    ok = jnp.isfinite(new_cost) & jnp.isfinite(step)
+    return new, jnp.where(ok, new_cost, jnp.inf), pred, step, xnorm
+
+
+@functools.partial(jax.jit, static_argnames=("n_c",))
+def _covariances(lin: _Lin, s: _Structure, n_c: int):
+    """Cofactor matrices (inverse normal matrix blocks) at ``lam = 0``:
+    the full reduced-camera inverse ``(N, N)`` and the point blocks
+    ``(n_pts, 3, 3)`` via ``Q_p = V^-1 + Y^T S^-1 Y`` with ``Y = W V^-1``."""
+    S, _, vinv, wo = _reduced_system(lin, s, jnp.zeros(()), n_c)
+    S = S + jnp.diag(1.0 - s.mask_c)
+    chol = jax.scipy.linalg.cho_factor(S, lower=True)
+    q_c = jax.scipy.linalg.cho_solve(chol, jnp.eye(n_c)) * (s.mask_c[:, None] * s.mask_c[None, :])
+    y = jnp.einsum("kij,kjl->kil", wo, vinv[s.obs_point])
+    ext = s.image_ext
+    eo = ext[s.obs_image]
+    n_pts = lin.v.shape[0]
+    qd = jnp.einsum("kia,kij,kjb->kab", y, q_c[eo[:, :, None], eo[:, None, :]], y)
+    ea, eb = eo[s.pair_a], eo[s.pair_b]
+    qo = jnp.einsum("pia,pij,pjb->pab", y[s.pair_a], q_c[ea[:, :, None], eb[:, None, :]], y[s.pair_b])
+    q_p = vinv + jax.ops.segment_sum(qd, s.obs_point, num_segments=n_pts)
+    q_p = q_p + jax.ops.segment_sum(qo + jnp.swapaxes(qo, 1, 2), s.obs_point[s.pair_a], num_segments=n_pts)
+    q_p = q_p * (s.mask_p[:, :, None] * s.mask_p[:, None, :])
+    return q_c, q_p, jnp.all(jnp.isfinite(chol[0]))
+
+
+def _angle_jacobian(rot: Array, convention: str) -> Array:
+    """``(n, 3, 3)`` d(angles)/d(rotation increment about camera axes)."""
+
+    def angles(dr, r):
+        return angles_from_matrix_unchecked(r @ axis_angle_to_matrix(dr), convention)[0]
+
+    return jax.vmap(jax.jacfwd(angles), in_axes=(None, 0))(jnp.zeros(3), rot)
+
+
+# --------------------------------------------------------------------------
+# The result
+# --------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class BundleResult:
+    """Adjusted block, its precision and the solver's report.
+
+    Attributes:
+        exterior: ``(n_images,)`` adjusted :class:`ExteriorOrientation`, in the
+            problem's angle convention.
+        rotation: ``(n_images, 3, 3)`` world_from_camera matrices (well
+            defined even where angles are in gimbal lock).
+        cameras: adjusted cameras (self-calibrated parameters updated).
+        points: ``(n_points, 3)`` adjusted ground coordinates.
+        cost: final ``0.5 sum rho(|r|^2)`` (+ control priors), weighted.
+        initial_cost: the cost at the start values.
+        history: one dict per iteration: ``iteration, cost, lambda,
+            step_norm, gradient_max, accepted, seconds``.
+        converged, message: stopping status; ``message`` names the rule.
+        iterations: number of iterations (accepted and rejected steps).
+        residuals: ``(k, 2)`` image-plane residuals ``projected - observed``
+            (camera unit).
+        weights: ``(k,)`` final IRLS weights (1 without a robust loss).
+        sigma0: a-posteriori standard deviation of unit weight
+            ``sqrt(sum w r^2 / redundancy)``.
+        redundancy: observations minus free parameters (plus the datum
+            defect for ``gauge="damped"``).
+        exterior_std: ``(n_images, 6)`` standard deviations of ``X, Y, Z``
+            and the three angles (radians, the convention's order), or None
+            when the datum is not defined (``gauge="damped"``).
+        camera_std: ``(n_cameras, 8)`` std of :data:`INTRINSICS` (0 = fixed).
+        point_std: ``(n_points, 3)`` std of ``X, Y, Z``.
+        point_cov: ``(n_points, 3, 3)`` covariances.
+        check_residuals: ``(n_check, 3)`` adjusted minus surveyed check points.
+        problem: the adjusted problem (for :meth:`to_problem`).
+    """
+
+    exterior: ExteriorOrientation
+    rotation: np.ndarray
+    cameras: tuple[FrameCamera, ...]
+    points: np.ndarray
+    cost: float
+    initial_cost: float
+    history: list
+    converged: bool
+    message: str
+    iterations: int
+    residuals: np.ndarray
+    weights: np.ndarray
+    sigma0: float
+    redundancy: int
+    exterior_std: np.ndarray | None
+    camera_std: np.ndarray | None
+    point_std: np.ndarray | None
+    point_cov: np.ndarray | None
+    check_residuals: np.ndarray
+    problem: BundleProblem
+    seconds: float = 0.0
+
+    @property
+    def check_names(self) -> list[str]:
+        return [n for n, r in zip(self.problem.point_names, self.problem.roles) if r == "check"]
+
+    def to_problem(self) -> BundleProblem:
+        """The problem with the adjusted values as start values."""
+        tie = (self.problem.roles == "tie")[:, None]
+        pts = np.where(tie, self.points, self.problem.points)
+        return self.problem.replace(cameras=self.cameras, exterior=self.exterior, points=pts)
+
+    def report(self) -> str:
+        """A plain-text summary: convergence, sigma0, residuals, precision."""
+        p = self.problem
+        rms = np.sqrt(np.mean(self.residuals**2, axis=0))
+        lines = [
+            f"bundle adjustment: {p!r}",
+            f"  {'converged' if self.converged else 'NOT converged'}: {self.message} after {self.iterations} iterations "
+            f"({self.seconds:.2f} s)",
+            f"  cost {self.initial_cost:.6g} -> {self.cost:.6g}; sigma0 {self.sigma0:.4g} (redundancy {self.redundancy})",
+            f"  image residual RMS x {rms[0]:.4g}, y {rms[1]:.4g} (camera units); max |r| "
+            f"{np.max(np.abs(self.residuals)):.4g}",
+        ]
+        if np.any(self.weights < 0.5):
+            lines.append(f"  {int(np.sum(self.weights < 0.5))} observations down-weighted below 0.5 by the robust loss")
+        if self.exterior_std is not None:
+            s = np.median(self.exterior_std, axis=0)
+            lines.append(
+                f"  median std of exterior: X {s[0]:.4g}, Y {s[1]:.4g}, Z {s[2]:.4g}, angles "
+                f"{np.degrees(s[3]) * 3600:.3g}\" {np.degrees(s[4]) * 3600:.3g}\" {np.degrees(s[5]) * 3600:.3g}\""
+            )
+            ps = np.median(self.point_std[p.roles != "control"], axis=0) if np.any(p.roles != "control") else None
+            if ps is not None:
+                lines.append(f"  median std of tie/check points: X {ps[0]:.4g}, Y {ps[1]:.4g}, Z {ps[2]:.4g}")
+        else:
+            lines.append("  precision not reported: the datum is free (gauge='damped')")
+        free = p.free_intrinsics
+        for c, cam in enumerate(self.cameras):
+            if free[c].any():
+                vals = np.concatenate([[float(cam.focal_length)], np.asarray(cam.principal_point), np.asarray(cam.distortion)])
+                parts = [
+                    f"{n} {vals[j]:.6g}" + (f" +- {self.camera_std[c, j]:.2g}" if self.camera_std is not None else "")
+                    for j, n in enumerate(INTRINSICS) if free[c, j]
+                ]  # fmt: skip
+                lines.append(f"  camera {c}: " + ", ".join(parts))
+                if c >= 5 and len(self.cameras) > 6:
+                    lines.append(f"  ... ({len(self.cameras) - 6} more self-calibrated cameras)")
+                    break
+        if len(self.check_residuals):
+            crms = np.sqrt(np.mean(self.check_residuals**2, axis=0))
+            lines.append(
+                f"  check points ({len(self.check_residuals)}): RMS X {crms[0]:.4g}, Y {crms[1]:.4g}, Z {crms[2]:.4g}"
+            )
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (lists of floats)."""
+        p = self.problem
+        eo = self.exterior
+        out = {
+            "converged": self.converged, "message": self.message, "iterations": self.iterations,
+            "cost": self.cost, "initial_cost": self.initial_cost, "sigma0": self.sigma0,
+            "redundancy": self.redundancy, "convention": eo.convention, "seconds": self.seconds,
+            "history": self.history,
+            "images": [
+                {"name": n, "position": np.asarray(eo.position[i]).tolist(), "angles_rad": np.asarray(eo.angles[i]).tolist(),
+                 **({"std": self.exterior_std[i].tolist()} if self.exterior_std is not None else {})}
+                for i, n in enumerate(p.image_names)
+            ],
+            "cameras": [
+                {"focal_length": float(c.focal_length), "principal_point": np.asarray(c.principal_point).tolist(),
+                 "distortion": np.asarray(c.distortion).tolist(),
+                 **({"std": self.camera_std[j].tolist()} if self.camera_std is not None else {})}
+                for j, c in enumerate(self.cameras)
+            ],
+            "check_points": [
+                {"name": n, "residual": r.tolist()} for n, r in zip(self.check_names, self.check_residuals)
+            ],
+        }  # fmt: skip
+        return out
+
+
+# --------------------------------------------------------------------------
+# The solver
+# --------------------------------------------------------------------------
+
+
+def _datum_constraints(problem: BundleProblem) -> int:
+    """Rough count of datum constraints (a network needs 7)."""
+    n_ctrl = int(np.sum(problem.roles == "control"))
+    return 3 * n_ctrl + int(problem.fixed_exterior.sum())
+
+
+def _gauge_mask(problem: BundleProblem, gauge) -> np.ndarray:
+    """Extra fixed exterior parameters for the chosen gauge."""
+    fixed = np.zeros((problem.n_images, 6), dtype=bool)
+    if gauge == "fix_first_camera":
+        if problem.n_images < 2:
+            raise ValueError("gauge='fix_first_camera' needs at least 2 images")
+        fixed[0] = True
+        # Scale: fix the second centre's largest baseline component.
+        base = np.asarray(problem.exterior.position[1] - problem.exterior.position[0])
+        fixed[1, int(np.argmax(np.abs(base)))] = True
+    return fixed
+
+
+def bundle_adjust(
+    problem: BundleProblem,
+    *,
+    loss: Loss = "none",
+    loss_scale: float = 1.0,
+    method: Literal["levenberg-marquardt", "gauss-newton"] = "levenberg-marquardt",
+    gauge: Gauge | None = None,
+    max_iterations: int = 50,
+    function_tolerance: float = 1e-6,
+    gradient_tolerance: float = 1e-10,
+    parameter_tolerance: float = 1e-8,
+    initial_trust_radius: float = 1e4,
+    precision: bool = True,
+    initialize: bool | Literal["auto"] = "auto",
+    verbose: bool = False,
+    progress: bool = False,
+    throw: bool = True,
+) -> BundleResult:
+    """Adjust a block by (robust) Levenberg–Marquardt with a Schur complement.
+
+    Args:
+        problem: the :class:`BundleProblem`.
+        loss: ``"none"`` (least squares), ``"huber"`` or ``"cauchy"``.
+        loss_scale: ``d``, the residual norm (in sigmas) where the robust loss
+            starts to down-weight.
+        method: ``"levenberg-marquardt"`` (Ceres-like trust region) or
+            ``"gauss-newton"`` (undamped steps, all accepted).
+        gauge: the datum of a network without enough control:
+            ``"fix_first_camera"`` fixes the first image's orientation and
+            the largest baseline component of the second image's centre (7
+            parameters); ``"damped"`` leaves the 7-parameter datum defect to
+            the LM damping, as Ceres does for BAL problems (the solution is
+            one of the equivalent ones; precision is not reported).  ``None``
+            (default) refuses a network whose datum is not defined by control
+            points or fixed orientations.
+        max_iterations: iterations counted as Ceres does (accepted and
+            rejected steps).
+        function_tolerance, gradient_tolerance, parameter_tolerance: the
+            stopping rule (Ceres' defaults), tested after each step::
+
+                |cost_old - cost_new| <= function_tolerance * cost_old      (accepted steps)
+                max |g| <= gradient_tolerance,  g = J^T r                   (at each new point)
+                |dx| <= parameter_tolerance * (|x| + parameter_tolerance)   (each computed step)
+
+            ``|x|`` is the norm of centres, intrinsics and points (local
+            origin).
+        initial_trust_radius: ``mu``; the damping is ``lambda = 1/mu``.  After
+            a step with gain ratio ``rho > 1e-3``: ``mu /= max(1/3, 1 -
+            (2 rho - 1)^3)``, else ``mu /= nu, nu *= 2`` (Nielsen; Ceres).
+        precision: compute sigma0 and standard deviations.
+        initialize: fill NaN orientations / points with
+            :func:`initialize_block` (``"auto"``: only when some are NaN).
+        verbose: print one line per iteration.
+        progress: show a tqdm progress bar over iterations.
+        throw: raise :class:`photax.ConvergenceError` when the adjustment fails
+            (no convergence within ``max_iterations``, singular normal
+            equations); else return the result with ``converged=False``.
+
+    Returns:
+        :class:`BundleResult`.
+    """
+    if loss not in ("none", "huber", "cauchy"):
+        raise ValueError(f"loss must be 'none', 'huber' or 'cauchy', got {loss!r}")
+    if method not in ("levenberg-marquardt", "gauss-newton"):
+        raise ValueError(f"method must be 'levenberg-marquardt' or 'gauss-newton', got {method!r}")
+    if gauge not in (None, "fix_first_camera", "damped"):
+        raise ValueError(f"gauge must be None, 'fix_first_camera' or 'damped', got {gauge!r}")
+    if not loss_scale > 0:
+        raise ValueError(f"loss_scale must be positive, got {loss_scale}")
+    if gauge is None and _datum_constraints(problem) < 7:
+        raise ValueError(
+            "the network has no datum: fewer than 3 control points and no fixed orientations "
+            "(7 parameters: translation, rotation, scale are free). Add control points, fix "
+            "orientations (fixed_exterior=), or choose gauge='fix_first_camera' or gauge='damped' "
+            "(LM damping handles the defect, as Ceres does for BAL)"
+        )
+    if initialize is True or (initialize == "auto" and _needs_init(problem)):
+        problem = initialize_block(problem)
+    if _needs_init(problem):
+        raise ValueError("problem has NaN orientations or points: give start values or initialize=True")
+    t_start = time.perf_counter()
+    finite = np.all(np.isfinite(problem.points), axis=1)
+    origin = np.round(np.mean(np.concatenate([problem.points[finite], np.asarray(problem.exterior.position)]), axis=0))
+    s, n_c, _ = _analyse(problem, _gauge_mask(problem, gauge), origin)
+    intr = np.stack([np.concatenate([[float(c.focal_length)], np.asarray(c.principal_point), np.asarray(c.distortion)]) for c in problem.cameras])
+    state = _State(
+        jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
+        jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]),
+    )  # fmt: skip
+    kw = dict(loss=loss, scale=float(loss_scale), n_c=n_c)
+    lin = _linearise(state, s, **kw)
+    cost = initial_cost = float(lin.cost)
+    gn = method == "gauss-newton"
+    mu, nu = float(initial_trust_radius), 2.0
+    history: list[dict] = []
+    message, converged = "", False
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=max_iterations, desc="bundle", unit="it")
+    gmax = max(float(jnp.max(jnp.abs(lin.g_c))), float(jnp.max(jnp.abs(lin.g_p))) if problem.n_points else 0.0)
+    if gmax <= gradient_tolerance:
+        message, converged = f"gradient tolerance: max|g| = {gmax:.3g} <= {gradient_tolerance:g}", True
+    it = 0
+    while not converged and it < max_iterations:
+        it += 1
+        t0 = time.perf_counter()
+        lam = 0.0 if gn else 1.0 / mu
+        new, new_cost, pred, step, xnorm = _trial(state, lin, s, jnp.asarray(lam), **kw)
+        new_cost, pred, step, xnorm = float(new_cost), float(pred), float(step), float(xnorm)
+        rho = (cost - new_cost) / pred if pred > 0 else -1.0
+        accepted = (gn and math.isfinite(new_cost)) or (rho > 1e-3 and math.isfinite(new_cost))
+        old = cost
+        if accepted:
+            state, cost = new, new_cost
+            lin = _linearise(state, s, **kw)
+            gmax = max(float(jnp.max(jnp.abs(lin.g_c))), float(jnp.max(jnp.abs(lin.g_p))))
+            mu = mu / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            mu, nu = min(mu, 1e16), 2.0
+        else:
+            mu, nu = mu / nu, nu * 2.0
+        history.append(dict(iteration=it, cost=cost, candidate_cost=new_cost, relative_decrease=rho, trust_radius=mu,
+                            step_norm=step, gradient_max=gmax, accepted=bool(accepted), seconds=time.perf_counter() - t0))  # fmt: skip
+        if verbose:
+            print(f"{it:4d}  cost {cost:.6e}  cost_change {old - cost:+.3e}  |g| {gmax:.2e}  |step| {step:.2e}  "
+                  f"tr_radius {mu:.2e}  {'ok' if accepted else 'rejected'}", file=sys.stdout, flush=True)  # fmt: skip
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(cost=f"{cost:.4g}")
+        if not math.isfinite(step) and (gn or mu < 1e-32):
+            message = "the normal equations are singular (datum defect or undetermined parameters)"
+            break
+        if accepted and abs(old - cost) <= function_tolerance * old:
+            message, converged = f"function tolerance: |dcost|/cost = {abs(old - cost) / max(old, 1e-300):.3g} <= {function_tolerance:g}", True
+        elif accepted and gmax <= gradient_tolerance:
+            message, converged = f"gradient tolerance: max|g| = {gmax:.3g} <= {gradient_tolerance:g}", True
+        elif math.isfinite(step) and step <= parameter_tolerance * (xnorm + parameter_tolerance):
+            message, converged = f"parameter tolerance: |dx| = {step:.3g} <= {parameter_tolerance:g} (|x| + tol)", True
+        elif not gn and mu < 1e-32:
+            message = "trust region radius below 1e-32: no decrease possible"
+            break
+    if bar is not None:
+        bar.close()
+    if not converged and not message:
+        message = f"no convergence within max_iterations = {max_iterations}"
+    return _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged,
+                   message, it, throw, time.perf_counter() - t_start)  # fmt: skip
+
+
+def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged, message,
+            iterations, throw, seconds) -> BundleResult:  # fmt: skip
+    conv = problem.exterior.convention
+    rot = np.asarray(state.rot)
+    angles, _ = angles_from_matrix_unchecked(state.rot, conv)
+    eo = ExteriorOrientation(np.asarray(state.centre) + origin[None, :], np.asarray(angles), conv)
+    intr = np.asarray(state.intr)
+    cams = tuple(
+        FrameCamera(k[0], k[1:3], k[3:], pixel_size=c.pixel_size, image_size=c.image_size)
+        for k, c in zip(intr, problem.cameras)
+    )
+    pts = np.asarray(state.xyz) + origin[None, :]
+    weight = np.asarray(lin.weight)
+    residuals = np.asarray(lin.r) / np.sqrt(np.maximum(weight, 1e-300))[:, None] * problem.obs_sigma
+    n_free = int(np.asarray(s.mask_c).sum() + np.asarray(s.mask_p).sum())
+    n_prior = int(np.sum(np.asarray(s.prior_w) > 0))
+    redundancy = 2 * problem.n_observations + n_prior - n_free + (7 if gauge == "damped" else 0)
+    wsq = float(jnp.sum(lin.r**2) + jnp.sum(_prior_residuals(state, s) ** 2))
+    sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
+    eo_std = cam_std = pt_std = pt_cov = None
+    if precision and gauge != "damped":
+        q_c, q_p, ok = _covariances(lin, s, n_c)
+        if not bool(ok):
+            converged = False
+            message = "the normal equations are singular at the solution (datum defect or undetermined parameters)"
+        else:
+            var0 = sigma0**2 if redundancy > 0 else 1.0
+            q_c, q_p = np.asarray(q_c), np.asarray(q_p)
+            n_img = problem.n_images
+            blocks = np.stack([q_c[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(n_img)])
+            # Reorder to (centre, rotation) and map rotation increments to angles.
+            cen = blocks[:, 3:, 3:]
+            jac = np.asarray(_angle_jacobian(state.rot, conv))
+            ang = np.einsum("nij,njk,nlk->nil", jac, blocks[:, :3, :3], jac)
+            eo_std = np.sqrt(var0 * np.concatenate([np.diagonal(cen, 0, 1, 2), np.diagonal(ang, 0, 1, 2)], axis=1))
+            a = np.asarray(s.active)
+            cam_std = np.zeros((problem.n_cameras, 8))
+            dq = np.diagonal(q_c)[6 * n_img :].reshape(problem.n_cameras, len(a))
+            cam_std[:, a] = np.sqrt(var0 * np.maximum(dq, 0.0))
+            pt_cov = var0 * q_p
+            pt_std = np.sqrt(np.maximum(np.diagonal(pt_cov, 0, 1, 2), 0.0))
+    check = problem.roles == "check"
+    result = BundleResult(
+        exterior=eo, rotation=rot, cameras=cams, points=pts, cost=float(cost), initial_cost=float(initial_cost),
+        history=history, converged=bool(converged), message=message, iterations=iterations, residuals=residuals,
+        weights=weight, sigma0=sigma0, redundancy=redundancy, exterior_std=eo_std, camera_std=cam_std,
+        point_std=pt_std, point_cov=pt_cov, check_residuals=pts[check] - problem.points[check], problem=problem,
+        seconds=seconds,
+    )  # fmt: skip
+    if throw and not result.converged:
+        raise ConvergenceError(f"bundle adjustment failed: {message}")
+    return result
+
+
+# --------------------------------------------------------------------------
+# Start values
+# --------------------------------------------------------------------------
+
+
+def _needs_init(problem: BundleProblem) -> bool:
+    eo = np.concatenate([np.asarray(problem.exterior.position), np.asarray(problem.exterior.angles)], axis=1)
+    return bool(np.any(~np.isfinite(eo)) or np.any(~np.isfinite(problem.points)))
+
+
+def initialize_block(problem: BundleProblem, *, min_control: int = 4) -> BundleProblem:
+    """Start values for a block: resection, then forward intersection.
+
+    Images whose orientation is NaN are resected (:func:`photax.resect`)
+    from the control points they see (at least ``min_control``); then tie
+    and check points whose coordinates are NaN are intersected
+    (:func:`photax.intersect`) from all oriented images that see them.
+    Check points are never used as control here.
+    """
+    pos = np.array(problem.exterior.position)
+    ang = np.array(problem.exterior.angles)
+    conv = problem.exterior.convention
+    pts = problem.points.copy()
+    ctrl = problem.roles == "control"
+    todo = ~np.all(np.isfinite(np.concatenate([pos, ang], axis=1)), axis=1)
+    if np.any(todo):
+        from .resection import resect
+
+        for i in np.flatnonzero(todo):
+            sel = (problem.obs_image == i) & ctrl[problem.obs_point]
+            if sel.sum() < min_control:
+                raise ValueError(
+                    f"{problem.image_names[i]}: no start orientation and only {int(sel.sum())} control points "
+                    f"(resection needs {min_control}); give its exterior orientation"
+                )
+            cam = problem.cameras[problem.image_camera[i]]
+            res = resect(problem.obs_xy[sel], pts[problem.obs_point[sel]], cam, sigma=problem.obs_sigma[sel, 0],
+                         throw=True)  # fmt: skip
+            ext = res.exterior.to_convention(conv)
+            pos[i], ang[i] = np.asarray(ext.position), np.asarray(ext.angles)
+    exterior = ExteriorOrientation(pos, ang, conv)
+    missing = ~np.all(np.isfinite(pts), axis=1) & ~ctrl
+    if np.any(missing):
+        from .intersection import intersect
+
+        sel = missing[problem.obs_point]
+        new_index = np.cumsum(missing) - 1
+        cams = [problem.cameras[c] for c in problem.image_camera]
+        xyz = intersect(
+            problem.obs_xy[sel], exterior, cams, obs_image=problem.obs_image[sel],
+            obs_point=new_index[problem.obs_point[sel]], n_points=int(missing.sum()),
+        )  # fmt: skip
+        pts[missing] = xyz
+    return problem.replace(exterior=exterior, points=pts)
+
+
+# --------------------------------------------------------------------------
+# A synthetic block with known truth (tests, notebook, demo, data/block)
+# --------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class SyntheticBlock:
+    """Truth of :func:`synthetic_block`: the problem was generated from it."""
+
+    exterior: ExteriorOrientation
+    points: np.ndarray
+    camera: FrameCamera
+
+
+def synthetic_block(
+    seed: int = 0,
+    *,
+    strips: int = 2,
+    images_per_strip: int = 4,
+    n_tie: int = 100,
+    n_control: int = 6,
+    n_check: int = 4,
+    noise_px: float = 0.5,
+    flying_height: float = 600.0,
+    relief: float = 60.0,
+    tilt_deg: float = 2.0,
+    focal_px: float = 3000.0,
+    distortion=(0.0, 0.0, 0.0, 0.0, 0.0),
+    start_error: tuple[float, float, float] = (5.0, 0.01, 3.0),
+    unknown_start: bool = False,
+    convention: str = "omega-phi-kappa",
+) -> tuple[BundleProblem, SyntheticBlock]:
+    """An aerial block (strips of 60 % forward / 30 % side overlap) with truth.
+
+    4000 x 3000 px frames, ``focal_px`` principal distance, flown at
+    ``flying_height`` m over terrain of heights ``0 .. relief`` m, each image
+    tilted by up to ``tilt_deg``.  Ground coordinates are UTM-like (~5e5,
+    4e6 m).  Control points sit on the block's border (``n_control``), check
+    points inside.  Control points are fixed (sigma 0); give them a sigma
+    with :meth:`BundleProblem.replace` (``point_sigma=``).
+    Measurements are the true projections plus Gaussian noise of
+    ``noise_px`` (and ``obs_sigma = noise_px``, or 1 px for noise 0).
+
+    Start values: the truth perturbed by ``start_error = (position m,
+    angle rad, tie-point m)``, or NaN (``unknown_start=True``) for
+    :func:`initialize_block`.
+
+    Returns:
+        ``(problem, truth)``.
+    """
+    rng = np.random.default_rng(seed)
+    w, h = 4000, 3000
+    cam = FrameCamera.from_pixels(focal_px, (w, h), distortion=distortion)
+    gsd = flying_height / focal_px
+    base, spacing = 0.4 * w * gsd, 0.7 * h * gsd
+    origin = np.array([500_000.0, 4_000_000.0, 100.0])
+    xs = np.arange(images_per_strip) * base
+    ys = np.arange(strips) * spacing
+    centres = np.array([[x, y, flying_height + relief / 2] for y in ys for x in xs]) + origin
+    tilt = np.radians(tilt_deg)
+    angles = np.column_stack([rng.uniform(-tilt, tilt, (len(centres), 2)), rng.uniform(-0.02, 0.02, len(centres))])
+    truth_eo = ExteriorOrientation(centres, angles, "omega-phi-kappa").to_convention(convention)  # type: ignore[arg-type]
+    lo = np.array([xs[0] - 0.3 * w * gsd, ys[0] - 0.3 * h * gsd])
+    hi = np.array([xs[-1] + 0.3 * w * gsd, ys[-1] + 0.3 * h * gsd])
+
+    def terrain(xy):
+        u = (xy - lo) / (hi - lo)
+        return relief * (0.5 + 0.25 * np.sin(5.0 * u[:, 0]) * np.cos(4.0 * u[:, 1]) + 0.25 * u[:, 0] * u[:, 1])
+
+    # Control on a ring along the border, check points inside, ties anywhere.
+    t = np.linspace(0, 1, n_control, endpoint=False) + 0.5 / max(n_control, 1)
+    ring = np.column_stack([0.5 + 0.42 * np.cos(2 * np.pi * t), 0.5 + 0.42 * np.sin(2 * np.pi * t)])
+    inner = 0.3 + 0.4 * rng.uniform(size=(n_check, 2))
+    tie = rng.uniform(size=(4 * n_tie, 2))
+    uv = np.concatenate([ring, inner, tie])
+    xy = lo + uv * (hi - lo)
+    xyz = np.column_stack([xy, terrain(xy)]) + origin
+    roles = np.array(["control"] * n_control + ["check"] * n_check + ["tie"] * len(tie), dtype=object)
+    from .collinearity import project
+
+    obs_i, obs_p, obs_xy = [], [], []
+    for i in range(len(centres)):
+        eo_i = ExteriorOrientation(truth_eo.position[i], truth_eo.angles[i], convention)  # type: ignore[arg-type]
+        img = np.asarray(project(jnp.asarray(xyz), eo_i, cam))
+        inside = (np.abs(img[:, 0]) < 0.48 * w) & (np.abs(img[:, 1]) < 0.48 * h)
+        for p in np.flatnonzero(inside):
+            obs_i.append(i)
+            obs_p.append(p)
+            obs_xy.append(img[p])
+    obs_i, obs_p, obs_xy = np.array(obs_i), np.array(obs_p), np.array(obs_xy)
+    counts = np.bincount(obs_p, minlength=len(xyz))
+    keep = counts >= 2
+    keep[:n_control] = counts[:n_control] >= 1
+    tie_idx = np.flatnonzero(keep[n_control + n_check :])[:n_tie] + n_control + n_check
+    keep[n_control + n_check :] = False
+    keep[tie_idx] = True
+    if not np.all(keep[: n_control + n_check]):
+        raise ValueError("synthetic_block: a control or check point is outside every image; change the layout")
+    new_id = np.cumsum(keep) - 1
+    sel = keep[obs_p]
+    obs_i, obs_p, obs_xy = obs_i[sel], new_id[obs_p[sel]], obs_xy[sel]
+    xyz, roles = xyz[keep], roles[keep]
+    obs_xy = obs_xy + noise_px * rng.standard_normal(obs_xy.shape)
+    names = [f"{r[:3].upper()}{i:03d}" for i, r in enumerate(roles)]
+    e_pos, e_ang, e_pt = start_error
+    if unknown_start:
+        pos0 = np.full_like(centres, np.nan)
+        ang0 = np.full_like(angles, np.nan)
+        pts0 = np.where((roles == "tie")[:, None], np.nan, xyz)
+    else:
+        pos0 = np.asarray(truth_eo.position) + e_pos * rng.standard_normal(centres.shape)
+        ang0 = np.asarray(truth_eo.angles) + e_ang * rng.standard_normal(angles.shape)
+        pts0 = np.where((roles == "tie")[:, None], xyz + e_pt * rng.standard_normal(xyz.shape), xyz)
+    problem = BundleProblem(
+        cam, ExteriorOrientation(pos0, ang0, convention), pts0, obs_i, obs_p, obs_xy,  # type: ignore[arg-type]
+        obs_sigma=noise_px if noise_px > 0 else 1.0, roles=roles,
+        image_names=[f"S{i // images_per_strip + 1}_{i % images_per_strip + 1}" for i in range(len(centres))],
+        point_names=names,
+    )  # fmt: skip
+    return problem, SyntheticBlock(truth_eo, xyz, cam)

@@ -1,0 +1,199 @@
+"""Forward intersection (space intersection, triangulation) of image rays.
+
+Each measurement ``xy`` on an oriented image defines a ray from the
+projection centre ``C`` along ``d = R (xn, yn, -1)`` (``R`` world_from_camera,
+``(xn, yn)`` the undistorted normalised coordinates; ``docs/conventions.md``).
+The linear least-squares intersection minimises the sum of squared
+perpendicular distances of ``X`` to the rays::
+
+    sum_i |(I - u_i u_i^T)(X - C_i)|^2,   u_i = d_i / |d_i|
+    =>  [sum_i (I - u_i u_i^T)] X = sum_i (I - u_i u_i^T) C_i
+
+(e.g. Hartley & Zisserman, "Multiple View Geometry", 2nd ed., sec. 12.2 for
+the algebraic form; Wolf, DeWitt & Wilkinson, "Elements of
+Photogrammetry", ch. 11 for space intersection).  With ``refine=True`` the
+points are then adjusted on their image residuals (Gauss–Newton, images
+fixed), which is the maximum-likelihood estimate under Gaussian image noise
+and gives each point's standard deviations.
+
+Rays that meet at a small angle give a poorly determined point (the depth
+error grows like ``1 / sin(angle)``): such points are reported with a
+warning.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import numpy as np
+
+from .camera import FrameCamera
+from .collinearity import ExteriorOrientation
+
+
+@dataclasses.dataclass(frozen=True)
+class Intersection:
+    """Full output of :func:`intersect` (``full_output=True``).
+
+    Attributes:
+        points: ``(n, 3)`` ground coordinates (NaN where fewer than 2 rays).
+        angle_deg: ``(n,)`` largest angle between two rays of each point.
+        n_rays: ``(n,)`` number of rays.
+        std: ``(n, 3)`` standard deviations (``refine=True`` only, else None).
+        residual_rms: ``(n,)`` RMS image residual of each point (camera unit).
+    """
+
+    points: np.ndarray
+    angle_deg: np.ndarray
+    n_rays: np.ndarray
+    std: np.ndarray | None
+    residual_rms: np.ndarray
+
+
+def _as_list(exterior) -> ExteriorOrientation:
+    from .bundle import _as_exterior
+
+    return _as_exterior(exterior)
+
+
+def intersect(
+    image_xy,
+    exterior,
+    cameras,
+    *,
+    obs_image=None,
+    obs_point=None,
+    n_points: int | None = None,
+    sigma=1.0,
+    refine: bool = False,
+    min_angle_deg: float = 2.0,
+    full_output: bool = False,
+):
+    """Intersect rays from several oriented images.
+
+    Two input layouts:
+
+    * **table**: ``image_xy`` ``(m, n, 2)``, point ``j`` as measured on
+      image ``i`` (NaN where not measured);
+    * **list**: ``image_xy`` ``(k, 2)`` with ``obs_image`` and ``obs_point``
+      ``(k,)`` integer indices (and ``n_points``, default
+      ``max(obs_point) + 1``).
+
+    Args:
+        image_xy: image-plane coordinates (x right, y up, camera unit).
+        exterior: ``m`` orientations (batched :class:`ExteriorOrientation` or
+            a list).
+        cameras: one :class:`FrameCamera` for all images, or ``m``.
+        sigma: image measurement std (scalar or per observation), for the
+            refinement's weights and precision.
+        refine: adjust the points on their image residuals after the linear
+            solution (needs at least 2 rays per point).
+        min_angle_deg: warn about points whose rays meet at less than this.
+        full_output: return an :class:`Intersection` instead of the points.
+
+    Returns:
+        ``(n, 3)`` ground coordinates, NaN for points with fewer than 2 rays,
+        or an :class:`Intersection`.
+    """
+    eo = _as_list(exterior)
+    m = eo.position.shape[0]
+    cams = [cameras] * m if isinstance(cameras, FrameCamera) else list(cameras)
+    if len(cams) != m:
+        raise ValueError(f"cameras must be one FrameCamera or {m} (one per image), got {len(cams)}")
+    xy = np.asarray(image_xy, dtype=float)
+    if obs_image is None and obs_point is None:
+        if xy.ndim != 3 or xy.shape[0] != m or xy.shape[2] != 2:
+            raise ValueError(f"image_xy must be (m, n, 2) = ({m}, n, 2) in the table layout, got {xy.shape}")
+        n = xy.shape[1]
+        ii, jj = np.nonzero(np.all(np.isfinite(xy), axis=2))
+        xy = xy[ii, jj]
+    else:
+        if obs_image is None or obs_point is None:
+            raise ValueError("give both obs_image and obs_point (list layout), or neither (table layout)")
+        ii, jj = np.asarray(obs_image), np.asarray(obs_point)
+        if xy.ndim != 2 or xy.shape[1] != 2 or ii.shape != (len(xy),) or jj.shape != (len(xy),):
+            raise ValueError(f"list layout: image_xy (k, 2), obs_image and obs_point (k,); got {xy.shape}, {ii.shape}, {jj.shape}")
+        if len(ii) and (ii.min() < 0 or ii.max() >= m or jj.min() < 0):
+            raise ValueError(f"obs_image must be in [0, {m}) and obs_point >= 0")
+        n = int(n_points if n_points is not None else (jj.max() + 1 if len(jj) else 0))
+        if len(jj) and jj.max() >= n:
+            raise ValueError(f"obs_point has index {jj.max()} >= n_points = {n}")
+        if not np.all(np.isfinite(xy)):
+            raise ValueError("image_xy has non-finite values in the list layout")
+    rot = np.asarray(eo.rotation)
+    centre = np.asarray(eo.position)
+    origin = centre.mean(axis=0)
+    # Ray directions in the ground frame, one camera at a time (distortion removed).
+    d = np.empty((len(xy), 3))
+    for c in {id(c): c for c in cams}.values():
+        sel = np.array([cams[i] is c for i in ii], dtype=bool)
+        if sel.any():
+            d[sel] = np.einsum("kij,kj->ki", rot[ii[sel]], np.asarray(c.ray(xy[sel])))
+    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+    proj = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
+    c_loc = centre[ii] - origin[None, :]
+    a = np.zeros((n, 3, 3))
+    b = np.zeros((n, 3))
+    np.add.at(a, jj, proj)
+    np.add.at(b, jj, np.einsum("kij,kj->ki", proj, c_loc))
+    n_rays = np.bincount(jj, minlength=n)
+    ok = n_rays >= 2
+    pts = np.full((n, 3), np.nan)
+    if ok.any():
+        pts[ok] = np.linalg.solve(a[ok], b[ok][:, :, None])[:, :, 0] + origin[None, :]
+    # Largest angle between two rays of each point.
+    from .bundle import _pairs
+
+    angle = np.zeros(n)
+    if ok.any():
+        pa, pb, *_ = _pairs(jj, ii, m)
+        cosang = np.clip(np.sum(u[pa] * u[pb], axis=1), -1.0, 1.0)
+        np.maximum.at(angle, jj[pa], np.degrees(np.arccos(cosang)))
+    std = None
+    if refine and ok.any():
+        pts, std = _refine(pts, ok, xy, ii, jj, eo, cams, sigma)
+    narrow = ok & (angle < min_angle_deg)
+    if narrow.any():
+        warnings.warn(
+            f"{int(narrow.sum())} of {n} points are intersected by rays meeting at less than {min_angle_deg} degrees "
+            f"(smallest {angle[narrow].min():.3g}): their depth is poorly determined",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    if not full_output:
+        return pts
+    from .collinearity import project
+
+    res = np.zeros(n)
+    for i in np.unique(ii):
+        sel = ii == i
+        e = ExteriorOrientation(eo.position[i], eo.angles[i], eo.convention)
+        r = np.asarray(project(np.nan_to_num(pts[jj[sel]]), e, cams[i])) - xy[sel]
+        np.add.at(res, jj[sel], np.sum(r * r, axis=1))
+    rms = np.where(ok, np.sqrt(res / np.maximum(n_rays, 1) / 2.0), np.nan)
+    return Intersection(pts, np.where(ok, angle, np.nan), n_rays, std, rms)
+
+
+def _refine(pts, ok, xy, ii, jj, eo, cams, sigma):
+    """Adjust points on image residuals with every image fixed (a bundle
+    adjustment whose reduced camera system is empty)."""
+    from .bundle import BundleProblem, bundle_adjust
+
+    keep = ok[jj]
+    new_id = np.cumsum(ok) - 1
+    sig = np.broadcast_to(np.asarray(sigma, dtype=float), (len(xy),))[keep]
+    uniq = list({id(c): c for c in cams}.values())
+    image_camera = np.array([next(k for k, c in enumerate(uniq) if c is cams[i]) for i in range(len(cams))])
+    problem = BundleProblem(
+        uniq, eo, pts[ok], ii[keep], new_id[jj[keep]], xy[keep], obs_sigma=sig, image_camera=image_camera,
+        fixed_exterior=np.ones(len(cams), dtype=bool),
+    )  # fmt: skip
+    result = bundle_adjust(problem, throw=False)
+    out = pts.copy()
+    out[ok] = result.points
+    std = np.full(pts.shape, np.nan)
+    if result.point_std is not None:
+        # Weights are absolute (sigma given): no rescaling by sigma0 of a few rays.
+        std[ok] = result.point_std / (result.sigma0 if np.isfinite(result.sigma0) and result.sigma0 > 0 else 1.0)
+    return out, std
