@@ -1,0 +1,206 @@
+"""The photax demo: a report (Markdown + PNG figures) on the bundled sample data.
+
+:func:`run_demo` runs each function of :data:`SECTIONS` in turn; a section
+takes the output folder, writes its figures there and returns its Markdown.
+Other parts of photax add their own section by appending a function to
+``SECTIONS``, e.g. ``rectification_section(out)`` and ``bundle_section(out)``.
+
+The sample scene (:func:`sample_scene`) is generated, not measured: a seeded
+synthetic vertical aerial frame with ground control and check points, one of
+which carries a deliberate blunder.  ``data/make_sample.py`` writes the same
+scene to ``data/`` so it can be read without photax; the demo regenerates it
+in its output folder, so it works from any installation and never writes
+into the package or the repository.
+"""
+
+from __future__ import annotations
+
+import pathlib
+from typing import Callable
+
+import numpy as np
+
+from .camera import FrameCamera
+from .collinearity import ExteriorOrientation, image_to_ground, project
+from .io.atomic import atomic_write
+from .io.camera_file import read_camera, write_camera
+from .io.gcp import GCPTable, read_gcps
+from .io.results import write_json
+
+# --------------------------------------------------------------------------- sample scene
+
+SAMPLE_SEED = 20240917
+SAMPLE_IMAGE = "IMG_0001"
+SAMPLE_NOISE_PX = 0.3
+SAMPLE_BLUNDER = ("P07", (15.0, 0.0))  # a point name and its deliberate error (column, row) in pixels
+SAMPLE_CHECK = ("P03", "P06", "P11", "P14")
+
+
+def _relief(x, y):
+    """Terrain height in metres at local (x, y) metres: a hill and a slope, 40 .. 110 m."""
+    return 60.0 + 0.03 * x + 45.0 * np.exp(-((x - 120.0) ** 2 + (y + 60.0) ** 2) / (2 * 180.0**2))
+
+
+def sample_scene() -> dict:
+    """The sample scene: camera, true exterior orientation and the GCP table.
+
+    A 4000 x 3000 px frame camera (f = 8.8 mm, 4.4 um pixels, a small
+    principal-point offset and radial distortion) about 380 m above hilly
+    ground at UTM-scale coordinates (GSD ~ 0.19 m), tilted by about 1 deg.
+    16 points on a jittered 4 x 4 grid of the image: 12 control and 4 check
+    points (:data:`SAMPLE_CHECK`), pixel noise 0.3 px (Gaussian, per
+    coordinate), and a 15 px blunder on :data:`SAMPLE_BLUNDER`.
+
+    Returns:
+        dict with ``camera``, ``exterior`` (phi-omega-kappa), ``table``
+        (:class:`photax.io.GCPTable`, measured pixels), ``pixel_true``
+        ``(16, 2)`` noise-free pixels, ``crs``.
+    """
+    rng = np.random.default_rng(SAMPLE_SEED)
+    camera = FrameCamera(8.8, (0.011, -0.0066), (-0.02, 0.004, 0.0, 0.0, 0.0),
+                         pixel_size=0.0044, image_size=(4000, 3000))
+    origin = np.array([512_300.0, 4_103_800.0, 0.0])  # UTM-like: photax must reduce these
+    exterior = ExteriorOrientation(origin + np.array([8.0, -12.0, 450.0]),
+                                   np.radians([1.2, -0.8, 35.0]), "phi-omega-kappa")
+    # Jittered 4 x 4 grid in the image, kept 150 px from the border.
+    u = np.linspace(250.0, 3750.0, 4)
+    v = np.linspace(250.0, 2750.0, 4)
+    pix = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2) + rng.uniform(-100, 100, (16, 2))
+    # Monoplot each pixel onto the terrain: cut the ray with Z = h(X, Y) until it settles.
+    xy = camera.pixel_to_image(pix)
+    z = np.full(16, 60.0)
+    for _ in range(50):
+        g = np.asarray(image_to_ground(xy, exterior, camera, height=z))
+        z = _relief(g[:, 0] - origin[0], g[:, 1] - origin[1])
+    ground = np.round(np.column_stack([g[:, :2], z]), 3)  # surveyed to the millimetre
+    pixel_true = np.asarray(camera.image_to_pixel(project(ground, exterior, camera)))
+    pixel = pixel_true + rng.normal(0.0, SAMPLE_NOISE_PX, pixel_true.shape)
+    names = np.array([f"P{k + 1:02d}" for k in range(16)])
+    pixel[names == SAMPLE_BLUNDER[0]] += np.asarray(SAMPLE_BLUNDER[1])
+    pixel = np.round(pixel, 3)
+    table = GCPTable(
+        names=names, images=np.full(16, SAMPLE_IMAGE), ground=ground, pixel=pixel, image_xy=None,
+        sigma=np.full(16, SAMPLE_NOISE_PX), role=np.where(np.isin(names, SAMPLE_CHECK), "check", "control"),
+        crs="EPSG:32633")
+    return {"camera": camera, "exterior": exterior, "table": table, "pixel_true": pixel_true, "crs": table.crs}
+
+
+def write_sample(out_dir) -> dict[str, pathlib.Path]:
+    """Write the sample scene: ``sample_gcps.csv``, ``sample_camera.yaml``, ``sample_truth.json``."""
+    out = pathlib.Path(out_dir)
+    s = sample_scene()
+    t = s["table"]
+    paths = {"gcps": out / "sample_gcps.csv", "camera": out / "sample_camera.yaml", "truth": out / "sample_truth.json"}
+    with atomic_write(paths["gcps"], newline="") as fh:
+        fh.write(f"# photax sample GCPs (synthetic, seed {SAMPLE_SEED}); CRS {t.crs}; pixels: integer = pixel centre\n")
+        fh.write("name,image,E,N,h,col,row,sigma,role\n")
+        for k in range(len(t)):
+            fh.write(f"{t.names[k]},{t.images[k]},{t.ground[k, 0]:.3f},{t.ground[k, 1]:.3f},{t.ground[k, 2]:.3f},"
+                     f"{t.pixel[k, 0]:.3f},{t.pixel[k, 1]:.3f},{t.sigma[k]:g},{t.role[k]}\n")
+    write_camera(s["camera"], paths["camera"], unit="mm")
+    e = s["exterior"]
+    write_json({
+        "description": "true exterior orientation of the photax sample image (synthetic)",
+        "seed": SAMPLE_SEED, "image": SAMPLE_IMAGE, "crs": t.crs, "convention": e.convention,
+        "position": e.position, "angles_deg": np.degrees(np.asarray(e.angles)), "angles_rad": e.angles,
+        "noise_px": SAMPLE_NOISE_PX, "blunder": {"name": SAMPLE_BLUNDER[0], "pixel_error": SAMPLE_BLUNDER[1]},
+        "check_points": list(SAMPLE_CHECK),
+        "pixel_true": {str(n): p for n, p in zip(t.names, s["pixel_true"])},
+    }, paths["truth"])
+    return paths
+
+
+# --------------------------------------------------------------------------- sections
+
+
+def _residual_pixels(residuals, camera: FrameCamera) -> np.ndarray:
+    """Image-plane residuals (y up) -> (column, row) pixel residuals."""
+    ps = np.asarray(camera.pixel_size)
+    return np.asarray(residuals) / ps[None, :] * np.array([1.0, -1.0])[None, :]
+
+
+def resection_section(out: pathlib.Path) -> str:
+    """Space resection of the sample image, compared with the truth."""
+    import matplotlib
+
+    matplotlib.use("Agg")  # the demo is headless
+    import matplotlib.pyplot as plt
+
+    from . import plot
+    from .resection import resect
+
+    paths = write_sample(out / "sample")
+    table = read_gcps(paths["gcps"])
+    camera = read_camera(paths["camera"])
+    truth = sample_scene()["exterior"]
+    res = resect(table.image_plane(camera), table.ground, camera, sigma=table.image_plane_sigma(camera),
+                 check=table.check, names=table.names)
+    write_json(res, out / "resection.json")
+
+    fig, ax = plt.subplots(figsize=(8, 6.4))
+    plot.residual_vectors(ax, table.pixel, _residual_pixels(res.residuals, camera), table.names,
+                          outliers=res.outliers, check=res.check, image_size=camera.image_size,
+                          title=f"{SAMPLE_IMAGE}: residuals after resection")
+    fig.savefig(out / "resection_residuals.png", dpi=110, bbox_inches="tight")
+    plt.close(fig)
+
+    rows = plot.precision_rows(res, truth)
+    md = ["## Space resection of the sample image", "",
+          f"{len(table)} points on `{SAMPLE_IMAGE}` ({int((~table.check).sum())} control, "
+          f"{int(table.check.sum())} check), read from `sample/sample_gcps.csv` with the camera "
+          f"`sample/sample_camera.yaml`. The measurements carry {SAMPLE_NOISE_PX} px noise and "
+          f"`{SAMPLE_BLUNDER[0]}` a deliberate {SAMPLE_BLUNDER[1][0]:g} px blunder.", "",
+          f"Result: {res.message}; sigma0 = {res.sigma0:.3f} (a-priori sigma {SAMPLE_NOISE_PX} px), "
+          f"control RMS = {res.rms / float(camera.pixel_size[0]):.3f} px, "
+          f"check-point RMS = {res.check_rms / float(camera.pixel_size[0]):.3f} px.", "",
+          "| parameter | estimate | std | truth | error | error/std |", "|---|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        f = "{:.3f}" if r["unit"] == "m" else "{:.5f}"
+        md.append(f"| {r['parameter']} [{r['unit']}] | {f.format(r['value'])} | {f.format(r['std'])} | "
+                  f"{f.format(r['true'])} | {f.format(r['error'])} | {r['ratio']:+.2f} |")
+    flagged = [str(n) for n in np.asarray(res.names)[res.outliers]]
+    verdict = ("found" if flagged == [SAMPLE_BLUNDER[0]] else "NOT found cleanly")
+    md += ["", f"Blunders flagged by data snooping ({res.statistic} test, critical value {res.critical:.2f}): "
+           f"{', '.join(flagged) or 'none'} - the planted blunder on {SAMPLE_BLUNDER[0]} was {verdict}.", "",
+           "![residual vectors](resection_residuals.png)", "",
+           "Full result: `resection.json`.", ""]
+    return "\n".join(md)
+
+
+# Sections of the report, in order.  Each takes the output folder and returns Markdown.
+SECTIONS: list[Callable[[pathlib.Path], str]] = [resection_section]
+
+
+def _forbidden_roots() -> list[pathlib.Path]:
+    package = pathlib.Path(__file__).resolve().parent
+    return [package, package.parents[1] / "data"]
+
+
+def run_demo(out_dir="photax-demo", *, progress: Callable[[str], None] | None = None) -> pathlib.Path:
+    """Run every section of :data:`SECTIONS` and write ``out_dir/report.md``.
+
+    Args:
+        out_dir: output folder (created); must not be inside the photax
+            package or the repository's ``data/`` folder.
+        progress: called with a line of text as each section starts/ends.
+
+    Returns:
+        the path of ``report.md``.
+    """
+    out = pathlib.Path(out_dir).resolve()
+    for root in _forbidden_roots():
+        if out == root or root in out.parents:
+            raise ValueError(f"out_dir {out} is inside {root}; choose a folder of your own")
+    out.mkdir(parents=True, exist_ok=True)
+    say = progress or (lambda _line: None)
+    parts = ["# photax demo report", "",
+             "Generated by `photax demo` on synthetic data with known truth.", ""]
+    for k, section in enumerate(SECTIONS, 1):
+        name = section.__name__.replace("_section", "")
+        say(f"[{k}/{len(SECTIONS)}] {name} ...")
+        parts.append(section(out))
+        say(f"[{k}/{len(SECTIONS)}] {name} done")
+    report = out / "report.md"
+    with atomic_write(report, encoding="utf-8") as fh:
+        fh.write("\n".join(parts))
+    return report
