@@ -29,9 +29,11 @@ from .dem import DEM as DEM
 from .errors import ConvergenceError as ConvergenceError
 from .intersection import intersect as intersect
 from .io import (
+    read_bal as read_bal,
     read_camera as read_camera,
     read_gcps as read_gcps,
     read_json as read_json,
+    write_bal as write_bal,
     write_camera as write_camera,
     write_json as write_json,
 )
@@ -42,6 +44,13 @@ from .polynomial import (
     fit_projective as fit_projective,
 )
 from .resample import resample as resample
+from .rectify import (
+    Grid as Grid,
+    orthorectify as orthorectify,
+    orthorectify_file as orthorectify_file,
+    rectify as rectify,
+    rectify_file as rectify_file,
+)
 from .rotation import (
     angles_from_matrix as angles_from_matrix,
     axis_angle_to_matrix as axis_angle_to_matrix,

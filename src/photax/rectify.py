@@ -544,11 +544,12 @@ def rectify_file(
     from rasterio.windows import Window
 
     from .io.atomic import atomic_path
+    from .io.raster import open_raster
 
     _check_resampling(resampling)
     _check_model(model)
     tile = int(tile)
-    with rasterio.open(src_path) as src, atomic_path(dst_path, inputs=(src_path, *inputs)) as tmp:
+    with open_raster(src_path) as src, atomic_path(dst_path, inputs=(src_path, *inputs)) as tmp:
         if nodata is None:
             nodata = src.nodata
         fill = _fill_value(src.dtypes[0], nodata)
@@ -567,16 +568,17 @@ def rectify_file(
         with rasterio.open(tmp, "w", **profile) as dst, _progress(len(tiles), progress, "rectify") as bar:
             for r0, c0, h, w in tiles:
                 cols, rows = _map_tile(model, transform, jnp.array([r0, c0], dtype=float), shape)
-                cols, rows = np.asarray(cols)[:h, :w], np.asarray(rows)[:h, :w]
-                win = _source_window(cols, rows, src.width, src.height, _MARGIN[resampling])
+                win = _source_window(
+                    np.asarray(cols)[:h, :w], np.asarray(rows)[:h, :w], src.width, src.height, _MARGIN[resampling]
+                )
                 if win is None:
                     block = np.full((src.count, h, w), fill, dtype=fill.dtype)
                 else:
                     data = src.read(window=Window(win[1], win[0], win[3], win[2]))
                     origin = jnp.array(win[:2], dtype=float)
-                    block = np.asarray(
-                        _resample_tile(data, jnp.asarray(cols), jnp.asarray(rows), origin, size, resampling, fill_j)
-                    )
+                    # Full-size tiles (edge tiles cropped after): fewer compilations.
+                    block = _resample_tile(data, cols, rows, origin, size, resampling, fill_j)
+                    block = np.asarray(block)[:, :h, :w]
                 dst.write(block, window=Window(c0, r0, w, h))
                 bar.update()
     return grid
@@ -607,7 +609,7 @@ def orthorectify_file(
     Returns:
         the output grid.
     """
-    import rasterio
+    from .io.raster import open_raster
 
     inputs = ()
     if not isinstance(dem, DEM):
@@ -615,7 +617,7 @@ def orthorectify_file(
 
         inputs = (dem,)
         dem = read_dem(dem)
-    with rasterio.open(src_path) as src:
+    with open_raster(src_path) as src:
         _check_image_size((src.height, src.width), camera)
     if grid is None:
         grid = ortho_grid(exterior, camera, dem, resolution)

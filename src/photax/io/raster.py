@@ -8,6 +8,7 @@ GDAL affine ``(a, b, xoff, d, e, yoff)`` at pixel corners
 from __future__ import annotations
 
 import pathlib
+import warnings
 
 import numpy as np
 
@@ -15,14 +16,18 @@ from ..dem import DEM
 from .atomic import atomic_path
 
 
-def _open(path):
+def open_raster(path):
+    """``rasterio.open(path)`` for reading; an image without georeference
+    (a raw photo) is fine, so rasterio's NotGeoreferencedWarning is silenced."""
     import rasterio
 
     path = pathlib.Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"no such raster file: {path}")
     try:
-        return rasterio.open(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            return rasterio.open(path)
     except rasterio.errors.RasterioIOError as exc:
         raise ValueError(f"{path}: not a raster GDAL can read ({exc})") from None
 
@@ -35,7 +40,7 @@ def read_geotiff(path) -> tuple[np.ndarray, dict]:
         file's dtype; ``profile`` is rasterio's profile dict (``transform``
         as ``rasterio.Affine``, ``crs``, ``nodata``, ``dtype``, ...).
     """
-    with _open(path) as src:
+    with open_raster(path) as src:
         return src.read(), dict(src.profile)
 
 
@@ -45,7 +50,7 @@ def read_dem(path, band: int = 1) -> DEM:
     The CRS is kept as WKT text.  Only heights and the georeference are
     used: vertical datum conversions (geoid/ellipsoid) are up to the caller.
     """
-    with _open(path) as src:
+    with open_raster(path) as src:
         if not 1 <= band <= src.count:
             raise ValueError(f"{path}: band {band} does not exist (the file has {src.count})")
         heights = src.read(band).astype(float)
@@ -65,7 +70,8 @@ def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), c
             so a failure leaves no partial file.  Refuses to overwrite any
             path in ``inputs``.
         array: the pixels, in the dtype to store.
-        transform: affine ``(a, b, xoff, d, e, yoff)`` (or a rasterio.Affine).
+        transform: affine ``(a, b, xoff, d, e, yoff)`` (or a rasterio.Affine),
+            or None for an image without georeference.
         crs: anything rasterio accepts (EPSG code, WKT, PROJ string), or None.
         nodata: the nodata value to record, or None.
         compress: GeoTIFF compression, or None.
@@ -80,12 +86,17 @@ def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), c
         raise ValueError(f"array must be (bands, rows, cols) or (rows, cols), got shape {np.shape(array)}")
     profile = dict(
         driver="GTiff", width=a.shape[2], height=a.shape[1], count=a.shape[0], dtype=a.dtype,
-        transform=Affine(*tuple(transform)[:6]), crs=crs, nodata=nodata, BIGTIFF="IF_SAFER",
+        crs=crs, nodata=nodata, BIGTIFF="IF_SAFER",
     )
+    if transform is not None:
+        profile["transform"] = Affine(*tuple(transform)[:6])
     if a.shape[1] >= 256 and a.shape[2] >= 256:
         profile.update(tiled=True, blockxsize=256, blockysize=256)
     if compress:
         profile["compress"] = compress
-    with atomic_path(path, inputs) as tmp, rasterio.open(tmp, "w", **profile) as dst:
-        dst.write(a)
+    with atomic_path(path, inputs) as tmp, warnings.catch_warnings():
+        if transform is None:
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        with rasterio.open(tmp, "w", **profile) as dst:
+            dst.write(a)
     return pathlib.Path(path)

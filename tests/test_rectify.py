@@ -1,0 +1,240 @@
+"""Rectification: indirect/direct mapping, tiling, nodata, files, CLI.
+
+References: rasterio's own affine arithmetic, scipy.ndimage.map_coordinates
+and cv2.remap on coordinates computed here in numpy, and closed forms
+(bilinear interpolation reproduces a linear grey-value ramp exactly).
+"""
+
+import importlib
+
+import cv2
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import rasterio
+import rasterio.transform
+from scipy import ndimage
+
+import photax
+from photax.io.raster import read_dem, read_geotiff, write_geotiff
+from photax.rectify import Grid, rectify, rectify_file
+
+H, W = 90, 120
+# Map -> pixel: col = (X - 1000) / 2 + 0.05 (Y - 5000), row = (5200 - Y) / 2.5 ...
+A = np.array([[0.5, 0.05, -500.0 - 250.0], [0.02, -0.4, 2080.0 - 20.0]])
+
+
+def affine_model(xy):
+    x, y = xy[..., 0], xy[..., 1]
+    return jnp.stack([A[0, 0] * x + A[0, 1] * y + A[0, 2], A[1, 0] * x + A[1, 1] * y + A[1, 2]], axis=-1)
+
+
+def affine_np(x, y):
+    return A[0, 0] * x + A[0, 1] * y + A[0, 2], A[1, 0] * x + A[1, 1] * y + A[1, 2]
+
+
+def poly_model(xy):  # a 2nd-order map, with curvature
+    x, y = (xy[..., 0] - 1100.0) / 100.0, (xy[..., 1] - 5100.0) / 100.0
+    c = 60.0 + 48.0 * x + 4.0 * y + 3.0 * x * x - 2.0 * x * y
+    r = 45.0 - 36.0 * y + 2.0 * x + 1.5 * y * y
+    return jnp.stack([c, r], axis=-1)
+
+
+GRID = Grid.from_bounds((1000.0, 4980.0, 1260.0, 5200.0), 2.0, crs="EPSG:32633")
+
+
+def test_grid_matches_rasterio():
+    g = Grid.from_bounds((1000.3, 4980.2, 1259.1, 5199.5), (2.0, 2.5), crs="EPSG:32633")
+    assert g.bounds == (1000.0, 4980.0, 1260.0, 5200.0)
+    assert g.shape == (88, 130)
+    rows, cols = np.mgrid[3:7, 10:14]
+    xs, ys = rasterio.transform.xy(g.transform, rows, cols, offset="center")
+    xy = g.xy(slice(3, 7), slice(10, 14))
+    np.testing.assert_allclose(xy[..., 0], np.reshape(xs, rows.shape), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(xy[..., 1], np.reshape(ys, rows.shape), rtol=0, atol=1e-9)
+
+
+def _footprint(cols, rows):
+    return (cols >= -0.5) & (cols <= W - 0.5) & (rows >= -0.5) & (rows <= H - 0.5)
+
+
+def test_indirect_linear_ramp_is_exact():
+    # Bilinear interpolation reproduces a linear grey-value ramp exactly.
+    r, c = np.mgrid[0:H, 0:W].astype(float)
+    image = 3.0 * c - 2.0 * r + 7.0
+    out = rectify(image, affine_model, GRID, resampling="bilinear")
+    xy = GRID.xy()
+    cols, rows = affine_np(xy[..., 0], xy[..., 1])
+    inside = _footprint(cols, rows) & (cols <= W - 1) & (rows <= H - 1) & (cols >= 0) & (rows >= 0)
+    assert inside.sum() > 5000
+    np.testing.assert_allclose(out[inside], (3.0 * cols - 2.0 * rows + 7.0)[inside], atol=1e-9)
+
+
+@pytest.mark.parametrize("order", [1, 3])
+def test_indirect_matches_scipy_map_coordinates(order):
+    rng = np.random.default_rng(1)
+    image = ndimage.gaussian_filter(rng.uniform(0, 255, (2, H, W)), 1.5)
+    method = {1: "bilinear", 3: "bspline"}[order]
+    out = rectify(image, poly_model, GRID, resampling=method)
+    xy = GRID.xy()
+    cr = np.asarray(poly_model(jnp.asarray(xy)))
+    cols, rows = cr[..., 0], cr[..., 1]
+    inside = _footprint(cols, rows)
+    for b in range(2):
+        ref = ndimage.map_coordinates(image[b], [rows, cols], order=order, mode="nearest")
+        np.testing.assert_allclose(out[b][inside], ref[inside], atol=1e-7)
+    assert np.all(np.isnan(out[:, ~inside]))
+    assert inside.sum() > 3000 and (~inside).sum() > 1000
+
+
+def test_indirect_uint8_matches_cv2_remap_nearest_and_bilinear():
+    rng = np.random.default_rng(2)
+    image = cv2.GaussianBlur(rng.integers(0, 256, (H, W), dtype=np.uint8), (5, 5), 1.0)
+    xy = GRID.xy()
+    cr = np.asarray(poly_model(jnp.asarray(xy)))
+    cols, rows = cr[..., 0].astype(np.float32), cr[..., 1].astype(np.float32)
+    inside = _footprint(cols, rows) & (cols >= 0) & (cols <= W - 1) & (rows >= 0) & (rows <= H - 1)
+    out = rectify(image, poly_model, GRID, resampling="nearest", nodata=7)
+    ref = cv2.remap(image, cols, rows, cv2.INTER_NEAREST, borderMode=cv2.BORDER_REPLICATE)
+    # Exact ties (x.5) may round differently; there are none at random positions.
+    assert np.mean(out[inside] == ref[inside]) > 0.999
+    assert np.all(out[~_footprint(cols, rows)] == 7)
+    out = rectify(image, poly_model, GRID, resampling="bilinear")
+    ref = cv2.remap(image, cols, rows, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    # OpenCV quantises the fractions to 1/32 pixel: differences of one grey level.
+    assert np.abs(out[inside].astype(int) - ref[inside]).max() <= 1
+
+
+def test_tiling_gives_identical_output():
+    rng = np.random.default_rng(3)
+    image = rng.uniform(0, 1, (H, W)).astype(np.float32)
+    one = rectify(image, poly_model, GRID, resampling="cubic", tile=4096)
+    tiled = rectify(image, poly_model, GRID, resampling="cubic", tile=37)
+    np.testing.assert_array_equal(one, tiled)
+    assert one.dtype == np.float32 and one.shape == GRID.shape
+
+
+def test_direct_mapping_leaves_holes_when_upsampling():
+    # The output pixel (1 m) is half the input pixel on the ground: each
+    # input pixel lands in one output pixel of the four it covers.
+    model = lambda xy: jnp.stack([xy[..., 0] / 2.0, (100.0 - xy[..., 1]) / 2.0], axis=-1)  # noqa: E731
+    inverse = lambda cr: jnp.stack([cr[..., 0] * 2.0, 100.0 - cr[..., 1] * 2.0], axis=-1)  # noqa: E731
+    grid = Grid.from_bounds((-1.0, 100.0 - 2 * H + 1.0, 2 * W - 1.0, 101.0), 1.0)
+    image = np.arange(H * W, dtype=np.float64).reshape(H, W) + 1.0
+    direct, holes = rectify(image, model, grid, mapping="direct", inverse=inverse)
+    indirect = rectify(image, model, grid, resampling="nearest")
+    xy = grid.xy()
+    inside = _footprint(xy[..., 0] / 2.0, (100.0 - xy[..., 1]) / 2.0)
+    assert not np.isnan(indirect[inside]).any()  # indirect: no holes
+    filled = ~np.isnan(direct)
+    assert filled.sum() == H * W  # every input pixel lands once
+    assert holes == inside.sum() - H * W
+    assert holes > 0.7 * inside.sum()
+    # Where direct mapping did put a value, it is the nearest input pixel's.
+    np.testing.assert_array_equal(direct[filled], indirect[filled])
+
+
+def test_bad_arguments_raise():
+    image = np.zeros((H, W))
+    with pytest.raises(ValueError, match="resampling"):
+        rectify(image, affine_model, GRID, resampling="cubicspline")
+    with pytest.raises(ValueError, match="tile"):
+        rectify(image, affine_model, GRID, tile=0)
+    with pytest.raises(ValueError, match="grid"):
+        rectify(image, affine_model, (1, 2))
+    with pytest.raises(ValueError, match="model"):
+        rectify(image, "affine", GRID)
+    with pytest.raises(ValueError, match="nodata"):
+        rectify(image.astype(np.uint8), affine_model, GRID, nodata=np.nan)
+    with pytest.raises(ValueError, match="shape"):
+        Grid((1, 0, 0, 0, -1, 0), (0, 5))
+
+
+@pytest.fixture
+def src_tif(tmp_path):
+    rng = np.random.default_rng(4)
+    image = rng.integers(1, 256, (3, H, W), dtype=np.uint8)
+    path = tmp_path / "in.tif"
+    write_geotiff(path, image, None, None, nodata=0)  # a raw photo: no georeference
+    return path, image
+
+
+@pytest.mark.parametrize("resampling", ["nearest", "cubic"])
+def test_rectify_file_equals_memory_and_georeference(tmp_path, src_tif, resampling):
+    path, image = src_tif
+    out = tmp_path / "out.tif"
+    rectify_file(path, out, poly_model, GRID, resampling=resampling, tile=48)
+    ref = rectify(image, poly_model, GRID, resampling=resampling, nodata=0)
+    with rasterio.open(out) as ds:
+        assert ds.transform == rasterio.Affine(2.0, 0.0, 1000.0, 0.0, -2.0, 5200.0)
+        assert ds.crs == rasterio.CRS.from_epsg(32633)
+        assert (ds.height, ds.width, ds.count) == (*GRID.shape, 3)
+        assert ds.nodata == 0
+        np.testing.assert_array_equal(ds.read(), ref)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.tif", "out.tif"]
+
+
+def test_rectify_file_failure_leaves_no_partial_file(tmp_path, src_tif, monkeypatch):
+    rect = importlib.import_module("photax.rectify")  # photax.rectify is also the function
+
+    path, _ = src_tif
+    out = tmp_path / "out.tif"
+    out.write_bytes(b"previous result")
+    calls = []
+    real = rect._resample_tile
+
+    def failing(*args):
+        calls.append(1)
+        if len(calls) == 3:
+            raise RuntimeError("disk full (injected)")
+        return real(*args)
+
+    monkeypatch.setattr(rect, "_resample_tile", failing)
+    with pytest.raises(RuntimeError, match="injected"):
+        rectify_file(path, out, poly_model, GRID, tile=40)
+    assert out.read_bytes() == b"previous result"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.tif", "out.tif"]
+
+
+def test_rectify_file_refuses_to_overwrite_input(tmp_path, src_tif):
+    path, _ = src_tif
+    before = path.read_bytes()
+    with pytest.raises(ValueError, match="input"):
+        rectify_file(path, path, poly_model, GRID)
+    assert path.read_bytes() == before
+
+
+def test_write_read_geotiff_and_dem(tmp_path):
+    heights = np.arange(12.0).reshape(3, 4)
+    heights[1, 2] = -9999.0
+    path = write_geotiff(tmp_path / "dem.tif", heights, (10, 0, 500, 0, -10, 900), "EPSG:32633", nodata=-9999.0)
+    arr, profile = read_geotiff(path)
+    assert arr.shape == (1, 3, 4) and profile["nodata"] == -9999.0
+    assert profile["transform"] == rasterio.Affine(10, 0, 500, 0, -10, 900)
+    dem = read_dem(path)
+    assert np.isnan(dem.heights[1, 2]) and float(dem.heights[2, 3]) == 11.0
+    # Centre of cell [2, 0] is at (505, 875).
+    assert float(dem.height(505.0, 875.0)) == 8.0
+    with pytest.raises(ValueError, match="input"):
+        write_geotiff(path, heights, (10, 0, 500, 0, -10, 900), inputs=[path])
+    with pytest.raises(FileNotFoundError):
+        read_dem(tmp_path / "missing.tif")
+
+
+def test_orthorectify_masks_nodata_dem_and_behind_camera():
+    camera = photax.FrameCamera.from_pixels(100.0, (64, 48))
+    exterior = photax.look_at([0.0, 0.0, 200.0], [0.0, 0.0, 0.0])
+    heights = np.full((20, 20), 10.0)
+    heights[:, :5] = np.nan
+    dem = photax.DEM(heights, (10.0, 0, -100.0, 0, -10.0, 100.0))
+    image = np.full((48, 64), 9.0)
+    ortho, grid = photax.orthorectify(image, exterior, camera, dem, resolution=5.0)
+    xy = grid.xy()
+    assert np.all(np.isnan(ortho[xy[..., 0] < -55.0]))  # DEM nodata (incl. its bilinear rim)
+    assert np.all(ortho[(xy[..., 0] > -40.0) & (np.abs(xy[..., 0]) < 50) & (np.abs(xy[..., 1]) < 40)] == 9.0)
+    # A camera below the ground looking down: everything is behind it.
+    under = photax.look_at([0.0, 0.0, -50.0], [0.0, 0.0, -100.0])
+    out, _ = photax.orthorectify(image, under, camera, dem, grid)
+    assert np.all(np.isnan(out))
+    with pytest.raises(ValueError, match="image_size"):
+        photax.orthorectify(image.T, exterior, camera, dem, grid)
