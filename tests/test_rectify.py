@@ -238,3 +238,28 @@ def test_orthorectify_masks_nodata_dem_and_behind_camera():
     assert np.all(np.isnan(out))
     with pytest.raises(ValueError, match="image_size"):
         photax.orthorectify(image.T, exterior, camera, dem, grid)
+
+
+def test_cli_rectify_with_gcps(tmp_path, src_tif):
+    from photax.cli import main
+
+    path, image = src_tif
+    rng = np.random.default_rng(5)
+    x, y = rng.uniform(1000, 1260, 12), rng.uniform(4980, 5200, 12)
+    cols, rows = affine_np(x, y)
+    gcps = tmp_path / "gcps.csv"
+    gcps.write_text("name,E,N,h,col,row\n" + "".join(
+        f"p{i},{x[i]:.12f},{y[i]:.12f},0,{cols[i]:.12f},{rows[i]:.12f}\n" for i in range(12)))
+    out = tmp_path / "rect.tif"
+    args = ["rectify", str(path), "--gcps", str(gcps), "--order", "1", "--out", str(out), "--resolution", "2",
+            "--no-progress"]
+    assert main(args) == 0
+    with rasterio.open(out) as ds:
+        grid = Grid(ds.transform, ds.shape)
+        data = ds.read()
+    assert grid.bounds[0] <= x.min() and grid.bounds[2] >= x.max() and ds.res == (2.0, 2.0)
+    # The order-1 fit of exact affine GCPs is the affine map itself.
+    ref = rectify(image, affine_model, grid, nodata=0)
+    assert np.abs(data.astype(int) - ref).max() <= 1
+    args[args.index("--out") + 1] = str(path)
+    assert main(args) == 2  # --out IMAGE: refused

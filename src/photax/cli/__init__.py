@@ -12,7 +12,7 @@ import importlib
 import sys
 
 # Subcommand modules, in the order ``photax --help`` lists them.
-SUBCOMMANDS = ["resect", "demo"]
+SUBCOMMANDS = ["resect", "demo", "rectify", "ortho"]
 
 
 def build_parser() -> argparse.ArgumentParser:
