@@ -51,6 +51,11 @@ from .rectify import (
     rectify as rectify,
     rectify_file as rectify_file,
 )
+from .resection import (
+    ResectionResult as ResectionResult,
+    resect as resect,
+    resect_batch as resect_batch,
+)
 from .rotation import (
     angles_from_matrix as angles_from_matrix,
     axis_angle_to_matrix as axis_angle_to_matrix,

@@ -1,0 +1,899 @@
+"""Space resection: the exterior orientation of one image (or many) from GCPs.
+
+Model (``docs/conventions.md``): the collinearity equations
+:func:`photax.collinearity.project`, parameters ``p = (Xs, Ys, Zs, a1, a2, a3)``
+with the angles in the chosen convention's order.  Ground coordinates are
+reduced to the centroid of the control points before anything is computed
+(UTM eastings/northings are ~1e6 m) and the centroid is added back at the end.
+
+1. **Start** (no user guess needed).  Image points are undistorted to
+   normalised coordinates (``camera.normalised``); then two calibrated linear
+   solvers, both written in ``jax.numpy`` so they ``vmap``:
+
+   * a homography between the control points' best-fitting plane and the
+     normalised image, decomposed with the known interior orientation
+     (Zhang 2000, sec. 3.1) - for (near-)planar GCPs, the common case;
+   * the calibrated DLT ``x ~ [M | m] X`` with ``M`` projected onto the
+     rotations (Hartley & Zisserman 2003, sec. 7.1) - for 3-D GCP sets.
+
+   Candidates come from all control points and, with ``robust=True``, from
+   32 seeded random subsets of 6 (homography on their first 4).  The
+   candidate with the smallest median squared reprojection error wins
+   (least median of squares, Rousseeuw 1984: no threshold needed, tolerant
+   of up to half the points being blunders); candidates that put points
+   behind the camera lose (cheirality).
+2. **Adjustment**: Gauss-Newton (``optimistix.GaussNewton``) on the weighted
+   residuals ``v = sqrt(P) (x_obs - x(p))``, Jacobian by forward-mode
+   autodiff; Levenberg-Marquardt when Gauss-Newton fails.
+3. **Precision** at the solution, with ``A`` the Jacobian of the weighted
+   model, ``r = 2 n - 6``::
+
+       sigma0^2 = v^T P v / r,   C_pp = sigma0^2 (A^T P A)^-1,
+       r_i = diag(I - A (A^T P A)^-1 A^T P)        (redundancy numbers)
+
+4. **Blunders** (Baarda 1968 data snooping; Pope 1976 tau test): the
+   standardised residual of each coordinate ``w_i = v_i / (sigma_i sqrt(r_i))``
+   (a-priori ``sigma`` given) or ``tau_i = v_i / (sigma0_hat sigma_i
+   sqrt(r_i))`` (not given).  While the largest exceeds the critical value
+   (``3.29`` for ``alpha = 0.001``; the tau distribution with ``r`` degrees
+   of freedom) and redundancy allows, the worst point (both coordinates) is
+   excluded and the adjustment repeated from the robust start.
+
+References: Kraus, *Photogrammetry* vol. 1 (2007) sec. 4.3; Wolf & DeWitt,
+*Elements of Photogrammetry* (2014) ch. 11 and app. B; Förstner & Wrobel,
+*Photogrammetric Computer Vision* (2016) sec. 4.6.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+from typing import Any, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import lineax as lx
+import optimistix as optx
+from scipy import stats
+
+from .camera import FrameCamera
+from .collinearity import ExteriorOrientation, project
+from .errors import ConvergenceError
+from .rotation import Convention, angles_from_matrix_unchecked, check_convention
+
+_N_SUBSETS = 32  # random subsets for the robust start: P(all 32 contain a blunder) < 1e-4 at 20 % blunders
+_SEED = 20240601  # fixed: the same input gives the same answer
+_PLANAR = 0.1  # smallest / largest spread of the GCPs below this: "planar" for the 4-point minimum
+_OPENCV_FLIP = np.diag([1.0, -1.0, -1.0])  # photax camera frame <-> (x right, y down, z forward)
+_OPTX_MESSAGES = {int(item._value): optx.RESULTS[item] for item in optx.RESULTS._name_to_item.values()}
+
+
+# --------------------------------------------------------------------------- result
+
+
+@dataclasses.dataclass(frozen=True)
+class ResectionResult:
+    """Outcome of :func:`resect` (or, with a leading batch axis, :func:`resect_batch`).
+
+    Attributes:
+        exterior: the estimated :class:`~photax.ExteriorOrientation`.
+        sigma0: a-posteriori standard deviation of unit weight (image-plane
+            units when no ``sigma`` was given, dimensionless otherwise); NaN
+            at zero redundancy.
+        covariance: ``(6, 6)`` in the order (X, Y, Z, angles in convention
+            order); metres and radians.
+        std: ``(6,)`` standard deviations, same order.
+        correlation: ``(6, 6)``.
+        residuals: ``(n, 2)`` observed - computed, image-plane units, for all
+            input points (outliers and check points included).
+        outliers: ``(n,)`` True for points excluded by data snooping.
+        check: ``(n,)`` True for check points (not used in the fit).
+        redundancy: ``(n, 2)`` redundancy numbers (0 for excluded points).
+        normalized: ``(n, 2)`` test statistics (Baarda's w or Pope's tau);
+            for outliers the values with which they were rejected; NaN for
+            check points.
+        critical: critical value the statistics were tested against.
+        rms: RMS reprojection error of the control inliers,
+            ``sqrt(mean(vx^2 + vy^2))``, image-plane units.
+        check_rms: the same for the check points (NaN without any).
+        iterations: Gauss-Newton (or LM) steps of the final adjustment.
+        converged: whether the estimate can be trusted.
+        message: why it stopped or failed.
+        names: ``(n,)`` point names.
+        statistic: name of the test (``"w"`` or ``"tau"``).
+    """
+
+    exterior: ExteriorOrientation
+    sigma0: Any
+    covariance: np.ndarray
+    std: np.ndarray
+    correlation: np.ndarray
+    residuals: np.ndarray
+    outliers: np.ndarray
+    check: np.ndarray
+    redundancy: np.ndarray
+    normalized: np.ndarray
+    critical: Any
+    rms: Any
+    check_rms: Any
+    iterations: Any
+    converged: Any
+    message: Any
+    names: Sequence[str]
+    statistic: str = "w"
+
+    # -- batches -----------------------------------------------------------
+    def __len__(self) -> int:
+        if np.ndim(self.converged) == 0:
+            raise TypeError("a single-image ResectionResult has no len(); resect_batch results do")
+        return len(self.converged)
+
+    def __getitem__(self, i: int) -> "ResectionResult":
+        """The ``i``-th image of a :func:`resect_batch` result."""
+        len(self)  # a TypeError for single results
+        take = lambda a: np.asarray(a)[i]  # noqa: E731
+        ext = ExteriorOrientation(self.exterior.position[i], self.exterior.angles[i], self.exterior.convention)
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        for k, v in fields.items():
+            if k in ("exterior", "names", "statistic"):
+                continue
+            fields[k] = v[i] if isinstance(v, (list, tuple)) else take(v)
+            if isinstance(fields[k], np.generic):
+                fields[k] = fields[k].item()
+        fields["exterior"] = ext
+        return ResectionResult(**fields)
+
+    # -- reports -----------------------------------------------------------
+    def summary(self) -> str:
+        """A readable report: parameters +- std, sigma0, residuals, blunders."""
+        if np.ndim(self.converged) != 0:
+            return "\n\n".join(self[i].summary() for i in range(len(self)))
+        e = self.exterior
+        labels = ["X", "Y", "Z", *e.convention.split("-")]
+        value = np.asarray(e.to_vector())
+        lines = [f"Space resection: {'converged' if self.converged else 'NOT CONVERGED'} - {self.message}"]
+        lines.append(f"  {'parameter':<10}{'value':>18}{'std':>14}")
+        for k, (lab, val, sd) in enumerate(zip(labels, value, self.std)):
+            if k < 3:
+                lines.append(f"  {lab:<10}{val:>18.4f}{sd:>14.4f}")
+            else:
+                lines.append(f"  {lab + ' [deg]':<10}{np.degrees(val):>18.6f}{np.degrees(sd):>14.6f}")
+        n_ctrl = int(np.sum(~self.check & ~self.outliers))
+        lines.append(f"  sigma0 = {self.sigma0:.4g}   rms = {self.rms:.4g}   control points used = {n_ctrl}"
+                     f"   iterations = {self.iterations}")
+        lines.append(f"  {'point':<12}{'role':<9}{'vx':>11}{'vy':>11}{self.statistic + '_x':>9}{self.statistic + '_y':>9}")
+        for k, name in enumerate(self.names):
+            role = "check" if self.check[k] else ("OUTLIER" if self.outliers[k] else "control")
+            vx, vy = self.residuals[k]
+            wx, wy = self.normalized[k]
+            lines.append(f"  {str(name):<12}{role:<9}{vx:>11.4g}{vy:>11.4g}{wx:>9.2f}{wy:>9.2f}")
+        for k in np.flatnonzero(self.outliers):
+            lines.append(f"  blunder: {self.names[k]} excluded (|{self.statistic}| = "
+                         f"{_blunder_stat(self, k):.2f} > {self.critical:.2f})")
+        if np.any(self.check):
+            lines.append(f"  check points: rms = {self.check_rms:.4g}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """A JSON-serialisable dict (floats, lists, strings)."""
+        if np.ndim(self.converged) != 0:
+            return {"images": [self[i].to_dict() for i in range(len(self))]}
+        e = self.exterior
+        tolist = lambda a: np.where(np.isfinite(a), a, np.nan).tolist()  # noqa: E731
+        out = {
+            "convention": e.convention,
+            "position": np.asarray(e.position).tolist(),
+            "angles_rad": np.asarray(e.angles).tolist(),
+            "angles_deg": np.degrees(np.asarray(e.angles)).tolist(),
+            "sigma0": float(self.sigma0),
+            "std": tolist(self.std),
+            "covariance": tolist(self.covariance),
+            "correlation": tolist(self.correlation),
+            "rms": float(self.rms),
+            "check_rms": float(self.check_rms),
+            "iterations": int(self.iterations),
+            "converged": bool(self.converged),
+            "message": str(self.message),
+            "statistic": self.statistic,
+            "critical": float(self.critical),
+            "points": [
+                {
+                    "name": str(self.names[k]),
+                    "role": "check" if self.check[k] else "control",
+                    "outlier": bool(self.outliers[k]),
+                    "residual": self.residuals[k].tolist(),
+                    "redundancy": self.redundancy[k].tolist(),
+                    "normalized": self.normalized[k].tolist(),
+                }
+                for k in range(len(self.names))
+            ],
+        }
+        json.dumps(out)  # fail here, not in the caller, if something is not serialisable
+        return out
+
+
+def _blunder_stat(res: ResectionResult, k: int) -> float:
+    return float(np.nanmax(np.abs(res.normalized[k])))
+
+
+# --------------------------------------------------------------------------- linear start
+# Small dense algebra is written out element-wise: on CPU every LAPACK call
+# costs tens of microseconds, and element-wise code vectorises under vmap.
+
+
+def _inv3(m: jax.Array) -> jax.Array:
+    """Inverse of a 3x3 matrix by cofactors."""
+    adj = jnp.stack([jnp.cross(m[:, 1], m[:, 2]), jnp.cross(m[:, 2], m[:, 0]), jnp.cross(m[:, 0], m[:, 1])])
+    return adj / jnp.dot(m[:, 0], adj[0])
+
+
+def _nearest_rotation(m: jax.Array, iterations: int = 8) -> jax.Array:
+    """Orthogonal polar factor of ``m`` (det > 0) by Newton's iteration
+    ``Q <- (Q + Q^-T)/2`` (Higham 1986); quadratic once close."""
+    q = m / jnp.cbrt(jnp.abs(jnp.dot(m[:, 0], jnp.cross(m[:, 1], m[:, 2]))))
+    for _ in range(iterations):  # unrolled: XLA fuses it into one kernel
+        q = 0.5 * (q + _inv3(q).T)
+    return q
+
+
+def _normal_equations(rows: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Normal equations for ``v`` minimising ``|rows v|`` with ``v[-1] = 1``,
+    padded to 11 unknowns (so homographies and DLTs solve in one call).
+
+    The last unknown is the depth of the centroid of the (centred) ground
+    points times the scale: never zero for a camera that sees them.
+    """
+    a, b = rows[:, :-1], rows[:, -1]
+    k = a.shape[1]
+    n = jnp.eye(11).at[:k, :k].set(a.T @ a)
+    return n, jnp.zeros(11).at[:k].set(-(a.T @ b))
+
+
+def _homography_rows(uv, plane_xy, w, scale):
+    """DLT rows of the homography (plane -> normalised image)."""
+    a, b = plane_xy[:, 0] / scale, plane_xy[:, 1] / scale
+    u, v = uv[:, 0], uv[:, 1]
+    o, z = jnp.ones_like(a), jnp.zeros_like(a)
+    r1 = jnp.stack([a, b, o, z, z, z, -u * a, -u * b, -u], axis=1)
+    r2 = jnp.stack([z, z, z, a, b, o, -v * a, -v * b, -v], axis=1)
+    return jnp.concatenate([r1, r2], axis=0) * jnp.concatenate([w, w])[:, None]
+
+
+def _pose_homography(sol, t_uv, scale, basis):
+    """Calibrated homography decomposition -> (R_cv, C) (Zhang 2000, sec. 3.1).
+
+    ``R_cv`` is OpenCV's cam_from_world (x right, y down, z forward).
+    """
+    h = _inv3(t_uv) @ jnp.append(sol[:8], 1.0).reshape(3, 3)  # undo the image normalisation
+    lam = 0.5 * (jnp.linalg.norm(h[:, 0]) + jnp.linalg.norm(h[:, 1]))
+    c1, c2 = h[:, 0] / lam, h[:, 1] / lam
+    r_cv = _nearest_rotation(jnp.stack([c1, c2, jnp.cross(c1, c2)], axis=1)) @ basis.T
+    return r_cv, -r_cv.T @ (h[:, 2] * scale / lam)
+
+
+def _dlt_rows(uv, ground, w, scale):
+    """Rows of the calibrated DLT ``x ~ [M | m] X``."""
+    x = ground / scale
+    u, v = uv[:, 0], uv[:, 1]
+    xh = jnp.concatenate([x, jnp.ones_like(u)[:, None]], axis=1)
+    z4 = jnp.zeros_like(xh)
+    r1 = jnp.concatenate([xh, z4, -u[:, None] * xh], axis=1)
+    r2 = jnp.concatenate([z4, xh, -v[:, None] * xh], axis=1)
+    return jnp.concatenate([r1, r2], axis=0) * jnp.concatenate([w, w])[:, None]
+
+
+def _pose_dlt(sol, t_uv, scale):
+    """DLT solution -> (R_cv, C) (Hartley & Zisserman 2003, sec. 7.1)."""
+    p = _inv3(t_uv) @ jnp.append(sol, 1.0).reshape(3, 4)
+    m = p[:, :3] / scale
+    lam = jnp.mean(jnp.linalg.norm(m, axis=1))
+    r_cv = _nearest_rotation(m)
+    return r_cv, -r_cv.T @ (p[:, 3] / lam)
+
+
+def _sq_errors(r_cv, c, uv, ground):
+    """Squared normalised reprojection errors; +inf behind the camera."""
+    p = (ground - c[None, :]) @ r_cv.T
+    front = p[:, 2] > 0
+    zs = jnp.where(front, p[:, 2], 1.0)
+    e = jnp.sum((p[:, :2] / zs[:, None] - uv) ** 2, axis=1)
+    return jnp.where(front & jnp.isfinite(e), e, jnp.inf)
+
+
+def _linear_start(uv, ground, ctrl, basis, subsets, robust, dlt_ok, convention):
+    """Linear start as a 6-vector ``(C, angles)``.
+
+    Candidates: homography and DLT from all control points, plus (if
+    ``subsets`` is not empty) from each subset.  With ``robust`` the winner
+    has the least median squared error, otherwise the least sum.
+    """
+    wf = ctrl.astype(float)
+    n_ctrl = jnp.sum(wf)
+    # Hartley normalisation of the image points; the ground is centred.
+    mu = jnp.sum(uv * wf[:, None], axis=0) / n_ctrl
+    su = jnp.sqrt(jnp.sum(wf * jnp.sum((uv - mu[None, :]) ** 2, axis=1)) / (2.0 * n_ctrl))
+    t_uv = jnp.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]]) / su
+    t_uv = t_uv.at[:2, 2].set(-mu / su).at[2, 2].set(1.0)
+    uvn = (uv - mu[None, :]) / su
+    centre = jnp.sum(ground * wf[:, None], axis=0) / n_ctrl
+    g = (ground - centre[None, :]) * wf[:, None]
+    scale = jnp.sqrt(jnp.sum(g * g) / n_ctrl)
+    rel = ground - centre[None, :]
+    plane = rel @ basis[:, :2]
+
+    # All systems (homography, DLT; all points, then each subset) in one batched solve.
+    systems = [_normal_equations(_homography_rows(uvn, plane, wf, scale)),
+               _normal_equations(_dlt_rows(uvn, rel, wf, scale))]
+    k = subsets.shape[0]
+    if k:
+        w4 = jnp.ones(subsets.shape[1]).at[4:].set(0.0)  # homography on the first 4
+        w6 = jnp.ones(subsets.shape[1])
+        systems.append(jax.vmap(lambda s: _normal_equations(_homography_rows(uvn[s], plane[s], w4, scale)))(subsets))
+        systems.append(jax.vmap(lambda s: _normal_equations(_dlt_rows(uvn[s], rel[s], w6, scale)))(subsets))
+    mats = jnp.concatenate([m[None] for m, _ in systems[:2]] + [m for m, _ in systems[2:]])
+    rhs = jnp.concatenate([v[None] for _, v in systems[:2]] + [v for _, v in systems[2:]])
+    sols = jnp.linalg.solve(mats, rhs[..., None])[..., 0]
+    is_dlt = np.array([False, True] + [False] * k + [True] * k)
+    hom = jax.vmap(lambda s: _pose_homography(s, t_uv, scale, basis))(sols[~is_dlt])
+    dlt = jax.vmap(lambda s: _pose_dlt(s, t_uv, scale))(sols[is_dlt])
+    order = np.argsort(np.argsort(is_dlt, kind="stable"), kind="stable")  # back to the is_dlt order
+    r_all = jnp.concatenate([hom[0], dlt[0]])[order]
+    c_all = jnp.concatenate([hom[1], dlt[1]])[order]
+    err = jax.vmap(lambda r, c: _sq_errors(r, c, uv, rel))(r_all, c_all)
+    err = jnp.where(ctrl[None, :], err, jnp.inf)
+    total = jnp.sum(jnp.where(ctrl[None, :], err, 0.0), axis=1)
+    if k:
+        # Least median of squares (Rousseeuw 1984).
+        median = jnp.take(jnp.sort(err, axis=1), (n_ctrl.astype(int) - 1) // 2, axis=1)
+        from_subset = np.arange(len(is_dlt)) >= 2
+        score = jnp.where(robust, median, jnp.where(from_subset, jnp.inf, total))
+    else:
+        score = total
+    score = jnp.where(jnp.asarray(is_dlt) & ~dlt_ok, jnp.inf, score)
+    best = jnp.argmin(jnp.where(jnp.isnan(score), jnp.inf, score))
+    r_world = r_all[best].T @ jnp.asarray(_OPENCV_FLIP)  # world_from_camera
+    angles, _ = angles_from_matrix_unchecked(r_world, convention)
+    return jnp.concatenate([c_all[best] + centre, angles])
+
+
+# --------------------------------------------------------------------------- adjustment
+
+
+def _wrap(a):
+    """Angles to (-pi, pi]."""
+    return jnp.pi - jnp.mod(jnp.pi - a, 2.0 * jnp.pi)
+
+
+def _model(xy, ground, weight, ctrl, camera, convention):
+    """``weighted(p)``: sqrt(P) (x_obs - x(p)) of the control points, flattened, and ``predict(p)``."""
+    sqrt_w = jnp.sqrt(weight)
+
+    def predict(p):
+        return project(ground, ExteriorOrientation(p[:3], p[3:], convention), camera)
+
+    def weighted(p):
+        return jnp.where(ctrl[:, None], (xy - predict(p)) * sqrt_w, 0.0).reshape(-1)
+
+    return weighted, predict
+
+
+def _solver_scale(weight, ctrl, camera):
+    # The solver sees dimensionless residuals (relative weights over f), so
+    # its tolerances do not depend on the image unit.
+    mean_w = jnp.sum(jnp.where(ctrl[:, None], weight, 0.0)) / (2.0 * jnp.sum(ctrl.astype(float)))
+    return 1.0 / (camera.focal_length * jnp.sqrt(mean_w))
+
+
+def _precision(p, weighted, predict, xy, ground, ctrl, convention):
+    """sigma0, Q_xx, redundancy numbers, w statistics (Kraus 2007, app. B)."""
+    v = weighted(p)
+    a = jax.jacfwd(weighted)(p)
+    red = 2.0 * jnp.sum(ctrl.astype(float)) - 6.0
+    qxx = jnp.linalg.inv(a.T @ a)
+    sigma0 = jnp.where(red > 0, jnp.sqrt(jnp.sum(v * v) / jnp.where(red > 0, red, 1.0)), jnp.nan)
+    r_i = 1.0 - jnp.einsum("ij,jk,ik->i", a, qxx, a)
+    r_i = jnp.where(ctrl[:, None], r_i.reshape(-1, 2), 0.0)
+    ok = r_i > 1e-10
+    w = jnp.where(ok, v.reshape(-1, 2) / jnp.sqrt(jnp.where(ok, r_i, 1.0)), jnp.nan)
+    eo = ExteriorOrientation(p[:3], p[3:], convention)
+    return dict(params=p, sigma0=sigma0, qxx=qxx, residuals=xy - predict(p), redundancy=r_i, w=w,
+                depth=-eo.points_in_camera(ground)[:, 2])
+
+
+@functools.partial(jax.jit, static_argnames=("convention", "max_steps", "solver"))
+def _core(xy, ground, weight, ctrl, basis, subsets, robust, dlt_ok, init, use_init, camera, *, convention, max_steps,
+          solver):
+    """One image (ground already local): start, optimistix adjustment, precision."""
+    xn = camera.normalised(xy)
+    uv = jnp.stack([xn[:, 0], -xn[:, 1]], axis=1)  # OpenCV's normalised frame (y down)
+    start = jnp.where(use_init, init, _linear_start(uv, ground, ctrl, basis, subsets, robust, dlt_ok, convention))
+    weighted, predict = _model(xy, ground, weight, ctrl, camera, convention)
+    scale = _solver_scale(weight, ctrl, camera)
+    algo = (optx.GaussNewton if solver == "gn" else optx.LevenbergMarquardt)(
+        rtol=1e-11, atol=1e-11, linear_solver=lx.Normal(lx.Cholesky()) if solver == "gn" else lx.QR())
+    sol = optx.least_squares(lambda p, _: weighted(p) * scale, algo, start, max_steps=max_steps, throw=False)
+    p = jnp.concatenate([sol.value[:3], _wrap(sol.value[3:])])
+    out = _precision(p, weighted, predict, xy, ground, ctrl, convention)
+    return dict(out, start=start, result=sol.result._value, steps=sol.stats["num_steps"])
+
+
+def _gauss_newton_fixed(weighted, start, scale, max_steps):
+    """Plain Gauss-Newton, ``max_steps`` iterations at most (``vmap``-friendly).
+
+    Stops (per image) once ``max |dp| <= 1e-10 (1 + max |p|)``; returns the
+    parameters, the number of steps and whether it converged.
+    """
+
+    def body(carry):
+        p, k, _ = carry
+        r = weighted(p) * scale
+        a = jax.jacfwd(weighted)(p) * scale
+        dp = -jax.scipy.linalg.solve(a.T @ a, a.T @ r, assume_a="pos")
+        return p + dp, k + 1, jnp.max(jnp.abs(dp)) <= 1e-10 * (1.0 + jnp.max(jnp.abs(p)))
+
+    def cond(carry):
+        p, k, done = carry
+        return (k < max_steps) & ~done & jnp.all(jnp.isfinite(p))
+
+    p, k, done = jax.lax.while_loop(cond, body, (start, jnp.array(0), jnp.array(False)))
+    return p, k, done & jnp.all(jnp.isfinite(p))
+
+
+@functools.partial(jax.jit, static_argnames=("convention", "max_steps"))
+def _core_batch(xy, ground, weight, ctrl, basis, dlt_ok, init, use_init, camera, *, convention, max_steps):
+    """Many images at once: linear start from all points, fixed Gauss-Newton, precision."""
+
+    def one(xy, ground, weight, ctrl, basis, init, use_init):
+        xn = camera.normalised(xy)
+        uv = jnp.stack([xn[:, 0], -xn[:, 1]], axis=1)
+        no_subsets = jnp.zeros((0, 6), int)
+        start = jnp.where(use_init, init, _linear_start(uv, ground, ctrl, basis, no_subsets, False, dlt_ok, convention))
+        weighted, predict = _model(xy, ground, weight, ctrl, camera, convention)
+        p, steps, ok = _gauss_newton_fixed(weighted, start, _solver_scale(weight, ctrl, camera), max_steps)
+        p = jnp.concatenate([p[:3], _wrap(p[3:])])
+        out = _precision(p, weighted, predict, xy, ground, ctrl, convention)
+        return dict(out, start=start, result=jnp.where(ok, 0, 1), steps=steps)
+
+    return jax.vmap(one)(xy, ground, weight, ctrl, basis, init, use_init)
+
+
+
+# --------------------------------------------------------------------------- input checks
+
+
+def _as_points(a, name: str, width: int, batch: bool) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    want = 3 if batch else 2
+    if a.ndim != want or a.shape[-1] != width:
+        shape = "(b, n, %d)" % width if batch else "(n, %d)" % width
+        raise ValueError(f"{name} must have shape {shape}, got {a.shape}")
+    return a
+
+
+def _point_label(names, k: int) -> str:
+    return f"{names[k]!r} (index {k})" if names is not None else f"index {k}"
+
+
+def _sigma_weights(sigma, shape, name="sigma") -> np.ndarray:
+    """A-priori sigmas -> weights 1/sigma^2 with the shape of the image points."""
+    if sigma is None:
+        return np.ones(shape)
+    s = np.asarray(sigma, dtype=float)
+    if s.ndim == len(shape) - 1 and s.shape == shape[:-1]:
+        s = s[..., None]
+    elif s.ndim > 0 and s.shape != shape:
+        raise ValueError(f"{name} must be a scalar, (n,) or (n, 2) like the image points {shape}, got {s.shape}")
+    if not np.all(np.isfinite(s)) or np.any(s <= 0):
+        raise ValueError(f"{name} must be finite and positive")
+    return np.broadcast_to(1.0 / s**2, shape).copy()
+
+
+def _check_geometry(ground: np.ndarray, xy: np.ndarray, ctrl: np.ndarray, names, need_init: bool) -> np.ndarray:
+    """Degenerate configurations -> ValueError.
+
+    Returns the ``(3, 3)`` right-handed principal axes of the control points
+    (the last one the normal of their best-fitting plane).
+    """
+    idx = np.flatnonzero(ctrl)
+    g, x = ground[idx], xy[idx]
+    rows = np.concatenate([g, x], axis=1)
+    _, first, counts = np.unique(rows, axis=0, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        dup = [k for k in idx if np.sum(np.all(rows == rows[np.searchsorted(idx, k)], axis=1)) > 1]
+        raise ValueError("duplicated control points (same ground and image coordinates): "
+                         + ", ".join(_point_label(names, k) for k in dup))
+    distinct = len(np.unique(g, axis=0))
+    if distinct < 3:
+        raise ValueError(f"need at least 3 distinct control points, got {distinct}")
+    _, s, vt = np.linalg.svd(g - g.mean(0), full_matrices=False)
+    if s[0] == 0 or s[1] < 1e-6 * s[0]:
+        raise ValueError("the control points are (nearly) collinear: the orientation is not determined; "
+                         "points " + ", ".join(_point_label(names, k) for k in idx))
+    planar = distinct < 4 or s[2] < _PLANAR * s[0]
+    if need_init:
+        if planar and distinct < 4:
+            raise ValueError(f"the automatic start needs at least 4 distinct control points, got {distinct}; "
+                             "give initial= to resect from 3")
+        if not planar and distinct < 6:
+            raise ValueError(f"the automatic start needs at least 6 control points for a non-planar GCP set "
+                             f"(relief {s[2] / s[0]:.2f} of the extent), got {distinct}; give initial= or more points")
+    return np.stack([vt[0], np.cross(vt[2], vt[0]), vt[2]], axis=1)
+
+
+@functools.lru_cache(maxsize=128)
+def _subsets(n_ctrl: int) -> np.ndarray:
+    """Seeded random subsets of 6 control points (distinct when there are 6)."""
+    rng = np.random.default_rng(_SEED + n_ctrl)
+    return rng.random((_N_SUBSETS, n_ctrl)).argsort(axis=1)[:, np.arange(6) % n_ctrl]
+
+
+def _bucket(n: int) -> int:
+    # Pad to a few sizes so a new number of points rarely means a new compilation.
+    return max(8, 1 << (n - 1).bit_length())
+
+
+def _critical(alpha: float, sigma_known: bool, red: float) -> float:
+    """Baarda's normal critical value, or Pope's tau with ``red`` dof."""
+    if sigma_known:
+        return float(stats.norm.ppf(1.0 - alpha / 2.0))
+    if red < 2:
+        return np.inf
+    t = stats.t.ppf(1.0 - alpha / 2.0, red - 1)
+    return float(t * np.sqrt(red) / np.sqrt(red - 1 + t * t))
+
+
+def _message(result: int, steps: int, solver: str) -> tuple[bool, str]:
+    name = {"gn": "Gauss-Newton", "lm": "Levenberg-Marquardt"}[solver]
+    if result == 0:
+        return True, f"{name} converged in {steps} steps"
+    return False, f"{name} did not converge after {steps} steps: {_OPTX_MESSAGES.get(result, 'unknown failure')}"
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def resect(
+    image_xy,
+    ground_xyz,
+    camera: FrameCamera,
+    *,
+    sigma=None,
+    check=None,
+    names=None,
+    initial: ExteriorOrientation | None = None,
+    convention: Convention = "phi-omega-kappa",
+    robust: bool = True,
+    alpha: float = 0.001,
+    max_steps: int = 50,
+    throw: bool = True,
+) -> ResectionResult:
+    """Space resection of one image from ground control points.
+
+    Args:
+        image_xy: ``(n, 2)`` image-plane coordinates (x right, y up, the
+            camera's unit; convert pixels with ``camera.pixel_to_image``).
+        ground_xyz: ``(n, 3)`` ground coordinates (X east, Y north, Z up).
+        camera: interior orientation (distortion is taken into account).
+        sigma: a-priori standard deviations of the image coordinates:
+            scalar, ``(n,)`` or ``(n, 2)``; weights are ``1/sigma^2``.  With
+            it, blunders are tested with Baarda's w (a-priori sigma0 = 1);
+            without it, with Pope's tau (a-posteriori sigma0).
+        check: ``(n,)`` bool, True for check points: not used in the fit,
+            their residuals reported separately.
+        names: ``(n,)`` point names for messages and reports.
+        initial: a start orientation; optional (needed only for 3 points).
+        convention: angle convention of the result.
+        robust: least-median-of-squares start over random subsets, and data
+            snooping (exclude the worst point while a test fails).
+        alpha: significance level of each test (0.001 -> 3.29 for w).
+        max_steps: maximum Gauss-Newton / LM steps per adjustment.
+        throw: raise :class:`photax.ConvergenceError` on failure; otherwise
+            return the result with ``converged=False`` and the reason.
+
+    Returns:
+        :class:`ResectionResult`.
+
+    Raises:
+        ValueError: bad shapes, NaN/inf (naming the points), too few or
+            degenerate (collinear, duplicated) control points.
+    """
+    check_convention(convention)
+    xy = _as_points(image_xy, "image_xy", 2, False)
+    ground = _as_points(ground_xyz, "ground_xyz", 3, False)
+    n = len(xy)
+    if len(ground) != n:
+        raise ValueError(f"image_xy has {n} points but ground_xyz has {len(ground)}")
+    if names is not None:
+        names = [str(s) for s in names]
+        if len(names) != n:
+            raise ValueError(f"names has {len(names)} entries for {n} points")
+    bad = ~(np.all(np.isfinite(xy), axis=1) & np.all(np.isfinite(ground), axis=1))
+    if np.any(bad):
+        raise ValueError("non-finite (NaN/inf) coordinates at points "
+                         + ", ".join(_point_label(names, k) for k in np.flatnonzero(bad)))
+    if not isinstance(camera, FrameCamera):
+        raise ValueError(f"camera must be a photax.FrameCamera, got {type(camera).__name__}")
+    weight = _sigma_weights(sigma, xy.shape)
+    is_check = np.zeros(n, bool) if check is None else np.asarray(check)
+    if is_check.shape != (n,) or is_check.dtype != bool:
+        raise ValueError(f"check must be a boolean array of shape ({n},), got {is_check.dtype} {is_check.shape}")
+    ctrl = ~is_check
+    if ctrl.sum() < 3:
+        raise ValueError(f"need at least 3 control points, got {int(ctrl.sum())} (of {n}, the rest are check points)")
+    if not 0.0 < alpha < 1.0:
+        raise ValueError(f"alpha must be in (0, 1), got {alpha}")
+    basis = _check_geometry(ground, xy, ctrl, names, initial is None)
+
+    origin = ground[ctrl].mean(axis=0)
+    m = _bucket(n)
+    pad = lambda a, fill=0.0: np.concatenate([a, np.full((m - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
+    xy_p, ground_p, weight_p = pad(xy), pad(ground - origin), pad(weight, 1.0)
+    ctrl_idx = np.flatnonzero(ctrl)
+    if initial is not None:
+        if not isinstance(initial, ExteriorOrientation):
+            raise ValueError("initial must be a photax.ExteriorOrientation")
+        e0 = initial.to_convention(convention)
+        init = np.concatenate([np.asarray(e0.position) - origin, np.asarray(e0.angles)])
+        if not np.all(np.isfinite(init)):
+            raise ValueError("initial has non-finite values")
+    else:
+        init = np.zeros(6)
+    subsets = ctrl_idx[_subsets(len(ctrl_idx))]
+    dlt_ok = len(ctrl_idx) >= 6
+    sigma_known = sigma is not None
+
+    def run(mask, init, use_init, solver="gn"):
+        out = _core(xy_p, ground_p, weight_p, pad(mask, False), basis, subsets, robust, dlt_ok, init, use_init, camera,
+                    convention=convention, max_steps=max_steps, solver=solver)
+        out = jax.device_get(out)
+        if out["result"] != 0 and solver == "gn":  # Gauss-Newton failed: Levenberg-Marquardt
+            lm = run(mask, out["start"], True, "lm")
+            lm["gn_failure"] = _message(int(out["result"]), int(out["steps"]), "gn")[1]
+            return lm
+        out["solver"] = solver
+        return out
+
+    out = run(ctrl, init, initial is not None)
+    start = out["start"]
+    used = ctrl.copy()
+    outliers = np.zeros(n, bool)
+    rejected = {}  # point -> its (2,) test statistics when it was excluded
+    min_pts = 3 if initial is not None else 4
+    while True:
+        red = 2.0 * used.sum() - 6.0
+        crit = _critical(alpha, sigma_known, red)
+        stat = np.abs(out["w"][:n]) / (1.0 if sigma_known else out["sigma0"])
+        worst = np.nanmax(stat, axis=1, initial=-np.inf)
+        worst = np.where(used, worst, -np.inf)
+        k = int(np.argmax(worst))
+        if not robust or not worst[k] > crit:
+            break
+        # Excluding a point costs 2 redundancy; the tau test needs r >= 2 after it.
+        if used.sum() - 1 < min_pts or red - 2 < (1 if sigma_known else 2):
+            break
+        used[k] = False
+        outliers[k] = True
+        rejected[k] = stat[k]
+        out = run(used, start, True)
+    return _finish(out, n, origin, used, outliers, rejected, is_check, names, crit, sigma_known, convention, throw)
+
+
+def _finish(out, n, origin, used, outliers, rejected, is_check, names, crit, sigma_known, convention, throw):
+    p = out["params"]
+    converged, message = _message(int(out["result"]), int(out["steps"]), out["solver"])
+    if "gn_failure" in out:
+        message = f"{out['gn_failure']}; then {message}"
+    behind = used & ~(out["depth"][:n] > 0)
+    if converged and np.any(behind):
+        converged = False
+        message = "solution puts control points behind the camera: " + ", ".join(
+            _point_label(names, k) for k in np.flatnonzero(behind))
+    red = 2.0 * used.sum() - 6.0
+    sigma0 = float(out["sigma0"])
+    if red <= 0:
+        message += "; zero redundancy: sigma0 and blunder tests undefined" + (
+            ", covariance from the a-priori sigma" if sigma_known else ", covariance unknown")
+        cov = out["qxx"] if sigma_known else np.full((6, 6), np.nan)
+    else:
+        cov = sigma0**2 * out["qxx"]
+    if not np.all(np.isfinite(p)):
+        converged = False
+        message = "the estimate is not finite: " + message
+    std = np.sqrt(np.abs(np.diag(cov)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(std, std)
+    resid = out["residuals"][:n]
+    stat = out["w"][:n] / (1.0 if sigma_known else sigma0)
+    stat = np.where(used[:, None], stat, np.nan)
+    for k, s in rejected.items():
+        stat[k] = s
+    d2 = np.sum(resid**2, axis=1)
+    rms = float(np.sqrt(np.mean(d2[used]))) if used.any() else np.nan
+    check_rms = float(np.sqrt(np.mean(d2[is_check]))) if is_check.any() else np.nan
+    if names is None:
+        names = [f"P{k}" for k in range(n)]
+    res = ResectionResult(
+        exterior=ExteriorOrientation(p[:3] + origin, p[3:], convention),
+        sigma0=sigma0,
+        covariance=cov,
+        std=std,
+        correlation=corr,
+        residuals=resid,
+        outliers=outliers,
+        check=is_check,
+        redundancy=out["redundancy"][:n],
+        normalized=stat,
+        critical=crit,
+        rms=rms,
+        check_rms=check_rms,
+        iterations=int(out["steps"]),
+        converged=bool(converged),
+        message=message,
+        names=list(names),
+        statistic="w" if sigma_known else "tau",
+    )
+    if throw and not converged:
+        raise ConvergenceError(message)
+    return res
+
+
+def resect_batch(
+    image_xy,
+    ground_xyz,
+    camera: FrameCamera,
+    *,
+    sigma=None,
+    initial: ExteriorOrientation | None = None,
+    convention: Convention = "phi-omega-kappa",
+    robust: bool = True,
+    alpha: float = 0.001,
+    max_steps: int = 20,
+    throw: bool = False,
+) -> ResectionResult:
+    """Space resection of many images with the same number of GCPs, in one call.
+
+    ``jax.vmap`` over a jitted start + Gauss-Newton (at most ``max_steps``
+    iterations, plain normal equations) + precision; each image has its own
+    ``converged`` flag and ``message``.  Blunder handling is simpler than in
+    :func:`resect`: the start comes from all points (no random subsets), then
+    data snooping as in :func:`resect` (exclude the worst point of each image
+    whose largest test statistic fails, re-solve those images, repeat).  No
+    Levenberg-Marquardt fallback: a failed image is reported, not retried.
+
+    Args:
+        image_xy: ``(b, n, 2)`` image-plane coordinates.
+        ground_xyz: ``(b, n, 3)`` ground coordinates.
+        camera: one interior orientation for all images.
+        sigma: scalar, ``(b, n)`` or ``(b, n, 2)`` a-priori sigmas.
+        initial: optional start with batch shape ``(b,)``.
+        convention, robust, alpha: as in :func:`resect`.
+        max_steps: Gauss-Newton iterations at most.
+        throw: raise :class:`photax.ConvergenceError` if any image failed
+            (default False: a batch does not die because one image failed).
+
+    Returns:
+        A :class:`ResectionResult` whose arrays have a leading axis ``b``
+        (``result[i]`` is the ``i``-th image's result).
+    """
+    check_convention(convention)
+    xy = _as_points(image_xy, "image_xy", 2, True)
+    ground = _as_points(ground_xyz, "ground_xyz", 3, True)
+    b, n = xy.shape[:2]
+    if ground.shape[:2] != (b, n):
+        raise ValueError(f"image_xy has shape {xy.shape} but ground_xyz has {ground.shape}")
+    if n < 4 and initial is None:
+        raise ValueError(f"the automatic start needs at least 4 points per image, got {n}")
+    if n < 3:
+        raise ValueError(f"need at least 3 points per image, got {n}")
+    bad = ~(np.all(np.isfinite(xy), axis=2) & np.all(np.isfinite(ground), axis=2))
+    if np.any(bad):
+        where = [f"image {i} point {k}" for i, k in zip(*np.nonzero(bad))][:10]
+        raise ValueError("non-finite (NaN/inf) coordinates at " + ", ".join(where))
+    weight = _sigma_weights(sigma, xy.shape)
+    origin = ground.mean(axis=1)
+    local = ground - origin[:, None, :]
+    _, s, vt = np.linalg.svd(local, full_matrices=False)
+    collinear = (s[:, 0] == 0) | (s[:, 1] < 1e-6 * s[:, 0])
+    if np.any(collinear):
+        raise ValueError(f"collinear control points in images {np.flatnonzero(collinear)[:10].tolist()}")
+    if initial is None and n < 6:
+        flat = s[:, 2] < _PLANAR * s[:, 0]
+        if not np.all(flat):
+            raise ValueError(f"images {np.flatnonzero(~flat)[:10].tolist()} have non-planar GCPs: "
+                             "the automatic start needs 6 points for them")
+    basis = np.stack([vt[:, 0], np.cross(vt[:, 2], vt[:, 0]), vt[:, 2]], axis=2)
+    if initial is not None:
+        e0 = initial.to_convention(convention)
+        init = np.concatenate([np.asarray(e0.position) - origin, np.asarray(e0.angles)], axis=-1)
+        if init.shape != (b, 6):
+            raise ValueError(f"initial must have batch shape ({b},), got {init.shape[:-1]}")
+    else:
+        init = np.zeros((b, 6))
+    m = _bucket(n)
+    padn = lambda a, fill=0.0: np.concatenate([a, np.full(a.shape[:1] + (m - n,) + a.shape[2:], fill, a.dtype)], 1)  # noqa: E731
+    xy_p, ground_p, weight_p = padn(xy), padn(local), padn(weight, 1.0)
+    sigma_known = sigma is not None
+
+    def run(rows, used, init, use_init):
+        # Pad the number of images to a power of two: fewer compilations.
+        k = len(rows)
+        kb = _bucket(k)
+        sel = np.concatenate([rows, np.full(kb - k, rows[0])])
+        out = _core_batch(xy_p[sel], ground_p[sel], weight_p[sel], padn(used[sel], False), basis[sel], n >= 6,
+                          init[sel], use_init[sel], camera, convention=convention, max_steps=max_steps)
+        return {key: v[:k] for key, v in jax.device_get(out).items()}
+
+    used = np.ones((b, n), bool)
+    out = run(np.arange(b), used, init, np.full(b, initial is not None))
+    start = out["start"]
+    outliers = np.zeros((b, n), bool)
+    stat_at = np.full((b, n, 2), np.nan)
+    min_pts = 3 if initial is not None else 4
+    crit = np.full(b, np.inf)
+    for _ in range(n):
+        red = 2.0 * used.sum(1) - 6.0
+        crit = _critical_vec(alpha, sigma_known, red)
+        denom = 1.0 if sigma_known else out["sigma0"][:, None, None]
+        stat = np.abs(out["w"][:, :n]) / denom
+        worst = np.where(used, np.nanmax(np.where(np.isnan(stat), -np.inf, stat), axis=2), -np.inf)
+        k = np.argmax(worst, axis=1)
+        top = worst[np.arange(b), k]
+        go = (top > crit) & (used.sum(1) - 1 >= min_pts) & (red - 2 >= (1 if sigma_known else 2))
+        if not robust or not np.any(go):
+            break
+        rows = np.flatnonzero(go)
+        used[rows, k[rows]] = False
+        outliers[rows, k[rows]] = True
+        stat_at[rows, k[rows]] = stat[rows, k[rows]]
+        new = run(rows, used, start, np.ones(b, bool))
+        for key in out:
+            out[key][rows] = new[key]
+    return _finish_batch(out, n, origin, used, outliers, stat_at, crit, sigma_known, convention, throw)
+
+
+def _critical_vec(alpha, sigma_known, red):
+    if sigma_known:
+        return np.full(red.shape, stats.norm.ppf(1.0 - alpha / 2.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        t = stats.t.ppf(1.0 - alpha / 2.0, np.maximum(red - 1, 1))
+        return np.where(red >= 2, t * np.sqrt(red) / np.sqrt(red - 1 + t * t), np.inf)
+
+
+def _finish_batch(out, n, origin, used, outliers, stat_at, crit, sigma_known, convention, throw):
+    b = len(origin)
+    p = out["params"]
+    red = 2.0 * used.sum(1) - 6.0
+    sigma0 = out["sigma0"]
+    cov = np.where((red > 0)[:, None, None], sigma0[:, None, None] ** 2 * out["qxx"],
+                   out["qxx"] if sigma_known else np.nan)
+    std = np.sqrt(np.abs(np.diagonal(cov, axis1=1, axis2=2)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / (std[:, :, None] * std[:, None, :])
+    resid = out["residuals"][:, :n]
+    stat = out["w"][:, :n] / (1.0 if sigma_known else sigma0[:, None, None])
+    stat = np.where(used[:, :, None], stat, stat_at)
+    d2 = np.sum(resid**2, axis=2)
+    with np.errstate(invalid="ignore"):
+        rms = np.sqrt(np.sum(d2 * used, axis=1) / used.sum(1))
+    behind = np.any(used & ~(out["depth"][:, :n] > 0), axis=1)
+    ok = (out["result"] == 0) & ~behind & np.all(np.isfinite(p), axis=1)
+    steps = out["steps"]
+    messages = [
+        f"Gauss-Newton converged in {steps[i]} steps" if ok[i]
+        else ("solution puts control points behind the camera" if behind[i]
+              else f"Gauss-Newton did not converge in {steps[i]} steps")
+        for i in range(b)
+    ]
+    res = ResectionResult(
+        exterior=ExteriorOrientation(p[:, :3] + origin, p[:, 3:], convention),
+        sigma0=sigma0, covariance=cov, std=std, correlation=corr, residuals=resid, outliers=outliers,
+        check=np.zeros((b, n), bool), redundancy=out["redundancy"][:, :n], normalized=stat, critical=crit,
+        rms=rms, check_rms=np.full(b, np.nan), iterations=steps, converged=ok, message=messages,
+        names=[f"P{k}" for k in range(n)], statistic="w" if sigma_known else "tau",
+    )
+    if throw and not np.all(ok):
+        bad = np.flatnonzero(~ok)
+        raise ConvergenceError(f"{len(bad)} of {b} images failed, e.g. image {bad[0]}: {messages[bad[0]]}")
+    return res
