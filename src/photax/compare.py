@@ -1,0 +1,446 @@
+"""Collinearity + DEM against plane-to-plane models on the same control points.
+
+Every model maps ground ``(X, Y)`` (and, for collinearity, the height) to
+input pixels ``(column, row)``, the direction indirect rectification needs:
+
+* **collinearity** with the DEM: the exterior orientation by space resection
+  from the GCPs (:func:`photax.resection.resect`), or given; a ground point
+  ``(X, Y)`` is projected with ``Z = DEM(X, Y)``.  6 parameters.
+* **polynomials** of order 1..5 (:func:`photax.polynomial.fit_polynomial`),
+  ``(n+1)(n+2)`` parameters, and the **projective** transform (8).  They see
+  only ``(X, Y)``: they cannot know the height, so they cannot remove
+  relief displacement.  For a vertical image a point at height ``h`` above
+  the datum, imaged at radial distance ``r`` from the nadir, is displaced
+  radially by (Wolf & DeWitt 2014, eq. 6-11; Kraus 2007, sec. 5.1)::
+
+      d = r h / H              (H = flying height above the datum)
+
+  A polynomial can absorb the part of ``d`` that is a smooth function of
+  ``(X, Y)`` over the control points, not hills and valleys between them.
+
+Per model: RMSE (``sqrt(mean |v|^2)``, radial, pixels; and ground metres
+through the mean ground sampling distance) at the control points and at
+independent check points, parameters, redundancy ``2n - u``, condition
+number of the (normalised) design / Jacobian, and a dense error map over an
+output grid: ``collinearity+DEM(X, Y) - model(X, Y)`` in pixels, i.e. how
+far each rectified output pixel samples the input from where the physics
+says it should.  Frames: ``docs/conventions.md``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any, Callable, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .camera import FrameCamera
+from .collinearity import ExteriorOrientation, project
+from .dem import DEM
+from .polynomial import fit_polynomial, fit_projective, n_coefficients
+from .rectify import Grid, OrthoModel, ortho_grid
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelResult:
+    """One model of a :class:`ModelComparison`.
+
+    Attributes:
+        name: ``"collinearity"``, ``"polynomial 1"`` .. ``"polynomial 5"``
+            or ``"projective"``.
+        model: callable ``(..., 2)`` ground ``(X, Y)`` -> ``(..., 2)`` pixel
+            ``(column, row)`` (for collinearity an
+            :class:`photax.rectify.OrthoModel`, which takes Z from the DEM).
+        n_params: estimated parameters (0 for a given exterior orientation).
+        redundancy: ``2 n_gcp - n_params``.
+        condition: 2-norm condition number of the normalised design matrix
+            (polynomial, projective) or of the column-equilibrated Jacobian
+            of the collinearity equations at the solution.
+        gcp_residuals, check_residuals: ``(n, 2)`` observed - model, pixels.
+        gcp_rmse, check_rmse: ``sqrt(mean |v|^2)``, pixels (NaN without points).
+        error: ``(rows, cols, 2)`` collinearity+DEM minus this model on the
+            comparison grid, pixels; NaN off the image (zeros for
+            collinearity itself).
+    """
+
+    name: str
+    model: Callable
+    n_params: int
+    redundancy: int
+    condition: float
+    gcp_residuals: np.ndarray
+    check_residuals: np.ndarray
+    gcp_rmse: float
+    check_rmse: float
+    error: np.ndarray
+
+    @property
+    def error_magnitude(self) -> np.ndarray:
+        """``(rows, cols)`` length of the error vectors, pixels."""
+        return np.hypot(self.error[..., 0], self.error[..., 1])
+
+    @property
+    def error_rms(self) -> float:
+        """RMS of the error map over the cells inside the image, pixels."""
+        m = self.error_magnitude
+        return float(np.sqrt(np.nanmean(m**2))) if np.isfinite(m).any() else math.nan
+
+    @property
+    def error_max(self) -> float:
+        m = self.error_magnitude
+        return float(np.nanmax(m)) if np.isfinite(m).any() else math.nan
+
+
+def _rmse(v: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum(v**2, axis=1)))) if len(v) else math.nan
+
+
+@eqx.filter_jit
+def _apply(model, xy):
+    return model(xy)
+
+
+@eqx.filter_jit
+def _project_px(ground, exterior, camera):
+    """``(n, 3)`` ground -> ``(n, 2)`` pixels by the collinearity equations."""
+    return camera.image_to_pixel(project(ground, exterior, camera))
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelComparison:
+    """Result of :func:`compare_models`.
+
+    Attributes:
+        models: the :class:`ModelResult` s, collinearity first.
+        exterior, camera, dem: the collinearity model.
+        grid: the :class:`photax.Grid` of the error maps.
+        gsd: mean ground sampling distance (ground units per pixel), used to
+            express pixel RMSEs in ground units.
+        gcp_ground, gcp_pixel, check_ground, check_pixel: the points.
+        resection: the :class:`photax.resection.ResectionResult` (``None``
+            when the exterior orientation was given).
+        skipped: ``{name: reason}`` for models that could not be fitted
+            (e.g. too few GCPs for an order).
+    """
+
+    models: list[ModelResult]
+    exterior: ExteriorOrientation
+    camera: FrameCamera
+    dem: DEM
+    grid: Grid
+    gsd: float
+    gcp_ground: np.ndarray
+    gcp_pixel: np.ndarray
+    check_ground: np.ndarray
+    check_pixel: np.ndarray
+    resection: Any = None
+    skipped: dict = dataclasses.field(default_factory=dict)
+
+    def __getitem__(self, name: str) -> ModelResult:
+        for m in self.models:
+            if m.name == name:
+                return m
+        raise KeyError(f"no model {name!r}; have {[m.name for m in self.models]}")
+
+    @property
+    def names(self) -> list[str]:
+        return [m.name for m in self.models]
+
+    def relief_displacement(self, datum: float = 0.0) -> np.ndarray:
+        """``(rows, cols, 2)`` pixel shift caused by the terrain on the grid.
+
+        ``pixel(X, Y, DEM(X, Y)) - pixel(X, Y, datum)`` by the collinearity
+        equations: the displacement a flat-terrain model ignores.  For a
+        vertical image its length is ``r h / H`` (module docstring).
+        """
+        xy = self.grid.xy()
+        z = jnp.full(xy.shape[:2] + (1,), float(datum))
+        ground = jnp.concatenate([jnp.asarray(xy), z], axis=-1).reshape(-1, 3)
+        flat = _project_px(ground, self.exterior, self.camera).reshape(xy.shape)
+        return np.asarray(_apply(self["collinearity"].model, jnp.asarray(xy))) - np.asarray(flat)
+
+    def table(self, fmt: str = "markdown") -> str:
+        """The comparison as a markdown (``fmt="markdown"``) or plain text table."""
+        head = ["model", "params", "redundancy", "condition", "GCP RMSE [px]", "check RMSE [px]",
+                "check RMSE [m]", "map RMS [px]", "map max [px]"]
+        rows = []
+        for m in self.models:
+            rows.append([m.name, str(m.n_params), str(m.redundancy), f"{m.condition:.3g}", f"{m.gcp_rmse:.3f}",
+                         f"{m.check_rmse:.3f}", f"{m.check_rmse * self.gsd:.3f}", f"{m.error_rms:.2f}",
+                         f"{m.error_max:.2f}"])
+        notes = [f"{k}: {v}" for k, v in self.skipped.items()]
+        notes.append(f"{len(self.gcp_pixel)} GCPs, {len(self.check_pixel)} check points, "
+                     f"GSD {self.gsd:.3g} m; map = collinearity+DEM minus model over the output grid")
+        if fmt == "markdown":
+            lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+            lines += ["| " + " | ".join(r) + " |" for r in rows]
+            return "\n".join(lines + [""] + notes)
+        widths = [max(len(h), *(len(r[k]) for r in rows)) for k, h in enumerate(head)]
+        fmt_row = lambda r: "  ".join(c.rjust(w) if k else c.ljust(w) for k, (c, w) in enumerate(zip(r, widths)))  # noqa: E731
+        return "\n".join([fmt_row(head)] + [fmt_row(r) for r in rows] + notes)
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable summary (no maps)."""
+        num = lambda x: None if not math.isfinite(x) else float(x)  # noqa: E731
+        return {
+            "gsd": self.gsd,
+            "n_gcp": int(len(self.gcp_pixel)),
+            "n_check": int(len(self.check_pixel)),
+            "grid": {"transform": list(tuple(self.grid.transform)[:6]), "shape": list(self.grid.shape)},
+            "exterior": {"position": np.asarray(self.exterior.position).tolist(),
+                         "angles_rad": np.asarray(self.exterior.angles).tolist(),
+                         "convention": self.exterior.convention},
+            "models": [
+                {"name": m.name, "n_params": m.n_params, "redundancy": m.redundancy,
+                 "condition": num(m.condition), "gcp_rmse_px": num(m.gcp_rmse),
+                 "check_rmse_px": num(m.check_rmse), "check_rmse_m": num(m.check_rmse * self.gsd),
+                 "map_rms_px": num(m.error_rms), "map_max_px": num(m.error_max)}
+                for m in self.models
+            ],
+            "skipped": dict(self.skipped),
+        }
+
+    # --- rectified images --------------------------------------------------
+
+    def rectify(self, image, names: Sequence[str] | None = None, *, grid: Grid | None = None,
+                resampling: str = "bilinear", progress: bool = False) -> tuple[dict[str, np.ndarray], Grid]:
+        """Rectify ``image`` with each model onto one grid.
+
+        Args:
+            image: ``(..., H, W)`` the image the GCPs were measured in.
+            names: models to use (default all).
+            grid: output grid; default the image footprint on the DEM at the GSD.
+
+        Returns:
+            ``({name: (..., rows, cols) array}, grid)``; collinearity gives
+            the orthophoto (:func:`photax.rectify.orthorectify`).
+        """
+        from .rectify import rectify
+
+        grid = ortho_grid(self.exterior, self.camera, self.dem, self.gsd) if grid is None else grid
+        names = self.names if names is None else list(names)
+        out = {n: rectify(image, self[n].model, grid, resampling=resampling, progress=progress) for n in names}
+        return out, grid
+
+    # --- figures -------------------------------------------------------------
+
+    def plot_error_maps(self, names: Sequence[str] | None = None, *, vmax: float | None = None, ncols: int = 3):
+        """Error maps side by side with one colour scale; GCPs ``+``, check points ``o``.
+
+        Returns the matplotlib figure.
+        """
+        import matplotlib.pyplot as plt
+
+        names = [n for n in self.names if n != "collinearity"] if names is None else list(names)
+        mags = [self[n].error_magnitude for n in names]
+        if vmax is None:  # robust shared scale: extrapolated corners of high orders would swamp it
+            finite = np.concatenate([m[np.isfinite(m)] for m in mags])
+            vmax = float(np.percentile(finite, 99)) if finite.size else 1.0
+        ncols = min(ncols, len(names))
+        nrows = -(-len(names) // ncols)
+        fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.6 * nrows), squeeze=False,
+                                 constrained_layout=True)
+        x0, y0, x1, y1 = self.grid.bounds
+        extent = (0.0, (x1 - x0) / 1000, 0.0, (y1 - y0) / 1000)
+        to_km = lambda g: ((g[:, 0] - x0) / 1000, (g[:, 1] - y0) / 1000)  # noqa: E731
+        for ax, name, mag in zip(axes.flat, names, mags):
+            im = ax.imshow(mag, extent=extent, vmin=0, vmax=vmax, cmap="magma")
+            ax.plot(*to_km(self.gcp_ground), "+", color="cyan", ms=7, mew=1.5, label="GCP")
+            if len(self.check_ground):
+                ax.plot(*to_km(self.check_ground), "o", mfc="none", color="lime", ms=4, label="check")
+            m = self[name]
+            ax.set_title(f"{name}\ncheck RMSE {m.check_rmse:.2f} px, map RMS {m.error_rms:.1f} px", fontsize=9)
+            ax.set_xlabel("easting [km]")
+            ax.set_ylabel("northing [km]")
+        for ax in axes.flat[len(names):]:
+            ax.axis("off")
+        axes.flat[0].legend(loc="lower left", fontsize=7)
+        fig.colorbar(im, ax=axes, shrink=0.8, label="|collinearity+DEM - model| [px]")
+        return fig
+
+    def plot_rmse(self):
+        """GCP and check-point RMSE per model, grouped bars (log scale)."""
+        import matplotlib.pyplot as plt
+
+        names = self.names
+        x = np.arange(len(names))
+        fig, ax = plt.subplots(figsize=(1.2 * len(names) + 2, 3.6), constrained_layout=True)
+        ax.bar(x - 0.2, [self[n].gcp_rmse for n in names], 0.4, label="GCPs (fit)")
+        ax.bar(x + 0.2, [self[n].check_rmse for n in names], 0.4, label="check points")
+        ax.set_xticks(x, [n.replace("polynomial ", "poly ") for n in names], rotation=20)
+        ax.set_yscale("log")
+        ax.set_ylabel("RMSE [px]")
+        ax.legend()
+        ax.grid(axis="y", alpha=0.3)
+        return fig
+
+    def plot_rectified(self, images: dict[str, np.ndarray], grid: Grid, *, reference: np.ndarray | None = None,
+                       reference_transform=None, ncols: int = 3, window=None):
+        """Rectified images side by side (from :meth:`rectify`), optionally
+        with a reference orthophoto; ``window=(xmin, ymin, xmax, ymax)`` zooms
+        in (ground units)."""
+        import matplotlib.pyplot as plt
+
+        panels = list(images.items())
+        extents = [grid.bounds] * len(panels)
+        if reference is not None:
+            a, _, xoff, _, e, yoff = tuple(reference_transform)[:6]
+            rows, cols = reference.shape[-2:]
+            panels.insert(0, ("truth (ground texture)", reference))
+            extents.insert(0, (xoff, yoff + e * rows, xoff + a * cols, yoff))
+        ncols = min(ncols, len(panels))
+        nrows = -(-len(panels) // ncols)
+        fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.8 * nrows), squeeze=False,
+                                 constrained_layout=True)
+        for ax, (name, img), (xmin, ymin, xmax, ymax) in zip(axes.flat, panels, extents):
+            ax.imshow(img, cmap="gray", extent=(xmin, xmax, ymin, ymax), vmin=0, vmax=1)
+            if name in self.names:
+                ax.plot(self.gcp_ground[:, 0], self.gcp_ground[:, 1], "+", color="red", ms=6)
+            ax.set_title(name, fontsize=9)
+            if window is not None:
+                ax.set_xlim(window[0], window[2])
+                ax.set_ylim(window[1], window[3])
+            ax.ticklabel_format(useOffset=False, style="plain")
+            ax.tick_params(labelsize=6)
+        for ax in axes.flat[len(panels):]:
+            ax.axis("off")
+        return fig
+
+
+@eqx.filter_jit
+def _collinearity_jacobian(exterior: ExteriorOrientation, camera: FrameCamera, local: jax.Array) -> jax.Array:
+    def f(p):
+        ext = ExteriorOrientation(p[:3], p[3:], exterior.convention)
+        return project(local, ext, camera).reshape(-1)
+
+    return jax.jacfwd(f)(exterior.to_vector())
+
+
+def _collinearity_condition(exterior: ExteriorOrientation, camera: FrameCamera, ground: np.ndarray) -> float:
+    """Condition of the column-equilibrated Jacobian d image / d (X, Y, Z, angles),
+    coordinates reduced to the GCP centroid (as the resection sees them)."""
+    origin = ground.mean(axis=0)
+    local = ExteriorOrientation(exterior.position - origin, exterior.angles, exterior.convention)
+    j = np.asarray(_collinearity_jacobian(local, camera, jnp.asarray(ground - origin)))
+    j = j / np.linalg.norm(j, axis=0, keepdims=True)
+    s = np.linalg.svd(j, compute_uv=False)
+    return float(s[0] / s[-1])
+
+
+def _points(name: str, a, width: int) -> np.ndarray:
+    p = np.asarray(a, dtype=float)
+    if p.ndim != 2 or p.shape[1] != width:
+        raise ValueError(f"{name} must have shape (n, {width}), got {p.shape}")
+    if not np.isfinite(p).all():
+        raise ValueError(f"{name} has NaN or infinite values at rows {np.flatnonzero(~np.isfinite(p).all(1)).tolist()}")
+    return p
+
+
+def compare_models(
+    gcp_ground,
+    gcp_pixel,
+    camera: FrameCamera,
+    dem: DEM,
+    *,
+    check_ground=None,
+    check_pixel=None,
+    orders: Sequence[int] = (1, 2, 3, 4, 5),
+    projective: bool = True,
+    grid: Grid | None = None,
+    exterior: ExteriorOrientation | None = None,
+) -> ModelComparison:
+    """Fit collinearity and plane-to-plane models to the same GCPs and compare.
+
+    Args:
+        gcp_ground: ``(n, 3)`` control points' ground ``(X, Y, Z)``.
+        gcp_pixel: ``(n, 2)`` their pixel ``(column, row)`` in the image.
+        camera: interior orientation with a pixel grid (``image_size``).
+        dem: terrain heights, same CRS and datum as the ground points.
+        check_ground, check_pixel: ``(m, 3)`` / ``(m, 2)`` independent check
+            points, never used in a fit (both or neither).
+        orders: polynomial orders (1..5); an order needing more GCPs than
+            given is skipped and listed in ``skipped``.
+        projective: also fit the 8-parameter projective transform.
+        grid: grid of the error maps; default the image footprint on the
+            DEM at 4 x the mean GSD.
+        exterior: use this exterior orientation instead of resecting.
+
+    Returns:
+        :class:`ModelComparison`.
+
+    Raises:
+        ValueError: bad shapes or values, a camera without a pixel grid.
+        photax.ConvergenceError: the resection failed.
+    """
+    from .resection import resect
+
+    gg, gp = _points("gcp_ground", gcp_ground, 3), _points("gcp_pixel", gcp_pixel, 2)
+    if len(gg) != len(gp):
+        raise ValueError(f"gcp_ground has {len(gg)} points but gcp_pixel has {len(gp)}")
+    if (check_ground is None) != (check_pixel is None):
+        raise ValueError("give both check_ground and check_pixel, or neither")
+    cg = np.zeros((0, 3)) if check_ground is None else _points("check_ground", check_ground, 3)
+    cp = np.zeros((0, 2)) if check_pixel is None else _points("check_pixel", check_pixel, 2)
+    if len(cg) != len(cp):
+        raise ValueError(f"check_ground has {len(cg)} points but check_pixel has {len(cp)}")
+    if camera.image_size is None or camera.pixel_size is None:
+        raise ValueError("camera needs pixel_size and image_size (pixels are compared)")
+    for k in orders:
+        if not isinstance(k, (int, np.integer)) or not 1 <= k <= 5:
+            raise ValueError(f"orders must be integers from 1 to 5, got {k!r}")
+    n = len(gg)
+
+    resection = None
+    if exterior is None:
+        resection = resect(camera.pixel_to_image(gp), gg, camera)
+        exterior = resection.exterior
+    footprint = ortho_grid(exterior, camera, dem)
+    gsd = abs(float(footprint.transform.a))
+    grid = ortho_grid(exterior, camera, dem, 4 * gsd) if grid is None else grid
+    if not isinstance(grid, Grid):
+        raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
+    xy = jnp.asarray(grid.xy())
+    w, h = camera.image_size
+
+    # One model evaluation per model on grid + GCPs + check points: one compilation each.
+    size = xy.shape[0] * xy.shape[1]
+    flat_xy = jnp.concatenate([xy.reshape(-1, 2), jnp.asarray(gg[:, :2]), jnp.asarray(cg[:, :2])])
+    results = []
+
+    def add(name, model, u, cond, values):
+        on_grid, at_gcp, at_check = np.split(values, [size, size + n])
+        vg, vc = gp - at_gcp, cp - at_check
+        err = ref - on_grid.reshape(ref.shape)
+        results.append(ModelResult(name, model, u, 2 * n - u, float(cond), vg, vc, _rmse(vg), _rmse(vc), err))
+
+    # Collinearity with the DEM is the reference mapping of the error maps;
+    # at GCPs and check points it uses their own surveyed Z, not the DEM's.
+    ortho = OrthoModel(exterior, camera, dem)
+    values = np.array(_apply(ortho, flat_xy))
+    ref = values[:size].reshape(xy.shape)
+    inside = (ref[..., 0] >= -0.5) & (ref[..., 0] <= w - 0.5) & (ref[..., 1] >= -0.5) & (ref[..., 1] <= h - 0.5)
+    ref = np.where(inside[..., None], ref, np.nan)
+    values[size:] = np.asarray(_project_px(jnp.asarray(np.concatenate([gg, cg])), exterior, camera))
+    cond = math.nan if resection is None else _collinearity_condition(exterior, camera, gg)
+    add("collinearity", ortho, 0 if resection is None else 6, cond, values)
+
+    skipped = {}
+    for k in orders:
+        u = n_coefficients(int(k))
+        name = f"polynomial {k}"
+        if n < u:
+            skipped[name] = f"needs at least {u} GCPs, have {n}"
+            continue
+        model = fit_polynomial(gg[:, :2], gp, int(k))
+        add(name, model, 2 * u, model.condition, np.asarray(_apply(model, flat_xy)))
+    if projective:
+        if n < 4:
+            skipped["projective"] = f"needs at least 4 GCPs, have {n}"
+        else:
+            model = fit_projective(gg[:, :2], gp)
+            add("projective", model, 8, model.condition, np.asarray(_apply(model, flat_xy)))
+    return ModelComparison(results, exterior, camera, dem, grid, gsd, gg, gp, cg, cp, resection, skipped)
