@@ -265,7 +265,11 @@ def read_bal(path) -> BundleProblem:
     adjust with ``photax.bundle_adjust(problem, gauge="damped")`` (the LM
     damping handles the 7-parameter datum defect, as Ceres does).
     """
-    data = read_bal_arrays(path)
+    return bal_problem(read_bal_arrays(path))
+
+
+def bal_problem(data: BALData) -> BundleProblem:
+    """:class:`BALData` -> :class:`photax.BundleProblem` (see :func:`read_bal`)."""
     cameras, exterior = bal_to_photax(data.cameras)
     return BundleProblem(
         cameras, exterior, data.points, data.camera_index, data.point_index, data.observations,
