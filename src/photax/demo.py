@@ -21,7 +21,7 @@ from typing import Callable
 import numpy as np
 
 from .camera import FrameCamera
-from .collinearity import ExteriorOrientation, image_to_ground, project
+from .collinearity import ExteriorOrientation, project
 from .io.atomic import atomic_write
 from .io.camera_file import read_camera, write_camera
 from .io.gcp import GCPTable, read_gcps
@@ -67,10 +67,12 @@ def sample_scene() -> dict:
     v = np.linspace(250.0, 2750.0, 4)
     pix = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2) + rng.uniform(-100, 100, (16, 2))
     # Monoplot each pixel onto the terrain: cut the ray with Z = h(X, Y) until it settles.
-    xy = camera.pixel_to_image(pix)
+    # (numpy on fixed rays: the same as photax.image_to_ground with height=z, without 50 dispatches)
+    centre = np.asarray(exterior.position)
+    ray = np.asarray(camera.ray(camera.pixel_to_image(pix))) @ np.asarray(exterior.rotation).T
     z = np.full(16, 60.0)
     for _ in range(50):
-        g = np.asarray(image_to_ground(xy, exterior, camera, height=z))
+        g = centre[None, :] + ((z - centre[2]) / ray[:, 2])[:, None] * ray
         z = _relief(g[:, 0] - origin[0], g[:, 1] - origin[1])
     ground = np.round(np.column_stack([g[:, :2], z]), 3)  # surveyed to the millimetre
     pixel_true = np.asarray(camera.image_to_pixel(project(ground, exterior, camera)))
