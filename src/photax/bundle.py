@@ -374,24 +374,27 @@ def _residuals(state: _State, s: _Structure) -> Array:
     return (proj - s.obs_xy) / s.obs_sigma
 
 
-def _rho(sq: Array, loss: str, scale: float) -> tuple[Array, Array]:
-    """Loss ``rho(s)`` and its derivative for squared norms ``s``."""
-    if loss == "huber":
-        d2 = scale * scale
-        root = jnp.sqrt(jnp.maximum(sq, d2))
-        return jnp.where(sq <= d2, sq, 2.0 * scale * root - d2), jnp.where(sq <= d2, 1.0, scale / root)
-    if loss == "cauchy":
-        d2 = scale * scale
-        return d2 * jnp.log1p(sq / d2), 1.0 / (1.0 + sq / d2)
-    return sq, jnp.ones_like(sq)
+_LOSS_CODE = {"none": 0, "huber": 1, "cauchy": 2}
+
+
+def _rho(sq: Array, loss: Array, scale: Array) -> tuple[Array, Array]:
+    """Loss ``rho(s)`` and ``rho'(s)`` for squared norms ``s``; ``loss`` is a
+    traced code (0 none, 1 Huber, 2 Cauchy) so changing it does not recompile."""
+    d2 = scale * scale
+    root = jnp.sqrt(jnp.maximum(sq, d2))
+    huber = (jnp.where(sq <= d2, sq, 2.0 * scale * root - d2), jnp.where(sq <= d2, 1.0, scale / root))
+    cauchy = (d2 * jnp.log1p(sq / d2), 1.0 / (1.0 + sq / d2))
+    rho = jnp.select([loss == 1, loss == 2], [huber[0], cauchy[0]], sq)
+    drho = jnp.select([loss == 1, loss == 2], [huber[1], cauchy[1]], jnp.ones_like(sq))
+    return rho, drho
 
 
 def _prior_residuals(state: _State, s: _Structure) -> Array:
     return (state.xyz - s.prior_xyz) * jnp.sqrt(s.prior_w)
 
 
-@functools.partial(jax.jit, static_argnames=("loss", "scale"))
-def _cost(state: _State, s: _Structure, loss: str, scale: float) -> Array:
+@jax.jit
+def _cost(state: _State, s: _Structure, loss: Array, scale: Array) -> Array:
     r = _residuals(state, s)
     rho, _ = _rho(jnp.sum(r * r, axis=1), loss, scale)
     return 0.5 * jnp.sum(rho) + 0.5 * jnp.sum(_prior_residuals(state, s) ** 2)
@@ -412,8 +415,8 @@ class _Lin(NamedTuple):
     d_p: Array  # (n_pts, 3)
 
 
-@functools.partial(jax.jit, static_argnames=("loss", "scale", "n_c"))
-def _linearise(state: _State, s: _Structure, loss: str, scale: float, n_c: int) -> _Lin:
+@functools.partial(jax.jit, static_argnames=("n_c",))
+def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int) -> _Lin:
     n_img, n_pts = state.centre.shape[0], state.xyz.shape[0]
     w = 6 + s.active.shape[0]
     zero = jnp.zeros(w + 3)
@@ -474,8 +477,8 @@ def _reduced_system(lin: _Lin, s: _Structure, lam: Array, n_c: int):
     return S, rhs, vinv, wo
 
 
-@functools.partial(jax.jit, static_argnames=("loss", "scale", "n_c"))
-def _trial(state: _State, lin: _Lin, s: _Structure, lam: Array, loss: str, scale: float, n_c: int):
+@functools.partial(jax.jit, static_argnames=("n_c",))
+def _trial(state: _State, lin: _Lin, s: _Structure, lam: Array, loss: Array, scale: Array, n_c: int):
     """One damped step: returns the candidate state, its cost, the predicted
     decrease, the step norm and the parameter norm."""
     S, rhs, vinv, wo = _reduced_system(lin, s, lam, n_c)
@@ -528,6 +531,7 @@ def _covariances(lin: _Lin, s: _Structure, n_c: int):
     return q_c, q_p, jnp.all(jnp.isfinite(chol[0]))
 
 
+@functools.partial(jax.jit, static_argnames=("convention",))
 def _angle_jacobian(rot: Array, convention: str) -> Array:
     """``(n, 3, 3)`` d(angles)/d(rotation increment about camera axes)."""
 
@@ -792,7 +796,7 @@ def bundle_adjust(
         jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
         jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]),
     )  # fmt: skip
-    kw = dict(loss=loss, scale=float(loss_scale), n_c=n_c)
+    kw = dict(loss=jnp.asarray(_LOSS_CODE[loss]), scale=jnp.asarray(float(loss_scale)), n_c=n_c)
     lin = _linearise(state, s, **kw)
     cost = initial_cost = float(lin.cost)
     gn = method == "gauss-newton"

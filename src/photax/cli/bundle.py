@@ -1,0 +1,56 @@
+"""``photax bundle``: bundle adjustment of a BAL file or a block folder.
+
+Prints one line per iteration and a final report.  Exit codes: 0 converged,
+1 not converged, 2 bad input (a one-line message on stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "bundle",
+        help="bundle adjustment of a block (BAL file or block folder)",
+        description="Adjust exterior orientations, points and (optionally) interior orientation of a block "
+        "by Levenberg-Marquardt with a Schur complement; print progress and a report.",
+    )
+    p.add_argument("file", metavar="FILE", help="a BAL file (.txt or .txt.bz2) or a block folder (block.json, "
+                   "observations.csv, points.csv; see photax.io.block)")  # fmt: skip
+    p.add_argument("--format", choices=("auto", "bal", "block"), default="auto",
+                   help="input format (auto: a folder is a block, a file is BAL)")  # fmt: skip
+    p.add_argument("--loss", choices=("none", "huber", "cauchy"), default="none", help="robust loss")
+    p.add_argument("--loss-scale", type=float, default=1.0, metavar="D", help="loss scale in sigmas (default 1)")
+    p.add_argument("--gauge", choices=("auto", "none", "fix_first_camera", "damped"), default="auto",
+                   help="datum of a network without control (auto: 'damped' for BAL, none for blocks)")  # fmt: skip
+    p.add_argument("--max-iterations", type=int, default=50)
+    p.add_argument("--quiet", action="store_true", help="no per-iteration lines")
+    p.add_argument("--json", metavar="OUT", help="also write the results as JSON")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..bundle import bundle_adjust
+    from ..io.atomic import check_output_path
+    from ..io.bal import read_bal
+    from ..io.block import read_block
+    from ..io.results import write_json
+
+    path = pathlib.Path(args.file)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file or folder")
+    if args.json:
+        check_output_path(args.json, [path])
+    fmt = args.format if args.format != "auto" else ("block" if path.is_dir() else "bal")
+    problem = read_block(path) if fmt == "block" else read_bal(path)
+    gauge = {"auto": "damped" if fmt == "bal" else None, "none": None}.get(args.gauge, args.gauge)
+    print(problem)
+    result = bundle_adjust(problem, loss=args.loss, loss_scale=args.loss_scale, gauge=gauge,
+                           max_iterations=args.max_iterations, verbose=not args.quiet, throw=False)  # fmt: skip
+    print(result.report())
+    if args.json:
+        write_json(result.to_dict(), args.json, inputs=[path])
+        print(f"wrote {args.json}")
+    return 0 if result.converged else 1
