@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -88,6 +89,18 @@ def texture(x, y):
     dy = jnp.abs((y + 125.0) % 250.0 - 125.0)
     road = jax.nn.sigmoid((6.0 - jnp.minimum(dx, dy)) / 1.5)
     return jnp.clip((checker + ripple) * (1.0 - road) + 0.08 * road, 0.0, 1.0)
+
+
+_texture = jax.jit(texture)
+_look_at = jax.jit(look_at)  # one compilation, not one per operation
+
+
+@eqx.filter_jit
+def _locate(px, exterior, camera, dem, origin):
+    """Pixels -> ground on the DEM, their exact reprojection, and the texture there."""
+    g = image_to_ground(camera.pixel_to_image(px), exterior, camera, dem=dem)
+    reproj = camera.image_to_pixel(project(g, exterior, camera))
+    return g, reproj, jnp.nan_to_num(texture(g[:, 0] - origin[0], g[:, 1] - origin[1]), nan=0.0)
 
 
 def _terrain(rng: np.random.Generator, x: np.ndarray, y: np.ndarray, relief: float) -> np.ndarray:
@@ -173,20 +186,13 @@ def relief_scene(
     azimuth = rng.uniform(0, 2 * np.pi)
     offset = flying_height * np.tan(np.radians(tilt_deg))
     target = np.array([x0 + offset * np.cos(azimuth), y0 + offset * np.sin(azimuth), 0.0])
-    exterior = jax.jit(look_at)(np.array([x0, y0, flying_height]), target)  # one compile, not one per op
-
-    @jax.jit
-    def locate(px):
-        """Pixels -> ground on the DEM, their exact reprojection, texture there."""
-        g = image_to_ground(camera.pixel_to_image(px), exterior, camera, dem=dem)
-        reproj = camera.image_to_pixel(project(g, exterior, camera))
-        return g, reproj, jnp.nan_to_num(texture(g[:, 0] - x0, g[:, 1] - y0), nan=0.0)
+    exterior = _look_at(np.array([x0, y0, flying_height]), target)
 
     # One call for the image and the points: compiling is the slow part here.
     cc, rr = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     picked = [_spread(rng, n, (w, h), margin=20.0) for n in (n_gcp, n_check)]
     px = np.concatenate([np.column_stack([cc.ravel(), rr.ravel()]), *picked])
-    ground, reproj, grey = (np.asarray(a) for a in locate(jnp.asarray(px)))
+    ground, reproj, grey = (np.asarray(a) for a in _locate(jnp.asarray(px), exterior, camera, dem, jnp.array([x0, y0])))
     image = grey[: w * h].reshape(h, w)
     gcp_ground, gcp_true = ground[w * h : w * h + n_gcp], reproj[w * h : w * h + n_gcp]
     check_ground, check_true = ground[w * h + n_gcp :], reproj[w * h + n_gcp :]
@@ -198,7 +204,7 @@ def relief_scene(
     ortho_transform = (gsd, 0.0, x0 - half_x, 0.0, -gsd, y0 + half_y)
     ox = -half_x + gsd * (np.arange(ocols) + 0.5)
     oy = half_y - gsd * (np.arange(orows) + 0.5)
-    ortho = np.asarray(jax.jit(texture)(jnp.asarray(ox)[None, :], jnp.asarray(oy)[:, None]))
+    ortho = np.asarray(_texture(jnp.asarray(ox)[None, :], jnp.asarray(oy)[:, None]))
 
     if np.isnan(gcp_ground).any() or np.isnan(check_ground).any():  # pragma: no cover - a bug, not user input
         raise RuntimeError("a control point ray missed the DEM")

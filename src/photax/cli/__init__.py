@@ -12,7 +12,7 @@ import importlib
 import sys
 
 # Subcommand modules, in the order ``photax --help`` lists them.
-SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "bundle"]
+SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "compare", "bundle"]
 
 
 def build_parser() -> argparse.ArgumentParser:

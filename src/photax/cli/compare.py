@@ -1,0 +1,113 @@
+"""``photax compare``: collinearity + DEM against polynomials on the same GCPs.
+
+Resects the image from the control points (``role`` = control), fits
+polynomials of the requested orders and the projective transform to the same
+points, evaluates all of them on the check points (``role`` = check) and over
+the image footprint, prints the table and, with ``--out``, writes
+``comparison.md``, ``comparison.json``, ``error_maps.png``, ``rmse.png`` and
+(with ``--image``) ``rectified.png``, each atomically.  Exit codes: 0 done,
+2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import pathlib
+
+
+def parse_orders(text: str) -> tuple[int, ...]:
+    """``"1-5"`` -> (1, 2, 3, 4, 5); ``"1,3,5"`` -> (1, 3, 5); ``"2"`` -> (2,)."""
+    try:
+        orders = []
+        for part in text.split(","):
+            lo, _, hi = part.strip().partition("-")
+            orders += range(int(lo), int(hi or lo) + 1)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"orders must look like 1-5 or 1,3,5, got {text!r}") from None
+    if not orders or not all(1 <= k <= 5 for k in orders):
+        raise argparse.ArgumentTypeError(f"orders must lie in 1..5, got {text!r}")
+    return tuple(dict.fromkeys(orders))
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "compare",
+        help="compare collinearity+DEM with polynomial rectification on the same GCPs",
+        description="Fit collinearity (by resection) and polynomials to the same GCPs; report GCP and "
+        "check-point RMSE, redundancy, condition and error maps against collinearity with the DEM.",
+    )
+    p.add_argument("gcps", metavar="GCP_FILE", help="GCP list with pixel positions (CSV with optional role column, or ODM)")
+    p.add_argument("--camera", required=True, help="photax camera file, or orthority interior YAML")
+    p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority file")
+    p.add_argument("--dem", required=True, help="DEM raster in the GCPs' CRS and vertical datum")
+    p.add_argument("--image", help="the image: also write the rectified images side by side")
+    p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
+    p.add_argument("--orders", type=parse_orders, default=(1, 2, 3, 4, 5), help="polynomial orders (default 1-5)")
+    p.add_argument("--out", metavar="DIR", help="folder for the table (md, json) and figures (png)")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def _select_image(table, args):
+    names = table.image_names
+    if args.image_name is None and len(names) <= 1:
+        return table
+    stem = pathlib.Path(args.image).name if args.image else None
+    name = args.image_name or next((n for n in names if stem and n in (stem, pathlib.Path(stem).stem)), None)
+    if name is None:
+        raise ValueError(f"{args.gcps}: several images {names}; give --image-name")
+    return table.select(name)
+
+
+def run(args: argparse.Namespace) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from ..compare import compare_models
+    from ..io.atomic import atomic_path, atomic_write
+    from ..io.gcp import read_gcps
+    from ..io.raster import read_dem, read_geotiff
+    from ..io.results import write_json
+    from .ortho import read_interior
+
+    inputs = [p for p in (args.gcps, args.camera, args.dem, args.image) if p]
+    table = _select_image(read_gcps(args.gcps), args)
+    camera = read_interior(args.camera, args.camera_name)
+    if camera.image_size is None:
+        raise ValueError(f"{args.camera}: the camera needs image_size (and a pixel size)")
+    pixel = table.pixel if table.pixel is not None else np.asarray(camera.image_to_pixel(table.image_xy))
+    dem = read_dem(args.dem)
+    check = table.check
+    comparison = compare_models(
+        table.ground[~check], pixel[~check], camera, dem,
+        check_ground=table.ground[check] if check.any() else None,
+        check_pixel=pixel[check] if check.any() else None,
+        orders=args.orders,
+    )
+    print(comparison.table("text"))
+    if args.out is None:
+        return 0
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_write(out / "comparison.md", inputs=inputs) as fh:
+        fh.write(comparison.table() + "\n")
+    write_json(comparison.to_dict(), out / "comparison.json", inputs=inputs)
+    figures = {"error_maps.png": comparison.plot_error_maps(), "rmse.png": comparison.plot_rmse()}
+    if args.image:
+        image, _ = read_geotiff(args.image)
+        image = image.astype(float)
+        image = (image - np.nanmin(image)) / max(float(np.nanmax(image) - np.nanmin(image)), 1e-12)
+        grey = image.mean(axis=0)  # the figure shows grey values; bands averaged
+        names = ["collinearity", *(n for n in comparison.names if n.startswith("polynomial"))]
+        rectified, grid = comparison.rectify(grey, names, progress=args.progress)
+        figures["rectified.png"] = comparison.plot_rectified(rectified, grid)
+    for name, fig in figures.items():
+        with atomic_path(out / name, inputs=inputs) as tmp:
+            fig.savefig(tmp, format="png", dpi=110)
+        plt.close(fig)
+    print(f"wrote {', '.join(['comparison.md', 'comparison.json', *figures])} to {out}")
+    return 0
+
