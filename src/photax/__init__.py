@@ -18,6 +18,7 @@ from .bundle import (
     initialize_block as initialize_block,
 )
 from .camera import FrameCamera as FrameCamera
+from .compare import ModelComparison as ModelComparison, compare_models as compare_models
 from .collinearity import (
     ExteriorOrientation as ExteriorOrientation,
     depth as depth,
@@ -56,6 +57,7 @@ from .resection import (
     resect as resect,
     resect_batch as resect_batch,
 )
+from .scene import Scene as Scene, relief_scene as relief_scene
 from .rotation import (
     angles_from_matrix as angles_from_matrix,
     axis_angle_to_matrix as axis_angle_to_matrix,
