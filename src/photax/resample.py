@@ -71,6 +71,7 @@ _TAPS = {"nearest": 1, "bilinear": 2, "cubic": 4, "lanczos": 6, "bspline": 4}
 _BSPLINE_PAD = 12  # scipy's npad for mode="nearest"
 _CHUNK = 4096  # output samples per lax.map step (measured best of 4096 / 65536)
 _THREADS = min(os.cpu_count() or 1, 8)
+_BUCKET = 1 << 15  # below: pad to a power of two; above: split over threads
 
 
 def _cubic_weights(t: Array, a: float) -> list[Array]:
@@ -279,14 +280,19 @@ def resample(
     compute = jnp.float64 if dtype == jnp.float64 else jnp.float32
     flat = _prepare(image.reshape((-1, h, w)), method=method, compute=compute)
     fill = jnp.full((flat.shape[0],), nodata, dtype=dtype)
-    parts = min(_THREADS, n // _CHUNK)
+    if n < _BUCKET:
+        # Small requests are padded to a power of two: a handful of
+        # compilations instead of one per sample count.
+        m = max(64, 1 << (n - 1).bit_length())
+        cols, rows = (jnp.pad(v.reshape(-1), (0, m - n), constant_values=jnp.nan) for v in (cols, rows))
+    parts = min(_THREADS, n // _BUCKET)
     if parts < 2 or any(isinstance(v, jax.core.Tracer) for v in (cols, rows, flat)):
         parts = 1
-    size = -(-n // parts)
+    size = -(-cols.size // parts)
     run = partial(_sample, flat, cols, rows, fill, shape=(h, w), method=method, a=float(a), compute=compute,
                   out_dtype=np.dtype(dtype), chunk=min(_CHUNK, size), size=size)
     if parts == 1:
-        out = run(0)
+        out = run(0)[:, :n]
     else:
         # XLA:CPU runs the gather loop on one thread; concurrent calls on
         # equal slices of the samples (one compilation; the last slice is
