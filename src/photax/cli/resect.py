@@ -28,7 +28,9 @@ def add_parser(sub) -> None:
     p.add_argument("--no-robust", dest="robust", action="store_false",
                    help="no robust start and no blunder detection (plain least squares)")
     p.add_argument("--sigma", type=float, metavar="PX",
-                   help="a-priori sigma of an image measurement in pixels (overrides the file's sigma column)")
+                   help="a-priori sigma of an image coordinate, in the file's unit (pixels for pixel "
+                   "columns); overrides the file's sigma column. Without either, blunders are tested "
+                   "against the a-posteriori sigma0 (tau test)")
     p.add_argument("--format", choices=("auto", "csv", "odm"), default="auto", help="GCP file format")
     p.set_defaults(func=run)
 
