@@ -334,7 +334,9 @@ def _analyse(problem: BundleProblem, fixed_extra: np.ndarray, origin: np.ndarray
     cols[:, :6] = 6 * np.arange(n_img)[:, None] + np.arange(6)[None, :]
     cols[:, 6:] = 6 * n_img + a * problem.image_camera[:, None] + np.arange(a)[None, :]
     n_c = 6 * n_img + a * n_cam
-    mask_c = np.concatenate([(~(problem.fixed_exterior | fixed_extra)).ravel(), problem.free_intrinsics[:, active].ravel()])
+    fixed = problem.fixed_exterior | fixed_extra  # EXTERIOR order (X, Y, Z, rx, ry, rz)
+    fixed = np.concatenate([fixed[:, 3:], fixed[:, :3]], axis=1)  # internal order: rotation, centre
+    mask_c = np.concatenate([(~fixed).ravel(), problem.free_intrinsics[:, active].ravel()])
     ctrl = problem.roles == "control"
     hard = ctrl[:, None] & (problem.point_sigma == 0)
     soft = ctrl[:, None] & (problem.point_sigma > 0)
@@ -662,7 +664,7 @@ class BundleResult:
         eo = self.exterior
         out = {
             "converged": self.converged, "message": self.message, "iterations": self.iterations,
-            "cost": self.cost, "initial_cost": self.initial_cost, "sigma0": self.sigma0,
+            "cost": self.cost, "initial_cost": self.initial_cost, "sigma0": self.sigma0 if math.isfinite(self.sigma0) else None,
             "redundancy": self.redundancy, "convention": eo.convention, "seconds": self.seconds,
             "history": self.history,
             "images": [
@@ -829,7 +831,7 @@ def bundle_adjust(
             mu, nu = min(mu, 1e16), 2.0
         else:
             mu, nu = mu / nu, nu * 2.0
-        history.append(dict(iteration=it, cost=cost, candidate_cost=new_cost, relative_decrease=rho, trust_radius=mu,
+        history.append(dict(iteration=it, cost=cost, candidate_cost=new_cost if math.isfinite(new_cost) else None, relative_decrease=rho, trust_radius=mu,
                             step_norm=step, gradient_max=gmax, accepted=bool(accepted), seconds=time.perf_counter() - t0))  # fmt: skip
         if verbose:
             print(f"{it:4d}  cost {cost:.6e}  cost_change {old - cost:+.3e}  |g| {gmax:.2e}  |step| {step:.2e}  "

@@ -129,7 +129,12 @@ def intersect(
     for c in {id(c): c for c in cams}.values():
         sel = np.array([cams[i] is c for i in ii], dtype=bool)
         if sel.any():
-            d[sel] = np.einsum("kij,kj->ki", rot[ii[sel]], np.asarray(c.ray(xy[sel])))
+            if c.has_distortion:
+                ray = np.asarray(c.ray(xy[sel]))
+            else:  # numpy: no eager JAX dispatch for the common case
+                xn = (xy[sel] - np.asarray(c.principal_point)[None, :]) / float(c.focal_length)
+                ray = np.concatenate([xn, -np.ones((len(xn), 1))], axis=1)
+            d[sel] = np.einsum("kij,kj->ki", rot[ii[sel]], ray)
     u = d / np.linalg.norm(d, axis=1, keepdims=True)
     proj = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
     c_loc = centre[ii] - origin[None, :]

@@ -136,3 +136,39 @@ def correlation_matrix(ax, correlation, labels, *, title="parameter correlations
     if title:
         ax.set_title(title)
     return im
+
+
+def convergence(ax, history, *, title="bundle adjustment: convergence"):
+    """Cost per iteration of a :class:`photax.BundleResult` (log scale);
+    rejected LM steps are marked with crosses at their candidate cost."""
+    it = np.array([h["iteration"] for h in history])
+    cost = np.array([h["cost"] for h in history])
+    ok = np.array([h["accepted"] for h in history], dtype=bool)
+    ax.semilogy(it, cost, "o-", ms=4, label="cost after the iteration")
+    if (~ok).any():
+        cand = np.array([np.nan if h["candidate_cost"] is None else h["candidate_cost"] for h in history])[~ok]
+        ax.semilogy(it[~ok], cand, "x", color="tab:red", label="rejected step")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("cost  0.5 sum r^2")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    if title:
+        ax.set_title(title)
+
+
+def bundle_residuals(ax, result, *, title="image residuals by image"):
+    """Normalised image residuals (residual / sigma) of a bundle adjustment,
+    one column of points per image; down-weighted observations in red."""
+    p = result.problem
+    norm = np.linalg.norm(result.residuals / p.obs_sigma, axis=1)
+    jitter = np.random.default_rng(0).uniform(-0.25, 0.25, len(norm))
+    low = result.weights < 0.5
+    ax.plot(p.obs_image[~low] + jitter[~low], norm[~low], ".", ms=3, alpha=0.6, label="|r| / sigma")
+    if low.any():
+        ax.plot(p.obs_image[low] + jitter[low], norm[low], "o", color="tab:red", ms=5, label="down-weighted")
+    ax.set_xticks(range(p.n_images), p.image_names, rotation=45, fontsize=7)
+    ax.set_ylabel("|residual| / sigma")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    if title:
+        ax.set_title(title)
