@@ -59,9 +59,9 @@ import optimistix as optx
 from scipy import stats
 
 from .camera import FrameCamera
-from .collinearity import ExteriorOrientation, project
+from .collinearity import ExteriorOrientation
 from .errors import ConvergenceError
-from .rotation import Convention, angles_from_matrix_unchecked, check_convention
+from .rotation import Convention, angles_from_matrix_unchecked, check_convention, rotation_matrix
 
 _N_SUBSETS = 32  # random subsets for the robust start: P(all 32 contain a blunder) < 1e-4 at 20 % blunders
 _SEED = 20240601  # fixed: the same input gives the same answer
@@ -354,7 +354,7 @@ def _linear_start(uv, ground, ctrl, basis, subsets, robust, dlt_ok, convention):
     score = jnp.where(jnp.asarray(is_dlt) & ~dlt_ok, jnp.inf, score)
     best = jnp.argmin(jnp.where(jnp.isnan(score), jnp.inf, score))
     r_world = r_all[best].T @ jnp.asarray(_OPENCV_FLIP)  # world_from_camera
-    angles, _ = angles_from_matrix_unchecked(r_world, convention)
+    angles = _angles(r_world, convention)
     return jnp.concatenate([c_all[best] + centre, angles])
 
 
@@ -366,12 +366,24 @@ def _wrap(a):
     return jnp.pi - jnp.mod(jnp.pi - a, 2.0 * jnp.pi)
 
 
+def _rotation(angles, pok):
+    # The convention is a traced flag (``pok``: phi-omega-kappa), not a static
+    # choice, so both conventions share one compilation.
+    return jnp.where(pok, rotation_matrix(angles, "phi-omega-kappa"), rotation_matrix(angles, "omega-phi-kappa"))
+
+
+def _angles(matrix, pok):
+    a = angles_from_matrix_unchecked(matrix, "phi-omega-kappa")[0]
+    b = angles_from_matrix_unchecked(matrix, "omega-phi-kappa")[0]
+    return jnp.where(pok, a, b)
+
+
 def _model(xy, ground, weight, ctrl, camera, convention):
     """``weighted(p)``: sqrt(P) (x_obs - x(p)) of the control points, flattened, and ``predict(p)``."""
     sqrt_w = jnp.sqrt(weight)
 
-    def predict(p):
-        return project(ground, ExteriorOrientation(p[:3], p[3:], convention), camera)
+    def predict(p):  # the collinearity equations, as photax.project
+        return camera.project((ground - p[None, :3]) @ _rotation(p[3:], convention))
 
     def weighted(p):
         return jnp.where(ctrl[:, None], (xy - predict(p)) * sqrt_w, 0.0).reshape(-1)
@@ -397,12 +409,11 @@ def _precision(p, weighted, predict, xy, ground, ctrl, convention):
     r_i = jnp.where(ctrl[:, None], r_i.reshape(-1, 2), 0.0)
     ok = r_i > 1e-10
     w = jnp.where(ok, v.reshape(-1, 2) / jnp.sqrt(jnp.where(ok, r_i, 1.0)), jnp.nan)
-    eo = ExteriorOrientation(p[:3], p[3:], convention)
-    return dict(params=p, sigma0=sigma0, qxx=qxx, residuals=xy - predict(p), redundancy=r_i, w=w,
-                depth=-eo.points_in_camera(ground)[:, 2])
+    depth = -((ground - p[None, :3]) @ _rotation(p[3:], convention))[:, 2]
+    return dict(params=p, sigma0=sigma0, qxx=qxx, residuals=xy - predict(p), redundancy=r_i, w=w, depth=depth)
 
 
-@functools.partial(jax.jit, static_argnames=("convention", "max_steps", "solver"))
+@functools.partial(jax.jit, static_argnames=("max_steps", "solver"))
 def _core(xy, ground, weight, ctrl, basis, subsets, robust, dlt_ok, init, use_init, camera, *, convention, max_steps,
           solver):
     """One image (ground already local): start, optimistix adjustment, precision."""
@@ -441,7 +452,7 @@ def _gauss_newton_fixed(weighted, start, scale, max_steps):
     return p, k, done & jnp.all(jnp.isfinite(p))
 
 
-@functools.partial(jax.jit, static_argnames=("convention", "max_steps"))
+@jax.jit
 def _core_batch(xy, ground, weight, ctrl, basis, dlt_ok, init, use_init, camera, *, convention, max_steps):
     """Many images at once: linear start from all points, fixed Gauss-Newton, precision."""
 
@@ -532,6 +543,11 @@ def _subsets(n_ctrl: int) -> np.ndarray:
 def _bucket(n: int) -> int:
     # Pad to a few sizes so a new number of points rarely means a new compilation.
     return max(8, 1 << (n - 1).bit_length())
+
+
+def _exact(sigma0, camera, sigma_known):
+    """Residuals at rounding level (noise-free data): no blunder test is meaningful."""
+    return (sigma0 < 1e-10) if sigma_known else (sigma0 < 1e-10 * float(camera.focal_length))
 
 
 def _critical(alpha: float, sigma_known: bool, red: float) -> float:
@@ -646,7 +662,7 @@ def resect(
 
     def run(mask, init, use_init, solver="gn"):
         out = _core(xy_p, ground_p, weight_p, pad(mask, False), basis, subsets, robust, dlt_ok, init, use_init, camera,
-                    convention=convention, max_steps=max_steps, solver=solver)
+                    convention=convention == "phi-omega-kappa", max_steps=max_steps, solver=solver)
         out = jax.device_get(out)
         if out["result"] != 0 and solver == "gn":  # Gauss-Newton failed: Levenberg-Marquardt
             lm = run(mask, out["start"], True, "lm")
@@ -668,7 +684,7 @@ def resect(
         worst = np.nanmax(stat, axis=1, initial=-np.inf)
         worst = np.where(used, worst, -np.inf)
         k = int(np.argmax(worst))
-        if not robust or not worst[k] > crit:
+        if not robust or not worst[k] > crit or _exact(out["sigma0"], camera, sigma_known):
             break
         # Excluding a point costs 2 redundancy; the tau test needs r >= 2 after it.
         if used.sum() - 1 < min_pts or red - 2 < (1 if sigma_known else 2):
@@ -822,8 +838,8 @@ def resect_batch(
         kb = _bucket(k)
         sel = np.concatenate([rows, np.full(kb - k, rows[0])])
         out = _core_batch(xy_p[sel], ground_p[sel], weight_p[sel], padn(used[sel], False), basis[sel], n >= 6,
-                          init[sel], use_init[sel], camera, convention=convention, max_steps=max_steps)
-        return {key: v[:k] for key, v in jax.device_get(out).items()}
+                          init[sel], use_init[sel], camera, convention=convention == "phi-omega-kappa", max_steps=int(max_steps))
+        return {key: np.array(v[:k]) for key, v in jax.device_get(out).items()}
 
     used = np.ones((b, n), bool)
     out = run(np.arange(b), used, init, np.full(b, initial is not None))
@@ -841,6 +857,7 @@ def resect_batch(
         k = np.argmax(worst, axis=1)
         top = worst[np.arange(b), k]
         go = (top > crit) & (used.sum(1) - 1 >= min_pts) & (red - 2 >= (1 if sigma_known else 2))
+        go &= ~_exact(out["sigma0"], camera, sigma_known)
         if not robust or not np.any(go):
             break
         rows = np.flatnonzero(go)
