@@ -229,3 +229,14 @@ def test_cli_compare(hills, tmp_path, capsys):
         main(["compare", *files, "--orders", "0-7"])
     assert "orders must lie in 1..5" in capsys.readouterr().err
     assert main(["compare", *files, "--out", str(tmp_path / "dem.tif")]) == 2  # a file, not a folder
+
+
+def test_demo_section(tmp_path):
+    from photax.demo import SECTIONS, rectification_section
+
+    assert rectification_section in SECTIONS
+    md = rectification_section(tmp_path)
+    assert "| polynomial 5 |" in md and "overfitting" in md
+    for name in ["comparison.json", "comparison_error_maps.png", "comparison_rmse.png", "comparison_rectified.png"]:
+        assert (tmp_path / name).stat().st_size > 0
+        assert f"({name})" in md or name.endswith(".json")

@@ -292,6 +292,7 @@ class ModelComparison:
             rows, cols = reference.shape[-2:]
             panels.insert(0, ("truth (ground texture)", reference))
             extents.insert(0, (xoff, yoff + e * rows, xoff + a * cols, yoff))
+        window = grid.bounds if window is None else window  # the reference may cover more ground
         ncols = min(ncols, len(panels))
         nrows = -(-len(panels) // ncols)
         fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.8 * nrows), squeeze=False,
