@@ -64,6 +64,13 @@ def test_odm_malformed_lines_name_file_and_line(tmp_path, body, line, words):
         read_gcps(p)
 
 
+def test_odm_missing_crs_line(tmp_path):
+    p = tmp_path / "nocrs.txt"
+    p.write_text("1 2 3 10 20 a.jpg p\n4 5 6 11 21 a.jpg q\n")
+    with pytest.raises(ValueError, match="nocrs.txt, line 1: an ODM GCP list starts with its CRS"):
+        read_gcps(p)
+
+
 def test_csv_pixels_roles_sigma_and_case(tmp_path):
     p = tmp_path / "g.csv"
     p.write_text(

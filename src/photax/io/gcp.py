@@ -168,6 +168,9 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTab
         crs = None
     elif format == "odm":
         crs = numbered[0][1].strip()
+        if _looks_like_measurement(crs):
+            raise ValueError(f"{path}, line {numbered[0][0]}: an ODM GCP list starts with its CRS "
+                             f"(e.g. EPSG:32633 or a PROJ string), got a measurement: {crs!r}")
         rows = _parse_odm(path, numbered[1:])
     else:
         raise ValueError(f"format must be 'auto', 'csv' or 'odm', got {format!r}")
@@ -204,6 +207,14 @@ def _auto_names(rows) -> None:
     for i, name in enumerate(rows["names"]):
         if name is None:
             rows["names"][i] = ids.setdefault(tuple(rows["ground"][i]), f"gcp{len(ids) + 1}")
+
+
+def _looks_like_measurement(text: str) -> bool:
+    f = text.split()
+    try:
+        return len(f) >= 6 and all(math.isfinite(float(v)) for v in f[:5])
+    except ValueError:
+        return False
 
 
 def _parse_odm(path, numbered) -> dict[str, list]:
