@@ -234,15 +234,37 @@ class PolynomialInverse(eqx.Module):
 
     def __call__(self, xy) -> Array:
         """``(..., 2)`` destination points -> ``(..., 2)`` source points."""
-        q = jnp.asarray(xy, dtype=float)
-        p = self.start(q)
-        jac = jax.vmap(jax.jacfwd(self.forward))
-        flat_q = q.reshape(-1, 2)
-        flat_p = p.reshape(-1, 2)
-        for _ in range(self.newton_steps):
-            step = jnp.linalg.solve(jac(flat_p), (self.forward(flat_p) - flat_q)[..., None])[..., 0]
-            flat_p = flat_p - step
-        return flat_p.reshape(q.shape)
+        return _apply_inverse(self, jnp.asarray(xy, dtype=float))
+
+
+def _apply_inverse(inv: PolynomialInverse, q: Array) -> Array:
+    """Fitted start, then Newton steps ``p -= J(p)^-1 (P(p) - q)`` with the
+    analytic 2 x 2 Jacobian (plain jnp: cheap eagerly, traceable under jit)."""
+    flat_q = q.reshape(-1, 2)
+    p = inv.start(flat_q)
+    for _ in range(inv.newton_steps):
+        (a, b), (c, d) = _jacobian(inv.forward, p)
+        r = inv.forward(p) - flat_q
+        det = a * d - b * c
+        p = p - jnp.stack([(d * r[:, 0] - b * r[:, 1]) / det, (a * r[:, 1] - c * r[:, 0]) / det], axis=-1)
+    return p.reshape(q.shape)
+
+
+def _jacobian(model: PolynomialModel, p: Array):
+    """``((dX/dx, dX/dy), (dY/dx, dY/dy))`` of ``model`` at ``(N, 2)`` points,
+    each ``(N,)``: d(x^i y^j) = i x^(i-1) y^j dx + j x^i y^(j-1) dy."""
+    u = (p - model.src_centre[None, :]) / model.src_scale[None, :]
+    x, y = u[:, 0], u[:, 1]
+    xp, yp = [jnp.ones_like(x)], [jnp.ones_like(y)]
+    for _ in range(model.order):
+        xp.append(xp[-1] * x)
+        yp.append(yp[-1] * y)
+    exps = exponents(model.order)
+    dx = jnp.stack([float(i) * xp[i - 1] * yp[j] if i else jnp.zeros_like(x) for i, j in exps], axis=-1) @ model.coef
+    dy = jnp.stack([float(j) * xp[i] * yp[j - 1] if j else jnp.zeros_like(x) for i, j in exps], axis=-1) @ model.coef
+    sx, sy = model.src_scale[0], model.src_scale[1]
+    return ((model.dst_scale[0] * dx[:, 0] / sx, model.dst_scale[0] * dy[:, 0] / sy),
+            (model.dst_scale[1] * dx[:, 1] / sx, model.dst_scale[1] * dy[:, 1] / sy))
 
 
 def fit_polynomial(src_xy, dst_xy, order: int, *, weights=None) -> PolynomialModel:
