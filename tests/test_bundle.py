@@ -67,8 +67,8 @@ def test_schur_step_equals_dense_normal_equations():
 
     x0 = jnp.zeros(n_c + 3 * n_pts)
     free = np.concatenate([np.asarray(s.mask_c), np.asarray(s.mask_p).ravel()]) > 0
-    J = np.asarray(jax.jacfwd(residual)(x0))[:, free]
-    r = np.asarray(residual(x0))
+    J = np.asarray(jax.jit(jax.jacfwd(residual))(x0))[:, free]
+    r = np.asarray(jax.jit(residual)(x0))
     H = J.T @ J
     D = np.clip(np.diag(H), 1e-6, 1e32)
     dx = np.zeros(len(free))
@@ -78,6 +78,10 @@ def test_schur_step_equals_dense_normal_equations():
     np.testing.assert_allclose(new.centre, ref.centre, atol=1e-7)
     np.testing.assert_allclose(new.rot, ref.rot, atol=1e-11)
     np.testing.assert_allclose(new.intr, ref.intr, rtol=1e-9, atol=1e-11)
+    # The matrix-free conjugate-gradient solver (for large blocks) gives the same step.
+    cg, *_ = B._trial(state, lin, s, jnp.asarray(lam), none, one, n_c, solver="cg")
+    np.testing.assert_allclose(cg.xyz, ref.xyz, atol=1e-5)
+    np.testing.assert_allclose(cg.centre, ref.centre, atol=1e-5)
 
 
 def test_noise_free_block_recovers_truth():
@@ -152,6 +156,17 @@ def test_huber_downweights_a_blunder(block):
         assert err(robust) < err(ref) + 0.3
         assert robust.weights[bad] < 0.1
         assert np.median(robust.weights) > 0.9
+
+
+def test_start_values_by_resection_and_intersection():
+    """No orientations, no tie coordinates: resection from GCPs, then intersection."""
+    problem, truth = synthetic_block(4, noise_px=0.5, n_control=24, unknown_start=True)
+    start = ptx.initialize_block(problem)
+    assert np.abs(np.asarray(start.exterior.position) - np.asarray(truth.exterior.position)).max() < 30.0
+    res = ptx.bundle_adjust(problem)  # initialize="auto" does the same
+    assert res.converged
+    assert np.abs(np.asarray(res.exterior.position) - np.asarray(truth.exterior.position)).max() < 4 * res.exterior_std[:, :3].max()
+    assert np.sqrt(np.mean(res.check_residuals**2)) < 0.5
 
 
 def test_free_network_is_refused_unless_a_gauge_is_chosen():

@@ -74,6 +74,9 @@ INTRINSICS = ("f", "x0", "y0", "k1", "k2", "k3", "p1", "p2")
 #: increments about the camera's own x, y, z axes.
 EXTERIOR = ("X", "Y", "Z", "rx", "ry", "rz")
 
+#: Up to this many camera unknowns the reduced system is solved densely.
+DENSE_LIMIT = 4000
+
 Loss = Literal["none", "huber", "cauchy"]
 Gauge = Literal["fix_first_camera", "damped"]
 
@@ -450,17 +453,32 @@ def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int
     return _Lin(cost, r, weight, jc, jp, u_img, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p))
 
 
-def _reduced_system(lin: _Lin, s: _Structure, lam: Array, n_c: int):
-    """Schur complement ``S`` and right-hand side, damped by ``lam``."""
+def _schur_parts(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+    """Damped ``V^-1``, ``W`` and ``Y = W V^-1`` per observation, the reduced
+    right-hand side ``g_c - W V^-1 g_p`` (in unknown order) and the image
+    diagonal blocks of ``S``."""
     n_img = lin.u_img.shape[0]
-    w = lin.u_img.shape[1]
     eye3 = jnp.eye(3)[None, :, :]
     v = lin.v + (lam * lin.d_p * s.mask_p + (1.0 - s.mask_p))[:, :, None] * eye3
     vinv = jnp.linalg.inv(v)
     wo = jnp.einsum("kri,krj->kij", lin.jc, lin.jp)  # (k, w, 3)
     y = jnp.einsum("kij,kjl->kil", wo, vinv[s.obs_point])  # W V^-1 per observation
-    # Diagonal blocks: U - sum_o Y_o W_o^T per image; off-diagonal: pairs.
     diag = lin.u_img - jax.ops.segment_sum(jnp.einsum("kil,kjl->kij", y, wo), s.obs_image, num_segments=n_img)
+    rhs_img = lin.g_img - jax.ops.segment_sum(
+        jnp.einsum("kil,kl->ki", y, lin.g_p[s.obs_point]), s.obs_image, num_segments=n_img
+    )
+    rhs = jnp.zeros(n_c).at[s.image_ext.ravel()].add(rhs_img.ravel())
+    return vinv, wo, y, diag, rhs
+
+
+def _reduced_system(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+    """Dense Schur complement ``S`` (undamped diagonal) and right-hand side.
+
+    ``S = U - W V^-1 W^T``: the image diagonal blocks from single
+    observations, the off-diagonal blocks from pairs ``a < b`` of
+    observations of the same point, summed per image pair (segment sum over
+    pairs sorted by image pair) and scattered with their transposes."""
+    vinv, wo, y, diag, rhs = _schur_parts(lin, s, lam, n_c)
     n_keys = s.key_a.shape[0]
     off = -jax.ops.segment_sum(
         jnp.einsum("pil,pjl->pij", y[s.pair_a], wo[s.pair_b]), s.pair_key, num_segments=n_keys, indices_are_sorted=True
@@ -471,22 +489,44 @@ def _reduced_system(lin: _Lin, s: _Structure, lam: Array, n_c: int):
     ra, cb = ext[s.key_a], ext[s.key_b]
     S = S.at[ra[:, :, None], cb[:, None, :]].add(off)
     S = S.at[cb[:, :, None], ra[:, None, :]].add(jnp.swapaxes(off, 1, 2))
-    rhs_img = lin.g_img - jax.ops.segment_sum(
-        jnp.einsum("kil,kl->ki", y, lin.g_p[s.obs_point]), s.obs_image, num_segments=n_img
-    )
-    rhs = jnp.zeros(n_c).at[ext.ravel()].add(rhs_img.ravel())
-    del w
     return S, rhs, vinv, wo
 
 
-@functools.partial(jax.jit, static_argnames=("n_c",))
-def _trial(state: _State, lin: _Lin, s: _Structure, lam: Array, loss: Array, scale: Array, n_c: int):
+def _solve_cg(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+    """Solve the damped reduced system matrix-free by conjugate gradients
+    (Ceres' ITERATIVE_SCHUR with a Jacobi preconditioner): ``S x`` is
+    ``U x - W (V^-1 (W^T x))`` with per-observation blocks, so ``S`` is
+    never formed; memory stays linear in the observations."""
+    vinv, wo, y, diag, rhs = _schur_parts(lin, s, lam, n_c)
+    ext, n_img, n_pts = s.image_ext, lin.u_img.shape[0], lin.v.shape[0]
+    damp = lam * lin.d_c * s.mask_c + (1.0 - s.mask_c)
+    pre = jnp.zeros(n_c).at[ext.ravel()].add(jnp.diagonal(diag, axis1=1, axis2=2).ravel()) + damp
+
+    def matvec(x):
+        xe = x[ext]  # (n_img, w)
+        ux = jnp.einsum("nij,nj->ni", lin.u_img, xe)
+        t = jax.ops.segment_sum(jnp.einsum("kij,ki->kj", wo, xe[s.obs_image]), s.obs_point, num_segments=n_pts)
+        z = jnp.einsum("pij,pj->pi", vinv, t)
+        wz = jax.ops.segment_sum(jnp.einsum("kij,kj->ki", wo, z[s.obs_point]), s.obs_image, num_segments=n_img)
+        return jnp.zeros(n_c).at[ext.ravel()].add((ux - wz).ravel()) + damp * x
+
+    x, _ = jax.scipy.sparse.linalg.cg(matvec, rhs, tol=1e-10, maxiter=500, M=lambda v: v / pre)
+    return x, vinv, wo
+
+
+@functools.partial(jax.jit, static_argnames=("n_c", "solver"))
+def _trial(state: _State, lin: _Lin, s: _Structure, lam: Array, loss: Array, scale: Array, n_c: int,
+           solver: str = "dense"):  # fmt: skip
     """One damped step: returns the candidate state, its cost, the predicted
     decrease, the step norm and the parameter norm."""
-    S, rhs, vinv, wo = _reduced_system(lin, s, lam, n_c)
-    S = S + jnp.diag(lam * lin.d_c * s.mask_c + (1.0 - s.mask_c))
-    chol = jax.scipy.linalg.cho_factor(S, lower=True)
-    dc = -jax.scipy.linalg.cho_solve(chol, rhs) * s.mask_c
+    if solver == "dense":
+        S, rhs, vinv, wo = _reduced_system(lin, s, lam, n_c)
+        S = S + jnp.diag(lam * lin.d_c * s.mask_c + (1.0 - s.mask_c))
+        chol = jax.scipy.linalg.cho_factor(S, lower=True)
+        dc = -jax.scipy.linalg.cho_solve(chol, rhs) * s.mask_c
+    else:
+        x, vinv, wo = _solve_cg(lin, s, lam, n_c)
+        dc = -x * s.mask_c
     dce = dc[s.image_ext]  # (n_img, w)
     wdc = jax.ops.segment_sum(
         jnp.einsum("kij,ki->kj", wo, dce[s.obs_image]), s.obs_point, num_segments=state.xyz.shape[0]
@@ -721,6 +761,7 @@ def bundle_adjust(
     gradient_tolerance: float = 1e-10,
     parameter_tolerance: float = 1e-8,
     initial_trust_radius: float = 1e4,
+    linear_solver: Literal["auto", "dense", "cg"] = "auto",
     precision: bool = True,
     initialize: bool | Literal["auto"] = "auto",
     verbose: bool = False,
@@ -758,7 +799,14 @@ def bundle_adjust(
         initial_trust_radius: ``mu``; the damping is ``lambda = 1/mu``.  After
             a step with gain ratio ``rho > 1e-3``: ``mu /= max(1/3, 1 -
             (2 rho - 1)^3)``, else ``mu /= nu, nu *= 2`` (Nielsen; Ceres).
-        precision: compute sigma0 and standard deviations.
+        linear_solver: how the reduced camera system ``S`` is solved:
+            ``"dense"`` Cholesky (``S`` formed, ``N^2`` memory), ``"cg"``
+            matrix-free preconditioned conjugate gradients (``S`` never
+            formed; for large blocks), ``"auto"``: dense up to
+            :data:`DENSE_LIMIT` camera unknowns.
+        precision: compute sigma0 and standard deviations (needs the dense
+            inverse of ``S``: skipped with a note above
+            :data:`DENSE_LIMIT` x 2 unknowns).
         initialize: fill NaN orientations / points with
             :func:`initialize_block` (``"auto"``: only when some are NaN).
         verbose: print one line per iteration.
@@ -798,6 +846,9 @@ def bundle_adjust(
         jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
         jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]),
     )  # fmt: skip
+    if linear_solver not in ("auto", "dense", "cg"):
+        raise ValueError(f"linear_solver must be 'auto', 'dense' or 'cg', got {linear_solver!r}")
+    solver = linear_solver if linear_solver != "auto" else ("dense" if n_c <= DENSE_LIMIT else "cg")
     kw = dict(loss=jnp.asarray(_LOSS_CODE[loss]), scale=jnp.asarray(float(loss_scale)), n_c=n_c)
     lin = _linearise(state, s, **kw)
     cost = initial_cost = float(lin.cost)
@@ -818,7 +869,7 @@ def bundle_adjust(
         it += 1
         t0 = time.perf_counter()
         lam = 0.0 if gn else 1.0 / mu
-        new, new_cost, pred, step, xnorm = _trial(state, lin, s, jnp.asarray(lam), **kw)
+        new, new_cost, pred, step, xnorm = _trial(state, lin, s, jnp.asarray(lam), **kw, solver=solver)
         new_cost, pred, step, xnorm = float(new_cost), float(pred), float(step), float(xnorm)
         rho = (cost - new_cost) / pred if pred > 0 else -1.0
         accepted = (gn and math.isfinite(new_cost)) or (rho > 1e-3 and math.isfinite(new_cost))
@@ -879,7 +930,9 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     wsq = float(jnp.sum(lin.r**2) + jnp.sum(_prior_residuals(state, s) ** 2))
     sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
     eo_std = cam_std = pt_std = pt_cov = None
-    if precision and gauge != "damped":
+    if precision and n_c > 2 * DENSE_LIMIT:
+        message += f"; precision not computed ({n_c} camera unknowns > {2 * DENSE_LIMIT})"
+    elif precision and gauge != "damped":
         q_c, q_p, ok = _covariances(lin, s, n_c)
         if not bool(ok):
             converged = False
@@ -950,8 +1003,8 @@ def initialize_block(problem: BundleProblem, *, min_control: int = 4) -> BundleP
                 )
             cam = problem.cameras[problem.image_camera[i]]
             res = resect(problem.obs_xy[sel], pts[problem.obs_point[sel]], cam, sigma=problem.obs_sigma[sel, 0],
-                         throw=True)  # fmt: skip
-            ext = res.exterior.to_convention(conv)
+                         convention=conv, throw=True)  # fmt: skip
+            ext = res.exterior
             pos[i], ang[i] = np.asarray(ext.position), np.asarray(ext.angles)
     exterior = ExteriorOrientation(pos, ang, conv)
     missing = ~np.all(np.isfinite(pts), axis=1) & ~ctrl
