@@ -27,7 +27,6 @@ import numpy as np
 
 import photax as ptx
 from photax import plot
-from photax.resection import resect
 
 
 def find_shared(name):
@@ -64,7 +63,7 @@ image-plane coordinates (x right, y up, in the camera's unit), so the table conv
 with the camera: `table.image_plane(camera)`."""),
     ("code", """pts = gcps.select(image)
 pixel_size = float(np.asarray(camera.pixel_size)[0])
-result = resect(pts.image_plane(camera), pts.ground, camera, check=pts.check, names=pts.names)
+result = ptx.resect(pts.image_plane(camera), pts.ground, camera, check=pts.check, names=pts.names)
 print(result.summary())"""),
     ("md", """## Residuals on the image
 
@@ -95,8 +94,8 @@ what it would have done to the orientation without the test (`robust=False`)."""
     ("code", """k = len(pts) // 2
 bad_xy = np.array(pts.image_plane(camera))
 bad_xy[k, 0] += 20 * pixel_size
-found = resect(bad_xy, pts.ground, camera, check=pts.check, names=pts.names)
-plain = resect(bad_xy, pts.ground, camera, check=pts.check, names=pts.names, robust=False)
+found = ptx.resect(bad_xy, pts.ground, camera, check=pts.check, names=pts.names)
+plain = ptx.resect(bad_xy, pts.ground, camera, check=pts.check, names=pts.names, robust=False)
 print("planted on:", pts.names[k], "| flagged:", [str(n) for n in np.asarray(found.names)[found.outliers]])
 for label, r in (("with data snooping", found), ("plain least squares", plain)):
     shift = np.linalg.norm(np.asarray(r.exterior.position) - np.asarray(result.exterior.position))
@@ -106,7 +105,7 @@ for label, r in (("with data snooping", found), ("plain least squares", plain)):
 photax's default is phi-omega-kappa (primary axis Y, the Chinese and German textbooks);
 most Western software and aerial-triangulation exports use omega-phi-kappa (primary axis X).
 The angles differ, the rotation is the same. Never mix them up: name the convention."""),
-    ("code", """opk = resect(pts.image_plane(camera), pts.ground, camera, check=pts.check, names=pts.names,
+    ("code", """opk = ptx.resect(pts.image_plane(camera), pts.ground, camera, check=pts.check, names=pts.names,
              convention="omega-phi-kappa")
 for label, e in (("phi-omega-kappa", result.exterior), ("omega-phi-kappa", opk.exterior),
                  ("pok converted to opk", result.exterior.to_convention("omega-phi-kappa"))):

@@ -75,7 +75,7 @@ def test_csv_pixels_roles_sigma_and_case(tmp_path):
     p = tmp_path / "g.csv"
     p.write_text(
         "Name,Image,Easting,Northing,Height,Col,Row,Sigma,Role\n"
-        "# a comment\n"
+        "# a comment\n# CRS: EPSG:32633\n"
         "A,i1,500000.5,4000000.25,100,10.5,20.25,0.5,control\n"
         "B,i1,500010,4000010,101,30,40,,CHECK\n"
     )
@@ -84,7 +84,7 @@ def test_csv_pixels_roles_sigma_and_case(tmp_path):
     np.testing.assert_array_equal(t.pixel, [[10.5, 20.25], [30, 40]])
     assert t.sigma[0] == 0.5 and math.isnan(t.sigma[1])
     assert t.role.tolist() == ["control", "check"] and t.check.tolist() == [False, True]
-    assert t.lines.tolist() == [3, 4]
+    assert t.lines.tolist() == [4, 5] and t.crs == "EPSG:32633"
     cam = ptx.FrameCamera.from_pixels(1000.0, (101, 51))
     # centre pixel (50, 25): x = c - 50, y = -(r - 25)
     np.testing.assert_allclose(t.image_plane(cam), [[-39.5, 4.75], [-20, -15]])

@@ -94,7 +94,8 @@ def write_sample(out_dir) -> dict[str, pathlib.Path]:
     t = s["table"]
     paths = {"gcps": out / "sample_gcps.csv", "camera": out / "sample_camera.yaml", "truth": out / "sample_truth.json"}
     with atomic_write(paths["gcps"], newline="") as fh:
-        fh.write(f"# photax sample GCPs (synthetic, seed {SAMPLE_SEED}); CRS {t.crs}; pixels: integer = pixel centre\n")
+        fh.write(f"# photax sample GCPs (synthetic, seed {SAMPLE_SEED}); pixels: integer = pixel centre, row down\n")
+        fh.write(f"# crs: {t.crs}\n")
         fh.write("name,image,E,N,h,col,row,sigma,role\n")
         for k in range(len(t)):
             fh.write(f"{t.names[k]},{t.images[k]},{t.ground[k, 0]:.3f},{t.ground[k, 1]:.3f},{t.ground[k, 2]:.3f},"

@@ -6,7 +6,7 @@ ground coordinates and its image coordinates.  They are read into a
 :func:`photax.resect` wants.
 
 **CSV** (comma-separated, one header line; blank lines and lines starting with
-``#`` are skipped).  Columns are found by name, case-insensitively:
+``#`` are skipped, except that a comment ``# crs: EPSG:32633`` gives the CRS).  Columns are found by name, case-insensitively:
 
 =============== ================================================================
 column          accepted names
@@ -165,7 +165,8 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTab
         format = "csv" if "," in numbered[0][1] else "odm"
     if format == "csv":
         rows = _parse_csv(path, numbered)
-        crs = None
+        tags = [ln.lstrip()[1:].strip() for ln in lines if ln.lstrip().startswith("#")]
+        crs = next((t.split(":", 1)[1].strip() for t in tags if t.lower().startswith("crs:")), None)
     elif format == "odm":
         crs = numbered[0][1].strip()
         if _looks_like_measurement(crs):
