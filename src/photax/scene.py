@@ -121,6 +121,8 @@ def _terrain(rng: np.random.Generator, x: np.ndarray, y: np.ndarray, relief: flo
 def _spread(rng: np.random.Generator, n: int, size: tuple[int, int], margin: float) -> np.ndarray:
     """``n`` pixel positions spread over the image: one per cell of a jittered grid."""
     w, h = size
+    if n == 0:
+        return np.zeros((0, 2))
     nx = int(np.ceil(np.sqrt(n * w / h)))
     ny = int(np.ceil(n / nx))
     cells = rng.permutation(nx * ny)[:n]
