@@ -13,7 +13,6 @@ import sys
 
 import cv2
 import numpy as np
-import pytest
 from conftest import ROOT, shared_file
 
 import photax as ptx
