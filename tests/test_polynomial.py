@@ -193,17 +193,23 @@ def test_projective_exact_four_points_matches_opencv():
     normalisation), so the points here are small float32-exact numbers and
     the comparison is on predicted positions; at UTM-scale coordinates the
     4 points are still fitted exactly by ours."""
-    src = RNG.uniform(0, 100, (4, 2)).astype(np.float32)
+    rng = np.random.default_rng(7)  # local: the result must not depend on test order
+    src = rng.uniform(0, 100, (4, 2)).astype(np.float32)
     d = np.c_[src, np.ones(4)] @ H_TRUE.T
     dst = (d[:, :2] / d[:, 2:]).astype(np.float32)
     m = fit_projective(src.astype(float), dst.astype(float))
     ref = cv2.getPerspectiveTransform(src, dst)
-    check = RNG.uniform(0, 100, (50, 2))
+    check = rng.uniform(0, 100, (50, 2))
     np.testing.assert_allclose(np.asarray(m(check)), cv2.perspectiveTransform(check[None], ref)[0], rtol=0, atol=1e-6)
-    np.testing.assert_allclose(np.asarray(m.matrix), ref / ref[2, 2], rtol=1e-6, atol=1e-12)
-    src, dst = _homography_points(H_TRUE, 4, RNG)
+    # Entries compared absolutely: an error e in h31/h32 moves a point by
+    # ~100 e / 1 px at these coordinates, so 1e-9 is far below 1e-6 px.
+    np.testing.assert_allclose(np.asarray(m.matrix), ref / ref[2, 2], rtol=1e-6, atol=1e-9)
+    src, dst = _homography_points(H_TRUE, 4, rng)
     m = fit_projective(src, dst)
-    np.testing.assert_allclose(np.asarray(m.matrix), H_TRUE, rtol=1e-8, atol=1e-12)
+    # At ~4e4 coordinates the matrix entries are determined only to ~1e-8
+    # relative; what must hold is that the true mapping is reproduced.
+    fresh, truth = _homography_points(H_TRUE, 50, rng)
+    np.testing.assert_allclose(np.asarray(m(fresh)), truth, rtol=0, atol=1e-6)
     assert float(m.rmse) < 1e-8 and np.isnan(float(m.rmse_dof))
 
 

@@ -423,27 +423,35 @@ def fit_projective(src_xy, dst_xy, *, weights=None, refine: bool = True) -> Proj
     return ProjectiveModel(f(hn), f(ts), f(td), f(v), f(np.sqrt(np.sum(v**2) / n)), f(rmse_dof), f(sv[0] / sv[7]))
 
 
+@jax.jit
+def _projective_residual_and_jacobian(p8, h33, ps, pd, sw):
+    """Weighted residuals of ``H(ps) - pd`` and their Jacobian in the first
+    eight entries of ``H`` (one compilation per point count)."""
+
+    def resid(p):
+        h = jnp.concatenate([p, h33[None]]).reshape(3, 3)
+        return ((pd - _apply_h(h, ps)) * sw[:, None]).reshape(-1)
+
+    return resid(p8), jax.jacfwd(resid)(p8)
+
+
 def _refine(hn: np.ndarray, ps: np.ndarray, pd: np.ndarray, w: np.ndarray, steps: int = 20) -> np.ndarray:
     """Gauss-Newton on ``sum w |pd - H(ps)|^2`` over 8 entries of ``H``
     (``h33`` fixed to the DLT's value), normalised coordinates."""
-    fixed = jnp.asarray(hn[2, 2])
-
-    def resid(p8):
-        h = jnp.concatenate([p8, fixed[None]]).reshape(3, 3)
-        return ((pd - _apply_h(h, ps)) * np.sqrt(w)[:, None]).reshape(-1)
-
-    jac = jax.jacfwd(resid)
-    p = jnp.asarray(hn.reshape(-1)[:8])
-    cost = float(jnp.sum(resid(p) ** 2))
+    fixed = np.asarray(hn[2, 2])
+    args = (jnp.asarray(fixed), jnp.asarray(ps), jnp.asarray(pd), jnp.asarray(np.sqrt(w)))
+    p = np.asarray(hn.reshape(-1)[:8])
+    r, j = (np.asarray(a) for a in _projective_residual_and_jacobian(jnp.asarray(p), *args))
+    cost = float(r @ r)
     for _ in range(steps):
-        r, j = resid(p), jac(p)
-        step, *_ = np.linalg.lstsq(np.asarray(j), -np.asarray(r), rcond=None)
-        cand = p + jnp.asarray(step)
-        new = float(jnp.sum(resid(cand) ** 2))
+        step, *_ = np.linalg.lstsq(j, -r, rcond=None)
+        cand = p + step
+        r_new, j_new = (np.asarray(a) for a in _projective_residual_and_jacobian(jnp.asarray(cand), *args))
+        new = float(r_new @ r_new)
         if not new < cost:  # no further decrease: keep the best estimate
             break
         done = cost - new <= 1e-14 * max(cost, 1e-300)
-        p, cost = cand, new
+        p, cost, r, j = cand, new, r_new, j_new
         if done:
             break
-    return np.concatenate([np.asarray(p), np.asarray(fixed)[None]]).reshape(3, 3)
+    return np.concatenate([p, fixed[None]]).reshape(3, 3)
