@@ -1,8 +1,15 @@
 """Test configuration: float64 and strict promotion, as optimistix does."""
 
+import os
 import pathlib
+import tempfile
 
-import jax
+# One persistent compilation cache for the whole session, inherited by the
+# notebook kernels and CLI subprocesses the tests start, so each of them
+# does not compile resect & co. again. Set before jax is imported.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", tempfile.mkdtemp(prefix="photax-jax-cache-"))
+
+import jax  # noqa: E402
 import pytest
 
 jax.config.update("jax_enable_x64", True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 # Subcommand modules, in the order ``photax --help`` lists them.
@@ -26,9 +27,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _enable_compilation_cache() -> None:
+    """Keep compiled solvers between runs (JAX's persistent cache).
+
+    A command-line run otherwise compiles resection and friends anew every
+    time.  ``JAX_COMPILATION_CACHE_DIR`` overrides the place; the default
+    follows XDG (``~/.cache/photax/jax``).
+    """
+    import jax
+
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR") or jax.config.jax_compilation_cache_dir:
+        return
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    jax.config.update("jax_compilation_cache_dir", os.path.join(base, "photax", "jax"))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``photax`` console script."""
     args = build_parser().parse_args(argv)
+    _enable_compilation_cache()
     try:
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError, FileExistsError) as exc:
