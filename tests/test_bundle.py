@@ -79,9 +79,12 @@ def test_schur_step_equals_dense_normal_equations():
     np.testing.assert_allclose(new.rot, ref.rot, atol=1e-11)
     np.testing.assert_allclose(new.intr, ref.intr, rtol=1e-9, atol=1e-11)
     # The matrix-free conjugate-gradient solver (for large blocks) gives the same step.
+    # CG stops at a relative residual of 1e-8, so its step error is bounded by
+    # cond(S) * 1e-8 relative: ask for 1e-3 of the step.
     cg, *_ = B._trial(state, lin, s, jnp.asarray(lam), none, one, n_c, solver="cg")
-    np.testing.assert_allclose(cg.xyz, ref.xyz, atol=1e-5)
-    np.testing.assert_allclose(cg.centre, ref.centre, atol=1e-5)
+    for a, b, x0 in ((cg.xyz, ref.xyz, state.xyz), (cg.centre, ref.centre, state.centre)):
+        step = np.asarray(b - x0)
+        assert np.linalg.norm(np.asarray(a - b)) <= 1e-3 * np.linalg.norm(step)
 
 
 def test_noise_free_block_recovers_truth():
