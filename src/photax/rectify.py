@@ -36,9 +36,11 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 from typing import Any, Callable, Literal
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -149,44 +151,220 @@ class Grid:
 
 
 # --- the per-tile work (jitted) ------------------------------------------------
+#
+# An output tile is processed in chunks of _STEP rows x `cols` columns inside
+# one jitted loop: positions are made, resampled and written per chunk, so no
+# full-size coordinate map ever exists.  With ``approx`` the exact mapping is
+# evaluated only on a lattice every _STEP output pixels and at the lattice
+# cell centres (the check positions); a chunk whose cells all interpolate the
+# centre within ``approx`` pixels gets bilinearly interpolated positions, any
+# other chunk the exact ones (GDAL's approximate transformer does the same
+# along rows, threshold 0.125 px).  Positions are float32 relative to an
+# integer origin near the tile's positions (ample: 2^-24 relative).
+
+_STEP = 16  # lattice spacing in output pixels (cost of the lattice: ~2/256 of exact)
+_CHUNK_COLS = 256  # columns per chunk at most: chunks of 16 x 256 = 4096 samples
+
+
+def _layout(rows: int, cols: int) -> tuple[tuple[int, int], int, int]:
+    """Kernel tile shape (multiples of _STEP), step and chunk width for a
+    ``rows x cols`` tile (edge tiles are computed at this shape and cropped)."""
+    s = _STEP
+    tr, tc = -(-rows // s) * s, -(-cols // s) * s
+    q = max(d for d in range(1, _CHUNK_COLS // s + 1) if (tc // s) % d == 0)
+    return (tr, tc), s, q * s
+
+
+def _map_xy(transform: Array, r: Array, c: Array) -> Array:
+    """``(len(r), len(c), 2)`` map coordinates of raster coordinates ``r`` x ``c``."""
+    a, b, xoff, d, e, yoff = (transform[i] for i in range(6))
+    return jnp.stack([xoff + a * c[None, :] + b * r[:, None], yoff + d * c[None, :] + e * r[:, None]], axis=-1)
 
 
 @eqx.filter_jit
 def _map_tile(model, transform: Array, offset: Array, shape: tuple[int, int]) -> tuple[Array, Array]:
-    """Input pixel (cols, rows), each ``shape``, of an output tile at ``offset`` (row, col)."""
+    """Exact input pixel (cols, rows), each ``shape``, of an output tile at ``offset`` (row, col)."""
     r = offset[0] + jnp.arange(shape[0], dtype=float) + 0.5
     c = offset[1] + jnp.arange(shape[1], dtype=float) + 0.5
-    a, b, xoff, d, e, yoff = (transform[i] for i in range(6))
-    x = xoff + a * c[None, :] + b * r[:, None]
-    y = yoff + d * c[None, :] + e * r[:, None]
-    colrow = jnp.asarray(model(jnp.stack([x, y], axis=-1)))
+    colrow = jnp.asarray(model(_map_xy(transform, r, c)), dtype=float)
     return colrow[..., 0], colrow[..., 1]
 
 
-def _resample_valid(image, cols, rows, origin, size, method, fill):
-    """Resample ``image`` (a window at ``origin`` (row, col) of an image of
-    ``size`` (H, W)) at full-image positions (cols, rows); ``fill`` outside the
-    image footprint ``[-0.5, W-0.5] x [-0.5, H-0.5]`` (resample's) and where the
-    model gave NaN/inf."""
-    from .resample import resample
+def _plan(model, transform, offset, layout, approx, size):
+    """The lattice of one tile: ``(nodes, origin, bad, err)``.
 
-    valid = jnp.isfinite(cols) & jnp.isfinite(rows)
-    valid &= (cols >= -0.5) & (cols <= size[1] - 0.5) & (rows >= -0.5) & (rows <= size[0] - 0.5)
-    cols = jnp.where(valid, cols - origin[1], _FAR)
-    rows = jnp.where(valid, rows - origin[0], _FAR)
-    out = resample(image, cols, rows, method)
-    valid = valid.reshape((1,) * (image.ndim - 2) + valid.shape)
-    return jnp.where(valid, out, fill)
+    nodes: ``(2, mr+1, mc+1)`` exact positions (col, row) minus ``origin``
+    (float32);
+    origin: ``(2,)`` int32 (col, row), the rounded mean position clipped to
+    the image ``size`` (H, W); bad: ``(chunk rows, chunk cols)`` chunks that
+    need the exact mapping; err: the largest check error of the others (px).
+    A cell whose corners and centre are all NaN (e.g. off the DEM) is taken
+    as NaN throughout; a partly NaN cell is bad.
+    """
+    (tr, tc), s, cw = layout
+    mr, mc = tr // s, tc // s
+    r = offset[0] + s * jnp.arange(mr + 1, dtype=float) + 0.5
+    c = offset[1] + s * jnp.arange(mc + 1, dtype=float) + 0.5
+    nodes = jnp.asarray(model(_map_xy(transform, r, c)), dtype=float)
+    centres = jnp.asarray(model(_map_xy(transform, r[:-1] + s / 2, c[:-1] + s / 2)), dtype=float)
+    corners = [nodes[:-1, :-1], nodes[1:, :-1], nodes[:-1, 1:], nodes[1:, 1:]]
+    err = jnp.max(jnp.abs(centres - 0.25 * sum(corners)), axis=-1)
+    finite = [jnp.all(jnp.isfinite(v), axis=-1) for v in corners + [centres]]
+    all_finite = finite[0] & finite[1] & finite[2] & finite[3] & finite[4]
+    none_finite = ~(finite[0] | finite[1] | finite[2] | finite[3] | finite[4])
+    err = jnp.where(all_finite, err, jnp.where(none_finite, 0.0, jnp.inf))
+    q = cw // s
+    chunk_err = jnp.max(err.reshape(mr, mc // q, q), axis=-1)
+    bad = ~(chunk_err <= approx)
+    ok = jnp.isfinite(nodes)
+    mean = jnp.sum(jnp.where(ok, nodes, 0.0), axis=(0, 1)) / jnp.maximum(jnp.sum(ok, axis=(0, 1)), 1).astype(float)
+    origin = jnp.round(jnp.clip(mean, 0.0, jnp.array([size[1] - 1.0, size[0] - 1.0])))
+    # Column and row planes apart (2, mr+1, mc+1): contiguous for interpolation.
+    rel = jnp.moveaxis(nodes - origin[None, None, :], -1, 0).astype(jnp.float32)
+    return rel, origin.astype(jnp.int32), bad, jnp.max(jnp.where(bad, 0.0, chunk_err))
 
 
-_resample_tile = eqx.filter_jit(_resample_valid)
+def _chunk_positions(model, transform, offset, plan, i, j, layout, exact):
+    """``(2, step, cols)`` positions (col, row) of chunk ``(i, j)`` relative
+    to the plan's origin: float64 exact, or float32 (interpolated or exact)."""
+    (_, _), s, cw = layout
+    rel, origin, bad = plan[:3]
+
+    def exact_positions(_):
+        r = offset[0] + (i * s).astype(float) + jnp.arange(s, dtype=float) + 0.5
+        c = offset[1] + (j * cw).astype(float) + jnp.arange(cw, dtype=float) + 0.5
+        p = jnp.moveaxis(jnp.asarray(model(_map_xy(transform, r, c)), dtype=float), -1, 0)
+        return p if exact else (p - origin.astype(float)[:, None, None]).astype(jnp.float32)
+
+    if exact:
+        return exact_positions(None)
+
+    def interpolated(_):
+        q = cw // s
+        n = jax.lax.dynamic_slice(rel, (0, i, j * q), (2, 2, q + 1))  # (col/row, top/bottom, nodes)
+        f = jnp.arange(s, dtype=jnp.float32) / s
+        along = n[:, :, :-1, None] + (n[:, :, 1:, None] - n[:, :, :-1, None]) * f[None, None, None, :]
+        top, bottom = along[:, 0].reshape(2, 1, cw), along[:, 1].reshape(2, 1, cw)
+        return top + (bottom - top) * f[None, :, None]
+
+    return jax.lax.cond(bad[i, j], exact_positions, interpolated, None)
+
+
+def _tile_plan(model, transform, offset, layout, approx, size):
+    if approx:
+        return _plan(model, transform, offset, layout, approx, size)
+    (tr, tc), s, cw = layout
+    return None, jnp.zeros(2, dtype=jnp.int32), jnp.ones((tr // s, tc // cw), dtype=bool), jnp.zeros(())
+
+
+def _bounds(origin, size, dtype):
+    """The image footprint ``[-0.5, W-0.5] x [-0.5, H-0.5]`` relative to ``origin``."""
+    o = origin.astype(float)
+    lo = (jnp.array([-0.5, -0.5]) - o).astype(dtype)
+    hi = (jnp.array([size[1] - 0.5, size[0] - 0.5]) - o).astype(dtype)
+    return lo, hi
 
 
 @eqx.filter_jit
-def _rectify_tile(model, image, transform, offset, shape, method, fill):
-    cols, rows = _map_tile(model, transform, offset, shape)
-    size = jnp.asarray(image.shape[-2:], dtype=float)
-    return _resample_valid(image, cols, rows, jnp.zeros(2), size, method, fill)
+def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, method, compute, out_dtype):
+    """One output tile, mapping and resampling fused: ``(block, err, n_exact)``.
+
+    ``flat`` is the whole image prepared by :func:`photax.resample._source`;
+    ``block`` is ``(B, *layout[0])``, ``n_exact`` the number of chunks mapped
+    exactly (all of them when ``approx`` is 0).
+    """
+    from .resample import _interp
+
+    (tr, tc), s, cw = layout
+    plan = _tile_plan(model, transform, offset, layout, approx, size)
+    origin, bad = plan[1], plan[2]
+    dtype = jnp.float32 if approx else jnp.float64
+    lo, hi = _bounds(origin, size, dtype)
+    nc = tc // cw
+
+    def body(k, out):
+        i, j = k // nc, k % nc
+        pos = _chunk_positions(model, transform, offset, plan, i, j, layout, not approx).reshape(2, -1)
+        v = _interp(flat, pos[0], pos[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5,
+                    compute=compute, out_dtype=out_dtype)
+        return jax.lax.dynamic_update_slice(out, v.reshape(-1, s, cw), (0, i * s, j * cw))
+
+    out = jax.lax.fori_loop(0, (tr // s) * nc, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
+    return out, plan[3], jnp.sum(bad)
+
+
+@eqx.filter_jit
+def _tile_positions(model, transform, offset, layout, approx, size):
+    """The positions of :func:`_rectify_tile` without resampling (for the
+    file path, which must know the input window first): ``(pos, origin, err,
+    n_exact)`` with ``pos`` ``(2, *layout[0])`` relative to ``origin``."""
+    (tr, tc), s, cw = layout
+    plan = _tile_plan(model, transform, offset, layout, approx, size)
+    nc = tc // cw
+
+    def body(k, out):
+        i, j = k // nc, k % nc
+        pos = _chunk_positions(model, transform, offset, plan, i, j, layout, not approx)
+        return jax.lax.dynamic_update_slice(out, pos, (0, i * s, j * cw))
+
+    dtype = jnp.float32 if approx else jnp.float64
+    pos = jax.lax.fori_loop(0, (tr // s) * nc, body, jnp.empty((2, tr, tc), dtype=dtype))
+    return pos, plan[1], plan[3], jnp.sum(plan[2])
+
+
+@eqx.filter_jit
+def _resample_tile(flat, pos, origin, offset, fill, size, window, method, compute, out_dtype):
+    """Resample the window ``flat`` (prepared, ``window`` = (h, w)) at
+    ``pos`` relative to ``origin`` (image pixels); ``offset`` = origin minus
+    the window's (col, row); footprint: the whole image ``size`` (H, W)."""
+    from .resample import _interp
+
+    lo, hi = _bounds(origin, size, pos.dtype)
+    tr, tc = pos.shape[1:]
+
+    def body(i, out):
+        p = jax.lax.dynamic_slice(pos, (0, i * _STEP, 0), (2, _STEP, tc)).reshape(2, -1)
+        v = _interp(flat, p[0], p[1], fill, lo, hi, offset, shape=window, method=method, a=-0.5,
+                    compute=compute, out_dtype=out_dtype)
+        return jax.lax.dynamic_update_slice(out, v.reshape(-1, _STEP, tc), (0, i * _STEP, 0))
+
+    return jax.lax.fori_loop(0, tr // _STEP, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
+
+
+def _check_approx(approx) -> float:
+    a = 0.0 if approx is None else float(approx)
+    if not (math.isfinite(a) and a >= 0):
+        raise ValueError(f"approx must be None or a maximum position error >= 0 in pixels, got {approx!r}")
+    return a
+
+
+def _run_tiles(fn, tiles, progress: bool, desc: str, info: dict | None, approx: float, chunks: int, sink):
+    """``sink(tile, block)`` for ``block, err, n_exact = fn(tile)`` over the
+    tiles, in order; ``fn`` runs on a thread pool (XLA:CPU runs each tile's
+    loop on one thread and releases the GIL), at most two tiles per thread
+    in flight.  Shows a progress bar and fills ``info`` (see :func:`rectify`)."""
+    from collections import deque
+    from concurrent.futures import ThreadPoolExecutor
+
+    from .resample import _THREADS
+
+    worst, exact = 0.0, 0
+    threads = max(1, min(_THREADS, len(tiles)))
+    with _progress(len(tiles), progress, desc) as bar, ThreadPoolExecutor(threads) as pool:
+        running = deque()
+        for i in range(len(tiles) + 1):
+            if i < len(tiles):
+                running.append((tiles[i], pool.submit(fn, tiles[i])))
+            while running and (len(running) >= 2 * threads or i == len(tiles)):
+                t, future = running.popleft()
+                block, err, n_exact = future.result()
+                sink(t, block)
+                worst, exact = max(worst, float(err)), exact + int(n_exact)
+                if approx:
+                    bar.set_postfix(max_err=f"{worst:.3f}px", refresh=False)
+                bar.update()
+    if info is not None:
+        info.update(approx=approx, approx_error=worst, exact_fraction=exact / max(chunks * len(tiles), 1))
 
 
 def _fill_value(dtype: np.dtype, nodata) -> np.ndarray:
@@ -203,12 +381,20 @@ def _fill_value(dtype: np.dtype, nodata) -> np.ndarray:
 
 
 def _tiles(shape: tuple[int, int], tile: int):
-    """``(r0, c0, h, w)`` of the tiles covering ``shape``, row by row."""
+    """``(r0, c0, h, w)`` of the tiles covering ``shape``, row by row: about
+    ``tile`` pixels square, balanced (a 4097-row grid gets five 832-row
+    tiles, not four of 1024 and one of 1) and multiples of the lattice step
+    except the last, so the approximate mapping's lattice does not depend
+    on the tiling."""
     if int(tile) < 1:
         raise ValueError(f"tile must be a positive number of pixels, got {tile!r}")
-    for r0 in range(0, shape[0], tile):
-        for c0 in range(0, shape[1], tile):
-            yield r0, c0, min(tile, shape[0] - r0), min(tile, shape[1] - c0)
+    def up(a, b):  # ceil(a / b)
+        return -(-a // b)
+
+    sizes = [up(up(n, up(n, int(tile))), _STEP) * _STEP for n in shape]
+    for r0 in range(0, shape[0], sizes[0]):
+        for c0 in range(0, shape[1], sizes[1]):
+            yield r0, c0, min(sizes[0], shape[0] - r0), min(sizes[1], shape[1] - c0)
 
 
 def _progress(total: int, enabled: bool, desc: str):
@@ -233,6 +419,8 @@ def rectify(
     progress: bool = False,
     mapping: Literal["indirect", "direct"] = "indirect",
     inverse: Callable[[Array], Array] | None = None,
+    approx: float | None = 0.125,
+    info: dict | None = None,
 ):
     """Resample an image onto a map grid through a geometric model.
 
@@ -240,6 +428,14 @@ def rectify(
     ``grid`` -> input pixel ``(col, row) = model(X, Y)`` -> grey value by
     ``resampling``.  Output pixels whose position is outside the image, or
     where the model returns NaN (e.g. no DEM height), get ``nodata``.
+
+    Approximate mapping (``approx > 0``, the default; as GDAL's approximate
+    transformer): the model is evaluated exactly only every 16 output pixels
+    and at the centres of those 16 x 16 cells (the check positions), and
+    positions in between are interpolated bilinearly wherever the check
+    error is at most ``approx`` pixels in column and row; elsewhere (rough
+    DEM, NaN edges) the exact mapping is used for that 16 x 256 chunk.  A
+    cell whose corners and centre all map to NaN is taken as nodata.
 
     Direct mapping (``mapping="direct"``, for comparison): every input pixel
     centre is sent to the map by ``inverse`` (pixel -> map) and its value put
@@ -263,6 +459,13 @@ def rectify(
         progress: show a tqdm progress bar over the tiles.
         mapping: ``"indirect"`` or ``"direct"``.
         inverse: pixel -> map callable, for ``mapping="direct"`` only.
+        approx: maximum position error (pixels) of the approximate mapping
+            at the check positions; ``0`` or ``None``: the exact model at
+            every output pixel (slower).
+        info: a dict to receive ``approx`` (the threshold),
+            ``approx_error`` (the largest check error of the interpolated
+            chunks, px) and ``exact_fraction`` (share of chunks mapped
+            exactly).
 
     Returns:
         ``(..., rows, cols)`` numpy array in the input dtype; with
@@ -280,18 +483,29 @@ def rectify(
         return _rectify_direct(image, model, grid, fill, tile, progress, inverse)
     if mapping != "indirect":
         raise ValueError(f"mapping must be 'indirect' or 'direct', got {mapping!r}")
-    tile = int(tile)
+    from .resample import _compute_dtype, _source
+
+    approx = _check_approx(approx)
+    tiles = list(_tiles(grid.shape, int(tile)))
+    layout = _layout(*tiles[0][2:])  # every call gets this shape (edge tiles are cropped): one compilation
     out = np.empty(image.shape[:-2] + grid.shape, dtype=image.dtype)
+    size = tuple(image.shape[-2:])
+    flat = _source(image.reshape((-1,) + size), resampling, _compute_dtype(image.dtype))
     transform = jnp.asarray(tuple(grid.transform)[:6])
-    # Every call gets the full tile shape (edge tiles are cropped): one compilation.
-    shape = (min(tile, grid.height), min(tile, grid.width))
-    fill_j = jnp.asarray(fill)
-    tiles = list(_tiles(grid.shape, tile))
-    with _progress(len(tiles), progress, "rectify") as bar:
-        for r0, c0, h, w in tiles:
-            block = _rectify_tile(model, image, transform, jnp.array([r0, c0], dtype=float), shape, resampling, fill_j)
-            out[..., r0 : r0 + h, c0 : c0 + w] = np.asarray(block)[..., :h, :w]
-            bar.update()
+    fill_j = jnp.full((flat.shape[0],), fill, dtype=image.dtype)
+
+    compute, out_dtype = _compute_dtype(image.dtype), np.dtype(image.dtype)
+
+    def one(t):
+        offset = jnp.array(t[:2], dtype=float)
+        return _rectify_tile(model, flat, transform, offset, fill_j, layout, approx, size, resampling, compute, out_dtype)
+
+    def sink(t, block):
+        r0, c0, h, w = t
+        out[..., r0 : r0 + h, c0 : c0 + w] = np.asarray(block)[:, :h, :w].reshape(out.shape[:-2] + (h, w))
+
+    chunks = (layout[0][0] // layout[1]) * (layout[0][1] // layout[2])
+    _run_tiles(one, tiles, progress, "rectify", info, approx, chunks, sink)
     return out
 
 
@@ -438,6 +652,8 @@ def orthorectify(
     nodata=None,
     tile: int = 1024,
     progress: bool = False,
+    approx: float | None = 0.125,
+    info: dict | None = None,
 ) -> tuple[np.ndarray, Grid]:
     """Orthorectify a frame image with its orientation and a DEM.
 
@@ -459,7 +675,9 @@ def orthorectify(
             (:func:`ortho_grid`) at ``resolution``.
         resolution: ground pixel size when ``grid`` is not given; default
             the mean ground sampling distance.
-        resampling, nodata, tile, progress: as in :func:`rectify`.
+        resampling, nodata, tile, progress, approx, info: as in :func:`rectify`
+            (the approximate mapping's check catches rough DEMs: chunks
+            whose check error exceeds ``approx`` are mapped exactly).
 
     Returns:
         ``(ortho, grid)``: the ``(..., rows, cols)`` orthophoto in the input
@@ -470,7 +688,8 @@ def orthorectify(
     if grid is None:
         grid = ortho_grid(exterior, camera, dem, resolution)
     model = OrthoModel(exterior, camera, dem)
-    out = rectify(image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress)
+    out = rectify(image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress,
+                  approx=approx, info=info)
     return out, grid
 
 
@@ -518,6 +737,8 @@ def rectify_file(
     progress: bool = False,
     compress: str | None = "deflate",
     inputs=(),
+    approx: float | None = 0.125,
+    info: dict | None = None,
 ) -> Grid:
     """:func:`rectify` from one raster file to a GeoTIFF, window by window.
 
@@ -536,6 +757,7 @@ def rectify_file(
         nodata: default the input's nodata, else NaN/0 as in :func:`rectify`.
         compress: GeoTIFF compression (``"deflate"``, ``"lzw"``, None...).
         inputs: further paths the output must not overwrite (e.g. a DEM).
+        approx, info: as in :func:`rectify`.
 
     Returns:
         ``grid``.
@@ -545,10 +767,14 @@ def rectify_file(
 
     from .io.atomic import atomic_path
     from .io.raster import open_raster
+    from .resample import _compute_dtype, _source
 
     _check_resampling(resampling)
     _check_model(model)
+    approx = _check_approx(approx)
     tile = int(tile)
+    if tile < 1:
+        raise ValueError(f"tile must be a positive number of pixels, got {tile!r}")
     with open_raster(src_path) as src, atomic_path(dst_path, inputs=(src_path, *inputs)) as tmp:
         if nodata is None:
             nodata = src.nodata
@@ -561,26 +787,34 @@ def rectify_file(
         if compress:
             profile["compress"] = compress
         transform = jnp.asarray(tuple(grid.transform)[:6])
-        shape = (min(tile, grid.height), min(tile, grid.width))
-        fill_j = jnp.asarray(fill)
-        size = jnp.array([src.height, src.width], dtype=float)
         tiles = list(_tiles(grid.shape, tile))
-        with rasterio.open(tmp, "w", **profile) as dst, _progress(len(tiles), progress, "rectify") as bar:
-            for r0, c0, h, w in tiles:
-                cols, rows = _map_tile(model, transform, jnp.array([r0, c0], dtype=float), shape)
-                win = _source_window(
-                    np.asarray(cols)[:h, :w], np.asarray(rows)[:h, :w], src.width, src.height, _MARGIN[resampling]
-                )
-                if win is None:
-                    block = np.full((src.count, h, w), fill, dtype=fill.dtype)
-                else:
-                    data = src.read(window=Window(win[1], win[0], win[3], win[2]))
-                    origin = jnp.array(win[:2], dtype=float)
-                    # Full-size tiles (edge tiles cropped after): fewer compilations.
-                    block = _resample_tile(data, cols, rows, origin, size, resampling, fill_j)
-                    block = np.asarray(block)[:, :h, :w]
-                dst.write(block, window=Window(c0, r0, w, h))
-                bar.update()
+        layout = _layout(*tiles[0][2:])
+        fill_j = jnp.full((src.count,), fill, dtype=fill.dtype)
+        size = (src.height, src.width)
+        compute, out_dtype = _compute_dtype(fill.dtype), np.dtype(fill.dtype)
+        lock = threading.Lock()  # a rasterio dataset is not thread-safe
+
+        def one(t):
+            r0, c0, h, w = t
+            pos, origin, err, n_exact = _tile_positions(
+                model, transform, jnp.array([r0, c0], dtype=float), layout, approx, size)
+            p, o = np.asarray(pos)[:, :h, :w], np.asarray(origin)
+            # The window from the very positions resampled: none falls outside it.
+            win = _source_window(p[0] + o[0], p[1] + o[1], src.width, src.height, _MARGIN[resampling])
+            if win is None:
+                return np.full((src.count, h, w), fill, dtype=fill.dtype), err, n_exact
+            with lock:
+                data = src.read(window=Window(win[1], win[0], win[3], win[2]))
+            offset = jnp.asarray(o - np.array([win[1], win[0]]), dtype=jnp.int32)
+            # Full-size tiles (edge tiles cropped after): fewer compilations.
+            block = _resample_tile(_source(data, resampling, compute), pos, origin, offset, fill_j, size,
+                                   data.shape[-2:], resampling, compute, out_dtype)
+            return np.asarray(block)[:, :h, :w], err, n_exact
+
+        chunks = (layout[0][0] // layout[1]) * (layout[0][1] // layout[2])
+        with rasterio.open(tmp, "w", **profile) as dst:
+            _run_tiles(one, tiles, progress, "rectify", info, approx, chunks,
+                       lambda t, block: dst.write(block, window=Window(t[1], t[0], t[3], t[2])))
     return grid
 
 
@@ -598,6 +832,8 @@ def orthorectify_file(
     tile: int = 1024,
     progress: bool = False,
     compress: str | None = "deflate",
+    approx: float | None = 0.125,
+    info: dict | None = None,
 ) -> Grid:
     """:func:`orthorectify` from an image file to a GeoTIFF, window by window.
 
@@ -623,5 +859,5 @@ def orthorectify_file(
         grid = ortho_grid(exterior, camera, dem, resolution)
     return rectify_file(
         src_path, dst_path, OrthoModel(exterior, camera, dem), grid, resampling=resampling, nodata=nodata,
-        tile=tile, progress=progress, compress=compress, inputs=inputs,
+        tile=tile, progress=progress, compress=compress, inputs=inputs, approx=approx, info=info,
     )
