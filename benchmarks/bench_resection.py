@@ -35,7 +35,7 @@ def scenes(rng, b, n=12):
     xy = np.asarray(CAM.pixel_to_image(px))
     ground = np.empty((b, n, 3))
     for i in range(b):
-        eo = ptx.ExteriorOrientation(np.array([500_000.0, 4_000_000.0, 0.0]) + rng.uniform(-1000, 1000, 3) + [0, 0, 900],
+        eo = ptx.ExteriorOrientation(np.array([500_000.0, 4_000_000.0, 0.0]) + np.array([rng.uniform(-1000, 1000), rng.uniform(-1000, 1000), rng.uniform(700, 1200)]),
                                      [rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), rng.uniform(-np.pi, np.pi)])
         ground[i] = np.asarray(ptx.image_to_ground(xy[i], eo, CAM, height=rng.uniform(80, 140, n)))
     xy = xy + rng.normal(0, 0.5, xy.shape)
@@ -54,6 +54,7 @@ def main():
     args = ap.parse_args()
     rng = np.random.default_rng(0)
     xy, ground, pixel = scenes(rng, args.images)
+    sys.stdout.reconfigure(line_buffering=True)
     print(f"jax {jax.__version__}, OpenCV {cv2.__version__}, {args.images} images x 12 GCPs")
 
     # --- single-call latency
