@@ -267,3 +267,111 @@ def test_cli_rectify_with_gcps(tmp_path, src_tif):
     assert np.abs(data.astype(int) - ref).max() <= 1
     args[args.index("--out") + 1] = str(path)
     assert main(args) == 2  # --out IMAGE: refused
+
+
+# --- the approximate mapping (approx > 0, the default) --------------------------
+
+
+def _approx_positions(model, grid, approx, tile, size):
+    """Per-pixel positions the approximate mapping resamples at, and its
+    reported check error (the file path's internal helper)."""
+    rect = importlib.import_module("photax.rectify")
+    out = np.full((2,) + grid.shape, np.nan)
+    tiles = list(rect._tiles(grid.shape, tile))
+    layout = rect._layout(*tiles[0][2:])
+    transform = jnp.asarray(tuple(grid.transform)[:6])
+    worst = 0.0
+    for r0, c0, h, w in tiles:
+        pos, origin, err, _ = rect._tile_positions(model, transform, jnp.array([r0, c0], dtype=float), layout,
+                                                    rect._approx_arg(approx), size)
+        out[:, r0 : r0 + h, c0 : c0 + w] = np.asarray(pos)[:, :h, :w] + np.asarray(origin)[:, None, None]
+        worst = max(worst, float(err))
+    return out, worst
+
+
+def _exact_positions(model, grid):
+    cr = np.asarray(model(jnp.asarray(grid.xy())))
+    return np.moveaxis(cr, -1, 0)
+
+
+def _cubic_map(xy):  # a strongly curved 3rd-order map: interpolation errors of several pixels at 64 px
+    x, y = (xy[..., 0] - 1100.0) / 100.0, (xy[..., 1] - 5100.0) / 100.0
+    c = 60.0 + 48.0 * x + 4.0 * y + 3.0 * x * x - 2.0 * x * y + 2.5 * x**3
+    r = 45.0 - 36.0 * y + 2.0 * x + 1.5 * y * y - 1.5 * x * y * y
+    return jnp.stack([c, r], axis=-1)
+
+
+@pytest.mark.parametrize("approx", [0.125, 0.01])
+def test_approx_positions_within_threshold_on_polynomial(approx):
+    # Independent reference: the model evaluated at every output pixel.
+    grid = Grid.from_bounds((1000.0, 4980.0, 1260.0, 5200.0), 0.5)
+    exact = _exact_positions(_cubic_map, grid)
+    approx_pos, err = _approx_positions(_cubic_map, grid, approx, 128, (H, W))
+    dev = np.abs(approx_pos - exact).max()
+    assert dev <= approx and err <= approx
+    assert err > 0.5 * dev  # the reported check error is the actual worst case, not a loose bound
+    # The threshold is honoured by interpolating where possible: at 0.125 px
+    # most of this map is interpolated, so the positions are not all exact.
+    if approx == 0.125:
+        assert np.mean(np.abs(approx_pos - exact) > 1e-3) > 0.5
+
+
+def test_approx_positions_within_threshold_on_relief_ortho():
+    # A wide-angle camera over 600 m hills: the DEM's bilinear cells put kinks
+    # into the mapping between lattice nodes; the check positions (cell
+    # centres and edge midpoints) catch them (centres alone gave 0.22 px).
+    s = photax.relief_scene(600.0, image_size=(400, 300), focal_px=400.0)
+    rect = importlib.import_module("photax.rectify")
+    model = rect.OrthoModel(s.exterior, s.camera, s.dem)
+    grid = rect.ortho_grid(s.exterior, s.camera, s.dem)
+    exact = _exact_positions(model, grid)
+    for approx in (0.125, 0.02):
+        approx_pos, err = _approx_positions(model, grid, approx, 128, (300, 400))
+        assert np.array_equal(np.isfinite(approx_pos), np.isfinite(exact))
+        assert np.nanmax(np.abs(approx_pos - exact)) <= approx
+        assert err <= approx
+
+
+def test_approx_image_agrees_with_exact():
+    rng = np.random.default_rng(6)
+    image = ndimage.gaussian_filter(rng.uniform(0, 255, (H, W)), 2.0)
+    grid = Grid.from_bounds((1000.0, 4980.0, 1260.0, 5200.0), 0.5)
+    info = {}
+    ours = rectify(image, _cubic_map, grid, resampling="bilinear", info=info)
+    exact = rectify(image, _cubic_map, grid, resampling="bilinear", approx=0)
+    assert info["approx"] == 0.125 and 0 < info["approx_error"] <= 0.125 and info["exact_fraction"] < 0.5
+    # Bilinear grey values move by at most |gradient| x position error.
+    gy, gx = np.gradient(image)
+    bound = (np.abs(gx).max() + np.abs(gy).max()) * info["approx_error"]
+    both = np.isfinite(ours) & np.isfinite(exact)
+    assert both.sum() > 0.3 * both.size
+    assert np.abs(ours - exact)[both].max() <= bound + 1e-9
+    # Footprints agree except where the footprint edge passes within the error.
+    assert np.mean(np.isfinite(ours) != np.isfinite(exact)) < 1e-3
+
+
+def test_approx_falls_back_to_exact_where_the_check_fails():
+    # A threshold no interpolation can meet: every chunk is mapped exactly,
+    # and the image equals the exact one (up to float32 positions).
+    rng = np.random.default_rng(7)
+    image = ndimage.gaussian_filter(rng.uniform(0, 255, (H, W)), 2.0)
+    info = {}
+    ours = rectify(image, _cubic_map, GRID, resampling="cubic", approx=1e-9, info=info)
+    exact = rectify(image, _cubic_map, GRID, resampling="cubic", approx=0)
+    assert info["exact_fraction"] == 1.0 and info["approx_error"] == 0.0
+    np.testing.assert_allclose(ours, exact, rtol=0, atol=1e-2)
+    with pytest.raises(ValueError, match="approx"):
+        rectify(image, _cubic_map, GRID, approx=-1.0)
+
+
+def test_approx_file_equals_memory(tmp_path, src_tif):
+    path, image = src_tif
+    out = tmp_path / "out.tif"
+    info = {}
+    rectify_file(path, out, _cubic_map, GRID, resampling="bilinear", tile=64, info=info)
+    ref = rectify(image, _cubic_map, GRID, resampling="bilinear", nodata=0, tile=64)
+    with rasterio.open(out) as ds:
+        data = ds.read()
+    # Same lattice and positions; uint8 rounding of float32 sums may differ by one.
+    assert np.abs(data.astype(int) - ref).max() <= 1 and np.mean(data != ref) < 1e-3
+    assert 0 < info["approx_error"] <= 0.125
