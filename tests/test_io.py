@@ -228,3 +228,17 @@ def test_read_json_error_names_line(tmp_path):
     p.write_text('{\n"a": 1,\n}\n')
     with pytest.raises(ValueError, match="x.json, line 3"):
         read_json(p)
+
+
+def test_atomic_write_gives_ordinary_permissions(tmp_path):
+    """Files photax writes are readable like any other (mkstemp makes them 0600)."""
+    import os
+
+    from photax.io.atomic import atomic_write
+
+    out = tmp_path / "x.txt"
+    with atomic_write(out) as fh:
+        fh.write("hi")
+    plain = tmp_path / "plain.txt"
+    plain.write_text("hi")
+    assert os.stat(out).st_mode & 0o777 == os.stat(plain).st_mode & 0o777

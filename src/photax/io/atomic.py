@@ -36,6 +36,11 @@ def atomic_path(out, inputs: Iterable = ()) -> Iterator[pathlib.Path]:
     out.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".part", dir=out.parent)
     os.close(fd)
+    # mkstemp makes the file private (0600); give it the permissions an
+    # ordinary open() would have: 0666 less the umask.
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o666 & ~umask)
     tmp_path = pathlib.Path(tmp)
     try:
         yield tmp_path
