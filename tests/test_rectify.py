@@ -8,6 +8,7 @@ and cv2.remap on coordinates computed here in numpy, and closed forms
 import importlib
 
 import cv2
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -290,7 +291,7 @@ def _approx_positions(model, grid, approx, tile, size):
 
 
 def _exact_positions(model, grid):
-    cr = np.asarray(model(jnp.asarray(grid.xy())))
+    cr = np.asarray(eqx.filter_jit(lambda m, xy: m(xy))(model, jnp.asarray(grid.xy())))
     return np.moveaxis(cr, -1, 0)
 
 
