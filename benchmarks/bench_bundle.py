@@ -302,7 +302,8 @@ def main(argv=None) -> int:
         t_c = float(np.median(times))
         c_c = bal_cost(*to_bal(), clean)
         print(f"  Ceres {solver:12s}: cost {c_c:.6e} (Ceres reports {summary.final_cost:.6e}) after "
-              f"{summary.num_successful_steps + summary.num_unsuccessful_steps} iterations, {t_c:.2f} s, peak {mib(peak)} (fresh process: {mib(fresh_peak(solver, args.data))})")  # fmt: skip
+              f"{summary.num_successful_steps + summary.num_unsuccessful_steps} iterations, {t_c:.2f} s, peak {mib(fresh_peak(solver, args.data))} (fresh process; in this one "
+              f"{mib(peak)}: Ceres reuses pages photax freed)")  # fmt: skip
         print(f"  ratio photax/Ceres {solver} (warm)       : {t_pc / t_c:.2f}")
         print(f"  ratio photax/Ceres {solver} (first call) : {t_first_c / t_c:.2f}")
         print(f"  cost photax - Ceres: {c_pc - c_c:+.4g} ({(c_pc - c_c) / c_c:+.2e} relative)")
