@@ -63,6 +63,7 @@ from .collinearity import ExteriorOrientation
 from .errors import ConvergenceError
 from .rotation import Convention, angles_from_matrix_unchecked, check_convention, rotation_matrix
 
+_CHUNK = 256  # images per resect_batch call of the compiled solver
 _N_SUBSETS = 32  # random subsets for the robust start: P(all 32 contain a blunder) < 1e-4 at 20 % blunders
 _SEED = 20240601  # fixed: the same input gives the same answer
 _PLANAR = 0.1  # smallest / largest spread of the GCPs below this: "planar" for the 4-point minimum
@@ -334,7 +335,7 @@ def _linear_start(uv, ground, ctrl, basis, subsets, robust, dlt_ok, convention):
         systems.append(jax.vmap(lambda s: _normal_equations(_dlt_rows(uvn[s], rel[s], w6, scale)))(subsets))
     mats = jnp.concatenate([m[None] for m, _ in systems[:2]] + [m for m, _ in systems[2:]])
     rhs = jnp.concatenate([v[None] for _, v in systems[:2]] + [v for _, v in systems[2:]])
-    sols = jnp.linalg.solve(mats, rhs[..., None])[..., 0]
+    sols = _cho_solve(mats, rhs[..., None])[..., 0]
     is_dlt = np.array([False, True] + [False] * k + [True] * k)
     hom = jax.vmap(lambda s: _pose_homography(s, t_uv, scale, basis))(sols[~is_dlt])
     dlt = jax.vmap(lambda s: _pose_dlt(s, t_uv, scale))(sols[is_dlt])
@@ -359,6 +360,41 @@ def _linear_start(uv, ground, ctrl, basis, subsets, robust, dlt_ok, convention):
 
 
 # --------------------------------------------------------------------------- adjustment
+
+
+def _cho_solve(a: jax.Array, b: jax.Array) -> jax.Array:
+    """Solve ``a x = b`` for symmetric positive definite ``a`` ``(..., k, k)``,
+    ``b`` ``(..., k, m)``, by a Cholesky factorisation unrolled in ``jnp``.
+
+    For k <= 11 this is a few dozen fused element-wise ops, vectorised over
+    the leading axes; a LAPACK call per tiny matrix costs far more on CPU.
+    The system is Jacobi-scaled first (unit diagonal: metres and radians in
+    one matrix).  Not positive definite -> NaN.
+    """
+    k = a.shape[-1]
+    d = 1.0 / jnp.sqrt(jnp.diagonal(a, axis1=-2, axis2=-1))  # (..., k)
+    a = a * d[..., :, None] * d[..., None, :]
+    b = b * d[..., :, None]
+    cols = []  # columns of L, each (..., k), zero above the diagonal
+    for j in range(k):
+        c = a[..., :, j]
+        for i in range(j):
+            c = c - cols[i] * cols[i][..., j : j + 1]
+        c = jnp.where(np.arange(k) >= j, c / jnp.sqrt(c[..., j : j + 1]), 0.0)
+        cols.append(c)
+    y = []  # forward substitution, L y = b
+    for j in range(k):
+        r = b[..., j, :]
+        for i in range(j):
+            r = r - cols[i][..., j : j + 1] * y[i]
+        y.append(r / cols[j][..., j : j + 1])
+    x = [None] * k  # back substitution, L^T x = y
+    for j in reversed(range(k)):
+        r = y[j]
+        for i in range(j + 1, k):
+            r = r - cols[j][..., i : i + 1] * x[i]
+        x[j] = r / cols[j][..., j : j + 1]
+    return jnp.stack(x, axis=-2) * d[..., :, None]
 
 
 def _wrap(a):
@@ -392,7 +428,7 @@ def _model(xy, ground, weight, ctrl, camera, convention):
 
 
 def _solver_scale(weight, ctrl, camera):
-    # The solver sees dimensionless residuals (relative weights over f), so
+    # optimistix sees dimensionless residuals (relative weights over f), so
     # its tolerances do not depend on the image unit.
     mean_w = jnp.sum(jnp.where(ctrl[:, None], weight, 0.0)) / (2.0 * jnp.sum(ctrl.astype(float)))
     return 1.0 / (camera.focal_length * jnp.sqrt(mean_w))
@@ -403,9 +439,10 @@ def _precision(p, weighted, predict, xy, ground, ctrl, convention):
     v = weighted(p)
     a = jax.jacfwd(weighted)(p)
     red = 2.0 * jnp.sum(ctrl.astype(float)) - 6.0
-    qxx = jnp.linalg.inv(a.T @ a)
+    qxx = _cho_solve(jnp.sum(a[:, :, None] * a[:, None, :], axis=0), jnp.eye(6))
+    qxx = 0.5 * (qxx + qxx.T)
     sigma0 = jnp.where(red > 0, jnp.sqrt(jnp.sum(v * v) / jnp.where(red > 0, red, 1.0)), jnp.nan)
-    r_i = 1.0 - jnp.einsum("ij,jk,ik->i", a, qxx, a)
+    r_i = 1.0 - jnp.sum((a @ qxx) * a, axis=1)
     r_i = jnp.where(ctrl[:, None], r_i.reshape(-1, 2), 0.0)
     ok = r_i > 1e-10
     w = jnp.where(ok, v.reshape(-1, 2) / jnp.sqrt(jnp.where(ok, r_i, 1.0)), jnp.nan)
@@ -413,35 +450,20 @@ def _precision(p, weighted, predict, xy, ground, ctrl, convention):
     return dict(params=p, sigma0=sigma0, qxx=qxx, residuals=xy - predict(p), redundancy=r_i, w=w, depth=depth)
 
 
-@functools.partial(jax.jit, static_argnames=("max_steps", "solver"))
-def _core(xy, ground, weight, ctrl, basis, subsets, robust, dlt_ok, init, use_init, camera, *, convention, max_steps,
-          solver):
-    """One image (ground already local): start, optimistix adjustment, precision."""
-    xn = camera.normalised(xy)
-    uv = jnp.stack([xn[:, 0], -xn[:, 1]], axis=1)  # OpenCV's normalised frame (y down)
-    start = jnp.where(use_init, init, _linear_start(uv, ground, ctrl, basis, subsets, robust, dlt_ok, convention))
-    weighted, predict = _model(xy, ground, weight, ctrl, camera, convention)
-    scale = _solver_scale(weight, ctrl, camera)
-    algo = (optx.GaussNewton if solver == "gn" else optx.LevenbergMarquardt)(
-        rtol=1e-11, atol=1e-11, linear_solver=lx.Normal(lx.Cholesky()) if solver == "gn" else lx.QR())
-    sol = optx.least_squares(lambda p, _: weighted(p) * scale, algo, start, max_steps=max_steps, throw=False)
-    p = jnp.concatenate([sol.value[:3], _wrap(sol.value[3:])])
-    out = _precision(p, weighted, predict, xy, ground, ctrl, convention)
-    return dict(out, start=start, result=sol.result._value, steps=sol.stats["num_steps"])
+def _gauss_newton(weighted, start, max_steps):
+    """Gauss-Newton on the normal equations, at most ``max_steps`` iterations.
 
-
-def _gauss_newton_fixed(weighted, start, scale, max_steps):
-    """Plain Gauss-Newton, ``max_steps`` iterations at most (``vmap``-friendly).
-
-    Stops (per image) once ``max |dp| <= 1e-10 (1 + max |p|)``; returns the
-    parameters, the number of steps and whether it converged.
+    Stops once ``max |dp| <= 1e-10 (1 + max |p|)`` (metres and radians).
+    Returns the parameters, the number of steps and a status: 0 converged,
+    1 step limit reached, 2 non-finite (singular normal equations).
     """
 
     def body(carry):
         p, k, _ = carry
-        r = weighted(p) * scale
-        a = jax.jacfwd(weighted)(p) * scale
-        dp = -jax.scipy.linalg.solve(a.T @ a, a.T @ r, assume_a="pos")
+        r = weighted(p)
+        a = jax.jacfwd(weighted)(p)
+        n = jnp.sum(a[:, :, None] * a[:, None, :], axis=0)  # A^T A as a fused sum, not a tiny dot
+        dp = -_cho_solve(n, jnp.sum(a * r[:, None], axis=0)[:, None])[:, 0]
         return p + dp, k + 1, jnp.max(jnp.abs(dp)) <= 1e-10 * (1.0 + jnp.max(jnp.abs(p)))
 
     def cond(carry):
@@ -449,26 +471,70 @@ def _gauss_newton_fixed(weighted, start, scale, max_steps):
         return (k < max_steps) & ~done & jnp.all(jnp.isfinite(p))
 
     p, k, done = jax.lax.while_loop(cond, body, (start, jnp.array(0), jnp.array(False)))
-    return p, k, done & jnp.all(jnp.isfinite(p))
+    status = jnp.where(~jnp.all(jnp.isfinite(p)), 2, jnp.where(done, 0, 1))
+    return p, k, status
+
+
+def _solve(xy, ground, weight, ctrl, basis, subsets, init, use_init, robust, dlt_ok, crit, snoop, scale_stat, exact,
+           min_pts, min_red, max_steps, camera, pok):
+    """One image, ground already local: start, Gauss-Newton, precision and
+    data snooping rounds, all traced (one compilation for every option).
+
+    ``crit[k]``: critical value with ``k`` control points in use;
+    ``scale_stat``: True to divide w by sigma0 (Pope's tau); ``exact``:
+    sigma0 below which residuals are rounding noise (no test).  The
+    snooping loop excludes the worst point and re-adjusts from the same
+    start until the test passes, redundancy runs out or Gauss-Newton fails.
+    """
+    xn = camera.normalised(xy)
+    uv = jnp.stack([xn[:, 0], -xn[:, 1]], axis=1)  # OpenCV's normalised frame (y down)
+    start = jnp.where(use_init, init, _linear_start(uv, ground, ctrl, basis, subsets, robust, dlt_ok, pok))
+
+    def adjust(used):
+        weighted, predict = _model(xy, ground, weight, used, camera, pok)
+        p, steps, status = _gauss_newton(weighted, start, max_steps)
+        out = _precision(jnp.concatenate([p[:3], _wrap(p[3:])]), weighted, predict, xy, ground, used, pok)
+        return dict(out, result=status, steps=steps)
+
+    def test(out, used):
+        n_used = jnp.sum(used.astype(int))
+        c = crit[n_used]
+        stat = jnp.abs(out["w"]) / jnp.where(scale_stat, out["sigma0"], 1.0)
+        worst = jnp.max(jnp.where(jnp.isnan(stat), -jnp.inf, stat), axis=1)
+        worst = jnp.where(used, worst, -jnp.inf)
+        k = jnp.argmax(worst)
+        red = 2.0 * n_used.astype(float) - 6.0
+        go = snoop & (worst[k] > c) & ~(out["sigma0"] < exact) & (out["result"] == 0)
+        go &= (n_used - 1 >= min_pts) & (red - 2.0 >= min_red)  # excluding a point costs 2 redundancy
+        return go, k, stat, c
+
+    def body(carry):
+        out, used, stat_at, go, k, stat, c = carry
+        used = used.at[k].set(False)
+        stat_at = stat_at.at[k].set(stat[k])
+        out = adjust(used)
+        return (out, used, stat_at, *test(out, used))
+
+    out = adjust(ctrl)
+    carry = (out, ctrl, jnp.full(xy.shape, jnp.nan), *test(out, ctrl))
+    out, used, stat_at, _, _, _, c = jax.lax.while_loop(lambda s: s[3], body, carry)
+    return dict(out, start=start, used=used, stat_at=stat_at, critical=c)
+
+
+_solve_one = jax.jit(_solve)
+_solve_many = jax.jit(jax.vmap(_solve, in_axes=(0, 0, 0, 0, 0, None, 0, 0) + (None,) * 11))
 
 
 @jax.jit
-def _core_batch(xy, ground, weight, ctrl, basis, dlt_ok, init, use_init, camera, *, convention, max_steps):
-    """Many images at once: linear start from all points, fixed Gauss-Newton, precision."""
-
-    def one(xy, ground, weight, ctrl, basis, init, use_init):
-        xn = camera.normalised(xy)
-        uv = jnp.stack([xn[:, 0], -xn[:, 1]], axis=1)
-        no_subsets = jnp.zeros((0, 6), int)
-        start = jnp.where(use_init, init, _linear_start(uv, ground, ctrl, basis, no_subsets, False, dlt_ok, convention))
-        weighted, predict = _model(xy, ground, weight, ctrl, camera, convention)
-        p, steps, ok = _gauss_newton_fixed(weighted, start, _solver_scale(weight, ctrl, camera), max_steps)
-        p = jnp.concatenate([p[:3], _wrap(p[3:])])
-        out = _precision(p, weighted, predict, xy, ground, ctrl, convention)
-        return dict(out, start=start, result=jnp.where(ok, 0, 1), steps=steps)
-
-    return jax.vmap(one)(xy, ground, weight, ctrl, basis, init, use_init)
-
+def _levenberg_marquardt(xy, ground, weight, used, start, max_steps, camera, pok):
+    """Fallback when Gauss-Newton fails: optimistix's Levenberg-Marquardt."""
+    weighted, predict = _model(xy, ground, weight, used, camera, pok)
+    scale = _solver_scale(weight, used, camera)
+    algo = optx.LevenbergMarquardt(rtol=1e-11, atol=1e-11, linear_solver=lx.QR())
+    sol = optx.least_squares(lambda p, _: weighted(p) * scale, algo, start, max_steps=max_steps, throw=False)
+    p = jnp.concatenate([sol.value[:3], _wrap(sol.value[3:])])
+    out = _precision(p, weighted, predict, xy, ground, used, pok)
+    return dict(out, result=sol.result._value, steps=sol.stats["num_steps"])
 
 
 # --------------------------------------------------------------------------- input checks
@@ -542,12 +608,7 @@ def _subsets(n_ctrl: int) -> np.ndarray:
 
 def _bucket(n: int) -> int:
     # Pad to a few sizes so a new number of points rarely means a new compilation.
-    return max(8, 1 << (n - 1).bit_length())
-
-
-def _exact(sigma0, camera, sigma_known):
-    """Residuals at rounding level (noise-free data): no blunder test is meaningful."""
-    return (sigma0 < 1e-10) if sigma_known else (sigma0 < 1e-10 * float(camera.focal_length))
+    return max(16, 1 << (n - 1).bit_length())
 
 
 def _critical(alpha: float, sigma_known: bool, red: float) -> float:
@@ -564,7 +625,11 @@ def _message(result: int, steps: int, solver: str) -> tuple[bool, str]:
     name = {"gn": "Gauss-Newton", "lm": "Levenberg-Marquardt"}[solver]
     if result == 0:
         return True, f"{name} converged in {steps} steps"
-    return False, f"{name} did not converge after {steps} steps: {_OPTX_MESSAGES.get(result, 'unknown failure')}"
+    if solver == "gn":
+        why = "step limit reached" if result == 1 else "singular normal equations (non-finite step)"
+    else:
+        why = _OPTX_MESSAGES.get(result, "unknown failure")
+    return False, f"{name} did not converge after {steps} steps: {why}"
 
 
 # --------------------------------------------------------------------------- public API
@@ -645,7 +710,6 @@ def resect(
     origin = ground[ctrl].mean(axis=0)
     m = _bucket(n)
     pad = lambda a, fill=0.0: np.concatenate([a, np.full((m - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
-    xy_p, ground_p, weight_p = pad(xy), pad(ground - origin), pad(weight, 1.0)
     ctrl_idx = np.flatnonzero(ctrl)
     if initial is not None:
         if not isinstance(initial, ExteriorOrientation):
@@ -656,47 +720,38 @@ def resect(
             raise ValueError("initial has non-finite values")
     else:
         init = np.zeros(6)
-    subsets = ctrl_idx[_subsets(len(ctrl_idx))]
-    dlt_ok = len(ctrl_idx) >= 6
     sigma_known = sigma is not None
-
-    def run(mask, init, use_init, solver="gn"):
-        out = _core(xy_p, ground_p, weight_p, pad(mask, False), basis, subsets, robust, dlt_ok, init, use_init, camera,
-                    convention=convention == "phi-omega-kappa", max_steps=max_steps, solver=solver)
-        out = jax.device_get(out)
-        if out["result"] != 0 and solver == "gn":  # Gauss-Newton failed: Levenberg-Marquardt
-            lm = run(mask, out["start"], True, "lm")
-            lm["gn_failure"] = _message(int(out["result"]), int(out["steps"]), "gn")[1]
-            return lm
-        out["solver"] = solver
-        return out
-
-    out = run(ctrl, init, initial is not None)
-    start = out["start"]
-    used = ctrl.copy()
-    outliers = np.zeros(n, bool)
-    rejected = {}  # point -> its (2,) test statistics when it was excluded
-    min_pts = 3 if initial is not None else 4
-    while True:
-        red = 2.0 * used.sum() - 6.0
-        crit = _critical(alpha, sigma_known, red)
-        stat = np.abs(out["w"][:n]) / (1.0 if sigma_known else out["sigma0"])
-        worst = np.nanmax(stat, axis=1, initial=-np.inf)
-        worst = np.where(used, worst, -np.inf)
-        k = int(np.argmax(worst))
-        if not robust or not worst[k] > crit or _exact(out["sigma0"], camera, sigma_known):
-            break
-        # Excluding a point costs 2 redundancy; the tau test needs r >= 2 after it.
-        if used.sum() - 1 < min_pts or red - 2 < (1 if sigma_known else 2):
-            break
-        used[k] = False
-        outliers[k] = True
-        rejected[k] = stat[k]
-        out = run(used, start, True)
-    return _finish(out, n, origin, used, outliers, rejected, is_check, names, crit, sigma_known, convention, throw)
+    args = (pad(xy), pad(ground - origin), pad(weight, 1.0), pad(ctrl, False), basis, ctrl_idx[_subsets(len(ctrl_idx))],
+            init, initial is not None, robust, len(ctrl_idx) >= 6)
+    out = jax.device_get(_solve_one(*args, *_options(alpha, sigma_known, m, robust, camera, initial is not None),
+                                    max_steps, camera, convention == "phi-omega-kappa"))
+    out["solver"] = "gn"
+    if out["result"] != 0:  # Gauss-Newton failed: Levenberg-Marquardt from the same start, same points
+        gn = _message(int(out["result"]), int(out["steps"]), "gn")[1]
+        lm = jax.device_get(_levenberg_marquardt(*args[:2], args[2], out["used"], out["start"], max_steps, camera,
+                                                 convention == "phi-omega-kappa"))
+        out.update(lm, solver="lm", gn_failure=gn)
+    used = out["used"][:n]
+    outliers = ctrl & ~used
+    return _finish(out, n, origin, used, outliers, out["stat_at"][:n], is_check, names, float(out["critical"]),
+                   sigma_known, convention, throw)
 
 
-def _finish(out, n, origin, used, outliers, rejected, is_check, names, crit, sigma_known, convention, throw):
+@functools.lru_cache(maxsize=64)
+def _critical_table(alpha: float, sigma_known: bool, m: int) -> np.ndarray:
+    """Critical values indexed by the number of control points in use (0..m)."""
+    return np.array([_critical(alpha, sigma_known, 2.0 * k - 6.0) for k in range(m + 1)])
+
+
+def _options(alpha, sigma_known, m, robust, camera, has_initial):
+    """The traced options of :func:`_solve` after ``dlt_ok``: crit, snoop,
+    scale_stat, exact, min_pts, min_red."""
+    exact = 1e-10 if sigma_known else 1e-10 * float(camera.focal_length)  # rounding-level residuals: no test
+    return (_critical_table(float(alpha), sigma_known, m), bool(robust), not sigma_known, exact,
+            3 if has_initial else 4, 1.0 if sigma_known else 2.0)
+
+
+def _finish(out, n, origin, used, outliers, stat_at, is_check, names, crit, sigma_known, convention, throw):
     p = out["params"]
     converged, message = _message(int(out["result"]), int(out["steps"]), out["solver"])
     if "gn_failure" in out:
@@ -722,9 +777,7 @@ def _finish(out, n, origin, used, outliers, rejected, is_check, names, crit, sig
         corr = cov / np.outer(std, std)
     resid = out["residuals"][:n]
     stat = out["w"][:n] / (1.0 if sigma_known else sigma0)
-    stat = np.where(used[:, None], stat, np.nan)
-    for k, s in rejected.items():
-        stat[k] = s
+    stat = np.where(used[:, None], stat, stat_at)
     d2 = np.sum(resid**2, axis=1)
     rms = float(np.sqrt(np.mean(d2[used]))) if used.any() else np.nan
     check_rms = float(np.sqrt(np.mean(d2[is_check]))) if is_check.any() else np.nan
@@ -829,53 +882,23 @@ def resect_batch(
         init = np.zeros((b, 6))
     m = _bucket(n)
     padn = lambda a, fill=0.0: np.concatenate([a, np.full(a.shape[:1] + (m - n,) + a.shape[2:], fill, a.dtype)], 1)  # noqa: E731
-    xy_p, ground_p, weight_p = padn(xy), padn(local), padn(weight, 1.0)
     sigma_known = sigma is not None
-
-    def run(rows, used, init, use_init):
-        # Pad the number of images to a power of two: fewer compilations.
-        k = len(rows)
-        kb = _bucket(k)
-        sel = np.concatenate([rows, np.full(kb - k, rows[0])])
-        out = _core_batch(xy_p[sel], ground_p[sel], weight_p[sel], padn(used[sel], False), basis[sel], n >= 6,
-                          init[sel], use_init[sel], camera, convention=convention == "phi-omega-kappa", max_steps=int(max_steps))
-        return {key: np.array(v[:k]) for key, v in jax.device_get(out).items()}
-
-    used = np.ones((b, n), bool)
-    out = run(np.arange(b), used, init, np.full(b, initial is not None))
-    start = out["start"]
-    outliers = np.zeros((b, n), bool)
-    stat_at = np.full((b, n, 2), np.nan)
-    min_pts = 3 if initial is not None else 4
-    crit = np.full(b, np.inf)
-    for _ in range(n):
-        red = 2.0 * used.sum(1) - 6.0
-        crit = _critical_vec(alpha, sigma_known, red)
-        denom = 1.0 if sigma_known else out["sigma0"][:, None, None]
-        stat = np.abs(out["w"][:, :n]) / denom
-        worst = np.where(used, np.nanmax(np.where(np.isnan(stat), -np.inf, stat), axis=2), -np.inf)
-        k = np.argmax(worst, axis=1)
-        top = worst[np.arange(b), k]
-        go = (top > crit) & (used.sum(1) - 1 >= min_pts) & (red - 2 >= (1 if sigma_known else 2))
-        go &= ~_exact(out["sigma0"], camera, sigma_known)
-        if not robust or not np.any(go):
-            break
-        rows = np.flatnonzero(go)
-        used[rows, k[rows]] = False
-        outliers[rows, k[rows]] = True
-        stat_at[rows, k[rows]] = stat[rows, k[rows]]
-        new = run(rows, used, start, np.ones(b, bool))
-        for key in out:
-            out[key][rows] = new[key]
-    return _finish_batch(out, n, origin, used, outliers, stat_at, crit, sigma_known, convention, throw)
-
-
-def _critical_vec(alpha, sigma_known, red):
-    if sigma_known:
-        return np.full(red.shape, stats.norm.ppf(1.0 - alpha / 2.0))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        t = stats.t.ppf(1.0 - alpha / 2.0, np.maximum(red - 1, 1))
-        return np.where(red >= 2, t * np.sqrt(red) / np.sqrt(red - 1 + t * t), np.inf)
+    # Fixed-size chunks of images: one compilation for any batch size, and a
+    # slow image holds up only its own chunk's while-loops.
+    nb = -(-b // _CHUNK) * _CHUNK
+    padb = lambda a: np.concatenate([a, np.repeat(a[:1], nb - b, axis=0)]) if nb > b else a  # noqa: E731
+    per_image = [padb(a) for a in (padn(xy), padn(local), padn(weight, 1.0), padn(np.ones((b, n), bool), False), basis,
+                                    init, np.full(b, initial is not None))]
+    options = (False, n >= 6, *_options(alpha, sigma_known, m, robust, camera, initial is not None), int(max_steps),
+               camera, convention == "phi-omega-kappa")  # robust=False: no random subsets (start from all points)
+    no_subsets = np.zeros((0, 6), int)
+    chunks = [_solve_many(*[a[i : i + _CHUNK] for a in per_image[:5]], no_subsets,
+                          *[a[i : i + _CHUNK] for a in per_image[5:]], *options)
+              for i in range(0, nb, _CHUNK)]  # dispatched asynchronously, gathered once
+    out = {k: np.concatenate([np.asarray(c[k]) for c in chunks])[:b] for k in chunks[0]}
+    used = out["used"][:, :n]
+    return _finish_batch(out, n, origin, used, ~used, out["stat_at"][:, :n], out["critical"], sigma_known,
+                         convention, throw)
 
 
 def _finish_batch(out, n, origin, used, outliers, stat_at, crit, sigma_known, convention, throw):
