@@ -22,9 +22,13 @@ handled: a ground point hidden behind a hill still receives the grey value
 of whatever the camera saw along that ray (a "ghost"), as in orthority and
 most DEM (non-true) orthophoto software.
 
-The output is processed in tiles of ``tile x tile`` pixels, so memory stays
-bounded; each tile's mapping (grid -> ground -> pixel) is one jitted
-function.  The ``*_file`` variants stream through rasterio windows: per
+The output is processed in tiles of about ``tile x tile`` pixels, so memory
+stays bounded; each tile's mapping (grid -> ground -> pixel) and resampling
+are one jitted function (no full-size coordinate maps), and tiles run on a
+thread pool.  By default the mapping is *approximate*, as GDAL's warper
+does it: the exact model on a 16-pixel lattice, bilinear interpolation in
+between where checks show the position error is at most ``approx``
+(0.125 px), exact evaluation elsewhere (see :func:`rectify`).  The ``*_file`` variants stream through rasterio windows: per
 output tile they read only the input window it needs (plus a margin for the
 interpolation kernel), so images far larger than memory can be processed.
 
