@@ -263,6 +263,8 @@ def _chunk_positions(model, transform, offset, plan, i, j, layout, exact):
         top, bottom = along[:, 0].reshape(2, 1, cw), along[:, 1].reshape(2, 1, cw)
         return top + (bottom - top) * f[None, :, None]
 
+    if exact is None:  # the tile has no bad chunk: no per-chunk branch (which slows the loop ~2x)
+        return interpolated(None)
     return jax.lax.cond(bad[i, j], exact_positions, interpolated, None)
 
 
@@ -298,14 +300,20 @@ def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, me
     lo, hi = _bounds(origin, size, dtype)
     nc = tc // cw
 
-    def body(k, out):
-        i, j = k // nc, k % nc
-        pos = _chunk_positions(model, transform, offset, plan, i, j, layout, approx is None).reshape(2, -1)
-        v = _interp(flat, pos[0], pos[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5,
-                    compute=compute, out_dtype=out_dtype)
-        return jax.lax.dynamic_update_slice(out, v.reshape(-1, s, cw), (0, i * s, j * cw))
+    def loop(exact):
+        def body(k, out):
+            i, j = k // nc, k % nc
+            pos = _chunk_positions(model, transform, offset, plan, i, j, layout, exact).reshape(2, -1)
+            v = _interp(flat, pos[0], pos[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5,
+                        compute=compute, out_dtype=out_dtype)
+            return jax.lax.dynamic_update_slice(out, v.reshape(-1, s, cw), (0, i * s, j * cw))
 
-    out = jax.lax.fori_loop(0, (tr // s) * nc, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
+        return jax.lax.fori_loop(0, (tr // s) * nc, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
+
+    if approx is None:
+        out = loop(True)
+    else:
+        out = jax.lax.cond(jnp.any(bad), lambda: loop(False), lambda: loop(None))
     return out, plan[3], jnp.sum(bad)
 
 
