@@ -66,7 +66,7 @@ from jax import Array
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation
 from .errors import ConvergenceError
-from .rotation import angles_from_matrix_unchecked, axis_angle_to_matrix
+from .rotation import angles_from_matrix_unchecked, axis_angle_to_matrix, rotation_matrix
 
 ROLES = ("tie", "control", "check")
 #: Interior-orientation parameters of a camera, in this order.
@@ -298,6 +298,8 @@ class _Structure(NamedTuple):
     key_a: Array  # (n_keys,) images of each block of S (row, column)
     key_b: Array
     key_off: Array  # (n_keys,) 1.0 for pairs a != b (the block's transpose is added too)
+    image_chunk: Array  # (n_ichunks, CHUNK) observations of one image; k = padding
+    image_of_chunk: Array  # (n_ichunks,) sorted
     active: Array  # (a,) indices into INTRINSICS estimated for some camera
     image_camera: Array  # (n_img,)
 
@@ -368,6 +370,18 @@ def _chunks(pa: np.ndarray, pb: np.ndarray, obs_image: np.ndarray, n_obs: int, n
     return ca.reshape(shape), cb.reshape(shape), key_of_chunk, rows, cols, uniq >= n_img * n_img
 
 
+def _image_chunks(obs_image: np.ndarray, n_img: int):
+    """Observations grouped by image in padded chunks of :data:`CHUNK`."""
+    order = np.argsort(obs_image, kind="stable")
+    counts = np.bincount(obs_image, minlength=n_img)
+    n_ch = -(-counts // CHUNK)
+    pos = np.arange(len(order)) - np.repeat(np.cumsum(counts) - counts, counts)
+    first_chunk = np.cumsum(n_ch) - n_ch
+    idx = np.full(n_ch.sum() * CHUNK, len(order), np.int64)
+    idx[(np.repeat(first_chunk, counts) + pos // CHUNK) * CHUNK + pos % CHUNK] = order
+    return idx.reshape(-1, CHUNK), np.repeat(np.arange(n_img), n_ch)
+
+
 def _analyse(problem: BundleProblem, fixed_extra: np.ndarray, origin: np.ndarray) -> tuple[_Structure, int, int]:
     """Index arrays, masks and sizes; returns (structure, n_unknowns_c, width)."""
     n_img, n_cam = problem.n_images, problem.n_cameras
@@ -392,7 +406,8 @@ def _analyse(problem: BundleProblem, fixed_extra: np.ndarray, origin: np.ndarray
         *(jnp.asarray(v) for v in (problem.obs_image, problem.obs_point, problem.obs_xy, problem.obs_sigma, cols)),
         jnp.asarray(mask_c, dtype=float), jnp.asarray(~hard, dtype=float), jnp.asarray(prior),
         jnp.asarray(prior_w), *(jnp.asarray(v) for v in (pa, pb, ca, cb, ck, ka, kb)), jnp.asarray(koff, dtype=float),
-        jnp.asarray(active), jnp.asarray(problem.image_camera),
+        *(jnp.asarray(v) for v in _image_chunks(problem.obs_image, n_img)), jnp.asarray(active),
+        jnp.asarray(problem.image_camera),
     )  # fmt: skip
     return s, n_c, w
 
@@ -518,6 +533,7 @@ class _Lin(NamedTuple):
 @functools.partial(jax.jit, static_argnames=("n_c",))
 def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int) -> _Lin:
     n_img, n_pts = state.centre.shape[0], state.xyz.shape[0]
+    w = 6 + s.active.shape[0]
     proj, jc, jp = _project_obs(state, s, jacobians=True)
     r = (proj - s.obs_xy) / s.obs_sigma
     rho, weight = _rho(jnp.sum(r * r, axis=1), loss, scale)
@@ -531,7 +547,10 @@ def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int
     seg = functools.partial(jax.ops.segment_sum, num_segments=n_img)
     segp = functools.partial(jax.ops.segment_sum, num_segments=n_pts)
     jct, jpt = jnp.swapaxes(jc, 1, 2), jnp.swapaxes(jp, 1, 2)
-    u_img = seg(_outer_sum(jct, jct), s.obs_image)
+    # U_i = sum Jc^T Jc over the image's observations: GEMMs over chunks of them.
+    jcc = jnp.take(jc, s.image_chunk, axis=0, mode="fill", fill_value=0.0).reshape(s.image_chunk.shape[0], -1, w)
+    u_img = jax.ops.segment_sum(jax.lax.dot_general(jcc, jcc, (((1,), (1,)), ((0,), (0,)))), s.image_of_chunk,
+                                num_segments=n_img, indices_are_sorted=True)  # fmt: skip
     g_img = seg(jnp.einsum("kri,kr->ki", jc, r), s.obs_image)
     pw = s.prior_w * s.mask_p
     v = segp(_outer_sum(jpt, jpt), s.obs_point) + pw[:, :, None] * jnp.eye(3)[None, :, :]
@@ -952,7 +971,8 @@ def bundle_adjust(
     s, n_c, _ = _analyse(problem, _gauge_mask(problem, gauge), origin)
     intr = np.stack([np.concatenate([[float(c.focal_length)], np.asarray(c.principal_point), np.asarray(c.distortion)]) for c in problem.cameras])
     state = _State(
-        jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
+        _rotation(problem.exterior.angles, convention=problem.exterior.convention),
+        jnp.asarray(np.asarray(problem.exterior.position) - origin[None, :]),
         jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]),
     )  # fmt: skip
     if linear_solver not in ("auto", "dense", "cg"):
@@ -1020,11 +1040,16 @@ def bundle_adjust(
                        message, it, throw, time.perf_counter() - t_start)  # fmt: skip
 
 
+# Jitted once: eagerly, each of their few dozen jnp operations compiles on first use.
+_rotation = jax.jit(rotation_matrix, static_argnames="convention")
+_angles = jax.jit(angles_from_matrix_unchecked, static_argnames="convention")
+
+
 def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged, message,
             iterations, throw, seconds) -> BundleResult:  # fmt: skip
     conv = problem.exterior.convention
     rot = np.asarray(state.rot)
-    angles, _ = angles_from_matrix_unchecked(state.rot, conv)
+    angles, _ = _angles(state.rot, convention=conv)
     eo = ExteriorOrientation(np.asarray(state.centre) + origin[None, :], np.asarray(angles), conv)
     intr = np.asarray(state.intr)
     cams = tuple(
@@ -1037,7 +1062,7 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     n_free = int(np.asarray(s.mask_c).sum() + np.asarray(s.mask_p).sum())
     n_prior = int(np.sum(np.asarray(s.prior_w) > 0))
     redundancy = 2 * problem.n_observations + n_prior - n_free + (7 if gauge == "damped" else 0)
-    wsq = float(jnp.sum(lin.r**2) + jnp.sum(_prior_residuals(state, s) ** 2))
+    wsq = float(np.sum(np.asarray(lin.r) ** 2) + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w)))
     sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
     eo_std = cam_std = pt_std = pt_cov = None
     if precision and n_c > 2 * DENSE_LIMIT:
