@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import shared_file
+from scipy.spatial.transform import Rotation
 
 import photax as ptx
 from photax import bundle as B
@@ -41,7 +42,13 @@ def test_schur_step_equals_dense_normal_equations():
     )  # a control point with a prior, self-calibration
     fixed = np.zeros((problem.n_images, 6), dtype=bool)
     fixed[1, 2] = fixed[2, 3:] = True  # a fixed height and a fixed attitude
-    problem = problem.replace(fixed_exterior=fixed)
+    # A tie point measured twice on one image: a pair of observations within one diagonal block of S.
+    dup = int(np.flatnonzero(problem.roles[problem.obs_point] == "tie")[0])
+    problem = problem.replace(
+        fixed_exterior=fixed, obs_image=np.r_[problem.obs_image, problem.obs_image[dup]],
+        obs_point=np.r_[problem.obs_point, problem.obs_point[dup]], obs_xy=np.r_[problem.obs_xy, problem.obs_xy[dup : dup + 1] + 0.7],
+        obs_sigma=np.r_[problem.obs_sigma, problem.obs_sigma[dup : dup + 1]],
+    )  # fmt: skip
     origin = np.round(problem.points.mean(0))
     s, n_c, _ = B._analyse(problem, np.zeros((problem.n_images, 6), bool), origin)
     intr = np.stack([np.r_[float(c.focal_length), np.asarray(c.principal_point), np.asarray(c.distortion)] for c in problem.cameras])
@@ -85,6 +92,38 @@ def test_schur_step_equals_dense_normal_equations():
     for a, b, x0 in ((cg.xyz, ref.xyz, state.xyz), (cg.centre, ref.centre, state.centre)):
         step = np.asarray(b - x0)
         assert np.linalg.norm(np.asarray(a - b)) <= 1e-3 * np.linalg.norm(step)
+
+
+def test_closed_form_jacobians_equal_autodiff():
+    """The hand-derived projection Jacobians (rotation on the manifold, all 8
+    intrinsics, the point) against jax.jacfwd through FrameCamera.project and
+    Rodrigues, for arbitrary attitudes and strong distortion."""
+    problem, _ = synthetic_block(1, n_tie=20, noise_px=0.0)
+    problem = problem.replace(free_intrinsics=B.INTRINSICS)
+    origin = np.round(problem.points.mean(0))
+    s, _, w = B._analyse(problem, np.zeros((problem.n_images, 6), bool), origin)
+    assert w == 14
+    n_img = problem.n_images
+    rot = Rotation.random(n_img, random_state=3).as_matrix()  # any attitude, not just near-nadir
+    pts = problem.points - origin
+    centre = pts.mean(0)[None, :] + 900.0 * rot[:, :, 2]  # the camera looks along its -z axis at the block
+    intr = np.array([[3000.0, 12.0, -7.0, -0.08, 0.02, -0.004, 1.5e-3, -2.5e-3]])
+    state = B._State(jnp.asarray(rot), jnp.asarray(centre), jnp.asarray(intr), jnp.asarray(pts))
+    proj, jc, jp = B._project_obs(state, s, jacobians=True)
+
+    def reference(z, i, p):  # z = (dr, dC, d_intrinsics, dX)
+        r = state.rot[i] @ ptx.axis_angle_to_matrix(z[:3])
+        k = state.intr[0] + z[6:14]
+        cam = ptx.FrameCamera(k[0], k[1:3], k[3:8])
+        return cam.project(r.T @ (state.xyz[p] + z[14:] - state.centre[i] - z[3:6]))
+
+    args = (jnp.zeros(17), s.obs_image, s.obs_point)
+    ref = jax.vmap(reference, in_axes=(None, 0, 0))(*args)
+    J = jax.vmap(jax.jacfwd(reference), in_axes=(None, 0, 0))(*args)
+    np.testing.assert_allclose(proj, ref, rtol=1e-12, atol=1e-9)
+    for ours, theirs in ((jc, J[:, :, :14]), (jp, J[:, :, 14:])):
+        scale = np.abs(np.asarray(theirs)).max(axis=(0, 1))  # per unknown
+        np.testing.assert_allclose(np.asarray(ours) / scale, np.asarray(theirs) / scale, atol=1e-11)
 
 
 def test_noise_free_block_recovers_truth():
