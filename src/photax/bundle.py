@@ -358,7 +358,7 @@ def _chunks(pa: np.ndarray, pb: np.ndarray, obs_image: np.ndarray, n_obs: int, n
     first_chunk = np.concatenate([[0], np.cumsum(n_ch)[:-1]])
     pos = np.arange(len(key)) - first_pair[kid]
     slot = (first_chunk[kid] + pos // CHUNK) * CHUNK + pos % CHUNK
-    piece = min(PIECE, int(n_ch.sum()))
+    piece = max(1, min(PIECE, int(n_ch.sum())))
     n_pieces = -(-int(n_ch.sum()) // piece)
     ca = np.full(n_pieces * piece * CHUNK, n_obs, np.int64)  # padding: index k, gathered as zeros
     cb = ca.copy()
