@@ -22,9 +22,23 @@ reduced to the centroid of the control points before anything is computed
    (least median of squares, Rousseeuw 1984: no threshold needed, tolerant
    of up to half the points being blunders); candidates that put points
    behind the camera lose (cheirality).
-2. **Adjustment**: Gauss-Newton (``optimistix.GaussNewton``) on the weighted
-   residuals ``v = sqrt(P) (x_obs - x(p))``, Jacobian by forward-mode
-   autodiff; Levenberg-Marquardt when Gauss-Newton fails.
+2. **Adjustment**: Gauss-Newton on the weighted residuals
+   ``v = sqrt(P) (x_obs - x(p))``, Jacobian by forward-mode autodiff, 6x6
+   normal equations by an entry-wise Cholesky (:func:`_cho_solve`); at most
+   ``max_steps`` iterations, stopping after a step below ``_STEP_TOL``.  It
+   is written by hand, not with ``optimistix.GaussNewton``, so that the
+   single and batched paths run the same code: measured on one 12-point
+   image from the same start (jitted, 2-core CPU), this loop takes 0.21 ms
+   (3 steps), optimistix GaussNewton 0.31 ms with ``lx.Normal(lx.Cholesky())``
+   and 0.35 ms with ``lx.QR()`` (5 steps each at rtol=atol=1e-8).  If
+   Gauss-Newton fails, ``resect`` retries with
+   ``optimistix.LevenbergMarquardt`` (compiled only then).
+
+   Start, adjustment, precision and the snooping rounds below are one
+   traced function (:func:`_solve`): every option (robust, sigma given or
+   not, check points, initial values, convention) is a traced value, so
+   ``resect`` compiles once per padded point count (16, 32, ...) and
+   ``resect_batch`` once per point count for any number of images.
 3. **Precision** at the solution, with ``A`` the Jacobian of the weighted
    model, ``r = 2 n - 6``::
 
@@ -37,7 +51,8 @@ reduced to the centroid of the control points before anything is computed
    sqrt(r_i))`` (not given).  While the largest exceeds the critical value
    (``3.29`` for ``alpha = 0.001``; the tau distribution with ``r`` degrees
    of freedom) and redundancy allows, the worst point (both coordinates) is
-   excluded and the adjustment repeated from the robust start.
+   excluded and the adjustment repeated from the robust start (inside the
+   compiled function, a ``lax.while_loop``).
 
 References: Kraus, *Photogrammetry* vol. 1 (2007) sec. 4.3; Wolf & DeWitt,
 *Elements of Photogrammetry* (2014) ch. 11 and app. B; Förstner & Wrobel,
@@ -866,13 +881,14 @@ def resect_batch(
 ) -> ResectionResult:
     """Space resection of many images with the same number of GCPs, in one call.
 
-    ``jax.vmap`` over a jitted start + Gauss-Newton (at most ``max_steps``
-    iterations, plain normal equations) + precision; each image has its own
-    ``converged`` flag and ``message``.  Blunder handling is simpler than in
-    :func:`resect`: the start comes from all points (no random subsets), then
-    data snooping as in :func:`resect` (exclude the worst point of each image
-    whose largest test statistic fails, re-solve those images, repeat).  No
-    Levenberg-Marquardt fallback: a failed image is reported, not retried.
+    The same compiled solver as :func:`resect`, ``jax.vmap``-ed over chunks
+    of 256 images (one compilation for any batch size): start, Gauss-Newton
+    (at most ``max_steps`` iterations), precision and data snooping rounds,
+    each image with its own ``converged`` flag and ``message``.  Unlike
+    :func:`resect`, the start comes from all points (no random subsets:
+    with ``robust=True`` blunders are still found by data snooping, but a
+    gross blunder may spoil the start), and there is no Levenberg-Marquardt
+    fallback: a failed image is reported, not retried.
 
     Args:
         image_xy: ``(b, n, 2)`` image-plane coordinates.
