@@ -41,9 +41,14 @@ unknowns ``c`` before points ``p``::
 
 ``V`` is block diagonal (3x3 per point), so ``V^-1`` is a batch of 3x3
 inverses and ``S`` (the reduced camera system) is accumulated from
-per-observation blocks with segment sums over pairs of observations of the
-same point.  ``S`` is solved by a dense Cholesky (fast up to a few thousand
-camera unknowns: 49 BAL images x 9 = 441).  References: Triggs et al.,
+per-observation blocks: block ``(i, j)`` sums ``W_a V^-1 W_b^T`` over the
+pairs of observations ``a`` (image ``i``), ``b`` (image ``j``) of one point,
+grouped on the numpy side into fixed-size chunks of one block each so that
+the sum is a batch of small GEMMs (see :func:`_reduced_system`).  Jacobians
+are closed-form (:func:`_project_obs`).  ``S`` is solved by a dense
+Cholesky (fast up to a few thousand camera unknowns: 49 BAL images x 9 =
+441) on one BLAS thread.  A rejected step re-solves with the same
+linearisation (only the damping changes).  References: Triggs et al.,
 "Bundle adjustment — a modern synthesis" (2000); Agarwal et al., "Bundle
 adjustment in the large" (ECCV 2010); Ceres Solver's trust-region minimiser.
 """
