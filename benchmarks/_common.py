@@ -12,8 +12,11 @@ import time
 from typing import Callable
 
 
-def median_time(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> float:
-    """Median wall time of ``fn()`` in seconds over ``repeat`` runs.
+def median_time(
+    fn: Callable[[], object], repeat: int = 7, warmup: int = 1, clock: Callable[[], float] = time.perf_counter
+) -> float:
+    """Median time of ``fn()`` in seconds over ``repeat`` runs, by ``clock``
+    (wall time by default).
 
     ``fn`` must block until its result is ready (call
     ``jax.block_until_ready`` inside it for JAX results).
@@ -22,23 +25,16 @@ def median_time(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> f
         fn()
     times = []
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = clock()
         fn()
-        times.append(time.perf_counter() - t0)
+        times.append(clock() - t0)
     return statistics.median(times)
 
 
 def median_cpu_time(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> float:
-    """Median process CPU time (all threads) of ``fn()`` in seconds: less
-    sensitive than wall time to other jobs on a shared machine."""
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.process_time()
-        fn()
-        times.append(time.process_time() - t0)
-    return statistics.median(times)
+    """Median process CPU time (all threads) of ``fn()``: less sensitive
+    than wall time to other jobs on a shared machine."""
+    return median_time(fn, repeat, warmup, clock=time.process_time)
 
 
 def peak_rss() -> int:
