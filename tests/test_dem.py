@@ -79,3 +79,16 @@ def test_gradients_finite_where_defined(dem):
     # At the centre left of the nodata cell: the slope along the column is
     # the closed form; towards the nodata cell (+x) the surface is flat.
     np.testing.assert_allclose([gx[0], gy[0]], [0.0, -(G + D * 1.0)], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "heights, transform, words",
+    [
+        (np.full((2, 2), np.inf), TRANSFORM, "heights must be finite"),
+        (np.zeros((2, 2)), (1.0, 0.0, np.nan, 0.0, -1.0, 0.0), "transform must be finite"),
+        (np.zeros((2, 2)), (1.0, 2.0, 0.0, 0.5, 1.0, 0.0), "singular"),
+    ],
+)
+def test_insane_grids_are_refused(heights, transform, words):
+    with pytest.raises(ValueError, match=words):
+        DEM(heights, transform)

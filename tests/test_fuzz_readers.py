@@ -355,3 +355,43 @@ def test_fuzz_read_json(work, data):
         json.dumps(obj, allow_nan=False)
 
     _expect_valueerror_or_sane(read_json, path, sane)
+
+
+# --- rasters (GDAL through rasterio) ------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tif_seeds(tmp_path_factory) -> list[bytes]:
+    from photax.io.raster import write_geotiff
+
+    folder = tmp_path_factory.mktemp("tif")
+    z = np.arange(48, dtype=np.float32).reshape(6, 8)
+    return [
+        write_geotiff(folder / f"{c}.tif", z, (1, 0, 500, 0, -1, 1000), crs="EPSG:32633", nodata=-9999, compress=c)
+        .read_bytes()
+        for c in (None, "deflate")
+    ]
+
+
+def test_fuzz_read_raster(work, tif_seeds):
+    """GeoTIFF and DEM readers: random bytes, truncated and corrupted GeoTIFFs."""
+    from photax.io.raster import read_dem, read_geotiff
+
+    @settings(FUZZ, max_examples=150)
+    @given(raw=mutated(tif_seeds), dem=st.booleans())
+    def run(raw, dem):
+        path = work / "raster.tif"
+        path.write_bytes(raw)
+
+        def sane(result):
+            if dem:
+                assert np.all(np.isfinite(np.asarray(result.transform)))
+                h = np.asarray(result.heights)
+                assert np.all(np.isfinite(h) | np.isnan(h))
+            else:
+                array, profile = result
+                assert array.ndim == 3 and array.shape[0] == profile["count"]
+
+        _expect_valueerror_or_sane(read_dem if dem else read_geotiff, path, sane)
+
+    run()

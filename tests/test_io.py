@@ -417,3 +417,18 @@ def test_bal_bad_bz2_and_problem_errors_name_the_file(tmp_path):
     q.write_text("1 1 1\n0 0 1 2\n" + "0\n0\n0\n0\n0\n0\n500\n0\n0\n" + "0\n0\n-10\n")
     with pytest.raises(ValueError, match=rf"^{q}: point 0 \(tie\) is observed on 1 image"):
         read_bal(q)
+
+
+def test_raster_readers_folder_and_damaged_file(tmp_path):
+    from photax.io.raster import read_dem, read_geotiff, write_geotiff
+
+    for read in (read_geotiff, read_dem):
+        with pytest.raises(ValueError, match=rf"^{tmp_path}: is a folder, expected a raster file"):
+            read(tmp_path)
+    good = write_geotiff(tmp_path / "dem.tif", np.zeros((40, 40), np.float32), (1, 0, 500, 0, -1, 1000), compress=None)
+    raw = good.read_bytes()
+    bad = tmp_path / "cut.tif"
+    bad.write_bytes(raw[: len(raw) // 2])  # header intact, pixels cut: GDAL opens it, then fails to read
+    for read in (read_geotiff, read_dem):
+        with pytest.raises(ValueError, match=rf"^{bad}: "):
+            read(bad)

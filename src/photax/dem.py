@@ -37,6 +37,10 @@ class DEM(eqx.Module):
         t = np.asarray(tuple(transform)[:6], dtype=float)
         if t.shape != (6,):
             raise ValueError("transform must have 6 affine coefficients (a, b, xoff, d, e, yoff)")
+        if np.any(np.isinf(h)):
+            raise ValueError("heights must be finite, or NaN for nodata; got an infinite height")
+        if not np.all(np.isfinite(t)):
+            raise ValueError(f"transform must be finite, got {t.tolist()}")
         if abs(t[0] * t[4] - t[1] * t[3]) == 0:
             raise ValueError("transform is singular")
         self.heights = jnp.asarray(h)
