@@ -41,8 +41,16 @@ def read_block(folder) -> BundleProblem:
     with role ``tie``/``control``/``check``; X Y Z may be empty for tie
     points; ``sigma`` (ground unit) of control points, 0 = fixed.
 
+    Image and point names are unique, a point is measured at most once per
+    image, X Y Z are all given or all empty (tie points only), sigmas are
+    finite (``sigma_px > 0``, ``sigma >= 0``), ``block.json`` is strict JSON
+    without duplicate keys.
+
     Raises:
-        ValueError: naming the file and line of a malformed entry.
+        ValueError: naming the file (and the line, for the CSV files) of a
+            malformed entry; ``folder`` not a folder, or a file in it a
+            folder or unreadable, naming the path.
+        FileNotFoundError: no such folder or file.
     """
     folder = pathlib.Path(folder)
     if not folder.is_dir():

@@ -27,7 +27,9 @@ camera in pixel units (:meth:`photax.FrameCamera.from_pixels`)::
 
 Missing distortion coefficients are zero; ``distortion`` may also be a list
 ``[k1, k2, k3, p1, p2]``.  ``name`` and ``description`` are free text.  Any
-other key is a ``ValueError`` naming it.  Frames and the distortion
+other key, a key given twice, a value that is not a finite number, and a
+focal length, pixel size or image size that is not positive are a
+``ValueError`` naming the file and (YAML) the line.  Frames and the distortion
 equations: ``docs/conventions.md``.
 """
 

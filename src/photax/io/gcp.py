@@ -38,7 +38,8 @@ they are.  Extra columns after the name are ignored, as ODM does.
 
 Malformed lines (wrong number of columns, non-numeric or non-finite values,
 an unknown role) raise ``ValueError`` naming the file and the line number.
-A point measured twice in one image is kept (real lists have such slips: the
+A name is one point: the same name with other ground coordinates or another
+role is an error naming both lines.  A point measured twice in one image is kept (real lists have such slips: the
 ODM sample measures HV11 twice in IMG_5352) and reported by
 :meth:`GCPTable.duplicates`; a robust resection then flags the wrong one.
 """
