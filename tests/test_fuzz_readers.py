@@ -95,13 +95,29 @@ def mutated(draw, seeds: list[bytes]) -> bytes:
     return data
 
 
-def _expect_valueerror_or_sane(read, path: pathlib.Path, sane) -> None:
+def _check_message(msg: str, path, n_lines: int | None, whole_file: str | None) -> None:
+    """One line naming ``path``; for a line-oriented format (``n_lines`` given)
+    also a line number within the file, unless the problem is the whole file's
+    (``whole_file``: a regex of such messages)."""
+    assert str(path) in msg, f"error does not name the file: {msg!r}"
+    assert "\n" not in msg.strip(), f"error is not one line: {msg!r}"
+    if n_lines is None:
+        return
+    m = re.search(r", line (\d+): ", msg)
+    if m is None:
+        assert whole_file and re.search(whole_file, msg), f"error does not name the line: {msg!r}"
+    else:
+        assert 1 <= int(m.group(1)) <= n_lines + 1, f"line out of range ({n_lines} lines): {msg!r}"
+
+
+def _expect_valueerror_or_sane(read, path: pathlib.Path, sane, whole_file: str | None = None, lines=False) -> None:
+    """``read(path)`` returns a result ``sane`` accepts, or raises a ValueError
+    naming the file (and with ``lines``, the line)."""
+    n_lines = path.read_bytes().count(b"\n") + 1 if lines else None
     try:
         result = read(path)
     except ValueError as exc:
-        msg = str(exc)
-        assert str(path) in msg, f"error does not name the file: {msg!r}"
-        assert "\n" not in msg.strip(), f"error is not one line: {msg!r}"
+        _check_message(str(exc), path, n_lines, whole_file)
         return
     sane(result)
 
@@ -163,7 +179,7 @@ def _sane_gcps(t) -> None:
 def test_fuzz_read_gcps(work, data):
     path = work / "gcps.csv"
     path.write_bytes(data)
-    _expect_valueerror_or_sane(read_gcps, path, _sane_gcps)
+    _expect_valueerror_or_sane(read_gcps, path, _sane_gcps, r": (empty GCP file|no GCP measurements)$", lines=True)
 
 
 # --- camera files ------------------------------------------------------------------
@@ -239,7 +255,7 @@ def test_fuzz_read_orthority_exterior(work, data):
         for eo in eos.values():
             _finite(eo.position, eo.angles)
 
-    _expect_valueerror_or_sane(read_orthority_exterior, path, sane)
+    _expect_valueerror_or_sane(read_orthority_exterior, path, sane, r": no exterior orientations$", lines=True)
 
 
 # --- BAL ---------------------------------------------------------------------------
@@ -268,7 +284,7 @@ def test_fuzz_read_bal(work, bal_seed, data):
     raw = data.draw(mutated([bal_seed]))
     path = work / "problem.txt"
     path.write_bytes(raw)
-    _expect_valueerror_or_sane(read_bal_arrays, path, _sane_bal)
+    _expect_valueerror_or_sane(read_bal_arrays, path, _sane_bal, r": empty file", lines=True)
 
 
 def test_fuzz_read_bal_problem(work, bal_seed):
@@ -328,7 +344,11 @@ def test_fuzz_read_block(tmp_path_factory, name):
         try:
             problem = read(folder)
         except ValueError as exc:
-            assert str(folder) in str(exc), str(exc)
+            msg = str(exc)
+            if name == "block.json" or not msg.startswith(str(folder / name)):
+                _check_message(msg, folder, None, None)  # JSON: keys, not lines
+            else:  # the fuzzed CSV: its line, unless the whole file is empty
+                _check_message(msg, folder / name, raw.count(b"\n") + 1, r": no (points|observations)$")
             return
         _sane_block(problem)
 

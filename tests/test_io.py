@@ -432,3 +432,18 @@ def test_raster_readers_folder_and_damaged_file(tmp_path):
     for read in (read_geotiff, read_dem):
         with pytest.raises(ValueError, match=rf"^{bad}: "):
             read(bad)
+
+
+def test_line_numbers_count_newlines_only(tmp_path):
+    """str.splitlines also breaks at \\x0b, \\x0c, \\x1c, U+2028: line numbers drifted."""
+    p = tmp_path / "g.txt"
+    p.write_text("EPSG:32633\n1 2 3 4 5 a.jpg\x0cp\n1 2 3 4 a.jpg q\n")
+    with pytest.raises(ValueError, match=rf"^{p}, line 3: expected 'E N h col row image"):
+        read_gcps(p)
+
+
+def test_orthority_exterior_header_only(tmp_path):
+    p = tmp_path / "ext.csv"
+    p.write_text("filename,x,y,z,omega,phi,kappa\n")
+    with pytest.raises(ValueError, match=rf"^{p}: no exterior orientations"):
+        read_orthority_exterior(p)

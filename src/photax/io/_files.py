@@ -64,6 +64,13 @@ def read_text(path, what: str = "file") -> str:
     return decode(path, read_bytes(path, what))
 
 
+def split_lines(text: str) -> list[str]:
+    """Lines as an editor numbers them: split at ``\\n`` only, a trailing ``\\r``
+    dropped (``str.splitlines`` also splits at form feeds, ``\\x1c``, U+2028, ...,
+    which would make every line number after them wrong)."""
+    return [ln[:-1] if ln.endswith("\r") else ln for ln in text.split("\n")]
+
+
 def number(path, line: int | None, text, what: str) -> float:
     """A finite float from ``text``, else :func:`file_error` naming ``what``."""
     try:

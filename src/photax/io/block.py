@@ -17,7 +17,7 @@ from ..bundle import INTRINSICS, ROLES, BundleProblem
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import check_convention
-from ._files import load_json, number, read_text, where
+from ._files import load_json, number, read_text, split_lines, where
 
 
 def read_block(folder) -> BundleProblem:
@@ -135,7 +135,7 @@ def read_block(folder) -> BundleProblem:
         fixed.append(im.get("fixed", False))
 
     def rows(path, required, optional=()):
-        lines = read_text(path, "block file").splitlines()
+        lines = split_lines(read_text(path, "block file"))
         reader = csv.reader(lines)
         try:
             header = [h.strip() for h in next(reader, [])]

@@ -54,7 +54,7 @@ from typing import Literal
 
 import numpy as np
 
-from ._files import file_error, number, read_text
+from ._files import file_error, number, read_text, split_lines
 
 _ROLES = ("control", "check")
 
@@ -160,7 +160,7 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTab
         ValueError: naming the file and line of the first malformed line.
     """
     path = pathlib.Path(path)
-    lines = read_text(path, "GCP file").splitlines()
+    lines = split_lines(read_text(path, "GCP file"))
     numbered = [(i + 1, s) for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")]
     if not numbered:
         raise ValueError(f"{path}: empty GCP file")

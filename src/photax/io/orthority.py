@@ -30,7 +30,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from ._files import Mapping, file_error, load_yaml, read_text, where
+from ._files import Mapping, file_error, load_yaml, read_text, split_lines, where
 
 
 def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCamera:
@@ -130,7 +130,7 @@ def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation
     """
     path = pathlib.Path(csv_path)
     text = read_text(path, "orthority exterior file")
-    lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip() and not ln.startswith("#")]
+    lines = [(i + 1, ln) for i, ln in enumerate(split_lines(text)) if ln.strip() and not ln.startswith("#")]
     if not lines:
         raise ValueError(f"{path}: no exterior orientations")
     try:
@@ -169,6 +169,8 @@ def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation
         if key in out:
             raise ValueError(f"{path}, line {n}: duplicate file name {key!r}")
         out[key] = ExteriorOrientation((x, y, z), np.radians([omega, phi, kappa]), "omega-phi-kappa")
+    if not out:
+        raise file_error(path, None, "no exterior orientations")
     if prj is not None and not pathlib.Path(prj).is_file():
         raise FileNotFoundError(f"no such .prj file: {prj}")
     return out
