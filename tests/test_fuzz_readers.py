@@ -28,6 +28,7 @@ import shutil
 
 import numpy as np
 import pytest
+from conftest import SHARED_DATA
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -146,9 +147,7 @@ def work(tmp_path_factory):
 
 def _shared_seed(name: str) -> list[bytes]:
     """A real file of ../shared/data as an extra seed when present (never required)."""
-    p = ROOT.parent / "shared" / "data" / name
-    if not p.is_file():
-        p = pathlib.Path("/work/shared/data") / name
+    p = SHARED_DATA / name
     return [p.read_bytes()[:4000]] if p.is_file() else []
 
 

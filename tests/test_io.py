@@ -1,7 +1,9 @@
-"""File I/O: GCP lists, camera files, JSON results.
+"""File I/O: GCP lists, camera files, JSON results, and every reader's errors.
 
 References: the ODM file parsed independently with numpy; cameras checked
 against OpenCV's projectPoints; JSON read back with the standard library.
+Error cases: the contract of docs/architecture.md (ValueError naming file and
+line), each case one the fuzz tests (tests/test_fuzz_readers.py) found.
 """
 
 import json
@@ -13,8 +15,11 @@ import pytest
 from conftest import shared_file
 
 import photax as ptx
+from photax.io.bal import read_bal
+from photax.io.block import read_block
 from photax.io.camera_file import read_camera, write_camera
 from photax.io.gcp import read_gcps
+from photax.io.orthority import read_orthority_crs, read_orthority_exterior, read_orthority_interior
 from photax.io.results import read_json, write_json
 
 
@@ -246,10 +251,6 @@ def test_atomic_write_gives_ordinary_permissions(tmp_path):
 
 # --- every reader: folders, unreadable and binary files, insane values ------------
 # (what tests/test_fuzz_readers.py found; each case failed before the fix)
-
-from photax.io.bal import read_bal  # noqa: E402
-from photax.io.block import read_block  # noqa: E402
-from photax.io.orthority import read_orthority_crs, read_orthority_exterior, read_orthority_interior  # noqa: E402
 
 READERS = {
     "gcps.csv": read_gcps, "camera.yaml": read_camera, "camera.json": read_camera, "result.json": read_json,
