@@ -417,3 +417,22 @@ def test_fuzz_read_raster(work, tif_seeds):
         _expect_valueerror_or_sane(read_dem if dem else read_geotiff, path, sane)
 
     run()
+
+
+def test_seeds_are_valid(work, bal_seed, tif_seeds):
+    """The fuzzing starts from files the readers accept (else it would only
+    exercise the error paths)."""
+    from photax.io.raster import read_dem
+
+    cases = [(read_gcps, "s.csv", GCP_CSV + GCP_ODM, _sane_gcps), (read_camera, "s.yaml", CAMERA, _sane_camera),
+             (read_camera, "s.json", CAMERA_JSON, _sane_camera),
+             (read_orthority_interior, "s_int.yaml", ORTHO_INT, lambda c: [_sane_camera(v) for v in c.values()]),
+             (read_orthority_exterior, "s_ext.csv", ORTHO_EXT, lambda e: len(e) >= 2 or None),
+             (read_bal_arrays, "s.txt", [bal_seed], _sane_bal), (read_json, "s.json", RESULT, lambda o: None),
+             (read_dem, "s.tif", tif_seeds, lambda d: None)]  # fmt: skip
+    for read, name, seeds, sane in cases:
+        for raw in seeds:
+            path = work / name
+            path.write_bytes(raw)
+            sane(read(path))
+    _sane_block(read_block(DATA / "block"))

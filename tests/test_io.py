@@ -448,3 +448,12 @@ def test_orthority_exterior_header_only(tmp_path):
     p.write_text("filename,x,y,z,omega,phi,kappa\n")
     with pytest.raises(ValueError, match=rf"^{p}: no exterior orientations"):
         read_orthority_exterior(p)
+
+
+def test_camera_numbers_yaml_reads_as_text(tmp_path):
+    """PyYAML (YAML 1.1) reads 1e-5 without a dot as a string: still a number here."""
+    p = tmp_path / "c.yaml"
+    p.write_text("focal_length: 35e-3\nunit: m\npixel_size: [1e-5, 1.1e-5]\nimage_size: [40, 30]\n")
+    cam = read_camera(p)
+    assert float(cam.focal_length) == 0.035
+    np.testing.assert_array_equal(np.asarray(cam.pixel_size), [1e-5, 1.1e-5])

@@ -14,6 +14,7 @@ import json
 import math
 import pathlib
 
+import numpy as np
 import yaml
 
 
@@ -69,6 +70,25 @@ def split_lines(text: str) -> list[str]:
     dropped (``str.splitlines`` also splits at form feeds, ``\\x1c``, U+2028, ...,
     which would make every line number after them wrong)."""
     return [ln[:-1] if ln.endswith("\r") else ln for ln in text.split("\n")]
+
+
+def as_numbers(value):
+    """``value`` (a number or nested lists of numbers) as float64, or None if
+    it is not one.  Text that reads as a number counts (PyYAML follows YAML
+    1.1, where ``1e-5`` without a dot is a string); booleans and nulls do not
+    (``true`` is not 1)."""
+
+    def conv(v):
+        if isinstance(v, (list, tuple)):
+            return [conv(x) for x in v]
+        if isinstance(v, bool) or not isinstance(v, (int, float, str)):
+            raise TypeError
+        return float(v) if isinstance(v, str) else v
+
+    try:
+        return np.asarray(conv(value), dtype=float)
+    except (TypeError, ValueError, OverflowError, RecursionError):
+        return None
 
 
 def number(path, line: int | None, text, what: str) -> float:

@@ -17,7 +17,7 @@ from ..bundle import INTRINSICS, ROLES, BundleProblem
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import check_convention
-from ._files import load_json, number, read_text, split_lines, where
+from ._files import as_numbers, load_json, number, read_text, split_lines, where
 
 
 def read_block(folder) -> BundleProblem:
@@ -66,13 +66,7 @@ def read_block(folder) -> BundleProblem:
         return ValueError(f"{meta_path}: {what}")
 
     def vector(where_, value, n, what):
-        flat = value if isinstance(value, list) else [value]
-        try:
-            if any(isinstance(v, (bool, str)) or v is None for v in flat):
-                raise TypeError
-            v = np.asarray(value, dtype=float)
-        except (TypeError, ValueError, OverflowError):
-            v = None
+        v = as_numbers(value)
         if v is None or v.shape != ((n,) if n else ()) or not np.all(np.isfinite(v)):
             raise bad(f"{where_}: {what} must be {n or 1} finite number{'s' if n > 1 else ''}, got {value!r}")
         return v

@@ -42,7 +42,7 @@ import numpy as np
 import yaml
 
 from ..camera import FrameCamera
-from ._files import Mapping, file_error, load_json, load_yaml, read_text, where
+from ._files import Mapping, as_numbers, file_error, load_json, load_yaml, read_text, where
 from .atomic import atomic_write
 
 _KEYS = {"focal_length", "unit", "principal_point", "principal_point_px", "pixel_size",
@@ -67,12 +67,8 @@ def _at(path, data, key) -> str:
 
 def _vector(path, data, key, n, scalar_ok=False) -> np.ndarray:
     value = data[key]
-    flat = value if isinstance(value, (list, tuple)) else [value]
-    try:
-        if any(isinstance(v, (bool, str, bytes)) or v is None for v in flat):
-            raise TypeError
-        v = np.asarray(value, dtype=float)
-    except (TypeError, ValueError, OverflowError):
+    v = as_numbers(value)
+    if v is None:
         raise ValueError(f"{_at(path, data, key)}: {key} must be numbers, got {value!r}") from None
     shapes = ((n,), ()) if scalar_ok else ((n,),)
     if v.shape not in shapes or not np.all(np.isfinite(v)):

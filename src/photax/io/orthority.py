@@ -30,7 +30,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from ._files import Mapping, file_error, load_yaml, read_text, split_lines, where
+from ._files import Mapping, as_numbers, file_error, load_yaml, read_text, split_lines, where
 
 
 def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCamera:
@@ -49,13 +49,7 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
                 raise ValueError(f"{at(key)}: camera {name!r}: missing parameter {key!r}")
             return np.asarray(default, dtype=float)
         value = p[key]
-        flat = value if isinstance(value, list) else [value]
-        try:
-            if any(isinstance(v, (bool, str)) or v is None for v in flat):
-                raise TypeError
-            v = np.asarray(value, dtype=float)
-        except (TypeError, ValueError, OverflowError):
-            v = None
+        v = as_numbers(value)
         ok_shapes = ((n,), ()) if scalar_ok else ((n,),)
         if v is None or v.shape not in ok_shapes or not np.all(np.isfinite(v)):
             raise ValueError(f"{at(key)}: camera {name!r}: {key} must be {n} finite number"
