@@ -134,7 +134,7 @@ def test_malformed_files_name_file_and_line(tmp_path, text, line, words):
     with pytest.raises(ValueError) as err:
         read_bal_arrays(path)
     msg = str(err.value)
-    assert f"{path}:{line}:" in msg, msg
+    assert f"{path}, line {line}:" in msg, msg
     assert words in msg, msg
 
 

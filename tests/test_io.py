@@ -1,7 +1,9 @@
-"""File I/O: GCP lists, camera files, JSON results.
+"""File I/O: GCP lists, camera files, JSON results, and every reader's errors.
 
 References: the ODM file parsed independently with numpy; cameras checked
 against OpenCV's projectPoints; JSON read back with the standard library.
+Error cases: the contract of docs/architecture.md (ValueError naming file and
+line), each case one the fuzz tests (tests/test_fuzz_readers.py) found.
 """
 
 import json
@@ -13,8 +15,11 @@ import pytest
 from conftest import shared_file
 
 import photax as ptx
+from photax.io.bal import read_bal
+from photax.io.block import read_block
 from photax.io.camera_file import read_camera, write_camera
 from photax.io.gcp import read_gcps
+from photax.io.orthority import read_orthority_crs, read_orthority_exterior, read_orthority_interior
 from photax.io.results import read_json, write_json
 
 
@@ -242,3 +247,213 @@ def test_atomic_write_gives_ordinary_permissions(tmp_path):
     plain = tmp_path / "plain.txt"
     plain.write_text("hi")
     assert os.stat(out).st_mode & 0o777 == os.stat(plain).st_mode & 0o777
+
+
+# --- every reader: folders, unreadable and binary files, insane values ------------
+# (what tests/test_fuzz_readers.py found; each case failed before the fix)
+
+READERS = {
+    "gcps.csv": read_gcps, "camera.yaml": read_camera, "camera.json": read_camera, "result.json": read_json,
+    "int_param.yaml": read_orthority_interior, "xyz_opk.csv": read_orthority_exterior, "problem.txt": read_bal,
+    "problem.txt.bz2": read_bal,
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", sorted(READERS))
+def test_reader_given_a_folder_names_it(tmp_path, name):
+    folder = tmp_path / name
+    folder.mkdir()
+    with pytest.raises(ValueError, match=rf"^{folder}: is a folder, expected a"):
+        READERS[name](folder)
+
+
+@pytest.mark.parametrize("name", sorted(READERS))
+def test_reader_given_an_unreadable_file_names_it(tmp_path, name, monkeypatch):
+    path = tmp_path / name
+    path.write_text("x")
+    # Simulated: chmod 000 does not stop root, who runs these tests in CI.
+    def denied(self):
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(type(path), "read_bytes", denied)
+    with pytest.raises(ValueError, match=rf"^{path}: cannot read the .* \(Permission denied\)$"):
+        READERS[name](path)
+
+
+@pytest.mark.parametrize("name", sorted(READERS))
+def test_reader_given_a_missing_file_names_it(tmp_path, name):
+    with pytest.raises(FileNotFoundError, match=rf"{tmp_path / name}: no such"):
+        READERS[name](tmp_path / name)
+
+
+@pytest.mark.parametrize("name", ["gcps.csv", "camera.yaml", "camera.json", "result.json", "xyz_opk.csv",
+                                  "int_param.yaml"])  # fmt: skip
+def test_binary_file_is_an_error_with_its_line(tmp_path, name):
+    path = tmp_path / name
+    path.write_bytes(b"a,b\n\n\x89PNG\x00\xff")
+    with pytest.raises(ValueError, match=rf"^{path}, line 3: not UTF-8 text"):
+        READERS[name](path)
+    path.write_bytes(b"a\nb\x00c\n")
+    with pytest.raises(ValueError, match=rf"^{path}, line 2: a NUL byte"):
+        READERS[name](path)
+
+
+def test_block_given_a_file_or_missing_folder(tmp_path):
+    f = tmp_path / "block.json"
+    f.write_text("{}")
+    with pytest.raises(ValueError, match="a block is a folder"):
+        read_block(f)
+    with pytest.raises(FileNotFoundError, match="no such block folder"):
+        read_block(tmp_path / "nope")
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        # Was silently accepted: a negative or zero pixel size.
+        ("focal_length: 8.8\nunit: mm\npixel_size: -0.0044\nimage_size: [40, 30]\n", "line 3: pixel_size must be positive"),
+        ("focal_length: 8.8\nunit: mm\npixel_size: [0.0044, 0]\nimage_size: [40, 30]\n", "line 3: pixel_size must be positive"),
+        # Was: the second value silently won.
+        ("focal_length: 8.8\nunit: mm\nfocal_length: 88\n", "line 3: not valid YAML: duplicate key 'focal_length' \\(first on line 1\\)"),
+        # Was a TypeError (sorting int and str keys).
+        ("focal_length: 8.8\nunit: mm\n1: 2\n", "line 3: unknown key 1"),
+        # Was: True read as 1.0.
+        ("focal_length: true\nunit: px\n", "line 1: focal_length must be numbers"),
+        # Was an OverflowError.
+        ("focal_length: " + "9" * 400 + "\nunit: px\n", "line 1: focal_length must be numbers"),
+        ("focal_length_px: 0\nimage_size: [4, 3]\n", "line 1: focal_length_px must be positive"),
+        ("focal_length: 8.8\nunit: mm\nimage_size: [0, 30]\n", "line 3: image_size must be"),
+        # Was a bare ValueError from datetime, not naming the file.
+        ("focal_length: 8.8\nunit: mm\nname: 2024-13-45\nfocal: 1\n", "line 4: unknown key 'focal'"),
+        ("- 1\n- 2\n", "a camera file must be a mapping"),
+        ("focal_length: 8.8\nunit: mm\n\x00", "line 3: a NUL byte"),
+    ],
+)
+def test_camera_file_insane_values(tmp_path, text, words):
+    p = tmp_path / "bad.yaml"
+    p.write_text(text)
+    with pytest.raises(ValueError, match=rf"^{p}, {words}" if "line" in words else rf"^{p}: {words}"):
+        read_camera(p)
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ('{"focal_length": NaN, "unit": "px"}', "line 1: not valid JSON: NaN is not a JSON number"),
+        ('{"focal_length": 1e999,\n "unit": "px"}', "line 1: not valid JSON: 1e999 is out of range"),
+        ('{"focal_length": 8,\n "unit": "px",\n "unit": "mm"}', "line 2: not valid JSON: duplicate key 'unit'"),
+    ],
+)
+def test_camera_json_strict(tmp_path, text, words):
+    p = tmp_path / "bad.json"
+    p.write_text(text)
+    with pytest.raises(ValueError, match=rf"^{p}, {words}"):
+        read_camera(p)
+    with pytest.raises(ValueError, match=rf"^{p}, {words}"):
+        read_json(p)
+
+
+def test_gcp_name_reused_for_another_point(tmp_path):
+    p = tmp_path / "g.csv"
+    p.write_text("# crs: EPSG:32633\nname,image,E,N,h,col,row\nA,i1,1,2,3,4,5\nA,i2,1,2,3,6,7\nA,i3,1,2,4,6,7\n")
+    with pytest.raises(ValueError, match=rf"^{p}, line 5: point 'A' has ground coordinates .* on line 3"):
+        read_gcps(p)
+    p.write_text("name,image,E,N,h,col,row,role\nA,i1,1,2,3,4,5,control\nA,i2,1,2,3,6,7,check\n")
+    with pytest.raises(ValueError, match=rf"^{p}, line 3: point 'A' is a check point here but a control point on line 2"):
+        read_gcps(p)
+
+
+def test_gcp_header_errors_name_the_header_line(tmp_path):
+    p = tmp_path / "g.csv"
+    p.write_text("# comment\n# crs: EPSG:32633\nname,E,N,h,col,rw\nA,1,2,3,4,5\n")
+    with pytest.raises(ValueError, match=rf"^{p}, line 3: unknown column 'rw'"):
+        read_gcps(p)
+
+
+@pytest.mark.parametrize(
+    "text, words",
+    [
+        ("type: pinhole\nim_size: [400, 300]\nfocal_len: -0.8\n", "line 3: camera None: focal_len must be positive"),
+        ("type: pinhole\nim_size: [400, 300]\nfocal_len: 0.8\nsensor_size: [-1, 1]\n", "line 4: .*sensor_size must be positive"),
+        # Was read as [6, 4]: a string iterated character by character.
+        ("type: pinhole\nim_size: '64'\nfocal_len: 0.8\n", "line 2: .*im_size must be 2 finite numbers"),
+        ("type: pinhole\nim_size: [1e999, 3]\nfocal_len: 0.8\n", "line 2: .*im_size must be 2 finite numbers"),
+        ("type: pinhole\nim_size: [400.5, 300]\nfocal_len: 0.8\n", "line 2: .*im_size must be"),
+        ("cam:\n  type: pinhole\n  im_size: [400, 300]\n", "line 1: camera 'cam': missing parameter 'focal_len'"),
+    ],
+)
+def test_orthority_interior_insane_values(tmp_path, text, words):
+    p = tmp_path / "int.yaml"
+    p.write_text(text)
+    with pytest.raises(ValueError, match=rf"^{p}, {words}"):
+        read_orthority_interior(p)
+
+
+def test_orthority_single_unnamed_camera(tmp_path):
+    """The single-camera form was rejected before the single-camera branch was reached."""
+    p = tmp_path / "int.yaml"
+    p.write_text("type: pinhole\nim_size: [400, 300]\nfocal_len: 0.8\n")
+    cams = read_orthority_interior(p)
+    # orthority: focal_len normalised by the width, so f = 0.8 * 400 px.
+    assert list(cams) == [None] and float(cams[None].focal_length) == pytest.approx(320.0)
+
+
+def test_orthority_exterior_and_crs_errors(tmp_path):
+    p = tmp_path / "ext.csv"
+    p.write_text("filename,x,y,z,omega,phi,kappa\n,1,2,3,0,0,0\n")
+    with pytest.raises(ValueError, match=rf"^{p}, line 2: empty file name"):
+        read_orthority_exterior(p)
+    prj = tmp_path / "ext.prj"
+    prj.mkdir()
+    assert read_orthority_crs(p) is None  # a folder is not a .prj beside the file
+
+
+def test_bal_bad_bz2_and_problem_errors_name_the_file(tmp_path):
+    p = tmp_path / "x.txt.bz2"
+    p.write_bytes(b"BZh91AY&SY not really")
+    with pytest.raises(ValueError, match=rf"^{p}: not a readable bzip2 file"):
+        read_bal(p)
+    # A point seen by one camera only: BundleProblem's error, now naming the file.
+    q = tmp_path / "one.txt"
+    q.write_text("1 1 1\n0 0 1 2\n" + "0\n0\n0\n0\n0\n0\n500\n0\n0\n" + "0\n0\n-10\n")
+    with pytest.raises(ValueError, match=rf"^{q}: point 0 \(tie\) is observed on 1 image"):
+        read_bal(q)
+
+
+def test_raster_readers_folder_and_damaged_file(tmp_path):
+    from photax.io.raster import read_dem, read_geotiff, write_geotiff
+
+    for read in (read_geotiff, read_dem):
+        with pytest.raises(ValueError, match=rf"^{tmp_path}: is a folder, expected a raster file"):
+            read(tmp_path)
+    good = write_geotiff(tmp_path / "dem.tif", np.zeros((40, 40), np.float32), (1, 0, 500, 0, -1, 1000), compress=None)
+    raw = good.read_bytes()
+    bad = tmp_path / "cut.tif"
+    bad.write_bytes(raw[: len(raw) // 2])  # header intact, pixels cut: GDAL opens it, then fails to read
+    for read in (read_geotiff, read_dem):
+        with pytest.raises(ValueError, match=rf"^{bad}: "):
+            read(bad)
+
+
+def test_line_numbers_count_newlines_only(tmp_path):
+    """str.splitlines also breaks at \\x0b, \\x0c, \\x1c, U+2028: line numbers drifted."""
+    p = tmp_path / "g.txt"
+    p.write_text("EPSG:32633\n1 2 3 4 5 a.jpg\x0cp\n1 2 3 4 a.jpg q\n")
+    with pytest.raises(ValueError, match=rf"^{p}, line 3: row is not a number: 'a.jpg'"):
+        read_gcps(p)
+
+
+def test_orthority_exterior_header_only(tmp_path):
+    p = tmp_path / "ext.csv"
+    p.write_text("filename,x,y,z,omega,phi,kappa\n")
+    with pytest.raises(ValueError, match=rf"^{p}: no exterior orientations"):
+        read_orthority_exterior(p)
+
+
+def test_camera_numbers_yaml_reads_as_text(tmp_path):
+    """PyYAML (YAML 1.1) reads 1e-5 without a dot as a string: still a number here."""
+    p = tmp_path / "c.yaml"
+    p.write_text("focal_length: 35e-3\nunit: m\npixel_size: [1e-5, 1.1e-5]\nimage_size: [40, 30]\n")
+    cam = read_camera(p)
+    assert float(cam.focal_length) == 0.035
+    np.testing.assert_array_equal(np.asarray(cam.pixel_size), [1e-5, 1.1e-5])

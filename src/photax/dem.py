@@ -9,6 +9,7 @@ stored as ``(a, b, xoff, d, e, yoff)`` (``rasterio.Affine`` order).  A height
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -36,6 +37,10 @@ class DEM(eqx.Module):
         t = np.asarray(tuple(transform)[:6], dtype=float)
         if t.shape != (6,):
             raise ValueError("transform must have 6 affine coefficients (a, b, xoff, d, e, yoff)")
+        if np.any(np.isinf(h)):
+            raise ValueError("heights must be finite, or NaN for nodata; got an infinite height")
+        if not np.all(np.isfinite(t)):
+            raise ValueError(f"transform must be finite, got {t.tolist()}")
         if abs(t[0] * t[4] - t[1] * t[3]) == 0:
             raise ValueError("transform is singular")
         self.heights = jnp.asarray(h)
@@ -60,8 +65,21 @@ class DEM(eqx.Module):
     def height(self, x: Array, y: Array) -> Array:
         """Bilinear height at ground ``(x, y)`` (any broadcastable shapes).
 
+        With ``(col, row)`` the fractional pixel-centre position (see
+        :meth:`ground_to_pixel`), ``c0 = floor(col)``, ``tc = col - c0`` (and
+        likewise ``r0``, ``tr``)::
+
+            z = h[r0, c0] (1-tc)(1-tr) + h[r0, c0+1] tc (1-tr)
+              + h[r0+1, c0] (1-tc) tr  + h[r0+1, c0+1] tc tr
+
         NaN outside the grid (beyond the outermost pixel centres) and where a
-        neighbouring cell is nodata.
+        corner with a non-zero weight is nodata.  A nodata corner whose weight
+        is exactly 0 does not count: at a cell centre, or on the line between
+        two valid centres, the height is defined even beside a nodata cell
+        (``NaN * 0`` would otherwise make it NaN).  Gradients are the bilinear
+        ones; towards a nodata corner of weight 0 the surface is taken as flat
+        (the one-sided slope there does not exist), so they stay finite
+        wherever the height is.
         """
         col, row = self.ground_to_pixel(jnp.asarray(x, dtype=float), jnp.asarray(y, dtype=float))
         rows, cols = self.heights.shape
@@ -70,14 +88,23 @@ class DEM(eqx.Module):
         r0 = jnp.clip(jnp.floor(row), 0, rows - 2)
         tc, tr = col - c0, row - r0
         ci, ri = c0.astype(int), r0.astype(int)
-        hz = self.heights
-        z = (
-            hz[ri, ci] * (1 - tc) * (1 - tr)
-            + hz[ri, ci + 1] * tc * (1 - tr)
-            + hz[ri + 1, ci] * (1 - tc) * tr
-            + hz[ri + 1, ci + 1] * tc * tr
-        )
-        return jnp.where(inside, z, jnp.nan)
+        corners = [
+            (self.heights[ri, ci], (1 - tc) * (1 - tr)),
+            (self.heights[ri, ci + 1], tc * (1 - tr)),
+            (self.heights[ri + 1, ci], (1 - tc) * tr),
+            (self.heights[ri + 1, ci + 1], tc * tr),
+        ]
+        valid = [~jnp.isnan(h) for h, _ in corners]
+        # Nodata enters neither the value nor (through 0 * NaN) the gradient.
+        safe = [jnp.where(ok, h, 0.0) for (h, _), ok in zip(corners, valid)]
+        z_valid = sum(h * w for h, (_, w) in zip(safe, corners))
+        # Give each nodata corner the interpolated height itself (no gradient):
+        # its weight is 0 wherever the result is kept, so the value is that of
+        # the valid corners, and the slope towards it is 0, not -z.
+        flat = jax.lax.stop_gradient(z_valid)
+        z = sum(jnp.where(ok, h, flat) * w for h, ok, (_, w) in zip(safe, valid, corners))
+        blocked = sum(((w != 0) & ~ok).astype(int) for ok, (_, w) in zip(valid, corners)) > 0
+        return jnp.where(inside & ~blocked, z, jnp.nan)
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:

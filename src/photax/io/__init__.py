@@ -1,4 +1,14 @@
-"""Reading and writing photogrammetric files; one module per format."""
+"""Reading and writing photogrammetric files; one module per format.
+
+Every reader keeps one contract: it returns a sane result (finite numbers,
+positive focal lengths, pixel and image sizes, unique names where names must
+be unique) or raises ``ValueError("<file>, line <n>: <what is wrong>")``
+(``"<file>: ..."`` where no line applies, e.g. a missing key in JSON); a
+folder or an unreadable file is a ``ValueError`` naming the path, a missing
+file a ``FileNotFoundError``.  The shared pieces (opening, decoding, strict
+YAML/JSON with key lines) are in :mod:`photax.io._files`;
+``tests/test_fuzz_readers.py`` holds every reader to the contract.
+"""
 
 from .atomic import atomic_path as atomic_path, atomic_write as atomic_write
 from .bal import BALData as BALData, read_bal as read_bal, read_bal_arrays as read_bal_arrays, write_bal as write_bal

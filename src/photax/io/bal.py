@@ -38,6 +38,7 @@ from ..bundle import BundleProblem, BundleResult
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import angles_from_matrix, axis_angle_to_matrix, matrix_to_axis_angle
+from ._files import read_bytes, where
 from .atomic import atomic_write
 
 
@@ -63,10 +64,13 @@ class BALData:
 
 
 def _read_bytes(path: pathlib.Path) -> bytes:
+    raw = read_bytes(path, "BAL file")
     if path.suffix == ".bz2":
-        with bz2.open(path, "rb") as fh:
-            return fh.read()
-    return path.read_bytes()
+        try:
+            return bz2.decompress(raw)
+        except (OSError, ValueError, EOFError) as exc:
+            raise ValueError(f"{path}: not a readable bzip2 file ({exc})") from None
+    return raw
 
 
 def _tokens(raw: bytes) -> tuple[list[bytes], np.ndarray]:
@@ -96,7 +100,7 @@ def _floats(tokens: list[bytes], lines: np.ndarray, path, what: str) -> np.ndarr
         except ValueError:
             ok = False
         if not ok:
-            raise ValueError(f"{path}:{line}: {what}: {tok.decode(errors='replace')!r} is not a finite number")
+            raise ValueError(f"{where(path, line)}: {what}: {tok.decode(errors='replace')!r} is not a finite number")
     raise AssertionError("unreachable")
 
 
@@ -126,18 +130,18 @@ def read_bal_arrays(path) -> BALData:
     except ValueError:
         shown = b" ".join(head).decode(errors="replace")
         raise ValueError(
-            f"{path}:{lines[0]}: expected a BAL header 'n_cameras n_points n_observations', got {shown!r}"
+            f"{where(path, lines[0])}: expected a BAL header 'n_cameras n_points n_observations', got {shown!r}"
         ) from None
     if min(m, n, k) < 1:
-        raise ValueError(f"{path}:{lines[0]}: header counts must be positive, got {m} {n} {k}")
+        raise ValueError(f"{where(path, lines[0])}: header counts must be positive, got {m} {n} {k}")
     need = 3 + 4 * k + 9 * m + 3 * n
     if len(tokens) < need:
         raise ValueError(
-            f"{path}:{lines[-1]}: truncated: the header announces {k} observations, {m} cameras and "
+            f"{where(path, lines[-1])}: truncated: the header announces {k} observations, {m} cameras and "
             f"{n} points ({need} values), the file has {len(tokens)}"
         )
     if len(tokens) > need:
-        raise ValueError(f"{path}:{lines[need]}: unexpected extra values after the last point ({need} values expected)")
+        raise ValueError(f"{where(path, lines[need])}: unexpected extra values after the last point ({need} values expected)")
 
     # Observation lines hold exactly 4 fields each: 'camera point x y'.
     obs_lines = lines[3 : 3 + 4 * k]
@@ -145,7 +149,7 @@ def read_bal_arrays(path) -> BALData:
     if wrong.any():
         line = int(obs_lines[np.argmax(wrong)])
         raise ValueError(
-            f"{path}:{line}: an observation line needs 4 fields 'camera point x y', got {per_line[line]}"
+            f"{where(path, line)}: an observation line needs 4 fields 'camera point x y', got {per_line[line]}"
         )
     table = _floats(tokens[3 : 3 + 4 * k], obs_lines, path, "observation").reshape(k, 4)
     index = table[:, :2]
@@ -153,7 +157,7 @@ def read_bal_arrays(path) -> BALData:
     if bad.any():
         i = int(np.argmax(bad.any(axis=1)))
         raise ValueError(
-            f"{path}:{obs_lines[4 * i]}: camera index must be an integer in [0, {m}) and point index "
+            f"{where(path, obs_lines[4 * i])}: camera index must be an integer in [0, {m}) and point index "
             f"in [0, {n}), got {table[i, 0]:g} {table[i, 1]:g}"
         )
     param_lines = lines[3 + 4 * k :]
@@ -161,7 +165,7 @@ def read_bal_arrays(path) -> BALData:
     cameras = values[: 9 * m].reshape(m, 9)
     if not np.all(cameras[:, 6] > 0):
         i = int(np.argmin(cameras[:, 6] > 0))
-        raise ValueError(f"{path}:{param_lines[9 * i + 6]}: focal length of camera {i} must be positive")
+        raise ValueError(f"{where(path, param_lines[9 * i + 6])}: focal length of camera {i} must be positive")
     return BALData(
         cameras=cameras,
         points=values[9 * m :].reshape(n, 3),
@@ -265,7 +269,15 @@ def read_bal(path) -> BundleProblem:
     adjust with ``photax.bundle_adjust(problem, gauge="damped")`` (the LM
     damping handles the 7-parameter datum defect, as Ceres does).
     """
-    return bal_problem(read_bal_arrays(path))
+    data = read_bal_arrays(path)
+    try:
+        problem = bal_problem(data)
+    except ValueError as exc:  # e.g. a point seen by one camera only
+        raise ValueError(f"{path}: {exc}") from None
+    bad = ~(np.isfinite(np.asarray(problem.exterior.position)).all(1) & np.isfinite(np.asarray(problem.exterior.angles)).all(1))
+    if bad.any():
+        raise ValueError(f"{path}: camera {int(np.argmax(bad))}: rotation or translation out of range")
+    return problem
 
 
 def bal_problem(data: BALData) -> BundleProblem:

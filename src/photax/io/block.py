@@ -9,7 +9,6 @@ and check points).  See :func:`read_block` for the exact layout and
 from __future__ import annotations
 
 import csv
-import json
 import pathlib
 
 import numpy as np
@@ -18,6 +17,7 @@ from ..bundle import INTRINSICS, ROLES, BundleProblem
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import check_convention
+from ._files import as_numbers, load_json, number, read_text, split_lines, where
 
 
 def read_block(folder) -> BundleProblem:
@@ -41,95 +41,177 @@ def read_block(folder) -> BundleProblem:
     with role ``tie``/``control``/``check``; X Y Z may be empty for tie
     points; ``sigma`` (ground unit) of control points, 0 = fixed.
 
+    Image and point names are unique, a point is measured at most once per
+    image, X Y Z are all given or all empty (tie points only), sigmas are
+    finite (``sigma_px > 0``, ``sigma >= 0``), ``block.json`` is strict JSON
+    without duplicate keys.
+
     Raises:
-        ValueError: naming the file and line of a malformed entry.
+        ValueError: naming the file (and the line, for the CSV files) of a
+            malformed entry; ``folder`` not a folder, or a file in it a
+            folder or unreadable, naming the path.
+        FileNotFoundError: no such folder or file.
     """
     folder = pathlib.Path(folder)
+    if not folder.is_dir():
+        if folder.exists():
+            raise ValueError(f"{folder}: a block is a folder (block.json, observations.csv, points.csv), not a file")
+        raise FileNotFoundError(f"{folder}: no such block folder")
     meta_path = folder / "block.json"
+    meta = load_json(meta_path, read_text(meta_path, "block file"))
+    if not isinstance(meta, dict):
+        raise ValueError(f"{meta_path}: expected an object {{\"cameras\": ..., \"images\": ...}}")
+
+    def bad(what: str) -> ValueError:
+        return ValueError(f"{meta_path}: {what}")
+
+    def vector(where_, value, n, what):
+        v = as_numbers(value)
+        if v is None or v.shape != ((n,) if n else ()) or not np.all(np.isfinite(v)):
+            raise bad(f"{where_}: {what} must be {n or 1} finite number{'s' if n > 1 else ''}, got {value!r}")
+        return v
+
+    conv = meta.get("convention", "omega-phi-kappa")
     try:
-        meta = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{meta_path}:{exc.lineno}: invalid JSON: {exc.msg}") from None
-    conv = check_convention(meta.get("convention", "omega-phi-kappa"))
+        conv = check_convention(conv)
+    except ValueError as exc:
+        raise bad(str(exc)) from None
     unit = meta.get("angle_unit", "degrees")
     if unit not in ("degrees", "radians"):
-        raise ValueError(f"{meta_path}: angle_unit must be 'degrees' or 'radians', got {unit!r}")
-    cam_names = list(meta.get("cameras", {}))
-    if not cam_names or not meta.get("images"):
-        raise ValueError(f"{meta_path}: needs non-empty 'cameras' and 'images'")
+        raise bad(f"angle_unit must be 'degrees' or 'radians', got {unit!r}")
+    cameras, images = meta.get("cameras"), meta.get("images")
+    if not isinstance(cameras, dict) or not cameras or not isinstance(images, list) or not images:
+        raise bad("needs a non-empty object 'cameras' and a non-empty list 'images'")
+    cam_names = list(cameras)
     cams, free = [], np.zeros((len(cam_names), 8), dtype=bool)
     for j, name in enumerate(cam_names):
-        c = meta["cameras"][name]
-        try:
-            cams.append(FrameCamera.from_pixels(float(c["focal_length_px"]), tuple(c["image_size"]),
-                                                c.get("principal_point_px"), c.get("distortion")))  # fmt: skip
-        except (KeyError, TypeError) as exc:
-            raise ValueError(f"{meta_path}: camera {name!r}: needs focal_length_px and image_size ({exc})") from None
-        bad = set(c.get("free", [])) - set(INTRINSICS)
-        if bad:
-            raise ValueError(f"{meta_path}: camera {name!r}: unknown free parameters {sorted(bad)}; use {INTRINSICS}")
-        free[j, [INTRINSICS.index(n) for n in c.get("free", [])]] = True
+        c, at = cameras[name], f"camera {name!r}"
+        if not isinstance(c, dict) or "focal_length_px" not in c or "image_size" not in c:
+            raise bad(f"{at}: needs focal_length_px and image_size")
+        unknown = sorted(set(c) - {"focal_length_px", "image_size", "principal_point_px", "distortion", "free"})
+        if unknown:
+            raise bad(f"{at}: unknown key {unknown[0]!r}")
+        f = float(vector(at, c["focal_length_px"], 0, "focal_length_px"))
+        size = vector(at, c["image_size"], 2, "image_size")
+        if not f > 0 or np.any(size < 1) or np.any(size != np.round(size)) or np.any(size > 2**31 - 1):
+            raise bad(f"{at}: focal_length_px must be positive and image_size whole pixels >= 1, "
+                      f"got {c['focal_length_px']!r} and {c['image_size']!r}")
+        pp = c.get("principal_point_px")
+        pp = None if pp is None else tuple(vector(at, pp, 2, "principal_point_px"))
+        dist = c.get("distortion")
+        dist = None if dist is None else vector(at, dist, 5, "distortion")
+        cams.append(FrameCamera.from_pixels(f, (int(size[0]), int(size[1])), pp, dist))
+        names_free = c.get("free", [])
+        if not isinstance(names_free, list) or not all(isinstance(n, str) for n in names_free):
+            raise bad(f"{at}: free must be a list of names from {INTRINSICS}, got {names_free!r}")
+        unknown = set(names_free) - set(INTRINSICS)
+        if unknown:
+            raise bad(f"{at}: unknown free parameters {sorted(unknown)}; use {INTRINSICS}")
+        free[j, [INTRINSICS.index(n) for n in names_free]] = True
     names, img_cam, pos, ang, fixed = [], [], [], [], []
-    for i, im in enumerate(meta["images"]):
-        if im.get("camera") not in cam_names:
-            raise ValueError(f"{meta_path}: images[{i}]: camera {im.get('camera')!r} is not in 'cameras'")
-        names.append(str(im.get("name", f"image {i}")))
+    for i, im in enumerate(images):
+        at = f"images[{i}]"
+        if not isinstance(im, dict):
+            raise bad(f"{at}: expected an object with name, camera, position, angles")
+        if not isinstance(im.get("camera"), str) or im["camera"] not in cam_names:
+            raise bad(f"{at}: camera {im.get('camera')!r} is not in 'cameras'")
+        name = im.get("name", f"image {i}")
+        if not isinstance(name, str) or not name.strip() or name in names:
+            raise bad(f"{at}: image names must be distinct, non-empty text, got {name!r}")
+        names.append(name)
         img_cam.append(cam_names.index(im["camera"]))
-        pos.append(im.get("position") or [np.nan] * 3)
-        a = np.asarray(im.get("angles") or [np.nan] * 3, dtype=float)
-        ang.append(np.radians(a) if unit == "degrees" else a)
-        fixed.append(bool(im.get("fixed", False)))
+        p, a = im.get("position"), im.get("angles")
+        pos.append([np.nan] * 3 if p is None else vector(at, p, 3, "position"))
+        a = [np.nan] * 3 if a is None else vector(at, a, 3, "angles")
+        ang.append(np.radians(a) if unit == "degrees" else np.asarray(a, dtype=float))
+        if not isinstance(im.get("fixed", False), bool):
+            raise bad(f"{at}: fixed must be true or false, got {im['fixed']!r}")
+        fixed.append(im.get("fixed", False))
 
-    def rows(path, required):
-        with open(path, newline="") as fh:
-            reader = csv.DictReader(fh)
-            missing = set(required) - set(reader.fieldnames or [])
-            if missing:
-                raise ValueError(f"{path}:1: missing columns {sorted(missing)}")
-            for line, row in enumerate(reader, start=2):
-                yield line, {k: (v or "").strip() for k, v in row.items()}
-
-    def num(path, line, row, key, default=None):
-        text = row.get(key, "")
-        if text == "" and default is not None:
-            return default
+    def rows(path, required, optional=()):
+        lines = split_lines(read_text(path, "block file"))
+        reader = csv.reader(lines)
         try:
-            return float(text)
-        except ValueError:
-            raise ValueError(f"{path}:{line}: {key} = {text!r} is not a number") from None
+            header = [h.strip() for h in next(reader, [])]
+            missing = sorted(set(required) - set(header))
+            unknown = sorted(set(header) - set(required) - set(optional))
+            if missing or unknown or len(set(header)) != len(header):
+                raise ValueError(f"{where(path, 1)}: the header must name the columns {list(required)} "
+                                 f"(and optionally {list(optional)}) once each, got {header}")
+            for row in reader:
+                line = reader.line_num
+                if not row or not "".join(row).strip():
+                    continue
+                if len(row) != len(header):
+                    raise ValueError(f"{where(path, line)}: expected {len(header)} columns, got {len(row)}")
+                yield line, {k: v.strip() for k, v in zip(header, row)}
+        except csv.Error as exc:
+            raise ValueError(f"{where(path, reader.line_num)}: not a CSV line ({exc})") from None
 
     pnames, xyz, roles, psig = [], [], [], []
+    plines: dict[str, int] = {}
     ppath = folder / "points.csv"
-    for line, row in rows(ppath, ("name", "X", "Y", "Z", "role")):
+    for line, row in rows(ppath, ("name", "X", "Y", "Z", "role"), ("sigma",)):
         if row["role"] not in ROLES:
-            raise ValueError(f"{ppath}:{line}: role must be one of {ROLES}, got {row['role']!r}")
-        pnames.append(row["name"])
-        xyz.append([num(ppath, line, row, k, np.nan) for k in "XYZ"])
+            raise ValueError(f"{where(ppath, line)}: role must be one of {ROLES}, got {row['role']!r}")
+        name = row["name"]
+        if not name:
+            raise ValueError(f"{where(ppath, line)}: empty point name")
+        if name in plines:
+            raise ValueError(f"{where(ppath, line)}: point {name!r} again (first on line {plines[name]})")
+        plines[name] = line
+        given = [row[k] != "" for k in "XYZ"]
+        if any(given) and not all(given) or (row["role"] == "control" and not all(given)):
+            raise ValueError(f"{where(ppath, line)}: X, Y, Z must all be given (or all empty for a tie point)")
+        pnames.append(name)
+        xyz.append([number(ppath, line, row[k], k) if row[k] else np.nan for k in "XYZ"])
         roles.append(row["role"])
-        psig.append(num(ppath, line, row, "sigma", 0.0))
-    if len(set(pnames)) != len(pnames):
-        raise ValueError(f"{ppath}: duplicate point names")
+        s = number(ppath, line, row["sigma"], "sigma") if row.get("sigma") else 0.0
+        if s < 0:
+            raise ValueError(f"{where(ppath, line)}: sigma must be >= 0 (0 fixes the point), got {row['sigma']!r}")
+        psig.append(s)
+    if not pnames:
+        raise ValueError(f"{ppath}: no points")
     pidx = {n: i for i, n in enumerate(pnames)}
     iidx = {n: i for i, n in enumerate(names)}
     oi, op, px, osig = [], [], [], []
+    seen: dict[tuple[str, str], int] = {}
     opath = folder / "observations.csv"
-    for line, row in rows(opath, ("image", "point", "col", "row")):
+    for line, row in rows(opath, ("image", "point", "col", "row"), ("sigma_px",)):
         if row["image"] not in iidx or row["point"] not in pidx:
-            raise ValueError(f"{opath}:{line}: unknown image {row['image']!r} or point {row['point']!r}")
+            raise ValueError(f"{where(opath, line)}: unknown image {row['image']!r} or point {row['point']!r}")
+        pair = (row["image"], row["point"])
+        if pair in seen:
+            raise ValueError(f"{where(opath, line)}: point {pair[1]!r} measured again in image {pair[0]!r} "
+                             f"(first on line {seen[pair]})")
+        seen[pair] = line
         oi.append(iidx[row["image"]])
         op.append(pidx[row["point"]])
-        px.append([num(opath, line, row, "col"), num(opath, line, row, "row")])
-        osig.append(num(opath, line, row, "sigma_px", 1.0))
+        px.append([number(opath, line, row["col"], "col"), number(opath, line, row["row"], "row")])
+        s = number(opath, line, row["sigma_px"], "sigma_px") if row.get("sigma_px") else 1.0
+        if not s > 0:
+            raise ValueError(f"{where(opath, line)}: sigma_px must be positive, got {row['sigma_px']!r}")
+        osig.append(s)
+    if not oi:
+        raise ValueError(f"{opath}: no observations")
     oi, op, px, osig = np.array(oi), np.array(op), np.array(px, dtype=float).reshape(-1, 2), np.array(osig)
     cam_of_obs = np.array(img_cam)[oi]
     xy = np.empty_like(px)
     ps = np.empty(len(oi))
     for j, cam in enumerate(cams):
+        # FrameCamera.pixel_to_image in numpy: eager JAX would compile its ops
+        # again for every new number of observations.
         sel = cam_of_obs == j
-        xy[sel] = np.asarray(cam.pixel_to_image(px[sel]))
-        ps[sel] = osig[sel] * float(np.mean(np.asarray(cam.pixel_size)))
-    return BundleProblem(
-        cams, ExteriorOrientation(np.array(pos, dtype=float), np.array(ang, dtype=float), conv), np.array(xyz, dtype=float),
-        oi, op, xy, obs_sigma=ps, image_camera=np.array(img_cam), roles=roles, point_sigma=np.array(psig),
-        free_intrinsics=free, fixed_exterior=np.array(fixed), image_names=names, point_names=pnames,
-    )  # fmt: skip
+        centre = (np.asarray(cam.image_size, dtype=float) - 1) / 2
+        size = np.asarray(cam.pixel_size, dtype=float)
+        xy[sel] = (px[sel] - centre) * size * [1.0, -1.0]
+        ps[sel] = osig[sel] * float(np.mean(size))
+    try:
+        return BundleProblem(
+            cams, ExteriorOrientation(np.array(pos, dtype=float), np.array(ang, dtype=float), conv),
+            np.array(xyz, dtype=float), oi, op, xy, obs_sigma=ps, image_camera=np.array(img_cam), roles=roles,
+            point_sigma=np.array(psig), free_intrinsics=free, fixed_exterior=np.array(fixed), image_names=names,
+            point_names=pnames,
+        )  # fmt: skip
+    except ValueError as exc:  # e.g. a tie point seen in one image only
+        raise ValueError(f"{folder}: {exc}") from None

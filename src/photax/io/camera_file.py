@@ -27,7 +27,9 @@ camera in pixel units (:meth:`photax.FrameCamera.from_pixels`)::
 
 Missing distortion coefficients are zero; ``distortion`` may also be a list
 ``[k1, k2, k3, p1, p2]``.  ``name`` and ``description`` are free text.  Any
-other key is a ``ValueError`` naming it.  Frames and the distortion
+other key, a key given twice, a value that is not a finite number, and a
+focal length, pixel size or image size that is not positive are a
+``ValueError`` naming the file and (YAML) the line.  Frames and the distortion
 equations: ``docs/conventions.md``.
 """
 
@@ -40,6 +42,7 @@ import numpy as np
 import yaml
 
 from ..camera import FrameCamera
+from ._files import Mapping, as_numbers, file_error, load_json, load_yaml, read_text, where
 from .atomic import atomic_write
 
 _KEYS = {"focal_length", "unit", "principal_point", "principal_point_px", "pixel_size",
@@ -49,28 +52,33 @@ _UNITS = ("mm", "m", "px")
 
 
 def _load(path: pathlib.Path) -> dict:
-    text = path.read_text(encoding="utf-8")
-    try:
-        data = json.loads(text) if path.suffix.lower() == ".json" else yaml.safe_load(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f", line {mark.line + 1}" if mark is not None else ""
-        raise ValueError(f"{path}{where}: not valid YAML: {getattr(exc, 'problem', exc)}") from None
+    text = read_text(path, "camera file")
+    data = load_json(path, text) if path.suffix.lower() == ".json" else load_yaml(path, text)
     if not isinstance(data, dict):
-        raise ValueError(f"{path}: a camera file must be a mapping of keys to values")
+        raise file_error(path, None, "a camera file must be a mapping of keys to values "
+                                     f"(focal_length: ..., unit: ...), got {type(data).__name__}")
     return data
 
 
+def _at(path, data, key) -> str:
+    """``path, line n`` of ``key`` in ``data`` (YAML), or just ``path`` (JSON)."""
+    return where(path, data.line(key) if isinstance(data, Mapping) else None)
+
+
 def _vector(path, data, key, n, scalar_ok=False) -> np.ndarray:
-    try:
-        v = np.asarray(data[key], dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{path}: {key} must be numbers, got {data[key]!r}") from None
+    value = data[key]
+    v = as_numbers(value)
+    if v is None:
+        raise ValueError(f"{_at(path, data, key)}: {key} must be numbers, got {value!r}") from None
     shapes = ((n,), ()) if scalar_ok else ((n,),)
     if v.shape not in shapes or not np.all(np.isfinite(v)):
-        raise ValueError(f"{path}: {key} must be {n} finite numbers, got {data[key]!r}")
+        raise ValueError(f"{_at(path, data, key)}: {key} must be {n} finite number{'s' if n > 1 else ''}, got {value!r}")
+    return v
+
+
+def _positive(path, data, key, v) -> np.ndarray:
+    if not np.all(v > 0):
+        raise ValueError(f"{_at(path, data, key)}: {key} must be positive, got {data[key]!r}")
     return v
 
 
@@ -78,22 +86,24 @@ def _scalar(path, data, key) -> float:
     return float(_vector(path, data, key, 1, scalar_ok=True).reshape(-1)[0])
 
 
-def _distortion(path, value) -> np.ndarray:
+def _distortion(path, data) -> np.ndarray:
+    value = data.get("distortion")
     if value is None:
         return np.zeros(5)
     if isinstance(value, (list, tuple)):
         if len(value) != 5:
-            raise ValueError(f"{path}: distortion as a list must be [k1, k2, k3, p1, p2]")
-        return _vector(path, {"distortion": value}, "distortion", 5)
+            raise ValueError(f"{_at(path, data, 'distortion')}: distortion as a list must be [k1, k2, k3, p1, p2]")
+        return _vector(path, data, "distortion", 5)
     if not isinstance(value, dict):
-        raise ValueError(f"{path}: distortion must be a mapping {{k1: .., p1: ..}} or a list of 5")
-    value = dict(value)
-    convention = value.pop("convention", "photax")
-    unknown = set(value) - set(_DIST)
+        raise ValueError(f"{_at(path, data, 'distortion')}: distortion must be a mapping {{k1: .., p1: ..}} or a list of 5")
+    convention = value.get("convention", "photax")
+    unknown = sorted(set(value) - set(_DIST) - {"convention"}, key=str)
     if unknown:
-        raise ValueError(f"{path}: unknown key distortion.{sorted(unknown)[0]}; accepted: {', '.join(_DIST)}, convention")
+        raise ValueError(f"{_at(path, value, unknown[0])}: unknown key distortion.{unknown[0]}; "
+                         f"accepted: {', '.join(_DIST)}, convention")
     if convention not in ("photax", "opencv"):
-        raise ValueError(f"{path}: distortion.convention must be 'photax' or 'opencv', got {convention!r}")
+        raise ValueError(f"{_at(path, value, 'convention')}: distortion.convention must be 'photax' or 'opencv', "
+                         f"got {convention!r}")
     d = np.array([_scalar(path, value, k) if k in value else 0.0 for k in _DIST])
     if convention == "opencv":
         d[3] = -d[3]  # OpenCV's y is down, so its p1 is minus ours
@@ -109,54 +119,59 @@ def read_camera(path) -> FrameCamera:
     """
     path = pathlib.Path(path)
     data = _load(path)
-    unknown = sorted(set(data) - _KEYS)
+    unknown = sorted(set(data) - _KEYS, key=str)
     if unknown:
-        raise ValueError(f"{path}: unknown key {unknown[0]!r}; accepted: {', '.join(sorted(_KEYS))}")
-    distortion = _distortion(path, data.get("distortion"))
+        raise ValueError(f"{_at(path, data, unknown[0])}: unknown key {unknown[0]!r}; "
+                         f"accepted: {', '.join(sorted(_KEYS))}")
+    distortion = _distortion(path, data)
     size = None
     if "image_size" in data:
         size = _vector(path, data, "image_size", 2)
-        if np.any(size <= 0) or np.any(size != np.round(size)):
-            raise ValueError(f"{path}: image_size must be [width, height] in whole pixels, got {data['image_size']!r}")
+        if np.any(size <= 0) or np.any(size != np.round(size)) or np.any(size > 2**31 - 1):
+            raise ValueError(f"{_at(path, data, 'image_size')}: image_size must be [width, height] in whole "
+                             f"pixels, got {data['image_size']!r}")
         size = (int(size[0]), int(size[1]))
     if "focal_length_px" in data:
-        extra = set(data) & {"focal_length", "unit", "pixel_size", "principal_point"}
+        extra = sorted(set(data) & {"focal_length", "unit", "pixel_size", "principal_point"})
         if extra:
-            raise ValueError(f"{path}: focal_length_px is the pixel shorthand; do not combine it with {sorted(extra)[0]}")
+            raise ValueError(f"{_at(path, data, extra[0])}: focal_length_px is the pixel shorthand; "
+                             f"do not combine it with {extra[0]}")
         if size is None:
-            raise ValueError(f"{path}: focal_length_px needs image_size")
+            raise ValueError(f"{_at(path, data, 'focal_length_px')}: focal_length_px needs image_size")
+        f = _positive(path, data, "focal_length_px", _scalar(path, data, "focal_length_px"))
         pp = data.get("principal_point_px")
         pp = None if pp is None else tuple(_vector(path, data, "principal_point_px", 2))
-        return _checked(path, lambda: FrameCamera.from_pixels(
-            _scalar(path, data, "focal_length_px"), size, pp, distortion))
+        return FrameCamera.from_pixels(f, size, pp, distortion)
     if "focal_length" not in data:
         raise ValueError(f"{path}: missing key 'focal_length' (or the shorthand 'focal_length_px')")
     unit = data.get("unit")
-    if unit not in _UNITS:
-        raise ValueError(f"{path}: unit must be one of {_UNITS}, got {unit!r}")
-    pixel_size = _vector(path, data, "pixel_size", 2, scalar_ok=True) if "pixel_size" in data else None
+    if not isinstance(unit, str) or unit not in _UNITS:
+        raise ValueError(f"{_at(path, data, 'unit') if 'unit' in data else path}: unit must be one of "
+                         f"{_UNITS}, got {unit!r}")
+    f = _positive(path, data, "focal_length", _scalar(path, data, "focal_length"))
+    pixel_size = None
+    if "pixel_size" in data:
+        pixel_size = _positive(path, data, "pixel_size", _vector(path, data, "pixel_size", 2, scalar_ok=True))
     if unit == "px":
         if pixel_size is not None and not np.all(pixel_size == 1):
-            raise ValueError(f"{path}: with unit px the pixel_size is 1, got {data['pixel_size']!r}")
+            raise ValueError(f"{_at(path, data, 'pixel_size')}: with unit px the pixel_size is 1, "
+                             f"got {data['pixel_size']!r}")
         pixel_size = 1.0 if size is not None else None
     if "principal_point" in data and "principal_point_px" in data:
-        raise ValueError(f"{path}: give principal_point or principal_point_px, not both")
+        raise ValueError(f"{_at(path, data, 'principal_point_px')}: give principal_point or "
+                         "principal_point_px, not both")
     pp = _vector(path, data, "principal_point", 2) if "principal_point" in data else np.zeros(2)
     if "principal_point_px" in data:
         if pixel_size is None or size is None:
-            raise ValueError(f"{path}: principal_point_px needs pixel_size and image_size")
+            raise ValueError(f"{_at(path, data, 'principal_point_px')}: principal_point_px needs "
+                             "pixel_size and image_size")
         c, r = _vector(path, data, "principal_point_px", 2)
         ps = np.broadcast_to(pixel_size, (2,))
-        pp = np.array([(c - (size[0] - 1) / 2) * ps[0], -(r - (size[1] - 1) / 2) * ps[1]])
-    return _checked(path, lambda: FrameCamera(
-        _scalar(path, data, "focal_length"), pp, distortion, pixel_size=pixel_size, image_size=size))
-
-
-def _checked(path, build) -> FrameCamera:
-    try:
-        return build()
-    except ValueError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+        with np.errstate(over="ignore"):
+            pp = np.array([(c - (size[0] - 1) / 2) * ps[0], -(r - (size[1] - 1) / 2) * ps[1]])
+        if not np.all(np.isfinite(pp)):
+            raise ValueError(f"{_at(path, data, 'principal_point_px')}: principal_point_px is out of range")
+    return FrameCamera(f, pp, distortion, pixel_size=pixel_size, image_size=size)
 
 
 def camera_to_dict(camera: FrameCamera, unit: str | None = None) -> dict:

@@ -38,7 +38,8 @@ they are.  Extra columns after the name are ignored, as ODM does.
 
 Malformed lines (wrong number of columns, non-numeric or non-finite values,
 an unknown role) raise ``ValueError`` naming the file and the line number.
-A point measured twice in one image is kept (real lists have such slips: the
+A name is one point: the same name with other ground coordinates or another
+role is an error naming both lines.  A point measured twice in one image is kept (real lists have such slips: the
 ODM sample measures HV11 twice in IMG_5352) and reported by
 :meth:`GCPTable.duplicates`; a robust resection then flags the wrong one.
 """
@@ -52,6 +53,8 @@ import pathlib
 from typing import Literal
 
 import numpy as np
+
+from ._files import file_error, number, read_text, split_lines
 
 _ROLES = ("control", "check")
 
@@ -157,7 +160,7 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTab
         ValueError: naming the file and line of the first malformed line.
     """
     path = pathlib.Path(path)
-    lines = path.read_text(encoding="utf-8-sig").splitlines()
+    lines = split_lines(read_text(path, "GCP file"))
     numbered = [(i + 1, s) for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")]
     if not numbered:
         raise ValueError(f"{path}: empty GCP file")
@@ -177,6 +180,7 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTab
         raise ValueError(f"format must be 'auto', 'csv' or 'odm', got {format!r}")
     if not rows["names"]:
         raise ValueError(f"{path}: no GCP measurements")
+    _check_points(path, rows)
     arr = lambda k, shape: np.asarray(rows[k], dtype=float).reshape(shape)  # noqa: E731
     n = len(rows["names"])
     return GCPTable(
@@ -188,14 +192,21 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTab
         lines=np.asarray(rows["lines"], dtype=int), source=str(path))
 
 
-def _number(path, line: int, text: str, what: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"{path}, line {line}: {what} is not a number: {text!r}") from None
-    if not math.isfinite(value):
-        raise ValueError(f"{path}, line {line}: {what} is not finite: {text!r}")
-    return value
+_number = number
+
+
+def _check_points(path, rows) -> None:
+    """One point, one ground position and one role: a name reused for another
+    position (a typo, or two lists merged) would silently pull the solution."""
+    first: dict[str, int] = {}
+    for i, name in enumerate(rows["names"]):
+        j = first.setdefault(name, i)
+        if rows["ground"][i] != rows["ground"][j]:
+            raise file_error(path, rows["lines"][i], f"point {name!r} has ground coordinates {rows['ground'][i]}, "
+                             f"but {rows['ground'][j]} on line {rows['lines'][j]}; one name, one point")
+        if rows["role"][i] != rows["role"][j]:
+            raise file_error(path, rows["lines"][i], f"point {name!r} is a {rows['role'][i]} point here "
+                             f"but a {rows['role'][j]} point on line {rows['lines'][j]}")
 
 
 def _empty_rows() -> dict[str, list]:
@@ -244,7 +255,7 @@ _GROUND = {"e": ("easting", "e", "x"), "n": ("northing", "n", "y"), "h": ("heigh
 _OTHER = {"name", "image", "col", "column", "row", "sigma", "role", "image_x", "image_y"}
 
 
-def _csv_columns(path, header: list[str]) -> dict[str, int]:
+def _csv_columns(path, header: list[str], hline: int = 1) -> dict[str, int]:
     """Map our field names to column indices (see the module docstring)."""
     low = [h.strip().lower() for h in header]
     raw = [h.strip() for h in header]
@@ -262,29 +273,36 @@ def _csv_columns(path, header: list[str]) -> dict[str, int]:
         else:
             key = next((k for k, names in _GROUND.items() if lo in names), lo if lo in _OTHER else None)
         if key is None:
-            raise ValueError(f"{path}, line 1: unknown column {r!r}; accepted: name, image, "
+            raise ValueError(f"{path}, line {hline}: unknown column {r!r}; accepted: name, image, "
                              "E/easting/X, N/northing/Y, h/height/Z, col/column, row, x, y, sigma, role")
         if key in cols:
-            raise ValueError(f"{path}, line 1: two columns mean the same thing: {raw[cols[key]]!r} and {r!r}")
+            raise ValueError(f"{path}, line {hline}: two columns mean the same thing: {raw[cols[key]]!r} and {r!r}")
         cols[key] = i
     missing = [w for w, k in (("easting", "e"), ("northing", "n"), ("height", "h")) if k not in cols]
     if missing:
-        raise ValueError(f"{path}, line 1: no {'/'.join(missing)} column in {raw}")
+        raise ValueError(f"{path}, line {hline}: no {'/'.join(missing)} column in {raw}")
     has_px, has_xy = {"col", "row"} <= cols.keys(), {"x", "y"} <= cols.keys()
     if has_px == has_xy:
-        raise ValueError(f"{path}, line 1: give pixel columns (col, row) or image-plane columns "
+        raise ValueError(f"{path}, line {hline}: give pixel columns (col, row) or image-plane columns "
                          f"(x, y), exactly one pair; header is {raw}")
     return cols
 
 
+def _split_csv(path, line: int, text: str) -> list[str]:
+    try:
+        return next(csv.reader([text]), [])
+    except csv.Error as exc:
+        raise file_error(path, line, f"not a CSV line ({exc})") from None
+
+
 def _parse_csv(path, numbered) -> dict[str, list]:
     (_, head), body = numbered[0], numbered[1:]
-    header = next(csv.reader([head]))
-    cols = _csv_columns(path, header)
+    header = _split_csv(path, numbered[0][0], head)
+    cols = _csv_columns(path, header, numbered[0][0])
     pix = "col" in cols
     rows = _empty_rows()
     for line, text in body:
-        f = [s.strip() for s in next(csv.reader([text]))]
+        f = [s.strip() for s in _split_csv(path, line, text)]
         if len(f) != len(header):
             raise ValueError(f"{path}, line {line}: expected {len(header)} columns, got {len(f)}")
         num = lambda k: _number(path, line, f[cols[k]], header[cols[k]].strip())  # noqa: E731

@@ -30,37 +30,63 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
+from ._files import Mapping, as_numbers, file_error, load_yaml, read_text, split_lines, where
 
 
-def _camera_from_params(path, name: str, p: dict) -> FrameCamera:
-    kind = str(p.get("type", "")).lower()
-    if kind not in ("pinhole",):
+def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCamera:
+    # Messages point at the key's line, or at the camera's for a missing key.
+    at = lambda key: where(path, p.line(key) if isinstance(p, Mapping) and key in p else line)  # noqa: E731
+    kind = p.get("type")
+    if not isinstance(kind, str) or kind.lower() != "pinhole":
         raise ValueError(
-            f"{path}: camera {name!r} has type {p.get('type')!r}; photax reads orthority 'pinhole' "
+            f"{at('type')}: camera {name!r} has type {kind!r}; photax reads orthority 'pinhole' "
             "cameras only (brown/opencv/fisheye distortion models are not converted)"
         )
-    try:
-        w, h = (int(v) for v in p["im_size"])
-        focal = np.broadcast_to(np.asarray(p["focal_len"], dtype=float), (2,))
-        sensor = p.get("sensor_size")
-        cx, cy = float(p.get("cx", 0.0)), float(p.get("cy", 0.0))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: camera {name!r}: missing or malformed parameter ({exc})") from None
-    if sensor is None:
-        # orthority: focal_len normalised by the image width, square pixels.
-        fx, fy = focal * w
-        size = np.array([1.0, fx / fy])
-        f = fx
-    else:
-        sw, sh = (float(v) for v in sensor)
-        # Focal lengths in pixels fx = f_x w / sw, fy = f_y h / sh; photax keeps one
-        # principal distance, f_x, and puts any difference into the pixel height.
-        f = focal[0]
-        size = np.array([sw / w, sh / h * focal[0] / focal[1]])
-    if not (f > 0 and np.all(size > 0)):
-        raise ValueError(f"{path}: camera {name!r}: focal_len and sensor_size must be positive")
-    m = max(w, h)
-    principal_point = (cx * m * size[0], -cy * m * size[1])  # y up in photax
+
+    def numbers(key, n, default=None, scalar_ok=False):
+        if key not in p:
+            if default is None:
+                raise ValueError(f"{at(key)}: camera {name!r}: missing parameter {key!r}")
+            return np.asarray(default, dtype=float)
+        value = p[key]
+        v = as_numbers(value)
+        ok_shapes = ((n,), ()) if scalar_ok else ((n,),)
+        if v is None or v.shape not in ok_shapes or not np.all(np.isfinite(v)):
+            raise ValueError(f"{at(key)}: camera {name!r}: {key} must be {n} finite number"
+                             f"{'s' if n > 1 else ''}, got {value!r}")
+        return v
+
+    im_size = numbers("im_size", 2)
+    if np.any(im_size < 1) or np.any(im_size != np.round(im_size)) or np.any(im_size > 2**31 - 1):
+        raise ValueError(f"{at('im_size')}: camera {name!r}: im_size must be [width, height] in whole pixels, "
+                         f"got {p['im_size']!r}")
+    w, h = (int(v) for v in im_size)
+    focal = np.broadcast_to(numbers("focal_len", 2, scalar_ok=True), (2,))
+    if not np.all(focal > 0):
+        raise ValueError(f"{at('focal_len')}: camera {name!r}: focal_len must be positive, got {p['focal_len']!r}")
+    sensor = numbers("sensor_size", 2) if p.get("sensor_size") is not None else None
+    if sensor is not None and not np.all(sensor > 0):
+        raise ValueError(f"{at('sensor_size')}: camera {name!r}: sensor_size must be positive, "
+                         f"got {p['sensor_size']!r}")
+    cx, cy = float(numbers("cx", 1, 0.0, scalar_ok=True)), float(numbers("cy", 1, 0.0, scalar_ok=True))
+    with np.errstate(over="ignore", under="ignore"):
+        if sensor is None:
+            # orthority: focal_len normalised by the image width, square pixels.
+            fx, fy = focal * w
+            size = np.array([1.0, fx / fy])
+            f = fx
+        else:
+            sw, sh = sensor
+            # Focal lengths in pixels fx = f_x w / sw, fy = f_y h / sh; photax keeps one
+            # principal distance, f_x, and puts any difference into the pixel height.
+            f = focal[0]
+            size = np.array([sw / w, sh / h * focal[0] / focal[1]])
+        m = max(w, h)
+        principal_point = np.array([cx * m * size[0], -cy * m * size[1]])  # y up in photax
+    if not (np.isfinite(f) and f > 0 and np.all(np.isfinite(size)) and np.all(size > 0)
+            and np.all(np.isfinite(principal_point))):
+        raise ValueError(f"{at('focal_len')}: camera {name!r}: focal_len, sensor_size, cx, cy give a camera "
+                         f"out of range (f = {f:g}, pixel size = {size.tolist()})")
     return FrameCamera(f, principal_point, pixel_size=size, image_size=(w, h))
 
 
@@ -72,18 +98,14 @@ def read_orthority_interior(path) -> dict[str, FrameCamera]:
     unit, and ``cx``, ``cy`` (see the module docstring).  The photax camera
     works in the focal length's unit (e.g. mm).
     """
-    import yaml
-
     path = pathlib.Path(path)
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: not valid YAML ({exc})") from None
+    data = load_yaml(path, read_text(path, "orthority interior file"))
+    if isinstance(data, dict) and "type" in data and not isinstance(data["type"], dict):
+        data = {None: data}  # a single, unnamed camera
     if not isinstance(data, dict) or not data or not all(isinstance(v, dict) for v in data.values()):
         raise ValueError(f"{path}: expected a mapping of camera names to parameter mappings")
-    if "type" in data and not isinstance(data["type"], dict):  # a single, unnamed camera
-        data = {None: data}
-    return {name: _camera_from_params(path, name, p) for name, p in data.items()}
+    lines = data.lines if isinstance(data, Mapping) else {}
+    return {name: _camera_from_params(path, name, p, lines.get(name)) for name, p in data.items()}
 
 
 _COLUMNS = ["filename", "x", "y", "z", "omega", "phi", "kappa"]
@@ -101,15 +123,22 @@ def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation
     extension, as orthority matches them.
     """
     path = pathlib.Path(csv_path)
-    text = path.read_text()
-    lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip() and not ln.startswith("#")]
+    text = read_text(path, "orthority exterior file")
+    lines = [(i + 1, ln) for i, ln in enumerate(split_lines(text)) if ln.strip() and not ln.startswith("#")]
     if not lines:
         raise ValueError(f"{path}: no exterior orientations")
     try:
         dialect = csv.Sniffer().sniff(lines[0][1], delimiters=",;\t ")
     except csv.Error:
         dialect = csv.excel
-    rows = [(n, [c.strip() for c in row]) for (n, ln) in lines for row in csv.reader([ln], dialect)]
+    rows = []
+    for n, ln in lines:
+        try:
+            rows.extend((n, [c.strip() for c in row]) for row in csv.reader([ln], dialect))
+        except csv.Error as exc:
+            raise file_error(path, n, f"not a CSV line ({exc})") from None
+    if not rows:
+        raise file_error(path, None, "no exterior orientations")
     header = [c.lower() for c in rows[0][1]]
     if "filename" in header:
         rows = rows[1:]
@@ -127,11 +156,15 @@ def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation
         except (IndexError, ValueError):
             raise ValueError(f"{path}, line {n}: expected {', '.join(_COLUMNS)}, got {row}") from None
         if not all(math.isfinite(v) for v in (x, y, z, omega, phi, kappa)):
-            raise ValueError(f"{path}, line {n}: non-finite value")
+            raise ValueError(f"{path}, line {n}: non-finite value in {row}")
         key = pathlib.PurePath(name).stem
+        if not key:
+            raise file_error(path, n, f"empty file name in {row}")
         if key in out:
             raise ValueError(f"{path}, line {n}: duplicate file name {key!r}")
         out[key] = ExteriorOrientation((x, y, z), np.radians([omega, phi, kappa]), "omega-phi-kappa")
+    if not out:
+        raise file_error(path, None, "no exterior orientations")
     if prj is not None and not pathlib.Path(prj).is_file():
         raise FileNotFoundError(f"no such .prj file: {prj}")
     return out
@@ -142,7 +175,7 @@ def read_orthority_crs(csv_path, prj=None) -> str | None:
     prj = pathlib.Path(prj) if prj is not None else pathlib.Path(csv_path).with_suffix(".prj")
     if not prj.is_file():
         return None
-    text = prj.read_text().strip()
+    text = read_text(prj, ".prj file").strip()
     if not text:
         raise ValueError(f"{prj}: empty CRS file")
     return text

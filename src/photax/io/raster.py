@@ -7,6 +7,7 @@ GDAL affine ``(a, b, xoff, d, e, yoff)`` at pixel corners
 
 from __future__ import annotations
 
+import contextlib
 import pathlib
 import warnings
 
@@ -22,6 +23,8 @@ def open_raster(path):
     import rasterio
 
     path = pathlib.Path(path)
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder, expected a raster file")
     if not path.is_file():
         raise FileNotFoundError(f"no such raster file: {path}")
     try:
@@ -40,8 +43,20 @@ def read_geotiff(path) -> tuple[np.ndarray, dict]:
         file's dtype; ``profile`` is rasterio's profile dict (``transform``
         as ``rasterio.Affine``, ``crs``, ``nodata``, ``dtype``, ...).
     """
-    with open_raster(path) as src:
+    with open_raster(path) as src, _damaged(path):
         return src.read(), dict(src.profile)
+
+
+@contextlib.contextmanager
+def _damaged(path):
+    """A file GDAL opens but cannot decode (truncated, corrupt): ValueError naming it."""
+    from rasterio._err import CPLE_BaseError
+    from rasterio.errors import RasterioError
+
+    try:
+        yield
+    except (RasterioError, CPLE_BaseError) as exc:
+        raise ValueError(f"{path}: a damaged raster, GDAL cannot read it ({' '.join(str(exc).split())})") from None
 
 
 def read_dem(path, band: int = 1) -> DEM:
@@ -50,7 +65,7 @@ def read_dem(path, band: int = 1) -> DEM:
     The CRS is kept as WKT text.  Only heights and the georeference are
     used: vertical datum conversions (geoid/ellipsoid) are up to the caller.
     """
-    with open_raster(path) as src:
+    with open_raster(path) as src, _damaged(path):
         if not 1 <= band <= src.count:
             raise ValueError(f"{path}: band {band} does not exist (the file has {src.count})")
         heights = src.read(band).astype(float)
@@ -59,7 +74,10 @@ def read_dem(path, band: int = 1) -> DEM:
         transform = tuple(src.transform)[:6]
     if nodata is not None and not np.isnan(nodata):
         heights[heights == nodata] = np.nan
-    return DEM(heights, transform, crs)
+    try:
+        return DEM(heights, transform, crs)
+    except ValueError as exc:  # e.g. a singular georeference
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), compress: str | None = "deflate") -> pathlib.Path:

@@ -9,6 +9,7 @@ import pathlib
 
 import numpy as np
 
+from ._files import load_json, read_text
 from .atomic import atomic_write
 
 
@@ -61,9 +62,13 @@ def write_json(obj, path, *, inputs=()) -> pathlib.Path:
 
 
 def read_json(path):
-    """Read a JSON file; a syntax error names the file and line."""
+    """Read a JSON file as photax writes it: strict JSON (no ``NaN``/``Infinity``,
+    which :func:`write_json` writes as ``null``), no duplicate keys.
+
+    Raises:
+        ValueError: naming the file (and line, for a syntax error); a folder
+            or an unreadable file is a ValueError naming the path too.
+        FileNotFoundError: no such file.
+    """
     path = pathlib.Path(path)
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}, line {exc.lineno}: not valid JSON: {exc.msg}") from None
+    return load_json(path, read_text(path, "JSON file"))

@@ -1,0 +1,438 @@
+"""Fuzzing every file reader with hypothesis.
+
+Contract (docs/architecture.md): a reader either returns a sane result or
+raises ``ValueError`` naming the file (and the line, for line-oriented
+formats).  Nothing else escapes: no KeyError, TypeError, IndexError, YAML or
+JSON errors, UnicodeDecodeError, numpy errors, OverflowError.
+
+Inputs are random bytes, truncations of valid files and valid files with a
+few mutations: a field replaced by a hostile value (``nan``, ``-1``, ``0``,
+``1e999``, a huge integer, a YAML tag, ...), bytes inserted or deleted,
+lines duplicated or dropped.  The seeds are the repository's own valid files
+(``data/``) and small files written here, so the tests need nothing outside
+the repository.  The checks on a returned result are independent of the
+readers: finite numbers, positive focal lengths, pixel sizes and image
+sizes, unique names where names must be unique.
+
+Fixed seed (``derandomize=True``), 300 examples per reader (the block
+folder: 100 per file; ``read_bal`` building the JAX problem: 40 more;
+the raster readers, whose examples are dearer: 150).
+"""
+
+from __future__ import annotations
+
+import json
+import pathlib
+import re
+import shutil
+
+import numpy as np
+import pytest
+from conftest import SHARED_DATA
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from photax.io.bal import BALData, read_bal, read_bal_arrays, write_bal_arrays
+from photax.io.block import read_block
+from photax.io.camera_file import read_camera
+from photax.io.gcp import read_gcps
+from photax.io.orthority import read_orthority_exterior, read_orthority_interior
+from photax.io.results import read_json
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DATA = ROOT / "data"
+
+FUZZ = settings(
+    max_examples=300,
+    derandomize=True,
+    deadline=None,
+    database=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+
+# Values that broke or could break a parser, as whole fields.
+HOSTILE = [
+    b"", b"0", b"-0", b"-1", b"-1e-9", b"1e999", b"-1e999", b"nan", b"NaN", b"inf", b"-inf", b"Infinity",
+    b"1e-400", b"9" * 400, b"99999999999999999999", b"0x10", b"1_000", b"1.5", b"2.5e3", b"true", b"null",
+    b"~", b"[]", b"{}", b"[1, 2]", b"[1, 2, 3]", b"[0, 0]", b"[-1, 5]", b"[1.5, 2]", b'"x"', b"'", b'"',
+    b"!!python/object:os.system", b"!!binary AAAA", b"&a", b"*a", b"2024-01-01", b"a,b", b"a;b", b"#",
+    b"control", b"check", b"tie", b"pinhole", b"brown", b"\xff\xfe", b"\x00", b"\xc3\xa9", b"\xe2\x80\xa8",
+    b"\t", b" ", b"\n", b"\r\n", b"\r", b"---", b"...", b"- ", b": ", b"P01", b"IMG_0001", b"cam", b"S1_1",
+]
+SEPARATORS = [b",", b";", b"\t", b" ", b"\n", b":", b"-", b"[", b"]", b"{", b"}", b'"', b"#", b"\xff"]
+FIELD = re.compile(rb"[^\s,;:\[\]{}\"']+")
+
+
+@st.composite
+def mutated(draw, seeds: list[bytes]) -> bytes:
+    """A seed file, truncated, mutated field by field or byte by byte, or random bytes."""
+    kind = draw(st.sampled_from(["fields", "fields", "fields", "bytes", "lines", "truncate", "random"]))
+    if kind == "random":
+        return draw(st.one_of(st.binary(max_size=300), st.text(max_size=300).map(str.encode)))
+    data = draw(st.sampled_from(seeds))
+    if kind == "truncate":
+        return data[: draw(st.integers(0, len(data)))]
+    for _ in range(draw(st.integers(1, 3))):
+        if kind == "fields":
+            fields = list(FIELD.finditer(data))
+            if not fields:
+                break
+            m = draw(st.sampled_from(fields))
+            new = draw(st.one_of(st.sampled_from(HOSTILE), st.sampled_from(HOSTILE).map(lambda h: m.group() + h)))
+            data = data[: m.start()] + new + data[m.end() :]
+        elif kind == "bytes":
+            i = draw(st.integers(0, len(data)))
+            j = draw(st.integers(i, min(len(data), i + 8)))
+            data = data[:i] + draw(st.sampled_from(SEPARATORS + HOSTILE)) + data[j:]
+        else:  # lines: drop, duplicate or swap one
+            lines = data.split(b"\n")
+            i, j = draw(st.integers(0, len(lines) - 1)), draw(st.integers(0, len(lines) - 1))
+            op = draw(st.sampled_from(["drop", "dup", "swap"]))
+            if op == "drop":
+                del lines[i]
+            elif op == "dup":
+                lines.insert(j, lines[i])
+            else:
+                lines[i], lines[j] = lines[j], lines[i]
+            data = b"\n".join(lines)
+    return data
+
+
+def _check_message(msg: str, path, n_lines: int | None, whole_file: str | None) -> None:
+    """One line naming ``path``; for a line-oriented format (``n_lines`` given)
+    also a line number within the file, unless the problem is the whole file's
+    (``whole_file``: a regex of such messages)."""
+    assert str(path) in msg, f"error does not name the file: {msg!r}"
+    assert "\n" not in msg.strip(), f"error is not one line: {msg!r}"
+    if n_lines is None:
+        return
+    m = re.search(r", line (\d+): ", msg)
+    if m is None:
+        assert whole_file and re.search(whole_file, msg), f"error does not name the line: {msg!r}"
+    else:
+        assert 1 <= int(m.group(1)) <= n_lines + 1, f"line out of range ({n_lines} lines): {msg!r}"
+
+
+def _expect_valueerror_or_sane(read, path: pathlib.Path, sane, whole_file: str | None = None, lines=False) -> None:
+    """``read(path)`` returns a result ``sane`` accepts, or raises a ValueError
+    naming the file (and with ``lines``, the line)."""
+    n_lines = path.read_bytes().count(b"\n") + 1 if lines else None
+    try:
+        result = read(path)
+    except ValueError as exc:
+        _check_message(str(exc), path, n_lines, whole_file)
+        return
+    sane(result)
+
+
+def _finite(*arrays) -> None:
+    for a in arrays:
+        if a is not None:
+            assert np.all(np.isfinite(np.asarray(a, dtype=float))), a
+
+
+def _sane_camera(cam) -> None:
+    assert float(cam.focal_length) > 0
+    _finite(cam.focal_length, cam.principal_point, cam.distortion, cam.pixel_size)
+    if cam.pixel_size is not None:
+        assert np.all(np.asarray(cam.pixel_size) > 0)
+    if cam.image_size is not None:
+        assert min(cam.image_size) > 0
+
+
+@pytest.fixture(scope="module")
+def work(tmp_path_factory):
+    return tmp_path_factory.mktemp("fuzz")
+
+
+def _shared_seed(name: str) -> list[bytes]:
+    """A real file of ../shared/data as an extra seed when present (never required)."""
+    p = SHARED_DATA / name
+    return [p.read_bytes()[:4000]] if p.is_file() else []
+
+
+# --- GCP files ---------------------------------------------------------------------
+
+GCP_CSV = [
+    (DATA / "sample_gcps.csv").read_bytes(),
+    b"name,image,X,Y,Z,x,y\nA,i,1,2,3,0.1,0.2\nB,i,4,5,6,-0.1,0.3\n",
+]
+GCP_ODM = [
+    b"EPSG:32633\n500000 4000000 100 10 20 a.jpg P1\n500010 4000010 101 30 40 a.jpg P2\n"
+    b"500010 4000010 101 31 41 b.jpg P2 extra\n",
+    *_shared_seed("gcp_list_floatxy_raw.txt"),
+]
+
+
+def _sane_gcps(t) -> None:
+    n = len(t)
+    assert n > 0
+    assert t.ground.shape == (n, 3)
+    _finite(t.ground, t.pixel, t.image_xy)
+    assert (t.pixel is None) != (t.image_xy is None)
+    assert np.all(np.isnan(t.sigma) | (t.sigma > 0))
+    assert set(t.role.tolist()) <= {"control", "check"}
+    assert all(isinstance(s, str) and s for s in t.names.tolist())
+
+
+@FUZZ
+@given(data=mutated(GCP_CSV + GCP_ODM))
+def test_fuzz_read_gcps(work, data):
+    path = work / "gcps.csv"
+    path.write_bytes(data)
+    _expect_valueerror_or_sane(read_gcps, path, _sane_gcps, r": (empty GCP file|no GCP measurements)$", lines=True)
+
+
+# --- camera files ------------------------------------------------------------------
+
+CAMERA = [
+    (DATA / "sample_camera.yaml").read_bytes(),
+    b"focal_length_px: 2904.0\nimage_size: [4000, 3000]\nprincipal_point_px: [1999.5, 1499.5]\n"
+    b"distortion: {k1: -0.05, p1: 0.001, convention: opencv}\n",
+    b"focal_length: 0.035\nunit: m\nprincipal_point_px: [10, 20]\npixel_size: [1e-5, 1.1e-5]\n"
+    b"image_size: [40, 30]\ndistortion: [0.1, 0, 0, 0, 0]\nname: cam\n",
+]
+CAMERA_JSON = [
+    b'{"focal_length": 8.8, "unit": "mm", "principal_point": [0.01, -0.02], "pixel_size": 0.0044,\n'
+    b' "image_size": [4000, 3000], "distortion": {"k1": -0.02, "k2": 0.004}}\n',
+]
+
+
+@FUZZ
+@given(data=mutated(CAMERA), suffix=st.sampled_from([".yaml", ".yml"]))
+def test_fuzz_read_camera_yaml(work, data, suffix):
+    path = work / f"camera{suffix}"
+    path.write_bytes(data)
+    _expect_valueerror_or_sane(read_camera, path, _sane_camera)
+
+
+@FUZZ
+@given(data=mutated(CAMERA_JSON + CAMERA[:1]))
+def test_fuzz_read_camera_json(work, data):
+    path = work / "camera.json"
+    path.write_bytes(data)
+    _expect_valueerror_or_sane(read_camera, path, _sane_camera)
+
+
+# --- orthority ---------------------------------------------------------------------
+
+ORTHO_INT = [
+    b"Integraph DMC:\n    type: pinhole\n    im_size: [640, 1152]\n    focal_len: 120.0\n"
+    b"    sensor_size: [92.16, 165.888]\n    cx: 0.0\n    cy: 0.0\n"
+    b"other:\n    type: pinhole\n    im_size: [400, 300]\n    focal_len: [0.8, 0.81]\n",
+    b"type: pinhole\nim_size: [400, 300]\nfocal_len: 0.8\ncx: -0.01\ncy: 0.02\n",
+    *_shared_seed("ngi_int_param.yaml"),
+]
+ORTHO_EXT = [
+    b"filename,x,y,z,omega,phi,kappa\nimg_1.tif,-55094.5,-3727407.0,5258.3,-0.349,0.298,-179.087\n"
+    b"img_2,-57710.4,-3727433.9,5256.8,0.27,-0.282,-179.028\n",
+    b"img_1 1 2 3 0.1 0.2 0.3\nimg_2 4 5 6 0.1 0.2 0.3\n",
+    *_shared_seed("ngi_xyz_opk.csv"),
+]
+
+
+@FUZZ
+@given(data=mutated(ORTHO_INT))
+def test_fuzz_read_orthority_interior(work, data):
+    path = work / "int_param.yaml"
+    path.write_bytes(data)
+
+    def sane(cams):
+        assert cams
+        for cam in cams.values():
+            _sane_camera(cam)
+
+    _expect_valueerror_or_sane(read_orthority_interior, path, sane)
+
+
+@FUZZ
+@given(data=mutated(ORTHO_EXT))
+def test_fuzz_read_orthority_exterior(work, data):
+    path = work / "xyz_opk.csv"
+    path.write_bytes(data)
+
+    def sane(eos):
+        assert eos
+        for eo in eos.values():
+            _finite(eo.position, eo.angles)
+
+    _expect_valueerror_or_sane(read_orthority_exterior, path, sane, r": no exterior orientations$", lines=True)
+
+
+# --- BAL ---------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def bal_seed(tmp_path_factory) -> bytes:
+    """A 2-camera, 3-point BAL file written by photax's own writer."""
+    rng = np.random.default_rng(7)
+    cams = np.c_[rng.normal(0, 0.1, (2, 3)), rng.normal(0, 1, (2, 3)), [500.0, 520.0], [[-0.1, 0.01], [0.02, 0.0]]]
+    data = BALData(cams, rng.normal(0, 1, (3, 3)) - [0, 0, 10], np.array([0, 0, 1, 1, 0]), np.array([0, 1, 1, 2, 2]),
+                   rng.normal(0, 100, (5, 2)))  # fmt: skip
+    return write_bal_arrays(data, tmp_path_factory.mktemp("bal") / "seed.txt").read_bytes()
+
+
+def _sane_bal(d) -> None:
+    _finite(d.cameras, d.points, d.observations)
+    assert np.all(d.cameras[:, 6] > 0)
+    assert np.all((d.camera_index >= 0) & (d.camera_index < len(d.cameras)))
+    assert np.all((d.point_index >= 0) & (d.point_index < len(d.points)))
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_read_bal(work, bal_seed, data):
+    raw = data.draw(mutated([bal_seed]))
+    path = work / "problem.txt"
+    path.write_bytes(raw)
+    _expect_valueerror_or_sane(read_bal_arrays, path, _sane_bal, r": empty file", lines=True)
+
+
+def test_fuzz_read_bal_problem(work, bal_seed):
+    """``read_bal`` (which builds the JAX problem) on a few mutations: the same contract."""
+
+    @settings(FUZZ, max_examples=40)
+    @given(raw=mutated([bal_seed]))
+    def run(raw):
+        path = work / "problem2.txt"
+        path.write_bytes(raw)
+
+        def sane(problem):
+            _finite(problem.points, problem.obs_xy, problem.exterior.position, problem.exterior.angles)
+            assert all(float(c.focal_length) > 0 for c in problem.cameras)
+
+        _expect_valueerror_or_sane(read_bal, path, sane)
+
+    run()
+
+
+# --- block folder --------------------------------------------------------------------
+
+BLOCK_FILES = ("block.json", "observations.csv", "points.csv")
+
+
+def _sane_block(problem) -> None:
+    assert len(set(problem.point_names)) == problem.n_points
+    assert len(set(problem.image_names)) == problem.n_images
+    _finite(problem.obs_xy, problem.obs_sigma, problem.point_sigma)
+    for cam in problem.cameras:
+        _sane_camera(cam)
+    pos = np.asarray(problem.exterior.position)
+    ang = np.asarray(problem.exterior.angles)
+    # Orientations are either given (finite) or left to the solver (all NaN).
+    for p, a in zip(pos, ang):
+        assert np.all(np.isfinite(p)) or np.all(np.isnan(p)), p
+        assert np.all(np.isfinite(a)) or np.all(np.isnan(a)), a
+    pts = problem.points
+    assert np.all(np.isfinite(pts) | np.isnan(pts))
+
+
+@pytest.mark.parametrize("name", BLOCK_FILES)
+def test_fuzz_read_block(tmp_path_factory, name):
+    folder = tmp_path_factory.mktemp("block")
+    for f in BLOCK_FILES:
+        shutil.copy(DATA / "block" / f, folder / f)
+    seed = (DATA / "block" / name).read_bytes()
+
+    # 100 per file: 300 for the reader, as for the others.
+    @settings(FUZZ, max_examples=100)
+    @given(raw=mutated([seed]))
+    def run(raw):
+        (folder / name).write_bytes(raw)
+
+        def read(_):
+            return read_block(folder)
+
+        try:
+            problem = read(folder)
+        except ValueError as exc:
+            msg = str(exc)
+            if name == "block.json" or not msg.startswith(str(folder / name)):
+                _check_message(msg, folder, None, None)  # JSON: keys, not lines
+            else:  # the fuzzed CSV: its line, unless the whole file is empty
+                _check_message(msg, folder / name, raw.count(b"\n") + 1, r": no (points|observations)$")
+            return
+        _sane_block(problem)
+
+    run()
+
+
+# --- result JSON ---------------------------------------------------------------------
+
+RESULT = [
+    json.dumps({"images": {"IMG_1": {"position": [1.0, 2.0, 3.0], "angles_rad": [0.1, 0.2, 0.3],
+                                     "convention": "omega-phi-kappa", "converged": True}}}, indent=2).encode(),
+    (DATA / "sample_truth.json").read_bytes()[:3000],
+]  # fmt: skip
+
+
+@FUZZ
+@given(data=mutated(RESULT))
+def test_fuzz_read_json(work, data):
+    path = work / "result.json"
+    path.write_bytes(data)
+
+    def sane(obj):
+        # Strict JSON: no NaN/Infinity constants (photax writes null for them).
+        json.dumps(obj, allow_nan=False)
+
+    _expect_valueerror_or_sane(read_json, path, sane)
+
+
+# --- rasters (GDAL through rasterio) ------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tif_seeds(tmp_path_factory) -> list[bytes]:
+    from photax.io.raster import write_geotiff
+
+    folder = tmp_path_factory.mktemp("tif")
+    z = np.arange(48, dtype=np.float32).reshape(6, 8)
+    return [
+        write_geotiff(folder / f"{c}.tif", z, (1, 0, 500, 0, -1, 1000), crs="EPSG:32633", nodata=-9999, compress=c)
+        .read_bytes()
+        for c in (None, "deflate")
+    ]
+
+
+def test_fuzz_read_raster(work, tif_seeds):
+    """GeoTIFF and DEM readers: random bytes, truncated and corrupted GeoTIFFs."""
+    from photax.io.raster import read_dem, read_geotiff
+
+    @settings(FUZZ, max_examples=150)
+    @given(raw=mutated(tif_seeds), dem=st.booleans())
+    def run(raw, dem):
+        path = work / "raster.tif"
+        path.write_bytes(raw)
+
+        def sane(result):
+            if dem:
+                assert np.all(np.isfinite(np.asarray(result.transform)))
+                h = np.asarray(result.heights)
+                assert np.all(np.isfinite(h) | np.isnan(h))
+            else:
+                array, profile = result
+                assert array.ndim == 3 and array.shape[0] == profile["count"]
+
+        _expect_valueerror_or_sane(read_dem if dem else read_geotiff, path, sane)
+
+    run()
+
+
+def test_seeds_are_valid(work, bal_seed, tif_seeds):
+    """The fuzzing starts from files the readers accept (else it would only
+    exercise the error paths)."""
+    from photax.io.raster import read_dem
+
+    cases = [(read_gcps, "s.csv", GCP_CSV + GCP_ODM, _sane_gcps), (read_camera, "s.yaml", CAMERA, _sane_camera),
+             (read_camera, "s.json", CAMERA_JSON, _sane_camera),
+             (read_orthority_interior, "s_int.yaml", ORTHO_INT, lambda c: [_sane_camera(v) for v in c.values()]),
+             (read_orthority_exterior, "s_ext.csv", ORTHO_EXT, lambda e: len(e) >= 2 or None),
+             (read_bal_arrays, "s.txt", [bal_seed], _sane_bal), (read_json, "s.json", RESULT, lambda o: None),
+             (read_dem, "s.tif", tif_seeds, lambda d: None)]  # fmt: skip
+    for read, name, seeds, sane in cases:
+        for raw in seeds:
+            path = work / name
+            path.write_bytes(raw)
+            sane(read(path))
+    _sane_block(read_block(DATA / "block"))
