@@ -14,7 +14,6 @@ from conftest import ROOT
 import photax
 import photax.demo
 from photax.cli import main
-from photax.progress import progress_bar
 from photax.io.camera_file import write_camera
 from photax.io.raster import write_geotiff
 
@@ -118,6 +117,8 @@ def test_compare_advances_one_bar_over_all_models():
     for _ in range(3):
         photax.rectify(image, lambda xy: xy * 0.5, grid, tile=16, progress=bar)
     assert bar.n == 3 * 6 and not bar.closed  # 40 x 30 px in 16-px tiles: 3 x 2 tiles per call
+    from photax.progress import progress_bar
+
     with pytest.raises(ValueError, match="progress"):
         with progress_bar(3.5, 1, desc="x"):
             pass
