@@ -140,7 +140,9 @@ plt.show()"""),
 polynomial cannot see) and grow outside the GCPs' hull, where a high-order polynomial extrapolates
 wildly. Below, the same image rectified by each model: the roads of the orthophoto are straight,
 those of the polynomial rectifications bend over the hills."""),
-    ("code", """images, grid = cmp.rectify(scene.image, ["collinearity", "polynomial 1", "polynomial 3", "polynomial 5"])
+    ("code", """# progress=True: one bar over the four models (a widget in Jupyter: ipywidgets, in the "notebooks" extra)
+images, grid = cmp.rectify(scene.image, ["collinearity", "polynomial 1", "polynomial 3", "polynomial 5"],
+                           progress=True)
 fig = cmp.plot_rectified(images, grid, reference=scene.ortho, reference_transform=scene.ortho_transform, ncols=3)
 plt.show()"""),
     ("md", """### The closed form

@@ -49,7 +49,7 @@ print(problem)
 result = ptx.bundle_adjust(problem, verbose=True)
 print(result.report())"""),
     ("code", """fig, axes = plt.subplots(1, 2, figsize=(12, 4))
-plot.convergence(axes[0], result.history)
+plot.convergence(axes[0], result)
 plot.bundle_residuals(axes[1], result)
 plt.show()"""),
     ("md", """## 2. Precision vs truth

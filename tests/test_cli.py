@@ -131,8 +131,9 @@ def test_demo_writes_report_and_refuses_the_data_folder(tmp_path, capsys, monkey
     monkeypatch.setattr(photax.demo, "SECTIONS", [photax.demo.resection_section])
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out)]) == 0
-    printed = capsys.readouterr().out
-    assert f"report: {out / 'report.md'}" in printed and "[1/" in printed
+    captured = capsys.readouterr()
+    printed = captured.out
+    assert f"report: {out / 'report.md'}" in printed and "demo: 100%" in captured.err  # its progress bar
     report = (out / "report.md").read_text()
     assert f"the planted blunder on {SAMPLE_BLUNDER[0]} was found" in report
     png = out / "resection_residuals.png"

@@ -3,7 +3,7 @@
 The kernel is this interpreter (a kernelspec written to a temporary folder,
 so a ``python`` elsewhere on PATH cannot be picked up), started in
 notebooks/ so relative paths in the notebooks work.  A cell that raises
-fails the test; warnings printed by a cell do not.
+fails the test, and so does a warning a cell prints on stderr.
 """
 
 import json
@@ -45,3 +45,7 @@ def test_notebook_runs(path, kernel_dir):
     assert pathlib.Path(printed.strip()).resolve() == pathlib.Path(sys.executable).resolve()
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "error"]
     assert not errors
+    # No warning printed by a cell either (e.g. tqdm's TqdmWarning when ipywidgets is missing).
+    warned = [o.text for c in nb.cells if c.cell_type == "code" for o in c.outputs
+              if o.output_type == "stream" and o.name == "stderr" and "Warning" in o.text]
+    assert not warned, warned

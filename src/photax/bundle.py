@@ -898,7 +898,7 @@ def bundle_adjust(
     precision: bool = True,
     initialize: bool | Literal["auto"] = "auto",
     verbose: bool = False,
-    progress: bool = False,
+    progress: bool | str = False,
     throw: bool = True,
 ) -> BundleResult:
     """Adjust a block by (robust) Levenberg–Marquardt with a Schur complement.
@@ -943,7 +943,8 @@ def bundle_adjust(
         initialize: fill NaN orientations / points with
             :func:`initialize_block` (``"auto"``: only when some are NaN).
         verbose: print one line per iteration.
-        progress: show a tqdm progress bar over iterations.
+        progress: a progress bar over the iterations: ``True`` (labelled
+            "bundle"), a label, or an open bar (:mod:`photax.progress`).
         throw: raise :class:`photax.ConvergenceError` when the adjustment fails
             (no convergence within ``max_iterations``, singular normal
             equations); else return the result with ``converged=False``.
@@ -992,10 +993,11 @@ def bundle_adjust(
         history: list[dict] = []
         message, converged = "", False
         bar = None
-        if progress:
-            from tqdm import tqdm
+        if progress:  # one bar, labelled "bundle" or by the caller (photax.progress)
+            from .progress import progress_bar
 
-            bar = tqdm(total=max_iterations, desc="bundle", unit="it")
+            bar_context = progress_bar(progress, max_iterations, desc="bundle", unit="it")
+            bar = bar_context.__enter__()
         gmax = float(lin.gmax)
         if gmax <= gradient_tolerance:
             message, converged = f"gradient tolerance: max|g| = {gmax:.3g} <= {gradient_tolerance:g}", True
@@ -1020,8 +1022,12 @@ def bundle_adjust(
             history.append(dict(iteration=it, cost=cost, candidate_cost=new_cost if math.isfinite(new_cost) else None, relative_decrease=rho, trust_radius=mu,
                                 step_norm=step, gradient_max=gmax, accepted=bool(accepted), seconds=time.perf_counter() - t0))  # fmt: skip
             if verbose:
-                print(f"{it:4d}  cost {cost:.6e}  cost_change {old - cost:+.3e}  |g| {gmax:.2e}  |step| {step:.2e}  "
-                      f"tr_radius {mu:.2e}  {'ok' if accepted else 'rejected'}", file=sys.stdout, flush=True)  # fmt: skip
+                line = (f"{it:4d}  cost {cost:.6e}  cost_change {old - cost:+.3e}  |g| {gmax:.2e}  |step| {step:.2e}  "
+                        f"tr_radius {mu:.2e}  {'ok' if accepted else 'rejected'}")  # fmt: skip
+                if hasattr(bar, "write"):  # through the bar, which clears and redraws itself around the line
+                    bar.write(line, file=sys.stdout)
+                else:
+                    print(line, flush=True)
             if bar is not None:
                 bar.update(1)
                 bar.set_postfix(cost=f"{cost:.4g}")
@@ -1038,7 +1044,7 @@ def bundle_adjust(
                 message = "trust region radius below 1e-32: no decrease possible"
                 break
         if bar is not None:
-            bar.close()
+            bar_context.__exit__(None, None, None)  # closes a bar of its own, not a caller's
         if not converged and not message:
             message = f"no convergence within max_iterations = {max_iterations}"
         return _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged,

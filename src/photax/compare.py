@@ -207,39 +207,56 @@ class ModelComparison:
     # --- rectified images --------------------------------------------------
 
     def rectify(self, image, names: Sequence[str] | None = None, *, grid: Grid | None = None,
-                resampling: str = "bilinear", progress: bool = False) -> tuple[dict[str, np.ndarray], Grid]:
+                resampling: str = "bilinear", progress: bool | str = False) -> tuple[dict[str, np.ndarray], Grid]:
         """Rectify ``image`` with each model onto one grid.
 
         Args:
-            image: ``(..., H, W)`` the image the GCPs were measured in.
+            image: ``(..., H, W)`` the image the GCPs were measured in
+                (e.g. ``(3, H, W)`` RGB).
             names: models to use (default all).
             grid: output grid; default the image footprint on the DEM at the GSD.
+            progress: one bar over all models' tiles: ``True`` (labelled
+                "compare") or a label (:mod:`photax.progress`).
 
         Returns:
             ``({name: (..., rows, cols) array}, grid)``; collinearity gives
             the orthophoto (:func:`photax.rectify.orthorectify`).
         """
-        from .rectify import rectify
+        from .progress import progress_bar
+        from .rectify import _tiles, rectify
 
         grid = ortho_grid(self.exterior, self.camera, self.dem, self.gsd) if grid is None else grid
         names = self.names if names is None else list(names)
-        out = {n: rectify(image, self[n].model, grid, resampling=resampling, progress=progress) for n in names}
+        tiles = len(list(_tiles(grid.shape, 1024)))  # rectify's default tile
+        with progress_bar(progress, tiles * len(names), desc="compare", unit="tile") as bar:
+            out = {n: rectify(image, self[n].model, grid, resampling=resampling, progress=bar) for n in names}
         return out, grid
 
     # --- figures -------------------------------------------------------------
 
     def plot_error_maps(self, names: Sequence[str] | None = None, *, vmax: float | None = None, ncols: int = 3):
-        """Error maps side by side with one colour scale; GCPs ``+``, check points ``o``.
+        """Error maps side by side on one colour scale; GCPs ``+``, check points ``o``.
+
+        One shared scale, so that a colour means the same error in every
+        panel and models can be compared by eye.  Its top ``vmax`` defaults
+        to the median over the panels of each panel's 99th percentile: a
+        single model that extrapolates wildly (order 5 outside the GCPs'
+        hull) saturates in its own panel (the colour bar's arrow; its title
+        gives its map maximum) instead of stretching the scale until every
+        other panel is black, as a percentile of all panels pooled does.
 
         Returns the matplotlib figure.
         """
         import matplotlib.pyplot as plt
 
         names = [n for n in self.names if n != "collinearity"] if names is None else list(names)
+        if not names:
+            raise ValueError("no model to plot")
         mags = [self[n].error_magnitude for n in names]
-        if vmax is None:  # robust shared scale: extrapolated corners of high orders would swamp it
-            finite = np.concatenate([m[np.isfinite(m)] for m in mags])
-            vmax = float(np.percentile(finite, 99)) if finite.size else 1.0
+        if vmax is None:
+            tops = [np.percentile(m[np.isfinite(m)], 99) for m in mags if np.isfinite(m).any()]
+            vmax = float(np.median(tops)) if tops else 1.0
+            vmax = vmax if vmax > 0 else 1.0
         ncols = min(ncols, len(names))
         nrows = -(-len(names) // ncols)
         fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.6 * nrows), squeeze=False,
@@ -251,15 +268,18 @@ class ModelComparison:
             im = ax.imshow(mag, extent=extent, vmin=0, vmax=vmax, cmap="magma")
             ax.plot(*to_km(self.gcp_ground), "+", color="cyan", ms=7, mew=1.5, label="GCP")
             if len(self.check_ground):
-                ax.plot(*to_km(self.check_ground), "o", mfc="none", color="lime", ms=4, label="check")
+                ax.plot(*to_km(self.check_ground), "o", mfc="none", color="lime", ms=4, label="check point")
             m = self[name]
-            ax.set_title(f"{name}\ncheck RMSE {m.check_rmse:.2f} px, map RMS {m.error_rms:.1f} px", fontsize=9)
-            ax.set_xlabel("easting [km]")
-            ax.set_ylabel("northing [km]")
+            ax.set_title(f"{name}\ncheck RMSE {m.check_rmse:.2f} px, map RMS {m.error_rms:.1f} px, "
+                         f"max {m.error_max:.0f} px", fontsize=9)
+            ax.set_xlabel(f"easting - {x0:.0f} m [km]")
+            ax.set_ylabel(f"northing - {y0:.0f} m [km]")
         for ax in axes.flat[len(names):]:
             ax.axis("off")
         axes.flat[0].legend(loc="lower left", fontsize=7)
-        fig.colorbar(im, ax=axes, shrink=0.8, label="|collinearity+DEM - model| [px]")
+        over = any(np.nanmax(m) > vmax for m in mags if np.isfinite(m).any())
+        fig.colorbar(im, ax=axes, shrink=0.8, extend="max" if over else "neither",
+                     label="|collinearity+DEM - model| [px]")
         return fig
 
     def plot_rmse(self):
@@ -279,11 +299,21 @@ class ModelComparison:
         return fig
 
     def plot_rectified(self, images: dict[str, np.ndarray], grid: Grid, *, reference: np.ndarray | None = None,
-                       reference_transform=None, ncols: int = 3, window=None):
+                       reference_transform=None, ncols: int = 3, window=None, value_range=None):
         """Rectified images side by side (from :meth:`rectify`), optionally
         with a reference orthophoto; ``window=(xmin, ymin, xmax, ymax)`` zooms
-        in (ground units)."""
+        in (ground units).
+
+        Images ``(rows, cols)`` are drawn in grey, ``(3 or 4, rows, cols)`` in
+        colour (RGB, a fourth band ignored); ``value_range=(low, high)`` maps
+        to black..white (default ``(0, 255)`` for integer images, else
+        ``(0, 1)``); NaN (no data) is transparent.  The GCPs (``+``) and check
+        points (``o``) are marked at their surveyed ground positions, where
+        a correct rectification puts their image.
+        """
         import matplotlib.pyplot as plt
+
+        from .plot import raster_rgba
 
         panels = list(images.items())
         extents = [grid.bounds] * len(panels)
@@ -298,17 +328,23 @@ class ModelComparison:
         fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.8 * nrows), squeeze=False,
                                  constrained_layout=True)
         for ax, (name, img), (xmin, ymin, xmax, ymax) in zip(axes.flat, panels, extents):
-            ax.imshow(img, cmap="gray", extent=(xmin, xmax, ymin, ymax), vmin=0, vmax=1)
-            if name in self.names:
-                ax.plot(self.gcp_ground[:, 0], self.gcp_ground[:, 1], "+", color="red", ms=6)
+            ax.imshow(raster_rgba(img, value_range), extent=(xmin, xmax, ymin, ymax), interpolation="nearest")
+            ax.plot(self.gcp_ground[:, 0], self.gcp_ground[:, 1], "+", color="red", ms=7, mew=1.5, label="GCP")
+            if len(self.check_ground):
+                ax.plot(self.check_ground[:, 0], self.check_ground[:, 1], "o", mfc="none", color="cyan", ms=4,
+                        label="check point")
             ax.set_title(name, fontsize=9)
             if window is not None:
                 ax.set_xlim(window[0], window[2])
                 ax.set_ylim(window[1], window[3])
             ax.ticklabel_format(useOffset=False, style="plain")
             ax.tick_params(labelsize=6)
+            ax.set_xlabel("easting [m]", fontsize=8)
+            ax.set_ylabel("northing [m]", fontsize=8)
         for ax in axes.flat[len(panels):]:
             ax.axis("off")
+        handles, labels = axes.flat[0].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize=8)
         return fig
 
 

@@ -11,6 +11,42 @@ import matplotlib.patches
 import numpy as np
 
 
+def raster_rgba(image, value_range=None) -> np.ndarray:
+    """An image as ``(rows, cols, 4)`` RGBA in 0..1 for ``imshow``.
+
+    Args:
+        image: ``(rows, cols)`` or ``(1, rows, cols)`` grey, ``(3, rows,
+            cols)`` RGB or ``(4, rows, cols)`` RGBA (the fourth band is
+            ignored; rasterio's band-first layout).
+        value_range: ``(low, high)`` drawn as black..white (full colour);
+            default ``(0, 255)`` for integer images, ``(0, 1)`` otherwise.
+
+    Returns:
+        float RGBA; alpha 0 where any band is NaN (no data).
+
+    Raises:
+        ValueError: another shape.
+    """
+    img = np.asarray(image)
+    if value_range is None:
+        value_range = (0.0, 255.0) if np.issubdtype(img.dtype, np.integer) else (0.0, 1.0)
+    img = img.astype(float)
+    if img.ndim == 3 and img.shape[0] in (3, 4):
+        rgb = np.moveaxis(img[:3], 0, -1)
+    elif img.ndim == 2 or (img.ndim == 3 and img.shape[0] == 1):
+        grey = img.reshape(img.shape[-2:])
+        rgb = np.repeat(grey[..., None], 3, axis=-1)
+    else:
+        raise ValueError(f"image must be (rows, cols), (1, rows, cols), (3, rows, cols) or (4, rows, cols), "
+                         f"got {img.shape}")
+    lo, hi = (float(v) for v in value_range)
+    if not hi > lo:
+        raise ValueError(f"value_range must be (low, high) with high > low, got {value_range!r}")
+    valid = np.all(np.isfinite(rgb), axis=-1)
+    rgb = np.clip((np.nan_to_num(rgb, nan=lo) - lo) / (hi - lo), 0.0, 1.0)
+    return np.concatenate([rgb, valid[..., None].astype(float)], axis=-1)
+
+
 def residual_vectors(ax, pixel_xy, residuals, names=None, *, outliers=None, check=None,
                      scale=None, image_size=None, title=None):
     """Residual vectors drawn at the points on the image, exaggerated.
@@ -138,18 +174,40 @@ def correlation_matrix(ax, correlation, labels, *, title="parameter correlations
     return im
 
 
-def convergence(ax, history, *, title="bundle adjustment: convergence"):
-    """Cost per iteration of a :class:`photax.BundleResult` (log scale);
-    rejected LM steps are marked with crosses at their candidate cost."""
-    it = np.array([h["iteration"] for h in history])
-    cost = np.array([h["cost"] for h in history])
+def convergence(ax, result, *, initial_cost=None, title="bundle adjustment: convergence"):
+    """Cost per iteration of a bundle adjustment (log scale), from the start.
+
+    Iteration 0 is the cost at the start values, before any step; iteration
+    ``k`` the cost after the ``k``-th step (unchanged by a rejected one,
+    whose candidate cost is marked with a cross).  Iterations are counted
+    as :func:`photax.bundle_adjust` counts them, ticks at whole numbers.
+
+    Args:
+        ax: a matplotlib ``Axes``.
+        result: a :class:`photax.BundleResult` (its ``history`` and
+            ``initial_cost``), or a ``history`` list of dicts with
+            ``iteration, cost, accepted, candidate_cost``.
+        initial_cost: the cost at the start values, when ``result`` is a
+            history list (else taken from the result).
+    """
+    from matplotlib.ticker import MaxNLocator
+
+    history = getattr(result, "history", result)
+    if initial_cost is None:
+        initial_cost = getattr(result, "initial_cost", None)
+    it = np.array([h["iteration"] for h in history], dtype=int)
+    cost = np.array([h["cost"] for h in history], dtype=float)
     ok = np.array([h["accepted"] for h in history], dtype=bool)
-    ax.semilogy(it, cost, "o-", ms=4, label="cost after the iteration")
+    if initial_cost is not None:
+        it, cost = np.concatenate([[0], it]), np.concatenate([[float(initial_cost)], cost])
+    ax.semilogy(it, cost, "o-", ms=4, label="cost (0: start values)" if initial_cost is not None else "cost")
     if (~ok).any():
         cand = np.array([np.nan if h["candidate_cost"] is None else h["candidate_cost"] for h in history])[~ok]
-        ax.semilogy(it[~ok], cand, "x", color="tab:red", label="rejected step")
+        ax.semilogy(np.array([h["iteration"] for h in history])[~ok], cand, "x", color="tab:red",
+                    label="rejected step (its cost)")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("iteration")
-    ax.set_ylabel("cost  0.5 sum r^2")
+    ax.set_ylabel("cost  ½ Σ ρ(|r/σ|²)  (r in sigmas)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     if title:

@@ -368,7 +368,7 @@ def _approx_arg(approx: float):
     return jnp.asarray(approx, dtype=float) if approx > 0 else None
 
 
-def _run_tiles(fn, tiles, progress: bool, desc: str, info: dict | None, approx: float, chunks: int, sink):
+def _run_tiles(fn, tiles, progress, desc: str, info: dict | None, approx: float, chunks: int, sink):
     """``sink(tile, block)`` for ``block, err, n_exact = fn(tile)`` over the
     tiles, in order; ``fn`` runs on a thread pool (XLA:CPU runs each tile's
     loop on one thread and releases the GIL), at most two tiles per thread
@@ -427,10 +427,10 @@ def _tiles(shape: tuple[int, int], tile: int):
             yield r0, c0, min(sizes[0], shape[0] - r0), min(sizes[1], shape[1] - c0)
 
 
-def _progress(total: int, enabled: bool, desc: str):
-    from tqdm.auto import tqdm
+def _progress(total: int, progress, desc: str):
+    from .progress import progress_bar
 
-    return tqdm(total=total, disable=not enabled, desc=desc, unit="tile", leave=False)
+    return progress_bar(progress, total, desc=desc, unit="tile")
 
 
 def _check_model(model):
@@ -446,7 +446,7 @@ def rectify(
     resampling: Resampling = "bilinear",
     nodata=None,
     tile: int = 1024,
-    progress: bool = False,
+    progress: bool | str = False,
     mapping: Literal["indirect", "direct"] = "indirect",
     inverse: Callable[[Array], Array] | None = None,
     approx: float | None = 0.125,
@@ -488,7 +488,9 @@ def rectify(
         nodata: value for output pixels without data; default NaN for
             floating-point images, 0 for integer ones.
         tile: output tile edge in pixels; memory grows with ``tile**2``.
-        progress: show a tqdm progress bar over the tiles.
+        progress: a progress bar over the tiles: ``True`` (labelled
+            "rectify"), a label, or an open bar to advance
+            (:mod:`photax.progress`).
         mapping: ``"indirect"`` or ``"direct"``.
         inverse: pixel -> map callable, for ``mapping="direct"`` only.
         approx: maximum position error (pixels) of the approximate mapping
@@ -684,7 +686,7 @@ def orthorectify(
     resampling: Resampling = "bilinear",
     nodata=None,
     tile: int = 1024,
-    progress: bool = False,
+    progress: bool | str = False,
     approx: float | None = 0.125,
     info: dict | None = None,
 ) -> tuple[np.ndarray, Grid]:
@@ -767,7 +769,7 @@ def rectify_file(
     resampling: Resampling = "bilinear",
     nodata=None,
     tile: int = 1024,
-    progress: bool = False,
+    progress: bool | str = False,
     compress: str | None = "deflate",
     inputs=(),
     approx: float | None = 0.125,
@@ -863,7 +865,7 @@ def orthorectify_file(
     resampling: Resampling = "bilinear",
     nodata=None,
     tile: int = 1024,
-    progress: bool = False,
+    progress: bool | str = False,
     compress: str | None = "deflate",
     approx: float | None = 0.125,
     info: dict | None = None,

@@ -28,6 +28,7 @@ def add_parser(sub) -> None:
     p.add_argument("--max-iterations", type=int, default=50)
     p.add_argument("--quiet", action="store_true", help="no per-iteration lines")
     p.add_argument("--json", metavar="OUT", help="also write the results as JSON")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
 
@@ -48,7 +49,8 @@ def run(args: argparse.Namespace) -> int:
     gauge = {"auto": "damped" if fmt == "bal" else None, "none": None}.get(args.gauge, args.gauge)
     print(problem)
     result = bundle_adjust(problem, loss=args.loss, loss_scale=args.loss_scale, gauge=gauge,
-                           max_iterations=args.max_iterations, verbose=not args.quiet, throw=False)  # fmt: skip
+                           max_iterations=args.max_iterations, verbose=not args.quiet, throw=False,
+                           progress=args.progress and args.command)  # fmt: skip
     print(result.report())
     if args.json:
         write_json(result.to_dict(), args.json, inputs=[path])

@@ -100,9 +100,9 @@ def run(args: argparse.Namespace) -> int:
         image, _ = read_geotiff(args.image)
         image = image.astype(float)
         image = (image - np.nanmin(image)) / max(float(np.nanmax(image) - np.nanmin(image)), 1e-12)
-        grey = image.mean(axis=0)  # the figure shows grey values; bands averaged
+        shown = image[:3] if image.shape[0] in (3, 4) else image.mean(axis=0)  # RGB in colour, else grey
         names = ["collinearity", *(n for n in comparison.names if n.startswith("polynomial"))]
-        rectified, grid = comparison.rectify(grey, names, progress=args.progress)
+        rectified, grid = comparison.rectify(shown, names, progress=args.progress and args.command)
         figures["rectified.png"] = comparison.plot_rectified(rectified, grid)
     for name, fig in figures.items():
         with atomic_path(out / name, inputs=inputs) as tmp:

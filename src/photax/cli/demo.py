@@ -9,12 +9,13 @@ def add_parser(sub) -> None:
     p = sub.add_parser("demo", help="write a demo report (Markdown + figures) on synthetic sample data",
                        description="Run photax on its sample scene and write report.md with figures.")
     p.add_argument("--out", default="photax-demo", metavar="DIR", help="output folder (default: ./photax-demo)")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..demo import run_demo
 
-    report = run_demo(args.out, progress=lambda line: print(line, flush=True))
+    report = run_demo(args.out, progress=args.progress and args.command)
     print(f"report: {report}")
     return 0

@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         grid = dataclasses.replace(grid, crs=crs)
     orthorectify_file(
         args.image, args.out, exterior, camera, dem, grid, resampling=args.resampling, tile=args.tile,
-        progress=args.progress,
+        progress=args.progress and args.command,  # one bar, labelled "ortho"
     )
     print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} ground units")
     return 0

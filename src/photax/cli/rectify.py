@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     bounds = (*ground.min(axis=0), *ground.max(axis=0))
     grid = Grid.from_bounds(bounds, resolution, crs=table.crs)
     rectify_file(args.image, args.out, model, grid, resampling=args.resampling, tile=args.tile,
-                 progress=args.progress, inputs=[args.gcps])
+                 progress=args.progress and args.command, inputs=[args.gcps])
     print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {resolution:g} map units, "
           f"order {args.order}, {len(ground)} GCPs, rmse {float(model.rmse):.3g} px")
     return 0

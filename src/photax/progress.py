@@ -1,0 +1,74 @@
+"""Progress bars: one per command, named after it.
+
+Long functions (:func:`photax.rectify`, :func:`photax.rectify_file`,
+:func:`photax.bundle_adjust`, :meth:`photax.ModelComparison.rectify`,
+:func:`photax.demo.run_demo`) take a ``progress`` argument:
+
+* ``False`` (default): no bar, and tqdm is not even imported;
+* ``True``: a bar labelled with the function's own name (``"rectify"``...);
+* a string: a bar with that label (the command line passes the command's
+  name: ``photax ortho`` shows one bar labelled ``ortho``);
+* a bar made by :func:`progress_bar`: the function advances that bar and
+  leaves it open, so a caller running several stages (``photax compare``
+  rectifying with six models) shows one bar, not one per stage.  The caller
+  sets its total.
+
+Bars come from ``tqdm.auto``: a widget in Jupyter (needs ``ipywidgets``,
+in the ``notebooks`` and ``test`` extras; without it tqdm falls back to
+text and warns with ``TqdmWarning``), text on stderr elsewhere.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+__all__ = ["progress_bar"]
+
+
+class _NoBar:
+    """What a disabled bar needs to answer."""
+
+    total = 0
+
+    def update(self, n=1):
+        pass
+
+    def set_postfix(self, *args, **kwargs):
+        pass
+
+    def set_postfix_str(self, *args, **kwargs):
+        pass
+
+    def close(self):
+        pass
+
+
+def _is_bar(obj) -> bool:
+    return hasattr(obj, "update") and hasattr(obj, "set_postfix")
+
+
+def progress_bar(progress, total: int | None, *, desc: str, unit: str = "it"):
+    """A context manager giving the bar ``progress`` asks for (module docstring).
+
+    Args:
+        progress: ``False``/``None``, ``True``, a label, or an open bar.
+        total: number of steps (ignored when ``progress`` is an open bar).
+        desc: the label when ``progress is True``.
+        unit: what one step is ("tile", "it", "section").
+
+    Raises:
+        ValueError: ``progress`` is none of these.
+    """
+    if progress is None or progress is False:
+        return contextlib.nullcontext(_NoBar())
+    if _is_bar(progress):
+        return contextlib.nullcontext(progress)  # the caller owns and closes it
+    if progress is True:
+        label = desc
+    elif isinstance(progress, str) and progress:
+        label = progress
+    else:
+        raise ValueError(f"progress must be a bool, a label or a progress bar, got {progress!r}")
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=label, unit=unit, dynamic_ncols=True)
