@@ -88,14 +88,14 @@ def problem_49():
 
 # `photax bundle problem-49-7776-pre.txt --gauge damped --loss huber` (issue 7).
 # Ceres needs more than its default 50 iterations with these losses at 1 px
-# (86 and 61 on this machine), so both solvers get 300.
+# (86 and 61 with one thread), so both solvers get 300.
 @pytest.mark.parametrize(
     "loss",
     [
         "huber",
         pytest.param("cauchy", marks=pytest.mark.xfail(
-            strict=True, reason="photax reaches another local minimum of the non-convex Cauchy cost "
-            "(4077.8 vs Ceres' 4051.4) in 95 iterations vs Ceres' 61 (issue 7)")),
+            strict=True, reason="95 iterations vs Ceres' 61, more than 1.5 times (issue 7); the cost is "
+            "lower than Ceres' (4077.76 vs 4079.05 by the BAL formula)")),
     ],
 )  # fmt: skip
 def test_problem_49_robust_reaches_ceres_cost(problem_49, loss):
@@ -107,17 +107,24 @@ def test_problem_49_robust_reaches_ceres_cost(problem_49, loss):
     sigma = float(np.unique(problem.obs_sigma)[0])
     assert np.all(problem.obs_sigma == sigma)
     a = 1.0
-    solve, to_bal = bench.ceres_bal(d, "DENSE_SCHUR", num_threads=2, loss=loss, loss_scale=a, max_num_iterations=300)
+    # One thread: with two, Ceres' path (and iteration count: 28 to 86 with
+    # Huber) changes from run to run with the order of its parallel sums.
+    solve, to_bal = bench.ceres_bal(d, "DENSE_SCHUR", num_threads=1, loss=loss, loss_scale=a, max_num_iterations=300)
     summary = solve()
     assert summary.termination_type.name == "CONVERGENCE", summary.message
     ceres_iterations = summary.num_successful_steps + summary.num_unsuccessful_steps
-    ceres_cost = _robust_bal_cost(*to_bal(), d, loss, a)
-    assert ceres_cost == pytest.approx(summary.final_cost, rel=1e-9)  # same robust cost function
+    cams, pts = to_bal()
+    ceres_cost = _robust_bal_cost(cams, pts, d, loss, a)
+    # COLMAP zeroes the residual of a point behind its camera, BAL does not:
+    # where Ceres moved none there, its own cost is the BAL cost.
+    behind = bench.bal_points_in_camera(cams, pts, d)[:, 2] > 0
+    if not behind.any():
+        assert ceres_cost == pytest.approx(summary.final_cost, rel=1e-9)  # same robust cost function
 
     result = bench.photax_bal(problem, loss=loss, loss_scale=a / sigma, max_iterations=300)
     assert result.converged, result.message
     assert all(np.isfinite(h["cost"]) for h in result.history)
     ours = _robust_bal_cost(*bench.photax_solution(result), d, loss, a)
     assert ours == pytest.approx(result.cost, rel=1e-9)
+    assert ours <= ceres_cost * (1.0 + 1e-6), (ours, ceres_cost, int(behind.sum()))
     assert result.iterations <= 1.5 * ceres_iterations, (result.iterations, ceres_iterations)
-    assert ours <= ceres_cost * (1.0 + 1e-6), (ours, ceres_cost)
