@@ -146,12 +146,16 @@ def scipy_recipe(d: BALData):
 _FLIP = np.diag([1.0, -1.0, -1.0])
 
 
-def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int = 2):
+def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int = 2, *, loss: str = "none",
+              loss_scale: float = 1.0, max_num_iterations: int | None = None):
     """Build the BAL problem as a pycolmap reconstruction and a Ceres solver.
 
     Returns ``(solve, to_bal)``: ``solve()`` runs Ceres and returns its
     summary; ``to_bal()`` returns the current ``(cameras (m, 9), points)``
-    in BAL's convention.  Ceres' own default tolerances and iteration limit.
+    in BAL's convention.  Ceres' own default tolerances and iteration limit
+    (unless ``max_num_iterations`` is given).  ``loss``: ``"none"``,
+    ``"huber"`` or ``"cauchy"`` (Ceres' HuberLoss / CauchyLoss of parameter
+    ``loss_scale`` pixels on each 2-vector reprojection residual).
     """
     import pyceres
     import pycolmap
@@ -178,9 +182,13 @@ def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int =
         refine_focal_length=True, refine_extra_params=True, refine_principal_point=False, print_summary=False
     )
     opts.ceres.auto_select_solver_type = False
+    opts.ceres.loss_function_type = getattr(pycolmap.LossFunctionType, {"none": "TRIVIAL"}.get(loss, loss.upper()))
+    opts.ceres.loss_function_scale = loss_scale
     so, default = opts.ceres.solver_options, pyceres.SolverOptions()
     for name in ("function_tolerance", "gradient_tolerance", "parameter_tolerance", "max_num_iterations"):
         setattr(so, name, getattr(default, name))  # COLMAP overrides them; use Ceres' own
+    if max_num_iterations is not None:
+        so.max_num_iterations = max_num_iterations
     so.linear_solver_type = getattr(pyceres.LinearSolverType, linear_solver)
     so.num_threads = num_threads
     config = pycolmap.BundleAdjustmentConfig()

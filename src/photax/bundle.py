@@ -14,9 +14,19 @@ and the solver minimises (Ceres' convention, 0.5 times the sum of squares)::
 with ``rho(s) = s`` (no loss), Huber ``rho(s) = s`` for ``s <= d^2`` else
 ``2 d sqrt(s) - d^2``, or Cauchy ``rho(s) = d^2 log(1 + s / d^2)``
 (``d = loss_scale``, in units of the observation's sigma).  Robust losses
-are applied by iteratively reweighting (IRLS): each linearisation scales the
-observation's residual and Jacobian by ``sqrt(rho'(s))``, as Ceres' loss
-functions do without their second-order correction.
+enter each linearisation through Triggs' corrected residual and Jacobian
+(Triggs et al. 2000, sec. 4.3; Ceres' ``corrector.cc``; see
+:func:`_corrector`)::
+
+    J~ = sqrt(rho') (I - alpha r r^T / |r|^2) J,   1 - alpha = sqrt(max(D, D_min)),
+    D  = 1 + 2 |r|^2 rho'' / rho'
+
+so the gradient is exact (``rho' J^T r``) and ``J~^T J~`` carries the loss'
+curvature along ``r``.  The first steps reweight only (``alpha = 0``, as Ceres
+does for Huber and Cauchy); once the cost decrease slows the correction is
+switched on, which turns the linear convergence of reweighting into the
+Gauss-Newton rate of the robust cost.  A step whose cost or norm is not
+finite is rejected (more damping), never taken.
 
 Parameters (analysed once on the numpy side, then solved by jitted steps):
 
@@ -480,16 +490,68 @@ def _residuals(state: _State, s: _Structure) -> Array:
 _LOSS_CODE = {"none": 0, "huber": 1, "cauchy": 2}
 
 
-def _rho(sq: Array, loss: Array, scale: Array) -> tuple[Array, Array]:
-    """Loss ``rho(s)`` and ``rho'(s)`` for squared norms ``s``; ``loss`` is a
-    traced code (0 none, 1 Huber, 2 Cauchy) so changing it does not recompile."""
+def _rho(sq: Array, loss: Array, scale: Array) -> tuple[Array, Array, Array]:
+    """Loss ``rho(s)``, ``rho'(s)`` and ``rho''(s)`` for squared norms ``s``;
+    ``loss`` is a traced code (0 none, 1 Huber, 2 Cauchy) so changing it
+    does not recompile.  Huber outside ``d^2``: ``rho' = d / sqrt(s)``,
+    ``rho'' = -rho' / (2 s)``; Cauchy: ``rho' = 1 / (1 + s/d^2)``,
+    ``rho'' = -rho'^2 / d^2`` (Ceres' ``HuberLoss``, ``CauchyLoss``)."""
     d2 = scale * scale
     root = jnp.sqrt(jnp.maximum(sq, d2))
-    huber = (jnp.where(sq <= d2, sq, 2.0 * scale * root - d2), jnp.where(sq <= d2, 1.0, scale / root))
-    cauchy = (d2 * jnp.log1p(sq / d2), 1.0 / (1.0 + sq / d2))
+    inside = sq <= d2
+    h1 = jnp.where(inside, 1.0, scale / root)
+    huber = (jnp.where(inside, sq, 2.0 * scale * root - d2), h1, jnp.where(inside, 0.0, -0.5 * h1 / root**2))
+    c1 = 1.0 / (1.0 + sq / d2)
+    cauchy = (d2 * jnp.log1p(sq / d2), c1, -c1 * c1 / d2)
     rho = jnp.select([loss == 1, loss == 2], [huber[0], cauchy[0]], sq)
     drho = jnp.select([loss == 1, loss == 2], [huber[1], cauchy[1]], jnp.ones_like(sq))
-    return rho, drho
+    d2rho = jnp.select([loss == 1, loss == 2], [huber[2], cauchy[2]], jnp.zeros_like(sq))
+    return rho, drho, d2rho
+
+
+#: Floor of the radial curvature factor ``D = 1 + 2 s rho''/rho'`` of a
+#: robust residual (see :func:`_corrector`): Huber's ``D`` is 0 beyond its
+#: scale and Cauchy's negative beyond it, where the exact per-residual
+#: Hessian is singular or indefinite; 0.1 keeps ``1 - alpha >= 0.32``.
+MIN_RADIAL_CURVATURE = 0.1
+#: The second-order correction starts after the first accepted step that
+#: lowers the cost by less than this fraction: far from the minimum, plain
+#: reweighting (whose model overestimates the curvature, a safe majorant) is
+#: the more robust globalisation; near it, the corrected model converges
+#: faster.
+SECOND_ORDER_AFTER = 1e-2
+
+
+def _corrector(r: Array, rho1: Array, rho2: Array) -> tuple[Array, Array]:
+    """Triggs' robustified residual and Jacobian (Triggs et al. 2000, sec.
+    4.3; Ceres' ``internal/ceres/corrector.cc``) for ``(k, 2)`` residuals.
+
+    With ``s = |r|^2``, the Hessian of ``0.5 rho(s)`` w.r.t. the residual is
+    ``rho' I + 2 rho'' r r^T``, i.e. ``rho'`` across ``r`` and ``rho' D``
+    along it, ``D = 1 + 2 s rho''/rho'``.  Its square root is
+    ``sqrt(rho') (I - alpha r r^T / s)`` with ``1 - alpha = sqrt(D)``, so::
+
+        J~ = sqrt(rho') (I - alpha r r^T / s) J,   r~ = sqrt(rho') r / (1 - alpha)
+
+    give ``J~^T r~ = rho' J^T r`` (the exact gradient) and ``J~^T J~`` the
+    Hessian of the loss up to the second derivatives of ``r`` (Gauss-Newton).
+    Ceres applies the correction only where ``rho'' > 0`` and otherwise uses
+    plain reweighting (``alpha = 0``), which makes Huber and Cauchy converge
+    only linearly when many residuals are beyond the loss scale: their
+    curvature along ``r`` is overestimated (by ``1/D``).  Here ``D`` is used
+    wherever it is defined, floored at :data:`MIN_RADIAL_CURVATURE` where it
+    drops to 0 (Huber) or below (Cauchy): the per-residual Hessian stays
+    positive definite and ``1 - alpha`` bounded away from 0.  ``s == 0``:
+    ``alpha = 0``.  The solver uses plain reweighting until the cost
+    decrease slows (:data:`SECOND_ORDER_AFTER`), then this correction.
+
+    Returns ``(sqrt(rho'), alpha / s)``, ``(k,)`` each; ``alpha / s`` is 0
+    for least squares (``rho'' = 0``), so its results are unchanged."""
+    sq = jnp.sum(r * r, axis=1)
+    radial = jnp.maximum(1.0 + 2.0 * sq * rho2 / rho1, MIN_RADIAL_CURVATURE)
+    alpha = 1.0 - jnp.sqrt(radial)
+    alpha_sq = jnp.where(sq > 0, alpha / jnp.where(sq > 0, sq, 1.0), 0.0)
+    return jnp.sqrt(rho1), alpha_sq
 
 
 def _prior_residuals(state: _State, s: _Structure) -> Array:
@@ -499,7 +561,7 @@ def _prior_residuals(state: _State, s: _Structure) -> Array:
 @jax.jit
 def _cost(state: _State, s: _Structure, loss: Array, scale: Array) -> Array:
     r = _residuals(state, s)
-    rho, _ = _rho(jnp.sum(r * r, axis=1), loss, scale)
+    rho, _, _ = _rho(jnp.sum(r * r, axis=1), loss, scale)
     return 0.5 * jnp.sum(rho) + 0.5 * jnp.sum(_prior_residuals(state, s) ** 2)
 
 
@@ -522,8 +584,8 @@ def _inv3(m: Array) -> Array:
 
 class _Lin(NamedTuple):
     cost: Array
-    r: Array  # (k, 2) IRLS-scaled residuals
-    weight: Array  # (k,) IRLS weights rho'
+    r: Array  # (k, 2) residuals (projected - observed) / sigma, not robustified
+    weight: Array  # (k,) rho'(|r|^2) (1 without a robust loss)
     wt: Array  # (k, 3, w) W^T per observation: Jp^T Jc
     u_img: Array  # (n_img, w, w) sum of Jc^T Jc per image
     v: Array  # (n_pts, 3, 3)
@@ -536,19 +598,29 @@ class _Lin(NamedTuple):
 
 
 @functools.partial(jax.jit, static_argnames=("n_c",))
-def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int) -> _Lin:
+def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int, second_order: Array = True) -> _Lin:
     n_img, n_pts = state.centre.shape[0], state.xyz.shape[0]
     w = 6 + s.active.shape[0]
     proj, jc, jp = _project_obs(state, s, jacobians=True)
-    r = (proj - s.obs_xy) / s.obs_sigma
-    rho, weight = _rho(jnp.sum(r * r, axis=1), loss, scale)
+    r0 = (proj - s.obs_xy) / s.obs_sigma
+    rho, weight, rho2 = _rho(jnp.sum(r0 * r0, axis=1), loss, scale)
     rp = _prior_residuals(state, s)
     cost = 0.5 * jnp.sum(rho) + 0.5 * jnp.sum(rp * rp)
-    sw = jnp.sqrt(weight)[:, None]
-    r = r * sw
-    scale_obs = (sw / s.obs_sigma)[:, :, None]  # IRLS weight over sigma, per row
-    jc = jc * scale_obs * s.mask_c[s.image_ext[s.obs_image]][:, None, :]
-    jp = jp * scale_obs * s.mask_p[s.obs_point][:, None, :]
+    sqrt_rho1, alpha_sq = _corrector(r0, weight, rho2)
+    alpha_sq = jnp.where(second_order, alpha_sq, 0.0)
+    # Corrected Jacobian sqrt(rho') (I - alpha r r^T / s) J / sigma (see
+    # _corrector); the gradient rho' J^T r / sigma is formed from J itself,
+    # which equals J~^T r~ without dividing by 1 - alpha.
+    rg = r0 * weight[:, None]
+
+    def correct(j, mask):
+        j = j / s.obs_sigma[:, :, None] * mask[:, None, :]
+        g = jnp.einsum("kri,kr->ki", j, rg)
+        j = j - (alpha_sq[:, None] * r0)[:, :, None] * jnp.einsum("kr,krj->kj", r0, j)[:, None, :]
+        return j * sqrt_rho1[:, None, None], g
+
+    jc, g_obs_c = correct(jc, s.mask_c[s.image_ext[s.obs_image]])
+    jp, g_obs_p = correct(jp, s.mask_p[s.obs_point])
     seg = functools.partial(jax.ops.segment_sum, num_segments=n_img)
     segp = functools.partial(jax.ops.segment_sum, num_segments=n_pts)
     jct, jpt = jnp.swapaxes(jc, 1, 2), jnp.swapaxes(jp, 1, 2)
@@ -556,17 +628,17 @@ def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int
     jcc = jnp.take(jc, s.image_chunk, axis=0, mode="fill", fill_value=0.0).reshape(s.image_chunk.shape[0], -1, w)
     u_img = jax.ops.segment_sum(jax.lax.dot_general(jcc, jcc, (((1,), (1,)), ((0,), (0,)))), s.image_of_chunk,
                                 num_segments=n_img, indices_are_sorted=True)  # fmt: skip
-    g_img = seg(jnp.einsum("kri,kr->ki", jc, r), s.obs_image)
+    g_img = seg(g_obs_c, s.obs_image)
     pw = s.prior_w * s.mask_p
     v = segp(_outer_sum(jpt, jpt), s.obs_point) + pw[:, :, None] * jnp.eye(3)[None, :, :]
-    g_p = segp(jnp.einsum("kri,kr->ki", jp, r), s.obs_point) + pw * (state.xyz - s.prior_xyz)
+    g_p = segp(g_obs_p, s.obs_point) + pw * (state.xyz - s.prior_xyz)
     flat = s.image_ext.ravel()
     g_c = jnp.zeros(n_c).at[flat].add(g_img.ravel())
     d_c = jnp.zeros(n_c).at[flat].add(jnp.diagonal(u_img, axis1=1, axis2=2).ravel())
     d_p = jnp.diagonal(v, axis1=1, axis2=2)
     clamp = functools.partial(jnp.clip, min=1e-6, max=1e32)
     gmax = jnp.maximum(jnp.max(jnp.abs(g_c), initial=0.0), jnp.max(jnp.abs(g_p), initial=0.0))
-    return _Lin(cost, r, weight, _outer_sum(jpt, jct), u_img, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax)
+    return _Lin(cost, r0, weight, _outer_sum(jpt, jct), u_img, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax)
 
 
 def _schur_parts(lin: _Lin, s: _Structure, lam: Array, n_c: int):
@@ -986,7 +1058,8 @@ def bundle_adjust(
     solver = linear_solver if linear_solver != "auto" else ("dense" if n_c <= DENSE_LIMIT else "cg")
     kw = dict(loss=jnp.asarray(_LOSS_CODE[loss]), scale=jnp.asarray(float(loss_scale)), n_c=n_c)
     with _blas_threads(n_c):
-        lin = _linearise(state, s, **kw)
+        second = loss == "none"
+        lin = _linearise(state, s, **kw, second_order=second)
         cost = initial_cost = float(lin.cost)
         gn = method == "gauss-newton"
         mu, nu = float(initial_trust_radius), 2.0
@@ -1013,7 +1086,9 @@ def bundle_adjust(
             old = cost
             if accepted:
                 state, cost = new, new_cost
-                lin = _linearise(state, s, **kw)
+                if not second and old - cost <= SECOND_ORDER_AFTER * old:
+                    second = True
+                lin = _linearise(state, s, **kw, second_order=second)
                 gmax = float(lin.gmax)
                 mu = mu / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 mu, nu = min(mu, 1e16), 2.0
@@ -1022,8 +1097,9 @@ def bundle_adjust(
             history.append(dict(iteration=it, cost=cost, candidate_cost=new_cost if math.isfinite(new_cost) else None, relative_decrease=rho, trust_radius=mu,
                                 step_norm=step, gradient_max=gmax, accepted=bool(accepted), seconds=time.perf_counter() - t0))  # fmt: skip
             if verbose:
+                status = "ok" if accepted else "rejected" if math.isfinite(new_cost) else "rejected (no finite step)"
                 line = (f"{it:4d}  cost {cost:.6e}  cost_change {old - cost:+.3e}  |g| {gmax:.2e}  |step| {step:.2e}  "
-                        f"tr_radius {mu:.2e}  {'ok' if accepted else 'rejected'}")  # fmt: skip
+                        f"tr_radius {mu:.2e}  {status}")  # fmt: skip
                 if hasattr(bar, "write"):  # through the bar, which clears and redraws itself around the line
                     bar.write(line, file=sys.stdout)
                 else:
@@ -1069,11 +1145,11 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     )
     pts = np.asarray(state.xyz) + origin[None, :]
     weight = np.asarray(lin.weight)
-    residuals = np.asarray(lin.r) / np.sqrt(np.maximum(weight, 1e-300))[:, None] * problem.obs_sigma
+    residuals = np.asarray(lin.r) * problem.obs_sigma
     n_free = int(np.asarray(s.mask_c).sum() + np.asarray(s.mask_p).sum())
     n_prior = int(np.sum(np.asarray(s.prior_w) > 0))
     redundancy = 2 * problem.n_observations + n_prior - n_free + (7 if gauge == "damped" else 0)
-    wsq = float(np.sum(np.asarray(lin.r) ** 2) + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w)))
+    wsq = float(np.sum(weight[:, None] * np.asarray(lin.r) ** 2) + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w)))
     sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
     eo_std = cam_std = pt_std = pt_cov = None
     if precision and n_c > 2 * DENSE_LIMIT:
