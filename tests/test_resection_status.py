@@ -62,9 +62,13 @@ def _resect_sample(table, camera, pixel=None, ground=None, throw=False):
                       check=table.check, names=table.names, throw=throw)
 
 
-def test_sample_still_succeeds_with_its_blunder(sample):
-    table, camera = sample
-    res = _resect_sample(table, camera)
+@pytest.fixture(scope="module")
+def sample_result(sample):
+    return _resect_sample(*sample)
+
+
+def test_sample_still_succeeds_with_its_blunder(sample_result):
+    res = sample_result
     assert res.converged, res.message
     assert [str(n) for n in np.asarray(res.names)[res.outliers]] == ["P07"]  # the sample's one 15 px blunder
     assert res.rms / res.pixel_size < 1.0
@@ -191,3 +195,46 @@ def test_optimistix_result_codes_all_have_photax_words():
         assert converged == (name == "successful")
         _no_dependency_text(text)
         assert "Gauss-Newton" in text and "7 steps" in text
+
+
+# ----------------------------------------------------------------------------- units in the report
+
+
+def _row(text, start):
+    return next(line for line in text.splitlines() if line.strip().startswith(start))
+
+
+def test_summary_has_units_on_every_number(sample_result):
+    res = sample_result  # mm camera, 4.4 um pixels, sigma given (Baarda's w: sigma0 unitless)
+    text = res.summary(crs="EPSG:32633", camera_unit="mm")
+    ps = 0.0044
+    assert res.pixel_size == pytest.approx(ps)
+    assert f"rms = {res.rms / ps:.3f} px ({res.rms:.4g} mm)" in text
+    assert f"check points: rms = {res.check_rms / ps:.3f} px ({res.check_rms:.4g} mm)" in text
+    x = _row(text, "X [m]").split()
+    assert float(x[2]) == pytest.approx(float(res.exterior.X), abs=1e-4) and x[-1] == "m"
+    assert float(x[3]) == pytest.approx(res.std[0], abs=1e-4)
+    kappa = _row(text, "kappa [deg]").split()
+    assert float(kappa[2]) == pytest.approx(np.degrees(float(res.exterior.kappa)), abs=1e-6)
+    assert float(kappa[3]) == pytest.approx(np.degrees(res.std[5]) * 3600.0, abs=0.01) and kappa[-1] == '"'
+    assert "vx [px]" in text and "vy [mm]" in text and "unitless" in text
+    p07 = _row(text, "P07").split()  # residuals in pixels, then mm
+    k = list(res.names).index("P07")
+    np.testing.assert_allclose([float(v) for v in p07[2:4]], res.residuals[k] / ps, atol=1e-3)
+    np.testing.assert_allclose([float(v) for v in p07[4:6]], res.residuals[k], rtol=1e-3)
+    # the CRS's unit replaces metres when it is known
+    feet = res.summary(crs="EPSG:2263")
+    assert "X [US ft]" in feet and "mm" not in feet and "image-plane units" in feet
+    assert "X [ft]" in res.summary(ground_unit="ft")
+
+
+def test_summary_units_pixels_and_no_grid():
+    cam, eo, ground, xy = _scene(40)
+    res = ptx.resect(xy, ground, cam)  # pixel camera, no sigma: Pope's tau, sigma0 in pixels
+    text = res.summary()
+    assert f"sigma0 = {res.sigma0:.3f} px" in text and f"rms = {res.rms:.3f} px" in text
+    assert "vx [px]" in text and "X [m]" in text and "image-plane units" not in text
+    metres = ptx.FrameCamera(3000 * 4.4e-6)  # no pixel grid: the camera's unit only
+    res = ptx.resect(xy * 4.4e-6, ground, metres)
+    text = res.summary(camera_unit="m")
+    assert res.pixel_size is None and f"rms = {res.rms:.4g} m" in text and "vx [m]" in text and "px" not in text
