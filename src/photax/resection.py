@@ -925,36 +925,86 @@ def resect(
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")
     basis = _check_geometry(ground, xy, ctrl, names, initial is None)
 
-    origin = ground[ctrl].mean(axis=0)
-    m = _bucket(n)
-    pad = lambda a, fill=0.0: np.concatenate([a, np.full((m - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
-    ctrl_idx = np.flatnonzero(ctrl)
     if initial is not None:
         if not isinstance(initial, ExteriorOrientation):
             raise ValueError("initial must be a photax.ExteriorOrientation")
-        e0 = initial.to_convention(convention)
-        init = np.concatenate([np.asarray(e0.position) - origin, np.asarray(e0.angles)])
-        if not np.all(np.isfinite(init)):
+        initial = initial.to_convention(convention)
+        if not np.all(np.isfinite(np.asarray(initial.to_vector()))):
             raise ValueError("initial has non-finite values")
-    else:
-        init = np.zeros(6)
     sigma_known = sigma is not None
-    args = (pad(xy), pad(ground - origin), pad(weight, 1.0), pad(ctrl, False), basis, ctrl_idx[_subsets(len(ctrl_idx))],
-            init, initial is not None, robust, len(ctrl_idx) >= 6)
-    with _solver_errors():
-        out = _unpack(np.asarray(_solve_one(*args, *_options(alpha, sigma_known, m, robust, camera, initial is not None),
-                                            int(max_steps), camera, convention == "phi-omega-kappa")), m)
-    out["solver"] = "gn"
-    if out["result"] != 0:  # Gauss-Newton failed: Levenberg-Marquardt from the same start, same points
-        gn = _message(int(out["result"]), int(out["steps"]), "gn")[1]
+    m = _bucket(n)
+    ctrl_idx = np.flatnonzero(ctrl)
+    pad = lambda a, fill=0.0: np.concatenate([a, np.full((m - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
+    options = _options(alpha, sigma_known, m, robust, camera, initial is not None)
+    pok = convention == "phi-omega-kappa"
+
+    def run(xy, ground, basis, fallback):
+        """Start, Gauss-Newton and snooping (then Levenberg-Marquardt if it failed and ``fallback``)."""
+        origin = ground[ctrl].mean(axis=0)
+        init = np.zeros(6) if initial is None else np.concatenate(
+            [np.asarray(initial.position) - origin, np.asarray(initial.angles)])
+        args = (pad(xy), pad(ground - origin), pad(weight, 1.0), pad(ctrl, False), basis,
+                ctrl_idx[_subsets(len(ctrl_idx))], init, initial is not None, robust, len(ctrl_idx) >= 6)
         with _solver_errors():
-            lm = jax.device_get(_levenberg_marquardt(*args[:2], args[2], out["used"], out["start"], max_steps, camera,
-                                                     convention == "phi-omega-kappa"))
-        out.update(lm, solver="lm", gn_failure=gn)
-    used = out["used"][:n]
-    outliers = ctrl & ~used
-    return _finish(out, n, origin, used, outliers, out["stat_at"][:n], is_check, names, float(out["critical"]),
-                   sigma_known, convention, throw, xy, basis[:, 2], camera)
+            out = _unpack(np.asarray(_solve_one(*args, *options, int(max_steps), camera, pok)), m)
+        out["solver"] = "gn"
+        if out["result"] != 0 and fallback:  # Gauss-Newton failed: Levenberg-Marquardt from the same start, same points
+            gn = _message(int(out["result"]), int(out["steps"]), "gn")[1]
+            with _solver_errors():
+                lm = jax.device_get(_levenberg_marquardt(*args[:2], args[2], out["used"], out["start"], max_steps,
+                                                         camera, pok))
+            out.update(lm, solver="lm", gn_failure=gn)
+        used = out["used"][:n]
+        return _finish(out, n, origin, used, ctrl & ~used, out["stat_at"][:n], is_check, names,
+                       float(out["critical"]), sigma_known, convention, False, xy, basis[:, 2], camera)
+
+    res = run(xy, ground, basis, True)
+    if not res.converged and initial is None and "wrong units (e.g." not in res.message:  # units: no swap helps
+        hint = _swap_hint(xy, ground, ctrl, camera, names, run)
+        if hint:
+            res = dataclasses.replace(res, message=f"{hint}; {res.message}")
+    if throw and not res.converged:
+        raise ConvergenceError(res.message)
+    return res
+
+
+def _swap_hint(xy, ground, ctrl, camera, names, run) -> str | None:
+    """Name the swap that makes a failed resection fit, if one does.
+
+    The usual mistakes in a GCP file are tried (Gauss-Newton only: no new
+    compilation, milliseconds each): image column/row swapped (x/y
+    without a pixel grid), the row counted upwards (y mirrored), ground E
+    and N swapped.  A hypothesis counts when its resection passes every
+    check of :func:`_plausibility` (in particular, at most a third of the
+    points excluded).
+    """
+    if camera.pixel_size is not None and camera.image_size is not None:
+        colrow = np.asarray(camera.image_to_pixel(xy))
+        swapped_xy = np.asarray(camera.pixel_to_image(colrow[:, ::-1]))
+        swap_name = "the image column and row are swapped"
+    else:
+        swapped_xy, swap_name = xy[:, ::-1], "the image x and y are swapped"
+    ground_en = ground[:, [1, 0, 2]]
+    hypotheses = [
+        (swap_name, swapped_xy, ground),
+        ("the image y (row) axis is reversed", xy * [1.0, -1.0], ground),
+        ("the ground E and N (X and Y) are swapped", xy, ground_en),
+    ]
+    fits = []
+    for text, xy_h, ground_h in hypotheses:
+        try:
+            basis = _check_geometry(ground_h, xy_h, ctrl, names, True)
+            res = run(xy_h, ground_h, basis, False)
+        except (ValueError, ConvergenceError):
+            continue
+        if res.converged:
+            rms = f"{res.rms / res.pixel_size:.3g} px" if res.pixel_size else f"{res.rms:.3g}"
+            k = int(res.outliers.sum())
+            fits.append(f"{text} (then rms {rms}, {k} point{'' if k == 1 else 's'} excluded)")
+    if not fits:
+        return None
+    # For (nearly) planar GCPs any mirroring of the image undoes any mirroring of the ground: name all that fit.
+    return "probably swapped or mirrored axes: the control points fit if " + " - or if ".join(fits)
 
 
 @contextlib.contextmanager
