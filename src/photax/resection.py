@@ -49,6 +49,19 @@ reduced to the centroid of the control points before anything is computed
    excluded and the adjustment repeated from the robust start (inside the
    compiled function, a ``lax.while_loop``).
 
+5. **Plausibility**: a converged adjustment is still a failure
+   (``converged=False``, the reason in ``message``) when image and ground
+   evidently do not belong together: more than a third of the control
+   points excluded; residuals above 2 % of the frame diagonal; control
+   points behind the camera; the mirror-image solution (camera below the
+   GCPs' plane - for planes flatter than 60 degrees - looking up at it;
+   Z is up); image coordinates outside 1.5 times the frame, or spanning
+   less than 1 % of it (without a frame: farther than 4 f from the centre,
+   or spanning less than 0.005 f) - a wrong unit.  When a single-image
+   resection fails, the usual GCP-file mistakes are tried (image
+   column/row swapped, row direction reversed, ground E/N swapped) and
+   those that make it fit are named in the message.
+
 References: Kraus, *Photogrammetry* vol. 1 (2007) sec. 4.3; Wolf & DeWitt,
 *Elements of Photogrammetry* (2014) ch. 11 and app. B; Förstner & Wrobel,
 *Photogrammetric Computer Vision* (2016) sec. 4.6.
@@ -890,13 +903,18 @@ def resect(
         max_steps: maximum Gauss-Newton / LM steps per adjustment.
         throw: raise :class:`photax.ConvergenceError` on failure; otherwise
             return the result with ``converged=False`` and the reason.
+            Failure includes an implausible solution (module docstring,
+            step 5).
 
     Returns:
-        :class:`ResectionResult`.
+        :class:`ResectionResult` (finite values also when it failed).
 
     Raises:
         ValueError: bad shapes, NaN/inf (naming the points), too few or
             degenerate (collinear, duplicated) control points.
+        ConvergenceError: with ``throw=True`` on failure; whatever
+            ``throw``, if the compiled solver itself raises (the original
+            exception is its ``__cause__``).
     """
     check_convention(convention)
     xy = _as_points(image_xy, "image_xy", 2, False)
@@ -1124,7 +1142,9 @@ def resect_batch(
     :func:`resect`, the start comes from all points (no random subsets:
     with ``robust=True`` blunders are still found by data snooping, but a
     gross blunder may spoil the start), and there is no Levenberg-Marquardt
-    fallback: a failed image is reported, not retried.
+    fallback: a failed image is reported, not retried.  The plausibility
+    checks of :func:`resect` (module docstring, step 5) apply per image;
+    the swap hints are not tried.
 
     Args:
         image_xy: ``(b, n, 2)`` image-plane coordinates.
