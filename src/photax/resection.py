@@ -49,6 +49,19 @@ reduced to the centroid of the control points before anything is computed
    excluded and the adjustment repeated from the robust start (inside the
    compiled function, a ``lax.while_loop``).
 
+5. **Plausibility**: a converged adjustment is still a failure
+   (``converged=False``, the reason in ``message``) when image and ground
+   evidently do not belong together: more than a third of the control
+   points excluded; residuals above 2 % of the frame diagonal; control
+   points behind the camera; the mirror-image solution (camera below the
+   GCPs' plane - for planes flatter than 60 degrees - looking up at it;
+   Z is up); image coordinates outside 1.5 times the frame, or spanning
+   less than 1 % of it (without a frame: farther than 4 f from the centre,
+   or spanning less than 0.005 f) - a wrong unit.  When a single-image
+   resection fails, the usual GCP-file mistakes are tried (image
+   column/row swapped, row direction reversed, ground E/N swapped) and
+   those that make it fit are named in the message.
+
 References: Kraus, *Photogrammetry* vol. 1 (2007) sec. 4.3; Wolf & DeWitt,
 *Elements of Photogrammetry* (2014) ch. 11 and app. B; Förstner & Wrobel,
 *Photogrammetric Computer Vision* (2016) sec. 4.6.
@@ -56,6 +69,7 @@ References: Kraus, *Photogrammetry* vol. 1 (2007) sec. 4.3; Wolf & DeWitt,
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
 import json
@@ -82,7 +96,33 @@ _N_SUBSETS = 32  # random subsets for the robust start: P(all 32 contain a blund
 _SEED = 20240601  # fixed: the same input gives the same answer
 _PLANAR = 0.1  # smallest / largest spread of the GCPs below this: "planar" for the 4-point minimum
 _OPENCV_FLIP = np.diag([1.0, -1.0, -1.0])  # photax camera frame <-> (x right, y down, z forward)
-_OPTX_MESSAGES = {int(item._value): optx.RESULTS[item] for item in optx.RESULTS._name_to_item.values()}
+# optimistix's result codes, described in photax's words (its own texts give
+# advice about lineax/optimistix arguments that a photax user cannot act on).
+_SINGULAR = "the normal equations became singular (the control points do not determine the orientation from there)"
+_OPTX_WORDS = {
+    "max_steps_reached": "the iteration limit was reached",
+    "nonlinear_max_steps_reached": "the iteration limit was reached",
+    "singular": _SINGULAR,
+    "breakdown": _SINGULAR,
+    "stagnation": _SINGULAR,
+    "conlim": _SINGULAR,
+    "nonfinite_input": "the estimate became non-finite (NaN or inf)",
+    "nonfinite": "the estimate became non-finite (NaN or inf)",
+    "nonlinear_divergence": "the iterations diverged",
+}
+_OPTX_MESSAGES = {int(item._value): _OPTX_WORDS.get(name, "the solver failed")
+                  for name, item in optx.RESULTS._name_to_item.items()}
+# Why the image and ground coordinates of a resection may not fit together.
+_CAUSES = ("likely causes: swapped or mirrored axes (image column/row or x/y, ground E/N), wrong units "
+           "(image coordinates in another unit than the camera's), or control points measured on another image")
+_MAX_EXCLUDED = 1.0 / 3.0  # more blunders than this share of the control points: the data do not fit
+_MAX_RMS = 0.02  # rms above this share of the frame diagonal (or of f): not a measurement error
+_FRAME_MARGIN = 1.5  # image points farther out than this times the half frame: not on this camera's image
+_MAX_FIELD = 4.0  # no frame known: image points farther out than this times f (152 deg field of view): wrong unit
+# Image points spanning less than this share of the frame (40 px of 4000), or of f without a frame: a wrong unit
+# (metres for mm shrink the points 1000-fold: a GCP set spanning the whole frame would span 1e-3 of it).
+_MIN_SPREAD, _MIN_SPREAD_F = 0.01, 5e-3
+_MAX_TILT = 60.0  # degrees: below this slope of the GCPs' plane, "above" and "below" it are defined
 
 
 # --------------------------------------------------------------------------- result
@@ -118,6 +158,9 @@ class ResectionResult:
         message: why it stopped or failed.
         names: ``(n,)`` point names.
         statistic: name of the test (``"w"`` or ``"tau"``).
+        pixel_size: the camera's mean pixel size in image-plane units
+            (1.0 for a camera in pixels), or None without a pixel grid:
+            :meth:`summary` reports residuals in pixels with it.
     """
 
     exterior: ExteriorOrientation
@@ -138,6 +181,7 @@ class ResectionResult:
     message: Any
     names: Sequence[str]
     statistic: str = "w"
+    pixel_size: float | None = None
 
     # -- batches -----------------------------------------------------------
     def __len__(self) -> int:
@@ -152,7 +196,7 @@ class ResectionResult:
         ext = ExteriorOrientation(self.exterior.position[i], self.exterior.angles[i], self.exterior.convention)
         fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         for k, v in fields.items():
-            if k in ("exterior", "names", "statistic"):
+            if k in ("exterior", "names", "statistic", "pixel_size"):
                 continue
             fields[k] = v[i] if isinstance(v, (list, tuple)) else take(v)
             if isinstance(fields[k], np.generic):
@@ -161,34 +205,77 @@ class ResectionResult:
         return ResectionResult(**fields)
 
     # -- reports -----------------------------------------------------------
-    def summary(self) -> str:
-        """A readable report: parameters +- std, sigma0, residuals, blunders."""
+    def summary(self, *, ground_unit: str | None = None, crs: str | None = None,
+                camera_unit: str | None = None) -> str:
+        """A readable report: parameters +- std, sigma0, residuals, blunders,
+        every number with its unit.
+
+        Args:
+            ground_unit: unit of the ground coordinates (default: the unit of
+                ``crs`` when it is given and known, else ``"m"``).
+            crs: the ground CRS (EPSG code, WKT or PROJ string) to take the
+                unit from.
+            camera_unit: the camera's length unit (``"mm"``, ``"m"`` or
+                ``"px"``), for labels of image-plane values.  Residuals and
+                rms are shown in pixels when the camera has a pixel size,
+                and also in ``camera_unit`` when that is not pixels.
+
+        Positions and their std are in the ground unit, angles in degrees
+        and their std in arc-seconds.
+        """
         if np.ndim(self.converged) != 0:
-            return "\n\n".join(self[i].summary() for i in range(len(self)))
+            return "\n\n".join(self[i].summary(ground_unit=ground_unit, crs=crs, camera_unit=camera_unit)
+                                for i in range(len(self)))
+        gu = ground_unit or _crs_unit(crs)
+        ps = self.pixel_size
+        if ps is not None and ps == 1.0:
+            camera_unit = "px"
+        cu = camera_unit or "image-plane units"
+        both = ps is not None and cu != "px"  # pixels first, the camera unit beside them
+
+        def image_value(v):
+            if ps is None:
+                return f"{v:.4g} {cu}"
+            return f"{v / ps:.3f} px" + (f" ({v:.4g} {cu})" if both else "")
+
         e = self.exterior
         labels = ["X", "Y", "Z", *e.convention.split("-")]
         value = np.asarray(e.to_vector())
         lines = [f"Space resection: {'converged' if self.converged else 'NOT CONVERGED'} - {self.message}"]
-        lines.append(f"  {'parameter':<10}{'value':>18}{'std':>14}")
+        lines.append(f"  {'parameter':<16}{'value':>18}{'std':>16}")
         for k, (lab, val, sd) in enumerate(zip(labels, value, self.std)):
             if k < 3:
-                lines.append(f"  {lab:<10}{val:>18.4f}{sd:>14.4f}")
+                lines.append(f"  {lab + ' [' + gu + ']':<16}{val:>18.4f}{sd:>13.4f} {gu}")
             else:
-                lines.append(f"  {lab + ' [deg]':<10}{np.degrees(val):>18.6f}{np.degrees(sd):>14.6f}")
-        n_ctrl = int(np.sum(~self.check & ~self.outliers))
-        lines.append(f"  sigma0 = {self.sigma0:.4g}   rms = {self.rms:.4g}   control points used = {n_ctrl}"
-                     f"   iterations = {self.iterations}")
-        lines.append(f"  {'point':<12}{'role':<9}{'vx':>11}{'vy':>11}{self.statistic + '_x':>9}{self.statistic + '_y':>9}")
+                lines.append(f"  {lab + ' [deg]':<16}{np.degrees(val):>18.6f}{np.degrees(sd) * 3600.0:>13.2f} \"")
+        n_ctrl = int(np.sum(~self.check))
+        n_used = int(np.sum(~self.check & ~self.outliers))
+        if self.statistic == "w":
+            s0 = f"sigma0 = {self.sigma0:.4g} (unitless: a-priori sigma given)"
+        else:
+            s0 = f"sigma0 = {image_value(self.sigma0)}"
+        lines.append(f"  {s0}   rms = {image_value(self.rms)}")
+        lines.append(f"  control points used = {n_used} of {n_ctrl}   iterations = {self.iterations}")
+        if ps is not None:
+            heads = ["vx [px]", "vy [px]"] + ([f"vx [{cu}]", f"vy [{cu}]"] if both else [])
+        else:
+            heads = [f"vx [{cu}]", f"vy [{cu}]"]
+        lines.append(f"  {'point':<12}{'role':<9}" + "".join(f"{h:>13}" for h in heads)
+                     + f"{self.statistic + '_x':>9}{self.statistic + '_y':>9}")
         for k, name in enumerate(self.names):
             role = "check" if self.check[k] else ("OUTLIER" if self.outliers[k] else "control")
             vx, vy = self.residuals[k]
             wx, wy = self.normalized[k]
-            lines.append(f"  {str(name):<12}{role:<9}{vx:>11.4g}{vy:>11.4g}{wx:>9.2f}{wy:>9.2f}")
+            if ps is not None:
+                cols = [f"{vx / ps:.3f}", f"{vy / ps:.3f}"] + ([f"{vx:.4g}", f"{vy:.4g}"] if both else [])
+            else:
+                cols = [f"{vx:.4g}", f"{vy:.4g}"]
+            lines.append(f"  {str(name):<12}{role:<9}" + "".join(f"{c:>13}" for c in cols) + f"{wx:>9.2f}{wy:>9.2f}")
         for k in np.flatnonzero(self.outliers):
             lines.append(f"  blunder: {self.names[k]} excluded (|{self.statistic}| = "
                          f"{_blunder_stat(self, k):.2f} > {self.critical:.2f})")
         if np.any(self.check):
-            lines.append(f"  check points: rms = {self.check_rms:.4g}")
+            lines.append(f"  check points: rms = {image_value(self.check_rms)}")
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -227,6 +314,24 @@ class ResectionResult:
         }
         json.dumps(out)  # fail here, not in the caller, if something is not serialisable
         return out
+
+
+_UNIT_ABBREVIATIONS = {"metre": "m", "meter": "m", "foot": "ft", "US survey foot": "US ft", "kilometre": "km"}
+
+
+def _crs_unit(crs: str | None) -> str:
+    """Abbreviated linear unit of a CRS (``"m"`` when not given or not known)."""
+    if crs is None:
+        return "m"
+    try:
+        from rasterio.crs import CRS
+
+        name = CRS.from_user_input(crs).linear_units
+    except Exception:  # an unknown CRS text: the report still shows metres, the usual case
+        return "m"
+    if not name or name == "unknown":
+        return "m"
+    return _UNIT_ABBREVIATIONS.get(name, name)
 
 
 def _blunder_stat(res: ResectionResult, k: int) -> float:
@@ -684,8 +789,78 @@ def _message(result: int, steps: int, solver: str) -> tuple[bool, str]:
     name = {"gn": "Gauss-Newton", "lm": "Levenberg-Marquardt"}[solver]
     if result == 0:
         return True, f"{name} converged in {steps} steps"
-    why = _OPTX_MESSAGES.get(result, "unknown failure")
+    why = _OPTX_MESSAGES.get(result, "the solver failed")
     return False, f"{name} did not converge after {steps} steps: {why}"
+
+
+def _pixel_size(camera: FrameCamera) -> float | None:
+    return None if camera.pixel_size is None else float(np.mean(np.asarray(camera.pixel_size)))
+
+
+def _frame(camera: FrameCamera) -> tuple[np.ndarray | None, float]:
+    """Half frame ``(2,)`` in image-plane units (None without a pixel grid) and f."""
+    f = float(camera.focal_length)
+    if camera.pixel_size is None or camera.image_size is None:
+        return None, f
+    return 0.5 * np.asarray(camera.image_size, float) * np.asarray(camera.pixel_size, float), f
+
+
+def _viewing_axis(angles, convention) -> np.ndarray:
+    """``(..., 3)`` viewing direction in the world (camera z points backwards)."""
+    return -np.asarray(rotation_matrix(np.asarray(angles), convention))[..., :, 2]
+
+
+def _plausibility(xy, ctrl, outliers, centre, axis, normal, rms, half, f):
+    """Checks that make a converged adjustment a failure, with the reason.
+
+    A resection can converge to a wrong answer when image and ground do not
+    belong together: it then excludes many points as blunders, fits with
+    residuals no measurement has, or finds the mirror image of the true
+    orientation (the camera below the GCPs' plane, looking up at it:
+    swapping x/y or E/N reflects the scene, and a reflected planar scene is
+    seen exactly from the mirrored camera).  Returns None when it passes.
+
+    ``xy`` (n, 2) image points; ``ctrl``, ``outliers`` (n,) masks;
+    ``centre`` (3,) projection centre relative to a point of the GCPs'
+    plane; ``axis`` (3,) viewing direction;
+    ``normal`` (3,) normal of the GCPs' best-fitting plane; ``rms`` of the
+    control inliers; ``half`` half frame or None; ``f`` focal length.
+    """
+    c = xy[ctrl]
+    spread = np.ptp(c, axis=0).max() if len(c) else 0.0
+    if half is not None:
+        out = np.abs(c) > _FRAME_MARGIN * half[None, :]
+        if np.any(out):
+            swapped = np.all(np.abs(c[:, ::-1]) <= _FRAME_MARGIN * half[None, :])
+            return (f"image coordinates of {int(np.any(out, axis=1).sum())} control points lie outside the camera's "
+                    f"frame (half size {half[0]:.4g} x {half[1]:.4g}): "
+                    + ("they would fit with x and y (column and row) swapped" if swapped else
+                       "wrong units (e.g. pixels or micrometres for a mm camera), or a camera file that does not "
+                       "belong to these measurements"))
+        if spread < _MIN_SPREAD * 2.0 * half.max():
+            return (f"the control points span only {spread:.3g} on the image plane, {spread / (2 * half.max()):.1e} of "
+                    "the frame: wrong units (e.g. metres for a mm camera)")
+    elif np.any(np.hypot(*c.T) > _MAX_FIELD * f):
+        return (f"image coordinates up to {np.hypot(*c.T).max():.4g} from the centre with a focal length of {f:.4g} "
+                f"(a field of view over {2 * np.degrees(np.arctan(_MAX_FIELD)):.0f} degrees): wrong units "
+                "(e.g. mm or pixels for a camera in metres)")
+    elif spread < _MIN_SPREAD_F * f:
+        return (f"the control points span only {spread:.3g} on the image plane, {spread / f:.1e} of the focal length: "
+                "wrong units (e.g. metres for a mm camera)")
+    n_ctrl, n_out = int(ctrl.sum()), int(outliers.sum())
+    if n_out > _MAX_EXCLUDED * n_ctrl:
+        return (f"{n_out} of {n_ctrl} control points had to be excluded as blunders (more than a third): "
+                "image and ground coordinates do not fit together")
+    size = 2.0 * np.hypot(*half) if half is not None else f
+    if rms > _MAX_RMS * size:
+        return (f"the residuals (rms {rms:.4g}) are {rms / size:.1%} of the {'frame diagonal' if half is not None else 'focal length'}, "
+                "far beyond measurement error: image and ground coordinates do not fit together")
+    n = normal if normal[2] >= 0 else -normal
+    if n[2] > np.cos(np.radians(_MAX_TILT)):
+        if float(centre @ n) < 0 and float(axis @ n) > 0:
+            return ("the solution is a mirror image: the camera is below the control points' plane, looking up at it "
+                    "(Z must be up, and a swap of image column/row or x/y, or of ground E/N, mirrors the scene)")
+    return None
 
 
 # --------------------------------------------------------------------------- public API
@@ -728,13 +903,18 @@ def resect(
         max_steps: maximum Gauss-Newton / LM steps per adjustment.
         throw: raise :class:`photax.ConvergenceError` on failure; otherwise
             return the result with ``converged=False`` and the reason.
+            Failure includes an implausible solution (module docstring,
+            step 5).
 
     Returns:
-        :class:`ResectionResult`.
+        :class:`ResectionResult` (finite values also when it failed).
 
     Raises:
         ValueError: bad shapes, NaN/inf (naming the points), too few or
             degenerate (collinear, duplicated) control points.
+        ConvergenceError: with ``throw=True`` on failure; whatever
+            ``throw``, if the compiled solver itself raises (the original
+            exception is its ``__cause__``).
     """
     check_convention(convention)
     xy = _as_points(image_xy, "image_xy", 2, False)
@@ -763,34 +943,102 @@ def resect(
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")
     basis = _check_geometry(ground, xy, ctrl, names, initial is None)
 
-    origin = ground[ctrl].mean(axis=0)
-    m = _bucket(n)
-    pad = lambda a, fill=0.0: np.concatenate([a, np.full((m - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
-    ctrl_idx = np.flatnonzero(ctrl)
     if initial is not None:
         if not isinstance(initial, ExteriorOrientation):
             raise ValueError("initial must be a photax.ExteriorOrientation")
-        e0 = initial.to_convention(convention)
-        init = np.concatenate([np.asarray(e0.position) - origin, np.asarray(e0.angles)])
-        if not np.all(np.isfinite(init)):
+        initial = initial.to_convention(convention)
+        if not np.all(np.isfinite(np.asarray(initial.to_vector()))):
             raise ValueError("initial has non-finite values")
-    else:
-        init = np.zeros(6)
     sigma_known = sigma is not None
-    args = (pad(xy), pad(ground - origin), pad(weight, 1.0), pad(ctrl, False), basis, ctrl_idx[_subsets(len(ctrl_idx))],
-            init, initial is not None, robust, len(ctrl_idx) >= 6)
-    out = _unpack(np.asarray(_solve_one(*args, *_options(alpha, sigma_known, m, robust, camera, initial is not None),
-                                        int(max_steps), camera, convention == "phi-omega-kappa")), m)
-    out["solver"] = "gn"
-    if out["result"] != 0:  # Gauss-Newton failed: Levenberg-Marquardt from the same start, same points
-        gn = _message(int(out["result"]), int(out["steps"]), "gn")[1]
-        lm = jax.device_get(_levenberg_marquardt(*args[:2], args[2], out["used"], out["start"], max_steps, camera,
-                                                 convention == "phi-omega-kappa"))
-        out.update(lm, solver="lm", gn_failure=gn)
-    used = out["used"][:n]
-    outliers = ctrl & ~used
-    return _finish(out, n, origin, used, outliers, out["stat_at"][:n], is_check, names, float(out["critical"]),
-                   sigma_known, convention, throw)
+    m = _bucket(n)
+    ctrl_idx = np.flatnonzero(ctrl)
+    pad = lambda a, fill=0.0: np.concatenate([a, np.full((m - n,) + a.shape[1:], fill, a.dtype)])  # noqa: E731
+    options = _options(alpha, sigma_known, m, robust, camera, initial is not None)
+    pok = convention == "phi-omega-kappa"
+
+    def run(xy, ground, basis, fallback):
+        """Start, Gauss-Newton and snooping (then Levenberg-Marquardt if it failed and ``fallback``)."""
+        origin = ground[ctrl].mean(axis=0)
+        init = np.zeros(6) if initial is None else np.concatenate(
+            [np.asarray(initial.position) - origin, np.asarray(initial.angles)])
+        args = (pad(xy), pad(ground - origin), pad(weight, 1.0), pad(ctrl, False), basis,
+                ctrl_idx[_subsets(len(ctrl_idx))], init, initial is not None, robust, len(ctrl_idx) >= 6)
+        with _solver_errors():
+            out = _unpack(np.asarray(_solve_one(*args, *options, int(max_steps), camera, pok)), m)
+        out["solver"] = "gn"
+        if out["result"] != 0 and fallback:  # Gauss-Newton failed: Levenberg-Marquardt from the same start, same points
+            gn = _message(int(out["result"]), int(out["steps"]), "gn")[1]
+            with _solver_errors():
+                lm = jax.device_get(_levenberg_marquardt(*args[:2], args[2], out["used"], out["start"], max_steps,
+                                                         camera, pok))
+            out.update(lm, solver="lm", gn_failure=gn)
+        used = out["used"][:n]
+        return _finish(out, n, origin, used, ctrl & ~used, out["stat_at"][:n], is_check, names,
+                       float(out["critical"]), sigma_known, convention, False, xy, basis[:, 2], camera)
+
+    res = run(xy, ground, basis, True)
+    if not res.converged and initial is None and "wrong units (e.g." not in res.message:  # units: no swap helps
+        hint = _swap_hint(xy, ground, ctrl, camera, names, run)
+        if hint:
+            res = dataclasses.replace(res, message=f"{hint}; {res.message}")
+    if throw and not res.converged:
+        raise ConvergenceError(res.message)
+    return res
+
+
+def _swap_hint(xy, ground, ctrl, camera, names, run) -> str | None:
+    """Name the swap that makes a failed resection fit, if one does.
+
+    The usual mistakes in a GCP file are tried (Gauss-Newton only: no new
+    compilation, milliseconds each): image column/row swapped (x/y
+    without a pixel grid), the row counted upwards (y mirrored), ground E
+    and N swapped.  A hypothesis counts when its resection passes every
+    check of :func:`_plausibility` (in particular, at most a third of the
+    points excluded).
+    """
+    if camera.pixel_size is not None and camera.image_size is not None:
+        colrow = np.asarray(camera.image_to_pixel(xy))
+        swapped_xy = np.asarray(camera.pixel_to_image(colrow[:, ::-1]))
+        swap_name = "the image column and row are swapped"
+    else:
+        swapped_xy, swap_name = xy[:, ::-1], "the image x and y are swapped"
+    ground_en = ground[:, [1, 0, 2]]
+    hypotheses = [
+        (swap_name, swapped_xy, ground),
+        ("the image y (row) axis is reversed", xy * [1.0, -1.0], ground),
+        ("the ground E and N (X and Y) are swapped", xy, ground_en),
+    ]
+    fits = []
+    for text, xy_h, ground_h in hypotheses:
+        try:
+            basis = _check_geometry(ground_h, xy_h, ctrl, names, True)
+            res = run(xy_h, ground_h, basis, False)
+        except (ValueError, ConvergenceError):
+            continue
+        if res.converged:
+            rms = f"{res.rms / res.pixel_size:.3g} px" if res.pixel_size else f"{res.rms:.3g}"
+            k = int(res.outliers.sum())
+            fits.append(f"{text} (then rms {rms}, {k} point{'' if k == 1 else 's'} excluded)")
+    if not fits:
+        return None
+    # For (nearly) planar GCPs any mirroring of the image undoes any mirroring of the ground: name all that fit.
+    return "probably swapped or mirrored axes: the control points fit if " + " - or if ".join(fits)
+
+
+@contextlib.contextmanager
+def _solver_errors():
+    """Errors raised inside the compiled solver (JAX/XLA, equinox checks,
+    optimistix, lineax) -> :class:`ConvergenceError` in photax's words, the
+    original kept as ``__cause__``.  The solver runs with ``throw=False``,
+    so this is a safety net: failures are normally a status, not an error.
+    """
+    try:
+        yield
+    except (ValueError, TypeError, KeyboardInterrupt):
+        raise  # input errors and Ctrl-C keep their type
+    except Exception as exc:
+        raise ConvergenceError(f"the resection failed inside its solver ({type(exc).__name__}); "
+                               f"the orientation could not be computed from these points; {_CAUSES}") from exc
 
 
 @functools.lru_cache(maxsize=64)
@@ -807,16 +1055,29 @@ def _options(alpha, sigma_known, m, robust, camera, has_initial):
             3 if has_initial else 4, 1.0 if sigma_known else 2.0)
 
 
-def _finish(out, n, origin, used, outliers, stat_at, is_check, names, crit, sigma_known, convention, throw):
+def _finish(out, n, origin, used, outliers, stat_at, is_check, names, crit, sigma_known, convention, throw,
+            xy, normal, camera):
     p = out["params"]
+    if not np.all(np.isfinite(p)):  # keep the values finite (the start), the status says it failed
+        p = np.where(np.isfinite(p), p, np.nan_to_num(out["start"]))
     converged, message = _message(int(out["result"]), int(out["steps"]), out["solver"])
     if "gn_failure" in out:
         message = f"{out['gn_failure']}; then {message}"
+    if not converged:
+        message += "; " + _CAUSES
     behind = used & ~(out["depth"][:n] > 0)
+    resid = out["residuals"][:n]
+    d2 = np.sum(resid**2, axis=1)
+    rms = float(np.sqrt(np.mean(d2[used]))) if used.any() else np.nan
     if converged and np.any(behind):
         converged = False
-        message = "solution puts control points behind the camera: " + ", ".join(
-            _point_label(names, k) for k in np.flatnonzero(behind))
+        message = ("the solution puts control points behind the camera: " + ", ".join(
+            _point_label(names, k) for k in np.flatnonzero(behind)) + "; " + _CAUSES)
+    if converged:
+        half, f = _frame(camera)
+        why = _plausibility(xy, ~is_check, outliers, p[:3], _viewing_axis(p[3:], convention), normal, rms, half, f)
+        if why is not None:
+            converged, message = False, f"{why}; {_CAUSES} (the adjustment itself: {message})"
     red = 2.0 * used.sum() - 6.0
     sigma0 = float(out["sigma0"])
     if red <= 0:
@@ -825,17 +1086,11 @@ def _finish(out, n, origin, used, outliers, stat_at, is_check, names, crit, sigm
         cov = out["qxx"] if sigma_known else np.full((6, 6), np.nan)
     else:
         cov = sigma0**2 * out["qxx"]
-    if not np.all(np.isfinite(p)):
-        converged = False
-        message = "the estimate is not finite: " + message
     std = np.sqrt(np.abs(np.diag(cov)))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(std, std)
-    resid = out["residuals"][:n]
     stat = out["w"][:n] / (1.0 if sigma_known else sigma0)
     stat = np.where(used[:, None], stat, stat_at)
-    d2 = np.sum(resid**2, axis=1)
-    rms = float(np.sqrt(np.mean(d2[used]))) if used.any() else np.nan
     check_rms = float(np.sqrt(np.mean(d2[is_check]))) if is_check.any() else np.nan
     if names is None:
         names = [f"P{k}" for k in range(n)]
@@ -858,6 +1113,7 @@ def _finish(out, n, origin, used, outliers, stat_at, is_check, names, crit, sigm
         message=message,
         names=list(names),
         statistic="w" if sigma_known else "tau",
+        pixel_size=_pixel_size(camera),
     )
     if throw and not converged:
         raise ConvergenceError(message)
@@ -886,7 +1142,9 @@ def resect_batch(
     :func:`resect`, the start comes from all points (no random subsets:
     with ``robust=True`` blunders are still found by data snooping, but a
     gross blunder may spoil the start), and there is no Levenberg-Marquardt
-    fallback: a failed image is reported, not retried.
+    fallback: a failed image is reported, not retried.  The plausibility
+    checks of :func:`resect` (module docstring, step 5) apply per image;
+    the swap hints are not tried.
 
     Args:
         image_xy: ``(b, n, 2)`` image-plane coordinates.
@@ -949,18 +1207,21 @@ def resect_batch(
     options = (False, n >= 6, *_options(alpha, sigma_known, m, robust, camera, initial is not None), int(max_steps),
                camera, convention == "phi-omega-kappa")  # robust=False: no random subsets (start from all points)
     no_subsets = np.zeros((0, 6), int)
-    chunks = [_solve_many(*[a[i : i + _CHUNK] for a in per_image[:5]], no_subsets,
-                          *[a[i : i + _CHUNK] for a in per_image[5:]], *options)
-              for i in range(0, nb, _CHUNK)]  # dispatched asynchronously, gathered once
-    out = _unpack(np.concatenate([np.asarray(c) for c in chunks])[:b], m)
+    with _solver_errors():
+        chunks = [_solve_many(*[a[i : i + _CHUNK] for a in per_image[:5]], no_subsets,
+                              *[a[i : i + _CHUNK] for a in per_image[5:]], *options)
+                  for i in range(0, nb, _CHUNK)]  # dispatched asynchronously, gathered once
+        out = _unpack(np.concatenate([np.asarray(c) for c in chunks])[:b], m)
     used = out["used"][:, :n]
     return _finish_batch(out, n, origin, used, ~used, out["stat_at"][:, :n], out["critical"], sigma_known,
-                         convention, throw)
+                         convention, throw, xy, basis[:, :, 2], camera)
 
 
-def _finish_batch(out, n, origin, used, outliers, stat_at, crit, sigma_known, convention, throw):
+def _finish_batch(out, n, origin, used, outliers, stat_at, crit, sigma_known, convention, throw, xy, normal, camera):
     b = len(origin)
-    p = out["params"]
+    finite = np.all(np.isfinite(out["params"]), axis=1)
+    # keep the values finite (the start), the status says it failed
+    p = np.where(finite[:, None], out["params"], np.nan_to_num(out["start"]))
     red = 2.0 * used.sum(1) - 6.0
     sigma0 = out["sigma0"]
     cov = np.where((red > 0)[:, None, None], sigma0[:, None, None] ** 2 * out["qxx"],
@@ -975,20 +1236,29 @@ def _finish_batch(out, n, origin, used, outliers, stat_at, crit, sigma_known, co
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(np.sum(d2 * used, axis=1) / used.sum(1))
     behind = np.any(used & ~(out["depth"][:, :n] > 0), axis=1)
-    ok = (out["result"] == 0) & ~behind & np.all(np.isfinite(p), axis=1)
+    ok = (out["result"] == 0) & ~behind & finite
     steps = out["steps"]
-    messages = [
-        f"Gauss-Newton converged in {steps[i]} steps" if ok[i]
-        else ("solution puts control points behind the camera" if behind[i]
-              else _message(int(out["result"][i]), int(steps[i]), "gn")[1])
-        for i in range(b)
-    ]
+    half, f = _frame(camera)
+    axis = _viewing_axis(p[:, 3:], convention)
+    messages = []
+    for i in range(b):
+        converged, message = _message(int(out["result"][i]), int(steps[i]), "gn")
+        if not converged:
+            message += "; " + _CAUSES
+        elif behind[i]:
+            message = "the solution puts control points behind the camera; " + _CAUSES
+        else:
+            why = _plausibility(xy[i], np.ones(n, bool), outliers[i], p[i, :3], axis[i], normal[i], rms[i], half, f)
+            if why is not None:
+                ok[i] = False
+                message = f"{why}; {_CAUSES} (the adjustment itself: {message})"
+        messages.append(message)
     res = ResectionResult(
         exterior=ExteriorOrientation(p[:, :3] + origin, p[:, 3:], convention),
         sigma0=sigma0, covariance=cov, std=std, correlation=corr, residuals=resid, outliers=outliers,
         check=np.zeros((b, n), bool), redundancy=out["redundancy"][:, :n], normalized=stat, critical=crit,
         rms=rms, check_rms=np.full(b, np.nan), iterations=steps, converged=ok, message=messages,
-        names=[f"P{k}" for k in range(n)], statistic="w" if sigma_known else "tau",
+        names=[f"P{k}" for k in range(n)], statistic="w" if sigma_known else "tau", pixel_size=_pixel_size(camera),
     )
     if throw and not np.all(ok):
         bad = np.flatnonzero(~ok)

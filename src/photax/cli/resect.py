@@ -7,6 +7,7 @@ Exit codes: 0 all resected images converged, 1 some did not, 2 bad input
 from __future__ import annotations
 
 import argparse
+import pathlib
 
 import numpy as np
 
@@ -48,6 +49,14 @@ def _sigma(table, camera, sigma_px):
     return table.image_plane_sigma(camera)
 
 
+def _camera_unit(path) -> str | None:
+    """The camera file's length unit (``unit:``; ``px`` for the pixel shorthand), for the report's labels."""
+    from ..io.camera_file import _load
+
+    data = _load(pathlib.Path(path))
+    return "px" if "focal_length_px" in data else data.get("unit")
+
+
 def run(args: argparse.Namespace) -> int:
     from ..io.camera_file import read_camera
     from ..io.gcp import read_gcps
@@ -67,7 +76,6 @@ def run(args: argparse.Namespace) -> int:
     for note in table.duplicates():
         print(f"note: {note}")
     images = [args.image] if args.image is not None else table.image_names
-    unit_px = None if table.pixel is None else float(np.mean(np.asarray(camera.pixel_size)))
     results, failed = {}, 0
     for name in images:
         sub = table.select(name)
@@ -84,10 +92,7 @@ def run(args: argparse.Namespace) -> int:
             continue
         n_check = int(sub.check.sum())
         print(f"== {label}: {len(sub)} points ({len(sub) - n_check} control, {n_check} check) ==")
-        print(res.summary())
-        if unit_px is not None and unit_px != 1.0:
-            extra = f", check rms = {res.check_rms / unit_px:.3f} px" if n_check else ""
-            print(f"  in pixels: rms = {res.rms / unit_px:.3f} px{extra} (pixel size {unit_px:g})")
+        print(res.summary(crs=table.crs, camera_unit=_camera_unit(args.camera)))  # units on every number
         print()
         failed += not res.converged
         results[name] = res
