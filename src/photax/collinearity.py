@@ -154,7 +154,7 @@ def _angle_axes(angles: Array, rotation: Array, pok) -> Array:
 
 
 def collinearity_jacobian(
-    ground_xyz: Array, position: Array, rotation: Array, axes: Array, camera: FrameCamera
+    ground_xyz: Array, position: Array, rotation: Array, axes: Array, camera: FrameCamera, *, wrt_ground: bool = True
 ) -> tuple[Array, Array, Array]:
     """The collinearity equations and their closed-form Jacobian.
 
@@ -174,10 +174,12 @@ def collinearity_jacobian(
         rotation: ``(3, 3)`` world_from_camera.
         axes: ``(3, 3)`` angle axes from :func:`angle_axes`.
         camera: the interior orientation.
+        wrt_ground: False to leave out the ground point's columns.
 
     Returns:
         ``xy`` ``(n, 2)`` as :func:`project`; ``jacobian`` ``(n, 2, 9)``,
-        columns ``(Xs, Ys, Zs, a1, a2, a3, X, Y, Z)``; ``q`` ``(n, 3)``
+        columns ``(Xs, Ys, Zs, a1, a2, a3, X, Y, Z)`` (``(n, 2, 6)``
+        without the ground point); ``q`` ``(n, 3)``
         the points in the camera frame (``-q_z`` is :func:`depth`).
     """
     d = ground_xyz - position[None, :]
@@ -193,7 +195,7 @@ def collinearity_jacobian(
                         jnp.stack([zero, inv_z, inv_z * xn[:, 1]], -1)], axis=-2)
     dx_dxn = camera.focal_length * camera.distortion_jacobian(xn)  # (n, 2, 2)
     dx_dq = jnp.einsum("nij,njk->nik", dx_dxn, dxn_dq)
-    dq = jnp.concatenate([dq_dc, dq_da, -dq_dc], axis=-1)  # (n, 3, 9)
+    dq = jnp.concatenate([dq_dc, dq_da, -dq_dc] if wrt_ground else [dq_dc, dq_da], axis=-1)  # (n, 3, 9 or 6)
     xy = camera.principal_point[None, :] + camera.focal_length * camera.distort_normalised(xn)
     return xy, jnp.einsum("nik,nkp->nip", dx_dq, dq), q
 
