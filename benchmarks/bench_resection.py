@@ -142,7 +142,7 @@ def solver_overhead(xy, ground):
 
     b = min(len(xy), 2048)
     prep = _checks.validate(xy[:b], ground[:b], CAM, None, None, None, None, "phi-omega-kappa", 0.001, batch=True)
-    opt = _api._options(prep, CAM, "phi-omega-kappa", False, 0.001, 20, 16)
+    opt = jax.tree_util.tree_map(jnp.asarray, _api._options(prep, CAM, "phi-omega-kappa", False, 0.001, 20, 16))
     inp = _api._inputs(prep, 16)
 
     def start(i):

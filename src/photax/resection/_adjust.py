@@ -122,7 +122,8 @@ def precision(p, inp: Inputs, used, opt: Options) -> dict:
     red = 2.0 * jnp.sum(used.astype(float)) - 6.0
     sigma0 = jnp.where(red > 0, jnp.sqrt(jnp.sum(v * v) / jnp.where(red > 0, red, 1.0)), jnp.nan)
     a = a.reshape(-1, 6)
-    r_i = jnp.where(used[:, None], (1.0 - jnp.sum((a @ qxx) * a, axis=1)).reshape(-1, 2), 0.0)
+    aq = jnp.sum(a[:, :, None] * qxx[None, :, :], axis=1)  # A Q_xx, element-wise (no tiny dots under vmap)
+    r_i = jnp.where(used[:, None], (1.0 - jnp.sum(aq * a, axis=1)).reshape(-1, 2), 0.0)
     ok = r_i > 1e-10
     w = jnp.where(ok, v / jnp.sqrt(jnp.where(ok, r_i, 1.0)), jnp.nan)
     axis = -_linear.rotation(p[3:], opt.pok)[:, 2]

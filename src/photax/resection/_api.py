@@ -85,7 +85,9 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool) -> O
     """The cheap path for every image, the robust path for those it hands over."""
     inp = _inputs(prep, m)
     out = _call(_solve_cheap, inp, opt, _CHUNK if batch else None, m)
-    idx = np.flatnonzero(out.retry) if robust else np.zeros(0, int)
+    # A converged but implausible cheap result (e.g. a local minimum far from a poor linear start) also
+    # goes to the robust path: its LMedS start is what the real data of test_resection_real needs.
+    idx = np.flatnonzero(out.retry | _screen(prep, out, opt.camera)[0]) if robust else np.zeros(0, int)
     if idx.size:
         again = _call(_solve_robust, _take(inp, idx), opt, _ROBUST_CHUNK if batch else None, m)
 
@@ -107,6 +109,23 @@ def _message(result: int, steps: int, solver: str) -> tuple[bool, str]:
     return False, f"{name} did not converge after {steps} steps: {RESULTS(result).text}"
 
 
+def _screen(prep: Prepared, out: Output, camera):
+    """Converged images that fail the vectorised plausibility screen ``(b,)``; also the finite
+    parameters, rms, squared residuals and the adjustment's result code it computed on the way."""
+    n = prep.xy.shape[1]
+    ctrl = ~prep.is_check
+    used = out.used[:, :n]
+    finite = np.all(np.isfinite(out.params), axis=1)
+    p = np.where(finite[:, None], out.params, np.nan_to_num(out.start))  # finite values; the status says it failed
+    adjustment = np.where(finite, out.result, RESULTS.nonfinite)
+    d2 = np.sum(out.residuals[:, :n] ** 2, axis=2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt(np.sum(d2 * used, axis=1) / used.sum(1))
+    half, f = _frame(camera)
+    bad = implausible(prep.xy, ctrl, ctrl & ~used, p[:, :3], out.axis, prep.basis[:, :, 2], rms, half, f)
+    return (adjustment == RESULTS.successful) & bad, p, rms, d2, adjustment
+
+
 def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver="gn", gn_failure=None):
     """Numbers and words of the result for every image (vectorised; words
     formatted only where something failed).  Shared by resect and resect_batch."""
@@ -114,22 +133,16 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
     ctrl = ~prep.is_check
     used = out.used[:, :n]
     outliers = ctrl & ~used
-    finite = np.all(np.isfinite(out.params), axis=1)
-    p = np.where(finite[:, None], out.params, np.nan_to_num(out.start))  # finite values; the status says it failed
-    adjustment = np.where(finite, out.result, RESULTS.nonfinite)
+    screen, p, rms, d2, adjustment = _screen(prep, out, camera)
     code = adjustment.copy()
     resid = out.residuals[:, :n]
-    d2 = np.sum(resid**2, axis=2)
     n_used = used.sum(1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rms = np.sqrt(np.sum(d2 * used, axis=1) / n_used)
     behind = used & ~(out.depth[:, :n] > 0)
     code[(code == RESULTS.successful) & np.any(behind, axis=1)] = RESULTS.behind_camera
     half, f = _frame(camera)
     normal = prep.basis[:, :, 2]
     reasons = {}
-    for i in np.flatnonzero((code == RESULTS.successful)
-                            & implausible(prep.xy, ctrl, outliers, p[:, :3], out.axis, normal, rms, half, f)):
+    for i in np.flatnonzero((code == RESULTS.successful) & screen):
         why = _plausibility(prep.xy[i], ctrl[i], outliers[i], p[i, :3], out.axis[i], normal[i], rms[i], half, f)
         if why is not None:
             reasons[i] = why

@@ -54,8 +54,9 @@ def _normal_equations(rows: jax.Array) -> tuple[jax.Array, jax.Array]:
     """
     a, b = rows[:, :-1], rows[:, -1]
     k = a.shape[1]
-    n = jnp.eye(11).at[:k, :k].set(a.T @ a)
-    return n, jnp.zeros(11).at[:k].set(-(a.T @ b))
+    # element-wise sums: under vmap a tiny a.T @ a becomes a batched dot, one small kernel per system
+    n = jnp.eye(11).at[:k, :k].set(jnp.sum(a[:, :, None] * a[:, None, :], axis=0))
+    return n, jnp.zeros(11).at[:k].set(-jnp.sum(a * b[:, None], axis=0))
 
 
 def _homography_rows(uv, plane_xy, w, scale):
@@ -102,7 +103,7 @@ def _pose_dlt(sol, t_uv, scale):
 
 def _sq_errors(r_cv, c, uv, ground):
     """Squared normalised reprojection errors; +inf behind the camera."""
-    p = (ground - c[None, :]) @ r_cv.T
+    p = jnp.sum((ground - c[None, :])[:, None, :] * r_cv[None, :, :], axis=2)
     front = p[:, 2] > 0
     zs = jnp.where(front, p[:, 2], 1.0)
     e = jnp.sum((p[:, :2] / zs[:, None] - uv) ** 2, axis=1)
@@ -131,7 +132,7 @@ def candidates(uv, ground, ctrl, basis, subsets):
     g = (ground - centre[None, :]) * wf[:, None]
     scale = jnp.sqrt(jnp.sum(g * g) / n_ctrl)
     rel = ground - centre[None, :]
-    plane = rel @ basis[:, :2]
+    plane = jnp.sum(rel[:, :, None] * basis[None, :, :2], axis=1)
 
     # All systems (homography, DLT; all points, then each subset) in one batched solve.
     systems = [_normal_equations(_homography_rows(uvn, plane, wf, scale)),
