@@ -23,8 +23,6 @@ optimistix's public ``RESULTS`` items.
 
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 
@@ -101,14 +99,16 @@ def gauss_newton(start, inp: Inputs, used, opt: Options):
         v, a, _, _ = evaluate(p, inp, used, opt)
         return _normal(a, v)[1]
 
-    def solve(_, x0):
-        p, steps, code = _iterate(x0, inp, used, opt)
-        return p, (steps, code)
+    # The loop runs on values only (no tangents enter the while_loop, which reverse mode cannot
+    # differentiate); custom_root then attaches the implicit derivative at its solution.
+    nograd = jax.lax.stop_gradient
+    p, steps, code = _iterate(nograd(start), jax.tree_util.tree_map(nograd, inp), used,
+                              jax.tree_util.tree_map(nograd, opt))
 
     def tangent_solve(g, y):  # only traced under differentiation
         return jnp.linalg.solve(jax.jacfwd(g)(y), y)
 
-    p, (steps, code) = jax.lax.custom_root(gradient, start, solve, tangent_solve, has_aux=True)
+    p = jax.lax.custom_root(gradient, p, lambda _, x0: x0, tangent_solve)
     return p, steps, code
 
 
@@ -189,7 +189,7 @@ def from_optimistix(result):
     return code
 
 
-@functools.partial(jax.jit, static_argnames=())
+@jax.jit
 def levenberg_marquardt(inp: Inputs, out: Output, opt: Options) -> Output:
     """Fallback when Gauss-Newton failed: optimistix's Levenberg-Marquardt
     from the same start with the same points (autodiff Jacobian: it runs
