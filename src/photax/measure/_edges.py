@@ -246,7 +246,9 @@ def _canny(img, low, high, sigma, mode, cval):
     jsobel = sobel_raw(smoothed, 1)
     isobel = sobel_raw(smoothed, 0)
     mag = jnp.sqrt(isobel * isobel + jsobel * jsobel)
-    low = jnp.maximum(low, 1e-14)  # nothing on a flat image (scikit-image does the same)
+    # Nothing on a flat image: rounding noise of the smoothing (~1e-16 of the
+    # grey level) must not pass a zero threshold (scikit-image floors at 1e-14).
+    low = jnp.maximum(low, 1e-12 * jnp.max(jnp.abs(img)) + np.finfo(np.float64).tiny)
     low_mask = _nonmax_bilinear(isobel, jsobel, mag, low)
     return _hysteresis(low_mask, low_mask & (mag >= high))
 

@@ -184,7 +184,7 @@ def hough_lines(edges, *, theta_step: float = math.radians(0.5), rho_step: float
 @partial(jax.jit, static_argnames=("shape", "n_phi"))
 def _circle_accumulator(xy, wts, radius, shape, n_phi):
     h, w = shape
-    phi = jnp.arange(n_phi) * (2 * jnp.pi / n_phi)
+    phi = jnp.arange(n_phi, dtype=jnp.float64) * (2 * jnp.pi / n_phi)
     cx = (xy[:, 0:1] + radius * jnp.cos(phi)[None, :]).reshape(-1)
     cy = (xy[:, 1:2] + radius * jnp.sin(phi)[None, :]).reshape(-1)
     v = jnp.repeat(wts / n_phi, n_phi)
