@@ -9,6 +9,7 @@ corners.
 
 import math
 
+import jax
 import numpy as np
 import pytest
 import scipy.ndimage as ndi
@@ -88,13 +89,17 @@ def test_canny_matches_skimage_for_uint8_uint16_float():
     assert ref.sum() > 100 and f1(ours, ref) >= 0.99
 
 
-def test_canny_batched_equals_single_and_constant_image_is_empty():
-    a, b = smooth_random(40, 40, 2), smooth_random(40, 40, 3)
-    batch = np.asarray(M.canny(np.stack([a, b]), 1.0, 0.05, 0.1))
-    assert batch.shape == (2, 40, 40)
-    np.testing.assert_array_equal(batch[1], np.asarray(M.canny(b, 1.0, 0.05, 0.1)))
-    assert batch.any()
-    assert not np.asarray(M.canny(np.full((20, 20), 7, np.uint8))).any()
+def test_canny_batched_under_jit_pure_jax_hysteresis_and_constant_image():
+    a, b = smooth_random(64, 72, 2), smooth_random(64, 72, 3)
+    batch = np.asarray(jax.jit(lambda x: M.canny(x, 1.2, 0.05, 0.1))(np.stack([a, b])))
+    assert batch.shape == (2, 64, 72)
+    ref = feature.canny(b, 1.2, 0.05, 0.1)
+    assert ref.sum() > 50
+    np.testing.assert_array_equal(batch[1], ref)
+    # the all-XLA hysteresis (label propagation) gives the same map as scipy's labels
+    np.testing.assert_array_equal(np.asarray(M.canny(b, 1.2, 0.05, 0.1, hysteresis="jax")), ref)
+    assert not np.asarray(M.canny(np.full((64, 72), 7, np.uint8), 1.2)).any()
+    assert np.asarray(M.canny(np.where(a > a.mean(), 120, -100).astype(np.int8), 1.2)).any()  # no int8 overflow
 
 
 def test_gradient_of_a_ramp_is_exact():

@@ -16,8 +16,12 @@ import jax.numpy as jnp
 import numpy as np
 
 
-def as_image(image, name: str = "image", *, min_size: int = 1) -> tuple[jax.Array, bool]:
+def as_image(image, name: str = "image", *, min_size: int = 1, convert: bool = True) -> tuple[jax.Array, bool]:
     """``image`` as a float64 JAX array and whether it is a batch.
+
+    ``convert=False`` leaves the dtype alone, for jitted callers that cast
+    inside (the cast then fuses with the first filter instead of writing a
+    float64 copy of the image).
 
     Raises ``ValueError`` naming ``name`` for a wrong rank, a non-numeric
     dtype or an image smaller than ``min_size`` pixels on a side.
@@ -34,7 +38,8 @@ def as_image(image, name: str = "image", *, min_size: int = 1) -> tuple[jax.Arra
     h, w = image.shape[-2:]
     if h < min_size or w < min_size:
         raise ValueError(f"{name}: image of shape {tuple(image.shape)} is smaller than {min_size} x {min_size} pixels")
-    return jnp.asarray(image).astype(jnp.float64), ndim == 3
+    arr = jnp.asarray(image)
+    return (arr.astype(jnp.float64) if convert else arr), ndim == 3
 
 
 def batched(fn2d: Callable, image: jax.Array, is_batch: bool):

@@ -28,6 +28,10 @@ def pad(image: jax.Array, widths, mode: Mode = "reflect", cval: float = 0.0) -> 
         raise ValueError(f"mode: expected one of {sorted(_NP_MODE)}, got {mode!r}")
     if mode == "constant":
         return jnp.pad(image, widths, mode="constant", constant_values=cval)
+    if mode == "reflect" and max(max(w) for w in widths) <= 1:
+        # one-pixel symmetric padding repeats the edge pixel; XLA's "edge" pad
+        # fuses into the consumer, its "symmetric" pad did not (4x slower on CPU)
+        return jnp.pad(image, widths, mode="edge")
     return jnp.pad(image, widths, mode=_NP_MODE[mode])
 
 
@@ -103,13 +107,28 @@ def gaussian(image: jax.Array, sigma: float, mode: Mode = "reflect", cval: float
 def sobel_raw(image: jax.Array, axis: int, mode: Mode = "reflect", cval: float = 0.0) -> jax.Array:
     """``scipy.ndimage.sobel``: unnormalised, 8 x the derivative along ``axis``
     (0 = rows, 1 = columns)."""
-    other = 1 - axis
-    return correlate1d(correlate1d(image, [-1.0, 0.0, 1.0], axis, mode, cval), [1.0, 2.0, 1.0], other, mode, cval)
+    return sobel_pair(image, mode, cval, smooth=(1.0, 2.0, 1.0))[axis]
+
+
+def sobel_pair(image: jax.Array, mode: Mode = "reflect", cval: float = 0.0, smooth=(1.0, 2.0, 1.0)):
+    """``(d_rows, d_cols)``: ``[-1 0 1]`` along the axis times ``smooth``
+    across it, from one padded copy so XLA fuses both into a single pass."""
+    h, w = image.shape
+    p = pad(image, [(1, 1), (1, 1)], mode, cval)
+
+    def s(dr, dc):
+        return p[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
+
+    a, b, c = smooth
+    d_rows = a * (s(1, -1) - s(-1, -1)) + b * (s(1, 0) - s(-1, 0)) + c * (s(1, 1) - s(-1, 1))
+    d_cols = a * (s(-1, 1) - s(-1, -1)) + b * (s(0, 1) - s(0, -1)) + c * (s(1, 1) - s(1, -1))
+    return d_rows, d_cols
 
 
 def _gradient2d(image, method, mode):
     if method == "sobel":
-        return sobel_raw(image, 1, mode) / 8.0, sobel_raw(image, 0, mode) / 8.0
+        gy, gx = sobel_pair(image, mode)
+        return gx / 8.0, gy / 8.0
     if method == "prewitt":
         gx = correlate1d(correlate1d(image, [-1.0, 0.0, 1.0], 1, mode), [1.0, 1.0, 1.0], 0, mode) / 6.0
         gy = correlate1d(correlate1d(image, [-1.0, 0.0, 1.0], 0, mode), [1.0, 1.0, 1.0], 1, mode) / 6.0

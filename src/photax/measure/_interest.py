@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ._common import as_image, batched, check_odd_window
-from ._filters import Mode, box_sum, gaussian, max_filter, sobel_raw
+from ._filters import Mode, box_sum, gaussian, max_filter, sobel_pair
 
 
 # ----------------------------------------------------------------- Moravec
@@ -131,8 +131,7 @@ def _structure_roberts_box(img, window):
 def _structure_sobel_gauss(img, sigma, mode="constant"):
     # skimage.feature.structure_tensor: unnormalised Sobel (mode constant),
     # products smoothed by a Gaussian (mode constant, truncate 4)
-    gr = sobel_raw(img, 0, mode)
-    gc = sobel_raw(img, 1, mode)
+    gr, gc = sobel_pair(img, mode)
     return (gaussian(gr * gr, sigma, mode), gaussian(gr * gc, sigma, mode),
             gaussian(gc * gc, sigma, mode))
 
