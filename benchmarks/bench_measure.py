@@ -14,7 +14,8 @@ directions).  Same parameters for every library where they have them:
   its non-maximum suppression is the unsnapped 4-sector one, not the
   interpolated one, so its map differs slightly).
 
-Prints first-call (compile + run) and warm times (median of --repeat runs),
+Prints first-call (compile + run) and warm times (median of --repeat runs;
+wall and process CPU time),
 ratios photax / peer, photax's peak memory, the load average, and writes
 the figures to --json.
 """
@@ -31,7 +32,7 @@ import cv2
 import jax
 import numpy as np
 import scipy.ndimage as ndi
-from _common import mib, median_time, peak_memory, ratio_line
+from _common import mib, peak_memory, ratio_line
 from skimage import feature, filters
 
 import photax as ptx
@@ -48,6 +49,19 @@ def test_image(n: int) -> np.ndarray:
         img[y0:y0 + n // 12, x0:x0 + n // 15] -= 50.0
     img -= img.min()
     return np.clip(img / img.max() * 255.0, 0, 255).astype(np.uint8)
+
+
+def wall_and_cpu(fn, repeat):
+    """Medians of wall and process CPU time over ``repeat`` runs after one
+    warm-up: on a shared machine the CPU time is the steadier figure."""
+    fn()
+    walls, cpus = [], []
+    for _ in range(repeat):
+        w0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        walls.append(time.perf_counter() - w0)
+        cpus.append(time.process_time() - c0)
+    return float(np.median(walls)), float(np.median(cpus))
 
 
 def timed_first(fn):
@@ -84,17 +98,20 @@ def main(argv=None) -> int:
         return cv2.magnitude(gx, gy)
 
     first = timed_first(ours_sobel)
-    t_ours = median_time(ours_sobel, rep)
-    t_sk = median_time(lambda: filters.sobel(img), rep)
-    t_cv = median_time(cv_sobel, rep)
+    t_ours, c_ours = wall_and_cpu(ours_sobel, rep)
+    t_sk, c_sk = wall_and_cpu(lambda: filters.sobel(img), rep)
+    t_cv, c_cv = wall_and_cpu(cv_sobel, rep)
     _, mem = peak_memory(ours_sobel)
     # same answer (OpenCV's magnitude is 4 sqrt(2) x skimage's definition)
     dev = float(np.max(np.abs(np.asarray(ours_sobel()) * 4.0 * np.sqrt(2.0) - cv_sobel())[1:-1, 1:-1]))
     print(f"Sobel  first call {first:.2f} s; |photax*4sqrt2 - OpenCV| max {dev:.1e} (grey/px)")
     print("  " + ratio_line("vs scikit-image", t_ours, t_sk))
     print("  " + ratio_line("vs OpenCV      ", t_ours, t_cv), f"| photax peak {mib(mem)}")
+    print(f"  CPU time: photax {c_ours * 1e3:.1f} ms, scikit-image {c_sk * 1e3:.1f} ms, OpenCV {c_cv * 1e3:.1f} ms;"
+          f" ratios {c_ours / c_sk:.2f}, {c_ours / c_cv:.2f}")
     results["sobel"] = {"photax_first_s": first, "photax_s": t_ours, "skimage_s": t_sk, "opencv_s": t_cv,
-                        "ratio_skimage": t_ours / t_sk, "ratio_opencv": t_ours / t_cv, "photax_peak_bytes": mem}
+                        "ratio_skimage": t_ours / t_sk, "ratio_opencv": t_ours / t_cv, "photax_peak_bytes": mem,
+                        "cpu_s": {"photax": c_ours, "skimage": c_sk, "opencv": c_cv}}
 
     # ---- Canny
     def ours_canny():
@@ -110,9 +127,9 @@ def main(argv=None) -> int:
         return cv2.Canny(blur, lo, hi, L2gradient=True)  # unnormalised 3x3 Sobel magnitude, as ours
 
     first = timed_first(ours_canny)
-    t_ours = median_time(ours_canny, rep)
-    t_sk = median_time(sk_canny, max(1, rep // 2))
-    t_cv = median_time(cv_canny, rep)
+    t_ours, c_ours = wall_and_cpu(ours_canny, rep)
+    t_sk, c_sk = wall_and_cpu(sk_canny, max(1, rep // 2))
+    t_cv, c_cv = wall_and_cpu(cv_canny, rep)
     _, mem = peak_memory(ours_canny)
     a, b, c = np.asarray(ours_canny()), sk_canny(), cv_canny() > 0
     f1_sk = 2 * (a & b).sum() / (a.sum() + b.sum())
@@ -121,9 +138,11 @@ def main(argv=None) -> int:
           f"{a.sum()} edge pixels")
     print("  " + ratio_line("vs scikit-image", t_ours, t_sk))
     print("  " + ratio_line("vs OpenCV      ", t_ours, t_cv), f"| photax peak {mib(mem)}")
+    print(f"  CPU time: photax {c_ours * 1e3:.1f} ms, scikit-image {c_sk * 1e3:.1f} ms, OpenCV {c_cv * 1e3:.1f} ms;"
+          f" ratios {c_ours / c_sk:.2f}, {c_ours / c_cv:.2f}")
     results["canny"] = {"photax_first_s": first, "photax_s": t_ours, "skimage_s": t_sk, "opencv_s": t_cv,
                         "ratio_skimage": t_ours / t_sk, "ratio_opencv": t_ours / t_cv, "photax_peak_bytes": mem,
-                        "f1_skimage": f1_sk, "f1_opencv": f1_cv}
+                        "cpu_s": {"photax": c_ours, "skimage": c_sk, "opencv": c_cv}, "f1_skimage": f1_sk, "f1_opencv": f1_cv}
     results["load_average_end"] = os.getloadavg()
     with open(args.json, "w") as fh:
         json.dump(results, fh, indent=1)
