@@ -156,6 +156,15 @@ def test_hough_lines_angle_and_offset_below_the_bin():
     assert max(errs_t) < 0.05 and max(errs_r) < 0.1, (errs_t, errs_r)
 
 
+def test_hough_line_at_theta_zero_is_reported_once():
+    edges = render(64, 64, lambda x, y: np.abs(x - 40.3) <= 0.5)
+    res = M.hough_lines(edges, max_lines=3)
+    assert len(res.theta) == 1
+    t, p = res.theta[0], res.rho[0]
+    x_at = p / math.cos(t)  # the column where the line crosses row 0
+    assert min(t, math.pi - t) < math.radians(0.05) and abs(abs(x_at) - 40.3) < 0.1
+
+
 def test_hough_lines_finds_two_lines_of_a_canny_map():
     im = render(80, 80, lambda x, y: (x > 30.3) ^ (x * 0.6 + y * 0.8 > 50.7))
     res = M.hough_lines(M.canny(im, 1.0), max_lines=2)

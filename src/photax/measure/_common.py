@@ -51,3 +51,12 @@ def check_odd_window(window: int, name: str = "window") -> int:
     if int(window) != window or window < 3 or window % 2 == 0:
         raise ValueError(f"{name}: expected an odd integer >= 3, got {window!r}")
     return int(window)
+
+
+def inner_mask(shape: tuple[int, int], margin: int) -> jax.Array:
+    """True at least ``margin`` pixels inside the image border.  Built from
+    iotas so XLA does not constant-fold an (h, w) array into the program."""
+    h, w = shape
+    r = jax.lax.broadcasted_iota(jnp.int32, (h, w), 0)
+    c = jax.lax.broadcasted_iota(jnp.int32, (h, w), 1)
+    return (r >= margin) & (r < h - margin) & (c >= margin) & (c < w - margin)

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.ndimage as ndi
 
-from ._common import as_image, batched
+from ._common import as_image, batched, inner_mask
 from ._filters import Mode, convolve2d, correlate1d, gaussian, gaussian_kernel1d, sobel_pair
 
 _SQRT2 = float(np.sqrt(2.0))
@@ -193,7 +193,7 @@ def _nonmax_bilinear(isobel, jsobel, mag, low):
     n22 = jnp.where(a | bb, s(-1, -1), s(1, -1))
     c_plus = n12 * wgt + n11 * (1.0 - wgt) <= mag
     c_minus = n22 * wgt + n21 * (1.0 - wgt) <= mag
-    border = jnp.zeros((h, w), bool).at[1:-1, 1:-1].set(True)
+    border = inner_mask((h, w), 1)
     return border & (mag >= low) & c_plus & c_minus
 
 
@@ -262,7 +262,8 @@ def _canny(img, low, high, sigma, mode, cval, hysteresis="host"):
             k = gaussian_kernel1d(sigma)
             prof = [np.convolve(np.ones(n), k, mode="same") if len(k) <= n else
                     ndi.correlate1d(np.ones(n), k, mode="constant") for n in img.shape]
-            bleed = jnp.asarray(np.outer(prof[0], prof[1]) + np.finfo(np.float64).eps)
+            # broadcast in the graph, not an (h, w) constant XLA would fold and embed
+            bleed = jnp.asarray(prof[0])[:, None] * jnp.asarray(prof[1])[None, :] + np.finfo(np.float64).eps
         else:
             bleed = gaussian(jnp.ones_like(img), sigma, mode, cval) + np.finfo(np.float64).eps
         smoothed = gaussian(img, sigma, mode, cval) / bleed

@@ -43,7 +43,7 @@ class HoughCircles(NamedTuple):
 
     xy: np.ndarray  #: (n, 2) centres, refined
     radius: np.ndarray  #: (n,) radius (one of ``radii``)
-    strength: np.ndarray  #: (n,) accumulator value (fraction of the circle covered by edge points)
+    strength: np.ndarray  #: (n,) accumulator value at the centre (edge weight on the circle / samples)
     accumulator: np.ndarray  #: (n_radii, h, w)
     radii: np.ndarray  #: (n_radii,)
 
@@ -85,10 +85,9 @@ def _quadratic_offset(m, z, p):
     return np.clip(np.where(den < 0, 0.5 * (m - p) / np.where(den < 0, den, -1.0), 0.0), -0.5, 0.5)
 
 
-def _peaks(acc, size, threshold, max_peaks, wrap_axis0=False):
+def _peaks(acc, size, threshold, max_peaks):
     """Local maxima of ``acc`` (``size`` window, ``> threshold``), strongest first."""
-    mode = ["wrap" if (wrap_axis0 and i == 0) else "constant" for i in range(acc.ndim)]
-    local = ndi.maximum_filter(acc, size=size, mode=mode, cval=-np.inf)
+    local = ndi.maximum_filter(acc, size=size, mode="constant", cval=-np.inf)
     idx = np.argwhere((acc == local) & (acc > threshold))
     order = np.argsort(-acc[tuple(idx.T)], kind="stable")
     idx = idx[order]
@@ -100,6 +99,15 @@ def _peaks(acc, size, threshold, max_peaks, wrap_axis0=False):
         if len(keep) == max_peaks:
             break
     return np.array(keep, dtype=int).reshape(-1, acc.ndim)
+
+
+def _same_line(t1, r1, t2, r2, dt, dr):
+    d = abs(t1 - t2)
+    if d <= dt + 1e-12:
+        return abs(r1 - r2) <= dr
+    if math.pi - d <= dt + 1e-12:
+        return abs(r1 + r2) <= dr
+    return False
 
 
 def hough_lines(edges, *, theta_step: float = math.radians(0.5), rho_step: float = 1.0,
@@ -141,11 +149,16 @@ def hough_lines(edges, *, theta_step: float = math.radians(0.5), rho_step: float
     empty = HoughLines(np.zeros(0), np.zeros(0), np.zeros(0), acc, thetas, rhos)
     if len(xs) == 0 or acc.max() <= 0:
         return empty
-    # theta wraps to itself with rho negated: pad by flipping rho so peaks near
-    # 0 and pi are found once
-    pk = _peaks(acc, 2 * min_distance + 1, threshold * acc.max(), max_lines, wrap_axis0=False)
+    pk = _peaks(acc, 2 * min_distance + 1, threshold * acc.max(), 2 * max_lines + 2)
     out_t, out_r, out_s = [], [], []
     for i, j in pk:
+        if len(out_t) == max_lines:
+            break
+        # theta = 0 and theta = pi are the same line with rho negated: a line
+        # near theta = 0 may peak at both ends of the accumulator; keep one
+        if any(_same_line(thetas[i], rhos[j], t, r, min_distance * (math.pi / n_theta), min_distance * rho_step)
+               for t, r in zip(out_t, out_r)):
+            continue
         z = acc[i, j]
         # neighbours in theta: across 0/pi the line is (theta -+ pi, -rho)
         im = acc[i - 1, j] if i > 0 else acc[n_theta - 1, n_rho - 1 - j]
@@ -204,10 +217,9 @@ def hough_circles(edges, radii, *, threshold: float = 0.3, max_circles: int = 10
 
     Each edge pixel votes, for each radius r, for the centres on the circle
     of radius r around it (``max(32, 4 r)`` samples, each splatted
-    bilinearly, weight ``e / n``): a circle fully covered by edge points
-    scores about ``2 pi r / n_phi`` per sample, normalised so ``strength``
-    is near 1 for a complete one-pixel-wide circle... in practice around the
-    fraction of its circumference found.  Peaks above ``threshold`` x the
+    bilinearly, weight ``e / n``), so the value at a centre is the summed
+    weight of the edge pixels on its circle divided by ``n`` (about 1 to 1.5
+    for a complete one-pixel-wide circle).  Peaks above ``threshold`` x the
     highest vote are refined by a parabola per axis and then (``refine``) by
     Gauss-Newton on ``sum (|p - c| - r)^2`` over the edge points within
     2 px of the circle.

@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ._common import as_image, batched, check_odd_window
+from ._common import as_image, batched, check_odd_window, inner_mask
 from ._filters import Mode, box_sum, gaussian, max_filter, sobel_pair
 
 
@@ -50,7 +50,7 @@ def _moravec_seed(img, window):
             v = v + d * d
         vs.append(v)
     iv = jnp.minimum(jnp.minimum(vs[0], vs[1]), jnp.minimum(vs[2], vs[3]))
-    inside = jnp.zeros((h, w), bool).at[k:h - k, k:w - k].set(True)  # full window only
+    inside = inner_mask((h, w), k)  # full window only
     return jnp.where(inside, iv, 0.0)
 
 
@@ -66,7 +66,7 @@ def _moravec_shift(img, window):
                 continue
             d = img - p[k + br:k + br + h, k + bc:k + bc + w]
             best = jnp.minimum(best, box_sum(d * d, window))
-    inside = jnp.zeros((h, w), bool).at[2 * k:h - 2 * k, 2 * k:w - 2 * k].set(True)
+    inside = inner_mask((h, w), 2 * k)
     return jnp.where(inside, best, 0.0)
 
 
@@ -147,7 +147,7 @@ def _foerstner(img, window, sigma):
         a, b, c = _structure_roberts_box(img, window)
         k = window // 2
         h, w = img.shape
-        inside = jnp.zeros((h, w), bool).at[k:h - k, k:w - k].set(True)
+        inside = inner_mask((h, w), k)
     else:
         a, b, c = _structure_sobel_gauss(img, sigma)
         inside = jnp.ones(img.shape, bool)
