@@ -38,6 +38,7 @@ from .io import (
     write_camera as write_camera,
     write_json as write_json,
 )
+from . import measure as measure
 from .polynomial import (
     PolynomialModel as PolynomialModel,
     ProjectiveModel as ProjectiveModel,
