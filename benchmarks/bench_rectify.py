@@ -368,7 +368,7 @@ def main():
                     help="folder with the NGI files (default ../shared/data beside the repository)")
     ap.add_argument("--only", choices=("poly", "breakdown", "ortho", "ngi", "big"), action="append", help="run only these parts")
     args = ap.parse_args()
-    start("bench_rectify" + ("_quick" if args.quick else ""))
+    start("_".join(["bench_rectify"] + (["quick"] if args.quick else []) + sorted(args.only or [])))
     n = 1024 if args.quick else 4096
     repeat, slow = (5, 1) if not args.quick else (5, 2)
     print(f"jax {jax.__version__} on {jax.devices()[0].platform}; opencv threads {cv2.getNumThreads()}")
