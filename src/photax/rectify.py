@@ -168,7 +168,7 @@ class Grid:
 # tile's positions (ample: 2^-24 relative).
 
 _STEP = 16  # lattice spacing in output pixels (cost of the lattice: ~2/256 of exact)
-_CHUNK_COLS = 256  # columns per chunk at most: chunks of 16 x 256 = 4096 samples
+_CHUNK_COLS = 1024  # columns per chunk at most: 16 x 1024 samples (measured 25 % faster than 16 x 256)
 
 
 def _layout(rows: int, cols: int) -> tuple[tuple[int, int], int, int]:
@@ -268,6 +268,19 @@ def _chunk_positions(model, transform, offset, plan, i, j, layout, exact):
     return jax.lax.cond(bad[i, j], exact_positions, interpolated, None)
 
 
+def _lattice_positions(rel: Array, s: int) -> Array:
+    """``(2, mr+1, mc+1)`` lattice positions -> ``(2, mr*s, mc*s)`` positions
+    of the whole tile, bilinear in each cell: the arithmetic of
+    :func:`_chunk_positions` (along rows first, then between rows), so the
+    same float32 values, but one vectorised pass instead of one small
+    computation per chunk (measured ~30 % of the bilinear tile time)."""
+    f = jnp.arange(s, dtype=jnp.float32) / s
+    along = rel[..., :-1, None] + (rel[..., 1:, None] - rel[..., :-1, None]) * f[None, None, None, :]
+    along = along.reshape(rel.shape[0], rel.shape[1], -1)  # (2, mr+1, tc)
+    top, bottom = along[:, :-1, None, :], along[:, 1:, None, :]
+    return (top + (bottom - top) * f[None, None, :, None]).reshape(rel.shape[0], -1, along.shape[-1])
+
+
 def _tile_plan(model, transform, offset, layout, approx, size):
     if approx is not None:
         return _plan(model, transform, offset, layout, approx, size)
@@ -310,10 +323,21 @@ def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, me
 
         return jax.lax.fori_loop(0, (tr // s) * nc, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
 
+    def interpolated():  # no chunk needs the exact mapping: whole-tile positions, row strips
+        pos = _lattice_positions(plan[0], s)
+
+        def body(i, out):
+            p = jax.lax.dynamic_slice(pos, (0, i * s, 0), (2, s, tc)).reshape(2, -1)
+            v = _interp(flat, p[0], p[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5,
+                        compute=compute, out_dtype=out_dtype)
+            return jax.lax.dynamic_update_slice(out, v.reshape(-1, s, tc), (0, i * s, 0))
+
+        return jax.lax.fori_loop(0, tr // s, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
+
     if approx is None:
         out = loop(True)
     else:
-        out = jax.lax.cond(jnp.any(bad), lambda: loop(False), lambda: loop(None))
+        out = jax.lax.cond(jnp.any(bad), lambda: loop(False), interpolated)
     return out, plan[3], jnp.sum(bad)
 
 
@@ -332,7 +356,14 @@ def _tile_positions(model, transform, offset, layout, approx, size):
         return jax.lax.dynamic_update_slice(out, pos, (0, i * s, j * cw))
 
     dtype = jnp.float64 if approx is None else jnp.float32
-    pos = jax.lax.fori_loop(0, (tr // s) * nc, body, jnp.empty((2, tr, tc), dtype=dtype))
+
+    def loop():
+        return jax.lax.fori_loop(0, (tr // s) * nc, body, jnp.empty((2, tr, tc), dtype=dtype))
+
+    if approx is None:
+        pos = loop()
+    else:  # no bad chunk: the whole tile in one pass
+        pos = jax.lax.cond(jnp.any(plan[2]), loop, lambda: _lattice_positions(plan[0], s))
     return pos, plan[1], plan[3], jnp.sum(plan[2])
 
 
@@ -465,7 +496,7 @@ def rectify(
     positions), and positions in between are interpolated bilinearly
     wherever the check error is at most ``approx`` pixels in column and row;
     elsewhere (rough DEM, NaN edges) the exact mapping is used for that
-    16 x 256 chunk.  A cell whose corners and check positions all map to NaN
+    16 x 1024 chunk.  A cell whose corners and check positions all map to NaN
     is taken as nodata.  Between check positions the error is not measured;
     on smooth maps and DEM relief it peaks at them (tests).
 
