@@ -73,19 +73,20 @@ def gradient_margin(sigma: float) -> int:
 
 def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth):
     ci = round_centre(xy0)
+    cf = ci.astype(jnp.float64)
     p, inside = patch(img, ci, half + gradient_margin(smooth))
     finite = jnp.all(jnp.isfinite(p))
     p = jnp.where(finite, p, 0.0)
     gx, gy = gradient(p, smooth)
     off = jnp.arange(-half, half + 1, dtype=jnp.float64)
-    px = ci[0] + off[None, :]
-    py = ci[1] + off[:, None]
+    px = cf[0] + off[None, :]
+    py = cf[1] + off[:, None]
     disk = (off[None, :] ** 2 + off[:, None] ** 2) <= (half + 0.5) ** 2  # circular window: no preferred direction
     gxx, gxy, gyy = gx * gx, gx * gy, gy * gy
 
     def solve(c):
         d2 = (px - c[0]) ** 2 + (py - c[1]) ** 2
-        w = jnp.where(disk, jnp.clip(jnp.sqrt(d2) - exclude + 1.0, 0.0, 1.0), 0.0) if exclude > 0 else disk * 1.0
+        w = jnp.where(disk, jnp.clip(jnp.sqrt(d2) - exclude + 1.0, 0.0, 1.0), 0.0) if exclude > 0 else disk.astype(jnp.float64)
         n = jnp.array([[jnp.sum(w * gxx), jnp.sum(w * gxy)], [jnp.sum(w * gxy), jnp.sum(w * gyy)]])
         b = jnp.array([jnp.sum(w * (gxx * px + gxy * py)), jnp.sum(w * (gxy * px + gyy * py))])
         det = n[0, 0] * n[1, 1] - n[0, 1] ** 2
@@ -105,12 +106,12 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth):
         _, step, k, ok = state
         return (k < iterations) & (step > 1e-4) & ok
 
-    c0 = xy0 if exclude > 0 else ci.astype(jnp.float64)
+    c0 = xy0 if exclude > 0 else cf
     c, step, k, _ = jax.lax.while_loop(cond, body, (jnp.where(jnp.isfinite(c0), c0, 0.0), jnp.inf, 0, True))
     _, n, det, tr, w = solve(c)
     q = 4.0 * det / jnp.where(tr > 0, tr**2, 1.0)
     r = gx * (c[0] - px) + gy * (c[1] - py)
-    dof = jnp.maximum(jnp.sum(w > 1e-3) - 2, 1)
+    dof = jnp.maximum(jnp.sum(w > 1e-3) - 2, 1).astype(jnp.float64)
     s0sq = jnp.sum(w * r * r) / dof
     ninv = jnp.array([[n[1, 1], -n[0, 1]], [-n[0, 1], n[0, 0]]]) / jnp.where(det > 0, det, 1.0)
     cov = s0sq * ninv
