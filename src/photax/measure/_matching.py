@@ -11,7 +11,9 @@ Both take a template window of ``(2 window + 1)^2`` px centred on
   maximum, and a parabola through it and its neighbours in each direction
   (``d = (rho_- - rho_+) / (2 (rho_- - 2 rho_0 + rho_+))``).  Covariance
   (Förstner 1984): noise-to-signal ``sigma_n^2 = var(t) (1 - rho) / rho``
-  and ``Cov = sigma_n^2 (sum grad t grad t^T)^-1``.
+  and ``Cov = sigma_n^2 (sum grad t grad t^T)^-1``.  It does not include
+  the parabola's own systematic error (measured ~0.06 px rms on the textures
+  of the tests, where LSM reaches 0.02 px): use NCC as the approximation for LSM.
 * :func:`match_lsm`: Gruen's adaptive least-squares matching,
   ``g1(x, y) + v = r0 + r1 g2(a0 + (1 + a1) x + a2 y, b0 + b1 x + (1 + b2) y)``
   (6 affine, 2 radiometric parameters; ``x, y`` template offsets from its
