@@ -93,12 +93,12 @@ def _ncc_one(timg, txy, simg, sxy, *, half, search):
     s = jnp.where(s_fin, s, 0.0)
     k = 2 * half + 1
     m = 2 * (search + 1) + 1  # shifts -(search+1) .. search+1
-    # cross products at every shift: one (m, k, k) stack of windows per row
-    # shift (static slices; correlate2d under vmap became a grouped
-    # convolution that XLA:CPU ran ~1000x slower)
-    cross = jnp.stack([
-        jnp.einsum("xij,ij->x", jnp.stack([s[dy:dy + k, dx:dx + k] for dx in range(m)]), t0) for dy in range(m)
-    ])  # (m, m): [dy, dx]
+    # cross products at every shift by FFT (exact here: the window never
+    # wraps, dy + i < m + k - 1 = patch size); correlate2d under vmap became
+    # a grouped convolution that XLA:CPU ran ~1000x slower
+    size = s.shape
+    tpad = jnp.zeros(size).at[:k, :k].set(t0)
+    cross = jnp.fft.irfft2(jnp.fft.rfft2(s) * jnp.conj(jnp.fft.rfft2(tpad)), s=size)[:m, :m]  # [dy, dx]
     # window sums of s and s^2 from an integral image
     ii = jnp.pad(jnp.cumsum(jnp.cumsum(s, 0), 1), ((1, 0), (1, 0)))
     i2 = jnp.pad(jnp.cumsum(jnp.cumsum(s * s, 0), 1), ((1, 0), (1, 0)))
