@@ -86,7 +86,6 @@ def _conic_fit(pts, origin):
     a = jnp.stack([u * u, u * v, v * v, u, v], axis=1)
     coef = jnp.linalg.lstsq(a, jnp.ones_like(u))[0]
     A, B, C, D, E = coef
-    m = jnp.array([[2 * A, B], [B, 2 * C]])
     det = 4 * A * C - B * B  # > 0 for an ellipse
     cu = jnp.array([-(2 * C * D - B * E), -(2 * A * E - B * D)]) / jnp.where(det > 0, det, 1.0)
     centre = origin + s * cu
@@ -97,7 +96,6 @@ def _conic_fit(pts, origin):
     s2 = jnp.sum(res**2) / (pts.shape[0] - 5)
     nn = nrm.T @ nrm
     cov = s2 * jnp.linalg.inv(nn)
-    del m
     return centre, cov, jnp.sqrt(s2), det > 0
 
 
@@ -226,8 +224,9 @@ def ellipse_centre_offset(homography, radius) -> np.ndarray:
     plane ``(u, v, 1)`` -> pixel ``(col, row, 1)``), images as the conic with
     dual ``C*' = H diag(1, 1, -1/r^2) H^T``; the ellipse centre is the pole of
     the line at infinity, ``C*' (0, 0, 1)^T``, while the circle's centre images
-    at ``H (0, 0, 1)^T`` (Hartley & Zisserman, 2nd ed., sec. 2.2.3 and 8.?; the
-    shift is second order in radius / distance).
+    at ``H (0, 0, 1)^T`` (Hartley & Zisserman, 2nd ed., sec. 2.2.3: dual conics
+    map as ``H C* H^T``; sec. 2.8.1: the centre is the pole of the line at
+    infinity).  The shift is second order in radius / distance.
 
     Returns ``(2,)`` or ``(n, 2)`` px: ``ellipse_centre - H(0, 0)``.  Correct a
     measured centre with ``xy - ellipse_centre_offset(H, r)``.  ``H`` is
