@@ -43,7 +43,7 @@ SAMPLE_CRS = "EPSG:32633"
 SAMPLE_ORIGIN = (512_300.0, 4_103_800.0)  # local origin of the relief and the texture (UTM-like: photax must reduce)
 SAMPLE_DEM_CELL = 5.0  # metres
 SAMPLE_DEM_HALF = 600.0  # the DEM spans the origin +- this many metres (the footprint plus a margin)
-SAMPLE_TARGET_RADIUS = 4.0  # metres: ground targets painted at the GCPs, ~5 px in the image
+SAMPLE_TARGET_RADIUS = 6.0  # metres: ground targets painted at the GCPs, ~8 px in the image
 
 
 def _relief(x, y):

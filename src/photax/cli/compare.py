@@ -44,6 +44,8 @@ def add_parser(sub) -> None:
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
     p.add_argument("--orders", type=parse_orders, default=(1, 2, 3, 4, 5), help="polynomial orders (default 1-5)")
     p.add_argument("--out", metavar="DIR", help="folder for the table (md, json) and figures (png)")
+    p.add_argument("--resolution", type=float, metavar="SIZE",
+                   help="ground pixel size of the rectified images in rectified.png (default: the GSD)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -86,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError(f"--out {out}: is a file, expected a folder")
         for name in ("comparison.md", "comparison.json", "error_maps.png", "rmse.png", "rectified.png"):
             check_output_path(out / name, inputs)  # fail before the work, not after
+    if args.resolution is not None and not args.resolution > 0:
+        raise ValueError(f"--resolution must be positive, got {args.resolution}")
     table = _select_image(read_gcps(gcp_path), args)
     camera = read_interior(args.camera, args.camera_name)
     if camera.image_size is None:
@@ -109,7 +113,12 @@ def run(args: argparse.Namespace) -> int:
         image = (image - np.nanmin(image)) / max(float(np.nanmax(image) - np.nanmin(image)), 1e-12)
         grey = image.mean(axis=0)  # the figure shows grey values; bands averaged
         names = ["collinearity", *(n for n in comparison.names if n.startswith("polynomial"))]
-        rectified, grid = comparison.rectify(grey, names, progress=args.progress)
+        grid = None
+        if args.resolution is not None:
+            from ..rectify import ortho_grid
+
+            grid = ortho_grid(comparison.exterior, camera, dem, args.resolution)
+        rectified, grid = comparison.rectify(grey, names, grid=grid, progress=args.progress)
         figures["rectified.png"] = comparison.plot_rectified(rectified, grid)
     # Everything is computed before the first file is written: an error or
     # Ctrl-C above leaves the folder as it was.
