@@ -133,7 +133,7 @@ def test_ctrl_c_during_ortho_leaves_no_partial_file(tmp_path, capsys, monkeypatc
         raise KeyboardInterrupt
 
     monkeypatch.setattr(sys.modules["photax.rectify"], "_resample_tile", interrupted)  # photax.rectify is a function
-    argv = _argv("ortho", tmp_path) + ["--resolution", "8", "--no-progress"]
+    argv = _argv("ortho", tmp_path) + ["--resolution", "4", "--no-progress"]  # as in test_cli_sample: shared compilation
     assert main(argv) == 130
     assert "interrupted" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []  # neither out.tif nor a .part file
@@ -247,7 +247,7 @@ def test_no_file_cites_the_shared_folder():
 def test_bundle_report_plurals_and_units():
     from photax.bundle import bundle_adjust, synthetic_block
 
-    problem, _ = synthetic_block(0, noise_px=0.5)
-    text = bundle_adjust(problem, max_iterations=2).report(unit="m")
+    problem, _ = synthetic_block(0, noise_px=0.5)  # the demo's block: its compilation is shared
+    text = bundle_adjust(problem).report(unit="m")
     assert "1 camera," in text and "1 cameras" not in text
     assert np.any([" m, angles" in ln for ln in text.splitlines()])
