@@ -848,29 +848,40 @@ class BundleResult:
         pts = np.where(tie, self.points, self.problem.points)
         return self.problem.replace(cameras=self.cameras, exterior=self.exterior, points=pts)
 
-    def report(self) -> str:
-        """A plain-text summary: convergence, sigma0, residuals, precision."""
+    def report(self, unit: str | None = None) -> str:
+        """A plain-text summary: convergence, sigma0, residuals, precision.
+
+        ``unit``: the ground CRS's unit (``"m"``, ``"ft"``...) for the
+        exterior and point precision; default "ground units".
+        """
         p = self.problem
         rms = np.sqrt(np.mean(self.residuals**2, axis=0))
+        u = unit or "ground units"
+
+        def n_of(n, word):  # "1 camera", "2 cameras"
+            return f"{n} {word}{'' if n == 1 else 's'}"
+
+        n_ctrl, n_chk = int(np.sum(p.roles == "control")), int(np.sum(p.roles == "check"))
         lines = [
-            f"bundle adjustment: {p!r}",
-            f"  {'converged' if self.converged else 'NOT converged'}: {self.message} after {self.iterations} iterations "
+            f"bundle adjustment: {n_of(p.n_images, 'image')}, {n_of(p.n_cameras, 'camera')}, "
+            f"{n_of(p.n_points, 'point')} ({n_ctrl} control, {n_chk} check), {n_of(p.n_observations, 'observation')}",
+            f"  {'converged' if self.converged else 'NOT converged'}: {self.message} after {n_of(self.iterations, 'iteration')} "
             f"({self.seconds:.2f} s)",
             f"  cost {self.initial_cost:.6g} -> {self.cost:.6g}; sigma0 {self.sigma0:.4g} (redundancy {self.redundancy})",
             f"  image residual RMS x {rms[0]:.4g}, y {rms[1]:.4g} (camera units); max |r| "
             f"{np.max(np.abs(self.residuals)):.4g}",
         ]
         if np.any(self.weights < 0.5):
-            lines.append(f"  {int(np.sum(self.weights < 0.5))} observations down-weighted below 0.5 by the robust loss")
+            lines.append(f"  {n_of(int(np.sum(self.weights < 0.5)), 'observation')} down-weighted below 0.5 by the robust loss")
         if self.exterior_std is not None:
             s = np.median(self.exterior_std, axis=0)
             lines.append(
-                f"  median std of exterior: X {s[0]:.4g}, Y {s[1]:.4g}, Z {s[2]:.4g}, angles "
+                f"  median std of exterior: X {s[0]:.4g}, Y {s[1]:.4g}, Z {s[2]:.4g} {u}, angles "
                 f"{np.degrees(s[3]) * 3600:.3g}\" {np.degrees(s[4]) * 3600:.3g}\" {np.degrees(s[5]) * 3600:.3g}\""
             )
             ps = np.median(self.point_std[p.roles != "control"], axis=0) if np.any(p.roles != "control") else None
             if ps is not None:
-                lines.append(f"  median std of tie/check points: X {ps[0]:.4g}, Y {ps[1]:.4g}, Z {ps[2]:.4g}")
+                lines.append(f"  median std of tie/check points: X {ps[0]:.4g}, Y {ps[1]:.4g}, Z {ps[2]:.4g} {u}")
         else:
             lines.append("  precision not reported: the datum is free (gauge='damped')")
         free = p.free_intrinsics
@@ -883,12 +894,12 @@ class BundleResult:
                 ]  # fmt: skip
                 lines.append(f"  camera {c}: " + ", ".join(parts))
                 if c >= 5 and len(self.cameras) > 6:
-                    lines.append(f"  ... ({len(self.cameras) - 6} more self-calibrated cameras)")
+                    lines.append(f"  ... ({n_of(len(self.cameras) - 6, 'more self-calibrated camera')})")
                     break
         if len(self.check_residuals):
             crms = np.sqrt(np.mean(self.check_residuals**2, axis=0))
             lines.append(
-                f"  check points ({len(self.check_residuals)}): RMS X {crms[0]:.4g}, Y {crms[1]:.4g}, Z {crms[2]:.4g}"
+                f"  check points ({len(self.check_residuals)}): RMS X {crms[0]:.4g}, Y {crms[1]:.4g}, Z {crms[2]:.4g} {u}"
             )
         return "\n".join(lines)
 

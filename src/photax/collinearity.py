@@ -1,6 +1,6 @@
 """Exterior orientation and the collinearity equations.
 
-Ground -> image (DESIGN.md, with ``R = world_from_camera``)::
+Ground -> image (docs/maths.md, with ``R = world_from_camera``)::
 
     x - x0 = -f [a1 dX + b1 dY + c1 dZ] / [a3 dX + b3 dY + c3 dZ]
     y - y0 = -f [a2 dX + b2 dY + c2 dZ] / [a3 dX + b3 dY + c3 dZ]

@@ -1,7 +1,7 @@
 """Plane-to-plane models fitted to control points: polynomials of order 1-5
 and the 8-parameter projective transform.
 
-Polynomial of order ``n`` (DESIGN.md, "Polynomial rectification")::
+Polynomial of order ``n`` (docs/maths.md, "Polynomial rectification")::
 
     X = sum_{i+j<=n} a_ij x^i y^j,    Y = sum_{i+j<=n} b_ij x^i y^j
 
@@ -12,7 +12,7 @@ centred and scaled to about [-1, 1] per axis *inside* the model, the fit is
 solved by SVD least squares (never normal equations), and the model maps
 original units to original units.
 
-Which direction to fit: rectification is indirect (DESIGN.md): for every
+Which direction to fit: rectification is indirect (docs/maths.md): for every
 *output* (map) pixel the rectifier needs the *input* image position.  So fit
 ``fit_polynomial(map_xy, pixel_xy, order)`` (output -> input) and hand the
 model to the rectifier; use ``model.inverse()`` only for the other way

@@ -1,6 +1,6 @@
 """Whole-image rectification and orthorectification.
 
-**Indirect mapping** (output -> input; the default, DESIGN.md): for every
+**Indirect mapping** (output -> input; the default, docs/maths.md): for every
 output pixel centre take its map/ground coordinate from the output
 :class:`Grid`, find its position in the input image with a *model*
 ``(..., 2) map (X, Y) -> (..., 2) input pixel (column, row)``, and
