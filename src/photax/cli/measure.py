@@ -119,13 +119,14 @@ def _write_csv(out, names, approx, res, strength, inputs) -> None:
 
     xy, sig, status = np.asarray(res.xy), np.asarray(res.sigma), np.asarray(res.status)
     fmt = lambda v: "" if not math.isfinite(v) else f"{v:.4f}"  # noqa: E731  (0.1 mpx: below any sigma)
+    fsig = lambda v: "" if not math.isfinite(v) else f"{v:.4g}"  # noqa: E731
     header = ["name", "approx_col", "approx_row", "col", "row", "sigma_col", "sigma_row", "status"]
     with atomic_write(out, inputs=inputs, newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(header + (["strength"] if strength is not None else []))
         for i, name in enumerate(names):
             row = [name, fmt(approx[i, 0]), fmt(approx[i, 1]), fmt(xy[i, 0]), fmt(xy[i, 1]),
-                   fmt(sig[i, 0]), fmt(sig[i, 1]), Status(int(status[i])).name.lower()]
+                   fsig(sig[i, 0]), fsig(sig[i, 1]), Status(int(status[i])).name.lower()]
             w.writerow(row + ([f"{strength[i]:.6g}"] if strength is not None else []))
 
 
