@@ -40,7 +40,6 @@ faster), peak memory above the start, and the RMSE against the known truth.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path

@@ -25,7 +25,8 @@ RADIUS = 6.0
 
 def _write_tif(path, image):
     with rasterio.open(path, "w", driver="GTiff", width=image.shape[1], height=image.shape[0], count=1,
-                       dtype=image.dtype, transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
+                       dtype=image.dtype,
+                       transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
         dst.write(image, 1)
 
 

@@ -364,7 +364,8 @@ def write_gcps(path, table: GCPTable, *, inputs=()) -> pathlib.Path:
     for what, values in (("names", table.names), ("images", table.images)):
         for v in values.tolist():
             if v != v.strip() or "\n" in v or v.startswith("#") or (what == "names" and not v):
-                raise ValueError(f"table: {what[:-1]} {v!r} would not read back (empty name, surrounding spaces, newline or '#')")
+                raise ValueError(f"table: {what[:-1]} {v!r} would not read back "
+                                 "(empty name, surrounding spaces, newline or '#')")
     if table.crs is not None and "\n" in table.crs:
         raise ValueError(f"table: crs {table.crs!r} spans lines")
     header = ["name", "image", "E", "N", "h", *(("col", "row") if pix else ("x", "y")), "sigma", "role"]

@@ -31,10 +31,9 @@ import functools
 
 import jax
 import jax.numpy as jnp
-from jax import Array
 
 from ._filters import _gradient2d
-from ._result import LocateResult, Status, as_images, as_points, check_window, finish, patch, round_centre
+from ._result import Status, as_images, as_points, check_window, finish, patch, round_centre
 
 _A = -0.5  # Keys' cubic convolution parameter
 
