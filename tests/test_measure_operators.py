@@ -259,3 +259,44 @@ def test_non_maximum_suppression_matches_a_maximum_filter():
     ref = (resp == ndi.maximum_filter(resp, 5, mode="constant", cval=-np.inf)) & (resp > 0.5)
     np.testing.assert_array_equal(ours, ref)
     assert ref.any()
+
+
+# --------------------------------------------------------------------------- gradient (the package's one gradient)
+
+
+@pytest.mark.parametrize("method", ["sobel", "prewitt", "central", "gaussian"])
+@pytest.mark.parametrize("mode", ["reflect", "valid"])
+def test_gradient_ramp_and_valid_shape(method, mode):
+    """A ramp a c + b r gives (a, b) exactly inside; "valid" crops gradient_margin px per side."""
+    from photax.measure._filters import gradient_margin
+
+    r, c = np.mgrid[0:20, 0:24].astype(float)
+    gx, gy = ptx.measure.gradient(0.7 * c - 1.3 * r, method, sigma=1.2, mode=mode)
+    m = gradient_margin(method, 1.2)
+    if mode == "valid":
+        assert gx.shape == gy.shape == (20 - 2 * m, 24 - 2 * m)
+        inner = (slice(None), slice(None))
+    else:
+        assert gx.shape == (20, 24)
+        inner = (slice(m, -m), slice(m, -m))
+    np.testing.assert_allclose(np.asarray(gx)[inner], 0.7, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(gy)[inner], -1.3, atol=1e-12)
+
+
+def test_gradient_gaussian_closed_form():
+    """d/dcol of g = c r^2 with the derivative-of-Gaussian gradient: the odd kernel (unit
+    ramp response) gives r^2 along, the Gaussian across adds its variance: r^2 + sum g(s) s^2."""
+    from photax.measure._filters import derivative_of_gaussian
+
+    sigma = 1.3
+    g, _ = derivative_of_gaussian(sigma)
+    s = np.arange(len(g)) - len(g) // 2
+    r, c = np.mgrid[0:30, 0:30].astype(float)
+    gx, gy = ptx.measure.gradient(c * r**2, "gaussian", sigma=sigma, mode="valid")
+    m = len(g) // 2
+    want_x = r[m:-m, m:-m] ** 2 + np.sum(g * s**2)
+    want_y = 2 * r[m:-m, m:-m] * c[m:-m, m:-m]  # odd kernel on a quadratic: exact; Gaussian on a linear: exact
+    np.testing.assert_allclose(np.asarray(gx), want_x, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(gy), want_y, rtol=1e-12, atol=1e-9)
+    with pytest.raises(ValueError, match="method"):
+        ptx.measure.gradient(c, "scharr")

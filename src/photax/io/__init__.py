@@ -14,7 +14,7 @@ from .atomic import atomic_path as atomic_path, atomic_write as atomic_write
 from .bal import BALData as BALData, read_bal as read_bal, read_bal_arrays as read_bal_arrays, write_bal as write_bal
 from .block import read_block as read_block
 from .camera_file import read_camera as read_camera, write_camera as write_camera
-from .gcp import GCPTable as GCPTable, read_gcps as read_gcps
+from .gcp import GCPTable as GCPTable, read_gcps as read_gcps, write_gcps as write_gcps
 from .orthority import (
     read_orthority_crs as read_orthority_crs,
     read_orthority_exterior as read_orthority_exterior,

@@ -33,55 +33,31 @@ distance from the corner, then dominates.
 from __future__ import annotations
 
 import functools
-import math
-
 import jax
 import jax.numpy as jnp
 from jax import Array
 
+from ._filters import _gradient2d, gradient_margin
 from ._result import LocateResult, Status, as_images, as_points, check_window, finish, patch, round_centre
 
 
-def gradient(p: Array, sigma: float = 0.0) -> tuple[Array, Array]:
-    """Gradient ``(d/dcol, d/drow)`` of a patch on its interior, ``m`` pixels
-    smaller on every side (``m = gradient_margin(sigma)``): central
-    differences for ``sigma = 0``, else the derivative of a sampled Gaussian of
-    ``sigma`` px (normalised so that a unit ramp has gradient 1).  Private
-    helper: the lead de-duplicates it against ``_filters.gradient``."""
-    if sigma <= 0:
-        return 0.5 * (p[1:-1, 2:] - p[1:-1, :-2]), 0.5 * (p[2:, 1:-1] - p[:-2, 1:-1])
-    m = gradient_margin(sigma)
-    t = jnp.arange(-m, m + 1, dtype=jnp.float64)
-    g = jnp.exp(-(t**2) / (2 * sigma**2))
-    g = g / jnp.sum(g)
-    d = -t * g
-    d = d / jnp.sum(d * -t)  # sum d(t) * f(x - t) = f'(x) for a ramp
-    k = 2 * m + 1
-    h, w = p.shape
-
-    def conv_rows(a, kern):  # along columns (axis 1), valid part
-        return sum(kern[i] * a[:, k - 1 - i : w - i] for i in range(k))
-
-    def conv_cols(a, kern):  # along rows (axis 0)
-        return sum(kern[i] * a[k - 1 - i : h - i, :] for i in range(k))
-
-    gx = conv_cols(conv_rows(p, d), g)
-    gy = conv_rows(conv_cols(p, d), g)
-    return gx, gy
+def _gradient(p: Array, sigma: float) -> tuple[Array, Array]:
+    """Gradient of a patch on its interior (``_margin(sigma)`` px smaller on
+    every side): derivative of Gaussian, or central differences for ``sigma = 0``."""
+    return _gradient2d(p, "gaussian" if sigma > 0 else "central", "valid", sigma)
 
 
-def gradient_margin(sigma: float) -> int:
-    """Pixels lost on each side by :func:`gradient` of ``sigma``."""
-    return 1 if sigma <= 0 else math.ceil(3.0 * sigma)
+def _margin(sigma: float) -> int:
+    return gradient_margin("gaussian" if sigma > 0 else "central", sigma)
 
 
 def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth):
     ci = round_centre(xy0)
     cf = ci.astype(jnp.float64)
-    p, inside = patch(img, ci, half + gradient_margin(smooth))
+    p, inside = patch(img, ci, half + _margin(smooth))
     finite = jnp.all(jnp.isfinite(p))
     p = jnp.where(finite, p, 0.0)
-    gx, gy = gradient(p, smooth)
+    gx, gy = _gradient(p, smooth)
     off = jnp.arange(-half, half + 1, dtype=jnp.float64)
     px = cf[0] + off[None, :]
     py = cf[1] + off[:, None]
@@ -192,7 +168,7 @@ def locate_corners(
     if exclude < 0:
         raise ValueError(f"exclude: must be >= 0, got {exclude}")
     images, batched = as_images(image)
-    check_window(2 * (window + gradient_margin(smooth)) + 1, images.shape[1:])
+    check_window(2 * (window + _margin(smooth)) + 1, images.shape[1:])
     xy = as_points(approx_xy, images.shape[0], batched)
     res = _corners(images, xy, half=int(window), exclude=float(exclude), iterations=int(iterations), q_min=float(q_min),
                    smooth=float(smooth))

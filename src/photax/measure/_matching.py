@@ -31,10 +31,9 @@ import functools
 
 import jax
 import jax.numpy as jnp
-from jax import Array
 
-from ._corners import gradient
-from ._result import LocateResult, Status, as_images, as_points, check_window, finish, patch, round_centre
+from ._filters import _gradient2d
+from ._result import Status, as_images, as_points, check_window, finish, patch, round_centre
 
 _A = -0.5  # Keys' cubic convolution parameter
 
@@ -121,7 +120,7 @@ def _ncc_one(timg, txy, simg, sxy, *, half, search):
     dx = para(rho[iy, ix - 1], r0, rho[iy, ix + 1])
     dy = para(rho[iy - 1, ix], r0, rho[iy + 1, ix])
     xy = cf + jnp.array([(ix - (search + 1)).astype(jnp.float64) + dx, (iy - (search + 1)).astype(jnp.float64) + dy])
-    gx, gy = gradient(jnp.pad(t, 1, mode="edge"))
+    gx, gy = _gradient2d(t, "central", "nearest")
     mm = jnp.array([[jnp.sum(gx * gx), jnp.sum(gx * gy)], [jnp.sum(gx * gy), jnp.sum(gy * gy)]])
     det = mm[0, 0] * mm[1, 1] - mm[0, 1] ** 2
     minv = jnp.array([[mm[1, 1], -mm[0, 1]], [-mm[0, 1], mm[0, 0]]]) / jnp.where(det > 0, det, 1.0)
@@ -183,7 +182,7 @@ def _lsm_one(timg, txy, simg, sxy, *, half, margin, iterations, tol):
     s, s_in = patch(simg, ci, big)
     s_fin = jnp.all(jnp.isfinite(s))
     s = jnp.where(s_fin, s, 0.0)
-    gxs, gys = gradient(jnp.pad(s, 1, mode="edge"))
+    gxs, gys = _gradient2d(s, "central", "nearest")
     sg = jnp.stack([s, gxs, gys], axis=-1)  # one gather per iteration for value and gradient
     off = jnp.arange(-half, half + 1, dtype=jnp.float64)
     x = jnp.broadcast_to(off[None, :], g1.shape).ravel()

@@ -83,7 +83,9 @@ class LocateResult(eqx.Module):
         """``(..., n, 2)`` sigma of (x, y) in image-plane units of ``camera``
         (pixel sigma times the pixel size; the y flip does not change a sigma)."""
         _, size = camera._pixel_grid()
-        return self.sigma * jnp.broadcast_to(jnp.asarray(size, dtype=float), (2,))
+        s = self.sigma
+        size = jnp.broadcast_to(jnp.asarray(size, dtype=float), (2,))
+        return s * size.reshape((1,) * (s.ndim - 1) + (2,))  # explicit rank: jax_numpy_rank_promotion="raise"
 
     def messages(self) -> list[str]:
         """One message per point (flattened over any batch axes)."""

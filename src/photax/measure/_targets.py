@@ -246,3 +246,63 @@ def ellipse_centre_offset(homography, radius) -> np.ndarray:
     e = np.einsum("...ij,...jk,...lk->...il", h, dual, h)[..., :, 2]
     c = h[..., :, 2]
     return e[..., :2] / e[..., 2:3] - c[..., :2] / c[..., 2:3]
+
+
+def target_homography(camera, exterior, centre, normal=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Homography from a target's plane to pixels: ``H ~ K [r1 r2 t]``.
+
+    The target plane passes through ``centre`` (ground ``(3,)`` or ``(n, 3)``)
+    with unit ``normal`` (default ``(0, 0, 1)``, a level target).  Its axes are
+    ``e1 = (a x n) / |a x n|`` (``a`` = ground X, or Y when the normal is
+    along X) and ``e2 = n x e1``; plane coordinates ``(u, v)`` in ground
+    units are the ground point ``centre + u e1 + v e2``.  With ``R`` the
+    ``world_from_camera`` matrix and ``X_s`` the projection centre, the
+    camera-frame point is ``R^T (centre - X_s) + u R^T e1 + v R^T e2``, and the
+    pinhole of :meth:`photax.FrameCamera.project` (``x = x0 - f X_c / Z_c``,
+    pixel ``col = x / p_x + c_x``, ``row = -y / p_y + c_y``) is the matrix
+
+        K = [[f/p_x, 0, -(x0/p_x + c_x)], [0, -f/p_y, -(c_y - y0/p_y)], [0, 0, -1]]
+
+    on camera-frame points, so ``H = K [R^T e1, R^T e2, R^T (centre - X_s)]``
+    (Hartley & Zisserman, 2nd ed., sec. 8.1.1).  Lens distortion is left out:
+    it moves the whole ellipse, and changes the centre offset of
+    :func:`ellipse_centre_offset` only by the relative scale change of the
+    distortion across the target (negligible for targets of a few pixels).
+
+    Args:
+        camera: :class:`photax.FrameCamera` with a pixel grid.
+        exterior: :class:`photax.ExteriorOrientation` of the image (one, not a batch).
+        centre: ``(3,)`` or ``(n, 3)`` ground coordinates of target centres.
+        normal: ``(3,)`` or ``(n, 3)`` plane normals (need not be unit).
+
+    Returns:
+        ``(3, 3)`` or ``(n, 3, 3)``, plane ``(u, v, 1)`` -> pixel ``(col, row, 1)``,
+        for :func:`ellipse_centre_offset` (``radius`` in ground units) and
+        :func:`photax.measure._render.projected_disc`.
+    """
+    c = np.asarray(centre, dtype=np.float64)
+    n = np.asarray(normal, dtype=np.float64)
+    if c.shape[-1:] != (3,) or c.ndim > 2:
+        raise ValueError(f"centre: expected (3,) or (n, 3) ground coordinates, got {c.shape}")
+    if n.shape[-1:] != (3,) or n.ndim > 2:
+        raise ValueError(f"normal: expected (3,) or (n, 3), got {n.shape}")
+    norm = np.linalg.norm(n, axis=-1, keepdims=True)
+    if np.any(~(norm > 0)) or not np.all(np.isfinite(c)):
+        raise ValueError("normal: must be non-zero and centre finite")
+    n = n / norm
+    shape = np.broadcast_shapes(c.shape, n.shape)
+    c, n = np.broadcast_to(c, shape), np.broadcast_to(n, shape)
+    a = np.where(np.abs(n[..., :1]) > 0.9, np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0]))
+    e1 = np.cross(a, n)
+    e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
+    e2 = np.cross(n, e1)
+    rot = np.asarray(exterior.rotation, dtype=np.float64)
+    pos = np.asarray(exterior.position, dtype=np.float64)
+    if rot.shape != (3, 3):
+        raise ValueError(f"exterior: one orientation expected, got a batch of rotations {rot.shape}")
+    (cx, cy), (px, py) = (np.asarray(v, dtype=np.float64) for v in camera._pixel_grid())
+    f = float(camera.focal_length)
+    x0, y0 = np.asarray(camera.principal_point, dtype=np.float64)
+    k = np.array([[f / px, 0.0, -(x0 / px + cx)], [0.0, -f / py, -(cy - y0 / py)], [0.0, 0.0, -1.0]])
+    cols = np.stack([e1 @ rot, e2 @ rot, (c - pos) @ rot], axis=-1)  # R^T v as v R, columns r1 r2 t
+    return k @ cols
