@@ -4,7 +4,7 @@ Each pixel ``p_i`` of a window with grey-value gradient ``g_i`` lies on an
 edge line through the corner ``c`` perpendicular to ``g_i``:
 ``g_i^T (c - p_i) = 0``.  Weighting every such line by ``|g_i|^2`` (its
 precision is proportional to the gradient's strength) gives the normal
-equations (Förstner & Gülch 1987; the seed's Förstner operator, DESIGN.md
+equations (Förstner & Gülch 1987; the seed's Förstner operator, docs/maths.md
 "Image measurement")
 
     N c = b,   N = sum w_i g_i g_i^T,   b = sum w_i g_i g_i^T p_i,

@@ -163,7 +163,7 @@ def _foerstner(img, window, sigma):
 def foerstner(image, window: int = 5, *, sigma: float | None = None):
     """Förstner interest measures ``(w, q)``.
 
-    ``w = det N / tr N`` and ``q = 4 det N / tr(N)^2`` (DESIGN.md; seed 004;
+    ``w = det N / tr N`` and ``q = 4 det N / tr(N)^2`` (docs/maths.md; seed 004;
     Förstner & Gülch 1987) with ``N`` the sum of ``[gu, gv]^T [gu, gv]``:
 
     * ``sigma=None`` (the seed): Roberts gradients summed over the

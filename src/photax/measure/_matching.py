@@ -22,7 +22,7 @@ Both take a template window of ``(2 window + 1)^2`` px centred on
   of which the ``(a0, b0)`` block is the shift's covariance.
 
 Source: Gruen (1985), "Adaptive least squares correlation: a powerful image
-matching technique", S. Afr. J. Photogramm. 14(3); seed 004 / DESIGN.md.
+matching technique", S. Afr. J. Photogramm. 14(3); seed 004 / docs/maths.md.
 """
 
 from __future__ import annotations
