@@ -78,8 +78,9 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ._triangulation import observation_pairs, triangulate
 from .camera import FrameCamera
-from .collinearity import ExteriorOrientation
+from .collinearity import ExteriorOrientation, project, stack_exteriors
 from .errors import ConvergenceError
 from .rotation import angles_from_matrix_unchecked, axis_angle_to_matrix, rotation_matrix
 
@@ -100,23 +101,6 @@ Gauge = Literal["fix_first_camera", "damped"]
 # --------------------------------------------------------------------------
 # The problem
 # --------------------------------------------------------------------------
-
-
-def _as_exterior(exterior, n: int | None = None) -> ExteriorOrientation:
-    if isinstance(exterior, ExteriorOrientation):
-        eo = exterior
-    else:
-        eo_list = list(exterior)
-        if not eo_list or not all(isinstance(e, ExteriorOrientation) for e in eo_list):
-            raise ValueError("exterior must be an ExteriorOrientation (batched) or a list of them")
-        conv = eo_list[0].convention
-        eo_list = [e.to_convention(conv) if np.all(np.isfinite(np.asarray(e.angles))) else e for e in eo_list]
-        eo = ExteriorOrientation(
-            np.stack([np.asarray(e.position) for e in eo_list]), np.stack([np.asarray(e.angles) for e in eo_list]), conv
-        )
-    if eo.position.ndim != 2:
-        raise ValueError(f"exterior must hold one orientation per image, shape (n_images, 3); got {eo.position.shape}")
-    return eo
 
 
 class BundleProblem:
@@ -181,7 +165,7 @@ class BundleProblem:
         cams = (cameras,) if isinstance(cameras, FrameCamera) else tuple(cameras)
         if not cams or not all(isinstance(c, FrameCamera) for c in cams):
             raise ValueError("cameras must be a FrameCamera or a non-empty sequence of them")
-        eo = _as_exterior(exterior)
+        eo = stack_exteriors(exterior)
         n_img, n_cam = eo.position.shape[0], len(cams)
         pts = np.array(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 3:
@@ -326,28 +310,6 @@ class _State(NamedTuple):
     xyz: Array  # (n_pts, 3) local origin
 
 
-def _pairs(obs_point: np.ndarray, obs_image: np.ndarray, n_img: int):
-    """All pairs a < b of observations of one point, sorted by image pair."""
-    order = np.argsort(obs_point, kind="stable")
-    counts = np.bincount(obs_point)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pa, pb = [], []
-    for n in np.unique(counts):
-        if n < 2:
-            continue
-        sel = starts[counts == n]
-        ia, ib = np.triu_indices(n, 1)
-        pa.append(order[(sel[:, None] + ia[None, :]).ravel()])
-        pb.append(order[(sel[:, None] + ib[None, :]).ravel()])
-    pa = np.concatenate(pa) if pa else np.zeros(0, np.int64)
-    pb = np.concatenate(pb) if pb else np.zeros(0, np.int64)
-    key = obs_image[pa] * n_img + obs_image[pb]
-    srt = np.argsort(key, kind="stable")
-    pa, pb, key = pa[srt], pb[srt], key[srt]
-    uniq, key_id = np.unique(key, return_inverse=True)
-    return pa, pb, key_id, uniq // n_img, uniq % n_img
-
-
 #: Observation pairs per chunk of the reduced-system product (one small GEMM
 #: per chunk: 16-32 is fastest on XLA CPU for BAL problems), and chunks per
 #: piece: pieces are done one after the other so that their gathered operands
@@ -415,7 +377,7 @@ def _analyse(problem: BundleProblem, fixed_extra: np.ndarray, origin: np.ndarray
     soft = ctrl[:, None] & (problem.point_sigma > 0)
     prior_w = np.where(soft, 1.0 / np.where(soft, problem.point_sigma, 1.0) ** 2, 0.0)
     prior = np.where(ctrl[:, None], problem.points - origin[None, :], 0.0)
-    pa, pb, *_ = _pairs(problem.obs_point, problem.obs_image, n_img)
+    pa, pb, *_ = observation_pairs(problem.obs_point, problem.obs_image, n_img)
     ca, cb, ck, ka, kb, koff = _chunks(pa, pb, problem.obs_image, problem.n_observations, n_img)
     s = _Structure(
         *(jnp.asarray(v) for v in (problem.obs_image, problem.obs_point, problem.obs_xy, problem.obs_sigma, cols)),
@@ -1242,14 +1204,14 @@ def initialize_block(problem: BundleProblem, *, min_control: int = 4) -> BundleP
     exterior = ExteriorOrientation(pos, ang, conv)
     missing = ~np.all(np.isfinite(pts), axis=1) & ~ctrl
     if np.any(missing):
-        from .intersection import intersect
-
+        # The linear intersection of photax.intersect (without its refinement,
+        # which is a bundle adjustment itself).
         sel = missing[problem.obs_point]
         new_index = np.cumsum(missing) - 1
         cams = [problem.cameras[c] for c in problem.image_camera]
-        xyz = intersect(
-            problem.obs_xy[sel], exterior, cams, obs_image=problem.obs_image[sel],
-            obs_point=new_index[problem.obs_point[sel]], n_points=int(missing.sum()),
+        xyz, *_ = triangulate(
+            problem.obs_xy[sel], problem.obs_image[sel], new_index[problem.obs_point[sel]], int(missing.sum()),
+            exterior, cams,
         )  # fmt: skip
         pts[missing] = xyz
     return problem.replace(exterior=exterior, points=pts)
@@ -1333,7 +1295,6 @@ def synthetic_block(
     xy = lo + uv * (hi - lo)
     xyz = np.column_stack([xy, terrain(xy)]) + origin
     roles = np.array(["control"] * n_control + ["check"] * n_check + ["tie"] * len(tie), dtype=object)
-    from .collinearity import project
 
     obs_i, obs_p, obs_xy = [], [], []
     for i in range(len(centres)):
