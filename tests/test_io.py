@@ -15,6 +15,7 @@ import pytest
 from conftest import shared_file
 
 import photax as ptx
+from photax.camera import opencv_extrinsics
 from photax.io.bal import read_bal
 from photax.io.block import read_block
 from photax.io.camera_file import read_camera, write_camera
@@ -140,9 +141,8 @@ def test_select_unknown_image(tmp_path):
 
 
 def _opencv_pixels(ground, eo, K, dist_cv):
-    flip = np.diag([1.0, -1.0, -1.0])
-    r_cv = flip @ np.asarray(eo.rotation).T
-    ref, _ = cv2.projectPoints(ground, cv2.Rodrigues(r_cv)[0], -r_cv @ np.asarray(eo.position), K, dist_cv)
+    r_cv, t_cv = opencv_extrinsics(eo.rotation, eo.position)
+    ref, _ = cv2.projectPoints(ground, cv2.Rodrigues(r_cv)[0], t_cv, K, dist_cv)
     return ref[:, 0, :]
 
 
