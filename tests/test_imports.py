@@ -4,8 +4,9 @@ The graph is read statically (``ast``) from every ``import`` statement in
 ``src/photax`` -- module level *and* inside functions: a deferred import
 that only exists to break a cycle is still a cycle in the design.  Edges go
 from a module to the photax modules it names; a package's ``__init__`` is
-its own node (``photax.io``), and importing a submodule does not count as
-importing its parent package (Python does that for every submodule).
+its own node (``photax.io``), and importing ``photax.io.gcp`` from outside
+``photax.io`` also imports ``photax.io`` (Python runs the package's
+``__init__`` first), so that edge counts too.
 """
 
 from __future__ import annotations
@@ -51,7 +52,13 @@ def _graph() -> dict[str, set[str]]:
                 targets = subs if subs and len(subs) == len(node.names) else [mod, *subs]
             else:
                 continue
-            edges.update(t for t in targets if t in files and t != name)
+            for t in targets:
+                # Python imports every enclosing package first, unless we are inside it.
+                parts = t.split(".")
+                for k in range(2, len(parts) + 1):
+                    anc = ".".join(parts[:k])
+                    if anc in files and anc != name and not (name + ".").startswith(anc + "."):
+                        edges.add(anc)
         graph[name] = edges
     return graph
 
@@ -89,6 +96,8 @@ def test_graph_sees_known_edges():
     g = _graph()
     assert "photax.collinearity" in g["photax.bundle"]
     assert "photax.camera" in g["photax.intersection"]
+    assert {"photax.io", "photax.io.results"} <= g["photax.demo"]  # the package's __init__ runs first
+    assert "photax.io" not in g["photax.io.gcp"]  # ... but not for its own modules
     assert len(g) > 30
 
 
