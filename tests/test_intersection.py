@@ -70,10 +70,13 @@ def test_refined_points_match_scipy_least_squares():
         def res(X):
             return np.concatenate([np.asarray(ptx.project(X[None], eos[i], cam))[0] - xy[i, j] for i in seen])
 
-        ref = scipy.optimize.least_squares(res, ground[j] + 1.0, xtol=1e-14, ftol=1e-14).x
-        np.testing.assert_allclose(out.points[j], ref, atol=1e-5)
+        fit = scipy.optimize.least_squares(res, ground[j] + 1.0, xtol=1e-14, ftol=1e-14)
+        np.testing.assert_allclose(out.points[j], fit.x, atol=1e-5)
+        # RMS image residual per coordinate, from scipy's residual vector
+        np.testing.assert_allclose(out.residual_rmse[j], np.sqrt(np.mean(fit.fun**2)), rtol=1e-6)
     assert out.n_rays.tolist() == [2] * 4 + [3] * 8
     assert np.all(out.std > 0) and np.all(out.angle_deg > 10)
+    assert out.residual_rms is out.residual_rmse  # the old name still works
 
 
 def test_list_layout_single_ray_and_narrow_angle():

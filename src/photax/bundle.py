@@ -935,7 +935,7 @@ def bundle_adjust(
     loss_scale: float = 1.0,
     method: Literal["levenberg-marquardt", "gauss-newton"] = "levenberg-marquardt",
     gauge: Gauge | None = None,
-    max_iterations: int = 50,
+    max_steps: int = 50,
     function_tolerance: float = 1e-6,
     gradient_tolerance: float = 1e-10,
     parameter_tolerance: float = 1e-8,
@@ -946,6 +946,7 @@ def bundle_adjust(
     verbose: bool = False,
     progress: bool | str = False,
     throw: bool = True,
+    max_iterations: int | None = None,
 ) -> BundleResult:
     """Adjust a block by (robust) Levenberg–Marquardt with a Schur complement.
 
@@ -964,8 +965,9 @@ def bundle_adjust(
             one of the equivalent ones; precision is not reported).  ``None``
             (default) refuses a network whose datum is not defined by control
             points or fixed orientations.
-        max_iterations: iterations counted as Ceres does (accepted and
-            rejected steps).
+        max_steps: iterations counted as Ceres does (accepted and
+            rejected steps).  ``max_iterations`` is its old name (still
+            accepted).
         function_tolerance, gradient_tolerance, parameter_tolerance: the
             stopping rule (Ceres' defaults), tested after each step::
 
@@ -992,12 +994,15 @@ def bundle_adjust(
         progress: a progress bar over the iterations: ``True`` (labelled
             "bundle"), a label, or an open bar (:mod:`photax.progress`).
         throw: raise :class:`photax.ConvergenceError` when the adjustment fails
-            (no convergence within ``max_iterations``, singular normal
+            (no convergence within ``max_steps``, singular normal
             equations); else return the result with ``converged=False``.
 
     Returns:
         :class:`BundleResult`.
     """
+    # photax says max_steps (as optimistix and resect do); the loop below still
+    # counts in Ceres' word, max_iterations.
+    max_iterations = max_steps if max_iterations is None else max_iterations
     if loss not in ("none", "huber", "cauchy"):
         raise ValueError(f"loss must be 'none', 'huber' or 'cauchy', got {loss!r}")
     if method not in ("levenberg-marquardt", "gauss-newton"):

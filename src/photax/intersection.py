@@ -33,14 +33,20 @@ class Intersection:
         angle_deg: ``(n,)`` largest angle between two rays of each point.
         n_rays: ``(n,)`` number of rays.
         std: ``(n, 3)`` standard deviations (``refine=True`` only, else None).
-        residual_rms: ``(n,)`` RMS image residual of each point (camera unit).
+        residual_rmse: ``(n,)`` RMS image residual of each point (camera
+            unit); ``residual_rms`` is its old name.
     """
 
     points: np.ndarray
     angle_deg: np.ndarray
     n_rays: np.ndarray
     std: np.ndarray | None
-    residual_rms: np.ndarray
+    residual_rmse: np.ndarray
+
+    @property
+    def residual_rms(self) -> np.ndarray:
+        """Deprecated alias of :attr:`residual_rmse` (one word for RMS errors across photax)."""
+        return self.residual_rmse
 
 
 def intersect(
@@ -119,8 +125,8 @@ def intersect(
         e = ExteriorOrientation(eo.position[i], eo.angles[i], eo.convention)
         r = np.asarray(project(np.nan_to_num(pts[jj[sel]]), e, cams[i])) - xy[sel]
         np.add.at(res, jj[sel], np.sum(r * r, axis=1))
-    rms = np.where(ok, np.sqrt(res / np.maximum(n_rays, 1) / 2.0), np.nan)
-    return Intersection(pts, np.where(ok, angle, np.nan), n_rays, std, rms)
+    rmse = np.where(ok, np.sqrt(res / np.maximum(n_rays, 1) / 2.0), np.nan)
+    return Intersection(pts, np.where(ok, angle, np.nan), n_rays, std, rmse)
 
 
 def _refine(pts, ok, xy, ii, jj, eo, cams, sigma):
