@@ -77,6 +77,8 @@ def block_scene(
     ``noise_px``.  Start values: the truth perturbed by ``start_error =
     (position m, angle rad, tie-point m)``, or NaN (``unknown_start=True``).
     """
+    # One function on purpose (> 80 lines): every draw comes from this one generator in a
+    # fixed order, and data/block and the tests' figures depend on that order.
     rng = np.random.default_rng(seed)
     w, h = 4000, 3000
     cam = FrameCamera.from_pixels(focal_px, (w, h), distortion=distortion)
