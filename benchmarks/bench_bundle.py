@@ -40,6 +40,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from _common import mib, peak_memory, record, start  # noqa: E402
 
 import photax  # noqa: E402
+from photax.camera import OPENCV_FROM_PHOTAX  # noqa: E402
 from photax.io.bal import BALData, bal_problem, photax_to_bal, read_bal_arrays  # noqa: E402
 
 DATA = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "problem-49-7776-pre.txt"
@@ -140,10 +141,11 @@ def scipy_recipe(d: BALData):
 # --------------------------------------------------------------------------
 
 # COLMAP's camera looks along +z with y down; BAL's along -z with y up.
-# P_colmap = F P_bal with F = diag(1, -1, -1) (a rotation by pi about x), so
+# P_colmap = F P_bal with F = photax.camera.OPENCV_FROM_PHOTAX = diag(1, -1, -1)
+# (a rotation by pi about x; BAL's camera frame is photax's), so
 # (x, y)_colmap = (P_x, P_y)/P_z in COLMAP = (x, -y)_bal, and RADIAL's
 # f (1 + k1 r^2 + k2 r^4) on normalised coordinates with cx = cy = 0 is BAL's.
-_FLIP = np.diag([1.0, -1.0, -1.0])
+_FLIP = OPENCV_FROM_PHOTAX
 
 
 def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int = 2, *, loss: str = "none",

@@ -276,7 +276,7 @@ def test_dubrovnik_cost_is_ceres_cost():
     with pytest.raises(ValueError, match="no datum"):
         ptx.bundle_adjust(problem)
     # 38 residuals for 48 unknowns: under-determined, LM creeps on; cap it.
-    res = ptx.bundle_adjust(problem, gauge="damped", max_iterations=10, throw=False)
+    res = ptx.bundle_adjust(problem, gauge="damped", max_steps=10, throw=False)
     assert res.cost < 0.1 * res.initial_cost
     rows = np.array([np.r_[cv2.Rodrigues(np.asarray(R).T)[0].ravel(), -np.asarray(R).T @ np.asarray(C),
                            float(c.focal_length), np.asarray(c.distortion)[:2]]

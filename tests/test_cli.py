@@ -17,6 +17,7 @@ from conftest import ROOT, shared_file
 
 import photax as ptx
 import photax.demo
+from photax.camera import from_opencv_extrinsics, opencv_extrinsics
 from photax.cli import main
 from photax.demo import SAMPLE_BLUNDER, write_sample
 
@@ -25,9 +26,8 @@ GCPS, CAMERA, TRUTH = DATA / "sample_gcps.csv", DATA / "sample_camera.yaml", DAT
 
 
 def _opencv_pose(eo):
-    flip = np.diag([1.0, -1.0, -1.0])  # OpenCV camera: y down, z forward
-    r_cv = flip @ np.asarray(eo.rotation).T
-    return cv2.Rodrigues(r_cv)[0], -r_cv @ np.asarray(eo.position)
+    r_cv, t_cv = opencv_extrinsics(eo.rotation, eo.position)  # OpenCV camera: y down, z forward
+    return cv2.Rodrigues(r_cv)[0], t_cv
 
 
 def test_sample_files_are_current_and_consistent_with_truth(tmp_path):
@@ -105,8 +105,8 @@ def test_resect_odm_image_matches_opencv_solvepnp(tmp_path, capsys):
     K = np.array([[2904.0, 0, 1999.5], [0, 2904.0, 1499.5], [0, 0, 1]])
     _, rvec, tvec = cv2.solvePnP(t.ground - origin, t.pixel, K, None, flags=cv2.SOLVEPNP_ITERATIVE)
     R = cv2.Rodrigues(rvec)[0]
-    np.testing.assert_allclose(r["position"], -R.T @ tvec[:, 0] + origin, atol=2e-3)
-    world_from_camera = R.T @ np.diag([1.0, -1.0, -1.0])
+    world_from_camera, position = from_opencv_extrinsics(R, tvec)
+    np.testing.assert_allclose(r["position"], position + origin, atol=2e-3)
     np.testing.assert_allclose(np.asarray(ptx.rotation_matrix(np.array(r["angles_rad"]), "omega-phi-kappa")),
                                world_from_camera, atol=1e-6)
 

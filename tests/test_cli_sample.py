@@ -155,7 +155,7 @@ def test_quick_start_runs_from_a_fresh_folder(tmp_path, monkeypatch, capsys):
 
 
 def test_ortho_picks_the_image_named_like_the_file(tmp_path, capsys):
-    from photax.cli.ortho import read_exterior
+    from photax.io import read_exterior
 
     one = json.loads((DATA / "sample_truth.json").read_text())
     other = dict(one, position=[0.0, 0.0, 100.0])

@@ -93,10 +93,12 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ._triangulation import observation_pairs, triangulate
 from .camera import FrameCamera
-from .collinearity import ExteriorOrientation
+from .collinearity import ExteriorOrientation, stack_exteriors
 from .errors import ConvergenceError
 from .rotation import angles_from_matrix_unchecked, axis_angle_to_matrix, rotation_matrix
+from .scene import block_scene
 
 ROLES = ("tie", "control", "check")
 #: Interior-orientation parameters of a camera, in this order.
@@ -115,23 +117,6 @@ Gauge = Literal["fix_first_camera", "damped"]
 # --------------------------------------------------------------------------
 # The problem
 # --------------------------------------------------------------------------
-
-
-def _as_exterior(exterior, n: int | None = None) -> ExteriorOrientation:
-    if isinstance(exterior, ExteriorOrientation):
-        eo = exterior
-    else:
-        eo_list = list(exterior)
-        if not eo_list or not all(isinstance(e, ExteriorOrientation) for e in eo_list):
-            raise ValueError("exterior must be an ExteriorOrientation (batched) or a list of them")
-        conv = eo_list[0].convention
-        eo_list = [e.to_convention(conv) if np.all(np.isfinite(np.asarray(e.angles))) else e for e in eo_list]
-        eo = ExteriorOrientation(
-            np.stack([np.asarray(e.position) for e in eo_list]), np.stack([np.asarray(e.angles) for e in eo_list]), conv
-        )
-    if eo.position.ndim != 2:
-        raise ValueError(f"exterior must hold one orientation per image, shape (n_images, 3); got {eo.position.shape}")
-    return eo
 
 
 class BundleProblem:
@@ -196,7 +181,7 @@ class BundleProblem:
         cams = (cameras,) if isinstance(cameras, FrameCamera) else tuple(cameras)
         if not cams or not all(isinstance(c, FrameCamera) for c in cams):
             raise ValueError("cameras must be a FrameCamera or a non-empty sequence of them")
-        eo = _as_exterior(exterior)
+        eo = stack_exteriors(exterior)
         n_img, n_cam = eo.position.shape[0], len(cams)
         pts = np.array(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 3:
@@ -341,28 +326,6 @@ class _State(NamedTuple):
     xyz: Array  # (n_pts, 3) local origin
 
 
-def _pairs(obs_point: np.ndarray, obs_image: np.ndarray, n_img: int):
-    """All pairs a < b of observations of one point, sorted by image pair."""
-    order = np.argsort(obs_point, kind="stable")
-    counts = np.bincount(obs_point)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    pa, pb = [], []
-    for n in np.unique(counts):
-        if n < 2:
-            continue
-        sel = starts[counts == n]
-        ia, ib = np.triu_indices(n, 1)
-        pa.append(order[(sel[:, None] + ia[None, :]).ravel()])
-        pb.append(order[(sel[:, None] + ib[None, :]).ravel()])
-    pa = np.concatenate(pa) if pa else np.zeros(0, np.int64)
-    pb = np.concatenate(pb) if pb else np.zeros(0, np.int64)
-    key = obs_image[pa] * n_img + obs_image[pb]
-    srt = np.argsort(key, kind="stable")
-    pa, pb, key = pa[srt], pb[srt], key[srt]
-    uniq, key_id = np.unique(key, return_inverse=True)
-    return pa, pb, key_id, uniq // n_img, uniq % n_img
-
-
 #: Observation pairs per chunk of the reduced-system product (one small GEMM
 #: per chunk: 16-32 is fastest on XLA CPU for BAL problems), and chunks per
 #: piece: pieces are done one after the other so that their gathered operands
@@ -430,7 +393,7 @@ def _analyse(problem: BundleProblem, fixed_extra: np.ndarray, origin: np.ndarray
     soft = ctrl[:, None] & (problem.point_sigma > 0)
     prior_w = np.where(soft, 1.0 / np.where(soft, problem.point_sigma, 1.0) ** 2, 0.0)
     prior = np.where(ctrl[:, None], problem.points - origin[None, :], 0.0)
-    pa, pb, *_ = _pairs(problem.obs_point, problem.obs_image, n_img)
+    pa, pb, *_ = observation_pairs(problem.obs_point, problem.obs_image, n_img)
     ca, cb, ck, ka, kb, koff = _chunks(pa, pb, problem.obs_image, problem.n_observations, n_img)
     s = _Structure(
         *(jnp.asarray(v) for v in (problem.obs_image, problem.obs_point, problem.obs_xy, problem.obs_sigma, cols)),
@@ -1002,7 +965,7 @@ def bundle_adjust(
     loss_scale: float = 1.0,
     method: Literal["levenberg-marquardt", "gauss-newton"] = "levenberg-marquardt",
     gauge: Gauge | None = None,
-    max_iterations: int = 50,
+    max_steps: int = 50,
     function_tolerance: float = 1e-6,
     gradient_tolerance: float = 1e-10,
     parameter_tolerance: float = 1e-8,
@@ -1013,6 +976,7 @@ def bundle_adjust(
     verbose: bool = False,
     progress: bool | str = False,
     throw: bool = True,
+    max_iterations: int | None = None,
 ) -> BundleResult:
     """Adjust a block by (robust) Levenberg–Marquardt with a Schur complement.
 
@@ -1031,8 +995,9 @@ def bundle_adjust(
             one of the equivalent ones; precision is not reported).  ``None``
             (default) refuses a network whose datum is not defined by control
             points or fixed orientations.
-        max_iterations: iterations counted as Ceres does (accepted and
-            rejected steps).
+        max_steps: iterations counted as Ceres does (accepted and
+            rejected steps).  ``max_iterations`` is its old name (still
+            accepted).
         function_tolerance, gradient_tolerance, parameter_tolerance: the
             stopping rule (Ceres' defaults), tested after each step::
 
@@ -1059,12 +1024,15 @@ def bundle_adjust(
         progress: a progress bar over the iterations: ``True`` (labelled
             "bundle"), a label, or an open bar (:mod:`photax.progress`).
         throw: raise :class:`photax.ConvergenceError` when the adjustment fails
-            (no convergence within ``max_iterations``, singular normal
+            (no convergence within ``max_steps``, singular normal
             equations); else return the result with ``converged=False``.
 
     Returns:
         :class:`BundleResult`.
     """
+    # photax says max_steps (as optimistix and resect do); the loop below still
+    # counts in Ceres' word, max_iterations.
+    max_iterations = max_steps if max_iterations is None else max_iterations
     if loss not in ("none", "huber", "cauchy"):
         raise ValueError(f"loss must be 'none', 'huber' or 'cauchy', got {loss!r}")
     if method not in ("levenberg-marquardt", "gauss-newton"):
@@ -1272,21 +1240,22 @@ def initialize_block(problem: BundleProblem, *, min_control: int = 4) -> BundleP
     exterior = ExteriorOrientation(pos, ang, conv)
     missing = ~np.all(np.isfinite(pts), axis=1) & ~ctrl
     if np.any(missing):
-        from .intersection import intersect
-
+        # The linear intersection of photax.intersect (without its refinement,
+        # which is a bundle adjustment itself).
         sel = missing[problem.obs_point]
         new_index = np.cumsum(missing) - 1
         cams = [problem.cameras[c] for c in problem.image_camera]
-        xyz = intersect(
-            problem.obs_xy[sel], exterior, cams, obs_image=problem.obs_image[sel],
-            obs_point=new_index[problem.obs_point[sel]], n_points=int(missing.sum()),
+        xyz, *_ = triangulate(
+            problem.obs_xy[sel], problem.obs_image[sel], new_index[problem.obs_point[sel]], int(missing.sum()),
+            exterior, cams,
         )  # fmt: skip
         pts[missing] = xyz
     return problem.replace(exterior=exterior, points=pts)
 
 
 # --------------------------------------------------------------------------
-# A synthetic block with known truth (tests, notebook, demo, data/block)
+# A synthetic block with known truth (tests, notebook, demo, data/block);
+# generated by photax.scene.block_scene, packed here into a BundleProblem
 # --------------------------------------------------------------------------
 
 
@@ -1335,73 +1304,13 @@ def synthetic_block(
     Returns:
         ``(problem, truth)``.
     """
-    rng = np.random.default_rng(seed)
-    w, h = 4000, 3000
-    cam = FrameCamera.from_pixels(focal_px, (w, h), distortion=distortion)
-    gsd = flying_height / focal_px
-    base, spacing = 0.4 * w * gsd, 0.7 * h * gsd
-    origin = np.array([500_000.0, 4_000_000.0, 100.0])
-    xs = np.arange(images_per_strip) * base
-    ys = np.arange(strips) * spacing
-    centres = np.array([[x, y, flying_height + relief / 2] for y in ys for x in xs]) + origin
-    tilt = np.radians(tilt_deg)
-    angles = np.column_stack([rng.uniform(-tilt, tilt, (len(centres), 2)), rng.uniform(-0.02, 0.02, len(centres))])
-    truth_eo = ExteriorOrientation(centres, angles, "omega-phi-kappa").to_convention(convention)  # type: ignore[arg-type]
-    lo = np.array([xs[0] - 0.3 * w * gsd, ys[0] - 0.3 * h * gsd])
-    hi = np.array([xs[-1] + 0.3 * w * gsd, ys[-1] + 0.3 * h * gsd])
-
-    def terrain(xy):
-        u = (xy - lo) / (hi - lo)
-        return relief * (0.5 + 0.25 * np.sin(5.0 * u[:, 0]) * np.cos(4.0 * u[:, 1]) + 0.25 * u[:, 0] * u[:, 1])
-
-    # Control on a ring along the border, check points inside, ties anywhere.
-    t = np.linspace(0, 1, n_control, endpoint=False) + 0.5 / max(n_control, 1)
-    ring = np.column_stack([0.5 + 0.42 * np.cos(2 * np.pi * t), 0.5 + 0.42 * np.sin(2 * np.pi * t)])
-    inner = 0.3 + 0.4 * rng.uniform(size=(n_check, 2))
-    tie = rng.uniform(size=(4 * n_tie, 2))
-    uv = np.concatenate([ring, inner, tie])
-    xy = lo + uv * (hi - lo)
-    xyz = np.column_stack([xy, terrain(xy)]) + origin
-    roles = np.array(["control"] * n_control + ["check"] * n_check + ["tie"] * len(tie), dtype=object)
-    from .collinearity import project
-
-    obs_i, obs_p, obs_xy = [], [], []
-    for i in range(len(centres)):
-        eo_i = ExteriorOrientation(truth_eo.position[i], truth_eo.angles[i], convention)  # type: ignore[arg-type]
-        img = np.asarray(project(jnp.asarray(xyz), eo_i, cam))
-        inside = (np.abs(img[:, 0]) < 0.48 * w) & (np.abs(img[:, 1]) < 0.48 * h)
-        for p in np.flatnonzero(inside):
-            obs_i.append(i)
-            obs_p.append(p)
-            obs_xy.append(img[p])
-    obs_i, obs_p, obs_xy = np.array(obs_i), np.array(obs_p), np.array(obs_xy)
-    counts = np.bincount(obs_p, minlength=len(xyz))
-    keep = counts >= 2
-    keep[:n_control] = counts[:n_control] >= 1
-    tie_idx = np.flatnonzero(keep[n_control + n_check :])[:n_tie] + n_control + n_check
-    keep[n_control + n_check :] = False
-    keep[tie_idx] = True
-    if not np.all(keep[: n_control + n_check]):
-        raise ValueError("synthetic_block: a control or check point is outside every image; change the layout")
-    new_id = np.cumsum(keep) - 1
-    sel = keep[obs_p]
-    obs_i, obs_p, obs_xy = obs_i[sel], new_id[obs_p[sel]], obs_xy[sel]
-    xyz, roles = xyz[keep], roles[keep]
-    obs_xy = obs_xy + noise_px * rng.standard_normal(obs_xy.shape)
-    names = [f"{r[:3].upper()}{i:03d}" for i, r in enumerate(roles)]
-    e_pos, e_ang, e_pt = start_error
-    if unknown_start:
-        pos0 = np.full_like(centres, np.nan)
-        ang0 = np.full_like(angles, np.nan)
-        pts0 = np.where((roles == "tie")[:, None], np.nan, xyz)
-    else:
-        pos0 = np.asarray(truth_eo.position) + e_pos * rng.standard_normal(centres.shape)
-        ang0 = np.asarray(truth_eo.angles) + e_ang * rng.standard_normal(angles.shape)
-        pts0 = np.where((roles == "tie")[:, None], xyz + e_pt * rng.standard_normal(xyz.shape), xyz)
-    problem = BundleProblem(
-        cam, ExteriorOrientation(pos0, ang0, convention), pts0, obs_i, obs_p, obs_xy,  # type: ignore[arg-type]
-        obs_sigma=noise_px if noise_px > 0 else 1.0, roles=roles,
-        image_names=[f"S{i // images_per_strip + 1}_{i % images_per_strip + 1}" for i in range(len(centres))],
-        point_names=names,
+    b = block_scene(
+        seed, strips=strips, images_per_strip=images_per_strip, n_tie=n_tie, n_control=n_control, n_check=n_check,
+        noise_px=noise_px, flying_height=flying_height, relief=relief, tilt_deg=tilt_deg, focal_px=focal_px,
+        distortion=distortion, start_error=start_error, unknown_start=unknown_start, convention=convention,
     )  # fmt: skip
-    return problem, SyntheticBlock(truth_eo, xyz, cam)
+    problem = BundleProblem(
+        b.camera, b.start_exterior, b.start_points, b.obs_image, b.obs_point, b.obs_xy,
+        obs_sigma=b.obs_sigma, roles=b.roles, image_names=b.image_names, point_names=b.point_names,
+    )  # fmt: skip
+    return problem, SyntheticBlock(b.exterior, b.points, b.camera)

@@ -25,7 +25,8 @@ def add_parser(sub) -> None:
     p.add_argument("--loss-scale", type=float, default=1.0, metavar="D", help="loss scale in sigmas (default 1)")
     p.add_argument("--gauge", choices=("auto", "none", "fix_first_camera", "damped"), default="auto",
                    help="datum of a network without control (auto: 'damped' for BAL, none for blocks)")  # fmt: skip
-    p.add_argument("--max-iterations", type=int, default=50)
+    p.add_argument("--max-steps", "--max-iterations", dest="max_steps", type=int, default=50,
+                   help="LM iterations at most, accepted and rejected steps (--max-iterations is an alias)")
     p.add_argument("--quiet", action="store_true", help="no per-iteration lines")
     p.add_argument("--json", metavar="OUT", help="also write the results as JSON")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
@@ -58,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
           f"{plural(problem.n_points, 'point')} ({n_ctrl} control, {n_chk} check), "
           f"{plural(problem.n_observations, 'observation')}")
     result = bundle_adjust(problem, loss=args.loss, loss_scale=args.loss_scale, gauge=gauge,
-                           max_iterations=args.max_iterations, verbose=not args.quiet, throw=False,
+                           max_steps=args.max_steps, verbose=not args.quiet, throw=False,
                            progress=args.progress and args.command)  # fmt: skip
     print(result.report())
     if args.json:

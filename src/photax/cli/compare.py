@@ -71,10 +71,10 @@ def run(args: argparse.Namespace) -> int:
     from ..compare import compare_models
     from ..io.atomic import atomic_path, atomic_write, check_output_path
     from ..io.gcp import read_gcps
+    from ..io.orientation import read_interior
     from ..io.raster import read_dem, read_geotiff
     from ..io.results import write_json
     from ._common import input_file
-    from .ortho import read_interior
 
     gcp_path = input_file(args.gcps, "GCP file")
     input_file(args.camera, "camera file")

@@ -8,7 +8,6 @@ image); 2 bad input (a one-line message on stderr, nothing written).
 from __future__ import annotations
 
 import argparse
-import pathlib
 
 import numpy as np
 
@@ -77,18 +76,11 @@ def _sigma(table, camera, sigma_px):
     return table.image_plane_sigma(camera)
 
 
-def _camera_unit(path) -> str | None:
-    """The camera file's length unit (``unit:``; ``px`` for the pixel shorthand), for the report's labels."""
-    from ..io.camera_file import _load
-
-    data = _load(pathlib.Path(path))
-    return "px" if "focal_length_px" in data else data.get("unit")
-
-
 def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.camera_file import read_camera
     from ..io.gcp import read_gcps
+    from ..io.orientation import read_camera_unit
     from ..io.results import write_json
     from ..resection import resect
     from ._common import input_file, plural
@@ -128,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"== {label}: {counts} ==")
         for note in sub.duplicates():  # only the notes about this image, under its header
             print(f"  note: {note}")
-        print(res.summary(crs=table.crs, camera_unit=_camera_unit(args.camera)))  # units on every number
+        print(res.summary(crs=table.crs, camera_unit=read_camera_unit(camera_path)))  # units on every number
         converged = bool(np.all(np.asarray(res.converged)))
         if not converged:
             print(f"  {label}: NOT SOLVED - {res.message}")

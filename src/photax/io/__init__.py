@@ -20,5 +20,10 @@ from .orthority import (
     read_orthority_exterior as read_orthority_exterior,
     read_orthority_interior as read_orthority_interior,
 )
+from .orientation import (
+    read_camera_unit as read_camera_unit,
+    read_exterior as read_exterior,
+    read_interior as read_interior,
+)
 from .raster import read_dem as read_dem, read_geotiff as read_geotiff, write_geotiff as write_geotiff
 from .results import read_json as read_json, write_json as write_json
