@@ -189,7 +189,7 @@ def bench_breakdown(n, repeat):
     (``_resample_tile``), per kernel; OpenCV's CPU time for the same
     pixels.  ``(cubic - bilinear) / 12`` is the cost of one more tap."""
     from photax.rectify import _approx_arg, _layout, _resample_tile, _tile_positions, _tiles
-    from photax.resample import _source
+    from photax.resampling import _source
 
     image = synthetic_image(n)
     model, grid, _, _ = polynomial_case(n)

@@ -45,7 +45,7 @@ from .polynomial import (
     fit_polynomial as fit_polynomial,
     fit_projective as fit_projective,
 )
-from .resample import resample as resample
+from .resampling import Resampling as Resampling, resample as resample
 from .rectify import (
     Grid as Grid,
     orthorectify as orthorectify,

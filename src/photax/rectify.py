@@ -4,7 +4,7 @@
 output pixel centre take its map/ground coordinate from the output
 :class:`Grid`, find its position in the input image with a *model*
 ``(..., 2) map (X, Y) -> (..., 2) input pixel (column, row)``, and
-interpolate the grey value there (:func:`photax.resample.resample`).  Every
+interpolate the grey value there (:func:`photax.resampling.resample`).  Every
 output pixel gets a value, so there are no holes.
 
 **Direct mapping** (input -> output), kept for comparison: every input pixel
@@ -53,21 +53,13 @@ from rasterio import Affine
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, depth, image_to_ground, project
 from .dem import DEM
+from .resampling import Resampling
 
-Resampling = Literal["nearest", "bilinear", "cubic", "lanczos", "bspline"]
-# Input pixels around a sample position that the kernel reads, plus one: the
-# margin a windowed read needs to give the same result as the whole image.
-# The B-spline prefilter is recursive (pole 0.268), so its influence decays
-# by 1e-14 over 24 pixels but never quite ends: file and memory agree to ~1e-7
-# (resample pads the window edge, not the image's, before the prefilter).
-_MARGIN = {"nearest": 2, "bilinear": 2, "cubic": 3, "lanczos": 4, "bspline": 24}
 _FAR = -1e6  # a pixel position far outside any image: resample gives nodata
 
 
-def _check_resampling(resampling: str) -> str:
-    if resampling not in _MARGIN:
-        raise ValueError(f"resampling must be one of {tuple(_MARGIN)}, got {resampling!r}")
-    return resampling
+def _check_resampling(resampling) -> str:
+    return Resampling.check(resampling).value
 
 
 @dataclasses.dataclass(frozen=True)
@@ -300,11 +292,11 @@ def _bounds(origin, size, dtype):
 def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, method, compute, out_dtype):
     """One output tile, mapping and resampling fused: ``(block, err, n_exact)``.
 
-    ``flat`` is the whole image prepared by :func:`photax.resample._source`;
+    ``flat`` is the whole image prepared by :func:`photax.resampling._source`;
     ``block`` is ``(B, *layout[0])``, ``n_exact`` the number of chunks mapped
     exactly (all of them when ``approx`` is 0).
     """
-    from .resample import _interp
+    from .resampling import _interp
 
     (tr, tc), s, cw = layout
     plan = _tile_plan(model, transform, offset, layout, approx, size)
@@ -372,7 +364,7 @@ def _resample_tile(flat, pos, origin, offset, fill, size, window, method, comput
     """Resample the window ``flat`` (prepared, ``window`` = (h, w)) at
     ``pos`` relative to ``origin`` (image pixels); ``offset`` = origin minus
     the window's (col, row); footprint: the whole image ``size`` (H, W)."""
-    from .resample import _interp
+    from .resampling import _interp
 
     lo, hi = _bounds(origin, size, pos.dtype)
     tr, tc = pos.shape[1:]
@@ -407,7 +399,7 @@ def _run_tiles(fn, tiles, progress, desc: str, info: dict | None, approx: float,
     from collections import deque
     from concurrent.futures import ThreadPoolExecutor
 
-    from .resample import _THREADS
+    from .resampling import _THREADS
 
     worst, exact = 0.0, 0
     threads = max(1, min(_THREADS, len(tiles)))
@@ -474,7 +466,7 @@ def rectify(
     model: Callable[[Array], Array],
     grid: Grid,
     *,
-    resampling: Resampling = "bilinear",
+    resampling: Resampling | str = "bilinear",
     nodata=None,
     tile: int = 1024,
     progress: bool | str = False,
@@ -536,7 +528,7 @@ def rectify(
         ``(..., rows, cols)`` numpy array in the input dtype; with
         ``mapping="direct"`` the tuple ``(array, holes)``.
     """
-    _check_resampling(resampling)
+    resampling = _check_resampling(resampling)
     _check_model(model)
     if not isinstance(grid, Grid):
         raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
@@ -548,7 +540,7 @@ def rectify(
         return _rectify_direct(image, model, grid, fill, tile, progress, inverse)
     if mapping != "indirect":
         raise ValueError(f"mapping must be 'indirect' or 'direct', got {mapping!r}")
-    from .resample import _compute_dtype, _source
+    from .resampling import _compute_dtype, _source
 
     approx = _check_approx(approx)
     tiles = list(_tiles(grid.shape, int(tile)))
@@ -714,7 +706,7 @@ def orthorectify(
     grid: Grid | None = None,
     *,
     resolution=None,
-    resampling: Resampling = "bilinear",
+    resampling: Resampling | str = "bilinear",
     nodata=None,
     tile: int = 1024,
     progress: bool | str = False,
@@ -797,7 +789,7 @@ def rectify_file(
     model: Callable[[Array], Array],
     grid: Grid,
     *,
-    resampling: Resampling = "bilinear",
+    resampling: Resampling | str = "bilinear",
     nodata=None,
     tile: int = 1024,
     progress: bool | str = False,
@@ -833,9 +825,9 @@ def rectify_file(
 
     from .io.atomic import atomic_path
     from .io.raster import open_raster
-    from .resample import _compute_dtype, _source
+    from .resampling import _compute_dtype, _source
 
-    _check_resampling(resampling)
+    resampling = _check_resampling(resampling)
     _check_model(model)
     approx = _check_approx(approx)
     tile = int(tile)
@@ -866,7 +858,7 @@ def rectify_file(
                 model, transform, jnp.array([r0, c0], dtype=float), layout, _approx_arg(approx), size)
             p, o = np.asarray(pos)[:, :h, :w], np.asarray(origin)
             # The window from the very positions resampled: none falls outside it.
-            win = _source_window(p[0] + o[0], p[1] + o[1], src.width, src.height, _MARGIN[resampling])
+            win = _source_window(p[0] + o[0], p[1] + o[1], src.width, src.height, Resampling(resampling).margin)
             if win is None:
                 return np.full((src.count, h, w), fill, dtype=fill.dtype), err, n_exact
             with lock:
@@ -893,7 +885,7 @@ def orthorectify_file(
     grid: Grid | None = None,
     *,
     resolution=None,
-    resampling: Resampling = "bilinear",
+    resampling: Resampling | str = "bilinear",
     nodata=None,
     tile: int = 1024,
     progress: bool | str = False,

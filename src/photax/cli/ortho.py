@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import pathlib
 
-RESAMPLING = ("nearest", "bilinear", "cubic", "lanczos", "bspline")
+from ..resampling import RESAMPLING
 
 
 def add_parser(sub) -> None:

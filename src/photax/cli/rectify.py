@@ -12,7 +12,7 @@ import argparse
 
 import numpy as np
 
-from .ortho import RESAMPLING
+from ..resampling import RESAMPLING
 
 
 def add_parser(sub) -> None:
