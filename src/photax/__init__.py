@@ -46,7 +46,7 @@ from .polynomial import (
     fit_projective as fit_projective,
 )
 from .resampling import Resampling as Resampling, resample as resample
-from .rectify import (
+from .rectification import (
     Grid as Grid,
     orthorectify as orthorectify,
     orthorectify_file as orthorectify_file,

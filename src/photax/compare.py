@@ -42,7 +42,7 @@ from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, project
 from .dem import DEM
 from .polynomial import fit_polynomial, fit_projective, n_coefficients
-from .rectify import Grid, OrthoModel, ortho_grid
+from .rectification import Grid, OrthoModel, ortho_grid
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,7 +54,7 @@ class ModelResult:
             or ``"projective"``.
         model: callable ``(..., 2)`` ground ``(X, Y)`` -> ``(..., 2)`` pixel
             ``(column, row)`` (for collinearity an
-            :class:`photax.rectify.OrthoModel`, which takes Z from the DEM).
+            :class:`photax.rectification.OrthoModel`, which takes Z from the DEM).
         n_params: estimated parameters (0 for a given exterior orientation).
         redundancy: ``2 n_gcp - n_params``.
         condition: 2-norm condition number of the normalised design matrix
@@ -220,10 +220,11 @@ class ModelComparison:
 
         Returns:
             ``({name: (..., rows, cols) array}, grid)``; collinearity gives
-            the orthophoto (:func:`photax.rectify.orthorectify`).
+            the orthophoto (:func:`photax.orthorectify`).
         """
         from .progress import progress_bar
-        from .rectify import _tiles, rectify
+        from .rectification import rectify
+        from .rectification._tiling import _tiles
 
         grid = ortho_grid(self.exterior, self.camera, self.dem, self.gsd) if grid is None else grid
         names = self.names if names is None else list(names)

@@ -92,7 +92,7 @@ def read_exterior(path, image):
 def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.raster import read_dem
-    from ..rectify import ortho_grid, orthorectify_file
+    from ..rectification import ortho_grid, orthorectify_file
 
     inputs = [args.image, args.dem, args.interior, args.exterior]
     check_output_path(args.out, inputs)  # fail before the work, not after

@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.gcp import read_gcps
     from ..polynomial import fit_polynomial
-    from ..rectify import Grid, rectify_file
+    from ..rectification import Grid, rectify_file
 
     check_output_path(args.out, [args.image, args.gcps])
     table = read_gcps(args.gcps)
