@@ -28,9 +28,11 @@ are one jitted function (no full-size coordinate maps), and tiles run on a
 thread pool.  By default the mapping is *approximate*, as GDAL's warper
 does it: the exact model on a 16-pixel lattice, bilinear interpolation in
 between where checks show the position error is at most ``approx``
-(0.125 px), exact evaluation elsewhere (see :func:`rectify`).  The ``*_file`` variants stream through rasterio windows: per
-output tile they read only the input window it needs (plus a margin for the
-interpolation kernel), so images far larger than memory can be processed.
+(0.125 px), exact evaluation elsewhere (see :func:`rectify`).  The
+``*_file`` variants stream through rasterio windows: per output tile they
+read only the input window it needs (plus the kernel's margin,
+:class:`photax.Resampling`), so images far larger than memory can be
+processed.
 
 Frames and conventions: ``docs/conventions.md`` (pixel centres at integer
 pixel coordinates; raster georeference at pixel corners).

@@ -18,7 +18,16 @@ from ._approx import _tile_positions
 from ._grid import Grid, ortho_grid
 from ._indirect import _resample_tile
 from ._ortho import OrthoModel, _check_image_size
-from ._tiling import _approx_arg, _check_approx, _check_model, _check_resampling, _fill_value, _layout, _run_tiles, _tiles
+from ._tiling import (
+    _approx_arg,
+    _check_approx,
+    _check_model,
+    _check_resampling,
+    _fill_value,
+    _layout,
+    _run_tiles,
+    _tiles,
+)
 
 def _source_window(cols: np.ndarray, rows: np.ndarray, width: int, height: int, margin: int, bucket: int = 256):
     """The input window ``(row_off, col_off, h, w)`` an output tile needs, or None.
