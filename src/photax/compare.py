@@ -43,6 +43,7 @@ from .collinearity import ExteriorOrientation, project
 from .dem import DEM
 from .polynomial import fit_polynomial, fit_projective, n_coefficients
 from .rectification import Grid, OrthoModel, ortho_grid
+from .resampling import Resampling
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,7 +208,7 @@ class ModelComparison:
     # --- rectified images --------------------------------------------------
 
     def rectify(self, image, names: Sequence[str] | None = None, *, grid: Grid | None = None,
-                resampling: str = "bilinear", progress: bool | str = False) -> tuple[dict[str, np.ndarray], Grid]:
+                resampling: Resampling | str = "bilinear", progress: bool | str = False) -> tuple[dict[str, np.ndarray], Grid]:
         """Rectify ``image`` with each model onto one grid.
 
         Args:
