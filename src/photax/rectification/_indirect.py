@@ -162,6 +162,8 @@ def rectify(
         ``(..., rows, cols)`` numpy array in the input dtype; with
         ``mapping="direct"`` the tuple ``(array, holes)``.
     """
+    # Over 80 lines only by its docstring, the reference for every argument
+    # the other entry points share; the work is in _tiling and _approx.
     resampling = _check_resampling(resampling)
     _check_model(model)
     if not isinstance(grid, Grid):
