@@ -65,7 +65,8 @@ sys.path.insert(0, os.path.dirname(__file__))
 from _common import median_cpu_time, median_time, median_times, mib, peak_memory, ratio_line, record, run_process, start  # noqa: E402
 
 import photax  # noqa: E402
-from photax.rectify import Grid, OrthoModel, _map_tile, ortho_grid  # noqa: E402
+from photax.rectification import Grid, OrthoModel, ortho_grid  # noqa: E402
+from photax.rectification._approx import _map_tile  # noqa: E402
 
 CRS = "EPSG:32633"
 
@@ -188,8 +189,10 @@ def bench_breakdown(n, repeat):
     ``_tile_positions``) and the resampling alone from those positions
     (``_resample_tile``), per kernel; OpenCV's CPU time for the same
     pixels.  ``(cubic - bilinear) / 12`` is the cost of one more tap."""
-    from photax.rectify import _approx_arg, _layout, _resample_tile, _tile_positions, _tiles
-    from photax.resample import _source
+    from photax.rectification._approx import _tile_positions
+    from photax.rectification._indirect import _resample_tile
+    from photax.rectification._tiling import _approx_arg, _layout, _tiles
+    from photax.resampling import _source
 
     image = synthetic_image(n)
     model, grid, _, _ = polynomial_case(n)

@@ -22,7 +22,7 @@ import jax
 import numpy as np
 from _common import median_times, mib, peak_memory, ratio_line, record, start
 
-from photax.resample import resample
+from photax.resampling import resample
 
 # method -> (OpenCV flag, OpenCV taps per axis, photax taps per axis)
 FLAGS = {"nearest": (cv2.INTER_NEAREST, 1, 1), "bilinear": (cv2.INTER_LINEAR, 2, 2), "cubic": (cv2.INTER_CUBIC, 4, 4),

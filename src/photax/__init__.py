@@ -45,8 +45,8 @@ from .polynomial import (
     fit_polynomial as fit_polynomial,
     fit_projective as fit_projective,
 )
-from .resample import resample as resample
-from .rectify import (
+from .resampling import Resampling as Resampling, resample as resample
+from .rectification import (
     Grid as Grid,
     orthorectify as orthorectify,
     orthorectify_file as orthorectify_file,

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-RESAMPLING = ("nearest", "bilinear", "cubic", "lanczos", "bspline")
+from ..resampling import RESAMPLING
 
 
 def add_parser(sub) -> None:
@@ -45,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.orientation import read_exterior, read_interior
     from ..io.raster import read_dem
+    from ..rectification import ortho_grid, orthorectify_file
     from ._common import ground_unit, input_file
-    from ..rectify import ortho_grid, orthorectify_file
 
     image = input_file(args.image, "image")
     input_file(args.dem, "DEM")

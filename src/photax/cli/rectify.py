@@ -12,7 +12,7 @@ import argparse
 
 import numpy as np
 
-from .ortho import RESAMPLING
+from ..resampling import RESAMPLING
 
 
 def add_parser(sub) -> None:
@@ -39,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.gcp import read_gcps
     from ..polynomial import fit_polynomial
-    from ..rectify import Grid, rectify_file
+    from ..rectification import Grid, rectify_file
     from ._common import ground_unit, input_file, plural
 
     image = input_file(args.image, "image")
