@@ -15,6 +15,7 @@ import pytest
 from conftest import ROOT
 
 import photax.cli._common as common
+import photax.rectification._files
 import photax.resection
 from photax.cli import main
 from photax.io.atomic import check_output_path
@@ -132,7 +133,7 @@ def test_ctrl_c_during_ortho_leaves_no_partial_file(tmp_path, capsys, monkeypatc
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(sys.modules["photax.rectify"], "_resample_tile", interrupted)  # photax.rectify is a function
+    monkeypatch.setattr(photax.rectification._files, "_resample_tile", interrupted)
     argv = _argv("ortho", tmp_path) + ["--resolution", "4", "--no-progress"]  # as in test_cli_sample: shared compilation
     assert main(argv) == 130
     assert "interrupted" in capsys.readouterr().err
