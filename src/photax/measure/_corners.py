@@ -36,8 +36,9 @@ distance from the corner, then dominates.
 The window grows with the blur: the exclusion must widen with the total blur
 (optics plus ``smooth``), and only a longer window keeps enough straight edge
 pixels beyond it.  Measured on 120 area-sampled corners per setting
-(tests/test_measure_locators.py, seed 1): blur 0.7 px / noise 1 %, defaults
-(window 14): 0.028 px RMSE; blur 1.2 px / noise 3 %, defaults 0.090 px, but
+(tests/test_measure_locators.py; settings chosen on seed 1, tested on seed 2):
+blur 0.7 px / noise 1 %, defaults (window 14): 0.028 / 0.031 px RMSE (seeds 1 /
+2); blur 1.2 px / noise 3 %, defaults 0.090 px, but
 ``window=20, exclude=7, smooth=1.5`` (on 61 px patches) 0.069 px (seeds 2-4:
 0.065-0.071), against ``cornerSubPix`` with the same window 0.165 px; the same
 wide setting gives 0.021 px at blur 0.7.
