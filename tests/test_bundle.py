@@ -302,3 +302,26 @@ def test_gauss_newton_and_report(block):
     assert [h["iteration"] for h in res.history] == list(range(1, res.iterations + 1))
     costs = [h["cost"] for h in res.history]
     assert costs[-1] <= costs[0]
+
+
+def test_analysis_is_cached_and_shared_by_replicates():
+    """BundleProblem.analyse runs once per problem and gauge; a replicate that
+    only changes the measurements reuses the index arrays, and its structure
+    equals a fresh analysis of the same problem."""
+    problem, _ = synthetic_block(0, n_tie=20, noise_px=0.5)
+    a = problem.analyse()
+    assert problem.analyse() is a
+    assert problem.analyse("fix_first_camera") is not a
+    rep = problem.replace(obs_xy=problem.obs_xy + 0.1)
+    b = rep.analyse()
+    assert b.structure.chunk_a is a.structure.chunk_a  # shared, not recomputed
+    fresh, n_c, w = _analyse(rep, np.zeros((rep.n_images, 6), bool), b.origin)
+    assert (n_c, w) == (b.n_c, b.w)
+    for x, y in zip(b.structure, fresh):
+        np.testing.assert_array_equal(x, y)
+    # Other links: analysed anew.
+    keep = np.arange(rep.n_observations) != int(np.flatnonzero(problem.roles[problem.obs_point] == "control")[0])
+    other = problem.replace(obs_image=problem.obs_image[keep], obs_point=problem.obs_point[keep],
+                            obs_xy=problem.obs_xy[keep], obs_sigma=problem.obs_sigma[keep])  # fmt: skip
+    assert other.analyse().structure.chunk_a is not a.structure.chunk_a
+    assert other.analyse().structure.obs_image.shape == (problem.n_observations - 1,)

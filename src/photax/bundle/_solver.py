@@ -23,7 +23,7 @@ from ._problem import BundleProblem, Gauge, Loss
 from ._result import BundleResult
 from ._schur import _trial
 from ._start import _needs_init, initialize_block
-from ._structure import _analyse, _State
+from ._structure import _State
 
 #: Up to this many camera unknowns the reduced system is solved densely.
 DENSE_LIMIT = 4000
@@ -33,19 +33,6 @@ def _datum_constraints(problem: BundleProblem) -> int:
     """Rough count of datum constraints (a network needs 7)."""
     n_ctrl = int(np.sum(problem.roles == "control"))
     return 3 * n_ctrl + int(problem.fixed_exterior.sum())
-
-
-def _gauge_mask(problem: BundleProblem, gauge) -> np.ndarray:
-    """Extra fixed exterior parameters for the chosen gauge."""
-    fixed = np.zeros((problem.n_images, 6), dtype=bool)
-    if gauge == "fix_first_camera":
-        if problem.n_images < 2:
-            raise ValueError("gauge='fix_first_camera' needs at least 2 images")
-        fixed[0] = True
-        # Scale: fix the second centre's largest baseline component.
-        base = np.asarray(problem.exterior.position[1] - problem.exterior.position[0])
-        fixed[1, int(np.argmax(np.abs(base)))] = True
-    return fixed
 
 
 def _blas_threads(n_c: int):
@@ -154,9 +141,7 @@ def bundle_adjust(
     if _needs_init(problem):
         raise ValueError("problem has NaN orientations or points: give start values or initialize=True")
     t_start = time.perf_counter()
-    finite = np.all(np.isfinite(problem.points), axis=1)
-    origin = np.round(np.mean(np.concatenate([problem.points[finite], np.asarray(problem.exterior.position)]), axis=0))
-    s, n_c, _ = _analyse(problem, _gauge_mask(problem, gauge), origin)
+    s, n_c, _, origin = problem.analyse(gauge)  # cached on the problem
     intr = np.stack([np.concatenate([[float(c.focal_length)], np.asarray(c.principal_point), np.asarray(c.distortion)]) for c in problem.cameras])
     state = _State(
         _rotation(problem.exterior.angles, convention=problem.exterior.convention),

@@ -1,5 +1,14 @@
 """Structure analysis of a problem (numpy): index arrays, masks and the
-chunking of the reduced-system product."""
+chunking of the reduced-system product.
+
+Done once per problem (:meth:`BundleProblem.analyse` caches it) and in two
+parts: the *topology* (:func:`_topology`: which images and points the
+observations link, which intrinsics are free; the pair and chunk index
+arrays, the costly part) is shared by every problem that
+:meth:`BundleProblem.replace` derives with the same links, e.g. the
+replicates of a Monte Carlo run that only change ``obs_xy``; the *data*
+(measurements, sigmas, control priors, the gauge's fixed parameters) are
+added per problem by :func:`_analyse`."""
 
 from __future__ import annotations
 
@@ -10,7 +19,6 @@ import numpy as np
 from jax import Array
 
 from .._triangulation import observation_pairs
-from ._problem import BundleProblem
 
 
 class _Structure(NamedTuple):
@@ -37,6 +45,30 @@ class _Structure(NamedTuple):
     image_of_chunk: Array  # (n_ichunks,) sorted
     active: Array  # (a,) indices into INTRINSICS estimated for some camera
     image_camera: Array  # (n_img,)
+
+
+class _Topology(NamedTuple):
+    """The part of :class:`_Structure` fixed by the observations' links and
+    the free intrinsics (device arrays, built once and shared), and the sizes
+    ``n_c`` (camera-side unknowns) and ``w`` (camera-side columns per image)."""
+
+    obs_image: Array
+    obs_point: Array
+    image_ext: Array
+    pair_a: Array
+    pair_b: Array
+    chunk_a: Array
+    chunk_b: Array
+    chunk_key: Array
+    key_a: Array
+    key_b: Array
+    key_off: Array
+    image_chunk: Array
+    image_of_chunk: Array
+    active: Array
+    image_camera: Array
+    n_c: int
+    w: int
 
 
 class _State(NamedTuple):
@@ -95,8 +127,36 @@ def _image_chunks(obs_image: np.ndarray, n_img: int):
     return idx.reshape(-1, CHUNK), np.repeat(np.arange(n_img), n_ch)
 
 
-def _analyse(problem: BundleProblem, fixed_extra: np.ndarray, origin: np.ndarray) -> tuple[_Structure, int, int]:
-    """Index arrays, masks and sizes; returns (structure, n_unknowns_c, width)."""
+def _gauge_mask(problem, gauge) -> np.ndarray:
+    """``(n_images, 6)`` extra fixed exterior parameters (:data:`EXTERIOR`
+    order) of the chosen gauge of a :class:`BundleProblem`."""
+    fixed = np.zeros((problem.n_images, 6), dtype=bool)
+    if gauge == "fix_first_camera":
+        if problem.n_images < 2:
+            raise ValueError("gauge='fix_first_camera' needs at least 2 images")
+        fixed[0] = True
+        # Scale: fix the second centre's largest baseline component.
+        base = np.asarray(problem.exterior.position[1] - problem.exterior.position[0])
+        fixed[1, int(np.argmax(np.abs(base)))] = True
+    return fixed
+
+
+def _same_topology(a, b) -> bool:
+    """Whether two :class:`BundleProblem` link the same images, cameras and
+    points by the same observations and free the same intrinsics (then
+    :func:`_topology` gives the same arrays)."""
+    return (
+        a.n_images == b.n_images and a.n_cameras == b.n_cameras and a.n_points == b.n_points
+        and np.array_equal(a.obs_image, b.obs_image) and np.array_equal(a.obs_point, b.obs_point)
+        and np.array_equal(a.image_camera, b.image_camera)
+        and np.array_equal(a.free_intrinsics.any(axis=0), b.free_intrinsics.any(axis=0))
+    )  # fmt: skip
+
+
+def _topology(problem) -> _Topology:
+    """The index arrays of a :class:`BundleProblem` that depend only on its
+    links (see :func:`_same_topology`): unknown columns, observation pairs,
+    chunks of the reduced-system product."""
     n_img, n_cam = problem.n_images, problem.n_cameras
     active = np.flatnonzero(problem.free_intrinsics.any(axis=0))
     a = len(active)
@@ -105,21 +165,53 @@ def _analyse(problem: BundleProblem, fixed_extra: np.ndarray, origin: np.ndarray
     cols[:, :6] = 6 * np.arange(n_img)[:, None] + np.arange(6)[None, :]
     cols[:, 6:] = 6 * n_img + a * problem.image_camera[:, None] + np.arange(a)[None, :]
     n_c = 6 * n_img + a * n_cam
+    pa, pb, *_ = observation_pairs(problem.obs_point, problem.obs_image, n_img)
+    ca, cb, ck, ka, kb, koff = _chunks(pa, pb, problem.obs_image, problem.n_observations, n_img)
+    return _Topology(
+        *(jnp.asarray(v) for v in (problem.obs_image, problem.obs_point, cols, pa, pb, ca, cb, ck, ka, kb)),
+        jnp.asarray(koff, dtype=float), *(jnp.asarray(v) for v in _image_chunks(problem.obs_image, n_img)),
+        jnp.asarray(active), jnp.asarray(problem.image_camera), n_c, w,
+    )  # fmt: skip
+
+
+def _analyse(problem, fixed_extra: np.ndarray, origin: np.ndarray, topology: _Topology | None = None):
+    """Index arrays, masks and sizes of a :class:`BundleProblem`, with
+    ``fixed_extra`` ``(n_images, 6)`` exterior parameters fixed besides the
+    problem's own and ground coordinates relative to ``origin`` ``(3,)``;
+    ``topology`` (:func:`_topology`, computed when None) is reused as is.
+    Returns ``(structure, n_unknowns_c, width)``."""
+    t = _topology(problem) if topology is None else topology
     fixed = problem.fixed_exterior | fixed_extra  # EXTERIOR order (X, Y, Z, rx, ry, rz)
     fixed = np.concatenate([fixed[:, 3:], fixed[:, :3]], axis=1)  # internal order: rotation, centre
+    active = np.asarray(t.active)
     mask_c = np.concatenate([(~fixed).ravel(), problem.free_intrinsics[:, active].ravel()])
     ctrl = problem.roles == "control"
     hard = ctrl[:, None] & (problem.point_sigma == 0)
     soft = ctrl[:, None] & (problem.point_sigma > 0)
     prior_w = np.where(soft, 1.0 / np.where(soft, problem.point_sigma, 1.0) ** 2, 0.0)
     prior = np.where(ctrl[:, None], problem.points - origin[None, :], 0.0)
-    pa, pb, *_ = observation_pairs(problem.obs_point, problem.obs_image, n_img)
-    ca, cb, ck, ka, kb, koff = _chunks(pa, pb, problem.obs_image, problem.n_observations, n_img)
     s = _Structure(
-        *(jnp.asarray(v) for v in (problem.obs_image, problem.obs_point, problem.obs_xy, problem.obs_sigma, cols)),
-        jnp.asarray(mask_c, dtype=float), jnp.asarray(~hard, dtype=float), jnp.asarray(prior),
-        jnp.asarray(prior_w), *(jnp.asarray(v) for v in (pa, pb, ca, cb, ck, ka, kb)), jnp.asarray(koff, dtype=float),
-        *(jnp.asarray(v) for v in _image_chunks(problem.obs_image, n_img)), jnp.asarray(active),
-        jnp.asarray(problem.image_camera),
+        t.obs_image, t.obs_point, jnp.asarray(problem.obs_xy), jnp.asarray(problem.obs_sigma), t.image_ext,
+        jnp.asarray(mask_c, dtype=float), jnp.asarray(~hard, dtype=float), jnp.asarray(prior), jnp.asarray(prior_w),
+        t.pair_a, t.pair_b, t.chunk_a, t.chunk_b, t.chunk_key, t.key_a, t.key_b, t.key_off, t.image_chunk,
+        t.image_of_chunk, t.active, t.image_camera,
     )  # fmt: skip
-    return s, n_c, w
+    return s, t.n_c, t.w
+
+
+class Analysis(NamedTuple):
+    """A problem analysed for one gauge (:meth:`BundleProblem.analyse`):
+    the structure (a pytree of device arrays for the jitted steps), the
+    number of camera-side unknowns ``n_c``, the columns per image ``w`` and
+    the local ``origin`` ``(3,)`` (ground unit) the solver works relative to
+    (rounded mean of the finite points and projection centres)."""
+
+    structure: _Structure
+    n_c: int
+    w: int
+    origin: np.ndarray
+
+
+def _origin(problem) -> np.ndarray:
+    finite = np.all(np.isfinite(problem.points), axis=1)
+    return np.round(np.mean(np.concatenate([problem.points[finite], np.asarray(problem.exterior.position)]), axis=0))
