@@ -325,3 +325,19 @@ def test_analysis_is_cached_and_shared_by_replicates():
                             obs_xy=problem.obs_xy[keep], obs_sigma=problem.obs_sigma[keep])  # fmt: skip
     assert other.analyse().structure.chunk_a is not a.structure.chunk_a
     assert other.analyse().structure.obs_image.shape == (problem.n_observations - 1,)
+
+
+def test_stopping_rule_follows_its_formula():
+    """StoppingRule against its documented rule, on hand-picked numbers either
+    side of each threshold."""
+    rule = ptx.bundle.StoppingRule(function_tolerance=1e-3, gradient_tolerance=1e-6, parameter_tolerance=1e-4)
+    assert rule.at_start(1e-7).startswith("gradient tolerance") and rule.at_start(1e-5) == ""
+    # |dcost| <= 1e-3 cost_old, accepted steps only.
+    assert rule.after_step(True, 100.0, 99.95, 1.0, 1.0, 1.0).startswith("function tolerance")
+    assert rule.after_step(False, 100.0, 99.95, 1.0, 1.0, 1.0) == ""
+    assert rule.after_step(True, 100.0, 99.0, 1.0, 1.0, 1.0) == ""
+    assert rule.after_step(True, 100.0, 99.0, 1e-7, 1.0, 1.0).startswith("gradient tolerance")
+    # |dx| <= 1e-4 (|x| + 1e-4), on any computed step.
+    assert rule.after_step(False, 100.0, 99.0, 1.0, 0.9e-4 * (1.0 + 1e-4), 1.0).startswith("parameter tolerance")
+    assert rule.after_step(False, 100.0, 99.0, 1.0, 1.1e-4 * (1.0 + 1e-4), 1.0) == ""
+    assert rule.after_step(False, 100.0, 99.0, 1.0, float("nan"), 1.0) == ""

@@ -89,7 +89,7 @@ from ._problem import (
     Loss as Loss,
 )
 from ._result import BundleResult as BundleResult
-from ._solver import DENSE_LIMIT as DENSE_LIMIT, bundle_adjust as bundle_adjust
+from ._solver import DENSE_LIMIT as DENSE_LIMIT, StoppingRule as StoppingRule, bundle_adjust as bundle_adjust
 from ._start import initialize_block as initialize_block
 from ._structure import CHUNK as CHUNK, PIECE as PIECE, Analysis as Analysis
 from ._synthetic import SyntheticBlock as SyntheticBlock, synthetic_block as synthetic_block

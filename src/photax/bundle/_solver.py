@@ -4,6 +4,7 @@ its result."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import sys
 import time
@@ -118,9 +119,44 @@ def bundle_adjust(
     Returns:
         :class:`BundleResult`.
     """
+    # Over 80 lines only by its signature and docstring (the reference for
+    # every option); the work is in _check_options, _start_state and _lm_loop.
     # photax says max_steps (as optimistix and resect do); the loop below still
     # counts in Ceres' word, max_iterations.
     max_iterations = max_steps if max_iterations is None else max_iterations
+    _check_options(problem, loss, loss_scale, method, gauge)
+    if initialize is True or (initialize == "auto" and _needs_init(problem)):
+        problem = initialize_block(problem)
+    if _needs_init(problem):
+        raise ValueError("problem has NaN orientations or points: give start values or initialize=True")
+    t_start = time.perf_counter()
+    s, n_c, _, origin = problem.analyse(gauge)  # cached on the problem
+    state = _start_state(problem, origin)
+    if linear_solver not in ("auto", "dense", "cg"):
+        raise ValueError(f"linear_solver must be 'auto', 'dense' or 'cg', got {linear_solver!r}")
+    solver = linear_solver if linear_solver != "auto" else ("dense" if n_c <= DENSE_LIMIT else "cg")
+    rule = StoppingRule(function_tolerance, gradient_tolerance, parameter_tolerance, max_iterations)
+    kw = dict(loss=jnp.asarray(_LOSS_CODE[loss]), scale=jnp.asarray(float(loss_scale)), n_c=n_c)
+    with _blas_threads(n_c):
+        with contextlib.ExitStack() as bars:
+            bar = None
+            if progress:  # one bar, labelled "bundle" or by the caller (photax.progress)
+                from ..progress import progress_bar
+
+                # Leaving the stack closes a bar of its own, not a caller's.
+                bar = bars.enter_context(progress_bar(progress, max_iterations, desc="bundle", unit="it"))
+            lin = _linearise(state, s, **kw, second_order=loss == "none")
+            initial_cost = float(lin.cost)
+            state, lin, cost, history, converged, message, it = _lm_loop(
+                state, lin, s, kw, solver, rule, method == "gauss-newton", float(initial_trust_radius),
+                loss == "none", verbose, bar,
+            )  # fmt: skip
+        return _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged,
+                       message, it, throw, time.perf_counter() - t_start)  # fmt: skip
+
+
+def _check_options(problem: BundleProblem, loss, loss_scale, method, gauge) -> None:
+    """ValueError for an unknown option or a network without a datum."""
     if loss not in ("none", "huber", "cauchy"):
         raise ValueError(f"loss must be 'none', 'huber' or 'cauchy', got {loss!r}")
     if method not in ("levenberg-marquardt", "gauss-newton"):
@@ -136,90 +172,115 @@ def bundle_adjust(
             "orientations (fixed_exterior=), or choose gauge='fix_first_camera' or gauge='damped' "
             "(LM damping handles the defect, as Ceres does for BAL)"
         )
-    if initialize is True or (initialize == "auto" and _needs_init(problem)):
-        problem = initialize_block(problem)
-    if _needs_init(problem):
-        raise ValueError("problem has NaN orientations or points: give start values or initialize=True")
-    t_start = time.perf_counter()
-    s, n_c, _, origin = problem.analyse(gauge)  # cached on the problem
+
+
+def _start_state(problem: BundleProblem, origin: np.ndarray) -> _State:
+    """The problem's start values as solver state, ground coordinates relative to ``origin``."""
     intr = np.stack([np.concatenate([[float(c.focal_length)], np.asarray(c.principal_point), np.asarray(c.distortion)]) for c in problem.cameras])
-    state = _State(
+    return _State(
         _rotation(problem.exterior.angles, convention=problem.exterior.convention),
         jnp.asarray(np.asarray(problem.exterior.position) - origin[None, :]),
         jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]),
     )  # fmt: skip
-    if linear_solver not in ("auto", "dense", "cg"):
-        raise ValueError(f"linear_solver must be 'auto', 'dense' or 'cg', got {linear_solver!r}")
-    solver = linear_solver if linear_solver != "auto" else ("dense" if n_c <= DENSE_LIMIT else "cg")
-    kw = dict(loss=jnp.asarray(_LOSS_CODE[loss]), scale=jnp.asarray(float(loss_scale)), n_c=n_c)
-    with _blas_threads(n_c):
-        second = loss == "none"
-        lin = _linearise(state, s, **kw, second_order=second)
-        cost = initial_cost = float(lin.cost)
-        gn = method == "gauss-newton"
-        mu, nu = float(initial_trust_radius), 2.0
-        history: list[dict] = []
-        message, converged = "", False
-        bar = None
-        if progress:  # one bar, labelled "bundle" or by the caller (photax.progress)
-            from ..progress import progress_bar
 
-            bar_context = progress_bar(progress, max_iterations, desc="bundle", unit="it")
-            bar = bar_context.__enter__()
-        gmax = float(lin.gmax)
-        if gmax <= gradient_tolerance:
-            message, converged = f"gradient tolerance: max|g| = {gmax:.3g} <= {gradient_tolerance:g}", True
-        it = 0
-        while not converged and it < max_iterations:
-            it += 1
-            t0 = time.perf_counter()
-            lam = 0.0 if gn else 1.0 / mu
-            new, new_cost, pred, step, xnorm = _trial(state, lin, s, jnp.asarray(lam), **kw, solver=solver)
-            new_cost, pred, step, xnorm = float(new_cost), float(pred), float(step), float(xnorm)
-            rho = (cost - new_cost) / pred if pred > 0 else -1.0
-            accepted = (gn and math.isfinite(new_cost)) or (rho > 1e-3 and math.isfinite(new_cost))
-            old = cost
-            if accepted:
-                state, cost = new, new_cost
-                if not second and old - cost <= SECOND_ORDER_AFTER * old:
-                    second = True
-                lin = _linearise(state, s, **kw, second_order=second)
-                gmax = float(lin.gmax)
-                mu = mu / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
-                mu, nu = min(mu, 1e16), 2.0
-            else:
-                mu, nu = mu / nu, nu * 2.0
-            history.append(dict(iteration=it, cost=cost, candidate_cost=new_cost if math.isfinite(new_cost) else None, relative_decrease=rho, trust_radius=mu,
-                                step_norm=step, gradient_max=gmax, accepted=bool(accepted), seconds=time.perf_counter() - t0))  # fmt: skip
-            if verbose:
-                status = "ok" if accepted else "rejected" if math.isfinite(new_cost) else "rejected (no finite step)"
-                line = (f"{it:4d}  cost {cost:.6e}  cost_change {old - cost:+.3e}  |g| {gmax:.2e}  |step| {step:.2e}  "
-                        f"tr_radius {mu:.2e}  {status}")  # fmt: skip
-                if hasattr(bar, "write"):  # through the bar, which clears and redraws itself around the line
-                    bar.write(line, file=sys.stdout)
-                else:
-                    print(line, flush=True)
-            if bar is not None:
-                bar.update(1)
-                bar.set_postfix(cost=f"{cost:.4g}")
-            if not math.isfinite(step) and (gn or mu < 1e-32):
-                message = "the normal equations are singular (datum defect or undetermined parameters)"
-                break
-            if accepted and abs(old - cost) <= function_tolerance * old:
-                message, converged = f"function tolerance: |dcost|/cost = {abs(old - cost) / max(old, 1e-300):.3g} <= {function_tolerance:g}", True
-            elif accepted and gmax <= gradient_tolerance:
-                message, converged = f"gradient tolerance: max|g| = {gmax:.3g} <= {gradient_tolerance:g}", True
-            elif math.isfinite(step) and step <= parameter_tolerance * (xnorm + parameter_tolerance):
-                message, converged = f"parameter tolerance: |dx| = {step:.3g} <= {parameter_tolerance:g} (|x| + tol)", True
-            elif not gn and mu < 1e-32:
-                message = "trust region radius below 1e-32: no decrease possible"
-                break
+
+@dataclasses.dataclass(frozen=True)
+class StoppingRule:
+    """When the Levenberg–Marquardt loop of :func:`bundle_adjust` stops
+    (Ceres' rule and defaults).  Converged when, after a step::
+
+        |cost_old - cost_new| <= function_tolerance * cost_old      (accepted steps)
+        max |g| <= gradient_tolerance,  g = J^T r                   (at the start and each new point)
+        |dx| <= parameter_tolerance * (|x| + parameter_tolerance)   (each computed step)
+
+    tested in this order, ``|x|`` the norm of centres, intrinsics and points
+    (local origin); not converged after ``max_iterations`` steps (accepted
+    and rejected).  The failures (singular equations, trust radius below
+    1e-32) are the loop's own."""
+
+    function_tolerance: float = 1e-6
+    gradient_tolerance: float = 1e-10
+    parameter_tolerance: float = 1e-8
+    max_iterations: int = 50
+
+    def at_start(self, gmax: float) -> str:
+        """The convergence message at the start values, or ``""``."""
+        if gmax <= self.gradient_tolerance:
+            return f"gradient tolerance: max|g| = {gmax:.3g} <= {self.gradient_tolerance:g}"
+        return ""
+
+    def after_step(self, accepted: bool, old: float, cost: float, gmax: float, step: float, xnorm: float) -> str:
+        """The convergence message after a step, or ``""``."""
+        if accepted and abs(old - cost) <= self.function_tolerance * old:
+            return f"function tolerance: |dcost|/cost = {abs(old - cost) / max(old, 1e-300):.3g} <= {self.function_tolerance:g}"
+        if accepted and gmax <= self.gradient_tolerance:
+            return f"gradient tolerance: max|g| = {gmax:.3g} <= {self.gradient_tolerance:g}"
+        if math.isfinite(step) and step <= self.parameter_tolerance * (xnorm + self.parameter_tolerance):
+            return f"parameter tolerance: |dx| = {step:.3g} <= {self.parameter_tolerance:g} (|x| + tol)"
+        return ""
+
+
+def _lm_loop(state, lin, s, kw, solver, rule: StoppingRule, gn: bool, mu: float, second: bool, verbose: bool, bar):
+    """Levenberg–Marquardt (or Gauss–Newton, ``gn``) steps from ``state``
+    and its linearisation ``lin`` until ``rule`` or a failure stops them.
+    ``mu`` is the trust radius (damping ``1/mu``; Nielsen's update as in
+    Ceres), ``second`` whether Triggs' correction is on (it switches on when
+    the decrease slows, :data:`SECOND_ORDER_AFTER`).  Returns ``(state, lin,
+    cost, history, converged, message, iterations)``."""
+    cost, nu = float(lin.cost), 2.0
+    history: list[dict] = []
+    gmax = float(lin.gmax)
+    message = rule.at_start(gmax)
+    converged = bool(message)
+    it = 0
+    while not converged and it < rule.max_iterations:
+        it += 1
+        t0 = time.perf_counter()
+        lam = 0.0 if gn else 1.0 / mu
+        new, new_cost, pred, step, xnorm = _trial(state, lin, s, jnp.asarray(lam), **kw, solver=solver)
+        new_cost, pred, step, xnorm = float(new_cost), float(pred), float(step), float(xnorm)
+        rho = (cost - new_cost) / pred if pred > 0 else -1.0
+        accepted = (gn and math.isfinite(new_cost)) or (rho > 1e-3 and math.isfinite(new_cost))
+        old = cost
+        if accepted:
+            state, cost = new, new_cost
+            if not second and old - cost <= SECOND_ORDER_AFTER * old:
+                second = True
+            lin = _linearise(state, s, **kw, second_order=second)
+            gmax = float(lin.gmax)
+            mu = mu / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            mu, nu = min(mu, 1e16), 2.0
+        else:
+            mu, nu = mu / nu, nu * 2.0
+        history.append(dict(iteration=it, cost=cost, candidate_cost=new_cost if math.isfinite(new_cost) else None, relative_decrease=rho, trust_radius=mu,
+                            step_norm=step, gradient_max=gmax, accepted=bool(accepted), seconds=time.perf_counter() - t0))  # fmt: skip
+        if verbose:
+            _print_step(bar, it, cost, old, gmax, step, mu, accepted, new_cost)
         if bar is not None:
-            bar_context.__exit__(None, None, None)  # closes a bar of its own, not a caller's
-        if not converged and not message:
-            message = f"no convergence within max_iterations = {max_iterations}"
-        return _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged,
-                       message, it, throw, time.perf_counter() - t_start)  # fmt: skip
+            bar.update(1)
+            bar.set_postfix(cost=f"{cost:.4g}")
+        if not math.isfinite(step) and (gn or mu < 1e-32):
+            message = "the normal equations are singular (datum defect or undetermined parameters)"
+            break
+        message = rule.after_step(accepted, old, cost, gmax, step, xnorm)
+        converged = bool(message)
+        if not converged and not gn and mu < 1e-32:
+            message = "trust region radius below 1e-32: no decrease possible"
+            break
+    if not converged and not message:
+        message = f"no convergence within max_iterations = {rule.max_iterations}"
+    return state, lin, cost, history, converged, message, it
+
+
+def _print_step(bar, it, cost, old, gmax, step, mu, accepted, new_cost) -> None:
+    """One line per iteration (``verbose=True``)."""
+    status = "ok" if accepted else "rejected" if math.isfinite(new_cost) else "rejected (no finite step)"
+    line = (f"{it:4d}  cost {cost:.6e}  cost_change {old - cost:+.3e}  |g| {gmax:.2e}  |step| {step:.2e}  "
+            f"tr_radius {mu:.2e}  {status}")  # fmt: skip
+    if hasattr(bar, "write"):  # through the bar, which clears and redraws itself around the line
+        bar.write(line, file=sys.stdout)
+    else:
+        print(line, flush=True)
 
 
 # Jitted once: eagerly, each of their few dozen jnp operations compiles on first use.
