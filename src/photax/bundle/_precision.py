@@ -7,6 +7,7 @@ import functools
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from ..rotation import angles_from_matrix_unchecked, axis_angle_to_matrix
@@ -45,3 +46,25 @@ def _angle_jacobian(rot: Array, convention: str) -> Array:
         return angles_from_matrix_unchecked(r @ axis_angle_to_matrix(dr), convention)[0]
 
     return jax.vmap(jax.jacfwd(angles), in_axes=(None, 0))(jnp.zeros(3), rot)
+
+
+def _standard_deviations(q_c, q_p, var0: float, rot: Array, convention: str, active: Array, n_cameras: int):
+    """Standard deviations from the cofactors of :func:`_covariances` and the
+    variance of unit weight ``var0``: exterior ``(n_img, 6)`` (``X, Y, Z``,
+    then the convention's angles, radians), intrinsics ``(n_cam, 8)`` (0 where
+    fixed), points ``(n_pts, 3)``, and the point covariances ``(n_pts, 3, 3)``."""
+    q_c, q_p = np.asarray(q_c), np.asarray(q_p)
+    n_img = rot.shape[0]
+    blocks = np.stack([q_c[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(n_img)])
+    # Reorder to (centre, rotation) and map rotation increments to angles.
+    cen = blocks[:, 3:, 3:]
+    jac = np.asarray(_angle_jacobian(rot, convention))
+    ang = np.einsum("nij,njk,nlk->nil", jac, blocks[:, :3, :3], jac)
+    eo_std = np.sqrt(var0 * np.concatenate([np.diagonal(cen, 0, 1, 2), np.diagonal(ang, 0, 1, 2)], axis=1))
+    a = np.asarray(active)
+    cam_std = np.zeros((n_cameras, 8))
+    dq = np.diagonal(q_c)[6 * n_img :].reshape(n_cameras, len(a))
+    cam_std[:, a] = np.sqrt(var0 * np.maximum(dq, 0.0))
+    pt_cov = var0 * q_p
+    pt_std = np.sqrt(np.maximum(np.diagonal(pt_cov, 0, 1, 2), 0.0))
+    return eo_std, cam_std, pt_std, pt_cov

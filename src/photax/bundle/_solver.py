@@ -19,7 +19,7 @@ from ..collinearity import ExteriorOrientation
 from ..errors import ConvergenceError
 from ..rotation import angles_from_matrix_unchecked, rotation_matrix
 from ._linearise import _LOSS_CODE, SECOND_ORDER_AFTER, _linearise
-from ._precision import _angle_jacobian, _covariances
+from ._precision import _covariances, _standard_deviations
 from ._problem import BundleProblem, Gauge, Loss
 from ._result import BundleResult
 from ._schur import _trial
@@ -317,20 +317,9 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
             message = "the normal equations are singular at the solution (datum defect or undetermined parameters)"
         else:
             var0 = sigma0**2 if redundancy > 0 else 1.0
-            q_c, q_p = np.asarray(q_c), np.asarray(q_p)
-            n_img = problem.n_images
-            blocks = np.stack([q_c[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(n_img)])
-            # Reorder to (centre, rotation) and map rotation increments to angles.
-            cen = blocks[:, 3:, 3:]
-            jac = np.asarray(_angle_jacobian(state.rot, conv))
-            ang = np.einsum("nij,njk,nlk->nil", jac, blocks[:, :3, :3], jac)
-            eo_std = np.sqrt(var0 * np.concatenate([np.diagonal(cen, 0, 1, 2), np.diagonal(ang, 0, 1, 2)], axis=1))
-            a = np.asarray(s.active)
-            cam_std = np.zeros((problem.n_cameras, 8))
-            dq = np.diagonal(q_c)[6 * n_img :].reshape(problem.n_cameras, len(a))
-            cam_std[:, a] = np.sqrt(var0 * np.maximum(dq, 0.0))
-            pt_cov = var0 * q_p
-            pt_std = np.sqrt(np.maximum(np.diagonal(pt_cov, 0, 1, 2), 0.0))
+            eo_std, cam_std, pt_std, pt_cov = _standard_deviations(
+                q_c, q_p, var0, state.rot, conv, s.active, problem.n_cameras
+            )
     check = problem.roles == "check"
     result = BundleResult(
         exterior=eo, rotation=rot, cameras=cams, points=pts, cost=float(cost), initial_cost=float(initial_cost),
