@@ -94,7 +94,7 @@ def test_cycle_finder_finds_a_planted_cycle():
 
 def test_graph_sees_known_edges():
     g = _graph()
-    assert "photax.collinearity" in g["photax.bundle"]
+    assert "photax.collinearity" in g["photax.bundle._problem"]
     assert "photax.camera" in g["photax.intersection"]
     assert {"photax.io", "photax.io.results"} <= g["photax.demo"]  # the package's __init__ runs first
     assert "photax.io" not in g["photax.io.gcp"]  # ... but not for its own modules
