@@ -119,3 +119,24 @@ def test_project_is_jittable_and_differentiable():
 
     g = jax.jit(jax.grad(f))(eo.to_vector())
     assert g.shape == (6,) and np.all(np.isfinite(g))
+
+
+@pytest.mark.parametrize("convention", ["phi-omega-kappa", "omega-phi-kappa"])
+def test_closed_form_jacobian_matches_autodiff(convention):
+    """collinearity_jacobian (and the distortion's derivative in it) against jax.jacfwd of project."""
+    from photax.collinearity import project_jacobian
+
+    rng = np.random.default_rng(4)
+    ground, eo = _scene(rng, 7)
+    eo = eo.to_convention(convention)
+    cam = ptx.FrameCamera(0.15, (1e-3, -2e-3), (-0.1, 0.03, -0.01, 2e-3, -1e-3))
+    xy, jac = project_jacobian(ground, eo, cam)
+    np.testing.assert_allclose(xy, ptx.project(ground, eo, cam), rtol=0, atol=1e-15)
+
+    def of_params(v):
+        return ptx.project(ground, ptx.ExteriorOrientation(v[:3], v[3:], convention), cam)
+
+    ref = jax.jacfwd(of_params)(eo.to_vector())  # (n, 2, 6)
+    ref_ground = jax.vmap(jax.jacfwd(lambda x: ptx.project(x[None], eo, cam)[0]))(jnp.asarray(ground))  # (n, 2, 3)
+    np.testing.assert_allclose(jac[..., :6], ref, rtol=0, atol=1e-13 * float(jnp.abs(ref).max()))
+    np.testing.assert_allclose(jac[..., 6:], ref_ground, rtol=0, atol=1e-13 * float(jnp.abs(ref_ground).max()))

@@ -161,6 +161,27 @@ class FrameCamera(eqx.Module):
         yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
         return jnp.stack([xd, yd], axis=-1)
 
+    def distortion_jacobian(self, xn: Array) -> Array:
+        """``(..., 2, 2)`` derivative of :meth:`distort_normalised` at ``xn``:
+        rows ``(xd, yd)``, columns ``(xn, yn)``.
+
+        With ``rho = 1 + k1 r^2 + k2 r^4 + k3 r^6`` and
+        ``rho' = d rho / d r^2 = k1 + 2 k2 r^2 + 3 k3 r^4``::
+
+            dxd/dx = rho + 2 x^2 rho' + 2 p1 y + 6 p2 x
+            dxd/dy = dyd/dx = 2 x y rho' + 2 p1 x + 2 p2 y
+            dyd/dy = rho + 2 y^2 rho' + 6 p1 y + 2 p2 x
+        """
+        k1, k2, k3, p1, p2 = (self.distortion[i] for i in range(5))
+        x, y = xn[..., 0], xn[..., 1]
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        slope = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+        xy = 2.0 * x * y * slope + 2.0 * p1 * x + 2.0 * p2 * y
+        xx = radial + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x
+        yy = radial + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x
+        return jnp.stack([jnp.stack([xx, xy], axis=-1), jnp.stack([xy, yy], axis=-1)], axis=-2)
+
     def undistort_normalised(self, xd: Array, iterations: int = 20) -> Array:
         """Invert :meth:`distort_normalised` by fixed-point iteration.
 

@@ -150,6 +150,97 @@ def project(ground_xyz: Array, exterior: ExteriorOrientation, camera: FrameCamer
     return camera.project(exterior.points_in_camera(ground_xyz))
 
 
+def angle_axes(angles: Array, convention: Convention = "phi-omega-kappa") -> Array:
+    """``(..., 3, 3)`` world-frame axes of the three angles: row ``k`` is
+    ``w_k`` with ``dR/da_k = [w_k]x R`` (``R`` = world_from_camera,
+    ``[w]x`` the cross-product matrix).
+
+    ``R = A(a1) B(a2) C(a3)`` is a product of rotations about fixed axes
+    ``e_k``, and ``d/da A = s [e]x A`` for a rotation about ``e`` by
+    ``s a`` (``s = +-1``), so ``w_1 = s1 e1``, ``w_2 = s2 A e2`` and
+    ``w_3 = s3 A B e3`` = the third column of ``R`` for both conventions:
+
+    * phi-omega-kappa: ``R = Ry(-phi) Rx(omega) Rz(kappa)`` ->
+      ``w = (0, -1, 0), (cos phi, 0, sin phi), R[:, 2]``;
+    * omega-phi-kappa: ``R = Rx(omega) Ry(phi) Rz(kappa)`` ->
+      ``w = (1, 0, 0), (0, cos omega, sin omega), R[:, 2]``.
+    """
+    check_convention(convention)
+    angles = jnp.asarray(angles)
+    return _angle_axes(angles, rotation_matrix(angles, convention), convention == "phi-omega-kappa")
+
+
+def _angle_axes(angles: Array, rotation: Array, pok) -> Array:
+    """:func:`angle_axes` with the convention as a (possibly traced) flag
+    ``pok`` (True: phi-omega-kappa) and ``R`` given."""
+    c, s = jnp.cos(angles[..., 0]), jnp.sin(angles[..., 0])
+    zero, one = jnp.zeros_like(c), jnp.ones_like(c)
+    w1 = jnp.where(pok, jnp.stack([zero, -one, zero], -1), jnp.stack([one, zero, zero], -1))
+    w2 = jnp.where(pok, jnp.stack([c, zero, s], -1), jnp.stack([zero, c, s], -1))
+    return jnp.stack([w1, w2, rotation[..., :, 2]], axis=-2)
+
+
+def collinearity_jacobian(
+    ground_xyz: Array, position: Array, rotation: Array, axes: Array, camera: FrameCamera
+) -> tuple[Array, Array, Array]:
+    """The collinearity equations and their closed-form Jacobian.
+
+    With ``d = X - C``, ``q = R^T d`` (camera frame), ``xn = -q_xy / q_z``,
+    ``x = x0 + f D(xn)`` (``D`` the distortion)::
+
+        dq/dC = -R^T,   dq/dX = R^T,   dq/da_k = R^T (d x w_k)
+        dxn/dq = -1/q_z [[1, 0, xn], [0, 1, yn]]
+        dx/dp = f D'(xn) dxn/dq dq/dp
+
+    (``w_k`` from :func:`angle_axes`; ``D'`` is
+    :meth:`FrameCamera.distortion_jacobian`.)
+
+    Args:
+        ground_xyz: ``(n, 3)`` ground points.
+        position: ``(3,)`` projection centre.
+        rotation: ``(3, 3)`` world_from_camera.
+        axes: ``(3, 3)`` angle axes from :func:`angle_axes`.
+        camera: the interior orientation.
+
+    Returns:
+        ``xy`` ``(n, 2)`` as :func:`project`; ``jacobian`` ``(n, 2, 9)``,
+        columns ``(Xs, Ys, Zs, a1, a2, a3, X, Y, Z)``; ``q`` ``(n, 3)``
+        the points in the camera frame (``-q_z`` is :func:`depth`).
+    """
+    d = ground_xyz - position[None, :]
+    q = d @ rotation  # R^T d per row
+    rt = rotation.T
+    dq_dc = -jnp.broadcast_to(rt, d.shape[:1] + (3, 3))
+    dq_da = jnp.stack([jnp.cross(d, axes[k][None, :]) @ rotation for k in range(3)], axis=-1)  # (n, 3, 3)
+    xn = -q[:, :2] / q[:, 2:3]
+    inv_z = -1.0 / q[:, 2]
+    # dxn/dq (n, 2, 3): xn = -q_x / q_z -> (-1/q_z, 0, q_x / q_z^2) = -1/q_z (1, 0, xn)
+    zero = jnp.zeros_like(inv_z)
+    dxn_dq = jnp.stack([jnp.stack([inv_z, zero, inv_z * xn[:, 0]], -1),
+                        jnp.stack([zero, inv_z, inv_z * xn[:, 1]], -1)], axis=-2)
+    dx_dxn = camera.focal_length * camera.distortion_jacobian(xn)  # (n, 2, 2)
+    dx_dq = jnp.einsum("nij,njk->nik", dx_dxn, dxn_dq)
+    dq = jnp.concatenate([dq_dc, dq_da, -dq_dc], axis=-1)  # (n, 3, 9)
+    xy = camera.principal_point[None, :] + camera.focal_length * camera.distort_normalised(xn)
+    return xy, jnp.einsum("nik,nkp->nip", dx_dq, dq), q
+
+
+def project_jacobian(
+    ground_xyz: Array, exterior: ExteriorOrientation, camera: FrameCamera
+) -> tuple[Array, Array]:
+    """:func:`project` and its closed-form Jacobian (:func:`collinearity_jacobian`).
+
+    Returns ``xy`` ``(n, 2)`` and ``(n, 2, 9)`` derivatives with respect to
+    ``(Xs, Ys, Zs, a1, a2, a3, X, Y, Z)``, angles in the exterior's
+    convention order (radians).
+    """
+    ground = jnp.asarray(ground_xyz, dtype=float)
+    rot = exterior.rotation
+    axes = angle_axes(exterior.angles, exterior.convention)  # type: ignore[arg-type]
+    xy, jac, _ = collinearity_jacobian(ground, exterior.position, rot, axes, camera)
+    return xy, jac
+
+
 def depth(ground_xyz: Array, exterior: ExteriorOrientation) -> Array:
     """``(n,)`` distance of each point in front of the camera along its axis.
 
