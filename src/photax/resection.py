@@ -84,6 +84,7 @@ from scipy import stats
 
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation
+from ._linalg import cho_solve, inv3, nearest_rotation
 from .errors import ConvergenceError
 from .rotation import Convention, angles_from_matrix_unchecked, check_convention, rotation_matrix
 
@@ -339,23 +340,8 @@ def _blunder_stat(res: ResectionResult, k: int) -> float:
 
 
 # --------------------------------------------------------------------------- linear start
-# Small dense algebra is written out element-wise: on CPU every LAPACK call
+# Small dense algebra (photax._linalg) is written out element-wise: on CPU every LAPACK call
 # costs tens of microseconds, and element-wise code vectorises under vmap.
-
-
-def _inv3(m: jax.Array) -> jax.Array:
-    """Inverse of a 3x3 matrix by cofactors."""
-    adj = jnp.stack([jnp.cross(m[:, 1], m[:, 2]), jnp.cross(m[:, 2], m[:, 0]), jnp.cross(m[:, 0], m[:, 1])])
-    return adj / jnp.sum(m[:, 0] * adj[0])
-
-
-def _nearest_rotation(m: jax.Array, iterations: int = 8) -> jax.Array:
-    """Orthogonal polar factor of ``m`` (det > 0) by Newton's iteration
-    ``Q <- (Q + Q^-T)/2`` (Higham 1986); quadratic once close."""
-    q = m / jnp.cbrt(jnp.abs(jnp.sum(m[:, 0] * jnp.cross(m[:, 1], m[:, 2]))))
-    for _ in range(iterations):  # unrolled: XLA fuses it into one kernel
-        q = 0.5 * (q + _inv3(q).T)
-    return q
 
 
 def _normal_equations(rows: jax.Array) -> tuple[jax.Array, jax.Array]:
@@ -386,10 +372,10 @@ def _pose_homography(sol, t_uv, scale, basis):
 
     ``R_cv`` is OpenCV's cam_from_world (x right, y down, z forward).
     """
-    h = _inv3(t_uv) @ jnp.append(sol[:8], 1.0).reshape(3, 3)  # undo the image normalisation
+    h = inv3(t_uv) @ jnp.append(sol[:8], 1.0).reshape(3, 3)  # undo the image normalisation
     lam = 0.5 * (jnp.linalg.norm(h[:, 0]) + jnp.linalg.norm(h[:, 1]))
     c1, c2 = h[:, 0] / lam, h[:, 1] / lam
-    r_cv = _nearest_rotation(jnp.stack([c1, c2, jnp.cross(c1, c2)], axis=1)) @ basis.T
+    r_cv = nearest_rotation(jnp.stack([c1, c2, jnp.cross(c1, c2)], axis=1)) @ basis.T
     return r_cv, -r_cv.T @ (h[:, 2] * scale / lam)
 
 
@@ -406,10 +392,10 @@ def _dlt_rows(uv, ground, w, scale):
 
 def _pose_dlt(sol, t_uv, scale):
     """DLT solution -> (R_cv, C) (Hartley & Zisserman 2003, sec. 7.1)."""
-    p = _inv3(t_uv) @ jnp.append(sol, 1.0).reshape(3, 4)
+    p = inv3(t_uv) @ jnp.append(sol, 1.0).reshape(3, 4)
     m = p[:, :3] / scale
     lam = jnp.mean(jnp.linalg.norm(m, axis=1))
-    r_cv = _nearest_rotation(m)
+    r_cv = nearest_rotation(m)
     return r_cv, -r_cv.T @ (p[:, 3] / lam)
 
 
@@ -454,7 +440,7 @@ def _linear_start(uv, ground, ctrl, basis, subsets, robust, dlt_ok, convention):
         systems.append(jax.vmap(lambda s: _normal_equations(_dlt_rows(uvn[s], rel[s], w6, scale)))(subsets))
     mats = jnp.concatenate([m[None] for m, _ in systems[:2]] + [m for m, _ in systems[2:]])
     rhs = jnp.concatenate([v[None] for _, v in systems[:2]] + [v for _, v in systems[2:]])
-    sols = _cho_solve(mats, rhs[..., None])[..., 0]
+    sols = cho_solve(mats, rhs[..., None])[..., 0]
     is_dlt = np.array([False, True] + [False] * k + [True] * k)
     hom = jax.vmap(lambda s: _pose_homography(s, t_uv, scale, basis))(sols[~is_dlt])
     dlt = jax.vmap(lambda s: _pose_dlt(s, t_uv, scale))(sols[is_dlt])
@@ -479,51 +465,6 @@ def _linear_start(uv, ground, ctrl, basis, subsets, robust, dlt_ok, convention):
 
 
 # --------------------------------------------------------------------------- adjustment
-
-
-def _cho_solve(a: jax.Array, b: jax.Array) -> jax.Array:
-    """Solve ``a x = b`` for symmetric positive definite ``a`` ``(..., k, k)``,
-    ``b`` ``(..., k, m)``, by a Cholesky factorisation written out entry by
-    entry.
-
-    For k <= 11 this is a few hundred scalar operations that XLA fuses into
-    a handful of kernels, vectorised over the leading (or vmapped) axes; a
-    LAPACK call per tiny matrix costs more on CPU (measured: 66 systems of
-    11 unknowns 0.3 ms vs 0.7 ms batched ``jnp.linalg.solve``).  The system
-    is Jacobi-scaled first (unit diagonal: metres and radians in one
-    matrix).  Not positive definite -> NaN.
-    """
-    k, m = a.shape[-1], b.shape[-1]
-    d = [1.0 / jnp.sqrt(a[..., i, i]) for i in range(k)]
-    el = [[None] * k for _ in range(k)]  # lower factor, scalars (...)
-    inv = [None] * k  # 1 / diagonal
-    for j in range(k):
-        s = a[..., j, j] * d[j] * d[j]
-        for i in range(j):
-            s = s - el[j][i] * el[j][i]
-        el[j][j] = jnp.sqrt(s)
-        inv[j] = 1.0 / el[j][j]
-        for r in range(j + 1, k):
-            s = a[..., r, j] * d[r] * d[j]
-            for i in range(j):
-                s = s - el[r][i] * el[j][i]
-            el[r][j] = s * inv[j]
-    cols = []
-    for c in range(m):
-        y = []  # L y = D b
-        for j in range(k):
-            s = b[..., j, c] * d[j]
-            for i in range(j):
-                s = s - el[j][i] * y[i]
-            y.append(s * inv[j])
-        x = [None] * k  # L^T x = y
-        for j in reversed(range(k)):
-            s = y[j]
-            for i in range(j + 1, k):
-                s = s - el[i][j] * x[i]
-            x[j] = s * inv[j]
-        cols.append(jnp.stack([x[j] * d[j] for j in range(k)], axis=-1))
-    return jnp.stack(cols, axis=-1)
 
 
 def _wrap(a):
@@ -568,7 +509,7 @@ def _precision(p, weighted, predict, xy, ground, ctrl, convention):
     v = weighted(p)
     a = jax.jacfwd(weighted)(p)
     red = 2.0 * jnp.sum(ctrl.astype(float)) - 6.0
-    qxx = _cho_solve(jnp.sum(a[:, :, None] * a[:, None, :], axis=0), jnp.eye(6))
+    qxx = cho_solve(jnp.sum(a[:, :, None] * a[:, None, :], axis=0), jnp.eye(6))
     qxx = 0.5 * (qxx + qxx.T)
     sigma0 = jnp.where(red > 0, jnp.sqrt(jnp.sum(v * v) / jnp.where(red > 0, red, 1.0)), jnp.nan)
     r_i = 1.0 - jnp.sum((a @ qxx) * a, axis=1)

@@ -9,19 +9,10 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from .._linalg import inv3
 from ..rotation import axis_angle_to_matrix
 from ._linearise import _cost, _Lin
 from ._structure import _State, _Structure
-
-
-def _inv3(m: Array) -> Array:
-    """``(n, 3, 3)`` inverses by the adjugate: columns ``r1 x r2, r2 x r0,
-    r0 x r1`` over the determinant (rows ``r``); elementwise, so much faster
-    than a batched LU on CPU.  A singular block gives inf/NaN, which the
-    solver reports as a singular system."""
-    r0, r1, r2 = m[:, 0], m[:, 1], m[:, 2]
-    adj = jnp.stack([jnp.cross(r1, r2), jnp.cross(r2, r0), jnp.cross(r0, r1)], axis=-1)
-    return adj / jnp.sum(r0 * adj[:, :, 0], axis=1)[:, None, None]
 
 
 
@@ -30,7 +21,7 @@ def _schur_parts(lin: _Lin, s: _Structure, lam: Array, n_c: int):
     the reduced right-hand side ``g_c - W V^-1 g_p`` (in unknown order)."""
     n_img = lin.u_img.shape[0]
     v = lin.v + (lam * lin.d_p * s.mask_p + (1.0 - s.mask_p))[:, :, None] * jnp.eye(3)[None, :, :]
-    vinv = _inv3(v)
+    vinv = jax.vmap(inv3)(v)  # (n, 3, 3) by the adjugate: elementwise, faster than batched LU on CPU
     vo = vinv[s.obs_point]
     # Unrolled over the 3-long axis: faster than a batched dot of tiny matrices on XLA CPU.
     yt = sum(vo[:, :, j, None] * lin.wt[:, None, j, :] for j in range(3))
