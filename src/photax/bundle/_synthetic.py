@@ -23,47 +23,19 @@ class SyntheticBlock:
     camera: FrameCamera
 
 
-def synthetic_block(
-    seed: int = 0,
-    *,
-    strips: int = 2,
-    images_per_strip: int = 4,
-    n_tie: int = 100,
-    n_control: int = 6,
-    n_check: int = 4,
-    noise_px: float = 0.5,
-    flying_height: float = 600.0,
-    relief: float = 60.0,
-    tilt_deg: float = 2.0,
-    focal_px: float = 3000.0,
-    distortion=(0.0, 0.0, 0.0, 0.0, 0.0),
-    start_error: tuple[float, float, float] = (5.0, 0.01, 3.0),
-    unknown_start: bool = False,
-    convention: str = "omega-phi-kappa",
-) -> tuple[BundleProblem, SyntheticBlock]:
-    """An aerial block (strips of 60 % forward / 30 % side overlap) with truth.
+def synthetic_block(seed: int = 0, **options) -> tuple[BundleProblem, SyntheticBlock]:
+    """An aerial block with known truth, as a :class:`BundleProblem`.
 
-    4000 x 3000 px frames, ``focal_px`` principal distance, flown at
-    ``flying_height`` m over terrain of heights ``0 .. relief`` m, each image
-    tilted by up to ``tilt_deg``.  Ground coordinates are UTM-like (~5e5,
-    4e6 m).  Control points sit on the block's border (``n_control``), check
-    points inside.  Control points are fixed (sigma 0); give them a sigma
-    with :meth:`BundleProblem.replace` (``point_sigma=``).
-    Measurements are the true projections plus Gaussian noise of
-    ``noise_px`` (and ``obs_sigma = noise_px``, or 1 px for noise 0).
-
-    Start values: the truth perturbed by ``start_error = (position m,
-    angle rad, tie-point m)``, or NaN (``unknown_start=True``) for
-    :func:`initialize_block`.
+    The block and its options (strips, overlap, noise, relief, start errors,
+    ``unknown_start`` for :func:`initialize_block`, ...) are those of
+    :func:`photax.scene.block_scene`, which documents them.  Control points
+    are fixed (sigma 0); give them a sigma with :meth:`BundleProblem.replace`
+    (``point_sigma=``).
 
     Returns:
         ``(problem, truth)``.
     """
-    b = block_scene(
-        seed, strips=strips, images_per_strip=images_per_strip, n_tie=n_tie, n_control=n_control, n_check=n_check,
-        noise_px=noise_px, flying_height=flying_height, relief=relief, tilt_deg=tilt_deg, focal_px=focal_px,
-        distortion=distortion, start_error=start_error, unknown_start=unknown_start, convention=convention,
-    )  # fmt: skip
+    b = block_scene(seed, **options)
     problem = BundleProblem(
         b.camera, b.start_exterior, b.start_points, b.obs_image, b.obs_point, b.obs_xy,
         obs_sigma=b.obs_sigma, roles=b.roles, image_names=b.image_names, point_names=b.point_names,
