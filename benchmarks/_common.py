@@ -1,15 +1,116 @@
-"""Shared timing and memory helpers for the benchmarks.
+"""Shared timing, memory and reporting helpers for the benchmarks.
 
 Machines here are noisy (2 cores): every figure is the median of several
-runs, and results are reported as ratios photax / peer.
+runs, and results are reported as ratios photax / peer measured in the same
+run.  A benchmark calls :func:`start` first: it prints the command that
+reproduces the run, the machine and its load, and at exit writes every
+figure given to :func:`ratio_line` or :func:`record` to
+``benchmarks/results/<name>.json`` (``python benchmarks/report.py`` turns
+those files into the README's table).
 """
 
 from __future__ import annotations
 
+import atexit
+import datetime
+import json
 import os
+import pathlib
+import platform
+import shlex
 import statistics
+import subprocess
+import sys
 import time
 from typing import Callable
+
+RESULTS = pathlib.Path(__file__).resolve().parent / "results"
+_RUN: dict = {}
+
+
+def machine() -> dict:
+    """CPU count and model, load averages (1, 5, 15 min), OS and Python."""
+    model = platform.processor() or "unknown"
+    try:
+        with open("/proc/cpuinfo") as fh:
+            model = next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), model)
+    except OSError:
+        pass
+    return dict(cpus=os.cpu_count(), cpu_model=model, load_average=[round(v, 2) for v in os.getloadavg()],
+                system=platform.platform(), python=platform.python_version())
+
+
+def start(name: str) -> dict:
+    """Begin a benchmark run: print how to reproduce it and the machine's
+    load; at exit write the recorded figures to ``results/<name>.json``."""
+    command = "python " + " ".join(shlex.quote(a) for a in [os.path.relpath(sys.argv[0])] + sys.argv[1:])
+    _RUN.clear()
+    _RUN.update(benchmark=name, command=command, date=datetime.datetime.now(datetime.timezone.utc).isoformat(
+        timespec="seconds"), machine=machine(), figures={})
+    m = _RUN["machine"]
+    print(f"reproduce with: {command}")
+    print(f"{m['cpus']} x {m['cpu_model']}, load average {m['load_average']} (1, 5, 15 min) at the start")
+    atexit.register(_write)
+    return _RUN
+
+
+def record(key: str, **values) -> None:
+    """Keep ``values`` (numbers in seconds / bytes / ratios, strings) under ``key``."""
+    if _RUN:
+        _RUN["figures"].setdefault(key, {}).update(values)
+
+
+def _write() -> None:
+    if not _RUN or not _RUN["figures"]:
+        return
+    _RUN["load_average_end"] = [round(v, 2) for v in os.getloadavg()]
+    RESULTS.mkdir(exist_ok=True)
+    path = RESULTS / f"{_RUN['benchmark']}.json"
+    path.write_text(json.dumps(_RUN, indent=1) + "\n")
+    print(f"figures written to {os.path.relpath(path)} (load average at the end {_RUN['load_average_end']})")
+
+
+def median_times(fns: dict[str, Callable[[], object]], repeat: int = 5, warmup: int = 1) -> dict[str, float]:
+    """Median wall times of several functions run *interleaved* (a, b, a,
+    b, ...), so that a change in the machine's load hits all of them alike:
+    the fair way to measure a ratio on a shared machine."""
+    for _ in range(warmup):
+        for fn in fns.values():
+            fn()
+    times: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(repeat):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+    return {k: statistics.median(v) for k, v in times.items()}
+
+
+_WRAPPER = """
+import resource, subprocess, sys, time
+t0 = time.perf_counter()
+code = subprocess.run(sys.argv[1:], stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+dt = time.perf_counter() - t0
+sys.stdout.buffer.write(code.stdout)
+print("\\n@@", code.returncode, dt, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+"""
+
+
+def run_process(cmd: list[str], env: dict | None = None, cwd=None) -> tuple[float, int]:
+    """Run a command to completion: ``(wall seconds, peak resident bytes)``
+    of that one process.  It is started by a small Python wrapper, whose
+    child's ``ru_maxrss`` (KiB on Linux) is the command's own peak: Linux
+    keeps the peak across ``exec``, so a child forked straight from this
+    (large) process would report at least this process's size.  Raises if
+    the command fails, printing its output."""
+    out = subprocess.run([sys.executable, "-c", _WRAPPER, *cmd], env=env, cwd=cwd, capture_output=True, check=True)
+    text = out.stdout.decode(errors="replace")
+    body, _, tail = text.rpartition("\n@@ ")
+    code, dt, maxrss = tail.split()
+    if int(code) != 0:
+        sys.stdout.write(body)
+        raise RuntimeError(f"{shlex.join(cmd)} failed with exit code {code}")
+    return float(dt), int(maxrss) * 1024
 
 
 def median_time(
@@ -76,7 +177,9 @@ def peak_memory(fn: Callable[[], object]) -> tuple[object, int]:
 
 
 def ratio_line(name: str, ours: float, peer: float) -> str:
-    """``name: photax 1.23 ms, peer 4.56 ms, ratio photax/peer 0.27``."""
+    """``name: photax 1.23 ms, peer 4.56 ms, ratio photax/peer 0.27``; the
+    figures are also recorded for the run's JSON (:func:`start`)."""
+    record(name, photax_s=ours, peer_s=peer, ratio=ours / peer)
     return f"{name}: photax {ours * 1e3:.3f} ms, peer {peer * 1e3:.3f} ms, ratio photax/peer {ours / peer:.2f}"
 
 

@@ -37,9 +37,10 @@ from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _common import mib, peak_memory  # noqa: E402
+from _common import mib, peak_memory, record, start  # noqa: E402
 
 import photax  # noqa: E402
+from photax.camera import OPENCV_FROM_PHOTAX  # noqa: E402
 from photax.io.bal import BALData, bal_problem, photax_to_bal, read_bal_arrays  # noqa: E402
 
 DATA = pathlib.Path(__file__).resolve().parents[2] / "shared" / "data" / "problem-49-7776-pre.txt"
@@ -140,10 +141,11 @@ def scipy_recipe(d: BALData):
 # --------------------------------------------------------------------------
 
 # COLMAP's camera looks along +z with y down; BAL's along -z with y up.
-# P_colmap = F P_bal with F = diag(1, -1, -1) (a rotation by pi about x), so
+# P_colmap = F P_bal with F = photax.camera.OPENCV_FROM_PHOTAX = diag(1, -1, -1)
+# (a rotation by pi about x; BAL's camera frame is photax's), so
 # (x, y)_colmap = (P_x, P_y)/P_z in COLMAP = (x, -y)_bal, and RADIAL's
 # f (1 + k1 r^2 + k2 r^4) on normalised coordinates with cx = cy = 0 is BAL's.
-_FLIP = np.diag([1.0, -1.0, -1.0])
+_FLIP = OPENCV_FROM_PHOTAX
 
 
 def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int = 2, *, loss: str = "none",
@@ -271,6 +273,7 @@ def main(argv=None) -> int:
     ap.add_argument("--scipy-repeat", type=int, default=1, help="runs of the SciPy recipe (~1-3 min each)")
     ap.add_argument("--no-scipy", action="store_true", help="skip the SciPy comparison (slow)")
     args = ap.parse_args(argv)
+    start("bench_bundle")
     if not args.data.is_file():
         print(f"{args.data} not found: nothing to benchmark")
         return 1
@@ -312,6 +315,8 @@ def main(argv=None) -> int:
         print(f"  Ceres {solver:12s}: cost {c_c:.6e} (Ceres reports {summary.final_cost:.6e}) after "
               f"{summary.num_successful_steps + summary.num_unsuccessful_steps} iterations, {t_c:.2f} s, peak {mib(fresh_peak(solver, args.data))} (fresh process; in this one "
               f"{mib(peak)}: Ceres reuses pages photax freed)")  # fmt: skip
+        record(f"vs Ceres {solver}", photax_s=t_pc, peer_s=t_c, ratio=t_pc / t_c, first_call_ratio=t_first_c / t_c,
+               cost_photax=c_pc, cost_peer=c_c)
         print(f"  ratio photax/Ceres {solver} (warm)       : {t_pc / t_c:.2f}")
         print(f"  ratio photax/Ceres {solver} (first call) : {t_first_c / t_c:.2f}")
         print(f"  cost photax - Ceres: {c_pc - c_c:+.4g} ({(c_pc - c_c) / c_c:+.2e} relative)")
@@ -345,6 +350,8 @@ def main(argv=None) -> int:
     print(f"  ratio photax/scipy (time to SciPy's cost, warm)   : {t_reach / t_sp:.3f}  ({t_sp / t_reach:.1f}x faster)")
     print(f"  ratio photax/scipy (full convergence, warm)       : {t_px / t_sp:.3f}  ({t_sp / t_px:.1f}x faster)")
     print(f"  ratio photax/scipy (full convergence, first call) : {t_first / t_sp:.3f}\n")
+    record("vs SciPy recipe, time to SciPy's cost", photax_s=t_reach, peer_s=t_sp, ratio=t_reach / t_sp)
+    record("vs SciPy recipe, full convergence", photax_s=t_px, peer_s=t_sp, ratio=t_px / t_sp, first_call_ratio=t_first / t_sp)
 
     return 0
 

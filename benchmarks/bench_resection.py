@@ -26,7 +26,7 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _common import median_cpu_time, median_time, mib, peak_memory, peak_rss, ratio_line  # noqa: E402
+from _common import median_cpu_time, median_time, mib, peak_memory, peak_rss, ratio_line, start  # noqa: E402
 
 import photax as ptx  # noqa: E402
 
@@ -65,6 +65,7 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--images", type=int, default=10_000)
     args = ap.parse_args()
+    start(f"bench_resection_{args.images}")
     rng = np.random.default_rng(0)
     xy, ground, pixel, truth = scenes(rng, args.images)
     sys.stdout.reconfigure(line_buffering=True)

@@ -11,8 +11,10 @@ from conftest import shared_file
 from scipy.spatial.transform import Rotation
 
 import photax as ptx
-from photax import bundle as B
 from photax.bundle import synthetic_block
+from photax.bundle._linearise import _linearise, _prior_residuals, _project_obs, _residuals
+from photax.bundle._schur import _trial
+from photax.bundle._structure import _analyse, _State
 
 
 @pytest.fixture(scope="module")
@@ -50,14 +52,14 @@ def test_schur_step_equals_dense_normal_equations():
         obs_sigma=np.r_[problem.obs_sigma, problem.obs_sigma[dup : dup + 1]],
     )  # fmt: skip
     origin = np.round(problem.points.mean(0))
-    s, n_c, _ = B._analyse(problem, np.zeros((problem.n_images, 6), bool), origin)
+    s, n_c, _ = _analyse(problem, np.zeros((problem.n_images, 6), bool), origin)
     intr = np.stack([np.r_[float(c.focal_length), np.asarray(c.principal_point), np.asarray(c.distortion)] for c in problem.cameras])
-    state = B._State(jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
-                     jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]))  # fmt: skip
+    state = _State(jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
+                   jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]))  # fmt: skip
     lam = 1e-3
     none, one = jnp.asarray(0), jnp.asarray(1.0)
-    lin = B._linearise(state, s, none, one, n_c)
-    new, *_ = B._trial(state, lin, s, jnp.asarray(lam), none, one, n_c)
+    lin = _linearise(state, s, none, one, n_c)
+    new, *_ = _trial(state, lin, s, jnp.asarray(lam), none, one, n_c)
 
     # Dense reference: all parameters in one vector, full Jacobian by jacfwd.
     n_img, n_pts, a = problem.n_images, problem.n_points, len(s.active)
@@ -65,12 +67,12 @@ def test_schur_step_equals_dense_normal_equations():
     def apply(x):
         dimg = x[: 6 * n_img].reshape(n_img, 6)
         dint = x[6 * n_img : n_c].reshape(-1, a)
-        return B._State(state.rot @ ptx.axis_angle_to_matrix(dimg[:, :3]), state.centre + dimg[:, 3:],
-                        state.intr.at[:, s.active].add(dint), state.xyz + x[n_c:].reshape(n_pts, 3))  # fmt: skip
+        return _State(state.rot @ ptx.axis_angle_to_matrix(dimg[:, :3]), state.centre + dimg[:, 3:],
+                      state.intr.at[:, s.active].add(dint), state.xyz + x[n_c:].reshape(n_pts, 3))  # fmt: skip
 
     def residual(x):
         st = apply(x)
-        return jnp.concatenate([B._residuals(st, s).ravel(), B._prior_residuals(st, s).ravel()])
+        return jnp.concatenate([_residuals(st, s).ravel(), _prior_residuals(st, s).ravel()])
 
     x0 = jnp.zeros(n_c + 3 * n_pts)
     free = np.concatenate([np.asarray(s.mask_c), np.asarray(s.mask_p).ravel()]) > 0
@@ -88,7 +90,7 @@ def test_schur_step_equals_dense_normal_equations():
     # The matrix-free conjugate-gradient solver (for large blocks) gives the same step.
     # CG stops at a relative residual of 1e-8, so its step error is bounded by
     # cond(S) * 1e-8 relative: ask for 1e-3 of the step.
-    cg, *_ = B._trial(state, lin, s, jnp.asarray(lam), none, one, n_c, solver="cg")
+    cg, *_ = _trial(state, lin, s, jnp.asarray(lam), none, one, n_c, solver="cg")
     for a, b, x0 in ((cg.xyz, ref.xyz, state.xyz), (cg.centre, ref.centre, state.centre)):
         step = np.asarray(b - x0)
         assert np.linalg.norm(np.asarray(a - b)) <= 1e-3 * np.linalg.norm(step)
@@ -99,17 +101,17 @@ def test_closed_form_jacobians_equal_autodiff():
     intrinsics, the point) against jax.jacfwd through FrameCamera.project and
     Rodrigues, for arbitrary attitudes and strong distortion."""
     problem, _ = synthetic_block(1, n_tie=20, noise_px=0.0)
-    problem = problem.replace(free_intrinsics=B.INTRINSICS)
+    problem = problem.replace(free_intrinsics=ptx.bundle.INTRINSICS)
     origin = np.round(problem.points.mean(0))
-    s, _, w = B._analyse(problem, np.zeros((problem.n_images, 6), bool), origin)
+    s, _, w = _analyse(problem, np.zeros((problem.n_images, 6), bool), origin)
     assert w == 14
     n_img = problem.n_images
     rot = Rotation.random(n_img, random_state=3).as_matrix()  # any attitude, not just near-nadir
     pts = problem.points - origin
     centre = pts.mean(0)[None, :] + 900.0 * rot[:, :, 2]  # the camera looks along its -z axis at the block
     intr = np.array([[3000.0, 12.0, -7.0, -0.08, 0.02, -0.004, 1.5e-3, -2.5e-3]])
-    state = B._State(jnp.asarray(rot), jnp.asarray(centre), jnp.asarray(intr), jnp.asarray(pts))
-    proj, jc, jp = jax.jit(B._project_obs, static_argnames="jacobians")(state, s, jacobians=True)
+    state = _State(jnp.asarray(rot), jnp.asarray(centre), jnp.asarray(intr), jnp.asarray(pts))
+    proj, jc, jp = jax.jit(_project_obs, static_argnames="jacobians")(state, s, jacobians=True)
 
     def reference(z, i, p):  # z = (dr, dC, d_intrinsics, dX)
         r = state.rot[i] @ ptx.axis_angle_to_matrix(z[:3])
@@ -276,7 +278,7 @@ def test_dubrovnik_cost_is_ceres_cost():
     with pytest.raises(ValueError, match="no datum"):
         ptx.bundle_adjust(problem)
     # 38 residuals for 48 unknowns: under-determined, LM creeps on; cap it.
-    res = ptx.bundle_adjust(problem, gauge="damped", max_iterations=10, throw=False)
+    res = ptx.bundle_adjust(problem, gauge="damped", max_steps=10, throw=False)
     assert res.cost < 0.1 * res.initial_cost
     rows = np.array([np.r_[cv2.Rodrigues(np.asarray(R).T)[0].ravel(), -np.asarray(R).T @ np.asarray(C),
                            float(c.focal_length), np.asarray(c.distortion)[:2]]
@@ -300,3 +302,42 @@ def test_gauss_newton_and_report(block):
     assert [h["iteration"] for h in res.history] == list(range(1, res.iterations + 1))
     costs = [h["cost"] for h in res.history]
     assert costs[-1] <= costs[0]
+
+
+def test_analysis_is_cached_and_shared_by_replicates():
+    """BundleProblem.analyse runs once per problem and gauge; a replicate that
+    only changes the measurements reuses the index arrays, and its structure
+    equals a fresh analysis of the same problem."""
+    problem, _ = synthetic_block(0, n_tie=20, noise_px=0.5)
+    a = problem.analyse()
+    assert problem.analyse() is a
+    assert problem.analyse("fix_first_camera") is not a
+    rep = problem.replace(obs_xy=problem.obs_xy + 0.1)
+    b = rep.analyse()
+    assert b.structure.chunk_a is a.structure.chunk_a  # shared, not recomputed
+    fresh, n_c, w = _analyse(rep, np.zeros((rep.n_images, 6), bool), b.origin)
+    assert (n_c, w) == (b.n_c, b.w)
+    for x, y in zip(b.structure, fresh):
+        np.testing.assert_array_equal(x, y)
+    # Other links: analysed anew.
+    keep = np.arange(rep.n_observations) != int(np.flatnonzero(problem.roles[problem.obs_point] == "control")[0])
+    other = problem.replace(obs_image=problem.obs_image[keep], obs_point=problem.obs_point[keep],
+                            obs_xy=problem.obs_xy[keep], obs_sigma=problem.obs_sigma[keep])  # fmt: skip
+    assert other.analyse().structure.chunk_a is not a.structure.chunk_a
+    assert other.analyse().structure.obs_image.shape == (problem.n_observations - 1,)
+
+
+def test_stopping_rule_follows_its_formula():
+    """StoppingRule against its documented rule, on hand-picked numbers either
+    side of each threshold."""
+    rule = ptx.bundle.StoppingRule(function_tolerance=1e-3, gradient_tolerance=1e-6, parameter_tolerance=1e-4)
+    assert rule.at_start(1e-7).startswith("gradient tolerance") and rule.at_start(1e-5) == ""
+    # |dcost| <= 1e-3 cost_old, accepted steps only.
+    assert rule.after_step(True, 100.0, 99.95, 1.0, 1.0, 1.0).startswith("function tolerance")
+    assert rule.after_step(False, 100.0, 99.95, 1.0, 1.0, 1.0) == ""
+    assert rule.after_step(True, 100.0, 99.0, 1.0, 1.0, 1.0) == ""
+    assert rule.after_step(True, 100.0, 99.0, 1e-7, 1.0, 1.0).startswith("gradient tolerance")
+    # |dx| <= 1e-4 (|x| + 1e-4), on any computed step.
+    assert rule.after_step(False, 100.0, 99.0, 1.0, 0.9e-4 * (1.0 + 1e-4), 1.0).startswith("parameter tolerance")
+    assert rule.after_step(False, 100.0, 99.0, 1.0, 1.1e-4 * (1.0 + 1e-4), 1.0) == ""
+    assert rule.after_step(False, 100.0, 99.0, 1.0, float("nan"), 1.0) == ""

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import photax as ptx
+from photax.camera import OPENCV_FROM_PHOTAX, from_opencv_extrinsics, opencv_extrinsics
 
 
 def _scene(rng, n=30):
@@ -18,11 +19,24 @@ def _scene(rng, n=30):
 
 def _opencv_pose(eo):
     # OpenCV camera frame: x right, y down, z forward = ours with y, z flipped.
-    flip = np.diag([1.0, -1.0, -1.0])
-    r_cv = flip @ np.asarray(eo.rotation).T
-    t_cv = -r_cv @ np.asarray(eo.position)
+    r_cv, t_cv = opencv_extrinsics(eo.rotation, eo.position)
     return cv2.Rodrigues(r_cv)[0], t_cv
 
+
+
+def test_opencv_extrinsics_round_trip_and_frame():
+    ground, eo = _scene(np.random.default_rng(2))
+    r_cv, t_cv = opencv_extrinsics(eo.rotation, eo.position)
+    # OpenCV's camera looks along +z with y down: depth is +z there, -z in photax's frame.
+    in_cv = ground @ r_cv.T + t_cv
+    in_photax = np.asarray(eo.points_in_camera(jnp.asarray(ground)))
+    np.testing.assert_allclose(in_cv, in_photax * np.array([1.0, -1.0, -1.0]), atol=1e-6)
+    assert np.all(in_cv[:, 2] > 0)
+    r_back, c_back = from_opencv_extrinsics(r_cv, t_cv[:, None])  # cv2 gives tvec as (3, 1)
+    np.testing.assert_allclose(r_back, np.asarray(eo.rotation), atol=1e-12)
+    np.testing.assert_allclose(c_back, np.asarray(eo.position), rtol=1e-12)
+    with pytest.raises(ValueError):
+        OPENCV_FROM_PHOTAX[0, 0] = 2.0  # shared constant: read-only
 
 @pytest.mark.parametrize("with_distortion", [False, True])
 def test_project_matches_opencv(with_distortion):

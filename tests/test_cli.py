@@ -17,6 +17,7 @@ from conftest import ROOT, shared_file
 
 import photax as ptx
 import photax.demo
+from photax.camera import from_opencv_extrinsics, opencv_extrinsics
 from photax.cli import main
 from photax.demo import SAMPLE_BLUNDER, write_sample
 
@@ -25,9 +26,8 @@ GCPS, CAMERA, TRUTH = DATA / "sample_gcps.csv", DATA / "sample_camera.yaml", DAT
 
 
 def _opencv_pose(eo):
-    flip = np.diag([1.0, -1.0, -1.0])  # OpenCV camera: y down, z forward
-    r_cv = flip @ np.asarray(eo.rotation).T
-    return cv2.Rodrigues(r_cv)[0], -r_cv @ np.asarray(eo.position)
+    r_cv, t_cv = opencv_extrinsics(eo.rotation, eo.position)  # OpenCV camera: y down, z forward
+    return cv2.Rodrigues(r_cv)[0], t_cv
 
 
 def test_sample_files_are_current_and_consistent_with_truth(tmp_path):
@@ -35,13 +35,20 @@ def test_sample_files_are_current_and_consistent_with_truth(tmp_path):
     fresh = write_sample(tmp_path)
     for key, path in (("gcps", GCPS), ("camera", CAMERA), ("truth", TRUTH)):
         assert fresh[key].read_text() == path.read_text(), f"{path.name} is stale: run python data/make_sample.py"
+    for key in ("image", "dem"):  # rasters: the same pixels and georeference (bytes may differ between GDALs)
+        new, old = ptx.io.read_geotiff(fresh[key]), ptx.io.read_geotiff(DATA / f"sample_{key}.tif")
+        assert np.abs(new[0].astype(float) - old[0].astype(float)).max() <= (1 if key == "image" else 0), (
+            f"sample_{key}.tif is stale: run python data/make_sample.py")
+        assert new[1]["transform"] == old[1]["transform"] and new[1]["crs"] == old[1]["crs"]
+        assert (DATA / f"sample_{key}.tif").stat().st_size <= 2 * 1024**2
     # ... and the measurements are the truth projected by OpenCV, plus 0.3 px noise and one blunder.
     truth = json.loads(TRUTH.read_text())
     table = ptx.read_gcps(GCPS)
     eo = ptx.ExteriorOrientation(truth["position"], truth["angles_rad"], truth["convention"])
     rvec, tvec = _opencv_pose(eo)
-    f_px = 8.8 / 0.0044
-    K = np.array([[f_px, 0, 1999.5 + 0.011 / 0.0044], [0, f_px, 1499.5 + 0.0066 / 0.0044], [0, 0, 1]])
+    ps = 0.0176  # mm per pixel; 1000 x 750 pixels
+    f_px = 8.8 / ps
+    K = np.array([[f_px, 0, 499.5 + 0.011 / ps], [0, f_px, 374.5 + 0.0066 / ps], [0, 0, 1]])
     ref, _ = cv2.projectPoints(table.ground, rvec, tvec, K, np.array([-0.02, 0.004, 0.0, 0.0, 0.0]))
     err = table.pixel - ref[:, 0, :]
     blunder = table.names == SAMPLE_BLUNDER[0]
@@ -65,13 +72,19 @@ def test_resect_sample_recovers_truth_and_flags_the_blunder(tmp_path, capsys):
 
 
 def test_resect_all_images_skips_those_with_too_few_points(tmp_path, capsys):
+    # An image that cannot be solved makes the exit status 1; the JSON is
+    # still written, with a status per image.
     gcps = tmp_path / "two.csv"
     lines = GCPS.read_text().splitlines()
     gcps.write_text("\n".join(lines + [ln.replace("IMG_0001", "IMG_0002") for ln in lines if ln.startswith(("P01,", "P02,"))]) + "\n")
-    assert main(["resect", str(gcps), "--camera", str(CAMERA)]) == 0
+    out = tmp_path / "r.json"
+    assert main(["resect", str(gcps), "--camera", str(CAMERA), "--json", str(out)]) == 1
     text = capsys.readouterr().out
     assert "== IMG_0001: 16 points (12 control, 4 check) ==" in text
-    assert "== IMG_0002: skipped (2 points): need at least 3 control points" in text
+    assert "== IMG_0002: NOT SOLVED, skipped (2 points (2 control, 0 check)): need at least 3 control points" in text
+    assert "1 of 2 images solved, 1 not" in text
+    images = json.loads(out.read_text())["images"]
+    assert images["IMG_0001"]["status"] == "solved" and images["IMG_0002"]["status"] == "skipped"
 
 
 def test_resect_odm_image_matches_opencv_solvepnp(tmp_path, capsys):
@@ -92,8 +105,8 @@ def test_resect_odm_image_matches_opencv_solvepnp(tmp_path, capsys):
     K = np.array([[2904.0, 0, 1999.5], [0, 2904.0, 1499.5], [0, 0, 1]])
     _, rvec, tvec = cv2.solvePnP(t.ground - origin, t.pixel, K, None, flags=cv2.SOLVEPNP_ITERATIVE)
     R = cv2.Rodrigues(rvec)[0]
-    np.testing.assert_allclose(r["position"], -R.T @ tvec[:, 0] + origin, atol=2e-3)
-    world_from_camera = R.T @ np.diag([1.0, -1.0, -1.0])
+    world_from_camera, position = from_opencv_extrinsics(R, tvec)
+    np.testing.assert_allclose(r["position"], position + origin, atol=2e-3)
     np.testing.assert_allclose(np.asarray(ptx.rotation_matrix(np.array(r["angles_rad"]), "omega-phi-kappa")),
                                world_from_camera, atol=1e-6)
 

@@ -7,6 +7,7 @@ import pytest
 import scipy.optimize
 
 import photax as ptx
+from photax.camera import opencv_extrinsics
 
 
 def _two_images():
@@ -42,13 +43,12 @@ def test_two_rays_closed_form_with_noise():
 
 def test_noise_free_matches_opencv_triangulate():
     ground, eos, cam, xy = _two_images()
-    flip = np.diag([1.0, -1.0, -1.0])  # OpenCV camera: y down, z forward
     K = np.array([[2500.0, 0, 1499.5], [0, 2500.0, 999.5], [0, 0, 1]])
     origin = ground.mean(0)
     proj = []
     for e in eos:
-        r = flip @ np.asarray(e.rotation).T
-        proj.append(K @ np.hstack([r, (-r @ (np.asarray(e.position) - origin))[:, None]]))
+        r, t = opencv_extrinsics(e.rotation, np.asarray(e.position) - origin)  # OpenCV camera: y down, z forward
+        proj.append(K @ np.hstack([r, t[:, None]]))
     px = [np.asarray(cam.image_to_pixel(xy[i])).T for i in range(2)]
     h = cv2.triangulatePoints(proj[0], proj[1], px[0], px[1])
     ref = (h[:3] / h[3]).T + origin
@@ -70,10 +70,13 @@ def test_refined_points_match_scipy_least_squares():
         def res(X):
             return np.concatenate([np.asarray(ptx.project(X[None], eos[i], cam))[0] - xy[i, j] for i in seen])
 
-        ref = scipy.optimize.least_squares(res, ground[j] + 1.0, xtol=1e-14, ftol=1e-14).x
-        np.testing.assert_allclose(out.points[j], ref, atol=1e-5)
+        fit = scipy.optimize.least_squares(res, ground[j] + 1.0, xtol=1e-14, ftol=1e-14)
+        np.testing.assert_allclose(out.points[j], fit.x, atol=1e-5)
+        # RMS image residual per coordinate, from scipy's residual vector
+        np.testing.assert_allclose(out.residual_rmse[j], np.sqrt(np.mean(fit.fun**2)), rtol=1e-6)
     assert out.n_rays.tolist() == [2] * 4 + [3] * 8
     assert np.all(out.std > 0) and np.all(out.angle_deg > 10)
+    assert out.residual_rms is out.residual_rmse  # the old name still works
 
 
 def test_list_layout_single_ray_and_narrow_angle():

@@ -15,6 +15,7 @@ import pytest
 from conftest import shared_file
 
 import photax as ptx
+from photax.camera import opencv_extrinsics
 from photax.io.bal import read_bal
 from photax.io.block import read_block
 from photax.io.camera_file import read_camera, write_camera
@@ -140,9 +141,8 @@ def test_select_unknown_image(tmp_path):
 
 
 def _opencv_pixels(ground, eo, K, dist_cv):
-    flip = np.diag([1.0, -1.0, -1.0])
-    r_cv = flip @ np.asarray(eo.rotation).T
-    ref, _ = cv2.projectPoints(ground, cv2.Rodrigues(r_cv)[0], -r_cv @ np.asarray(eo.position), K, dist_cv)
+    r_cv, t_cv = opencv_extrinsics(eo.rotation, eo.position)
+    ref, _ = cv2.projectPoints(ground, cv2.Rodrigues(r_cv)[0], t_cv, K, dist_cv)
     return ref[:, 0, :]
 
 
@@ -397,6 +397,28 @@ def test_orthority_single_unnamed_camera(tmp_path):
     # orthority: focal_len normalised by the width, so f = 0.8 * 400 px.
     assert list(cams) == [None] and float(cams[None].focal_length) == pytest.approx(320.0)
 
+
+
+def test_read_interior_detects_the_format(tmp_path):
+    """photax.io.read_interior gives what the format's own reader gives."""
+    ortho1 = tmp_path / "one.yaml"
+    ortho1.write_text("type: pinhole\nim_size: [400, 300]\nfocal_len: 0.8\n")
+    assert float(ptx.io.read_interior(ortho1).focal_length) == pytest.approx(320.0)
+    ortho2 = tmp_path / "two.yaml"
+    ortho2.write_text("a:\n  type: pinhole\n  im_size: [400, 300]\n  focal_len: 0.8\n"
+                      "b:\n  type: pinhole\n  im_size: [400, 300]\n  focal_len: 0.5\n")
+    assert ptx.io.read_interior(ortho2, "b") == read_orthority_interior(ortho2)["b"]
+    with pytest.raises(ValueError, match=rf"^{ortho2}: holds 2 cameras: name one .*\['a', 'b'\]"):
+        ptx.io.read_interior(ortho2)
+    cam = tmp_path / "cam.yaml"
+    cam.write_text("focal_length_px: 2904.0\nimage_size: [4000, 3000]\n")
+    assert ptx.io.read_interior(cam) == read_camera(cam)
+    assert ptx.io.read_camera_unit(cam) == "px"
+    cam.write_text("focal_length: 8.8\nunit: mm\npixel_size: 0.0044\nimage_size: [4000, 3000]\n")
+    assert ptx.io.read_camera_unit(cam) == "mm"
+    cam.write_text("focal_length: 8.8\nunit: mm\nfocal_length: 9\n")
+    with pytest.raises(ValueError, match=rf"^{cam}, line 3: "):  # the readers' contract: file and line
+        ptx.io.read_interior(cam)
 
 def test_orthority_exterior_and_crs_errors(tmp_path):
     p = tmp_path / "ext.csv"

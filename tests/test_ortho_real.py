@@ -21,7 +21,7 @@ from conftest import shared_file
 import photax
 from photax.cli import main
 from photax.io import read_dem, read_geotiff, read_orthority_exterior, read_orthority_interior
-from photax.rectify import Grid
+from photax.rectification import Grid
 
 IMAGE = "3324c_2015_1004_05_0182_RGB"
 

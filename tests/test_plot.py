@@ -147,6 +147,21 @@ def test_rectified_panels_in_colour_with_labels_and_a_legend():
     plt.close(fig)
 
 
+def test_rmse_bars_are_the_models_rmse_and_the_method_draws_the_same():
+    """``ModelComparison.plot_rmse`` is a thin wrapper of
+    ``plot.comparison_rmse``: bars at each model's GCP and check RMSE."""
+    rng = np.random.default_rng(3)
+    c = _comparison({"collinearity": np.zeros((30, 40)), "polynomial 2": np.ones((30, 40))}, rng)
+    figs = [plot.comparison_rmse(c), c.plot_rmse()]
+    heights = []
+    for fig in figs:
+        (ax,) = fig.axes
+        heights.append([p.get_height() for p in ax.patches])
+        assert [t.get_text() for t in ax.get_xticklabels()] == ["collinearity", "poly 2"]
+        plt.close(fig)
+    assert heights[0] == heights[1] == [m.gcp_rmse for m in c.models] + [m.check_rmse for m in c.models]
+
+
 def test_raster_rgba_rejects_other_shapes():
     import pytest
 

@@ -136,7 +136,8 @@ def test_inverse_round_trip(order):
     fitted = m.inverse("fit")
     err = np.linalg.norm(np.asarray(fitted(q)) - fresh, axis=1)
     assert err.max() <= 1.5 * float(fitted.max_error) + 1e-9
-    assert float(fitted.rms_error) <= float(fitted.max_error)
+    assert float(fitted.rmse) <= float(fitted.max_error)
+    assert fitted.rms_error is fitted.rmse  # the old name still works
     if order == 1:  # the inverse of an affine map is affine: exact
         assert float(fitted.max_error) < 1e-6
 

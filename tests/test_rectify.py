@@ -18,7 +18,7 @@ from scipy import ndimage
 
 import photax
 from photax.io.raster import read_dem, read_geotiff, write_geotiff
-from photax.rectify import Grid, rectify, rectify_file
+from photax.rectification import Grid, rectify, rectify_file
 
 H, W = 90, 120
 # Map -> pixel: col = (X - 1000) / 2 + 0.05 (Y - 5000), row = (5200 - Y) / 2.5 ...
@@ -180,13 +180,13 @@ def test_rectify_file_equals_memory_and_georeference(tmp_path, src_tif, resampli
 
 
 def test_rectify_file_failure_leaves_no_partial_file(tmp_path, src_tif, monkeypatch):
-    rect = importlib.import_module("photax.rectify")  # photax.rectify is also the function
+    files = importlib.import_module("photax.rectification._files")  # where rectify_file looks it up
 
     path, _ = src_tif
     out = tmp_path / "out.tif"
     out.write_bytes(b"previous result")
     calls = []
-    real = rect._resample_tile
+    real = files._resample_tile
 
     def failing(*args):
         calls.append(1)
@@ -194,7 +194,7 @@ def test_rectify_file_failure_leaves_no_partial_file(tmp_path, src_tif, monkeypa
             raise RuntimeError("disk full (injected)")
         return real(*args)
 
-    monkeypatch.setattr(rect, "_resample_tile", failing)
+    monkeypatch.setattr(files, "_resample_tile", failing)
     with pytest.raises(RuntimeError, match="injected"):
         rectify_file(path, out, poly_model, GRID, tile=40)
     assert out.read_bytes() == b"previous result"
@@ -276,15 +276,17 @@ def test_cli_rectify_with_gcps(tmp_path, src_tif):
 def _approx_positions(model, grid, approx, tile, size):
     """Per-pixel positions the approximate mapping resamples at, and its
     reported check error (the file path's internal helper)."""
-    rect = importlib.import_module("photax.rectify")
+    from photax.rectification._approx import _tile_positions
+    from photax.rectification._tiling import _approx_arg, _layout, _tiles
+
     out = np.full((2,) + grid.shape, np.nan)
-    tiles = list(rect._tiles(grid.shape, tile))
-    layout = rect._layout(*tiles[0][2:])
+    tiles = list(_tiles(grid.shape, tile))
+    layout = _layout(*tiles[0][2:])
     transform = jnp.asarray(tuple(grid.transform)[:6])
     worst = 0.0
     for r0, c0, h, w in tiles:
-        pos, origin, err, _ = rect._tile_positions(model, transform, jnp.array([r0, c0], dtype=float), layout,
-                                                    rect._approx_arg(approx), size)
+        pos, origin, err, _ = _tile_positions(model, transform, jnp.array([r0, c0], dtype=float), layout,
+                                              _approx_arg(approx), size)
         out[:, r0 : r0 + h, c0 : c0 + w] = np.asarray(pos)[:, :h, :w] + np.asarray(origin)[:, None, None]
         worst = max(worst, float(err))
     return out, worst
@@ -322,9 +324,8 @@ def test_approx_positions_within_threshold_on_relief_ortho():
     # into the mapping between lattice nodes; the check positions (cell
     # centres and edge midpoints) catch them (centres alone gave 0.22 px).
     s = photax.relief_scene(600.0, image_size=(400, 300), focal_px=400.0)
-    rect = importlib.import_module("photax.rectify")
-    model = rect.OrthoModel(s.exterior, s.camera, s.dem)
-    grid = rect.ortho_grid(s.exterior, s.camera, s.dem)
+    model = photax.rectification.OrthoModel(s.exterior, s.camera, s.dem)
+    grid = photax.rectification.ortho_grid(s.exterior, s.camera, s.dem)
     exact = _exact_positions(model, grid)
     for approx in (0.125, 0.02):
         approx_pos, err = _approx_positions(model, grid, approx, 128, (300, 400))
@@ -376,3 +377,16 @@ def test_approx_file_equals_memory(tmp_path, src_tif):
     # Same lattice and positions; uint8 rounding of float32 sums may differ by one.
     assert np.abs(data.astype(int) - ref).max() <= 1 and np.mean(data != ref) < 1e-3
     assert 0 < info["approx_error"] <= 0.125
+
+
+def test_function_and_module_have_different_names():
+    """``photax.rectify`` is the function, ``photax.rectification`` its
+    package: importing the package does not replace the function, and every
+    public name is the same object through both."""
+    import types
+
+    module = importlib.import_module("photax.rectification")
+    assert isinstance(module, types.ModuleType) and photax.rectification is module
+    for name in ("Grid", "rectify", "orthorectify", "rectify_file", "orthorectify_file"):
+        assert getattr(photax, name) is getattr(module, name)
+    assert callable(photax.rectify) and not isinstance(photax.rectify, types.ModuleType)

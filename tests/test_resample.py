@@ -18,7 +18,7 @@ from scipy import ndimage
 from skimage.transform import warp
 
 import photax
-from photax.resample import resample
+from photax.resampling import resample
 
 RNG = np.random.default_rng(20240607)
 IMG = RNG.random((37, 53))  # odd sizes catch row/column mix-ups
@@ -252,7 +252,55 @@ def test_works_under_jit_and_large_outputs_match_small():
     direct = np.asarray(resample(IMG, gc, gr, "cubic"))
     jitted = np.asarray(jax.jit(lambda im, c, r: resample(im, c, r, "cubic"))(jnp.asarray(IMG), gc, gr))
     np.testing.assert_array_equal(direct, jitted)
-    assert photax.resample is resample
+
+
+def test_function_and_module_have_different_names():
+    """``photax.resample`` is the function, ``photax.resampling`` its module:
+    importing the module does not replace the function on the package."""
+    import importlib
+    import types
+
+    module = importlib.import_module("photax.resampling")
+    assert isinstance(module, types.ModuleType) and photax.resampling is module
+    assert photax.resample is resample is module.resample and callable(photax.resample)
+
+
+@pytest.mark.parametrize("kernel", list(photax.Resampling))
+def test_registry_taps_and_margin_match_the_kernel(kernel):
+    """The registry's facts against what the kernel does: sampling a unit
+    impulse at a fractional position, the pixels with nonzero weight span
+    ``taps`` per axis (B-spline: ``taps`` coefficients, but the prefilter is
+    recursive, so every pixel near enough weighs in: the margin must reach
+    where the weights fall below 1e-7); ``margin`` covers the taps read plus
+    one."""
+    n = 16
+    impulse = np.zeros((n, n))
+    impulse[8, 8] = 1.0
+    # The value at (8.3, 8.3) as a function of the image is linear: its
+    # derivative w.r.t. the image gives the weight of every input pixel
+    # (forward mode: reverse mode meets the NaN padding of the positions).
+    grad = np.asarray(jax.jacfwd(lambda im: resample(im, jnp.array([8.3]), jnp.array([8.3]), kernel.value)[0])(
+        jnp.asarray(impulse)))
+    rows, cols = np.nonzero(np.abs(grad) > 1e-12)
+    if kernel.prefilter:
+        assert len(rows) > kernel.taps**2
+        far = np.nonzero(np.abs(grad) > 1e-7)[1]
+        assert kernel.margin >= max(8 - far.min(), far.max() - 8) + 1
+    else:
+        assert cols.max() - cols.min() + 1 == kernel.taps and rows.max() - rows.min() + 1 == kernel.taps
+        first = 0 if kernel == "nearest" else kernel.taps // 2 - 1  # the module's tap convention
+        assert kernel.margin >= max(first, kernel.taps - 1 - first) + 1
+    assert photax.Resampling.check(kernel.value) is kernel and kernel == kernel.value
+
+
+def test_cli_choices_are_the_registry():
+    from photax.cli import build_parser
+
+    parser = build_parser()
+    for command in ("rectify", "ortho"):
+        sub = parser._subparsers._group_actions[0].choices[command]
+        action = next(a for a in sub._actions if a.dest == "resampling")
+        assert tuple(action.choices) == tuple(k.value for k in photax.Resampling)
 
 
 def test_bad_arguments():

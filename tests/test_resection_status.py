@@ -222,9 +222,9 @@ def _row(text, start):
 
 
 def test_summary_has_units_on_every_number(sample_result):
-    res = sample_result  # mm camera, 4.4 um pixels, sigma given (Baarda's w: sigma0 unitless)
+    res = sample_result  # mm camera with a pixel size, sigma given (Baarda's w: sigma0 unitless)
     text = res.summary(crs="EPSG:32633", camera_unit="mm")
-    ps = 0.0044
+    ps = float(np.mean(np.asarray(read_camera(ROOT / "data" / "sample_camera.yaml").pixel_size)))
     assert res.pixel_size == pytest.approx(ps)
     assert f"rms = {res.rms / ps:.3f} px ({res.rms:.4g} mm)" in text
     assert f"check points: rms = {res.check_rms / ps:.3f} px ({res.check_rms:.4g} mm)" in text

@@ -38,14 +38,15 @@ from .io import (
     write_camera as write_camera,
     write_json as write_json,
 )
+from . import measure as measure
 from .polynomial import (
     PolynomialModel as PolynomialModel,
     ProjectiveModel as ProjectiveModel,
     fit_polynomial as fit_polynomial,
     fit_projective as fit_projective,
 )
-from .resample import resample as resample
-from .rectify import (
+from .resampling import Resampling as Resampling, resample as resample
+from .rectification import (
     Grid as Grid,
     orthorectify as orthorectify,
     orthorectify_file as orthorectify_file,

@@ -224,3 +224,45 @@ class FrameCamera(eqx.Module):
         """
         xn = self.normalised(xy)
         return jnp.concatenate([xn, -jnp.ones_like(xn[..., :1])], axis=-1)
+
+
+# --- OpenCV's camera frame ---------------------------------------------------
+
+#: ``(3, 3)`` rotation from the photax camera frame (x right, y up, z
+#: backwards) to OpenCV's and COLMAP's (x right, y **down**, z **forward**):
+#: a half turn about x, ``diag(1, -1, -1)``; it is its own inverse, so it also
+#: maps OpenCV's frame to photax's.  Read-only.
+OPENCV_FROM_PHOTAX = np.diag([1.0, -1.0, -1.0])
+OPENCV_FROM_PHOTAX.setflags(write=False)
+
+
+def opencv_extrinsics(r_world_from_camera, position) -> tuple[np.ndarray, np.ndarray]:
+    """A photax orientation as OpenCV's extrinsics ``(R, t)``.
+
+    ``x_cv = R X + t`` maps ground points into OpenCV's camera frame::
+
+        R = F @ r_world_from_camera^T,   t = -R C,   F = OPENCV_FROM_PHOTAX
+
+    (``cv2.Rodrigues(R)`` gives the ``rvec`` of ``cv2.projectPoints`` /
+    ``cv2.solvePnP``; ``docs/conventions.md``).
+
+    Args:
+        r_world_from_camera: ``(..., 3, 3)`` rotation (``ExteriorOrientation.rotation``).
+        position: ``(..., 3)`` projection centre ``C``.
+
+    Returns:
+        ``(R, t)``: ``(..., 3, 3)`` camera_from_world in OpenCV's frame and ``(..., 3)``.
+    """
+    r = OPENCV_FROM_PHOTAX @ np.swapaxes(np.asarray(r_world_from_camera, dtype=float), -1, -2)
+    return r, -np.einsum("...ij,...j->...i", r, np.asarray(position, dtype=float))
+
+
+def from_opencv_extrinsics(r_cv_from_world, t) -> tuple[np.ndarray, np.ndarray]:
+    """OpenCV's extrinsics ``(R, t)`` as ``(r_world_from_camera, position)``.
+
+    The inverse of :func:`opencv_extrinsics`: ``r_world_from_camera = R^T F``
+    and ``C = -R^T t``.  Pass ``R = cv2.Rodrigues(rvec)[0]``.
+    """
+    r = np.asarray(r_cv_from_world, dtype=float)
+    rt = np.swapaxes(r, -1, -2)
+    return rt @ OPENCV_FROM_PHOTAX, -np.einsum("...ij,...j->...i", rt, np.reshape(np.asarray(t, dtype=float), r.shape[:-1]))

@@ -1,6 +1,6 @@
 """Exterior orientation and the collinearity equations.
 
-Ground -> image (DESIGN.md, with ``R = world_from_camera``)::
+Ground -> image (docs/maths.md, with ``R = world_from_camera``)::
 
     x - x0 = -f [a1 dX + b1 dY + c1 dZ] / [a3 dX + b3 dY + c3 dZ]
     y - y0 = -f [a2 dX + b2 dY + c2 dZ] / [a3 dX + b3 dY + c3 dZ]
@@ -105,6 +105,33 @@ class ExteriorOrientation(eqx.Module):
         d = jnp.asarray(ground_xyz, dtype=float) - self.position[..., None, :]
         return jnp.einsum("...ij,...ni->...nj", self.rotation, d)
 
+
+
+def stack_exteriors(exterior) -> ExteriorOrientation:
+    """One batched orientation ``(n_images, 3)`` from a batched one or a list.
+
+    A list is converted to the first element's convention (elements whose
+    angles are NaN -- unknown, to be initialised -- are taken as they are).
+
+    Raises:
+        ValueError: ``exterior`` is neither, or is not one orientation per image.
+    """
+    import numpy as np  # numpy side: this runs once per problem, never under jit
+
+    if isinstance(exterior, ExteriorOrientation):
+        eo = exterior
+    else:
+        eo_list = list(exterior)
+        if not eo_list or not all(isinstance(e, ExteriorOrientation) for e in eo_list):
+            raise ValueError("exterior must be an ExteriorOrientation (batched) or a list of them")
+        conv = eo_list[0].convention
+        eo_list = [e.to_convention(conv) if np.all(np.isfinite(np.asarray(e.angles))) else e for e in eo_list]
+        eo = ExteriorOrientation(
+            np.stack([np.asarray(e.position) for e in eo_list]), np.stack([np.asarray(e.angles) for e in eo_list]), conv
+        )
+    if eo.position.ndim != 2:
+        raise ValueError(f"exterior must hold one orientation per image, shape (n_images, 3); got {eo.position.shape}")
+    return eo
 
 def project(ground_xyz: Array, exterior: ExteriorOrientation, camera: FrameCamera) -> Array:
     """The collinearity equations: ground points -> image-plane coordinates.

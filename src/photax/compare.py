@@ -42,7 +42,8 @@ from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, project
 from .dem import DEM
 from .polynomial import fit_polynomial, fit_projective, n_coefficients
-from .rectify import Grid, OrthoModel, ortho_grid
+from .rectification import Grid, OrthoModel, ortho_grid
+from .resampling import Resampling
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,7 +55,7 @@ class ModelResult:
             or ``"projective"``.
         model: callable ``(..., 2)`` ground ``(X, Y)`` -> ``(..., 2)`` pixel
             ``(column, row)`` (for collinearity an
-            :class:`photax.rectify.OrthoModel`, which takes Z from the DEM).
+            :class:`photax.rectification.OrthoModel`, which takes Z from the DEM).
         n_params: estimated parameters (0 for a given exterior orientation).
         redundancy: ``2 n_gcp - n_params``.
         condition: 2-norm condition number of the normalised design matrix
@@ -207,7 +208,7 @@ class ModelComparison:
     # --- rectified images --------------------------------------------------
 
     def rectify(self, image, names: Sequence[str] | None = None, *, grid: Grid | None = None,
-                resampling: str = "bilinear", progress: bool | str = False) -> tuple[dict[str, np.ndarray], Grid]:
+                resampling: Resampling | str = "bilinear", progress: bool | str = False) -> tuple[dict[str, np.ndarray], Grid]:
         """Rectify ``image`` with each model onto one grid.
 
         Args:
@@ -220,10 +221,11 @@ class ModelComparison:
 
         Returns:
             ``({name: (..., rows, cols) array}, grid)``; collinearity gives
-            the orthophoto (:func:`photax.rectify.orthorectify`).
+            the orthophoto (:func:`photax.orthorectify`).
         """
         from .progress import progress_bar
-        from .rectify import _tiles, rectify
+        from .rectification import rectify
+        from .rectification._tiling import _tiles
 
         grid = ortho_grid(self.exterior, self.camera, self.dem, self.gsd) if grid is None else grid
         names = self.names if names is None else list(names)
@@ -232,120 +234,30 @@ class ModelComparison:
             out = {n: rectify(image, self[n].model, grid, resampling=resampling, progress=bar) for n in names}
         return out, grid
 
-    # --- figures -------------------------------------------------------------
+    # --- figures (drawn by photax.plot) ------------------------------------
 
     def plot_error_maps(self, names: Sequence[str] | None = None, *, vmax: float | None = None, ncols: int = 3):
-        """Error maps side by side on one colour scale; GCPs ``+``, check points ``o``.
+        """Error maps side by side on one colour scale; the matplotlib figure
+        (:func:`photax.plot.comparison_error_maps`)."""
+        from .plot import comparison_error_maps
 
-        One shared scale, so that a colour means the same error in every
-        panel and models can be compared by eye.  Its top ``vmax`` defaults
-        to the median over the panels of each panel's 99th percentile: a
-        single model that extrapolates wildly (order 5 outside the GCPs'
-        hull) saturates in its own panel (the colour bar's arrow; its title
-        gives its map maximum) instead of stretching the scale until every
-        other panel is black, as a percentile of all panels pooled does.
-
-        Returns the matplotlib figure.
-        """
-        import matplotlib.pyplot as plt
-
-        names = [n for n in self.names if n != "collinearity"] if names is None else list(names)
-        if not names:
-            raise ValueError("no model to plot")
-        mags = [self[n].error_magnitude for n in names]
-        if vmax is None:
-            tops = [np.percentile(m[np.isfinite(m)], 99) for m in mags if np.isfinite(m).any()]
-            vmax = float(np.median(tops)) if tops else 1.0
-            vmax = vmax if vmax > 0 else 1.0
-        ncols = min(ncols, len(names))
-        nrows = -(-len(names) // ncols)
-        fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.6 * nrows), squeeze=False,
-                                 constrained_layout=True)
-        x0, y0, x1, y1 = self.grid.bounds
-        extent = (0.0, (x1 - x0) / 1000, 0.0, (y1 - y0) / 1000)
-        to_km = lambda g: ((g[:, 0] - x0) / 1000, (g[:, 1] - y0) / 1000)  # noqa: E731
-        for ax, name, mag in zip(axes.flat, names, mags):
-            im = ax.imshow(mag, extent=extent, vmin=0, vmax=vmax, cmap="magma")
-            ax.plot(*to_km(self.gcp_ground), "+", color="cyan", ms=7, mew=1.5, label="GCP")
-            if len(self.check_ground):
-                ax.plot(*to_km(self.check_ground), "o", mfc="none", color="lime", ms=4, label="check point")
-            m = self[name]
-            ax.set_title(f"{name}\ncheck RMSE {m.check_rmse:.2f} px, map RMS {m.error_rms:.1f} px, "
-                         f"max {m.error_max:.0f} px", fontsize=9)
-            ax.set_xlabel(f"easting - {x0:.0f} m [km]")
-            ax.set_ylabel(f"northing - {y0:.0f} m [km]")
-        for ax in axes.flat[len(names):]:
-            ax.axis("off")
-        axes.flat[0].legend(loc="lower left", fontsize=7)
-        over = any(np.nanmax(m) > vmax for m in mags if np.isfinite(m).any())
-        fig.colorbar(im, ax=axes, shrink=0.8, extend="max" if over else "neither",
-                     label="|collinearity+DEM - model| [px]")
-        return fig
+        return comparison_error_maps(self, names, vmax=vmax, ncols=ncols)
 
     def plot_rmse(self):
-        """GCP and check-point RMSE per model, grouped bars (log scale)."""
-        import matplotlib.pyplot as plt
+        """GCP and check-point RMSE per model, grouped bars (log scale)
+        (:func:`photax.plot.comparison_rmse`)."""
+        from .plot import comparison_rmse
 
-        names = self.names
-        x = np.arange(len(names))
-        fig, ax = plt.subplots(figsize=(1.2 * len(names) + 2, 3.6), constrained_layout=True)
-        ax.bar(x - 0.2, [self[n].gcp_rmse for n in names], 0.4, label="GCPs (fit)")
-        ax.bar(x + 0.2, [self[n].check_rmse for n in names], 0.4, label="check points")
-        ax.set_xticks(x, [n.replace("polynomial ", "poly ") for n in names], rotation=20)
-        ax.set_yscale("log")
-        ax.set_ylabel("RMSE [px]")
-        ax.legend()
-        ax.grid(axis="y", alpha=0.3)
-        return fig
+        return comparison_rmse(self)
 
     def plot_rectified(self, images: dict[str, np.ndarray], grid: Grid, *, reference: np.ndarray | None = None,
                        reference_transform=None, ncols: int = 3, window=None, value_range=None):
         """Rectified images side by side (from :meth:`rectify`), optionally
-        with a reference orthophoto; ``window=(xmin, ymin, xmax, ymax)`` zooms
-        in (ground units).
+        with a reference orthophoto (:func:`photax.plot.comparison_rectified`)."""
+        from .plot import comparison_rectified
 
-        Images ``(rows, cols)`` are drawn in grey, ``(3 or 4, rows, cols)`` in
-        colour (RGB, a fourth band ignored); ``value_range=(low, high)`` maps
-        to black..white (default ``(0, 255)`` for integer images, else
-        ``(0, 1)``); NaN (no data) is transparent.  The GCPs (``+``) and check
-        points (``o``) are marked at their surveyed ground positions, where
-        a correct rectification puts their image.
-        """
-        import matplotlib.pyplot as plt
-
-        from .plot import raster_rgba
-
-        panels = list(images.items())
-        extents = [grid.bounds] * len(panels)
-        if reference is not None:
-            a, _, xoff, _, e, yoff = tuple(reference_transform)[:6]
-            rows, cols = reference.shape[-2:]
-            panels.insert(0, ("truth (ground texture)", reference))
-            extents.insert(0, (xoff, yoff + e * rows, xoff + a * cols, yoff))
-        window = grid.bounds if window is None else window  # the reference may cover more ground
-        ncols = min(ncols, len(panels))
-        nrows = -(-len(panels) // ncols)
-        fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.8 * nrows), squeeze=False,
-                                 constrained_layout=True)
-        for ax, (name, img), (xmin, ymin, xmax, ymax) in zip(axes.flat, panels, extents):
-            ax.imshow(raster_rgba(img, value_range), extent=(xmin, xmax, ymin, ymax), interpolation="nearest")
-            ax.plot(self.gcp_ground[:, 0], self.gcp_ground[:, 1], "+", color="red", ms=7, mew=1.5, label="GCP")
-            if len(self.check_ground):
-                ax.plot(self.check_ground[:, 0], self.check_ground[:, 1], "o", mfc="none", color="cyan", ms=4,
-                        label="check point")
-            ax.set_title(name, fontsize=9)
-            if window is not None:
-                ax.set_xlim(window[0], window[2])
-                ax.set_ylim(window[1], window[3])
-            ax.ticklabel_format(useOffset=False, style="plain")
-            ax.tick_params(labelsize=6)
-            ax.set_xlabel("easting [m]", fontsize=8)
-            ax.set_ylabel("northing [m]", fontsize=8)
-        for ax in axes.flat[len(panels):]:
-            ax.axis("off")
-        handles, labels = axes.flat[0].get_legend_handles_labels()
-        fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize=8)
-        return fig
+        return comparison_rectified(self, images, grid, reference=reference, reference_transform=reference_transform,
+                                    ncols=ncols, window=window, value_range=value_range)
 
 
 @eqx.filter_jit
@@ -375,6 +287,26 @@ def _points(name: str, a, width: int) -> np.ndarray:
     if not np.isfinite(p).all():
         raise ValueError(f"{name} has NaN or infinite values at rows {np.flatnonzero(~np.isfinite(p).all(1)).tolist()}")
     return p
+
+
+def _check_inputs(gcp_ground, gcp_pixel, check_ground, check_pixel, camera: FrameCamera, orders):
+    """:func:`compare_models`' points as float arrays ``(gg, gp, cg, cp)``
+    (no check points: empty), or a ValueError naming the argument."""
+    gg, gp = _points("gcp_ground", gcp_ground, 3), _points("gcp_pixel", gcp_pixel, 2)
+    if len(gg) != len(gp):
+        raise ValueError(f"gcp_ground has {len(gg)} points but gcp_pixel has {len(gp)}")
+    if (check_ground is None) != (check_pixel is None):
+        raise ValueError("give both check_ground and check_pixel, or neither")
+    cg = np.zeros((0, 3)) if check_ground is None else _points("check_ground", check_ground, 3)
+    cp = np.zeros((0, 2)) if check_pixel is None else _points("check_pixel", check_pixel, 2)
+    if len(cg) != len(cp):
+        raise ValueError(f"check_ground has {len(cg)} points but check_pixel has {len(cp)}")
+    if camera.image_size is None or camera.pixel_size is None:
+        raise ValueError("camera needs pixel_size and image_size (pixels are compared)")
+    for k in orders:
+        if not isinstance(k, (int, np.integer)) or not 1 <= k <= 5:
+            raise ValueError(f"orders must be integers from 1 to 5, got {k!r}")
+    return gg, gp, cg, cp
 
 
 def compare_models(
@@ -413,22 +345,11 @@ def compare_models(
         ValueError: bad shapes or values, a camera without a pixel grid.
         photax.ConvergenceError: the resection failed.
     """
+    # Over 80 lines only by its docstring; the body is ~55 lines, one step
+    # (fit, evaluate on the grid and the points) per model.
     from .resection import resect
 
-    gg, gp = _points("gcp_ground", gcp_ground, 3), _points("gcp_pixel", gcp_pixel, 2)
-    if len(gg) != len(gp):
-        raise ValueError(f"gcp_ground has {len(gg)} points but gcp_pixel has {len(gp)}")
-    if (check_ground is None) != (check_pixel is None):
-        raise ValueError("give both check_ground and check_pixel, or neither")
-    cg = np.zeros((0, 3)) if check_ground is None else _points("check_ground", check_ground, 3)
-    cp = np.zeros((0, 2)) if check_pixel is None else _points("check_pixel", check_pixel, 2)
-    if len(cg) != len(cp):
-        raise ValueError(f"check_ground has {len(cg)} points but check_pixel has {len(cp)}")
-    if camera.image_size is None or camera.pixel_size is None:
-        raise ValueError("camera needs pixel_size and image_size (pixels are compared)")
-    for k in orders:
-        if not isinstance(k, (int, np.integer)) or not 1 <= k <= 5:
-            raise ValueError(f"orders must be integers from 1 to 5, got {k!r}")
+    gg, gp, cg, cp = _check_inputs(gcp_ground, gcp_pixel, check_ground, check_pixel, camera, orders)
     n = len(gg)
 
     resection = None

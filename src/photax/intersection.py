@@ -1,16 +1,7 @@
 """Forward intersection (space intersection, triangulation) of image rays.
 
-Each measurement ``xy`` on an oriented image defines a ray from the
-projection centre ``C`` along ``d = R (xn, yn, -1)`` (``R`` world_from_camera,
-``(xn, yn)`` the undistorted normalised coordinates; ``docs/conventions.md``).
-The linear least-squares intersection minimises the sum of squared
-perpendicular distances of ``X`` to the rays::
-
-    sum_i |(I - u_i u_i^T)(X - C_i)|^2,   u_i = d_i / |d_i|
-    =>  [sum_i (I - u_i u_i^T)] X = sum_i (I - u_i u_i^T) C_i
-
-(e.g. Hartley & Zisserman, "Multiple View Geometry", 2nd ed., sec. 12.2 for
-the algebraic form; Wolf, DeWitt & Wilkinson, "Elements of
+The linear least-squares intersection of the rays (formula and sources in
+:mod:`photax._triangulation`; Wolf, DeWitt & Wilkinson, "Elements of
 Photogrammetry", ch. 11 for space intersection).  With ``refine=True`` the
 points are then adjusted on their image residuals (Gauss–Newton, images
 fixed), which is the maximum-likelihood estimate under Gaussian image noise
@@ -24,12 +15,13 @@ warning.
 from __future__ import annotations
 
 import dataclasses
-import warnings
 
 import numpy as np
 
+from ._triangulation import triangulate
+from .bundle import BundleProblem, bundle_adjust
 from .camera import FrameCamera
-from .collinearity import ExteriorOrientation
+from .collinearity import ExteriorOrientation, project, stack_exteriors
 
 
 @dataclasses.dataclass(frozen=True)
@@ -41,20 +33,20 @@ class Intersection:
         angle_deg: ``(n,)`` largest angle between two rays of each point.
         n_rays: ``(n,)`` number of rays.
         std: ``(n, 3)`` standard deviations (``refine=True`` only, else None).
-        residual_rms: ``(n,)`` RMS image residual of each point (camera unit).
+        residual_rmse: ``(n,)`` RMS image residual of each point (camera
+            unit); ``residual_rms`` is its old name.
     """
 
     points: np.ndarray
     angle_deg: np.ndarray
     n_rays: np.ndarray
     std: np.ndarray | None
-    residual_rms: np.ndarray
+    residual_rmse: np.ndarray
 
-
-def _as_list(exterior) -> ExteriorOrientation:
-    from .bundle import _as_exterior
-
-    return _as_exterior(exterior)
+    @property
+    def residual_rms(self) -> np.ndarray:
+        """Deprecated alias of :attr:`residual_rmse` (one word for RMS errors across photax)."""
+        return self.residual_rmse
 
 
 def intersect(
@@ -96,7 +88,7 @@ def intersect(
         ``(n, 3)`` ground coordinates, NaN for points with fewer than 2 rays,
         or an :class:`Intersection`.
     """
-    eo = _as_list(exterior)
+    eo = stack_exteriors(exterior)
     m = eo.position.shape[0]
     cams = [cameras] * m if isinstance(cameras, FrameCamera) else list(cameras)
     if len(cams) != m:
@@ -121,70 +113,25 @@ def intersect(
             raise ValueError(f"obs_point has index {jj.max()} >= n_points = {n}")
         if not np.all(np.isfinite(xy)):
             raise ValueError("image_xy has non-finite values in the list layout")
-    rot = np.asarray(eo.rotation)
-    centre = np.asarray(eo.position)
-    origin = centre.mean(axis=0)
-    # Ray directions in the ground frame, one camera at a time (distortion removed).
-    d = np.empty((len(xy), 3))
-    for c in {id(c): c for c in cams}.values():
-        sel = np.array([cams[i] is c for i in ii], dtype=bool)
-        if sel.any():
-            if c.has_distortion:
-                ray = np.asarray(c.ray(xy[sel]))
-            else:  # numpy: no eager JAX dispatch for the common case
-                xn = (xy[sel] - np.asarray(c.principal_point)[None, :]) / float(c.focal_length)
-                ray = np.concatenate([xn, -np.ones((len(xn), 1))], axis=1)
-            d[sel] = np.einsum("kij,kj->ki", rot[ii[sel]], ray)
-    u = d / np.linalg.norm(d, axis=1, keepdims=True)
-    proj = np.eye(3)[None] - u[:, :, None] * u[:, None, :]
-    c_loc = centre[ii] - origin[None, :]
-    a = np.zeros((n, 3, 3))
-    b = np.zeros((n, 3))
-    np.add.at(a, jj, proj)
-    np.add.at(b, jj, np.einsum("kij,kj->ki", proj, c_loc))
-    n_rays = np.bincount(jj, minlength=n)
-    ok = n_rays >= 2
-    pts = np.full((n, 3), np.nan)
-    if ok.any():
-        pts[ok] = np.linalg.solve(a[ok], b[ok][:, :, None])[:, :, 0] + origin[None, :]
-    # Largest angle between two rays of each point.
-    from .bundle import _pairs
-
-    angle = np.zeros(n)
-    if ok.any():
-        pa, pb, *_ = _pairs(jj, ii, m)
-        cosang = np.clip(np.sum(u[pa] * u[pb], axis=1), -1.0, 1.0)
-        np.maximum.at(angle, jj[pa], np.degrees(np.arccos(cosang)))
+    pts, angle, n_rays, ok = triangulate(xy, ii, jj, n, eo, cams, min_angle_deg)
     std = None
     if refine and ok.any():
         pts, std = _refine(pts, ok, xy, ii, jj, eo, cams, sigma)
-    narrow = ok & (angle < min_angle_deg)
-    if narrow.any():
-        warnings.warn(
-            f"{int(narrow.sum())} of {n} points are intersected by rays meeting at less than {min_angle_deg} degrees "
-            f"(smallest {angle[narrow].min():.3g}): their depth is poorly determined",
-            RuntimeWarning,
-            stacklevel=2,
-        )
     if not full_output:
         return pts
-    from .collinearity import project
-
     res = np.zeros(n)
     for i in np.unique(ii):
         sel = ii == i
         e = ExteriorOrientation(eo.position[i], eo.angles[i], eo.convention)
         r = np.asarray(project(np.nan_to_num(pts[jj[sel]]), e, cams[i])) - xy[sel]
         np.add.at(res, jj[sel], np.sum(r * r, axis=1))
-    rms = np.where(ok, np.sqrt(res / np.maximum(n_rays, 1) / 2.0), np.nan)
-    return Intersection(pts, np.where(ok, angle, np.nan), n_rays, std, rms)
+    rmse = np.where(ok, np.sqrt(res / np.maximum(n_rays, 1) / 2.0), np.nan)
+    return Intersection(pts, np.where(ok, angle, np.nan), n_rays, std, rmse)
 
 
 def _refine(pts, ok, xy, ii, jj, eo, cams, sigma):
     """Adjust points on image residuals with every image fixed (a bundle
     adjustment whose reduced camera system is empty)."""
-    from .bundle import BundleProblem, bundle_adjust
-
     keep = ok[jj]
     new_id = np.cumsum(ok) - 1
     sig = np.broadcast_to(np.asarray(sigma, dtype=float), (len(xy),))[keep]

@@ -1,11 +1,15 @@
 """Figures shared by the demo and the notebooks (matplotlib).
 
-Every function draws on an ``Axes`` the caller made, and never calls
-``plt.show()``: the same code works in a notebook, a script and the
-headless demo (Agg backend).
+Every function draws on an ``Axes`` the caller made, except the
+``comparison_*`` figures of a :class:`photax.ModelComparison` (grids of
+panels sized to the models, behind its ``plot_*`` methods), which make their
+own figure; none calls ``plt.show()``: the same code works in a notebook, a
+script and the headless demo (Agg backend).
 """
 
 from __future__ import annotations
+
+from typing import Sequence
 
 import matplotlib.patches
 import numpy as np
@@ -230,3 +234,124 @@ def bundle_residuals(ax, result, *, title="image residuals by image"):
     ax.legend()
     if title:
         ax.set_title(title)
+
+
+# --- model comparison (photax.compare) ---------------------------------------
+
+
+def comparison_error_maps(comparison, names: Sequence[str] | None = None, *, vmax: float | None = None,
+                          ncols: int = 3):
+    """Error maps of a :class:`photax.ModelComparison` side by side on one
+    colour scale; GCPs ``+``, check points ``o``.
+
+    One shared scale, so that a colour means the same error in every
+    panel and models can be compared by eye.  Its top ``vmax`` defaults
+    to the median over the panels of each panel's 99th percentile: a
+    single model that extrapolates wildly (order 5 outside the GCPs'
+    hull) saturates in its own panel (the colour bar's arrow; its title
+    gives its map maximum) instead of stretching the scale until every
+    other panel is black, as a percentile of all panels pooled does.
+
+    Returns the matplotlib figure.
+    """
+    import matplotlib.pyplot as plt
+
+    names = [n for n in comparison.names if n != "collinearity"] if names is None else list(names)
+    if not names:
+        raise ValueError("no model to plot")
+    mags = [comparison[n].error_magnitude for n in names]
+    if vmax is None:
+        tops = [np.percentile(m[np.isfinite(m)], 99) for m in mags if np.isfinite(m).any()]
+        vmax = float(np.median(tops)) if tops else 1.0
+        vmax = vmax if vmax > 0 else 1.0
+    ncols = min(ncols, len(names))
+    nrows = -(-len(names) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.6 * nrows), squeeze=False,
+                             constrained_layout=True)
+    x0, y0, x1, y1 = comparison.grid.bounds
+    extent = (0.0, (x1 - x0) / 1000, 0.0, (y1 - y0) / 1000)
+    to_km = lambda g: ((g[:, 0] - x0) / 1000, (g[:, 1] - y0) / 1000)  # noqa: E731
+    for ax, name, mag in zip(axes.flat, names, mags):
+        im = ax.imshow(mag, extent=extent, vmin=0, vmax=vmax, cmap="magma")
+        ax.plot(*to_km(comparison.gcp_ground), "+", color="cyan", ms=7, mew=1.5, label="GCP")
+        if len(comparison.check_ground):
+            ax.plot(*to_km(comparison.check_ground), "o", mfc="none", color="lime", ms=4, label="check point")
+        m = comparison[name]
+        ax.set_title(f"{name}\ncheck RMSE {m.check_rmse:.2f} px, map RMS {m.error_rms:.1f} px, "
+                     f"max {m.error_max:.0f} px", fontsize=9)
+        ax.set_xlabel(f"easting - {x0:.0f} m [km]")
+        ax.set_ylabel(f"northing - {y0:.0f} m [km]")
+    for ax in axes.flat[len(names):]:
+        ax.axis("off")
+    axes.flat[0].legend(loc="lower left", fontsize=7)
+    over = any(np.nanmax(m) > vmax for m in mags if np.isfinite(m).any())
+    fig.colorbar(im, ax=axes, shrink=0.8, extend="max" if over else "neither",
+                 label="|collinearity+DEM - model| [px]")
+    return fig
+
+
+def comparison_rmse(comparison):
+    """GCP and check-point RMSE per model of a :class:`photax.ModelComparison`,
+    grouped bars (log scale).  Returns the matplotlib figure."""
+    import matplotlib.pyplot as plt
+
+    names = comparison.names
+    x = np.arange(len(names))
+    fig, ax = plt.subplots(figsize=(1.2 * len(names) + 2, 3.6), constrained_layout=True)
+    ax.bar(x - 0.2, [comparison[n].gcp_rmse for n in names], 0.4, label="GCPs (fit)")
+    ax.bar(x + 0.2, [comparison[n].check_rmse for n in names], 0.4, label="check points")
+    ax.set_xticks(x, [n.replace("polynomial ", "poly ") for n in names], rotation=20)
+    ax.set_yscale("log")
+    ax.set_ylabel("RMSE [px]")
+    ax.legend()
+    ax.grid(axis="y", alpha=0.3)
+    return fig
+
+
+def comparison_rectified(comparison, images: dict[str, np.ndarray], grid, *, reference: np.ndarray | None = None,
+                         reference_transform=None, ncols: int = 3, window=None, value_range=None):
+    """Rectified images side by side (from :meth:`photax.ModelComparison.rectify`
+    on the :class:`photax.Grid` ``grid``), optionally
+    with a reference orthophoto; ``window=(xmin, ymin, xmax, ymax)`` zooms
+    in (ground units).
+
+    Images ``(rows, cols)`` are drawn in grey, ``(3 or 4, rows, cols)`` in
+    colour (RGB, a fourth band ignored); ``value_range=(low, high)`` maps
+    to black..white (default ``(0, 255)`` for integer images, else
+    ``(0, 1)``); NaN (no data) is transparent.  The GCPs (``+``) and check
+    points (``o``) are marked at their surveyed ground positions, where
+    a correct rectification puts their image.
+    """
+    import matplotlib.pyplot as plt
+
+    panels = list(images.items())
+    extents = [grid.bounds] * len(panels)
+    if reference is not None:
+        a, _, xoff, _, e, yoff = tuple(reference_transform)[:6]
+        rows, cols = reference.shape[-2:]
+        panels.insert(0, ("truth (ground texture)", reference))
+        extents.insert(0, (xoff, yoff + e * rows, xoff + a * cols, yoff))
+    window = grid.bounds if window is None else window  # the reference may cover more ground
+    ncols = min(ncols, len(panels))
+    nrows = -(-len(panels) // ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.8 * nrows), squeeze=False,
+                             constrained_layout=True)
+    for ax, (name, img), (xmin, ymin, xmax, ymax) in zip(axes.flat, panels, extents):
+        ax.imshow(raster_rgba(img, value_range), extent=(xmin, xmax, ymin, ymax), interpolation="nearest")
+        gcp, check = comparison.gcp_ground, comparison.check_ground
+        ax.plot(gcp[:, 0], gcp[:, 1], "+", color="red", ms=7, mew=1.5, label="GCP")
+        if len(check):
+            ax.plot(check[:, 0], check[:, 1], "o", mfc="none", color="cyan", ms=4, label="check point")
+        ax.set_title(name, fontsize=9)
+        if window is not None:
+            ax.set_xlim(window[0], window[2])
+            ax.set_ylim(window[1], window[3])
+        ax.ticklabel_format(useOffset=False, style="plain")
+        ax.tick_params(labelsize=6)
+        ax.set_xlabel("easting [m]", fontsize=8)
+        ax.set_ylabel("northing [m]", fontsize=8)
+    for ax in axes.flat[len(panels):]:
+        ax.axis("off")
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize=8)
+    return fig

@@ -1,7 +1,7 @@
 """Plane-to-plane models fitted to control points: polynomials of order 1-5
 and the 8-parameter projective transform.
 
-Polynomial of order ``n`` (DESIGN.md, "Polynomial rectification")::
+Polynomial of order ``n`` (docs/maths.md, "Polynomial rectification")::
 
     X = sum_{i+j<=n} a_ij x^i y^j,    Y = sum_{i+j<=n} b_ij x^i y^j
 
@@ -12,7 +12,7 @@ centred and scaled to about [-1, 1] per axis *inside* the model, the fit is
 solved by SVD least squares (never normal equations), and the model maps
 original units to original units.
 
-Which direction to fit: rectification is indirect (DESIGN.md): for every
+Which direction to fit: rectification is indirect (docs/maths.md): for every
 *output* (map) pixel the rectifier needs the *input* image position.  So fit
 ``fit_polynomial(map_xy, pixel_xy, order)`` (output -> input) and hand the
 model to the rectifier; use ``model.inverse()`` only for the other way
@@ -197,7 +197,7 @@ class PolynomialModel(eqx.Module):
           forward model is invertible and the start is close).
 
         The returned :class:`PolynomialInverse` reports ``max_error`` and
-        ``rms_error``: round-trip error ``|p - inverse(model(p))|`` over the
+        ``rmse``: round-trip error ``|p - inverse(model(p))|`` over the
         same grid, source units.
         """
         if method not in ("fit", "newton"):
@@ -222,15 +222,21 @@ class PolynomialInverse(eqx.Module):
         start: polynomial fitted destination -> source (the ``"fit"``
             inverse, and the Newton start).
         newton_steps: Newton iterations on ``forward`` (0 for ``"fit"``).
-        max_error, rms_error: round-trip error over the fitting domain,
-            source units.
+        max_error, rmse: round-trip error over the fitting domain (maximum
+            and root mean square), source units.  ``rms_error`` is the old
+            name of ``rmse``.
     """
 
     forward: PolynomialModel
     start: PolynomialModel
     newton_steps: int = eqx.field(static=True)
     max_error: Array
-    rms_error: Array
+    rmse: Array
+
+    @property
+    def rms_error(self) -> Array:
+        """Deprecated alias of :attr:`rmse` (one word for RMS errors across photax)."""
+        return self.rmse
 
     def __call__(self, xy) -> Array:
         """``(..., 2)`` destination points -> ``(..., 2)`` source points."""

@@ -10,7 +10,7 @@ Two angle conventions are supported and always chosen explicitly:
 
 ``"phi-omega-kappa"`` (default; primary axis Y, the classic Chinese and German
 textbooks)
-    ``R = R_phi @ R_omega @ R_kappa`` with the element formulas of DESIGN.md
+    ``R = R_phi @ R_omega @ R_kappa`` with the element formulas of docs/maths.md
     (``a3 = -sin(phi)cos(omega)``, ``b3 = -sin(omega)``, ...).  Angles are
     stored in the order (phi, omega, kappa).
 
@@ -73,7 +73,7 @@ def rotation_matrix(angles: Array, convention: Convention = "phi-omega-kappa") -
         sp, cp = jnp.sin(phi), jnp.cos(phi)
         so, co = jnp.sin(omega), jnp.cos(omega)
         sk, ck = jnp.sin(kappa), jnp.cos(kappa)
-        # DESIGN.md, the textbook element formulas.
+        # docs/maths.md, the textbook element formulas.
         return _stack33(
             (cp * ck - sp * so * sk, -cp * sk - sp * so * ck, -sp * co),
             (co * sk, co * ck, -so),

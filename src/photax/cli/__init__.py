@@ -13,7 +13,7 @@ import os
 import sys
 
 # Subcommand modules, in the order ``photax --help`` lists them.
-SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "compare", "bundle"]
+SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "compare", "bundle", "measure"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,14 +42,48 @@ def _enable_compilation_cache() -> None:
     jax.config.update("jax_compilation_cache_dir", os.path.join(base, "photax", "jax"))
 
 
+def _one_line(exc: BaseException) -> str:
+    """An exception as one line of text, in photax's words where we can."""
+    if isinstance(exc, OSError) and exc.strerror and not isinstance(exc, FileExistsError):
+        where = f"{exc.filename}: " if exc.filename else ""
+        text = f"{where}{exc.strerror}"
+        if isinstance(exc, IsADirectoryError):
+            text += " (a folder where a file is expected)"
+    else:
+        text = str(exc) or type(exc).__name__
+    return " ".join(text.split())  # no multi-line messages from dependencies
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``photax`` console script."""
-    args = build_parser().parse_args(argv)
-    _enable_compilation_cache()
+    """Entry point of the ``photax`` console script.
+
+    Exit status: 0 when everything requested was done (every image solved,
+    the adjustment converged); 1 when a run finished but some image was not
+    solved or the adjustment did not converge (its outputs are still
+    written, with a status); 2 for usage and input errors (one line on
+    stderr, no output written); 130 on Ctrl-C (no partial output: every
+    file is written to a temporary name and renamed at the end).  Set
+    ``PHOTAX_TRACEBACK=1`` to see the traceback of an unexpected error.
+    """
+    command = "photax"
     try:
+        args = build_parser().parse_args(argv)
+        command = f"photax {args.command}"
+        _enable_compilation_cache()
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError, FileExistsError) as exc:
-        print(f"photax {args.command}: error: {exc}", file=sys.stderr)
+    except KeyboardInterrupt:
+        print(f"\n{command}: interrupted; nothing written", file=sys.stderr)
+        return 130
+    except (ValueError, OSError) as exc:
+        if os.environ.get("PHOTAX_TRACEBACK"):
+            raise
+        print(f"{command}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except Exception as exc:  # a bug or a dependency's failure: still one line, no traceback
+        if os.environ.get("PHOTAX_TRACEBACK"):
+            raise
+        print(f"{command}: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
+              "(PHOTAX_TRACEBACK=1 shows where)", file=sys.stderr)
         return 2
 
 

@@ -44,6 +44,8 @@ def add_parser(sub) -> None:
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
     p.add_argument("--orders", type=parse_orders, default=(1, 2, 3, 4, 5), help="polynomial orders (default 1-5)")
     p.add_argument("--out", metavar="DIR", help="folder for the table (md, json) and figures (png)")
+    p.add_argument("--resolution", type=float, metavar="SIZE",
+                   help="ground pixel size of the rectified images in rectified.png (default: the GSD)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -67,14 +69,28 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..compare import compare_models
-    from ..io.atomic import atomic_path, atomic_write
+    from ..io.atomic import atomic_path, atomic_write, check_output_path
     from ..io.gcp import read_gcps
+    from ..io.orientation import read_interior
     from ..io.raster import read_dem, read_geotiff
     from ..io.results import write_json
-    from .ortho import read_interior
+    from ._common import input_file
 
+    gcp_path = input_file(args.gcps, "GCP file")
+    input_file(args.camera, "camera file")
+    input_file(args.dem, "DEM")
+    if args.image:
+        input_file(args.image, "image")
     inputs = [p for p in (args.gcps, args.camera, args.dem, args.image) if p]
-    table = _select_image(read_gcps(args.gcps), args)
+    if args.out is not None:
+        out = pathlib.Path(args.out)
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"--out {out}: is a file, expected a folder")
+        for name in ("comparison.md", "comparison.json", "error_maps.png", "rmse.png", "rectified.png"):
+            check_output_path(out / name, inputs)  # fail before the work, not after
+    if args.resolution is not None and not args.resolution > 0:
+        raise ValueError(f"--resolution must be positive, got {args.resolution}")
+    table = _select_image(read_gcps(gcp_path), args)
     camera = read_interior(args.camera, args.camera_name)
     if camera.image_size is None:
         raise ValueError(f"{args.camera}: the camera needs image_size (and a pixel size)")
@@ -90,11 +106,6 @@ def run(args: argparse.Namespace) -> int:
     print(comparison.table("text"))
     if args.out is None:
         return 0
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_write(out / "comparison.md", inputs=inputs) as fh:
-        fh.write(comparison.table() + "\n")
-    write_json(comparison.to_dict(), out / "comparison.json", inputs=inputs)
     figures = {"error_maps.png": comparison.plot_error_maps(), "rmse.png": comparison.plot_rmse()}
     if args.image:
         image, _ = read_geotiff(args.image)
@@ -102,8 +113,19 @@ def run(args: argparse.Namespace) -> int:
         image = (image - np.nanmin(image)) / max(float(np.nanmax(image) - np.nanmin(image)), 1e-12)
         shown = image[:3] if image.shape[0] in (3, 4) else image.mean(axis=0)  # RGB in colour, else grey
         names = ["collinearity", *(n for n in comparison.names if n.startswith("polynomial"))]
-        rectified, grid = comparison.rectify(shown, names, progress=args.progress and args.command)
+        grid = None
+        if args.resolution is not None:
+            from ..rectification import ortho_grid
+
+            grid = ortho_grid(comparison.exterior, camera, dem, args.resolution)
+        rectified, grid = comparison.rectify(shown, names, grid=grid, progress=args.progress and args.command)
         figures["rectified.png"] = comparison.plot_rectified(rectified, grid)
+    # Everything is computed before the first file is written: an error or
+    # Ctrl-C above leaves the folder as it was.
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_write(out / "comparison.md", inputs=inputs) as fh:
+        fh.write(comparison.table() + "\n")
+    write_json(comparison.to_dict(), out / "comparison.json", inputs=inputs)
     for name, fig in figures.items():
         with atomic_path(out / name, inputs=inputs) as tmp:
             fig.savefig(tmp, format="png", dpi=110)

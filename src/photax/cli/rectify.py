@@ -1,6 +1,6 @@
 """``photax rectify``: polynomial rectification of an image from GCPs.
 
-A polynomial of order N (map -> pixel, DESIGN.md) is fitted to the GCPs'
+A polynomial of order N (map -> pixel, docs/maths.md) is fitted to the GCPs'
 ground (X, Y) and pixel positions, and the image is resampled onto a north-up
 grid covering the GCPs' footprint (indirect mapping, tile by tile, written
 atomically).  Exit codes: 0 done, 2 bad input.
@@ -12,7 +12,7 @@ import argparse
 
 import numpy as np
 
-from .ortho import RESAMPLING
+from ..resampling import RESAMPLING
 
 
 def add_parser(sub) -> None:
@@ -39,10 +39,13 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.gcp import read_gcps
     from ..polynomial import fit_polynomial
-    from ..rectify import Grid, rectify_file
+    from ..rectification import Grid, rectify_file
+    from ._common import ground_unit, input_file, plural
 
-    check_output_path(args.out, [args.image, args.gcps])
-    table = read_gcps(args.gcps)
+    image = input_file(args.image, "image")
+    gcp_path = input_file(args.gcps, "GCP file")
+    check_output_path(args.out, [image, gcp_path])  # fail before the work, not after
+    table = read_gcps(gcp_path)
     names = table.image_names
     if args.image_name is not None or len(names) > 1:
         stem = pathlib.Path(args.image).name
@@ -65,8 +68,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--resolution must be positive, got {resolution}")
     bounds = (*ground.min(axis=0), *ground.max(axis=0))
     grid = Grid.from_bounds(bounds, resolution, crs=table.crs)
-    rectify_file(args.image, args.out, model, grid, resampling=args.resampling, tile=args.tile,
+    rectify_file(image, args.out, model, grid, resampling=args.resampling, tile=args.tile,
                  progress=args.progress and args.command, inputs=[args.gcps])
-    print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {resolution:g} map units, "
-          f"order {args.order}, {len(ground)} GCPs, rmse {float(model.rmse):.3g} px")
+    print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {resolution:g} {ground_unit(table.crs, 'map units')}, "
+          f"order {args.order}, {plural(len(ground), 'GCP')}, rmse {float(model.rmse):.3g} px")
     return 0

@@ -1,17 +1,42 @@
 """``photax resect``: space resection of every image in a GCP file.
 
-Exit codes: 0 all resected images converged, 1 some did not, 2 bad input
-(a one-line message on stderr).
+Exit codes: 0 every requested image solved; 1 some were not (too few
+points, not converged; ``--json`` is still written with a ``status`` per
+image); 2 bad input (a one-line message on stderr, nothing written).
 """
 
 from __future__ import annotations
 
 import argparse
-import pathlib
 
 import numpy as np
 
 from ..rotation import CONVENTIONS
+
+
+# Shown by ``photax resect --help`` and in the README (a test parses both with read_camera).
+CAMERA_FILE_HELP = """\
+camera file (YAML or JSON; photax.io.camera_file), in mm:
+
+    # camera.yaml - lengths in mm; x right, y up, from the image centre
+    focal_length: 8.8              # principal distance f
+    unit: mm                       # unit of focal_length, principal_point, pixel_size: mm, m or px
+    principal_point: [0.011, -0.0066]
+    pixel_size: 0.0176             # one value, or [along columns, along rows]
+    image_size: [1000, 750]        # width, height in pixels
+    distortion: {k1: -0.02, k2: 0.004, k3: 0.0, p1: 0.0, p2: 0.0}
+
+or in pixels (integer pixel = pixel centre, column right, row down):
+
+    # camera.yaml - pixel units
+    focal_length_px: 2904.0
+    image_size: [4000, 3000]
+    principal_point_px: [1999.5, 1499.5]   # optional, default the image centre
+    distortion: {k1: -0.05}                # optional; k1 k2 k3 p1 p2, missing ones are 0
+
+exit status: 0 every image solved, 1 some not solved (--json still written,
+with a status per image), 2 usage or input error, 130 interrupted.
+"""
 
 
 def add_parser(sub) -> None:
@@ -20,9 +45,11 @@ def add_parser(sub) -> None:
         help="space resection of images from ground control points",
         description="Estimate each image's exterior orientation from its GCPs and print parameters +- std, "
         "sigma0, per-point residuals, flagged blunders and check-point residuals.",
+        epilog=CAMERA_FILE_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("gcp_file", metavar="GCP_FILE", help="GCP list: CSV with header, or OpenDroneMap gcp_list.txt")
-    p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file (YAML/JSON, see photax.io.camera_file)")
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file (YAML/JSON; format below)")
     p.add_argument("--image", metavar="NAME", help="only this image (default: every image with enough points)")
     p.add_argument("--json", metavar="OUT", help="also write the results as JSON")
     p.add_argument("--convention", choices=CONVENTIONS, default="phi-omega-kappa", help="angle convention of the result")
@@ -49,53 +76,59 @@ def _sigma(table, camera, sigma_px):
     return table.image_plane_sigma(camera)
 
 
-def _camera_unit(path) -> str | None:
-    """The camera file's length unit (``unit:``; ``px`` for the pixel shorthand), for the report's labels."""
-    from ..io.camera_file import _load
-
-    data = _load(pathlib.Path(path))
-    return "px" if "focal_length_px" in data else data.get("unit")
-
-
 def run(args: argparse.Namespace) -> int:
+    from ..io.atomic import check_output_path
     from ..io.camera_file import read_camera
     from ..io.gcp import read_gcps
-    from ..io.atomic import check_output_path
+    from ..io.orientation import read_camera_unit
     from ..io.results import write_json
     from ..resection import resect
+    from ._common import input_file, plural
 
-    inputs = [args.gcp_file, args.camera]
+    gcp_path = input_file(args.gcp_file, "GCP file")
+    camera_path = input_file(args.camera, "camera file")
+    inputs = [gcp_path, camera_path]
     if args.json:
         check_output_path(args.json, inputs)  # fail before the work, not after
     if args.sigma is not None and not args.sigma > 0:
         raise ValueError(f"--sigma must be positive, got {args.sigma}")
-    table = read_gcps(args.gcp_file, format=args.format)
-    camera = read_camera(args.camera)
+    table = read_gcps(gcp_path, format=args.format)
+    camera = read_camera(camera_path)
     if table.pixel is not None and (camera.pixel_size is None or camera.image_size is None):
         raise ValueError(f"{args.camera}: the GCPs are in pixels, so the camera needs pixel_size and image_size")
-    for note in table.duplicates():
-        print(f"note: {note}")
+    if args.image is not None:
+        table.select(args.image)  # an unknown name is a usage error (exit 2), before any work
     images = [args.image] if args.image is not None else table.image_names
     results, failed = {}, 0
     for name in images:
         sub = table.select(name)
         label = name or "(single image)"
+        n_check = int(sub.check.sum())
+        counts = f"{plural(len(sub), 'point')} ({len(sub) - n_check} control, {n_check} check)"
         try:
             res = resect(sub.image_plane(camera), sub.ground, camera, sigma=_sigma(sub, camera, args.sigma),
                          check=sub.check, names=sub.names, convention=args.convention,
                          robust=args.robust, throw=False)
         except ValueError as exc:
-            if args.image is not None:
-                raise ValueError(f"image {label}: {exc}") from None
-            print(f"== {label}: skipped ({len(sub)} points): {exc}\n")
-            results[name] = {"skipped": str(exc)}
+            print(f"== {label}: NOT SOLVED, skipped ({counts}): {exc}")
+            for note in sub.duplicates():
+                print(f"  note: {note}")
+            print()
+            results[name] = {"status": "skipped", "message": str(exc)}
+            failed += 1
             continue
-        n_check = int(sub.check.sum())
-        print(f"== {label}: {len(sub)} points ({len(sub) - n_check} control, {n_check} check) ==")
-        print(res.summary(crs=table.crs, camera_unit=_camera_unit(args.camera)))  # units on every number
+        print(f"== {label}: {counts} ==")
+        for note in sub.duplicates():  # only the notes about this image, under its header
+            print(f"  note: {note}")
+        print(res.summary(crs=table.crs, camera_unit=read_camera_unit(camera_path)))  # units on every number
+        converged = bool(np.all(np.asarray(res.converged)))
+        if not converged:
+            print(f"  {label}: NOT SOLVED - {res.message}")
         print()
-        failed += not res.converged
-        results[name] = res
+        failed += not converged
+        results[name] = {"status": "solved" if converged else "not converged", **res.to_dict()}
+    solved = len(images) - failed
+    print(f"{solved} of {plural(len(images), 'image')} solved" + (f", {failed} not" if failed else ""))
     if args.json:
         write_json({"gcp_file": str(args.gcp_file), "camera_file": str(args.camera), "crs": table.crs,
                     "convention": args.convention, "images": results}, args.json, inputs=inputs)

@@ -16,12 +16,55 @@ def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
         return False
 
 
+def sidecars(path) -> list[pathlib.Path]:
+    """Files GDAL and friends read beside ``path``: they are inputs too.
+
+    For ``dir/x.tif``: ``x.prj``, ``x.tif.aux.xml``, ``x.aux``, ``x.tif.ovr``,
+    ``x.ovr``, ``x.tif.msk``, ``x.msk``, world files ``x.tfw``, ``x.tifw``,
+    ``x.wld`` (for ``.jpg``: ``x.jgw``, ``x.jpgw``; ``.png``: ``x.pgw``...),
+    ``x.imd``, ``x.rpb``, ``x_rpc.txt``.  Existing or not.
+    """
+    p = pathlib.Path(path)
+    stem, name, ext = p.stem, p.name, p.suffix.lower().lstrip(".")
+    names = [f"{stem}.prj", f"{name}.prj", f"{name}.aux.xml", f"{stem}.aux", f"{name}.aux",
+             f"{name}.ovr", f"{stem}.ovr", f"{name}.msk", f"{stem}.msk", f"{stem}.wld", f"{name}.wld",
+             f"{stem}.imd", f"{stem}.rpb", f"{stem}_rpc.txt"]
+    if len(ext) >= 2:
+        names += [f"{stem}.{ext[0]}{ext[-1]}w", f"{stem}.{ext}w"]
+    return [p.with_name(n) for n in dict.fromkeys(names)]
+
+
+def _same_place(a: pathlib.Path, b: pathlib.Path) -> bool:
+    """Same file, or same folder and the same name up to case (GDAL tries .TFW and .tfw)."""
+    if _same_file(a, b):
+        return True
+    return a.parent.resolve() == b.parent.resolve() and a.name.lower() == b.name.lower()
+
+
 def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
-    """Refuse an output path that is one of the inputs; return it as a Path."""
+    """Refuse an output path that is one of the inputs; return it as a Path.
+
+    Inputs include their sidecar files (:func:`sidecars`: ``.prj``,
+    ``.aux.xml``, ``.ovr``, world files, ``.msk``...).  An existing folder
+    is refused as an output file.
+
+    Raises:
+        ValueError: naming ``out`` and the input it would overwrite.
+    """
     out = pathlib.Path(out)
+    if out.is_dir():
+        raise ValueError(f"refusing to write {out}: it is a folder")
     for src in inputs:
-        if src is not None and (_same_file(out, pathlib.Path(src)) or out.resolve() == pathlib.Path(src).resolve()):
+        if src is None:
+            continue
+        src = pathlib.Path(src)
+        if _same_file(out, src) or out.resolve() == src.resolve():
             raise ValueError(f"refusing to write {out}: it is an input of this run")
+        if src.is_dir():  # a folder input lists the files it reads (e.g. a block's) as inputs too
+            continue
+        for side in sidecars(src):
+            if _same_place(out, side):
+                raise ValueError(f"refusing to write {out}: it is {side.name}, read with the input {src}")
     return out
 
 

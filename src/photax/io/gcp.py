@@ -322,3 +322,59 @@ def _parse_csv(path, numbered) -> dict[str, list]:
     _auto_names(rows)
     return rows
 
+
+
+def _fmt(v: float) -> str:
+    """Shortest text that reads back as the same float (``repr``); NaN as an empty field."""
+    return "" if math.isnan(v) else repr(float(v))
+
+
+def write_gcps(path, table: GCPTable, *, inputs=()) -> pathlib.Path:
+    """Write ``table`` as a GCP CSV that :func:`read_gcps` reads back unchanged.
+
+    Columns ``name,image,E,N,h,col,row`` (or ``x,y`` for image-plane
+    coordinates), ``sigma`` (empty where NaN) and ``role``, after a
+    ``# crs: ...`` comment when the table has a CRS.  Numbers are written with
+    ``repr`` (the shortest decimal that converts back to the same float64), so
+    ``read_gcps(write_gcps(p, t))`` has the same names, images, coordinates,
+    sigmas, roles and CRS as ``t``.  The file is written atomically
+    (:mod:`photax.io.atomic`) and may not be one of ``inputs``.
+
+    Measured points (``photax.measure``) become GCPs with ``pixel = r.xy`` and
+    ``sigma`` one number per point in pixels, e.g. ``sqrt((s_col^2 + s_row^2) / 2)``
+    of ``r.sigma`` (``read_gcps`` and :func:`photax.resect` take one sigma per point).
+
+    Returns the path written.
+    """
+    from .atomic import atomic_write
+
+    if not isinstance(table, GCPTable):
+        raise ValueError(f"table: expected a GCPTable, got {type(table).__name__}")
+    pix = table.pixel is not None
+    coords = table.pixel if pix else table.image_xy
+    if coords is None:
+        raise ValueError("table: has neither pixel nor image-plane coordinates")
+    for what, arr in (("ground", table.ground), ("pixel" if pix else "image_xy", coords)):
+        if not np.all(np.isfinite(arr)):
+            bad = table.names[~np.all(np.isfinite(arr), axis=1)][:5]
+            raise ValueError(f"table: non-finite {what} coordinates for {', '.join(bad)}; drop the failed points first")
+    sigma = np.asarray(table.sigma, dtype=float)
+    if np.any(~np.isnan(sigma) & ~(sigma > 0)):
+        raise ValueError("table: sigma must be positive (or NaN for none)")
+    for what, values in (("names", table.names), ("images", table.images)):
+        for v in values.tolist():
+            if v != v.strip() or "\n" in v or v.startswith("#") or (what == "names" and not v):
+                raise ValueError(f"table: {what[:-1]} {v!r} would not read back "
+                                 "(empty name, surrounding spaces, newline or '#')")
+    if table.crs is not None and "\n" in table.crs:
+        raise ValueError(f"table: crs {table.crs!r} spans lines")
+    header = ["name", "image", "E", "N", "h", *(("col", "row") if pix else ("x", "y")), "sigma", "role"]
+    with atomic_write(path, inputs=inputs, newline="") as fh:
+        if table.crs is not None:
+            fh.write(f"# crs: {table.crs}\n")
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(header)
+        for i in range(len(table)):
+            writer.writerow([table.names[i], table.images[i], *map(_fmt, table.ground[i]), *map(_fmt, coords[i]),
+                             _fmt(sigma[i]), table.role[i]])
+    return pathlib.Path(path)

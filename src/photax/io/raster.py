@@ -118,3 +118,29 @@ def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), c
         with rasterio.open(tmp, "w", **profile) as dst:
             dst.write(a)
     return pathlib.Path(path)
+
+
+_UNIT_SYMBOLS = {"metre": "m", "meter": "m", "degree": "°", "foot": "ft", "US survey foot": "US survey ft",
+                 "kilometre": "km"}
+
+
+def crs_unit(crs) -> str | None:
+    """The linear (or angular) unit of a CRS's horizontal axes, as a short
+    symbol (``"m"``, ``"ft"``, ``"US survey ft"``, ``"°"``), or None when
+    the CRS is absent or unknown to GDAL/PROJ.
+
+    Uses ``rasterio.crs.CRS.units_factor``; a reader of a report should see
+    "0.76 m", not "0.76 ground units".
+    """
+    if crs is None or crs == "":
+        return None
+    from rasterio.crs import CRS
+    from rasterio.errors import CRSError
+
+    try:
+        name = CRS.from_user_input(crs).units_factor[0]
+    except (CRSError, ValueError, TypeError, IndexError):
+        return None
+    if not name or name == "unknown":
+        return None
+    return _UNIT_SYMBOLS.get(name, name)

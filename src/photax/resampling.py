@@ -53,21 +53,64 @@ evaluated in chunks with ``lax.map`` so the working set stays in cache.
 
 from __future__ import annotations
 
+import enum
 import os
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
-from typing import Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-Method = Literal["nearest", "bilinear", "cubic", "lanczos", "bspline"]
 
-# Taps per axis of each kernel; the first tap is at floor(x) - (taps//2 - 1)
-# (nearest: at floor(x + 0.5)).
-_TAPS = {"nearest": 1, "bilinear": 2, "cubic": 4, "lanczos": 6, "bspline": 4}
+class Resampling(str, enum.Enum):
+    """The interpolation kernels, and what each needs: the one list of them.
+
+    A member is its name (a ``str``: ``Resampling.cubic == "cubic"``), so
+    every function taking ``resampling``/``method`` accepts either; the CLI's
+    ``--resampling`` choices are :data:`RESAMPLING`.
+
+    Attributes:
+        taps: neighbours per axis the kernel weights; the first is at
+            ``floor(x) - (taps // 2 - 1)`` (nearest: at ``floor(x + 0.5)``).
+        margin: input pixels around a sample position that the kernel reads,
+            plus one: the margin a windowed read
+            (:func:`photax.rectify_file`) needs to give the same result as
+            the whole image.  The B-spline prefilter is recursive (pole
+            0.268), so its influence decays by 1e-14 over 24 pixels but never
+            quite ends: file and memory agree to ~1e-7 (the window edge, not
+            the image's, is padded before the prefilter).
+        prefilter: the kernel works on prefiltered coefficients (B-spline),
+            not on the grey values themselves.
+    """
+
+    def __new__(cls, name: str, taps: int, margin: int, prefilter: bool):
+        member = str.__new__(cls, name)
+        member._value_ = name
+        member.taps, member.margin, member.prefilter = taps, margin, prefilter
+        return member
+
+    nearest = ("nearest", 1, 2, False)
+    bilinear = ("bilinear", 2, 2, False)
+    cubic = ("cubic", 4, 3, False)
+    lanczos = ("lanczos", 6, 4, False)
+    bspline = ("bspline", 4, 24, True)
+
+    def __str__(self) -> str:
+        return self.value
+
+    @classmethod
+    def check(cls, value, argument: str = "resampling") -> "Resampling":
+        """``value`` (a name or member) as a member; a ValueError naming
+        ``argument`` otherwise."""
+        try:
+            return cls(value)
+        except ValueError:
+            raise ValueError(f"{argument} must be one of {RESAMPLING}, got {value!r}") from None
+
+
+RESAMPLING: tuple[str, ...] = tuple(k.value for k in Resampling)  # the kernel names, in order
 _BSPLINE_PAD = 12  # scipy's npad for mode="nearest"
 _CHUNK = 4096  # output samples per lax.map step (measured best of 4096 / 65536)
 _THREADS = min(os.cpu_count() or 1, 8)
@@ -148,7 +191,8 @@ def _bspline_prefilter_axis(c: Array, axis: int) -> Array:
 def _pad_width(method: str) -> int:
     """Replicated border so that every tap of a valid sample is in bounds:
     valid samples have ``floor(x)`` in [-1, W-1] (nearest: [0, W])."""
-    return _BSPLINE_PAD if method == "bspline" else max(_TAPS[method] // 2, 1)
+    kernel = Resampling(method)
+    return _BSPLINE_PAD if kernel.prefilter else max(kernel.taps // 2, 1)
 
 
 def _bspline_coefficients(img: np.ndarray, compute) -> Array:
@@ -199,7 +243,7 @@ def _prepare(img, *, method, compute):
 
 def _interp(flat, x, y, fill, lo, hi, off, *, shape, method, a, compute, out_dtype):
     """Grey values at positions ``x, y`` (``(n,)``, any float dtype): the core
-    shared with :mod:`photax.rectify`.
+    shared with :mod:`photax.rectification`.
 
     ``flat`` is the ``(B, Hp*Wp)`` image from :func:`_prepare` of original
     ``shape`` (H, W).  Positions may be relative to a local origin, so that
@@ -211,7 +255,7 @@ def _interp(flat, x, y, fill, lo, hi, off, *, shape, method, a, compute, out_dty
     h, w = shape
     pad = _pad_width(method)
     wp = w + 2 * pad
-    taps = _TAPS[method]
+    taps = Resampling(method).taps
     first = 0 if method == "nearest" else taps // 2 - 1
     offsets = [(j + pad) * wp + (k + pad) for j in range(-first, taps - first) for k in range(-first, taps - first)]
     valid = (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1])
@@ -279,7 +323,7 @@ def resample(
     image,
     cols,
     rows,
-    method: Method = "bilinear",
+    method: Resampling | str = "bilinear",
     *,
     nodata=None,
     a: float = -0.5,
@@ -305,8 +349,7 @@ def resample(
         ``(..., *S)`` array of ``image``'s dtype (integers rounded to nearest
         and clipped to the dtype's range).
     """
-    if method not in _TAPS:
-        raise ValueError(f"method must be one of {sorted(_TAPS)}, got {method!r}")
+    method = Resampling.check(method, "method").value
     image = jnp.asarray(image)
     if image.ndim < 2 or min(image.shape[-2:]) < 1:
         raise ValueError(f"image must have shape (..., H, W) with H, W >= 1, got {image.shape}")

@@ -1,0 +1,281 @@
+"""photax.measure vs scikit-image and OpenCV: Canny and Sobel on a 4096 x 4096 image,
+the Förstner corner locator against cornerSubPix, LSM / NCC against matchTemplate.
+
+    PYTHONPATH=src python benchmarks/bench_measure.py [--size 4096] [--points 10000] [--repeat 5]
+
+Figures go to benchmarks/results/bench_measure.json (benchmarks/_common.py's
+``start``/``record``; ``python benchmarks/report.py`` tabulates them).
+
+**Operators.**
+
+Image: uint8, smoothed noise plus bright discs and rectangles (edges of all
+directions).  Same parameters for every library where they have them:
+
+* Sobel magnitude: photax ``sobel`` (float64, ``skimage.filters.sobel``'s
+  definition) vs ``skimage.filters.sobel`` vs ``cv2.Sobel`` dx, dy (CV_64F,
+  ksize 3, reflect border) + ``cv2.magnitude``.
+* Canny, sigma 1.4, thresholds 0.1 / 0.2 of the range: photax ``canny`` vs
+  ``skimage.feature.canny`` (same algorithm) vs ``cv2.GaussianBlur`` +
+  ``cv2.Canny(L2gradient=True)`` (OpenCV has no smoothing inside Canny;
+  its non-maximum suppression is the unsnapped 4-sector one, not the
+  interpolated one, so its map differs slightly).
+
+Prints first-call (compile + run) and warm times (median of --repeat runs;
+wall and process CPU time), ratios photax / peer, photax's peak memory.
+
+**Locators** (on --points points):
+
+1. Förstner corner locator (``locate_corners``) vs ``cv2.cornerSubPix``
+   (the same method, one call for all corners);
+2. least-squares matching (``match_lsm``, 21 x 21 templates) and
+   ``match_ncc`` vs a Python loop of ``cv2.matchTemplate``
+   (TM_CCOEFF_NORMED) + parabola peak fit on the same points.
+
+The images tile 100 rendered patterns (corners / shifted textures with gain
+0.9, offset 0.05) so that N points need no N renders.  Reported: first call
+(with compilation) and warm median, ratio photax / OpenCV (below 1: photax
+faster), peak memory above the start, and the RMSE against the known truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import jax
+import numpy as np
+import scipy.ndimage as ndi
+from skimage import feature, filters
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _common import median_time, mib, peak_memory, ratio_line, record, start  # noqa: E402
+
+import photax as ptx  # noqa: E402
+from photax.measure import _render as R  # noqa: E402
+from photax.measure import locate_corners, match_lsm, match_ncc  # noqa: E402
+
+TILE, C, KINDS = 45, 22, 100
+
+
+def test_image(n: int) -> np.ndarray:
+    rng = np.random.default_rng(0)
+    img = ndi.gaussian_filter(rng.random((n, n)), 3.0) * 400.0
+    r, c = np.ogrid[0:n, 0:n]
+    for _ in range(60):
+        cy, cx, rad = rng.uniform(0, n), rng.uniform(0, n), rng.uniform(n / 80, n / 12)
+        img[(r - cy) ** 2 + (c - cx) ** 2 < rad**2] += 60.0
+        y0, x0 = rng.integers(0, n - n // 10, 2)
+        img[y0:y0 + n // 12, x0:x0 + n // 15] -= 50.0
+    img -= img.min()
+    return np.clip(img / img.max() * 255.0, 0, 255).astype(np.uint8)
+
+
+def wall_and_cpu(fn, repeat):
+    """Medians of wall and process CPU time over ``repeat`` runs after one
+    warm-up: on a shared machine the CPU time is the steadier figure."""
+    fn()
+    walls, cpus = [], []
+    for _ in range(repeat):
+        w0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        walls.append(time.perf_counter() - w0)
+        cpus.append(time.process_time() - c0)
+    return float(np.median(walls)), float(np.median(cpus))
+
+
+def timed_first(fn):
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
+def tiled(patches, n):
+    """Tile ``n`` patches (cycling through ``patches``) into one square-ish image; returns it and the tile origins."""
+    cols = int(np.ceil(np.sqrt(n)))
+    rows = int(np.ceil(n / cols))
+    img = np.zeros((rows * TILE, cols * TILE))
+    origin = np.zeros((n, 2))
+    for i in range(n):
+        r, c = divmod(i, cols)
+        img[r * TILE:(r + 1) * TILE, c * TILE:(c + 1) * TILE] = patches[i % len(patches)]
+        origin[i] = (c * TILE, r * TILE)
+    return img, origin
+
+
+def rmse(e):
+    return float(np.sqrt(np.nanmean(np.sum(e**2, axis=1))))
+
+
+def timed(name, fn, repeat):
+    t0 = time.perf_counter()
+    out = fn()
+    first = time.perf_counter() - t0
+    warm = median_time(fn, repeat=repeat, warmup=0)
+    _, peak = peak_memory(fn)
+    print(f"{name}: first call {first:.2f} s, warm median {warm * 1e3:.1f} ms, peak memory {mib(peak)}")
+    return out, warm
+
+
+def locators(n: int, repeat: int) -> None:
+    """Corner locator vs cornerSubPix, LSM / NCC vs matchTemplate + parabola, on ``n`` points."""
+    print(f"--- locators on {n} points")
+    rng = np.random.default_rng(0)
+
+    # --- corners: blur 0.7, noise 1 %
+    kinds, truths = [], []
+    for _ in range(KINDS):
+        t = C + rng.uniform(-0.5, 0.5, 2)
+        kinds.append(R.render(R.corner(t, rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(60, 120))),
+                              (TILE, TILE), blur=0.7, noise=0.01, rng=rng))
+        truths.append(t)
+    img, origin = tiled(kinds, n)
+    truth = origin + np.array(truths)[np.arange(n) % KINDS]
+    approx = truth + rng.uniform(-1, 1, truth.shape)
+    img32 = img.astype(np.float32)
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
+
+    def ours():
+        return np.asarray(jax.block_until_ready(locate_corners(img, approx).xy))
+
+    def theirs():
+        return cv2.cornerSubPix(img32, approx[:, None].astype(np.float32).copy(), (14, 14), (-1, -1), crit)[:, 0]
+
+    xy, t_ours = timed("locate_corners", ours, repeat)
+    cxy, t_cv = timed("cv2.cornerSubPix", theirs, repeat)
+    print(ratio_line(f"corners x{n} (warm)", t_ours, t_cv))
+    print(f"corners rmse: photax {rmse(xy - truth):.4f} px, cornerSubPix {rmse(cxy - truth):.4f} px")
+    record("corners", points=n, photax_s=t_ours, opencv_s=t_cv, ratio_opencv=t_ours / t_cv,
+           rmse_photax_px=rmse(xy - truth), rmse_opencv_px=rmse(cxy - truth))
+
+    # --- matching: 21 x 21 templates, gain 0.9, offset 0.05, noise 1 %
+    shifts = rng.uniform(-2, 2, (KINDS, 2))
+    tk = [R.texture((TILE, TILE), seed=i, noise=0.01, rng=rng) for i in range(KINDS)]
+    sk = [0.9 * R.texture((TILE, TILE), seed=i, shift=s, noise=0.01 / 0.9, rng=rng) + 0.05
+          for i, s in enumerate(shifts)]
+    timg, origin = tiled(tk, n)
+    simg, _ = tiled(sk, n)
+    txy = origin + C
+    truth = txy + shifts[np.arange(n) % KINDS]
+    approx = np.round(truth) + rng.integers(-1, 2, truth.shape)
+    w, s = 10, 4
+    t32, s32 = timg.astype(np.float32), simg.astype(np.float32)
+
+    def lsm():
+        return np.asarray(jax.block_until_ready(match_lsm(timg, txy, simg, approx, window=w).xy))
+
+    def ncc():
+        return np.asarray(jax.block_until_ready(match_ncc(timg, txy, simg, approx, window=w, search=s).xy))
+
+    def cv_ncc():
+        out = np.empty((n, 2))
+        ti = txy.astype(int)
+        ai = approx.astype(int)
+        for i in range(n):
+            tpl = t32[ti[i, 1] - w:ti[i, 1] + w + 1, ti[i, 0] - w:ti[i, 0] + w + 1]
+            big = s32[ai[i, 1] - w - s:ai[i, 1] + w + s + 1, ai[i, 0] - w - s:ai[i, 0] + w + s + 1]
+            cc = cv2.matchTemplate(big, tpl, cv2.TM_CCOEFF_NORMED)
+            _, _, _, (x, y) = cv2.minMaxLoc(cc)
+            dx = dy = 0.0
+            if 0 < x < cc.shape[1] - 1:
+                a, b, c = cc[y, x - 1], cc[y, x], cc[y, x + 1]
+                dx = 0.5 * (a - c) / (a - 2 * b + c)
+            if 0 < y < cc.shape[0] - 1:
+                a, b, c = cc[y - 1, x], cc[y, x], cc[y + 1, x]
+                dy = 0.5 * (a - c) / (a - 2 * b + c)
+            out[i] = ai[i] + (x - s + dx, y - s + dy)
+        return out
+
+    lxy, t_lsm = timed("match_lsm", lsm, repeat)
+    nxy, t_ncc = timed("match_ncc", ncc, repeat)
+    cxy, t_cv = timed("cv2.matchTemplate + parabola (Python loop)", cv_ncc, repeat)
+    print(ratio_line(f"LSM x{n} vs matchTemplate+parabola (warm)", t_lsm, t_cv))
+    print(ratio_line(f"NCC x{n} vs matchTemplate+parabola (warm)", t_ncc, t_cv))
+    print(f"matching rmse: LSM {rmse(lxy - truth):.4f} px, photax NCC {rmse(nxy - truth):.4f} px, "
+          f"matchTemplate+parabola {rmse(cxy - truth):.4f} px")
+    record("matching", points=n, lsm_s=t_lsm, ncc_s=t_ncc, opencv_s=t_cv, ratio_lsm_opencv=t_lsm / t_cv,
+           ratio_ncc_opencv=t_ncc / t_cv, rmse_lsm_px=rmse(lxy - truth), rmse_ncc_px=rmse(nxy - truth),
+           rmse_opencv_px=rmse(cxy - truth))
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=4096)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--points", type=int, default=10_000)
+    args = ap.parse_args(argv)
+    n, rep = args.size, args.repeat
+    sys.stdout.reconfigure(line_buffering=True)
+    start("bench_measure")
+    print(f"{n} x {n} uint8, median of {rep} warm runs; jax {jax.__version__}, OpenCV {cv2.__version__}")
+    img = test_image(n)
+    jimg = jax.device_put(img)
+    lo, hi = 0.1 * float(np.ptp(img)), 0.2 * float(np.ptp(img))
+    sigma = 1.4
+    f_img = img.astype(np.float64)
+    record("setup", size=n, repeat=rep, points=args.points)
+
+    # ---- Sobel magnitude
+    def ours_sobel():
+        return jax.block_until_ready(ptx.measure.sobel(jimg))
+
+    def cv_sobel():
+        gx = cv2.Sobel(img, cv2.CV_64F, 1, 0, ksize=3, borderType=cv2.BORDER_REFLECT)
+        gy = cv2.Sobel(img, cv2.CV_64F, 0, 1, ksize=3, borderType=cv2.BORDER_REFLECT)
+        return cv2.magnitude(gx, gy)
+
+    first = timed_first(ours_sobel)
+    t_ours, c_ours = wall_and_cpu(ours_sobel, rep)
+    t_sk, c_sk = wall_and_cpu(lambda: filters.sobel(img), rep)
+    t_cv, c_cv = wall_and_cpu(cv_sobel, rep)
+    _, mem = peak_memory(ours_sobel)
+    # same answer (OpenCV's magnitude is 4 sqrt(2) x skimage's definition)
+    dev = float(np.max(np.abs(np.asarray(ours_sobel()) * 4.0 * np.sqrt(2.0) - cv_sobel())[1:-1, 1:-1]))
+    print(f"Sobel  first call {first:.2f} s; |photax*4sqrt2 - OpenCV| max {dev:.1e} (grey/px)")
+    print("  " + ratio_line("vs scikit-image", t_ours, t_sk))
+    print("  " + ratio_line("vs OpenCV      ", t_ours, t_cv), f"| photax peak {mib(mem)}")
+    print(f"  CPU time: photax {c_ours * 1e3:.1f} ms, scikit-image {c_sk * 1e3:.1f} ms, OpenCV {c_cv * 1e3:.1f} ms;"
+          f" ratios {c_ours / c_sk:.2f}, {c_ours / c_cv:.2f}")
+    record("sobel", photax_first_s=first, photax_s=t_ours, skimage_s=t_sk, opencv_s=t_cv,
+           ratio_skimage=t_ours / t_sk, ratio_opencv=t_ours / t_cv, photax_peak_bytes=mem,
+           cpu_photax_s=c_ours, cpu_skimage_s=c_sk, cpu_opencv_s=c_cv)
+
+    # ---- Canny
+    def ours_canny():
+        return jax.block_until_ready(ptx.measure.canny(jimg, sigma, lo, hi))
+
+    def sk_canny():
+        return feature.canny(f_img, sigma, lo, hi)
+
+    ksize = 2 * int(4.0 * sigma + 0.5) + 1
+
+    def cv_canny():
+        blur = cv2.GaussianBlur(img, (ksize, ksize), sigma, borderType=cv2.BORDER_CONSTANT)
+        return cv2.Canny(blur, lo, hi, L2gradient=True)  # unnormalised 3x3 Sobel magnitude, as ours
+
+    first = timed_first(ours_canny)
+    t_ours, c_ours = wall_and_cpu(ours_canny, rep)
+    t_sk, c_sk = wall_and_cpu(sk_canny, max(1, rep // 2))
+    t_cv, c_cv = wall_and_cpu(cv_canny, rep)
+    _, mem = peak_memory(ours_canny)
+    a, b, c = np.asarray(ours_canny()), sk_canny(), cv_canny() > 0
+    f1_sk = 2 * (a & b).sum() / (a.sum() + b.sum())
+    f1_cv = 2 * (a & c).sum() / (a.sum() + c.sum())
+    print(f"Canny  first call {first:.2f} s; F1 vs scikit-image {f1_sk:.4f}, vs OpenCV {f1_cv:.3f}; "
+          f"{a.sum()} edge pixels")
+    print("  " + ratio_line("vs scikit-image", t_ours, t_sk))
+    print("  " + ratio_line("vs OpenCV      ", t_ours, t_cv), f"| photax peak {mib(mem)}")
+    print(f"  CPU time: photax {c_ours * 1e3:.1f} ms, scikit-image {c_sk * 1e3:.1f} ms, OpenCV {c_cv * 1e3:.1f} ms;"
+          f" ratios {c_ours / c_sk:.2f}, {c_ours / c_cv:.2f}")
+    record("canny", photax_first_s=first, photax_s=t_ours, skimage_s=t_sk, opencv_s=t_cv,
+           ratio_skimage=t_ours / t_sk, ratio_opencv=t_ours / t_cv, photax_peak_bytes=mem,
+           cpu_photax_s=c_ours, cpu_skimage_s=c_sk, cpu_opencv_s=c_cv, f1_skimage=f1_sk, f1_opencv=f1_cv)
+    del img, jimg, f_img, a, b, c
+    locators(args.points, rep)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,95 @@
+"""Bundle adjustment: the problem, a Schur-complement Levenberg–Marquardt
+solver, robust losses, self-calibration and precision.
+
+The model is the collinearity equations (``docs/conventions.md``) of
+:func:`photax.project`: observation ``o`` of point ``X_p`` on image ``i``
+(camera ``c = image_camera[i]``) has the residual::
+
+    r_o = (project(X_p; R_i, C_i, camera_c) - xy_o) / sigma_o       (2,)
+
+and the solver minimises (Ceres' convention, 0.5 times the sum of squares)::
+
+    cost = 0.5 sum_o rho(|r_o|^2) + 0.5 sum_{control p} |(X_p - X_p^survey) / sigma_p|^2
+
+with ``rho(s) = s`` (no loss), Huber ``rho(s) = s`` for ``s <= d^2`` else
+``2 d sqrt(s) - d^2``, or Cauchy ``rho(s) = d^2 log(1 + s / d^2)``
+(``d = loss_scale``, in units of the observation's sigma).  Robust losses
+enter each linearisation through Triggs' corrected residual and Jacobian
+(Triggs et al. 2000, sec. 4.3; Ceres' ``corrector.cc``; see
+:func:`_corrector`)::
+
+    J~ = sqrt(rho') (I - alpha r r^T / |r|^2) J,   1 - alpha = sqrt(max(D, D_min)),
+    D  = 1 + 2 |r|^2 rho'' / rho'
+
+so the gradient is exact (``rho' J^T r``) and ``J~^T J~`` carries the loss'
+curvature along ``r``.  The first steps reweight only (``alpha = 0``, as Ceres
+does for Huber and Cauchy; its quadratic model majorises the loss, a safe
+globalisation far from the minimum); once an accepted step lowers the cost by
+less than :data:`SECOND_ORDER_AFTER` the correction is switched on, with the
+radial curvature floored at :data:`MIN_RADIAL_CURVATURE`.  The LM damping
+uses the diagonal of the reweighted matrix ``J^T rho' J`` throughout.  A step
+whose cost or norm is not finite is rejected (more damping), never taken.
+
+This is a tuned compromise, not Newton's method: the local rate stays linear
+(the floor overestimates the curvature along residuals beyond the scale:
+gain ratios near 2 on ``data/block`` with Huber), and both constants come from
+a sweep on ``data/block`` and BAL problem-49-7776.  The exact projected
+Hessian (floor 0) converges worse: a point whose residuals lie mostly beyond
+the scale keeps only their tangential curvature, so the Gauss-Newton matrix
+is nearly singular along its depth, its Newton step there is long and
+governed by the neglected second derivatives of ``r`` and by residuals
+crossing the scale, and one global damping parameter cannot hold those
+directions without slowing all others (measured: 25-89 iterations where the
+floor 0.1 needs 15-64; Huber on problem-49-7776 stopped at a higher cost).
+
+Parameters (analysed once on the numpy side, then solved by jitted steps):
+
+* per image: the projection centre ``C`` (ground unit) and the attitude
+  ``R`` (world_from_camera), updated on the manifold ``R <- R Exp(dr)``
+  with ``dr`` a rotation vector about the camera axes, so any orientation
+  works (BAL cameras look everywhere);
+* per camera (shared by its images): ``f, x0, y0, k1, k2, k3, p1, p2``,
+  each free or fixed (self-calibration);
+* per point: ``X, Y, Z``.  Tie and check points are free; control points
+  are free with a prior ``sigma`` (pseudo-observations), or fixed when
+  their sigma is 0.  Check points are adjusted as tie points and compared
+  with their surveyed coordinates afterwards.
+
+Each LM step solves ``(J^T J + lambda D) dx = -J^T r`` with
+``D = diag(J^T J)`` clamped to ``[1e-6, 1e32]`` (Ceres; with a robust loss
+``J~^T J~`` and ``J~^T r~`` and ``D = diag(J^T rho' J)``).  Ordering camera
+unknowns ``c`` before points ``p``::
+
+    [U  W] [dc]   [-g_c]                  S  = U - W V^-1 W^T
+    [W' V] [dp] = [-g_p]      ->          S dc = -g_c + W V^-1 g_p
+                                          dp = -V^-1 (g_p + W^T dc)
+
+``V`` is block diagonal (3x3 per point), so ``V^-1`` is a batch of 3x3
+inverses and ``S`` (the reduced camera system) is accumulated from
+per-observation blocks: block ``(i, j)`` sums ``W_a V^-1 W_b^T`` over the
+pairs of observations ``a`` (image ``i``), ``b`` (image ``j``) of one point,
+grouped on the numpy side into fixed-size chunks of one block each so that
+the sum is a batch of small GEMMs (see :func:`_reduced_system`).  Jacobians
+are closed-form (:func:`_project_obs`).  ``S`` is solved by a dense
+Cholesky (fast up to a few thousand camera unknowns: 49 BAL images x 9 =
+441) on one BLAS thread.  A rejected step re-solves with the same
+linearisation (only the damping changes).  References: Triggs et al.,
+"Bundle adjustment — a modern synthesis" (2000); Agarwal et al., "Bundle
+adjustment in the large" (ECCV 2010); Ceres Solver's trust-region minimiser.
+"""
+
+
+from ._linearise import MIN_RADIAL_CURVATURE as MIN_RADIAL_CURVATURE, SECOND_ORDER_AFTER as SECOND_ORDER_AFTER
+from ._problem import (
+    EXTERIOR as EXTERIOR,
+    INTRINSICS as INTRINSICS,
+    ROLES as ROLES,
+    BundleProblem as BundleProblem,
+    Gauge as Gauge,
+    Loss as Loss,
+)
+from ._result import BundleResult as BundleResult
+from ._solver import DENSE_LIMIT as DENSE_LIMIT, StoppingRule as StoppingRule, bundle_adjust as bundle_adjust
+from ._start import initialize_block as initialize_block
+from ._structure import CHUNK as CHUNK, PIECE as PIECE, Analysis as Analysis
+from ._synthetic import SyntheticBlock as SyntheticBlock, synthetic_block as synthetic_block

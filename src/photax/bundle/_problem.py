@@ -1,0 +1,254 @@
+"""The bundle adjustment problem: cameras, orientations, points, observations, and their validation."""
+
+from __future__ import annotations
+
+from typing import Literal, Sequence
+
+import numpy as np
+
+from ..camera import FrameCamera
+from ..collinearity import stack_exteriors
+from ._structure import Analysis, _analyse, _gauge_mask, _origin, _same_topology, _Topology, _topology
+
+ROLES = ("tie", "control", "check")
+#: Interior-orientation parameters of a camera, in this order.
+INTRINSICS = ("f", "x0", "y0", "k1", "k2", "k3", "p1", "p2")
+#: Exterior parameters of an image: the projection centre and the rotation
+#: increments about the camera's own x, y, z axes.
+EXTERIOR = ("X", "Y", "Z", "rx", "ry", "rz")
+
+Loss = Literal["none", "huber", "cauchy"]
+Gauge = Literal["fix_first_camera", "damped"]
+
+
+class BundleProblem:
+    """A block of images to adjust: cameras, orientations, points, observations.
+
+    Build it from arrays (below), from a BAL file (:func:`photax.read_bal`)
+    or from a block folder (:func:`read_block`).  All arrays are copied to
+    float64 / int64 numpy arrays; the problem is immutable by convention
+    (use :meth:`replace`).
+
+    Args:
+        cameras: one :class:`photax.FrameCamera` or a sequence of ``n_cameras``.
+        exterior: ``n_images`` exterior orientations, a batched
+            :class:`photax.ExteriorOrientation` of shape ``(n_images,)`` or a
+            list.  NaN rows are unknown: :func:`initialize_block` fills them
+            by resection from control points.  The result reports
+            orientations in the same angle convention.
+        points: ``(n_points, 3)`` ground coordinates: the surveyed values of
+            control and check points, approximate values of tie points (NaN
+            rows: unknown, filled by forward intersection).
+        obs_image, obs_point: ``(k,)`` integer image and point index of each
+            observation.
+        obs_xy: ``(k, 2)`` measured **image-plane** coordinates (x right, y up,
+            the camera's unit; :meth:`FrameCamera.pixel_to_image` converts
+            pixels).
+        obs_sigma: scalar, ``(k,)`` or ``(k, 2)`` standard deviation of the
+            measurements, image-plane unit.  Default 1.
+        image_camera: ``(n_images,)`` camera index of each image.  Default:
+            all images share camera 0 when there is one camera, image ``i``
+            uses camera ``i`` when there are as many cameras as images.
+        roles: ``(n_points,)`` of ``"tie"``, ``"control"``, ``"check"``
+            (default all ``"tie"``).
+        point_sigma: scalar, ``(n_points,)`` or ``(n_points, 3)`` ground
+            standard deviation of control points (ignored for the others);
+            0 fixes the point.  Default 0 (fixed control).
+        free_intrinsics: names from :data:`INTRINSICS` estimated for every
+            camera (e.g. ``("f", "k1", "k2")``), or an ``(n_cameras, 8)`` bool
+            mask.  Default: interior orientation fixed.
+        fixed_exterior: ``(n_images,)`` or ``(n_images, 6)`` bool, parameters
+            of :data:`EXTERIOR` held at their given values.  Default none.
+        image_names, point_names: optional labels used in reports.
+    """
+
+    def __init__(
+        self,
+        cameras,
+        exterior,
+        points,
+        obs_image,
+        obs_point,
+        obs_xy,
+        *,
+        obs_sigma=1.0,
+        image_camera=None,
+        roles=None,
+        point_sigma=0.0,
+        free_intrinsics: Sequence[str] | np.ndarray = (),
+        fixed_exterior=None,
+        image_names: Sequence[str] | None = None,
+        point_names: Sequence[str] | None = None,
+    ):
+        cams = (cameras,) if isinstance(cameras, FrameCamera) else tuple(cameras)
+        if not cams or not all(isinstance(c, FrameCamera) for c in cams):
+            raise ValueError("cameras must be a FrameCamera or a non-empty sequence of them")
+        eo = stack_exteriors(exterior)
+        n_img, n_cam = eo.position.shape[0], len(cams)
+        pts = np.array(points, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 3:
+            raise ValueError(f"points must have shape (n_points, 3), got {pts.shape}")
+        n_pts = len(pts)
+        oi, op, xy = _observations(obs_image, obs_point, obs_xy, n_img, n_pts)
+        sig = _per_row(obs_sigma, len(xy), 2)
+        if not np.all(sig > 0):
+            raise ValueError("obs_sigma must be positive")
+        ic = _image_camera(image_camera, n_cam, n_img)
+        role = np.array(["tie"] * n_pts if roles is None else [str(r) for r in roles], dtype=object)
+        if role.shape != (n_pts,) or not set(role.tolist()) <= set(ROLES):
+            bad = sorted(set(role.tolist()) - set(ROLES))
+            raise ValueError(f"roles must be (n_points,) of {ROLES}; got shape {role.shape}, unknown {bad}")
+        psig = _per_row(point_sigma, n_pts, 3)
+        if np.any(psig < 0) or np.any(np.isnan(psig)):
+            raise ValueError("point_sigma must be >= 0 (0 fixes a control point)")
+        free = _free_intrinsics(free_intrinsics, n_cam)
+        fixed = _fixed_exterior(fixed_exterior, n_img)
+        _check_datum(op, role, pts, point_names)
+        self.cameras: tuple[FrameCamera, ...] = cams
+        self.exterior = eo
+        self.points = pts
+        self.obs_image, self.obs_point = oi.astype(np.int64), op.astype(np.int64)
+        self.obs_xy, self.obs_sigma = xy, sig
+        self.image_camera = ic.astype(np.int64)
+        self.roles = role
+        self.point_sigma = psig
+        self.free_intrinsics = free
+        self.fixed_exterior = fixed
+        self.image_names = tuple(image_names) if image_names is not None else tuple(f"image {i}" for i in range(n_img))
+        self.point_names = tuple(point_names) if point_names is not None else tuple(f"point {i}" for i in range(n_pts))
+        if len(self.image_names) != n_img or len(self.point_names) != n_pts:
+            raise ValueError("image_names / point_names must have one entry per image / point")
+        self._topology: _Topology | None = None  # shared with replace()d problems of the same links
+        self._analyses: dict = {}  # gauge -> Analysis
+
+    n_images = property(lambda self: self.exterior.position.shape[0])
+    n_cameras = property(lambda self: len(self.cameras))
+    n_points = property(lambda self: len(self.points))
+    n_observations = property(lambda self: len(self.obs_xy))
+
+    def replace(self, **changes) -> "BundleProblem":
+        """A copy with some constructor arguments changed."""
+        args = dict(
+            cameras=self.cameras, exterior=self.exterior, points=self.points, obs_image=self.obs_image,
+            obs_point=self.obs_point, obs_xy=self.obs_xy, obs_sigma=self.obs_sigma,
+            image_camera=self.image_camera, roles=self.roles, point_sigma=self.point_sigma,
+            free_intrinsics=self.free_intrinsics, fixed_exterior=self.fixed_exterior,
+            image_names=self.image_names, point_names=self.point_names,
+        )  # fmt: skip
+        args.update(changes)
+        new = BundleProblem(**args)
+        if self._topology is not None and _same_topology(self, new):
+            new._topology = self._topology  # e.g. Monte Carlo replicates: only obs_xy changed
+        return new
+
+    def analyse(self, gauge: Gauge | None = None) -> Analysis:
+        """The problem's structure for the solver, analysed once and cached.
+
+        ``gauge`` as in :func:`bundle_adjust` (its extra fixed parameters
+        are part of the structure).  The index arrays that depend only on
+        the observations' links (pairs, chunks of the reduced system) are
+        computed on first use and shared with every problem :meth:`replace`
+        derives with the same links, so replicates that change only the
+        measurements, sigmas or start values skip that work.  The cache
+        relies on the problem being immutable: change it with
+        :meth:`replace`, never in place.
+        """
+        if gauge not in self._analyses:
+            if self._topology is None:
+                self._topology = _topology(self)
+            origin = _origin(self)
+            s, n_c, w = _analyse(self, _gauge_mask(self, gauge), origin, self._topology)
+            self._analyses[gauge] = Analysis(s, n_c, w, origin)
+        return self._analyses[gauge]
+
+    def __repr__(self) -> str:
+        n_ctrl = int(np.sum(self.roles == "control"))
+        n_chk = int(np.sum(self.roles == "check"))
+        return (
+            f"BundleProblem({self.n_images} images, {self.n_cameras} cameras, {self.n_points} points "
+            f"({n_ctrl} control, {n_chk} check), {self.n_observations} observations)"
+        )
+
+
+# --------------------------------------------------------------------------
+# Validation of the constructor's arguments (in the order __init__ checks them)
+# --------------------------------------------------------------------------
+
+
+def _observations(obs_image, obs_point, obs_xy, n_img: int, n_pts: int):
+    """``obs_image``, ``obs_point`` ``(k,)`` integer indices in range and
+    ``obs_xy`` ``(k, 2)`` finite, as numpy arrays."""
+    oi, op = np.asarray(obs_image), np.asarray(obs_point)
+    xy = np.array(obs_xy, dtype=float)
+    k = len(xy)
+    if xy.shape != (k, 2) or oi.shape != (k,) or op.shape != (k,):
+        raise ValueError(
+            f"obs_xy must be (k, 2) and obs_image, obs_point (k,); got {xy.shape}, {oi.shape}, {op.shape}"
+        )
+    for name, idx, n in (("obs_image", oi, n_img), ("obs_point", op, n_pts)):
+        if k and (not np.issubdtype(idx.dtype, np.integer) or idx.min() < 0 or idx.max() >= n):
+            raise ValueError(f"{name} must be integers in [0, {n}), got range [{idx.min()}, {idx.max()}]")
+    if not np.all(np.isfinite(xy)):
+        raise ValueError(f"obs_xy has non-finite values at observation {int(np.argmax(~np.isfinite(xy).all(1)))}")
+    return oi, op, xy
+
+
+def _per_row(value, n: int, width: int) -> np.ndarray:
+    """A scalar, ``(n,)`` or ``(n, width)`` value broadcast to a new ``(n, width)`` float array."""
+    v = np.asarray(value, dtype=float)
+    return np.broadcast_to(v[:, None] if v.ndim == 1 else v, (n, width)).copy()
+
+
+def _image_camera(image_camera, n_cam: int, n_img: int) -> np.ndarray:
+    """The camera index of each image; the default pairs one camera with all
+    images, or camera ``i`` with image ``i``."""
+    if image_camera is None:
+        if n_cam == 1:
+            image_camera = np.zeros(n_img, dtype=np.int64)
+        elif n_cam == n_img:
+            image_camera = np.arange(n_img)
+        else:
+            raise ValueError(f"image_camera is needed: {n_cam} cameras for {n_img} images")
+    ic = np.asarray(image_camera)
+    if ic.shape != (n_img,) or not np.issubdtype(ic.dtype, np.integer) or ic.min() < 0 or ic.max() >= n_cam:
+        raise ValueError(f"image_camera must be (n_images,) = ({n_img},) integers in [0, {n_cam})")
+    return ic
+
+
+def _free_intrinsics(free_intrinsics, n_cam: int) -> np.ndarray:
+    """``(n_cam, 8)`` bool mask from a mask or names of :data:`INTRINSICS`."""
+    if isinstance(free_intrinsics, np.ndarray) and free_intrinsics.dtype == bool:
+        return np.broadcast_to(free_intrinsics, (n_cam, 8)).copy()
+    unknown = set(free_intrinsics) - set(INTRINSICS)
+    if unknown or isinstance(free_intrinsics, str):
+        raise ValueError(f"free_intrinsics must be names from {INTRINSICS}, got {free_intrinsics!r}")
+    free = np.zeros((n_cam, 8), dtype=bool)
+    free[:, [INTRINSICS.index(n) for n in free_intrinsics]] = True
+    return free
+
+
+def _fixed_exterior(fixed_exterior, n_img: int) -> np.ndarray:
+    """``(n_img, 6)`` bool mask from None, ``(n_img,)`` or ``(n_img, 6)``."""
+    fixed = np.zeros((n_img, 6), dtype=bool) if fixed_exterior is None else np.asarray(fixed_exterior, dtype=bool)
+    if fixed.shape == (n_img,):
+        fixed = np.repeat(fixed[:, None], 6, axis=1)
+    if fixed.shape != (n_img, 6):
+        raise ValueError(f"fixed_exterior must be (n_images,) or (n_images, 6), got {fixed.shape}")
+    return fixed
+
+
+def _check_datum(obs_point: np.ndarray, role: np.ndarray, pts: np.ndarray, point_names) -> None:
+    """Every point needs a datum: two rays, or one ray plus a control prior;
+    control points need surveyed coordinates."""
+    counts = np.bincount(obs_point, minlength=len(pts))
+    weak = (counts < 2) & (role != "control")
+    if np.any(weak):
+        i = int(np.argmax(weak))
+        label = point_names[i] if point_names is not None else i
+        raise ValueError(
+            f"point {label} ({role[i]}) is observed on {counts[i]} image(s): tie and check points need "
+            "at least 2 to be intersected; drop it or make it a control point"
+        )
+    ctrl = role == "control"
+    if np.any(ctrl & ~np.all(np.isfinite(pts), axis=1)):
+        raise ValueError("control points need finite surveyed coordinates")

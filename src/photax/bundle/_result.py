@@ -1,0 +1,160 @@
+"""The result of a bundle adjustment."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ..camera import FrameCamera
+from ..collinearity import ExteriorOrientation
+from ._problem import INTRINSICS, BundleProblem
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class BundleResult:
+    """Adjusted block, its precision and the solver's report.
+
+    Attributes:
+        exterior: ``(n_images,)`` adjusted :class:`ExteriorOrientation`, in the
+            problem's angle convention.
+        rotation: ``(n_images, 3, 3)`` world_from_camera matrices (well
+            defined even where angles are in gimbal lock).
+        cameras: adjusted cameras (self-calibrated parameters updated).
+        points: ``(n_points, 3)`` adjusted ground coordinates.
+        cost: final ``0.5 sum rho(|r|^2)`` (+ control priors), weighted.
+        initial_cost: the cost at the start values.
+        history: one dict per iteration: ``iteration, cost, lambda,
+            step_norm, gradient_max, accepted, seconds``.
+        converged, message: stopping status; ``message`` names the rule.
+        iterations: number of iterations (accepted and rejected steps).
+        residuals: ``(k, 2)`` image-plane residuals ``projected - observed``
+            (camera unit).
+        weights: ``(k,)`` final IRLS weights (1 without a robust loss).
+        sigma0: a-posteriori standard deviation of unit weight
+            ``sqrt(sum w r^2 / redundancy)``.
+        redundancy: observations minus free parameters (plus the datum
+            defect for ``gauge="damped"``).
+        exterior_std: ``(n_images, 6)`` standard deviations of ``X, Y, Z``
+            and the three angles (radians, the convention's order), or None
+            when the datum is not defined (``gauge="damped"``).
+        camera_std: ``(n_cameras, 8)`` std of :data:`INTRINSICS` (0 = fixed).
+        point_std: ``(n_points, 3)`` std of ``X, Y, Z``.
+        point_cov: ``(n_points, 3, 3)`` covariances.
+        check_residuals: ``(n_check, 3)`` adjusted minus surveyed check points.
+        problem: the adjusted problem (for :meth:`to_problem`).
+    """
+
+    exterior: ExteriorOrientation
+    rotation: np.ndarray
+    cameras: tuple[FrameCamera, ...]
+    points: np.ndarray
+    cost: float
+    initial_cost: float
+    history: list
+    converged: bool
+    message: str
+    iterations: int
+    residuals: np.ndarray
+    weights: np.ndarray
+    sigma0: float
+    redundancy: int
+    exterior_std: np.ndarray | None
+    camera_std: np.ndarray | None
+    point_std: np.ndarray | None
+    point_cov: np.ndarray | None
+    check_residuals: np.ndarray
+    problem: BundleProblem
+    seconds: float = 0.0
+
+    @property
+    def check_names(self) -> list[str]:
+        return [n for n, r in zip(self.problem.point_names, self.problem.roles) if r == "check"]
+
+    def to_problem(self) -> BundleProblem:
+        """The problem with the adjusted values as start values."""
+        tie = (self.problem.roles == "tie")[:, None]
+        pts = np.where(tie, self.points, self.problem.points)
+        return self.problem.replace(cameras=self.cameras, exterior=self.exterior, points=pts)
+
+    def report(self, unit: str | None = None) -> str:
+        """A plain-text summary: convergence, sigma0, residuals, precision.
+
+        ``unit``: the ground CRS's unit (``"m"``, ``"ft"``...) for the
+        exterior and point precision; default "ground units".
+        """
+        p = self.problem
+        rms = np.sqrt(np.mean(self.residuals**2, axis=0))
+        u = unit or "ground units"
+
+        def n_of(n, word):  # "1 camera", "2 cameras"
+            return f"{n} {word}{'' if n == 1 else 's'}"
+
+        n_ctrl, n_chk = int(np.sum(p.roles == "control")), int(np.sum(p.roles == "check"))
+        lines = [
+            f"bundle adjustment: {n_of(p.n_images, 'image')}, {n_of(p.n_cameras, 'camera')}, "
+            f"{n_of(p.n_points, 'point')} ({n_ctrl} control, {n_chk} check), {n_of(p.n_observations, 'observation')}",
+            f"  {'converged' if self.converged else 'NOT converged'}: {self.message} after {n_of(self.iterations, 'iteration')} "
+            f"({self.seconds:.2f} s)",
+            f"  cost {self.initial_cost:.6g} -> {self.cost:.6g}; sigma0 {self.sigma0:.4g} (redundancy {self.redundancy})",
+            f"  image residual RMS x {rms[0]:.4g}, y {rms[1]:.4g} (camera units); max |r| "
+            f"{np.max(np.abs(self.residuals)):.4g}",
+        ]
+        if np.any(self.weights < 0.5):
+            lines.append(f"  {n_of(int(np.sum(self.weights < 0.5)), 'observation')} down-weighted below 0.5 by the robust loss")
+        if self.exterior_std is not None:
+            s = np.median(self.exterior_std, axis=0)
+            lines.append(
+                f"  median std of exterior: X {s[0]:.4g}, Y {s[1]:.4g}, Z {s[2]:.4g} {u}, angles "
+                f"{np.degrees(s[3]) * 3600:.3g}\" {np.degrees(s[4]) * 3600:.3g}\" {np.degrees(s[5]) * 3600:.3g}\""
+            )
+            ps = np.median(self.point_std[p.roles != "control"], axis=0) if np.any(p.roles != "control") else None
+            if ps is not None:
+                lines.append(f"  median std of tie/check points: X {ps[0]:.4g}, Y {ps[1]:.4g}, Z {ps[2]:.4g} {u}")
+        else:
+            lines.append("  precision not reported: the datum is free (gauge='damped')")
+        free = p.free_intrinsics
+        for c, cam in enumerate(self.cameras):
+            if free[c].any():
+                vals = np.concatenate([[float(cam.focal_length)], np.asarray(cam.principal_point), np.asarray(cam.distortion)])
+                parts = [
+                    f"{n} {vals[j]:.6g}" + (f" +- {self.camera_std[c, j]:.2g}" if self.camera_std is not None else "")
+                    for j, n in enumerate(INTRINSICS) if free[c, j]
+                ]  # fmt: skip
+                lines.append(f"  camera {c}: " + ", ".join(parts))
+                if c >= 5 and len(self.cameras) > 6:
+                    lines.append(f"  ... ({n_of(len(self.cameras) - 6, 'more self-calibrated camera')})")
+                    break
+        if len(self.check_residuals):
+            crms = np.sqrt(np.mean(self.check_residuals**2, axis=0))
+            lines.append(
+                f"  check points ({len(self.check_residuals)}): RMS X {crms[0]:.4g}, Y {crms[1]:.4g}, Z {crms[2]:.4g} {u}"
+            )
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (lists of floats)."""
+        p = self.problem
+        eo = self.exterior
+        out = {
+            "converged": self.converged, "message": self.message, "iterations": self.iterations,
+            "cost": self.cost, "initial_cost": self.initial_cost, "sigma0": self.sigma0 if math.isfinite(self.sigma0) else None,
+            "redundancy": self.redundancy, "convention": eo.convention, "seconds": self.seconds,
+            "history": self.history,
+            "images": [
+                {"name": n, "position": np.asarray(eo.position[i]).tolist(), "angles_rad": np.asarray(eo.angles[i]).tolist(),
+                 **({"std": self.exterior_std[i].tolist()} if self.exterior_std is not None else {})}
+                for i, n in enumerate(p.image_names)
+            ],
+            "cameras": [
+                {"focal_length": float(c.focal_length), "principal_point": np.asarray(c.principal_point).tolist(),
+                 "distortion": np.asarray(c.distortion).tolist(),
+                 **({"std": self.camera_std[j].tolist()} if self.camera_std is not None else {})}
+                for j, c in enumerate(self.cameras)
+            ],
+            "check_points": [
+                {"name": n, "residual": r.tolist()} for n, r in zip(self.check_names, self.check_residuals)
+            ],
+        }  # fmt: skip
+        return out

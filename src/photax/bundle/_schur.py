@@ -1,0 +1,120 @@
+"""The Schur complement: the reduced camera system, solved densely (Cholesky)
+or matrix-free (conjugate gradients), and one damped step."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from .._linalg import inv3
+from ..rotation import axis_angle_to_matrix
+from ._linearise import _cost, _Lin
+from ._structure import _State, _Structure
+
+
+
+def _schur_parts(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+    """Damped ``V^-1``, ``Y^T = V^-1 W^T`` per observation ``(k, 3, w)`` and
+    the reduced right-hand side ``g_c - W V^-1 g_p`` (in unknown order)."""
+    n_img = lin.u_img.shape[0]
+    v = lin.v + (lam * lin.d_p * s.mask_p + (1.0 - s.mask_p))[:, :, None] * jnp.eye(3)[None, :, :]
+    vinv = jax.vmap(inv3)(v)  # (n, 3, 3) by the adjugate: elementwise, faster than batched LU on CPU
+    vo = vinv[s.obs_point]
+    # Unrolled over the 3-long axis: faster than a batched dot of tiny matrices on XLA CPU.
+    yt = sum(vo[:, :, j, None] * lin.wt[:, None, j, :] for j in range(3))
+    vg = sum(vo[:, :, j] * lin.g_p[s.obs_point][:, j, None] for j in range(3))  # V^-1 g_p per observation
+    rhs_img = lin.g_img - jax.ops.segment_sum(jnp.sum(lin.wt * vg[:, :, None], axis=1), s.obs_image, num_segments=n_img)
+    rhs = jnp.zeros(n_c).at[s.image_ext.ravel()].add(rhs_img.ravel())
+    return vinv, yt, rhs
+
+
+def _reduced_system(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+    """Dense Schur complement ``S`` (undamped diagonal) and right-hand side.
+
+    ``S = U - W V^-1 W^T``, block ``(i, j)`` summed over the points seen
+    by images ``i`` and ``j``: ``- sum Y_a W_b^T`` over pairs of
+    observations ``(a, b)`` of one point (``a == b`` included).  The pairs
+    come in chunks of one block each, so the sum is batched GEMMs of
+    ``(w x 3 CHUNK) (3 CHUNK x w)`` products and a small sorted segment sum;
+    blocks of pairs ``a < b`` are added with their transposes."""
+    vinv, yt, rhs = _schur_parts(lin, s, lam, n_c)
+    n_pieces, piece, _ = s.chunk_a.shape
+    w = yt.shape[2]
+    take = functools.partial(jnp.take, axis=0, mode="fill", fill_value=0.0)  # index k pads the chunks
+
+    def products(idx):  # (piece, w, w): Y_a W_b^T summed over each chunk
+        ya, wb = take(yt, idx[0]).reshape(piece, -1, w), take(lin.wt, idx[1]).reshape(piece, -1, w)
+        return jax.lax.dot_general(ya, wb, (((1,), (1,)), ((0,), (0,))))
+
+    prod = jax.lax.map(products, (s.chunk_a, s.chunk_b)).reshape(n_pieces * piece, w, w)
+    blocks = jax.ops.segment_sum(prod, s.chunk_key, num_segments=s.key_a.shape[0], indices_are_sorted=True)
+    ext = s.image_ext
+    ra, cb = ext[s.key_a], ext[s.key_b]
+    S = jnp.zeros((n_c, n_c)).at[ext[:, :, None], ext[:, None, :]].add(lin.u_img)
+    S = S.at[ra[:, :, None], cb[:, None, :]].add(-blocks)
+    S = S.at[cb[:, :, None], ra[:, None, :]].add(-jnp.swapaxes(blocks, 1, 2) * s.key_off[:, None, None])
+    return S, rhs, vinv
+
+
+def _solve_cg(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+    """Solve the damped reduced system matrix-free by conjugate gradients
+    (Ceres' ITERATIVE_SCHUR with a Jacobi preconditioner): ``S x`` is
+    ``U x - W (V^-1 (W^T x))`` with per-observation blocks, so ``S`` is
+    never formed; memory stays linear in the observations."""
+    vinv, yt, rhs = _schur_parts(lin, s, lam, n_c)
+    ext, n_img, n_pts, wo = s.image_ext, lin.u_img.shape[0], lin.v.shape[0], jnp.swapaxes(lin.wt, 1, 2)
+    damp = lam * lin.d_c * s.mask_c + (1.0 - s.mask_c)
+    diag_img = jnp.diagonal(lin.u_img, axis1=1, axis2=2) - jax.ops.segment_sum(
+        jnp.sum(yt * lin.wt, axis=1), s.obs_image, num_segments=n_img
+    )
+    pre = jnp.zeros(n_c).at[ext.ravel()].add(diag_img.ravel()) + damp
+
+    def matvec(x):
+        xe = x[ext]  # (n_img, w)
+        ux = jnp.einsum("nij,nj->ni", lin.u_img, xe)
+        t = jax.ops.segment_sum(jnp.einsum("kij,ki->kj", wo, xe[s.obs_image]), s.obs_point, num_segments=n_pts)
+        z = jnp.einsum("pij,pj->pi", vinv, t)
+        wz = jax.ops.segment_sum(jnp.einsum("kij,kj->ki", wo, z[s.obs_point]), s.obs_image, num_segments=n_img)
+        return jnp.zeros(n_c).at[ext.ravel()].add((ux - wz).ravel()) + damp * x
+
+    x, _ = jax.scipy.sparse.linalg.cg(matvec, rhs, tol=1e-8, maxiter=200, M=lambda v: v / pre)
+    return x, vinv
+
+
+@functools.partial(jax.jit, static_argnames=("n_c", "solver"))
+def _trial(state: _State, lin: _Lin, s: _Structure, lam: Array, loss: Array, scale: Array, n_c: int,
+           solver: str = "dense"):  # fmt: skip
+    """One damped step: returns the candidate state, its cost, the predicted
+    decrease, the step norm and the parameter norm."""
+    if solver == "dense":
+        S, rhs, vinv = _reduced_system(lin, s, lam, n_c)
+        S = S + jnp.diag(lam * lin.d_c * s.mask_c + (1.0 - s.mask_c))
+        chol = (jax.lax.linalg.cholesky(S, symmetrize_input=False), True)  # S is symmetric by construction
+        dc = -jax.scipy.linalg.cho_solve(chol, rhs) * s.mask_c
+    else:
+        x, vinv = _solve_cg(lin, s, lam, n_c)
+        dc = -x * s.mask_c
+    dce = dc[s.image_ext]  # (n_img, w)
+    wdc = jax.ops.segment_sum(jnp.sum(lin.wt * dce[s.obs_image][:, None, :], axis=2), s.obs_point,
+                              num_segments=state.xyz.shape[0])  # fmt: skip
+    dp = -jnp.sum(vinv * (lin.g_p + wdc)[:, None, :], axis=2) * s.mask_p
+    n_img, n_cam = state.centre.shape[0], state.intr.shape[0]
+    a = s.active.shape[0]
+    dimg = dc[: 6 * n_img].reshape(n_img, 6)
+    dintr = dc[6 * n_img :].reshape(n_cam, a)
+    new = _State(
+        state.rot @ axis_angle_to_matrix(dimg[:, :3]),
+        state.centre + dimg[:, 3:],
+        state.intr.at[:, s.active].add(dintr),
+        state.xyz + dp,
+    )
+    # Model decrease L(0) - L(h) = 0.5 h^T (lam D h - g)  (Madsen et al. 2004).
+    pred = 0.5 * (jnp.sum(dc * (lam * lin.d_c * dc - lin.g_c)) + jnp.sum(dp * (lam * lin.d_p * dp - lin.g_p)))
+    step = jnp.sqrt(jnp.sum(dc * dc) + jnp.sum(dp * dp))
+    xnorm = jnp.sqrt(jnp.sum(new.centre**2) + jnp.sum(new.intr**2) + jnp.sum(new.xyz**2))
+    new_cost = _cost(new, s, loss, scale)
+    ok = jnp.isfinite(new_cost) & jnp.isfinite(step)
+    return new, jnp.where(ok, new_cost, jnp.inf), pred, step, xnorm

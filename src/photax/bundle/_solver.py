@@ -1,0 +1,333 @@
+"""The Levenberg–Marquardt loop of :func:`bundle_adjust` and the assembly of
+its result."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+import sys
+import time
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..camera import FrameCamera
+from ..collinearity import ExteriorOrientation
+from ..errors import ConvergenceError
+from ..rotation import angles_from_matrix_unchecked, rotation_matrix
+from ._linearise import _LOSS_CODE, SECOND_ORDER_AFTER, _linearise
+from ._precision import _covariances, _standard_deviations
+from ._problem import BundleProblem, Gauge, Loss
+from ._result import BundleResult
+from ._schur import _trial
+from ._start import _needs_init, initialize_block
+from ._structure import _State
+
+#: Up to this many camera unknowns the reduced system is solved densely.
+DENSE_LIMIT = 4000
+
+
+def _datum_constraints(problem: BundleProblem) -> int:
+    """Rough count of datum constraints (a network needs 7)."""
+    n_ctrl = int(np.sum(problem.roles == "control"))
+    return 3 * n_ctrl + int(problem.fixed_exterior.sum())
+
+
+def _blas_threads(n_c: int):
+    """One BLAS thread for the small dense factorisations of the reduced
+    system: OpenBLAS' thread pool spins, and on a busy 2-core machine a
+    441 x 441 Cholesky took 10-100x longer with 2 threads than with 1."""
+    if n_c > 1500:  # large systems gain from threads
+        return contextlib.nullcontext()
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(1, user_api="blas")
+
+
+def bundle_adjust(
+    problem: BundleProblem,
+    *,
+    loss: Loss = "none",
+    loss_scale: float = 1.0,
+    method: Literal["levenberg-marquardt", "gauss-newton"] = "levenberg-marquardt",
+    gauge: Gauge | None = None,
+    max_steps: int = 50,
+    function_tolerance: float = 1e-6,
+    gradient_tolerance: float = 1e-10,
+    parameter_tolerance: float = 1e-8,
+    initial_trust_radius: float = 1e4,
+    linear_solver: Literal["auto", "dense", "cg"] = "auto",
+    precision: bool = True,
+    initialize: bool | Literal["auto"] = "auto",
+    verbose: bool = False,
+    progress: bool | str = False,
+    throw: bool = True,
+    max_iterations: int | None = None,
+) -> BundleResult:
+    """Adjust a block by (robust) Levenberg–Marquardt with a Schur complement.
+
+    Args:
+        problem: the :class:`BundleProblem`.
+        loss: ``"none"`` (least squares), ``"huber"`` or ``"cauchy"``.
+        loss_scale: ``d``, the residual norm (in sigmas) where the robust loss
+            starts to down-weight.
+        method: ``"levenberg-marquardt"`` (Ceres-like trust region) or
+            ``"gauss-newton"`` (undamped steps, all accepted).
+        gauge: the datum of a network without enough control:
+            ``"fix_first_camera"`` fixes the first image's orientation and
+            the largest baseline component of the second image's centre (7
+            parameters); ``"damped"`` leaves the 7-parameter datum defect to
+            the LM damping, as Ceres does for BAL problems (the solution is
+            one of the equivalent ones; precision is not reported).  ``None``
+            (default) refuses a network whose datum is not defined by control
+            points or fixed orientations.
+        max_steps: iterations counted as Ceres does (accepted and
+            rejected steps).  ``max_iterations`` is its old name (still
+            accepted).
+        function_tolerance, gradient_tolerance, parameter_tolerance: the
+            stopping rule (Ceres' defaults), tested after each step::
+
+                |cost_old - cost_new| <= function_tolerance * cost_old      (accepted steps)
+                max |g| <= gradient_tolerance,  g = J^T r                   (at each new point)
+                |dx| <= parameter_tolerance * (|x| + parameter_tolerance)   (each computed step)
+
+            ``|x|`` is the norm of centres, intrinsics and points (local
+            origin).
+        initial_trust_radius: ``mu``; the damping is ``lambda = 1/mu``.  After
+            a step with gain ratio ``rho > 1e-3``: ``mu /= max(1/3, 1 -
+            (2 rho - 1)^3)``, else ``mu /= nu, nu *= 2`` (Nielsen; Ceres).
+        linear_solver: how the reduced camera system ``S`` is solved:
+            ``"dense"`` Cholesky (``S`` formed, ``N^2`` memory), ``"cg"``
+            matrix-free preconditioned conjugate gradients (``S`` never
+            formed; for large blocks), ``"auto"``: dense up to
+            :data:`DENSE_LIMIT` camera unknowns.
+        precision: compute sigma0 and standard deviations (needs the dense
+            inverse of ``S``: skipped with a note above
+            :data:`DENSE_LIMIT` x 2 unknowns).
+        initialize: fill NaN orientations / points with
+            :func:`initialize_block` (``"auto"``: only when some are NaN).
+        verbose: print one line per iteration.
+        progress: a progress bar over the iterations: ``True`` (labelled
+            "bundle"), a label, or an open bar (:mod:`photax.progress`).
+        throw: raise :class:`photax.ConvergenceError` when the adjustment fails
+            (no convergence within ``max_steps``, singular normal
+            equations); else return the result with ``converged=False``.
+
+    Returns:
+        :class:`BundleResult`.
+    """
+    # Over 80 lines only by its signature and docstring (the reference for
+    # every option); the work is in _check_options, _start_state and _lm_loop.
+    # photax says max_steps (as optimistix and resect do); the loop below still
+    # counts in Ceres' word, max_iterations.
+    max_iterations = max_steps if max_iterations is None else max_iterations
+    _check_options(problem, loss, loss_scale, method, gauge)
+    if initialize is True or (initialize == "auto" and _needs_init(problem)):
+        problem = initialize_block(problem)
+    if _needs_init(problem):
+        raise ValueError("problem has NaN orientations or points: give start values or initialize=True")
+    t_start = time.perf_counter()
+    s, n_c, _, origin = problem.analyse(gauge)  # cached on the problem
+    state = _start_state(problem, origin)
+    if linear_solver not in ("auto", "dense", "cg"):
+        raise ValueError(f"linear_solver must be 'auto', 'dense' or 'cg', got {linear_solver!r}")
+    solver = linear_solver if linear_solver != "auto" else ("dense" if n_c <= DENSE_LIMIT else "cg")
+    rule = StoppingRule(function_tolerance, gradient_tolerance, parameter_tolerance, max_iterations)
+    kw = dict(loss=jnp.asarray(_LOSS_CODE[loss]), scale=jnp.asarray(float(loss_scale)), n_c=n_c)
+    with _blas_threads(n_c):
+        with contextlib.ExitStack() as bars:
+            bar = None
+            if progress:  # one bar, labelled "bundle" or by the caller (photax.progress)
+                from ..progress import progress_bar
+
+                # Leaving the stack closes a bar of its own, not a caller's.
+                bar = bars.enter_context(progress_bar(progress, max_iterations, desc="bundle", unit="it"))
+            lin = _linearise(state, s, **kw, second_order=loss == "none")
+            initial_cost = float(lin.cost)
+            state, lin, cost, history, converged, message, it = _lm_loop(
+                state, lin, s, kw, solver, rule, method == "gauss-newton", float(initial_trust_radius),
+                loss == "none", verbose, bar,
+            )  # fmt: skip
+        return _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged,
+                       message, it, throw, time.perf_counter() - t_start)  # fmt: skip
+
+
+def _check_options(problem: BundleProblem, loss, loss_scale, method, gauge) -> None:
+    """ValueError for an unknown option or a network without a datum."""
+    if loss not in ("none", "huber", "cauchy"):
+        raise ValueError(f"loss must be 'none', 'huber' or 'cauchy', got {loss!r}")
+    if method not in ("levenberg-marquardt", "gauss-newton"):
+        raise ValueError(f"method must be 'levenberg-marquardt' or 'gauss-newton', got {method!r}")
+    if gauge not in (None, "fix_first_camera", "damped"):
+        raise ValueError(f"gauge must be None, 'fix_first_camera' or 'damped', got {gauge!r}")
+    if not loss_scale > 0:
+        raise ValueError(f"loss_scale must be positive, got {loss_scale}")
+    if gauge is None and _datum_constraints(problem) < 7:
+        raise ValueError(
+            "the network has no datum: fewer than 3 control points and no fixed orientations "
+            "(7 parameters: translation, rotation, scale are free). Add control points, fix "
+            "orientations (fixed_exterior=), or choose gauge='fix_first_camera' or gauge='damped' "
+            "(LM damping handles the defect, as Ceres does for BAL)"
+        )
+
+
+def _start_state(problem: BundleProblem, origin: np.ndarray) -> _State:
+    """The problem's start values as solver state, ground coordinates relative to ``origin``."""
+    intr = np.stack([np.concatenate([[float(c.focal_length)], np.asarray(c.principal_point), np.asarray(c.distortion)]) for c in problem.cameras])
+    return _State(
+        _rotation(problem.exterior.angles, convention=problem.exterior.convention),
+        jnp.asarray(np.asarray(problem.exterior.position) - origin[None, :]),
+        jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]),
+    )  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class StoppingRule:
+    """When the Levenberg–Marquardt loop of :func:`bundle_adjust` stops
+    (Ceres' rule and defaults).  Converged when, after a step::
+
+        |cost_old - cost_new| <= function_tolerance * cost_old      (accepted steps)
+        max |g| <= gradient_tolerance,  g = J^T r                   (at the start and each new point)
+        |dx| <= parameter_tolerance * (|x| + parameter_tolerance)   (each computed step)
+
+    tested in this order, ``|x|`` the norm of centres, intrinsics and points
+    (local origin); not converged after ``max_iterations`` steps (accepted
+    and rejected).  The failures (singular equations, trust radius below
+    1e-32) are the loop's own."""
+
+    function_tolerance: float = 1e-6
+    gradient_tolerance: float = 1e-10
+    parameter_tolerance: float = 1e-8
+    max_iterations: int = 50
+
+    def at_start(self, gmax: float) -> str:
+        """The convergence message at the start values, or ``""``."""
+        if gmax <= self.gradient_tolerance:
+            return f"gradient tolerance: max|g| = {gmax:.3g} <= {self.gradient_tolerance:g}"
+        return ""
+
+    def after_step(self, accepted: bool, old: float, cost: float, gmax: float, step: float, xnorm: float) -> str:
+        """The convergence message after a step, or ``""``."""
+        if accepted and abs(old - cost) <= self.function_tolerance * old:
+            return f"function tolerance: |dcost|/cost = {abs(old - cost) / max(old, 1e-300):.3g} <= {self.function_tolerance:g}"
+        if accepted and gmax <= self.gradient_tolerance:
+            return f"gradient tolerance: max|g| = {gmax:.3g} <= {self.gradient_tolerance:g}"
+        if math.isfinite(step) and step <= self.parameter_tolerance * (xnorm + self.parameter_tolerance):
+            return f"parameter tolerance: |dx| = {step:.3g} <= {self.parameter_tolerance:g} (|x| + tol)"
+        return ""
+
+
+def _lm_loop(state, lin, s, kw, solver, rule: StoppingRule, gn: bool, mu: float, second: bool, verbose: bool, bar):
+    """Levenberg–Marquardt (or Gauss–Newton, ``gn``) steps from ``state``
+    and its linearisation ``lin`` until ``rule`` or a failure stops them.
+    ``mu`` is the trust radius (damping ``1/mu``; Nielsen's update as in
+    Ceres), ``second`` whether Triggs' correction is on (it switches on when
+    the decrease slows, :data:`SECOND_ORDER_AFTER`).  Returns ``(state, lin,
+    cost, history, converged, message, iterations)``."""
+    cost, nu = float(lin.cost), 2.0
+    history: list[dict] = []
+    gmax = float(lin.gmax)
+    message = rule.at_start(gmax)
+    converged = bool(message)
+    it = 0
+    while not converged and it < rule.max_iterations:
+        it += 1
+        t0 = time.perf_counter()
+        lam = 0.0 if gn else 1.0 / mu
+        new, new_cost, pred, step, xnorm = _trial(state, lin, s, jnp.asarray(lam), **kw, solver=solver)
+        new_cost, pred, step, xnorm = float(new_cost), float(pred), float(step), float(xnorm)
+        rho = (cost - new_cost) / pred if pred > 0 else -1.0
+        accepted = (gn and math.isfinite(new_cost)) or (rho > 1e-3 and math.isfinite(new_cost))
+        old = cost
+        if accepted:
+            state, cost = new, new_cost
+            if not second and old - cost <= SECOND_ORDER_AFTER * old:
+                second = True
+            lin = _linearise(state, s, **kw, second_order=second)
+            gmax = float(lin.gmax)
+            mu = mu / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            mu, nu = min(mu, 1e16), 2.0
+        else:
+            mu, nu = mu / nu, nu * 2.0
+        history.append(dict(iteration=it, cost=cost, candidate_cost=new_cost if math.isfinite(new_cost) else None, relative_decrease=rho, trust_radius=mu,
+                            step_norm=step, gradient_max=gmax, accepted=bool(accepted), seconds=time.perf_counter() - t0))  # fmt: skip
+        if verbose:
+            _print_step(bar, it, cost, old, gmax, step, mu, accepted, new_cost)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(cost=f"{cost:.4g}")
+        if not math.isfinite(step) and (gn or mu < 1e-32):
+            message = "the normal equations are singular (datum defect or undetermined parameters)"
+            break
+        message = rule.after_step(accepted, old, cost, gmax, step, xnorm)
+        converged = bool(message)
+        if not converged and not gn and mu < 1e-32:
+            message = "trust region radius below 1e-32: no decrease possible"
+            break
+    if not converged and not message:
+        message = f"no convergence within max_iterations = {rule.max_iterations}"
+    return state, lin, cost, history, converged, message, it
+
+
+def _print_step(bar, it, cost, old, gmax, step, mu, accepted, new_cost) -> None:
+    """One line per iteration (``verbose=True``)."""
+    status = "ok" if accepted else "rejected" if math.isfinite(new_cost) else "rejected (no finite step)"
+    line = (f"{it:4d}  cost {cost:.6e}  cost_change {old - cost:+.3e}  |g| {gmax:.2e}  |step| {step:.2e}  "
+            f"tr_radius {mu:.2e}  {status}")  # fmt: skip
+    if hasattr(bar, "write"):  # through the bar, which clears and redraws itself around the line
+        bar.write(line, file=sys.stdout)
+    else:
+        print(line, flush=True)
+
+
+# Jitted once: eagerly, each of their few dozen jnp operations compiles on first use.
+_rotation = jax.jit(rotation_matrix, static_argnames="convention")
+_angles = jax.jit(angles_from_matrix_unchecked, static_argnames="convention")
+
+
+def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged, message,
+            iterations, throw, seconds) -> BundleResult:  # fmt: skip
+    conv = problem.exterior.convention
+    rot = np.asarray(state.rot)
+    angles, _ = _angles(state.rot, convention=conv)
+    eo = ExteriorOrientation(np.asarray(state.centre) + origin[None, :], np.asarray(angles), conv)
+    intr = np.asarray(state.intr)
+    cams = tuple(
+        FrameCamera(k[0], k[1:3], k[3:], pixel_size=c.pixel_size, image_size=c.image_size)
+        for k, c in zip(intr, problem.cameras)
+    )
+    pts = np.asarray(state.xyz) + origin[None, :]
+    weight = np.asarray(lin.weight)
+    residuals = np.asarray(lin.r) * problem.obs_sigma
+    n_free = int(np.asarray(s.mask_c).sum() + np.asarray(s.mask_p).sum())
+    n_prior = int(np.sum(np.asarray(s.prior_w) > 0))
+    redundancy = 2 * problem.n_observations + n_prior - n_free + (7 if gauge == "damped" else 0)
+    wsq = float(np.sum(weight[:, None] * np.asarray(lin.r) ** 2) + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w)))
+    sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
+    eo_std = cam_std = pt_std = pt_cov = None
+    if precision and n_c > 2 * DENSE_LIMIT:
+        message += f"; precision not computed ({n_c} camera unknowns > {2 * DENSE_LIMIT})"
+    elif precision and gauge != "damped":
+        q_c, q_p, ok = _covariances(lin, s, n_c)
+        if not bool(ok):
+            converged = False
+            message = "the normal equations are singular at the solution (datum defect or undetermined parameters)"
+        else:
+            var0 = sigma0**2 if redundancy > 0 else 1.0
+            eo_std, cam_std, pt_std, pt_cov = _standard_deviations(
+                q_c, q_p, var0, state.rot, conv, s.active, problem.n_cameras
+            )
+    check = problem.roles == "check"
+    result = BundleResult(
+        exterior=eo, rotation=rot, cameras=cams, points=pts, cost=float(cost), initial_cost=float(initial_cost),
+        history=history, converged=bool(converged), message=message, iterations=iterations, residuals=residuals,
+        weights=weight, sigma0=sigma0, redundancy=redundancy, exterior_std=eo_std, camera_std=cam_std,
+        point_std=pt_std, point_cov=pt_cov, check_residuals=pts[check] - problem.points[check], problem=problem,
+        seconds=seconds,
+    )  # fmt: skip
+    if throw and not result.converged:
+        raise ConvergenceError(f"bundle adjustment failed: {message}")
+    return result

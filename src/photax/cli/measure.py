@@ -1,0 +1,187 @@
+"""``photax measure``: measure points in an image (photax.measure).
+
+Three modes, one output format:
+
+* ``--interest METHOD``: interest points (Förstner, Harris or Moravec), the
+  ``--count`` strongest, each refined by Förstner's sub-pixel locator
+  (:func:`photax.measure.locate_corners`), which gives its sigma;
+* ``--targets POINTS --radius R``: centres of circular targets near the
+  approximate positions in POINTS (:func:`photax.measure.locate_targets`);
+* ``--corners POINTS``: corners near the approximate positions
+  (:func:`photax.measure.locate_corners`).
+
+POINTS is a GCP file as :func:`photax.io.read_gcps` reads it (pixel columns;
+``--image`` picks one image when it has several) or a plain CSV with the
+columns ``name,col,row``.  The output CSV has one row per point:
+``name,approx_col,approx_row,col,row,sigma_col,sigma_row,status`` (and
+``strength`` for interest points); failed points keep their row with empty
+``col .. sigma_row`` and the reason in ``status``.  ``--gcp-out`` writes the
+measured points of a GCP input as a GCP file (measured pixels, sigma
+``sqrt((s_col^2 + s_row^2) / 2)`` px) that ``photax resect`` reads.
+
+Exit codes: 0 every point measured, 1 some failed, 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import pathlib
+
+import numpy as np
+
+_METHODS = ("wong-trinder", "centroid", "ellipse")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "measure",
+        help="measure interest points, target centres or corners in an image (sub-pixel, with sigma)",
+        description="Measure points in an image: interest points, or the sub-pixel centres of circular targets "
+        "or corners near approximate positions. Writes a CSV with sigma per coordinate and a status per point.",
+    )
+    p.add_argument("image", metavar="IMAGE", help="image file (GeoTIFF, PNG, ... read with rasterio)")
+    mode = p.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--interest", choices=("foerstner", "harris", "moravec"), metavar="METHOD",
+                      help="interest points by METHOD: foerstner, harris or moravec")
+    mode.add_argument("--targets", metavar="POINTS", help="centres of circular targets near these approximate "
+                      "positions (GCP CSV or name,col,row CSV)")
+    mode.add_argument("--corners", metavar="POINTS", help="corners near these approximate positions")
+    p.add_argument("-o", "--out", required=True, metavar="OUT_CSV", help="the measured points (CSV)")
+    p.add_argument("--gcp-out", metavar="GCP_CSV", help="with a GCP input: the measured points as a GCP file")
+    p.add_argument("--image-name", metavar="NAME", help="with a GCP input holding several images: this image's points")
+    p.add_argument("--band", type=int, metavar="N", help="band to measure (1-based); default the mean of the "
+                   "first three bands (or the only one)")
+    p.add_argument("--count", type=int, default=500, help="interest points: at most this many, strongest first")
+    p.add_argument("--min-distance", type=int, default=5, help="interest points: px between two points")
+    p.add_argument("--radius", type=float, help="targets: image radius of a target in px (required)")
+    p.add_argument("--method", choices=_METHODS, default="ellipse", help="targets: centring method")
+    p.add_argument("--polarity", choices=("bright", "dark"), default="bright", help="targets: bright or dark")
+    p.add_argument("--window", type=int, help="half-size of the measuring window in px (default per locator)")
+    p.set_defaults(func=run)
+
+
+def read_image(path, band: int | None) -> np.ndarray:
+    """One ``(rows, cols)`` grey image from a raster file, in its own grey values."""
+    from ..io.raster import read_geotiff
+
+    data, _ = read_geotiff(path)
+    if band is not None:
+        if not 1 <= band <= data.shape[0]:
+            raise ValueError(f"--band {band}: {path} has {data.shape[0]} band(s)")
+        return data[band - 1]
+    return data[0] if data.shape[0] == 1 else data[:3].astype(np.float64).mean(axis=0)
+
+
+def read_points(path, image_name: str | None):
+    """``(names, approx (n, 2), table)`` from a GCP file or a ``name,col,row`` CSV
+    (``table`` is the GCP table, or None for a plain list)."""
+    from ..io._files import read_text, split_lines
+    from ..io.gcp import read_gcps
+
+    path = pathlib.Path(path)
+    lines = [(i + 1, s) for i, s in enumerate(split_lines(read_text(path, "point file")))
+             if s.strip() and not s.lstrip().startswith("#")]
+    if not lines:
+        raise ValueError(f"{path}: no points")
+    header = [h.strip().lower() for h in next(csv.reader([lines[0][1]]))]
+    if header in (["name", "col", "row"], ["name", "column", "row"]):
+        names, xy = [], []
+        for line, text in lines[1:]:
+            f = [s.strip() for s in next(csv.reader([text]))]
+            if len(f) != 3:
+                raise ValueError(f"{path}, line {line}: expected 3 columns name,col,row, got {len(f)}")
+            try:
+                c, r = float(f[1]), float(f[2])
+            except ValueError:
+                raise ValueError(f"{path}, line {line}: col and row must be numbers, got {f[1]!r}, {f[2]!r}") from None
+            if not (math.isfinite(c) and math.isfinite(r)):
+                raise ValueError(f"{path}, line {line}: col and row must be finite")
+            names.append(f[0] or f"p{len(names) + 1}")
+            xy.append((c, r))
+        if not names:
+            raise ValueError(f"{path}: no points")
+        return np.asarray(names), np.asarray(xy, dtype=float), None
+    table = read_gcps(path, format="csv")
+    if table.pixel is None:
+        raise ValueError(f"{path}: the GCPs give image-plane x, y; measuring needs approximate pixels (col, row)")
+    if image_name is not None:
+        table = table.select(image_name)
+    elif len(table.image_names) > 1:
+        raise ValueError(f"{path}: points of several images {table.image_names}; choose one with --image-name")
+    return table.names, table.pixel, table
+
+
+def _write_csv(out, names, approx, res, strength, inputs) -> None:
+    from ..io.atomic import atomic_write
+    from ..measure import Status
+
+    xy, sig, status = np.asarray(res.xy), np.asarray(res.sigma), np.asarray(res.status)
+    fmt = lambda v: "" if not math.isfinite(v) else f"{v:.4f}"  # noqa: E731  (0.1 mpx: below any sigma)
+    fsig = lambda v: "" if not math.isfinite(v) else f"{v:.4g}"  # noqa: E731
+    header = ["name", "approx_col", "approx_row", "col", "row", "sigma_col", "sigma_row", "status"]
+    with atomic_write(out, inputs=inputs, newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header + (["strength"] if strength is not None else []))
+        for i, name in enumerate(names):
+            row = [name, fmt(approx[i, 0]), fmt(approx[i, 1]), fmt(xy[i, 0]), fmt(xy[i, 1]),
+                   fsig(sig[i, 0]), fsig(sig[i, 1]), Status(int(status[i])).name.lower()]
+            w.writerow(row + ([f"{strength[i]:.6g}"] if strength is not None else []))
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from .. import measure
+    from ..io.atomic import check_output_path
+    from ..io.gcp import write_gcps
+
+    points = args.targets or args.corners
+    inputs = [p for p in (args.image, points) if p]
+    for out in (args.out, args.gcp_out):
+        if out:
+            check_output_path(out, inputs)
+    if args.gcp_out and not points:
+        raise ValueError("--gcp-out needs a GCP input (--targets or --corners)")
+    if args.targets and args.radius is None:
+        raise ValueError("--targets needs --radius (the target's image radius in px)")
+    if args.count < 1:
+        raise ValueError(f"--count must be >= 1, got {args.count}")
+    image = read_image(args.image, args.band)
+    strength, table = None, None
+    if args.interest:
+        found = measure.interest_points(image, args.interest, min_distance=args.min_distance, max_points=args.count)
+        approx = np.asarray(found.xy, dtype=float).reshape(-1, 2)
+        names = np.asarray([f"p{i + 1}" for i in range(len(approx))])
+        strength = np.asarray(found.strength)
+    else:
+        names, approx, table = read_points(points, args.image_name)
+    kw = {} if args.window is None else {"window": args.window}
+    if len(approx) == 0:
+        res = None
+    elif args.targets:
+        res = measure.locate_targets(image, approx, args.radius, method=args.method, polarity=args.polarity, **kw)
+    else:
+        res = measure.locate_corners(image, approx, **kw)
+    if res is None:
+        print(f"no interest points found in {args.image}")
+        empty = measure.LocateResult(np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0, np.int32), np.zeros(0),
+                                     np.zeros(0, np.int32))
+        _write_csv(args.out, names, approx, empty, strength, inputs)
+        return 0
+    _write_csv(args.out, names, approx, res, strength, inputs)
+    valid = np.asarray(res.valid)
+    print(f"{len(names)} points: {res.summary()}; wrote {args.out}")
+    for name, msg in zip(names[~valid], np.asarray(res.messages())[~valid]):
+        print(f"  {name}: {msg}")
+    if args.gcp_out:
+        if table is None:
+            raise ValueError("--gcp-out needs a GCP file as input (with ground coordinates), not a name,col,row list")
+        sig = np.asarray(res.sigma)
+        sub = table.subset(valid)
+        sub = dataclasses.replace(sub, pixel=np.asarray(res.xy)[valid],
+                                  sigma=np.sqrt(np.mean(sig[valid] ** 2, axis=1)))
+        write_gcps(args.gcp_out, sub, inputs=inputs)
+        print(f"wrote {int(valid.sum())} measured GCPs to {args.gcp_out}")
+    return 0 if valid.all() else 1

@@ -1,0 +1,327 @@
+"""Interest (point) operators: Moravec, Förstner, Harris; non-maximum
+suppression and :func:`interest_points`.
+
+Seed 004 (点特征提取算法):
+
+* Moravec (1977): at each pixel the sums of squared grey differences along
+  the four directions of a ``k x k`` window (row, column, both diagonals);
+  the interest value is their minimum; candidates above a threshold, then
+  the local maxima.
+* Förstner (Förstner & Gülch 1987): Roberts gradients
+  ``gu = g[i+1, j+1] - g[i, j]``, ``gv = g[i, j+1] - g[i+1, j]``, summed
+  over a window into ``N = [[sum gu^2, sum gu gv], [sum gu gv, sum gv^2]]``;
+  ``w = det N / tr N`` (inverse size of the error ellipse) and
+  ``q = 4 det N / tr(N)^2`` (its roundness, 0..1).  Candidates:
+  ``q > T_q`` (0.5..0.75) and ``w > T_w = f * mean(w)`` (f = 0.5..1.5) or
+  ``T_w = c * median(w)`` (c = 5); then the local maxima of w.
+* Harris (Harris & Stephens 1988): ``det A - k tr(A)^2`` from the
+  Gaussian-weighted structure tensor of Sobel gradients.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Literal, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ._common import as_image, batched, check_odd_window, inner_mask
+from ._filters import Mode, box_sum, gaussian, max_filter, sobel_pair
+
+
+# ----------------------------------------------------------------- Moravec
+
+@partial(jax.jit, static_argnames=("window",))
+def _moravec_seed(img, window):
+    k = window // 2
+    h, w = img.shape
+    p = jnp.pad(img, k + 1)
+
+    def s(dr, dc):
+        return p[k + 1 + dr:k + 1 + dr + h, k + 1 + dc:k + 1 + dc + w]
+
+    vs = []
+    for dr, dc in ((0, 1), (1, 1), (1, 0), (1, -1)):  # row, diagonal, column, anti-diagonal
+        v = jnp.zeros_like(img)
+        for i in range(-k, k):
+            d = s(i * dr, i * dc) - s((i + 1) * dr, (i + 1) * dc)
+            v = v + d * d
+        vs.append(v)
+    iv = jnp.minimum(jnp.minimum(vs[0], vs[1]), jnp.minimum(vs[2], vs[3]))
+    inside = inner_mask((h, w), k)  # full window only
+    return jnp.where(inside, iv, 0.0)
+
+
+@partial(jax.jit, static_argnames=("window",))
+def _moravec_shift(img, window):
+    k = window // 2
+    h, w = img.shape
+    p = jnp.pad(img, k)
+    best = jnp.full_like(img, jnp.inf)
+    for br in range(-k, k + 1):
+        for bc in range(-k, k + 1):
+            if br == 0 or bc == 0:  # scikit-image's loop keeps only shifts off both axes
+                continue
+            d = img - p[k + br:k + br + h, k + bc:k + bc + w]
+            best = jnp.minimum(best, box_sum(d * d, window))
+    inside = inner_mask((h, w), 2 * k)
+    return jnp.where(inside, best, 0.0)
+
+
+def moravec(image, window: int = 5, *, method: Literal["seed", "shift"] = "seed"):
+    """Moravec interest value.
+
+    ``"seed"`` (seed 004, Moravec 1977): with ``k = window // 2``,
+
+        V1 = sum_{i=-k}^{k-1} (g[r, c+i] - g[r, c+i+1])^2     (along the row)
+        V2 = sum (g[r+i, c+i] - g[r+i+1, c+i+1])^2            (diagonal)
+        V3 = sum (g[r+i, c] - g[r+i+1, c])^2                  (along the column)
+        V4 = sum (g[r+i, c-i] - g[r+i+1, c-i-1])^2            (anti-diagonal)
+        IV = min(V1, V2, V3, V4)
+
+    ``"shift"``: the windowed form of ``skimage.feature.corner_moravec``
+    (``window_size = window // 2``): the minimum over shifts
+    ``(dr, dc)``, both non-zero and at most k, of the sum over the
+    ``window x window`` box of ``(g[p] - g[p + (dr, dc)])^2``; zero within
+    ``2 k`` of the border, as there.
+
+    Args:
+        image: ``(h, w)`` or ``(b, h, w)``, any integer or float dtype.
+        window: odd window side, pixels.
+
+    Returns:
+        float64 interest values (grey^2) of the shape of ``image``; zero
+        where the window does not fit.
+    """
+    window = check_odd_window(window)
+    img, b = as_image(image)
+    if method == "seed":
+        fn = _moravec_seed
+    elif method == "shift":
+        fn = _moravec_shift
+    else:
+        raise ValueError(f"method: expected 'seed' or 'shift', got {method!r}")
+    return batched(lambda im: fn(im, window), img, b)
+
+
+# ----------------------------------------------------- structure tensor
+
+def _structure_roberts_box(img, window):
+    # Roberts gradients at the half-pixel points (i + 1/2, j + 1/2); the
+    # window of pixel (r, c) holds those with i in r-k..r+k-1 (and j alike),
+    # i.e. it covers the pixels r-k..r+k exactly (seed 004, step 2).
+    k = window // 2
+    gu = img[1:, 1:] - img[:-1, :-1]
+    gv = img[:-1, 1:] - img[1:, :-1]
+    h, w = img.shape
+
+    def wsum(a):
+        # box of 2k half-pixel samples ending at index r + k - 1
+        p = jnp.pad(a, [(k, k), (k, k)])  # (h-1, w-1) -> (h-1+2k, w-1+2k)
+        c = jnp.cumsum(jnp.cumsum(p, 0), 1)
+        c = jnp.pad(c, [(1, 0), (1, 0)])
+        # sum over p[r .. r+2k-1, c .. c+2k-1] for r in 0..h-1
+        return c[2 * k:2 * k + h, 2 * k:2 * k + w] - c[:h, 2 * k:2 * k + w] - c[2 * k:2 * k + h, :w] + c[:h, :w]
+
+    return wsum(gu * gu), wsum(gu * gv), wsum(gv * gv)
+
+
+def _structure_sobel_gauss(img, sigma, mode="constant"):
+    # skimage.feature.structure_tensor: unnormalised Sobel (mode constant),
+    # products smoothed by a Gaussian (mode constant, truncate 4)
+    gr, gc = sobel_pair(img, mode)
+    return (gaussian(gr * gr, sigma, mode), gaussian(gr * gc, sigma, mode),
+            gaussian(gc * gc, sigma, mode))
+
+
+def _safe_div(num, den):
+    ok = den > 0
+    return jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0)
+
+
+@partial(jax.jit, static_argnames=("window", "sigma"))
+def _foerstner(img, window, sigma):
+    if sigma is None:
+        a, b, c = _structure_roberts_box(img, window)
+        k = window // 2
+        h, w = img.shape
+        inside = inner_mask((h, w), k)
+    else:
+        a, b, c = _structure_sobel_gauss(img, sigma)
+        inside = jnp.ones(img.shape, bool)
+    det = a * c - b * b
+    tr = a + c
+    # det can come out a rounding error below zero on an edge: clip
+    det = jnp.maximum(det, 0.0)
+    wv = jnp.where(inside, _safe_div(det, tr), 0.0)
+    qv = jnp.where(inside, _safe_div(4.0 * det, tr * tr), 0.0)
+    return wv, qv
+
+
+def foerstner(image, window: int = 5, *, sigma: float | None = None):
+    """Förstner interest measures ``(w, q)``.
+
+    ``w = det N / tr N`` and ``q = 4 det N / tr(N)^2`` (docs/maths.md; seed 004;
+    Förstner & Gülch 1987) with ``N`` the sum of ``[gu, gv]^T [gu, gv]``:
+
+    * ``sigma=None`` (the seed): Roberts gradients summed over the
+      ``window x window`` box of each pixel; zero where the box does not fit.
+    * ``sigma`` given: Sobel gradients (unnormalised, border zero) weighted
+      by a Gaussian of that sigma, which is ``skimage.feature.corner_foerstner``.
+
+    Where ``tr N = 0`` (no texture) both measures are 0, never NaN.
+
+    Args:
+        image: ``(h, w)`` or ``(b, h, w)``, any integer or float dtype.
+        window: odd box side, pixels (seed form only).
+        sigma: Gaussian window, pixels.
+
+    Returns:
+        ``(w, q)``, float64 of the shape of ``image``; ``w`` in grey^2,
+        ``q`` in [0, 1].
+    """
+    window = check_odd_window(window)
+    img, b = as_image(image)
+    sig = None if sigma is None else float(sigma)
+    if sig is not None and not sig > 0:
+        raise ValueError(f"sigma: expected a positive number, got {sigma!r}")
+    return batched(lambda im: _foerstner(im, window, sig), img, b)
+
+
+@partial(jax.jit, static_argnames=("sigma", "method", "mode"))
+def _harris(img, k, eps, sigma, method, mode):
+    arr, arc, acc = _structure_sobel_gauss(img, sigma, mode)
+    det = arr * acc - arc * arc
+    tr = arr + acc
+    if method == "k":
+        return det - k * tr * tr
+    return 2.0 * det / (tr + eps)
+
+
+def harris(image, *, k: float = 0.05, sigma: float = 1.0, method: Literal["k", "eps"] = "k", eps: float = 1e-6,
+           mode: Mode = "constant"):
+    """Harris corner response (Harris & Stephens 1988).
+
+    ``det A - k tr(A)^2`` (``method="k"``) or Noble's ``2 det A / (tr A +
+    eps)`` (``"eps"``), with ``A`` the structure tensor of unnormalised
+    Sobel gradients (border zero) weighted by a Gaussian of ``sigma``: the
+    definition of ``skimage.feature.corner_harris``.
+
+    Args:
+        image: ``(h, w)`` or ``(b, h, w)``, any integer or float dtype.
+        mode: border mode of the gradients and the window.  scikit-image's
+            ``"constant"`` (zero outside) makes the image frame itself an
+            edge; :func:`interest_points` uses ``"reflect"``.
+
+    Returns:
+        float64 response (grey^4 for ``"k"``) of the shape of ``image``.
+    """
+    img, b = as_image(image)
+    if method not in ("k", "eps"):
+        raise ValueError(f"method: expected 'k' or 'eps', got {method!r}")
+    if not sigma > 0:
+        raise ValueError(f"sigma: expected a positive number, got {sigma!r}")
+    kk, ee = jnp.asarray(k, jnp.float64), jnp.asarray(eps, jnp.float64)
+    return batched(lambda im: _harris(im, kk, ee, float(sigma), method, mode), img, b)
+
+
+# ------------------------------------------------ non-maximum suppression
+
+@partial(jax.jit, static_argnames=("size",))
+def _nms(resp, threshold, size):
+    return (resp >= max_filter(resp, size)) & (resp > threshold)
+
+
+def non_maximum_suppression(response, size: int = 3, threshold: float = 0.0):
+    """Local maxima: pixels equal to the maximum of their ``size x size``
+    window and above ``threshold``.  (Equal neighbours on a plateau are all
+    kept here; :func:`interest_points` thins them by ``min_distance``.)
+
+    Args:
+        response: ``(h, w)`` or ``(b, h, w)``.
+        size: odd window side, pixels.
+
+    Returns:
+        Boolean map of the shape of ``response``.
+    """
+    size = check_odd_window(size, "size")
+    resp, b = as_image(response, "response")
+    thr = jnp.asarray(threshold, jnp.float64)
+    return batched(lambda r: _nms(r, thr, size), resp, b)
+
+
+class InterestPoints(NamedTuple):
+    """Interest points, strongest first."""
+
+    xy: np.ndarray  #: (n, 2) pixel positions (column, row)
+    strength: np.ndarray  #: (n,) the operator's value at each point
+
+
+def interest_points(image, method: Literal["foerstner", "harris", "moravec"] = "foerstner", *,
+                    window: int = 5, min_distance: int = 3, max_points: int | None = None,
+                    q_threshold: float = 0.75, w_factor: float = 1.0, w_reference: Literal["mean", "median"] = "mean",
+                    threshold: float | None = None, threshold_rel: float = 0.01, sigma: float = 1.0,
+                    k: float = 0.05) -> InterestPoints:
+    """Interest points of one image: operator, thresholds, local maxima.
+
+    * ``"foerstner"`` (seed 004): candidates with ``q > q_threshold`` and
+      ``w > T_w``, ``T_w = w_factor * mean(w)`` (seed: f = 0.5..1.5) or,
+      with ``w_reference="median"``, ``w_factor * median(w)`` (seed: c = 5);
+      the mean/median are over the pixels where the window fits.  Strength w.
+    * ``"harris"`` (border mode ``"reflect"``, so the frame is no corner):
+      response above ``threshold`` (default ``threshold_rel`` x the highest
+      positive response).  Strength: the response.
+    * ``"moravec"`` (seed form): interest value above ``threshold``
+      (default ``threshold_rel`` x the highest).  Strength: the value.
+
+    Then the local maxima within ``min_distance`` (a ``2 min_distance + 1``
+    window), strongest first, at most ``max_points``.
+
+    Args:
+        image: ``(h, w)``, any integer or float dtype (one image: the count
+            varies; for batches use the response functions and
+            :func:`non_maximum_suppression` under ``vmap``).
+
+    Returns:
+        :class:`InterestPoints` with ``xy`` (n, 2: column, row) and
+        ``strength`` (n,).  No texture (a constant image): n = 0.
+    """
+    img, b = as_image(image)
+    if b:
+        raise ValueError("image: interest_points takes one image (h, w); the point count varies per image")
+    if method == "foerstner":
+        wv, qv = foerstner(img, window)
+        wv_np = np.asarray(wv)
+        kk = window // 2
+        inner = wv_np[kk:wv_np.shape[0] - kk, kk:wv_np.shape[1] - kk]
+        if inner.size == 0:
+            return InterestPoints(np.zeros((0, 2)), np.zeros(0))
+        ref = float(np.mean(inner) if w_reference == "mean" else np.median(inner))
+        tw = max(w_factor * ref, 0.0)
+        resp = jnp.where(qv > q_threshold, wv, 0.0)
+        thr = tw
+    elif method in ("harris", "moravec"):
+        resp = harris(img, k=k, sigma=sigma, mode="reflect") if method == "harris" else moravec(img, window)
+        top = float(jnp.max(resp))
+        thr = threshold if threshold is not None else max(threshold_rel * top, 0.0)
+    else:
+        raise ValueError(f"method: expected 'foerstner', 'harris' or 'moravec', got {method!r}")
+    mask = np.asarray(non_maximum_suppression(resp, 2 * min_distance + 1, thr))
+    resp = np.asarray(resp)
+    rows, cols = np.nonzero(mask)
+    s = resp[rows, cols]
+    order = np.argsort(-s, kind="stable")
+    keep_r, keep_c, keep_s = [], [], []
+    for i in order:  # thin plateaus: one point per min_distance
+        r, c = rows[i], cols[i]
+        if any(abs(r - r2) <= min_distance and abs(c - c2) <= min_distance for r2, c2 in zip(keep_r, keep_c)):
+            continue
+        keep_r.append(r)
+        keep_c.append(c)
+        keep_s.append(s[i])
+        if max_points is not None and len(keep_r) >= max_points:
+            break
+    xy = np.stack([np.array(keep_c, float), np.array(keep_r, float)], 1).reshape(-1, 2)
+    return InterestPoints(xy, np.array(keep_s, float))

@@ -1,0 +1,158 @@
+"""Output raster grids: :class:`Grid` and the footprint grid of an image on a DEM.
+
+Raster georeference at pixel *corners*, pixel centres at ``+0.5``
+(``docs/conventions.md``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from rasterio import Affine
+
+from ..camera import FrameCamera
+from ..collinearity import ExteriorOrientation, image_to_ground
+from ..dem import DEM
+
+
+@dataclasses.dataclass(frozen=True)
+class Grid:
+    """An output raster grid: georeference, size and CRS.
+
+    Attributes:
+        transform: GDAL/rasterio affine ``(a, b, xoff, d, e, yoff)``
+            (``rasterio.Affine``) from raster coordinates to map coordinates,
+            georeferenced at pixel *corners*: the centre of pixel
+            ``[row, col]`` is at ``transform * (col + 0.5, row + 0.5)``.
+        shape: ``(rows, cols)``.
+        crs: the map CRS (anything rasterio accepts), or ``None``.
+    """
+
+    transform: Affine
+    shape: tuple[int, int]
+    crs: Any = None
+
+    def __post_init__(self):
+        t = tuple(float(v) for v in tuple(self.transform)[:6])
+        if len(t) != 6 or not all(math.isfinite(v) for v in t):
+            raise ValueError(f"transform must hold 6 finite affine coefficients, got {self.transform!r}")
+        if t[0] * t[4] - t[1] * t[3] == 0:
+            raise ValueError(f"transform is singular: {t}")
+        shape = tuple(int(n) for n in self.shape)
+        if len(shape) != 2 or min(shape) < 1:
+            raise ValueError(f"shape must be (rows, cols) with both >= 1, got {self.shape!r}")
+        object.__setattr__(self, "transform", Affine(*t))
+        object.__setattr__(self, "shape", shape)
+
+    @classmethod
+    def from_bounds(cls, bounds, resolution, crs=None) -> "Grid":
+        """A north-up grid covering ``bounds``, snapped to the resolution.
+
+        Args:
+            bounds: ``(xmin, ymin, xmax, ymax)`` in map units.
+            resolution: pixel size, a scalar or ``(x_size, y_size)``, > 0.
+            crs: the map CRS.
+
+        The edges are moved outwards to whole multiples of the resolution,
+        so grids of the same resolution line up pixel for pixel.
+        """
+        xmin, ymin, xmax, ymax = (float(v) for v in bounds)
+        rx, ry = (float(v) for v in np.broadcast_to(np.asarray(resolution, dtype=float), (2,)))
+        if not (rx > 0 and ry > 0):
+            raise ValueError(f"resolution must be positive, got {resolution!r}")
+        if not (xmax > xmin and ymax > ymin):
+            raise ValueError(f"bounds must be (xmin, ymin, xmax, ymax) with max > min, got {bounds!r}")
+        x0, x1 = math.floor(xmin / rx) * rx, math.ceil(xmax / rx) * rx
+        y0, y1 = math.floor(ymin / ry) * ry, math.ceil(ymax / ry) * ry
+        shape = (max(round((y1 - y0) / ry), 1), max(round((x1 - x0) / rx), 1))
+        return cls(Affine(rx, 0.0, x0, 0.0, -ry, y1), shape, crs)
+
+    @property
+    def height(self) -> int:
+        return self.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.shape[1]
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """``(xmin, ymin, xmax, ymax)`` of the outer pixel edges."""
+        rows, cols = self.shape
+        xs, ys = zip(*(self.transform * (c, r) for c in (0, cols) for r in (0, rows)))
+        return min(xs), min(ys), max(xs), max(ys)
+
+    def xy(self, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
+        """Map coordinates of the pixel centres of a window.
+
+        Args:
+            rows, cols: slices of the grid (default: all of it).
+
+        Returns:
+            ``(h, w, 2)`` float64 ``(X, Y)``.
+        """
+        r = np.arange(self.shape[0], dtype=float)[rows] + 0.5
+        c = np.arange(self.shape[1], dtype=float)[cols] + 0.5
+        a, b, xoff, d, e, yoff = tuple(self.transform)[:6]
+        x = xoff + a * c[None, :] + b * r[:, None]
+        y = yoff + d * c[None, :] + e * r[:, None]
+        return np.stack([x, y], axis=-1)
+
+
+_to_ground = eqx.filter_jit(image_to_ground)
+
+
+def _shoelace(p: np.ndarray) -> float:
+    return 0.5 * abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(np.roll(p[:, 0], -1), p[:, 1])))
+
+
+def ortho_grid(
+    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, resolution=None, *, per_side: int = 16
+) -> Grid:
+    """The grid covering an image's footprint on a DEM.
+
+    The image outline (``per_side`` points per edge, on the outer pixel
+    edges) is cut with the DEM by :func:`photax.image_to_ground`; rays that
+    miss the DEM are cut with the plane at the DEM's mean height.  The
+    bounds are clipped to the DEM and snapped to the resolution.
+
+    Args:
+        resolution: ground pixel size; default the mean ground sampling
+            distance ``sqrt(footprint area / image area in pixels)``.
+    """
+    if camera.image_size is None:
+        raise ValueError("camera must have an image_size to find the image footprint")
+    w, h = camera.image_size
+    t = np.linspace(0.0, 1.0, per_side, endpoint=False)
+    x0, x1, y0, y1 = -0.5, w - 0.5, -0.5, h - 0.5
+    px = np.concatenate(
+        [
+            np.stack([x0 + t * (x1 - x0), np.full_like(t, y0)], -1),
+            np.stack([np.full_like(t, x1), y0 + t * (y1 - y0)], -1),
+            np.stack([x1 - t * (x1 - x0), np.full_like(t, y1)], -1),
+            np.stack([np.full_like(t, x0), y1 - t * (y1 - y0)], -1),
+        ]
+    )
+    img = camera.pixel_to_image(jnp.asarray(px))
+    ground = np.asarray(_to_ground(img, exterior, camera, dem=dem))
+    flat = np.asarray(_to_ground(img, exterior, camera, height=jnp.nanmean(dem.heights)))
+    ground = np.where(np.isfinite(ground), ground, flat)[:, :2]
+    if not np.all(np.isfinite(ground)):
+        raise ValueError("the image outline does not reach the ground (camera looks above the horizon)")
+    if resolution is None:
+        resolution = math.sqrt(_shoelace(ground) / _shoelace(px))
+    dxmin, dymin, dxmax, dymax = dem.bounds
+    bounds = (
+        max(ground[:, 0].min(), dxmin),
+        max(ground[:, 1].min(), dymin),
+        min(ground[:, 0].max(), dxmax),
+        min(ground[:, 1].max(), dymax),
+    )
+    if not (bounds[2] > bounds[0] and bounds[3] > bounds[1]):
+        raise ValueError("the image footprint does not overlap the DEM")
+    return Grid.from_bounds(bounds, resolution, crs=dem.crs)

@@ -1,0 +1,33 @@
+"""Synthetic scenes with known truth -- the one generator of test, demo and example data.
+
+* :func:`relief_scene` (:mod:`._relief`): one aerial frame over hills or flat
+  land, rendered image, DEM, control and check points (tests, the rectification
+  notebook, the demo's comparison);
+* :func:`sample_points` and :func:`render_sample_image` (:mod:`._sample`): the
+  sample image and GCPs that ``data/make_sample.py`` and ``photax demo`` write;
+* :func:`block_scene` (:mod:`._block`): a block of strips for bundle adjustment
+  (:func:`photax.bundle.synthetic_block` packs it into a problem);
+* :func:`texture` (:mod:`._texture`): the ground texture all of them are painted with.
+
+Everything is seeded; ground coordinates are UTM-like so code that forgets to
+reduce them to a local origin shows it.  Frames and units: ``docs/conventions.md``.
+"""
+
+from ._block import BlockScene as BlockScene, block_scene as block_scene
+from ._relief import Scene as Scene, relief_scene as relief_scene
+from ._sample import (
+    SAMPLE_BLUNDER as SAMPLE_BLUNDER,
+    SAMPLE_CHECK as SAMPLE_CHECK,
+    SAMPLE_CRS as SAMPLE_CRS,
+    SAMPLE_DEM_CELL as SAMPLE_DEM_CELL,
+    SAMPLE_DEM_HALF as SAMPLE_DEM_HALF,
+    SAMPLE_IMAGE as SAMPLE_IMAGE,
+    SAMPLE_NOISE_PX as SAMPLE_NOISE_PX,
+    SAMPLE_ORIGIN as SAMPLE_ORIGIN,
+    SAMPLE_SEED as SAMPLE_SEED,
+    SAMPLE_TARGET_RADIUS as SAMPLE_TARGET_RADIUS,
+    render_sample_image as render_sample_image,
+    sample_dem as sample_dem,
+    sample_points as sample_points,
+)
+from ._texture import texture as texture
