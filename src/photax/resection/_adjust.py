@@ -23,6 +23,8 @@ optimistix's public ``RESULTS`` items.
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 
@@ -188,8 +190,8 @@ def from_optimistix(result):
     return code
 
 
-@jax.jit
-def levenberg_marquardt(inp: Inputs, out: Output, opt: Options) -> Output:
+@functools.partial(jax.jit, static_argnames="max_steps")
+def levenberg_marquardt(inp: Inputs, out: Output, opt: Options, max_steps: int) -> Output:
     """Fallback when Gauss-Newton failed: optimistix's Levenberg-Marquardt
     from the same start with the same points (autodiff Jacobian: it runs
     rarely, and is compiled only then)."""
@@ -203,7 +205,7 @@ def levenberg_marquardt(inp: Inputs, out: Output, opt: Options) -> Output:
         return v.reshape(-1) / opt.camera.focal_length  # dimensionless: tolerances independent of the unit
 
     algo = optx.LevenbergMarquardt(rtol=1e-11, atol=1e-11, linear_solver=lx.QR())
-    sol = optx.least_squares(residuals, algo, out.start, max_steps=opt.max_steps, throw=False)
+    sol = optx.least_squares(residuals, algo, out.start, max_steps=max_steps, throw=False)
     code = jnp.where(jnp.all(jnp.isfinite(sol.value)), from_optimistix(sol.result), RESULTS.nonfinite)
     fields = precision(sol.value, inp, used, opt)
     return Output(**fields, result=code, steps=sol.stats["num_steps"], start=out.start, used=used,

@@ -49,8 +49,10 @@ def _options(prep: Prepared, camera: FrameCamera, convention, robust, alpha, max
         dlt_ok=np.bool_(n_ctrl >= 6),
         pok=np.bool_(convention == "phi-omega-kappa"),
         subsets=prep.ctrl_idx[_robust.subsets(n_ctrl)],
-        camera=camera,
-        max_steps=int(max_steps),
+        # The solvers need no pixel grid; without it (static fields of FrameCamera) every camera shares
+        # one compilation (the grid is only read by the numpy-side checks, from the caller's camera).
+        camera=FrameCamera(camera.focal_length, camera.principal_point, camera.distortion),
+        max_steps=np.int64(max_steps),
     )
 
 
@@ -81,13 +83,13 @@ def _call(fn, inp: Inputs, opt: Options, chunk: int | None, m: int) -> Output:
     return unpack(np.concatenate([np.asarray(x) for x in parts])[:b], m)
 
 
-def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool) -> Output:
+def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, camera: FrameCamera) -> Output:
     """The cheap path for every image, the robust path for those it hands over."""
     inp = _inputs(prep, m)
     out = _call(_solve_cheap, inp, opt, _CHUNK if batch else None, m)
     # A converged but implausible cheap result (e.g. a local minimum far from a poor linear start) also
     # goes to the robust path: its LMedS start is what the real data of test_resection_real needs.
-    idx = np.flatnonzero(out.retry | _screen(prep, out, opt.camera)[0]) if robust else np.zeros(0, int)
+    idx = np.flatnonzero(out.retry | _screen(prep, out, camera)[0]) if robust else np.zeros(0, int)
     if idx.size:
         again = _call(_solve_robust, _take(inp, idx), opt, _ROBUST_CHUNK if batch else None, m)
 
@@ -259,12 +261,12 @@ def _resect_one(image_xy, ground_xyz, *, camera, sigma, check, names, initial, c
     m = _bucket(prep.xy.shape[1])
     opt = _options(prep, camera, convention, robust, alpha, max_steps, m)
     with _solver_errors():
-        out = _solve(prep, opt, m, batch=False, robust=robust)
+        out = _solve(prep, opt, m, batch=False, robust=robust, camera=camera)
         if out.result[0] == RESULTS.successful or not fallback:
             return _finish(prep, out, camera, convention, batch=False)
         # Gauss-Newton failed: Levenberg-Marquardt from the same start, same points
         gn = _message(int(out.result[0]), int(out.steps[0]), "gn")[1]
-        lm = _adjust.levenberg_marquardt(_take(_inputs(prep, m), 0), _take(out, 0), opt)
+        lm = _adjust.levenberg_marquardt(_take(_inputs(prep, m), 0), _take(out, 0), opt, int(max_steps))
         out = jax.tree_util.tree_map(lambda a: np.asarray(a)[None], jax.device_get(lm))
     return _finish(prep, out, camera, convention, batch=False, solver="lm", gn_failure=gn)
 
@@ -371,7 +373,7 @@ def resect_batch(
     m = _bucket(prep.xy.shape[1])
     opt = _options(prep, camera, convention, robust, alpha, max_steps, m)
     with _solver_errors():
-        out = _solve(prep, opt, m, batch=True, robust=robust)
+        out = _solve(prep, opt, m, batch=True, robust=robust, camera=camera)
     res = _finish(prep, out, camera, convention, batch=True)
     if throw and not np.all(res.converged):
         bad = np.flatnonzero(~res.converged)

@@ -36,7 +36,9 @@ class Inputs(eqx.Module):
 
 
 class Options(eqx.Module):
-    """Settings shared by every image of a call; only ``max_steps`` is static."""
+    """Settings shared by every image of a call; no static fields, so that
+    one compilation serves every setting (``camera`` carries only its
+    interior orientation, no pixel grid: see ``_api._options``)."""
 
     critical: Array  # (m + 1,) critical value of the test with k control points in use
     snoop: Array  # () bool: robust=True, test for blunders (and exclude them on the robust path)
@@ -48,7 +50,7 @@ class Options(eqx.Module):
     pok: Array  # () bool: phi-omega-kappa (else omega-phi-kappa)
     subsets: Array  # (k, 6) int: indices of the random subsets of the robust start
     camera: FrameCamera
-    max_steps: int = eqx.field(static=True)  # Gauss-Newton iterations per adjustment
+    max_steps: Array  # () int: Gauss-Newton iterations per adjustment
 
 
 class Output(eqx.Module):
