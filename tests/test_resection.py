@@ -243,3 +243,30 @@ def test_non_convergence_is_a_status():
     assert "did not converge" in res.message[1]
     with pytest.raises(ptx.ConvergenceError, match="1 of 2 images"):
         ptx.resect_batch(np.broadcast_to(xy, (2,) + xy.shape), g, CAM, initial=init, max_steps=2, throw=True)
+
+
+def test_gauss_newton_is_differentiable():
+    """Reverse-mode derivative of the adjusted orientation with respect to the image coordinates
+    (implicit function theorem through ``lax.custom_root``; the loop itself is not differentiated)
+    against the closed form ``(A^T A)^-1 A^T`` of a noise-free least-squares problem."""
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    from photax.resection import _adjust, _api, _checks
+
+    rng = np.random.default_rng(14)
+    ground, xy, truth = _scene(rng, (0.1, -0.05, 0.4), relief=50.0, n=8)
+    prep = _checks.validate(xy, ground, CAM, None, None, None, None, "phi-omega-kappa", 0.001, batch=False)
+    opt = jax.tree_util.tree_map(jnp.asarray, _api._options(prep, CAM, "phi-omega-kappa", False, 0.001, 20, 16))
+    inp = jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), _api._inputs(prep, 16))
+    start = jnp.concatenate([truth.position - prep.origin[0], truth.angles]) + 1e-3
+
+    def solve(x):
+        return _adjust.gauss_newton(start, eqx.tree_at(lambda i: i.xy, inp, x), inp.ctrl, opt)[0]
+
+    jac = jax.jacrev(solve)(inp.xy)  # (6, 16, 2)
+    _, a, _, _ = _adjust.evaluate(solve(inp.xy), inp, inp.ctrl, opt)
+    a = np.asarray(a).reshape(-1, 6)
+    ref = np.linalg.solve(a.T @ a, a.T).reshape(6, 16, 2)
+    np.testing.assert_allclose(jac, ref, rtol=0, atol=1e-7 * np.abs(ref).max())

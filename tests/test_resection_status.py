@@ -179,8 +179,8 @@ def test_errors_inside_the_solver_are_reported_in_photax_words(monkeypatch):
     def broken(*args, **kwargs):
         raise inner
 
-    monkeypatch.setattr(resection, "_solve_one", broken)
-    monkeypatch.setattr(resection, "_solve_many", broken)
+    monkeypatch.setattr(resection._api, "_solve_cheap", broken)
+    monkeypatch.setattr(resection._api, "_solve_robust", broken)
     for call in (lambda: ptx.resect(xy, ground, cam, throw=False), lambda: ptx.resect_batch(xy[None], ground[None], cam)):
         with pytest.raises(ptx.ConvergenceError) as info:
             call()
@@ -191,11 +191,27 @@ def test_errors_inside_the_solver_are_reported_in_photax_words(monkeypatch):
 def test_optimistix_result_codes_all_have_photax_words():
     import optimistix as optx
 
+    from photax.resection import _adjust, _api
+
+    # every optimistix outcome (enumerated here through its private table: the code under test reads only
+    # the public items) maps to a photax code with photax's words
     for name, item in optx.RESULTS._name_to_item.items():
-        converged, text = resection._message(int(item._value), 7, "gn")
+        code = ptx.RESULTS(int(_adjust.from_optimistix(item)))
+        assert (code == ptx.RESULTS.successful) == (name == "successful"), name
+        converged, text = _api._message(int(code), 7, "gn")
         assert converged == (name == "successful")
         _no_dependency_text(text)
         assert "Gauss-Newton" in text and "7 steps" in text
+
+
+def test_result_codes_next_to_messages(sample_result):
+    assert sample_result.result == ptx.RESULTS.successful and sample_result.to_dict()["result"] == "successful"
+    cam, eo, ground, xy = _scene(31, relief=0.0)
+    mirrored = ptx.resect(xy * [-1.0, 1.0], ground, cam, throw=False)
+    assert mirrored.result == ptx.RESULTS.implausible and not mirrored.converged
+    batch = ptx.resect_batch(np.stack([xy, xy * [-1.0, 1.0]]), np.stack([ground] * 2), cam)
+    assert batch.result.tolist() == [ptx.RESULTS.successful, ptx.RESULTS.implausible]
+    assert batch[1].result == ptx.RESULTS.implausible
 
 
 # ----------------------------------------------------------------------------- units in the report

@@ -27,7 +27,7 @@ from .collinearity import (
     project as project,
 )
 from .dem import DEM as DEM
-from .errors import ConvergenceError as ConvergenceError
+from .errors import RESULTS as RESULTS, ConvergenceError as ConvergenceError
 from .intersection import intersect as intersect
 from .io import (
     read_bal as read_bal,

@@ -1,4 +1,14 @@
-"""Exceptions photax raises besides ValueError."""
+"""Exceptions photax raises besides ValueError, and the outcome codes of its solvers.
+
+Outcomes and ``throw`` (docs/architecture.md): every solver result carries
+``result`` (a :class:`RESULTS` code) next to ``converged`` and ``message``.
+With ``throw=True`` a failure raises :class:`ConvergenceError` with the same
+message; with ``throw=False`` the result comes back flagged, values finite.
+"""
+
+from __future__ import annotations
+
+import enum
 
 
 class ConvergenceError(RuntimeError):
@@ -7,3 +17,40 @@ class ConvergenceError(RuntimeError):
     Raised only with ``throw=True``; with ``throw=False`` the result carries
     ``converged=False`` and the same message instead.
     """
+
+
+_SINGULAR = "the normal equations became singular (the control points do not determine the orientation from there)"
+
+
+class RESULTS(enum.IntEnum):
+    """Outcome of a photax solver, as optimistix's ``RESULTS`` but in photax's words.
+
+    Integer-valued, so compiled code returns them as ``int`` arrays (one per
+    image of a batch) and ``RESULTS(code)`` names them.  ``successful`` is 0;
+    :attr:`text` is the reason shown in messages.
+    """
+
+    successful = 0
+    max_steps_reached = 1
+    singular = 2
+    nonfinite = 3
+    diverged = 4
+    solver_failed = 5  # an optimistix outcome photax has no words for
+    behind_camera = 6  # converged, but points lie behind the camera
+    implausible = 7  # converged, but image and ground evidently do not belong together
+
+    @property
+    def text(self) -> str:
+        return _TEXTS[self]
+
+
+_TEXTS = {
+    RESULTS.successful: "converged",
+    RESULTS.max_steps_reached: "the iteration limit was reached",
+    RESULTS.singular: _SINGULAR,
+    RESULTS.nonfinite: "the estimate became non-finite (NaN or inf)",
+    RESULTS.diverged: "the iterations diverged",
+    RESULTS.solver_failed: "the solver failed",
+    RESULTS.behind_camera: "the solution puts control points behind the camera",
+    RESULTS.implausible: "the solution is implausible",
+}

@@ -1,0 +1,382 @@
+"""resect and resect_batch: one validation, the cheap path, the robust path
+for the images that need it, one finishing step.
+
+Both run the same compiled functions, ``vmap``-ed over a leading image
+axis (a single image is a batch of one): :func:`._adjust.solve_cheap` for
+every image, then :func:`._robust.solve_robust` for the compacted set of
+images the cheap path hands over (``retry``).  Each compiles once per
+padded point count (16, 32, ...) and batch shape (1 for ``resect``,
+fixed-size chunks for ``resect_batch``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+
+import jax
+import numpy as np
+
+from ..camera import FrameCamera
+from ..collinearity import ExteriorOrientation
+from ..errors import RESULTS, ConvergenceError
+from ..rotation import Convention
+from . import _adjust, _robust
+from ._checks import (CAUSES, Prepared, _bucket, _critical_table, _frame, _pixel_size, _plausibility, _point_label,
+                      implausible, validate)
+from ._result import ResectionResult
+from ._types import Inputs, Options, Output, pack, unpack
+
+_CHUNK = 1024  # images per call of the cheap path in resect_batch: one compilation for any batch size
+_ROBUST_CHUNK = 32  # images per call of the robust path (a few per cent of a batch go there)
+
+# The compiled solvers: one image's pytree in, a packed float vector out, vmapped over images.
+_solve_cheap = jax.jit(lambda inp, opt: jax.vmap(lambda i: pack(_adjust.solve_cheap(i, opt)))(inp))
+_solve_robust = jax.jit(lambda inp, opt: jax.vmap(lambda i: pack(_robust.solve_robust(i, opt)))(inp))
+
+
+def _options(prep: Prepared, camera: FrameCamera, convention, robust, alpha, max_steps, m) -> Options:
+    """Every setting of the compiled solvers, in one place."""
+    sigma_known, n_ctrl = prep.sigma_known, len(prep.ctrl_idx)
+    return Options(
+        critical=_critical_table(float(alpha), sigma_known, m),
+        snoop=np.bool_(robust),
+        scale_stat=np.bool_(not sigma_known),
+        exact=np.float64(1e-10 if sigma_known else 1e-10 * float(camera.focal_length)),  # rounding level: no test
+        min_points=np.int64(3 if prep.has_initial else 4),
+        min_redundancy=np.float64(1.0 if sigma_known else 2.0),
+        dlt_ok=np.bool_(n_ctrl >= 6),
+        pok=np.bool_(convention == "phi-omega-kappa"),
+        subsets=prep.ctrl_idx[_robust.subsets(n_ctrl)],
+        # The solvers need no pixel grid; without it (static fields of FrameCamera) every camera shares
+        # one compilation (the grid is only read by the numpy-side checks, from the caller's camera).
+        camera=FrameCamera(camera.focal_length, camera.principal_point, camera.distortion),
+        max_steps=np.int64(max_steps),
+    )
+
+
+def _inputs(prep: Prepared, m: int) -> Inputs:
+    b, n = prep.xy.shape[:2]
+
+    def pad(a, fill):
+        return np.concatenate([a, np.full((b, m - n) + a.shape[2:], fill, a.dtype)], axis=1) if m > n else a
+
+    return Inputs(xy=pad(prep.xy, 0.0), ground=pad(prep.local, 0.0), weight=pad(prep.weight, 1.0),
+                  ctrl=pad(~prep.is_check, False), basis=prep.basis, init=prep.init,
+                  use_init=np.full(b, prep.has_initial))
+
+
+def _take(tree, idx):
+    return jax.tree_util.tree_map(lambda a: a[idx], tree)
+
+
+def _call(fn, inp: Inputs, opt: Options, chunk: int | None, m: int) -> Output:
+    """``fn`` over the images of ``inp`` in chunks of ``chunk`` (the last one
+    padded with copies of the first image; None: one call, any size)."""
+    b = len(inp.xy)
+    if chunk is None:
+        return unpack(np.asarray(fn(inp, opt)), m)
+    nb = -(-b // chunk) * chunk
+    idx = np.concatenate([np.arange(b), np.zeros(nb - b, int)])
+    parts = [fn(_take(inp, idx[i : i + chunk]), opt) for i in range(0, nb, chunk)]  # dispatched asynchronously
+    return unpack(np.concatenate([np.asarray(x) for x in parts])[:b], m)
+
+
+def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, camera: FrameCamera) -> Output:
+    """The cheap path for every image, the robust path for those it hands over."""
+    inp = _inputs(prep, m)
+    out = _call(_solve_cheap, inp, opt, _CHUNK if batch else None, m)
+    # A converged but implausible cheap result (e.g. a local minimum far from a poor linear start) also
+    # goes to the robust path: its LMedS start is what the real data of test_resection_real needs.
+    idx = np.flatnonzero(out.retry | _screen(prep, out, camera)[0]) if robust else np.zeros(0, int)
+    if idx.size:
+        again = _call(_solve_robust, _take(inp, idx), opt, _ROBUST_CHUNK if batch else None, m)
+
+        def merge(a, x):
+            a = a.copy()
+            a[idx] = x
+            return a
+
+        out = jax.tree_util.tree_map(merge, out, again)
+    return out
+
+
+@functools.lru_cache(maxsize=4096)
+def _message(result: int, steps: int, solver: str) -> tuple[bool, str]:
+    """The adjustment's own message: converged, or why not."""
+    name = {"gn": "Gauss-Newton", "lm": "Levenberg-Marquardt"}[solver]
+    if result == RESULTS.successful:
+        return True, f"{name} converged in {steps} steps"
+    return False, f"{name} did not converge after {steps} steps: {RESULTS(result).text}"
+
+
+def _screen(prep: Prepared, out: Output, camera):
+    """Converged images that fail the vectorised plausibility screen ``(b,)``; also the finite
+    parameters, rms, squared residuals and the adjustment's result code it computed on the way."""
+    n = prep.xy.shape[1]
+    ctrl = ~prep.is_check
+    used = out.used[:, :n]
+    finite = np.all(np.isfinite(out.params), axis=1)
+    p = np.where(finite[:, None], out.params, np.nan_to_num(out.start))  # finite values; the status says it failed
+    adjustment = np.where(finite, out.result, RESULTS.nonfinite)
+    d2 = np.sum(out.residuals[:, :n] ** 2, axis=2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rms = np.sqrt(np.sum(d2 * used, axis=1) / used.sum(1))
+    half, f = _frame(camera)
+    bad = implausible(prep.xy, ctrl, ctrl & ~used, p[:, :3], out.axis, prep.basis[:, :, 2], rms, half, f)
+    return (adjustment == RESULTS.successful) & bad, p, rms, d2, adjustment
+
+
+def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver="gn", gn_failure=None):
+    """Numbers and words of the result for every image (vectorised; words
+    formatted only where something failed).  Shared by resect and resect_batch."""
+    b, n = prep.xy.shape[:2]
+    ctrl = ~prep.is_check
+    used = out.used[:, :n]
+    outliers = ctrl & ~used
+    screen, p, rms, d2, adjustment = _screen(prep, out, camera)
+    code = adjustment.copy()
+    resid = out.residuals[:, :n]
+    n_used = used.sum(1)
+    behind = used & ~(out.depth[:, :n] > 0)
+    code[(code == RESULTS.successful) & np.any(behind, axis=1)] = RESULTS.behind_camera
+    half, f = _frame(camera)
+    normal = prep.basis[:, :, 2]
+    reasons = {}
+    for i in np.flatnonzero((code == RESULTS.successful) & screen):
+        why = _plausibility(prep.xy[i], ctrl[i], outliers[i], p[i, :3], out.axis[i], normal[i], rms[i], half, f)
+        if why is not None:
+            reasons[i] = why
+            code[i] = RESULTS.implausible
+    red = 2.0 * n_used - 6.0
+    sigma_known = prep.sigma_known
+    cov = np.where((red > 0)[:, None, None], out.sigma0[:, None, None] ** 2 * out.qxx,
+                   out.qxx if sigma_known else np.nan)
+    std = np.sqrt(np.abs(np.diagonal(cov, axis1=1, axis2=2)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / (std[:, :, None] * std[:, None, :])
+        check_rms = np.sqrt(np.sum(d2 * prep.is_check, axis=1) / prep.is_check.sum(1))
+    stat = out.w[:, :n] / (1.0 if sigma_known else out.sigma0[:, None, None])
+    stat = np.where(used[:, :, None], stat, out.stat_at[:, :n])
+    messages = [_message(c, s, solver)[1] for c, s in zip(adjustment.tolist(), out.steps.tolist())]
+    for i in np.flatnonzero((code != RESULTS.successful) | (red <= 0)):
+        m = messages[i] if gn_failure is None else f"{gn_failure}; then {messages[i]}"
+        if code[i] == RESULTS.behind_camera:
+            m = ("the solution puts control points behind the camera: "
+                 + ", ".join(_point_label(prep.names, k) for k in np.flatnonzero(behind[i])) + "; " + CAUSES)
+        elif code[i] == RESULTS.implausible:
+            m = f"{reasons[i]}; {CAUSES} (the adjustment itself: {m})"
+        elif code[i] != RESULTS.successful:
+            m += "; " + CAUSES
+        if red[i] <= 0:
+            m += "; zero redundancy: sigma0 and blunder tests undefined" + (
+                ", covariance from the a-priori sigma" if sigma_known else ", covariance unknown")
+        messages[i] = m
+    names = prep.names if prep.names is not None else [f"P{k}" for k in range(n)]
+    fields = dict(sigma0=out.sigma0, covariance=cov, std=std, correlation=corr, residuals=resid,
+                  outliers=outliers, check=prep.is_check, redundancy=out.redundancy[:, :n], normalized=stat,
+                  critical=out.critical, rms=rms, check_rms=check_rms, iterations=out.steps,
+                  converged=code == RESULTS.successful, message=messages, result=code)
+    common = dict(names=list(names), statistic="w" if sigma_known else "tau", pixel_size=_pixel_size(camera))
+    if batch:
+        ext = ExteriorOrientation(p[:, :3] + prep.origin, p[:, 3:], convention)
+        return ResectionResult(exterior=ext, **fields, **common)
+    one = {k: v[0] for k, v in fields.items()}
+    for k in ("sigma0", "critical", "rms", "check_rms"):
+        one[k] = float(one[k])
+    one.update(iterations=int(one["iterations"]), converged=bool(one["converged"]), result=RESULTS(int(one["result"])))
+    ext = ExteriorOrientation(p[0, :3] + prep.origin[0], p[0, 3:], convention)
+    return ResectionResult(exterior=ext, **one, **common)
+
+
+def resect(
+    image_xy,
+    ground_xyz,
+    camera: FrameCamera,
+    *,
+    sigma=None,
+    check=None,
+    names=None,
+    initial: ExteriorOrientation | None = None,
+    convention: Convention = "phi-omega-kappa",
+    robust: bool = True,
+    alpha: float = 0.001,
+    max_steps: int = 50,
+    throw: bool = True,
+) -> ResectionResult:
+    """Space resection of one image from ground control points.
+
+    Args:
+        image_xy: ``(n, 2)`` image-plane coordinates (x right, y up, the
+            camera's unit; convert pixels with ``camera.pixel_to_image``).
+        ground_xyz: ``(n, 3)`` ground coordinates (X east, Y north, Z up).
+        camera: interior orientation (distortion is taken into account).
+        sigma: a-priori standard deviations of the image coordinates:
+            scalar, ``(n,)`` or ``(n, 2)``; weights are ``1/sigma^2``.  With
+            it, blunders are tested with Baarda's w (a-priori sigma0 = 1);
+            without it, with Pope's tau (a-posteriori sigma0).
+        check: ``(n,)`` bool, True for check points: not used in the fit,
+            their residuals reported separately.
+        names: ``(n,)`` point names for messages and reports.
+        initial: a start orientation; optional (needed only for 3 points).
+        convention: angle convention of the result.
+        robust: test for blunders; where the test fails (or the cheap path
+            does), a least-median-of-squares start over random subsets and
+            data snooping (exclude the worst point while the test fails).
+        alpha: significance level of each test (0.001 -> 3.29 for w).
+        max_steps: maximum Gauss-Newton / LM steps per adjustment.
+        throw: raise :class:`photax.ConvergenceError` on failure; otherwise
+            return the result with ``converged=False``, the reason in
+            ``message`` and its :class:`photax.RESULTS` code in ``result``.
+            Failure includes an implausible solution (package docstring,
+            step 5).
+
+    Returns:
+        :class:`ResectionResult` (finite values also when it failed).
+
+    Raises:
+        ValueError: bad shapes, NaN/inf (naming the points), too few or
+            degenerate (collinear, duplicated) control points.
+        ConvergenceError: with ``throw=True`` on failure; whatever
+            ``throw``, if the compiled solver itself raises (the original
+            exception is its ``__cause__``).
+    """
+    settings = dict(camera=camera, sigma=sigma, check=check, names=names, initial=initial, convention=convention,
+                    robust=robust, alpha=alpha, max_steps=max_steps)
+    res = _resect_one(image_xy, ground_xyz, fallback=True, **settings)
+    if not res.converged and initial is None and "wrong units (e.g." not in res.message:  # units: no swap helps
+        hint = _swap_hint(np.asarray(image_xy, float), np.asarray(ground_xyz, float), settings)
+        if hint:
+            res = dataclasses.replace(res, message=f"{hint}; {res.message}")
+    if throw and not res.converged:
+        raise ConvergenceError(res.message)
+    return res
+
+
+def _resect_one(image_xy, ground_xyz, *, camera, sigma, check, names, initial, convention, robust, alpha, max_steps,
+                fallback) -> ResectionResult:
+    """Validate, solve (then Levenberg-Marquardt if Gauss-Newton failed and ``fallback``), finish."""
+    prep = validate(image_xy, ground_xyz, camera, sigma, check, names, initial, convention, alpha, batch=False)
+    m = _bucket(prep.xy.shape[1])
+    opt = _options(prep, camera, convention, robust, alpha, max_steps, m)
+    with _solver_errors():
+        out = _solve(prep, opt, m, batch=False, robust=robust, camera=camera)
+        if out.result[0] == RESULTS.successful or not fallback:
+            return _finish(prep, out, camera, convention, batch=False)
+        # Gauss-Newton failed: Levenberg-Marquardt from the same start, same points
+        gn = _message(int(out.result[0]), int(out.steps[0]), "gn")[1]
+        lm = _adjust.levenberg_marquardt(_take(_inputs(prep, m), 0), _take(out, 0), opt, int(max_steps))
+        out = jax.tree_util.tree_map(lambda a: np.asarray(a)[None], jax.device_get(lm))
+    return _finish(prep, out, camera, convention, batch=False, solver="lm", gn_failure=gn)
+
+
+def _swap_hint(xy, ground, settings) -> str | None:
+    """Name the swap that makes a failed resection fit, if one does.
+
+    The usual mistakes in a GCP file are tried (Gauss-Newton only: no new
+    compilation, milliseconds each): image column/row swapped (x/y
+    without a pixel grid), the row counted upwards (y mirrored), ground E
+    and N swapped.  A hypothesis counts when its resection passes every
+    check of :func:`._checks._plausibility` (in particular, at most a third
+    of the points excluded).
+    """
+    camera = settings["camera"]
+    if camera.pixel_size is not None and camera.image_size is not None:
+        colrow = np.asarray(camera.image_to_pixel(xy))
+        swapped_xy = np.asarray(camera.pixel_to_image(colrow[:, ::-1]))
+        swap_name = "the image column and row are swapped"
+    else:
+        swapped_xy, swap_name = xy[:, ::-1], "the image x and y are swapped"
+    ground_en = ground[:, [1, 0, 2]]
+    hypotheses = [
+        (swap_name, swapped_xy, ground),
+        ("the image y (row) axis is reversed", xy * [1.0, -1.0], ground),
+        ("the ground E and N (X and Y) are swapped", xy, ground_en),
+    ]
+    fits = []
+    for text, xy_h, ground_h in hypotheses:
+        try:
+            res = _resect_one(xy_h, ground_h, fallback=False, **settings)
+        except (ValueError, ConvergenceError):
+            continue
+        if res.converged:
+            rms = f"{res.rms / res.pixel_size:.3g} px" if res.pixel_size else f"{res.rms:.3g}"
+            k = int(res.outliers.sum())
+            fits.append(f"{text} (then rms {rms}, {k} point{'' if k == 1 else 's'} excluded)")
+    if not fits:
+        return None
+    # For (nearly) planar GCPs any mirroring of the image undoes any mirroring of the ground: name all that fit.
+    return "probably swapped or mirrored axes: the control points fit if " + " - or if ".join(fits)
+
+
+@contextlib.contextmanager
+def _solver_errors():
+    """Errors raised inside the compiled solver (JAX/XLA, equinox checks,
+    optimistix, lineax) -> :class:`ConvergenceError` in photax's words, the
+    original kept as ``__cause__``.  The solver runs with ``throw=False``,
+    so this is a safety net: failures are normally a status, not an error.
+    """
+    try:
+        yield
+    except (ValueError, TypeError, KeyboardInterrupt):
+        raise  # input errors and Ctrl-C keep their type
+    except Exception as exc:
+        raise ConvergenceError(f"the resection failed inside its solver ({type(exc).__name__}); "
+                               f"the orientation could not be computed from these points; {CAUSES}") from exc
+
+
+
+def resect_batch(
+    image_xy,
+    ground_xyz,
+    camera: FrameCamera,
+    *,
+    sigma=None,
+    initial: ExteriorOrientation | None = None,
+    convention: Convention = "phi-omega-kappa",
+    robust: bool = True,
+    alpha: float = 0.001,
+    max_steps: int = 20,
+    throw: bool = False,
+) -> ResectionResult:
+    """Space resection of many images with the same number of GCPs, in one call.
+
+    The same compiled solvers as :func:`resect`, ``jax.vmap``-ed over chunks
+    of images (one compilation for any batch size): every image takes the
+    cheap path (linear start from all points, Gauss-Newton with at most
+    ``max_steps`` iterations, precision, the blunder test); with
+    ``robust=True`` the images whose test or adjustment fails are gathered
+    into a second, compacted batch for the robust path (least-median-of-
+    squares start over random subsets, data snooping).  Each image has its
+    own ``converged``, ``result`` and ``message``.  Unlike :func:`resect`
+    there is no Levenberg-Marquardt fallback (a failed image is reported,
+    not retried) and the swap hints are not tried; the plausibility checks
+    apply per image.
+
+    Args:
+        image_xy: ``(b, n, 2)`` image-plane coordinates.
+        ground_xyz: ``(b, n, 3)`` ground coordinates.
+        camera: one interior orientation for all images.
+        sigma: scalar, ``(b, n)`` or ``(b, n, 2)`` a-priori sigmas.
+        initial: optional start with batch shape ``(b,)``.
+        convention, robust, alpha: as in :func:`resect`.
+        max_steps: Gauss-Newton iterations at most.
+        throw: raise :class:`photax.ConvergenceError` if any image failed
+            (default False: a batch does not die because one image failed).
+
+    Returns:
+        A :class:`ResectionResult` whose arrays have a leading axis ``b``
+        (``result[i]`` is the ``i``-th image's result).
+    """
+    prep = validate(image_xy, ground_xyz, camera, sigma, None, None, initial, convention, alpha, batch=True)
+    m = _bucket(prep.xy.shape[1])
+    opt = _options(prep, camera, convention, robust, alpha, max_steps, m)
+    with _solver_errors():
+        out = _solve(prep, opt, m, batch=True, robust=robust, camera=camera)
+    res = _finish(prep, out, camera, convention, batch=True)
+    if throw and not np.all(res.converged):
+        bad = np.flatnonzero(~res.converged)
+        raise ConvergenceError(f"{len(bad)} of {len(res.converged)} images failed, "
+                               f"e.g. image {bad[0]}: {res.message[bad[0]]}")
+    return res

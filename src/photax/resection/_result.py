@@ -1,0 +1,228 @@
+"""The outcome of a resection: :class:`ResectionResult`, its report and its JSON form."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..collinearity import ExteriorOrientation
+from ..errors import RESULTS
+
+
+@dataclasses.dataclass(frozen=True)
+class ResectionResult:
+    """Outcome of :func:`resect` (or, with a leading batch axis, :func:`resect_batch`).
+
+    Attributes:
+        exterior: the estimated :class:`~photax.ExteriorOrientation`.
+        sigma0: a-posteriori standard deviation of unit weight (image-plane
+            units when no ``sigma`` was given, dimensionless otherwise); NaN
+            at zero redundancy.
+        covariance: ``(6, 6)`` in the order (X, Y, Z, angles in convention
+            order); metres and radians.
+        std: ``(6,)`` standard deviations, same order.
+        correlation: ``(6, 6)``.
+        residuals: ``(n, 2)`` observed - computed, image-plane units, for all
+            input points (outliers and check points included).
+        outliers: ``(n,)`` True for points excluded by data snooping.
+        check: ``(n,)`` True for check points (not used in the fit).
+        redundancy: ``(n, 2)`` redundancy numbers (0 for excluded points).
+        normalized: ``(n, 2)`` test statistics (Baarda's w or Pope's tau);
+            for outliers the values with which they were rejected; NaN for
+            check points.
+        critical: critical value the statistics were tested against.
+        rms: RMS reprojection error of the control inliers,
+            ``sqrt(mean(vx^2 + vy^2))``, image-plane units.
+        check_rms: the same for the check points (NaN without any).
+        iterations: Gauss-Newton (or LM) steps of the final adjustment.
+        converged: whether the estimate can be trusted.
+        message: why it stopped or failed.
+        result: the outcome as a :class:`photax.RESULTS` code (an ``int``
+            array for a batch): ``successful`` exactly when ``converged``.
+        names: ``(n,)`` point names.
+        statistic: name of the test (``"w"`` or ``"tau"``).
+        pixel_size: the camera's mean pixel size in image-plane units
+            (1.0 for a camera in pixels), or None without a pixel grid:
+            :meth:`summary` reports residuals in pixels with it.
+    """
+
+    exterior: ExteriorOrientation
+    sigma0: Any
+    covariance: np.ndarray
+    std: np.ndarray
+    correlation: np.ndarray
+    residuals: np.ndarray
+    outliers: np.ndarray
+    check: np.ndarray
+    redundancy: np.ndarray
+    normalized: np.ndarray
+    critical: Any
+    rms: Any
+    check_rms: Any
+    iterations: Any
+    converged: Any
+    message: Any
+    names: Sequence[str]
+    statistic: str = "w"
+    pixel_size: float | None = None
+    result: Any = RESULTS.successful
+
+    # -- batches -----------------------------------------------------------
+    def __len__(self) -> int:
+        if np.ndim(self.converged) == 0:
+            raise TypeError("a single-image ResectionResult has no len(); resect_batch results do")
+        return len(self.converged)
+
+    def __getitem__(self, i: int) -> "ResectionResult":
+        """The ``i``-th image of a :func:`resect_batch` result."""
+        len(self)  # a TypeError for single results
+        take = lambda a: np.asarray(a)[i]  # noqa: E731
+        ext = ExteriorOrientation(self.exterior.position[i], self.exterior.angles[i], self.exterior.convention)
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        for k, v in fields.items():
+            if k in ("exterior", "names", "statistic", "pixel_size"):
+                continue
+            fields[k] = v[i] if isinstance(v, (list, tuple)) else take(v)
+            if isinstance(fields[k], np.generic):
+                fields[k] = fields[k].item()
+        fields["result"] = RESULTS(int(fields["result"]))
+        fields["exterior"] = ext
+        return ResectionResult(**fields)
+
+    # -- reports -----------------------------------------------------------
+    def summary(self, *, ground_unit: str | None = None, crs: str | None = None,
+                camera_unit: str | None = None) -> str:
+        """A readable report: parameters +- std, sigma0, residuals, blunders,
+        every number with its unit.
+
+        Args:
+            ground_unit: unit of the ground coordinates (default: the unit of
+                ``crs`` when it is given and known, else ``"m"``).
+            crs: the ground CRS (EPSG code, WKT or PROJ string) to take the
+                unit from.
+            camera_unit: the camera's length unit (``"mm"``, ``"m"`` or
+                ``"px"``), for labels of image-plane values.  Residuals and
+                rms are shown in pixels when the camera has a pixel size,
+                and also in ``camera_unit`` when that is not pixels.
+
+        Positions and their std are in the ground unit, angles in degrees
+        and their std in arc-seconds.
+        """
+        if np.ndim(self.converged) != 0:
+            return "\n\n".join(self[i].summary(ground_unit=ground_unit, crs=crs, camera_unit=camera_unit)
+                                for i in range(len(self)))
+        gu = ground_unit or _crs_unit(crs)
+        ps = self.pixel_size
+        if ps is not None and ps == 1.0:
+            camera_unit = "px"
+        cu = camera_unit or "image-plane units"
+        both = ps is not None and cu != "px"  # pixels first, the camera unit beside them
+
+        def image_value(v):
+            if ps is None:
+                return f"{v:.4g} {cu}"
+            return f"{v / ps:.3f} px" + (f" ({v:.4g} {cu})" if both else "")
+
+        e = self.exterior
+        labels = ["X", "Y", "Z", *e.convention.split("-")]
+        value = np.asarray(e.to_vector())
+        lines = [f"Space resection: {'converged' if self.converged else 'NOT CONVERGED'} - {self.message}"]
+        lines.append(f"  {'parameter':<16}{'value':>18}{'std':>16}")
+        for k, (lab, val, sd) in enumerate(zip(labels, value, self.std)):
+            if k < 3:
+                lines.append(f"  {lab + ' [' + gu + ']':<16}{val:>18.4f}{sd:>13.4f} {gu}")
+            else:
+                lines.append(f"  {lab + ' [deg]':<16}{np.degrees(val):>18.6f}{np.degrees(sd) * 3600.0:>13.2f} \"")
+        n_ctrl = int(np.sum(~self.check))
+        n_used = int(np.sum(~self.check & ~self.outliers))
+        if self.statistic == "w":
+            s0 = f"sigma0 = {self.sigma0:.4g} (unitless: a-priori sigma given)"
+        else:
+            s0 = f"sigma0 = {image_value(self.sigma0)}"
+        lines.append(f"  {s0}   rms = {image_value(self.rms)}")
+        lines.append(f"  control points used = {n_used} of {n_ctrl}   iterations = {self.iterations}")
+        if ps is not None:
+            heads = ["vx [px]", "vy [px]"] + ([f"vx [{cu}]", f"vy [{cu}]"] if both else [])
+        else:
+            heads = [f"vx [{cu}]", f"vy [{cu}]"]
+        lines.append(f"  {'point':<12}{'role':<9}" + "".join(f"{h:>13}" for h in heads)
+                     + f"{self.statistic + '_x':>9}{self.statistic + '_y':>9}")
+        for k, name in enumerate(self.names):
+            role = "check" if self.check[k] else ("OUTLIER" if self.outliers[k] else "control")
+            vx, vy = self.residuals[k]
+            wx, wy = self.normalized[k]
+            if ps is not None:
+                cols = [f"{vx / ps:.3f}", f"{vy / ps:.3f}"] + ([f"{vx:.4g}", f"{vy:.4g}"] if both else [])
+            else:
+                cols = [f"{vx:.4g}", f"{vy:.4g}"]
+            lines.append(f"  {str(name):<12}{role:<9}" + "".join(f"{c:>13}" for c in cols) + f"{wx:>9.2f}{wy:>9.2f}")
+        for k in np.flatnonzero(self.outliers):
+            lines.append(f"  blunder: {self.names[k]} excluded (|{self.statistic}| = "
+                         f"{_blunder_stat(self, k):.2f} > {self.critical:.2f})")
+        if np.any(self.check):
+            lines.append(f"  check points: rms = {image_value(self.check_rms)}")
+        return "\n".join(lines)
+
+    def to_dict(self) -> dict:
+        """A JSON-serialisable dict (floats, lists, strings)."""
+        if np.ndim(self.converged) != 0:
+            return {"images": [self[i].to_dict() for i in range(len(self))]}
+        e = self.exterior
+        tolist = lambda a: np.where(np.isfinite(a), a, np.nan).tolist()  # noqa: E731
+        out = {
+            "convention": e.convention,
+            "position": np.asarray(e.position).tolist(),
+            "angles_rad": np.asarray(e.angles).tolist(),
+            "angles_deg": np.degrees(np.asarray(e.angles)).tolist(),
+            "sigma0": float(self.sigma0),
+            "std": tolist(self.std),
+            "covariance": tolist(self.covariance),
+            "correlation": tolist(self.correlation),
+            "rms": float(self.rms),
+            "check_rms": float(self.check_rms),
+            "iterations": int(self.iterations),
+            "converged": bool(self.converged),
+            "message": str(self.message),
+            "result": RESULTS(int(self.result)).name,
+            "statistic": self.statistic,
+            "critical": float(self.critical),
+            "points": [
+                {
+                    "name": str(self.names[k]),
+                    "role": "check" if self.check[k] else "control",
+                    "outlier": bool(self.outliers[k]),
+                    "residual": self.residuals[k].tolist(),
+                    "redundancy": self.redundancy[k].tolist(),
+                    "normalized": self.normalized[k].tolist(),
+                }
+                for k in range(len(self.names))
+            ],
+        }
+        json.dumps(out)  # fail here, not in the caller, if something is not serialisable
+        return out
+
+
+_UNIT_ABBREVIATIONS = {"metre": "m", "meter": "m", "foot": "ft", "US survey foot": "US ft", "kilometre": "km"}
+
+
+def _crs_unit(crs: str | None) -> str:
+    """Abbreviated linear unit of a CRS (``"m"`` when not given or not known)."""
+    if crs is None:
+        return "m"
+    try:
+        from rasterio.crs import CRS
+
+        name = CRS.from_user_input(crs).linear_units
+    except Exception:  # an unknown CRS text: the report still shows metres, the usual case
+        return "m"
+    if not name or name == "unknown":
+        return "m"
+    return _UNIT_ABBREVIATIONS.get(name, name)
+
+
+def _blunder_stat(res: ResectionResult, k: int) -> float:
+    return float(np.nanmax(np.abs(res.normalized[k])))
+

@@ -1,0 +1,104 @@
+"""The pytrees the compiled resection passes around: inputs, options, output.
+
+Each is an ``equinox.Module`` (a frozen dataclass that is a pytree), as
+optimistix passes its ``Solution`` and solver states: adding an option or an
+output means adding a field here and setting it where the module is built
+(:func:`photax.resection._api._options`, the solver that fills it).
+
+Shapes are per image; :func:`photax.resection._api` ``vmap``-s over a leading
+batch axis of :class:`Inputs` (options are shared by the batch).
+``m`` is the point count padded to a bucket (16, 32, ...).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..camera import FrameCamera
+
+
+class Inputs(eqx.Module):
+    """One image's data, ground reduced to the control points' centroid."""
+
+    xy: Array  # (m, 2) image-plane coordinates (padding: 0)
+    ground: Array  # (m, 3) ground minus origin, metres
+    weight: Array  # (m, 2) 1 / sigma^2 (padding: 1)
+    ctrl: Array  # (m,) bool: a control point (not a check point, not padding)
+    basis: Array  # (3, 3) principal axes of the control points, last = plane normal
+    init: Array  # (6,) the user's start (C - origin, angles), or zeros
+    use_init: Array  # () bool: start from ``init`` instead of the linear start
+
+
+class Options(eqx.Module):
+    """Settings shared by every image of a call; no static fields, so that
+    one compilation serves every setting (``camera`` carries only its
+    interior orientation, no pixel grid: see ``_api._options``)."""
+
+    critical: Array  # (m + 1,) critical value of the test with k control points in use
+    snoop: Array  # () bool: robust=True, test for blunders (and exclude them on the robust path)
+    scale_stat: Array  # () bool: divide w by sigma0 (Pope's tau: no a-priori sigma)
+    exact: Array  # () sigma0 below this: rounding-level residuals, no test
+    min_points: Array  # () int: never exclude below this many control points
+    min_redundancy: Array  # () never exclude below this redundancy
+    dlt_ok: Array  # () bool: 6 or more control points, the DLT start is allowed
+    pok: Array  # () bool: phi-omega-kappa (else omega-phi-kappa)
+    subsets: Array  # (k, 6) int: indices of the random subsets of the robust start
+    camera: FrameCamera
+    max_steps: Array  # () int: Gauss-Newton iterations per adjustment
+
+
+class Output(eqx.Module):
+    """What the compiled solver returns for one image (local coordinates)."""
+
+    params: Array  # (6,) (C - origin, angles), angles wrapped to (-pi, pi]
+    start: Array  # (6,) the start the adjustment ran from
+    sigma0: Array  # () a-posteriori sigma0 (NaN at zero redundancy)
+    qxx: Array  # (6, 6) cofactor matrix (A^T P A)^-1
+    residuals: Array  # (m, 2) observed - computed, all points
+    redundancy: Array  # (m, 2) redundancy numbers (0 where not used)
+    w: Array  # (m, 2) v / sqrt(r) (weighted; divide by sigma0 for tau)
+    depth: Array  # (m,) distance in front of the camera
+    axis: Array  # (3,) viewing direction in the world
+    result: Array  # () int photax.RESULTS code of the adjustment
+    steps: Array  # () int iterations of the final adjustment
+    used: Array  # (m,) bool: control points in the final adjustment
+    stat_at: Array  # (m, 2) the statistic with which a point was excluded (NaN otherwise)
+    critical: Array  # () the critical value of the final test
+    retry: Array  # () bool: the cheap path asks for the robust one
+
+    @classmethod
+    def blank(cls, m: int) -> "Output":
+        """Zeros of every field's shape and dtype (a new field adds its line here)."""
+        z = jnp.zeros
+        return cls(params=z(6), start=z(6), sigma0=z(()), qxx=z((6, 6)), residuals=z((m, 2)),
+                   redundancy=z((m, 2)), w=z((m, 2)), depth=z(m), axis=z(3), result=z((), int),
+                   steps=z((), int), used=z(m, bool), stat_at=z((m, 2)), critical=z(()), retry=z((), bool))
+
+
+def pack(out: Output) -> Array:
+    """All leaves as one float64 vector (per image): one device-to-host copy instead of 15."""
+    return jnp.concatenate([jnp.ravel(x).astype(float) for x in jax.tree_util.tree_leaves(out)])
+
+
+@functools.lru_cache(maxsize=32)
+def _layout(m: int):
+    leaves, treedef = jax.tree_util.tree_flatten(jax.eval_shape(lambda: Output.blank(m)))
+    return [(x.shape, x.dtype) for x in leaves], treedef
+
+
+def unpack(flat: np.ndarray, m: int) -> Output:
+    """Inverse of :func:`pack` for any leading batch axes; numpy leaves."""
+    layout, treedef = _layout(m)
+    leaves, i = [], 0
+    for shape, dtype in layout:
+        size = int(np.prod(shape))
+        v = flat[..., i : i + size].reshape(flat.shape[:-1] + shape)
+        leaves.append(v > 0.5 if dtype == bool else (v.astype(dtype) if dtype != v.dtype else v))
+        i += size
+    return jax.tree_util.tree_unflatten(treedef, leaves)
