@@ -3,7 +3,7 @@
 Gauss-Newton on the weighted residuals ``v = sqrt(P) (x_obs - x(p))``
 (observed - computed) with the closed-form collinearity Jacobian
 (:func:`photax.collinearity.collinearity_jacobian`), the 6x6 normal
-equations solved by a Jacobi-scaled Cholesky (:func:`._linear.cho_solve`); it
+equations solved by a Jacobi-scaled Cholesky (:func:`photax._linalg.cho_solve`); it
 stops after a step ``|dp_i| <= 1e-8 (1 + |p_i|)`` (metres, radians) or
 ``max_steps`` iterations.  The solution is differentiable with respect to the
 data: it is wrapped in ``jax.lax.custom_root`` on the normal equations'
@@ -28,6 +28,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from .._linalg import cho_solve
 from ..collinearity import _angle_axes, collinearity_jacobian
 from ..errors import RESULTS
 from . import _linear
@@ -74,7 +75,7 @@ def _iterate(start, inp: Inputs, used, opt: Options):
     def body(c):
         p, v, a, k, _, _ = c
         n, g = _normal(a, v)
-        dp = _linear.cho_solve(n, g[:, None])[:, 0]
+        dp = cho_solve(n, g[:, None])[:, 0]
         solvable = jnp.all(jnp.isfinite(dp))
         p_new = jnp.where(solvable, p + dp, p)
         v_new, a_new, _, _ = evaluate(p_new, inp, used, opt)
@@ -118,7 +119,7 @@ def precision(p, inp: Inputs, used, opt: Options) -> dict:
     p = jnp.concatenate([p[:3], wrap(p[3:])])
     v, a, pred, depth = evaluate(p, inp, used, opt)
     n, _ = _normal(a, v)
-    qxx = _linear.cho_solve(n, jnp.eye(6))
+    qxx = cho_solve(n, jnp.eye(6))
     qxx = 0.5 * (qxx + qxx.T)
     red = 2.0 * jnp.sum(used.astype(float)) - 6.0
     sigma0 = jnp.where(red > 0, jnp.sqrt(jnp.sum(v * v) / jnp.where(red > 0, red, 1.0)), jnp.nan)

@@ -20,36 +20,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._linalg import inv3
+from .._linalg import cho_solve, inv3, nearest_rotation
+from ..camera import OPENCV_FROM_PHOTAX
 from ..rotation import angles_from_matrix_unchecked, rotation_matrix
-
-OPENCV_FLIP = np.diag([1.0, -1.0, -1.0])  # photax camera frame <-> (x right, y down, z forward)
-
-
-def cho_solve(a, b):
-    """Solve ``a x = b``, ``a`` ``(..., k, k)`` symmetric positive definite,
-    ``b`` ``(..., k, r)``: Jacobi-scaled (unit diagonal: metres and radians in
-    one matrix), then LAPACK's Cholesky.  Not positive definite -> NaN.
-
-    Not :func:`photax._linalg.cho_solve`: its element-by-element factor of
-    the 11x11 systems here and the 6x6 ones of Gauss-Newton took XLA about
-    two thirds of the resection's compile time (measured on the sample:
-    19.8 s -> 8.7 s CPU for both compiled paths); the LAPACK call costs
-    microseconds at run time instead.
-    """
-    d = 1.0 / jnp.sqrt(jnp.diagonal(a, axis1=-2, axis2=-1))
-    low = jnp.linalg.cholesky(a * d[..., :, None] * d[..., None, :])
-    return jax.scipy.linalg.cho_solve((low, True), b * d[..., :, None]) * d[..., :, None]
-
-
-def nearest_rotation(m, iterations: int = 8):
-    """Orthogonal polar factor of one ``(3, 3)`` matrix with ``det > 0`` by
-    Newton's iteration ``Q <- (Q + Q^-T)/2`` (Higham 1986), as
-    :func:`photax._linalg.nearest_rotation` but in a ``fori_loop``: traced
-    once, not unrolled (compile time)."""
-    q = m / jnp.cbrt(jnp.abs(jnp.sum(m[:, 0] * jnp.cross(m[:, 1], m[:, 2]))))
-    return jax.lax.fori_loop(0, iterations, lambda _, q: 0.5 * (q + inv3(q).T), q)
-
 
 def rotation(angles, pok):
     """world_from_camera; the convention is a traced flag (``pok``:
@@ -184,7 +157,7 @@ def candidates(uv, ground, ctrl, basis, subsets):
 
 def to_parameters(r_cv, c, pok):
     """OpenCV's cam_from_world and a centre -> ``(C, angles)`` 6-vector."""
-    return jnp.concatenate([c, angles(r_cv.T @ jnp.asarray(OPENCV_FLIP), pok)])
+    return jnp.concatenate([c, angles(r_cv.T @ jnp.asarray(OPENCV_FROM_PHOTAX), pok)])
 
 
 def linear_start(uv, ground, ctrl, basis, dlt_ok, pok):
