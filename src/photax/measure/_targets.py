@@ -36,7 +36,6 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import Array
 
 from ._result import LocateResult, Status, as_images, as_points, check_window, finish, patch, round_centre
 
