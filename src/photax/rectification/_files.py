@@ -29,6 +29,7 @@ from ._tiling import (
     _tiles,
 )
 
+
 def _source_window(cols: np.ndarray, rows: np.ndarray, width: int, height: int, margin: int, bucket: int = 256):
     """The input window ``(row_off, col_off, h, w)`` an output tile needs, or None.
 
