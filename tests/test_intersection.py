@@ -2,6 +2,7 @@
 triangulatePoints and a per-point scipy least-squares refinement."""
 
 import cv2
+import jax
 import numpy as np
 import pytest
 import scipy.optimize
@@ -64,11 +65,14 @@ def test_refined_points_match_scipy_least_squares():
     xy = xy + np.random.default_rng(3).normal(0, 1.0, xy.shape)
     xy[2, :4] = np.nan  # some points on two images only
     out = ptx.intersect(xy, eos, cam, refine=True, full_output=True)
+    # One compiled projection for scipy's many evaluations (op by op, this
+    # test took minutes on a busy machine).
+    project = jax.jit(lambda X, eo: ptx.project(X, eo, cam))
     for j in range(len(ground)):
         seen = [i for i in range(3) if np.isfinite(xy[i, j, 0])]
 
         def res(X):
-            return np.concatenate([np.asarray(ptx.project(X[None], eos[i], cam))[0] - xy[i, j] for i in seen])
+            return np.concatenate([np.asarray(project(X[None], eos[i]))[0] - xy[i, j] for i in seen])
 
         fit = scipy.optimize.least_squares(res, ground[j] + 1.0, xtol=1e-14, ftol=1e-14)
         np.testing.assert_allclose(out.points[j], fit.x, atol=1e-5)
