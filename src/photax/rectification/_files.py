@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
@@ -28,6 +29,11 @@ from ._tiling import (
     _run_tiles,
     _tiles,
 )
+
+# Compiled executables kept on disk by photax._aot when a compilation cache
+# folder is set (the CLI): a new process loads them without tracing again.
+_tile_positions = disk_cached(_tile_positions, "rectify_tile_positions")
+_resample_tile = disk_cached(_resample_tile, "rectify_resample_tile")
 
 
 def _source_window(cols: np.ndarray, rows: np.ndarray, width: int, height: int, margin: int, bucket: int = 256):

@@ -1,0 +1,124 @@
+"""Compiled kernels kept on disk *with* their tracing and lowering skipped.
+
+JAX's persistent compilation cache stores compiled XLA only: every process
+still traces the Python function and lowers it to StableHLO before it can
+even compute the cache key.  For the rectification kernels (a ``while_loop``
+with a ``cond`` between the exact and the interpolated mapping) that is
+most of a command-line run's time (``benchmarks/bench_startup.py``
+--only breakdown).  :func:`disk_cached` wraps a jitted function so that the
+first call in a process looks for the *compiled executable* under a key
+made of everything the compilation depends on, and loads it without
+tracing (``jax.experimental.serialize_executable``); on a miss it traces,
+compiles and stores it.
+
+The key: the function's name, a digest of photax's own source files (any
+edit to photax invalidates every entry), the JAX and jaxlib versions, the
+backend and device kind, 64-bit mode, ``XLA_FLAGS``, the argument pytree
+structure, every array argument's shape / dtype / weak type, and the
+``repr`` of every non-array argument (equinox's static part).  Arguments
+whose ``repr`` is not a faithful value (an object address ``0x...``) are
+not cached on disk: the call falls back to the plain jitted function.
+Entries live in ``<jax_compilation_cache_dir>/photax-aot`` and only when
+that directory is set (the CLI sets it), so library calls without a cache
+behave exactly as before.  An unreadable entry is ignored and rewritten.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import pathlib
+import pickle
+import tempfile
+import threading
+
+_SRC = pathlib.Path(__file__).resolve().parent
+_LOCK = threading.Lock()
+
+
+@functools.cache
+def _source_digest() -> str:
+    h = hashlib.sha256()
+    for p in sorted(_SRC.rglob("*.py")):
+        h.update(str(p.relative_to(_SRC)).encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+@functools.cache
+def _environment() -> str:
+    import jax
+    import jaxlib
+
+    dev = jax.devices()[0]
+    return repr((jax.__version__, jaxlib.__version__, dev.platform, dev.device_kind, jax.config.jax_enable_x64,
+                 os.environ.get("XLA_FLAGS", ""), _source_digest()))
+
+
+def _folder() -> pathlib.Path | None:
+    import jax
+
+    base = jax.config.jax_compilation_cache_dir
+    return pathlib.Path(base) / "photax-aot" if base else None
+
+
+def disk_cached(fn, name: str):
+    """``fn`` (a jitted function of pytrees of arrays and static values),
+    with its compiled executable kept on disk between processes.
+
+    Returns a function with ``fn``'s signature and results (a call with
+    keyword arguments goes to ``fn`` itself).
+    """
+    import equinox as eqx
+    import jax
+
+    memory: dict[str, object] = {}
+
+    def call(*args, **kwargs):
+        folder = _folder()
+        if folder is None or kwargs:
+            return fn(*args, **kwargs)
+        dyn, static = eqx.partition(args, eqx.is_array)
+        leaves, treedef = jax.tree_util.tree_flatten(dyn)
+        static_leaves, static_def = jax.tree_util.tree_flatten(static)
+        description = repr((name, treedef, static_def, static_leaves,
+                            [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves]))
+        if " at 0x" in description:  # an object's identity, not its value: no safe key
+            return fn(*args)
+        key = hashlib.sha256((_environment() + description).encode()).hexdigest()
+        compiled = memory.get(key)
+        if compiled is None:
+            with _LOCK:
+                compiled = memory.get(key) or _load_or_compile(fn, folder / f"{name}-{key[:32]}.bin", leaves,
+                                                               treedef, static)
+                memory[key] = compiled
+        return compiled(leaves)
+
+    return call
+
+
+def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static):
+    import equinox as eqx
+    import jax
+    from jax.experimental.serialize_executable import deserialize_and_load, serialize
+
+    try:
+        payload, in_tree, out_tree = pickle.loads(path.read_bytes())
+        return deserialize_and_load(payload, in_tree, out_tree)
+    except Exception:  # missing, truncated, or from an incompatible jaxlib: compile again
+        pass
+
+    def pure(dyn_leaves):
+        return fn(*eqx.combine(jax.tree_util.tree_unflatten(treedef, dyn_leaves), static))
+
+    compiled = jax.jit(pure).lower(leaves).compile()
+    try:
+        data = pickle.dumps(serialize(compiled))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, delete=False) as fh:  # atomic: no half-written entry
+            fh.write(data)
+        os.replace(fh.name, path)
+    except Exception:  # a read-only cache or an executable that cannot be serialised: still compute
+        pass
+    return compiled
