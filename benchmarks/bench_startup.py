@@ -225,7 +225,7 @@ def bench_samples(env, repeat, n_cold, tmp, parts, oty_time):
         t = interleaved({name: (cmd, dict(env, JAX_COMPILATION_CACHE_DIR=str(cache)))}, repeat, cwd=REPO)[name]
         show(f"photax {name}, warm compile cache", t)
         show(f"photax {name}, empty compile cache (median of {n_cold})", cold, f", {n} cache entries written")
-        fig = dict(photax_s=t[0], cpu_s=t[1], photax_bytes=t[2], cold_s=cold[0], cold_cpu_s=cold[1],
+        fig = dict(photax_s=t[0], cpu_s=t[1], photax_bytes=t[2], empty_cache_s=cold[0], empty_cache_cpu_s=cold[1],
                    cache_entries=n, load=load())
         if oty_time:  # issue 8: resect within 1.5 x of orthority's CLI on the NGI ortho
             fig.update(peer_s=oty_time["wall"], ratio=t[0] / oty_time["wall"], peer_bytes=oty_time["peak"])

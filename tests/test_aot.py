@@ -63,3 +63,20 @@ def test_no_cache_folder_or_no_faithful_key_calls_the_function(folder, monkeypat
     monkeypatch.setattr(_aot, "_folder", lambda: None)
     np.testing.assert_array_equal(_aot.disk_cached(_kernel, "n")(jnp.zeros(2), 1.0, "add"), np.ones(2))
     assert not list(folder.iterdir())
+
+
+def test_an_executable_that_fails_to_run_is_dropped_for_the_function(folder, monkeypatch):
+    import jax
+
+    def broken(*_):
+        raise jax.errors.JaxRuntimeError("NOT_FOUND: Function slice_divide_fusion.3 not found (injected)")
+
+    def load(fn, path, *_):  # as if the entry had been read from disk
+        path.write_bytes(b"an executable")
+        return broken
+
+    monkeypatch.setattr(_aot, "_load_or_compile", load)
+    f = _aot.disk_cached(_kernel, "b")
+    np.testing.assert_array_equal(f(jnp.arange(3.0), 2.0, "mul"), np.arange(3.0) * 2.0)
+    np.testing.assert_array_equal(f(jnp.arange(3.0), 2.0, "mul"), np.arange(3.0) * 2.0)  # no second try
+    assert not list(folder.glob("b-*.bin"))  # the entry is gone

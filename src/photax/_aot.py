@@ -87,13 +87,23 @@ def disk_cached(fn, name: str):
         if " at 0x" in description:  # an object's identity, not its value: no safe key
             return fn(*args)
         key = hashlib.sha256((_environment() + description).encode()).hexdigest()
+        path = folder / f"{name}-{key[:32]}.bin"
         compiled = memory.get(key)
         if compiled is None:
             with _LOCK:
-                compiled = memory.get(key) or _load_or_compile(fn, folder / f"{name}-{key[:32]}.bin", leaves,
-                                                               treedef, static)
+                compiled = memory.get(key) or _load_or_compile(fn, path, leaves, treedef, static)
                 memory[key] = compiled
-        return compiled(leaves)
+        if compiled is fn:
+            return fn(*args)
+        try:
+            return jax.block_until_ready(compiled(leaves))  # an execution error surfaces here, not later
+        except jax.errors.JaxRuntimeError:
+            # Seen once under heavy load: "Function <fusion> not found" from an
+            # executable.  Never trust it again; the plain function decides
+            # (a genuine error is raised again from there).
+            memory[key] = fn
+            path.unlink(missing_ok=True)
+            return fn(*args)
 
     return call
 
