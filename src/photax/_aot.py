@@ -1,15 +1,22 @@
-"""Compiled kernels kept on disk *with* their tracing and lowering skipped.
+"""Traced kernels kept on disk, so that a new process does not trace them again.
 
 JAX's persistent compilation cache stores compiled XLA only: every process
 still traces the Python function and lowers it to StableHLO before it can
 even compute the cache key.  For the rectification kernels (a ``while_loop``
-with a ``cond`` between the exact and the interpolated mapping) that is
-most of a command-line run's time (``benchmarks/bench_startup.py``
---only breakdown).  :func:`disk_cached` wraps a jitted function so that the
-first call in a process looks for the *compiled executable* under a key
-made of everything the compilation depends on, and loads it without
-tracing (``jax.experimental.serialize_executable``); on a miss it traces,
-compiles and stores it.
+with a ``cond`` between the exact and the interpolated mapping) tracing was
+most of a warm command-line run (``benchmarks/bench_startup.py --only
+breakdown``).  :func:`disk_cached` wraps a jitted function so that its
+first call in a process looks for the function *exported* (``jax.export``:
+serialised StableHLO, JAX's supported format for this) under a key made of
+everything the tracing depends on, and calls it without tracing; its XLA
+compilation is then found in JAX's persistent cache as usual.  On a miss it
+traces once, exports and writes the entry.
+
+(Serialising the compiled executable itself,
+``jax.experimental.serialize_executable``, would also skip the lowering,
+but on this jaxlib's CPU backend some deserialised executables crashed the
+process (SIGSEGV, the resection solvers) or failed with "Function
+<fusion> not found": not used.)
 
 The key: the function's name, a digest of photax's own source files (any
 edit to photax invalidates every entry), the JAX and jaxlib versions, the
@@ -29,7 +36,6 @@ import functools
 import hashlib
 import os
 import pathlib
-import pickle
 import tempfile
 import threading
 
@@ -109,26 +115,28 @@ def disk_cached(fn, name: str):
 
 
 def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static):
+    """``jit(exported.call)`` for the serialised StableHLO at ``path``, made
+    (traced once, exported, written) when missing or unreadable; ``fn``
+    itself when the function cannot be exported."""
     import equinox as eqx
     import jax
-    from jax.experimental.serialize_executable import deserialize_and_load, serialize
+    from jax import export
 
     try:
-        payload, in_tree, out_tree = pickle.loads(path.read_bytes())
-        return deserialize_and_load(payload, in_tree, out_tree)
-    except Exception:  # missing, truncated, or from an incompatible jaxlib: compile again
-        pass
+        exported = export.deserialize(bytearray(path.read_bytes()))
+    except Exception:  # missing, truncated, or from an incompatible JAX: export again
+        def pure(dyn_leaves):
+            return fn(*eqx.combine(jax.tree_util.tree_unflatten(treedef, dyn_leaves), static))
 
-    def pure(dyn_leaves):
-        return fn(*eqx.combine(jax.tree_util.tree_unflatten(treedef, dyn_leaves), static))
-
-    compiled = jax.jit(pure).lower(leaves).compile()
-    try:
-        data = pickle.dumps(serialize(compiled))
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with tempfile.NamedTemporaryFile(dir=path.parent, delete=False) as fh:  # atomic: no half-written entry
-            fh.write(data)
-        os.replace(fh.name, path)
-    except Exception:  # a read-only cache or an executable that cannot be serialised: still compute
-        pass
-    return compiled
+        try:
+            exported = export.export(jax.jit(pure))(leaves)
+        except Exception:  # e.g. a custom call JAX does not guarantee stable: no disk entry
+            return fn
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with tempfile.NamedTemporaryFile(dir=path.parent, delete=False) as fh:  # atomic: no half-written entry
+                fh.write(exported.serialize())
+            os.replace(fh.name, path)
+        except (OSError, ImportError):  # a read-only cache, or no flatbuffers: still compute
+            pass
+    return jax.jit(exported.call)
