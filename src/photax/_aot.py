@@ -25,9 +25,10 @@ structure, every array argument's shape / dtype / weak type, and the
 ``repr`` of every non-array argument (equinox's static part).  Arguments
 whose ``repr`` is not a faithful value (an object address ``0x...``) are
 not cached on disk: the call falls back to the plain jitted function.
-Entries live in ``<jax_compilation_cache_dir>/photax-aot`` and only when
-that directory is set (the CLI sets it), so library calls without a cache
-behave exactly as before.  An unreadable entry is ignored and rewritten.
+Entries live in ``<jax_compilation_cache_dir>/photax-aot``, and only after
+:func:`enable` (the command line calls it) with that directory set: library
+calls behave exactly as before unless a program opts in.  An unreadable
+entry is ignored and rewritten.
 """
 
 from __future__ import annotations
@@ -62,9 +63,21 @@ def _environment() -> str:
                  os.environ.get("XLA_FLAGS", ""), _source_digest()))
 
 
+_ENABLED = False
+
+
+def enable() -> None:
+    """Keep :func:`disk_cached` functions on disk from now on in this process
+    (in ``<jax_compilation_cache_dir>/photax-aot``, when that is set)."""
+    global _ENABLED
+    _ENABLED = True
+
+
 def _folder() -> pathlib.Path | None:
     import jax
 
+    if not _ENABLED:
+        return None
     base = jax.config.jax_compilation_cache_dir
     return pathlib.Path(base) / "photax-aot" if base else None
 

@@ -44,6 +44,9 @@ def _enable_compilation_cache() -> None:
     """
     import jax
 
+    from .. import _aot
+
+    _aot.enable()  # and the kernels' traced programs (photax._aot)
     if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     if os.environ.get("JAX_COMPILATION_CACHE_DIR") or jax.config.jax_compilation_cache_dir:
