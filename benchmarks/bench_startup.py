@@ -255,7 +255,7 @@ exterior, crs = read_exterior("ngi_xyz_opk.csv", "NAME.tif")
 dem = read_dem("dem.tif")
 mark("read orientation and DEM")
 grid = dataclasses.replace(ortho_grid(exterior, camera, dem, 5.0), crs=crs)
-mark("ortho_grid (eager JAX operations)")
+mark("ortho_grid (the footprint: one jitted call)")
 for label in ("orthorectify_file, first call", "orthorectify_file, second call (the work)"):
     orthorectify_file("NAME.tif", "phases.tif", exterior, camera, dem, grid, resampling="bilinear",
                       compress="deflate")
