@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import ast
 import importlib
+import os
 import pathlib
+import subprocess
+import sys
 
 import pytest
 
@@ -109,3 +112,60 @@ def test_no_import_cycle():
 @pytest.mark.parametrize("name", sorted(_module_name(p) for p in SRC.rglob("*.py")))
 def test_every_module_imports(name):
     assert importlib.import_module(name).__name__ == name
+
+
+# --- start-up: lazy public names ---------------------------------------------
+
+def _type_checking_names(path: pathlib.Path) -> set[str]:
+    """Names bound by the ``if TYPE_CHECKING:`` block of a package ``__init__``."""
+    tree = ast.parse(path.read_text())
+    block = next(n for n in tree.body if isinstance(n, ast.If) and getattr(n.test, "id", None) == "TYPE_CHECKING")
+    return {a.asname or a.name for n in ast.walk(block) if isinstance(n, ast.ImportFrom) for a in n.names}
+
+
+@pytest.mark.parametrize("package", ["photax", "photax.io"])
+def test_lazy_names_match_the_type_checking_block_and_resolve(package):
+    mod = importlib.import_module(package)
+    path = pathlib.Path(mod.__file__)
+    public = set(mod._LAZY) | set(getattr(mod, "_SUBMODULES", ()))
+    assert _type_checking_names(path) == public
+    for name in sorted(public):
+        value = getattr(mod, name)
+        home = importlib.import_module(mod._LAZY[name], package) if name in mod._LAZY else value
+        assert value is getattr(home, name, value)
+    assert public <= set(dir(mod)) and set(mod.__all__) >= public
+    with pytest.raises(AttributeError, match="no_such_name"):
+        mod.no_such_name  # noqa: B018
+
+
+def test_cli_choices_are_the_library_lists():
+    # written out in cli/_common.py so that --help needs no JAX
+    from photax.cli import _common
+    from photax.resampling import RESAMPLING
+    from photax.rotation import CONVENTIONS
+
+    assert _common.RESAMPLING == RESAMPLING
+    assert _common.CONVENTIONS == CONVENTIONS
+
+
+_PROBE = """
+import sys
+import photax
+after_import = sorted(m for m in {heavy} if m in sys.modules)
+from photax.cli import build_parser
+text = build_parser().format_help()
+after_help = sorted(m for m in {heavy} if m in sys.modules)
+import jax.numpy as jnp
+print(after_import, after_help, "ortho" in text, jnp.zeros(1).dtype)
+"""
+
+
+def test_import_photax_and_help_load_no_heavy_module():
+    # One cheap subprocess: a fresh interpreter is the only honest place to
+    # see what ``import photax`` and building the CLI parser pull in.
+    heavy = ("jax", "numpy", "scipy", "scipy.stats", "rasterio", "matplotlib", "equinox", "optimistix")
+    env = {k: v for k, v in os.environ.items() if k != "JAX_ENABLE_X64"}
+    out = subprocess.run([sys.executable, "-c", _PROBE.format(heavy=heavy)], capture_output=True, text=True,
+                         env=env, timeout=120, check=True).stdout.split()
+    # and 64-bit mode is still on when JAX comes later
+    assert out == ["[]", "[]", "True", "float64"], out

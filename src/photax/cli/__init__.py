@@ -33,9 +33,22 @@ def _enable_compilation_cache() -> None:
     A command-line run otherwise compiles resection and friends anew every
     time.  ``JAX_COMPILATION_CACHE_DIR`` overrides the place; the default
     follows XDG (``~/.cache/photax/jax``).
+
+    JAX writes an entry only for a compilation that took at least
+    ``jax_persistent_cache_min_compile_time_secs`` (1 s by default), so the
+    rectification and bundle kernels (0.1-0.7 s each, but a dozen of them
+    per run) and the small operations around them were compiled again in
+    every process.  Reading an entry back costs milliseconds, so the CLI
+    caches every compilation (``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS``
+    set in the environment still wins).
     """
     import jax
 
+    from .. import _aot
+
+    _aot.enable()  # and the kernels' traced programs (photax._aot)
+    if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     if os.environ.get("JAX_COMPILATION_CACHE_DIR") or jax.config.jax_compilation_cache_dir:
         return
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")

@@ -5,6 +5,12 @@ from __future__ import annotations
 import os
 import pathlib
 
+# Choices of --convention and --resampling, written out here so that building
+# the parser (``photax --help``) imports neither JAX nor numpy; they must equal
+# photax.rotation.CONVENTIONS and photax.resampling.RESAMPLING (a test checks).
+CONVENTIONS = ("phi-omega-kappa", "omega-phi-kappa")
+RESAMPLING = ("nearest", "bilinear", "cubic", "lanczos", "bspline")
+
 
 def input_file(path, what: str) -> pathlib.Path:
     """``path`` as a Path after checking it is a readable file.

@@ -28,8 +28,10 @@ import argparse
 import csv
 import math
 import pathlib
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:
+    import numpy as np
 
 _METHODS = ("wong-trinder", "centroid", "ellipse")
 
@@ -64,6 +66,8 @@ def add_parser(sub) -> None:
 
 def read_image(path, band: int | None) -> np.ndarray:
     """One ``(rows, cols)`` grey image from a raster file, in its own grey values."""
+    import numpy as np
+
     from ..io.raster import read_geotiff
 
     data, _ = read_geotiff(path)
@@ -77,6 +81,8 @@ def read_image(path, band: int | None) -> np.ndarray:
 def read_points(path, image_name: str | None):
     """``(names, approx (n, 2), table)`` from a GCP file or a ``name,col,row`` CSV
     (``table`` is the GCP table, or None for a plain list)."""
+    import numpy as np
+
     from ..io._files import read_text, split_lines
     from ..io.gcp import read_gcps
 
@@ -114,6 +120,8 @@ def read_points(path, image_name: str | None):
 
 
 def _write_csv(out, names, approx, res, strength, inputs) -> None:
+    import numpy as np
+
     from ..io.atomic import atomic_write
     from ..measure import Status
 
@@ -132,6 +140,8 @@ def _write_csv(out, names, approx, res, strength, inputs) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import dataclasses
+
+    import numpy as np
 
     from .. import measure
     from ..io.atomic import check_output_path

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-from ..resampling import RESAMPLING
+from ._common import RESAMPLING
 
 
 def add_parser(sub) -> None:

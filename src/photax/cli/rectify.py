@@ -10,9 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
-from ..resampling import RESAMPLING
+from ._common import RESAMPLING
 
 
 def add_parser(sub) -> None:
@@ -35,6 +33,8 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     import pathlib
+
+    import numpy as np
 
     from ..io.atomic import check_output_path
     from ..io.gcp import read_gcps

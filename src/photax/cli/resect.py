@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
-from ..rotation import CONVENTIONS
+from ._common import CONVENTIONS
 
 
 # Shown by ``photax resect --help`` and in the README (a test parses both with read_camera).
@@ -65,6 +63,8 @@ def add_parser(sub) -> None:
 
 def _sigma(table, camera, sigma_px):
     """A-priori sigma in image-plane units, or None (then tau test on sigma0)."""
+    import numpy as np
+
     if sigma_px is not None:
         return sigma_px * (1.0 if table.pixel is None else float(np.mean(np.asarray(camera.pixel_size))))
     given = ~np.isnan(table.sigma)
@@ -77,6 +77,8 @@ def _sigma(table, camera, sigma_px):
 
 
 def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
     from ..io.atomic import check_output_path
     from ..io.camera_file import read_camera
     from ..io.gcp import read_gcps

@@ -6,10 +6,10 @@ from __future__ import annotations
 import threading
 from typing import Callable
 
-import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
@@ -28,6 +28,11 @@ from ._tiling import (
     _run_tiles,
     _tiles,
 )
+
+# Compiled executables kept on disk by photax._aot when a compilation cache
+# folder is set (the CLI): a new process loads them without tracing again.
+_tile_positions = disk_cached(_tile_positions, "rectify_tile_positions")
+_resample_tile = disk_cached(_resample_tile, "rectify_resample_tile")
 
 
 def _source_window(cols: np.ndarray, rows: np.ndarray, width: int, height: int, margin: int, bucket: int = 256):
@@ -120,10 +125,12 @@ def rectify_file(
             nodata = src.nodata
         fill = _fill_value(src.dtypes[0], nodata)
         profile = _geotiff_profile(grid, src.count, src.dtypes[0], fill, compress)
-        transform = jnp.asarray(tuple(grid.transform)[:6])
+        # numpy, not jnp, for the kernels' arguments: each eager jnp conversion is a
+        # small compiled program of its own (lowered again in every process).
+        transform = np.asarray(tuple(grid.transform)[:6], dtype=float)
         tiles = list(_tiles(grid.shape, tile))
         layout = _layout(*tiles[0][2:])
-        fill_j = jnp.full((src.count,), fill, dtype=fill.dtype)
+        fill_j = np.full((src.count,), fill, dtype=fill.dtype)
         size = (src.height, src.width)
         compute, out_dtype = _compute_dtype(fill.dtype), np.dtype(fill.dtype)
         lock = threading.Lock()  # a rasterio dataset is not thread-safe
@@ -131,7 +138,7 @@ def rectify_file(
         def one(t):
             r0, c0, h, w = t
             pos, origin, err, n_exact = _tile_positions(
-                model, transform, jnp.array([r0, c0], dtype=float), layout, _approx_arg(approx), size)
+                model, transform, np.array([r0, c0], dtype=float), layout, _approx_arg(approx), size)
             p, o = np.asarray(pos)[:, :h, :w], np.asarray(origin)
             # The window from the very positions resampled: none falls outside it.
             win = _source_window(p[0] + o[0], p[1] + o[1], src.width, src.height, Resampling(resampling).margin)
@@ -139,7 +146,7 @@ def rectify_file(
                 return np.full((src.count, h, w), fill, dtype=fill.dtype), err, n_exact
             with lock:
                 data = src.read(window=Window(win[1], win[0], win[3], win[2]))
-            offset = jnp.asarray(o - np.array([win[1], win[0]]), dtype=jnp.int32)
+            offset = np.asarray(o - np.array([win[1], win[0]]), dtype=np.int32)
             # Full-size tiles (edge tiles cropped after): fewer compilations.
             block = _resample_tile(_source(data, resampling, compute), pos, origin, offset, fill_j, size,
                                    data.shape[-2:], resampling, compute, out_dtype)

@@ -13,8 +13,10 @@ from typing import Any
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jax import Array
 from rasterio import Affine
 
+from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, image_to_ground
 from ..dem import DEM
@@ -104,7 +106,17 @@ class Grid:
         return np.stack([x, y], axis=-1)
 
 
-_to_ground = eqx.filter_jit(image_to_ground)
+@eqx.filter_jit
+def _footprint(px: Array, exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM) -> tuple[Array, Array]:
+    """``(n, 3)`` ground points of the ``(n, 2)`` pixels ``px`` on the DEM,
+    and on the plane at the DEM's mean height: one compiled call (kept on
+    disk by photax._aot) instead of a dozen small eager operations."""
+    img = camera.pixel_to_image(px)
+    return (image_to_ground(img, exterior, camera, dem=dem),
+            image_to_ground(img, exterior, camera, height=jnp.nanmean(dem.heights)))
+
+
+_footprint_cached = disk_cached(_footprint, "ortho_footprint")
 
 
 def _shoelace(p: np.ndarray) -> float:
@@ -138,9 +150,7 @@ def ortho_grid(
             np.stack([np.full_like(t, x0), y1 - t * (y1 - y0)], -1),
         ]
     )
-    img = camera.pixel_to_image(jnp.asarray(px))
-    ground = np.asarray(_to_ground(img, exterior, camera, dem=dem))
-    flat = np.asarray(_to_ground(img, exterior, camera, height=jnp.nanmean(dem.heights)))
+    ground, flat = (np.asarray(g) for g in _footprint_cached(px, exterior, camera, dem))
     ground = np.where(np.isfinite(ground), ground, flat)[:, :2]
     if not np.all(np.isfinite(ground)):
         raise ValueError("the image outline does not reach the ground (camera looks above the horizon)")

@@ -1,0 +1,155 @@
+"""Traced kernels kept on disk, so that a new process does not trace them again.
+
+JAX's persistent compilation cache stores compiled XLA only: every process
+still traces the Python function and lowers it to StableHLO before it can
+even compute the cache key.  For the rectification kernels (a ``while_loop``
+with a ``cond`` between the exact and the interpolated mapping) tracing was
+most of a warm command-line run (``benchmarks/bench_startup.py --only
+breakdown``).  :func:`disk_cached` wraps a jitted function so that its
+first call in a process looks for the function *exported* (``jax.export``:
+serialised StableHLO, JAX's supported format for this) under a key made of
+everything the tracing depends on, and calls it without tracing; its XLA
+compilation is then found in JAX's persistent cache as usual.  On a miss it
+traces once, exports and writes the entry.
+
+(Serialising the compiled executable itself,
+``jax.experimental.serialize_executable``, would also skip the lowering,
+but on this jaxlib's CPU backend some deserialised executables crashed the
+process (SIGSEGV, the resection solvers) or failed with "Function
+<fusion> not found": not used.)
+
+The key: the function's name, a digest of photax's own source files (any
+edit to photax invalidates every entry), the JAX and jaxlib versions, the
+backend and device kind, 64-bit mode, ``XLA_FLAGS``, the argument pytree
+structure, every array argument's shape / dtype / weak type, and the
+``repr`` of every non-array argument (equinox's static part).  Arguments
+whose ``repr`` is not a faithful value (an object address ``0x...``) are
+not cached on disk: the call falls back to the plain jitted function.
+Entries live in ``<jax_compilation_cache_dir>/photax-aot``, and only after
+:func:`enable` (the command line calls it) with that directory set: library
+calls behave exactly as before unless a program opts in.  An unreadable
+entry is ignored and rewritten.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import pathlib
+import tempfile
+import threading
+
+_SRC = pathlib.Path(__file__).resolve().parent
+_LOCK = threading.Lock()
+
+
+@functools.cache
+def _source_digest() -> str:
+    h = hashlib.sha256()
+    for p in sorted(_SRC.rglob("*.py")):
+        h.update(str(p.relative_to(_SRC)).encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+@functools.cache
+def _environment() -> str:
+    import jax
+    import jaxlib
+
+    dev = jax.devices()[0]
+    return repr((jax.__version__, jaxlib.__version__, dev.platform, dev.device_kind, jax.config.jax_enable_x64,
+                 os.environ.get("XLA_FLAGS", ""), _source_digest()))
+
+
+_ENABLED = False
+
+
+def enable() -> None:
+    """Keep :func:`disk_cached` functions on disk from now on in this process
+    (in ``<jax_compilation_cache_dir>/photax-aot``, when that is set)."""
+    global _ENABLED
+    _ENABLED = True
+
+
+def _folder() -> pathlib.Path | None:
+    import jax
+
+    if not _ENABLED:
+        return None
+    base = jax.config.jax_compilation_cache_dir
+    return pathlib.Path(base) / "photax-aot" if base else None
+
+
+def disk_cached(fn, name: str):
+    """``fn`` (a jitted function of pytrees of arrays and static values),
+    with its compiled executable kept on disk between processes.
+
+    Returns a function with ``fn``'s signature and results (a call with
+    keyword arguments goes to ``fn`` itself).
+    """
+    import equinox as eqx
+    import jax
+
+    memory: dict[str, object] = {}
+
+    def call(*args, **kwargs):
+        folder = _folder()
+        if folder is None or kwargs:
+            return fn(*args, **kwargs)
+        dyn, static = eqx.partition(args, eqx.is_array)
+        leaves, treedef = jax.tree_util.tree_flatten(dyn)
+        static_leaves, static_def = jax.tree_util.tree_flatten(static)
+        description = repr((name, treedef, static_def, static_leaves,
+                            [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves]))
+        if " at 0x" in description:  # an object's identity, not its value: no safe key
+            return fn(*args)
+        key = hashlib.sha256((_environment() + description).encode()).hexdigest()
+        path = folder / f"{name}-{key[:32]}.bin"
+        compiled = memory.get(key)
+        if compiled is None:
+            with _LOCK:
+                compiled = memory.get(key) or _load_or_compile(fn, path, leaves, treedef, static)
+                memory[key] = compiled
+        if compiled is fn:
+            return fn(*args)
+        try:
+            return jax.block_until_ready(compiled(leaves))  # an execution error surfaces here, not later
+        except jax.errors.JaxRuntimeError:
+            # Seen once under heavy load: "Function <fusion> not found" from an
+            # executable.  Never trust it again; the plain function decides
+            # (a genuine error is raised again from there).
+            memory[key] = fn
+            path.unlink(missing_ok=True)
+            return fn(*args)
+
+    return call
+
+
+def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static):
+    """``jit(exported.call)`` for the serialised StableHLO at ``path``, made
+    (traced once, exported, written) when missing or unreadable; ``fn``
+    itself when the function cannot be exported."""
+    import equinox as eqx
+    import jax
+    from jax import export
+
+    try:
+        exported = export.deserialize(bytearray(path.read_bytes()))
+    except Exception:  # missing, truncated, or from an incompatible JAX: export again
+        def pure(dyn_leaves):
+            return fn(*eqx.combine(jax.tree_util.tree_unflatten(treedef, dyn_leaves), static))
+
+        try:
+            exported = export.export(jax.jit(pure))(leaves)
+        except Exception:  # e.g. a custom call JAX does not guarantee stable: no disk entry
+            return fn
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with tempfile.NamedTemporaryFile(dir=path.parent, delete=False) as fh:  # atomic: no half-written entry
+                fh.write(exported.serialize())
+            os.replace(fh.name, path)
+        except (OSError, ImportError):  # a read-only cache, or no flatbuffers: still compute
+            pass
+    return jax.jit(exported.call)

@@ -1,0 +1,84 @@
+"""photax._aot: traced (exported) kernels kept on disk, loaded without tracing.
+
+Each check counts traces with a Python side effect in the traced function
+(it runs only while JAX traces), and compares results with numpy.
+"""
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from photax import _aot
+
+TRACES = []
+_REAL_FOLDER = _aot._folder
+
+
+@eqx.filter_jit
+def _kernel(x, scale, mode):
+    TRACES.append(mode)  # only while tracing
+    return x * scale if mode == "mul" else x + scale
+
+
+@pytest.fixture
+def folder(tmp_path, monkeypatch):
+    monkeypatch.setattr(_aot, "_folder", lambda: tmp_path)
+    TRACES.clear()
+    return tmp_path
+
+
+def test_a_new_process_loads_the_function_without_tracing(folder):
+    x = np.arange(5.0)
+    np.testing.assert_array_equal(_aot.disk_cached(_kernel, "k")(x, 2.0, "mul"), x * 2.0)
+    assert len(TRACES) == 1 and len(list(folder.glob("k-*.bin"))) == 1
+    # a fresh wrapper stands for a new process: it reads the file, no trace
+    fresh = _aot.disk_cached(_kernel, "k")
+    np.testing.assert_array_equal(fresh(x + 1.0, 2.0, "mul"), (x + 1.0) * 2.0)
+    assert len(TRACES) == 1
+    # a different static value or shape is a different entry
+    np.testing.assert_array_equal(fresh(x, 3.0, "add"), x + 3.0)
+    np.testing.assert_array_equal(fresh(np.arange(3.0), 2.0, "mul"), np.arange(3.0) * 2.0)
+    assert len(TRACES) == 3 and len(list(folder.glob("k-*.bin"))) == 3
+
+
+def test_a_damaged_entry_is_compiled_again(folder):
+    x = jnp.ones(4)
+    _aot.disk_cached(_kernel, "d")(x, 1.0, "add")
+    (entry,) = folder.glob("d-*.bin")
+    entry.write_bytes(b"not an executable")
+    np.testing.assert_array_equal(_aot.disk_cached(_kernel, "d")(x, 1.0, "add"), np.full(4, 2.0))
+    assert entry.stat().st_size > 100  # compiled again and rewritten
+
+
+def test_no_cache_folder_or_no_faithful_key_calls_the_function(folder, monkeypatch):
+    class Opaque:  # repr is an address: not a key that can be trusted
+        pass
+
+    @eqx.filter_jit
+    def g(x, obj):
+        return x + 1.0
+
+    np.testing.assert_array_equal(_aot.disk_cached(g, "g")(jnp.zeros(2), Opaque()), np.ones(2))
+    monkeypatch.setattr(_aot, "_ENABLED", False)  # a library call: off unless a program enables it
+    assert _REAL_FOLDER() is None
+    monkeypatch.setattr(_aot, "_folder", lambda: None)
+    np.testing.assert_array_equal(_aot.disk_cached(_kernel, "n")(jnp.zeros(2), 1.0, "add"), np.ones(2))
+    assert not list(folder.iterdir())
+
+
+def test_an_entry_that_fails_to_run_is_dropped_for_the_function(folder, monkeypatch):
+    import jax
+
+    def broken(*_):
+        raise jax.errors.JaxRuntimeError("NOT_FOUND: Function slice_divide_fusion.3 not found (injected)")
+
+    def load(fn, path, *_):  # as if the entry had been read from disk
+        path.write_bytes(b"an executable")
+        return broken
+
+    monkeypatch.setattr(_aot, "_load_or_compile", load)
+    f = _aot.disk_cached(_kernel, "b")
+    np.testing.assert_array_equal(f(jnp.arange(3.0), 2.0, "mul"), np.arange(3.0) * 2.0)
+    np.testing.assert_array_equal(f(jnp.arange(3.0), 2.0, "mul"), np.arange(3.0) * 2.0)  # no second try
+    assert not list(folder.glob("b-*.bin"))  # the entry is gone
