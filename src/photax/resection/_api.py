@@ -18,6 +18,7 @@ import functools
 import jax
 import numpy as np
 
+from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..errors import RESULTS, ConvergenceError
@@ -32,8 +33,11 @@ _CHUNK = 1024  # images per call of the cheap path in resect_batch: one compilat
 _ROBUST_CHUNK = 32  # images per call of the robust path (a few per cent of a batch go there)
 
 # The compiled solvers: one image's pytree in, a packed float vector out, vmapped over images.
-_solve_cheap = jax.jit(lambda inp, opt: jax.vmap(lambda i: pack(_adjust.solve_cheap(i, opt)))(inp))
-_solve_robust = jax.jit(lambda inp, opt: jax.vmap(lambda i: pack(_robust.solve_robust(i, opt)))(inp))
+# Kept on disk when a program opts in (the command line does): tracing them was 2.4 s of a warm `photax resect`.
+_solve_cheap = disk_cached(jax.jit(lambda inp, opt: jax.vmap(lambda i: pack(_adjust.solve_cheap(i, opt)))(inp)),
+                           "resect_cheap")
+_solve_robust = disk_cached(jax.jit(lambda inp, opt: jax.vmap(lambda i: pack(_robust.solve_robust(i, opt)))(inp)),
+                            "resect_robust")
 
 
 def _options(prep: Prepared, camera: FrameCamera, convention, robust, alpha, max_steps, m) -> Options:
