@@ -7,12 +7,15 @@
   sample image and GCPs that ``data/make_sample.py`` and ``photax demo`` write;
 * :func:`block_scene` (:mod:`._block`): a block of strips for bundle adjustment
   (:func:`photax.bundle.synthetic_block` packs it into a problem);
-* :func:`texture` (:mod:`._texture`): the ground texture all of them are painted with.
+* :func:`texture` (:mod:`._texture`): the ground texture all of them are painted with;
+* :func:`fiducial_scan` (:mod:`._fiducials`): a scanned film frame's fiducial
+  marks under a known film -> pixel geometry (interior-orientation tests).
 
 Everything is seeded; ground coordinates are UTM-like so code that forgets to
 reduce them to a local origin shows it.  Frames and units: ``docs/conventions.md``.
 """
 
+from ._fiducials import fiducial_scan as fiducial_scan
 from ._block import BlockScene as BlockScene, block_scene as block_scene
 from ._relief import Scene as Scene, relief_scene as relief_scene
 from ._sample import (
