@@ -9,6 +9,7 @@ noise trials).
 
 from __future__ import annotations
 
+import jax
 import numpy as np
 import pytest
 
@@ -139,9 +140,9 @@ def test_sigma0_and_covariance_match_the_noise(model):
     rng = np.random.default_rng(11)
     truth = TRUTH[model](FID)
     s = 0.05
-    runs = [interior_orientation(truth + rng.normal(0, s, truth.shape), FID, model, robust=False) for _ in range(300)]
+    runs = [interior_orientation(truth + rng.normal(0, s, truth.shape), FID, model, robust=False) for _ in range(200)]
     s02 = np.mean([r.sigma0**2 for r in runs])
-    assert abs(s02 / s**2 - 1) < 0.12  # 300 x 10 (or 8) degrees of freedom: ~5 % standard error
+    assert abs(s02 / s**2 - 1) < 0.15  # 200 x 10 (or 8) degrees of freedom: ~5 % standard error
     params = np.array([np.asarray(r.transform.params) for r in runs])
     cov = np.mean([r.covariance for r in runs], axis=0)
     emp = np.cov(params.T)
@@ -153,25 +154,30 @@ def test_sigma0_and_covariance_match_the_noise(model):
 def test_scanned_camera_in_resection_and_orthorectification():
     """Ground -> film (collinearity, mm camera) -> scan pixels (bilinear scanner): resect recovers the
     orientation through ScannedCamera, and the orthophoto's mapping lands on the true scan pixels."""
+    from photax.rectification import OrthoModel
+
     rng = np.random.default_rng(3)
     film_cam = photax.FrameCamera(153.0, (0.01, -0.02))
     ext = photax.ExteriorOrientation([1000.0, 2000.0, 1500.0], np.radians([1.0, -2.0, 30.0]))
-    ground = np.column_stack([rng.uniform(200, 1800, 12), rng.uniform(1200, 2800, 12), rng.uniform(0, 80, 12)])
-    film = np.asarray(photax.project(ground, ext, film_cam))
-    pix = _bilinear(film)
+    ground = np.column_stack([rng.uniform(200, 1800, 12), rng.uniform(1200, 2800, 12), np.full(12, 40.0)])
+    ground[:6, 2] += rng.uniform(0, 80, 6)
     io = interior_orientation(_bilinear(FID), FID, "bilinear")
     cam = io.camera(153.0, (0.01, -0.02), image_size=SIZE)
     assert isinstance(cam, ScannedCamera) and isinstance(cam, photax.FrameCamera)
-    np.testing.assert_allclose(np.asarray(cam.pixel_to_image(pix)), film, atol=1e-9)  # bilinear inverse (Newton)
-    res = photax.resect(cam.pixel_to_image(pix), ground, cam)
-    np.testing.assert_allclose(np.asarray(res.exterior.position), np.asarray(ext.position), atol=1e-5)
-    dem = photax.DEM(np.zeros((4, 4)) + 40.0, (1000.0, 0.0, -1000.0, 0.0, -1000.0, 4000.0))
-    xy = ground[:, :2]
-    on_dem = np.column_stack([xy, np.full(len(xy), 40.0)])
-    from photax.rectification import OrthoModel
+    dem = photax.DEM(np.full((4, 4), 40.0), (1000.0, 0.0, -1000.0, 0.0, -1000.0, 4000.0))
 
-    got = np.asarray(OrthoModel(ext, cam, dem)(xy))
-    np.testing.assert_allclose(got, _bilinear(np.asarray(photax.project(on_dem, ext, film_cam))), atol=1e-9)
+    @jax.jit  # one compilation instead of one per eager operation
+    def run(cam, ext, dem):
+        film = photax.project(ground, ext, film_cam)
+        pix = cam.image_to_pixel(film)
+        return film, pix, cam.pixel_to_image(pix), OrthoModel(ext, cam, dem)(ground[6:, :2])
+
+    film, pix, back, ortho = (np.asarray(a) for a in run(cam, ext, dem))
+    np.testing.assert_allclose(pix, _bilinear(film), atol=1e-9)  # image_to_pixel is the fitted (exact) model
+    np.testing.assert_allclose(back, film, atol=1e-9)  # pixel_to_image inverts it (Newton)
+    np.testing.assert_allclose(ortho, _bilinear(film[6:]), atol=1e-9)  # the orthophoto reads the scan's pixels
+    res = photax.resect(cam.pixel_to_image(_bilinear(film)), ground, cam)
+    np.testing.assert_allclose(np.asarray(res.exterior.position), np.asarray(ext.position), atol=1e-5)
 
 
 def test_bad_input():
