@@ -129,3 +129,33 @@ def test_bad_geometry_is_refused(scene):
     pair = epipolar_pair(img["left"], img["along"], CAM, LEFT, RIGHT["along"])
     with pytest.raises(ValueError, match="side"):
         pair.to_epipolar("middle", [[1.0, 2.0]])
+
+
+def test_cli_epipolar(scene, tmp_path):
+    rasterio = pytest.importorskip("rasterio")
+    import rasterio.transform
+
+    from photax.cli import main
+
+    _, img, _, _ = scene
+    paths = {}
+    for name, e in (("left", LEFT), ("along", RIGHT["along"])):
+        p = tmp_path / f"{name}.tif"
+        with rasterio.open(p, "w", driver="GTiff", width=200, height=160, count=1, dtype="float32", transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
+            dst.write(img[name].astype(np.float32), 1)
+        photax.write_json({"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention}},
+                          tmp_path / f"{name}.json")
+        paths[name] = p
+    photax.write_camera(CAM, tmp_path / "cam.yaml")
+    out = tmp_path / "pair"
+    code = main(["epipolar", str(paths["left"]), str(paths["along"]), "--camera", str(tmp_path / "cam.yaml"),
+                 "--exterior-left", str(tmp_path / "left.json"), "--exterior-right", str(tmp_path / "along.json"),
+                 "-o", str(out)])
+    assert code == 0
+    pair = epipolar_pair(img["left"], img["along"], CAM, LEFT, RIGHT["along"])
+    with rasterio.open(tmp_path / "pair_left.tif") as src:
+        np.testing.assert_allclose(src.read(1), pair.left.astype(np.float32), atol=1e-4)
+    meta = photax.read_json(tmp_path / "pair.json")
+    np.testing.assert_allclose(meta["baseline"], pair.baseline)
+    assert main(["epipolar", str(paths["left"]), str(paths["along"]), "--camera", str(tmp_path / "cam.yaml"),
+                 "-o", str(out)]) == 2  # no orientation given

@@ -191,3 +191,32 @@ def test_bad_input():
         find_fiducials(np.zeros((50, 50)), FID)
     io = interior_orientation(_affine(FID[:4]), FID[:4], "projective")
     assert io.redundancy == 0 and "no redundancy" in io.message and not io.outliers.any()
+
+
+def test_cli_fiducials(scans, tmp_path):
+    rasterio = pytest.importorskip("rasterio")
+    import rasterio.transform
+
+    from photax.cli import main
+
+    img, truth = scans["affine-displaced"]
+    tif = tmp_path / "scan.tif"
+    with rasterio.open(tif, "w", driver="GTiff", width=img.shape[1], height=img.shape[0], count=1,
+                       dtype="float32", transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
+        dst.write(img.astype(np.float32), 1)
+    fid = tmp_path / "fiducials.csv"
+    fid.write_text("name,x,y\n" + "".join(f"F{i + 1},{x},{y}\n" for i, (x, y) in enumerate(FID)))
+    out, table = tmp_path / "io.json", tmp_path / "marks.csv"
+    code = main(["fiducials", str(tif), "--fiducials", str(fid), "--pixel-size", str(PS), "--mark-size", "4",
+                 "--line-width", "0.8", "-o", str(out), "--csv", str(table)])
+    assert code == 1  # a mark flagged
+    data = photax.read_json(out)
+    marks = {m["name"]: m for m in data["marks"]}
+    assert not marks["F4"]["used"] and "calibrated pattern" in marks["F4"]["status"]
+    got = np.array([[marks[f"F{i + 1}"]["col"], marks[f"F{i + 1}"]["row"]] for i in range(8) if i != 3])
+    assert np.sqrt(np.mean((got - np.delete(truth, 3, axis=0)) ** 2)) <= 0.1
+    assert table.read_text().count("\n") == 9
+    bad = tmp_path / "bad.csv"
+    bad.write_text("name,x\nF1,3\n")
+    assert main(["fiducials", str(tif), "--fiducials", str(bad), "--pixel-size", "0.5", "-o",
+                 str(tmp_path / "x.json")]) == 2
