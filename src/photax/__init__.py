@@ -67,4 +67,12 @@ from .rotation import (
     rotation_matrix as rotation_matrix,
 )
 
+from .interior import (
+    InteriorOrientation as InteriorOrientation,
+    ScannedCamera as ScannedCamera,
+    find_fiducials as find_fiducials,
+    interior_orientation as interior_orientation,
+)
+from .epipolar import EpipolarPair as EpipolarPair, epipolar_pair as epipolar_pair
+
 __version__ = importlib.metadata.version("photax")
