@@ -141,7 +141,8 @@ def test_cli_epipolar(scene, tmp_path):
     paths = {}
     for name, e in (("left", LEFT), ("along", RIGHT["along"])):
         p = tmp_path / f"{name}.tif"
-        with rasterio.open(p, "w", driver="GTiff", width=200, height=160, count=1, dtype="float32", transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
+        with rasterio.open(p, "w", driver="GTiff", width=200, height=160, count=1, dtype="float32",
+                           transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
             dst.write(img[name].astype(np.float32), 1)
         photax.write_json({"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention}},
                           tmp_path / f"{name}.json")

@@ -74,5 +74,6 @@ from .interior import (
     interior_orientation as interior_orientation,
 )
 from .epipolar import EpipolarPair as EpipolarPair, epipolar_pair as epipolar_pair
+from .registration import Registration as Registration, register_to_ortho as register_to_ortho
 
 __version__ = importlib.metadata.version("photax")

@@ -118,8 +118,9 @@ def run(args: argparse.Namespace) -> int:
             w = csv.writer(fh)
             w.writerow(["name", "x", "y", "col", "row", "residual_col", "residual_row", "status"])
             for m in marks:
-                w.writerow([m["name"], m["x"], m["y"], *(f"{m[k]:.4f}" if np.isfinite(m[k]) else "" for k in ("col", "row", "residual_col",
-                                                                               "residual_row")), m["status"]])
+                nums = [f"{m[k]:.4f}" if np.isfinite(m[k]) else "" for k in ("col", "row", "residual_col",
+                                                                            "residual_row")]
+                w.writerow([m["name"], m["x"], m["y"], *nums, m["status"]])
     n_bad = int(res.flagged.sum())
     print(f"{io.message}; rmse {io.rmse:.3f} px; wrote {args.out}" + (f" and {args.csv}" if args.csv else ""))
     for m in marks:
