@@ -33,6 +33,9 @@ _LAZY: dict[str, str] = {
     **dict.fromkeys(("ModelComparison", "compare_models"), ".compare"),
     **dict.fromkeys(("ExteriorOrientation", "depth", "image_to_ground", "look_at", "project"), ".collinearity"),
     "DEM": ".dem",
+    **dict.fromkeys(("EpipolarPair", "epipolar_pair"), ".epipolar"),
+    **dict.fromkeys(("InteriorOrientation", "ScannedCamera", "find_fiducials", "interior_orientation"), ".interior"),
+    **dict.fromkeys(("Registration", "register_to_ortho"), ".registration"),
     **dict.fromkeys(("RESULTS", "ConvergenceError"), ".errors"),
     "intersect": ".intersection",
     **dict.fromkeys(("read_bal", "read_camera", "read_gcps", "read_json", "write_bal", "write_camera",
@@ -92,6 +95,13 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers (never run)
         compare_models as compare_models,
     )
     from .dem import DEM as DEM
+    from .epipolar import EpipolarPair as EpipolarPair, epipolar_pair as epipolar_pair
+    from .interior import (
+        InteriorOrientation as InteriorOrientation,
+        ScannedCamera as ScannedCamera,
+        find_fiducials as find_fiducials,
+        interior_orientation as interior_orientation,
+    )
     from .errors import (
         RESULTS as RESULTS,
         ConvergenceError as ConvergenceError,
@@ -106,6 +116,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers (never run)
         write_camera as write_camera,
         write_json as write_json,
     )
+    from .registration import Registration as Registration, register_to_ortho as register_to_ortho
     from .polynomial import (
         PolynomialModel as PolynomialModel,
         ProjectiveModel as ProjectiveModel,

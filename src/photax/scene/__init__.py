@@ -7,12 +7,18 @@
   sample image and GCPs that ``data/make_sample.py`` and ``photax demo`` write;
 * :func:`block_scene` (:mod:`._block`): a block of strips for bundle adjustment
   (:func:`photax.bundle.synthetic_block` packs it into a problem);
-* :func:`texture` (:mod:`._texture`): the ground texture all of them are painted with.
+* :func:`texture` (:mod:`._texture`): the ground texture all of them are painted with;
+* :func:`render_image` (:mod:`._render`): the image a frame camera takes of a
+  textured DEM with survey targets, area-sampled, blurred and noised;
+* :func:`fiducial_scan` (:mod:`._fiducials`): a scanned film frame's fiducial
+  marks under a known film -> pixel geometry (interior-orientation tests).
 
 Everything is seeded; ground coordinates are UTM-like so code that forgets to
 reduce them to a local origin shows it.  Frames and units: ``docs/conventions.md``.
 """
 
+from ._fiducials import fiducial_scan as fiducial_scan
+from ._render import render_image as render_image
 from ._block import BlockScene as BlockScene, block_scene as block_scene
 from ._relief import Scene as Scene, relief_scene as relief_scene
 from ._sample import (
@@ -30,4 +36,4 @@ from ._sample import (
     sample_dem as sample_dem,
     sample_points as sample_points,
 )
-from ._texture import texture as texture
+from ._texture import detailed_texture as detailed_texture, texture as texture

@@ -95,8 +95,8 @@ def sample_points() -> dict:
             "role": np.where(np.isin(names, SAMPLE_CHECK), "check", "control"), "crs": SAMPLE_CRS}
 
 
-def _targets(x, y, centres):
-    """Survey targets: quartered black-and-white discs of radius :data:`SAMPLE_TARGET_RADIUS` m.
+def _targets(x, y, centres, radius=SAMPLE_TARGET_RADIUS):
+    """Survey targets: quartered black-and-white discs of ``radius`` m (default :data:`SAMPLE_TARGET_RADIUS`).
 
     ``x, y`` ``(n,)`` ground points, ``centres`` ``(k, 2)``; returns the
     target grey value ``(n,)`` and its opacity ``(n,)`` in [0, 1] (edges
@@ -109,7 +109,7 @@ def _targets(x, y, centres):
     take = lambda a: jnp.take_along_axis(a, nearest[:, None], axis=1)[:, 0]  # noqa: E731
     dx, dy, r = take(dx), take(dy), take(r)
     grey = 0.5 + 0.45 * jnp.tanh(dx / 0.4) * jnp.tanh(dy / 0.4)
-    return grey, jax.nn.sigmoid((SAMPLE_TARGET_RADIUS - r) / 0.3)
+    return grey, jax.nn.sigmoid((radius - r) / 0.3)
 
 
 @eqx.filter_jit

@@ -28,3 +28,22 @@ def texture(x, y):
 
 
 _texture = jax.jit(texture)
+
+
+# Plane waves (wavelength m, direction deg) of :func:`detailed_texture`: incommensurate, so their sum has
+# gradients in every direction at every place (a least-squares matcher needs both; the ripple of
+# :func:`texture` alone runs one way).
+_WAVES = ((5.3, 17.0), (7.1, 71.0), (9.7, 133.0), (4.3, 101.0), (12.9, 163.0), (6.1, 41.0))
+
+
+def detailed_texture(x, y):
+    """:func:`texture` with fine two-dimensional detail (metre-scale waves), in [0, 1].
+
+    For rendered images that are matched (epipolar pairs, tie points):
+    ``texture + 0.07 sum_k sin(2 pi (x cos a_k + y sin a_k) / l_k)``, clipped.
+    """
+    d = 0.0
+    for lam, deg in _WAVES:
+        a = jnp.deg2rad(deg)
+        d = d + jnp.sin(2 * jnp.pi * (x * jnp.cos(a) + y * jnp.sin(a)) / lam)
+    return jnp.clip(texture(x, y) + 0.07 * d, 0.0, 1.0)

@@ -1,0 +1,132 @@
+"""``photax fiducials``: interior orientation of a scanned photograph from its fiducial marks.
+
+FIDUCIALS is a CSV ``name,x,y`` of the calibrated mark positions (film mm, x
+right, y up, from the camera's calibration report).  The marks are found by
+template matching near approximate positions (``--approx`` CSV
+``name,col,row``, or the scan's centre and ``--pixel-size`` mm per pixel),
+checked against the calibrated pattern, and the film -> pixel transformation
+(``--model``) is fitted (:func:`photax.interior.find_fiducials`).
+
+Outputs: ``--out`` JSON (model, parameters, sigma0, rmse, covariance, and per
+mark its measured pixel, residual, statistic and status) and optionally
+``--csv`` (``name,x,y,col,row,residual_col,residual_row,status``).
+
+Exit codes: 0 every mark found and consistent, 1 some mark flagged (not used),
+2 bad input (or too few marks for the model).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io as _io
+
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser(
+        "fiducials",
+        help="measure the fiducial marks of a scan and fit its interior orientation (film -> pixel)",
+        description="Find the fiducial marks of a scanned photograph by template matching, check them against "
+        "the calibrated pattern (blunder test), and fit the film -> pixel transformation.",
+    )
+    p.add_argument("scan", metavar="SCAN", help="the scanned image (any GDAL raster; first band or mean of RGB)")
+    p.add_argument("--fiducials", required=True, metavar="CSV", help="calibrated marks: name,x,y in mm (y up)")
+    p.add_argument("--pixel-size", type=float, metavar="MM", help="scan resolution in mm per pixel (without --approx)")
+    p.add_argument("--approx", metavar="CSV", help="approximate mark positions: name,col,row")
+    p.add_argument("--model", choices=("similarity", "affine", "bilinear", "projective"), default="affine")
+    p.add_argument("--mark", choices=("cross", "dot", "ring"), default="cross", help="the marks' shape")
+    p.add_argument("--mark-size", type=float, default=1.0, metavar="MM",
+                   help="half-length of a cross's bars, or a dot's / ring's radius, mm")
+    p.add_argument("--line-width", type=float, default=0.2, metavar="MM", help="bar or ring line width, mm")
+    p.add_argument("--dark", action="store_true", help="the marks are darker than their surroundings")
+    p.add_argument("--search", type=int, default=15, metavar="PX", help="search radius around the approximations")
+    p.add_argument("--sigma", type=float, default=0.1, metavar="PX", help="a-priori precision of a mark, px")
+    p.add_argument("-o", "--out", required=True, metavar="JSON", help="the interior orientation (JSON)")
+    p.add_argument("--csv", metavar="CSV", help="the marks, one row each")
+    p.set_defaults(func=run)
+
+
+def _read_named(path, columns: tuple[str, str], what: str) -> tuple[list[str], np.ndarray]:
+    """``name,a,b`` rows of a CSV with a header naming those columns (file and line in errors)."""
+    import numpy as np  # here, not at import: photax --help loads no numpy
+
+    from ..io._files import file_error, read_text
+
+    text = read_text(path)
+    rows = list(csv.reader(_io.StringIO(text)))
+    rows = [r for r in rows if r and any(c.strip() for c in r)]
+    if not rows:
+        raise file_error(path, None, f"empty {what}")
+    head = [c.strip().lower() for c in rows[0]]
+    want = ("name", *columns)
+    if not all(c in head for c in want):
+        raise file_error(path, 1, f"expected a header with the columns {', '.join(want)}, got {', '.join(head)}")
+    idx = [head.index(c) for c in want]
+    names, vals = [], []
+    for k, r in enumerate(rows[1:], start=2):
+        try:
+            names.append(r[idx[0]].strip())
+            vals.append([float(r[idx[1]]), float(r[idx[2]])])
+        except (ValueError, IndexError):
+            raise file_error(path, k, f"expected name,{columns[0]},{columns[1]} with numbers, got {','.join(r)}") from None
+    if len(set(names)) != len(names):
+        raise file_error(path, None, "duplicated mark names")
+    return names, np.asarray(vals, dtype=float)
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np  # here, not at import: photax --help loads no numpy
+
+    from ..interior import find_fiducials
+    from ..io.atomic import atomic_write, check_output_path
+    from ..io.results import write_json
+    from ._common import input_file
+    from .measure import read_image
+
+    input_file(args.scan, "scan")
+    input_file(args.fiducials, "fiducial file")
+    inputs = [args.scan, args.fiducials] + ([args.approx] if args.approx else [])
+    check_output_path(args.out, inputs)
+    if args.csv:
+        check_output_path(args.csv, inputs)
+    names, fid = _read_named(args.fiducials, ("x", "y"), "fiducial file")
+    approx = None
+    if args.approx:
+        input_file(args.approx, "approximate positions")
+        anames, axy = _read_named(args.approx, ("col", "row"), "approximate positions")
+        missing = sorted(set(names) - set(anames))
+        if missing:
+            raise ValueError(f"{args.approx}: no approximate position for the marks {', '.join(missing)}")
+        approx = axy[[anames.index(n) for n in names]]
+    elif args.pixel_size is None:
+        raise ValueError("give --pixel-size (the scan resolution, mm per pixel) or --approx")
+    scan = read_image(args.scan, None)
+    res = find_fiducials(scan, fid, pixel_size=args.pixel_size, approx_xy=approx, mark=args.mark,
+                         mark_size=args.mark_size, line_width=args.line_width, bright=not args.dark,
+                         search=args.search, model=args.model, sigma=args.sigma)
+    io = res.orientation
+    marks = [{"name": n, "x": float(f[0]), "y": float(f[1]), "col": float(p[0]), "row": float(p[1]),
+              "residual_col": float(v[0]), "residual_row": float(v[1]), "statistic": float(s),
+              "used": not bool(fl), "status": m}
+             for n, f, p, v, s, fl, m in zip(names, fid, res.xy, io.residuals, io.statistic, res.flagged, res.messages)]
+    t = io.transform
+    write_json({"model": io.model, "params": np.asarray(t.params), "film_centre_mm": np.asarray(t.film_centre),
+                "film_scale_mm": float(t.film_scale), "sigma0": io.sigma0, "rmse_px": io.rmse,
+                "covariance": io.covariance, "redundancy": io.redundancy, "critical": io.critical,
+                "pixel_size_mm": t.scale(), "image_size": [scan.shape[1], scan.shape[0]], "message": io.message,
+                "marks": marks}, args.out, inputs=inputs)
+    if args.csv:
+        with atomic_write(args.csv, "w", inputs=inputs, newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["name", "x", "y", "col", "row", "residual_col", "residual_row", "status"])
+            for m in marks:
+                nums = [f"{m[k]:.4f}" if np.isfinite(m[k]) else "" for k in ("col", "row", "residual_col",
+                                                                            "residual_row")]
+                w.writerow([m["name"], m["x"], m["y"], *nums, m["status"]])
+    n_bad = int(res.flagged.sum())
+    print(f"{io.message}; rmse {io.rmse:.3f} px; wrote {args.out}" + (f" and {args.csv}" if args.csv else ""))
+    for m in marks:
+        if not m["used"]:
+            print(f"  {m['name']}: {m['status']}")
+    return 1 if n_bad else 0

@@ -1,0 +1,222 @@
+"""Interior orientation from fiducial marks, on rendered scans with known geometry.
+
+References: the scans' true film -> pixel mappings (written here, independent
+of photax.interior), OpenCV's ``findHomography`` (least squares + LM on the
+reprojection error) and scikit-image's affine / similarity estimates, and
+the least-squares theory (sigma0^2 and the parameter covariance over seeded
+noise trials).
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import photax
+from photax.interior import ScannedCamera, find_fiducials, interior_orientation
+from photax.scene import fiducial_scan
+
+# 8 marks of a 230 mm aerial frame: corners and mid-sides (film mm, y up).
+FID = np.array([[-106, 106], [0, 110], [106, 106], [110, 0], [106, -106], [0, -110], [-106, -106], [-110, 0]], float)
+PS = 0.5  # mm per scan pixel: a small scan keeps the test cheap
+SIZE = (520, 500)
+MARK = dict(mark_size=4.0, line_width=0.8)
+
+
+def _affine(f):
+    u, v = f[:, 0], -f[:, 1]
+    th = np.radians(0.8)
+    c = 257.0 + 1.002 * (np.cos(th) * u - np.sin(th) * v) / PS
+    r = 246.0 + (np.sin(th) * u + np.cos(th) * v + 0.003 * u) / PS
+    return np.column_stack([c, r])
+
+
+def _bilinear(f):  # ~2.5 px of u v term at the corners
+    u, v = f[:, 0], -f[:, 1]
+    return _affine(f) + np.column_stack([2.5 * u * v / 110**2, -1.8 * u * v / 110**2])
+
+
+def _projective(f):  # ~3 px of perspective at the corners
+    u, v = f[:, 0], -f[:, 1]
+    c0 = np.array([257.0, 246.0])
+    return c0 + (_affine(f) - c0) / (1.0 + 1.2e-4 * u - 0.8e-4 * v)[:, None]
+
+
+TRUTH = {"affine": _affine, "bilinear": _bilinear, "projective": _projective}
+
+
+@pytest.fixture(scope="module")
+def scans():
+    """One clean scan per model, and one with mark 3 painted 5 px off."""
+    out = {}
+    for name, fn in TRUTH.items():
+        out[name] = fiducial_scan(FID, fn, SIZE, **MARK, seed=1)
+        out[name + "-displaced"] = fiducial_scan(FID, fn, SIZE, **MARK, seed=2, displaced={3: (3.0, -4.0)})
+    return out
+
+
+@pytest.mark.parametrize("model", ["affine", "bilinear", "projective"])
+def test_marks_found_to_a_tenth_of_a_pixel(scans, model):
+    img, truth = scans[model]
+    res = find_fiducials(img, FID, pixel_size=PS, model=model, **MARK)
+    assert not res.flagged.any(), res.messages
+    err = res.xy - truth
+    assert np.sqrt(np.mean(err**2)) <= 0.1
+    # the fitted transformation reproduces the true geometry at the marks and between them
+    assert np.sqrt(np.mean((res.orientation.pixel_from_film(FID) - truth) ** 2)) <= 0.1
+    inner = np.array([[50.0, -30.0], [-70.0, 80.0], [0.0, 0.0]])
+    assert np.max(np.abs(res.orientation.pixel_from_film(inner) - TRUTH[model](inner))) <= 0.15
+    assert res.rmse < 0.1  # residuals of the fit, px (sigma0 is relative to the a-priori 0.1 px)
+
+
+@pytest.mark.parametrize("model", ["affine", "bilinear", "projective"])
+def test_displaced_mark_is_flagged_in_the_scan(scans, model):
+    img, truth = scans[model + "-displaced"]
+    res = find_fiducials(img, FID, pixel_size=PS, model=model, **MARK)
+    assert np.flatnonzero(res.flagged).tolist() == [3]
+    assert "calibrated pattern" in res.messages[3]
+    ok = ~res.flagged
+    assert np.sqrt(np.mean((res.xy[ok] - truth[ok]) ** 2)) <= 0.1
+
+
+@pytest.mark.parametrize("model", ["similarity", "affine", "bilinear", "projective"])
+def test_five_pixel_blunder_always_flagged(model):
+    """Every mark, displaced by 5 px in 8 directions, on top of 0.02 px noise: flagged, and only it."""
+    rng = np.random.default_rng(5)
+    truth = TRUTH.get(model, _affine)(FID) if model != "similarity" else _similarity_truth(FID)
+    for k in range(len(FID)):
+        for a in np.radians(np.arange(0, 360, 45) + 10):
+            px = truth + rng.normal(0, 0.02, truth.shape)
+            px[k] += 5.0 * np.array([np.cos(a), np.sin(a)])
+            io = interior_orientation(px, FID, model)
+            assert np.flatnonzero(io.outliers).tolist() == [k], (k, np.degrees(a), io.message)
+
+
+def _similarity_truth(f):
+    th = np.radians(-1.3)
+    u, v = f[:, 0], -f[:, 1]
+    return np.column_stack([260 + (np.cos(th) * u - np.sin(th) * v) / PS, 250 + (np.sin(th) * u + np.cos(th) * v) / PS])
+
+
+def test_fits_agree_with_opencv_and_scikit_image():
+    cv2 = pytest.importorskip("cv2")
+    transform = pytest.importorskip("skimage.transform")
+    rng = np.random.default_rng(0)
+    src = np.column_stack([FID[:, 0], -FID[:, 1]])  # (u, v): film with y down, like rows
+    from scipy.optimize import least_squares
+
+    def polish(apply, q0):  # the least-squares minimum of the reprojection error, from a peer's estimate
+        return apply(least_squares(lambda q: (apply(q) - px).ravel(), q0, xtol=1e-15, ftol=1e-15, gtol=1e-15).x)
+
+    hom = np.column_stack([src, np.ones(len(src))])
+    for model, truth in [("similarity", _similarity_truth), ("affine", _affine), ("projective", _projective)]:
+        px = truth(FID) + rng.normal(0, 0.3, FID.shape)
+        ours = interior_orientation(px, FID, model, robust=False).pixel_from_film(FID)
+        if model == "projective":
+            # OpenCV: linear + LM on the reprojection error (it stops at ~1e-4 px: polished by scipy)
+            h, _ = cv2.findHomography(src, px, 0)
+
+            def apply(q):  # numpy: cv2.perspectiveTransform rounds to float32 (~3e-5 px here)
+                x = hom @ np.append(q, 1.0).reshape(3, 3).T
+                return x[:, :2] / x[:, 2:]
+
+            ref = polish(apply, (h / h[2, 2]).ravel()[:8])
+        elif model == "affine":
+            # scikit-image's affine estimate is a total-least-squares one (~1e-4 px off the minimum): polished
+            est = transform.AffineTransform.from_estimate(src, px)
+            assert est
+            ref = polish(lambda q: hom @ q.reshape(2, 3).T, est.params[:2].ravel())
+        else:  # Umeyama: the least-squares similarity, closed form
+            est = transform.SimilarityTransform.from_estimate(src, px)
+            assert est
+            ref = est(src)
+        np.testing.assert_allclose(ours, ref, atol=1e-7)
+
+
+@pytest.mark.parametrize("model", ["affine", "projective"])
+def test_sigma0_and_covariance_match_the_noise(model):
+    """Seeded trials: E[sigma0^2] = sigma^2, and the spread of the parameters is the reported covariance."""
+    rng = np.random.default_rng(11)
+    truth = TRUTH[model](FID)
+    s = 0.05
+    runs = [interior_orientation(truth + rng.normal(0, s, truth.shape), FID, model, robust=False) for _ in range(200)]
+    s02 = np.mean([r.sigma0**2 for r in runs])
+    assert abs(s02 / s**2 - 1) < 0.15  # 200 x 10 (or 8) degrees of freedom: ~5 % standard error
+    params = np.array([np.asarray(r.transform.params) for r in runs])
+    cov = np.mean([r.covariance for r in runs], axis=0)
+    emp = np.cov(params.T)
+    d = np.sqrt(np.diag(cov))
+    np.testing.assert_allclose(emp / np.outer(d, d), cov / np.outer(d, d), atol=0.2)
+    np.testing.assert_allclose(np.sqrt(np.diag(emp)) / d, 1.0, atol=0.15)
+
+
+def test_scanned_camera_in_resection_and_orthorectification():
+    """Ground -> film (collinearity, mm camera) -> scan pixels (bilinear scanner): resect recovers the
+    orientation through ScannedCamera, and the orthophoto's mapping lands on the true scan pixels."""
+    from photax.rectification import OrthoModel
+
+    rng = np.random.default_rng(3)
+    film_cam = photax.FrameCamera(153.0, (0.01, -0.02))
+    ext = photax.ExteriorOrientation([1000.0, 2000.0, 1500.0], np.radians([1.0, -2.0, 30.0]))
+    ground = np.column_stack([rng.uniform(200, 1800, 12), rng.uniform(1200, 2800, 12), np.full(12, 40.0)])
+    ground[:6, 2] += rng.uniform(0, 80, 6)
+    io = interior_orientation(_bilinear(FID), FID, "bilinear")
+    cam = io.camera(153.0, (0.01, -0.02), image_size=SIZE)
+    assert isinstance(cam, ScannedCamera) and isinstance(cam, photax.FrameCamera)
+    dem = photax.DEM(np.full((4, 4), 40.0), (1000.0, 0.0, -1000.0, 0.0, -1000.0, 4000.0))
+
+    @jax.jit  # one compilation instead of one per eager operation
+    def run(cam, ext, dem):
+        film = photax.project(ground, ext, film_cam)
+        pix = cam.image_to_pixel(film)
+        return film, pix, cam.pixel_to_image(pix), OrthoModel(ext, cam, dem)(ground[6:, :2])
+
+    film, pix, back, ortho = (np.asarray(a) for a in run(cam, ext, dem))
+    np.testing.assert_allclose(pix, _bilinear(film), atol=1e-9)  # image_to_pixel is the fitted (exact) model
+    np.testing.assert_allclose(back, film, atol=1e-9)  # pixel_to_image inverts it (Newton)
+    np.testing.assert_allclose(ortho, _bilinear(film[6:]), atol=1e-9)  # the orthophoto reads the scan's pixels
+    res = photax.resect(cam.pixel_to_image(_bilinear(film)), ground, cam)
+    np.testing.assert_allclose(np.asarray(res.exterior.position), np.asarray(ext.position), atol=1e-5)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="model"):
+        interior_orientation(_affine(FID), FID, "quadratic")
+    with pytest.raises(ValueError, match="fiducial_xy"):
+        interior_orientation(_affine(FID), FID[:5])
+    with pytest.raises(ValueError, match="needs at least 4 marks"):
+        interior_orientation(np.where(np.arange(8)[:, None] < 5, np.nan, _affine(FID)), FID, "projective")
+    with pytest.raises(ValueError, match="pixel_size"):
+        find_fiducials(np.zeros((50, 50)), FID)
+    io = interior_orientation(_affine(FID[:4]), FID[:4], "projective")
+    assert io.redundancy == 0 and "no redundancy" in io.message and not io.outliers.any()
+
+
+def test_cli_fiducials(scans, tmp_path):
+    rasterio = pytest.importorskip("rasterio")
+    import rasterio.transform
+
+    from photax.cli import main
+
+    img, truth = scans["affine-displaced"]
+    tif = tmp_path / "scan.tif"
+    with rasterio.open(tif, "w", driver="GTiff", width=img.shape[1], height=img.shape[0], count=1,
+                       dtype="float32", transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
+        dst.write(img.astype(np.float32), 1)
+    fid = tmp_path / "fiducials.csv"
+    fid.write_text("name,x,y\n" + "".join(f"F{i + 1},{x},{y}\n" for i, (x, y) in enumerate(FID)))
+    out, table = tmp_path / "io.json", tmp_path / "marks.csv"
+    code = main(["fiducials", str(tif), "--fiducials", str(fid), "--pixel-size", str(PS), "--mark-size", "4",
+                 "--line-width", "0.8", "-o", str(out), "--csv", str(table)])
+    assert code == 1  # a mark flagged
+    data = photax.read_json(out)
+    marks = {m["name"]: m for m in data["marks"]}
+    assert not marks["F4"]["used"] and "calibrated pattern" in marks["F4"]["status"]
+    got = np.array([[marks[f"F{i + 1}"]["col"], marks[f"F{i + 1}"]["row"]] for i in range(8) if i != 3])
+    assert np.sqrt(np.mean((got - np.delete(truth, 3, axis=0)) ** 2)) <= 0.1
+    assert table.read_text().count("\n") == 9
+    bad = tmp_path / "bad.csv"
+    bad.write_text("name,x\nF1,3\n")
+    assert main(["fiducials", str(tif), "--fiducials", str(bad), "--pixel-size", "0.5", "-o",
+                 str(tmp_path / "x.json")]) == 2

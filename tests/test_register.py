@@ -1,0 +1,62 @@
+"""Registration of a rendered image to the scene's exact orthophoto (photax.registration).
+
+Truth: the rendering orientation; the reference orthophoto is the ground
+texture sampled on a ground grid (what a perfect orthophoto shows).  The
+check is the reprojection error of ground points between the refined and
+the true orientation, in pixels.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import photax
+from photax.registration import register_to_ortho
+from photax.scene import detailed_texture, render_image
+
+X0, Y0 = 500_000.0, 4_000_000.0
+CAM = photax.FrameCamera.from_pixels(300.0, (200, 160))
+TRUE = photax.ExteriorOrientation([X0 - 30, Y0, 320.0], np.radians([0.5, -0.3, 1.0]))
+
+
+@pytest.fixture(scope="module")
+def scene():
+    n, cell = 300, 2.0
+    c = -300 + cell * (np.arange(n) + 0.5)
+    h = 20 + 15 * np.exp(-((c[None, :] - 40) ** 2 + (c[:, None] + 30) ** 2) / (2 * 90.0**2)) + 0.02 * c[None, :]
+    dem = photax.DEM(h, (cell, 0.0, X0 - 300, 0.0, -cell, Y0 + 300))
+    image = render_image(CAM, TRUE, dem, origin=(X0, Y0), supersample=3, blur=0.5, noise=0.005, seed=1)
+    k = 160  # a 160 m ortho at 1 m inside the footprint
+    ox = -110 + (np.arange(k) + 0.5)
+    oy = 80 - (np.arange(k) + 0.5)
+    ortho = np.asarray(detailed_texture(jnp.asarray(ox)[None, :], jnp.asarray(oy)[:, None]))
+    transform = (1.0, 0.0, X0 - 110, 0.0, -1.0, Y0 + 80)
+    rng = np.random.default_rng(0)
+    g = np.column_stack([rng.uniform(X0 - 100, X0 + 40, 100), rng.uniform(Y0 - 70, Y0 + 70, 100)])
+    g = np.column_stack([g, np.asarray(dem.height(jnp.asarray(g[:, 0]), jnp.asarray(g[:, 1])))])
+    return dem, image, ortho, transform, g
+
+
+def _px(e, g):
+    return np.asarray(CAM.image_to_pixel(photax.project(g, e, CAM)))
+
+
+def test_from_5_m_and_0_2_degrees_to_a_tenth_of_a_pixel(scene):
+    dem, image, ortho, transform, g = scene
+    start = photax.ExteriorOrientation(np.asarray(TRUE.position) + [4.0, -3.0, 0.0],
+                                       np.asarray(TRUE.angles) + np.radians([0.2, -0.15, 0.1]))
+    before = np.sqrt(np.mean(np.sum((_px(start, g) - _px(TRUE, g)) ** 2, 1)))
+    assert before > 4.0  # px: a real starting error
+    res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1))
+    assert res.converged, res.message
+    after = np.sqrt(np.mean(np.sum((_px(res.exterior, g) - _px(TRUE, g)) ** 2, 1)))
+    assert after <= 0.1, after
+
+
+def test_too_far_off_is_reported(scene):
+    dem, image, ortho, transform, _ = scene
+    start = photax.ExteriorOrientation(np.asarray(TRUE.position) + [60.0, 40.0, 0.0], TRUE.angles)
+    res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8)
+    assert not res.converged and res.message
