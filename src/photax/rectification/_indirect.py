@@ -16,7 +16,7 @@ import numpy as np
 from jax import Array
 
 from ..resampling import Resampling
-from ._approx import _bounds, _chunk_positions, _lattice_positions, _tile_plan
+from ._approx import _bounds, _chunk_positions, _lattice_cells, _tile_plan
 from ._direct import _rectify_direct
 from ._grid import Grid
 from ._tiling import (
@@ -58,16 +58,15 @@ def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, me
 
         return jax.lax.fori_loop(0, (tr // s) * nc, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
 
-    def interpolated():  # no chunk needs the exact mapping: whole-tile positions, row strips
-        pos = _lattice_positions(plan[0], s)
-
-        def body(i, out):
-            p = jax.lax.dynamic_slice(pos, (0, i * s, 0), (2, s, tc)).reshape(2, -1)
-            v = _interp(flat, p[0], p[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5,
-                        compute=compute, out_dtype=out_dtype)
-            return jax.lax.dynamic_update_slice(out, v.reshape(-1, s, tc), (0, i * s, 0))
-
-        return jax.lax.fori_loop(0, tr // s, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
+    def interpolated():
+        # No chunk needs the exact mapping: the whole tile in one fused pass,
+        # positions made from the lattice where they are used.  Measured
+        # faster than any loop over strips: XLA:CPU's in-place
+        # dynamic-update-slice of each strip's result is not vectorised.
+        p = _lattice_cells(plan[0], s)
+        v = _interp(flat, p[0], p[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5, compute=compute,
+                    out_dtype=out_dtype)
+        return v.reshape(-1, tr, tc)
 
     if approx is None:
         out = loop(True)
@@ -84,15 +83,9 @@ def _resample_tile(flat, pos, origin, offset, fill, size, window, method, comput
     from ..resampling import _interp
 
     lo, hi = _bounds(origin, size, pos.dtype)
-    tr, tc = pos.shape[1:]
-
-    def body(i, out):
-        p = jax.lax.dynamic_slice(pos, (0, i * _STEP, 0), (2, _STEP, tc)).reshape(2, -1)
-        v = _interp(flat, p[0], p[1], fill, lo, hi, offset, shape=window, method=method, a=-0.5,
-                    compute=compute, out_dtype=out_dtype)
-        return jax.lax.dynamic_update_slice(out, v.reshape(-1, _STEP, tc), (0, i * _STEP, 0))
-
-    return jax.lax.fori_loop(0, tr // _STEP, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
+    # One fused pass over the tile (see _rectify_tile's interpolated branch).
+    return _interp(flat, pos[0], pos[1], fill, lo, hi, offset, shape=window, method=method, a=-0.5,
+                   compute=compute, out_dtype=out_dtype)
 
 
 def rectify(
@@ -168,7 +161,8 @@ def rectify(
     _check_model(model)
     if not isinstance(grid, Grid):
         raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
-    image = jnp.asarray(image)
+    # numpy stays numpy (no jnp.asarray copy): _source pads it in numpy.
+    image = image if isinstance(image, (jax.Array, np.ndarray)) else np.asarray(image)
     if image.ndim < 2 or min(image.shape[-2:]) < 1:
         raise ValueError(f"image must have shape (..., H, W), got {image.shape}")
     fill = _fill_value(image.dtype, nodata)
