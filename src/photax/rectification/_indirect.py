@@ -183,10 +183,12 @@ def rectify(
 
     compute, out_dtype = _compute_dtype(image.dtype), np.dtype(image.dtype)
 
+    approx_j = _approx_arg(approx)
+
     def one(t):
-        offset = jnp.array(t[:2], dtype=float)
-        return _rectify_tile(model, flat, transform, offset, fill_j, layout, _approx_arg(approx), size, resampling,
-                             compute, out_dtype)
+        offset = np.array(t[:2], dtype=float)  # numpy: see _approx_arg
+        return _rectify_tile(model, flat, transform, offset, fill_j, layout, approx_j, size, resampling, compute,
+                             out_dtype)
 
     def sink(t, block):
         r0, c0, h, w = t
