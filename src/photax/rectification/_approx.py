@@ -122,9 +122,9 @@ def _lattice_cells(rel: Array, s: int) -> Array:
     """
     f = jnp.arange(s, dtype=jnp.float32) / s
     n0, n1 = rel[:, :, :-1, None], rel[:, :, 1:, None]  # (2, mr+1, mc, 1): cell corners along rows
-    along = n0 + (n1 - n0) * f  # (2, mr+1, mc, s)
+    along = n0 + (n1 - n0) * f[None, None, None, :]  # (2, mr+1, mc, s)
     top, bottom = along[:, :-1, None], along[:, 1:, None]  # (2, mr, 1, mc, s)
-    return top + (bottom - top) * f[:, None, None]
+    return top + (bottom - top) * f[None, None, :, None, None]
 
 
 def _lattice_positions(rel: Array, s: int) -> Array:

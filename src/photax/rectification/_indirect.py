@@ -134,7 +134,8 @@ def rectify(
             e.g. a :class:`photax.PolynomialModel` fitted map -> pixel.
         grid: the output :class:`Grid`.
         resampling: ``"nearest"``, ``"bilinear"``, ``"cubic"`` (Keys,
-            a = -0.5), ``"lanczos"`` or ``"bspline"``.
+            a = -0.5), ``"lanczos"`` (Lanczos-3), ``"lanczos4"``
+            (Lanczos-4, as OpenCV's) or ``"bspline"``.
         nodata: value for output pixels without data; default NaN for
             floating-point images, 0 for integer ones.
         tile: output tile edge in pixels; memory grows with ``tile**2``.
