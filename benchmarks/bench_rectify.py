@@ -20,8 +20,9 @@ both; the figures go to ``benchmarks/results/bench_rectify.json``.
    INTER_CUBIC (cv2's cubic has a = -0.75, photax's a = -0.5: same 4 x 4
    taps); photax's Lanczos-3 (6 x 6 taps) has no OpenCV twin: cv2's
    INTER_LANCZOS4 is Lanczos-4 on 8 x 8 taps, so that ratio is printed with
-   the kernel sizes and per tap, and the like-with-like Lanczos comparison
-   is GDAL's, which is Lanczos-3 on 6 x 6 like photax.  GDAL (through
+   the kernel sizes and per tap, and the like-with-like comparisons are
+   photax's "lanczos4" (the same Lanczos-4 kernel) against cv2's, and
+   photax's Lanczos-3 against GDAL's, which is Lanczos-3 on 6 x 6.  GDAL (through
    rasterio.warp.reproject with 100 GCPs, MAX_GCP_ORDER=3) fits its own
    order-3 polynomials to the GCPs and, by default, evaluates them exactly
    only every few pixels (approximate transformer, 0.125 px); its timing
@@ -114,7 +115,8 @@ def report_ours(name, run, ours, repeat):
 
 
 # photax method -> (OpenCV flag, OpenCV taps per axis, photax taps per axis)
-CV2 = {"bilinear": (cv2.INTER_LINEAR, 2, 2), "cubic": (cv2.INTER_CUBIC, 4, 4), "lanczos": (cv2.INTER_LANCZOS4, 8, 6)}
+CV2 = {"bilinear": (cv2.INTER_LINEAR, 2, 2), "cubic": (cv2.INTER_CUBIC, 4, 4), "lanczos": (cv2.INTER_LANCZOS4, 8, 6),
+       "lanczos4": (cv2.INTER_LANCZOS4, 8, 8)}
 
 
 def cv2_maps(cols, rows):
@@ -167,7 +169,7 @@ def bench_polynomial(n, repeat, slow_repeat):
     print(f"\n== {n} x {n} uint8, 3rd-order polynomial map ==")
     cols, rows = maps(model, grid)
     run = lambda **kw: photax.rectify(image, model, grid, **kw)  # noqa: E731
-    ours = vs_cv2("poly", run, image, cols, rows, ("bilinear", "cubic", "lanczos"), repeat)
+    ours = vs_cv2("poly", run, image, cols, rows, ("bilinear", "cubic", "lanczos", "lanczos4"), repeat)
     report_ours("poly", run, ours, repeat)
     peers("poly", image, cols, rows, ours, slow_repeat)
     gcps = [GroundControlPoint(row=r, col=c, x=x, y=y) for (c, r), (x, y) in zip(pix + 0.5, ground)]
@@ -185,12 +187,23 @@ def bench_polynomial(n, repeat, slow_repeat):
 def bench_breakdown(n, repeat):
     """Where photax's resampling time goes, in CPU time per output pixel
     (process time of all threads, so the machine's other load matters less
-    than for wall time): the positions alone (approximate mapping,
-    ``_tile_positions``) and the resampling alone from those positions
-    (``_resample_tile``), per kernel; OpenCV's CPU time for the same
-    pixels.  ``(cubic - bilinear) / 12`` is the cost of one more tap."""
-    from photax.rectification._approx import _tile_positions
-    from photax.rectification._indirect import _resample_tile
+    than for wall time), on the same 4096^2 polynomial case:
+
+    * the lattice plan alone (exact model on the 16-px lattice and at the
+      check positions, per tile: ``_tile_plan``);
+    * the file path's two steps: positions stored per tile
+      (``_tile_positions``) and resampling from them (``_resample_tile``);
+    * the in-memory path: each tile's fused kernel (plan, positions and
+      resampling in one jitted call, ``_rectify_tile``) run tile after tile,
+      and the whole ``photax.rectify`` call (thread pool, source padding,
+      copying tiles out): the difference is the cost outside the kernels;
+    * OpenCV's CPU time for the same pixels, maps given.
+
+    ``(cubic - bilinear) / 12`` is the cost of one more tap."""
+    import equinox as eqx
+
+    from photax.rectification._approx import _tile_plan, _tile_positions
+    from photax.rectification._indirect import _rectify_tile, _resample_tile
     from photax.rectification._tiling import _approx_arg, _layout, _tiles
     from photax.resampling import _source
 
@@ -203,17 +216,27 @@ def bench_breakdown(n, repeat):
     layout = _layout(*tiles[0][2:])
     size = image.shape
     fill = jnp.zeros((1,), jnp.uint8)
+    approx = _approx_arg(0.125)
+    offsets = [np.array([r0, c0], dtype=float) for r0, c0, _, _ in tiles]
+    plan = eqx.filter_jit(_tile_plan)
+
+    def plans():
+        for o in offsets:
+            jax.block_until_ready(plan(model, transform, o, layout, approx, size))
 
     def positions():
-        return [jax.block_until_ready(_tile_positions(model, transform, jnp.array([r0, c0], dtype=float), layout,
-                                                      _approx_arg(0.125), size)) for r0, c0, _, _ in tiles]
+        return [jax.block_until_ready(_tile_positions(model, transform, o, layout, approx, size)) for o in offsets]
 
+    plans()
     pos = positions()
     px = float(n * n)
-    ns = {"positions": median_cpu_time(positions, repeat=repeat) / px * 1e9}
+    ns = {"plan": median_cpu_time(plans, repeat=repeat) / px * 1e9,
+          "positions": median_cpu_time(positions, repeat=repeat) / px * 1e9}
     print(f"\n== where the time goes ({n} x {n}, CPU ns per output pixel, all threads) ==")
-    print(f"positions (approximate mapping, 16-px lattice): {ns['positions']:.2f} ns/px")
-    for label in ("bilinear", "cubic", "lanczos"):
+    print(f"lattice plan alone (exact model on the 16-px lattice and check positions): {ns['plan']:.2f} ns/px")
+    print(f"file path: plan + positions stored per tile: {ns['positions']:.2f} ns/px")
+    record("breakdown plan", photax_ns_per_px=ns["plan"])
+    for label in ("bilinear", "cubic", "lanczos", "lanczos4"):
         flat = _source(image[None], label, jnp.float32)
 
         def resample_only():
@@ -221,14 +244,27 @@ def bench_breakdown(n, repeat):
                 jax.block_until_ready(_resample_tile(flat, p, o, o, fill, size, size, label, jnp.float32,
                                                      np.dtype("uint8")))
 
-        resample_only()
+        def kernels():
+            for o in offsets:
+                jax.block_until_ready(_rectify_tile(model, flat, transform, o, fill, layout, approx, size, label,
+                                                    jnp.float32, np.dtype("uint8")))
+
+        def whole():
+            photax.rectify(image, model, grid, resampling=label)
+
+        for f in (resample_only, kernels, whole):
+            f()
         ns[label] = median_cpu_time(resample_only, repeat=repeat) / px * 1e9
+        k_ns = median_cpu_time(kernels, repeat=repeat) / px * 1e9
+        w_ns = median_cpu_time(whole, repeat=repeat) / px * 1e9
         flag, k_cv, k_ours = CV2[label]
         ns_cv = median_cpu_time(lambda: cv2.remap(image, c32, r32, flag, borderMode=cv2.BORDER_CONSTANT),
                                 repeat=repeat) / px * 1e9
-        print(f"resampling {label} ({k_ours}x{k_ours} taps) from positions: {ns[label]:.2f} ns/px; "
-              f"cv2.remap ({k_cv}x{k_cv} taps, maps given): {ns_cv:.2f} ns/px")
-        record(f"breakdown {label}", photax_ns_per_px=ns[label], cv2_ns_per_px=ns_cv, taps=k_ours**2, cv2_taps=k_cv**2)
+        print(f"{label} ({k_ours}x{k_ours} taps): file path resampling from stored positions {ns[label]:.2f} ns/px; "
+              f"in memory: fused tile kernels one after another {k_ns:.2f} ns/px, whole rectify call {w_ns:.2f} "
+              f"ns/px; cv2.remap ({k_cv}x{k_cv} taps, maps given): {ns_cv:.2f} ns/px")
+        record(f"breakdown {label}", photax_ns_per_px=ns[label], tile_kernels_ns_per_px=k_ns, rectify_ns_per_px=w_ns,
+               cv2_ns_per_px=ns_cv, taps=k_ours**2, cv2_taps=k_cv**2)
     per_tap = (ns["cubic"] - ns["bilinear"]) / 12
     fixed = ns["bilinear"] - 4 * per_tap
     record("breakdown positions", photax_ns_per_px=ns["positions"])

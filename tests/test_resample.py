@@ -42,6 +42,8 @@ def _on_opencv_grid(v):
         ("bilinear", cv2.INTER_LINEAR, -0.5),
         # OpenCV's INTER_CUBIC is cubic convolution with a = -0.75, not Keys' -0.5.
         ("cubic", cv2.INTER_CUBIC, -0.75),
+        # INTER_LANCZOS4: sinc(t) sinc(t/4) on 8 x 8 taps, normalised (imgwarp.cpp).
+        ("lanczos4", cv2.INTER_LANCZOS4, -0.5),
     ],
 )
 def test_matches_opencv_remap(method, flag, a):

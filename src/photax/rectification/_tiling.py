@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 
-import jax.numpy as jnp
 import numpy as np
 
 from ..resampling import Resampling
@@ -98,8 +97,10 @@ def _check_approx(approx) -> float:
 
 def _approx_arg(approx: float):
     """The kernels' ``approx``: None for exact, else a traced threshold (no
-    recompilation per value)."""
-    return jnp.asarray(approx, dtype=float) if approx > 0 else None
+    recompilation per value).  A numpy scalar, not a jax one: making a jax
+    array dispatches an XLA conversion, which waits behind the tile already
+    computing and so stalls the pipeline of tiles."""
+    return np.asarray(approx, dtype=float) if approx > 0 else None
 
 
 def _fill_value(dtype: np.dtype, nodata) -> np.ndarray:
