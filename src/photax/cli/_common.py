@@ -9,7 +9,7 @@ import pathlib
 # the parser (``photax --help``) imports neither JAX nor numpy; they must equal
 # photax.rotation.CONVENTIONS and photax.resampling.RESAMPLING (a test checks).
 CONVENTIONS = ("phi-omega-kappa", "omega-phi-kappa")
-RESAMPLING = ("nearest", "bilinear", "cubic", "lanczos", "bspline")
+RESAMPLING = ("nearest", "bilinear", "cubic", "lanczos", "lanczos4", "bspline")
 
 
 def input_file(path, what: str) -> pathlib.Path:
