@@ -353,7 +353,8 @@ def _point_pass(state: _State, s, loss, scale):
     ``g_p = sum rho' J^T r`` over its observations, plus its prior, as in
     :func:`photax.bundle._linearise._linearise`; fixed coordinates masked),
     then ``X_p + a dX_p`` for the ``a`` of :data:`POINT_STEPS` with the
-    lowest cost of that point.  A step that is not finite (singular ``V_p``)
+    lowest cost of that point, among those that move it by at most half its
+    distance to the nearest camera that sees it.  A step that is not finite (singular ``V_p``)
     is not taken.  Returns the new state and its cost."""
     proj, _, jp = _project_obs(state, s, jacobians=True)
     r = (proj - s.obs_xy) / s.obs_sigma
@@ -371,11 +372,19 @@ def _point_pass(state: _State, s, loss, scale):
     g = (segp(jnp.einsum("kri,kr->ki", j, r * rho1[:, None])) + pw * (state.xyz - s.prior_xyz)) * m
     dx = -jnp.einsum("pij,pj->pi", jax.vmap(inv3)(v), g)
     dx = jnp.where(jnp.all(jnp.isfinite(dx), axis=1, keepdims=True), dx, 0.0)
+    # A point moves at most half its distance to the nearest camera that sees
+    # it: it cannot reach a camera, and a point whose cost keeps falling with
+    # depth (near infinity, little parallax) recedes geometrically, as under
+    # LM's damping, instead of being thrown out by the long multiples.
+    dist = jnp.linalg.norm(state.xyz[s.obs_point] - state.centre[s.obs_image], axis=1)
+    reach = 0.5 * jax.ops.segment_min(dist, s.obs_point, num_segments=n_pts)
     steps = jnp.asarray(POINT_STEPS)
     costs = jax.lax.map(lambda a: _point_costs(state._replace(xyz=state.xyz + a * dx), s, loss, scale), steps)
-    best = jnp.argmin(jnp.where(jnp.isfinite(costs), costs, jnp.inf), axis=0)  # a = 0 (the trial point) is finite
+    allowed = steps[:, None] * jnp.linalg.norm(dx, axis=1)[None, :] <= reach[None, :]
+    costs = jnp.where(allowed & jnp.isfinite(costs), costs, jnp.inf)
+    best = jnp.argmin(costs, axis=0)  # a = 0, the trial point (finite cost), is always allowed
     new = state._replace(xyz=state.xyz + steps[best][:, None] * dx)
-    return new, jnp.sum(jnp.min(jnp.where(jnp.isfinite(costs), costs, jnp.inf), axis=0))
+    return new, jnp.sum(jnp.min(costs, axis=0))
 
 
 def _print_step(bar, it, cost, old, gmax, step, mu, accepted, new_cost) -> None:
