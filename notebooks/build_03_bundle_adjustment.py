@@ -82,7 +82,7 @@ for name, r in zip(result.check_names, result.check_residuals):
     ("md", """## 3. A blunder and a robust loss
 
 One tie observation is moved 50 px. Least squares spreads the error over the block; the Huber
-loss (reweighting as Ceres does, then Triggs' second-order correction near the minimum) gives it a small weight."""),
+loss (reweighting as Ceres does, plus a per-point pass after each step) gives it a small weight."""),
     ("code", """counts = np.bincount(problem.obs_point)
 bad = np.flatnonzero((problem.roles[problem.obs_point] == "tie") & (counts[problem.obs_point] >= 4))[0]
 obs = problem.obs_xy.copy()

@@ -14,33 +14,17 @@ and the solver minimises (Ceres' convention, 0.5 times the sum of squares)::
 with ``rho(s) = s`` (no loss), Huber ``rho(s) = s`` for ``s <= d^2`` else
 ``2 d sqrt(s) - d^2``, or Cauchy ``rho(s) = d^2 log(1 + s / d^2)``
 (``d = loss_scale``, in units of the observation's sigma).  Robust losses
-enter each linearisation through Triggs' corrected residual and Jacobian
-(Triggs et al. 2000, sec. 4.3; Ceres' ``corrector.cc``; see
-:func:`_corrector`)::
-
-    J~ = sqrt(rho') (I - alpha r r^T / |r|^2) J,   1 - alpha = sqrt(max(D, D_min)),
-    D  = 1 + 2 |r|^2 rho'' / rho'
-
-so the gradient is exact (``rho' J^T r``) and ``J~^T J~`` carries the loss'
-curvature along ``r``.  The first steps reweight only (``alpha = 0``, as Ceres
-does for Huber and Cauchy; its quadratic model majorises the loss, a safe
-globalisation far from the minimum); once an accepted step lowers the cost by
-less than :data:`SECOND_ORDER_AFTER` the correction is switched on, with the
-radial curvature floored at :data:`MIN_RADIAL_CURVATURE`.  The LM damping
-uses the diagonal of the reweighted matrix ``J^T rho' J`` throughout.  A step
+enter each linearisation through Ceres' corrector (Triggs et al. 2000, sec.
+4.3; ``corrector.cc``; see :func:`_corrector`): for Huber and Cauchy
+(``rho'' <= 0``) that is reweighting, ``J~ = sqrt(rho') J``, a model that
+majorises the loss along each residual.  After each trial step a *point
+pass* moves every point, with the trial cameras fixed, to the best of a few
+multiples of its own reweighted Gauss–Newton step (:data:`POINT_STEPS`);
+its decrease counts in the trust region's gain ratio as Conn, Gould &
+Toint's "magical steps".  It takes care of what the reweighted model gets
+wrong, points sliding along directions where the loss is flat (see
+:mod:`photax.bundle._solver` for why this converges, and how fast).  A step
 whose cost or norm is not finite is rejected (more damping), never taken.
-
-This is a tuned compromise, not Newton's method: the local rate stays linear
-(the floor overestimates the curvature along residuals beyond the scale:
-gain ratios near 2 on ``data/block`` with Huber), and both constants come from
-a sweep on ``data/block`` and BAL problem-49-7776.  The exact projected
-Hessian (floor 0) converges worse: a point whose residuals lie mostly beyond
-the scale keeps only their tangential curvature, so the Gauss-Newton matrix
-is nearly singular along its depth, its Newton step there is long and
-governed by the neglected second derivatives of ``r`` and by residuals
-crossing the scale, and one global damping parameter cannot hold those
-directions without slowing all others (measured: 25-89 iterations where the
-floor 0.1 needs 15-64; Huber on problem-49-7776 stopped at a higher cost).
 
 Parameters (analysed once on the numpy side, then solved by jitted steps):
 
@@ -57,7 +41,7 @@ Parameters (analysed once on the numpy side, then solved by jitted steps):
 
 Each LM step solves ``(J^T J + lambda D) dx = -J^T r`` with
 ``D = diag(J^T J)`` clamped to ``[1e-6, 1e32]`` (Ceres; with a robust loss
-``J~^T J~`` and ``J~^T r~`` and ``D = diag(J^T rho' J)``).  Ordering camera
+``J~^T J~``, ``J~^T r~`` and ``D = diag(J~^T J~)``).  Ordering camera
 unknowns ``c`` before points ``p``::
 
     [U  W] [dc]   [-g_c]                  S  = U - W V^-1 W^T
@@ -79,7 +63,6 @@ adjustment in the large" (ECCV 2010); Ceres Solver's trust-region minimiser.
 """
 
 
-from ._linearise import MIN_RADIAL_CURVATURE as MIN_RADIAL_CURVATURE, SECOND_ORDER_AFTER as SECOND_ORDER_AFTER
 from ._problem import (
     EXTERIOR as EXTERIOR,
     INTRINSICS as INTRINSICS,
@@ -89,7 +72,12 @@ from ._problem import (
     Loss as Loss,
 )
 from ._result import BundleResult as BundleResult
-from ._solver import DENSE_LIMIT as DENSE_LIMIT, StoppingRule as StoppingRule, bundle_adjust as bundle_adjust
+from ._solver import (
+    DENSE_LIMIT as DENSE_LIMIT,
+    POINT_STEPS as POINT_STEPS,
+    StoppingRule as StoppingRule,
+    bundle_adjust as bundle_adjust,
+)
 from ._start import initialize_block as initialize_block
 from ._structure import CHUNK as CHUNK, PIECE as PIECE, Analysis as Analysis
 from ._synthetic import SyntheticBlock as SyntheticBlock, synthetic_block as synthetic_block

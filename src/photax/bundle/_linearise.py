@@ -1,6 +1,6 @@
 """Linearisation (jitted; sizes are static, so same-shaped problems share a
-compile): projection with closed-form Jacobians, robust losses and Triggs'
-corrector, the normal-equation blocks."""
+compile): projection with closed-form Jacobians, the robust losses through
+Ceres' corrector (:mod:`photax.bundle._robust`), the normal-equation blocks."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from ._robust import _LOSS_CODE as _LOSS_CODE, _corrector, _rho
 from ._structure import _State, _Structure
 
 
@@ -69,76 +70,6 @@ def _residuals(state: _State, s: _Structure) -> Array:
     return (_project_obs(state, s) - s.obs_xy) / s.obs_sigma
 
 
-_LOSS_CODE = {"none": 0, "huber": 1, "cauchy": 2}
-
-
-def _rho(sq: Array, loss: Array, scale: Array) -> tuple[Array, Array, Array]:
-    """Loss ``rho(s)``, ``rho'(s)`` and ``rho''(s)`` for squared norms ``s``;
-    ``loss`` is a traced code (0 none, 1 Huber, 2 Cauchy) so changing it
-    does not recompile.  Huber outside ``d^2``: ``rho' = d / sqrt(s)``,
-    ``rho'' = -rho' / (2 s)``; Cauchy: ``rho' = 1 / (1 + s/d^2)``,
-    ``rho'' = -rho'^2 / d^2`` (Ceres' ``HuberLoss``, ``CauchyLoss``)."""
-    d2 = scale * scale
-    root = jnp.sqrt(jnp.maximum(sq, d2))
-    inside = sq <= d2
-    h1 = jnp.where(inside, 1.0, scale / root)
-    huber = (jnp.where(inside, sq, 2.0 * scale * root - d2), h1, jnp.where(inside, 0.0, -0.5 * h1 / root**2))
-    c1 = 1.0 / (1.0 + sq / d2)
-    cauchy = (d2 * jnp.log1p(sq / d2), c1, -c1 * c1 / d2)
-    rho = jnp.select([loss == 1, loss == 2], [huber[0], cauchy[0]], sq)
-    drho = jnp.select([loss == 1, loss == 2], [huber[1], cauchy[1]], jnp.ones_like(sq))
-    d2rho = jnp.select([loss == 1, loss == 2], [huber[2], cauchy[2]], jnp.zeros_like(sq))
-    return rho, drho, d2rho
-
-
-#: Floor of the radial curvature factor ``D = 1 + 2 s rho''/rho'`` of a
-#: robust residual (see :func:`_corrector`): Huber's ``D`` is 0 beyond its
-#: scale and Cauchy's negative beyond it, where the exact per-residual
-#: Hessian is singular or indefinite; 0.1 keeps ``1 - alpha >= 0.32``.
-#: Tuned: iterations (data/block Huber, Cauchy; problem-49-7776 Cauchy,
-#: Huber) were 36 25 89 89 with floor 0, 32 25 90 59 with 0.01, 21 28 87 53
-#: with 0.03, 23 15 64 55 with 0.1 and 50+ 21 85 52 with 0.3.
-MIN_RADIAL_CURVATURE = 0.1
-#: The second-order correction starts after the first accepted step that
-#: lowers the cost by less than this fraction: far from the minimum, plain
-#: reweighting (whose model overestimates the curvature, a safe majorant) is
-#: the more robust globalisation; near it, the corrected model converges
-#: faster.
-SECOND_ORDER_AFTER = 1e-2
-
-
-def _corrector(r: Array, rho1: Array, rho2: Array) -> tuple[Array, Array]:
-    """Triggs' robustified residual and Jacobian (Triggs et al. 2000, sec.
-    4.3; Ceres' ``internal/ceres/corrector.cc``) for ``(k, 2)`` residuals.
-
-    With ``s = |r|^2``, the Hessian of ``0.5 rho(s)`` w.r.t. the residual is
-    ``rho' I + 2 rho'' r r^T``, i.e. ``rho'`` across ``r`` and ``rho' D``
-    along it, ``D = 1 + 2 s rho''/rho'``.  Its square root is
-    ``sqrt(rho') (I - alpha r r^T / s)`` with ``1 - alpha = sqrt(D)``, so::
-
-        J~ = sqrt(rho') (I - alpha r r^T / s) J,   r~ = sqrt(rho') r / (1 - alpha)
-
-    give ``J~^T r~ = rho' J^T r`` (the exact gradient) and ``J~^T J~`` the
-    Hessian of the loss up to the second derivatives of ``r`` (Gauss-Newton).
-    Ceres applies the correction only where ``rho'' > 0`` and otherwise uses
-    plain reweighting (``alpha = 0``), which makes Huber and Cauchy converge
-    only linearly when many residuals are beyond the loss scale: their
-    curvature along ``r`` is overestimated (by ``1/D``).  Here ``D`` is used
-    wherever it is defined, floored at :data:`MIN_RADIAL_CURVATURE` where it
-    drops to 0 (Huber) or below (Cauchy): the per-residual Hessian stays
-    positive definite and ``1 - alpha`` bounded away from 0.  ``s == 0``:
-    ``alpha = 0``.  The solver uses plain reweighting until the cost
-    decrease slows (:data:`SECOND_ORDER_AFTER`), then this correction.
-
-    Returns ``(sqrt(rho'), alpha / s)``, ``(k,)`` each; ``alpha / s`` is 0
-    for least squares (``rho'' = 0``), so its results are unchanged."""
-    sq = jnp.sum(r * r, axis=1)
-    radial = jnp.maximum(1.0 + 2.0 * sq * rho2 / rho1, MIN_RADIAL_CURVATURE)
-    alpha = 1.0 - jnp.sqrt(radial)
-    alpha_sq = jnp.where(sq > 0, alpha / jnp.where(sq > 0, sq, 1.0), 0.0)
-    return jnp.sqrt(rho1), alpha_sq
-
-
 def _prior_residuals(state: _State, s: _Structure) -> Array:
     return (state.xyz - s.prior_xyz) * jnp.sqrt(s.prior_w)
 
@@ -174,7 +105,7 @@ class _Lin(NamedTuple):
 
 
 @functools.partial(jax.jit, static_argnames=("n_c",))
-def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int, second_order: Array = True) -> _Lin:
+def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int) -> _Lin:
     n_img, n_pts = state.centre.shape[0], state.xyz.shape[0]
     w = 6 + s.active.shape[0]
     proj, jc, jp = _project_obs(state, s, jacobians=True)
@@ -183,7 +114,6 @@ def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int
     rp = _prior_residuals(state, s)
     cost = 0.5 * jnp.sum(rho) + 0.5 * jnp.sum(rp * rp)
     sqrt_rho1, alpha_sq = _corrector(r0, weight, rho2)
-    alpha_sq = jnp.where(second_order, alpha_sq, 0.0)
     # Corrected Jacobian sqrt(rho') (I - alpha r r^T / s) J / sigma (see
     # _corrector); the gradient rho' J^T r / sigma is formed from J itself,
     # which equals J~^T r~ without dividing by 1 - alpha.
@@ -192,12 +122,11 @@ def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int
     def correct(j, mask):
         j = j / s.obs_sigma[:, :, None] * mask[:, None, :]
         g = jnp.einsum("kri,kr->ki", j, rg)
-        d = jnp.sum(j * j, axis=1) * weight[:, None]  # diagonal of the reweighted J^T rho' J
         j = j - (alpha_sq[:, None] * r0)[:, :, None] * jnp.einsum("kr,krj->kj", r0, j)[:, None, :]
-        return j * sqrt_rho1[:, None, None], g, d
+        return j * sqrt_rho1[:, None, None], g
 
-    jc, g_obs_c, d_obs_c = correct(jc, s.mask_c[s.image_ext[s.obs_image]])
-    jp, g_obs_p, d_obs_p = correct(jp, s.mask_p[s.obs_point])
+    jc, g_obs_c = correct(jc, s.mask_c[s.image_ext[s.obs_image]])
+    jp, g_obs_p = correct(jp, s.mask_p[s.obs_point])
     seg = functools.partial(jax.ops.segment_sum, num_segments=n_img)
     segp = functools.partial(jax.ops.segment_sum, num_segments=n_pts)
     jct, jpt = jnp.swapaxes(jc, 1, 2), jnp.swapaxes(jp, 1, 2)
@@ -211,19 +140,9 @@ def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int
     g_p = segp(g_obs_p, s.obs_point) + pw * (state.xyz - s.prior_xyz)
     flat = s.image_ext.ravel()
     g_c = jnp.zeros(n_c).at[flat].add(g_img.ravel())
-    # LM damping D: the diagonal of the reweighted normal matrix J^T rho' J
-    # (Ceres' damping for Huber and Cauchy, whose robustified Jacobian has
-    # alpha = 0), not that of the corrected matrix, which shrinks (by up to
-    # 1 / MIN_RADIAL_CURVATURE) along residuals beyond the loss scale, where
-    # the corrected model is least reliable: damping those directions less
-    # gave long steps and runs of rejections right after the switch (BAL
-    # problem-49-7776, Cauchy: 95 iterations, 17 rejected; with this D: 64).
-    # Without the correction both are the same matrix: its diagonal is used
-    # as before, so least squares is unchanged bit for bit.
-    use_irls = (loss != 0) & jnp.any(alpha_sq != 0.0)
-    d_c = jnp.where(use_irls, jnp.zeros(n_c).at[flat].add(seg(d_obs_c, s.obs_image).ravel()),
-                    jnp.zeros(n_c).at[flat].add(jnp.diagonal(u_img, axis1=1, axis2=2).ravel()))  # fmt: skip
-    d_p = jnp.where(use_irls, segp(d_obs_p, s.obs_point) + pw, jnp.diagonal(v, axis1=1, axis2=2))
+    # LM damping D: the diagonal of the normal matrix J~^T J~ (Ceres).
+    d_c = jnp.zeros(n_c).at[flat].add(jnp.diagonal(u_img, axis1=1, axis2=2).ravel())
+    d_p = jnp.diagonal(v, axis1=1, axis2=2)
     clamp = functools.partial(jnp.clip, min=1e-6, max=1e32)
     gmax = jnp.maximum(jnp.max(jnp.abs(g_c), initial=0.0), jnp.max(jnp.abs(g_p), initial=0.0))
     return _Lin(cost, r0, weight, _outer_sum(jpt, jct), u_img, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax)
