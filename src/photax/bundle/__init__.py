@@ -16,7 +16,7 @@ with ``rho(s) = s`` (no loss), Huber ``rho(s) = s`` for ``s <= d^2`` else
 (``d = loss_scale``, in units of the observation's sigma).  Robust losses
 enter each linearisation through Triggs' corrected residual and Jacobian
 (Triggs et al. 2000, sec. 4.3; Ceres' ``corrector.cc``; see
-:func:`_corrector`)::
+:func:`photax.bundle._linearise._corrector`)::
 
     J~ = sqrt(rho') (I - alpha r r^T / |r|^2) J,   1 - alpha = sqrt(max(D, D_min)),
     D  = 1 + 2 |r|^2 rho'' / rho'
@@ -25,8 +25,8 @@ so the gradient is exact (``rho' J^T r``) and ``J~^T J~`` carries the loss'
 curvature along ``r``.  The first steps reweight only (``alpha = 0``, as Ceres
 does for Huber and Cauchy; its quadratic model majorises the loss, a safe
 globalisation far from the minimum); once an accepted step lowers the cost by
-less than :data:`SECOND_ORDER_AFTER` the correction is switched on, with the
-radial curvature floored at :data:`MIN_RADIAL_CURVATURE`.  The LM damping
+less than :data:`~photax.bundle._linearise.SECOND_ORDER_AFTER` the correction is switched on, with the
+radial curvature floored at :data:`~photax.bundle._linearise.MIN_RADIAL_CURVATURE`.  The LM damping
 uses the diagonal of the reweighted matrix ``J^T rho' J`` throughout.  A step
 whose cost or norm is not finite is rejected (more damping), never taken.
 
@@ -69,8 +69,10 @@ inverses and ``S`` (the reduced camera system) is accumulated from
 per-observation blocks: block ``(i, j)`` sums ``W_a V^-1 W_b^T`` over the
 pairs of observations ``a`` (image ``i``), ``b`` (image ``j``) of one point,
 grouped on the numpy side into fixed-size chunks of one block each so that
-the sum is a batch of small GEMMs (see :func:`_reduced_system`).  Jacobians
-are closed-form (:func:`_project_obs`).  ``S`` is solved by a dense
+the sum is a batch of small GEMMs (see :func:`photax.bundle._schur._reduced_system`).  Jacobians
+are closed-form (:func:`photax.bundle._linearise._project_obs`, built on
+:func:`photax.collinearity.collinearity_rows` and
+:func:`photax.camera.intrinsics_jacobian`).  ``S`` is solved by a dense
 Cholesky (fast up to a few thousand camera unknowns: 49 BAL images x 9 =
 441) on one BLAS thread.  A rejected step re-solves with the same
 linearisation (only the damping changes).  References: Triggs et al.,
