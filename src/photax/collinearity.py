@@ -238,7 +238,7 @@ def collinearity_rows(
             on BAL problem-49-7776's 31,000 observations).
     """
     d = ground_xyz - position
-    q = jnp.sum(d[:, :, None] * rotation, axis=1)  # R^T d per row
+    q = (d[:, None, :] @ rotation)[:, 0] if dots else jnp.sum(d[:, :, None] * rotation, axis=1)  # R^T d per row
     if axes is None:  # rotation increments about the camera's own axes: R^T (d x R e_k) = q x e_k
         dq_da = jnp.stack([jnp.cross(q, e[None, :]) for e in jnp.eye(3)], axis=-1)  # (n, 3, 3)
     else:
@@ -248,8 +248,10 @@ def collinearity_rows(
     # dxn/dq = -1/q_z [[1, 0, xn], [0, 1, yn]] (xn = -q_x / q_z), so with J = f D'(xn):
     # dx/dq = -1/q_z [J[:, 0], J[:, 1], J xn] (columns), written out element-wise.
     f = focal_length
-    jn = (-f / q[:, 2])[:, None, None] * distortion_jacobian(xn, distortion)  # (n, 2, 2)
-    dx_dq = jnp.concatenate([jn, jnp.sum(jn * xn[:, None, :], axis=-1, keepdims=True)], axis=-1)  # (n, 2, 3)
+    jd = distortion_jacobian(xn, distortion)  # (n, 2, 2)
+    g = -f / q[:, 2]
+    dx_dq = jnp.stack([jd[:, :, 0], jd[:, :, 1], jd[:, :, 0] * xn[:, :1] + jd[:, :, 1] * xn[:, 1:]], axis=-1)
+    dx_dq = g[:, None, None] * dx_dq  # (n, 2, 3)
     if dots:
         dx_dx, dx_da = dx_dq @ jnp.swapaxes(rotation, -1, -2), dx_dq @ dq_da
     else:
