@@ -21,7 +21,7 @@ from ..rotation import angles_from_matrix_unchecked, rotation_matrix
 from ._linearise import _LOSS_CODE, SECOND_ORDER_AFTER, _linearise
 from ._precision import _covariances, _standard_deviations
 from ._problem import BundleProblem, Gauge, Loss
-from ._result import BundleResult
+from ._result import BundleResult, outcome
 from ._schur import _trial
 from ._start import _needs_init, initialize_block
 from ._structure import _State
@@ -326,7 +326,7 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
         history=history, converged=bool(converged), message=message, iterations=iterations, residuals=residuals,
         weights=weight, sigma0=sigma0, redundancy=redundancy, exterior_std=eo_std, camera_std=cam_std,
         point_std=pt_std, point_cov=pt_cov, check_residuals=pts[check] - problem.points[check], problem=problem,
-        seconds=seconds,
+        seconds=seconds, result=outcome(bool(converged), message, float(cost)),
     )  # fmt: skip
     if throw and not result.converged:
         raise ConvergenceError(f"bundle adjustment failed: {message}")
