@@ -67,7 +67,7 @@ result = ptx.resect(pts.image_plane(camera), pts.ground, camera, check=pts.check
 print(result.summary())"""),
     ("md", """## Residuals on the image
 
-Arrows are the residuals (observed minus computed), exaggerated; the key gives their scale.
+Arrows go from where the model puts a point to where it was measured (observed minus computed, i.e. minus the residuals photax reports, docs/conventions.md), exaggerated; the key gives their scale.
 Systematic patterns (all arrows pointing outwards, say) hint at an unmodelled lens
 distortion rather than at bad measurements. With the ODM survey the camera has no published
 calibration, so the residuals of a few pixels are mostly that; the synthetic sample's known

@@ -341,3 +341,15 @@ def test_stopping_rule_follows_its_formula():
     assert rule.after_step(False, 100.0, 99.0, 1.0, 0.9e-4 * (1.0 + 1e-4), 1.0).startswith("parameter tolerance")
     assert rule.after_step(False, 100.0, 99.0, 1.0, 1.1e-4 * (1.0 + 1e-4), 1.0) == ""
     assert rule.after_step(False, 100.0, 99.0, 1.0, float("nan"), 1.0) == ""
+
+
+def test_outcome_codes_and_throw(block):
+    """RESULTS codes on BundleResult: successful when converged, the iteration
+    limit named when it stops there (throw=False), ConvergenceError with throw=True."""
+    problem, _ = block
+    short = ptx.bundle_adjust(problem, max_steps=1, throw=False)
+    assert not short.converged and short.result == ptx.RESULTS.max_steps_reached
+    assert "max_iterations = 1" in short.message
+    with pytest.raises(ptx.ConvergenceError, match="bundle adjustment failed"):
+        ptx.bundle_adjust(problem, max_steps=1)
+    assert ptx.bundle_adjust(problem).result == ptx.RESULTS.successful

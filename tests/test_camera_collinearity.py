@@ -140,3 +140,38 @@ def test_closed_form_jacobian_matches_autodiff(convention):
     ref_ground = jax.vmap(jax.jacfwd(lambda x: ptx.project(x[None], eo, cam)[0]))(jnp.asarray(ground))  # (n, 2, 3)
     np.testing.assert_allclose(jac[..., :6], ref, rtol=0, atol=1e-13 * float(jnp.abs(ref).max()))
     np.testing.assert_allclose(jac[..., 6:], ref_ground, rtol=0, atol=1e-13 * float(jnp.abs(ref_ground).max()))
+
+
+def test_intrinsics_and_per_row_jacobians_match_autodiff():
+    """camera.intrinsics_jacobian (bundle's self-calibration columns) and
+    collinearity_rows with one camera and orientation per row (as bundle
+    adjustment calls it, rotation increments about the camera axes) against
+    jax.jacfwd of FrameCamera.project."""
+    from photax.camera import intrinsics_jacobian
+    from photax.collinearity import collinearity_rows
+
+    rng = np.random.default_rng(5)
+    ground, eo = _scene(rng, 6)
+    intr = np.array([0.15, 1e-3, -2e-3, -0.1, 0.03, -0.01, 2e-3, -1e-3]) * (1 + 0.1 * rng.random((6, 8)))
+    rot = np.broadcast_to(np.asarray(eo.rotation), (6, 3, 3))
+    pos = np.broadcast_to(np.asarray(eo.position), (6, 3))
+
+    def one(k, x, dr):  # R <- R Exp(dr), bundle adjustment's update; Exp(dr) = I + [dr]x + O(dr^2) at dr = 0
+        r = jnp.asarray(eo.rotation) @ (jnp.eye(3) + jnp.cross(jnp.eye(3), dr))
+        cam = ptx.FrameCamera(k[0], k[1:3], k[3:])
+        return cam.project(r.T @ (x - eo.position))
+
+    rows = jax.jit(collinearity_rows, static_argnames=("wrt_ground", "dots"))  # one compilation each, not op by op
+    xy, jac, q = rows(jnp.asarray(ground), pos, rot, None, intr[:, 0], intr[:, 1:3], intr[:, 3:], dots=True)
+    ref = jax.jit(jax.vmap(lambda k, x: (one(k, x, jnp.zeros(3)), jax.jacfwd(one, argnums=(0, 1, 2))(k, x, jnp.zeros(3)))))(
+        jnp.asarray(intr), jnp.asarray(ground))
+    np.testing.assert_allclose(xy, ref[0], rtol=0, atol=1e-15)
+    scale = float(jnp.abs(ref[1][1]).max())
+    np.testing.assert_allclose(jac[..., 6:], ref[1][1], rtol=0, atol=1e-13 * scale)
+    np.testing.assert_allclose(jac[..., :3], -ref[1][1], rtol=0, atol=1e-13 * scale)
+    np.testing.assert_allclose(jac[..., 3:6], ref[1][2], rtol=0, atol=1e-13 * float(jnp.abs(ref[1][2]).max()))
+    xn = -q[:, :2] / q[:, 2:3]
+    np.testing.assert_allclose(jax.jit(intrinsics_jacobian)(xn, intr[:, 0], intr[:, 3:]), ref[1][0], rtol=0, atol=1e-14)
+    # The element-wise contraction (resection's, under vmap) gives the same numbers.
+    _, jac_e, _ = rows(jnp.asarray(ground), pos, rot, None, intr[:, 0], intr[:, 1:3], intr[:, 3:])
+    np.testing.assert_allclose(jac_e, jac, rtol=0, atol=1e-14 * float(jnp.abs(jac).max()))

@@ -93,7 +93,7 @@ def test_affine_error_is_the_unabsorbed_relief_displacement(hills):
     design = lambda g: np.column_stack([np.ones(len(g)), g[:, :2] - s.gcp_ground[:, :2].mean(0)])  # noqa: E731
     coef, *_ = np.linalg.lstsq(design(s.gcp_ground), d_gcp, rcond=None)
     expected = d_chk - design(s.check_ground) @ coef
-    np.testing.assert_allclose(c["polynomial 1"].check_residuals, expected, atol=1e-6)
+    np.testing.assert_allclose(c["polynomial 1"].check_residuals, -expected, atol=1e-6)  # computed - observed
     np.testing.assert_allclose(c["collinearity"].check_residuals, 0.0, atol=1e-6)
     assert np.sqrt(np.mean(np.sum(expected**2, 1))) > 3  # several pixels
 

@@ -81,6 +81,7 @@ def test_refined_points_match_scipy_least_squares():
     assert out.n_rays.tolist() == [2] * 4 + [3] * 8
     assert np.all(out.std > 0) and np.all(out.angle_deg > 10)
     assert out.residual_rms is out.residual_rmse  # the old name still works
+    assert out.result == ptx.RESULTS.successful and out.converged and "tolerance" in out.message  # the refinement's stop
 
 
 def test_list_layout_single_ray_and_narrow_angle():

@@ -23,7 +23,7 @@ def test_residual_vectors_draws_scaled_arrows_per_role():
     assert len(quivers) == 3  # control, check, blunder
     for q, k in zip(quivers, (0, 1, 2)):
         np.testing.assert_allclose(q.get_offsets(), xy[k : k + 1])
-        np.testing.assert_allclose([q.U[0], q.V[0]], v[k] * scale)
+        np.testing.assert_allclose([q.U[0], q.V[0]], -v[k] * scale)  # arrows: observed - computed = -residual
     assert ax.yaxis_inverted()  # rows grow downwards
     assert [t.get_text() for t in ax.texts if t.get_text() in "abc"] == ["a", "b", "c"]
     plt.close(fig)

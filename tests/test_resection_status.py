@@ -255,3 +255,13 @@ def test_summary_units_pixels_and_no_grid():
     res = ptx.resect(xy * 4.4e-6, ground, metres)
     text = res.summary(camera_unit="m")
     assert res.pixel_size is None and f"rms = {res.rms:.4g} m" in text and "vx [m]" in text and "px" not in text
+
+
+def test_residuals_are_computed_minus_observed(sample, sample_result):
+    """docs/conventions.md: residual = computed - observed (here: the
+    collinearity projection at the adjusted orientation minus the measurement)."""
+    table, camera = sample
+    res = sample_result
+    computed = np.asarray(ptx.project(table.ground, res.exterior, camera))
+    observed = np.asarray(camera.pixel_to_image(table.pixel))
+    np.testing.assert_allclose(res.residuals, computed - observed, rtol=0, atol=1e-9 * float(camera.focal_length))

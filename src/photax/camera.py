@@ -46,6 +46,66 @@ def _concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+def distort(xn: Array, distortion: Array) -> Array:
+    """Brown–Conrady distortion of ``(..., 2)`` normalised coordinates (the
+    formula in this module's docstring); ``distortion`` is ``(..., 5)``
+    ``(k1, k2, k3, p1, p2)``, one set for all points or one per point."""
+    k1, k2, k3, p1, p2 = (distortion[..., i] for i in range(5))
+    x, y = xn[..., 0], xn[..., 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    return jnp.stack([xd, yd], axis=-1)
+
+
+def distortion_jacobian(xn: Array, distortion: Array) -> Array:
+    """``(..., 2, 2)`` derivative of :func:`distort` at ``xn``: rows
+    ``(xd, yd)``, columns ``(xn, yn)``.
+
+    With ``rho = 1 + k1 r^2 + k2 r^4 + k3 r^6`` and
+    ``rho' = d rho / d r^2 = k1 + 2 k2 r^2 + 3 k3 r^4``::
+
+        dxd/dx = rho + 2 x^2 rho' + 2 p1 y + 6 p2 x
+        dxd/dy = dyd/dx = 2 x y rho' + 2 p1 x + 2 p2 y
+        dyd/dy = rho + 2 y^2 rho' + 6 p1 y + 2 p2 x
+    """
+    k1, k2, k3, p1, p2 = (distortion[..., i] for i in range(5))
+    x, y = xn[..., 0], xn[..., 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    slope = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+    xy = 2.0 * x * y * slope + 2.0 * p1 * x + 2.0 * p2 * y
+    xx = radial + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x
+    yy = radial + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x
+    return jnp.stack([jnp.stack([xx, xy], axis=-1), jnp.stack([xy, yy], axis=-1)], axis=-2)
+
+
+def intrinsics_jacobian(xn: Array, focal_length: Array, distortion: Array) -> Array:
+    """``(..., 2, 8)`` derivative of the image-plane point ``x = x0 + f D(xn)``
+    (:meth:`FrameCamera.project` for a fixed normalised point ``xn``) with
+    respect to the interior orientation ``(f, x0, y0, k1, k2, k3, p1, p2)``
+    (bundle adjustment's ``INTRINSICS``); ``focal_length`` ``(...)`` and
+    ``distortion`` ``(..., 5)`` broadcast against the points::
+
+        dx/df = D(xn),   dx/d(x0, y0) = I,
+        dx/dk_j = f xn r^(2j), dy/dk_j = f yn r^(2j)      (j = 1, 2, 3)
+        dx/dp1 = 2 f xn yn,        dy/dp1 = f (r^2 + 2 yn^2)
+        dx/dp2 = f (r^2 + 2 xn^2), dy/dp2 = 2 f xn yn
+    """
+    f = focal_length
+    x, y = xn[..., 0], xn[..., 1]
+    r2 = x * x + y * y
+    r4 = r2 * r2
+    d = distort(xn, distortion)
+    one, zero = jnp.ones_like(x), jnp.zeros_like(x)
+    rows = (
+        [d[..., 0], one, zero, f * x * r2, f * x * r4, f * x * r4 * r2, 2.0 * f * x * y, f * (r2 + 2.0 * x * x)],
+        [d[..., 1], zero, one, f * y * r2, f * y * r4, f * y * r4 * r2, f * (r2 + 2.0 * y * y), 2.0 * f * x * y],
+    )
+    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
+
+
 class FrameCamera(eqx.Module):
     """A frame (pinhole) camera with optional Brown–Conrady distortion.
 
@@ -152,35 +212,19 @@ class FrameCamera(eqx.Module):
     # --- distortion ------------------------------------------------------------
 
     def distort_normalised(self, xn: Array) -> Array:
-        """Apply Brown–Conrady distortion to ``(..., 2)`` normalised coords."""
-        k1, k2, k3, p1, p2 = (self.distortion[i] for i in range(5))
-        x, y = xn[..., 0], xn[..., 1]
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-        yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-        return jnp.stack([xd, yd], axis=-1)
+        """Apply Brown–Conrady distortion to ``(..., 2)`` normalised coords
+        (:func:`distort`)."""
+        return distort(xn, self.distortion)
 
     def distortion_jacobian(self, xn: Array) -> Array:
-        """``(..., 2, 2)`` derivative of :meth:`distort_normalised` at ``xn``:
-        rows ``(xd, yd)``, columns ``(xn, yn)``.
+        """``(..., 2, 2)`` derivative of :meth:`distort_normalised` at ``xn``
+        (:func:`distortion_jacobian`)."""
+        return distortion_jacobian(xn, self.distortion)
 
-        With ``rho = 1 + k1 r^2 + k2 r^4 + k3 r^6`` and
-        ``rho' = d rho / d r^2 = k1 + 2 k2 r^2 + 3 k3 r^4``::
-
-            dxd/dx = rho + 2 x^2 rho' + 2 p1 y + 6 p2 x
-            dxd/dy = dyd/dx = 2 x y rho' + 2 p1 x + 2 p2 y
-            dyd/dy = rho + 2 y^2 rho' + 6 p1 y + 2 p2 x
-        """
-        k1, k2, k3, p1, p2 = (self.distortion[i] for i in range(5))
-        x, y = xn[..., 0], xn[..., 1]
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        slope = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-        xy = 2.0 * x * y * slope + 2.0 * p1 * x + 2.0 * p2 * y
-        xx = radial + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x
-        yy = radial + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x
-        return jnp.stack([jnp.stack([xx, xy], axis=-1), jnp.stack([xy, yy], axis=-1)], axis=-2)
+    def intrinsics_jacobian(self, xn: Array) -> Array:
+        """``(..., 2, 8)`` derivative of the image-plane point with respect to
+        ``(f, x0, y0, k1, k2, k3, p1, p2)`` (:func:`intrinsics_jacobian`)."""
+        return intrinsics_jacobian(xn, self.focal_length, self.distortion)
 
     def undistort_normalised(self, xd: Array, iterations: int = 20) -> Array:
         """Invert :meth:`distort_normalised` by fixed-point iteration.

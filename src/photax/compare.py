@@ -34,12 +34,11 @@ import math
 from typing import Any, Callable, Sequence
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .camera import FrameCamera
-from .collinearity import ExteriorOrientation, project
+from .collinearity import ExteriorOrientation, project, project_jacobian
 from .dem import DEM
 from .polynomial import fit_polynomial, fit_projective, n_coefficients
 from .rectification import Grid, OrthoModel, ortho_grid
@@ -61,7 +60,8 @@ class ModelResult:
         condition: 2-norm condition number of the normalised design matrix
             (polynomial, projective) or of the column-equilibrated Jacobian
             of the collinearity equations at the solution.
-        gcp_residuals, check_residuals: ``(n, 2)`` observed - model, pixels.
+        gcp_residuals, check_residuals: ``(n, 2)`` model - observed (computed - observed,
+            docs/conventions.md), pixels.
         gcp_rmse, check_rmse: ``sqrt(mean |v|^2)``, pixels (NaN without points).
         error: ``(rows, cols, 2)`` collinearity+DEM minus this model on the
             comparison grid, pixels; NaN off the image (zeros for
@@ -260,21 +260,13 @@ class ModelComparison:
                                     ncols=ncols, window=window, value_range=value_range)
 
 
-@eqx.filter_jit
-def _collinearity_jacobian(exterior: ExteriorOrientation, camera: FrameCamera, local: jax.Array) -> jax.Array:
-    def f(p):
-        ext = ExteriorOrientation(p[:3], p[3:], exterior.convention)
-        return project(local, ext, camera).reshape(-1)
-
-    return jax.jacfwd(f)(exterior.to_vector())
-
-
 def _collinearity_condition(exterior: ExteriorOrientation, camera: FrameCamera, ground: np.ndarray) -> float:
     """Condition of the column-equilibrated Jacobian d image / d (X, Y, Z, angles),
     coordinates reduced to the GCP centroid (as the resection sees them)."""
     origin = ground.mean(axis=0)
     local = ExteriorOrientation(exterior.position - origin, exterior.angles, exterior.convention)
-    j = np.asarray(_collinearity_jacobian(local, camera, jnp.asarray(ground - origin)))
+    _, jac = project_jacobian(jnp.asarray(ground - origin), local, camera)  # (n, 2, 9): (C, angles, X)
+    j = np.asarray(jac[..., :6]).reshape(-1, 6)
     j = j / np.linalg.norm(j, axis=0, keepdims=True)
     s = np.linalg.svd(j, compute_uv=False)
     return float(s[0] / s[-1])
@@ -371,7 +363,7 @@ def compare_models(
 
     def add(name, model, u, cond, values):
         on_grid, at_gcp, at_check = np.split(values, [size, size + n])
-        vg, vc = gp - at_gcp, cp - at_check
+        vg, vc = at_gcp - gp, at_check - cp  # computed - observed
         err = ref - on_grid.reshape(ref.shape)
         results.append(ModelResult(name, model, u, 2 * n - u, float(cond), vg, vc, _rmse(vg), _rmse(vc), err))
 

@@ -54,3 +54,26 @@ _TEXTS = {
     RESULTS.behind_camera: "the solution puts control points behind the camera",
     RESULTS.implausible: "the solution is implausible",
 }
+
+
+def from_optimistix(result):
+    """optimistix's outcome (``Solution.result``, traced or not) -> a
+    :class:`RESULTS` code (an int array), through optimistix's public
+    ``optx.RESULTS`` items, never its private tables; an item this
+    optimistix version lacks is skipped, an outcome photax has no words for
+    is ``solver_failed``."""
+    import jax.numpy as jnp
+    import optimistix as optx
+
+    words = [("successful", RESULTS.successful), ("max_steps_reached", RESULTS.max_steps_reached),
+             ("nonlinear_max_steps_reached", RESULTS.max_steps_reached), ("singular", RESULTS.singular),
+             ("breakdown", RESULTS.singular), ("stagnation", RESULTS.singular), ("conlim", RESULTS.singular),
+             ("nonfinite_input", RESULTS.nonfinite), ("nonfinite", RESULTS.nonfinite),
+             ("nonlinear_divergence", RESULTS.diverged)]  # fmt: skip
+    code = jnp.array(RESULTS.solver_failed)
+    for name, ours in reversed(words):
+        item = getattr(optx.RESULTS, name, None)
+        if item is not None:
+            code = jnp.where(result == item, ours, code)
+    return code
+

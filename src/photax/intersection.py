@@ -22,6 +22,7 @@ from ._triangulation import triangulate
 from .bundle import BundleProblem, bundle_adjust
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, project, stack_exteriors
+from .errors import RESULTS, ConvergenceError
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,6 +36,9 @@ class Intersection:
         std: ``(n, 3)`` standard deviations (``refine=True`` only, else None).
         residual_rmse: ``(n,)`` RMS image residual of each point (camera
             unit); ``residual_rms`` is its old name.
+        result: the :class:`photax.RESULTS` code: the refinement's (its
+            bundle adjustment's) outcome, ``successful`` without
+            ``refine``; ``converged`` and ``message`` say the same in words.
     """
 
     points: np.ndarray
@@ -42,6 +46,12 @@ class Intersection:
     n_rays: np.ndarray
     std: np.ndarray | None
     residual_rmse: np.ndarray
+    result: RESULTS = RESULTS.successful
+    message: str = "converged"
+
+    @property
+    def converged(self) -> bool:
+        return self.result == RESULTS.successful
 
     @property
     def residual_rms(self) -> np.ndarray:
@@ -61,6 +71,7 @@ def intersect(
     refine: bool = False,
     min_angle_deg: float = 2.0,
     full_output: bool = False,
+    throw: bool = False,
 ):
     """Intersect rays from several oriented images.
 
@@ -83,6 +94,10 @@ def intersect(
             solution (needs at least 2 rays per point).
         min_angle_deg: warn about points whose rays meet at less than this.
         full_output: return an :class:`Intersection` instead of the points.
+        throw: raise :class:`photax.ConvergenceError` when the refinement
+            fails; default False (many points: the result says it failed,
+            the points are the refinement's last finite values;
+            docs/architecture.md "Outcomes and throw").
 
     Returns:
         ``(n, 3)`` ground coordinates, NaN for points with fewer than 2 rays,
@@ -93,6 +108,29 @@ def intersect(
     cams = [cameras] * m if isinstance(cameras, FrameCamera) else list(cameras)
     if len(cams) != m:
         raise ValueError(f"cameras must be one FrameCamera or {m} (one per image), got {len(cams)}")
+    xy, ii, jj, n = _observations(image_xy, m, obs_image, obs_point, n_points)
+    pts, angle, n_rays, ok = triangulate(xy, ii, jj, n, eo, cams, min_angle_deg)
+    std, code, message = None, RESULTS.successful, "converged"
+    if refine and ok.any():
+        pts, std, code, message = _refine(pts, ok, xy, ii, jj, eo, cams, sigma)
+        if throw and code != RESULTS.successful:
+            raise ConvergenceError(f"intersection refinement failed: {message}")
+    if not full_output:
+        return pts
+    res = np.zeros(n)
+    for i in np.unique(ii):
+        sel = ii == i
+        e = ExteriorOrientation(eo.position[i], eo.angles[i], eo.convention)
+        r = np.asarray(project(np.nan_to_num(pts[jj[sel]]), e, cams[i])) - xy[sel]
+        np.add.at(res, jj[sel], np.sum(r * r, axis=1))
+    rmse = np.where(ok, np.sqrt(res / np.maximum(n_rays, 1) / 2.0), np.nan)
+    return Intersection(pts, np.where(ok, angle, np.nan), n_rays, std, rmse, code, message)
+
+
+def _observations(image_xy, m: int, obs_image, obs_point, n_points):
+    """:func:`intersect`'s two input layouts as one list: ``(xy (k, 2),
+    image index (k,), point index (k,), number of points)``, or a
+    ValueError naming the argument."""
     xy = np.asarray(image_xy, dtype=float)
     if obs_image is None and obs_point is None:
         if xy.ndim != 3 or xy.shape[0] != m or xy.shape[2] != 2:
@@ -113,25 +151,13 @@ def intersect(
             raise ValueError(f"obs_point has index {jj.max()} >= n_points = {n}")
         if not np.all(np.isfinite(xy)):
             raise ValueError("image_xy has non-finite values in the list layout")
-    pts, angle, n_rays, ok = triangulate(xy, ii, jj, n, eo, cams, min_angle_deg)
-    std = None
-    if refine and ok.any():
-        pts, std = _refine(pts, ok, xy, ii, jj, eo, cams, sigma)
-    if not full_output:
-        return pts
-    res = np.zeros(n)
-    for i in np.unique(ii):
-        sel = ii == i
-        e = ExteriorOrientation(eo.position[i], eo.angles[i], eo.convention)
-        r = np.asarray(project(np.nan_to_num(pts[jj[sel]]), e, cams[i])) - xy[sel]
-        np.add.at(res, jj[sel], np.sum(r * r, axis=1))
-    rmse = np.where(ok, np.sqrt(res / np.maximum(n_rays, 1) / 2.0), np.nan)
-    return Intersection(pts, np.where(ok, angle, np.nan), n_rays, std, rmse)
+    return xy, ii, jj, n
 
 
 def _refine(pts, ok, xy, ii, jj, eo, cams, sigma):
     """Adjust points on image residuals with every image fixed (a bundle
-    adjustment whose reduced camera system is empty)."""
+    adjustment whose reduced camera system is empty): ``(points, std,
+    RESULTS code, message)``."""
     keep = ok[jj]
     new_id = np.cumsum(ok) - 1
     sig = np.broadcast_to(np.asarray(sigma, dtype=float), (len(xy),))[keep]
@@ -148,4 +174,4 @@ def _refine(pts, ok, xy, ii, jj, eo, cams, sigma):
     if result.point_std is not None:
         # Weights are absolute (sigma given): no rescaling by sigma0 of a few rays.
         std[ok] = result.point_std / (result.sigma0 if np.isfinite(result.sigma0) and result.sigma0 > 0 else 1.0)
-    return out, std
+    return out, std, result.result, result.message

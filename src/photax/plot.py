@@ -58,8 +58,12 @@ def residual_vectors(ax, pixel_xy, residuals, names=None, *, outliers=None, chec
     Args:
         ax: a matplotlib ``Axes``.
         pixel_xy: ``(n, 2)`` point positions, pixel (column, row), row down.
-        residuals: ``(n, 2)`` residuals in pixels along (column, row) (i.e.
+        residuals: ``(n, 2)`` residuals, computed - observed
+            (docs/conventions.md), in pixels along (column, row) (i.e.
             image-plane residuals divided by the pixel size, y flipped).
+            The arrows show ``-residuals``, observed - computed: from where
+            the model puts the point towards where it was measured (the
+            figure photax has always drawn).
         names: ``(n,)`` labels, or ``None``.
         outliers: ``(n,)`` bool, drawn in red and named "blunder".
         check: ``(n,)`` bool, check points (drawn in blue, hollow).
@@ -71,7 +75,7 @@ def residual_vectors(ax, pixel_xy, residuals, names=None, *, outliers=None, chec
         the exaggeration factor used (a key arrow shows its length).
     """
     xy = np.asarray(pixel_xy, dtype=float)
-    v = np.asarray(residuals, dtype=float)
+    v = -np.asarray(residuals, dtype=float)  # the arrow: observed - computed
     n = len(xy)
     outliers = np.zeros(n, bool) if outliers is None else np.asarray(outliers, bool)
     check = np.zeros(n, bool) if check is None else np.asarray(check, bool)

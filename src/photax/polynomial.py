@@ -24,10 +24,11 @@ Projective transform (reprojection of a plane, e.g. a façade or a floor)::
     Y = (h21 x + h22 y + h23) / (h31 x + h32 y + h33)
 
 fitted by the Hartley-normalised DLT (Hartley & Zisserman 2003, alg. 4.2)
-from 4+ points and refined by Gauss-Newton on the geometric error in the
-destination plane; its inverse is the matrix inverse.
+from 4+ points and refined by Levenberg-Marquardt (optimistix, the solver
+resection falls back on) on the geometric error in the destination plane;
+its inverse is the matrix inverse.
 
-Reported quality (both models): ``residuals = dst - model(src)`` (n, 2) in
+Reported quality (both models): ``residuals = model(src) - dst`` (n, 2) in
 destination units, ``rmse`` and ``rmse_dof`` (see the class docstrings),
 ``condition`` of the normalised design matrix.
 """
@@ -39,6 +40,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
+
+from .errors import RESULTS, ConvergenceError, from_optimistix
 
 MAX_ORDER = 5
 
@@ -119,7 +122,7 @@ class PolynomialModel(eqx.Module):
         order: polynomial order n (static).
         coef: ``(u, 2)`` coefficients of the normalised model (columns X, Y).
         src_centre, src_scale, dst_centre, dst_scale: ``(2,)`` normalisation.
-        residuals: ``(n, 2)`` ``dst - model(src)`` at the fitting points,
+        residuals: ``(n, 2)`` ``model(src) - dst`` at the fitting points,
             destination units.
         rmse: radial RMS residual ``sqrt(sum_i |v_i|^2 / n)`` (unweighted).
         rmse_dof: ``sqrt(sum_i w_i |v_i|^2 / (2 (n - u)))``: the a-posteriori
@@ -130,8 +133,8 @@ class PolynomialModel(eqx.Module):
             matrix (what the solver actually sees).
         condition_raw: the same for raw monomials of the unnormalised source
             coordinates, for comparison (can be astronomically large).
-        loo_residuals: ``(n, 2)`` leave-one-out residuals: ``dst_i`` minus the
-            prediction of the model fitted without point ``i``, computed as
+        loo_residuals: ``(n, 2)`` leave-one-out residuals: the prediction
+            of the model fitted without point ``i`` minus ``dst_i``, computed as
             ``v_i / (1 - h_ii)`` from the hat matrix; NaN where point ``i`` is
             needed to determine the fit (``h_ii = 1``).
     """
@@ -307,7 +310,7 @@ def fit_polynomial(src_xy, dst_xy, order: int, *, weights=None) -> PolynomialMod
             f"(condition {sv[0] / max(sv[-1], 1e-300):.1e}; collinear or too few distinct points?)"
         )
     coef, *_ = np.linalg.lstsq(aw, ((dst - dc) / ds) * sw, rcond=None)
-    v = dst - ((a @ coef) * ds + dc)
+    v = ((a @ coef) * ds + dc) - dst  # computed - observed (docs/conventions.md)
     h = _hat_diag(aw)
     with np.errstate(divide="ignore", invalid="ignore"):
         loo = np.where((1 - h)[:, None] > 1e-10, v / (1 - h)[:, None], np.nan)
@@ -349,11 +352,14 @@ class ProjectiveModel(eqx.Module):
     Attributes:
         h_normalised: ``(3, 3)`` homography between normalised points.
         src_norm, dst_norm: ``(3, 3)`` Hartley similarity transforms.
-        residuals: ``(n, 2)`` ``dst - model(src)``.
+        residuals: ``(n, 2)`` ``model(src) - dst`` (computed - observed).
         rmse: ``sqrt(sum_i |v_i|^2 / n)``.
         rmse_dof: ``sqrt(sum_i w_i |v_i|^2 / (2n - 8))``, NaN for 4 points.
         condition: ratio of the largest to the 8th singular value of the
             normalised DLT matrix (the 9th is ~0 for a consistent fit).
+        result: the :class:`photax.RESULTS` code of the geometric
+            refinement (``successful`` without one); ``converged`` and
+            ``message`` say the same.
     """
 
     h_normalised: Array
@@ -363,6 +369,15 @@ class ProjectiveModel(eqx.Module):
     rmse: Array
     rmse_dof: Array
     condition: Array
+    result: RESULTS = eqx.field(static=True, default=RESULTS.successful)
+
+    @property
+    def converged(self) -> bool:
+        return self.result == RESULTS.successful
+
+    @property
+    def message(self) -> str:
+        return self.result.text if self.converged else f"projective refinement: {self.result.text}"
 
     @property
     def matrix(self) -> Array:
@@ -387,18 +402,21 @@ class ProjectiveModel(eqx.Module):
         """
         return ProjectiveModel(
             jnp.linalg.inv(self.h_normalised), self.dst_norm, self.src_norm,
-            self.residuals, self.rmse, self.rmse_dof, self.condition,
+            self.residuals, self.rmse, self.rmse_dof, self.condition, self.result,
         )
 
 
-def fit_projective(src_xy, dst_xy, *, weights=None, refine: bool = True) -> ProjectiveModel:
+def fit_projective(src_xy, dst_xy, *, weights=None, refine: bool = True, throw: bool = True) -> ProjectiveModel:
     """Projective (homography) ``dst = H(src)`` from 4+ point pairs.
 
     Hartley-normalised DLT (H&Z alg. 4.2): each pair gives two rows of
     ``A h = 0``, ``h`` is the right singular vector of the smallest singular
     value.  With more than 4 points and ``refine=True`` the 8 parameters are
-    then refined by Gauss-Newton on the geometric (destination) error, which
-    the DLT's algebraic error only approximates.
+    then refined by Levenberg-Marquardt (optimistix) on the geometric
+    (destination) error, which the DLT's algebraic error only approximates.
+    ``throw=True`` (one estimate: docs/architecture.md) raises
+    :class:`photax.ConvergenceError` when the refinement fails; with
+    ``throw=False`` the model carries the code in ``result``.
 
     Raises:
         ValueError: wrong shapes, NaN/inf, fewer than 4 or duplicated points,
@@ -420,44 +438,55 @@ def fit_projective(src_xy, dst_xy, *, weights=None, refine: bool = True) -> Proj
         raise ValueError("degenerate configuration for a projective transform: 3 or more points collinear")
     hn = vt[-1].reshape(3, 3)
     hn = hn / hn[2, 2] if abs(hn[2, 2]) > 1e-12 * np.abs(hn).max() else hn / np.abs(hn).max()
+    code = RESULTS.successful
     if refine and n > 4:
-        hn = _refine(hn, ps, pd, w)
+        hn, code = _refine(hn, ps, pd, w)
+        if throw and code != RESULTS.successful:
+            raise ConvergenceError(f"projective refinement failed: {code.text}")
     model = ProjectiveModel(jnp.asarray(hn), jnp.asarray(ts), jnp.asarray(td), *(jnp.zeros(()),) * 4)
-    v = dst - np.asarray(model(src))
+    v = np.asarray(model(src)) - dst  # computed - observed
     rmse_dof = np.sqrt(np.sum(w[:, None] * v**2) / (2 * n - 8)) if n > 4 else np.nan
     f = jnp.asarray
-    return ProjectiveModel(f(hn), f(ts), f(td), f(v), f(np.sqrt(np.sum(v**2) / n)), f(rmse_dof), f(sv[0] / sv[7]))
+    return ProjectiveModel(f(hn), f(ts), f(td), f(v), f(np.sqrt(np.sum(v**2) / n)), f(rmse_dof), f(sv[0] / sv[7]), code)
+
+
+#: Iteration limit of the projective refinement (Levenberg-Marquardt from the
+#: DLT, which is already close: a handful of steps in practice).
+REFINE_MAX_STEPS = 100
 
 
 @jax.jit
-def _projective_residual_and_jacobian(p8, h33, ps, pd, sw):
-    """Weighted residuals of ``H(ps) - pd`` and their Jacobian in the first
-    eight entries of ``H`` (one compilation per point count)."""
+def _refine_solve(p8, h33, ps, pd, sw):
+    """optimistix's Levenberg-Marquardt on ``sum w |H(ps) - pd|^2`` over the
+    first eight entries of ``H`` (``h33`` fixed): ``(p8, RESULTS code)``.
+    Autodiff Jacobian (8 unknowns: cheap); padded rows have ``sw = 0``."""
+    import optimistix as optx
 
-    def resid(p):
+    def resid(p, _):
         h = jnp.concatenate([p, h33[None]]).reshape(3, 3)
-        return ((pd - _apply_h(h, ps)) * sw[:, None]).reshape(-1)
+        return ((_apply_h(h, ps) - pd) * sw[:, None]).reshape(-1)
 
-    return resid(p8), jax.jacfwd(resid)(p8)
+    solver = optx.LevenbergMarquardt(rtol=1e-12, atol=1e-12)
+    sol = optx.least_squares(resid, solver, p8, max_steps=REFINE_MAX_STEPS, throw=False)
+    ok = jnp.all(jnp.isfinite(sol.value))
+    return sol.value, jnp.where(ok, from_optimistix(sol.result), RESULTS.nonfinite)
 
 
-def _refine(hn: np.ndarray, ps: np.ndarray, pd: np.ndarray, w: np.ndarray, steps: int = 20) -> np.ndarray:
-    """Gauss-Newton on ``sum w |pd - H(ps)|^2`` over 8 entries of ``H``
-    (``h33`` fixed to the DLT's value), normalised coordinates."""
-    fixed = np.asarray(hn[2, 2])
-    args = (jnp.asarray(fixed), jnp.asarray(ps), jnp.asarray(pd), jnp.asarray(np.sqrt(w)))
-    p = np.asarray(hn.reshape(-1)[:8])
-    r, j = (np.asarray(a) for a in _projective_residual_and_jacobian(jnp.asarray(p), *args))
-    cost = float(r @ r)
-    for _ in range(steps):
-        step, *_ = np.linalg.lstsq(j, -r, rcond=None)
-        cand = p + step
-        r_new, j_new = (np.asarray(a) for a in _projective_residual_and_jacobian(jnp.asarray(cand), *args))
-        new = float(r_new @ r_new)
-        if not new < cost:  # no further decrease: keep the best estimate
-            break
-        done = cost - new <= 1e-14 * max(cost, 1e-300)
-        p, cost, r, j = cand, new, r_new, j_new
-        if done:
-            break
-    return np.concatenate([p, fixed[None]]).reshape(3, 3)
+def _refine(hn: np.ndarray, ps: np.ndarray, pd: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, RESULTS]:
+    """The geometric refinement of the normalised homography ``hn`` (the
+    one shared solver, optimistix, as resection's fallback): ``(H, code)``;
+    ``H`` is the DLT's where the solver did not end on finite values.  The
+    points are padded to a power of two (zero weight) so that fits of
+    similar size share one compilation."""
+    n = len(ps)
+    size = max(8, 1 << (n - 1).bit_length())
+    pad = lambda a: np.concatenate([a, np.zeros((size - n,) + a.shape[1:])])  # noqa: E731
+    ps_p, pd_p = pad(ps), pad(pd)
+    ps_p[n:] = ps[0]  # finite positions for the padded rows (weight 0)
+    fixed = float(hn[2, 2])
+    p, code = _refine_solve(jnp.asarray(hn.reshape(-1)[:8]), jnp.asarray(fixed), jnp.asarray(ps_p), jnp.asarray(pd_p),
+                            jnp.asarray(pad(np.sqrt(w))))  # fmt: skip
+    code = RESULTS(int(code))
+    if code == RESULTS.nonfinite:
+        return hn, code
+    return np.concatenate([np.asarray(p), [fixed]]).reshape(3, 3), code

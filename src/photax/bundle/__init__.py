@@ -15,7 +15,7 @@ with ``rho(s) = s`` (no loss), Huber ``rho(s) = s`` for ``s <= d^2`` else
 ``2 d sqrt(s) - d^2``, or Cauchy ``rho(s) = d^2 log(1 + s / d^2)``
 (``d = loss_scale``, in units of the observation's sigma).  Robust losses
 enter each linearisation through Ceres' corrector (Triggs et al. 2000, sec.
-4.3; ``corrector.cc``; see :func:`_corrector`): for Huber and Cauchy
+4.3; ``corrector.cc``; see :func:`photax.bundle._robust._corrector`): for Huber and Cauchy
 (``rho'' <= 0``) that is reweighting, ``J~ = sqrt(rho') J``, a model that
 majorises the loss along each residual.  After each trial step a *point
 pass* moves every point, with the trial cameras fixed, to the best of a few
@@ -53,8 +53,10 @@ inverses and ``S`` (the reduced camera system) is accumulated from
 per-observation blocks: block ``(i, j)`` sums ``W_a V^-1 W_b^T`` over the
 pairs of observations ``a`` (image ``i``), ``b`` (image ``j``) of one point,
 grouped on the numpy side into fixed-size chunks of one block each so that
-the sum is a batch of small GEMMs (see :func:`_reduced_system`).  Jacobians
-are closed-form (:func:`_project_obs`).  ``S`` is solved by a dense
+the sum is a batch of small GEMMs (see :func:`photax.bundle._schur._reduced_system`).  Jacobians
+are closed-form (:func:`photax.bundle._linearise._project_obs`, built on
+:func:`photax.collinearity.collinearity_rows` and
+:func:`photax.camera.intrinsics_jacobian`).  ``S`` is solved by a dense
 Cholesky (fast up to a few thousand camera unknowns: 49 BAL images x 9 =
 441) on one BLAS thread.  A rejected step re-solves with the same
 linearisation (only the damping changes).  References: Triggs et al.,

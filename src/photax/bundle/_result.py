@@ -9,6 +9,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
+from ..errors import RESULTS
 from ._problem import INTRINSICS, BundleProblem
 
 
@@ -28,6 +29,8 @@ class BundleResult:
         history: one dict per iteration: ``iteration, cost, lambda,
             step_norm, gradient_max, accepted, seconds``.
         converged, message: stopping status; ``message`` names the rule.
+        result: the :class:`photax.RESULTS` code (``converged`` is
+            ``result == RESULTS.successful``; docs/architecture.md).
         iterations: number of iterations (accepted and rejected steps).
         residuals: ``(k, 2)`` image-plane residuals ``projected - observed``
             (camera unit).
@@ -67,6 +70,7 @@ class BundleResult:
     check_residuals: np.ndarray
     problem: BundleProblem
     seconds: float = 0.0
+    result: RESULTS = RESULTS.successful
 
     @property
     def check_names(self) -> list[str]:
@@ -158,3 +162,20 @@ class BundleResult:
             ],
         }  # fmt: skip
         return out
+
+
+def outcome(converged: bool, message: str, cost: float) -> RESULTS:
+    """The :class:`photax.RESULTS` code of a finished adjustment from its
+    status: the solver loop (``_solver._lm_loop``) and the precision step
+    stop with one of these messages, so the code follows the message's
+    opening words."""
+    if converged:
+        return RESULTS.successful
+    if not math.isfinite(cost):
+        return RESULTS.nonfinite
+    if message.startswith(("the normal equations are singular", "the normal equations became singular")):
+        return RESULTS.singular
+    if message.startswith("no convergence within"):
+        return RESULTS.max_steps_reached
+    return RESULTS.solver_failed  # the trust region shrank to nothing: no decrease possible
+

@@ -73,7 +73,7 @@ from ._linearise import _linearise, _prior_residuals, _project_obs
 from ._robust import _LOSS_CODE, _corrector, _rho
 from ._precision import _covariances, _standard_deviations
 from ._problem import BundleProblem, Gauge, Loss
-from ._result import BundleResult
+from ._result import BundleResult, outcome
 from ._schur import _trial
 from ._start import _needs_init, initialize_block
 from ._structure import _State
@@ -447,7 +447,7 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
         history=history, converged=bool(converged), message=message, iterations=iterations, residuals=residuals,
         weights=weight, sigma0=sigma0, redundancy=redundancy, exterior_std=eo_std, camera_std=cam_std,
         point_std=pt_std, point_cov=pt_cov, check_residuals=pts[check] - problem.points[check], problem=problem,
-        seconds=seconds,
+        seconds=seconds, result=outcome(bool(converged), message, float(cost)),
     )  # fmt: skip
     if throw and not result.converged:
         raise ConvergenceError(f"bundle adjustment failed: {message}")

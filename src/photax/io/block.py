@@ -61,97 +61,133 @@ def read_block(folder) -> BundleProblem:
     meta = load_json(meta_path, read_text(meta_path, "block file"))
     if not isinstance(meta, dict):
         raise ValueError(f"{meta_path}: expected an object {{\"cameras\": ..., \"images\": ...}}")
-
-    def bad(what: str) -> ValueError:
-        return ValueError(f"{meta_path}: {what}")
-
-    def vector(where_, value, n, what):
-        v = as_numbers(value)
-        if v is None or v.shape != ((n,) if n else ()) or not np.all(np.isfinite(v)):
-            raise bad(f"{where_}: {what} must be {n or 1} finite number{'s' if n > 1 else ''}, got {value!r}")
-        return v
-
+    meta_file = _Meta(meta_path)
     conv = meta.get("convention", "omega-phi-kappa")
     try:
         conv = check_convention(conv)
     except ValueError as exc:
-        raise bad(str(exc)) from None
+        raise meta_file.bad(str(exc)) from None
     unit = meta.get("angle_unit", "degrees")
     if unit not in ("degrees", "radians"):
-        raise bad(f"angle_unit must be 'degrees' or 'radians', got {unit!r}")
+        raise meta_file.bad(f"angle_unit must be 'degrees' or 'radians', got {unit!r}")
     cameras, images = meta.get("cameras"), meta.get("images")
     if not isinstance(cameras, dict) or not cameras or not isinstance(images, list) or not images:
-        raise bad("needs a non-empty object 'cameras' and a non-empty list 'images'")
+        raise meta_file.bad("needs a non-empty object 'cameras' and a non-empty list 'images'")
     cam_names = list(cameras)
-    cams, free = [], np.zeros((len(cam_names), 8), dtype=bool)
-    for j, name in enumerate(cam_names):
+    cams, free = _read_cameras(meta_file, cameras)
+    names, img_cam, pos, ang, fixed = _read_images(meta_file, images, cam_names, unit)
+    pnames, xyz, roles, psig = _read_points(folder / "points.csv")
+    oi, op, px, osig = _read_observations(folder / "observations.csv", names, pnames)
+    xy, ps = _pixels_to_image(px, osig, cams, np.array(img_cam)[oi])
+    try:
+        return BundleProblem(
+            cams, ExteriorOrientation(np.array(pos, dtype=float), np.array(ang, dtype=float), conv),
+            np.array(xyz, dtype=float), oi, op, xy, obs_sigma=ps, image_camera=np.array(img_cam), roles=roles,
+            point_sigma=np.array(psig), free_intrinsics=free, fixed_exterior=np.array(fixed), image_names=names,
+            point_names=pnames,
+        )  # fmt: skip
+    except ValueError as exc:  # e.g. a tie point seen in one image only
+        raise ValueError(f"{folder}: {exc}") from None
+
+
+class _Meta:
+    """Errors naming ``block.json``, and its checked number vectors."""
+
+    def __init__(self, path: pathlib.Path):
+        self.path = path
+
+    def bad(self, what: str) -> ValueError:
+        return ValueError(f"{self.path}: {what}")
+
+    def vector(self, where_, value, n, what):
+        v = as_numbers(value)
+        if v is None or v.shape != ((n,) if n else ()) or not np.all(np.isfinite(v)):
+            raise self.bad(f"{where_}: {what} must be {n or 1} finite number{'s' if n > 1 else ''}, got {value!r}")
+        return v
+
+
+def _read_cameras(meta: _Meta, cameras: dict) -> tuple[list[FrameCamera], np.ndarray]:
+    """``block.json``'s cameras and their free intrinsics ``(n_cameras, 8)``."""
+    cams, free = [], np.zeros((len(cameras), 8), dtype=bool)
+    for j, name in enumerate(cameras):
         c, at = cameras[name], f"camera {name!r}"
         if not isinstance(c, dict) or "focal_length_px" not in c or "image_size" not in c:
-            raise bad(f"{at}: needs focal_length_px and image_size")
+            raise meta.bad(f"{at}: needs focal_length_px and image_size")
         unknown = sorted(set(c) - {"focal_length_px", "image_size", "principal_point_px", "distortion", "free"})
         if unknown:
-            raise bad(f"{at}: unknown key {unknown[0]!r}")
-        f = float(vector(at, c["focal_length_px"], 0, "focal_length_px"))
-        size = vector(at, c["image_size"], 2, "image_size")
+            raise meta.bad(f"{at}: unknown key {unknown[0]!r}")
+        f = float(meta.vector(at, c["focal_length_px"], 0, "focal_length_px"))
+        size = meta.vector(at, c["image_size"], 2, "image_size")
         if not f > 0 or np.any(size < 1) or np.any(size != np.round(size)) or np.any(size > 2**31 - 1):
-            raise bad(f"{at}: focal_length_px must be positive and image_size whole pixels >= 1, "
-                      f"got {c['focal_length_px']!r} and {c['image_size']!r}")
+            raise meta.bad(f"{at}: focal_length_px must be positive and image_size whole pixels >= 1, "
+                           f"got {c['focal_length_px']!r} and {c['image_size']!r}")
         pp = c.get("principal_point_px")
-        pp = None if pp is None else tuple(vector(at, pp, 2, "principal_point_px"))
+        pp = None if pp is None else tuple(meta.vector(at, pp, 2, "principal_point_px"))
         dist = c.get("distortion")
-        dist = None if dist is None else vector(at, dist, 5, "distortion")
+        dist = None if dist is None else meta.vector(at, dist, 5, "distortion")
         cams.append(FrameCamera.from_pixels(f, (int(size[0]), int(size[1])), pp, dist))
         names_free = c.get("free", [])
         if not isinstance(names_free, list) or not all(isinstance(n, str) for n in names_free):
-            raise bad(f"{at}: free must be a list of names from {INTRINSICS}, got {names_free!r}")
+            raise meta.bad(f"{at}: free must be a list of names from {INTRINSICS}, got {names_free!r}")
         unknown = set(names_free) - set(INTRINSICS)
         if unknown:
-            raise bad(f"{at}: unknown free parameters {sorted(unknown)}; use {INTRINSICS}")
+            raise meta.bad(f"{at}: unknown free parameters {sorted(unknown)}; use {INTRINSICS}")
         free[j, [INTRINSICS.index(n) for n in names_free]] = True
+    return cams, free
+
+
+def _read_images(meta: _Meta, images: list, cam_names: list[str], unit: str):
+    """``block.json``'s images: ``(names, camera index, positions, angles
+    in radians, fixed)``, NaN for orientations to be resected."""
     names, img_cam, pos, ang, fixed = [], [], [], [], []
     for i, im in enumerate(images):
         at = f"images[{i}]"
         if not isinstance(im, dict):
-            raise bad(f"{at}: expected an object with name, camera, position, angles")
+            raise meta.bad(f"{at}: expected an object with name, camera, position, angles")
         if not isinstance(im.get("camera"), str) or im["camera"] not in cam_names:
-            raise bad(f"{at}: camera {im.get('camera')!r} is not in 'cameras'")
+            raise meta.bad(f"{at}: camera {im.get('camera')!r} is not in 'cameras'")
         name = im.get("name", f"image {i}")
         if not isinstance(name, str) or not name.strip() or name in names:
-            raise bad(f"{at}: image names must be distinct, non-empty text, got {name!r}")
+            raise meta.bad(f"{at}: image names must be distinct, non-empty text, got {name!r}")
         names.append(name)
         img_cam.append(cam_names.index(im["camera"]))
         p, a = im.get("position"), im.get("angles")
-        pos.append([np.nan] * 3 if p is None else vector(at, p, 3, "position"))
-        a = [np.nan] * 3 if a is None else vector(at, a, 3, "angles")
+        pos.append([np.nan] * 3 if p is None else meta.vector(at, p, 3, "position"))
+        a = [np.nan] * 3 if a is None else meta.vector(at, a, 3, "angles")
         ang.append(np.radians(a) if unit == "degrees" else np.asarray(a, dtype=float))
         if not isinstance(im.get("fixed", False), bool):
-            raise bad(f"{at}: fixed must be true or false, got {im['fixed']!r}")
+            raise meta.bad(f"{at}: fixed must be true or false, got {im['fixed']!r}")
         fixed.append(im.get("fixed", False))
+    return names, img_cam, pos, ang, fixed
 
-    def rows(path, required, optional=()):
-        lines = split_lines(read_text(path, "block file"))
-        reader = csv.reader(lines)
-        try:
-            header = [h.strip() for h in next(reader, [])]
-            missing = sorted(set(required) - set(header))
-            unknown = sorted(set(header) - set(required) - set(optional))
-            if missing or unknown or len(set(header)) != len(header):
-                raise ValueError(f"{where(path, 1)}: the header must name the columns {list(required)} "
-                                 f"(and optionally {list(optional)}) once each, got {header}")
-            for row in reader:
-                line = reader.line_num
-                if not row or not "".join(row).strip():
-                    continue
-                if len(row) != len(header):
-                    raise ValueError(f"{where(path, line)}: expected {len(header)} columns, got {len(row)}")
-                yield line, {k: v.strip() for k, v in zip(header, row)}
-        except csv.Error as exc:
-            raise ValueError(f"{where(path, reader.line_num)}: not a CSV line ({exc})") from None
 
+def _rows(path: pathlib.Path, required, optional=()):
+    """``(line number, {column: text})`` of a block CSV file, header checked."""
+    lines = split_lines(read_text(path, "block file"))
+    reader = csv.reader(lines)
+    try:
+        header = [h.strip() for h in next(reader, [])]
+        missing = sorted(set(required) - set(header))
+        unknown = sorted(set(header) - set(required) - set(optional))
+        if missing or unknown or len(set(header)) != len(header):
+            raise ValueError(f"{where(path, 1)}: the header must name the columns {list(required)} "
+                             f"(and optionally {list(optional)}) once each, got {header}")
+        for row in reader:
+            line = reader.line_num
+            if not row or not "".join(row).strip():
+                continue
+            if len(row) != len(header):
+                raise ValueError(f"{where(path, line)}: expected {len(header)} columns, got {len(row)}")
+            yield line, {k: v.strip() for k, v in zip(header, row)}
+    except csv.Error as exc:
+        raise ValueError(f"{where(path, reader.line_num)}: not a CSV line ({exc})") from None
+
+
+def _read_points(ppath: pathlib.Path):
+    """``points.csv``: ``(names, XYZ (NaN for unknown tie points), roles, sigmas)``."""
     pnames, xyz, roles, psig = [], [], [], []
     plines: dict[str, int] = {}
-    ppath = folder / "points.csv"
-    for line, row in rows(ppath, ("name", "X", "Y", "Z", "role"), ("sigma",)):
+    for line, row in _rows(ppath, ("name", "X", "Y", "Z", "role"), ("sigma",)):
         if row["role"] not in ROLES:
             raise ValueError(f"{where(ppath, line)}: role must be one of {ROLES}, got {row['role']!r}")
         name = row["name"]
@@ -172,12 +208,16 @@ def read_block(folder) -> BundleProblem:
         psig.append(s)
     if not pnames:
         raise ValueError(f"{ppath}: no points")
+    return pnames, xyz, roles, psig
+
+
+def _read_observations(opath: pathlib.Path, names: list[str], pnames: list[str]):
+    """``observations.csv``: image and point indices ``(k,)``, pixels ``(k, 2)``, sigmas ``(k,)``."""
     pidx = {n: i for i, n in enumerate(pnames)}
     iidx = {n: i for i, n in enumerate(names)}
     oi, op, px, osig = [], [], [], []
     seen: dict[tuple[str, str], int] = {}
-    opath = folder / "observations.csv"
-    for line, row in rows(opath, ("image", "point", "col", "row"), ("sigma_px",)):
+    for line, row in _rows(opath, ("image", "point", "col", "row"), ("sigma_px",)):
         if row["image"] not in iidx or row["point"] not in pidx:
             raise ValueError(f"{where(opath, line)}: unknown image {row['image']!r} or point {row['point']!r}")
         pair = (row["image"], row["point"])
@@ -194,10 +234,13 @@ def read_block(folder) -> BundleProblem:
         osig.append(s)
     if not oi:
         raise ValueError(f"{opath}: no observations")
-    oi, op, px, osig = np.array(oi), np.array(op), np.array(px, dtype=float).reshape(-1, 2), np.array(osig)
-    cam_of_obs = np.array(img_cam)[oi]
+    return np.array(oi), np.array(op), np.array(px, dtype=float).reshape(-1, 2), np.array(osig)
+
+
+def _pixels_to_image(px: np.ndarray, osig: np.ndarray, cams: list[FrameCamera], cam_of_obs: np.ndarray):
+    """Pixels and pixel sigmas -> image-plane coordinates and sigmas (camera unit)."""
     xy = np.empty_like(px)
-    ps = np.empty(len(oi))
+    ps = np.empty(len(px))
     for j, cam in enumerate(cams):
         # FrameCamera.pixel_to_image in numpy: eager JAX would compile its ops
         # again for every new number of observations.
@@ -206,12 +249,4 @@ def read_block(folder) -> BundleProblem:
         size = np.asarray(cam.pixel_size, dtype=float)
         xy[sel] = (px[sel] - centre) * size * [1.0, -1.0]
         ps[sel] = osig[sel] * float(np.mean(size))
-    try:
-        return BundleProblem(
-            cams, ExteriorOrientation(np.array(pos, dtype=float), np.array(ang, dtype=float), conv),
-            np.array(xyz, dtype=float), oi, op, xy, obs_sigma=ps, image_camera=np.array(img_cam), roles=roles,
-            point_sigma=np.array(psig), free_intrinsics=free, fixed_exterior=np.array(fixed), image_names=names,
-            point_names=pnames,
-        )  # fmt: skip
-    except ValueError as exc:  # e.g. a tie point seen in one image only
-        raise ValueError(f"{folder}: {exc}") from None
+    return xy, ps

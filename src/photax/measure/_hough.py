@@ -168,23 +168,7 @@ def hough_lines(edges, *, theta_step: float = math.radians(0.5), rho_step: float
         theta = thetas[i] + float(_quadratic_offset(im, z, ip)) * (math.pi / n_theta)
         rho = rhos[j] + float(_quadratic_offset(jm, z, jp)) * rho_step
         if refine:
-            band = max(1.5, 2.0 * rho_step)
-            for _ in range(2):
-                d = xs * math.cos(theta) + ys * math.sin(theta) - rho
-                sel = np.abs(d) <= band
-                if sel.sum() < 2:
-                    break
-                wsel = ws[sel]
-                mx, my = np.average(xs[sel], weights=wsel), np.average(ys[sel], weights=wsel)
-                dx, dy = xs[sel] - mx, ys[sel] - my
-                cov = np.array([[np.sum(wsel * dx * dx), np.sum(wsel * dx * dy)],
-                                [np.sum(wsel * dx * dy), np.sum(wsel * dy * dy)]])
-                evals, evecs = np.linalg.eigh(cov)
-                nrm = evecs[:, 0]  # normal = direction of least spread
-                if nrm @ np.array([math.cos(theta), math.sin(theta)]) < 0:
-                    nrm = -nrm
-                theta = math.atan2(nrm[1], nrm[0])
-                rho = mx * nrm[0] + my * nrm[1]
+            theta, rho = _refine_line(xs, ys, ws, theta, rho, max(1.5, 2.0 * rho_step))
         theta, rho = theta % (2 * math.pi), rho
         if theta >= math.pi:
             theta, rho = theta - math.pi, -rho
@@ -192,6 +176,29 @@ def hough_lines(edges, *, theta_step: float = math.radians(0.5), rho_step: float
         out_r.append(rho)
         out_s.append(z)
     return HoughLines(np.array(out_t), np.array(out_r), np.array(out_s), acc, thetas, rhos)
+
+
+def _refine_line(xs, ys, ws, theta: float, rho: float, band: float) -> tuple[float, float]:
+    """Two weighted total-least-squares fits of the edge pixels within
+    ``band`` of the line ``x cos(theta) + y sin(theta) = rho``: the normal is
+    the direction of least spread of their weighted scatter matrix."""
+    for _ in range(2):
+        d = xs * math.cos(theta) + ys * math.sin(theta) - rho
+        sel = np.abs(d) <= band
+        if sel.sum() < 2:
+            break
+        wsel = ws[sel]
+        mx, my = np.average(xs[sel], weights=wsel), np.average(ys[sel], weights=wsel)
+        dx, dy = xs[sel] - mx, ys[sel] - my
+        cov = np.array([[np.sum(wsel * dx * dx), np.sum(wsel * dx * dy)],
+                        [np.sum(wsel * dx * dy), np.sum(wsel * dy * dy)]])
+        _, evecs = np.linalg.eigh(cov)
+        nrm = evecs[:, 0]  # normal = direction of least spread
+        if nrm @ np.array([math.cos(theta), math.sin(theta)]) < 0:
+            nrm = -nrm
+        theta = math.atan2(nrm[1], nrm[0])
+        rho = mx * nrm[0] + my * nrm[1]
+    return theta, rho
 
 
 @partial(jax.jit, static_argnames=("shape", "n_phi"))

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 
 from .._linalg import cho_solve
 from ..collinearity import _angle_axes, collinearity_jacobian
-from ..errors import RESULTS
+from ..errors import RESULTS, from_optimistix
 from . import _linear
 from ._types import Inputs, Options, Output
 
@@ -127,9 +127,10 @@ def precision(p, inp: Inputs, used, opt: Options) -> dict:
     aq = jnp.sum(a[:, :, None] * qxx[None, :, :], axis=1)  # A Q_xx, element-wise (no tiny dots under vmap)
     r_i = jnp.where(used[:, None], (1.0 - jnp.sum(aq * a, axis=1)).reshape(-1, 2), 0.0)
     ok = r_i > 1e-10
-    w = jnp.where(ok, v / jnp.sqrt(jnp.where(ok, r_i, 1.0)), jnp.nan)
+    # v is observed - computed (the Gauss-Newton form); w and residuals are reported computed - observed.
+    w = jnp.where(ok, -v / jnp.sqrt(jnp.where(ok, r_i, 1.0)), jnp.nan)
     axis = -_linear.rotation(p[3:], opt.pok)[:, 2]
-    return dict(params=p, sigma0=sigma0, qxx=qxx, residuals=inp.xy - pred, redundancy=r_i, w=w, depth=depth,
+    return dict(params=p, sigma0=sigma0, qxx=qxx, residuals=pred - inp.xy, redundancy=r_i, w=w, depth=depth,
                 axis=axis)
 
 
@@ -172,23 +173,6 @@ def solve_cheap(inp: Inputs, opt: Options) -> Output:
     retry = opt.snoop & (go | (out["result"] != RESULTS.successful) | behind | bad_start)
     return Output(**out, start=start, used=inp.ctrl, stat_at=jnp.full(inp.xy.shape, jnp.nan), critical=c,
                   retry=retry)
-
-
-def from_optimistix(result):
-    """optimistix's outcome -> a :class:`photax.RESULTS` code, through its public ``RESULTS`` items."""
-    import optimistix as optx
-
-    words = [("successful", RESULTS.successful), ("max_steps_reached", RESULTS.max_steps_reached),
-             ("nonlinear_max_steps_reached", RESULTS.max_steps_reached), ("singular", RESULTS.singular),
-             ("breakdown", RESULTS.singular), ("stagnation", RESULTS.singular), ("conlim", RESULTS.singular),
-             ("nonfinite_input", RESULTS.nonfinite), ("nonfinite", RESULTS.nonfinite),
-             ("nonlinear_divergence", RESULTS.diverged)]
-    code = jnp.array(RESULTS.solver_failed)
-    for name, ours in reversed(words):
-        item = getattr(optx.RESULTS, name, None)
-        if item is not None:
-            code = jnp.where(result == item, ours, code)
-    return code
 
 
 @functools.partial(jax.jit, static_argnames="max_steps")

@@ -25,7 +25,7 @@ class ResectionResult:
             order); metres and radians.
         std: ``(6,)`` standard deviations, same order.
         correlation: ``(6, 6)``.
-        residuals: ``(n, 2)`` observed - computed, image-plane units, for all
+        residuals: ``(n, 2)`` computed - observed (docs/conventions.md), image-plane units, for all
             input points (outliers and check points included).
         outliers: ``(n,)`` True for points excluded by data snooping.
         check: ``(n,)`` True for check points (not used in the fit).

@@ -60,7 +60,7 @@ class Output(eqx.Module):
     start: Array  # (6,) the start the adjustment ran from
     sigma0: Array  # () a-posteriori sigma0 (NaN at zero redundancy)
     qxx: Array  # (6, 6) cofactor matrix (A^T P A)^-1
-    residuals: Array  # (m, 2) observed - computed, all points
+    residuals: Array  # (m, 2) computed - observed, all points
     redundancy: Array  # (m, 2) redundancy numbers (0 where not used)
     w: Array  # (m, 2) v / sqrt(r) (weighted; divide by sigma0 for tau)
     depth: Array  # (m,) distance in front of the camera

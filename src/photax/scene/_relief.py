@@ -198,18 +198,8 @@ def relief_scene(
     if np.isnan(gcp_ground).any() or np.isnan(check_ground).any():  # pragma: no cover - a bug, not user input
         raise RuntimeError("a control point ray missed the DEM")
     return Scene(
-        image=image,
-        dem=dem,
-        camera=camera,
-        exterior=exterior,
-        ortho=ortho,
-        ortho_transform=ortho_transform,
-        gcp_ground=gcp_ground,
-        gcp_pixel=gcp_pixel,
-        gcp_pixel_true=gcp_true,
-        check_ground=check_ground,
-        check_pixel=check_pixel,
-        check_pixel_true=check_true,
-        noise_px=float(noise_px),
-        gsd=float(gsd),
-    )
+        image=image, dem=dem, camera=camera, exterior=exterior, ortho=ortho, ortho_transform=ortho_transform,
+        gcp_ground=gcp_ground, gcp_pixel=gcp_pixel, gcp_pixel_true=gcp_true,
+        check_ground=check_ground, check_pixel=check_pixel, check_pixel_true=check_true,
+        noise_px=float(noise_px), gsd=float(gsd),
+    )  # fmt: skip
