@@ -265,8 +265,8 @@ def test_gauss_newton_is_differentiable():
     def solve(x):
         return _adjust.gauss_newton(start, eqx.tree_at(lambda i: i.xy, inp, x), inp.ctrl, opt)[0]
 
-    jac = jax.jacrev(solve)(inp.xy)  # (6, 16, 2)
-    _, a, _, _ = _adjust.evaluate(solve(inp.xy), inp, inp.ctrl, opt)
+    jac = jax.jit(jax.jacrev(solve))(inp.xy)  # (6, 16, 2); one program, not op by op
+    _, a, _, _ = _adjust.evaluate(jax.jit(solve)(inp.xy), inp, inp.ctrl, opt)
     a = np.asarray(a).reshape(-1, 6)
     ref = np.linalg.solve(a.T @ a, a.T).reshape(6, 16, 2)
     np.testing.assert_allclose(jac, ref, rtol=0, atol=1e-7 * np.abs(ref).max())
