@@ -49,7 +49,8 @@ def _covariances_band(lin: _Lin, s: _Structure, n_c: int):
     reduced-camera inverse on its pattern by selected inversion of the
     banded factor (:func:`._sparse.band_selected_inverse`), and the point
     blocks from them by the same Schur relation, summed over observation
-    pairs in pieces of :data:`PAIR_PIECE`.  Returns each image's block
+    pairs in pieces of :data:`PAIR_PIECE` (memory bounded whatever the
+    block's size).  Returns each image's block
     ``(n_img, w, w)`` (its unknowns in ``image_ext`` order), the intrinsics'
     diagonal ``(a n_cam,)``, the point blocks and whether the factor is
     finite."""
@@ -68,27 +69,29 @@ def _covariances_band(lin: _Lin, s: _Structure, n_c: int):
     cam = jnp.arange(6 * ext.shape[0], n_c)
     q_cam = q(cam, cam)
     y = jnp.einsum("kji,kjl->kil", lin.wt, vinv[s.obs_point])  # (k, w, 3)
-    n_pts = lin.v.shape[0]
-    q_p = vinv + jax.ops.segment_sum(jnp.einsum("kia,kij,kjb->kab", y, q_img[s.obs_image], y), s.obs_point,
-                                     num_segments=n_pts)  # fmt: skip
-    n_pairs = s.pair_a.shape[0]
+    n_pts, k = lin.v.shape[0], s.obs_image.shape[0]
+    # Pairs (a, a) -- each observation with itself, weight 1/2 as the sum adds
+    # each term and its transpose -- and (a, b), a < b, weight 1.
+    own = jnp.arange(k, dtype=s.pair_a.dtype)
+    pair_a, pair_b = jnp.concatenate([own, s.pair_a]), jnp.concatenate([own, s.pair_b])
+    weight = jnp.concatenate([jnp.full(k, 0.5), jnp.ones(s.pair_a.shape[0])])
+    n_pairs = pair_a.shape[0]
     piece = max(1, min(PAIR_PIECE, n_pairs))
     pad = -n_pairs % piece
-    k = s.obs_image.shape[0]
-    pa = jnp.concatenate([s.pair_a, jnp.full(pad, k, s.pair_a.dtype)]).reshape(-1, piece)
-    pb = jnp.concatenate([s.pair_b, jnp.full(pad, k, s.pair_b.dtype)]).reshape(-1, piece)
+    pa = jnp.concatenate([pair_a, jnp.full(pad, k, pair_a.dtype)]).reshape(-1, piece)
+    pb = jnp.concatenate([pair_b, jnp.full(pad, k, pair_b.dtype)]).reshape(-1, piece)
+    wp = jnp.concatenate([weight, jnp.zeros(pad)]).reshape(-1, piece)
     y_pad = jnp.concatenate([y, jnp.zeros((1,) + y.shape[1:])])
     img_pad = jnp.concatenate([s.obs_image, jnp.zeros(1, s.obs_image.dtype)])
     pt_pad = jnp.concatenate([s.obs_point, jnp.full(1, n_pts, s.obs_point.dtype)])  # padding: dropped
 
     def add_pairs(acc, idx):
-        a, b = idx
+        a, b, wgt = idx
         ea, eb = ext[img_pad[a]], ext[img_pad[b]]
-        qo = jnp.einsum("pia,pij,pjb->pab", y_pad[a], q(ea[:, :, None], eb[:, None, :]), y_pad[b])
+        qo = jnp.einsum("pia,pij,pjb->pab", y_pad[a], q(ea[:, :, None], eb[:, None, :]), y_pad[b]) * wgt[:, None, None]
         return acc + jax.ops.segment_sum(qo + jnp.swapaxes(qo, 1, 2), pt_pad[a], num_segments=n_pts), None
 
-    if n_pairs:
-        q_p, _ = jax.lax.scan(add_pairs, q_p, (pa, pb))
+    q_p, _ = jax.lax.scan(add_pairs, vinv, (pa, pb, wp))
     q_p = q_p * (s.mask_p[:, :, None] * s.mask_p[:, None, :])
     return q_img, q_cam, q_p, jnp.all(jnp.isfinite(f.d)) & jnp.all(jnp.isfinite(f.e))
 
