@@ -74,7 +74,10 @@ def test_band_solve_matches_dense(system):
 
 
 def test_schur_jacobi_cg_matches_dense(system):
-    _, s, n_c, lin, lam, S, rhs, _ = system
+    """CG with the Schur-Jacobi preconditioner (private blocks, border diagonal) converges to the dense solve."""
+    name, s, n_c, lin, lam, S, rhs, _ = system
+    if name != "shared_camera":  # one compile is enough: the border case exercises both preconditioner parts
+        pytest.skip("CG is checked on the block with a border")
     x, _ = jax.jit(_solve_cg, static_argnames="n_c")(lin, s, lam, n_c)
     ref = np.linalg.solve(S, rhs)
     np.testing.assert_allclose(np.asarray(x), ref, rtol=0, atol=1e-5 * np.abs(ref).max())
