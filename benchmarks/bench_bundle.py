@@ -1,6 +1,19 @@
-"""Bundle adjustment of BAL problem-49-7776: photax vs SciPy vs Ceres.
+"""Bundle adjustment of BAL problem-49-7776 and of synthetic BAL blocks: photax vs SciPy vs Ceres.
 
 Run:  python benchmarks/bench_bundle.py [--repeat 3] [--scipy-repeat 1]
+      python benchmarks/bench_bundle.py --grid 10 20 30 [--ceres-up-to 30] [--seed 0]
+
+With ``--grid``, synthetic blocks of ``g x g`` images (:func:`synthetic_bal`,
+BAL camera model, 70 % / 40 % overlap, perturbed start) are adjusted by
+photax (warm; the first call with compilation is printed too) and by Ceres
+SPARSE_SCHUR (2 threads, same tolerances), each size in one process so the
+ratio survives the machine's load; then photax's precision at its solution
+(gauge ``fix_first_camera``: every image's exterior orientation and
+intrinsics, every point).  Time, iterations, final cost (recomputed with the
+numpy BAL formula) and peak memory go to
+``benchmarks/results/bench_bundle_blocks.json``; the growth table to
+``results/bundle_growth.md`` and the log-log plot to
+``results/bundle_growth.png``.
 
 Peers, all in this one process on the same input:
 
@@ -27,6 +40,7 @@ with the numpy BAL formula from the solver's output parameters.
 from __future__ import annotations
 
 import argparse
+import os
 import pathlib
 import sys
 import time
@@ -37,7 +51,7 @@ from scipy.sparse import lil_matrix
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from _common import mib, peak_memory, record, start  # noqa: E402
+from _common import RESULTS, mib, peak_memory, record, start  # noqa: E402
 
 import photax  # noqa: E402
 from photax.camera import OPENCV_FROM_PHOTAX  # noqa: E402
@@ -214,6 +228,32 @@ def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int =
 
 
 # --------------------------------------------------------------------------
+# Synthetic BAL blocks of any size
+# --------------------------------------------------------------------------
+
+
+def synthetic_bal(grid: int, seed: int = 0, points_per_image: int = 160, noise_px: float = 0.5) -> BALData:
+    """A BAL-style aerial block of ``grid x grid`` images from the one scene
+    generator (:func:`photax.scene.block_scene`): downward-looking frames
+    (4000 x 3000 px, f = 3000 px, 600 m above 60 m of relief, tilts up to
+    2 deg), 70 % forward and 40 % side overlap, ``points_per_image x grid^2``
+    tie points each seen on 2 or more images, Gaussian noise ``noise_px``.
+    Start values: the truth perturbed (5 m, 0.01 rad, 3 m).  Each image is
+    its own BAL camera (``f, k1, k2``; the truth has no distortion);
+    coordinates are shifted to the block's mean so Ceres and photax both see
+    moderate numbers."""
+    from photax.scene import block_scene
+
+    b = block_scene(seed, strips=grid, images_per_strip=grid, n_tie=points_per_image * grid * grid, n_control=0,
+                    n_check=0, noise_px=noise_px, forward_overlap=0.7, side_overlap=0.4)  # fmt: skip
+    origin = np.round(np.mean(b.start_points, axis=0))
+    eo = b.start_exterior
+    cams = photax_to_bal([b.camera] * len(b.image_names), np.asarray(eo.rotation),
+                         np.asarray(eo.position) - origin[None, :])  # fmt: skip
+    return BALData(cams, b.start_points - origin[None, :], b.obs_image, b.obs_point, np.asarray(b.obs_xy))
+
+
+# --------------------------------------------------------------------------
 # photax
 # --------------------------------------------------------------------------
 
@@ -266,13 +306,98 @@ def _timed(fn):
     return out, time.perf_counter() - t0
 
 
+def precision_at(result):
+    """photax's precision at an adjusted BAL block: the problem at the
+    solution, gauge ``fix_first_camera``, no iteration (``max_steps=0``)."""
+    p = result.problem.replace(cameras=result.cameras, exterior=result.exterior, points=result.points)
+    return photax.bundle_adjust(p, gauge="fix_first_camera", max_steps=0, throw=False, precision=True)
+
+
+def block_comparison(grids, seed: int, ceres_up_to: int) -> list[dict]:
+    """photax vs Ceres SPARSE_SCHUR on synthetic blocks of ``g x g`` images."""
+    rows = []
+    for g in grids:
+        t0 = time.perf_counter()
+        d = synthetic_bal(g, seed)
+        print(f"{g} x {g} block: {len(d.cameras)} images, {len(d.points)} points, {len(d.observations)} observations "
+              f"(generated in {time.perf_counter() - t0:.0f} s)", flush=True)  # fmt: skip
+        _, t_first = _timed(lambda: photax_bal(bal_problem(d)))
+        (res, t_warm), peak = peak_memory(lambda: (lambda problem: _timed(lambda: photax_bal(problem)))(bal_problem(d)))
+        cost = bal_cost(*photax_solution(res), d)
+        prec, t_prec = _timed(lambda: precision_at(res))
+        ok = prec.exterior_std is not None and bool(np.all(np.isfinite(prec.exterior_std[1:])))
+        row = dict(grid=g, images=len(d.cameras), points=len(d.points), observations=len(d.observations),
+                   photax_s=t_warm, photax_first_call_s=t_first, photax_iterations=res.iterations, photax_cost=cost,
+                   photax_peak_bytes=peak, precision_s=t_prec, precision_ok=ok,
+                   median_exterior_std=np.median(prec.exterior_std, axis=0).tolist() if ok else None,
+                   load_average=[round(v, 2) for v in os.getloadavg()])  # fmt: skip
+        print(f"  photax : cost {cost:.7e} after {res.iterations} iterations, warm {t_warm:.2f} s (first call "
+              f"{t_first:.2f} s), peak {mib(peak)}; precision {t_prec:.2f} s ({'ok' if ok else 'MISSING'})", flush=True)  # fmt: skip
+        if g <= ceres_up_to:
+            def ceres_run():
+                solve, to_bal = ceres_bal(d, "SPARSE_SCHUR", num_threads=2)
+                return _timed(solve), to_bal
+
+            ((summary, t_c), to_bal), peak_c = peak_memory(ceres_run)
+            c_c = bal_cost(*to_bal(), d)
+            row.update(ceres_s=t_c, ceres_iterations=summary.num_successful_steps + summary.num_unsuccessful_steps,
+                       ceres_cost=c_c, ceres_peak_bytes=peak_c, ratio=t_warm / t_c,
+                       cost_excess=(cost - c_c) / c_c)  # fmt: skip
+            print(f"  Ceres  : cost {c_c:.7e} after {row['ceres_iterations']} iterations, {t_c:.2f} s, peak "
+                  f"{mib(peak_c)} (in this process); ratio photax/Ceres {t_warm / t_c:.2f}, cost "
+                  f"{(cost - c_c) / c_c:+.2e} relative", flush=True)  # fmt: skip
+        print(f"  load average {os.getloadavg()}", flush=True)
+        record(f"block {g}x{g}", **row)
+        rows.append(row)
+    return rows
+
+
+def growth_report(rows: list[dict]) -> None:
+    """The growth table (Markdown) and a log-log plot of time and memory against images."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    lines = ["| images | points | observations | photax s | iterations | peak MiB | precision s | Ceres s | Ceres it. | ratio |",
+             "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in rows:
+        c = (f"{r['ceres_s']:.1f} | {r['ceres_iterations']} | {r['ratio']:.2f}" if "ceres_s" in r else "- | - | -")
+        lines.append(f"| {r['images']} | {r['points']} | {r['observations']} | {r['photax_s']:.1f} | "
+                     f"{r['photax_iterations']} | {r['photax_peak_bytes'] / 2**20:.0f} | {r['precision_s']:.1f} | {c} |")  # fmt: skip
+    (RESULTS / "bundle_growth.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    n = [r["images"] for r in rows]
+    fig, ax = plt.subplots(1, 2, figsize=(9, 3.6))
+    ax[0].loglog(n, [r["photax_s"] for r in rows], "o-", label="photax (banded Schur)")
+    ax[0].loglog(n, [r["precision_s"] for r in rows], "s--", label="photax precision")
+    ce = [r for r in rows if "ceres_s" in r]
+    if ce:
+        ax[0].loglog([r["images"] for r in ce], [r["ceres_s"] for r in ce], "^-", label="Ceres SPARSE_SCHUR")
+    ax[0].set(xlabel="images", ylabel="seconds", title="time")
+    ax[1].loglog(n, [r["photax_peak_bytes"] / 2**20 for r in rows], "o-", label="photax")
+    ax[1].set(xlabel="images", ylabel="MiB", title="peak memory")
+    for a in ax:
+        a.legend(fontsize=8)
+        a.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(RESULTS / "bundle_growth.png", dpi=100)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--grid", type=int, nargs="+", help="synthetic g x g blocks instead of problem-49-7776")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--ceres-up-to", type=int, default=30, help="largest grid also solved by Ceres")
     ap.add_argument("--data", type=pathlib.Path, default=DATA)
     ap.add_argument("--repeat", type=int, default=3, help="runs of photax and Ceres (median)")
     ap.add_argument("--scipy-repeat", type=int, default=1, help="runs of the SciPy recipe (~1-3 min each)")
     ap.add_argument("--no-scipy", action="store_true", help="skip the SciPy comparison (slow)")
     args = ap.parse_args(argv)
+    if args.grid:
+        start("bench_bundle_blocks")
+        growth_report(block_comparison(args.grid, args.seed, args.ceres_up_to))
+        return 0
     start("bench_bundle")
     if not args.data.is_file():
         print(f"{args.data} not found: nothing to benchmark")

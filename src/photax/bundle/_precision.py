@@ -12,8 +12,13 @@ from jax import Array
 
 from ..rotation import angles_from_matrix_unchecked, axis_angle_to_matrix
 from ._linearise import _Lin
-from ._schur import _reduced_system
+from ._schur import _band_shape, _reduced_band, _reduced_system
+from ._sparse import band_cholesky, band_selected_inverse, flat_index
 from ._structure import _Structure
+
+#: Observation pairs per step of the banded point-covariance sum (bounds the
+#: gathered blocks to a few MB whatever the block's size).
+PAIR_PIECE = 16384
 
 
 @functools.partial(jax.jit, static_argnames=("n_c",))
@@ -35,7 +40,60 @@ def _covariances(lin: _Lin, s: _Structure, n_c: int):
     q_p = vinv + jax.ops.segment_sum(qd, s.obs_point, num_segments=n_pts)
     q_p = q_p + jax.ops.segment_sum(qo + jnp.swapaxes(qo, 1, 2), s.obs_point[s.pair_a], num_segments=n_pts)
     q_p = q_p * (s.mask_p[:, :, None] * s.mask_p[:, None, :])
-    return q_c, q_p, jnp.all(jnp.isfinite(chol[0]))
+    return q_c[ext[:, :, None], ext[:, None, :]], jnp.diagonal(q_c)[6 * ext.shape[0] :], q_p, jnp.all(jnp.isfinite(chol[0]))
+
+
+@functools.partial(jax.jit, static_argnames=("n_c",))
+def _covariances_band(lin: _Lin, s: _Structure, n_c: int):
+    """:func:`_covariances` for blocks of any size: the blocks of the
+    reduced-camera inverse on its pattern by selected inversion of the
+    banded factor (:func:`._sparse.band_selected_inverse`), and the point
+    blocks from them by the same Schur relation, summed over observation
+    pairs in pieces of :data:`PAIR_PIECE` (memory bounded whatever the
+    block's size).  Returns each image's block
+    ``(n_img, w, w)`` (its unknowns in ``image_ext`` order), the intrinsics'
+    diagonal ``(a n_cam,)``, the point blocks and whether the factor is
+    finite."""
+    shape = _band_shape(s)
+    m, _, vinv = _reduced_band(lin, s, jnp.zeros(()), n_c, 1.0 - s.mask_c)
+    f = band_cholesky(m)
+    z = band_selected_inverse(f)
+    zflat = jnp.concatenate([z.d.ravel(), z.b.ravel(), z.c.ravel(), z.e.ravel()])
+    mask = s.mask_c
+
+    def q(r, c):  # entries (r, c) of the reduced-camera cofactor matrix, fixed unknowns 0
+        return zflat[flat_index(s.band_chunk, s.band_offset, r, c, *shape, lower=False)] * mask[r] * mask[c]
+
+    ext = s.image_ext
+    q_img = q(ext[:, :, None], ext[:, None, :])
+    cam = jnp.arange(6 * ext.shape[0], n_c)
+    q_cam = q(cam, cam)
+    y = jnp.einsum("kji,kjl->kil", lin.wt, vinv[s.obs_point])  # (k, w, 3)
+    n_pts, k = lin.v.shape[0], s.obs_image.shape[0]
+    # Pairs (a, a) -- each observation with itself, weight 1/2 as the sum adds
+    # each term and its transpose -- and (a, b), a < b, weight 1.
+    own = jnp.arange(k, dtype=s.pair_a.dtype)
+    pair_a, pair_b = jnp.concatenate([own, s.pair_a]), jnp.concatenate([own, s.pair_b])
+    weight = jnp.concatenate([jnp.full(k, 0.5), jnp.ones(s.pair_a.shape[0])])
+    n_pairs = pair_a.shape[0]
+    piece = max(1, min(PAIR_PIECE, n_pairs))
+    pad = -n_pairs % piece
+    pa = jnp.concatenate([pair_a, jnp.full(pad, k, pair_a.dtype)]).reshape(-1, piece)
+    pb = jnp.concatenate([pair_b, jnp.full(pad, k, pair_b.dtype)]).reshape(-1, piece)
+    wp = jnp.concatenate([weight, jnp.zeros(pad)]).reshape(-1, piece)
+    y_pad = jnp.concatenate([y, jnp.zeros((1,) + y.shape[1:])])
+    img_pad = jnp.concatenate([s.obs_image, jnp.zeros(1, s.obs_image.dtype)])
+    pt_pad = jnp.concatenate([s.obs_point, jnp.full(1, n_pts, s.obs_point.dtype)])  # padding: dropped
+
+    def add_pairs(acc, idx):
+        a, b, wgt = idx
+        ea, eb = ext[img_pad[a]], ext[img_pad[b]]
+        qo = jnp.einsum("pia,pij,pjb->pab", y_pad[a], q(ea[:, :, None], eb[:, None, :]), y_pad[b]) * wgt[:, None, None]
+        return acc + jax.ops.segment_sum(qo + jnp.swapaxes(qo, 1, 2), pt_pad[a], num_segments=n_pts), None
+
+    q_p, _ = jax.lax.scan(add_pairs, vinv, (pa, pb, wp))
+    q_p = q_p * (s.mask_p[:, :, None] * s.mask_p[:, None, :])
+    return q_img, q_cam, q_p, jnp.all(jnp.isfinite(f.d)) & jnp.all(jnp.isfinite(f.e))
 
 
 @functools.partial(jax.jit, static_argnames=("convention",))
@@ -48,14 +106,15 @@ def _angle_jacobian(rot: Array, convention: str) -> Array:
     return jax.vmap(jax.jacfwd(angles), in_axes=(None, 0))(jnp.zeros(3), rot)
 
 
-def _standard_deviations(q_c, q_p, var0: float, rot: Array, convention: str, active: Array, n_cameras: int):
-    """Standard deviations from the cofactors of :func:`_covariances` and the
-    variance of unit weight ``var0``: exterior ``(n_img, 6)`` (``X, Y, Z``,
-    then the convention's angles, radians), intrinsics ``(n_cam, 8)`` (0 where
-    fixed), points ``(n_pts, 3)``, and the point covariances ``(n_pts, 3, 3)``."""
-    q_c, q_p = np.asarray(q_c), np.asarray(q_p)
-    n_img = rot.shape[0]
-    blocks = np.stack([q_c[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(n_img)])
+def _standard_deviations(q_img, q_cam, q_p, var0: float, rot: Array, convention: str, active: Array, n_cameras: int):
+    """Standard deviations from the cofactors of :func:`_covariances` (each
+    image's block ``q_img``, the intrinsics' diagonal ``q_cam``, the point
+    blocks ``q_p``) and the variance of unit weight ``var0``: exterior
+    ``(n_img, 6)`` (``X, Y, Z``, then the convention's angles, radians),
+    intrinsics ``(n_cam, 8)`` (0 where fixed), points ``(n_pts, 3)``, and the
+    point covariances ``(n_pts, 3, 3)``."""
+    q_p = np.asarray(q_p)
+    blocks = np.asarray(q_img)[:, :6, :6]
     # Reorder to (centre, rotation) and map rotation increments to angles.
     cen = blocks[:, 3:, 3:]
     jac = np.asarray(_angle_jacobian(rot, convention))
@@ -63,7 +122,7 @@ def _standard_deviations(q_c, q_p, var0: float, rot: Array, convention: str, act
     eo_std = np.sqrt(var0 * np.concatenate([np.diagonal(cen, 0, 1, 2), np.diagonal(ang, 0, 1, 2)], axis=1))
     a = np.asarray(active)
     cam_std = np.zeros((n_cameras, 8))
-    dq = np.diagonal(q_c)[6 * n_img :].reshape(n_cameras, len(a))
+    dq = np.asarray(q_cam).reshape(n_cameras, len(a))
     cam_std[:, a] = np.sqrt(var0 * np.maximum(dq, 0.0))
     pt_cov = var0 * q_p
     pt_std = np.sqrt(np.maximum(np.diagonal(pt_cov, 0, 1, 2), 0.0))

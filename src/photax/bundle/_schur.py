@@ -12,6 +12,7 @@ from jax import Array
 from .._linalg import inv3
 from ..rotation import axis_angle_to_matrix
 from ._linearise import _cost, _Lin
+from ._sparse import band_cholesky, band_solve, flat_index, unflatten
 from ._structure import _State, _Structure
 
 
@@ -31,15 +32,10 @@ def _schur_parts(lin: _Lin, s: _Structure, lam: Array, n_c: int):
     return vinv, yt, rhs
 
 
-def _reduced_system(lin: _Lin, s: _Structure, lam: Array, n_c: int):
-    """Dense Schur complement ``S`` (undamped diagonal) and right-hand side.
-
-    ``S = U - W V^-1 W^T``, block ``(i, j)`` summed over the points seen
-    by images ``i`` and ``j``: ``- sum Y_a W_b^T`` over pairs of
-    observations ``(a, b)`` of one point (``a == b`` included).  The pairs
-    come in chunks of one block each, so the sum is batched GEMMs of
-    ``(w x 3 CHUNK) (3 CHUNK x w)`` products and a small sorted segment sum;
-    blocks of pairs ``a < b`` are added with their transposes."""
+def _schur_blocks(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+    """The blocks ``- sum Y_a W_b^T`` of the Schur complement, one per key
+    ``(key_a, key_b)`` (see :func:`_reduced_system`), ``(n_keys, w, w)``,
+    the reduced right-hand side and the damped ``V^-1``."""
     vinv, yt, rhs = _schur_parts(lin, s, lam, n_c)
     n_pieces, piece, _ = s.chunk_a.shape
     w = yt.shape[2]
@@ -51,26 +47,100 @@ def _reduced_system(lin: _Lin, s: _Structure, lam: Array, n_c: int):
 
     prod = jax.lax.map(products, (s.chunk_a, s.chunk_b)).reshape(n_pieces * piece, w, w)
     blocks = jax.ops.segment_sum(prod, s.chunk_key, num_segments=s.key_a.shape[0], indices_are_sorted=True)
+    return blocks, rhs, vinv
+
+
+def _scatter_schur(put, lin: _Lin, s: _Structure, blocks: Array):
+    """Add ``U`` and the blocks to a reduced system through ``put(rows,
+    cols, values)``: blocks of pairs ``a < b`` with their transposes."""
     ext = s.image_ext
     ra, cb = ext[s.key_a], ext[s.key_b]
-    S = jnp.zeros((n_c, n_c)).at[ext[:, :, None], ext[:, None, :]].add(lin.u_img)
-    S = S.at[ra[:, :, None], cb[:, None, :]].add(-blocks)
-    S = S.at[cb[:, :, None], ra[:, None, :]].add(-jnp.swapaxes(blocks, 1, 2) * s.key_off[:, None, None])
-    return S, rhs, vinv
+    put(ext[:, :, None], ext[:, None, :], lin.u_img)
+    put(ra[:, :, None], cb[:, None, :], -blocks)
+    put(cb[:, :, None], ra[:, None, :], -jnp.swapaxes(blocks, 1, 2) * s.key_off[:, None, None])
+
+
+def _reduced_system(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+    """Dense Schur complement ``S`` (undamped diagonal) and right-hand side.
+
+    ``S = U - W V^-1 W^T``, block ``(i, j)`` summed over the points seen
+    by images ``i`` and ``j``: ``- sum Y_a W_b^T`` over pairs of
+    observations ``(a, b)`` of one point (``a == b`` included).  The pairs
+    come in chunks of one block each, so the sum is batched GEMMs of
+    ``(w x 3 CHUNK) (3 CHUNK x w)`` products and a small sorted segment sum;
+    blocks of pairs ``a < b`` are added with their transposes."""
+    blocks, rhs, vinv = _schur_blocks(lin, s, lam, n_c)
+    S = [jnp.zeros((n_c, n_c))]
+
+    def put(rows, cols, values):
+        S[0] = S[0].at[rows, cols].add(values)
+
+    _scatter_schur(put, lin, s, blocks)
+    return S[0], rhs, vinv
+
+
+def _band_shape(s: _Structure):
+    n_chunks, cw = s.band_perm.shape
+    return n_chunks, cw, s.band_border.shape[0]
+
+
+def _reduced_band(lin: _Lin, s: _Structure, lam: Array, n_c: int, diag: Array):
+    """The reduced system in the banded layout of :mod:`._sparse` (lower
+    blocks only), with ``diag`` ``(N,)`` added to its diagonal and 1 on the
+    padding slots; the right-hand side and ``V^-1``."""
+    blocks, rhs, vinv = _schur_blocks(lin, s, lam, n_c)
+    shape = _band_shape(s)
+    n_chunks, cw, n_b = shape
+    flat = [jnp.zeros(2 * n_chunks * cw * cw + n_chunks * n_b * cw + n_b * n_b)]
+
+    def put(rows, cols, values):
+        idx = flat_index(s.band_chunk, s.band_offset, rows, cols, *shape, lower=True)
+        flat[0] = flat[0].at[idx].add(values, mode="drop")
+
+    _scatter_schur(put, lin, s, blocks)
+    every = jnp.arange(n_c)
+    put(every, every, diag)
+    m = unflatten(flat[0], *shape)
+    pad = (s.band_perm == n_c).astype(float)
+    return m._replace(d=m.d + pad[:, :, None] * jnp.eye(cw)[None]), rhs, vinv
+
+
+def _solve_band(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+    """Solve the damped reduced system by the banded Cholesky of
+    :mod:`._sparse`."""
+    damp = lam * lin.d_c * s.mask_c + (1.0 - s.mask_c)
+    m, rhs, vinv = _reduced_band(lin, s, lam, n_c, damp)
+    f = band_cholesky(m)
+    xc, xb = band_solve(f, jnp.append(rhs, 0.0)[s.band_perm], rhs[s.band_border])
+    x = jnp.zeros(n_c + 1).at[s.band_perm.ravel()].set(xc.ravel()).at[s.band_border].set(xb)[:n_c]
+    return x, vinv
 
 
 def _solve_cg(lin: _Lin, s: _Structure, lam: Array, n_c: int):
     """Solve the damped reduced system matrix-free by conjugate gradients
-    (Ceres' ITERATIVE_SCHUR with a Jacobi preconditioner): ``S x`` is
-    ``U x - W (V^-1 (W^T x))`` with per-observation blocks, so ``S`` is
-    never formed; memory stays linear in the observations."""
+    (Ceres' ITERATIVE_SCHUR with its Schur–Jacobi preconditioner): ``S x``
+    is ``U x - W (V^-1 (W^T x))`` with per-observation blocks, so ``S`` is
+    never formed; memory stays linear in the observations.  The
+    preconditioner is the inverse of each image's diagonal block of ``S``
+    over its private unknowns (exterior orientation, intrinsics of a camera
+    of its own), and of the diagonal for the unknowns shared by several
+    images (:mod:`._sparse`'s border)."""
     vinv, yt, rhs = _schur_parts(lin, s, lam, n_c)
     ext, n_img, n_pts, wo = s.image_ext, lin.u_img.shape[0], lin.v.shape[0], jnp.swapaxes(lin.wt, 1, 2)
+    w = ext.shape[1]
     damp = lam * lin.d_c * s.mask_c + (1.0 - s.mask_c)
-    diag_img = jnp.diagonal(lin.u_img, axis1=1, axis2=2) - jax.ops.segment_sum(
-        jnp.sum(yt * lin.wt, axis=1), s.obs_image, num_segments=n_img
-    )
-    pre = jnp.zeros(n_c).at[ext.ravel()].add(diag_img.ravel()) + damp
+    block = lin.u_img - jax.ops.segment_sum(jnp.einsum("kai,kaj->kij", lin.wt, yt), s.obs_image, num_segments=n_img)
+    diag_img = jnp.diagonal(block, axis1=1, axis2=2)
+    diag = jnp.zeros(n_c).at[ext.ravel()].add(diag_img.ravel()) + damp
+    private = (s.band_chunk[ext] >= 0).astype(float)  # (n_img, w)
+    pm = private[:, :, None] * private[:, None, :]
+    block = block * pm + jnp.eye(w)[None] * (damp[ext] * private + (1.0 - private))[:, None, :]
+    block_inv = jnp.linalg.inv(block)  # (n_img, w, w), small
+    shared = (s.band_chunk < 0).astype(float)
+
+    def precondition(v):
+        z = jnp.einsum("nij,nj->ni", block_inv, v[ext] * private) * private
+        return jnp.zeros(n_c).at[ext.ravel()].add(z.ravel()) + shared * v / diag
 
     def matvec(x):
         xe = x[ext]  # (n_img, w)
@@ -80,7 +150,7 @@ def _solve_cg(lin: _Lin, s: _Structure, lam: Array, n_c: int):
         wz = jax.ops.segment_sum(jnp.einsum("kij,kj->ki", wo, z[s.obs_point]), s.obs_image, num_segments=n_img)
         return jnp.zeros(n_c).at[ext.ravel()].add((ux - wz).ravel()) + damp * x
 
-    x, _ = jax.scipy.sparse.linalg.cg(matvec, rhs, tol=1e-8, maxiter=200, M=lambda v: v / pre)
+    x, _ = jax.scipy.sparse.linalg.cg(matvec, rhs, tol=1e-8, maxiter=200, M=precondition)
     return x, vinv
 
 
@@ -94,6 +164,9 @@ def _trial(state: _State, lin: _Lin, s: _Structure, lam: Array, loss: Array, sca
         S = S + jnp.diag(lam * lin.d_c * s.mask_c + (1.0 - s.mask_c))
         chol = (jax.lax.linalg.cholesky(S, symmetrize_input=False), True)  # S is symmetric by construction
         dc = -jax.scipy.linalg.cho_solve(chol, rhs) * s.mask_c
+    elif solver == "band":
+        x, vinv = _solve_band(lin, s, lam, n_c)
+        dc = -x * s.mask_c
     else:
         x, vinv = _solve_cg(lin, s, lam, n_c)
         dc = -x * s.mask_c

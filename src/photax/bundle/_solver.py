@@ -71,14 +71,17 @@ from ..rotation import angles_from_matrix_unchecked, rotation_matrix
 from .._linalg import inv3
 from ._linearise import _linearise, _prior_residuals, _project_obs
 from ._robust import _LOSS_CODE, _corrector, _rho
-from ._precision import _covariances, _standard_deviations
+from ._precision import _covariances, _covariances_band, _standard_deviations
 from ._problem import BundleProblem, Gauge, Loss
 from ._result import BundleResult, outcome
 from ._schur import _trial
+from ._sparse import choose_solver
 from ._start import _needs_init, initialize_block
 from ._structure import _State
 
-#: Up to this many camera unknowns the reduced system is solved densely.
+#: Formerly the switch from dense Cholesky to conjugate gradients; the
+#: automatic choice is now by estimated cost (:func:`._sparse.choose_solver`).
+#: Kept (exported) for code that imports it.
 DENSE_LIMIT = 4000
 
 
@@ -111,7 +114,7 @@ def bundle_adjust(
     gradient_tolerance: float = 1e-10,
     parameter_tolerance: float = 1e-8,
     initial_trust_radius: float = 1e4,
-    linear_solver: Literal["auto", "dense", "cg"] = "auto",
+    linear_solver: Literal["auto", "dense", "band", "cg"] = "auto",
     precision: bool = True,
     initialize: bool | Literal["auto"] = "auto",
     verbose: bool = False,
@@ -152,13 +155,17 @@ def bundle_adjust(
             a step with gain ratio ``rho > 1e-3``: ``mu /= max(1/3, 1 -
             (2 rho - 1)^3)``, else ``mu /= nu, nu *= 2`` (Nielsen; Ceres).
         linear_solver: how the reduced camera system ``S`` is solved:
-            ``"dense"`` Cholesky (``S`` formed, ``N^2`` memory), ``"cg"``
-            matrix-free preconditioned conjugate gradients (``S`` never
-            formed; for large blocks), ``"auto"``: dense up to
-            :data:`DENSE_LIMIT` camera unknowns.
-        precision: compute sigma0 and standard deviations (needs the dense
-            inverse of ``S``: skipped with a note above
-            :data:`DENSE_LIMIT` x 2 unknowns).
+            ``"dense"`` Cholesky (``S`` formed, ``N^2`` memory), ``"band"``
+            sparse block-tridiagonal Cholesky in a bandwidth-reducing image
+            order (:mod:`photax.bundle._sparse`; blocks of strips),
+            ``"cg"`` matrix-free conjugate gradients with a Schur–Jacobi
+            preconditioner (``S`` never formed), ``"auto"``: by estimated
+            cost (:func:`photax.bundle._sparse.choose_solver`: banded when
+            its flops are well below the dense ones, CG only when the band
+            would not fit in memory).
+        precision: compute sigma0 and standard deviations (the blocks of
+            ``S^-1`` on its pattern: the dense inverse, or for the banded
+            and CG paths selected inversion of the banded factor).
         initialize: fill NaN orientations / points with
             :func:`initialize_block` (``"auto"``: only when some are NaN).
         verbose: print one line per iteration.
@@ -184,9 +191,9 @@ def bundle_adjust(
     t_start = time.perf_counter()
     s, n_c, _, origin = problem.analyse(gauge)  # cached on the problem
     state = _start_state(problem, origin)
-    if linear_solver not in ("auto", "dense", "cg"):
-        raise ValueError(f"linear_solver must be 'auto', 'dense' or 'cg', got {linear_solver!r}")
-    solver = linear_solver if linear_solver != "auto" else ("dense" if n_c <= DENSE_LIMIT else "cg")
+    if linear_solver not in ("auto", "dense", "band", "cg"):
+        raise ValueError(f"linear_solver must be 'auto', 'dense', 'band' or 'cg', got {linear_solver!r}")
+    solver = linear_solver if linear_solver != "auto" else choose_solver(s.band_perm.shape, s.band_border.shape[0], n_c)
     rule = StoppingRule(function_tolerance, gradient_tolerance, parameter_tolerance, max_iterations)
     kw = dict(loss=jnp.asarray(_LOSS_CODE[loss]), scale=jnp.asarray(float(loss_scale)), n_c=n_c)
     with _blas_threads(n_c):
@@ -204,7 +211,7 @@ def bundle_adjust(
                 loss != "none", verbose, bar,
             )  # fmt: skip
         return _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged,
-                       message, it, throw, time.perf_counter() - t_start)  # fmt: skip
+                       message, it, throw, time.perf_counter() - t_start, solver)  # fmt: skip
 
 
 def _check_options(problem: BundleProblem, loss, loss_scale, method, gauge) -> None:
@@ -410,7 +417,7 @@ _angles = jax.jit(angles_from_matrix_unchecked, static_argnames="convention")
 
 
 def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged, message,
-            iterations, throw, seconds) -> BundleResult:  # fmt: skip
+            iterations, throw, seconds, solver="dense") -> BundleResult:  # fmt: skip
     conv = problem.exterior.convention
     rot = np.asarray(state.rot)
     angles, _ = _angles(state.rot, convention=conv)
@@ -429,17 +436,16 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     wsq = float(np.sum(weight[:, None] * np.asarray(lin.r) ** 2) + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w)))
     sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
     eo_std = cam_std = pt_std = pt_cov = None
-    if precision and n_c > 2 * DENSE_LIMIT:
-        message += f"; precision not computed ({n_c} camera unknowns > {2 * DENSE_LIMIT})"
-    elif precision and gauge != "damped":
-        q_c, q_p, ok = _covariances(lin, s, n_c)
+    if precision and gauge != "damped":
+        cov = _covariances(lin, s, n_c) if solver == "dense" else _covariances_band(lin, s, n_c)
+        q_img, q_cam, q_p, ok = cov
         if not bool(ok):
             converged = False
             message = "the normal equations are singular at the solution (datum defect or undetermined parameters)"
         else:
             var0 = sigma0**2 if redundancy > 0 else 1.0
             eo_std, cam_std, pt_std, pt_cov = _standard_deviations(
-                q_c, q_p, var0, state.rot, conv, s.active, problem.n_cameras
+                q_img, q_cam, q_p, var0, state.rot, conv, s.active, problem.n_cameras
             )
     check = problem.roles == "check"
     result = BundleResult(

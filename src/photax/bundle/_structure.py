@@ -19,6 +19,7 @@ import numpy as np
 from jax import Array
 
 from .._triangulation import observation_pairs
+from ._sparse import band_layout
 
 
 class _Structure(NamedTuple):
@@ -45,6 +46,10 @@ class _Structure(NamedTuple):
     image_of_chunk: Array  # (n_ichunks,) sorted
     active: Array  # (a,) indices into INTRINSICS estimated for some camera
     image_camera: Array  # (n_img,)
+    band_perm: Array  # (N, cw) banded layout of the reduced system (_sparse.BandLayout)
+    band_border: Array  # (n_b,)
+    band_chunk: Array  # (n_c,)
+    band_offset: Array  # (n_c,)
 
 
 class _Topology(NamedTuple):
@@ -67,6 +72,10 @@ class _Topology(NamedTuple):
     image_of_chunk: Array
     active: Array
     image_camera: Array
+    band_perm: Array
+    band_border: Array
+    band_chunk: Array
+    band_offset: Array
     n_c: int
     w: int
 
@@ -167,10 +176,11 @@ def _topology(problem) -> _Topology:
     n_c = 6 * n_img + a * n_cam
     pa, pb, *_ = observation_pairs(problem.obs_point, problem.obs_image, n_img)
     ca, cb, ck, ka, kb, koff = _chunks(pa, pb, problem.obs_image, problem.n_observations, n_img)
+    band = band_layout(cols, ka, kb, n_c)
     return _Topology(
         *(jnp.asarray(v) for v in (problem.obs_image, problem.obs_point, cols, pa, pb, ca, cb, ck, ka, kb)),
         jnp.asarray(koff, dtype=float), *(jnp.asarray(v) for v in _image_chunks(problem.obs_image, n_img)),
-        jnp.asarray(active), jnp.asarray(problem.image_camera), n_c, w,
+        jnp.asarray(active), jnp.asarray(problem.image_camera), *(jnp.asarray(v) for v in band), n_c, w,
     )  # fmt: skip
 
 
@@ -194,7 +204,7 @@ def _analyse(problem, fixed_extra: np.ndarray, origin: np.ndarray, topology: _To
         t.obs_image, t.obs_point, jnp.asarray(problem.obs_xy), jnp.asarray(problem.obs_sigma), t.image_ext,
         jnp.asarray(mask_c, dtype=float), jnp.asarray(~hard, dtype=float), jnp.asarray(prior), jnp.asarray(prior_w),
         t.pair_a, t.pair_b, t.chunk_a, t.chunk_b, t.chunk_key, t.key_a, t.key_b, t.key_off, t.image_chunk,
-        t.image_of_chunk, t.active, t.image_camera,
+        t.image_of_chunk, t.active, t.image_camera, t.band_perm, t.band_border, t.band_chunk, t.band_offset,
     )  # fmt: skip
     return s, t.n_c, t.w
 
