@@ -122,3 +122,19 @@ def test_seam_energy_three_times_lower_than_merge(scene, tmp_path):
     info = {}
     out = mosaic([a, b], dsm=dsm, info=info)
     assert _energy(out.values, _seam(info["labels"])) * 3 <= _energy(merged, merge_seam)
+
+
+def test_cli_mosaic(scene, tmp_path, capsys):
+    from photax.cli import main
+
+    a, b, dsm = scene
+    for name, o in (("a", a), ("b", b)):
+        o.rio.to_raster(tmp_path / f"{name}.tif")
+    ref = mosaic([a, b])
+    out = tmp_path / "m.tif"
+    assert main(["mosaic", str(tmp_path / "a.tif"), str(tmp_path / "b.tif"), "-o", str(out)]) == 0
+    assert "2 orthos" in capsys.readouterr().out
+    with rasterio.open(out) as ds:
+        assert ds.transform.almost_equals(ref.rio.transform(), 1e-9) and ds.crs == rasterio.CRS.from_epsg(32633)
+        np.testing.assert_allclose(ds.read(1), ref.values, rtol=1e-6)
+    assert main(["mosaic", str(tmp_path / "a.tif"), str(tmp_path / "missing.tif"), "-o", str(out)]) == 2

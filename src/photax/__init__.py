@@ -59,6 +59,10 @@ from .resection import (
     resect_batch as resect_batch,
 )
 from .scene import Scene as Scene, relief_scene as relief_scene
+# Dask/xarray/rioxarray (the optional dask extra) are imported inside these functions only.
+from .mosaic import mosaic as mosaic
+from .tiled import orthorectify_dask as orthorectify_dask, to_raster as to_raster
+from .uncertainty import OrthoUncertainty as OrthoUncertainty, ortho_uncertainty as ortho_uncertainty
 from .rotation import (
     angles_from_matrix as angles_from_matrix,
     axis_angle_to_matrix as axis_angle_to_matrix,
