@@ -71,7 +71,8 @@ def test_file_input_georeference_and_atomic_write(scene, tmp_path, monkeypatch):
     assert to_raster(arr, out) == out
     ref = _ortho(s, grid, image, resampling="cubic", approx=None, nodata=0)
     with rasterio.open(out) as ds:
-        assert ds.transform.almost_equals(grid.transform, 1e-9) and ds.crs == rasterio.CRS.from_epsg(32633) and ds.nodata == 0
+        assert ds.transform.almost_equals(grid.transform, 1e-9) and ds.nodata == 0
+        assert ds.crs == rasterio.CRS.from_epsg(32633)
         np.testing.assert_array_equal(ds.read(), ref)
     # A chunk that fails mid-run: the previous file stays, no partial file is left.
     import photax.tiled as tiled

@@ -107,7 +107,7 @@ def test_order_independent_and_bad_input(scene):
         mosaic([a, b.rio.write_crs("EPSG:32634")])
     far = _render(0, 50, 0.0, 1.0, 0, [])
     far = far.assign_coords(x=far.x + 9_999.0).rio.write_transform(
-        far.rio.transform() * __import__("rasterio").Affine.translation(9_999 / RES, 0))
+        far.rio.transform() * rasterio.Affine.translation(9_999 / RES, 0))
     with pytest.raises(ValueError, match="overlaps no other"):
         mosaic([a, far])
 

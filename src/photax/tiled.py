@@ -66,7 +66,9 @@ def _chunk_heights(dem: DEM, grid: Grid, tiles) -> np.ndarray:
     cell of margin), NaN where the chunk sees no DEM height."""
     heights = np.asarray(dem.heights)
     rows, cols = heights.shape
-    inv = ~__import__("rasterio").Affine(*np.asarray(dem.transform).tolist())
+    from rasterio import Affine
+
+    inv = ~Affine(*np.asarray(dem.transform).tolist())
     out = np.full((len(tiles), 2), np.nan)
     for k, (r0, c0, h, w) in enumerate(tiles):
         corners = [grid.transform * (c, r) for c in (c0, c0 + w) for r in (r0, r0 + h)]
@@ -99,7 +101,8 @@ def _windows(exterior, camera, dem, grid, tiles, size, margin):
     n = 1 << (len(tiles) - 1).bit_length()  # padded to a power of two: few compilations
     xy = np.concatenate([xy, np.repeat(xy[:1], n - len(tiles), axis=0)])
     zz = np.nan_to_num(np.concatenate([z, np.repeat(z[:1], n - len(tiles), axis=0)]))
-    pix, dep = (np.asarray(v)[: len(tiles)] for v in _project_heights(exterior, camera, jnp.asarray(xy), jnp.asarray(zz)))
+    projected = _project_heights(exterior, camera, jnp.asarray(xy), jnp.asarray(zz))
+    pix, dep = (np.asarray(v)[: len(tiles)] for v in projected)
     boxes = []
     pad = margin + _SLACK
     for k in range(len(tiles)):

@@ -155,7 +155,8 @@ def _propagate_strip(exterior, camera, dem, transform, r0, cols, cov_t, cov_c, s
     nodes = jnp.where((depth(g, exterior) > 0)[None], _planes(pix, sp, jg), jnp.nan).reshape(11, mr + 1, mc + 1)
     f = jnp.arange(step, dtype=float) / step
     # Along rows, then between rows (one cell = step x step pixels).
-    along = (nodes[:, :, :-1, None] + (nodes[:, :, 1:, None] - nodes[:, :, :-1, None]) * f[None, None, None, :]).reshape(11, mr + 1, cols)
+    along = nodes[:, :, :-1, None] + (nodes[:, :, 1:, None] - nodes[:, :, :-1, None]) * f[None, None, None, :]
+    along = along.reshape(11, mr + 1, cols)
     full = along[:, :-1, None, :] + (along[:, 1:, None, :] - along[:, :-1, None, :]) * f[None, None, :, None]
     full = full.reshape(11, rows, cols)
     x, y = xy(r0 + jnp.arange(rows, dtype=float) + 0.5, jnp.arange(cols, dtype=float) + 0.5)

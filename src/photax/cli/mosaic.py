@@ -21,7 +21,8 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--out", required=True, help="output mosaic (Cloud-Optimized GeoTIFF)")
     p.add_argument("--method", choices=("seamline", "voronoi"), default="seamline",
                    help="seams of least difference (default) or nearest footprint centre")
-    p.add_argument("--dsm", help="surface model raster: seams avoid raised objects (with --dem, or heights above ground)")
+    p.add_argument("--dsm", help="surface model raster: seams avoid raised objects "
+                   "(with --dem, or heights above ground)")
     p.add_argument("--dem", help="terrain model raster, subtracted from --dsm")
     p.add_argument("--raised", type=float, default=2.0, metavar="METRES",
                    help="height above ground of a raised object (default 2)")
