@@ -38,6 +38,10 @@ _LAZY: dict[str, str] = {
     **dict.fromkeys(("Registration", "register_to_ortho"), ".registration"),
     **dict.fromkeys(("RESULTS", "ConvergenceError"), ".errors"),
     "intersect": ".intersection",
+    # Dask/xarray/rioxarray (the optional dask extra) are imported inside these modules' functions only.
+    "mosaic": ".mosaicking",
+    **dict.fromkeys(("orthorectify_dask", "to_raster"), ".tiled"),
+    **dict.fromkeys(("OrthoUncertainty", "ortho_uncertainty"), ".uncertainty"),
     **dict.fromkeys(("read_bal", "read_camera", "read_gcps", "read_json", "write_bal", "write_camera",
                      "write_json"), ".io"),
     **dict.fromkeys(("PolynomialModel", "ProjectiveModel", "fit_polynomial", "fit_projective"), ".polynomial"),
@@ -107,6 +111,9 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers (never run)
         ConvergenceError as ConvergenceError,
     )
     from .intersection import intersect as intersect
+    from .mosaicking import mosaic as mosaic
+    from .tiled import orthorectify_dask as orthorectify_dask, to_raster as to_raster
+    from .uncertainty import OrthoUncertainty as OrthoUncertainty, ortho_uncertainty as ortho_uncertainty
     from .io import (
         read_bal as read_bal,
         read_camera as read_camera,

@@ -1,0 +1,377 @@
+"""Orthorectification on Dask: a lazy, chunked :class:`xarray.DataArray`.
+
+:func:`orthorectify_dask` builds one Dask task per output chunk.  A task
+runs photax's own jitted kernels (:mod:`photax.rectification`: the
+positions of :func:`._approx._tile_positions` and the windowed resampler
+:func:`._indirect._resample_tile`, the very code of
+:func:`photax.orthorectify_file`) on the input window its chunk needs, and
+only that window travels to the worker: a slice of an in-memory image, or
+a rasterio windowed read done by the worker itself for a raster path.
+
+The window is found before any task runs, from geometry alone: the chunk's
+outline (its outermost pixel centres, 9 points per edge) is projected into
+the image at the lowest and the highest DEM height under the chunk.  The
+ray of a ground point ``(X, Y, Z)`` with ``Z`` between those heights images
+on the segment between the two projections (a straight line maps to a
+straight line through a pinhole), so the box around them plus the kernel's
+margin (:class:`photax.Resampling`) and 2 pixels for lens distortion covers
+every sample; each task checks it against the positions it computed and
+fails loudly if not.
+
+Chunks are the tiles of :func:`photax.orthorectify` for ``tile=chunks``
+(balanced, multiples of the 16-pixel lattice), computed at one kernel shape
+(edge chunks padded, then cropped) and with windows of one shape (smaller
+ones grown inside the image), so the kernels compile once.
+
+Dask, xarray and rioxarray are imported inside the functions only: ``import
+photax`` does not pay for them (they are the optional ``dask`` extra).
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from .camera import FrameCamera
+from .collinearity import ExteriorOrientation, depth, project
+from .dem import DEM
+from .rectification._grid import Grid
+from .rectification._ortho import OrthoModel, _check_image_size
+from .rectification._tiling import _approx_arg, _check_approx, _check_resampling, _fill_value, _layout, _tiles
+from .resampling import Resampling
+
+_EDGE_POINTS = 9  # points per chunk edge projected to find its window
+_SLACK = 2  # extra input pixels around the window (lens distortion bends the chunk's edges)
+
+
+@eqx.filter_jit
+def _project_heights(exterior, camera, xy, heights):
+    """``(n, k, 2)`` ground ``xy`` at ``(n, 2)`` heights (low, high) ->
+    ``(n, 2, k, 2)`` pixels and ``(n, 2, k)`` depths."""
+    n, k = xy.shape[:2]
+    g = jnp.concatenate(
+        [jnp.broadcast_to(xy[:, None], (n, 2, k, 2)), jnp.broadcast_to(heights[:, :, None, None], (n, 2, k, 1))],
+        axis=-1,
+    ).reshape(-1, 3)
+    pix = camera.image_to_pixel(project(g, exterior, camera)).reshape(n, 2, k, 2)
+    return pix, depth(g, exterior).reshape(n, 2, k)
+
+
+def _chunk_heights(dem: DEM, grid: Grid, tiles) -> np.ndarray:
+    """``(n, 2)`` lowest and highest DEM height under each chunk (one DEM
+    cell of margin), NaN where the chunk sees no DEM height."""
+    heights = np.asarray(dem.heights)
+    rows, cols = heights.shape
+    from rasterio import Affine
+
+    inv = ~Affine(*np.asarray(dem.transform).tolist())
+    out = np.full((len(tiles), 2), np.nan)
+    for k, (r0, c0, h, w) in enumerate(tiles):
+        corners = [grid.transform * (c, r) for c in (c0, c0 + w) for r in (r0, r0 + h)]
+        cr = np.array([inv * xy for xy in corners])
+        c_lo, c_hi = int(math.floor(cr[:, 0].min())) - 1, int(math.ceil(cr[:, 0].max())) + 1
+        r_lo, r_hi = int(math.floor(cr[:, 1].min())) - 1, int(math.ceil(cr[:, 1].max())) + 1
+        block = heights[max(r_lo, 0) : max(min(r_hi, rows), 0), max(c_lo, 0) : max(min(c_hi, cols), 0)]
+        if block.size and np.isfinite(block).any():
+            out[k] = np.nanmin(block), np.nanmax(block)
+    return out
+
+
+def _windows(exterior, camera, dem, grid, tiles, size, margin):
+    """Per chunk its input window ``(r0, c0, h, w)``, all of one shape, or
+    None when the chunk sees no DEM or no image."""
+    H, W = size
+    z = _chunk_heights(dem, grid, tiles)
+    t = np.linspace(0.0, 1.0, _EDGE_POINTS)
+    outline = []
+    for r0, c0, h, w in tiles:  # outermost pixel centres of the chunk, in raster coordinates
+        top, bottom, left, right = r0 + 0.5, r0 + h - 0.5, c0 + 0.5, c0 + w - 0.5
+        cs, rs = left + t * (right - left), top + t * (bottom - top)
+        pts = np.concatenate([np.stack([cs, np.full_like(t, top)], -1), np.stack([cs, np.full_like(t, bottom)], -1),
+                              np.stack([np.full_like(t, left), rs], -1), np.stack([np.full_like(t, right), rs], -1)])
+        outline.append(pts)
+    a, b, xoff, d, e, yoff = tuple(grid.transform)[:6]
+    outline = np.array(outline)
+    xy = np.stack([xoff + a * outline[..., 0] + b * outline[..., 1], yoff + d * outline[..., 0] + e * outline[..., 1]],
+                  axis=-1)
+    n = 1 << (len(tiles) - 1).bit_length()  # padded to a power of two: few compilations
+    xy = np.concatenate([xy, np.repeat(xy[:1], n - len(tiles), axis=0)])
+    zz = np.nan_to_num(np.concatenate([z, np.repeat(z[:1], n - len(tiles), axis=0)]))
+    projected = _project_heights(exterior, camera, jnp.asarray(xy), jnp.asarray(zz))
+    pix, dep = (np.asarray(v)[: len(tiles)] for v in projected)
+    boxes = []
+    pad = margin + _SLACK
+    for k in range(len(tiles)):
+        if not np.isfinite(z[k]).all():
+            boxes.append(None)
+            continue
+        if not (dep[k] > 0).all() or not np.isfinite(pix[k]).all():  # the chunk reaches behind the camera
+            boxes.append((0, H, 0, W))
+            continue
+        p = pix[k].reshape(-1, 2)
+        c_lo, c_hi = int(math.floor(p[:, 0].min())) - pad, int(math.ceil(p[:, 0].max())) + pad + 1
+        r_lo, r_hi = int(math.floor(p[:, 1].min())) - pad, int(math.ceil(p[:, 1].max())) + pad + 1
+        c_lo, c_hi, r_lo, r_hi = max(c_lo, 0), min(c_hi, W), max(r_lo, 0), min(r_hi, H)
+        boxes.append((r_lo, r_hi, c_lo, c_hi) if (c_hi > c_lo and r_hi > r_lo) else None)
+    used = [bx for bx in boxes if bx is not None]
+    if not used:
+        return [None] * len(tiles), (0, 0)
+    wh = max(bx[1] - bx[0] for bx in used), max(bx[3] - bx[2] for bx in used)
+    out = []
+    for bx in boxes:
+        if bx is None:
+            out.append(None)
+            continue
+        r0, c0 = min(bx[0], H - wh[0]), min(bx[2], W - wh[1])  # grown inside the image to the common shape
+        out.append((r0, c0, wh[0], wh[1]))
+    return out, wh
+
+
+def _read_window(path, window):
+    """The ``(B, h, w)`` input window ``(r0, c0, h, w)`` of a raster file (runs on a worker)."""
+    from rasterio.windows import Window
+
+    from .io.raster import open_raster
+
+    r0, c0, h, w = window
+    with open_raster(path) as src:
+        return src.read(window=Window(c0, r0, w, h))
+
+
+def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, resampling, fill, prepared):
+    """One output chunk ``(B, h, w)``: positions, window check, resampling."""
+    from .rectification._approx import _tile_positions
+    from .rectification._indirect import _resample_tile
+    from .resampling import _compute_dtype, _source
+
+    if isinstance(data, tuple):  # (path,): read on the worker
+        data = _read_window(data[0], window)
+    r0, c0, h, w = tile
+    wr, wc, wh, ww = window
+    pos, origin, _, _ = _tile_positions(model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float), layout,
+                                        _approx_arg(approx), size)
+    o = np.asarray(origin)
+    p = np.asarray(pos)[:, :h, :w].astype(float) + o[:, None, None]
+    ok = np.isfinite(p).all(axis=0)
+    ok &= (p[0] >= -0.5) & (p[0] <= size[1] - 0.5) & (p[1] >= -0.5) & (p[1] <= size[0] - 0.5)
+    if ok.any():
+        m = Resampling(resampling).margin - 1
+        cmin, cmax, rmin, rmax = p[0][ok].min(), p[0][ok].max(), p[1][ok].min(), p[1][ok].max()
+        # A neighbour beyond the image edge is replicated, so only the image's interior bounds matter.
+        if (math.floor(cmin) - m < wc and wc > 0) or (math.ceil(cmax) + m >= wc + ww and wc + ww < size[1]) or (
+            math.floor(rmin) - m < wr and wr > 0) or (math.ceil(rmax) + m >= wr + wh and wr + wh < size[0]):
+            raise RuntimeError(
+                f"photax: the input window {window} of output chunk {tile} misses some of its samples "
+                f"(columns {cmin:.1f}..{cmax:.1f}, rows {rmin:.1f}..{rmax:.1f}); please report this")
+    dtype = np.dtype(fill.dtype)
+    compute = _compute_dtype(dtype)
+    flat = jnp.asarray(data) if prepared else _source(np.asarray(data), resampling, compute)
+    offset = jnp.asarray(o - np.array([wc, wr]), dtype=jnp.int32)
+    fill_j = jnp.full((flat.shape[0],), fill, dtype=dtype)
+    block = _resample_tile(flat, pos, origin, offset, fill_j, size, (wh, ww), resampling, compute, dtype)
+    return np.asarray(block)[:, :h, :w]
+
+
+def orthorectify_dask(
+    image,
+    exterior: ExteriorOrientation,
+    camera: FrameCamera,
+    dem: DEM,
+    grid: Grid,
+    chunks: int = 1024,
+    resampling: Resampling | str = "bilinear",
+    *,
+    nodata=None,
+    approx: float | None = 0.125,
+    name: str = "ortho",
+):
+    """:func:`photax.orthorectify` as a lazy, chunked ``xarray.DataArray``.
+
+    Nothing is computed until ``.compute()``, ``.rio.to_raster(...)`` or
+    :func:`to_raster` (atomic) is called, on whatever Dask scheduler is
+    active (threads by default, a ``dask.distributed.Client`` when one
+    exists).  Each chunk reads only the input window it needs (see the
+    module docstring).
+
+    Equality with the whole-image function: with ``approx=None`` (exact
+    mapping) the result is bit for bit that of ``orthorectify(...,
+    approx=None)`` for every chunk size and every kernel, and for
+    ``"bspline"`` only when ``image`` is an array (the whole image is
+    prefiltered once; from a file each window is prefiltered alone, which
+    changes values by ~1e-7 of the range, as in :func:`photax.rectify_file`).
+    With the approximate mapping (default, 0.125 px) a chunk is the tile of
+    ``orthorectify(..., tile=chunks)``, with the same lattice and positions;
+    the results agree to float32 rounding of the positions (integer images:
+    at most one grey level at a few pixels).
+
+    Args:
+        image: ``(H, W)`` or ``(bands, H, W)`` array, or the path of a
+            raster file (all bands; read window by window by the workers).
+        exterior, camera, dem: as in :func:`photax.orthorectify`.
+        grid: the output :class:`photax.Grid` (its CRS becomes the array's).
+        chunks: output chunk edge in pixels (the tiles of
+            :func:`photax.orthorectify` for ``tile=chunks``).
+        resampling: a kernel name (:class:`photax.Resampling`).
+        nodata: default the file's nodata, else NaN (float) or 0 (integer).
+        approx: as in :func:`photax.rectify`; None for the exact mapping.
+        name: the DataArray's name.
+
+    Returns:
+        A Dask-backed ``xarray.DataArray`` with dims ``("y", "x")`` or
+        ``("band", "y", "x")``, pixel-centre coordinates (north-up grids),
+        and the CRS, transform and nodata written the rioxarray way
+        (``.rio.crs``, ``.rio.transform()``, ``.rio.nodata``).
+    """
+    import dask
+    import dask.array as da
+
+    resampling = _check_resampling(resampling)
+    approx = _check_approx(approx)
+    if not isinstance(grid, Grid):
+        raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
+    if not isinstance(dem, DEM):
+        raise ValueError(f"dem must be a photax DEM, got {type(dem).__name__}")
+    if isinstance(chunks, bool) or not isinstance(chunks, (int, np.integer)) or chunks < 1:
+        raise ValueError(f"chunks must be a positive number of pixels, got {chunks!r}")
+    path = None
+    if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
+        from .io.raster import open_raster
+
+        path = str(image)
+        with open_raster(path) as src:
+            shape, dtype = (src.count, src.height, src.width), np.dtype(src.dtypes[0])
+            if nodata is None:
+                nodata = src.nodata
+        lead = (shape[0],)
+    else:
+        image = np.asarray(image)
+        if image.ndim not in (2, 3) or min(image.shape) < 1:
+            raise ValueError(f"image must have shape (H, W) or (bands, H, W), got {image.shape}")
+        lead, dtype = image.shape[:-2], image.dtype
+        image = image.reshape((-1,) + image.shape[-2:])
+        shape = image.shape
+    _check_image_size(shape, camera)
+    fill = _fill_value(dtype, nodata)
+    size = tuple(shape[-2:])
+    tiles = list(_tiles(grid.shape, int(chunks)))
+    layout = _layout(*tiles[0][2:])
+    kernel = Resampling(resampling)
+    windows, _ = _windows(exterior, camera, dem, grid, tiles, size, kernel.margin)
+    model = OrthoModel(exterior, camera, dem)
+    transform = tuple(grid.transform)[:6]
+    prepared = path is None and kernel.prefilter
+    if prepared:  # the whole image's B-spline coefficients, sliced per window: exact
+        from .resampling import _BSPLINE_PAD, _bspline_coefficients, _compute_dtype
+
+        pad = _BSPLINE_PAD
+        coef = np.asarray(_bspline_coefficients(image, _compute_dtype(dtype))).reshape(
+            shape[0], size[0] + 2 * pad, size[1] + 2 * pad)
+
+    token = f"{name}-{uuid.uuid4().hex}"
+    model_d = dask.delayed(model, name=f"{token}-model")
+    blocks, row = [], []
+    task = dask.delayed(_ortho_chunk, pure=True)
+    for k, (t, win) in enumerate(zip(tiles, windows)):
+        r0, c0, h, w = t
+        if win is None:
+            block = da.full((shape[0], h, w), fill, dtype=dtype, chunks=(shape[0], h, w))
+        else:
+            wr, wc, wh, ww = win
+            if path is not None:
+                data = (path,)
+            elif prepared:
+                data = coef[:, wr : wr + wh + 2 * pad, wc : wc + ww + 2 * pad].reshape(shape[0], -1)
+            else:
+                data = image[:, wr : wr + wh, wc : wc + ww]
+            data_d = dask.delayed(data, name=f"{token}-in-{k}") if path is None else data
+            value = task(data_d, model_d, transform, t, win, layout, approx, size, resampling, fill, prepared,
+                         dask_key_name=f"{token}-chunk-{k}")
+            block = da.from_delayed(value, (shape[0], h, w), dtype=dtype)
+        row.append(block)
+        if c0 + w == grid.shape[1]:
+            blocks.append(row)
+            row = []
+    data = da.block(blocks)
+    return _dataarray(data if lead else data[0], grid, fill, name)
+
+
+def _dataarray(data, grid: Grid, fill, name: str):
+    """A DataArray with rioxarray's georeference: dims y, x (band), pixel
+    centre coordinates when the grid is north-up, CRS, transform, nodata."""
+    import rioxarray  # noqa: F401  (registers the .rio accessor)
+    import xarray as xr
+
+    a, b, xoff, d, e, yoff = tuple(grid.transform)[:6]
+    dims = ("band", "y", "x") if data.ndim == 3 else ("y", "x")
+    coords = {}
+    if b == 0 and d == 0:
+        coords["x"] = xoff + a * (np.arange(grid.shape[1]) + 0.5)
+        coords["y"] = yoff + e * (np.arange(grid.shape[0]) + 0.5)
+    if data.ndim == 3:
+        coords["band"] = np.arange(1, data.shape[0] + 1)
+    arr = xr.DataArray(data, dims=dims, coords=coords, name=name)
+    arr = arr.rio.write_transform(grid.transform)
+    if grid.crs is not None:
+        arr = arr.rio.write_crs(grid.crs)
+    return arr.rio.write_nodata(fill.item(), encoded=False)
+
+
+def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False, inputs=(), **kwargs):
+    """Write a (Dask-backed) georeferenced DataArray to a GeoTIFF, atomically.
+
+    Chunk by chunk through rioxarray's ``.rio.to_raster`` (``dask.array.store``
+    under a lock: a ``dask.distributed.Lock`` when a client is active, else a
+    thread lock) into a temporary file beside ``path``, renamed onto ``path``
+    only when every chunk is written (:func:`photax.io.atomic.atomic_path`):
+    a failing chunk, a dead worker or an interrupt leaves ``path`` as it was
+    and no partial file.  Plain ``.rio.to_raster(path)`` writes in place.
+
+    Args:
+        data: an ``xarray.DataArray`` with a rioxarray georeference (e.g.
+            from :func:`orthorectify_dask` or :func:`photax.mosaic`).
+        path: the output file.
+        compress: GeoTIFF compression.
+        cog: write a Cloud-Optimized GeoTIFF (tiled, compressed, with
+            overviews; GDAL's COG driver copies the written GeoTIFF).
+        inputs: paths ``path`` must not overwrite.
+        kwargs: more creation options for rasterio.
+
+    Returns:
+        ``path``.
+    """
+    import threading
+
+    import rioxarray  # noqa: F401
+
+    from .io.atomic import atomic_path
+
+    lock = threading.Lock()
+    try:
+        from distributed import Lock, get_client
+
+        get_client()  # ValueError without a client
+        lock = Lock(f"photax-write-{uuid.uuid4().hex}")
+    except (ImportError, ValueError):
+        pass
+    options = dict(driver="GTiff", tiled=True, blockxsize=256, blockysize=256, BIGTIFF="IF_SAFER")
+    if compress:
+        options["compress"] = compress
+    options.update(kwargs)
+    with atomic_path(path, inputs=inputs) as tmp:
+        if not cog:
+            data.rio.to_raster(tmp, lock=lock, **options)
+        else:
+            import rasterio.shutil
+
+            plain = tmp.with_name(tmp.name + ".gtiff")
+            try:
+                data.rio.to_raster(plain, lock=lock, **options)
+                rasterio.shutil.copy(plain, tmp, driver="COG", compress=compress or "deflate", overviews="AUTO")
+            finally:
+                if plain.exists():
+                    plain.unlink()
+    return path

@@ -1,0 +1,122 @@
+"""Orthorectification on Dask (photax.tiled): lazy chunks equal the
+whole-image photax.orthorectify bit for bit, from an array and from a file,
+on the threaded scheduler and on a 2-process dask.distributed cluster;
+georeference read back with rasterio; atomic writing.
+
+Reference: photax.orthorectify on the whole image (itself tested against
+scipy, OpenCV and orthority in test_rectify.py / test_ortho_real.py).
+"""
+
+import numpy as np
+import pytest
+import rasterio
+
+import photax
+from photax.io.raster import write_geotiff
+from photax.rectification import Grid, ortho_grid
+from photax.rectification._tiling import _tiles
+
+pytest.importorskip("dask")
+pytest.importorskip("rioxarray")
+
+from photax.tiled import orthorectify_dask, to_raster  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def scene():
+    s = photax.relief_scene(300.0, image_size=(120, 96), focal_px=120.0, n_gcp=3, n_check=0)
+    grid = ortho_grid(s.exterior, s.camera, s.dem)
+    # Widen the grid beyond the DEM on the right: chunks there see no DEM height.
+    x0, y0, x1, y1 = grid.bounds
+    grid = Grid.from_bounds((x0, y0, x1 + 0.4 * (x1 - x0), y1), grid.transform.a, crs="EPSG:32633")
+    return s, grid
+
+
+def _ortho(s, grid, image, **kw):
+    return photax.orthorectify(image, s.exterior, s.camera, s.dem, grid, **kw)[0]
+
+
+# Several chunk sizes (each a different kernel shape) over the kernels, with
+# the exact mapping.  (The approximate mapping's kernels cost ~10 s of
+# compilation more; its chunks are the tiles of orthorectify(tile=chunks),
+# equal bit for bit when checked by hand, but not tested here.)
+@pytest.mark.parametrize("resampling, chunks, approx", [
+    ("nearest", 37, None), ("bilinear", 48, None), ("cubic", 50, None), ("lanczos", 1000, None),
+    ("bspline", 37, None)])
+def test_tiled_equals_whole_image_exactly(scene, resampling, chunks, approx):
+    s, grid = scene
+    image = s.image.astype(np.float32)
+    ref = _ortho(s, grid, image, resampling=resampling, approx=approx, tile=chunks)
+    arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=chunks, resampling=resampling,
+                            approx=approx)
+    assert arr.dims == ("y", "x") and arr.dtype == np.float32 and arr.shape == grid.shape
+    tiles = list(_tiles(grid.shape, chunks))
+    assert arr.chunks[0] == tuple(t[2] for t in tiles if t[1] == 0)
+    assert arr.chunks[1] == tuple(t[3] for t in tiles if t[0] == 0)
+    out = arr.compute().values
+    np.testing.assert_array_equal(out, ref)
+    assert np.isnan(out[:, -5:]).all() and np.isfinite(out).mean() > 0.4  # off the DEM: nodata
+
+
+def test_file_input_georeference_and_atomic_write(scene, tmp_path, monkeypatch):
+    s, grid = scene
+    image = np.stack([(s.image * 250).astype(np.uint8) + b for b in (1, 3)])
+    src = tmp_path / "frame.tif"
+    write_geotiff(src, image, None, None, nodata=0)
+    arr = orthorectify_dask(src, s.exterior, s.camera, s.dem, grid, chunks=40, resampling="cubic", approx=None)
+    assert arr.dims == ("band", "y", "x") and arr.dtype == np.uint8
+    assert arr.rio.crs == rasterio.CRS.from_epsg(32633) and arr.rio.transform() == grid.transform
+    assert arr.rio.nodata == 0
+    out = tmp_path / "ortho.tif"
+    assert to_raster(arr, out) == out
+    ref = _ortho(s, grid, image, resampling="cubic", approx=None, nodata=0)
+    with rasterio.open(out) as ds:
+        assert ds.transform.almost_equals(grid.transform, 1e-9) and ds.nodata == 0
+        assert ds.crs == rasterio.CRS.from_epsg(32633)
+        np.testing.assert_array_equal(ds.read(), ref)
+    # A chunk that fails mid-run: the previous file stays, no partial file is left.
+    import photax.tiled as tiled
+
+    real, calls = tiled._ortho_chunk, []
+
+    def failing(*args):
+        calls.append(1)
+        if len(calls) == 3:
+            raise RuntimeError("worker lost (injected)")
+        return real(*args)
+
+    monkeypatch.setattr(tiled, "_ortho_chunk", failing)
+    broken = orthorectify_dask(src, s.exterior, s.camera, s.dem, grid, chunks=40, resampling="cubic", approx=None)
+    out.write_bytes(b"previous result")
+    with pytest.raises(RuntimeError, match="injected"):
+        to_raster(broken, out, cog=True)
+    assert out.read_bytes() == b"previous result"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frame.tif", "ortho.tif"]
+
+
+def test_bad_input(scene):
+    s, grid = scene
+    with pytest.raises(ValueError, match="chunks"):
+        orthorectify_dask(s.image, s.exterior, s.camera, s.dem, grid, chunks=0)
+    with pytest.raises(ValueError, match="image_size"):
+        orthorectify_dask(s.image[:-1], s.exterior, s.camera, s.dem, grid)
+    with pytest.raises(ValueError, match="resampling"):
+        orthorectify_dask(s.image, s.exterior, s.camera, s.dem, grid, resampling="cubicspline")
+
+
+def test_local_cluster_two_processes(scene, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    s, grid = scene
+    image = s.image.astype(np.float32)
+    ref = _ortho(s, grid, image, approx=None)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=40) as cluster, distributed.Client(cluster) as client:
+        arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=48, approx=None)  # as above
+        futures = client.compute(arr.data, optimize_graph=False)
+        out = futures.result()
+        ran = client.run(lambda: __import__("os").getpid())
+        assert len(set(ran.values())) == 2
+        to_raster(arr, tmp_path / "o.tif")
+    np.testing.assert_array_equal(out, ref)
+    with rasterio.open(tmp_path / "o.tif") as ds:
+        np.testing.assert_array_equal(ds.read(1), ref)
