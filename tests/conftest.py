@@ -8,6 +8,10 @@ import tempfile
 # notebook kernels and CLI subprocesses the tests start, so each of them
 # does not compile resect & co. again. Set before jax is imported.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", tempfile.mkdtemp(prefix="photax-jax-cache-"))
+# Every compilation, not only those over JAX's default 1 s: the xdist workers,
+# notebook kernels and CLI subprocesses compile many of the same small
+# functions (measured: the suite's CPU time 9 min 17 s -> 8 min 21 s).
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 
 import jax  # noqa: E402
 import pytest
