@@ -34,6 +34,7 @@ import math
 from typing import Any, Callable, Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -260,12 +261,16 @@ class ModelComparison:
                                     ncols=ncols, window=window, value_range=value_range)
 
 
+_project_jacobian = jax.jit(project_jacobian)
+
+
 def _collinearity_condition(exterior: ExteriorOrientation, camera: FrameCamera, ground: np.ndarray) -> float:
     """Condition of the column-equilibrated Jacobian d image / d (X, Y, Z, angles),
     coordinates reduced to the GCP centroid (as the resection sees them)."""
     origin = ground.mean(axis=0)
     local = ExteriorOrientation(exterior.position - origin, exterior.angles, exterior.convention)
-    _, jac = project_jacobian(jnp.asarray(ground - origin), local, camera)  # (n, 2, 9): (C, angles, X)
+    # jitted: op by op, this closed-form Jacobian took 2 s of compare_models' first call
+    _, jac = _project_jacobian(jnp.asarray(ground - origin), local, camera)  # (n, 2, 9): (C, angles, X)
     j = np.asarray(jac[..., :6]).reshape(-1, 6)
     j = j / np.linalg.norm(j, axis=0, keepdims=True)
     s = np.linalg.svd(j, compute_uv=False)
