@@ -38,3 +38,20 @@ def shared_file(name: str) -> pathlib.Path:
     if not path.is_file():
         pytest.skip(f"../shared/data/{name} is not present")
     return path
+
+
+# The files that compile or run the most go to the two xdist workers first
+# (--dist loadfile hands out files in collection order): started last, the
+# notebooks alone kept one worker busy for a minute after the other had
+# finished.  Longest first; the rest keep their order.
+_HEAVY_FIRST = (
+    "test_notebooks.py", "test_compare.py", "test_bundle.py", "test_bundle_real.py", "test_cli_sample.py",
+    "test_bundle_sparse.py", "test_resection.py", "test_cli_errors.py", "test_dask_ortho.py",
+    "test_measure_locators.py", "test_epipolar.py", "test_register.py", "test_fiducials.py",
+    "test_uncertainty.py", "test_bundle_robust.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(_HEAVY_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
