@@ -133,10 +133,12 @@ def match_sigma(cov) -> np.ndarray:
 
 
 def _robust_affine(xy, d, tol):
-    """Inliers of ``d ~ A [x, y, 1]`` (IRLS-free: fit, MAD cut, refit once)."""
-    ok = np.ones(len(xy), bool)
-    if len(xy) < 6:
-        return np.linalg.norm(d - np.median(d, axis=0), axis=1) <= tol
+    """Inliers of ``d ~ A [x, y, 1]``: a median-translation cut, then affine fits with MAD cuts."""
+    # a translation first (an affine fit on a narrow overlap band can absorb a false match), then the affine
+    r0 = np.linalg.norm(d - np.median(d, axis=0), axis=1)
+    ok = r0 <= max(3 * 1.4826 * np.median(r0), 3 * tol)
+    if ok.sum() < 6:
+        return ok & (r0 <= 3 * tol)
     a = np.column_stack([xy, np.ones(len(xy))])
     for _ in range(3):
         coef, *_ = np.linalg.lstsq(a[ok], d[ok], rcond=None)
@@ -190,7 +192,7 @@ def _pixel_size(camera: FrameCamera) -> float:
 
 
 def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: int = 150, window: int = 8,
-               search: int = 12, min_rho: float = 0.7, back_tol: float = 0.3, guide_tol: float = 2.0,
+               search: int = 12, min_rho: float = 0.7, back_tol: float = 0.3, guide_tol: float = 1.0,
                min_matches: int = 6) -> TiePoints:
     """Tie points between overlapping images, guided by approximate orientations and the DEM.
 
@@ -254,20 +256,20 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
     if not items:
         return empty
     it = np.array(items)
-    # one batch per pair: (b, h, w) images and (b, n_b, 2) points, padded to few shapes
-    used = sorted({(i, j) for i, j, _ in items})
-    nb = _bucket(max(np.sum((it[:, 0] == i) & (it[:, 1] == j)) for i, j in used), 16)
-    bi = np.array([i for i, _ in used])
-    bj = np.array([j for _, j in used])
-    txy = np.empty((len(used), nb, 2))
-    sxy = np.empty((len(used), nb, 2))
-    valid = np.zeros((len(used), nb), bool)
-    pid = np.zeros((len(used), nb), int)
-    for b, (i, j) in enumerate(used):
+    # batches of 16 points of one pair: (b, h, w) images and (b, 16, 2) points, b padded to few shapes
+    chunks = []
+    for i, j in sorted({(i, j) for i, j, _ in items}):
         sel = it[(it[:, 0] == i) & (it[:, 1] == j), 2]
-        c = (np.asarray(size) - 1) / 2.0
-        txy[b] = c
-        sxy[b] = c
+        chunks += [(i, j, sel[a:a + 16]) for a in range(0, len(sel), 16)]
+    nc = _bucket(len(chunks), 8)
+    c = (np.asarray(size) - 1) / 2.0
+    txy = np.broadcast_to(c, (nc, 16, 2)).copy()
+    sxy = txy.copy()
+    valid = np.zeros((nc, 16), bool)
+    pid = np.zeros((nc, 16), int)
+    bi, bj = np.zeros(nc, int), np.zeros(nc, int)
+    for b, (i, j, sel) in enumerate(chunks):
+        bi[b], bj[b] = i, j
         txy[b, :len(sel)] = px[i, sel]
         sxy[b, :len(sel)] = pred[j, i, sel]
         valid[b, :len(sel)] = True
@@ -286,17 +288,19 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
     sig = match_sigma(fwd.covariance) / np.sqrt(2.0)
     obs = {}  # (i, p) -> list of (j, xy, sigma)
     counts = {}
-    for b, (i, j) in enumerate(used):
-        k = np.flatnonzero(ok[b])
-        if len(k):
-            good = _robust_affine(txy[b, k], fxy[b, k] - sxy[b, k], guide_tol)
-            k = k[good]
-        counts[i, j] = len(k)
-        if len(k) < min_matches:
+    for i, j in sorted({(i, j) for i, j, _ in items}):
+        mine = np.flatnonzero((bi == i) & (bj == j) & valid.any(axis=1))
+        bq = [(b, q) for b in mine for q in np.flatnonzero(ok[b])]
+        if bq:
+            bb, qq = np.array(bq).T
+            good = _robust_affine(txy[bb, qq], fxy[bb, qq] - sxy[bb, qq], guide_tol)
+            bq = [x for x, g in zip(bq, good) if g]
+        counts[i, j] = len(bq)
+        if len(bq) < min_matches:
             pair_status[i, j] = "too few matches"
             continue
         pair_status[i, j] = "ok"
-        for q in k:
+        for b, q in bq:
             obs.setdefault((i, int(pid[b, q])), []).append((j, fxy[b, q], sig[b, q]))
     oi, op, oxy, osig, gr = [], [], [], [], []
     for t, ((i, p), ms) in enumerate(sorted(obs.items())):

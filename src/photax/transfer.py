@@ -6,7 +6,9 @@ other image with the approximate orientations (collinearity, the point's
 ground coordinates; a missing height is read from the DEM), then measured
 there by normalised cross-correlation within ``search`` px of the prediction
 and least-squares matching (Gruen 1985) of the reference image's window.
-Each measurement gets the LSM shift's sigma ``sqrt(trace(Cov) / 2)`` and
+Each measurement gets the LSM shift's sigma ``sqrt(trace(Cov) / 2)`` (for a
+transferred one combined in quadrature with its reference's, whose error it
+inherits) and
 each (point, image) item a status, so a GCP list can be written for
 :func:`photax.resect`, :func:`photax.bundle_adjust` or OpenDroneMap.
 """
@@ -86,7 +88,8 @@ def write_odm_gcps(path, table, *, crs: str | None = None) -> pathlib.Path:
 
 def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, ground, *, names=None,
                     image_names=None, reference_image=None, reference_xy=None, target_template=None, roles=None,
-                    window: int = 8, search: int = 12, min_rho: float = 0.7, crs: str | None = None) -> Transfer:
+                    window: int = 8, search: int = 12, min_rho: float = 0.7, min_rho_template: float = 0.6,
+                    crs: str | None = None) -> Transfer:
     """Measure ground control points in every image that sees them.
 
     Args:
@@ -107,7 +110,9 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
         roles: ``n`` ``"control"`` / ``"check"`` (default control).
         window: half-size of the matching window, px.
         search: NCC search radius around the prediction, px.
-        min_rho: smallest accepted NCC peak.
+        min_rho: smallest accepted NCC peak between images.
+        min_rho_template: the same for the target template (a drawn target
+            never matches a photographed one as well as two photographs do).
         crs: CRS text stored in the table.
 
     Returns:
@@ -186,7 +191,7 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
             k = k_img[q]
             r = float(np.asarray(rho)[q, 0])
             out_rho[k, p] = r
-            if not (bool(res.valid[q, 0]) and r >= min_rho):
+            if not (bool(res.valid[q, 0]) and r >= min_rho_template):
                 status[usable[:, p], p] = "no reference"
                 status[k, p] = "low correlation"
                 ref_i[p] = -1
@@ -231,7 +236,8 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
             else:
                 status[k, p] = "ok"
                 out_xy[k, p] = lxy[q, 0]
-                out_sig[k, p] = float(sig[q, 0])
+                # the reference's own error is in every transferred measurement of the point
+                out_sig[k, p] = float(np.hypot(sig[q, 0], np.nan_to_num(out_sig[ref_i[p], p])))
     # 3. consistency: offsets measured - predicted of one image are its orientation error, alike for its points
     for k in range(m):
         got = np.flatnonzero(np.isin(status[k], ("ok", "reference")))
