@@ -247,7 +247,7 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
     cand = inside(pred, size, window + 3) & owned[None] & earlier.T[:, :, None]  # [j, i]: j > i
     pairs = [(i, j) for i in range(m) for j in range(i + 1, m)]
     pair_status = {pr: "no overlap" for pr in pairs}
-    items = [(i, j, p) for (i, j) in pairs for p in np.flatnonzero(cand[j, i])]
+    items = [(i, j, p) for (i, j) in pairs if status[i] == status[j] == "ok" for p in np.flatnonzero(cand[j, i])]
     for i, j in pairs:
         if status[i] != "ok" or status[j] != "ok":
             pair_status[i, j] = "textureless" if "textureless" in (status[i], status[j]) else "sees no DEM"
