@@ -135,3 +135,40 @@ def test_bad_input_gets_a_status(block):
         match_ties(images[:2], CAM, start[:1], dem)
     with pytest.raises(ValueError, match="images"):
         match_ties([images[0][:-1]], CAM, start[:1], dem)
+
+
+def test_cli_transfer_and_ties(block, tmp_path):
+    rasterio = pytest.importorskip("rasterio")
+    import rasterio.transform
+
+    from photax.cli import main
+
+    _, _, start, images, gcp, transfer, _ = block
+    paths, orient = [], {}
+    for k in (3, 4):  # two images of the middle strip: matches and GCPs, compiled shapes already seen
+        p = tmp_path / f"img{k}.tif"
+        with rasterio.open(p, "w", driver="GTiff", width=W, height=H, count=1, dtype="float64",
+                           transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
+            dst.write(images[k], 1)
+        paths.append(str(p))
+        e = start[k]
+        orient[f"img{k}"] = {"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention}}
+    photax.write_json({"images": orient}, tmp_path / "ext.json")
+    photax.write_camera(CAM, tmp_path / "cam.yaml")
+    dem = block[0]
+    with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", width=330, height=330, count=1, dtype="float64",
+                       transform=rasterio.transform.Affine(*np.asarray(dem.transform)), crs="EPSG:32633") as dst:
+        dst.write(np.asarray(dem.heights), 1)
+    # the GCPs measured in image 3 by the library (renamed to the file) are transferred to image 4
+    t = transfer.table.subset(transfer.table.images == "3")
+    import dataclasses
+
+    photax.io.write_gcps(tmp_path / "in.csv", dataclasses.replace(t, images=np.full(len(t), "img3")))
+    common = ["--camera", str(tmp_path / "cam.yaml"), "--exterior", str(tmp_path / "ext.json"),
+              "--dem", str(tmp_path / "dem.tif"), "--search", str(SEARCH)]
+    assert main(["transfer", *paths, *common, "--gcps", str(tmp_path / "in.csv"), "-o", str(tmp_path / "out.csv")]) == 0
+    out = read_gcps(tmp_path / "out.csv")
+    assert set(out.images.tolist()) == {"img3", "img4"} and set(out.names.tolist()) <= set(t.names.tolist())
+    assert main(["ties", *paths, *common, "--gcps", str(tmp_path / "out.csv"), "-o", str(tmp_path / "b.bal")]) == 0
+    prob = photax.read_bal(tmp_path / "b.bal")
+    assert prob.n_images == 2 and prob.n_observations >= 40

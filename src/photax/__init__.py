@@ -36,6 +36,8 @@ _LAZY: dict[str, str] = {
     **dict.fromkeys(("EpipolarPair", "epipolar_pair"), ".epipolar"),
     **dict.fromkeys(("InteriorOrientation", "ScannedCamera", "find_fiducials", "interior_orientation"), ".interior"),
     **dict.fromkeys(("Registration", "register_to_ortho"), ".registration"),
+    **dict.fromkeys(("TiePoints", "match_ties"), ".ties"),
+    **dict.fromkeys(("Transfer", "transfer_points"), ".transfer"),
     **dict.fromkeys(("RESULTS", "ConvergenceError"), ".errors"),
     "intersect": ".intersection",
     **dict.fromkeys(("read_bal", "read_camera", "read_gcps", "read_json", "write_bal", "write_camera",
@@ -117,6 +119,8 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers (never run)
         write_json as write_json,
     )
     from .registration import Registration as Registration, register_to_ortho as register_to_ortho
+    from .ties import TiePoints as TiePoints, match_ties as match_ties
+    from .transfer import Transfer as Transfer, transfer_points as transfer_points
     from .polynomial import (
         PolynomialModel as PolynomialModel,
         ProjectiveModel as ProjectiveModel,
