@@ -12,6 +12,8 @@ surveyed coordinates, the ODM list read back by photax.io.read_gcps.
 
 from __future__ import annotations
 
+import dataclasses
+
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -161,8 +163,6 @@ def test_cli_transfer_and_ties(block, tmp_path):
         dst.write(np.asarray(dem.heights), 1)
     # the GCPs measured in image 3 by the library (renamed to the file) are transferred to image 4
     t = transfer.table.subset(transfer.table.images == "3")
-    import dataclasses
-
     photax.io.write_gcps(tmp_path / "in.csv", dataclasses.replace(t, images=np.full(len(t), "img3")))
     common = ["--camera", str(tmp_path / "cam.yaml"), "--exterior", str(tmp_path / "ext.json"),
               "--dem", str(tmp_path / "dem.tif"), "--search", str(SEARCH)]

@@ -138,7 +138,8 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
     if np.any(np.isnan(g[:, 2])):
         if dem is None:
             raise ValueError("ground: NaN heights need a dem")
-        g[:, 2] = np.where(np.isnan(g[:, 2]), np.asarray(dem.height(jnp.asarray(g[:, 0]), jnp.asarray(g[:, 1]))), g[:, 2])
+        z = np.asarray(dem.height(jnp.asarray(g[:, 0]), jnp.asarray(g[:, 1])))
+        g[:, 2] = np.where(np.isnan(g[:, 2]), z, g[:, 2])
     names = [f"gcp{k + 1}" for k in range(n)] if names is None else [str(s) for s in names]
     inames = [str(k) for k in range(m)] if image_names is None else [str(s) for s in image_names]
     roles = ["control"] * n if roles is None else [str(r) for r in roles]
@@ -206,9 +207,7 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
     for p in np.flatnonzero(ref_i >= 0):
         k = ref_i[p]
         status[k, p] = "reference"
-        out_xy[k, p] = ref_xy[p]
-        if np.isnan(out_sig[k, p]):
-            out_sig[k, p] = np.nan  # given measurement: its sigma is the user's
+        out_xy[k, p] = ref_xy[p]  # a given measurement keeps sigma NaN: its precision is the user's
 
     # 2. transfer from the reference image into the others, searched around their predictions
     items = [(k, p) for p in np.flatnonzero(ref_i >= 0) for k in range(m) if k != ref_i[p] and usable[k, p]]
