@@ -140,7 +140,7 @@ def test_bad_input_gets_a_status(block):
         match_ties([images[0][:-1]], CAM, start[:1], dem)
 
 
-@pytest.mark.skipif(not os.environ.get("PHOTAX_CLI_E2E"), reason="~50 CPU s (new compiled shapes + the CLI's "
+@pytest.mark.skipif(not os.environ.get("PHOTAX_CLI_E2E"), reason="175 s wall at load ~6 (new compiled shapes + the CLI's "
                     "persistent cache); set PHOTAX_CLI_E2E=1 to run")
 def test_cli_transfer_and_ties(block, tmp_path):
     rasterio = pytest.importorskip("rasterio")
