@@ -36,6 +36,8 @@ _LAZY: dict[str, str] = {
     **dict.fromkeys(("EpipolarPair", "epipolar_pair"), ".epipolar"),
     **dict.fromkeys(("InteriorOrientation", "ScannedCamera", "find_fiducials", "interior_orientation"), ".interior"),
     **dict.fromkeys(("Registration", "register_to_ortho"), ".registration"),
+    **dict.fromkeys(("TiePoints", "match_ties"), ".ties"),
+    **dict.fromkeys(("Transfer", "transfer_points"), ".transfer"),
     **dict.fromkeys(("RESULTS", "ConvergenceError"), ".errors"),
     "intersect": ".intersection",
     # Dask/xarray/rioxarray (the optional dask extra) are imported inside these modules' functions only.
@@ -124,6 +126,8 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers (never run)
         write_json as write_json,
     )
     from .registration import Registration as Registration, register_to_ortho as register_to_ortho
+    from .ties import TiePoints as TiePoints, match_ties as match_ties
+    from .transfer import Transfer as Transfer, transfer_points as transfer_points
     from .polynomial import (
         PolynomialModel as PolynomialModel,
         ProjectiveModel as ProjectiveModel,

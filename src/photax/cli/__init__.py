@@ -13,7 +13,8 @@ import os
 import sys
 
 # Subcommand modules, in the order ``photax --help`` lists them.
-SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "mosaic", "compare", "bundle", "measure", "fiducials", "epipolar"]
+SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "mosaic", "compare", "bundle", "measure", "fiducials", "epipolar",
+               "transfer", "ties", "register"]
 
 
 def build_parser() -> argparse.ArgumentParser:

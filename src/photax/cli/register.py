@@ -1,0 +1,51 @@
+"""``photax register``: refine an image's orientation against a reference orthophoto (:func:`photax.register_to_ortho`).
+
+IMAGE with its camera and approximate orientation, a reference orthophoto and
+a DEM in the same ground CRS.  Writes the refined orientation as JSON
+(``{"exterior": {...}, "converged", "correlation", "message"}``, read back by
+``--exterior`` options) and prints the status.  Exit codes: 0 converged,
+1 not converged (the JSON is still written), 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("register", help="refine an orientation by matching the image to a reference orthophoto",
+                       description="Gauss-Newton on the grey-value differences between the image and the "
+                       "reference orthophoto rendered into it, coarse to fine.")
+    p.add_argument("image", metavar="IMAGE")
+    p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE")
+    p.add_argument("--exterior", required=True, help="approximate orientation (resect --json or orthority CSV)")
+    p.add_argument("--ortho", required=True, help="reference orthophoto (GeoTIFF, ground CRS)")
+    p.add_argument("--dem", required=True, help="DEM raster in the ground CRS")
+    p.add_argument("-o", "--out", required=True, help="output JSON with the refined orientation")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..io.atomic import check_output_path
+    from ..io.orientation import read_exterior, read_interior
+    from ..io.raster import read_dem, read_geotiff
+    from ..io.results import write_json
+    from ..registration import register_to_ortho
+    from ._common import input_file
+
+    files = [args.image, args.camera, args.exterior, args.ortho, args.dem]
+    for f in files:
+        input_file(f, "input file")
+    check_output_path(args.out, files)
+    camera = read_interior(args.camera)
+    exterior, _ = read_exterior(args.exterior, args.image)
+    image = read_geotiff(args.image)[0][0].astype(float)
+    ortho, profile = read_geotiff(args.ortho)
+    transform = tuple(profile["transform"])[:6]
+    res = register_to_ortho(image, camera, exterior, ortho[0].astype(float), transform, read_dem(args.dem))
+    e = res.exterior
+    write_json({"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention},
+                "converged": res.converged, "correlation": res.correlation, "message": res.message},
+               args.out, inputs=files)
+    print(f"{'converged' if res.converged else 'NOT converged'}: {res.message}; wrote {args.out}")
+    return 0 if res.converged else 1

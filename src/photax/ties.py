@@ -1,0 +1,398 @@
+"""Tie points between overlapping images, guided by approximate orientations and a DEM.
+
+:func:`match_ties` gives the observations of a :class:`photax.BundleProblem`
+without hand measurement (seed 004, image matching):
+
+1. interest points (Förstner) in every image, away from its border;
+2. each point is monoplotted onto the DEM with its image's approximate
+   orientation (:func:`photax.image_to_ground`) and projected into every other
+   image: the predicted position, i.e. the point of the epipolar line where the
+   ray meets the terrain.  A ground point is *owned* by the first image that
+   sees it (so a point is one track, not one per image);
+3. normalised cross-correlation within ``search`` px of the prediction (the
+   prediction's error is the orientations' error, a few px), then
+   least-squares matching (Gruen 1985) from the NCC peak;
+4. two-way consistency: the matched window is matched back into the first
+   image by LSM and must land within ``back_tol`` px of the interest point;
+5. guided outlier test: in each pair, ``matched - predicted`` is a smooth
+   function of position (the orientation errors), an affine one to first
+   order; matches further than ``max(3 MAD, guide_tol)`` from a robust affine
+   fit of it are rejected.
+
+Each accepted match gives the track an observation; its sigma is the LSM
+shift's ``sqrt(trace(Cov) / 2) / sqrt(2)``: LSM's ``sigma0`` holds the noise
+of both windows, half of the variance of the difference is given to each
+side (the first image's point gets the mean of its matches').
+
+:func:`bundle_problem` joins tie tracks and transferred GCPs
+(:func:`photax.transfer_points`) into a :class:`photax.BundleProblem`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .camera import FrameCamera
+from .collinearity import ExteriorOrientation, depth, image_to_ground, project, stack_exteriors
+from .dem import DEM
+
+__all__ = ["TiePoints", "match_ties", "bundle_problem"]
+
+
+# --------------------------------------------------------------------------- shared geometry
+
+
+@eqx.filter_jit
+def _project_all(ground, eo, camera):
+    """``(n, 3)`` ground -> ``(m, n, 2)`` pixels in each of the ``m`` images (NaN behind the camera)."""
+
+    def one(e):
+        px = camera.image_to_pixel(project(ground, e, camera))
+        return jnp.where((depth(ground, e) > 0)[:, None], px, jnp.nan)
+
+    return jax.vmap(one)(eo)
+
+
+@eqx.filter_jit
+def _monoplot_all(px, eo, camera, dem):
+    """``(m, n, 2)`` pixels of each image -> ``(m, n, 3)`` ground on the DEM (NaN: ray misses it)."""
+    return jax.vmap(lambda p, e: image_to_ground(camera.pixel_to_image(p), e, camera, dem=dem))(px, eo)
+
+
+def _bucket(n: int, base: int = 32) -> int:
+    """Padded length: few distinct shapes, so few compilations."""
+    b = base
+    while b < n:
+        b *= 2
+    return b
+
+
+def project_pixels(ground, exterior: ExteriorOrientation, camera: FrameCamera) -> np.ndarray:
+    """``(n, 3)`` ground points into ``m`` images: ``(m, n, 2)`` pixels (column, row), NaN behind."""
+    g = np.asarray(ground, dtype=float)
+    n = len(g)
+    pad = np.zeros((_bucket(n), 3))
+    pad[:n] = np.nan_to_num(g)
+    out = np.array(_project_all(jnp.asarray(pad), exterior, camera))[:, :n]
+    out[:, ~np.all(np.isfinite(g), axis=1)] = np.nan
+    return out
+
+
+def monoplot_pixels(px, exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM) -> np.ndarray:
+    """``(m, n, 2)`` pixels of each image -> ``(m, n, 3)`` ground on the DEM (NaN where the ray misses)."""
+    px = np.asarray(px, dtype=float)
+    m, n = px.shape[:2]
+    pad = np.zeros((m, _bucket(n), 2))
+    pad[:, :n] = np.nan_to_num(px)
+    out = np.array(_monoplot_all(jnp.asarray(pad), exterior, camera, dem))[:, :n]
+    out[~np.all(np.isfinite(px), axis=2)] = np.nan
+    return out
+
+
+def inside(px, size, margin: float) -> np.ndarray:
+    """Whether pixels ``(..., 2)`` lie at least ``margin`` px inside an image of ``size`` ``(w, h)``."""
+    w, h = size
+    px = np.asarray(px)
+    with np.errstate(invalid="ignore"):
+        return (np.all(np.isfinite(px), axis=-1) & (px[..., 0] >= margin) & (px[..., 0] <= w - 1 - margin)
+                & (px[..., 1] >= margin) & (px[..., 1] <= h - 1 - margin))
+
+
+def check_block(images, camera: FrameCamera, exterior) -> tuple[np.ndarray, ExteriorOrientation]:
+    """Images as one ``(m, h, w)`` float64 stack matching the camera and one orientation each."""
+    if not isinstance(camera, FrameCamera) or camera.image_size is None:
+        raise ValueError("camera: give a FrameCamera with image_size (the images' (width, height))")
+    imgs = [np.asarray(im, dtype=float) for im in images]
+    w, h = camera.image_size
+    for k, im in enumerate(imgs):
+        if im.shape != (h, w):
+            raise ValueError(f"images[{k}]: shape {im.shape}, but camera.image_size is (w, h) = {(w, h)}")
+    eo = stack_exteriors(exterior)
+    if eo.position.shape[0] != len(imgs):
+        raise ValueError(f"exterior: {eo.position.shape[0]} orientations for {len(imgs)} images")
+    if not (np.all(np.isfinite(np.asarray(eo.position))) and np.all(np.isfinite(np.asarray(eo.angles)))):
+        raise ValueError("exterior: approximate orientations must be finite (resect or initialise first)")
+    return np.stack(imgs), eo
+
+
+def padded(stack, pad: int) -> np.ndarray:
+    """Images framed by ``pad`` px of zeros, so a search window near the border stays inside the array
+    (a zero frame has no texture: windows reaching into it correlate badly and are rejected)."""
+    return np.pad(stack, ((0, 0), (pad, pad), (pad, pad)))
+
+
+def match_sigma(cov) -> np.ndarray:
+    """``(n,)`` one sigma per matched point from ``(n, 2, 2)`` shift covariances, px."""
+    cov = np.asarray(cov)
+    return np.sqrt((cov[..., 0, 0] + cov[..., 1, 1]) / 2)
+
+
+def _robust_affine(xy, d, tol):
+    """Inliers of ``d ~ A [x, y, 1]``: a median-translation cut, then affine fits with MAD cuts."""
+    # a translation first (an affine fit on a narrow overlap band can absorb a false match), then the affine
+    r0 = np.linalg.norm(d - np.median(d, axis=0), axis=1)
+    ok = r0 <= max(3 * 1.4826 * np.median(r0), 3 * tol)
+    if ok.sum() < 6:
+        return ok & (r0 <= 3 * tol)
+    a = np.column_stack([xy, np.ones(len(xy))])
+    for _ in range(3):
+        coef, *_ = np.linalg.lstsq(a[ok], d[ok], rcond=None)
+        r = np.linalg.norm(d - a @ coef, axis=1)
+        mad = 1.4826 * np.median(r[ok])
+        ok = r <= max(3 * mad, tol)
+    return ok
+
+
+# --------------------------------------------------------------------------- tie points
+
+
+@dataclasses.dataclass(frozen=True)
+class TiePoints:
+    """Output of :func:`match_ties`.
+
+    Attributes:
+        obs_image, obs_point: ``(k,)`` image and track index of each observation.
+        obs_xy: ``(k, 2)`` pixel (column, row).
+        obs_sigma: ``(k,)`` standard deviation of a pixel coordinate.
+        ground: ``(n_tracks, 3)`` approximate ground points (monoplotted with the
+            first image's approximate orientation).
+        pair_counts: ``{(i, j): accepted matches}`` for every pair with candidates.
+        pair_status: ``{(i, j): "ok" | "no overlap" | "too few matches" | "textureless"}``
+            for every pair ``i < j``.
+        image_status: ``(m,)`` ``"ok"``, ``"textureless"`` (no interest points)
+            or ``"sees no DEM"`` (no point monoplots onto the DEM).
+    """
+
+    obs_image: np.ndarray
+    obs_point: np.ndarray
+    obs_xy: np.ndarray
+    obs_sigma: np.ndarray
+    ground: np.ndarray
+    pair_counts: dict
+    pair_status: dict
+    image_status: list
+
+    @property
+    def n_tracks(self) -> int:
+        return len(self.ground)
+
+    def image_plane(self, camera: FrameCamera) -> tuple[np.ndarray, np.ndarray]:
+        """Observations and sigmas in image-plane units (what :class:`photax.BundleProblem` takes)."""
+        xy = np.asarray(camera.pixel_to_image(jnp.asarray(self.obs_xy))) if len(self.obs_xy) else np.zeros((0, 2))
+        return xy, self.obs_sigma * _pixel_size(camera)
+
+
+def _pixel_size(camera: FrameCamera) -> float:
+    return float(np.mean(np.asarray(camera._pixel_grid()[1])))
+
+
+def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: int = 150, window: int = 8,
+               search: int = 12, min_rho: float = 0.7, back_tol: float = 0.3, guide_tol: float = 1.0,
+               min_matches: int = 6) -> TiePoints:
+    """Tie points between overlapping images, guided by approximate orientations and the DEM.
+
+    Args:
+        images: ``m`` grey images ``(h, w)`` of one camera.
+        camera: their camera (``image_size`` required).
+        exterior: ``m`` approximate orientations (a list or a batched one).
+        dem: terrain the rays are cut with (predictions, overlap).
+        max_points: interest points per image (strongest Förstner points).
+        window: half-size of the matching window (``2 window + 1`` px square).
+        search: NCC search radius around the prediction, px; must cover the
+            prediction error of the approximate orientations.
+        min_rho: smallest accepted NCC peak.
+        back_tol: two-way consistency, px.
+        guide_tol: smallest outlier threshold of the guided test, px.
+        min_matches: pairs with fewer accepted matches are dropped (status
+            ``"too few matches"``).
+
+    Returns:
+        :class:`TiePoints` (tracks seen in >= 2 images).
+
+    Raises:
+        ValueError: images / camera / orientations that do not fit together.
+    """
+    from .measure import interest_points, match_lsm, match_ncc
+
+    stack, eo = check_block(images, camera, exterior)
+    m = len(stack)
+    size = camera.image_size
+    margin = window + search + 4
+    pts, status = [], []
+    for k in range(m):
+        ip = interest_points(stack[k], "foerstner", window=5, min_distance=window // 2 + 2, max_points=4 * max_points)
+        xy = ip.xy[inside(ip.xy, size, window + 4)][:max_points]
+        pts.append(xy)
+        status.append("ok" if len(xy) else "textureless")
+    n = max(max(len(p) for p in pts), 1)
+    px = np.full((m, n, 2), np.nan)
+    for k, p in enumerate(pts):
+        px[k, :len(p)] = p
+    ground = monoplot_pixels(px, eo, camera, dem)  # (m, n, 3)
+    for k in range(m):
+        if status[k] == "ok" and not np.any(np.all(np.isfinite(ground[k]), axis=1)):
+            status[k] = "sees no DEM"
+    flat = ground.reshape(-1, 3)
+    pred = project_pixels(flat, eo, camera).reshape(m, m, n, 2)  # [j, i, p]: point p of image i in image j
+    seen = inside(pred, size, 0.0)
+    # owner rule: point p of image i is kept when no earlier image sees it
+    earlier = np.tril(np.ones((m, m), bool), -1).T  # earlier[j, i] = j < i
+    owned = ~np.any(seen & earlier[:, :, None], axis=0)  # (i, p)
+    # candidate matches (i < j)
+    cand = inside(pred, size, window + 3) & owned[None] & earlier.T[:, :, None]  # [j, i]: j > i
+    pairs = [(i, j) for i in range(m) for j in range(i + 1, m)]
+    pair_status = {pr: "no overlap" for pr in pairs}
+    items = [(i, j, p) for (i, j) in pairs if status[i] == status[j] == "ok" for p in np.flatnonzero(cand[j, i])]
+    for i, j in pairs:
+        if status[i] != "ok" or status[j] != "ok":
+            pair_status[i, j] = "textureless" if "textureless" in (status[i], status[j]) else "sees no DEM"
+    empty = TiePoints(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 3)), {},
+                      pair_status, status)
+    if not items:
+        return empty
+    it = np.array(items)
+    # batches of 16 points of one pair: (b, h, w) images and (b, 16, 2) points, b padded to few shapes
+    chunks = []
+    for i, j in sorted({(i, j) for i, j, _ in items}):
+        sel = it[(it[:, 0] == i) & (it[:, 1] == j), 2]
+        chunks += [(i, j, sel[a:a + 16]) for a in range(0, len(sel), 16)]
+    nc = _bucket(len(chunks), 8)
+    c = (np.asarray(size) - 1) / 2.0
+    txy = np.broadcast_to(c, (nc, 16, 2)).copy()
+    sxy = txy.copy()
+    valid = np.zeros((nc, 16), bool)
+    pid = np.zeros((nc, 16), int)
+    bi, bj = np.zeros(nc, int), np.zeros(nc, int)
+    for b, (i, j, sel) in enumerate(chunks):
+        bi[b], bj[b] = i, j
+        txy[b, :len(sel)] = px[i, sel]
+        sxy[b, :len(sel)] = pred[j, i, sel]
+        valid[b, :len(sel)] = True
+        pid[b, :len(sel)] = sel
+    big = padded(stack, margin)
+    T, S = jnp.asarray(big[bi]), jnp.asarray(big[bj])
+    ncc, rho = match_ncc(T, txy + margin, S, sxy + margin, window=window, search=search, return_rho=True)
+    nxy = np.where(np.asarray(ncc.valid)[..., None], np.asarray(ncc.xy) - margin, sxy)
+    fwd = match_lsm(T, txy + margin, S, nxy + margin, window=window)
+    fxy = np.where(np.asarray(fwd.valid)[..., None], np.asarray(fwd.xy) - margin, sxy)
+    back = match_lsm(S, fxy + margin, T, txy + margin, window=window)
+    ok = (valid & np.asarray(ncc.valid) & (np.nan_to_num(np.asarray(rho)) >= min_rho) & np.asarray(fwd.valid)
+          & np.asarray(back.valid) & inside(fxy, size, window + 1))
+    with np.errstate(invalid="ignore"):
+        ok &= np.linalg.norm(np.asarray(back.xy) - margin - txy, axis=-1) <= back_tol
+    sig = match_sigma(fwd.covariance) / np.sqrt(2.0)
+    obs = {}  # (i, p) -> list of (j, xy, sigma)
+    counts = {}
+    for i, j in sorted({(i, j) for i, j, _ in items}):
+        mine = np.flatnonzero((bi == i) & (bj == j) & valid.any(axis=1))
+        bq = [(b, q) for b in mine for q in np.flatnonzero(ok[b])]
+        if bq:
+            bb, qq = np.array(bq).T
+            good = _robust_affine(txy[bb, qq], fxy[bb, qq] - sxy[bb, qq], guide_tol)
+            bq = [x for x, g in zip(bq, good) if g]
+        counts[i, j] = len(bq)
+        if len(bq) < min_matches:
+            pair_status[i, j] = "too few matches"
+            continue
+        pair_status[i, j] = "ok"
+        for b, q in bq:
+            obs.setdefault((i, int(pid[b, q])), []).append((j, fxy[b, q], sig[b, q]))
+    oi, op, oxy, osig, gr = [], [], [], [], []
+    for t, ((i, p), ms) in enumerate(sorted(obs.items())):
+        oi.append(i)
+        op.append(t)
+        oxy.append(px[i, p])
+        osig.append(float(np.mean([s for _, _, s in ms])))
+        for j, xy, s in ms:
+            oi.append(j)
+            op.append(t)
+            oxy.append(xy)
+            osig.append(float(s))
+        gr.append(ground[i, p])
+    if not oi:
+        return dataclasses.replace(empty, pair_counts=counts)
+    return TiePoints(np.array(oi), np.array(op), np.array(oxy), np.array(osig), np.array(gr), counts, pair_status,
+                     status)
+
+
+def bundle_problem(camera: FrameCamera, exterior, ties: TiePoints | None = None, gcps=None, *,
+                   image_names=None, point_sigma=0.0, sigma_floor: float = 0.0):
+    """A :class:`photax.BundleProblem` from tie tracks and transferred GCPs.
+
+    Args:
+        camera: the one camera.
+        exterior: ``m`` approximate orientations (start values).
+        ties: :class:`TiePoints` from :func:`match_ties`, or None.
+        gcps: a :class:`photax.io.GCPTable` in pixels (e.g.
+            :attr:`photax.transfer.Transfer.table`) whose image names are in
+            ``image_names``, or None.
+        image_names: ``m`` names (default ``"0", "1", ...``, matching
+            :func:`photax.transfer_points`' default).
+        point_sigma: ground sigma of control points (0: fixed).
+        sigma_floor: added in quadrature to every measurement sigma, px
+            (model errors the matchers' precision does not see).
+
+    Returns:
+        :class:`photax.BundleProblem`; GCP roles as in the table, ties ``"tie"``
+        with approximate (monoplotted) coordinates.  Tie and check points
+        measured in fewer than two images are left out (they cannot be intersected).
+    """
+    from .bundle import BundleProblem
+
+    eo = stack_exteriors(exterior)
+    m = eo.position.shape[0]
+    names = [str(k) for k in range(m)] if image_names is None else [str(s) for s in image_names]
+    if len(names) != m:
+        raise ValueError(f"image_names: {len(names)} names for {m} images")
+    index = {s: k for k, s in enumerate(names)}
+    pts, roles, pnames, oi, op, oxy, osig = [], [], [], [], [], [], []
+    if gcps is not None:
+        if gcps.pixel is None:
+            raise ValueError("gcps: the table must give pixels (column, row)")
+        unknown = sorted(set(gcps.images.tolist()) - set(index))
+        if unknown:
+            raise ValueError(f"gcps: images {unknown} are not among image_names {names}")
+        for nm in dict.fromkeys(gcps.names.tolist()):
+            rows = np.flatnonzero(gcps.names == nm)
+            t = len(pts)
+            pts.append(gcps.ground[rows[0]])
+            roles.append(str(gcps.role[rows[0]]))
+            pnames.append(nm)
+            for r in rows:
+                oi.append(index[str(gcps.images[r])])
+                op.append(t)
+                oxy.append(gcps.pixel[r])
+                s = float(gcps.sigma[r])
+                osig.append(s if np.isfinite(s) else 1.0)
+    if ties is not None:
+        base = len(pts)
+        for t in range(ties.n_tracks):
+            pts.append(ties.ground[t])
+            roles.append("tie")
+            pnames.append(f"tie{t}")
+        oi.extend(ties.obs_image.tolist())
+        op.extend((ties.obs_point + base).tolist())
+        oxy.extend(list(ties.obs_xy))
+        osig.extend(ties.obs_sigma.tolist())
+    if not oi:
+        raise ValueError("nothing to adjust: no tie tracks and no GCP measurements")
+    # tie and check points need two rays; control points keep their single ones
+    seen = np.bincount(np.array(op), minlength=len(pts))
+    keep_pt = (seen >= 2) | (np.array(roles) == "control")
+    if not keep_pt.all():
+        new_id = np.cumsum(keep_pt) - 1
+        keep_ob = keep_pt[np.array(op)]
+        oi, oxy, osig = ([v for v, kk in zip(a, keep_ob) if kk] for a in (oi, oxy, osig))
+        op = list(new_id[np.array(op)[keep_ob]])
+        pts = [v for v, kk in zip(pts, keep_pt) if kk]
+        roles = [v for v, kk in zip(roles, keep_pt) if kk]
+        pnames = [v for v, kk in zip(pnames, keep_pt) if kk]
+    xy = np.asarray(camera.pixel_to_image(jnp.asarray(np.array(oxy, dtype=float))))
+    sig = np.sqrt(np.array(osig) ** 2 + sigma_floor**2) * _pixel_size(camera)
+    return BundleProblem(camera, eo, np.array(pts, dtype=float), np.array(oi), np.array(op), xy, obs_sigma=sig,
+                         roles=roles, point_sigma=point_sigma, image_names=names, point_names=pnames)
