@@ -45,7 +45,7 @@ def shared_file(name: str) -> pathlib.Path:
 # notebooks alone kept one worker busy for a minute after the other had
 # finished.  Longest first; the rest keep their order.
 _HEAVY_FIRST = (
-    "test_notebooks.py", "test_compare.py", "test_bundle.py", "test_bundle_real.py", "test_cli_sample.py",
+    "test_notebooks.py", "test_transfer_ties.py", "test_compare.py", "test_bundle.py", "test_bundle_real.py", "test_cli_sample.py",
     "test_bundle_sparse.py", "test_resection.py", "test_cli_errors.py", "test_dask_ortho.py",
     "test_measure_locators.py", "test_epipolar.py", "test_register.py", "test_fiducials.py",
     "test_uncertainty.py", "test_bundle_robust.py",
