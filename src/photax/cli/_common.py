@@ -56,3 +56,23 @@ def ground_unit(crs, default: str = "ground units") -> str:
     from ..io.raster import crs_unit
 
     return crs_unit(crs) or default
+
+
+def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], list, list]:
+    """The inputs of a multi-image command (``photax transfer``, ``photax ties``):
+    ``(files, camera, names, images, exteriors)`` from ``args.images``,
+    ``args.camera``, ``args.exterior`` and ``args.dem`` plus the ``extra`` files,
+    each checked as readable, and ``args.out`` checked against all of them."""
+    from ..io.atomic import check_output_path
+    from ..io.orientation import read_exterior, read_interior
+    from ..io.raster import read_geotiff
+
+    files = [*args.images, args.camera, args.exterior, args.dem, *[f for f in extra if f]]
+    for f in files:
+        input_file(f, "input file")
+    check_output_path(args.out, files)
+    camera = read_interior(args.camera)
+    names = [pathlib.Path(f).stem for f in args.images]
+    images = [read_geotiff(f)[0][0].astype(float) for f in args.images]
+    exterior = [read_exterior(args.exterior, f)[0] for f in args.images]
+    return files, camera, names, images, exterior

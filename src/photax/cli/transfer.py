@@ -37,20 +37,11 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np  # here, not at import: photax --help loads no numpy
 
     from ..io import read_gcps
-    from ..io.atomic import check_output_path
-    from ..io.orientation import read_exterior, read_interior
     from ..io.raster import read_dem, read_geotiff
     from ..transfer import transfer_points
-    from ._common import input_file
+    from ._common import read_oriented_images
 
-    files = [*args.images, args.camera, args.exterior, args.dem, args.gcps, *([args.template] if args.template else [])]
-    for f in files:
-        input_file(f, "input file")
-    check_output_path(args.out, files)
-    camera = read_interior(args.camera)
-    names = [pathlib.Path(f).stem for f in args.images]
-    images = [read_geotiff(f)[0][0].astype(float) for f in args.images]
-    exterior = [read_exterior(args.exterior, f)[0] for f in args.images]
+    files, camera, names, images, exterior = read_oriented_images(args, [args.gcps, args.template])
     dem = read_dem(args.dem)
     table = read_gcps(args.gcps)
     if table.pixel is None:
