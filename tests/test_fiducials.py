@@ -112,7 +112,9 @@ def test_fits_agree_with_opencv_and_scikit_image():
     hom = np.column_stack([src, np.ones(len(src))])
     for model, truth in [("similarity", _similarity_truth), ("affine", _affine), ("projective", _projective)]:
         px = truth(FID) + rng.normal(0, 0.3, FID.shape)
-        ours = interior_orientation(px, FID, model, robust=False).pixel_from_film(FID)
+        fit = interior_orientation(px, FID, model, robust=False)
+        ours = fit.pixel_from_film(FID)
+        np.testing.assert_allclose(fit.residuals, ours - px, atol=1e-9)  # computed - observed, as everywhere
         if model == "projective":
             # OpenCV: linear + LM on the reprojection error (it stops at ~1e-4 px: polished by scipy)
             h, _ = cv2.findHomography(src, px, 0)
