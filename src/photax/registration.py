@@ -106,6 +106,8 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
     Returns:
         :class:`Registration`.
     """
+    # Over 80 lines: argument checks, then one coarse-to-fine Gauss-Newton loop whose
+    # state (parameters, damping, history) is shared by every level; kept in one piece.
     from scipy.ndimage import gaussian_filter
 
     img = np.asarray(image, dtype=float)

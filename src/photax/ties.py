@@ -217,6 +217,8 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
     Raises:
         ValueError: images / camera / orientations that do not fit together.
     """
+    # Over 80 lines: one pipeline (interest points, owner rule, candidate pairs, batched
+    # NCC/LSM, two-way check, guided outlier test) whose arrays flow from step to step.
     from .measure import interest_points, match_lsm, match_ncc
 
     stack, eo = check_block(images, camera, exterior)

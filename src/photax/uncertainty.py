@@ -308,6 +308,7 @@ def ortho_uncertainty(
     Returns:
         :class:`OrthoUncertainty`.
     """
+    # Over 80 lines because the docstring documents every argument; the body is ~55 lines.
     exterior, covariance = _orientation(exterior, covariance, image)
     cov_t = np.asarray(covariance, dtype=float)
     if cov_t.shape != (6, 6) or not np.all(np.isfinite(cov_t)):

