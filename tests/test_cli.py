@@ -168,3 +168,19 @@ def test_console_script_subprocess(tmp_path):
     bad.write_text("EPSG:32633\n1 2 3 4 5 a.jpg p\n1 2 3 4 a.jpg\n")
     proc = subprocess.run(cmd + ["resect", str(bad), "--camera", str(CAMERA)], capture_output=True, text=True, env=env)
     assert proc.returncode == 2 and "bad.txt, line 3" in proc.stderr
+
+
+def test_transfer_and_ties_read_their_inputs_and_refuse_bad_ones(tmp_path, capsys):
+    """The shared input prologue of ``photax transfer`` / ``photax ties``
+    (cli/_common.read_oriented_images): a missing orientation file and an
+    output that would overwrite an input are one-line errors, exit 2."""
+    data = ROOT / "data"
+    common = [str(data / "sample_image.tif"), "--camera", str(data / "sample_camera.yaml"), "--dem",
+              str(data / "sample_dem.tif"), "--gcps", str(data / "sample_gcps.csv")]
+    for command in ("transfer", "ties"):
+        assert main([command, *common, "--exterior", str(tmp_path / "missing.json"), "-o", str(tmp_path / "o")]) == 2
+        assert "missing.json" in capsys.readouterr().err
+        assert main([command, *common, "--exterior", str(data / "sample_gcps.csv"),
+                     "-o", str(data / "sample_dem.tif")]) == 2
+        assert "refusing to write" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
