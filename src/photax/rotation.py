@@ -26,9 +26,11 @@ Angles are radians.  The middle angle lies in [-pi/2, pi/2]; the other two in
 
 from __future__ import annotations
 
+import functools
 from typing import Literal, get_args
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jax import Array
 
@@ -53,6 +55,10 @@ def _stack33(*rows) -> Array:
     return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
 
 
+# Jitted: called eagerly (reports, readers, notebooks) these functions dispatched
+# 20-40 small XLA programs each, compiled one by one on first use (1.45 s for
+# the axis-angle pair, 0.4 s jitted; derivatives 3.4 -> 1.3 s).
+@functools.partial(jax.jit, static_argnames="convention")
 def rotation_matrix(angles: Array, convention: Convention = "phi-omega-kappa") -> Array:
     """``world_from_camera`` rotation from attitude angles.
 
@@ -154,6 +160,7 @@ def _skew(v: Array) -> Array:
     )
 
 
+@jax.jit
 def axis_angle_to_matrix(rotvec: Array) -> Array:
     """Rodrigues' formula, with finite values and gradients at zero rotation.
 
@@ -180,6 +187,7 @@ def axis_angle_to_matrix(rotvec: Array) -> Array:
     return eye + a[..., None, None] * k + b[..., None, None] * (k @ k)
 
 
+@jax.jit
 def matrix_to_axis_angle(matrix: Array) -> Array:
     """Axis-angle vector of a rotation matrix (angle in [0, pi]).
 
