@@ -25,6 +25,8 @@ with ``y`` up.  OpenCV's ``y`` points down, so its ``p1`` is minus ours
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -46,6 +48,12 @@ def _concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
+# The functions and methods that users and photax call eagerly (outside jit) on
+# arrays of varying shapes are jitted: eagerly each of their 10-40 operations
+# was compiled separately for every new shape (the test suite compiled ~1300
+# such one-operation programs from camera.py, dem.py and collinearity.py).
+# Inside a traced function the inner jit is inlined, so nothing changes there.
+@jax.jit
 def distort(xn: Array, distortion: Array) -> Array:
     """Brown–Conrady distortion of ``(..., 2)`` normalised coordinates (the
     formula in this module's docstring); ``distortion`` is ``(..., 5)``
@@ -59,6 +67,7 @@ def distort(xn: Array, distortion: Array) -> Array:
     return jnp.stack([xd, yd], axis=-1)
 
 
+@jax.jit
 def distortion_jacobian(xn: Array, distortion: Array) -> Array:
     """``(..., 2, 2)`` derivative of :func:`distort` at ``xn``: rows
     ``(xd, yd)``, columns ``(xn, yn)``.
@@ -81,6 +90,7 @@ def distortion_jacobian(xn: Array, distortion: Array) -> Array:
     return jnp.stack([jnp.stack([xx, xy], axis=-1), jnp.stack([xy, yy], axis=-1)], axis=-2)
 
 
+@jax.jit
 def intrinsics_jacobian(xn: Array, focal_length: Array, distortion: Array) -> Array:
     """``(..., 2, 8)`` derivative of the image-plane point ``x = x0 + f D(xn)``
     (:meth:`FrameCamera.project` for a fixed normalised point ``xn``) with
@@ -195,6 +205,7 @@ class FrameCamera(eqx.Module):
         centre = jnp.array([(w - 1) / 2.0, (h - 1) / 2.0])
         return centre, self.pixel_size
 
+    @jax.jit
     def pixel_to_image(self, colrow: Array) -> Array:
         """``(..., 2)`` pixel (column, row) -> image-plane (x right, y up)."""
         centre, size = self._pixel_grid()
@@ -202,6 +213,7 @@ class FrameCamera(eqx.Module):
         d = (colrow - _like(centre, colrow)) * _like(size, colrow)
         return jnp.stack([d[..., 0], -d[..., 1]], axis=-1)
 
+    @jax.jit
     def image_to_pixel(self, xy: Array) -> Array:
         """``(..., 2)`` image-plane (x right, y up) -> pixel (column, row)."""
         centre, size = self._pixel_grid()
@@ -226,6 +238,7 @@ class FrameCamera(eqx.Module):
         ``(f, x0, y0, k1, k2, k3, p1, p2)`` (:func:`intrinsics_jacobian`)."""
         return intrinsics_jacobian(xn, self.focal_length, self.distortion)
 
+    @functools.partial(jax.jit, static_argnames="iterations")
     def undistort_normalised(self, xd: Array, iterations: int = 20) -> Array:
         """Invert :meth:`distort_normalised` by fixed-point iteration.
 
@@ -241,6 +254,7 @@ class FrameCamera(eqx.Module):
 
     # --- camera frame <-> image plane ---------------------------------------
 
+    @jax.jit
     def project(self, points_in_camera: Array) -> Array:
         """Camera-frame points ``(..., 3)`` -> image-plane ``(..., 2)``.
 
@@ -254,12 +268,14 @@ class FrameCamera(eqx.Module):
         xd = self.distort_normalised(xn)
         return _like(self.principal_point, xd) + self.focal_length * xd
 
+    @jax.jit
     def normalised(self, xy: Array) -> Array:
         """Image-plane ``(..., 2)`` -> undistorted normalised coordinates."""
         xy = jnp.asarray(xy, dtype=float)
         xd = (xy - _like(self.principal_point, xy)) / self.focal_length
         return self.undistort_normalised(xd)
 
+    @jax.jit
     def ray(self, xy: Array) -> Array:
         """Image-plane ``(..., 2)`` -> camera-frame ray directions ``(..., 3)``.
 

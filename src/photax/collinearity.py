@@ -100,6 +100,7 @@ class ExteriorOrientation(eqx.Module):
         vector = jnp.asarray(vector, dtype=float)
         return cls(vector[..., :3], vector[..., 3:], convention)
 
+    @jax.jit
     def points_in_camera(self, ground_xyz: Array) -> Array:
         """``(n, 3)`` ground points -> camera frame (``R^T (X - Xs)``)."""
         d = jnp.asarray(ground_xyz, dtype=float) - self.position[..., None, :]
@@ -133,6 +134,7 @@ def stack_exteriors(exterior) -> ExteriorOrientation:
         raise ValueError(f"exterior must hold one orientation per image, shape (n_images, 3); got {eo.position.shape}")
     return eo
 
+@jax.jit
 def project(ground_xyz: Array, exterior: ExteriorOrientation, camera: FrameCamera) -> Array:
     """The collinearity equations: ground points -> image-plane coordinates.
 

@@ -53,6 +53,7 @@ class DEM(eqx.Module):
         xmin, ymin, xmax, ymax = bounds
         return cls(np.full((2, 2), float(height)), (xmax - xmin, 0, xmin, 0, -(ymax - ymin), ymax))
 
+    @jax.jit
     def ground_to_pixel(self, x: Array, y: Array) -> tuple[Array, Array]:
         """Ground (X, Y) -> fractional (column, row) of pixel centres."""
         a, b, c, d, e, f = (self.transform[i] for i in range(6))
@@ -62,6 +63,7 @@ class DEM(eqx.Module):
         row = (-d * dx + a * dy) / det
         return col - 0.5, row - 0.5
 
+    @jax.jit
     def height(self, x: Array, y: Array) -> Array:
         """Bilinear height at ground ``(x, y)`` (any broadcastable shapes).
 

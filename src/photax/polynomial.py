@@ -161,6 +161,7 @@ class PolynomialModel(eqx.Module):
             raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
         return jnp.stack(self.transform(p[..., 0], p[..., 1]), axis=-1)
 
+    @jax.jit
     def transform(self, x, y) -> tuple[Array, Array]:
         """Separate-coordinate form ``X, Y = model.transform(x, y)`` for
         arrays of one common shape (e.g. a whole output grid).

@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 
 
+@jax.jit
 def texture(x, y):
     """Ground texture at local ground offsets ``(x, y)`` (metres), in [0, 1].
 
