@@ -278,3 +278,19 @@ def test_residual_sign_and_projective_outcome():
     assert proj.inverse().result == proj.result
     assert float(proj.rmse) < float(fit_projective(src, dst, refine=False).rmse)
 
+
+
+@pytest.mark.parametrize("order", [1, 3])
+def test_padded_model_is_the_same_mapping_bit_for_bit(order):
+    """compare.rectify pads every polynomial to the highest order (one kernel):
+    the padded model must give exactly the values of the model itself."""
+    rng = np.random.default_rng(order)
+    src = rng.uniform(0, 4000, (40, 2)) + [500_000.0, 4_000_000.0]
+    dst = rng.uniform(0, 1000, (40, 2))
+    m = fit_polynomial(src, dst, order)
+    p = m.padded(5)
+    assert p.order == 5 and p.coef.shape == (n_coefficients(5), 2)
+    xy = rng.uniform(-500, 4500, (2000, 2)) + [500_000.0, 4_000_000.0]
+    np.testing.assert_array_equal(np.asarray(p(xy)), np.asarray(m(xy)))
+    with pytest.raises(ValueError, match="order"):
+        p.padded(4)

@@ -41,7 +41,7 @@ import numpy as np
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, project, project_jacobian
 from .dem import DEM
-from .polynomial import fit_polynomial, fit_projective, n_coefficients
+from .polynomial import PolynomialModel, fit_polynomial, fit_projective, n_coefficients
 from .rectification import Grid, OrthoModel, ortho_grid
 from .resampling import Resampling
 
@@ -231,8 +231,12 @@ class ModelComparison:
         grid = ortho_grid(self.exterior, self.camera, self.dem, self.gsd) if grid is None else grid
         names = self.names if names is None else list(names)
         tiles = len(list(_tiles(grid.shape, 1024)))  # rectify's default tile
+        models = {n: self[n].model for n in names}
+        # The polynomials as one order: one compiled rectification kernel for all of them, not one per order.
+        top = max((m.order for m in models.values() if isinstance(m, PolynomialModel)), default=0)
+        models = {n: m.padded(top) if isinstance(m, PolynomialModel) else m for n, m in models.items()}
         with progress_bar(progress, tiles * len(names), desc="compare", unit="tile") as bar:
-            out = {n: rectify(image, self[n].model, grid, resampling=resampling, progress=bar) for n in names}
+            out = {n: rectify(image, m, grid, resampling=resampling, progress=bar) for n, m in models.items()}
         return out, grid
 
     # --- figures (drawn by photax.plot) ------------------------------------

@@ -35,6 +35,8 @@ destination units, ``rmse`` and ``rmse_dof`` (see the class docstrings),
 
 from __future__ import annotations
 
+import dataclasses
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -187,6 +189,19 @@ class PolynomialModel(eqx.Module):
                 acc = inner if acc is None else acc * ux + inner
             out.append(acc * self.dst_scale[axis] + self.dst_centre[axis])
         return out[0], out[1]
+
+    def padded(self, order: int) -> "PolynomialModel":
+        """The same mapping written as a polynomial of a higher ``order``
+        (zero coefficients for the extra terms, which come last in
+        :func:`exponents`).  Its values are this model's, bit for bit
+        (Horner's scheme only adds ``0 * u`` terms ahead of the real ones),
+        and all models padded to one order share one compiled kernel:
+        :meth:`photax.compare.ModelComparison.rectify` rectifies orders 1-5
+        with one compilation instead of five."""
+        if order < self.order:
+            raise ValueError(f"order must be >= this model's order {self.order}, got {order}")
+        extra = jnp.zeros((n_coefficients(order) - self.coef.shape[0], 2), self.coef.dtype)
+        return dataclasses.replace(self, order=int(order), coef=jnp.concatenate([self.coef, extra]))
 
     def inverse(self, method: str = "newton", *, order: int | None = None, samples: int = 50) -> "PolynomialInverse":
         """The inverse mapping (destination -> source), with its error.
