@@ -118,13 +118,15 @@ def _take(tree, idx):
 def _call(fn, inp: Inputs, opt: Options, chunk: int | None, m: int) -> Output:
     """``fn`` over the images of ``inp`` in chunks of ``chunk`` (the last one
     padded with copies of the first image; None: one call, any size)."""
+    # np.asarray of a result still being computed waited for it at a full core (measured: 0.2 ms of CPU
+    # per single resection); block_until_ready waits without spinning.
     b = len(inp.xy)
     if chunk is None:
-        return unpack(np.asarray(fn(inp, opt)), m)
+        return unpack(np.asarray(jax.block_until_ready(fn(inp, opt))), m)
     nb = -(-b // chunk) * chunk
     idx = np.concatenate([np.arange(b), np.zeros(nb - b, int)])
     parts = [fn(_take(inp, idx[i : i + chunk]), opt) for i in range(0, nb, chunk)]  # dispatched asynchronously
-    return unpack(np.concatenate([np.asarray(x) for x in parts])[:b], m)
+    return unpack(np.concatenate([np.asarray(x) for x in jax.block_until_ready(parts)])[:b], m)
 
 
 def _merge(out: Output, idx, again: Output) -> Output:
