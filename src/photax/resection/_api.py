@@ -129,20 +129,21 @@ def _call(fn, inp: Inputs, opt: Options, chunk: int | None, m: int) -> Output:
     return unpack(np.concatenate([np.asarray(x) for x in jax.block_until_ready(parts)])[:b], m)
 
 
-def _merge(out: Output, idx, again: Output) -> Output:
-    def put(a, x):
-        a = a.copy()
-        a[idx] = x
-        return a
+def _merge_one(a: np.ndarray, idx, x) -> np.ndarray:
+    a = a.copy()
+    a[idx] = x
+    return a
 
-    return jax.tree_util.tree_map(put, out, again)
+
+def _merge(out: Output, idx, again: Output) -> Output:
+    return jax.tree_util.tree_map(lambda a, x: _merge_one(a, idx, x), out, again)
 
 
 def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, camera: FrameCamera):
     """The cheap path for every image, the robust path for those it hands over.
 
-    Returns the output and, when it is still valid for every image, the
-    plausibility screen (:func:`_screen`) computed on the way (else None).
+    Returns the output and its plausibility screen (:func:`_screen`), or
+    None for the screen with ``robust=False`` (:func:`_finish` computes it).
     """
     inp = _inputs(prep, m)
     out = _call(_solve_cheap, inp, opt, _CHUNK if batch else None, m)
@@ -168,7 +169,11 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
     idx = np.flatnonzero(full)
     if idx.size:
         out = _merge(out, idx, _call(_solve_robust, _take(inp, idx), opt, chunk, m))
-    return out, (screened if not quick.size and not idx.size else None)
+    changed = np.union1d(quick, idx)
+    if changed.size:  # screen again only the images the robust path changed
+        again = _screen(_take_prep(prep, changed), _take(out, changed), camera)
+        screened = tuple(_merge_one(a, changed, x) for a, x in zip(screened, again))
+    return out, screened
 
 
 def _take_prep(prep: Prepared, idx) -> Prepared:
