@@ -4,7 +4,9 @@ for the images that need it, one finishing step.
 Both run the same compiled functions, ``vmap``-ed over a leading image
 axis (a single image is a batch of one): :func:`._adjust.solve_cheap` for
 every image, then :func:`._robust.solve_robust` for the compacted set of
-images the cheap path hands over (``retry``).  Each compiles once per
+images the cheap path hands over (``retry``): first those that only failed
+the blunder test, from their cheap solution; then, from the LMedS start,
+the rest and those the first pass left failed.  Each compiles once per
 padded point count (16, 32, ...) and batch shape (1 for ``resect``,
 fixed-size chunks for ``resect_batch``).
 """

@@ -1,7 +1,9 @@
 """The robust path, for the few images the cheap one hands over.
 
-**Start** by least median of squares (Rousseeuw 1984: no threshold, tolerant
-of up to half the points being blunders): the linear candidates from all
+**Start**: an image whose cheap adjustment only failed the blunder test
+starts from that least-squares solution (``use_init``); any other by
+least median of squares (Rousseeuw 1984: no threshold, tolerant of up to
+half the points being blunders): the linear candidates from all
 control points and from 32 seeded random subsets of 6 (:func:`subsets`;
 homography on their first 4), the one with the smallest median squared
 reprojection error wins; candidates that put points behind the camera lose.
@@ -9,7 +11,7 @@ reprojection error wins; candidates that put points behind the camera lose.
 **Data snooping** (Baarda 1968; Pope 1976 tau test): while the largest
 standardised residual exceeds the critical value and redundancy allows,
 the worst point (both coordinates) is excluded and the adjustment repeated
-from the robust start - inside the compiled function, a ``lax.while_loop``
+from the start - inside the compiled function, a ``lax.while_loop``
 with one adjustment in its body (traced once).
 """
 
