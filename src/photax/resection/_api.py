@@ -241,7 +241,8 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / (std[:, :, None] * std[:, None, :])
         check_rms = np.sqrt(np.sum(d2 * prep.is_check, axis=1) / prep.is_check.sum(1))
-    stat = out.w[:, :n] / (1.0 if sigma_known else out.sigma0[:, None, None])
+        # sigma0 = 0 exactly (exact data from an exact start): tau is 0/0, undefined (NaN)
+        stat = out.w[:, :n] / (1.0 if sigma_known else out.sigma0[:, None, None])
     stat = np.where(used[:, :, None], stat, out.stat_at[:, :n])
     messages = [_message(c, s, solver)[1] for c, s in zip(adjustment.tolist(), out.steps.tolist())]
     for i in np.flatnonzero((code != RESULTS.successful) | (red <= 0)):
