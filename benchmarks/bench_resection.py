@@ -2,7 +2,9 @@
 
     /work/venv/bin/python benchmarks/bench_resection.py [--images 10000]
 
-0. first-call (compile) time of resect and resect_batch, separately;
+0. first-call (compile) time of resect and resect_batch, separately, wall
+   and CPU (run it without JAX_COMPILATION_CACHE_DIR: an empty cache);
+   then where a warm single resect's CPU time goes, stage by stage;
 1. single-call latency after compilation (median of many calls), 12 GCPs;
 2. throughput for N synthetic images (12 GCPs each): one resect_batch call
    vs a Python loop of cv2.solvePnP over the same images;
@@ -26,7 +28,8 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _common import median_cpu_time, median_time, mib, peak_memory, peak_rss, ratio_line, start  # noqa: E402
+from _common import (median_cpu_time, median_time, mib, peak_memory, peak_rss, ratio_line, record,  # noqa: E402
+                     start)
 
 import photax as ptx  # noqa: E402
 
@@ -73,13 +76,25 @@ def main():
           f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     print("reproduce: PYTHONPATH=src python benchmarks/bench_resection.py --images", args.images)
 
-    # --- first calls: tracing + compilation (+ one run); a cache dir in JAX_COMPILATION_CACHE_DIR would hide it
+    # --- first calls: tracing + compilation (+ one run); a cache dir in JAX_COMPILATION_CACHE_DIR would hide it.
+    # CPU time too: on a shared machine it is the steadier figure.  The third call compiles the robust path
+    # only (the cheap one is compiled by the second).
+    if os.environ.get("JAX_COMPILATION_CACHE_DIR"):
+        print("note: JAX_COMPILATION_CACHE_DIR is set: first calls may come from the persistent cache")
+    blunder = xy[:64].copy()
+    # A 20-pixel blunder tested with the true sigma (Baarda's w; Pope's tau misses this one among 12 points):
+    # the robust path runs, and compiles.
+    blunder[0, 3] += 20.0 * float(CAM.pixel_size[0])
     for name, f in {"resect": lambda: ptx.resect(xy[0], ground[0], CAM),
                     "resect_batch(robust=False)": lambda: ptx.resect_batch(xy[:64], ground[:64], CAM, robust=False),
-                    "resect_batch(robust=True)": lambda: ptx.resect_batch(xy[:64], ground[:64], CAM)}.items():
-        t0 = time.perf_counter()
+                    "resect_batch(robust=True), one blunder": lambda: ptx.resect_batch(blunder, ground[:64], CAM,
+                                                                                       sigma=0.5)}.items():
+        t0, c0 = time.perf_counter(), time.process_time()
         f()
-        print(f"first call {name}: {time.perf_counter() - t0:.2f} s")
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        record(f"first call {name} (CPU)", photax_s=cpu, wall_s=wall)
+        print(f"first call {name}: {wall:.2f} s wall, {cpu:.2f} s CPU")
+    single_breakdown(xy[0], ground[0])
 
     # --- single-call latency (wall and CPU time: the machine may be shared)
     one = {"resect (robust)": lambda: ptx.resect(xy[0], ground[0], CAM),
@@ -119,6 +134,37 @@ def main():
     print(f"image 0: |C_photax - C_opencv| = {np.linalg.norm(np.asarray(res[0].exterior.position) - c_cv):.2e} m")
     accuracy(res, ground, pixel, truth)
     solver_overhead(xy, ground)
+
+
+def single_breakdown(xy, ground):
+    """Where a single warm resect's time goes: its stages run one by one (median CPU time)."""
+    from photax.resection import _api, _checks
+
+    def prepare():
+        return _checks.validate(xy, ground, CAM, None, None, None, None, "phi-omega-kappa", 0.001, batch=False)
+
+    prep = prepare()
+    m = _checks._bucket(prep.xy.shape[1])
+    opt = _api._options(prep, CAM, "phi-omega-kappa", True, 0.001, 50, m)
+    inp = _api._inputs(prep, m)
+    flat = jax.block_until_ready(_api._solve_cheap(inp, opt))
+    out = _api.unpack(np.asarray(flat), m)
+    screened = _api._screen(prep, out, CAM)
+    stages = {
+        "whole resect": lambda: ptx.resect(xy, ground, CAM),
+        "validate": prepare,
+        "options and inputs": lambda: (_api._options(prep, CAM, "phi-omega-kappa", True, 0.001, 50, m),
+                                       _api._inputs(prep, m)),
+        "compiled cheap path (dispatch and run)": lambda: jax.block_until_ready(_api._solve_cheap(inp, opt)),
+        "result to host, unpack": lambda: _api.unpack(np.asarray(flat), m),
+        "plausibility screen": lambda: _api._screen(prep, out, CAM),
+        "finish (result object, messages)": lambda: _api._finish(prep, out, CAM, "phi-omega-kappa", False,
+                                                                 screened=screened),
+    }
+    for name, f in stages.items():
+        t = median_cpu_time(f, repeat=301, warmup=5)
+        record(f"single resect stage: {name} (CPU)", photax_s=t)
+        print(f"single resect stage {name}: {t * 1e3:.3f} ms CPU")
 
 
 def accuracy(res, ground, pixel, truth):

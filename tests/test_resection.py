@@ -57,6 +57,20 @@ def test_noise_free_recovers_orientation(kind, angles, convention, relief):
     assert res.rms < 1e-12
 
 
+def test_settings_cached_per_camera_follow_the_camera():
+    """resect keeps the last camera's numbers and compiled options; a new camera object (even one
+    equal in value) must be used as given: the points were made with CAM, so another focal length
+    cannot fit them exactly, and CAM again must fit them exactly (same shapes as above: no compile)."""
+    ground, xy, truth = _scene(np.random.default_rng(21), (0.02, -0.015, 0.3))
+    other = ptx.FrameCamera(0.9 * CAM.focal_length)
+    first, wrong = ptx.resect(xy, ground, CAM), ptx.resect(xy, ground, other, throw=False)
+    again, copy = ptx.resect(xy, ground, CAM), ptx.resect(xy, ground, ptx.FrameCamera(CAM.focal_length))
+    assert first.rms < 1e-12 and again.rms < 1e-12 and copy.rms < 1e-12
+    assert wrong.rms > 1e-6  # the 10 % focal length error shows (planar GCPs with relief: not absorbed)
+    for res in (again, copy):
+        np.testing.assert_array_equal(np.asarray(res.exterior.to_vector()), np.asarray(first.exterior.to_vector()))
+
+
 def test_initial_values_not_needed_for_any_kappa_batch():
     # many random attitudes at once, including strong obliques, through the batch path
     rng = np.random.default_rng(5)

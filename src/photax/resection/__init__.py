@@ -10,12 +10,14 @@ reduced to the centroid of the control points before anything is computed
    start from all control points (homography for planar GCPs, calibrated
    DLT for 3-D ones; :mod:`._linear`), Gauss-Newton with the closed-form
    collinearity Jacobian, precision, and the blunder test.
-2. **Robust path, only where needed** (:mod:`._robust`): images whose test
-   fails, whose adjustment fails, or whose start or solution puts control
-   points behind the camera are gathered into a second, compacted batch:
-   least-median-of-squares start over 32 random subsets, then data snooping
-   (Baarda 1968; Pope 1976) - exclude the worst point, re-adjust, while
-   the test fails and redundancy allows.
+2. **Robust path, only where needed** (:mod:`._robust`), in compacted
+   batches: data snooping (Baarda 1968; Pope 1976) - exclude the worst
+   point, re-adjust, while the test fails and redundancy allows.  Images
+   whose only fault is the failed test snoop from their cheap solution;
+   images whose adjustment fails, whose start or solution puts control
+   points behind the camera or is implausible (step 5) - and those the
+   first kind leaves failed - start from a least-median-of-squares
+   solution over 32 random subsets.
 3. **Precision** at the solution, with ``A`` the Jacobian of the weighted
    model, ``r = 2 n - 6``::
 

@@ -63,39 +63,41 @@ def _normal(a, v):
 
 
 def _iterate(start, inp: Inputs, used, opt: Options):
-    """The Gauss-Newton loop: ``(p, steps, RESULTS code)``."""
-    v0, a0, _, _ = evaluate(start, inp, used, opt)
-    ok0 = jnp.all(jnp.isfinite(v0)) & jnp.all(jnp.isfinite(a0))
+    """The Gauss-Newton loop: ``(p, steps, RESULTS code, evaluation at p)``
+    (the evaluation, :func:`evaluate`'s four arrays, spares :func:`precision` one)."""
+    ev0 = evaluate(start, inp, used, opt)
+    ok0 = jnp.all(jnp.isfinite(ev0[0])) & jnp.all(jnp.isfinite(ev0[1]))
     code0 = jnp.where(ok0, RESULTS.successful, RESULTS.nonfinite)
 
     def cond(c):
-        _, _, _, k, done, _ = c
+        _, _, k, done, _ = c
         return ~done & (k < opt.max_steps)
 
     def body(c):
-        p, v, a, k, _, _ = c
-        n, g = _normal(a, v)
+        p, ev, k, _, _ = c
+        n, g = _normal(ev[1], ev[0])
         dp = cho_solve(n, g[:, None])[:, 0]
         solvable = jnp.all(jnp.isfinite(dp))
         p_new = jnp.where(solvable, p + dp, p)
-        v_new, a_new, _, _ = evaluate(p_new, inp, used, opt)
-        finite = jnp.all(jnp.isfinite(v_new)) & jnp.all(jnp.isfinite(a_new))
+        ev_new = evaluate(p_new, inp, used, opt)
+        finite = jnp.all(jnp.isfinite(ev_new[0])) & jnp.all(jnp.isfinite(ev_new[1]))
         code = jnp.where(~solvable, RESULTS.singular, jnp.where(finite, RESULTS.successful, RESULTS.nonfinite))
         small = jnp.all(jnp.abs(dp) <= STEP_TOL * (1.0 + jnp.abs(p_new)))
         keep = solvable & finite  # a failed step leaves the last finite estimate
-        return (jnp.where(keep, p_new, p), jnp.where(keep, v_new, v), jnp.where(keep, a_new, a), k + 1,
-                small | (code != RESULTS.successful), code)
+        ev = jax.tree_util.tree_map(lambda x, y: jnp.where(keep, x, y), ev_new, ev)
+        return jnp.where(keep, p_new, p), ev, k + 1, small | (code != RESULTS.successful), code
 
-    carry = (start, v0, a0, jnp.array(0), ~ok0, code0)
-    p, _, _, steps, done, code = jax.lax.while_loop(cond, body, carry)
+    carry = (start, ev0, jnp.array(0), ~ok0, code0)
+    p, ev, steps, done, code = jax.lax.while_loop(cond, body, carry)
     code = jnp.where(done, code, RESULTS.max_steps_reached)
-    return p, steps, code
+    return p, steps, code, ev
 
 
 def gauss_newton(start, inp: Inputs, used, opt: Options):
-    """Gauss-Newton from ``start``: ``(p, steps, code)``; ``p`` differentiable
-    with respect to ``inp`` and ``opt.camera`` through the optimality
-    condition ``A(p)^T v(p) = 0`` (``jax.lax.custom_root``)."""
+    """Gauss-Newton from ``start``: ``(p, steps, code, evaluation at p)``;
+    ``p`` differentiable with respect to ``inp`` and ``opt.camera`` through
+    the optimality condition ``A(p)^T v(p) = 0`` (``jax.lax.custom_root``);
+    the evaluation (:func:`evaluate` at ``p``, from the loop) is not."""
 
     def gradient(p):  # A^T v: zero at the solution
         v, a, _, _ = evaluate(p, inp, used, opt)
@@ -104,20 +106,22 @@ def gauss_newton(start, inp: Inputs, used, opt: Options):
     # The loop runs on values only (no tangents enter the while_loop, which reverse mode cannot
     # differentiate); custom_root then attaches the implicit derivative at its solution.
     nograd = jax.lax.stop_gradient
-    p, steps, code = _iterate(nograd(start), jax.tree_util.tree_map(nograd, inp), used,
-                              jax.tree_util.tree_map(nograd, opt))
+    p, steps, code, ev = _iterate(nograd(start), jax.tree_util.tree_map(nograd, inp), used,
+                                  jax.tree_util.tree_map(nograd, opt))
 
     def tangent_solve(g, y):  # only traced under differentiation
         return jnp.linalg.solve(jax.jacfwd(g)(y), y)
 
     p = jax.lax.custom_root(gradient, p, lambda _, x0: x0, tangent_solve)
-    return p, steps, code
+    return p, steps, code, ev
 
 
-def precision(p, inp: Inputs, used, opt: Options) -> dict:
-    """sigma0, Q_xx, redundancy numbers and w at ``p`` (module docstring)."""
+def precision(p, inp: Inputs, used, opt: Options, ev=None) -> dict:
+    """sigma0, Q_xx, redundancy numbers and w at ``p`` (module docstring);
+    ``ev``: :func:`evaluate` at ``p`` if already known (the same numbers:
+    wrapping the angles changes none)."""
     p = jnp.concatenate([p[:3], wrap(p[3:])])
-    v, a, pred, depth = evaluate(p, inp, used, opt)
+    v, a, pred, depth = evaluate(p, inp, used, opt) if ev is None else ev
     n, _ = _normal(a, v)
     qxx = cho_solve(n, jnp.eye(6))
     qxx = 0.5 * (qxx + qxx.T)
@@ -136,8 +140,8 @@ def precision(p, inp: Inputs, used, opt: Options) -> dict:
 
 def adjust(start, inp: Inputs, used, opt: Options) -> dict:
     """Gauss-Newton from ``start`` with the points ``used``, then precision."""
-    p, steps, code = gauss_newton(start, inp, used, opt)
-    return dict(precision(p, inp, used, opt), result=code, steps=steps)
+    p, steps, code, ev = gauss_newton(start, inp, used, opt)
+    return dict(precision(p, inp, used, opt, ev), result=code, steps=steps)
 
 
 def test(out: dict, used, opt: Options):
@@ -161,8 +165,8 @@ def test(out: dict, used, opt: Options):
 def solve_cheap(inp: Inputs, opt: Options) -> Output:
     """The cheap path: linear start from all control points, one adjustment,
     the test.  ``retry`` asks for the robust path (:mod:`._robust`) when,
-    with ``opt.snoop``, the test fails, the adjustment fails, or the start or
-    the solution puts a control point behind the camera."""
+    with ``opt.snoop``, the test fails (1), or the adjustment fails, or the
+    start or the solution puts a control point behind the camera (2)."""
     uv = _linear.opencv_uv(inp.xy, opt.camera)
     lin, lin_ok = _linear.linear_start(uv, inp.ground, inp.ctrl, inp.basis, opt.dlt_ok, opt.pok)
     start = jnp.where(inp.use_init, inp.init, lin)
@@ -170,7 +174,10 @@ def solve_cheap(inp: Inputs, opt: Options) -> Output:
     go, _, _, c = test(out, inp.ctrl, opt)
     behind = jnp.any(inp.ctrl & ~(out["depth"] > 0))
     bad_start = ~inp.use_init & ~lin_ok
-    retry = opt.snoop & (go | (out["result"] != RESULTS.successful) | behind | bad_start)
+    # Only the test failed: data snooping can start from this solution (1). Anything else needs the
+    # robust start as well (2).
+    hard = (out["result"] != RESULTS.successful) | behind | bad_start
+    retry = jnp.where(opt.snoop, jnp.where(hard, 2, jnp.where(go, 1, 0)), 0)
     return Output(**out, start=start, used=inp.ctrl, stat_at=jnp.full(inp.xy.shape, jnp.nan), critical=c,
                   retry=retry)
 

@@ -4,7 +4,9 @@ for the images that need it, one finishing step.
 Both run the same compiled functions, ``vmap``-ed over a leading image
 axis (a single image is a batch of one): :func:`._adjust.solve_cheap` for
 every image, then :func:`._robust.solve_robust` for the compacted set of
-images the cheap path hands over (``retry``).  Each compiles once per
+images the cheap path hands over (``retry``): first those that only failed
+the blunder test, from their cheap solution; then, from the LMedS start,
+the rest and those the first pass left failed.  Each compiles once per
 padded point count (16, 32, ...) and batch shape (1 for ``resect``,
 fixed-size chunks for ``resect_batch``).
 """
@@ -14,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+from typing import NamedTuple
 
 import jax
 import numpy as np
@@ -36,28 +39,67 @@ _ROBUST_CHUNK = 32  # images per call of the robust path (a few per cent of a ba
 # Kept on disk when a program opts in (the command line does): tracing them was 2.4 s of a warm `photax resect`.
 _solve_cheap = disk_cached(jax.jit(lambda inp, opt: jax.vmap(lambda i: pack(_adjust.solve_cheap(i, opt)))(inp)),
                            "resect_cheap")
-_solve_robust = disk_cached(jax.jit(lambda inp, opt: jax.vmap(lambda i: pack(_robust.solve_robust(i, opt)))(inp)),
-                            "resect_robust")
+_solve_robust = disk_cached(jax.jit(lambda inp, opt: jax.vmap(lambda i, s: pack(_robust.solve_robust(i, opt, s)))(
+    inp, _robust.starts(inp, opt))), "resect_robust")
+
+
+class _CameraInfo(NamedTuple):
+    """What every call needs from the camera, read once per camera object."""
+
+    half: np.ndarray | None  # half frame (2,) in image-plane units, None without a pixel grid
+    f: float  # focal length
+    pixel_size: float | None
+    solver_camera: FrameCamera  # interior orientation only, on the device
+    options: dict  # Options already on the device, by the settings that make them
+
+
+_LAST_CAMERA: tuple = (None, None)  # (camera, _CameraInfo): scripts resect many images with one camera
+
+
+def _camera_info(camera: FrameCamera) -> _CameraInfo:
+    """The camera's numbers, cached for the last camera object seen (a camera
+    is immutable): reading them from the device cost about a tenth of a
+    single resection."""
+    global _LAST_CAMERA
+    last = _LAST_CAMERA
+    if last[0] is camera:
+        return last[1]
+    half, f = _frame(camera)
+    # The solvers need no pixel grid; without it (static fields of FrameCamera) every camera shares
+    # one compilation (the grid is only read by the numpy-side checks, from the caller's camera).
+    solver_camera = jax.device_put(FrameCamera(camera.focal_length, camera.principal_point, camera.distortion))
+    info = _CameraInfo(half, f, _pixel_size(camera), solver_camera, {})
+    _LAST_CAMERA = (camera, info)
+    return info
 
 
 def _options(prep: Prepared, camera: FrameCamera, convention, robust, alpha, max_steps, m) -> Options:
-    """Every setting of the compiled solvers, in one place."""
+    """Every setting of the compiled solvers, in one place (on the device,
+    built once per camera and settings)."""
+    info = _camera_info(camera)
     sigma_known, n_ctrl = prep.sigma_known, len(prep.ctrl_idx)
-    return Options(
+    key = (convention, bool(robust), float(alpha), int(max_steps), m, sigma_known, prep.has_initial,
+           prep.ctrl_idx.tobytes())
+    opt = info.options.get(key)
+    if opt is not None:
+        return opt
+    opt = jax.device_put(Options(
         critical=_critical_table(float(alpha), sigma_known, m),
         snoop=np.bool_(robust),
         scale_stat=np.bool_(not sigma_known),
-        exact=np.float64(1e-10 if sigma_known else 1e-10 * float(camera.focal_length)),  # rounding level: no test
+        exact=np.float64(1e-10 if sigma_known else 1e-10 * info.f),  # rounding level: no test
         min_points=np.int64(3 if prep.has_initial else 4),
         min_redundancy=np.float64(1.0 if sigma_known else 2.0),
         dlt_ok=np.bool_(n_ctrl >= 6),
         pok=np.bool_(convention == "phi-omega-kappa"),
         subsets=prep.ctrl_idx[_robust.subsets(n_ctrl)],
-        # The solvers need no pixel grid; without it (static fields of FrameCamera) every camera shares
-        # one compilation (the grid is only read by the numpy-side checks, from the caller's camera).
-        camera=FrameCamera(camera.focal_length, camera.principal_point, camera.distortion),
+        camera=info.solver_camera,
         max_steps=np.int64(max_steps),
-    )
+    ))
+    if len(info.options) >= 64:
+        info.options.clear()
+    info.options[key] = opt
+    return opt
 
 
 def _inputs(prep: Prepared, m: int) -> Inputs:
@@ -78,32 +120,68 @@ def _take(tree, idx):
 def _call(fn, inp: Inputs, opt: Options, chunk: int | None, m: int) -> Output:
     """``fn`` over the images of ``inp`` in chunks of ``chunk`` (the last one
     padded with copies of the first image; None: one call, any size)."""
+    # np.asarray of a result still being computed waited for it at a full core (measured: 0.2 ms of CPU
+    # per single resection); block_until_ready waits without spinning.
     b = len(inp.xy)
     if chunk is None:
-        return unpack(np.asarray(fn(inp, opt)), m)
+        return unpack(np.asarray(jax.block_until_ready(fn(inp, opt))), m)
     nb = -(-b // chunk) * chunk
     idx = np.concatenate([np.arange(b), np.zeros(nb - b, int)])
     parts = [fn(_take(inp, idx[i : i + chunk]), opt) for i in range(0, nb, chunk)]  # dispatched asynchronously
-    return unpack(np.concatenate([np.asarray(x) for x in parts])[:b], m)
+    return unpack(np.concatenate([np.asarray(x) for x in jax.block_until_ready(parts)])[:b], m)
 
 
-def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, camera: FrameCamera) -> Output:
-    """The cheap path for every image, the robust path for those it hands over."""
+def _merge_one(a: np.ndarray, idx, x) -> np.ndarray:
+    a = a.copy()
+    a[idx] = x
+    return a
+
+
+def _merge(out: Output, idx, again: Output) -> Output:
+    return jax.tree_util.tree_map(lambda a, x: _merge_one(a, idx, x), out, again)
+
+
+def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, camera: FrameCamera):
+    """The cheap path for every image, the robust path for those it hands over.
+
+    Returns the output and its plausibility screen (:func:`_screen`), or
+    None for the screen with ``robust=False`` (:func:`_finish` computes it).
+    """
     inp = _inputs(prep, m)
     out = _call(_solve_cheap, inp, opt, _CHUNK if batch else None, m)
+    if not robust:
+        return out, None
+    screened = _screen(prep, out, camera)
     # A converged but implausible cheap result (e.g. a local minimum far from a poor linear start) also
-    # goes to the robust path: its LMedS start is what the real data of test_resection_real needs.
-    idx = np.flatnonzero(out.retry | _screen(prep, out, camera)[0]) if robust else np.zeros(0, int)
+    # goes to the full robust path: its LMedS start is what the real data of test_resection_real needs.
+    full = (out.retry == 2) | screened[0]
+    quick = np.flatnonzero((out.retry == 1) & ~full)
+    chunk = _ROBUST_CHUNK if batch else None
+    if quick.size:
+        # Only the blunder test failed: snoop from the cheap solution, without the LMedS start (its
+        # least-squares solution is the start data snooping is defined from; Baarda 1968).
+        sub = _take(inp, quick)
+        sub = dataclasses.replace(sub, init=out.params[quick], use_init=np.ones(quick.size, bool))
+        again = _call(_solve_robust, sub, opt, chunk, m)
+        out = _merge(out, quick, again)
+        # What this does not settle (failed, implausible, points behind the camera) gets the full path.
+        failed = _screen(_take_prep(prep, quick), again, camera)[0] | (again.result != RESULTS.successful)
+        failed |= np.any(again.used[:, : prep.xy.shape[1]] & ~(again.depth[:, : prep.xy.shape[1]] > 0), axis=1)
+        full[quick[failed]] = True
+    idx = np.flatnonzero(full)
     if idx.size:
-        again = _call(_solve_robust, _take(inp, idx), opt, _ROBUST_CHUNK if batch else None, m)
+        out = _merge(out, idx, _call(_solve_robust, _take(inp, idx), opt, chunk, m))
+    changed = np.union1d(quick, idx)
+    if changed.size:  # screen again only the images the robust path changed
+        again = _screen(_take_prep(prep, changed), _take(out, changed), camera)
+        screened = tuple(_merge_one(a, changed, x) for a, x in zip(screened, again))
+    return out, screened
 
-        def merge(a, x):
-            a = a.copy()
-            a[idx] = x
-            return a
 
-        out = jax.tree_util.tree_map(merge, out, again)
-    return out
+def _take_prep(prep: Prepared, idx) -> Prepared:
+    """The images ``idx`` of a prepared batch."""
+    per_image = ("xy", "ground", "weight", "is_check", "origin", "basis", "init")
+    return dataclasses.replace(prep, **{k: getattr(prep, k)[idx] for k in per_image})
 
 
 @functools.lru_cache(maxsize=4096)
@@ -127,25 +205,27 @@ def _screen(prep: Prepared, out: Output, camera):
     d2 = np.sum(out.residuals[:, :n] ** 2, axis=2)
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.sum(d2 * used, axis=1) / used.sum(1))
-    half, f = _frame(camera)
+    half, f = _camera_info(camera)[:2]
     bad = implausible(prep.xy, ctrl, ctrl & ~used, p[:, :3], out.axis, prep.basis[:, :, 2], rms, half, f)
     return (adjustment == RESULTS.successful) & bad, p, rms, d2, adjustment
 
 
-def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver="gn", gn_failure=None):
+def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver="gn", gn_failure=None,
+            screened=None):
     """Numbers and words of the result for every image (vectorised; words
-    formatted only where something failed).  Shared by resect and resect_batch."""
+    formatted only where something failed).  Shared by resect and resect_batch.
+    ``screened``: :func:`_screen` of ``out`` if already computed."""
     b, n = prep.xy.shape[:2]
     ctrl = ~prep.is_check
     used = out.used[:, :n]
     outliers = ctrl & ~used
-    screen, p, rms, d2, adjustment = _screen(prep, out, camera)
+    screen, p, rms, d2, adjustment = _screen(prep, out, camera) if screened is None else screened
     code = adjustment.copy()
     resid = out.residuals[:, :n]
     n_used = used.sum(1)
     behind = used & ~(out.depth[:, :n] > 0)
     code[(code == RESULTS.successful) & np.any(behind, axis=1)] = RESULTS.behind_camera
-    half, f = _frame(camera)
+    half, f = _camera_info(camera)[:2]
     normal = prep.basis[:, :, 2]
     reasons = {}
     for i in np.flatnonzero((code == RESULTS.successful) & screen):
@@ -161,7 +241,8 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / (std[:, :, None] * std[:, None, :])
         check_rms = np.sqrt(np.sum(d2 * prep.is_check, axis=1) / prep.is_check.sum(1))
-    stat = out.w[:, :n] / (1.0 if sigma_known else out.sigma0[:, None, None])
+        # sigma0 = 0 exactly (exact data from an exact start): tau is 0/0, undefined (NaN)
+        stat = out.w[:, :n] / (1.0 if sigma_known else out.sigma0[:, None, None])
     stat = np.where(used[:, :, None], stat, out.stat_at[:, :n])
     messages = [_message(c, s, solver)[1] for c, s in zip(adjustment.tolist(), out.steps.tolist())]
     for i in np.flatnonzero((code != RESULTS.successful) | (red <= 0)):
@@ -182,7 +263,7 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
                   outliers=outliers, check=prep.is_check, redundancy=out.redundancy[:, :n], normalized=stat,
                   critical=out.critical, rms=rms, check_rms=check_rms, iterations=out.steps,
                   converged=code == RESULTS.successful, message=messages, result=code)
-    common = dict(names=list(names), statistic="w" if sigma_known else "tau", pixel_size=_pixel_size(camera))
+    common = dict(names=list(names), statistic="w" if sigma_known else "tau", pixel_size=_camera_info(camera).pixel_size)
     if batch:
         ext = ExteriorOrientation(p[:, :3] + prep.origin, p[:, 3:], convention)
         return ResectionResult(exterior=ext, **fields, **common)
@@ -265,9 +346,9 @@ def _resect_one(image_xy, ground_xyz, *, camera, sigma, check, names, initial, c
     m = _bucket(prep.xy.shape[1])
     opt = _options(prep, camera, convention, robust, alpha, max_steps, m)
     with _solver_errors():
-        out = _solve(prep, opt, m, batch=False, robust=robust, camera=camera)
+        out, screened = _solve(prep, opt, m, batch=False, robust=robust, camera=camera)
         if out.result[0] == RESULTS.successful or not fallback:
-            return _finish(prep, out, camera, convention, batch=False)
+            return _finish(prep, out, camera, convention, batch=False, screened=screened)
         # Gauss-Newton failed: Levenberg-Marquardt from the same start, same points
         gn = _message(int(out.result[0]), int(out.steps[0]), "gn")[1]
         lm = _adjust.levenberg_marquardt(_take(_inputs(prep, m), 0), _take(out, 0), opt, int(max_steps))
@@ -377,8 +458,8 @@ def resect_batch(
     m = _bucket(prep.xy.shape[1])
     opt = _options(prep, camera, convention, robust, alpha, max_steps, m)
     with _solver_errors():
-        out = _solve(prep, opt, m, batch=True, robust=robust, camera=camera)
-    res = _finish(prep, out, camera, convention, batch=True)
+        out, screened = _solve(prep, opt, m, batch=True, robust=robust, camera=camera)
+    res = _finish(prep, out, camera, convention, batch=True, screened=screened)
     if throw and not np.all(res.converged):
         bad = np.flatnonzero(~res.converged)
         raise ConvergenceError(f"{len(bad)} of {len(res.converged)} images failed, "

@@ -70,7 +70,7 @@ class Output(eqx.Module):
     used: Array  # (m,) bool: control points in the final adjustment
     stat_at: Array  # (m, 2) the statistic with which a point was excluded (NaN otherwise)
     critical: Array  # () the critical value of the final test
-    retry: Array  # () bool: the cheap path asks for the robust one
+    retry: Array  # () int: the cheap path asks for the robust one: 0 no, 1 only the test failed, 2 everything
 
     @classmethod
     def blank(cls, m: int) -> "Output":
@@ -78,7 +78,7 @@ class Output(eqx.Module):
         z = jnp.zeros
         return cls(params=z(6), start=z(6), sigma0=z(()), qxx=z((6, 6)), residuals=z((m, 2)),
                    redundancy=z((m, 2)), w=z((m, 2)), depth=z(m), axis=z(3), result=z((), int),
-                   steps=z((), int), used=z(m, bool), stat_at=z((m, 2)), critical=z(()), retry=z((), bool))
+                   steps=z((), int), used=z(m, bool), stat_at=z((m, 2)), critical=z(()), retry=z((), int))
 
 
 def pack(out: Output) -> Array:
