@@ -79,12 +79,6 @@ from ._sparse import choose_solver
 from ._start import _needs_init, initialize_block
 from ._structure import _State
 
-#: Formerly the switch from dense Cholesky to conjugate gradients; the
-#: automatic choice is now by estimated cost (:func:`._sparse.choose_solver`).
-#: Kept (exported) for code that imports it.
-DENSE_LIMIT = 4000
-
-
 def _datum_constraints(problem: BundleProblem) -> int:
     """Rough count of datum constraints (a network needs 7)."""
     n_ctrl = int(np.sum(problem.roles == "control"))
