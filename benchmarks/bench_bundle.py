@@ -167,7 +167,7 @@ _FLIP = OPENCV_FROM_PHOTAX
 
 def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int = 2, *, loss: str = "none",
               loss_scale: float = 1.0, max_num_iterations: int | None = None, refine_intrinsics: bool = True,
-              progress: bool = False):
+              progress: bool = False, initial_trust_radius: float | None = None):
     """Build the BAL problem as a pycolmap reconstruction and a Ceres solver.
 
     Returns ``(solve, to_bal)``: ``solve()`` runs Ceres and returns its
@@ -177,7 +177,8 @@ def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int =
     ``"huber"`` or ``"cauchy"`` (Ceres' HuberLoss / CauchyLoss of parameter
     ``loss_scale`` pixels on each 2-vector reprojection residual).
     ``refine_intrinsics=False`` holds ``f, k1, k2`` at their start values;
-    ``progress`` prints Ceres' one line per iteration.
+    ``progress`` prints Ceres' one line per iteration;
+    ``initial_trust_radius`` overrides Ceres' 1e4.
     """
     import pyceres
     import pycolmap
@@ -215,6 +216,8 @@ def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int =
     so.linear_solver_type = getattr(pyceres.LinearSolverType, linear_solver)
     so.num_threads = num_threads
     so.minimizer_progress_to_stdout = progress
+    if initial_trust_radius is not None:
+        so.initial_trust_radius = initial_trust_radius
     if progress:
         so.logging_type = pyceres.LoggingType.PER_MINIMIZER_ITERATION
     config = pycolmap.BundleAdjustmentConfig()
@@ -336,13 +339,14 @@ def precision_at(result):
     return photax.bundle_adjust(p, gauge="fix_first_camera", max_steps=0, throw=False, precision=True)
 
 
-def block_comparison(grids, seed: int, ceres_up_to: int, single_from: int) -> list[dict]:
+def block_comparison(grids, seed: int, ceres_up_to: int, single_from: int, radius: float | None = None) -> list[dict]:
     """photax vs Ceres SPARSE_SCHUR on synthetic blocks of ``g x g`` images.
 
     Below ``single_from`` photax runs twice (the first call, with
     compilation, then the timed warm run); from it on once, with one line
     per iteration, and its time includes compilation (a few seconds, noise
-    at that size).  Each size's row goes to
+    at that size).  ``radius``: both solvers' initial trust radius (None:
+    their default, 1e4).  Each size's row goes to
     ``results/bench_bundle_block_<images>.json`` as soon as it is measured."""
     rows = []
     for g in grids:
@@ -351,10 +355,11 @@ def block_comparison(grids, seed: int, ceres_up_to: int, single_from: int) -> li
         print(f"{g} x {g} block: {len(d.cameras)} images, {len(d.points)} points, {len(d.observations)} observations "
               f"(generated in {time.perf_counter() - t0:.0f} s), load average {os.getloadavg()}", flush=True)  # fmt: skip
         once = g >= single_from
+        tr = {} if radius is None else dict(initial_trust_radius=radius)
         t_first = float("nan")
         if not once:
-            _, t_first = _timed(lambda: photax_bal(bal_problem(d)))
-        (res, t_warm), peak = peak_memory(lambda: (lambda problem: _timed(lambda: photax_bal(problem, verbose=once)))(bal_problem(d)))
+            _, t_first = _timed(lambda: photax_bal(bal_problem(d), **tr))
+        (res, t_warm), peak = peak_memory(lambda: (lambda problem: _timed(lambda: photax_bal(problem, verbose=once, **tr)))(bal_problem(d)))
         if once:
             t_first = t_warm
         cost = bal_cost(*photax_solution(res), d)
@@ -363,7 +368,7 @@ def block_comparison(grids, seed: int, ceres_up_to: int, single_from: int) -> li
               f"load average {os.getloadavg()}", flush=True)  # fmt: skip
         (prec, t_prec), peak_prec = peak_memory(lambda: _timed(lambda: precision_at(res)))
         ok = prec.exterior_std is not None and bool(np.all(np.isfinite(prec.exterior_std[1:])))
-        row = dict(grid=g, images=len(d.cameras), points=len(d.points), observations=len(d.observations),
+        row = dict(grid=g, initial_trust_radius=radius, images=len(d.cameras), points=len(d.points), observations=len(d.observations),
                    photax_s=t_warm, photax_first_call_s=t_first, photax_iterations=res.iterations, photax_cost=cost,
                    photax_converged=res.converged, photax_peak_bytes=peak, precision_s=t_prec,
                    precision_peak_bytes=peak_prec, precision_ok=ok, solver=_solver_of(res),
@@ -373,7 +378,7 @@ def block_comparison(grids, seed: int, ceres_up_to: int, single_from: int) -> li
         _save_row(row)
         if g <= ceres_up_to:
             def ceres_run():
-                solve, to_bal = ceres_bal(d, "SPARSE_SCHUR", num_threads=2, progress=once)
+                solve, to_bal = ceres_bal(d, "SPARSE_SCHUR", num_threads=2, progress=once, initial_trust_radius=radius)
                 return _timed(solve), to_bal
 
             ((summary, t_c), to_bal), peak_c = peak_memory(ceres_run)
@@ -406,7 +411,8 @@ def _save_row(row: dict) -> None:
 
     out = dict(row, date=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
                command="python " + " ".join([os.path.relpath(sys.argv[0])] + sys.argv[1:]), machine=machine())  # fmt: skip
-    (RESULTS / f"bench_bundle_block_{row['images']}.json").write_text(json.dumps(out, indent=1) + "\n")
+    tag = "" if row.get("initial_trust_radius") is None else f"_tr{row['initial_trust_radius']:g}"
+    (RESULTS / f"bench_bundle_block_{row['images']}{tag}.json").write_text(json.dumps(out, indent=1) + "\n")
 
 
 def growth_report() -> None:
@@ -419,7 +425,8 @@ def growth_report() -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = sorted((json.loads(p.read_text()) for p in RESULTS.glob("bench_bundle_block_*.json")), key=lambda r: r["images"])
+    rows = [json.loads(p.read_text()) for p in RESULTS.glob("bench_bundle_block_*.json")]
+    rows = sorted((r for r in rows if r.get("initial_trust_radius") is None), key=lambda r: r["images"])
     lines = ["| images | points | observations | photax s | iterations | peak MiB | precision s | precision MiB | "
              "Ceres s | Ceres it. | Ceres MiB | ratio | load |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
@@ -460,6 +467,8 @@ def main(argv=None) -> int:
     ap.add_argument("--single-from", type=int, default=60,
                     help="from this grid on photax runs once (with compilation) and prints each iteration")
     ap.add_argument("--report", action="store_true", help="only rebuild the growth table and plot")
+    ap.add_argument("--initial-trust-radius", type=float, default=None,
+                    help="both solvers' initial trust radius (default: theirs, 1e4); rows kept apart")
     ap.add_argument("--data", type=pathlib.Path, default=DATA)
     ap.add_argument("--repeat", type=int, default=3, help="runs of photax and Ceres (median)")
     ap.add_argument("--scipy-repeat", type=int, default=1, help="runs of the SciPy recipe (~1-3 min each)")
@@ -470,7 +479,7 @@ def main(argv=None) -> int:
         return 0
     if args.grid:
         start("bench_bundle_blocks_" + "_".join(map(str, args.grid)))
-        block_comparison(args.grid, args.seed, args.ceres_up_to, args.single_from)
+        block_comparison(args.grid, args.seed, args.ceres_up_to, args.single_from, args.initial_trust_radius)
         growth_report()
         return 0
     start("bench_bundle")
