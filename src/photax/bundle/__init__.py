@@ -57,8 +57,10 @@ the sum is a batch of small GEMMs (see :func:`photax.bundle._schur._reduced_syst
 are closed-form (:func:`photax.bundle._linearise._project_obs`, built on
 :func:`photax.collinearity.collinearity_rows` and
 :func:`photax.camera.intrinsics_jacobian`).  ``S`` is solved by a dense
-Cholesky (fast up to a few thousand camera unknowns: 49 BAL images x 9 =
-441) on one BLAS thread.  A rejected step re-solves with the same
+Cholesky (49 BAL images x 9 = 441 unknowns, on one BLAS thread), or for a
+block of strips by a banded block-Cholesky in a bandwidth-reducing image
+order, or matrix-free by Schur-Jacobi preconditioned CG; the choice is by
+estimated cost (:mod:`photax.bundle._sparse`, :func:`~photax.bundle._sparse.choose_solver`).  A rejected step re-solves with the same
 linearisation (only the damping changes).  References: Triggs et al.,
 "Bundle adjustment — a modern synthesis" (2000); Agarwal et al., "Bundle
 adjustment in the large" (ECCV 2010); Ceres Solver's trust-region minimiser.
@@ -75,7 +77,6 @@ from ._problem import (
 )
 from ._result import BundleResult as BundleResult
 from ._solver import (
-    DENSE_LIMIT as DENSE_LIMIT,
     POINT_STEPS as POINT_STEPS,
     StoppingRule as StoppingRule,
     bundle_adjust as bundle_adjust,

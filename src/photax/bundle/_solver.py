@@ -79,23 +79,21 @@ from ._sparse import choose_solver
 from ._start import _needs_init, initialize_block
 from ._structure import _State
 
-#: Formerly the switch from dense Cholesky to conjugate gradients; the
-#: automatic choice is now by estimated cost (:func:`._sparse.choose_solver`).
-#: Kept (exported) for code that imports it.
-DENSE_LIMIT = 4000
-
-
 def _datum_constraints(problem: BundleProblem) -> int:
     """Rough count of datum constraints (a network needs 7)."""
     n_ctrl = int(np.sum(problem.roles == "control"))
     return 3 * n_ctrl + int(problem.fixed_exterior.sum())
 
 
-def _blas_threads(n_c: int):
+def _blas_threads(n_c: int, solver: str = "dense"):
     """One BLAS thread for the small dense factorisations of the reduced
     system: OpenBLAS' thread pool spins, and on a busy 2-core machine a
-    441 x 441 Cholesky took 10-100x longer with 2 threads than with 1."""
-    if n_c > 1500:  # large systems gain from threads
+    441 x 441 Cholesky took 10-100x longer with 2 threads than with 1.
+    The banded path's Cholesky and triangular solves are of one chunk
+    (a few hundred unknowns) at a time: one thread there too (400 BAL
+    images, load 14: a trial step 2.0 -> 0.82 s wall, 0.84 -> 0.38 CPU s).
+    Only a large dense factor gains from threads."""
+    if solver == "dense" and n_c > 1500:
         return contextlib.nullcontext()
     from threadpoolctl import threadpool_limits
 
@@ -196,7 +194,7 @@ def bundle_adjust(
     solver = linear_solver if linear_solver != "auto" else choose_solver(s.band_perm.shape, s.band_border.shape[0], n_c)
     rule = StoppingRule(function_tolerance, gradient_tolerance, parameter_tolerance, max_iterations)
     kw = dict(loss=jnp.asarray(_LOSS_CODE[loss]), scale=jnp.asarray(float(loss_scale)), n_c=n_c)
-    with _blas_threads(n_c):
+    with _blas_threads(n_c, solver):
         with contextlib.ExitStack() as bars:
             bar = None
             if progress:  # one bar, labelled "bundle" or by the caller (photax.progress)

@@ -40,6 +40,27 @@ recurrences (Takahashi, Fagan & Chin 1973; Erisman & Tinney 1975), from
     Z_Ri = -Z_RR L_Ri L_ii^-1,      Z_ii = L_ii^-T (L_ii^-1 - L_Ri^T Z_Ri)
 
 here with ``R = {i+1, border}``: a reverse scan, the same cost as the factor.
+
+Which solver (:func:`choose_solver`, ``linear_solver="auto"``).  Dense
+Cholesky unless the banded factor's flop estimate is :data:`BAND_MARGIN`
+below the dense ``n^3/3``; then the band, unless its arrays would pass
+:data:`BAND_MEMORY`; then CG.  Measured on the generated BAL blocks of
+``benchmarks/bench_bundle.py`` (CPU seconds, 2-core machine at load 10-13,
+one BLAS thread for dense <= 1,500 unknowns and for band and CG)::
+
+    images  unknowns  per trial step: dense  band   CG     whole adjustment: dense  band   CG
+    100     900                       0.077  0.072  0.96                     1.5    1.7    11.5
+    400     3,600                     0.96   0.36   4.4                      44     19     144
+
+The band wins or ties from a few chunks on (100 images: 8 chunks, 8x
+fewer flops than dense, the same time: the Schur assembly dominates both);
+CG (Ceres' ITERATIVE_SCHUR with its Schur-Jacobi preconditioner) loses at
+every size we ran, 7-12x per step: a block of strips has weak modes (per
+image focal length against flying height, long-wavelength bending) on which
+the preconditioned CG needs its full iteration budget, and its final cost
+is the highest (400 images: 5.0310419e4 against 5.0310349e4).  So CG
+remains only the memory fallback, and the dense factor the choice for
+compact problems (problem-49-7776: one chunk of 441 unknowns).
 """
 
 from __future__ import annotations
