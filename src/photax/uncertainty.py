@@ -204,7 +204,7 @@ def _propagate_strip(exterior, camera, dem, transform, r0, cols, cov, sigma_z, z
     ri, fr = r // step, ((r % step).astype(float) / step)[:, None]
     full = []
     for n in nodes:
-        along = (n[:, :-1, None] + (n[:, 1:, None] - n[:, :-1, None]) * f).reshape(mr + 1, cols)
+        along = (n[:, :-1, None] + (n[:, 1:, None] - n[:, :-1, None]) * f[None, None, :]).reshape(mr + 1, cols)
         full.append(along[ri] + (along[ri + 1] - along[ri]) * fr)
     x, y = xy(r0 + jnp.arange(rows, dtype=float) + 0.5, jnp.arange(cols, dtype=float) + 0.5)
     # Computed once, not fused into each of the six outputs' loops.
