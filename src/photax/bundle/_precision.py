@@ -127,3 +127,20 @@ def _standard_deviations(q_img, q_cam, q_p, var0: float, rot: Array, convention:
     pt_cov = var0 * q_p
     pt_std = np.sqrt(np.maximum(np.diagonal(pt_cov, 0, 1, 2), 0.0))
     return eo_std, cam_std, pt_std, pt_cov
+
+
+def _orientation_covariances(q_img, var0: float, rot: Array, convention: str, active: Array) -> np.ndarray:
+    """``(n_img, 14, 14)`` covariance of each image's ``(X, Y, Z, a1, a2, a3,
+    f, x0, y0, k1, k2, k3, p1, p2)`` (centre, the convention's angles in
+    radians, :data:`INTRINSICS` of its camera; rows and columns of fixed
+    intrinsics 0) from its cofactor block ``q_img`` ``(n_img, w, w)`` (order
+    rotation increment, centre, active intrinsics), as ``var0 T Q T^T`` with
+    ``T`` the map to that order (angles through :func:`_angle_jacobian`)."""
+    q = np.asarray(q_img)
+    n, w = q.shape[:2]
+    a = np.asarray(active)
+    t = np.zeros((n, 14, w))
+    t[:, 0:3, 3:6] = np.eye(3)
+    t[:, 3:6, 0:3] = np.asarray(_angle_jacobian(rot, convention))
+    t[:, 6 + a, 6 + np.arange(len(a))] = 1.0
+    return var0 * np.einsum("nij,njk,nlk->nil", t, q, t)

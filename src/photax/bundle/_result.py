@@ -47,6 +47,12 @@ class BundleResult:
         point_cov: ``(n_points, 3, 3)`` covariances.
         check_residuals: ``(n_check, 3)`` adjusted minus surveyed check points.
         problem: the adjusted problem (for :meth:`to_problem`).
+        orientation_cov: ``(n_images, 14, 14)`` covariance of each image's
+            ``X, Y, Z``, angles (radians, the convention's order) and its
+            camera's :data:`INTRINSICS` (rows and columns of fixed ones 0):
+            the per-image block of the inverse normal matrix times sigma0^2,
+            with the exterior-intrinsics correlations; None like
+            ``exterior_std``.  :func:`photax.ortho_uncertainty` uses it.
     """
 
     exterior: ExteriorOrientation
@@ -71,6 +77,7 @@ class BundleResult:
     problem: BundleProblem
     seconds: float = 0.0
     result: RESULTS = RESULTS.successful
+    orientation_cov: np.ndarray | None = None
 
     @property
     def check_names(self) -> list[str]:

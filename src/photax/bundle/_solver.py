@@ -71,7 +71,7 @@ from ..rotation import angles_from_matrix_unchecked, rotation_matrix
 from .._linalg import inv3
 from ._linearise import _linearise, _prior_residuals, _project_obs
 from ._robust import _LOSS_CODE, _corrector, _rho
-from ._precision import _covariances, _covariances_band, _standard_deviations
+from ._precision import _covariances, _covariances_band, _orientation_covariances, _standard_deviations
 from ._problem import BundleProblem, Gauge, Loss
 from ._result import BundleResult, outcome
 from ._schur import _trial
@@ -433,7 +433,7 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     redundancy = 2 * problem.n_observations + n_prior - n_free + (7 if gauge == "damped" else 0)
     wsq = float(np.sum(weight[:, None] * np.asarray(lin.r) ** 2) + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w)))
     sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
-    eo_std = cam_std = pt_std = pt_cov = None
+    eo_std = cam_std = pt_std = pt_cov = eo_cov = None
     if precision and gauge != "damped":
         cov = _covariances(lin, s, n_c) if solver == "dense" else _covariances_band(lin, s, n_c)
         q_img, q_cam, q_p, ok = cov
@@ -445,13 +445,14 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
             eo_std, cam_std, pt_std, pt_cov = _standard_deviations(
                 q_img, q_cam, q_p, var0, state.rot, conv, s.active, problem.n_cameras
             )
+            eo_cov = _orientation_covariances(q_img, var0, state.rot, conv, s.active)
     check = problem.roles == "check"
     result = BundleResult(
         exterior=eo, rotation=rot, cameras=cams, points=pts, cost=float(cost), initial_cost=float(initial_cost),
         history=history, converged=bool(converged), message=message, iterations=iterations, residuals=residuals,
         weights=weight, sigma0=sigma0, redundancy=redundancy, exterior_std=eo_std, camera_std=cam_std,
         point_std=pt_std, point_cov=pt_cov, check_residuals=pts[check] - problem.points[check], problem=problem,
-        seconds=seconds, result=outcome(bool(converged), message, float(cost)),
+        seconds=seconds, result=outcome(bool(converged), message, float(cost)), orientation_cov=eo_cov,
     )  # fmt: skip
     if throw and not result.converged:
         raise ConvergenceError(f"bundle adjustment failed: {message}")

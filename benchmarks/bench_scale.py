@@ -1,0 +1,193 @@
+"""A big ortho on Dask: photax.orthorectify_dask + to_raster against GDAL
+(rasterio.warp.reproject, 2 threads) and odc-geo's xr_reproject, with the
+peak memory of photax's run against one chunk's working set.
+
+    python benchmarks/bench_scale.py [--size 20000] [--chunks 1024] [--image 2000] [--no-peers]
+
+A rendered relief scene (``photax.relief_scene``, ``--image`` x 0.8
+``--image`` pixels, uint8) and a ``--size`` x ``--size`` output grid inside
+its footprint (finer than the image's ground sampling distance, as a big
+ortho from a big frame would be: the cost is per output pixel).  Dask's
+threaded scheduler with 2 workers (this machine has 2 cores); a progress bar
+shows each run.  Measured, in this order, each once (a big run is minutes):
+
+1. photax: ``orthorectify_dask(...)`` (bilinear, default approximate
+   mapping) written by ``photax.to_raster`` to a tiled deflate GeoTIFF (the
+   whole path a user runs): wall time, MPix/s, and the peak resident memory
+   above the start (``_common.peak_memory``: the kernel's high-water mark).
+   Compilation is done first on one chunk (not timed: a big run pays it
+   once, ~2 s).  "One chunk's working set" is the bytes of one task's
+   arrays (input window, output block, positions, window check, resampling
+   buffer); the issue's acceptance is a whole-run peak <= 2x that.
+2. photax into memory: the same array computed into a NumPy array
+   (``dask.array.store``) -- the like-for-like figure against 3 and 4.
+3. GDAL: ``rasterio.warp.reproject`` of the image to the same grid,
+   bilinear, ``num_threads=2``, from 100 GCPs (photax's projection of a
+   10 x 10 ground lattice) with ``MAX_GCP_ORDER=3``: gdalwarp's warping with
+   its own (approximate, 0.125 px) transformer, the GCP polynomial standing
+   in for the collinearity model (GDAL has no frame-camera model; an RPC
+   model would be slower).  Into a NumPy array.
+4. odc-geo (``pip install -e ".[bench]"``): ``xr_reproject`` of the image
+   given an affine georeference (the order-1 fit to the same GCPs: odc
+   reprojects between CRSs and affine grids, it has no GCP or camera model,
+   so this is only the resampling's cost on Dask) onto the same GeoBox,
+   bilinear, chunked like photax, computed into a NumPy array.
+
+Peers 3-4 do not orthorectify; their figures bound what a warp of the same
+size costs, not the same result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(__file__))
+from _common import mib, peak_memory, record, start  # noqa: E402
+
+import photax  # noqa: E402
+from photax.rectification import Grid, ortho_grid  # noqa: E402
+
+CRS = "EPSG:32633"
+
+
+def scene(width: int):
+    s = photax.relief_scene(300.0, image_size=(width, width * 4 // 5), focal_px=float(width), n_gcp=3, n_check=0)
+    grey = np.asarray(s.image, dtype=float)  # rendered as float: an 8-bit frame, as aerial images are
+    lo, hi = np.nanmin(grey), np.nanmax(grey)
+    return s, np.round(255 * (grey - lo) / (hi - lo)).astype(np.uint8)
+
+
+def square_grid(s, size: int) -> Grid:
+    """A size x size grid centred in the image's footprint, inside it."""
+    from rasterio import Affine
+
+    g = ortho_grid(s.exterior, s.camera, s.dem)
+    a, e = g.transform.a, -g.transform.e
+    side = 0.6 * min(g.shape[1] * a, g.shape[0] * e)  # metres: well inside the footprint
+    cx, cy = g.transform * (g.shape[1] / 2, g.shape[0] / 2)
+    res = side / size
+    return Grid(Affine(res, 0, cx - side / 2, 0, -res, cy + side / 2), (size, size), CRS)
+
+
+def gcps_for(s, grid: Grid):
+    """100 GCPs: a 10 x 10 ground lattice over the grid, on the DEM, and the
+    pixels photax projects them to."""
+    import jax.numpy as jnp
+
+    t = np.linspace(0.02, 0.98, 10)
+    cols, rows = np.meshgrid(t * grid.shape[1], t * grid.shape[0])
+    x, y = grid.transform * (cols.ravel(), rows.ravel())
+    x, y = np.asarray(x), np.asarray(y)
+    z = np.asarray(s.dem.height(jnp.asarray(x), jnp.asarray(y)))
+    pix = np.asarray(s.camera.image_to_pixel(photax.project(jnp.asarray(np.stack([x, y, z], -1)), s.exterior,
+                                                            s.camera)))
+    return pix, np.stack([x, y], -1)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--size", type=int, default=20000, help="output grid edge in pixels")
+    ap.add_argument("--chunks", type=int, default=1024)
+    ap.add_argument("--image", type=int, default=2000, help="rendered image width in pixels")
+    ap.add_argument("--no-peers", action="store_true")
+    args = ap.parse_args()
+    start("bench_scale")
+    import dask
+    import dask.array as da
+    from dask.diagnostics import ProgressBar
+
+    dask.config.set(scheduler="threads", num_workers=2)
+    t0 = time.perf_counter()
+    s, image = scene(args.image)
+    grid = square_grid(s, args.size)
+    mpix = args.size**2 / 1e6
+    print(f"scene {image.shape[1]} x {image.shape[0]} rendered in {time.perf_counter() - t0:.1f} s; output "
+          f"{args.size} x {args.size} ({mpix:.0f} MPix) at {grid.transform.a:.3f} m, chunks {args.chunks}")
+    arr = photax.orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=args.chunks)
+    n = arr.data.npartitions
+    # One chunk in the middle first: compiles the kernels (not timed).
+    mid = args.size // 2 // args.chunks * args.chunks
+    arr.isel(y=slice(mid, mid + args.chunks), x=slice(mid, mid + args.chunks)).compute()
+    # One chunk's working set, from its arrays: the input window (the graph's
+    # largest), the output block, the positions (2 float32), their float64
+    # copy and mask for the window check (2 float64, 1 bool) and the float32
+    # resampling buffer, per output pixel.
+    graph = dict(arr.data.__dask_graph__())
+    window = max((np.asarray(v).nbytes for k, v in graph.items() if isinstance(k, str) and "-in-" in k), default=0)
+    chunk_set = window + args.chunks**2 * (image.itemsize + 8 + 16 + 1 + 4)
+    print(f"one chunk's working set: {mib(chunk_set)} (input window {mib(window)})")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "ortho.tif")
+        print(f"photax orthorectify_dask -> to_raster ({n} chunks)")
+        with ProgressBar(dt=5.0):  # timed inside: the bar's thread ends at its next tick
+            t0 = time.perf_counter()
+            _, peak = peak_memory(lambda: photax.to_raster(arr, out))
+            dt = time.perf_counter() - t0
+        load = os.getloadavg()[0]
+        print(f"  {dt:.1f} s, {mpix / dt:.1f} MPix/s, peak {mib(peak)} above the start = "
+              f"{peak / chunk_set:.2f} x one chunk's working set; file {mib(os.path.getsize(out))} (load {load:.1f})")
+        record("photax to_raster", seconds=dt, mpix_per_s=mpix / dt, peak_bytes=peak, chunk_bytes=chunk_set,
+               peak_over_chunk=peak / chunk_set, size=args.size, chunks=args.chunks, load=load)
+    dst = np.empty((args.size, args.size), np.uint8)
+    print("photax orthorectify_dask -> memory")
+    with ProgressBar(dt=5.0):
+        t0 = time.perf_counter()
+        da.store(arr.data, dst, lock=False)
+        dt = time.perf_counter() - t0
+    load = os.getloadavg()[0]
+    ours_out = dst[:: args.size // 500, :: args.size // 500].copy()  # a sample to compare the peers' with
+    print(f"  {dt:.1f} s, {mpix / dt:.1f} MPix/s (load {load:.1f})")
+    record("photax memory", seconds=dt, mpix_per_s=mpix / dt, load=load)
+    ours = dt
+    if args.no_peers:
+        return
+    from rasterio.control import GroundControlPoint
+    from rasterio.warp import Resampling, reproject
+
+    def agree(out):  # the peer warped the same image to the same place (not the same model: see above)
+        d = np.abs(out[:: args.size // 500, :: args.size // 500].astype(float) - ours_out)
+        return f"median |peer - photax| {np.median(d):.1f} grey levels on a sample"
+
+    pix, ground = gcps_for(s, grid)
+    gcps = [GroundControlPoint(row=r, col=c, x=x, y=y) for (c, r), (x, y) in zip(pix + 0.5, ground)]
+    print("GDAL rasterio.warp.reproject (GCP polynomial order 3, bilinear, 2 threads) -> memory")
+    t0 = time.perf_counter()
+    reproject(image, dst, gcps=gcps, src_crs=CRS, dst_transform=grid.transform, dst_crs=CRS,
+              resampling=Resampling.bilinear, num_threads=2, MAX_GCP_ORDER=3, warp_mem_limit=512)
+    dt = time.perf_counter() - t0
+    load = os.getloadavg()[0]
+    print(f"  {dt:.1f} s, {mpix / dt:.1f} MPix/s; photax / GDAL {ours / dt:.2f} (load {load:.1f}); {agree(dst)}")
+    record("gdal reproject", seconds=dt, mpix_per_s=mpix / dt, photax_over_peer=ours / dt, load=load)
+    try:
+        from odc.geo.geobox import GeoBox
+        from odc.geo.xr import wrap_xr, xr_reproject
+    except ImportError:
+        print("odc-geo not installed (pip install -e '.[bench]'): skipped")
+        return
+    from rasterio import Affine
+
+    # Order-1 fit pixel -> ground: the affine georeference odc needs.
+    a = np.c_[pix + 0.5, np.ones(len(pix))]
+    coef, *_ = np.linalg.lstsq(a, ground, rcond=None)
+    src_affine = Affine(coef[0, 0], coef[1, 0], coef[2, 0], coef[0, 1], coef[1, 1], coef[2, 1])
+    src = wrap_xr(da.from_array(image, chunks=args.chunks), GeoBox(image.shape, src_affine, CRS))
+    dst_box = GeoBox((args.size, args.size), grid.transform, CRS)
+    out = xr_reproject(src, dst_box, resampling="bilinear", chunks=(args.chunks, args.chunks))
+    print("odc-geo xr_reproject (affine, bilinear, Dask threads) -> memory")
+    with ProgressBar(dt=5.0):
+        t0 = time.perf_counter()
+        da.store(out.data, dst, lock=False)
+        dt = time.perf_counter() - t0
+    load = os.getloadavg()[0]
+    print(f"  {dt:.1f} s, {mpix / dt:.1f} MPix/s; photax / odc-geo {ours / dt:.2f} (load {load:.1f}); {agree(dst)}")
+    record("odc-geo xr_reproject", seconds=dt, mpix_per_s=mpix / dt, photax_over_peer=ours / dt, load=load)
+
+
+if __name__ == "__main__":
+    main()
