@@ -164,7 +164,7 @@ def test_order_independent_and_bad_input(scene):
     # Other bad input, each a ValueError naming what is wrong (no ortho is computed for these).
     half = _dataarray(a.values[::2, ::2], Grid((2 * RES, 0, X0, 0, -2 * RES, Y1), (60, 65), crs="EPSG:32633"),
                       np.asarray(np.nan, dtype=np.float32), "o")
-    off = b.rio.write_transform(b.rio.transform() * rasterio.Affine.translation(0.5, 0))
+    off = b.assign_coords(x=b.x + RES / 2).rio.write_transform(b.rio.transform() * rasterio.Affine.translation(0.5, 0))
     for orthos, kwargs, match in (
         ([], {}, "at least one"), ([a, half], {}, "pixel size"), ([a, off], {}, "pixel lattice"),
         ([a, a.expand_dims("band")], {}, "2-D"), ([a, a.values], {}, "georeferenced"),
