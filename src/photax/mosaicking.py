@@ -1,33 +1,40 @@
 """Seamless mosaics of orthophotos: seamlines, gain/offset balancing, feathering.
 
 :func:`mosaic` joins georeferenced orthos (``xarray.DataArray`` with a
-rioxarray georeference, e.g. from :func:`photax.orthorectify_dask`, all on
-one CRS and one pixel lattice):
+rioxarray georeference, e.g. from :func:`photax.orthorectify_dask`, or
+raster paths; all on one CRS and one pixel lattice) into a lazy, chunked
+``xarray.DataArray`` on the union grid:
 
 1. **Balancing** (optional): a gain and an offset per image,
    ``v' = g_i v + o_i``, by linear least squares over every overlapping pair,
-   ``sum_pairs sum_overlap (g_i v_i + o_i - g_j v_j - o_j)^2 +
-   lam sum_i ((g_i - 1)^2 + o_i^2)`` (the weak prior fixes the datum: without
-   it all gains could shrink to 0).  Only the pairs' first and second moments
-   enter the normal equations.
-2. **Seamlines**: images are added one at a time in a canonical order (by
-   their footprint centre, not the order given, so the result does not
-   depend on it).  In each overlap between the mosaic so far and the next
-   image the seam is the **minimum s-t cut** (Kwatra et al. 2003,
-   "Graphcut textures") of the 4-neighbour graph whose edge costs are the
-   grey-value difference of the two (balanced) images at both ends, plus a
-   large penalty on raised objects (``dsm - dem`` above ``raised``) so the
-   seam goes round buildings and trees; terminals are the overlap pixels
-   touching either image's own area.  ``method="voronoi"``: each pixel from
-   the image whose nadir is nearest (the simple option).
-3. **Feathering**: across each seam the images are blended linearly over
-   ``feather`` pixels on either side (weights from distance transforms of
-   the labels).
+   ``sum_pairs sum_overlap (g_i v_i + o_i - g_j v_j - o_j)^2`` with the datum
+   ``mean(g) = 1, mean(o) = 0`` (without it all gains could shrink to 0).
+   Only the pairs' first and second moments enter the normal equations; they
+   are summed chunk by chunk over each overlap window at full resolution.
+2. **Seamlines**, on the *seam grid*: the union grid coarsened by
+   ``seam_scale`` (cells of ``s x s`` pixels, their mean; a cell is an
+   image's only where all its pixels are; ``s = 1``, full resolution, for
+   mosaics up to 4 Mpx by default).  Images are added one at a time in a
+   canonical order (by their footprint centre, not the order given, so the
+   result does not depend on it).  In each overlap between the mosaic so far
+   and the next image the seam is the **minimum s-t cut** (Kwatra et al.
+   2003, "Graphcut textures") of the 4-neighbour graph whose edge costs are
+   the grey-value difference of the two (balanced) images at both ends,
+   plus a large penalty on raised objects (``dsm - dem`` above ``raised``)
+   so the seam goes round buildings and trees; terminals are the overlap
+   pixels touching either image's own area.  Each cut works in the next
+   image's footprint window only.  ``method="voronoi"``: each pixel from the
+   image whose nadir is nearest (the simple option).
+3. **Feathering**, per output chunk at full resolution: across each seam
+   the images are blended linearly over ``feather`` pixels on either side
+   (weights from distance transforms of the labels in the chunk grown by
+   ``feather + 1`` pixels, which is exact: a label farther away gets weight 0).
 
-The work is done in memory with numpy/scipy (scipy's maximum flow for the
-cuts); the result is returned as a Dask-backed DataArray so that it writes
-with :func:`photax.tiled.to_raster` (``cog=True`` for a Cloud-Optimized
-GeoTIFF) like the orthos.  A mosaic larger than memory is not handled yet.
+Memory: the seam grid (``n`` footprints of ``1/s^2`` of their pixels, the
+labels) is in memory; the full-resolution orthos are only ever read chunk
+by chunk (twice: once for the overlap moments and the seam grid, once for
+the output).  Write the result with :func:`photax.tiled.to_raster`
+(``cog=True``: a tiled, compressed Cloud-Optimized GeoTIFF with overviews).
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ import math
 import numpy as np
 
 _SCALE = 1000  # integer edge capacities: cost units per grey-value unit
+_SEAM_PIXELS = 1 << 22  # default seam grid: at most 4 Mpx (s = 1 up to that)
 
 
 def _lattice(orthos):
@@ -67,24 +75,92 @@ def _lattice(orthos):
     return transform, (r1 - r0, c1 - c0), crs, [(b[0] - r0, b[1] - c0) for b in boxes]
 
 
-def _balance(stack, valid):
-    """Gains and offsets ``(n,)``, ``(n,)`` by least squares in the overlaps,
-    with the datum ``mean(g) = 1``, ``mean(o) = 0`` (Lagrange multipliers:
-    without it all gains would shrink to 0)."""
-    n = len(stack)
+def _open(o, k: int, chunks: int):
+    """Ortho ``k`` as a 2-D DataArray (a raster path is opened lazily, in chunks)."""
+    import os
+
+    if isinstance(o, (str, bytes)) or hasattr(o, "__fspath__"):
+        import rioxarray
+
+        from .io.raster import open_raster
+
+        try:
+            with open_raster(o):  # a clear error for a missing or unreadable file
+                pass
+        except FileNotFoundError:
+            raise ValueError(f"orthos[{k}]: no such raster file: {o}") from None
+        o = rioxarray.open_rasterio(os.fspath(o), masked=True, chunks=chunks)
+        if o.sizes.get("band", 1) != 1:
+            raise ValueError(f"orthos[{k}]: {o.sizes['band']} bands; mosaic joins single-band orthos")
+        o = o.squeeze("band", drop=True)
+    if not hasattr(o, "rio"):
+        raise ValueError(f"orthos[{k}] must be a georeferenced xarray.DataArray or a raster path, "
+                         f"got {type(o).__name__}")
+    if o.ndim != 2:
+        raise ValueError(f"orthos[{k}] must be 2-D (y, x), got dims {o.dims}")
+    return o
+
+
+def _lazy(o, chunks: int):
+    """The ortho's values as a float64 Dask array, NaN for no data."""
+    import dask.array as da
+
+    v = o.data
+    if not isinstance(v, da.Array):
+        v = da.from_array(np.asarray(v), chunks=chunks)
+    v = v.astype(float)
+    nd = o.rio.nodata
+    if nd is not None and not np.isnan(nd):
+        v = da.where(v == nd, np.nan, v)
+    return v
+
+
+def _seam_grid(v, box, s: int, chunks: int):
+    """Ortho ``v`` on the seam grid: ``s x s`` cell means over the union
+    grid's cells (NaN unless every pixel of the cell has data); returns the
+    lazy array and its ``(row, col)`` offset on the seam grid."""
+    import dask.array as da
+
+    r, c, h, w = box
+    if s == 1:
+        return v, (r, c)
+    pt, pl = r % s, c % s
+    pb, pr = -(r + h) % s, -(c + w) % s
+    if pt or pl or pb or pr:
+        v = da.pad(v, ((pt, pb), (pl, pr)), constant_values=np.nan)
+    step = max(s, chunks // s * s)
+    return da.coarsen(np.mean, v.rechunk(step), {0: s, 1: s}), (r // s, c // s)
+
+
+def _pair_moments(vi, vj, bi, bj):
+    """Lazy ``[count, sum a, sum b, sum a^2, sum b^2, sum ab]`` over the
+    pixels where both orthos have data (``a`` of ``vi``, ``b`` of ``vj``),
+    or None when their boxes do not meet."""
+    import dask.array as da
+
+    r0, c0 = max(bi[0], bj[0]), max(bi[1], bj[1])
+    r1, c1 = min(bi[0] + bi[2], bj[0] + bj[2]), min(bi[1] + bi[3], bj[1] + bj[3])
+    if r1 <= r0 or c1 <= c0:
+        return None
+    a = vi[r0 - bi[0] : r1 - bi[0], c0 - bi[1] : c1 - bi[1]]
+    b = vj[r0 - bj[0] : r1 - bj[0], c0 - bj[1] : c1 - bj[1]]
+    m = da.isfinite(a) & da.isfinite(b)
+    a, b = da.where(m, a, 0.0), da.where(m, b, 0.0)
+    return da.stack([m.sum(dtype=float), a.sum(), b.sum(), (a * a).sum(), (b * b).sum(), (a * b).sum()])
+
+
+def _balance(n: int, moments: dict):
+    """Gains and offsets ``(n,)``, ``(n,)`` by least squares in the overlaps
+    from the pairs' moments ``{(i, j): [count, Sa, Sb, Saa, Sbb, Sab]}``,
+    with the datum ``mean(g) = 1``, ``mean(o) = 0`` (Lagrange multipliers)."""
     N = np.zeros((2 * n, 2 * n))
-    for i in range(n):
-        for j in range(i + 1, n):
-            m = valid[i] & valid[j]
-            if not m.any():
-                continue
-            a, b = stack[i][m].astype(float), stack[j][m].astype(float)
-            # Residual g_i a + o_i - g_j b - o_j: design row [a, 1, -b, -1] at (gi, oi, gj, oj).
-            idx = [2 * i, 2 * i + 1, 2 * j, 2 * j + 1]
-            cols = [a, np.ones_like(a), -b, -np.ones_like(b)]
-            for p in range(4):
-                for q in range(4):
-                    N[idx[p], idx[q]] += np.dot(cols[p], cols[q])
+    for (i, j), (cnt, sa, sb, saa, sbb, sab) in moments.items():
+        if cnt == 0:
+            continue
+        # Residual g_i a + o_i - g_j b - o_j: design row [a, 1, -b, -1] at (gi, oi, gj, oj).
+        idx = [2 * i, 2 * i + 1, 2 * j, 2 * j + 1]
+        block = np.array([[saa, sa, -sab, -sa], [sa, cnt, -sb, -cnt], [-sab, -sb, sbb, sb], [-sa, -cnt, sb, cnt]])
+        N[np.ix_(idx, idx)] += block
     C = np.zeros((2, 2 * n))
     C[0, 0::2], C[1, 1::2] = 1.0, 1.0
     K = np.block([[N, C.T], [C, np.zeros((2, 2))]])
@@ -144,6 +220,102 @@ def _touching(mask, other):
     return mask & ndimage.binary_dilation(other, structure=ndimage.generate_binary_structure(2, 1))
 
 
+def _window(off, size, shape, grow: int):
+    """Slices of the box ``off, size`` grown by ``grow`` cells, inside ``shape``."""
+    (r, c), (h, w) = off, size
+    return (slice(max(r - grow, 0), min(r + h + grow, shape[0])), slice(max(c - grow, 0), min(c + w + grow, shape[1])))
+
+
+def _seamlines(cells, offs, shape, gains, offsets, raised, nadirs, transform, method):
+    """Labels ``(rows, cols)`` on the seam grid (canonical image index, -1
+    for no data); images in canonical order, each cut made in its window."""
+    labels = -np.ones(shape, dtype=np.int64)
+    cur = np.full(shape, np.nan)  # balanced value of the image each cell is labelled with
+    best = np.full(shape, np.inf)  # voronoi: distance to the nearest nadir so far
+    empty = True
+    for k, cell in enumerate(cells):
+        win = _window(offs[k], cell.shape, shape, 1)
+        v = np.full((win[0].stop - win[0].start, win[1].stop - win[1].start), np.nan)
+        r, c = offs[k][0] - win[0].start, offs[k][1] - win[1].start
+        v[r : r + cell.shape[0], c : c + cell.shape[1]] = cell
+        valid = np.isfinite(v)
+        bal = v * gains[k] + offsets[k]
+        rr, cc = np.mgrid[win[0], win[1]] + 0.5
+        X, Y = transform.c + transform.a * cc, transform.f + transform.e * rr
+        dist = np.hypot(X - nadirs[k, 0], Y - nadirs[k, 1])
+        lab, cu = labels[win], cur[win]  # views
+        if method == "voronoi":  # strict <: ties go to the first in canonical order
+            d = np.where(valid, dist, np.inf)
+            closer = d < best[win]
+            best[win][closer] = d[closer]
+            lab[closer] = k
+            continue
+        if empty:
+            lab[valid], cu[valid], empty = k, bal[valid], False
+            continue
+        overlap = valid & (lab >= 0)
+        new = valid & (lab < 0)
+        lab[new], cu[new] = k, bal[new]
+        if not overlap.any():
+            continue
+        diff = np.abs(np.where(overlap, cu - bal, 0.0))
+        top = max(float(diff.max()), 1e-6)
+        node = diff + raised[win].astype(float) * 1e3 * top + 1e-3 * top  # small length term: short seams on ties
+        cost_h = np.rint(_SCALE * (node[:, :-1] + node[:, 1:])).astype(np.int64)
+        cost_v = np.rint(_SCALE * (node[:-1, :] + node[1:, :])).astype(np.int64)
+        own_k = valid & ~overlap & (lab == k)
+        own_m = (lab >= 0) & ~valid
+        src, snk = _touching(overlap, own_k), _touching(overlap, own_m)
+        src, snk = src & ~snk, snk & ~src  # a pixel touching both is left to the cut
+        if not src.any() or not snk.any():  # one image inside the other: nearest nadir in the overlap
+            prev = np.where(overlap, lab, 0)
+            dprev = np.hypot(X - nadirs[prev, 0], Y - nadirs[prev, 1])
+            side = overlap & (dist < dprev)
+        else:
+            side = overlap & _min_cut(np.minimum(cost_h, 2**30), np.minimum(cost_v, 2**30), overlap, src, snk)
+        lab[side], cu[side] = k, bal[side]
+    return labels
+
+
+def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, window, s, feather):
+    """One output chunk ``(h, w)``: the intersecting orthos ``parts`` (canonical
+    indices ``idx``, at ``places`` in the chunk), balanced and feathered
+    across the labels (seam grid ``lab`` at ``lab_origin``, cells of ``s`` px)."""
+    from scipy import ndimage
+
+    r0, c0, h, w = tile
+    (wr0, wr1), (wc0, wc1) = window
+    m = len(parts)
+    vals = np.full((m, h, w), np.nan)
+    for p, ((pr, pc), v) in enumerate(zip(places, parts)):
+        vals[p, pr : pr + v.shape[0], pc : pc + v.shape[1]] = v
+    bal = vals * gains[:, None, None] + offsets[:, None, None]
+    valid = np.isfinite(vals)
+    full = lab[(np.arange(wr0, wr1) // s - lab_origin[0])[:, None], (np.arange(wc0, wc1) // s - lab_origin[1])[None]]
+    inner = full[r0 - wr0 : r0 - wr0 + h, c0 - wc0 : c0 - wc0 + w]
+    if feather > 0:
+        # Weight of image k falls linearly from 1 (feather px inside its label) to 0 (feather px outside).
+        wts = np.zeros((m, h, w))
+        for p, k in enumerate(idx):
+            own = full == k
+            if not own.any():
+                continue
+            inside = ndimage.distance_transform_edt(own) if not own.all() else np.full(own.shape, np.inf)
+            outside = ndimage.distance_transform_edt(~own)
+            signed = np.where(own, inside - 0.5, 0.5 - outside)[r0 - wr0 : r0 - wr0 + h, c0 - wc0 : c0 - wc0 + w]
+            wts[p] = np.where(valid[p], np.clip(0.5 + signed / (2 * feather), 0.0, 1.0), 0.0)
+        total = wts.sum(axis=0)
+        out = np.where(total > 0, np.nansum(np.nan_to_num(bal) * wts, axis=0) / np.where(total > 0, total, 1), np.nan)
+    else:
+        out = np.full((h, w), np.nan)
+        for p, k in enumerate(idx):
+            out[inner == k] = bal[p][inner == k]
+    # Pixels with data in no labelled cell (a seam grid cell only partly covered): the mean of what is there.
+    cnt = valid.sum(axis=0)
+    rest = np.where(cnt > 0, np.nan_to_num(bal).sum(axis=0) / np.maximum(cnt, 1), np.nan)
+    return np.where(inner >= 0, out, rest)
+
+
 def mosaic(
     orthos,
     *,
@@ -155,36 +327,52 @@ def mosaic(
     balance: bool = True,
     feather: int = 8,
     chunks: int = 1024,
+    seam_scale: int | None = None,
     info: dict | None = None,
 ):
-    """Join orthophotos into one mosaic without visible seams.
+    """Join orthophotos into one mosaic without visible seams, lazily.
 
     Args:
-        orthos: a sequence of 2-D ``xarray.DataArray`` (``y, x``) with a
-            rioxarray georeference, one CRS and one pixel lattice, NaN (or
-            their ``rio.nodata``) outside their footprint.
+        orthos: a sequence of 2-D ``xarray.DataArray`` (``y, x``; NumPy- or
+            Dask-backed) with a rioxarray georeference, or raster paths
+            (opened lazily in ``chunks``); one CRS and one pixel lattice, NaN
+            (or their ``rio.nodata``) outside their footprint.
         method: ``"seamline"`` (minimum-difference cuts, default) or
             ``"voronoi"`` (nearest nadir).
         nadirs: ``(n, 2)`` ground ``(X, Y)`` of each image's nadir (for
             ``"voronoi"`` and the canonical order); default each ortho's
             footprint centre.
-        dsm, dem: 2-D arrays on the mosaic's union grid (or DataArrays on
-            it): pixels with ``dsm - dem > raised`` (metres) are raised
-            objects the seams avoid.  ``dem`` may be omitted if ``dsm`` is
-            already a height above ground.
+        dsm, dem: 2-D arrays (NumPy, Dask or DataArray) on the mosaic's
+            union grid: pixels with ``dsm - dem > raised`` (metres) are raised
+            objects the seams avoid (by ``feather + 1`` px).  ``dem`` may be
+            omitted if ``dsm`` is already a height above ground.
         balance: estimate a gain and offset per image in the overlaps.
         feather: half-width in pixels of the linear blend across seams (0:
             hard seams).
-        chunks: Dask chunk edge of the returned array.
+        chunks: Dask chunk edge of the returned array (and of path inputs).
+        seam_scale: cell edge ``s`` in pixels of the grid the seams are cut
+            on (default the smallest with at most 4 Mpx on the union grid; 1
+            for full resolution).
         info: a dict to receive ``gains`` and ``offsets`` ``(n,)`` (per
-            ortho, in the order given), ``labels`` (``(rows, cols)`` index of
-            the ortho each pixel comes from, -1 for no data) and ``order``
-            (the canonical order the seams were made in).
+            ortho, in the order given), ``labels`` (the index of the ortho
+            each seam-grid cell comes from, -1 for none; at full resolution
+            when ``seam_scale == 1``), ``seam_scale`` and ``order`` (the
+            canonical order the seams were made in).
 
     Returns:
-        ``xarray.DataArray`` (Dask-backed) on the union grid, NaN for no data.
+        Lazy ``xarray.DataArray`` (float64, Dask chunks of ``chunks``) on the
+        union grid, CRS and transform on the rioxarray conventions, NaN for
+        no data.
+
+    Raises:
+        ValueError: no orthos, orthos in different CRSs, resolutions or pixel
+            lattices, an ortho that overlaps no other, bad arguments.
     """
+    # Over 80 lines: the docstring documents every argument; the body reads top to bottom:
+    # inputs, one pass for moments and the seam grid, seams, then the output graph.
+    import dask
     import dask.array as da
+    from rasterio import Affine
     from scipy import ndimage
 
     from .rectification._grid import Grid
@@ -195,101 +383,102 @@ def mosaic(
         raise ValueError("orthos must hold at least one ortho")
     if method not in ("seamline", "voronoi"):
         raise ValueError(f"method must be 'seamline' or 'voronoi', got {method!r}")
-    for k, o in enumerate(orthos):
-        if o.ndim != 2:
-            raise ValueError(f"orthos[{k}] must be 2-D (y, x), got dims {o.dims}")
+    if isinstance(chunks, bool) or not isinstance(chunks, (int, np.integer)) or chunks < 1:
+        raise ValueError(f"chunks must be a positive number of pixels, got {chunks!r}")
+    if isinstance(feather, bool) or not isinstance(feather, (int, np.integer)) or feather < 0:
+        raise ValueError(f"feather must be a number of pixels >= 0, got {feather!r}")
+    orthos = [_open(o, k, chunks) for k, o in enumerate(orthos)]
     transform, shape, crs, offsets = _lattice(orthos)
     n = len(orthos)
-    stack = np.full((n,) + shape, np.nan)
-    for k, (o, (r, c)) in enumerate(zip(orthos, offsets)):
-        v = np.asarray(o.values, dtype=float)
-        nd = o.rio.nodata
-        if nd is not None and not np.isnan(nd):
-            v = np.where(v == nd, np.nan, v)
-        stack[k, r : r + v.shape[0], c : c + v.shape[1]] = v
-    valid = np.isfinite(stack)
-    if n > 1:
-        for k in range(n):
-            if not any((valid[k] & valid[j]).any() for j in range(n) if j != k):
-                raise ValueError(f"orthos[{k}] overlaps no other ortho: nothing to join it by")
-    rr, cc = np.mgrid[0 : shape[0], 0 : shape[1]] + 0.5
-    X, Y = transform.c + transform.a * cc, transform.f + transform.e * rr
+    if seam_scale is None:
+        s = max(1, math.ceil(math.sqrt(shape[0] * shape[1] / _SEAM_PIXELS)))
+    elif isinstance(seam_scale, bool) or not isinstance(seam_scale, (int, np.integer)) or seam_scale < 1:
+        raise ValueError(f"seam_scale must be a positive number of pixels, got {seam_scale!r}")
+    else:
+        s = int(seam_scale)
+    shape_c = (-(-shape[0] // s), -(-shape[1] // s))
+    boxes = [(r, c, o.shape[0], o.shape[1]) for o, (r, c) in zip(orthos, offsets)]
+    vals = [_lazy(o, chunks) for o in orthos]
+    seam = [_seam_grid(v, b, s, chunks) for v, b in zip(vals, boxes)]
+    pairs = {}
+    for i in range(n):
+        for j in range(i + 1, n):
+            mom = _pair_moments(vals[i], vals[j], boxes[i], boxes[j])
+            if mom is not None:
+                pairs[(i, j)] = mom
+    raised_c = None
+    if dsm is not None:
+        h = da.asarray(dsm.data if hasattr(dsm, "dims") else dsm).astype(float)
+        if dem is not None:
+            h = h - da.asarray(dem.data if hasattr(dem, "dims") else dem).astype(float)
+        if h.shape != shape:
+            raise ValueError(f"dsm must be on the mosaic grid, shape {shape}, got {h.shape}")
+        up = da.nan_to_num(h) > raised
+        if s > 1:
+            up = da.pad(up, ((0, shape_c[0] * s - shape[0]), (0, shape_c[1] * s - shape[1])), constant_values=False)
+            up = da.coarsen(np.any, up.rechunk(max(s, chunks // s * s)), {0: s, 1: s})
+        raised_c = up
+    # One pass over the inputs: the seam grid, the overlap moments and the raised cells.
+    cells, moments, raised_c = dask.compute([c for c, _ in seam], pairs, raised_c)
+    cells = [np.asarray(c, dtype=float) for c in cells]
+    for k in range(n):
+        if n > 1 and not any(moments[p][0] > 0 for p in moments if k in p):
+            raise ValueError(f"orthos[{k}] overlaps no other ortho: nothing to join it by")
+    tc = transform * Affine.scale(s)
     if nadirs is None:
-        nadirs = np.array([[X[valid[k]].mean(), Y[valid[k]].mean()] for k in range(n)])
+        nadirs = []
+        for k, (cell, (r, c)) in enumerate(zip(cells, (o for _, o in seam))):
+            rr, cc = np.nonzero(np.isfinite(cell))
+            if rr.size == 0:
+                raise ValueError(f"orthos[{k}] covers no whole {s} x {s} px cell of the seam grid: "
+                                 "give a smaller seam_scale")
+            nadirs.append([(tc.c + tc.a * (cc + c + 0.5)).mean(), (tc.f + tc.e * (rr + r + 0.5)).mean()])
     nadirs = np.asarray(nadirs, dtype=float)
     if nadirs.shape != (n, 2):
         raise ValueError(f"nadirs must be (n, 2) = ({n}, 2), got {nadirs.shape}")
     # Canonical order: by nadir, then by content -- not the order given.  All
     # the work below runs in it, so even rounding does not depend on the input order.
-    order = sorted(range(n), key=lambda k: (nadirs[k, 0], nadirs[k, 1], float(np.nansum(stack[k]))))
-    stack, valid, nadirs = stack[order], valid[order], nadirs[order]
-    if balance and n > 1:
-        gains, offs = _balance(stack, valid)
-    else:
-        gains, offs = np.ones(n), np.zeros(n)
-    bal = stack * gains[:, None, None] + offs[:, None, None]
-    raised_mask = np.zeros(shape, dtype=bool)
-    if dsm is not None:
-        h = np.asarray(getattr(dsm, "values", dsm), dtype=float)
-        if dem is not None:
-            h = h - np.asarray(getattr(dem, "values", dem), dtype=float)
-        if h.shape != shape:
-            raise ValueError(f"dsm must be on the mosaic grid, shape {shape}, got {h.shape}")
-        raised_mask = np.nan_to_num(h) > raised
-        # Keep the seams a blend's width off them too: feathering must not mix a roof in.
-        raised_mask = ndimage.binary_dilation(raised_mask, iterations=max(feather, 0) + 1)
-    labels = -np.ones(shape, dtype=np.int64)
-    dist = np.stack([np.hypot(X - nadirs[k, 0], Y - nadirs[k, 1]) for k in range(n)])
-    if method == "voronoi":
-        d = np.where(valid, dist, np.inf)
-        best = np.argmin(d, axis=0)
-        labels = np.where(valid.any(axis=0), best, -1)
-    else:
-        for k in range(n):
-            if (labels < 0).all():
-                labels[valid[k]] = k
+    order = sorted(range(n), key=lambda k: (nadirs[k, 0], nadirs[k, 1], float(np.nansum(cells[k]))))
+    pos = np.argsort(order)  # given -> canonical
+    canon = {}
+    for (i, j), (cnt, sa, sb, saa, sbb, sab) in moments.items():
+        canon[(pos[i], pos[j]) if pos[i] < pos[j] else (pos[j], pos[i])] = (
+            (cnt, sa, sb, saa, sbb, sab) if pos[i] < pos[j] else (cnt, sb, sa, sbb, saa, sab))
+    gains, offs = _balance(n, canon) if (balance and n > 1) else (np.ones(n), np.zeros(n))
+    up = np.zeros(shape_c, dtype=bool)
+    if raised_c is not None:
+        # Keep the seams a blend's width off raised objects too: feathering must not mix a roof in.
+        up = ndimage.binary_dilation(np.asarray(raised_c), iterations=-(-(feather + 1) // s))
+    labels = _seamlines([cells[k] for k in order], [seam[k][1] for k in order], shape_c, gains, offs, up,
+                        nadirs[order], tc, method)
+    # The output graph: one task per chunk on the slices of the orthos it meets.
+    grow = feather + 1
+    blend = dask.delayed(_blend_chunk, pure=True)
+    rows = []
+    for r0 in range(0, shape[0], chunks):
+        row = []
+        for c0 in range(0, shape[1], chunks):
+            h, w = min(chunks, shape[0] - r0), min(chunks, shape[1] - c0)
+            parts, places, idx = [], [], []
+            for p, k in enumerate(order):
+                br, bc, bh, bw = boxes[k]
+                a0, a1, b0, b1 = max(r0, br), min(r0 + h, br + bh), max(c0, bc), min(c0 + w, bc + bw)
+                if a1 > a0 and b1 > b0:
+                    parts.append(vals[k][a0 - br : a1 - br, b0 - bc : b1 - bc])
+                    places.append((a0 - r0, b0 - c0))
+                    idx.append(p)
+            if not idx:
+                row.append(da.full((h, w), np.nan, chunks=(h, w)))
                 continue
-            overlap = valid[k] & (labels >= 0)
-            labels[valid[k] & (labels < 0)] = k
-            if not overlap.any():
-                continue
-            cur = np.take_along_axis(bal, np.maximum(labels, 0)[None], axis=0)[0]
-            diff = np.abs(np.where(overlap, cur - bal[k], 0.0))
-            pen = raised_mask.astype(float) * 1e3 * max(np.nanmax(diff), 1e-6)
-            node = diff + pen + 1e-3 * max(np.nanmax(diff), 1e-6)  # small length term: short seams on ties
-            cost_h = np.rint(_SCALE * (node[:, :-1] + node[:, 1:])).astype(np.int64)
-            cost_v = np.rint(_SCALE * (node[:-1, :] + node[1:, :])).astype(np.int64)
-            own_k = valid[k] & ~overlap & (labels == k)
-            own_m = (labels >= 0) & ~valid[k]
-            src, snk = _touching(overlap, own_k), _touching(overlap, own_m)
-            src, snk = src & ~snk, snk & ~src  # a pixel touching both is left to the cut
-            if not src.any() or not snk.any():  # one image inside the other: nearest nadir in the overlap
-                prev = np.where(overlap, labels, -1)
-                closer = dist[k] < np.take_along_axis(dist, np.maximum(prev, 0)[None], axis=0)[0]
-                labels[overlap & closer] = k
-                continue
-            side = _min_cut(np.minimum(cost_h, 2**30), np.minimum(cost_v, 2**30), overlap, src, snk)
-            labels[overlap & side] = k
-    # Feathering: weight of image k falls linearly from 1 (feather px inside its label) to 0 (feather px outside).
-    if feather > 0 and n > 1:
-        w = np.zeros((n,) + shape)
-        for k in range(n):
-            own = labels == k
-            if not own.any():
-                continue
-            inside = ndimage.distance_transform_edt(own)
-            outside = ndimage.distance_transform_edt(~own)
-            signed = np.where(own, inside - 0.5, 0.5 - outside)
-            w[k] = np.where(valid[k], np.clip(0.5 + signed / (2 * feather), 0.0, 1.0), 0.0)
-        total = w.sum(axis=0)
-        out = np.where(total > 0, np.nansum(np.nan_to_num(bal) * w, axis=0) / np.where(total > 0, total, 1), np.nan)
-    else:
-        out = np.take_along_axis(bal, np.maximum(labels, 0)[None], axis=0)[0]
-    out = np.where(labels >= 0, out, np.nan)
-    grid = Grid(transform, shape, crs)
-    arr = _dataarray(da.from_array(out, chunks=chunks), grid, np.asarray(np.nan), "mosaic")
+            wr0, wr1 = max(r0 - grow, 0), min(r0 + h + grow, shape[0])
+            wc0, wc1 = max(c0 - grow, 0), min(c0 + w + grow, shape[1])
+            lab = labels[wr0 // s : (wr1 - 1) // s + 1, wc0 // s : (wc1 - 1) // s + 1]
+            task = blend((r0, c0, h, w), parts, places, idx, gains[idx], offs[idx], lab, (wr0 // s, wc0 // s),
+                         ((wr0, wr1), (wc0, wc1)), s, feather if n > 1 else 0)
+            row.append(da.from_delayed(task, (h, w), dtype=float))
+        rows.append(row)
+    arr = _dataarray(da.block(rows), Grid(transform, shape, crs), np.asarray(np.nan), "mosaic")
     if info is not None:
-        back = np.argsort(order)  # canonical -> given
-        info.update(gains=gains[back], offsets=offs[back], labels=np.where(labels >= 0, np.asarray(order)[labels], -1),
-                    order=order)
+        info.update(gains=gains[pos], offsets=offs[pos], labels=np.where(labels >= 0, np.asarray(order)[labels], -1),
+                    order=order, seam_scale=s)
     return arr

@@ -1,33 +1,62 @@
 """``photax mosaic``: join orthophotos into one seamless mosaic (COG).
 
-Reads the orthos (GeoTIFFs on one CRS and pixel lattice, e.g. from
-``photax ortho``), balances gains and offsets in the overlaps, cuts
-seamlines of least difference (kept off raised objects with ``--dsm``),
-feathers across them and writes a Cloud-Optimized GeoTIFF atomically
-(:func:`photax.mosaicking.mosaic`, :func:`photax.tiled.to_raster`).  Exit codes:
-0 done, 2 bad input.
+Two ways in:
+
+* ``photax mosaic A.tif B.tif ... -o mosaic.tif``: orthos on one CRS and
+  pixel lattice (e.g. from ``photax ortho --resolution R``);
+* ``photax mosaic --block ORIENTATIONS --images DIR --camera CAM --dem DEM
+  -o mosaic.tif``: the block workflow, ``photax ortho`` over every image of
+  a block straight into the mosaic.  ``ORIENTATIONS`` is a ``photax bundle
+  --json`` result (its ``images`` list), a ``photax resect --json`` result
+  holding several images, or an orthority exterior CSV (+ ``.prj``); each
+  image is the file of ``DIR`` with the same stem.  All orthos share one
+  resolution (``--resolution``, default the median ground sampling distance)
+  and so one pixel lattice; they are written to a temporary folder beside
+  the output, removed at the end.
+
+Then gains and offsets are balanced in the overlaps, seamlines of least
+difference cut (kept off raised objects with ``--dsm``), the images
+feathered across them and the mosaic written chunk by chunk as a
+Cloud-Optimized GeoTIFF, atomically (:func:`photax.mosaicking.mosaic`,
+:func:`photax.tiled.to_raster`).  Exit codes: 0 done, 2 bad input.
 """
 
 from __future__ import annotations
+
+import pathlib
+
+from ._common import RESAMPLING, input_file, input_folder, plural
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "mosaic",
-        help="join orthophotos into one seamless mosaic (Cloud-Optimized GeoTIFF)",
-        description="Balance, cut seamlines of least difference and feather orthophotos into one mosaic.",
+        help="join orthophotos, or orthorectify a whole block, into one seamless mosaic (Cloud-Optimized GeoTIFF)",
+        description="Balance, cut seamlines of least difference and feather orthophotos into one mosaic. "
+        "With --block, orthorectify every image of a block first.",
     )
-    p.add_argument("orthos", nargs="+", metavar="ORTHO", help="orthophoto GeoTIFFs (one CRS, one pixel lattice)")
+    p.add_argument("orthos", nargs="*", metavar="ORTHO", help="orthophoto GeoTIFFs (one CRS, one pixel lattice)")
     p.add_argument("-o", "--out", required=True, help="output mosaic (Cloud-Optimized GeoTIFF)")
     p.add_argument("--method", choices=("seamline", "voronoi"), default="seamline",
                    help="seams of least difference (default) or nearest footprint centre")
     p.add_argument("--dsm", help="surface model raster: seams avoid raised objects "
                    "(with --dem, or heights above ground)")
-    p.add_argument("--dem", help="terrain model raster, subtracted from --dsm")
+    p.add_argument("--dem", help="terrain model raster: subtracted from --dsm; the DEM of --block's orthos")
     p.add_argument("--raised", type=float, default=2.0, metavar="METRES",
                    help="height above ground of a raised object (default 2)")
     p.add_argument("--no-balance", dest="balance", action="store_false", help="no gain/offset balancing")
     p.add_argument("--feather", type=int, default=8, metavar="PX", help="blend half-width across seams (default 8)")
+    p.add_argument("--chunks", type=int, default=1024, metavar="PX", help="chunk edge (memory ~ chunks^2)")
+    b = p.add_argument_group("block workflow (instead of ORTHOs)")
+    b.add_argument("--block", metavar="ORIENTATIONS",
+                   help="photax bundle --json or photax resect --json result, or orthority exterior CSV")
+    b.add_argument("--images", metavar="DIR", help="folder of the block's images (matched by file stem)")
+    b.add_argument("--camera", "--interior", dest="camera", metavar="CAMERA_FILE",
+                   help="photax camera file or orthority interior YAML")
+    b.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
+    b.add_argument("--resolution", type=float, help="ground pixel size (default: the median ground sampling distance)")
+    b.add_argument("--resampling", choices=RESAMPLING, default="bilinear")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
 
@@ -44,25 +73,145 @@ def _read(path):
     return arr.squeeze("band", drop=True)
 
 
-def run(args) -> int:
+def block_orientations(path, folder) -> tuple[list, list, str | None]:
+    """``(image paths, exterior orientations, crs or None)`` of a block.
+
+    ``path``: a ``photax bundle --json`` result (``images``: a list of
+    ``name, position, angles_rad``, the ``convention`` beside it), a
+    ``photax resect --json`` result (``images`` keyed by name) or an
+    orthority exterior CSV; each name is matched to the file of ``folder``
+    with the same stem.
+
+    Raises:
+        ValueError: naming the file: no orientations, an entry without
+            them, or an image missing from ``folder``.
+    """
+    from ..collinearity import ExteriorOrientation
+    from ..io.orientation import read_exterior
+    from ..io.orthority import read_orthority_crs, read_orthority_exterior
+    from ..io.results import read_json
+
+    path = pathlib.Path(path)
+    if path.suffix.lower() == ".json":
+        data = read_json(path)
+        images = data.get("images") if isinstance(data, dict) else None
+        crs = data.get("crs")
+        if isinstance(images, list):  # photax bundle --json
+            table = {}
+            for k, e in enumerate(images):
+                try:
+                    table[pathlib.Path(e["name"]).stem] = ExteriorOrientation(
+                        e["position"], e["angles_rad"], e.get("convention", data.get("convention", "phi-omega-kappa")))
+                except (KeyError, TypeError):
+                    raise ValueError(f"{path}: images[{k}] needs 'name', 'position' and 'angles_rad' "
+                                     "(photax bundle --json)") from None
+        elif isinstance(images, dict):  # photax resect --json, several images
+            table = {pathlib.Path(n).stem: read_exterior(path, n)[0] for n in images}
+        else:
+            raise ValueError(f"{path}: no 'images' (expected a photax bundle or resect --json result)")
+    else:
+        table, crs = read_orthority_exterior(path), read_orthority_crs(path)
+    if not table:
+        raise ValueError(f"{path}: no image orientations")
+    files = {p.stem: p for p in sorted(pathlib.Path(folder).iterdir()) if p.is_file()}
+    missing = [n for n in table if n not in files]
+    if missing:
+        raise ValueError(f"{path}: no image in {folder} for {sorted(missing)}")
+    return [files[n] for n in table], list(table.values()), crs
+
+
+def _orthorectify_block(args, tmp, inputs, bar) -> list:
+    """Every image of ``--block`` orthorectified into ``tmp`` on one lattice; their paths."""
+    import dataclasses
+
     import numpy as np
 
+    from ..io.atomic import check_output_path
+    from ..io.orientation import read_interior
+    from ..io.raster import read_dem
+    from ..rectification import ortho_grid, orthorectify_file
+
+    images, exteriors, crs = block_orientations(args.block, args.images)
+    inputs += [str(p) for p in images]
+    check_output_path(args.out, inputs)
+    camera = read_interior(args.camera, args.camera_name)
+    dem = read_dem(args.dem)
+    res = args.resolution
+    if res is None:  # one resolution for all: one pixel lattice (Grid.from_bounds snaps to it)
+        res = float(np.median([abs(ortho_grid(e, camera, dem).transform.a) for e in exteriors]))
+    bar.total = (bar.total or 0) + len(images)
+    paths = []
+    for k, (image, e) in enumerate(zip(images, exteriors)):
+        grid = ortho_grid(e, camera, dem, res)
+        if crs is not None:
+            grid = dataclasses.replace(grid, crs=crs)
+        out = pathlib.Path(tmp) / f"{k:05d}-{image.stem}.tif"
+        orthorectify_file(image, out, e, camera, dem, grid, resampling=args.resampling, tile=args.chunks)
+        paths.append(out)
+        bar.update()
+    return paths
+
+
+def _dask_progress(bar):
+    """A Dask callback advancing ``bar`` by one per task (its total grows by each graph's size)."""
+    from dask.callbacks import Callback
+
+    def start(dsk):
+        bar.total = (bar.total or 0) + len(dsk)
+
+    return Callback(start=start, posttask=lambda *a: bar.update())
+
+
+def run(args) -> int:
+    import tempfile
+
+    import numpy as np
+
+    from ..io.atomic import check_output_path
     from ..mosaicking import _lattice, mosaic
+    from ..progress import progress_bar
     from ..rectification._grid import Grid
     from ..tiled import _dataarray, to_raster
 
-    orthos = [_read(p) for p in args.orthos]
-    dsm = None
-    if args.dsm:
-        transform, shape, crs, _ = _lattice(orthos)
-        template = _dataarray(np.zeros(shape), Grid(transform, shape, crs), np.asarray(np.nan), "t")
-        dsm = _read(args.dsm).rio.reproject_match(template).values
-        if args.dem:
-            dsm = dsm - _read(args.dem).rio.reproject_match(template).values
-    info = {}
-    out = mosaic(orthos, method=args.method, dsm=dsm, raised=args.raised, balance=args.balance,
-                 feather=args.feather, info=info)
-    to_raster(out.astype(np.float32), args.out, cog=True, inputs=[*args.orthos, args.dsm, args.dem])
+    if args.chunks < 16:
+        raise ValueError(f"--chunks must be at least 16 pixels, got {args.chunks}")
+    if args.block:
+        if args.orthos:
+            raise ValueError("give ORTHO files or --block, not both")
+        for opt in ("images", "camera", "dem"):
+            if not getattr(args, opt):
+                raise ValueError(f"--block needs --{opt}")
+        inputs = [str(input_file(args.block, "block orientation file")), str(input_file(args.camera, "camera file")),
+                  str(input_file(args.dem, "DEM"))]
+        input_folder(args.images, "image folder")
+    else:
+        if not args.orthos:
+            raise ValueError("give the ORTHO files to join, or --block with --images, --camera and --dem")
+        if args.resolution is not None or args.camera or args.images:
+            raise ValueError("--images, --camera and --resolution belong to --block")
+        inputs = [str(input_file(p, "ortho")) for p in args.orthos]
+    for f in (args.dsm, args.dem):
+        if f:
+            inputs.append(str(input_file(f, "DSM/DEM")))
+    check_output_path(args.out, inputs)  # fail before the work, not after
+    out_dir = pathlib.Path(args.out).resolve().parent
+    # One bar, "mosaic": the block's images, then every Dask task of the mosaic and of its writing.
+    with tempfile.TemporaryDirectory(dir=out_dir, prefix=".photax-mosaic-") as tmp, progress_bar(
+            args.progress and args.command, None, desc="mosaic", unit="step") as bar:
+        paths = _orthorectify_block(args, tmp, inputs, bar) if args.block else list(args.orthos)
+        dsm = None
+        if args.dsm:  # resampled onto the mosaic grid in memory (one array of the mosaic's size)
+            transform, shape, crs, _ = _lattice([_read(p) for p in paths])
+            template = _dataarray(np.zeros(shape), Grid(transform, shape, crs), np.asarray(np.nan), "t")
+            dsm = _read(args.dsm).rio.reproject_match(template).values
+            if args.dem:
+                dsm = dsm - _read(args.dem).rio.reproject_match(template).values
+        info = {}
+        with _dask_progress(bar):
+            out = mosaic([str(p) for p in paths], method=args.method, dsm=dsm, raised=args.raised,
+                         balance=args.balance, feather=args.feather, chunks=args.chunks, info=info)
+            to_raster(out.astype(np.float32), args.out, cog=True, inputs=inputs)
     gains = ", ".join(f"{g:.3f}" for g in info["gains"])
-    print(f"photax mosaic: {len(orthos)} orthos -> {args.out} ({out.shape[1]} x {out.shape[0]} px; gains {gains})")
+    print(f"photax mosaic: {plural(len(paths), 'ortho')} -> {args.out} ({out.shape[1]} x {out.shape[0]} px; "
+          f"gains {gains})")
     return 0
