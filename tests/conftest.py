@@ -1,5 +1,6 @@
 """Test configuration: float64 and strict promotion, as optimistix does."""
 
+import importlib.util
 import os
 import pathlib
 import tempfile
@@ -42,6 +43,15 @@ def shared_data():
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data is not present")
     return SHARED_DATA
+
+
+def needs(*modules: str):
+    """Skip mark for a test module whose optional dependencies are missing,
+    found without importing them (``pytest.importorskip("rioxarray")`` at
+    collection imported dask, xarray and rioxarray in every xdist worker:
+    about 2.5 CPU s each, for files that run in one of them)."""
+    missing = [m for m in modules if importlib.util.find_spec(m) is None]
+    return pytest.mark.skipif(bool(missing), reason=f"{', '.join(missing)} not installed (the dask extra)")
 
 
 def shared_file(name: str) -> pathlib.Path:

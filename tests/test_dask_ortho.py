@@ -9,6 +9,7 @@ scipy, OpenCV and orthority in test_rectify.py / test_ortho_real.py).
 
 import numpy as np
 import pytest
+from conftest import needs
 import rasterio
 
 import photax
@@ -16,8 +17,7 @@ from photax.io.raster import write_geotiff
 from photax.rectification import Grid, ortho_grid
 from photax.rectification._tiling import _tiles
 
-pytest.importorskip("dask")
-pytest.importorskip("rioxarray")
+pytestmark = needs("dask", "rioxarray")
 
 from photax.tiled import orthorectify_dask, to_raster  # noqa: E402
 

@@ -5,14 +5,14 @@ reference users have (rasterio #1428)."""
 
 import numpy as np
 import pytest
+from conftest import needs
 import rasterio
 import rasterio.merge
 
 from photax.rectification import Grid
 from photax.scene import texture
 
-pytest.importorskip("dask")
-pytest.importorskip("rioxarray")
+pytestmark = needs("dask", "rioxarray")
 
 from photax import mosaic  # noqa: E402
 from photax.tiled import _dataarray, to_raster  # noqa: E402

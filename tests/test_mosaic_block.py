@@ -12,6 +12,7 @@ import re
 
 import numpy as np
 import pytest
+from conftest import needs
 import rasterio
 
 import photax
@@ -19,8 +20,7 @@ from photax.io import write_geotiff
 from photax.io.camera_file import write_camera
 from photax.scene import texture
 
-pytest.importorskip("dask")
-pytest.importorskip("rioxarray")
+pytestmark = needs("dask", "rioxarray")
 
 X0, Y0 = 500_000.0, 4_000_000.0
 W, H = 160, 120
