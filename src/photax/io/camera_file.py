@@ -38,7 +38,7 @@ scan pixel transformation of its interior orientation
       model: affine                # similarity, affine, bilinear or projective
       film_centre: [0.3, -0.1]     # (cu, cv): centroid of the fiducials in (x, -y), unit
       film_scale: 149.8            # s: their rms distance from it, unit
-      params: [1199.6, 7.12, 0.01, 1200.2, -0.02, 7.13]
+      params: [1199.6, 1563.2, 1.1, 1200.2, -0.9, 1563.5]
 
 ``params`` map the normalised film coordinates ``u = (x - cu) / s``,
 ``v = (-y - cv) / s`` to the pixel (column, row): affine ``c = a0 + a1 u +
