@@ -194,18 +194,17 @@ std = np.concatenate([result.exterior_std[:, :3], np.degrees(result.exterior_std
 d0 = np.concatenate([pos + [X0, Y0, 0] - np.asarray(eo.position),
                      np.degrees(np.array([np.asarray(e.angles) for e in start]) - np.asarray(eo.angles))], axis=1)
 fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
-labels = ["X", "Y", "Z", "a1", "a2", "a3"]
-for ax, what, unit_ in ((axes[0], slice(0, 3), "m"), (axes[1], slice(3, 6), "deg")):
-    for j, lab in zip(range(what.start, what.stop), labels[what]):
-        ax.plot(np.arange(6) + 0.1 * (j % 3), np.abs(d0[:, j]), "x", color=f"C{j % 3}", alpha=0.5)
-        ax.errorbar(np.arange(6) + 0.1 * (j % 3), np.abs(d[:, j]), yerr=3 * std[:, j], fmt="o", color=f"C{j % 3}",
-                    label=f"{lab}: adjusted (bar: 3 sigma)")
-    ax.set_yscale("log")
-    ax.set_xlabel("image")
-    ax.set_ylabel(f"|error| ({unit_})")
-    ax.legend(fontsize=7)
-axes[0].set_title("positions: start (x) and adjusted (o) against the truth")
-axes[1].set_title("angles: start (x) and adjusted (o) against the truth")
+x = np.arange(len(truth))
+for j, lab in enumerate("XYZ"):
+    axes[0].semilogy(x + 0.1 * j, np.abs(d0[:, j]), "x", color=f"C{j}", label=f"{lab} start")
+    axes[0].semilogy(x + 0.1 * j, np.abs(d[:, j]), "o", color=f"C{j}", label=f"{lab} adjusted")
+axes[0].set(xlabel="image", ylabel="|position error| (m)", title="camera positions against the truth")
+axes[0].legend(fontsize=7, ncol=2)
+for j, lab in enumerate(["X", "Y", "Z", "angle 1", "angle 2", "angle 3"]):
+    axes[1].plot(x + 0.1 * j - 0.25, d[:, j] / std[:, j], "o", color=f"C{j}", label=lab)
+axes[1].axhspan(-3, 3, color="0.9", zorder=0)
+axes[1].set(xlabel="image", ylabel="adjusted error / reported sigma", title="adjusted orientations: within 3 sigma?")
+axes[1].legend(fontsize=7, ncol=2)
 plt.tight_layout()
 print("adjusted errors within 3 sigma:", bool(np.all(np.abs(d) <= 3 * std)))"""),
     ("md", """## 4. An epipolar pair

@@ -296,3 +296,16 @@ def test_bundle_self_calibration_keeps_the_scan_transform():
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert abs(float(cam.focal_length) - float(truth.camera.focal_length)) < 1e-5
     assert abs(float(cam.distortion[0]) + 0.04) < 1e-9
+
+
+def test_marks_not_found_get_a_status(scans):
+    """A mark missing from the scan (painted over) is "not found" and left out; a blank scan is an error."""
+    img, truth = scans["affine"]
+    img = img.copy()
+    c, r = np.round(truth[5]).astype(int)
+    img[r - 14:r + 15, c - 14:c + 15] = np.median(img)  # mark 6 gone: film base only
+    res = find_fiducials(img, FID, pixel_size=PS, **MARK)
+    assert res.flagged.tolist() == [k == 5 for k in range(8)] and res.messages[5].startswith("not found"), res.messages
+    assert np.sqrt(np.mean((res.xy[~res.flagged] - truth[~res.flagged]) ** 2)) <= 0.1
+    with pytest.raises(ValueError, match="only 0 of 8 found"):
+        find_fiducials(np.full_like(img, 0.15), FID, pixel_size=PS, **MARK)

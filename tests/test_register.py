@@ -64,6 +64,10 @@ def test_too_far_off_is_reported(scene):
     start = photax.ExteriorOrientation(np.asarray(TRUE.position) + [60.0, 40.0, 0.0], TRUE.angles)
     res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8)
     assert not res.converged and res.message
+    # an orientation 10 km away sees nothing of the reference: said so, not a wrong orientation
+    far = photax.ExteriorOrientation(np.asarray(TRUE.position) + [10_000.0, 0.0, 0.0], TRUE.angles)
+    res = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8)
+    assert not res.converged and "sees (almost) nothing" in res.message, res.message
 
 
 def test_cli_register(scene, tmp_path):

@@ -128,11 +128,18 @@ def test_bad_input_gets_a_status(block):
     far = photax.ExteriorOrientation(np.asarray(start[1].position) + [10_000.0, 0.0, 0.0], start[1].angles)
     ties = match_ties([images[0], np.full((H, W), 0.4), images[1]], CAM, [start[0], start[4], far], dem,
                       search=SEARCH)
+    assert block[6].pair_status[0, 8] == "no overlap"  # the block's opposite corners
     assert ties.image_status == ["ok", "textureless", "sees no DEM"]
     assert ties.pair_status[0, 1] == "textureless" and ties.pair_status[0, 2] == "sees no DEM"
     assert ties.n_tracks == 0
     tr = transfer_points([images[0]], CAM, [start[0]], dem, gcp[:1] + [5000.0, 0.0, 0.0])
     assert [it["status"] for it in tr.items] == ["not in image"] and len(tr.table) == 0
+    # a GCP measured in image 4 (the library's measurement) transferred into a textureless image and image 3
+    t = block[5].table
+    row = np.flatnonzero((t.images == "4") & (t.names == "gcp5"))[0]
+    tr = transfer_points([images[4], np.full((H, W), 0.4), images[3]], CAM, [start[4], start[4], start[3]], dem,
+                         gcp[4:5], reference_image=[0], reference_xy=t.pixel[row:row + 1], search=SEARCH)
+    assert [it["status"] for it in tr.items] == ["reference", "low correlation", "ok"], tr.items
     with pytest.raises(ValueError, match="exterior"):
         match_ties(images[:2], CAM, start[:1], dem)
     with pytest.raises(ValueError, match="images"):
@@ -140,15 +147,16 @@ def test_bad_input_gets_a_status(block):
 
 
 def test_cli_transfer_and_ties(block, tmp_path):
-    """photax transfer and photax ties in process on the block's 9 images: the shapes the library calls
-    above compiled (match_chunks' batches, 9 orientations), so the commands add reading, matching and writing."""
+    """photax transfer and photax ties in process on the middle strip (images 3, 4, 5): the shapes
+    test_bad_input_gets_a_status compiled (match_chunks' batches, 3 orientations, 150 points), so the
+    commands add reading, matching and writing."""
     pytest.importorskip("rasterio")
     from photax.cli import main
     from photax.io import write_geotiff
 
     dem, _, start, images, gcp, transfer, _ = block
     paths, orient = [], {}
-    for k in range(9):
+    for k in (3, 4, 5):
         p = tmp_path / f"img{k}.tif"
         write_geotiff(p, images[k], (0.5, 0.0, 500000.0, 0.0, -0.5, 4100000.0), compress=None)  # not used
         paths.append(str(p))
@@ -174,4 +182,4 @@ def test_cli_transfer_and_ties(block, tmp_path):
     assert np.sqrt(np.mean((out.pixel - true_px[k, p]) ** 2)) <= 0.15
     assert main(["ties", *paths, *common, "--gcps", str(tmp_path / "out.csv"), "-o", str(tmp_path / "b.bal")]) == 0
     prob = photax.read_bal(tmp_path / "b.bal")
-    assert prob.n_images == 9 and prob.n_observations >= 500
+    assert prob.n_images == 3 and prob.n_observations >= 100
