@@ -73,8 +73,8 @@ for k in np.flatnonzero(found.flagged):
 fig, axes = plt.subplots(1, 2, figsize=(11, 5), gridspec_kw={"width_ratios": [1.1, 1]})
 axes[0].imshow(scan, cmap="gray")
 names = [f"F{k + 1}" for k in range(len(FID))]
-plot.residual_vectors(axes[0], found.xy, io.residuals, names, outliers=found.flagged, image_size=(520, 500),
-                          title="fiducial marks: residual vectors (exaggerated)")
+plot.residual_vectors(axes[0], found.xy, io.residuals, names, outliers=found.flagged, image_size=(520, 500))
+axes[0].set_title("fiducial marks: residual vectors (exaggerated; F4 flagged)", pad=22)
 k = int(np.flatnonzero(found.flagged)[0])
 c, r = np.round(found.xy[k]).astype(int)
 axes[1].imshow(scan[r - 20:r + 21, c - 20:c + 21], cmap="gray", extent=(c - 20.5, c + 20.5, r + 20.5, r - 20.5))
