@@ -239,8 +239,8 @@ differences by Gauss–Newton on JAX derivatives, coarse to fine. The reference 
 ground texture itself, sampled at 1 m (a perfect orthophoto); the start is 5 m and 0.2°
 off."""),
     ("code", """k = 1
-ortho_x = np.asarray(truth[k].position)[0] - X0 - 80 + (np.arange(160) + 0.5)
-ortho_y = np.asarray(truth[k].position)[1] - Y0 + 55 - (np.arange(110) + 0.5)
+ortho_x = np.asarray(truth[k].position)[0] - X0 - 50 + (np.arange(100) + 0.5)  # 100 m x 70 m at 1 m
+ortho_y = np.asarray(truth[k].position)[1] - Y0 + 35 - (np.arange(70) + 0.5)
 ortho = np.asarray(detailed_texture(jnp.asarray(ortho_x)[None, :], jnp.asarray(ortho_y)[:, None]))
 otr = (1.0, 0.0, X0 + ortho_x[0] - 0.5, 0.0, -1.0, Y0 + ortho_y[0] + 0.5)
 off = ptx.ExteriorOrientation(np.asarray(truth[k].position) + [4.0, -3.0, 0.0],
