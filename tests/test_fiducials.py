@@ -309,3 +309,33 @@ def test_marks_not_found_get_a_status(scans):
     assert np.sqrt(np.mean((res.xy[~res.flagged] - truth[~res.flagged]) ** 2)) <= 0.1
     with pytest.raises(ValueError, match="only 0 of 8 found"):
         find_fiducials(np.full_like(img, 0.15), FID, pixel_size=PS, **MARK)
+
+
+def test_block_folder_reads_a_scanned_camera_file(tmp_path):
+    """A block folder's camera given as {"file": ...}: its pixels go through the scan transformation
+    (the observations equal ScannedCamera.pixel_to_image of the pixels, i.e. the scanner's film points)."""
+    import json
+    import shutil
+
+    from photax.io import read_block, write_camera
+
+    folder = tmp_path / "block"
+    from conftest import ROOT
+
+    shutil.copytree(ROOT / "data" / "block", folder, ignore=shutil.ignore_patterns("*.py"))
+    io = interior_orientation(_affine(FID), FID, "affine")
+    cam = io.camera(153.0, (0.01, -0.02), image_size=SIZE)
+    write_camera(cam, folder / "scan.yaml", unit="mm")
+    meta = json.loads((folder / "block.json").read_text())
+    meta["cameras"] = {"cam": {"file": "scan.yaml", "free": ["f"]}}
+    (folder / "block.json").write_text(json.dumps(meta))
+    problem = read_block(folder)
+    assert isinstance(problem.cameras[0], ScannedCamera) and problem.free_intrinsics[0].tolist()[:2] == [True, False]
+    obs = np.loadtxt(folder / "observations.csv", delimiter=",", skiprows=1, usecols=(2, 3))
+    back = _affine(np.asarray(problem.obs_xy))  # the scanner's true mapping takes them back to the pixels
+    order = lambda a: a[np.lexsort(a.T)]  # noqa: E731
+    np.testing.assert_allclose(order(back), order(obs), atol=1e-6)
+    meta["cameras"] = {"cam": {"file": "scan.yaml", "focal_length_px": 3.0}}
+    (folder / "block.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="unknown key 'focal_length_px'"):
+        read_block(folder)
