@@ -209,8 +209,11 @@ def test_cli_fiducials(scans, tmp_path):
     fid = tmp_path / "fiducials.csv"
     fid.write_text("name,x,y\n" + "".join(f"F{i + 1},{x},{y}\n" for i, (x, y) in enumerate(FID)))
     out, table = tmp_path / "io.json", tmp_path / "marks.csv"
+    cal, cam_file = tmp_path / "calibrated.yaml", tmp_path / "scan_camera.yaml"
+    cal.write_text("focal_length: 153.0\nunit: mm\nprincipal_point: [0.01, -0.02]\n")  # the calibration report
     code = main(["fiducials", str(tif), "--fiducials", str(fid), "--pixel-size", str(PS), "--mark-size", "4",
-                 "--line-width", "0.8", "-o", str(out), "--csv", str(table)])
+                 "--line-width", "0.8", "-o", str(out), "--csv", str(table), "--camera", str(cal),
+                 "--camera-out", str(cam_file)])
     assert code == 1  # a mark flagged
     data = photax.read_json(out)
     marks = {m["name"]: m for m in data["marks"]}
@@ -218,7 +221,121 @@ def test_cli_fiducials(scans, tmp_path):
     got = np.array([[marks[f"F{i + 1}"]["col"], marks[f"F{i + 1}"]["row"]] for i in range(8) if i != 3])
     assert np.sqrt(np.mean((got - np.delete(truth, 3, axis=0)) ** 2)) <= 0.1
     assert table.read_text().count("\n") == 9
+    # The scanned camera file: the same camera as find_fiducials' in memory, and photax resect through
+    # it gives what photax.resect gives with the in-memory ScannedCamera (ground -> film with a 153 mm
+    # camera -> scan pixels with the scanner's true mapping _affine).
+    mem = find_fiducials(img.astype(np.float32), FID, pixel_size=PS, **MARK).orientation
+    mem_cam = mem.camera(153.0, (0.01, -0.02), image_size=SIZE)
+    file_cam = photax.read_camera(cam_file)
+    assert isinstance(file_cam, ScannedCamera) and file_cam.image_size == SIZE
+    np.testing.assert_array_equal(np.asarray(file_cam.transform.params), np.asarray(mem_cam.transform.params))
+    rng = np.random.default_rng(3)
+    ext = photax.ExteriorOrientation([1000.0, 2000.0, 1500.0], np.radians([1.0, -2.0, 30.0]))
+    ground = np.column_stack([rng.uniform(200, 1800, 12), rng.uniform(1200, 2800, 12), rng.uniform(40, 120, 12)])
+    pix = _affine(np.asarray(photax.project(ground, ext, photax.FrameCamera(153.0, (0.01, -0.02)))))
+    gcps = tmp_path / "gcps.csv"
+    gcps.write_text("name,image,E,N,h,col,row,role\n" + "".join(
+        f"P{i},scan,{','.join(map(repr, [*g.tolist(), *p.tolist()]))},control\n" for i, (g, p) in enumerate(zip(ground, pix))))
+    assert main(["resect", str(gcps), "--camera", str(cam_file), "--json", str(tmp_path / "r.json")]) == 0
+    via_file = photax.read_json(tmp_path / "r.json")["images"]["scan"]
+    ref = photax.resect(mem_cam.pixel_to_image(pix), ground, mem_cam)
+    np.testing.assert_allclose(via_file["position"], np.asarray(ref.exterior.position), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(via_file["angles_rad"], np.asarray(ref.exterior.angles), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(via_file["position"], np.asarray(ext.position), atol=0.5)  # m: marks to ~0.01 px
     bad = tmp_path / "bad.csv"
     bad.write_text("name,x\nF1,3\n")
     assert main(["fiducials", str(tif), "--fiducials", str(bad), "--pixel-size", "0.5", "-o",
                  str(tmp_path / "x.json")]) == 2
+    assert main(["fiducials", str(tif), "--fiducials", str(fid), "--pixel-size", "0.5", "-o",
+                 str(tmp_path / "x.json"), "--camera-out", str(tmp_path / "c.yaml")]) == 2  # without --camera
+
+
+def test_scanned_camera_file_round_trip(tmp_path):
+    """A ScannedCamera written as a camera file (its 'scan' block) reads back as the same camera, to the bit."""
+    from photax.io import read_camera, write_camera
+
+    for model, fn in TRUTH.items():
+        io = interior_orientation(fn(FID), FID, model)
+        cam = io.camera(153.0, (0.01, -0.02), (-1e-5, 0.0, 0.0, 2e-6, 0.0), image_size=SIZE)
+        path = write_camera(cam, tmp_path / f"{model}.yaml", unit="mm")
+        assert "scan:" in path.read_text() and "pixel_size" not in path.read_text()  # derived from the scan
+        back = read_camera(path)
+        assert isinstance(back, ScannedCamera) and back.transform.model == model and back.image_size == SIZE
+        for a, b in ((back.transform.params, cam.transform.params), (back.transform.film_centre, cam.transform.film_centre),
+                     (back.transform.film_scale, cam.transform.film_scale), (back.pixel_size, cam.pixel_size),
+                     (back.focal_length, cam.focal_length), (back.principal_point, cam.principal_point),
+                     (back.distortion, cam.distortion)):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+        # and the file's transformation is the scanner's (the fit is exact on noise-free marks)
+        np.testing.assert_allclose(np.asarray(back.image_to_pixel(FID)), fn(FID), atol=1e-8)
+    text = (tmp_path / "affine.yaml").read_text()
+    for old, new, match in (("unit: mm", "unit: px", "film units"), ("model: affine", "model: conformal", "scan.model"),
+                            ("scan:", "scan:\n  order: 2", "unknown key scan.order"),
+                            ("image_size:", "image_sizes:", "unknown key|image_size")):
+        bad = tmp_path / "bad.yaml"
+        bad.write_text(text.replace(old, new, 1))
+        with pytest.raises(ValueError, match=match):
+            read_camera(bad)
+
+
+def test_bundle_self_calibration_keeps_the_scan_transform():
+    """Self-calibration adjusts the camera inside the film and keeps the scanner's transformation.
+    The block and start camera are test_bundle's self-calibration test's (same compiled shapes)."""
+    from photax.bundle import synthetic_block
+
+    kw = dict(noise_px=0.0, relief=250.0, tilt_deg=8.0, distortion=(-0.04, 0.0, 0.0, 0.0, 0.0), n_control=8, n_tie=80)
+    problem, truth = synthetic_block(5, **kw)
+    io = interior_orientation(_affine(FID), FID, "affine")  # any transformation: the block is in image-plane units
+    start = ScannedCamera(2950.0, transform=io.transform, image_size=(4000, 3000))
+    res = photax.bundle_adjust(problem.replace(cameras=[start], free_intrinsics=("f", "k1")))
+    cam = res.cameras[0]
+    assert res.converged and isinstance(cam, ScannedCamera)
+    assert cam.transform.model == "affine" and cam.image_size == start.image_size
+    for a, b in ((cam.transform.params, io.transform.params), (cam.transform.film_centre, io.transform.film_centre),
+                 (cam.transform.film_scale, io.transform.film_scale), (cam.pixel_size, start.pixel_size)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert abs(float(cam.focal_length) - float(truth.camera.focal_length)) < 1e-5
+    assert abs(float(cam.distortion[0]) + 0.04) < 1e-9
+
+
+def test_marks_not_found_get_a_status(scans):
+    """A mark missing from the scan (painted over) is "not found" and left out; a blank scan is an error."""
+    img, truth = scans["affine"]
+    img = img.copy()
+    c, r = np.round(truth[5]).astype(int)
+    img[r - 14:r + 15, c - 14:c + 15] = np.median(img)  # mark 6 gone: film base only
+    res = find_fiducials(img, FID, pixel_size=PS, **MARK)
+    assert res.flagged.tolist() == [k == 5 for k in range(8)] and res.messages[5].startswith("not found"), res.messages
+    assert np.sqrt(np.mean((res.xy[~res.flagged] - truth[~res.flagged]) ** 2)) <= 0.1
+    with pytest.raises(ValueError, match="only 0 of 8 found"):
+        find_fiducials(np.full_like(img, 0.15), FID, pixel_size=PS, **MARK)
+
+
+def test_block_folder_reads_a_scanned_camera_file(tmp_path):
+    """A block folder's camera given as {"file": ...}: its pixels go through the scan transformation
+    (the observations equal ScannedCamera.pixel_to_image of the pixels, i.e. the scanner's film points)."""
+    import json
+    import shutil
+
+    from photax.io import read_block, write_camera
+
+    folder = tmp_path / "block"
+    from conftest import ROOT
+
+    shutil.copytree(ROOT / "data" / "block", folder, ignore=shutil.ignore_patterns("*.py"))
+    io = interior_orientation(_affine(FID), FID, "affine")
+    cam = io.camera(153.0, (0.01, -0.02), image_size=SIZE)
+    write_camera(cam, folder / "scan.yaml", unit="mm")
+    meta = json.loads((folder / "block.json").read_text())
+    meta["cameras"] = {"cam": {"file": "scan.yaml", "free": ["f"]}}
+    (folder / "block.json").write_text(json.dumps(meta))
+    problem = read_block(folder)
+    assert isinstance(problem.cameras[0], ScannedCamera) and problem.free_intrinsics[0].tolist()[:2] == [True, False]
+    obs = np.loadtxt(folder / "observations.csv", delimiter=",", skiprows=1, usecols=(2, 3))
+    back = _affine(np.asarray(problem.obs_xy))  # the scanner's true mapping takes them back to the pixels
+    order = lambda a: a[np.lexsort(a.T)]  # noqa: E731
+    np.testing.assert_allclose(order(back), order(obs), atol=1e-6)
+    meta["cameras"] = {"cam": {"file": "scan.yaml", "focal_length_px": 3.0}}
+    (folder / "block.json").write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match="unknown key 'focal_length_px'"):
+        read_block(folder)

@@ -53,6 +53,10 @@ def test_from_5_m_and_0_2_degrees_to_a_tenth_of_a_pixel(scene):
     assert res.converged, res.message
     after = np.sqrt(np.mean(np.sum((_px(res.exterior, g) - _px(TRUE, g)) ** 2, 1)))
     assert after <= 0.1, after
+    # the history: one entry per step, levels coarse to fine, the last step below the tolerance
+    assert len(res.history) == sum(res.steps) and [h["level"] for h in res.history] == sorted(
+        (h["level"] for h in res.history), reverse=True)
+    assert res.history[-1]["shift_px"] < 1e-3 < res.history[0]["shift_px"]
 
 
 def test_too_far_off_is_reported(scene):
@@ -60,3 +64,46 @@ def test_too_far_off_is_reported(scene):
     start = photax.ExteriorOrientation(np.asarray(TRUE.position) + [60.0, 40.0, 0.0], TRUE.angles)
     res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8)
     assert not res.converged and res.message
+    # an orientation 10 km away sees nothing of the reference: said so, not a wrong orientation
+    far = photax.ExteriorOrientation(np.asarray(TRUE.position) + [10_000.0, 0.0, 0.0], TRUE.angles)
+    res = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8)
+    assert not res.converged and "sees (almost) nothing" in res.message, res.message
+
+
+def test_cli_register(scene, tmp_path):
+    """``photax register`` in process on the same scene and shapes: exit 0 and the refined orientation
+    written (checked against the truth like the library's), exit 1 with status "not converged" from
+    too far off (the JSON still written), exit 2 for bad input."""
+    pytest.importorskip("rasterio")
+    from photax.cli import main
+    from photax.io import read_exterior, write_geotiff
+
+    dem, image, ortho, transform, g = scene
+    paths = {k: tmp_path / f"{k}.tif" for k in ("image", "ortho", "dem")}
+    write_geotiff(paths["image"], image, (0.5, 0.0, 0.0, 0.0, -0.5, 100.0), compress=None)  # not used
+    write_geotiff(paths["ortho"], ortho, transform, crs="EPSG:32633", compress=None)
+    write_geotiff(paths["dem"], np.asarray(dem.heights), np.asarray(dem.transform).tolist(), crs="EPSG:32633", compress=None)
+    photax.write_camera(CAM, tmp_path / "cam.yaml")
+    common = [str(paths["image"]), "--camera", str(tmp_path / "cam.yaml"), "--ortho", str(paths["ortho"]),
+              "--dem", str(paths["dem"]), "--levels", "4,2,1"]
+    for name, offset, max_steps, code in (("near", ([4.0, -3.0, 0.0], [0.2, -0.15, 0.1]), 15, 0),
+                                          ("far", ([60.0, 40.0, 0.0], [0.0, 0.0, 0.0]), 8, 1)):
+        start = photax.ExteriorOrientation(np.asarray(TRUE.position) + offset[0],
+                                           np.asarray(TRUE.angles) + np.radians(offset[1]))
+        photax.write_json({"exterior": {"position": start.position, "angles_rad": start.angles,
+                                        "convention": start.convention}}, tmp_path / f"{name}.json")
+        out = tmp_path / f"{name}_out.json"
+        assert main(["register", *common, "--exterior", str(tmp_path / f"{name}.json"), "--max-steps",
+                     str(max_steps), "-o", str(out)]) == code
+        data = photax.read_json(out)
+        assert data["status"] == ("solved" if code == 0 else "not converged") and data["message"]
+        if code == 0:
+            refined, _ = read_exterior(out, paths["image"])  # the output is an --exterior input of other commands
+            after = np.sqrt(np.mean(np.sum((_px(refined, g) - _px(TRUE, g)) ** 2, 1)))
+            assert after <= 0.1, after
+    # bad input: the output over an input, a missing file, nonsense levels
+    assert main(["register", *common, "--exterior", str(tmp_path / "near.json"), "-o", str(paths["ortho"])]) == 2
+    assert main(["register", *common, "--exterior", str(tmp_path / "none.json"), "-o", str(tmp_path / "x.json")]) == 2
+    assert main(["register", *common[:-1], "4,x", "--exterior", str(tmp_path / "near.json"), "-o",
+                 str(tmp_path / "x.json")]) == 2
+    assert not (tmp_path / "x.json").exists()

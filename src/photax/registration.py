@@ -47,6 +47,9 @@ class Registration:
         rms: grey-value rms of the residuals per level (after its last step).
         correlation: correlation coefficient of image and ortho at the end.
         message: what happened.
+        history: one dict per Gauss-Newton step: ``level``, ``rms`` (grey
+            rms of the residuals before the step) and ``shift_px`` (the most
+            any ground point's image moved by the step, px): the convergence.
     """
 
     exterior: ExteriorOrientation
@@ -55,6 +58,7 @@ class Registration:
     rms: list
     correlation: float
     message: str
+    history: list = dataclasses.field(default_factory=list)
 
 
 @partial(jax.jit, static_argnames=("method",))
@@ -123,7 +127,7 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
     base = jnp.asarray(np.concatenate([np.asarray(ext0.position), np.asarray(ext0.angles)]))
     p = np.zeros(8)
     p[7] = 1.0
-    steps, rmss = [], []
+    steps, rmss, history = [], [], []
     converged = False
     overlap = True
     finest = min(levels)
@@ -163,6 +167,8 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
                 break
             p = p + dp
             move = np.asarray(_shift(jnp.asarray(p - dp), jnp.asarray(p), base, jnp.asarray(ground), camera))
+            history.append({"level": level, "rms": float(np.sqrt(np.sum(w * v * v) / w.sum())),
+                            "shift_px": float(np.max(move[w > 0]))})
             if np.max(move[w > 0]) < tol:  # the step moved no ground point's image by tol px
                 done = True
                 break
@@ -191,7 +197,8 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
         msg = f"converged: correlation {corr:.4f}, grey rms {rmss[-1]:.4g}"
     else:
         msg = f"did not converge in {max_steps} steps at the finest level (correlation {corr:.4f})"
-    return Registration(exterior=out, converged=converged, steps=steps, rms=rmss, correlation=corr, message=msg)
+    return Registration(exterior=out, converged=converged, steps=steps, rms=rmss, correlation=corr, message=msg,
+                        history=history)
 
 
 def _px_ratio(camera, ext, ortho_cell, dem) -> float:

@@ -132,6 +132,80 @@ def match_sigma(cov) -> np.ndarray:
     return np.sqrt((cov[..., 0, 0] + cov[..., 1, 1]) / 2)
 
 
+BATCH = 8  # image pairs per compiled matching call: one shape for transfer_points and match_ties
+POINTS = 16  # points per image pair in a call
+
+
+@dataclasses.dataclass(frozen=True)
+class ChunkMatches:
+    """:func:`match_chunks`' output, ``(c, POINTS, ...)`` numpy arrays (``xy`` in the stack's pixels)."""
+
+    ncc_valid: np.ndarray
+    rho: np.ndarray
+    lsm_valid: np.ndarray
+    lsm_xy: np.ndarray
+    lsm_cov: np.ndarray
+    back_valid: np.ndarray | None
+    back_xy: np.ndarray | None
+
+
+def match_chunks(stack, ti, si, txy, sxy, *, window: int, search: int, back: bool = False) -> ChunkMatches:
+    """NCC within ``search`` px, then LSM from its peak (and LSM back, with ``back``) of ``c`` chunks.
+
+    Chunk ``k`` matches the points ``txy[k]`` ``(POINTS, 2)`` of ``stack[ti[k]]`` into
+    ``stack[si[k]]`` around ``sxy[k]``.  The chunks go in calls of :data:`BATCH`
+    (padded with copies of the first), so every caller with images of one shape
+    (``stack`` ``(k, h, w)``) and one ``window`` / ``search`` shares one compilation
+    of :func:`photax.measure.match_ncc` and :func:`photax.measure.match_lsm`.
+    Where NCC fails, LSM starts at ``sxy``; where forward LSM fails, the back
+    match starts at ``sxy``.
+    """
+    from .measure import match_lsm, match_ncc
+
+    ti, si = np.asarray(ti, dtype=int), np.asarray(si, dtype=int)
+    txy, sxy = np.asarray(txy, dtype=float), np.asarray(sxy, dtype=float)
+    c = len(ti)
+    pad = -c % BATCH
+    if pad:
+        ti, si = np.concatenate([ti, np.repeat(ti[:1], pad)]), np.concatenate([si, np.repeat(si[:1], pad)])
+        txy, sxy = (np.concatenate([a, np.repeat(a[:1], pad, 0)]) for a in (txy, sxy))
+    out: dict[str, list] = {k: [] for k in ("ncc_valid", "rho", "lsm_valid", "lsm_xy", "lsm_cov", "back_valid",
+                                             "back_xy")}
+    for a in range(0, len(ti), BATCH):
+        b = slice(a, a + BATCH)
+        T, S = jnp.asarray(stack[ti[b]]), jnp.asarray(stack[si[b]])
+        ncc, rho = match_ncc(T, txy[b], S, sxy[b], window=window, search=search, return_rho=True)
+        nxy = np.where(np.asarray(ncc.valid)[..., None], np.asarray(ncc.xy), sxy[b])
+        fwd = match_lsm(T, txy[b], S, nxy, window=window)
+        out["ncc_valid"].append(np.asarray(ncc.valid))
+        out["rho"].append(np.asarray(rho))
+        out["lsm_valid"].append(np.asarray(fwd.valid))
+        out["lsm_xy"].append(np.asarray(fwd.xy))
+        out["lsm_cov"].append(np.asarray(fwd.covariance))
+        if back:
+            fxy = np.where(np.asarray(fwd.valid)[..., None], np.asarray(fwd.xy), sxy[b])
+            bk = match_lsm(S, fxy, T, txy[b], window=window)
+            out["back_valid"].append(np.asarray(bk.valid))
+            out["back_xy"].append(np.asarray(bk.xy))
+    cat = {k: np.concatenate(v)[:c] if v else None for k, v in out.items()}
+    return ChunkMatches(**cat)
+
+
+def chunks_of(groups: dict, fill_xy: np.ndarray) -> tuple[list, np.ndarray, np.ndarray]:
+    """Split ``{key: (idx (n,), txy (n, 2), sxy (n, 2))}`` into chunks of up to :data:`POINTS`:
+    ``(chunk list of (key, idx), txy (c, POINTS, 2), sxy (c, POINTS, 2))``, unused slots at ``fill_xy``."""
+    chunks, t_all, s_all = [], [], []
+    for key, (idx, t, s) in groups.items():
+        for a in range(0, len(idx), POINTS):
+            n = len(idx[a:a + POINTS])
+            tc, sc = np.broadcast_to(fill_xy, (POINTS, 2)).copy(), np.broadcast_to(fill_xy, (POINTS, 2)).copy()
+            tc[:n], sc[:n] = t[a:a + POINTS], s[a:a + POINTS]
+            chunks.append((key, idx[a:a + POINTS]))
+            t_all.append(tc)
+            s_all.append(sc)
+    return chunks, np.array(t_all).reshape(-1, POINTS, 2), np.array(s_all).reshape(-1, POINTS, 2)
+
+
 def _robust_affine(xy, d, tol):
     """Inliers of ``d ~ A [x, y, 1]``: a median-translation cut, then affine fits with MAD cuts."""
     # a translation first (an affine fit on a narrow overlap band can absorb a false match), then the affine
@@ -219,7 +293,7 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
     """
     # Over 80 lines: one pipeline (interest points, owner rule, candidate pairs, batched
     # NCC/LSM, two-way check, guided outlier test) whose arrays flow from step to step.
-    from .measure import interest_points, match_lsm, match_ncc
+    from .measure import interest_points
 
     stack, eo = check_block(images, camera, exterior)
     m = len(stack)
@@ -258,36 +332,30 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
     if not items:
         return empty
     it = np.array(items)
-    # batches of 16 points of one pair: (b, h, w) images and (b, 16, 2) points, b padded to few shapes
-    chunks = []
+    # chunks of up to 16 points of one pair, matched BATCH pairs per compiled call (match_chunks)
+    centre = (np.asarray(size) - 1) / 2.0 + margin
+    groups = {}
     for i, j in sorted({(i, j) for i, j, _ in items}):
         sel = it[(it[:, 0] == i) & (it[:, 1] == j), 2]
-        chunks += [(i, j, sel[a:a + 16]) for a in range(0, len(sel), 16)]
-    nc = _bucket(len(chunks), 8)
-    c = (np.asarray(size) - 1) / 2.0
-    txy = np.broadcast_to(c, (nc, 16, 2)).copy()
-    sxy = txy.copy()
-    valid = np.zeros((nc, 16), bool)
-    pid = np.zeros((nc, 16), int)
-    bi, bj = np.zeros(nc, int), np.zeros(nc, int)
-    for b, (i, j, sel) in enumerate(chunks):
-        bi[b], bj[b] = i, j
-        txy[b, :len(sel)] = px[i, sel]
-        sxy[b, :len(sel)] = pred[j, i, sel]
+        groups[i, j] = (sel, px[i, sel] + margin, pred[j, i, sel] + margin)
+    chunks, txy, sxy = chunks_of(groups, centre)
+    nc = len(chunks)
+    bi = np.array([i for (i, _), _ in chunks])
+    bj = np.array([j for (_, j), _ in chunks])
+    valid = np.zeros((nc, POINTS), bool)
+    pid = np.zeros((nc, POINTS), int)
+    for b, (_, sel) in enumerate(chunks):
         valid[b, :len(sel)] = True
         pid[b, :len(sel)] = sel
     big = padded(stack, margin)
-    T, S = jnp.asarray(big[bi]), jnp.asarray(big[bj])
-    ncc, rho = match_ncc(T, txy + margin, S, sxy + margin, window=window, search=search, return_rho=True)
-    nxy = np.where(np.asarray(ncc.valid)[..., None], np.asarray(ncc.xy) - margin, sxy)
-    fwd = match_lsm(T, txy + margin, S, nxy + margin, window=window)
-    fxy = np.where(np.asarray(fwd.valid)[..., None], np.asarray(fwd.xy) - margin, sxy)
-    back = match_lsm(S, fxy + margin, T, txy + margin, window=window)
-    ok = (valid & np.asarray(ncc.valid) & (np.nan_to_num(np.asarray(rho)) >= min_rho) & np.asarray(fwd.valid)
-          & np.asarray(back.valid) & inside(fxy, size, window + 1))
+    mt = match_chunks(big, bi, bj, txy, sxy, window=window, search=search, back=True)
+    txy, sxy = txy - margin, sxy - margin
+    fxy = np.where(mt.lsm_valid[..., None], mt.lsm_xy - margin, sxy)
+    ok = (valid & mt.ncc_valid & (np.nan_to_num(mt.rho) >= min_rho) & mt.lsm_valid & mt.back_valid
+          & inside(fxy, size, window + 1))
     with np.errstate(invalid="ignore"):
-        ok &= np.linalg.norm(np.asarray(back.xy) - margin - txy, axis=-1) <= back_tol
-    sig = match_sigma(fwd.covariance) / np.sqrt(2.0)
+        ok &= np.linalg.norm(mt.back_xy - margin - txy, axis=-1) <= back_tol
+    sig = match_sigma(mt.lsm_cov) / np.sqrt(2.0)
     obs = {}  # (i, p) -> list of (j, xy, sigma)
     counts = {}
     for i, j in sorted({(i, j) for i, j, _ in items}):

@@ -23,7 +23,7 @@ import numpy as np
 
 from .camera import FrameCamera
 from .dem import DEM
-from .ties import _bucket, check_block, inside, match_sigma, padded, project_pixels
+from .ties import check_block, chunks_of, inside, match_chunks, match_sigma, padded, project_pixels
 
 __all__ = ["Transfer", "transfer_points", "write_odm_gcps"]
 
@@ -125,7 +125,6 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
         ``search`` px from where the point's other measurements put it).
     """
     from .io import GCPTable
-    from .measure import match_lsm, match_ncc
 
     stack, eo = check_block(images, camera, exterior)
     m = len(stack)
@@ -177,33 +176,36 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
         tpl = np.asarray(target_template, dtype=float)
         if tpl.ndim != 2:
             raise ValueError(f"target_template: expected a 2-D image, got shape {tpl.shape}")
-        tc = (np.array(tpl.shape[::-1]) - 1) / 2.0
+        # the template drawn on a canvas of the images' (padded) shape: one compiled matcher for everything
+        if np.any(np.array(tpl.shape) + 2 * margin > np.array(big.shape[1:])):
+            raise ValueError(f"target_template: {tpl.shape} is too large for images of {size} px")
+        canvas = np.zeros(big.shape[1:])
+        canvas[margin:margin + tpl.shape[0], margin:margin + tpl.shape[1]] = tpl
+        tc = (np.array(tpl.shape[::-1]) - 1) / 2.0 + margin
         k_img = -2 - ref_i[cand]
-        b = _bucket(len(cand), 8)
-        T = np.broadcast_to(tpl, (b, *tpl.shape))
-        S = np.concatenate([big[k_img], np.repeat(big[k_img[:1]], b - len(cand), 0)])
-        sxy = np.concatenate([pred[k_img, cand], np.repeat(pred[k_img[:1], cand[:1]], b - len(cand), 0)])[:, None]
-        txy = np.broadcast_to(tc, (b, 1, 2))
-        res, rho = match_ncc(T, txy, S, sxy + margin, window=window, search=search, return_rho=True)
-        nxy = np.where(np.asarray(res.valid)[..., None], np.asarray(res.xy), sxy + margin)
-        lsm = match_lsm(T, txy, S, nxy, window=window)
-        lxy = np.asarray(lsm.xy) - margin
-        for q, p in enumerate(cand):
-            k = k_img[q]
-            r = float(np.asarray(rho)[q, 0])
-            out_rho[k, p] = r
-            if not (bool(res.valid[q, 0]) and r >= min_rho_template):
-                status[usable[:, p], p] = "no reference"
-                status[k, p] = "low correlation"
-                ref_i[p] = -1
-            elif not (bool(lsm.valid[q, 0]) and inside(lxy[q, 0], size, window + 1)):
-                status[usable[:, p], p] = "no reference"
-                status[k, p] = "not matched"
-                ref_i[p] = -1
-            else:
-                ref_i[p] = k
-                ref_xy[p] = lxy[q, 0]
-                out_sig[k, p] = float(match_sigma(np.asarray(lsm.covariance)[q, 0]))
+        groups = {k: (cand[k_img == k], np.broadcast_to(tc, (int(np.sum(k_img == k)), 2)),
+                      pred[k, cand[k_img == k]] + margin) for k in np.unique(k_img)}
+        chunks, txy, sxy = chunks_of(groups, tc)
+        stack_t = np.concatenate([big, canvas[None]])
+        mt = match_chunks(stack_t, np.full(len(chunks), m), [k for k, _ in chunks], txy, sxy, window=window,
+                          search=search)
+        lxy = mt.lsm_xy - margin
+        for q, (k, pts) in enumerate(chunks):
+            for slot, p in enumerate(pts):
+                r = float(mt.rho[q, slot])
+                out_rho[k, p] = r
+                if not (bool(mt.ncc_valid[q, slot]) and r >= min_rho_template):
+                    status[usable[:, p], p] = "no reference"
+                    status[k, p] = "low correlation"
+                    ref_i[p] = -1
+                elif not (bool(mt.lsm_valid[q, slot]) and inside(lxy[q, slot], size, window + 1)):
+                    status[usable[:, p], p] = "no reference"
+                    status[k, p] = "not matched"
+                    ref_i[p] = -1
+                else:
+                    ref_i[p] = k
+                    ref_xy[p] = lxy[q, slot]
+                    out_sig[k, p] = float(match_sigma(mt.lsm_cov[q, slot]))
     for p in np.flatnonzero(ref_i >= 0):
         k = ref_i[p]
         status[k, p] = "reference"
@@ -212,31 +214,28 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
     # 2. transfer from the reference image into the others, searched around their predictions
     items = [(k, p) for p in np.flatnonzero(ref_i >= 0) for k in range(m) if k != ref_i[p] and usable[k, p]]
     if items:
-        b = _bucket(len(items), 8)
-        ki = np.array([k for k, _ in items])
-        pi = np.array([p for _, p in items])
-        ri = ref_i[pi]
-        pad = lambda a: np.concatenate([a, np.repeat(a[:1], b - len(a), 0)])  # noqa: E731
-        T, S = pad(big[ri]), pad(big[ki])
-        txy = pad(ref_xy[pi])[:, None] + margin
-        sxy = pad(pred[ki, pi])[:, None] + margin
-        res, rho = match_ncc(T, txy, S, sxy, window=window, search=search, return_rho=True)
-        nxy = np.where(np.asarray(res.valid)[..., None], np.asarray(res.xy), sxy)
-        lsm = match_lsm(T, txy, S, nxy, window=window)
-        lxy = np.asarray(lsm.xy) - margin
-        sig = match_sigma(np.asarray(lsm.covariance))
-        for q, (k, p) in enumerate(items):
-            r = float(np.asarray(rho)[q, 0])
-            out_rho[k, p] = r
-            if not (bool(res.valid[q, 0]) and r >= min_rho):
-                status[k, p] = "low correlation"
-            elif not (bool(lsm.valid[q, 0]) and inside(lxy[q, 0], size, window + 1)):
-                status[k, p] = "not matched"
-            else:
-                status[k, p] = "ok"
-                out_xy[k, p] = lxy[q, 0]
-                # the reference's own error is in every transferred measurement of the point
-                out_sig[k, p] = float(np.hypot(sig[q, 0], np.nan_to_num(out_sig[ref_i[p], p])))
+        groups = {}
+        for k, p in items:
+            groups.setdefault((int(ref_i[p]), k), []).append(p)
+        groups = {(r, k): (np.array(ps), ref_xy[ps] + margin, pred[k, ps] + margin) for (r, k), ps in groups.items()}
+        chunks, txy, sxy = chunks_of(groups, (np.asarray(size) - 1) / 2.0 + margin)
+        mt = match_chunks(big, [r for (r, _), _ in chunks], [k for (_, k), _ in chunks], txy, sxy, window=window,
+                          search=search)
+        lxy = mt.lsm_xy - margin
+        sig = match_sigma(mt.lsm_cov)
+        for q, ((_, k), pts) in enumerate(chunks):
+            for slot, p in enumerate(pts):
+                r = float(mt.rho[q, slot])
+                out_rho[k, p] = r
+                if not (bool(mt.ncc_valid[q, slot]) and r >= min_rho):
+                    status[k, p] = "low correlation"
+                elif not (bool(mt.lsm_valid[q, slot]) and inside(lxy[q, slot], size, window + 1)):
+                    status[k, p] = "not matched"
+                else:
+                    status[k, p] = "ok"
+                    out_xy[k, p] = lxy[q, slot]
+                    # the reference's own error is in every transferred measurement of the point
+                    out_sig[k, p] = float(np.hypot(sig[q, slot], np.nan_to_num(out_sig[ref_i[p], p])))
     # 3. consistency: offsets measured - predicted of one image are its orientation error, alike for its points
     for k in range(m):
         got = np.flatnonzero(np.isin(status[k], ("ok", "reference")))

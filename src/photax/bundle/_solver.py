@@ -60,6 +60,7 @@ import sys
 import time
 from typing import Literal
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -414,6 +415,14 @@ _rotation = jax.jit(rotation_matrix, static_argnames="convention")
 _angles = jax.jit(angles_from_matrix_unchecked, static_argnames="convention")
 
 
+def _with_intrinsics(camera: FrameCamera, k) -> FrameCamera:
+    """``camera`` with the adjusted :data:`INTRINSICS` ``k`` (f, x0, y0, k1, k2, k3, p1, p2), its
+    type and everything else kept: a :class:`photax.interior.ScannedCamera` keeps its film -> scan
+    transformation (self-calibration adjusts the camera, not the scanner)."""
+    return eqx.tree_at(lambda c: (c.focal_length, c.principal_point, c.distortion), camera,
+                       (jnp.asarray(k[0]), jnp.asarray(k[1:3]), jnp.asarray(k[3:])))
+
+
 def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, converged, message,
             iterations, throw, seconds, solver="dense") -> BundleResult:  # fmt: skip
     conv = problem.exterior.convention
@@ -421,10 +430,7 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     angles, _ = _angles(state.rot, convention=conv)
     eo = ExteriorOrientation(np.asarray(state.centre) + origin[None, :], np.asarray(angles), conv)
     intr = np.asarray(state.intr)
-    cams = tuple(
-        FrameCamera(k[0], k[1:3], k[3:], pixel_size=c.pixel_size, image_size=c.image_size)
-        for k, c in zip(intr, problem.cameras)
-    )
+    cams = tuple(_with_intrinsics(c, k) for k, c in zip(intr, problem.cameras))
     pts = np.asarray(state.xyz) + origin[None, :]
     weight = np.asarray(lin.weight)
     residuals = np.asarray(lin.r) * problem.obs_sigma

@@ -8,8 +8,13 @@ checked against the calibrated pattern, and the film -> pixel transformation
 (``--model``) is fitted (:func:`photax.interior.find_fiducials`).
 
 Outputs: ``--out`` JSON (model, parameters, sigma0, rmse, covariance, and per
-mark its measured pixel, residual, statistic and status) and optionally
-``--csv`` (``name,x,y,col,row,residual_col,residual_row,status``).
+mark its measured pixel, residual, statistic and status), optionally
+``--csv`` (``name,x,y,col,row,residual_col,residual_row,status``) and
+``--camera-out``: the calibrated camera (``--camera``: focal length,
+principal point, distortion in mm) with the fitted transformation as a
+``scan`` block (:mod:`photax.io.camera_file`), which ``photax resect``,
+``ortho``, ``register``, ``transfer`` and ``ties`` read as a
+:class:`photax.interior.ScannedCamera` (the scan's pixels go through it).
 
 Exit codes: 0 every mark found and consistent, 1 some mark flagged (not used),
 2 bad input (or too few marks for the model).
@@ -44,6 +49,12 @@ def add_parser(sub) -> None:
     p.add_argument("--sigma", type=float, default=0.1, metavar="PX", help="a-priori precision of a mark, px")
     p.add_argument("-o", "--out", required=True, metavar="JSON", help="the interior orientation (JSON)")
     p.add_argument("--csv", metavar="CSV", help="the marks, one row each")
+    p.add_argument("--camera", metavar="CAMERA_FILE",
+                   help="the calibrated camera (photax camera file in mm: focal_length, principal_point, "
+                   "distortion), for --camera-out")
+    p.add_argument("--camera-out", metavar="YAML",
+                   help="write the scanned camera: --camera with the fitted film -> pixel transformation "
+                   "(a 'scan' block; photax resect / ortho / register read it)")
     p.set_defaults(func=run)
 
 
@@ -87,9 +98,26 @@ def run(args: argparse.Namespace) -> int:
     input_file(args.scan, "scan")
     input_file(args.fiducials, "fiducial file")
     inputs = [args.scan, args.fiducials] + ([args.approx] if args.approx else [])
-    check_output_path(args.out, inputs)
-    if args.csv:
-        check_output_path(args.csv, inputs)
+    if bool(args.camera) != bool(args.camera_out):
+        raise ValueError("--camera and --camera-out go together (the calibrated camera and the scanned one to write)")
+    if args.camera:
+        input_file(args.camera, "camera file")
+        inputs.append(args.camera)
+    for out in (args.out, args.csv, args.camera_out):
+        if out:
+            check_output_path(out, inputs)
+    outs = [o for o in (args.out, args.csv, args.camera_out) if o]
+    if len(set(map(str, outs))) != len(outs):
+        raise ValueError("-o, --csv and --camera-out must be different files")
+    base_camera = unit = None
+    if args.camera:
+        from ..io.camera_file import read_camera
+        from ..io.orientation import read_camera_unit
+
+        base_camera, unit = read_camera(args.camera), read_camera_unit(args.camera)
+        if unit not in ("mm", "m"):
+            raise ValueError(f"{args.camera}: the calibrated camera must be in film units (unit: mm or m), "
+                             f"got {unit!r}: the fiducials are in them")
     names, fid = _read_named(args.fiducials, ("x", "y"), "fiducial file")
     approx = None
     if args.approx:
@@ -124,8 +152,14 @@ def run(args: argparse.Namespace) -> int:
                 nums = [f"{m[k]:.4f}" if np.isfinite(m[k]) else "" for k in ("col", "row", "residual_col",
                                                                             "residual_row")]
                 w.writerow([m["name"], m["x"], m["y"], *nums, m["status"]])
+    if args.camera_out:
+        from ..io.camera_file import write_camera
+
+        c = base_camera
+        scanned = io.camera(c.focal_length, c.principal_point, c.distortion, image_size=(scan.shape[1], scan.shape[0]))
+        write_camera(scanned, args.camera_out, unit=unit, inputs=inputs)
     n_bad = int(res.flagged.sum())
-    print(f"{io.message}; rmse {io.rmse:.3f} px; wrote {args.out}" + (f" and {args.csv}" if args.csv else ""))
+    print(f"{io.message}; rmse {io.rmse:.3f} px; wrote " + ", ".join(map(str, outs)))
     for m in marks:
         if not m["used"]:
             print(f"  {m['name']}: {m['status']}")

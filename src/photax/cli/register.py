@@ -21,6 +21,10 @@ def add_parser(sub) -> None:
     p.add_argument("--exterior", required=True, help="approximate orientation (resect --json or orthority CSV)")
     p.add_argument("--ortho", required=True, help="reference orthophoto (GeoTIFF, ground CRS)")
     p.add_argument("--dem", required=True, help="DEM raster in the ground CRS")
+    p.add_argument("--levels", default="8,4,2,1", metavar="L,...",
+                   help="coarse-to-fine levels, px of blur and sampling step (default 8,4,2,1; a start within a "
+                   "few px of the truth needs fewer, e.g. 4,2,1)")
+    p.add_argument("--max-steps", type=int, default=15, metavar="N", help="Gauss-Newton steps per level at most")
     p.add_argument("-o", "--out", required=True, help="output JSON with the refined orientation")
     p.set_defaults(func=run)
 
@@ -37,15 +41,23 @@ def run(args: argparse.Namespace) -> int:
     for f in files:
         input_file(f, "input file")
     check_output_path(args.out, files)
+    try:
+        levels = tuple(int(v) for v in args.levels.split(","))
+    except ValueError:
+        raise ValueError(f"--levels must be whole numbers separated by commas, e.g. 4,2,1; got {args.levels!r}") from None
+    if not levels or min(levels) < 1 or args.max_steps < 1:
+        raise ValueError(f"--levels must be positive and --max-steps at least 1, got {args.levels!r} and {args.max_steps}")
     camera = read_interior(args.camera)
     exterior, _ = read_exterior(args.exterior, args.image)
     image = read_geotiff(args.image)[0][0].astype(float)
     ortho, profile = read_geotiff(args.ortho)
     transform = tuple(profile["transform"])[:6]
-    res = register_to_ortho(image, camera, exterior, ortho[0].astype(float), transform, read_dem(args.dem))
+    res = register_to_ortho(image, camera, exterior, ortho[0].astype(float), transform, read_dem(args.dem),
+                            levels=levels, max_steps=args.max_steps)
     e = res.exterior
     write_json({"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention},
-                "converged": res.converged, "correlation": res.correlation, "message": res.message},
+                "status": "solved" if res.converged else "not converged", "converged": res.converged,
+                "correlation": res.correlation, "steps": res.steps, "rms": res.rms, "history": res.history, "message": res.message},
                args.out, inputs=files)
     print(f"{'converged' if res.converged else 'NOT converged'}: {res.message}; wrote {args.out}")
     return 0 if res.converged else 1

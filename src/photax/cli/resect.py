@@ -32,6 +32,16 @@ or in pixels (integer pixel = pixel centre, column right, row down):
     principal_point_px: [1999.5, 1499.5]   # optional, default the image centre
     distortion: {k1: -0.05}                # optional; k1 k2 k3 p1 p2, missing ones are 0
 
+a scanned film frame adds the fitted film -> scan pixel transformation of its
+fiducial marks (written by photax fiducials --camera-out; pixels go through it):
+
+    focal_length: 152.9            # mm, from the calibration report
+    unit: mm
+    principal_point: [0.0, 0.0]
+    image_size: [2400, 2400]       # the scan's width, height; no pixel_size
+    scan: {model: affine, film_centre: [0.3, -0.1], film_scale: 149.8,
+           params: [1199.6, 1563.2, 1.1, 1200.2, -0.9, 1563.5]}
+
 exit status: 0 every image solved, 1 some not solved (--json still written,
 with a status per image), 2 usage or input error, 130 interrupted.
 """

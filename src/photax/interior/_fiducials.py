@@ -80,7 +80,7 @@ def _approx_scale(approx: np.ndarray, fid: np.ndarray) -> float:
 def find_fiducials(scan, fiducial_xy, *, pixel_size: float | None = None, approx_xy=None, mark="cross",
                    mark_size: float = 1.0, line_width: float = 0.2, bright: bool = True, search: int = 15,
                    template_blur: float = 0.7, model: Model = "affine", sigma: float | None = 0.1,
-                   alpha: float = 0.001) -> Fiducials:
+                   alpha: float = 0.001, min_rho: float = 0.5) -> Fiducials:
     """Find the fiducial marks in a scan, sub-pixel, and check them against the calibrated pattern.
 
     1. Approximate positions: ``approx_xy`` (n, 2) px, or from the scan size
@@ -111,6 +111,8 @@ def find_fiducials(scan, fiducial_xy, *, pixel_size: float | None = None, approx
         search: NCC search radius, px.
         template_blur: Gaussian blur of a drawn template, px (0: none).
         model, alpha: the interior orientation and its test.
+        min_rho: smallest NCC peak accepted as a mark; weaker peaks (the
+            noise where no mark is) are "not found".
         sigma: a-priori precision of a mark coordinate, px, for the pattern
             check (chi^2 test).  With 8 marks and 8 parameters the
             estimated-sigma0 test (``sigma=None``) has 8 degrees of freedom
@@ -158,19 +160,25 @@ def find_fiducials(scan, fiducial_xy, *, pixel_size: float | None = None, approx
             raise ValueError(f"mark: a template must be a square image of odd size >= 11, got {tmpl.shape}")
     half = tmpl.shape[0] // 2 - 3  # matching window: the template minus the interpolation border
     centre = np.full(fid.shape, float(tmpl.shape[0] // 2))
-    ncc = match_ncc(tmpl, centre, img, approx, window=half, search=int(search))
-    valid = np.asarray(ncc.valid)
+    ncc, rho = match_ncc(tmpl, centre, img, approx, window=half, search=int(search), return_rho=True)
+    rho = np.asarray(rho)
+    # a peak of the noise where no mark is (film edge, a mark hidden by the scanner frame) is no mark
+    weak = np.asarray(ncc.valid) & ~(rho >= min_rho)
+    valid = np.asarray(ncc.valid) & ~weak
     xy = np.where(valid[:, None], np.asarray(ncc.xy), np.nan)
     n_needed = (N_PARAMS[model] + 1) // 2
     if valid.sum() < n_needed:
+        why = [f"correlation {r:.2f} < {min_rho}" if wk else m for r, wk, m in zip(rho, weak, ncc.messages())]
         raise ValueError(f"fiducial marks: only {int(valid.sum())} of {len(fid)} found, the {model} model needs "
-                         f"{n_needed}; per mark: {ncc.messages()}")
+                         f"{n_needed}; per mark: {why}")
     io = interior_orientation(xy, fid, model, sigma=sigma, alpha=alpha)
     flagged = io.outliers | ~valid
     ncc_msg = ncc.messages()
     messages = []
     for i in range(len(fid)):
-        if not valid[i]:
+        if weak[i]:
+            messages.append(f"not found: correlation {rho[i]:.2f} < min_rho {min_rho}")
+        elif not valid[i]:
             messages.append(f"not found: {ncc_msg[i]}")
         elif io.outliers[i]:
             messages.append(f"disagrees with the calibrated pattern (statistic {io.statistic[i]:.1f} > "

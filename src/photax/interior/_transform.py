@@ -126,8 +126,10 @@ class ScannedCamera(FrameCamera):
     the resection's input ``camera.pixel_to_image(pixels)``) uses the
     interior orientation.  ``pixel_size`` is the transform's mean scale and
     ``image_size`` the scan's size (used for plausibility checks and sigma
-    conversions only).  The bundle adjustment's self-calibration rebuilds a
-    plain :class:`FrameCamera` for its result (the transform is not adjusted).
+    conversions only).  The bundle adjustment's self-calibration adjusts the
+    camera inside the film (focal length, principal point, distortion) and
+    keeps the transform (the scanner is not adjusted).  A camera file's
+    ``scan`` block stores it (:mod:`photax.io.camera_file`).
     """
 
     transform: PixelTransform

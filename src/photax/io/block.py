@@ -30,7 +30,10 @@ def read_block(folder) -> BundleProblem:
          "cameras": {"cam": {"focal_length_px": 3000, "image_size": [4000, 3000],
                              "principal_point_px": [1999.5, 1499.5],   # optional
                              "distortion": [0, 0, 0, 0, 0],           # optional, k1 k2 k3 p1 p2
-                             "free": ["f", "k1"]}},                   # optional, self-calibration
+                             "free": ["f", "k1"]},                    # optional, self-calibration
+                     "scan": {"file": "scan_camera.yaml", "free": ["f"]}},  # or a camera file
+                     # (photax.io.camera_file, path relative to the folder; e.g. a scanned camera
+                     # written by photax fiducials --camera-out, whose pixels go through its scan block)
          "images": [{"name": "IMG_1", "camera": "cam",
                      "position": [X, Y, Z], "angles": [a1, a2, a3],   # or null: resected
                      "fixed": false}]}
@@ -111,6 +114,10 @@ def _read_cameras(meta: _Meta, cameras: dict) -> tuple[list[FrameCamera], np.nda
     cams, free = [], np.zeros((len(cameras), 8), dtype=bool)
     for j, name in enumerate(cameras):
         c, at = cameras[name], f"camera {name!r}"
+        if isinstance(c, dict) and "file" in c:
+            cams.append(_camera_file(meta, at, c))
+            free[j] = _free(meta, at, c)
+            continue
         if not isinstance(c, dict) or "focal_length_px" not in c or "image_size" not in c:
             raise meta.bad(f"{at}: needs focal_length_px and image_size")
         unknown = sorted(set(c) - {"focal_length_px", "image_size", "principal_point_px", "distortion", "free"})
@@ -126,14 +133,36 @@ def _read_cameras(meta: _Meta, cameras: dict) -> tuple[list[FrameCamera], np.nda
         dist = c.get("distortion")
         dist = None if dist is None else meta.vector(at, dist, 5, "distortion")
         cams.append(FrameCamera.from_pixels(f, (int(size[0]), int(size[1])), pp, dist))
-        names_free = c.get("free", [])
-        if not isinstance(names_free, list) or not all(isinstance(n, str) for n in names_free):
-            raise meta.bad(f"{at}: free must be a list of names from {INTRINSICS}, got {names_free!r}")
-        unknown = set(names_free) - set(INTRINSICS)
-        if unknown:
-            raise meta.bad(f"{at}: unknown free parameters {sorted(unknown)}; use {INTRINSICS}")
-        free[j, [INTRINSICS.index(n) for n in names_free]] = True
+        free[j] = _free(meta, at, c)
     return cams, free
+
+
+def _free(meta: _Meta, at: str, c: dict) -> np.ndarray:
+    """``(8,)`` the camera entry's free intrinsics."""
+    names_free = c.get("free", [])
+    if not isinstance(names_free, list) or not all(isinstance(n, str) for n in names_free):
+        raise meta.bad(f"{at}: free must be a list of names from {INTRINSICS}, got {names_free!r}")
+    unknown = set(names_free) - set(INTRINSICS)
+    if unknown:
+        raise meta.bad(f"{at}: unknown free parameters {sorted(unknown)}; use {INTRINSICS}")
+    out = np.zeros(len(INTRINSICS), dtype=bool)
+    out[[INTRINSICS.index(n) for n in names_free]] = True
+    return out
+
+
+def _camera_file(meta: _Meta, at: str, c: dict) -> FrameCamera:
+    """A camera entry ``{"file": ..., "free": [...]}``: the photax camera file it names."""
+    from .camera_file import read_camera
+
+    unknown = sorted(set(c) - {"file", "free"})
+    if unknown:
+        raise meta.bad(f"{at}: unknown key {unknown[0]!r} (a camera given by file has only file and free)")
+    if not isinstance(c["file"], str) or not c["file"].strip():
+        raise meta.bad(f"{at}: file must be the path of a camera file, got {c['file']!r}")
+    cam = read_camera(meta.path.parent / c["file"])
+    if cam.image_size is None or cam.pixel_size is None:
+        raise meta.bad(f"{at}: the camera file {c['file']} needs image_size and a pixel size (pixels are observed)")
+    return cam
 
 
 def _read_images(meta: _Meta, images: list, cam_names: list[str], unit: str):
@@ -245,6 +274,10 @@ def _pixels_to_image(px: np.ndarray, osig: np.ndarray, cams: list[FrameCamera], 
         # FrameCamera.pixel_to_image in numpy: eager JAX would compile its ops
         # again for every new number of observations.
         sel = cam_of_obs == j
+        if type(cam) is not FrameCamera:  # e.g. a scanned camera: pixels through its own transformation
+            xy[sel] = np.asarray(cam.pixel_to_image(px[sel]))
+            ps[sel] = osig[sel] * float(np.mean(np.asarray(cam.pixel_size)))
+            continue
         centre = (np.asarray(cam.image_size, dtype=float) - 1) / 2
         size = np.asarray(cam.pixel_size, dtype=float)
         xy[sel] = (px[sel] - centre) * size * [1.0, -1.0]

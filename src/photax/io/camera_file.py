@@ -25,6 +25,27 @@ camera in pixel units (:meth:`photax.FrameCamera.from_pixels`)::
     principal_point_px: [1999.5, 1499.5]   # optional, default the image centre
     distortion: {k1: -0.05}
 
+A scanned film photograph (:class:`photax.interior.ScannedCamera`, written by
+``photax fiducials --camera-out``) adds a ``scan`` block: the fitted film ->
+scan pixel transformation of its interior orientation
+(:class:`photax.interior.PixelTransform`), so that pixels go through it::
+
+    focal_length: 152.9            # from the calibration report, mm
+    unit: mm
+    principal_point: [0.0, 0.0]
+    image_size: [2400, 2400]       # the scan's (width, height), required
+    scan:
+      model: affine                # similarity, affine, bilinear or projective
+      film_centre: [0.3, -0.1]     # (cu, cv): centroid of the fiducials in (x, -y), unit
+      film_scale: 149.8            # s: their rms distance from it, unit
+      params: [1199.6, 1563.2, 1.1, 1200.2, -0.9, 1563.5]
+
+``params`` map the normalised film coordinates ``u = (x - cu) / s``,
+``v = (-y - cv) / s`` to the pixel (column, row): affine ``c = a0 + a1 u +
+a2 v``, ``r = a3 + a4 u + a5 v`` (the other models: :mod:`photax.interior`).
+``pixel_size`` may be left out (default: the transformation's mean scale);
+``focal_length_px``, ``principal_point_px`` and ``unit: px`` do not go with a scan.
+
 Missing distortion coefficients are zero; ``distortion`` may also be a list
 ``[k1, k2, k3, p1, p2]``.  ``name`` and ``description`` are free text.  Any
 other key, a key given twice, a value that is not a finite number, and a
@@ -38,6 +59,7 @@ from __future__ import annotations
 import json
 import pathlib
 
+import jax.numpy as jnp
 import numpy as np
 import yaml
 
@@ -46,7 +68,8 @@ from ._files import Mapping, as_numbers, file_error, load_json, load_yaml, read_
 from .atomic import atomic_write
 
 _KEYS = {"focal_length", "unit", "principal_point", "principal_point_px", "pixel_size",
-         "image_size", "distortion", "focal_length_px", "name", "description"}
+         "image_size", "distortion", "focal_length_px", "name", "description", "scan"}
+_SCAN_KEYS = ("model", "film_centre", "film_scale", "params")
 _DIST = ("k1", "k2", "k3", "p1", "p2")
 _UNITS = ("mm", "m", "px")
 
@@ -132,7 +155,7 @@ def read_camera(path) -> FrameCamera:
                              f"pixels, got {data['image_size']!r}")
         size = (int(size[0]), int(size[1]))
     if "focal_length_px" in data:
-        extra = sorted(set(data) & {"focal_length", "unit", "pixel_size", "principal_point"})
+        extra = sorted(set(data) & {"focal_length", "unit", "pixel_size", "principal_point", "scan"})
         if extra:
             raise ValueError(f"{_at(path, data, extra[0])}: focal_length_px is the pixel shorthand; "
                              f"do not combine it with {extra[0]}")
@@ -157,6 +180,8 @@ def read_camera(path) -> FrameCamera:
             raise ValueError(f"{_at(path, data, 'pixel_size')}: with unit px the pixel_size is 1, "
                              f"got {data['pixel_size']!r}")
         pixel_size = 1.0 if size is not None else None
+    if "scan" in data:
+        return _scanned(path, data, f, distortion, pixel_size, size, unit)
     if "principal_point" in data and "principal_point_px" in data:
         raise ValueError(f"{_at(path, data, 'principal_point_px')}: give principal_point or "
                          "principal_point_px, not both")
@@ -174,6 +199,41 @@ def read_camera(path) -> FrameCamera:
     return FrameCamera(f, pp, distortion, pixel_size=pixel_size, image_size=size)
 
 
+def _scanned(path, data, f, distortion, pixel_size, size, unit):
+    """The :class:`photax.interior.ScannedCamera` of a camera file with a ``scan`` block."""
+    from ..interior import N_PARAMS, PixelTransform, ScannedCamera
+
+    for key in ("principal_point_px",) + (("unit",) if unit == "px" else ()):
+        if key in data:
+            raise ValueError(f"{_at(path, data, key)}: a scanned camera (scan:) is in film units (mm or m): "
+                             f"{key}{': px' if key == 'unit' else ''} does not go with it")
+    if size is None:
+        raise ValueError(f"{_at(path, data, 'scan')}: a scanned camera needs image_size (the scan's width, height)")
+    scan = data["scan"]
+    if not isinstance(scan, dict):
+        raise ValueError(f"{_at(path, data, 'scan')}: scan must be a mapping with the keys {', '.join(_SCAN_KEYS)}")
+    unknown = sorted(set(scan) - set(_SCAN_KEYS), key=str)
+    missing = [k for k in _SCAN_KEYS if k not in scan]
+    if unknown or missing:
+        what = f"unknown key scan.{unknown[0]}" if unknown else f"missing key scan.{missing[0]}"
+        raise ValueError(f"{_at(path, scan, unknown[0]) if unknown else _at(path, data, 'scan')}: {what}; "
+                         f"a scan block has {', '.join(_SCAN_KEYS)}")
+    model = scan["model"]
+    if model not in N_PARAMS:
+        raise ValueError(f"{_at(path, scan, 'model')}: scan.model must be one of {sorted(N_PARAMS)}, got {model!r}")
+    params = _vector(path, scan, "params", N_PARAMS[model])
+    centre = _vector(path, scan, "film_centre", 2)
+    scale = _positive(path, scan, "film_scale", _scalar(path, scan, "film_scale"))
+    pp = _vector(path, data, "principal_point", 2) if "principal_point" in data else np.zeros(2)
+    transform = PixelTransform(jnp.asarray(params), jnp.asarray(centre), jnp.asarray(scale), model)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mean_scale = transform.scale()
+    if not (np.isfinite(mean_scale) and mean_scale > 0):
+        raise ValueError(f"{_at(path, scan, 'params')}: scan.params is a singular transformation")
+    return ScannedCamera(f, pp, distortion, transform=transform, image_size=size,
+                         pixel_size=None if pixel_size is None else pixel_size)
+
+
 def camera_to_dict(camera: FrameCamera, unit: str | None = None) -> dict:
     """The file form of ``camera`` (full form; see the module docstring).
 
@@ -187,13 +247,19 @@ def camera_to_dict(camera: FrameCamera, unit: str | None = None) -> dict:
         unit = "px"
     if unit not in _UNITS:
         raise ValueError(f"unit must be one of {_UNITS}, got {unit!r}")
+    transform = getattr(camera, "transform", None)  # a photax.interior.ScannedCamera
+    if transform is not None and unit == "px":
+        raise ValueError("unit: a scanned camera is in film units, give 'mm' or 'm'")
     out: dict = {"focal_length": float(camera.focal_length), "unit": unit,
                  "principal_point": np.asarray(camera.principal_point).tolist()}
-    if ps is not None and unit != "px":
-        out["pixel_size"] = ps[0] if ps[0] == ps[1] else ps
+    if ps is not None and unit != "px" and not (transform is not None and ps == [transform.scale()] * 2):
+        out["pixel_size"] = ps[0] if ps[0] == ps[1] else ps  # a scan's default (the transform's scale) is left out
     if camera.image_size is not None:
         out["image_size"] = list(camera.image_size)
     out["distortion"] = dict(zip(_DIST, np.asarray(camera.distortion).tolist()))
+    if transform is not None:
+        out["scan"] = {"model": transform.model, "film_centre": np.asarray(transform.film_centre).tolist(),
+                       "film_scale": float(transform.film_scale), "params": np.asarray(transform.params).tolist()}
     return out
 
 
