@@ -138,7 +138,7 @@ t = np.arange(-10, 11) * GSD  # the target as drawn on a survey sheet, at the GS
 xx, yy = np.meshgrid(t, -t)
 template = np.where(np.hypot(xx, yy) < 5.0, 0.5 + 0.45 * np.tanh(xx / 0.4) * np.tanh(yy / 0.4), 0.5)
 transfer = transfer_points(images, CAM, start, dem, gcp, target_template=template, roles=roles, search=15)
-ties = match_ties(images, CAM, start, dem, search=15, max_points=100)
+ties = match_ties(images, CAM, start, dem, search=15, max_points=50)
 table = transfer.table
 true_px = project_pixels(gcp, stack_exteriors(truth), CAM)
 err = table.pixel - true_px[table.images.astype(int), [int(s[3:]) - 1 for s in table.names]]
