@@ -219,3 +219,26 @@ def test_camera_yaml_in_help_and_readme_parse(tmp_path, capsys):
                 np.testing.assert_allclose(np.asarray(getattr(cam, a)), np.asarray(getattr(sample, a)))
         else:
             assert tuple(cam.image_size) == (4000, 3000)
+
+
+def test_ortho_reads_a_bundle_result(tmp_path):
+    """`photax ortho --exterior bundle.json`: BundleResult.to_dict's list of named images with the
+    convention beside it; an adjustment that did not converge gives no orientation."""
+    from photax.io import read_exterior
+
+    one = json.loads((DATA / "sample_truth.json").read_text())
+    other = dict(position=[0.0, 0.0, 100.0], angles_rad=[0.0, 0.0, 0.0])
+    entry = dict(name="IMG_0001", position=one["position"], angles_rad=one["angles_rad"])
+    bundle = {"converged": True, "convention": one["convention"], "images": [dict(other, name="IMG_0002"), entry]}
+    path = tmp_path / "bundle.json"
+    path.write_text(json.dumps(bundle))
+    eo, _ = read_exterior(path, "/data/IMG_0001.tif")
+    np.testing.assert_allclose(np.asarray(eo.position), one["position"])
+    np.testing.assert_allclose(np.asarray(eo.angles), one["angles_rad"])
+    assert eo.convention == one["convention"]
+    path.write_text(json.dumps(dict(bundle, converged=False, message="50 iterations")))
+    with pytest.raises(ValueError, match=r"did not converge \(50 iterations\)"):
+        read_exterior(path, "IMG_0001.tif")
+    path.write_text(json.dumps({"images": [entry]}))  # no convention anywhere
+    with pytest.raises(ValueError, match="'convention'"):
+        read_exterior(path, "IMG_0001.tif")

@@ -86,7 +86,6 @@ def block_orientations(path, folder) -> tuple[list, list, str | None]:
         ValueError: naming the file: no orientations, an entry without
             them, or an image missing from ``folder``.
     """
-    from ..collinearity import ExteriorOrientation
     from ..io.orientation import read_exterior
     from ..io.orthority import read_orthority_crs, read_orthority_exterior
     from ..io.results import read_json
@@ -96,17 +95,12 @@ def block_orientations(path, folder) -> tuple[list, list, str | None]:
         data = read_json(path)
         images = data.get("images") if isinstance(data, dict) else None
         crs = data.get("crs")
-        if isinstance(images, list):  # photax bundle --json
-            table = {}
-            for k, e in enumerate(images):
-                try:
-                    table[pathlib.Path(e["name"]).stem] = ExteriorOrientation(
-                        e["position"], e["angles_rad"], e.get("convention", data.get("convention", "phi-omega-kappa")))
-                except (KeyError, TypeError):
-                    raise ValueError(f"{path}: images[{k}] needs 'name', 'position' and 'angles_rad' "
-                                     "(photax bundle --json)") from None
-        elif isinstance(images, dict):  # photax resect --json, several images
-            table = {pathlib.Path(n).stem: read_exterior(path, n)[0] for n in images}
+        if isinstance(images, (list, dict)) and images:  # photax bundle --json (a list) or resect --json
+            names = [e.get("name") if isinstance(e, dict) else None for e in images] if isinstance(images, list) \
+                else list(images)
+            if not all(isinstance(n, str) for n in names):
+                raise ValueError(f"{path}: every image needs a 'name' (photax bundle --json)")
+            table = {pathlib.Path(n).stem: read_exterior(path, n)[0] for n in names}
         else:
             raise ValueError(f"{path}: no 'images' (expected a photax bundle or resect --json result)")
     else:

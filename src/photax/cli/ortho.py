@@ -3,8 +3,8 @@
 ``--camera`` (alias ``--interior``) is a photax camera file (YAML/JSON,
 :mod:`photax.io.camera_file`) or an orthority interior YAML
 (``--camera-name`` picks a camera of a multi-camera file); ``--exterior`` a
-``photax resect --json`` result (the image named like IMAGE's stem when it
-holds several) or an orthority exterior CSV (+ .prj beside it): the formats
+``photax resect --json`` or ``photax bundle --json`` result (the image named
+like IMAGE's stem when it holds several) or an orthority exterior CSV (+ .prj beside it): the formats
 are told apart by :mod:`photax.io.orientation`.  The output
 GeoTIFF is written tile by tile into a temporary file renamed at the end; it
 may not be an input or an input's sidecar.  Exit codes: 0 done, 2 bad input.
@@ -30,7 +30,7 @@ def add_parser(sub) -> None:
                    help="photax camera file (see photax resect --help), or orthority interior YAML "
                    "(--interior is an alias)")  # fmt: skip
     p.add_argument("--exterior", required=True,
-                   help="photax resect --json result (the image named like IMAGE when it holds several), "
+                   help="photax resect or bundle --json result (the image named like IMAGE when it holds several), "
                    "or orthority exterior CSV")  # fmt: skip
     p.add_argument("--out", required=True, help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="ground pixel size (default: the mean ground sampling distance)")

@@ -59,9 +59,10 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
 
 
 def _pick_image(path, images, image) -> dict:
-    """The entry of a ``photax resect --json`` ``images`` mapping for ``image``."""
-    if isinstance(images, list):  # a batch result: no names to match
-        images = {str(k): v for k, v in enumerate(images)}
+    """The entry of a ``photax resect --json`` ``images`` mapping (or of a
+    ``photax bundle --json`` ``images`` list, each entry named) for ``image``."""
+    if isinstance(images, list):  # bundle: entries carry their name; a batch result: no names to match
+        images = {str(v["name"]) if isinstance(v, dict) and "name" in v else str(k): v for k, v in enumerate(images)}
     if not isinstance(images, dict) or not images:
         raise ValueError(f"{path}: 'images' holds no image results")
     if len(images) == 1:
@@ -86,10 +87,12 @@ def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
     """``(ExteriorOrientation, crs or None)`` of ``image`` from a JSON or CSV file.
 
     A ``photax resect --json`` file (``.json``) holds ``images`` keyed by
-    image name: with one image it is used whatever its name; with several,
-    the one named like ``image`` (file name or stem); an image that was not
-    solved is refused.  Any other file is read as an orthority exterior CSV
-    and ``image``'s stem looked up in it.
+    image name, a ``photax bundle --json`` file a list of named images with
+    the angle convention beside it: with one image it is used whatever its
+    name; with several, the one named like ``image`` (file name or stem); an
+    image that was not solved, or any image of an adjustment that did not
+    converge, is refused.  Any other file is read as an orthority exterior
+    CSV and ``image``'s stem looked up in it.
 
     Args:
         path: the orientation file.
@@ -103,11 +106,18 @@ def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
     if path.suffix.lower() == ".json":
         data = read_json(path)
         crs = data.get("crs") if isinstance(data, dict) else None
+        convention = data.get("convention") if isinstance(data, dict) else None  # a bundle's, for all its images
+        if isinstance(data, dict) and data.get("converged") is False:  # a bundle adjustment's own status
+            why = data.get("message") or "not converged"
+            raise ValueError(f"{path}: the adjustment did not converge ({why}); no orientation to use")
         if isinstance(data, dict) and "images" in data:
             data = _pick_image(path, data["images"], image)
         data = data.get("exterior", data) if isinstance(data, dict) else data
         try:
-            return ExteriorOrientation(data["position"], data["angles_rad"], data["convention"]), crs
+            convention = data.get("convention", convention)
+            if convention is None:
+                raise KeyError("convention")
+            return ExteriorOrientation(data["position"], data["angles_rad"], convention), crs
         except (KeyError, TypeError):
             raise ValueError(f"{path}: expected 'position', 'angles_rad' and 'convention' (photax resect --json)") from None
     table = read_orthority_exterior(path)
