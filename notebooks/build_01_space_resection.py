@@ -4,10 +4,7 @@ Run: ``python notebooks/build_01_space_resection.py``.  The notebook is
 committed without outputs; tests/test_notebooks.py executes it.
 """
 
-import pathlib
-
-import nbformat
-from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+from _build import write_notebook
 
 CELLS = [
     ("md", """# Space resection of one image
@@ -114,15 +111,5 @@ print("max |R_pok - R_opk| =", float(np.abs(np.asarray(result.exterior.rotation)
 ]
 
 
-def build() -> nbformat.NotebookNode:
-    nb = new_notebook()
-    nb.cells = [new_markdown_cell(src) if kind == "md" else new_code_cell(src) for kind, src in CELLS]
-    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-    nb.metadata["language_info"] = {"name": "python"}
-    return nb
-
-
 if __name__ == "__main__":
-    out = pathlib.Path(__file__).with_name("01_space_resection.ipynb")
-    nbformat.write(build(), out)
-    print(out)
+    write_notebook(CELLS, "01_space_resection.ipynb")

@@ -4,10 +4,7 @@ Run: ``python notebooks/build_02_rectification.py``.  The notebook is
 committed without outputs; tests/test_notebooks.py executes it.
 """
 
-import pathlib
-
-import nbformat
-from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+from _build import write_notebook
 
 CELLS = [
     ("md", """# Rectification: collinearity + DEM against polynomials
@@ -178,14 +175,5 @@ display(Markdown(cmp_flat.table()))"""),
 ]
 
 
-def build() -> nbformat.NotebookNode:
-    nb = new_notebook()
-    nb.cells = [new_markdown_cell(src) if kind == "md" else new_code_cell(src) for kind, src in CELLS]
-    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-    return nb
-
-
 if __name__ == "__main__":
-    out = pathlib.Path(__file__).with_name("02_rectification.ipynb")
-    nbformat.write(build(), out)
-    print(f"wrote {out}")
+    write_notebook(CELLS, "02_rectification.ipynb")

@@ -4,10 +4,7 @@ Run: ``python notebooks/build_03_bundle_adjustment.py``.  The notebook is
 committed without outputs; tests/test_notebooks.py executes it.
 """
 
-import pathlib
-
-import nbformat
-from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+from _build import write_notebook
 
 CELLS = [
     ("md", """# Bundle adjustment
@@ -137,14 +134,5 @@ else:
 ]
 
 
-def main() -> None:
-    nb = new_notebook()
-    nb.cells = [new_markdown_cell(src) if kind == "md" else new_code_cell(src) for kind, src in CELLS]
-    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-    out = pathlib.Path(__file__).with_name("03_bundle_adjustment.ipynb")
-    nbformat.write(nb, out)
-    print("wrote", out)
-
-
 if __name__ == "__main__":
-    main()
+    write_notebook(CELLS, "03_bundle_adjustment.ipynb")

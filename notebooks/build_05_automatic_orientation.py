@@ -5,10 +5,7 @@ committed without outputs; tests/test_notebooks.py executes it.  It is kept
 cheap (small rendered images, one matching shape for transfer and ties).
 """
 
-import pathlib
-
-import nbformat
-from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+from _build import write_notebook
 
 CELLS = [
     ("md", """# From raw images to orientations without clicking
@@ -284,15 +281,5 @@ photax register img.tif --camera cam.yaml --exterior approx.json --ortho referen
 ]
 
 
-def build() -> nbformat.NotebookNode:
-    nb = new_notebook()
-    nb.cells = [new_markdown_cell(src) if kind == "md" else new_code_cell(src) for kind, src in CELLS]
-    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-    nb.metadata["language_info"] = {"name": "python"}
-    return nb
-
-
 if __name__ == "__main__":
-    out = pathlib.Path(__file__).with_name("05_automatic_orientation.ipynb")
-    nbformat.write(build(), out)
-    print(out)
+    write_notebook(CELLS, "05_automatic_orientation.ipynb")

@@ -4,10 +4,7 @@ Run: ``python notebooks/build_06_mosaic_and_uncertainty.py``.  The notebook is
 committed without outputs; tests/test_notebooks.py executes it.
 """
 
-import pathlib
-
-import nbformat
-from nbformat.v4 import new_code_cell, new_markdown_cell, new_notebook
+from _build import write_notebook
 
 CELLS = [
     ("md", """# Orthos on Dask, a mosaic without seams, and how far off each pixel may be
@@ -163,14 +160,5 @@ orientation -- here to the weaker frame 2 on the right."""),
 ]
 
 
-def main() -> None:
-    nb = new_notebook()
-    nb.cells = [new_markdown_cell(src) if kind == "md" else new_code_cell(src) for kind, src in CELLS]
-    nb.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-    out = pathlib.Path(__file__).with_name("06_mosaic_and_uncertainty.ipynb")
-    nbformat.write(nb, out)
-    print("wrote", out)
-
-
 if __name__ == "__main__":
-    main()
+    write_notebook(CELLS, "06_mosaic_and_uncertainty.ipynb")
