@@ -15,15 +15,13 @@ import argparse
 
 
 def add_parser(sub) -> None:
+    from ._common import add_oriented_images
+
     p = sub.add_parser("ties", help="match tie points between overlapping images into a bundle block (BAL)",
                        description="Interest points matched between overlapping images, guided by approximate "
                        "orientations and a DEM (NCC, least-squares matching, two-way check).")
-    p.add_argument("images", nargs="+", metavar="IMAGE", help="images of one camera (any GDAL raster)")
-    p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE")
-    p.add_argument("--exterior", required=True, help="approximate orientations (resect --json or orthority CSV)")
-    p.add_argument("--dem", required=True, help="DEM raster in the ground CRS")
+    add_oriented_images(p)
     p.add_argument("--gcps", help="GCP measurements in pixels to join (CSV or ODM list)")
-    p.add_argument("--search", type=int, default=12, help="search radius around the prediction, px (default 12)")
     p.add_argument("--points", type=int, default=150, help="interest points per image (default 150)")
     p.add_argument("-o", "--out", required=True, help="output BAL file")
     p.set_defaults(func=run)

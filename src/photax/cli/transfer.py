@@ -16,16 +16,14 @@ import argparse
 
 
 def add_parser(sub) -> None:
+    from ._common import add_oriented_images
+
     p = sub.add_parser("transfer", help="transfer GCPs into every image that sees them (NCC + least-squares matching)",
                        description="Predict ground control points in every image with approximate orientations "
                        "and the DEM, and measure them there by image matching.")
-    p.add_argument("images", nargs="+", metavar="IMAGE", help="images of one camera (any GDAL raster)")
-    p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE")
-    p.add_argument("--exterior", required=True, help="approximate orientations (resect --json or orthority CSV)")
-    p.add_argument("--dem", required=True, help="DEM raster in the ground CRS")
+    add_oriented_images(p)
     p.add_argument("--gcps", required=True, help="GCP file (CSV or ODM gcp_list.txt)")
     p.add_argument("--template", help="raster of the survey target, for points measured in no image")
-    p.add_argument("--search", type=int, default=12, help="search radius around the prediction, px (default 12)")
     p.add_argument("--format", choices=("csv", "odm"), default="csv")
     p.add_argument("-o", "--out", required=True, help="output GCP list")
     p.set_defaults(func=run)
