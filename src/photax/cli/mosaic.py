@@ -86,7 +86,7 @@ def block_orientations(path, folder) -> tuple[list, list, str | None]:
         ValueError: naming the file: no orientations, an entry without
             them, or an image missing from ``folder``.
     """
-    from ..io.orientation import read_exterior
+    from ..io.orientation import exterior_from_result
     from ..io.orthority import read_orthority_crs, read_orthority_exterior
     from ..io.results import read_json
 
@@ -100,7 +100,7 @@ def block_orientations(path, folder) -> tuple[list, list, str | None]:
                 else list(images)
             if not all(isinstance(n, str) for n in names):
                 raise ValueError(f"{path}: every image needs a 'name' (photax bundle --json)")
-            table = {pathlib.Path(n).stem: read_exterior(path, n)[0] for n in names}
+            table = {pathlib.Path(n).stem: exterior_from_result(path, data, n)[0] for n in names}
         else:
             raise ValueError(f"{path}: no 'images' (expected a photax bundle or resect --json result)")
     else:

@@ -104,27 +104,32 @@ def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
     """
     path = pathlib.Path(path)
     if path.suffix.lower() == ".json":
-        data = read_json(path)
-        crs = data.get("crs") if isinstance(data, dict) else None
-        convention = data.get("convention") if isinstance(data, dict) else None  # a bundle's, for all its images
-        if isinstance(data, dict) and data.get("converged") is False:  # a bundle adjustment's own status
-            why = data.get("message") or "not converged"
-            raise ValueError(f"{path}: the adjustment did not converge ({why}); no orientation to use")
-        if isinstance(data, dict) and "images" in data:
-            data = _pick_image(path, data["images"], image)
-        data = data.get("exterior", data) if isinstance(data, dict) else data
-        try:
-            convention = data.get("convention", convention)
-            if convention is None:
-                raise KeyError("convention")
-            return ExteriorOrientation(data["position"], data["angles_rad"], convention), crs
-        except (KeyError, TypeError):
-            raise ValueError(f"{path}: expected 'position', 'angles_rad' and 'convention' (photax resect --json)") from None
+        return exterior_from_result(path, read_json(path), image)
     table = read_orthority_exterior(path)
     stem = pathlib.Path(image).stem
     if stem not in table:
         raise ValueError(f"{path}: no orientation for image {stem!r}")
     return table[stem], read_orthority_crs(path)
+
+
+def exterior_from_result(path, data, image) -> tuple[ExteriorOrientation, str | None]:
+    """:func:`read_exterior` of the already parsed JSON ``data`` of ``path`` (a
+    caller reading many images of one file parses it once)."""
+    crs = data.get("crs") if isinstance(data, dict) else None
+    convention = data.get("convention") if isinstance(data, dict) else None  # a bundle's, for all its images
+    if isinstance(data, dict) and data.get("converged") is False:  # a bundle adjustment's own status
+        why = data.get("message") or "not converged"
+        raise ValueError(f"{path}: the adjustment did not converge ({why}); no orientation to use")
+    if isinstance(data, dict) and "images" in data:
+        data = _pick_image(path, data["images"], image)
+    data = data.get("exterior", data) if isinstance(data, dict) else data
+    try:
+        convention = data.get("convention", convention)
+        if convention is None:
+            raise KeyError("convention")
+        return ExteriorOrientation(data["position"], data["angles_rad"], convention), crs
+    except (KeyError, TypeError, AttributeError):
+        raise ValueError(f"{path}: expected 'position', 'angles_rad' and 'convention' (photax resect --json)") from None
 
 
 def read_camera_unit(path) -> str | None:
