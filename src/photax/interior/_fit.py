@@ -191,13 +191,14 @@ def _critical2(alpha: float, sigma_known: bool, red: int) -> float:
     1976 for one dimension; Koch 1999 sec. 4.4 for several), so the critical
     value is ``sqrt(r Beta^-1(1 - alpha))``; it needs ``r > 2``.
     """
-    from scipy import stats  # lazily, as the resection does
-
+    # Both quantiles in closed form (no scipy.stats import): chi^2(2) is the
+    # exponential distribution of mean 2, P(T > c) = exp(-c / 2); Beta(1, b)
+    # has P(X > x) = (1 - x)^b.
     if sigma_known:
-        return float(np.sqrt(stats.chi2.ppf(1.0 - alpha, 2)))
+        return float(np.sqrt(-2.0 * np.log(alpha)))
     if red <= 2:
         return np.inf
-    return float(np.sqrt(red * stats.beta.ppf(1.0 - alpha, 1.0, 0.5 * (red - 2))))
+    return float(np.sqrt(red * (1.0 - alpha ** (2.0 / (red - 2)))))
 
 
 # --------------------------------------------------------------------------- finding the marks
