@@ -82,3 +82,37 @@ def test_an_entry_that_fails_to_run_is_dropped_for_the_function(folder, monkeypa
     np.testing.assert_array_equal(f(jnp.arange(3.0), 2.0, "mul"), np.arange(3.0) * 2.0)
     np.testing.assert_array_equal(f(jnp.arange(3.0), 2.0, "mul"), np.arange(3.0) * 2.0)  # no second try
     assert not list(folder.glob("b-*.bin"))  # the entry is gone
+
+
+def test_compiler_options_and_prefetch(folder):
+    """A function jitted with XLA options is exported through the function it
+    wraps (jax.jit refuses options on an inner jit), its options are part of
+    the key, and ``prefetch`` makes the entry in a background thread."""
+    import threading
+    import time
+
+    import jax
+
+    opts = {"xla_cpu_use_fusion_emitters": False}
+
+    def plain(x):
+        TRACES.append("opt")
+        return jnp.sin(x) * 2.0
+
+    x = np.linspace(0.0, 1.0, 7)
+    f = _aot.disk_cached(jax.jit(plain, compiler_options=opts), "o", opts)
+    f.prefetch(x)
+    deadline = time.monotonic() + 60
+    while not list(folder.glob("o-*.bin")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    while any(t.name == "photax-prefetch-o" for t in threading.enumerate()) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(list(folder.glob("o-*.bin"))) == 1  # made by the thread
+    n = len(TRACES)
+    np.testing.assert_allclose(f(x), np.sin(x) * 2.0, rtol=1e-15)
+    assert len(TRACES) == n  # the call found what the thread made: no new trace
+    f.prefetch(x)  # made already: nothing to do
+    assert not any(t.name == "photax-prefetch-o" for t in threading.enumerate())
+    # the same function without options is another entry
+    np.testing.assert_allclose(_aot.disk_cached(jax.jit(plain), "o")(x), np.sin(x) * 2.0, rtol=1e-15)
+    assert len(list(folder.glob("o-*.bin"))) == 2

@@ -29,6 +29,13 @@ Entries live in ``<jax_compilation_cache_dir>/photax-aot``, and only after
 :func:`enable` (the command line calls it) with that directory set: library
 calls behave exactly as before unless a program opts in.  An unreadable
 entry is ignored and rewritten.
+
+``compiler_options`` (XLA's per-program options, as ``jax.jit`` takes them)
+go with the exported function's compilation too, and into its key.
+``call.prefetch(*args)`` makes and compiles the program for ``args`` in a
+background thread (when disk caching is on and it is not made yet), so that
+a command which will probably need a second program compiles both at once:
+XLA compiles without holding the GIL, and this machine has two cores.
 """
 
 from __future__ import annotations
@@ -82,35 +89,46 @@ def _folder() -> pathlib.Path | None:
     return pathlib.Path(base) / "photax-aot" if base else None
 
 
-def disk_cached(fn, name: str):
+def disk_cached(fn, name: str, compiler_options: dict | None = None):
     """``fn`` (a jitted function of pytrees of arrays and static values),
     with its compiled executable kept on disk between processes.
 
     Returns a function with ``fn``'s signature and results (a call with
-    keyword arguments goes to ``fn`` itself).
+    keyword arguments goes to ``fn`` itself), and a ``prefetch`` method.
+    ``compiler_options``: those ``fn`` was jitted with, for the exported
+    program's compilation.
     """
     import equinox as eqx
     import jax
 
     memory: dict[str, object] = {}
+    locks: dict[str, threading.Lock] = {}  # one per key: two programs are made at once
 
-    def call(*args, **kwargs):
-        folder = _folder()
-        if folder is None or kwargs:
-            return fn(*args, **kwargs)
+    def _key(args):
+        """``(key, path, leaves, treedef, static)`` or None when ``args`` have no safe key."""
         dyn, static = eqx.partition(args, eqx.is_array)
         leaves, treedef = jax.tree_util.tree_flatten(dyn)
         static_leaves, static_def = jax.tree_util.tree_flatten(static)
-        description = repr((name, treedef, static_def, static_leaves,
+        description = repr((name, treedef, static_def, static_leaves, compiler_options,
                             [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves]))
         if " at 0x" in description:  # an object's identity, not its value: no safe key
-            return fn(*args)
+            return None
         key = hashlib.sha256((_environment() + description).encode()).hexdigest()
-        path = folder / f"{name}-{key[:32]}.bin"
+        return key, _folder() / f"{name}-{key[:32]}.bin", leaves, treedef, static
+
+    def call(*args, **kwargs):
+        if _folder() is None or kwargs:
+            return fn(*args, **kwargs)
+        made = _key(args)
+        if made is None:
+            return fn(*args)
+        key, path, leaves, treedef, static = made
         compiled = memory.get(key)
         if compiled is None:
             with _LOCK:
-                compiled = memory.get(key) or _load_or_compile(fn, path, leaves, treedef, static)
+                lock = locks.setdefault(key, threading.Lock())
+            with lock:
+                compiled = memory.get(key) or _load_or_compile(fn, path, leaves, treedef, static, compiler_options)
                 memory[key] = compiled
         if compiled is fn:
             return fn(*args)
@@ -124,10 +142,27 @@ def disk_cached(fn, name: str):
             path.unlink(missing_ok=True)
             return fn(*args)
 
+    def prefetch(*args) -> None:
+        """Make and compile the program for ``args`` in a background thread
+        (nothing when disk caching is off or it is made already); the
+        arguments' values are computed on and thrown away, errors ignored:
+        the real call reports them."""
+        if _folder() is None or (made := _key(args)) is None or made[0] in memory:
+            return
+
+        def run():
+            try:
+                call(*args)
+            except Exception:  # noqa: S110 - the real call raises it again, where it belongs
+                pass
+
+        threading.Thread(target=run, name=f"photax-prefetch-{name}", daemon=True).start()
+
+    call.prefetch = prefetch
     return call
 
 
-def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static):
+def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static, compiler_options=None):
     """``jit(exported.call)`` for the serialised StableHLO at ``path``, made
     (traced once, exported, written) when missing or unreadable; ``fn``
     itself when the function cannot be exported."""
@@ -138,8 +173,12 @@ def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static):
     try:
         exported = export.deserialize(bytearray(path.read_bytes()))
     except Exception:  # missing, truncated, or from an incompatible JAX: export again
+        # jax.jit refuses compiler options on an inner jit: with options, export the function fn wraps
+        # (the options then apply to the exported program's own compilation, below).
+        inner = fn.__wrapped__ if compiler_options else fn
+
         def pure(dyn_leaves):
-            return fn(*eqx.combine(jax.tree_util.tree_unflatten(treedef, dyn_leaves), static))
+            return inner(*eqx.combine(jax.tree_util.tree_unflatten(treedef, dyn_leaves), static))
 
         try:
             exported = export.export(jax.jit(pure))(leaves)
@@ -152,4 +191,4 @@ def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static):
             os.replace(fh.name, path)
         except (OSError, ImportError):  # a read-only cache, or no flatbuffers: still compute
             pass
-    return jax.jit(exported.call)
+    return jax.jit(exported.call, compiler_options=compiler_options)
