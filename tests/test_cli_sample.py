@@ -242,3 +242,34 @@ def test_ortho_reads_a_bundle_result(tmp_path):
     path.write_text(json.dumps({"images": [entry]}))  # no convention anywhere
     with pytest.raises(ValueError, match="'convention'"):
         read_exterior(path, "IMG_0001.tif")
+
+
+def test_bundle_writes_the_self_calibrated_camera(tmp_path, capsys):
+    """`photax bundle BLOCK --camera-out cam.yaml`: the adjusted camera as a camera file, the same
+    numbers as the JSON result, within 4 sigma of the generating camera (f = 3000 px, make_block.py);
+    a block without free intrinsics, a BAL file or an input as output: exit 2, nothing written."""
+    import shutil
+
+    from photax.io import read_camera, write_camera
+
+    folder = tmp_path / "block"
+    shutil.copytree(ROOT / "data" / "block", folder, ignore=shutil.ignore_patterns("*.py"))
+    meta = json.loads((folder / "block.json").read_text())
+    out = tmp_path / "cam.yaml"
+    assert main(["bundle", str(folder), "--camera-out", str(out), "--quiet", "--no-progress"]) == 2
+    assert "no camera of the block is self-calibrated" in capsys.readouterr().err and not out.exists()
+    size = meta["cameras"]["cam"]["image_size"]
+    write_camera(ptx.FrameCamera.from_pixels(3030.0, size), folder / "start.yaml")  # 1 % off: to be found
+    meta["cameras"] = {"cam": {"file": "start.yaml", "free": ["f"]}}
+    (folder / "block.json").write_text(json.dumps(meta))
+    assert main(["bundle", str(folder), "--camera-out", str(folder / "start.yaml"), "--quiet"]) == 2
+    assert "refusing to write" in capsys.readouterr().err  # the camera file read is an input
+    assert main(["bundle", str(folder), "--camera-out", str(out), "--json", str(tmp_path / "r.json"), "--quiet",
+                 "--no-progress"]) == 0
+    cam = read_camera(out)
+    result = json.loads((tmp_path / "r.json").read_text())
+    f, sf = result["cameras"][0]["focal_length"], result["cameras"][0]["std"][0]
+    assert cam.focal_length == pytest.approx(f, rel=1e-12)
+    # this small block (8 frames, flat control) holds f only loosely: the check is against its own sigma
+    assert 0 < sf < 200 and abs(f - 3000.0) < 4 * sf, (f, sf)
+    assert cam.image_size == tuple(size) and float(cam.pixel_size[0]) == 1.0  # in the start file's unit, px

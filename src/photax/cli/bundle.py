@@ -29,6 +29,10 @@ def add_parser(sub) -> None:
                    help="LM iterations at most, accepted and rejected steps (--max-iterations is an alias)")
     p.add_argument("--quiet", action="store_true", help="no per-iteration lines")
     p.add_argument("--json", metavar="OUT", help="also write the results as JSON")
+    p.add_argument("--camera-out", metavar="OUT",
+                   help="block folders: write the self-calibrated camera (one with 'free' intrinsics) as a photax "
+                   "camera file OUT (.yaml or .json), ready for resect/ortho; with several, OUT is a folder of "
+                   "NAME.yaml files. Written only when the adjustment converged")  # fmt: skip
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -53,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         check_output_path(args.json, inputs)  # fail before the work, not after
     problem = read_block(path) if fmt == "block" else read_bal(path)
+    cameras_out = _camera_outputs(args.camera_out, fmt, path, problem, inputs) if args.camera_out else []
     gauge = {"auto": "damped" if fmt == "bal" else None, "none": None}.get(args.gauge, args.gauge)
     n_ctrl, n_chk = int((problem.roles == "control").sum()), int((problem.roles == "check").sum())
     print(f"{path}: {plural(problem.n_images, 'image')}, {plural(problem.n_cameras, 'camera')}, "
@@ -65,4 +70,44 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         write_json(result.to_dict(), args.json, inputs=inputs)
         print(f"wrote {args.json}")
+    if cameras_out and not result.converged:
+        print(f"camera files not written: the adjustment did not converge ({result.message})")
+    elif cameras_out:
+        from ..io.camera_file import write_camera
+
+        for j, out, unit in cameras_out:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            write_camera(result.cameras[j], out, unit=unit, inputs=inputs)
+            print(f"wrote {out}")
     return 0 if result.converged else 1
+
+
+def _camera_outputs(out, fmt: str, folder: pathlib.Path, problem, inputs: list) -> list:
+    """``[(camera index, path, unit)]`` for ``--camera-out``: the block's
+    self-calibrated cameras, checked before the work (a BAL file, no free
+    intrinsics, a path that is an input: ValueError)."""
+    import json
+
+    from ..io.atomic import check_output_path
+    from ..io.orientation import read_camera_unit
+
+    if fmt != "block":
+        raise ValueError("--camera-out needs a block folder (a BAL file's cameras are not photax cameras)")
+    meta = json.loads((folder / "block.json").read_text())["cameras"]  # read_block keeps this order
+    names = list(meta)
+    free = [j for j in range(len(names)) if problem.free_intrinsics[j].any()]
+    if not free:
+        raise ValueError("--camera-out: no camera of the block is self-calibrated (give it 'free' in block.json)")
+    files = [folder / meta[names[j]]["file"] for j in free if "file" in meta[names[j]]]
+    inputs.extend(files)  # a camera file read is an input too: never overwritten
+    out = pathlib.Path(out)
+    paths = [out] if len(free) == 1 else [out / f"{names[j]}.yaml" for j in free]
+    if len(free) > 1 and out.exists() and not out.is_dir():
+        raise ValueError(f"--camera-out: {len(free)} self-calibrated cameras need a folder, {out} is a file")
+    if len(free) == 1 and out.suffix.lower() not in (".yaml", ".yml", ".json"):
+        raise ValueError(f"--camera-out: {out} must end in .yaml, .yml or .json")
+    for p in paths:
+        check_output_path(p, inputs)
+    # pixels (focal_length_px) unless the camera came from a file in its own unit
+    units = [read_camera_unit(folder / meta[names[j]]["file"]) if "file" in meta[names[j]] else "px" for j in free]
+    return list(zip(free, paths, units))
