@@ -273,8 +273,8 @@ photax fiducials scan.tif --fiducials marks.csv --pixel-size 0.5 --camera calibr
     --camera-out scan_camera.yaml -o interior.json
 photax transfer img*.tif --camera cam.yaml --exterior approx.json --dem dem.tif --gcps gcps.csv \\
     --template target.tif -o measured.csv
-photax ties img*.tif --camera cam.yaml --exterior approx.json --dem dem.tif --gcps measured.csv -o block.bal
-photax bundle block.bal
+photax ties img*.tif --camera cam.yaml --exterior approx.json --dem dem.tif --gcps measured.csv -o block
+photax bundle block --camera-out calibrated.yaml   # with "free" intrinsics in block/block.json
 photax epipolar left.tif right.tif --camera cam.yaml --exterior oriented.json -o pair
 photax register img.tif --camera cam.yaml --exterior approx.json --ortho reference.tif --dem dem.tif -o refined.json
 ```"""),

@@ -479,3 +479,55 @@ def test_camera_numbers_yaml_reads_as_text(tmp_path):
     cam = read_camera(p)
     assert float(cam.focal_length) == 0.035
     np.testing.assert_array_equal(np.asarray(cam.pixel_size), [1e-5, 1.1e-5])
+
+
+def _same_problem(a, b):
+    np.testing.assert_allclose(b.obs_xy, a.obs_xy, rtol=0, atol=1e-9 * np.abs(a.obs_xy).max())
+    np.testing.assert_allclose(b.obs_sigma, a.obs_sigma, rtol=1e-12)
+    np.testing.assert_array_equal(b.obs_image, a.obs_image)
+    np.testing.assert_array_equal(b.obs_point, a.obs_point)
+    np.testing.assert_array_equal(b.points, a.points)  # NaN where unknown, 17 digits elsewhere
+    np.testing.assert_array_equal(b.roles, a.roles)
+    np.testing.assert_array_equal(b.point_sigma, a.point_sigma)
+    np.testing.assert_array_equal(b.free_intrinsics, a.free_intrinsics)
+    np.testing.assert_array_equal(b.fixed_exterior, a.fixed_exterior)
+    np.testing.assert_array_equal(np.asarray(b.exterior.position), np.asarray(a.exterior.position))
+    np.testing.assert_array_equal(np.asarray(b.exterior.angles), np.asarray(a.exterior.angles))
+    assert b.exterior.convention == a.exterior.convention and b.image_names == a.image_names
+    assert b.point_names == a.point_names
+    for ca, cb in zip(a.cameras, b.cameras, strict=True):
+        for k in ("focal_length", "principal_point", "distortion", "pixel_size"):
+            np.testing.assert_array_equal(np.asarray(getattr(cb, k)), np.asarray(getattr(ca, k)))
+        assert cb.image_size == ca.image_size
+
+
+def test_block_round_trip(tmp_path):
+    """write_block then read_block gives the problem back: the sample block (pixel camera), then one
+    in mm with control sigmas, a check point, an unknown tie point, a fixed image and free intrinsics."""
+    from conftest import ROOT
+
+    from photax.io import write_block
+
+    a = read_block(ROOT / "data" / "block")
+    _same_problem(a, read_block(write_block(a, tmp_path / "b1")))
+    cam = ptx.FrameCamera(24.0, (0.01, -0.02), pixel_size=0.006, image_size=(4000, 3000),
+                          distortion=(1e-4, 0, 0, 0, 0))
+    roles = np.array(a.roles)
+    seen = np.bincount(a.obs_point, minlength=a.n_points)
+    roles[np.flatnonzero((roles == "control") & (seen >= 2))[-1]] = "check"
+    pts = a.points.copy()
+    pts[np.flatnonzero(roles == "tie")[0]] = np.nan
+    xy = np.asarray(a.cameras[0].image_to_pixel(a.obs_xy))  # the same pixels, in a mm camera
+    b = a.replace(cameras=[cam], obs_xy=np.asarray(cam.pixel_to_image(xy)), obs_sigma=0.003, roles=roles,
+                  points=pts, point_sigma=np.where(roles == "control", 0.05, 0.0), free_intrinsics=("f", "k1"),
+                  fixed_exterior=np.arange(a.n_images) == 2)
+    out = write_block(b, tmp_path / "b2", units="mm")
+    _same_problem(b, read_block(out))
+    assert read_camera(out / "cameras" / "cam.yaml").focal_length == 24.0
+    with pytest.raises(ValueError, match="not an empty folder"):
+        write_block(b, out, units="mm")
+    with pytest.raises(ValueError, match="unit is required"):
+        write_block(b, tmp_path / "b3")
+    assert not (tmp_path / "b3").exists() and not list(tmp_path.glob(".b3.*"))  # nothing left behind
+    with pytest.raises(ValueError, match="x and y sigmas differ"):
+        write_block(b.replace(obs_sigma=np.tile([0.003, 0.004], (b.n_observations, 1))), tmp_path / "b4", units="mm")

@@ -182,6 +182,10 @@ def test_cli_transfer_and_ties(block, tmp_path):
     p = np.array([int(n[3:]) - 1 for n in out.names])
     assert np.sqrt(np.mean((out.pixel - true_px[k, p]) ** 2)) <= 0.15
     assert main(["ties", *paths, *common, "--points", "50", "--gcps", str(tmp_path / "out.csv"), "-o",
-                 str(tmp_path / "b.bal")]) == 0
-    prob = photax.read_bal(tmp_path / "b.bal")
-    assert prob.n_images == 3 and prob.n_observations >= 100
+                 str(tmp_path / "blk")]) == 0
+    prob = photax.io.read_block(tmp_path / "blk")  # a block folder: the GCPs stay control points
+    assert prob.n_images == 3 and prob.n_observations >= 100 and prob.image_names == ("img3", "img4", "img5")
+    ctrl = {n for n, r in zip(prob.point_names, prob.roles) if r != "tie"}
+    assert ctrl == set(out.names.tolist()), (ctrl, out.names)
+    cam = prob.cameras[0]
+    assert cam.focal_length == CAM.focal_length and cam.image_size == CAM.image_size

@@ -1,11 +1,14 @@
-"""``photax ties``: tie points between overlapping images (:func:`photax.match_ties`) as a BAL block.
+"""``photax ties``: tie points between overlapping images (:func:`photax.match_ties`) as a bundle block.
 
 IMAGES of one camera with approximate orientations (``--exterior``) and a DEM;
 optionally GCP measurements (``--gcps``, e.g. from ``photax transfer``) joined
-as control and check points.  Writes the bundle problem as a BAL file
-(``photax bundle`` reads it; BAL keeps no control/check roles, so GCPs
-are written as points with their surveyed start values) and prints the
-matches per image pair.
+as control and check points.  Writes the bundle problem as a block folder
+(:func:`photax.io.write_block`: the GCPs keep their control/check roles, the
+camera its file, a scanned camera its film transformation) or, when OUT ends
+in ``.txt``, ``.txt.bz2`` or ``.bal``, as a BAL file (one camera per image,
+no roles: GCPs become points with their surveyed start values and the block
+has no datum), and prints the matches per image pair.  ``photax bundle``
+reads both.
 Exit codes: 0 done, 2 bad input.
 """
 
@@ -17,13 +20,15 @@ import argparse
 def add_parser(sub) -> None:
     from ._common import add_oriented_images
 
-    p = sub.add_parser("ties", help="match tie points between overlapping images into a bundle block (BAL)",
+    p = sub.add_parser("ties", help="match tie points between overlapping images into a bundle block",
                        description="Interest points matched between overlapping images, guided by approximate "
                        "orientations and a DEM (NCC, least-squares matching, two-way check).")
     add_oriented_images(p)
     p.add_argument("--gcps", help="GCP measurements in pixels to join (CSV or ODM list)")
     p.add_argument("--points", type=int, default=150, help="interest points per image (default 150)")
-    p.add_argument("-o", "--out", required=True, help="output BAL file")
+    p.add_argument("-o", "--out", required=True,
+                   help="output block folder (new or empty; GCPs stay control/check points), or a BAL file when "
+                   "OUT ends in .txt, .txt.bz2 or .bal")  # fmt: skip
     p.set_defaults(func=run)
 
 
@@ -33,12 +38,26 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np  # here, not at import: photax --help loads no numpy
 
-    from ..io import read_gcps, write_bal
+    from ..io import read_camera_unit, read_gcps, write_bal, write_block
+    from ..io.atomic import check_output_path
     from ..io.raster import read_dem
     from ..ties import bundle_problem, match_ties
     from ._common import read_oriented_images
 
     files, camera, names, images, exterior = read_oriented_images(args, [args.gcps])
+    bal = args.out.lower().endswith((".txt", ".txt.bz2", ".bal"))
+    out = pathlib.Path(args.out)
+    if not bal:  # before the matching, not after
+        if out.exists() and (not out.is_dir() or any(out.iterdir())):
+            raise ValueError(f"refusing to write the block {out}: it exists and is not an empty folder "
+                             "(a BAL file ends in .txt, .txt.bz2 or .bal)")
+        check_output_path(out / "block.json", files)
+        unit = read_camera_unit(args.camera)
+        if unit is None:
+            raise ValueError(f"{args.camera}: the block's camera file needs a unit; give --camera as a photax "
+                             "camera file (unit: mm, m or px)")
+    else:
+        check_output_path(out, files)
     ties = match_ties(images, camera, exterior, read_dem(args.dem), max_points=args.points, search=args.search)
     for k, s in enumerate(ties.image_status):
         if s != "ok":
@@ -52,8 +71,11 @@ def run(args: argparse.Namespace) -> int:
         gcps = gcps.subset(np.array([pathlib.Path(str(s)).stem in names for s in gcps.images], dtype=bool))
         gcps = dataclasses.replace(gcps, images=np.array([pathlib.Path(str(s)).stem for s in gcps.images], dtype=str))
     problem = bundle_problem(camera, exterior, ties, gcps, image_names=names)
-    # BAL stores one camera per image and no point roles: GCPs go in as (surveyed) points only
-    problem = problem.replace(cameras=(camera,) * len(names), image_camera=np.arange(len(names)))
-    write_bal(problem, args.out, inputs=files)
+    if bal:
+        # BAL stores one camera per image and no point roles: GCPs go in as (surveyed) points only
+        problem = problem.replace(cameras=(camera,) * len(names), image_camera=np.arange(len(names)))
+        write_bal(problem, args.out, inputs=files)
+    else:
+        write_block(problem, out, units=unit, inputs=files)
     print(f"wrote {args.out}: {ties.n_tracks} tie tracks, {problem.n_observations} observations")
     return 0

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 _LAZY = {
     **dict.fromkeys(("atomic_path", "atomic_write"), ".atomic"),
     **dict.fromkeys(("BALData", "read_bal", "read_bal_arrays", "write_bal"), ".bal"),
-    "read_block": ".block",
+    **dict.fromkeys(("read_block", "write_block"), ".block"),
     **dict.fromkeys(("read_camera", "write_camera"), ".camera_file"),
     **dict.fromkeys(("GCPTable", "read_gcps", "write_gcps"), ".gcp"),
     **dict.fromkeys(("read_orthority_crs", "read_orthority_exterior", "read_orthority_interior"), ".orthority"),
@@ -46,7 +46,7 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:
     from .atomic import atomic_path as atomic_path, atomic_write as atomic_write
     from .bal import BALData as BALData, read_bal as read_bal, read_bal_arrays as read_bal_arrays, write_bal as write_bal
-    from .block import read_block as read_block
+    from .block import read_block as read_block, write_block as write_block
     from .camera_file import read_camera as read_camera, write_camera as write_camera
     from .gcp import GCPTable as GCPTable, read_gcps as read_gcps, write_gcps as write_gcps
     from .orthority import (

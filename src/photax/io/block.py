@@ -283,3 +283,111 @@ def _pixels_to_image(px: np.ndarray, osig: np.ndarray, cams: list[FrameCamera], 
         xy[sel] = (px[sel] - centre) * size * [1.0, -1.0]
         ps[sel] = osig[sel] * float(np.mean(size))
     return xy, ps
+
+
+def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pathlib.Path:
+    """Write ``problem`` as a block folder that :func:`read_block` reads back.
+
+    ``block.json`` (angles in radians, the problem's convention), one camera
+    file per camera (``cameras/NAME.yaml``, so a scanned camera keeps its
+    film transformation; :func:`photax.io.write_camera`), ``points.csv``
+    with every point's role and sigma, ``observations.csv`` in pixels.
+    Numbers are written with 17 significant digits: the round trip is
+    exact to rounding.
+
+    Args:
+        problem: the block; camera names are ``cam`` (one camera) or
+            ``cam1``, ``cam2``...
+        folder: a new or empty folder (written beside it, then renamed: a
+            failure leaves nothing).
+        units: the cameras' length unit (``"mm"``, ``"m"``, ``"px"``), one
+            string or one per camera; default ``"px"``, which needs pixel
+            size 1 (:func:`photax.io.camera_file.camera_to_dict`).
+        inputs: paths this run read: ``folder`` may not be one of them.
+
+    Raises:
+        ValueError: what the format cannot hold (different x / y sigmas
+            of an observation, per-axis point sigmas, some but not all
+            exterior parameters of an image fixed), a camera without
+            ``image_size``, or a non-empty ``folder``.
+    """
+    import json
+    import os
+    import shutil
+    import tempfile
+
+    from ..bundle import INTRINSICS
+    from .atomic import check_output_path
+    from .camera_file import write_camera
+
+    folder = pathlib.Path(folder)
+    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
+        raise ValueError(f"refusing to write the block {folder}: it exists and is not an empty folder")
+    check_output_path(folder / "block.json", inputs)
+    p = problem
+    if np.any(p.obs_sigma[:, 0] != p.obs_sigma[:, 1]):
+        raise ValueError("the block format has one sigma per observation: x and y sigmas differ")
+    if np.any(p.point_sigma.min(axis=1) != p.point_sigma.max(axis=1)):
+        raise ValueError("the block format has one sigma per point: per-axis point sigmas differ")
+    fixed = p.fixed_exterior.all(axis=1)
+    if np.any(p.fixed_exterior.any(axis=1) & ~fixed):
+        raise ValueError("the block format fixes whole images: some exterior parameters of an image are fixed, "
+                         "others not")
+    n_cam = len(p.cameras)
+    units = [units] * n_cam if units is None or isinstance(units, str) else list(units)
+    cam_names = ["cam"] if n_cam == 1 else [f"cam{j + 1}" for j in range(n_cam)]
+    parent = folder.resolve().parent
+    parent.mkdir(parents=True, exist_ok=True)
+    tmp = pathlib.Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".part", dir=parent))
+    try:
+        cameras = {}
+        for j, (name, cam) in enumerate(zip(cam_names, p.cameras)):
+            if cam.image_size is None:
+                raise ValueError(f"camera {j}: the block format observes pixels, the camera needs image_size")
+            write_camera(cam, tmp / "cameras" / f"{name}.yaml", unit=units[j])
+            free = [n for n, f in zip(INTRINSICS, p.free_intrinsics[j]) if f]
+            cameras[name] = {"file": f"cameras/{name}.yaml", **({"free": free} if free else {})}
+        eo = p.exterior
+        images = [{"name": n, "camera": cam_names[c], "position": np.asarray(eo.position[i]).tolist(),
+                   "angles": np.asarray(eo.angles[i]).tolist(), **({"fixed": True} if fixed[i] else {})}
+                  for i, (n, c) in enumerate(zip(p.image_names, p.image_camera))]
+        meta = {"convention": eo.convention, "angle_unit": "radians", "cameras": cameras, "images": images}
+        (tmp / "block.json").write_text(json.dumps(meta, indent=1) + "\n")
+        g = lambda v: "" if np.isnan(v) else repr(float(v))  # noqa: E731 - repr: 17 digits, exact round trip
+        rows = ["name,X,Y,Z,role,sigma"] + [
+            ",".join([_csv_name(n), *map(g, xyz), r, repr(float(s))])
+            for n, xyz, r, s in zip(p.point_names, p.points, p.roles, p.point_sigma[:, 0])]
+        (tmp / "points.csv").write_text("\n".join(rows) + "\n")
+        px, spx = _image_to_pixels(np.asarray(p.obs_xy), p.obs_sigma[:, 0], p.cameras, p.image_camera[p.obs_image])
+        rows = ["image,point,col,row,sigma_px"] + [
+            f"{_csv_name(p.image_names[i])},{_csv_name(p.point_names[k])},{c!r},{r!r},{s!r}"
+            for i, k, (c, r), s in zip(p.obs_image.tolist(), p.obs_point.tolist(), px.tolist(), spx.tolist())]
+        (tmp / "observations.csv").write_text("\n".join(rows) + "\n")
+        if folder.exists():
+            folder.rmdir()  # empty (checked above)
+        os.replace(tmp, folder)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return folder
+
+
+def _csv_name(name: str) -> str:
+    """A name as one CSV field (quoted when it holds a comma or a quote)."""
+    name = str(name)
+    return '"' + name.replace('"', '""') + '"' if any(c in name for c in ',"\n') else name
+
+
+def _image_to_pixels(xy: np.ndarray, sig: np.ndarray, cams, cam_of_obs: np.ndarray):
+    """The inverse of :func:`_pixels_to_image`: pixels and pixel sigmas."""
+    px = np.empty_like(xy)
+    ps = np.empty(len(xy))
+    for j, cam in enumerate(cams):
+        sel = cam_of_obs == j
+        size = np.asarray(cam.pixel_size, dtype=float)
+        if type(cam) is not FrameCamera:
+            px[sel] = np.asarray(cam.image_to_pixel(xy[sel]))
+        else:
+            centre = (np.asarray(cam.image_size, dtype=float) - 1) / 2
+            px[sel] = xy[sel] * [1.0, -1.0] / size + centre
+        ps[sel] = sig[sel] / float(np.mean(size))
+    return px, ps
