@@ -300,3 +300,25 @@ def test_gradient_gaussian_closed_form():
     np.testing.assert_allclose(np.asarray(gy), want_y, rtol=1e-12, atol=1e-9)
     with pytest.raises(ValueError, match="method"):
         ptx.measure.gradient(c, "scharr")
+
+
+def test_thinning_keeps_what_comparing_every_pair_keeps():
+    """interest_points' plateau thinning (an occupancy image) against the definition, written out as
+    the pairwise loop: the strongest first, a point dropped when a kept one is within d in row and
+    column; random maxima with ties and clusters, with and without max_points."""
+    from photax.measure._interest import _thin
+
+    rng = np.random.default_rng(5)
+    for trial in range(20):
+        n, d, shape = rng.integers(1, 400), int(rng.integers(0, 6)), (60, 80)
+        rows, cols = rng.integers(0, shape[0], n), rng.integers(0, shape[1], n)
+        score = rng.integers(0, 30, n).astype(float)  # many equal scores: the stable order decides
+        cap = None if trial % 2 else int(rng.integers(1, 50))
+        ref = []
+        for i in np.argsort(-score, kind="stable"):
+            if any(abs(rows[i] - rows[j]) <= d and abs(cols[i] - cols[j]) <= d for j in ref):
+                continue
+            ref.append(i)
+            if cap is not None and len(ref) >= cap:
+                break
+        assert _thin(rows, cols, score, d, cap, shape).tolist() == ref
