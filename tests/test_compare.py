@@ -146,7 +146,31 @@ def test_report_and_dict(hills_cmp):
     d = json.loads(json.dumps(c.to_dict()))
     assert [m["name"] for m in d["models"]] == c.names
     poly5 = d["models"][c.names.index("polynomial 5")]
-    assert poly5["n_params"] == 42 and poly5["redundancy"] == 2 * 30 - 42
+    used = 30 - int(c.resection.outliers.sum())  # the resection's rejected points are in no fit
+    assert poly5["n_params"] == 42 and poly5["redundancy"] == 2 * used - 42
+    assert d["excluded"] == np.flatnonzero(c.resection.outliers).tolist()
+
+
+def test_a_blunder_rejected_by_the_resection_is_in_no_fit(hills):
+    """A 25 px blunder on one GCP: the resection rejects it, and every polynomial is then the one
+    fitted without that point (so the models compare on the same points); its GCP RMSE leaves it out."""
+    from photax.polynomial import fit_polynomial
+
+    s = hills
+    px = s.gcp_pixel.copy()
+    px[7] += [25.0, -10.0]
+    c = compare_models(s.gcp_ground, px, s.camera, s.dem, orders=(2,), projective=False,
+                       gcp_names=[f"G{k}" for k in range(len(px))])
+    assert c.excluded[7] and c.excluded.tolist() == np.asarray(c.resection.outliers).tolist()
+    keep = ~c.excluded
+    ref = fit_polynomial(s.gcp_ground[keep, :2], px[keep], 2)
+    p2 = c["polynomial 2"]
+    np.testing.assert_allclose(np.asarray(p2.model(s.gcp_ground[:, :2])), np.asarray(ref(s.gcp_ground[:, :2])),
+                               atol=1e-9)
+    np.testing.assert_allclose(p2.gcp_rmse, np.sqrt(np.mean(np.sum(p2.gcp_residuals[keep] ** 2, axis=1))))
+    assert np.linalg.norm(p2.gcp_residuals[7]) > 15  # the blunder shows in its residual
+    note = [line for line in c.table("text").splitlines() if "left out of every fit" in line]
+    assert c["collinearity"].gcp_rmse < 3 * NOISE and len(note) == 1 and " G7" in note[0].replace(",", " ")
 
 
 def test_figures(hills, hills_cmp):

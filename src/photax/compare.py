@@ -127,6 +127,11 @@ class ModelComparison:
             when the exterior orientation was given).
         skipped: ``{name: reason}`` for models that could not be fitted
             (e.g. too few GCPs for an order).
+        excluded: ``(n,)`` True for GCPs the resection rejected as blunders
+            (data snooping): left out of every model's fit and GCP RMSE, so
+            that all models see the same points.  A polynomial cannot tell
+            a blunder from relief displacement; collinearity with the DEM can.
+        gcp_names: the GCPs' names, when given (reports name them).
     """
 
     models: list[ModelResult]
@@ -141,6 +146,8 @@ class ModelComparison:
     check_pixel: np.ndarray
     resection: Any = None
     skipped: dict = dataclasses.field(default_factory=dict)
+    excluded: np.ndarray | None = None
+    gcp_names: tuple[str, ...] | None = None
 
     def __getitem__(self, name: str) -> ModelResult:
         for m in self.models:
@@ -175,6 +182,11 @@ class ModelComparison:
                          f"{m.check_rmse:.3f}", f"{m.check_rmse * self.gsd:.3f}", f"{m.error_rms:.2f}",
                          f"{m.error_max:.2f}"])
         notes = [f"{k}: {v}" for k, v in self.skipped.items()]
+        if self.excluded is not None and self.excluded.any():
+            idx = np.flatnonzero(self.excluded)
+            which = [self.gcp_names[k] for k in idx] if self.gcp_names else [f"#{k} (0-based)" for k in idx]
+            notes.append(f"GCP {', '.join(which)} left out of every fit: rejected as a blunder by the "
+                         "resection's data snooping")
         notes.append(f"{len(self.gcp_pixel)} GCPs, {len(self.check_pixel)} check points, "
                      f"GSD {self.gsd:.3g} m; map = collinearity+DEM minus model over the output grid")
         if fmt == "markdown":
@@ -204,6 +216,7 @@ class ModelComparison:
                 for m in self.models
             ],
             "skipped": dict(self.skipped),
+            "excluded": [] if self.excluded is None else np.flatnonzero(self.excluded).tolist(),
         }
 
     # --- rectified images --------------------------------------------------
@@ -322,6 +335,7 @@ def compare_models(
     projective: bool = True,
     grid: Grid | None = None,
     exterior: ExteriorOrientation | None = None,
+    gcp_names: Sequence[str] | None = None,
 ) -> ModelComparison:
     """Fit collinearity and plane-to-plane models to the same GCPs and compare.
 
@@ -338,6 +352,10 @@ def compare_models(
         grid: grid of the error maps; default the image footprint on the
             DEM at 4 x the mean GSD.
         exterior: use this exterior orientation instead of resecting.
+        gcp_names: ``(n,)`` names of the GCPs, for the reports.
+
+    GCPs that the resection rejects as blunders (its data snooping) are left
+    out of every model's fit (:attr:`ModelComparison.excluded`).
 
     Returns:
         :class:`ModelComparison`.
@@ -354,9 +372,12 @@ def compare_models(
     n = len(gg)
 
     resection = None
+    used = np.ones(n, bool)
     if exterior is None:
         resection = resect(camera.pixel_to_image(gp), gg, camera)
         exterior = resection.exterior
+        used = ~np.asarray(resection.outliers, bool)  # every model fits the same, blunder-free points
+    n_used = int(used.sum())
     footprint = ortho_grid(exterior, camera, dem)
     gsd = abs(float(footprint.transform.a))
     grid = ortho_grid(exterior, camera, dem, 4 * gsd) if grid is None else grid
@@ -374,7 +395,8 @@ def compare_models(
         on_grid, at_gcp, at_check = np.split(values, [size, size + n])
         vg, vc = at_gcp - gp, at_check - cp  # computed - observed
         err = ref - on_grid.reshape(ref.shape)
-        results.append(ModelResult(name, model, u, 2 * n - u, float(cond), vg, vc, _rmse(vg), _rmse(vc), err))
+        results.append(ModelResult(name, model, u, 2 * n_used - u, float(cond), vg, vc, _rmse(vg[used]), _rmse(vc),
+                                   err))
 
     # Collinearity with the DEM is the reference mapping of the error maps;
     # at GCPs and check points it uses their own surveyed Z, not the DEM's.
@@ -384,22 +406,26 @@ def compare_models(
     inside = (ref[..., 0] >= -0.5) & (ref[..., 0] <= w - 0.5) & (ref[..., 1] >= -0.5) & (ref[..., 1] <= h - 0.5)
     ref = np.where(inside[..., None], ref, np.nan)
     values[size:] = np.asarray(_project_px(jnp.asarray(np.concatenate([gg, cg])), exterior, camera))
-    cond = math.nan if resection is None else _collinearity_condition(exterior, camera, gg)
+    cond = math.nan if resection is None else _collinearity_condition(exterior, camera, gg[used])
     add("collinearity", ortho, 0 if resection is None else 6, cond, values)
 
     skipped = {}
     for k in orders:
         u = n_coefficients(int(k))
         name = f"polynomial {k}"
-        if n < u:
-            skipped[name] = f"needs at least {u} GCPs, have {n}"
+        if n_used < u:
+            skipped[name] = f"needs at least {u} GCPs, have {n_used}"
             continue
-        model = fit_polynomial(gg[:, :2], gp, int(k))
+        model = fit_polynomial(gg[used, :2], gp[used], int(k))
         add(name, model, 2 * u, model.condition, np.asarray(_apply(model, flat_xy)))
     if projective:
-        if n < 4:
-            skipped["projective"] = f"needs at least 4 GCPs, have {n}"
+        if n_used < 4:
+            skipped["projective"] = f"needs at least 4 GCPs, have {n_used}"
         else:
-            model = fit_projective(gg[:, :2], gp)
+            model = fit_projective(gg[used, :2], gp[used])
             add("projective", model, 8, model.condition, np.asarray(_apply(model, flat_xy)))
-    return ModelComparison(results, exterior, camera, dem, grid, gsd, gg, gp, cg, cp, resection, skipped)
+    names = None if gcp_names is None else tuple(str(x) for x in gcp_names)
+    if names is not None and len(names) != n:
+        raise ValueError(f"gcp_names has {len(names)} names for {n} GCPs")
+    return ModelComparison(results, exterior, camera, dem, grid, gsd, gg, gp, cg, cp, resection, skipped, ~used,
+                           names)

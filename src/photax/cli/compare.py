@@ -101,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         table.ground[~check], pixel[~check], camera, dem,
         check_ground=table.ground[check] if check.any() else None,
         check_pixel=pixel[check] if check.any() else None,
-        orders=args.orders,
+        orders=args.orders, gcp_names=table.names[~check],
     )
     print(comparison.table("text"))
     if args.out is None:
