@@ -4,6 +4,7 @@ differently in each ortho -- against rasterio.merge (first wins), the
 reference users have (rasterio #1428)."""
 
 import numpy as np
+import xarray as xr
 import pytest
 from conftest import needs
 import rasterio
@@ -167,7 +168,8 @@ def test_order_independent_and_bad_input(scene):
     off = b.assign_coords(x=b.x + RES / 2).rio.write_transform(b.rio.transform() * rasterio.Affine.translation(0.5, 0))
     for orthos, kwargs, match in (
         ([], {}, "at least one"), ([a, half], {}, "pixel size"), ([a, off], {}, "pixel lattice"),
-        ([a, a.expand_dims("band")], {}, "2-D"), ([a, a.values], {}, "georeferenced"),
+        ([a, a.expand_dims(band=3)], {}, "one number of bands"), ([a, a.values], {}, "georeferenced"),
+        ([a.expand_dims(band=2).expand_dims(t=1), b], {}, "must be"),
         ([a, "missing.tif"], {}, "missing.tif"), ([a, b], {"method": "median"}, "method"),
         ([a, b], {"seam_scale": 0}, "seam_scale"), ([a, b], {"feather": -1}, "feather"),
         ([a, b], {"dsm": dsm[:, :100]}, "dsm must be on the mosaic grid"),
@@ -190,6 +192,16 @@ def test_cli_mosaic(scene, tmp_path, capsys):
         assert ds.transform.almost_equals(ref.rio.transform(), 1e-9) and ds.crs == rasterio.CRS.from_epsg(32633)
         np.testing.assert_allclose(ds.read(1), ref.values, rtol=1e-6)
     assert main(["mosaic", str(tmp_path / "a.tif"), str(tmp_path / "missing.tif"), "-o", str(out)]) == 2
+    # RGB orthos (band 2 of b scaled by 1.3): a 3-band mosaic, each band as the library makes it
+    a3, b3 = a.expand_dims(band=3).copy(), b.expand_dims(band=3).copy(data=np.stack([b, b, 1.3 * b]))
+    a3.rio.to_raster(tmp_path / "a3.tif")
+    b3.rio.to_raster(tmp_path / "b3.tif")
+    ref = mosaic([a3, b3])
+    assert main(["mosaic", str(tmp_path / "a3.tif"), str(tmp_path / "b3.tif"), "-o", str(out)]) == 0
+    assert "3 bands" in capsys.readouterr().out
+    with rasterio.open(out) as ds:
+        assert ds.count == 3
+        np.testing.assert_allclose(ds.read(), ref.values, rtol=1e-6)
 
 
 def test_lazy_from_files_equals_in_memory_and_stays_in_chunks(scene, tmp_path):
@@ -226,3 +238,38 @@ def test_lazy_from_files_equals_in_memory_and_stays_in_chunks(scene, tmp_path):
         np.testing.assert_allclose(ds.read(1), ref.values, rtol=1e-12, atol=1e-12)
     seam = _seam(np.repeat(np.repeat(info["labels"], 4, 0), 4, 1))
     assert np.mean(dsm[seam] > 2.0) < 0.01
+
+
+def test_bands_share_the_seams_and_each_is_balanced(scene):
+    """RGB-like orthos: one seam for all bands and a gain/offset per band.  Three copies of the same
+    band give, in every band, the single-band mosaic (same seams, same gains); a band of one image
+    scaled by 1.3 gets its own gain, which takes the 1.3 out (the least-squares gains scale with it)."""
+    a, b, dsm, _ = scene
+    one = mosaic([a, b], dsm=dsm, info=(i1 := {}))
+    a3 = a.expand_dims(band=3).copy()
+    b3 = b.expand_dims(band=3).copy()
+    three = mosaic([a3, b3], dsm=dsm, info=(i3 := {}))
+    assert three.dims == ("band", "y", "x") and three.shape[0] == 3
+    np.testing.assert_array_equal(i3["labels"], i1["labels"])
+    assert i3["gains"].shape == (2, 3)
+    np.testing.assert_allclose(i3["gains"], np.repeat(i1["gains"][:, None], 3, axis=1), rtol=1e-12)
+    ref = one.values
+    for k in range(3):
+        np.testing.assert_allclose(three.values[k], ref, rtol=1e-12, atol=1e-9)
+    b3 = b.expand_dims(band=3).copy(data=np.stack([b.values, 1.3 * b.values, b.values]))
+    _ = mosaic([a3, b3], dsm=dsm, info=(i4 := {}))
+    g, o = i4["gains"], i4["offsets"]
+    ao, bo = xr.align(a, b, join="inner")  # the overlap
+    both = np.isfinite(ao.values) & np.isfinite(bo.values)
+    av, bv = ao.values[both], bo.values[both]
+
+    def bias(band, gain_band):  # mean difference of the balanced images in the overlap, relative to the level
+        bb = bv * (1.3 if band == 1 else 1.0)
+        d = g[0, gain_band] * av + o[0, gain_band] - g[1, gain_band] * bb - o[1, gain_band]
+        return abs(np.mean(d)) / np.mean(g[0, gain_band] * av + o[0, gain_band])
+
+    # With one overlap the least-squares offsets leave no mean difference (their normal equation) ...
+    assert bias(0, 0) < 1e-9 and bias(1, 1) < 1e-9  # ... in band 1 too, with its own gains,
+    assert bias(1, 0) > 0.1  # which band 0's gains would not give
+    with pytest.raises(ValueError, match="one number of bands"):
+        mosaic([a3, b])

@@ -5,7 +5,13 @@ rioxarray georeference, e.g. from :func:`photax.orthorectify_dask`, or
 raster paths; all on one CRS and one pixel lattice) into a lazy, chunked
 ``xarray.DataArray`` on the union grid:
 
-1. **Balancing** (optional): a gain and an offset per image,
+Orthos may have bands (``band, y, x``, e.g. RGB; all the same number): each
+band is balanced on its own, the seams are cut once for all bands (on the
+mean of the balanced bands) and every band is blended across the same
+seams, so a pixel's colour comes from one image (or a blend of the same
+images) in every band.
+
+1. **Balancing** (optional): a gain and an offset per image (and band),
    ``v' = g_i v + o_i``, by linear least squares over every overlapping pair,
    ``sum_pairs sum_overlap (g_i v_i + o_i - g_j v_j - o_j)^2`` with the datum
    ``mean(g) = 1, mean(o) = 0`` (without it all gains could shrink to 0).
@@ -76,7 +82,8 @@ def _lattice(orthos):
 
 
 def _open(o, k: int, chunks: int):
-    """Ortho ``k`` as a 2-D DataArray (a raster path is opened lazily, in chunks)."""
+    """Ortho ``k`` as a ``(band, y, x)`` DataArray (one band for a 2-D one; a
+    raster path is opened lazily, in chunks)."""
     import os
 
     if isinstance(o, (str, bytes)) or hasattr(o, "__fspath__"):
@@ -89,25 +96,24 @@ def _open(o, k: int, chunks: int):
                 pass
         except FileNotFoundError:
             raise ValueError(f"orthos[{k}]: no such raster file: {o}") from None
-        o = rioxarray.open_rasterio(os.fspath(o), masked=True, chunks=chunks)
-        if o.sizes.get("band", 1) != 1:
-            raise ValueError(f"orthos[{k}]: {o.sizes['band']} bands; mosaic joins single-band orthos")
-        o = o.squeeze("band", drop=True)
+        o = rioxarray.open_rasterio(os.fspath(o), masked=True, chunks={"band": -1, "y": chunks, "x": chunks})
     if not hasattr(o, "rio"):
         raise ValueError(f"orthos[{k}] must be a georeferenced xarray.DataArray or a raster path, "
                          f"got {type(o).__name__}")
-    if o.ndim != 2:
-        raise ValueError(f"orthos[{k}] must be 2-D (y, x), got dims {o.dims}")
+    if o.ndim == 2:
+        o = o.expand_dims("band")
+    if o.ndim != 3 or o.dims[1:] != ("y", "x"):
+        raise ValueError(f"orthos[{k}] must be (y, x) or (band, y, x), got dims {o.dims}")
     return o
 
 
 def _lazy(o, chunks: int):
-    """The ortho's values as a float64 Dask array, NaN for no data."""
+    """The ortho's values as a ``(bands, h, w)`` float64 Dask array, NaN for no data."""
     import dask.array as da
 
     v = o.data
     if not isinstance(v, da.Array):
-        v = da.from_array(np.asarray(v), chunks=chunks)
+        v = da.from_array(np.asarray(v), chunks=(-1, chunks, chunks))
     v = v.astype(float)
     nd = o.rio.nodata
     if nd is not None and not np.isnan(nd):
@@ -116,9 +122,10 @@ def _lazy(o, chunks: int):
 
 
 def _seam_grid(v, box, s: int, chunks: int):
-    """Ortho ``v`` on the seam grid: ``s x s`` cell means over the union
-    grid's cells (NaN unless every pixel of the cell has data); returns the
-    lazy array and its ``(row, col)`` offset on the seam grid."""
+    """Ortho ``v`` ``(bands, h, w)`` on the seam grid: ``s x s`` cell means
+    over the union grid's cells (NaN unless every pixel of the cell has
+    data); returns the lazy array and its ``(row, col)`` offset on the seam
+    grid."""
     import dask.array as da
 
     r, c, h, w = box
@@ -127,26 +134,29 @@ def _seam_grid(v, box, s: int, chunks: int):
     pt, pl = r % s, c % s
     pb, pr = -(r + h) % s, -(c + w) % s
     if pt or pl or pb or pr:
-        v = da.pad(v, ((pt, pb), (pl, pr)), constant_values=np.nan)
+        v = da.pad(v, ((0, 0), (pt, pb), (pl, pr)), constant_values=np.nan)
     step = max(s, chunks // s * s)
-    return da.coarsen(np.mean, v.rechunk(step), {0: s, 1: s}), (r // s, c // s)
+    return da.coarsen(np.mean, v.rechunk((-1, step, step)), {1: s, 2: s}), (r // s, c // s)
 
 
 def _pair_moments(vi, vj, bi, bj):
-    """Lazy ``[count, sum a, sum b, sum a^2, sum b^2, sum ab]`` over the
-    pixels where both orthos have data (``a`` of ``vi``, ``b`` of ``vj``),
-    or None when their boxes do not meet."""
+    """Lazy ``(6, bands)``: ``[count, sum a, sum b, sum a^2, sum b^2, sum ab]``
+    per band over the pixels where both orthos have data in every band
+    (``a`` of ``vi``, ``b`` of ``vj``), or None when their boxes do not meet."""
     import dask.array as da
 
     r0, c0 = max(bi[0], bj[0]), max(bi[1], bj[1])
     r1, c1 = min(bi[0] + bi[2], bj[0] + bj[2]), min(bi[1] + bi[3], bj[1] + bj[3])
     if r1 <= r0 or c1 <= c0:
         return None
-    a = vi[r0 - bi[0] : r1 - bi[0], c0 - bi[1] : c1 - bi[1]]
-    b = vj[r0 - bj[0] : r1 - bj[0], c0 - bj[1] : c1 - bj[1]]
-    m = da.isfinite(a) & da.isfinite(b)
+    a = vi[:, r0 - bi[0] : r1 - bi[0], c0 - bi[1] : c1 - bi[1]]
+    b = vj[:, r0 - bj[0] : r1 - bj[0], c0 - bj[1] : c1 - bj[1]]
+    m = da.all(da.isfinite(a) & da.isfinite(b), axis=0)
     a, b = da.where(m, a, 0.0), da.where(m, b, 0.0)
-    return da.stack([m.sum(dtype=float), a.sum(), b.sum(), (a * a).sum(), (b * b).sum(), (a * b).sum()])
+    ax = (1, 2)
+    count = da.broadcast_to(m.sum(dtype=float), (a.shape[0],))
+    return da.stack([count, a.sum(axis=ax), b.sum(axis=ax), (a * a).sum(axis=ax), (b * b).sum(axis=ax),
+                     (a * b).sum(axis=ax)])
 
 
 def _balance(n: int, moments: dict):
@@ -278,19 +288,20 @@ def _seamlines(cells, offs, shape, gains, offsets, raised, nadirs, transform, me
 
 
 def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, window, s, feather):
-    """One output chunk ``(h, w)``: the intersecting orthos ``parts`` (canonical
-    indices ``idx``, at ``places`` in the chunk), balanced and feathered
-    across the labels (seam grid ``lab`` at ``lab_origin``, cells of ``s`` px)."""
+    """One output chunk ``(bands, h, w)``: the intersecting orthos ``parts``
+    (canonical indices ``idx``, at ``places`` in the chunk), balanced (gains
+    and offsets ``(m, bands)``) and feathered across the labels (seam grid
+    ``lab`` at ``lab_origin``, cells of ``s`` px), the same weights in every band."""
     from scipy import ndimage
 
     r0, c0, h, w = tile
     (wr0, wr1), (wc0, wc1) = window
-    m = len(parts)
-    vals = np.full((m, h, w), np.nan)
+    m, nb = len(parts), gains.shape[1]
+    vals = np.full((m, nb, h, w), np.nan)
     for p, ((pr, pc), v) in enumerate(zip(places, parts)):
-        vals[p, pr : pr + v.shape[0], pc : pc + v.shape[1]] = v
-    bal = vals * gains[:, None, None] + offsets[:, None, None]
-    valid = np.isfinite(vals)
+        vals[p, :, pr : pr + v.shape[1], pc : pc + v.shape[2]] = v
+    valid = np.all(np.isfinite(vals), axis=1)  # (m, h, w): data in every band
+    bal = np.where(valid[:, None], vals * gains[:, :, None, None] + offsets[:, :, None, None], np.nan)
     full = lab[(np.arange(wr0, wr1) // s - lab_origin[0])[:, None], (np.arange(wc0, wc1) // s - lab_origin[1])[None]]
     inner = full[r0 - wr0 : r0 - wr0 + h, c0 - wc0 : c0 - wc0 + w]
     if feather > 0:
@@ -305,11 +316,12 @@ def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, wind
             signed = np.where(own, inside - 0.5, 0.5 - outside)[r0 - wr0 : r0 - wr0 + h, c0 - wc0 : c0 - wc0 + w]
             wts[p] = np.where(valid[p], np.clip(0.5 + signed / (2 * feather), 0.0, 1.0), 0.0)
         total = wts.sum(axis=0)
-        out = np.where(total > 0, np.nansum(np.nan_to_num(bal) * wts, axis=0) / np.where(total > 0, total, 1), np.nan)
+        out = np.where(total > 0, np.nansum(np.nan_to_num(bal) * wts[:, None], axis=0) / np.where(total > 0, total, 1),
+                       np.nan)
     else:
-        out = np.full((h, w), np.nan)
+        out = np.full((nb, h, w), np.nan)
         for p, k in enumerate(idx):
-            out[inner == k] = bal[p][inner == k]
+            out[:, inner == k] = bal[p][:, inner == k]
     # Pixels with data in no labelled cell (a seam grid cell only partly covered): the mean of what is there.
     cnt = valid.sum(axis=0)
     rest = np.where(cnt > 0, np.nan_to_num(bal).sum(axis=0) / np.maximum(cnt, 1), np.nan)
@@ -333,10 +345,11 @@ def mosaic(
     """Join orthophotos into one mosaic without visible seams, lazily.
 
     Args:
-        orthos: a sequence of 2-D ``xarray.DataArray`` (``y, x``; NumPy- or
-            Dask-backed) with a rioxarray georeference, or raster paths
-            (opened lazily in ``chunks``); one CRS and one pixel lattice, NaN
-            (or their ``rio.nodata``) outside their footprint.
+        orthos: a sequence of ``xarray.DataArray`` (``y, x`` or ``band, y,
+            x``; NumPy- or Dask-backed) with a rioxarray georeference, or
+            raster paths (all bands, opened lazily in ``chunks``); one CRS,
+            one pixel lattice and one number of bands, NaN (or their
+            ``rio.nodata``) outside their footprint.
         method: ``"seamline"`` (minimum-difference cuts, default) or
             ``"voronoi"`` (nearest nadir).
         nadirs: ``(n, 2)`` ground ``(X, Y)`` of each image's nadir (for
@@ -354,15 +367,16 @@ def mosaic(
             on (default the smallest with at most 4 Mpx on the union grid; 1
             for full resolution).
         info: a dict to receive ``gains`` and ``offsets`` ``(n,)`` (per
-            ortho, in the order given), ``labels`` (the index of the ortho
+            ortho, in the order given; ``(n, bands)`` with several bands), ``labels`` (the index of the ortho
             each seam-grid cell comes from, -1 for none; at full resolution
             when ``seam_scale == 1``), ``seam_scale`` and ``order`` (the
             canonical order the seams were made in).
 
     Returns:
         Lazy ``xarray.DataArray`` (float64, Dask chunks of ``chunks``) on the
-        union grid, CRS and transform on the rioxarray conventions, NaN for
-        no data.
+        union grid, ``(y, x)`` for single-band orthos, else ``(band, y,
+        x)``; CRS and transform on the rioxarray conventions,
+        NaN for no data.
 
     Raises:
         ValueError: no orthos, orthos in different CRSs, resolutions or pixel
@@ -388,6 +402,10 @@ def mosaic(
     if isinstance(feather, bool) or not isinstance(feather, (int, np.integer)) or feather < 0:
         raise ValueError(f"feather must be a number of pixels >= 0, got {feather!r}")
     orthos = [_open(o, k, chunks) for k, o in enumerate(orthos)]
+    nb = orthos[0].shape[0]
+    for k, o in enumerate(orthos):
+        if o.shape[0] != nb:
+            raise ValueError(f"orthos[{k}] has {o.shape[0]} bands, orthos[0] {nb}: one number of bands only")
     transform, shape, crs, offsets = _lattice(orthos)
     n = len(orthos)
     if seam_scale is None:
@@ -397,7 +415,7 @@ def mosaic(
     else:
         s = int(seam_scale)
     shape_c = (-(-shape[0] // s), -(-shape[1] // s))
-    boxes = [(r, c, o.shape[0], o.shape[1]) for o, (r, c) in zip(orthos, offsets)]
+    boxes = [(r, c, o.shape[-2], o.shape[-1]) for o, (r, c) in zip(orthos, offsets)]
     vals = [_lazy(o, chunks) for o in orthos]
     seam = [_seam_grid(v, b, s, chunks) for v, b in zip(vals, boxes)]
     pairs = {}
@@ -422,13 +440,13 @@ def mosaic(
     cells, moments, raised_c = dask.compute([c for c, _ in seam], pairs, raised_c)
     cells = [np.asarray(c, dtype=float) for c in cells]
     for k in range(n):
-        if n > 1 and not any(moments[p][0] > 0 for p in moments if k in p):
+        if n > 1 and not any(moments[p][0][0] > 0 for p in moments if k in p):
             raise ValueError(f"orthos[{k}] overlaps no other ortho: nothing to join it by")
     tc = transform * Affine.scale(s)
     if nadirs is None:
         nadirs = []
         for k, (cell, (r, c)) in enumerate(zip(cells, (o for _, o in seam))):
-            rr, cc = np.nonzero(np.isfinite(cell))
+            rr, cc = np.nonzero(np.all(np.isfinite(cell), axis=0))
             if rr.size == 0:
                 raise ValueError(f"orthos[{k}] covers no whole {s} x {s} px cell of the seam grid: "
                                  "give a smaller seam_scale")
@@ -444,12 +462,18 @@ def mosaic(
     for (i, j), (cnt, sa, sb, saa, sbb, sab) in moments.items():
         canon[(pos[i], pos[j]) if pos[i] < pos[j] else (pos[j], pos[i])] = (
             (cnt, sa, sb, saa, sbb, sab) if pos[i] < pos[j] else (cnt, sb, sa, sbb, saa, sab))
-    gains, offs = _balance(n, canon) if (balance and n > 1) else (np.ones(n), np.zeros(n))
+    gains, offs = np.ones((n, nb)), np.zeros((n, nb))  # (canonical image, band)
+    if balance and n > 1:
+        for b in range(nb):
+            gains[:, b], offs[:, b] = _balance(n, {p: tuple(x[b] for x in v) for p, v in canon.items()})
     up = np.zeros(shape_c, dtype=bool)
     if raised_c is not None:
         # Keep the seams a blend's width off raised objects too: feathering must not mix a roof in.
         up = ndimage.binary_dilation(np.asarray(raised_c), iterations=-(-(feather + 1) // s))
-    labels = _seamlines([cells[k] for k in order], [seam[k][1] for k in order], shape_c, gains, offs, up,
+    # One seam for all bands, cut on the mean of the balanced bands.
+    seam_cells = [np.mean(cells[k] * gains[c][:, None, None] + offs[c][:, None, None], axis=0)
+                  for c, k in enumerate(order)]
+    labels = _seamlines(seam_cells, [seam[k][1] for k in order], shape_c, np.ones(n), np.zeros(n), up,
                         nadirs[order], tc, method)
     # The output graph: one task per chunk on the slices of the orthos it meets.
     grow = feather + 1
@@ -464,21 +488,23 @@ def mosaic(
                 br, bc, bh, bw = boxes[k]
                 a0, a1, b0, b1 = max(r0, br), min(r0 + h, br + bh), max(c0, bc), min(c0 + w, bc + bw)
                 if a1 > a0 and b1 > b0:
-                    parts.append(vals[k][a0 - br : a1 - br, b0 - bc : b1 - bc])
+                    parts.append(vals[k][:, a0 - br : a1 - br, b0 - bc : b1 - bc])
                     places.append((a0 - r0, b0 - c0))
                     idx.append(p)
             if not idx:
-                row.append(da.full((h, w), np.nan, chunks=(h, w)))
+                row.append(da.full((nb, h, w), np.nan, chunks=(nb, h, w)))
                 continue
             wr0, wr1 = max(r0 - grow, 0), min(r0 + h + grow, shape[0])
             wc0, wc1 = max(c0 - grow, 0), min(c0 + w + grow, shape[1])
             lab = labels[wr0 // s : (wr1 - 1) // s + 1, wc0 // s : (wc1 - 1) // s + 1]
             task = blend((r0, c0, h, w), parts, places, idx, gains[idx], offs[idx], lab, (wr0 // s, wc0 // s),
                          ((wr0, wr1), (wc0, wc1)), s, feather if n > 1 else 0)
-            row.append(da.from_delayed(task, (h, w), dtype=float))
+            row.append(da.from_delayed(task, (nb, h, w), dtype=float))
         rows.append(row)
-    arr = _dataarray(da.block(rows), Grid(transform, shape, crs), np.asarray(np.nan), "mosaic")
+    data = da.block(rows)
+    arr = _dataarray(data[0] if nb == 1 else data, Grid(transform, shape, crs), np.asarray(np.nan), "mosaic")
     if info is not None:
-        info.update(gains=gains[pos], offsets=offs[pos], labels=np.where(labels >= 0, np.asarray(order)[labels], -1),
+        g, o = (gains[pos, 0], offs[pos, 0]) if nb == 1 else (gains[pos], offs[pos])
+        info.update(gains=g, offsets=o, labels=np.where(labels >= 0, np.asarray(order)[labels], -1),
                     order=order, seam_scale=s)
     return arr

@@ -35,7 +35,8 @@ def add_parser(sub) -> None:
         description="Balance, cut seamlines of least difference and feather orthophotos into one mosaic. "
         "With --block, orthorectify every image of a block first.",
     )
-    p.add_argument("orthos", nargs="*", metavar="ORTHO", help="orthophoto GeoTIFFs (one CRS, one pixel lattice)")
+    p.add_argument("orthos", nargs="*", metavar="ORTHO", help="orthophoto GeoTIFFs (one CRS, one pixel lattice, one number of bands: "
+                   "RGB orthos share one seam, each band gets its own gain)")
     p.add_argument("-o", "--out", required=True, help="output mosaic (Cloud-Optimized GeoTIFF)")
     p.add_argument("--method", choices=("seamline", "voronoi"), default="seamline",
                    help="seams of least difference (default) or nearest footprint centre")
@@ -60,7 +61,8 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _read(path):
+def _read(path, one_band: bool = False):
+    """A raster as a (lazy) DataArray; ``one_band``: a DSM/DEM, as ``(y, x)``."""
     import rioxarray
 
     from ..io.raster import open_raster
@@ -68,8 +70,10 @@ def _read(path):
     with open_raster(path):  # a clear error for a missing or unreadable file
         pass
     arr = rioxarray.open_rasterio(path, masked=True)
+    if not one_band:
+        return arr
     if arr.sizes.get("band", 1) != 1:
-        raise ValueError(f"{path}: {arr.sizes['band']} bands; photax mosaic joins single-band orthos")
+        raise ValueError(f"{path}: {arr.sizes['band']} bands; a height raster has one")
     return arr.squeeze("band", drop=True)
 
 
@@ -197,15 +201,15 @@ def run(args) -> int:
         if args.dsm:  # resampled onto the mosaic grid in memory (one array of the mosaic's size)
             transform, shape, crs, _ = _lattice([_read(p) for p in paths])
             template = _dataarray(np.zeros(shape), Grid(transform, shape, crs), np.asarray(np.nan), "t")
-            dsm = _read(args.dsm).rio.reproject_match(template).values
+            dsm = _read(args.dsm, True).rio.reproject_match(template).values
             if args.dem:
-                dsm = dsm - _read(args.dem).rio.reproject_match(template).values
+                dsm = dsm - _read(args.dem, True).rio.reproject_match(template).values
         info = {}
         with _dask_progress(bar):
             out = mosaic([str(p) for p in paths], method=args.method, dsm=dsm, raised=args.raised,
                          balance=args.balance, feather=args.feather, chunks=args.chunks, info=info)
             to_raster(out.astype(np.float32), args.out, cog=True, inputs=inputs)
-    gains = ", ".join(f"{g:.3f}" for g in info["gains"])
-    print(f"photax mosaic: {plural(len(paths), 'ortho')} -> {args.out} ({out.shape[1]} x {out.shape[0]} px; "
-          f"gains {gains})")
+    gains = ", ".join("/".join(f"{x:.3f}" for x in np.atleast_1d(g)) for g in info["gains"])  # per band: a/b/c
+    print(f"photax mosaic: {plural(len(paths), 'ortho')} -> {args.out} ({out.shape[-1]} x {out.shape[-2]} px"
+          f"{f', {out.shape[0]} bands' if out.ndim == 3 else ''}; gains {gains})")
     return 0
