@@ -226,3 +226,36 @@ def test_lazy_from_files_equals_in_memory_and_stays_in_chunks(scene, tmp_path):
         np.testing.assert_allclose(ds.read(1), ref.values, rtol=1e-12, atol=1e-12)
     seam = _seam(np.repeat(np.repeat(info["labels"], 4, 0), 4, 1))
     assert np.mean(dsm[seam] > 2.0) < 0.01
+
+
+def test_lazy_orthos_are_computed_once(scene, monkeypatch):
+    """Issue 12: lazy orthos (Dask-backed DataArrays such as orthorectify_dask's, one kernel call per
+    chunk) feed two passes, the overlap moments and seam grid, then the output.  Counted through the
+    chunk function itself: each chunk runs once (the orthos are computed once and kept), and twice
+    when they exceed the memory budget (read again by the output: what it was before); both mosaics
+    equal the in-memory one (to 1e-12: the moments are summed chunk by chunk, in another order)."""
+    import collections
+
+    import dask.array as da
+
+    import photax.mosaicking as mosaicking
+
+    a, b, dsm, _ = scene
+    calls = collections.Counter()
+
+    def kernel(block, name, block_info=None):
+        if block.size:
+            calls[name, block_info[None]["chunk-location"]] += 1
+        return block
+
+    def lazy(o, name):
+        return o.copy(data=da.from_array(o.values, chunks=32).map_blocks(kernel, name, dtype=o.dtype))
+
+    ref = mosaic([a, b], dsm=dsm, seam_scale=4).values
+    n_chunks = sum(int(np.prod([len(c) for c in da.from_array(o.values, chunks=32).chunks])) for o in (a, b))
+    for budget, runs in ((mosaicking._PERSIST_BYTES, 1), (0, 2)):
+        monkeypatch.setattr(mosaicking, "_PERSIST_BYTES", budget)
+        calls.clear()
+        out = mosaic([lazy(a, "a"), lazy(b, "b")], dsm=dsm, seam_scale=4).values
+        assert len(calls) == n_chunks and set(calls.values()) == {runs}, (budget, calls)
+        np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-12)
