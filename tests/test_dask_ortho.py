@@ -104,19 +104,72 @@ def test_bad_input(scene):
         orthorectify_dask(s.image, s.exterior, s.camera, s.dem, grid, resampling="cubicspline")
 
 
-def test_local_cluster_two_processes(scene, tmp_path):
+@pytest.fixture(scope="module")
+def cluster():
+    """A dask.distributed cluster of 2 worker processes (one thread each), shared by the tests below."""
     distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=50) as cluster, distributed.Client(cluster) as client:
+        yield cluster, client
+
+
+def test_local_cluster_two_processes(scene, cluster, tmp_path):
+    _, client = cluster
     s, grid = scene
     image = s.image.astype(np.float32)
     ref = _ortho(s, grid, image, approx=None)
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                  silence_logs=40) as cluster, distributed.Client(cluster) as client:
-        arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=48, approx=None)  # as above
-        futures = client.compute(arr.data, optimize_graph=False)
-        out = futures.result()
-        ran = client.run(lambda: __import__("os").getpid())
-        assert len(set(ran.values())) == 2
-        to_raster(arr, tmp_path / "o.tif")
+    arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=48, approx=None)  # as above
+    futures = client.compute(arr.data, optimize_graph=False)
+    out = futures.result()
+    ran = client.run(lambda: __import__("os").getpid())
+    assert len(set(ran.values())) == 2
+    to_raster(arr, tmp_path / "o.tif")
     np.testing.assert_array_equal(out, ref)
     with rasterio.open(tmp_path / "o.tif") as ds:
         np.testing.assert_array_equal(ds.read(1), ref)
+
+
+def test_dead_worker_is_retried_and_a_failed_write_leaves_nothing(scene, cluster, tmp_path):
+    """Issue 12, bad input: a worker process that dies mid-run (``os._exit`` from a task, on the
+    first attempt only: a marker file says it happened) is replaced by its nanny and its task rerun
+    by dask.distributed: the written ortho is complete and equal to the in-memory one.  A write
+    that fails for good on the cluster leaves the previous file as it was and no partial file."""
+    import os
+
+    _, client = cluster
+    s, grid = scene
+    image = s.image.astype(np.float32)
+    ref = _ortho(s, grid, image, approx=None)
+    arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=48, approx=None)
+    marker = str(tmp_path / "died")
+
+    def die_once(block, marker):  # defined here: cloudpickle sends it by value to the workers
+        if not block.size:  # (dask's meta call, in this process)
+            return block
+        try:
+            os.close(os.open(marker, os.O_CREAT | os.O_EXCL))
+        except FileExistsError:
+            return block
+        os._exit(1)  # a worker lost mid-task (out of memory, killed, node down)
+
+    pids = set(client.run(os.getpid).values())
+    out = tmp_path / "o.tif"
+    to_raster(arr.copy(data=arr.data.map_blocks(die_once, marker, meta=arr.data._meta)), out)
+    assert os.path.exists(marker)
+    client.wait_for_workers(2, timeout=30)
+    assert len(set(client.run(os.getpid).values()) - pids) == 1  # one worker process was replaced
+    with rasterio.open(out) as ds:
+        np.testing.assert_array_equal(ds.read(1), ref)
+    # A write that fails for good (a task raising on a worker; a worker dying more than the scheduler's
+    # allowed-failures times ends the same way, with KilledWorker: not repeated here, each death
+    # respawns a worker process): the previous file stays and no partial file is left.
+    def fail(block):
+        if block.size:
+            raise RuntimeError("chunk failed (injected)")
+        return block
+
+    out.write_bytes(b"previous result")
+    with pytest.raises(RuntimeError, match="injected"):
+        to_raster(arr.copy(data=arr.data.map_blocks(fail, meta=arr.data._meta)), out, cog=True)
+    assert out.read_bytes() == b"previous result"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["died", "o.tif"]

@@ -273,3 +273,36 @@ def test_bands_share_the_seams_and_each_is_balanced(scene):
     assert bias(1, 0) > 0.1  # which band 0's gains would not give
     with pytest.raises(ValueError, match="one number of bands"):
         mosaic([a3, b])
+
+
+def test_lazy_orthos_are_computed_once(scene, monkeypatch):
+    """Issue 12: lazy orthos (Dask-backed DataArrays such as orthorectify_dask's, one kernel call per
+    chunk) feed two passes, the overlap moments and seam grid, then the output.  Counted through the
+    chunk function itself: each chunk runs once (the orthos are computed once and kept), and twice
+    when they exceed the memory budget (read again by the output: what it was before); both mosaics
+    equal the in-memory one (to 1e-12: the moments are summed chunk by chunk, in another order)."""
+    import collections
+
+    import dask.array as da
+
+    import photax.mosaicking as mosaicking
+
+    a, b, dsm, _ = scene
+    calls = collections.Counter()
+
+    def kernel(block, name, block_info=None):
+        if block.size:
+            calls[name, block_info[None]["chunk-location"]] += 1
+        return block
+
+    def lazy(o, name):
+        return o.copy(data=da.from_array(o.values, chunks=32).map_blocks(kernel, name, dtype=o.dtype))
+
+    ref = mosaic([a, b], dsm=dsm, seam_scale=4).values
+    n_chunks = sum(int(np.prod([len(c) for c in da.from_array(o.values, chunks=32).chunks])) for o in (a, b))
+    for budget, runs in ((mosaicking._PERSIST_BYTES, 1), (0, 2)):
+        monkeypatch.setattr(mosaicking, "_PERSIST_BYTES", budget)
+        calls.clear()
+        out = mosaic([lazy(a, "a"), lazy(b, "b")], dsm=dsm, seam_scale=4).values
+        assert len(calls) == n_chunks and set(calls.values()) == {runs}, (budget, calls)
+        np.testing.assert_allclose(out, ref, rtol=1e-12, atol=1e-12)

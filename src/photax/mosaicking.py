@@ -38,8 +38,12 @@ images) in every band.
 
 Memory: the seam grid (``n`` footprints of ``1/s^2`` of their pixels, the
 labels) is in memory; the full-resolution orthos are only ever read chunk
-by chunk (twice: once for the overlap moments and the seam grid, once for
-the output).  Write the result with :func:`photax.tiled.to_raster`
+by chunk, twice: once for the overlap moments and the seam grid, once for
+the output.  Lazy orthos given as Dask-backed DataArrays (e.g. from
+:func:`photax.orthorectify_dask`, whose chunks cost a kernel call each)
+are instead computed once and kept (``dask.persist``, in their own dtype)
+when they hold at most ``_PERSIST_BYTES`` (1 GiB) in all; raster paths
+are read twice (reading is cheap), as are larger lazy orthos.  Write the result with :func:`photax.tiled.to_raster`
 (``cog=True``: a tiled, compressed Cloud-Optimized GeoTIFF with overviews).
 """
 
@@ -51,6 +55,7 @@ import numpy as np
 
 _SCALE = 1000  # integer edge capacities: cost units per grey-value unit
 _SEAM_PIXELS = 1 << 22  # default seam grid: at most 4 Mpx (s = 1 up to that)
+_PERSIST_BYTES = 1 << 30  # lazy orthos given as DataArrays, up to this in all, are computed once and kept
 
 
 def _lattice(orthos):
@@ -401,11 +406,17 @@ def mosaic(
         raise ValueError(f"chunks must be a positive number of pixels, got {chunks!r}")
     if isinstance(feather, bool) or not isinstance(feather, (int, np.integer)) or feather < 0:
         raise ValueError(f"feather must be a number of pixels >= 0, got {feather!r}")
+    is_path = [isinstance(o, (str, bytes)) or hasattr(o, "__fspath__") for o in orthos]
     orthos = [_open(o, k, chunks) for k, o in enumerate(orthos)]
     nb = orthos[0].shape[0]
     for k, o in enumerate(orthos):
         if o.shape[0] != nb:
             raise ValueError(f"orthos[{k}] has {o.shape[0]} bands, orthos[0] {nb}: one number of bands only")
+    lazy = [k for k, o in enumerate(orthos) if not is_path[k] and isinstance(o.data, da.Array)]
+    if lazy and sum(orthos[k].nbytes for k in lazy) <= _PERSIST_BYTES:
+        # Computed once here, read from memory by both passes below (else each pass recomputes them).
+        for k, o in zip(lazy, dask.persist(*(orthos[k] for k in lazy))):
+            orthos[k] = o
     transform, shape, crs, offsets = _lattice(orthos)
     n = len(orthos)
     if seam_scale is None:

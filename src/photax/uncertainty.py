@@ -26,15 +26,26 @@ and the ground point whose grey value the pixel actually shows is off by
     S_g = A^-1 S_p A^-T                                          (metres^2).
 
 Cost: ``J`` and ``S_p`` vary smoothly with the ground position, so they are
-computed exactly on a lattice every ``step`` output pixels (on the DEM) and
-interpolated bilinearly in between, in the form ``S_p``, ``J_z``, ``T = B S_p
-B^T`` and ``u = B J_z`` (``B = (dp/d(X, Y))^-1`` on flat terrain); at every
-pixel only the DEM's slope ``g`` enters, by Sherman-Morrison
-``A^-1 = (I - u g^T / (1 + g.u)) B``.  Interpolation error: the entries vary
-on the scale of the flying height ``H`` above the terrain, so the relative
-error of every standard deviation is about ``(s / H)^2`` for a lattice
-spacing ``s`` on the ground (measured below ``2 (s / H)^2``, and tested).
-With ``step=16`` on a 10 cm ortho from 1000 m that is 3e-6.
+computed exactly (float64) on a lattice every ``step`` output pixels (on the
+DEM) and interpolated bilinearly in between (float32: the 10 % a standard
+deviation is asked to hold leaves ample room), in the form ``S_p``, ``J_z``,
+``T = B S_p B^T`` and ``u = B J_z`` (``B = (dp/d(X, Y))^-1`` on flat
+terrain); at every pixel only the DEM's slope ``g`` enters, by
+Sherman-Morrison ``A^-1 = (I - u g^T / (1 + g.u)) B``, so that with ``h = g
+/ (1 + g.u)`` and ``q = T h``
+
+    S_g = T - (u q^T + q u^T) + (h.q) u u^T
+
+(``T`` and ``S_p`` with the DEM sigma's terms ``sz^2 u u^T`` and ``sz^2 J_z
+J_z^T``).  When the grid's axes are the DEM's the slope is read separably
+(the DEM column of a pixel depends on its column only).  Interpolation
+error: the entries vary on the scale of the flying height ``H`` above the
+terrain, so the relative error of every standard deviation is about ``(s /
+H)^2`` for a lattice spacing ``s`` on the ground (measured below ``2 (s /
+H)^2``, and tested).  With ``step=16`` on a 10 cm ortho from 1000 m that is
+3e-6.  Within a lattice cell of DEM nodata the nodes there take the DEM's
+mean height and the error is larger (measured 2 % beside a hole where the
+bound was 2 %, tested below 5 %; ``step=1`` has none).
 
 Error ellipses (1 sigma) are the eigen-decompositions of these 2x2
 covariances: semi-axes ``sqrt(l1) >= sqrt(l2)`` and the major axis' angle.
@@ -44,6 +55,7 @@ No occlusion and no misregistration of the image itself are modelled.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import equinox as eqx
 import jax
@@ -56,7 +68,7 @@ from .dem import DEM
 from .rectification._grid import Grid
 
 _BLOCK = 1 << 14  # points per jitted call (padded): one compilation, bounded memory
-_STRIP = 1 << 15  # pixels per strip: its float64 planes stay in cache (measured 3x faster than 1 << 19)
+_STRIP = 1 << 19  # pixels per strip at most: its intermediates stay small
 _N_INTRINSICS = 8
 _N = 6 + _N_INTRINSICS  # exterior then intrinsics: the joint covariance's size
 
@@ -152,64 +164,158 @@ def _flat_terrain(planes):
     return jnp.stack([planes[0], planes[1], s0, s1, s2, j02, j12, t0, t1, t2, u0, u1])
 
 
-def _finish_flat(f, sz, grad, z, camera):
-    """:func:`_finish` from the planes of :func:`_flat_terrain`: with the
-    DEM's sigma ``sz`` and gradient ``g``, ``S_p' = S_p + sz^2 J_z J_z^T``
-    and, as ``A = dp/d(X, Y) = B^-1 (I + u g^T)`` (the image moves with the
-    terrain's height), ``A^-1 = M B`` with ``M = I - u g^T / (1 + g.u)``
-    (Sherman-Morrison), ``S_g = M (T + sz^2 u u^T) M^T``: a few flops per
-    pixel on top of the interpolation."""
-    s2z = sz * sz
-    jz0, jz1, u0, u1 = f[5], f[6], f[10], f[11]
-    sxx, sxy, syy = f[2] + s2z * jz0 * jz0, f[3] + s2z * jz0 * jz1, f[4] + s2z * jz1 * jz1
-    txx, txy, tyy = f[7] + s2z * u0 * u0, f[8] + s2z * u0 * u1, f[9] + s2z * u1 * u1
-    den = 1.0 + grad[0] * u0 + grad[1] * u1
-    m00, m01 = 1.0 - u0 * grad[0] / den, -u0 * grad[1] / den
-    m10, m11 = -u1 * grad[0] / den, 1.0 - u1 * grad[1] / den
-    gxx = m00 * m00 * txx + 2 * m00 * m01 * txy + m01 * m01 * tyy
-    gxy = m00 * m10 * txx + (m00 * m11 + m01 * m10) * txy + m01 * m11 * tyy
-    gyy = m10 * m10 * txx + 2 * m10 * m11 * txy + m11 * m11 * tyy
-    w, h = camera.image_size
-    pix = f[:2]
-    ok = jnp.isfinite(z) & (pix[0] >= -0.5) & (pix[0] <= w - 0.5) & (pix[1] >= -0.5) & (pix[1] <= h - 0.5)
-    return tuple(jnp.where(ok, v, jnp.nan) for v in (sxx, sxy, syy, gxx, gxy, gyy))
+def _node_fields(planes, sz):
+    """Node planes (:func:`_flat_terrain`) -> the float32 fields that are
+    interpolated: the pixel (2), ``S_p`` (3), ``T`` (3), ``u`` (2) and, when
+    the DEM sigma ``sz`` is per pixel (``sz`` None), ``J_z`` (2); with a
+    scalar ``sz`` its terms ``sz^2 J_z J_z^T`` and ``sz^2 u u^T`` are smooth
+    and added here, at the nodes."""
+    px, py, s0, s1, s2, jz0, jz1, t0, t1, t2, u0, u1 = planes
+    if sz is None:
+        fields = (px, py, s0, s1, s2, t0, t1, t2, u0, u1, jz0, jz1)
+    else:
+        s2z = sz * sz
+        fields = (px, py, s0 + s2z * jz0 * jz0, s1 + s2z * jz0 * jz1, s2 + s2z * jz1 * jz1,
+                  t0 + s2z * u0 * u0, t1 + s2z * u0 * u1, t2 + s2z * u1 * u1, u0, u1)
+    return jnp.stack(fields).astype(jnp.float32)
 
 
 @eqx.filter_jit
-def _propagate_strip(exterior, camera, dem, transform, r0, cols, cov, sigma_z, zfill, step, rows):
-    """Rows ``r0 .. r0 + rows`` of a grid (``rows`` and the padded ``cols``
-    multiples of ``step``): the propagation of :func:`_node_planes` exactly
-    on a lattice every ``step`` pixels (on the DEM), its smooth flat-terrain
-    part (:func:`_flat_terrain`) bilinear in between (as the approximate
-    ortho mapping does with its positions), and the DEM's height, slope and
-    sigma at every pixel (:func:`_finish_flat`).  Returns ``(6, rows, cols)``
-    planes (:func:`_finish`)."""
+def _lattice(exterior, camera, dem, transform, cov, sz, zfill, step, shape):
+    """The exact propagation (float64) on the nodes every ``step`` pixels of
+    a grid padded to ``shape`` (multiples of ``step``), node ``(i, j)`` at
+    pixel centre ``(step i, step j)``, then its fields (:func:`_node_fields`,
+    float32) interpolated along the lattice rows to every column: ``(k,
+    shape[0] / step + 1, shape[1])``, 1/step of the pixels (what
+    :func:`_tile` interpolates between).  Off the DEM the nodes take the
+    height ``zfill`` (the pixels there are NaN anyway)."""
     a, b, xoff, d, e, yoff = (transform[i] for i in range(6))
-
-    def xy(r, c):
-        return xoff + a * c[None, :] + b * r[:, None], yoff + d * c[None, :] + e * r[:, None]
-
-    mr, mc = rows // step, cols // step
-    xn, yn = xy(r0 + step * jnp.arange(mr + 1, dtype=float) + 0.5, step * jnp.arange(mc + 1, dtype=float) + 0.5)
+    r = step * jnp.arange(shape[0] // step + 1, dtype=float) + 0.5
+    c = step * jnp.arange(shape[1] // step + 1, dtype=float) + 0.5
+    xn, yn = xoff + a * c[None, :] + b * r[:, None], yoff + d * c[None, :] + e * r[:, None]
     zn = dem.height(xn, yn)
     g = jnp.stack([xn, yn, jnp.where(jnp.isfinite(zn), zn, zfill)], axis=-1).reshape(-1, 3)
-    nodes = _flat_terrain(_node_planes(exterior, camera, g, cov)).reshape(12, mr + 1, mc + 1)
-    # Bilinear, separably: along each lattice row (1/step of the pixels), then
-    # between lattice rows by broadcasting (gathers here run several times slower).
-    # Bilinear, separably, plane by plane (XLA:CPU concatenates large stacked
-    # planes slowly): along each lattice row (1/step of the pixels), then
-    # between lattice rows.
-    f = jnp.arange(step, dtype=float) / step
-    r = jnp.arange(rows)
-    ri, fr = r // step, ((r % step).astype(float) / step)[:, None]
-    full = []
-    for n in nodes:
-        along = (n[:, :-1, None] + (n[:, 1:, None] - n[:, :-1, None]) * f[None, None, :]).reshape(mr + 1, cols)
-        full.append(along[ri] + (along[ri + 1] - along[ri]) * fr)
-    x, y = xy(r0 + jnp.arange(rows, dtype=float) + 0.5, jnp.arange(cols, dtype=float) + 0.5)
-    # Computed once, not fused into each of the six outputs' loops.
-    z, grad, full = jax.lax.optimization_barrier((*_dem_slope(dem, x, y), full))
-    return _finish_flat(full, sigma_z, grad, z, camera)
+    n = _node_fields(_flat_terrain(_node_planes(exterior, camera, g, cov)), sz).reshape(-1, *xn.shape)
+    f = jnp.arange(step, dtype=jnp.float32) / step
+    return (n[:, :, :-1, None] + (n[:, :, 1:, None] - n[:, :, :-1, None]) * f[None, None, None, :]).reshape(
+        *n.shape[:2], shape[1])
+
+
+def _between_rows(along, step):
+    """``(mr + 1, cols)`` values on lattice rows -> ``(mr step, cols)``,
+    linear between them, as broadcasts (no gathers; fused into the consumer)."""
+    f = jnp.arange(step, dtype=jnp.float32) / step
+    top = along[:-1, None, :]
+    return (top + (along[1:, None, :] - top) * f[None, :, None]).reshape(-1, along.shape[1])
+
+
+def _slope_rows(heights, dem_transform, transform, r0, shape, window):
+    """What :func:`_strip` needs of the DEM for a strip of whole rows of a
+    grid whose axes are the DEM's (both transforms without rotation terms),
+    in numpy: the DEM column of a pixel depends on its column only and the
+    DEM row on its row only, so the bilinear slopes are interpolated along
+    the columns here, for the ``window`` DEM rows the strip sees (small
+    arrays), and between those rows in the program, where each pixel row
+    reads its two DEM rows (cheap gathers from a small, cached array).  Same
+    values as :func:`_dem_slope` (``dZ/dX`` linear in the row fraction,
+    ``dZ/dY`` in the column fraction; both 0 where a corner is nodata) and
+    the same nodata rule as :meth:`photax.DEM.height`.  Returns float32
+    ``(window, cols)`` ``dZ/dX`` on the DEM rows, ``(window - 1, cols)``
+    ``dZ/dY`` between them, ``(rows,)`` each pixel row's DEM row in the
+    window and fraction, the rows and columns inside the DEM's centres and,
+    with nodata, ``(window, cols)`` "blocked along this DEM row" (a corner
+    of non-zero weight is NaN), else None."""
+    a, _, xoff, _, e, yoff = transform
+    da, _, dxoff, _, de, dyoff = dem_transform
+    nr, nc = heights.shape
+    col = (xoff + a * (np.arange(shape[1]) + 0.5) - dxoff) / da - 0.5
+    row = (yoff + e * (r0 + np.arange(shape[0]) + 0.5) - dyoff) / de - 0.5
+    ci = np.clip(np.floor(col), 0, nc - 2)
+    ri = np.clip(np.floor(row), 0, nr - 2)
+    tc, tr = col - ci, row - ri
+    ci, ri = ci.astype(int), ri.astype(int)
+    start = int(np.clip(ri.min(), 0, nr - window))
+    hw = heights[start : start + window]
+    dx = (np.diff(hw, axis=1) / da)[:, ci].astype(np.float32)
+    dy = np.diff(hw, axis=0) / de
+    dy = (dy[:, ci] * (1 - tc) + dy[:, ci + 1] * tc).astype(np.float32)
+    nan = np.isnan(hw)
+    blocked = (nan[:, ci] & (tc != 1)) | (nan[:, ci + 1] & (tc != 0)) if nan.any() else None
+    return (dx, dy, (ri - start).astype(np.int32), tr.astype(np.float32), (row >= 0) & (row <= nr - 1),
+            (col >= 0) & (col <= nc - 1), blocked)
+
+
+def _separable_slope(rows):
+    """The DEM's validity ``(rows, cols)`` and gradient (float32) at every
+    pixel of a strip from :func:`_slope_rows`."""
+    dx, dy, ri, tr, in_rows, in_cols, blocked = rows
+    trc = tr[:, None]
+    gx = dx[ri] + (dx[ri + 1] - dx[ri]) * trc
+    gy = dy[ri]
+    ok = in_rows[:, None] & in_cols[None, :]
+    if blocked is None:
+        return ok, gx, gy
+    blocked = (blocked[ri] & (trc != 1)) | (blocked[ri + 1] & (trc != 0))
+    finite = jnp.isfinite(gx) & jnp.isfinite(gy)
+    return ok & ~blocked, jnp.where(finite, gx, 0.0), jnp.where(finite, gy, 0.0)
+
+
+@functools.partial(jax.jit, static_argnames=("image_size", "step"))  # (eqx.filter_jit: 1.5 ms more a call)
+def _effective_slope(along, image_size, dem, transform, r0, step, rows):
+    """``h = g / (1 + g.u)`` (two float32 planes), NaN where the ortho has
+    no data (off the DEM or the image), for a strip of whole rows from row
+    ``r0`` with its rows of lattice fields ``along`` (:func:`_lattice`):
+    ``g`` the DEM's gradient at every pixel, from ``rows``
+    (:func:`_slope_rows`) when the grid's axes are the DEM's, else by
+    :func:`_dem_slope`.  A program of its own, so that these planes are
+    made once: fused into :func:`_strip`, XLA:CPU recomputes them in every
+    output plane's loop."""
+    px, py, u0, u1 = (_between_rows(along[k], step) for k in (0, 1, 8, 9))
+    shape = px.shape
+    if rows is not None:
+        okz, g0, g1 = _separable_slope(rows)
+    else:
+        a, b, xoff, d, e, yoff = (transform[i] for i in range(6))
+        r, c = r0 + jnp.arange(shape[0], dtype=float) + 0.5, jnp.arange(shape[1], dtype=float) + 0.5
+        z, grad = _dem_slope(dem, xoff + a * c[None, :] + b * r[:, None], yoff + d * c[None, :] + e * r[:, None])
+        okz, g0, g1 = jnp.isfinite(z), grad[0].astype(jnp.float32), grad[1].astype(jnp.float32)
+    w, h = image_size
+    ok = okz & (px >= -0.5) & (px <= w - 0.5) & (py >= -0.5) & (py <= h - 0.5)
+    k = jnp.where(ok, 1.0 / (1.0 + g0 * u0 + g1 * u1), jnp.nan)
+    return k * g0, k * g1
+
+
+@functools.partial(jax.jit, static_argnames=("step", "want"))
+def _strip(along, slope, sz, step, want):
+    """One strip's covariances (float32 planes), from its rows of lattice
+    fields ``along`` (:func:`_lattice`), bilinear between them, and its
+    effective slope ``h = g / (1 + g.u)`` (:func:`_effective_slope`, NaN
+    where the ortho has no data); the DEM sigma ``sz`` per pixel when it is
+    an array.  With ``T' = T + sz^2 u u^T``, ``S_g = M T' M^T`` and ``M = I
+    - u h^T`` (module docstring) is
+
+        S_g = T' - (u q^T + q u^T) + (h.q) u u^T,   q = T' h
+
+    (no division).  Returns a tuple: ``S_p`` (xx, xy, yy) if ``want`` has
+    "image", then ``S_g`` if it has "ground"; NaN where the ortho has no
+    data."""
+    h0, h1 = slope
+    px, py, s0, s1, s2, t0, t1, t2, u0, u1 = (_between_rows(along[k], step) for k in range(10))
+    if sz.ndim:  # per pixel: the DEM sigma's terms here
+        jz0, jz1 = _between_rows(along[10], step), _between_rows(along[11], step)
+        s2z = sz * sz
+        s0, s1, s2 = s0 + s2z * jz0 * jz0, s1 + s2z * jz0 * jz1, s2 + s2z * jz1 * jz1
+        t0, t1, t2 = t0 + s2z * u0 * u0, t1 + s2z * u0 * u1, t2 + s2z * u1 * u1
+    planes = []
+    if "image" in want:
+        nan = 0 * h0  # NaN where the ortho has no data
+        planes += [s0 + nan, s1 + nan, s2 + nan]
+    if "ground" in want:
+        q0, q1 = t0 * h0 + t1 * h1, t1 * h0 + t2 * h1
+        w = h0 * q0 + h1 * q1
+        planes += [t0 - 2 * u0 * q0 + w * u0 * u0, t1 - (u0 * q1 + q0 * u1) + w * u0 * u1,
+                   t2 - 2 * u1 * q1 + w * u1 * u1]
+    return tuple(planes)
 
 
 def _matrix(var: np.ndarray) -> np.ndarray:
@@ -236,7 +342,8 @@ class OrthoUncertainty:
             ortho pixel, pixels^2.
         ground_var: ``(3, rows, cols)`` ``(s_XX, s_XY, s_YY)`` of the ground
             position each ortho pixel shows, ground units^2.
-        NaN where the ortho has no data (off the DEM or the image).
+        NaN where the ortho has no data (off the DEM or the image);
+        float32 (float64 from ``step=1``).
     """
 
     grid: Grid
@@ -358,7 +465,7 @@ def ortho_uncertainty(
         image: which image of a bundle result.
 
     Returns:
-        :class:`OrthoUncertainty`.
+        :class:`OrthoUncertainty`, float32 rasters (float64 with ``step=1``).
     """
     # Over 80 lines because the docstring documents every argument; the body is ~55 lines.
     exterior, covariance = _orientation(exterior, covariance, image)
@@ -406,24 +513,55 @@ def ortho_uncertainty(
             out[:, s:e] = np.asarray(_propagate(*args, jnp.asarray(p), *covs, jnp.asarray(z)))[:, : e - s]
         out = out.reshape(6, rows, cols)
         return OrthoUncertainty(grid, out[:3], out[3:])
-    cols_p = -(-cols // step) * step
-    strip = min(max(step, (_STRIP // cols_p) // step * step), -(-rows // step) * step)
+    # Strips of whole rows, of one padded shape (one compilation), about
+    # _STRIP pixels each, copied out (measured cheaper than XLA filling a
+    # fresh buffer for them to be written into in place).
+    def up(a, b):  # ceil(a / b)
+        return -(-a // b)
+
+    cols_p = up(cols, step) * step
+    th = up(up(rows, up(rows * cols_p, _STRIP)), step) * step
+    rows_p = up(rows, th) * th
     heights = np.asarray(dem.heights)
     zfill = jnp.asarray(float(np.nanmean(heights)) if np.isfinite(heights).any() else 0.0)
     transform = jnp.asarray(tuple(grid.transform)[:6])
-    out = np.empty((6, rows, cols))
-    for r0 in range(0, rows, strip):
-        h = min(strip, rows - r0)
-        if scalar_sz:
-            z = sz[0, 0]
-        else:
-            z = np.zeros((strip, cols_p))
-            z[:h, :cols] = sz[r0 : r0 + h]
-        planes = _propagate_strip(*args, transform, jnp.asarray(float(r0)), cols_p, *covs, jnp.asarray(z), zfill,
-                                  step, strip)
-        for k, plane in enumerate(planes):
-            out[k, r0 : r0 + h] = np.asarray(plane)[:h, :cols]
+    along = np.asarray(_lattice(exterior, camera, dem, transform, *covs,
+                                jnp.asarray(sz[0, 0]) if scalar_sz else None, zfill, step, (rows_p, cols_p)))
+    window = _dem_window(grid, dem, th)
+    dem_t = tuple(float(v) for v in np.asarray(dem.transform))
+    z0 = jnp.asarray(np.float32(sz[0, 0]))
+    out = np.empty((6, rows_p, cols_p), dtype=np.float32)
+    def one(r0):
+        z = z0
+        if not scalar_sz:
+            z = np.zeros((th, cols_p), dtype=np.float32)
+            z[: min(th, rows - r0), :cols] = sz[r0 : r0 + th]
+        a = jnp.asarray(along[:, r0 // step : (r0 + th) // step + 1])
+        srows = None if window is None else _slope_rows(heights, dem_t, tuple(grid.transform)[:6], r0,
+                                                         (th, cols_p), window)
+        slope = _effective_slope(a, camera.image_size, dem, transform, np.asarray(float(r0)), step, srows)
+        for k, plane in enumerate(_strip(a, slope, jnp.asarray(z), step, ("image", "ground"))):
+            out[k, r0 : r0 + th] = plane
+
+    from concurrent.futures import ThreadPoolExecutor
+
+    from .resampling import _THREADS
+
+    strips = range(0, rows, th)
+    with ThreadPoolExecutor(max(1, min(_THREADS, len(strips)))) as pool:  # XLA and copies release the GIL
+        list(pool.map(one, strips))
+    out = out[:, :rows, :cols]
     return OrthoUncertainty(grid, out[:3], out[3:])
+
+
+def _dem_window(grid: Grid, dem: DEM, rows: int) -> int | None:
+    """DEM rows a tile of ``rows`` grid rows reads when the grid's and the
+    DEM's axes coincide (:func:`_separable_slope`), else None."""
+    a, b, _, d, e, _ = tuple(grid.transform)[:6]
+    da, db, _, dd, de, _ = (float(v) for v in np.asarray(dem.transform))
+    if b != 0 or d != 0 or db != 0 or dd != 0:
+        return None
+    return int(min(dem.heights.shape[0], np.ceil(rows * abs(e / de)) + 3))
 
 
 def _orientation(exterior, covariance, image: int):
