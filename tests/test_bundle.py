@@ -64,11 +64,12 @@ def test_schur_step_equals_dense_normal_equations():
     # Dense reference: all parameters in one vector, full Jacobian by jacfwd.
     n_img, n_pts, a = problem.n_images, problem.n_points, len(s.active)
 
-    def apply(x):
+    def apply(x):  # the solver's update: R <- R Exp(dr), C <- C + R_new R^T dC (the step turns with the camera)
         dimg = x[: 6 * n_img].reshape(n_img, 6)
         dint = x[6 * n_img : n_c].reshape(-1, a)
-        return _State(state.rot @ ptx.axis_angle_to_matrix(dimg[:, :3]), state.centre + dimg[:, 3:],
-                      state.intr.at[:, s.active].add(dint), state.xyz + x[n_c:].reshape(n_pts, 3))  # fmt: skip
+        rot = state.rot @ ptx.axis_angle_to_matrix(dimg[:, :3])
+        centre = state.centre + jnp.einsum("nij,nkj,nk->ni", rot, state.rot, dimg[:, 3:])
+        return _State(rot, centre, state.intr.at[:, s.active].add(dint), state.xyz + x[n_c:].reshape(n_pts, 3))
 
     def residual(x):
         st = apply(x)
