@@ -88,6 +88,16 @@ def test_schur_step_equals_dense_normal_equations():
     np.testing.assert_allclose(new.centre, ref.centre, atol=1e-7)
     np.testing.assert_allclose(new.rot, ref.rot, atol=1e-11)
     np.testing.assert_allclose(new.intr, ref.intr, rtol=1e-9, atol=1e-11)
+    # The least-squares extrapolation walks the same update: twice the step
+    # from the trial point equals the reference update of 2 dx, and its cost.
+    from photax.bundle._linearise import _cost
+    from photax.bundle._solver import _along
+
+    two, two_cost = _along(state, new, jnp.asarray(2.0), s, none, one)
+    ref2 = apply(jnp.asarray(2.0 * dx))
+    for got, want in zip(two, ref2):
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-7)
+    assert float(two_cost) == pytest.approx(float(_cost(ref2, s, none, one)), rel=1e-9)
     # The matrix-free conjugate-gradient solver (for large blocks) gives the same step.
     # CG stops at a relative residual of 1e-8, so its step error is bounded by
     # cond(S) * 1e-8 relative: ask for 1e-3 of the step.
