@@ -185,8 +185,8 @@ def _trial(state: _State, lin: _Lin, s: _Structure, lam: Array, loss: Array, sca
     # t does.  C + dC would move the camera along its old axes: with a free
     # focal length per image, whose weak mode is a move along the optical
     # axis traded against f, a step that also tilts the camera then leaves
-    # the valley sideways (900-image block: gain ratios 0.6-0.9 and 34
-    # iterations, against 1.0-1.7 and 28 with this update; see _solver).
+    # the valley sideways (400-image block: gain ratios 0.6-0.9 and 27
+    # iterations; with this update 15, on Ceres' path; see _solver).
     rot = state.rot @ axis_angle_to_matrix(dimg[:, :3])
     new = _State(
         rot,
