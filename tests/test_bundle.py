@@ -64,11 +64,12 @@ def test_schur_step_equals_dense_normal_equations():
     # Dense reference: all parameters in one vector, full Jacobian by jacfwd.
     n_img, n_pts, a = problem.n_images, problem.n_points, len(s.active)
 
-    def apply(x):
+    def apply(x):  # the solver's update: R <- R Exp(dr), C <- C + R_new R^T dC (the step turns with the camera)
         dimg = x[: 6 * n_img].reshape(n_img, 6)
         dint = x[6 * n_img : n_c].reshape(-1, a)
-        return _State(state.rot @ ptx.axis_angle_to_matrix(dimg[:, :3]), state.centre + dimg[:, 3:],
-                      state.intr.at[:, s.active].add(dint), state.xyz + x[n_c:].reshape(n_pts, 3))  # fmt: skip
+        rot = state.rot @ ptx.axis_angle_to_matrix(dimg[:, :3])
+        centre = state.centre + jnp.einsum("nij,nkj,nk->ni", rot, state.rot, dimg[:, 3:])
+        return _State(rot, centre, state.intr.at[:, s.active].add(dint), state.xyz + x[n_c:].reshape(n_pts, 3))
 
     def residual(x):
         st = apply(x)
@@ -87,6 +88,16 @@ def test_schur_step_equals_dense_normal_equations():
     np.testing.assert_allclose(new.centre, ref.centre, atol=1e-7)
     np.testing.assert_allclose(new.rot, ref.rot, atol=1e-11)
     np.testing.assert_allclose(new.intr, ref.intr, rtol=1e-9, atol=1e-11)
+    # The least-squares extrapolation walks the same update: twice the step
+    # from the trial point equals the reference update of 2 dx, and its cost.
+    from photax.bundle._linearise import _cost
+    from photax.bundle._solver import _along
+
+    two, two_cost = _along(state, new, jnp.asarray(2.0), s, none, one)
+    ref2 = apply(jnp.asarray(2.0 * dx))
+    for got, want in zip(two, ref2):
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-7)
+    assert float(two_cost) == pytest.approx(float(_cost(ref2, s, none, one)), rel=1e-9)
     # The matrix-free conjugate-gradient solver (for large blocks) gives the same step.
     # CG stops at a relative residual of 1e-8, so its step error is bounded by
     # cond(S) * 1e-8 relative: ask for 1e-3 of the step.

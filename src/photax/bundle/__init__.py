@@ -31,7 +31,9 @@ Parameters (analysed once on the numpy side, then solved by jitted steps):
 * per image: the projection centre ``C`` (ground unit) and the attitude
   ``R`` (world_from_camera), updated on the manifold ``R <- R Exp(dr)``
   with ``dr`` a rotation vector about the camera axes, so any orientation
-  works (BAL cameras look everywhere);
+  works (BAL cameras look everywhere); the centre step turns with the
+  camera, ``C <- C + R' R^T dC`` with ``R'`` the new attitude (see
+  :mod:`photax.bundle._solver` for why);
 * per camera (shared by its images): ``f, x0, y0, k1, k2, k3, p1, p2``,
   each free or fixed (self-calibration);
 * per point: ``X, Y, Z``.  Tie and check points are free; control points
