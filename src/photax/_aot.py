@@ -82,9 +82,11 @@ def _folder() -> pathlib.Path | None:
     return pathlib.Path(base) / "photax-aot" if base else None
 
 
-def disk_cached(fn, name: str):
+def disk_cached(fn, name: str, compiler_options: dict | None = None):
     """``fn`` (a jitted function of pytrees of arrays and static values),
     with its compiled executable kept on disk between processes.
+    ``compiler_options``: those ``fn`` was jitted with (XLA options), for the
+    function loaded from disk.
 
     Returns a function with ``fn``'s signature and results (a call with
     keyword arguments goes to ``fn`` itself).
@@ -110,7 +112,7 @@ def disk_cached(fn, name: str):
         compiled = memory.get(key)
         if compiled is None:
             with _LOCK:
-                compiled = memory.get(key) or _load_or_compile(fn, path, leaves, treedef, static)
+                compiled = memory.get(key) or _load_or_compile(fn, path, leaves, treedef, static, compiler_options)
                 memory[key] = compiled
         if compiled is fn:
             return fn(*args)
@@ -127,7 +129,7 @@ def disk_cached(fn, name: str):
     return call
 
 
-def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static):
+def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static, compiler_options=None):
     """``jit(exported.call)`` for the serialised StableHLO at ``path``, made
     (traced once, exported, written) when missing or unreadable; ``fn``
     itself when the function cannot be exported."""
@@ -152,4 +154,4 @@ def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static):
             os.replace(fh.name, path)
         except (OSError, ImportError):  # a read-only cache, or no flatbuffers: still compute
             pass
-    return jax.jit(exported.call)
+    return jax.jit(exported.call, compiler_options=compiler_options)
