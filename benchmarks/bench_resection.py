@@ -211,7 +211,7 @@ def solver_overhead(xy, ground):
 
     from photax.resection import _adjust, _api, _checks, _linear
 
-    b = min(len(xy), 2048)
+    b = min(len(xy), 1024)  # one chunk of resect_batch
     prep = _checks.validate(xy[:b], ground[:b], CAM, None, None, None, None, "phi-omega-kappa", 0.001, batch=True)
     opt = jax.tree_util.tree_map(jnp.asarray, _api._options(prep, CAM, "phi-omega-kappa", False, 0.001, 20, 16))
     inp = jax.tree_util.tree_map(jnp.asarray, _api._inputs(prep, 16))  # the images last (lanes)

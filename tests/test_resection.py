@@ -287,24 +287,30 @@ def test_gauss_newton_is_differentiable():
 
 
 def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
-    """The adjustment's closed-form collinearity Jacobian, written per lane (images on the last axis),
-    against ``jax.jacfwd`` of ``ptx.project`` (an independent implementation), with distortion, for both
-    conventions; its Cholesky solve against numpy's ``solve``."""
+    """The code written per lane (images on the last axis), with distortion, for both conventions: the
+    linear start on noise-free 3-D control against the truth; the closed-form collinearity Jacobian
+    against ``jax.jacfwd`` of ``ptx.project`` (an independent implementation); the Cholesky solve of the
+    normal equations against numpy's ``solve``."""
     import jax
     import jax.numpy as jnp
 
-    from photax.resection import _api, _checks
+    from photax.resection import _api, _checks, _linear
     from photax.resection._adjust import _lanes, _normal, evaluate
 
-    cam = ptx.FrameCamera(0.15324, (1e-4, -2e-4), (0.3, -0.5, 0.2, 1e-3, -2e-3))
+    cam = ptx.FrameCamera(0.15324, (1e-4, -2e-4), (0.05, -0.02, 0.01, 1e-4, -2e-4))
     rng = np.random.default_rng(8)
     for convention in ("phi-omega-kappa", "omega-phi-kappa"):
         scenes = [_scene(rng, a, convention, n=9, relief=300.0) for a in ((0.5, -0.35, 1.7), (0.02, -0.015, 0.3))]
-        ground, xy = np.stack([s[0] for s in scenes]), np.stack([s[1] for s in scenes])
+        ground = np.stack([s[0] for s in scenes])
+        xy = np.stack([np.asarray(ptx.project(g, s[2], cam)) for g, s in zip(ground, scenes)])  # with distortion
         prep = _checks.validate(xy, ground, cam, None, None, None, None, convention, 0.001, batch=True)
         opt = jax.tree_util.tree_map(jnp.asarray, _api._options(prep, cam, convention, False, 0.001, 20, 16))
         inp = jax.tree_util.tree_map(jnp.asarray, _api._inputs(prep, 16))
         p = np.stack([np.concatenate([s[2].position - o, s[2].angles]) for s, o in zip(scenes, prep.origin)], axis=1)
+        start, ok = jax.jit(_linear.linear_start_lanes)(inp, opt)  # noise-free: the linear start is exact
+        assert np.all(ok)
+        np.testing.assert_allclose(start[:3], p[:3], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(start[3:], p[3:], rtol=0, atol=1e-9)
         p = p + rng.normal(0.0, [[3.0], [3.0], [3.0], [0.01], [0.01], [0.01]], p.shape)  # away from the solution
         v, a, pred, _ = jax.jit(evaluate)(p, inp, inp.ctrl, opt)
 

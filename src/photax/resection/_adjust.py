@@ -168,7 +168,7 @@ def gauss_newton(start, inp: Inputs, used, opt: Options, active=None):
 
     def tangent_solve(g, y):  # only traced under differentiation; the lanes are independent systems
         eye = jnp.eye(6)[:, :, None] * jnp.ones((1, 1, y.shape[-1]))
-        jac = jnp.stack([g(eye[j]) for j in range(6)], axis=1)  # (6, 6, B): column j = g(e_j)
+        jac = jax.vmap(g, out_axes=1)(eye)  # (6, 6, B): column j = g(e_j), g traced once
         return jnp.linalg.solve(jnp.transpose(jac, (2, 0, 1)), y.T[..., None])[..., 0].T
 
     p = jax.lax.custom_root(gradient, p, lambda _, x0: x0, tangent_solve)

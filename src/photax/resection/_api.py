@@ -1,8 +1,9 @@
 """resect and resect_batch: one validation, the cheap path, the robust path
 for the images that need it, one finishing step.
 
-Both run the same compiled functions, ``vmap``-ed over a leading image
-axis (a single image is a batch of one): :func:`._adjust.solve_cheap` for
+Both run the same compiled functions on a batch of images carried on the
+last axis of every array (lanes, :mod:`._lanes`; a single image is a batch
+of one): :func:`._adjust.solve_cheap` for
 every image, then :func:`._robust.solve_robust` for the compacted set of
 images the cheap path hands over (``retry``): first those that only failed
 the blunder test, from their cheap solution; then, from the LMedS start,
@@ -435,8 +436,8 @@ def resect_batch(
 ) -> ResectionResult:
     """Space resection of many images with the same number of GCPs, in one call.
 
-    The same compiled solvers as :func:`resect`, ``jax.vmap``-ed over chunks
-    of images (one compilation for any batch size): every image takes the
+    The same compiled solvers as :func:`resect`, over chunks of images
+    (one compilation for any batch size): every image takes the
     cheap path (linear start from all points, Gauss-Newton with at most
     ``max_steps`` iterations, precision, the blunder test); with
     ``robust=True`` the images whose test or adjustment fails are gathered

@@ -2,7 +2,7 @@
 
 Image points are undistorted to normalised coordinates first
 (``camera.normalised``), in OpenCV's frame (x right, y down, z forward);
-then two linear solvers, both in ``jax.numpy`` so they ``vmap``:
+then two linear solvers, in ``jax.numpy``:
 
 * a homography between the control points' best-fitting plane and the
   normalised image, decomposed with the known interior orientation (Zhang
@@ -10,8 +10,11 @@ then two linear solvers, both in ``jax.numpy`` so they ``vmap``:
 * the calibrated DLT ``x ~ [M | m] X`` with ``M`` projected onto the
   rotations (Hartley & Zisserman 2003, sec. 7.1) - for 3-D GCP sets.
 
-:func:`candidates` solves both from all control points and, for the robust
-path, from each random subset, in one batched Cholesky solve (:func:`cho_solve`).
+:func:`linear_start_lanes` solves both from all control points for a batch
+of images on the last axis (:mod:`._lanes`: the cheap path);
+:func:`candidates`, per image under ``vmap``, also from each random subset
+(the robust path's LMedS start), in one batched Cholesky solve
+(:func:`cho_solve`): the same formulas, written for each layout.
 """
 
 from __future__ import annotations
@@ -23,9 +26,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._linalg import cho_solve, inv3, nearest_rotation
-from . import _lanes
 from ..camera import OPENCV_FROM_PHOTAX
 from ..rotation import angles_from_matrix_unchecked, rotation_matrix
+from . import _lanes
 
 def rotation(angles, pok):
     """world_from_camera; the convention is a traced flag (``pok``:

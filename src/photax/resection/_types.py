@@ -5,8 +5,8 @@ optimistix passes its ``Solution`` and solver states: adding an option or an
 output means adding a field here and setting it where the module is built
 (:func:`photax.resection._api._options`, the solver that fills it).
 
-Shapes are per image; :func:`photax.resection._api` ``vmap``-s over a leading
-batch axis of :class:`Inputs` (options are shared by the batch).
+Inside the compiled code every array carries the batch of images as its
+last axis (lanes, :mod:`._lanes`); options are shared by the batch.
 ``m`` is the point count padded to a bucket (16, 32, ...).
 """
 
