@@ -183,7 +183,7 @@ def linear_start(uv, ground, ctrl, basis, dlt_ok, pok):
 
 def _dlt_normal(xh, u, v, w):
     """Normal equations of the DLT-type rows ``[xh, 0, -u xh]``,
-    ``[0, xh, -v xh]`` (weights ``w``; ``xh`` a list of ``k`` ``(m, B)``
+    ``[0, xh, -v xh]`` (``w`` 0 or 1: the control points; ``xh`` ``k`` ``(m, B)``
     arrays whose last is 1, the unknown fixed to 1), from the four weighted
     scatter sums ``sum w c xh xh^T``, ``c`` in ``(1, u, v, u^2 + v^2)``:
     ``(3k - 1, 3k - 1, B)`` and ``(3k - 1, B)``.  (The rows' products
@@ -244,7 +244,8 @@ def linear_start_lanes(inp, opt):
     no subsets, written per lane): ``(6, B)`` and ``(B,)``."""
     cam = opt.camera
     k1, k2, k3, p1, p2 = (cam.distortion[i] for i in range(5))
-    xd, yd = (inp.xy[0] - cam.principal_point[0]) / cam.focal_length, (inp.xy[1] - cam.principal_point[1]) / cam.focal_length
+    xd = (inp.xy[0] - cam.principal_point[0]) / cam.focal_length
+    yd = (inp.xy[1] - cam.principal_point[1]) / cam.focal_length
 
     def undistort(_, xn):  # camera.undistort_normalised's fixed point, 20 iterations
         x, y = xn
@@ -265,7 +266,7 @@ def linear_start_lanes(inp, opt):
     centre = jnp.sum(inp.ground * wf[None], axis=1) / n_ctrl[None]
     rel = inp.ground - centre[:, None]
     scale = jnp.sqrt(jnp.sum(rel * rel * wf[None], axis=(0, 1)) / n_ctrl)
-    zero, one = jnp.zeros_like(un), jnp.ones_like(un)
+    one = jnp.ones_like(un)
     z1, o1 = jnp.zeros_like(su), jnp.ones_like(su)
     t_inv = jnp.stack([jnp.stack([su, z1, mu[0]]), jnp.stack([z1, su, mu[1]]), jnp.stack([z1, z1, o1])])  # undoes it
 
