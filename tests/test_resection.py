@@ -279,8 +279,12 @@ def test_gauss_newton_is_differentiable():
     def solve(x):
         return _adjust.gauss_newton(start, eqx.tree_at(lambda i: i.xy, inp, x), inp.ctrl, opt)[0][:, 0]
 
-    jac = jax.jit(jax.jacrev(solve))(inp.xy)[..., 0].transpose(0, 2, 1)  # (6, 16, 2); one program, not op by op
-    _, a, _, _ = _adjust.evaluate(jax.jit(solve)(inp.xy)[:, None], inp, inp.ctrl, opt)
+    @jax.jit  # one program, not op by op
+    def derivative_and_design(x):
+        return jax.jacrev(solve)(x), _adjust.evaluate(solve(x)[:, None], inp, inp.ctrl, opt)[1]
+
+    jac, a = derivative_and_design(inp.xy)
+    jac = jac[..., 0].transpose(0, 2, 1)  # (6, 16, 2)
     a = np.asarray(a)[..., 0].transpose(2, 1, 0).reshape(-1, 6)  # rows (point, coordinate)
     ref = np.linalg.solve(a.T @ a, a.T).reshape(6, 16, 2)
     np.testing.assert_allclose(jac, ref, rtol=0, atol=1e-7 * np.abs(ref).max())
@@ -297,6 +301,12 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
     from photax.resection import _api, _checks, _linear
     from photax.resection._adjust import _lanes, _normal, evaluate
 
+    @jax.jit  # one program for the three pieces under test
+    def lanes(inp, opt, p):
+        v, a, pred, _ = evaluate(p, inp, inp.ctrl, opt)
+        n, g = _normal(a, v)
+        return _linear.linear_start_lanes(inp, opt), (a, pred, n, g), _lanes.cho_solve(n, g[:, None])[:, 0]
+
     cam = ptx.FrameCamera(0.15324, (1e-4, -2e-4), (0.05, -0.02, 0.01, 1e-4, -2e-4))
     rng = np.random.default_rng(8)
     for convention in ("phi-omega-kappa", "omega-phi-kappa"):
@@ -307,12 +317,12 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
         opt = jax.tree_util.tree_map(jnp.asarray, _api._options(prep, cam, convention, False, 0.001, 20, 16))
         inp = jax.tree_util.tree_map(jnp.asarray, _api._inputs(prep, 16))
         p = np.stack([np.concatenate([s[2].position - o, s[2].angles]) for s, o in zip(scenes, prep.origin)], axis=1)
-        start, ok = jax.jit(_linear.linear_start_lanes)(inp, opt)  # noise-free: the linear start is exact
+        start, ok = lanes(inp, opt, jnp.zeros((6, 2)))[0]  # noise-free: the linear start is exact
         assert np.all(ok)
         np.testing.assert_allclose(start[:3], p[:3], rtol=0, atol=1e-6)
         np.testing.assert_allclose(start[3:], p[3:], rtol=0, atol=1e-9)
         p = p + rng.normal(0.0, [[3.0], [3.0], [3.0], [0.01], [0.01], [0.01]], p.shape)  # away from the solution
-        v, a, pred, _ = jax.jit(evaluate)(p, inp, inp.ctrl, opt)
+        _, (a, pred, n, g), x = lanes(inp, opt, jnp.asarray(p))
 
         def model(q, g, o):
             return ptx.project(g, ptx.ExteriorOrientation(q[:3] + o, q[3:], convention), cam)
@@ -322,7 +332,5 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
         np.testing.assert_allclose(np.asarray(pred)[:, :9].transpose(2, 1, 0), want_xy, rtol=0, atol=1e-12)
         np.testing.assert_allclose(np.asarray(a)[:, :, :9].transpose(3, 2, 1, 0), want, rtol=1e-9,
                                    atol=1e-9 * np.abs(want).max())
-        n, g = _normal(a, v)
-        x = jax.jit(_lanes.cho_solve)(n, g[:, None])[:, 0]
         want = np.linalg.solve(np.transpose(np.asarray(n), (2, 0, 1)), np.asarray(g).T[..., None])[..., 0].T
         np.testing.assert_allclose(x, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
