@@ -273,14 +273,64 @@ def test_gauss_newton_is_differentiable():
     ground, xy, truth = _scene(rng, (0.1, -0.05, 0.4), relief=50.0, n=8)
     prep = _checks.validate(xy, ground, CAM, None, None, None, None, "phi-omega-kappa", 0.001, batch=False)
     opt = jax.tree_util.tree_map(jnp.asarray, _api._options(prep, CAM, "phi-omega-kappa", False, 0.001, 20, 16))
-    inp = jax.tree_util.tree_map(lambda a: jnp.asarray(a[0]), _api._inputs(prep, 16))
-    start = jnp.concatenate([truth.position - prep.origin[0], truth.angles]) + 1e-3
+    inp = jax.tree_util.tree_map(jnp.asarray, _api._inputs(prep, 16))  # one image: one lane
+    start = jnp.concatenate([truth.position - prep.origin[0], truth.angles])[:, None] + 1e-3
 
     def solve(x):
-        return _adjust.gauss_newton(start, eqx.tree_at(lambda i: i.xy, inp, x), inp.ctrl, opt)[0]
+        return _adjust.gauss_newton(start, eqx.tree_at(lambda i: i.xy, inp, x), inp.ctrl, opt)[0][:, 0]
 
-    jac = jax.jit(jax.jacrev(solve))(inp.xy)  # (6, 16, 2); one program, not op by op
-    _, a, _, _ = _adjust.evaluate(jax.jit(solve)(inp.xy), inp, inp.ctrl, opt)
-    a = np.asarray(a).reshape(-1, 6)
+    @jax.jit  # one program, not op by op
+    def derivative_and_design(x):
+        return jax.jacrev(solve)(x), _adjust.evaluate(solve(x)[:, None], inp, inp.ctrl, opt)[1]
+
+    jac, a = derivative_and_design(inp.xy)
+    jac = jac[..., 0].transpose(0, 2, 1)  # (6, 16, 2)
+    a = np.asarray(a)[..., 0].transpose(2, 1, 0).reshape(-1, 6)  # rows (point, coordinate)
     ref = np.linalg.solve(a.T @ a, a.T).reshape(6, 16, 2)
     np.testing.assert_allclose(jac, ref, rtol=0, atol=1e-7 * np.abs(ref).max())
+
+
+def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
+    """The code written per lane (images on the last axis), with distortion, for both conventions: the
+    linear start on noise-free 3-D control against the truth; the closed-form collinearity Jacobian
+    against ``jax.jacfwd`` of ``ptx.project`` (an independent implementation); the Cholesky solve of the
+    normal equations against numpy's ``solve``."""
+    import jax
+    import jax.numpy as jnp
+
+    from photax.resection import _api, _checks, _linear
+    from photax.resection._adjust import _lanes, _normal, evaluate
+
+    @jax.jit  # one program for the three pieces under test
+    def lanes(inp, opt, p):
+        v, a, pred, _ = evaluate(p, inp, inp.ctrl, opt)
+        n, g = _normal(a, v)
+        return _linear.linear_start_lanes(inp, opt), (a, pred, n, g), _lanes.cho_solve(n, g[:, None])[:, 0]
+
+    cam = ptx.FrameCamera(0.15324, (1e-4, -2e-4), (0.05, -0.02, 0.01, 1e-4, -2e-4))
+    rng = np.random.default_rng(8)
+    for convention in ("phi-omega-kappa", "omega-phi-kappa"):
+        scenes = [_scene(rng, a, convention, n=9, relief=300.0) for a in ((0.5, -0.35, 1.7), (0.02, -0.015, 0.3))]
+        ground = np.stack([s[0] for s in scenes])
+        xy = np.stack([np.asarray(ptx.project(g, s[2], cam)) for g, s in zip(ground, scenes)])  # with distortion
+        prep = _checks.validate(xy, ground, cam, None, None, None, None, convention, 0.001, batch=True)
+        opt = jax.tree_util.tree_map(jnp.asarray, _api._options(prep, cam, convention, False, 0.001, 20, 16))
+        inp = jax.tree_util.tree_map(jnp.asarray, _api._inputs(prep, 16))
+        p = np.stack([np.concatenate([s[2].position - o, s[2].angles]) for s, o in zip(scenes, prep.origin)], axis=1)
+        start, ok = lanes(inp, opt, jnp.zeros((6, 2)))[0]  # noise-free: the linear start is exact
+        assert np.all(ok)
+        np.testing.assert_allclose(start[:3], p[:3], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(start[3:], p[3:], rtol=0, atol=1e-9)
+        p = p + rng.normal(0.0, [[3.0], [3.0], [3.0], [0.01], [0.01], [0.01]], p.shape)  # away from the solution
+        _, (a, pred, n, g), x = lanes(inp, opt, jnp.asarray(p))
+
+        def model(q, g, o):
+            return ptx.project(g, ptx.ExteriorOrientation(q[:3] + o, q[3:], convention), cam)
+
+        args = (jnp.asarray(p.T), jnp.asarray(ground), jnp.asarray(prep.origin))
+        want_xy, want = jax.jit(jax.vmap(lambda *x: (model(*x), jax.jacfwd(model)(*x))))(*args)  # (2, n, 2 [, 6])
+        np.testing.assert_allclose(np.asarray(pred)[:, :9].transpose(2, 1, 0), want_xy, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(a)[:, :, :9].transpose(3, 2, 1, 0), want, rtol=1e-9,
+                                   atol=1e-9 * np.abs(want).max())
+        want = np.linalg.solve(np.transpose(np.asarray(n), (2, 0, 1)), np.asarray(g).T[..., None])[..., 0].T
+        np.testing.assert_allclose(x, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())

@@ -1,14 +1,20 @@
-"""Least-squares adjustment of one image: Gauss-Newton, precision, the blunder test.
+"""Least-squares adjustment of a batch of images: Gauss-Newton, precision, the blunder test.
+
+Every array carries the images as its **last** axis (:mod:`._lanes`): the
+parameters are ``(6, B)``, image points ``(2, m, B)``, the Jacobian
+``(6, 2, m, B)``; one image is ``B = 1``.  Each image keeps its own
+iteration count and result, exactly as if it were adjusted alone.
 
 Gauss-Newton on the weighted residuals ``v = sqrt(P) (x_obs - x(p))``
 (observed - computed) with the closed-form collinearity Jacobian
-(:func:`photax.collinearity.collinearity_jacobian`), the 6x6 normal
-equations solved by a Jacobi-scaled Cholesky (:func:`photax._linalg.cho_solve`); it
-stops after a step ``|dp_i| <= 1e-8 (1 + |p_i|)`` (metres, radians) or
-``max_steps`` iterations.  The solution is differentiable with respect to the
-data: it is wrapped in ``jax.lax.custom_root`` on the normal equations'
-gradient ``A^T v = 0`` (implicit function theorem; the loop itself is not
-differentiated).
+(:func:`evaluate`, the formulas of
+:func:`photax.collinearity.collinearity_jacobian`), the 6x6 normal
+equations solved by a Jacobi-scaled Cholesky (:func:`._lanes.cho_solve`);
+an image stops after a step ``|dp_i| <= 1e-8 (1 + |p_i|)`` (metres,
+radians) or ``max_steps`` iterations.  The solution is differentiable with
+respect to the data: it is wrapped in ``jax.lax.custom_root`` on the normal
+equations' gradient ``A^T v = 0`` (implicit function theorem; the loop
+itself is not differentiated).
 
 Precision at the solution (Kraus 2007, app. B), ``r = 2 n - 6``::
 
@@ -29,9 +35,9 @@ import jax
 import jax.numpy as jnp
 
 from .._linalg import cho_solve
-from ..collinearity import _angle_axes, collinearity_jacobian
+from ..collinearity import _angle_axes
 from ..errors import RESULTS, from_optimistix
-from . import _linear
+from . import _lanes, _linear
 from ._types import Inputs, Options, Output
 
 # Gauss-Newton stops after a step below this (relative; metres and radians).
@@ -45,56 +51,107 @@ def wrap(a):
     return jnp.pi - jnp.mod(jnp.pi - a, 2.0 * jnp.pi)
 
 
+def rotation(p, pok):
+    """world_from_camera ``(3, 3, B)`` of parameters ``p`` ``(6, B)``."""
+    return jnp.transpose(_linear.rotation(p[3:].T, pok), (1, 2, 0))
+
+
 def evaluate(p, inp: Inputs, used, opt: Options):
-    """Weighted residuals ``v`` ``(m, 2)``, their model derivative ``A = -dv/dp``
-    ``(m, 2, 6)``, the prediction ``(m, 2)`` and the depths ``(m,)`` at ``p``
-    (zero rows for points not ``used``)."""
-    rot = _linear.rotation(p[3:], opt.pok)
-    axes = _angle_axes(p[3:], rot, opt.pok)
-    pred, jac, q = collinearity_jacobian(inp.ground, p[:3], rot, axes, opt.camera, wrt_ground=False)
-    sw = jnp.where(used[:, None], jnp.sqrt(inp.weight), 0.0)
-    return (inp.xy - pred) * sw, jac * sw[:, :, None], pred, -q[:, 2]
+    """At ``p`` ``(6, B)``: weighted residuals ``v`` ``(2, m, B)``, their model
+    derivative ``A = -dv/dp`` ``(6, 2, m, B)``, the prediction ``(2, m, B)``
+    and the depths ``(m, B)`` (zero rows for points not ``used``).
+
+    The collinearity equations and their Jacobian, written out (as
+    :func:`photax.collinearity.collinearity_jacobian`; tested against
+    ``jax.jacfwd``): ``d = X - C``, ``q = R^T d``, ``xn = -q_xy / q_z``,
+    ``x = x0 + f D(xn)``, ``dq/dC = -R^T``, ``dq/da_k = R^T (d x w_k)``,
+    ``dx/dq = f D'(xn) (-1/q_z) [[1, 0, xn], [0, 1, yn]]``.
+    """
+    cam = opt.camera
+    rot = rotation(p, opt.pok)
+    axes = jnp.transpose(_angle_axes(p[3:].T, jnp.transpose(rot, (2, 0, 1)), opt.pok), (1, 2, 0))  # (k, 3, B)
+    d = inp.ground - p[:3, None, :]  # (3, m, B)
+    q = _lanes.rt_times(rot, d)
+    x, y = -q[0] / q[2], -q[1] / q[2]
+    k1, k2, k3, p1, p2 = (cam.distortion[i] for i in range(5))
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    slope = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r^2
+    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    jxy = 2.0 * x * y * slope + 2.0 * p1 * x + 2.0 * p2 * y  # D' (camera.distortion_jacobian)
+    jxx = radial + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x
+    jyy = radial + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x
+    g = -cam.focal_length / q[2]
+    dx_dq = jnp.stack([jnp.stack([jxx, jxy, jxx * x + jxy * y]),
+                       jnp.stack([jxy, jyy, jxy * x + jyy * y])]) * g[None, None]  # (2, 3, m, B)
+    dq_da = [_lanes.rt_times(rot, _lanes.cross(d, axes[k][:, None, :])) for k in range(3)]  # (3, m, B) each
+    cols = [-sum(dx_dq[:, c] * rot[i, c][None, None] for c in range(3)) for i in range(3)]  # dq_c/dC_i = -R[i, c]
+    cols += [sum(dx_dq[:, c] * dq_da[k][c][None] for c in range(3)) for k in range(3)]
+    jac = jnp.stack(cols)  # (6, 2, m, B)
+    pred = cam.principal_point[:, None, None] + cam.focal_length * jnp.stack([xd, yd])
+    sw = jnp.where(used[None], jnp.sqrt(inp.weight), 0.0)
+    return (inp.xy - pred) * sw, jac * sw[None], pred, -q[2]
 
 
 def _normal(a, v):
-    """``N = A^T A``, ``g = A^T v`` as element-wise sums (fused under vmap, no tiny dots)."""
-    a = a.reshape(-1, 6)
-    return jnp.sum(a[:, :, None] * a[:, None, :], axis=0), jnp.sum(a * v.reshape(-1)[:, None], axis=0)
+    """``N = A^T A`` ``(6, 6, B)``, ``g = A^T v`` ``(6, B)``."""
+    return jnp.sum(a[:, None] * a[None, :], axis=(2, 3)), jnp.sum(a * v[None], axis=(1, 2))
 
 
-def _iterate(start, inp: Inputs, used, opt: Options):
-    """The Gauss-Newton loop: ``(p, steps, RESULTS code, evaluation at p)``
-    (the evaluation, :func:`evaluate`'s four arrays, spares :func:`precision` one)."""
-    ev0 = evaluate(start, inp, used, opt)
-    ok0 = jnp.all(jnp.isfinite(ev0[0])) & jnp.all(jnp.isfinite(ev0[1]))
-    code0 = jnp.where(ok0, RESULTS.successful, RESULTS.nonfinite)
+def _finite(n, g):
+    """Lanes whose normal equations are finite (a non-finite residual or
+    Jacobian entry makes them so; checking the ``(6, 6, B)`` matrix is
+    cheaper than the ``(6, 2, m, B)`` Jacobian)."""
+    return jnp.all(jnp.isfinite(n), axis=(0, 1)) & jnp.all(jnp.isfinite(g), axis=0)
+
+
+def _iterate(start, inp: Inputs, used, opt: Options, active=None):
+    """The Gauss-Newton loop over the lanes: ``(p, steps, RESULTS code,
+    (evaluation at p, normal equations at p))`` (they spare
+    :func:`precision` computing them again).  ``active`` ``(B,)``: lanes to
+    adjust (the others are left as they start, and do not keep the loop
+    running).
+
+    The loop's first pass evaluates the start and takes no step, so that
+    :func:`evaluate` is traced once (each copy was most of a second of
+    compilation)."""
+    m, b = used.shape
+    ev0 = (jnp.zeros((2, m, b)), jnp.zeros((6, 2, m, b)), jnp.zeros((2, m, b)), jnp.zeros((m, b)))
+    ne0 = (jnp.eye(6)[:, :, None] * jnp.ones((1, 1, b)), jnp.zeros((6, b)))
+    done0 = jnp.zeros(b, bool) if active is None else ~active
+    zeros = jnp.zeros(b, int)
 
     def cond(c):
-        _, _, k, done, _ = c
-        return ~done & (k < opt.max_steps)
+        _, _, _, k, done, _, first = c
+        return first | jnp.any(~done & (k < opt.max_steps))
 
     def body(c):
-        p, ev, k, _, _ = c
-        n, g = _normal(ev[1], ev[0])
-        dp = cho_solve(n, g[:, None])[:, 0]
-        solvable = jnp.all(jnp.isfinite(dp))
-        p_new = jnp.where(solvable, p + dp, p)
+        p, ev, ne, k, done, code, first = c
+        run = ~done & (first | (k < opt.max_steps))
+        dp = jnp.where(first, 0.0, _lanes.cho_solve(ne[0], ne[1][:, None])[:, 0])
+        solvable = jnp.all(jnp.isfinite(dp), axis=0)
+        p_new = _lanes.sel(solvable, p + dp, p)
         ev_new = evaluate(p_new, inp, used, opt)
-        finite = jnp.all(jnp.isfinite(ev_new[0])) & jnp.all(jnp.isfinite(ev_new[1]))
-        code = jnp.where(~solvable, RESULTS.singular, jnp.where(finite, RESULTS.successful, RESULTS.nonfinite))
-        small = jnp.all(jnp.abs(dp) <= STEP_TOL * (1.0 + jnp.abs(p_new)))
-        keep = solvable & finite  # a failed step leaves the last finite estimate
-        ev = jax.tree_util.tree_map(lambda x, y: jnp.where(keep, x, y), ev_new, ev)
-        return jnp.where(keep, p_new, p), ev, k + 1, small | (code != RESULTS.successful), code
+        ne_new = _normal(ev_new[1], ev_new[0])
+        finite = _finite(*ne_new)
+        code_new = jnp.where(~solvable, RESULTS.singular, jnp.where(finite, RESULTS.successful, RESULTS.nonfinite))
+        small = jnp.all(jnp.abs(dp) <= STEP_TOL * (1.0 + jnp.abs(p_new)), axis=0)
+        keep = run & ((solvable & finite) | first)  # a failed step leaves the last finite estimate
+        ev, ne = jax.tree_util.tree_map(lambda x, y: _lanes.sel(keep, x, y), (ev_new, ne_new), (ev, ne))
+        p = _lanes.sel(keep, p_new, p)
+        stop = jnp.where(first, ~finite, small | (code_new != RESULTS.successful))
+        return (p, ev, ne, k + (run & ~first).astype(int), jnp.where(run, stop, done), jnp.where(run, code_new, code),
+                jnp.array(False))
 
-    carry = (start, ev0, jnp.array(0), ~ok0, code0)
-    p, ev, steps, done, code = jax.lax.while_loop(cond, body, carry)
+    carry = (start, ev0, ne0, zeros, done0, zeros + RESULTS.successful, jnp.array(True))
+    p, ev, ne, steps, done, code, _ = jax.lax.while_loop(cond, body, carry)
     code = jnp.where(done, code, RESULTS.max_steps_reached)
-    return p, steps, code, ev
+    return p, steps, code, (ev, ne)
 
 
-def gauss_newton(start, inp: Inputs, used, opt: Options):
-    """Gauss-Newton from ``start``: ``(p, steps, code, evaluation at p)``;
+def gauss_newton(start, inp: Inputs, used, opt: Options, active=None):
+    """Gauss-Newton from ``start`` ``(6, B)``: ``(p, steps, code, evaluation at p)``;
     ``p`` differentiable with respect to ``inp`` and ``opt.camera`` through
     the optimality condition ``A(p)^T v(p) = 0`` (``jax.lax.custom_root``);
     the evaluation (:func:`evaluate` at ``p``, from the loop) is not."""
@@ -107,98 +164,108 @@ def gauss_newton(start, inp: Inputs, used, opt: Options):
     # differentiate); custom_root then attaches the implicit derivative at its solution.
     nograd = jax.lax.stop_gradient
     p, steps, code, ev = _iterate(nograd(start), jax.tree_util.tree_map(nograd, inp), used,
-                                  jax.tree_util.tree_map(nograd, opt))
+                                  jax.tree_util.tree_map(nograd, opt), active)
 
-    def tangent_solve(g, y):  # only traced under differentiation
-        return jnp.linalg.solve(jax.jacfwd(g)(y), y)
+    def tangent_solve(g, y):  # only traced under differentiation; the lanes are independent systems
+        eye = jnp.eye(6)[:, :, None] * jnp.ones((1, 1, y.shape[-1]))
+        jac = jax.vmap(g, out_axes=1)(eye)  # (6, 6, B): column j = g(e_j), g traced once
+        return jnp.linalg.solve(jnp.transpose(jac, (2, 0, 1)), y.T[..., None])[..., 0].T
 
     p = jax.lax.custom_root(gradient, p, lambda _, x0: x0, tangent_solve)
     return p, steps, code, ev
 
 
 def precision(p, inp: Inputs, used, opt: Options, ev=None) -> dict:
-    """sigma0, Q_xx, redundancy numbers and w at ``p`` (module docstring);
-    ``ev``: :func:`evaluate` at ``p`` if already known (the same numbers:
-    wrapping the angles changes none)."""
+    """sigma0, Q_xx, redundancy numbers and w at ``p`` (module docstring),
+    in :class:`Output`'s per-image shapes with the lanes last; ``ev``:
+    :func:`evaluate` and :func:`_normal` at ``p`` if already known (the same
+    numbers: wrapping the angles changes none)."""
     p = jnp.concatenate([p[:3], wrap(p[3:])])
-    v, a, pred, depth = evaluate(p, inp, used, opt) if ev is None else ev
-    n, _ = _normal(a, v)
-    qxx = cho_solve(n, jnp.eye(6))
-    qxx = 0.5 * (qxx + qxx.T)
-    red = 2.0 * jnp.sum(used.astype(float)) - 6.0
-    sigma0 = jnp.where(red > 0, jnp.sqrt(jnp.sum(v * v) / jnp.where(red > 0, red, 1.0)), jnp.nan)
-    a = a.reshape(-1, 6)
-    aq = jnp.sum(a[:, :, None] * qxx[None, :, :], axis=1)  # A Q_xx, element-wise (no tiny dots under vmap)
-    r_i = jnp.where(used[:, None], (1.0 - jnp.sum(aq * a, axis=1)).reshape(-1, 2), 0.0)
+    if ev is None:
+        ev = evaluate(p, inp, used, opt)
+        ev = (ev, _normal(ev[1], ev[0]))
+    (v, a, pred, depth), (n, _) = ev
+    # Q_xx by LAPACK, one matrix per image: unrolled over 6 right-hand sides (as the steps' solve is)
+    # it cost a second of compilation for a fraction of a microsecond per image.
+    qxx = jnp.transpose(cho_solve(jnp.transpose(n, (2, 0, 1)), jnp.broadcast_to(jnp.eye(6), (n.shape[-1], 6, 6))),
+                        (1, 2, 0))
+    qxx = 0.5 * (qxx + jnp.swapaxes(qxx, 0, 1))
+    red = 2.0 * jnp.sum(used.astype(float), axis=0) - 6.0
+    sigma0 = jnp.where(red > 0, jnp.sqrt(jnp.sum(v * v, axis=(0, 1)) / jnp.where(red > 0, red, 1.0)), jnp.nan)
+    # diag(A Q_xx A^T) as 36 explicit products: a broadcast (6, 6, 2, m, B) product reduced over its
+    # leading axes ran 15x slower on XLA:CPU
+    r_i = jnp.where(used[None], 1.0 - sum(a[j] * qxx[j, k][None, None] * a[k] for j in range(6) for k in range(6)), 0.0)
     ok = r_i > 1e-10
     # v is observed - computed (the Gauss-Newton form); w and residuals are reported computed - observed.
     w = jnp.where(ok, -v / jnp.sqrt(jnp.where(ok, r_i, 1.0)), jnp.nan)
-    axis = -_linear.rotation(p[3:], opt.pok)[:, 2]
-    return dict(params=p, sigma0=sigma0, qxx=qxx, residuals=pred - inp.xy, redundancy=r_i, w=w, depth=depth,
-                axis=axis)
+    axis = -rotation(p, opt.pok)[:, 2]
+    tr = functools.partial(jnp.transpose, axes=(1, 0, 2))  # (2, m, B) -> Output's (m, 2, B)
+    return dict(params=p, sigma0=sigma0, qxx=qxx, residuals=tr(pred - inp.xy), redundancy=tr(r_i), w=tr(w),
+                depth=depth, axis=axis)
 
 
-def adjust(start, inp: Inputs, used, opt: Options) -> dict:
+def adjust(start, inp: Inputs, used, opt: Options, active=None) -> dict:
     """Gauss-Newton from ``start`` with the points ``used``, then precision."""
-    p, steps, code, ev = gauss_newton(start, inp, used, opt)
+    p, steps, code, ev = gauss_newton(start, inp, used, opt, active)
     return dict(precision(p, inp, used, opt, ev), result=code, steps=steps)
 
 
 def test(out: dict, used, opt: Options):
-    """The blunder test: ``(exclude?, worst point, |statistic| (m, 2), critical value)``.
+    """The blunder test per lane: ``(exclude?, worst point, |statistic| (m, 2, B), critical value)``.
 
     Exclusion only while redundancy allows (a point costs 2) and the
     adjustment succeeded; not for rounding-level residuals.
     """
-    n_used = jnp.sum(used.astype(int))
+    n_used = jnp.sum(used.astype(int), axis=0)
     c = opt.critical[n_used]
-    stat = jnp.abs(out["w"]) / jnp.where(opt.scale_stat, out["sigma0"], 1.0)
+    stat = jnp.abs(out["w"]) / _lanes.lane(jnp.where(opt.scale_stat, out["sigma0"], 1.0), 3)
     worst = jnp.max(jnp.where(jnp.isnan(stat), -jnp.inf, stat), axis=1)
-    worst = jnp.where(used, worst, -jnp.inf)
-    k = jnp.argmax(worst)
+    worst = jnp.where(used, worst, -jnp.inf)  # (m, B)
+    k = jnp.argmax(worst, axis=0)
     red = 2.0 * n_used.astype(float) - 6.0
-    go = opt.snoop & (worst[k] > c) & ~(out["sigma0"] < opt.exact) & (out["result"] == RESULTS.successful)
-    go &= (n_used - 1 >= opt.min_points) & (red - 2.0 >= opt.min_redundancy)
+    go = opt.snoop & (jnp.max(worst, axis=0) > c) & ~(out["sigma0"] < opt.exact)
+    go &= (out["result"] == RESULTS.successful) & (n_used - 1 >= opt.min_points) & (red - 2.0 >= opt.min_redundancy)
     return go, k, stat, c
 
 
 def solve_cheap(inp: Inputs, opt: Options) -> Output:
-    """The cheap path: linear start from all control points, one adjustment,
-    the test.  ``retry`` asks for the robust path (:mod:`._robust`) when,
-    with ``opt.snoop``, the test fails (1), or the adjustment fails, or the
-    start or the solution puts a control point behind the camera (2)."""
-    uv = _linear.opencv_uv(inp.xy, opt.camera)
-    lin, lin_ok = _linear.linear_start(uv, inp.ground, inp.ctrl, inp.basis, opt.dlt_ok, opt.pok)
-    start = jnp.where(inp.use_init, inp.init, lin)
+    """The cheap path for a batch of lanes: linear start from all control
+    points, one adjustment, the test.  ``retry`` asks for the robust path
+    (:mod:`._robust`) when, with ``opt.snoop``, the test fails (1), or the
+    adjustment fails, or the start or the solution puts a control point
+    behind the camera (2)."""
+    lin, lin_ok = _linear.linear_start_lanes(inp, opt)
+    start = _lanes.sel(inp.use_init, inp.init, lin)
     out = adjust(start, inp, inp.ctrl, opt)
     go, _, _, c = test(out, inp.ctrl, opt)
-    behind = jnp.any(inp.ctrl & ~(out["depth"] > 0))
+    behind = jnp.any(inp.ctrl & ~(out["depth"] > 0), axis=0)
     bad_start = ~inp.use_init & ~lin_ok
     # Only the test failed: data snooping can start from this solution (1). Anything else needs the
     # robust start as well (2).
     hard = (out["result"] != RESULTS.successful) | behind | bad_start
     retry = jnp.where(opt.snoop, jnp.where(hard, 2, jnp.where(go, 1, 0)), 0)
-    return Output(**out, start=start, used=inp.ctrl, stat_at=jnp.full(inp.xy.shape, jnp.nan), critical=c,
-                  retry=retry)
+    nan = jnp.full((inp.xy.shape[1], 2, inp.xy.shape[2]), jnp.nan)
+    return Output(**out, start=start, used=inp.ctrl, stat_at=nan, critical=c, retry=retry)
 
 
 @functools.partial(jax.jit, static_argnames="max_steps")
 def levenberg_marquardt(inp: Inputs, out: Output, opt: Options, max_steps: int) -> Output:
     """Fallback when Gauss-Newton failed: optimistix's Levenberg-Marquardt
-    from the same start with the same points (autodiff Jacobian: it runs
-    rarely, and is compiled only then)."""
+    from the same start with the same points, for one image (one lane;
+    ``out`` in lanes too; autodiff Jacobian: it runs rarely, and is compiled
+    only then)."""
     import lineax as lx
     import optimistix as optx
 
     used = out.used
 
     def residuals(p, _):
-        v, _, _, _ = evaluate(p, inp, used, opt)
+        v, _, _, _ = evaluate(p[:, None], inp, used, opt)
         return v.reshape(-1) / opt.camera.focal_length  # dimensionless: tolerances independent of the unit
 
     algo = optx.LevenbergMarquardt(rtol=1e-11, atol=1e-11, linear_solver=lx.QR())
-    sol = optx.least_squares(residuals, algo, out.start, max_steps=max_steps, throw=False)
+    sol = optx.least_squares(residuals, algo, out.start[:, 0], max_steps=max_steps, throw=False)
     code = jnp.where(jnp.all(jnp.isfinite(sol.value)), from_optimistix(sol.result), RESULTS.nonfinite)
-    fields = precision(sol.value, inp, used, opt)
-    return Output(**fields, result=code, steps=sol.stats["num_steps"], start=out.start, used=used,
+    fields = precision(sol.value[:, None], inp, used, opt)
+    return Output(**fields, result=code[None], steps=sol.stats["num_steps"][None], start=out.start, used=used,
                   stat_at=out.stat_at, critical=out.critical, retry=out.retry)

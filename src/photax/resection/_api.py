@@ -1,8 +1,9 @@
 """resect and resect_batch: one validation, the cheap path, the robust path
 for the images that need it, one finishing step.
 
-Both run the same compiled functions, ``vmap``-ed over a leading image
-axis (a single image is a batch of one): :func:`._adjust.solve_cheap` for
+Both run the same compiled functions on a batch of images carried on the
+last axis of every array (lanes, :mod:`._lanes`; a single image is a batch
+of one): :func:`._adjust.solve_cheap` for
 every image, then :func:`._robust.solve_robust` for the compacted set of
 images the cheap path hands over (``retry``): first those that only failed
 the blunder test, from their cheap solution; then, from the LMedS start,
@@ -35,15 +36,16 @@ from ._types import Inputs, Options, Output, pack, unpack
 _CHUNK = 1024  # images per call of the cheap path in resect_batch: one compilation for any batch size
 _ROBUST_CHUNK = 32  # images per call of the robust path (a few per cent of a batch go there)
 
-# The compiled solvers: one image's pytree in, a packed float vector out, vmapped over images.
+# The compiled solvers: a batch of images (lanes last, :mod:`._lanes`) in, a packed (B, L) float array out.
 # Kept on disk when a program opts in (the command line does): tracing them was 2.4 s of a warm `photax resect`.
-# XLA:CPU's classic emitters: the default (MLIR) fusion emitters took 1.45x the compile time for these
-# small, loop-heavy programs and ran a 4096-image batch 1.12x slower (measured, one process each).
-_XLA = {"xla_cpu_use_fusion_emitters": False}
-_solve_cheap = disk_cached(jax.jit(lambda inp, opt: jax.vmap(lambda i: pack(_adjust.solve_cheap(i, opt)))(inp),
-                                   compiler_options=_XLA), "resect_cheap", _XLA)
-_solve_robust = disk_cached(jax.jit(lambda inp, opt: jax.vmap(lambda i, s: pack(_robust.solve_robust(i, opt, s)))(
-    inp, _robust.starts(inp, opt)), compiler_options=_XLA), "resect_robust", _XLA)
+# XLA:CPU's classic loop emitters: the element-wise lane code compiles in about two thirds of the CPU time
+# of the default (MLIR) fusion emitters and runs as fast (measured on the cheap path, 1024 images:
+# first call 6.2-6.8 vs 4.2 s CPU, warm 24 vs 23-26 us per image).
+_COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+_solve_cheap = disk_cached(jax.jit(lambda inp, opt: pack(_adjust.solve_cheap(inp, opt)),
+                                   compiler_options=_COMPILER_OPTIONS), "resect_cheap", _COMPILER_OPTIONS)
+_solve_robust = disk_cached(jax.jit(lambda inp, opt: pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt))),
+                                    compiler_options=_COMPILER_OPTIONS), "resect_robust", _COMPILER_OPTIONS)
 
 
 class _CameraInfo(NamedTuple):
@@ -106,17 +108,21 @@ def _options(prep: Prepared, camera: FrameCamera, convention, robust, alpha, max
 
 
 def _inputs(prep: Prepared, m: int) -> Inputs:
+    """The compiled solvers' inputs: points padded to ``m``, the images last (lanes)."""
     b, n = prep.xy.shape[:2]
 
-    def pad(a, fill):
-        return np.concatenate([a, np.full((b, m - n) + a.shape[2:], fill, a.dtype)], axis=1) if m > n else a
+    def lanes(a, fill):  # (b, n, k) -> (k, m, b)
+        out = np.full((a.shape[2], m, b), fill, a.dtype)
+        out[:, :n] = a.transpose(2, 1, 0)
+        return out
 
-    return Inputs(xy=pad(prep.xy, 0.0), ground=pad(prep.local, 0.0), weight=pad(prep.weight, 1.0),
-                  ctrl=pad(~prep.is_check, False), basis=prep.basis, init=prep.init,
-                  use_init=np.full(b, prep.has_initial))
+    ctrl = np.zeros((m, b), bool)
+    ctrl[:n] = ~prep.is_check.T
+    return Inputs(xy=lanes(prep.xy, 0.0), ground=lanes(prep.local, 0.0), weight=lanes(prep.weight, 1.0), ctrl=ctrl,
+                  basis=prep.basis.transpose(1, 2, 0), init=prep.init.T, use_init=np.full(b, prep.has_initial))
 
 
-def _take(tree, idx):
+def _take(tree, idx):  # images idx of a batch-first (unpacked) tree
     return jax.tree_util.tree_map(lambda a: a[idx], tree)
 
 
@@ -125,12 +131,12 @@ def _call(fn, inp: Inputs, opt: Options, chunk: int | None, m: int) -> Output:
     padded with copies of the first image; None: one call, any size)."""
     # np.asarray of a result still being computed waited for it at a full core (measured: 0.2 ms of CPU
     # per single resection); block_until_ready waits without spinning.
-    b = len(inp.xy)
+    b = inp.use_init.shape[0]
     if chunk is None:
         return unpack(np.asarray(jax.block_until_ready(fn(inp, opt))), m)
     nb = -(-b // chunk) * chunk
     idx = np.concatenate([np.arange(b), np.zeros(nb - b, int)])
-    parts = [fn(_take(inp, idx[i : i + chunk]), opt) for i in range(0, nb, chunk)]  # dispatched asynchronously
+    parts = [fn(inp.take(idx[i : i + chunk]), opt) for i in range(0, nb, chunk)]  # dispatched asynchronously
     return unpack(np.concatenate([np.asarray(x) for x in jax.block_until_ready(parts)])[:b], m)
 
 
@@ -167,8 +173,7 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
     if quick.size:
         # Only the blunder test failed: snoop from the cheap solution, without the LMedS start (its
         # least-squares solution is the start data snooping is defined from; Baarda 1968).
-        sub = _take(inp, quick)
-        sub = dataclasses.replace(sub, init=out.params[quick], use_init=np.ones(quick.size, bool))
+        sub = dataclasses.replace(inp.take(quick), init=out.params[quick].T, use_init=np.ones(quick.size, bool))
         again = _call(_solve_robust, sub, opt, chunk, m)
         out = _merge(out, quick, again)
         # What this does not settle (failed, implausible, points behind the camera) gets the full path.
@@ -177,7 +182,7 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
         full[quick[failed]] = True
     idx = np.flatnonzero(full)
     if idx.size:
-        out = _merge(out, idx, _call(_solve_robust, _take(inp, idx), opt, chunk, m))
+        out = _merge(out, idx, _call(_solve_robust, inp.take(idx), opt, chunk, m))
     changed = np.union1d(quick, idx)
     if changed.size:  # screen again only the images the robust path changed
         again = _screen(_take_prep(prep, changed), _take(out, changed), camera)
@@ -272,13 +277,13 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
                   converged=code == RESULTS.successful, message=messages, result=code)
     common = dict(names=list(names), statistic="w" if sigma_known else "tau", pixel_size=_camera_info(camera).pixel_size)
     if batch:
-        ext = ExteriorOrientation(p[:, :3] + prep.origin, p[:, 3:], convention)
+        ext = ExteriorOrientation(*jax.device_put((p[:, :3] + prep.origin, p[:, 3:])), convention)
         return ResectionResult(exterior=ext, **fields, **common)
     one = {k: v[0] for k, v in fields.items()}
     for k in ("sigma0", "critical", "rms", "check_rms"):
         one[k] = float(one[k])
     one.update(iterations=int(one["iterations"]), converged=bool(one["converged"]), result=RESULTS(int(one["result"])))
-    ext = ExteriorOrientation(p[0, :3] + prep.origin[0], p[0, 3:], convention)
+    ext = ExteriorOrientation(*jax.device_put((p[0, :3] + prep.origin[0], p[0, 3:])), convention)  # one transfer
     return ResectionResult(exterior=ext, **one, **common)
 
 
@@ -358,8 +363,9 @@ def _resect_one(image_xy, ground_xyz, *, camera, sigma, check, names, initial, c
             return _finish(prep, out, camera, convention, batch=False, screened=screened)
         # Gauss-Newton failed: Levenberg-Marquardt from the same start, same points
         gn = _message(int(out.result[0]), int(out.steps[0]), "gn")[1]
-        lm = _adjust.levenberg_marquardt(_take(_inputs(prep, m), 0), _take(out, 0), opt, int(max_steps))
-        out = jax.tree_util.tree_map(lambda a: np.asarray(a)[None], jax.device_get(lm))
+        lanes = jax.tree_util.tree_map(lambda a: np.moveaxis(a, 0, -1), out)  # the one image as one lane
+        lm = _adjust.levenberg_marquardt(_inputs(prep, m), lanes, opt, int(max_steps))
+        out = jax.tree_util.tree_map(lambda a: np.moveaxis(np.asarray(a), -1, 0), jax.device_get(lm))
     return _finish(prep, out, camera, convention, batch=False, solver="lm", gn_failure=gn)
 
 
@@ -434,8 +440,8 @@ def resect_batch(
 ) -> ResectionResult:
     """Space resection of many images with the same number of GCPs, in one call.
 
-    The same compiled solvers as :func:`resect`, ``jax.vmap``-ed over chunks
-    of images (one compilation for any batch size): every image takes the
+    The same compiled solvers as :func:`resect`, over chunks of images
+    (one compilation for any batch size): every image takes the
     cheap path (linear start from all points, Gauss-Newton with at most
     ``max_steps`` iterations, precision, the blunder test); with
     ``robust=True`` the images whose test or adjustment fails are gathered

@@ -2,7 +2,7 @@
 
 Image points are undistorted to normalised coordinates first
 (``camera.normalised``), in OpenCV's frame (x right, y down, z forward);
-then two linear solvers, both in ``jax.numpy`` so they ``vmap``:
+then two linear solvers, in ``jax.numpy``:
 
 * a homography between the control points' best-fitting plane and the
   normalised image, decomposed with the known interior orientation (Zhang
@@ -10,11 +10,16 @@ then two linear solvers, both in ``jax.numpy`` so they ``vmap``:
 * the calibrated DLT ``x ~ [M | m] X`` with ``M`` projected onto the
   rotations (Hartley & Zisserman 2003, sec. 7.1) - for 3-D GCP sets.
 
-:func:`candidates` solves both from all control points and, for the robust
-path, from each random subset, in one batched Cholesky solve (:func:`cho_solve`).
+:func:`linear_start_lanes` solves both from all control points for a batch
+of images on the last axis (:mod:`._lanes`: the cheap path);
+:func:`candidates`, per image under ``vmap``, also from each random subset
+(the robust path's LMedS start), in one batched Cholesky solve
+(:func:`cho_solve`): the same formulas, written for each layout.
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -23,6 +28,7 @@ import numpy as np
 from .._linalg import cho_solve, inv3, nearest_rotation
 from ..camera import OPENCV_FROM_PHOTAX
 from ..rotation import angles_from_matrix_unchecked, rotation_matrix
+from . import _lanes
 
 def rotation(angles, pok):
     """world_from_camera; the convention is a traced flag (``pok``:
@@ -173,3 +179,128 @@ def linear_start(uv, ground, ctrl, basis, dlt_ok, pok):
     best = jnp.argmin(total)
     p = to_parameters(r_all[best], c_all[best], pok)
     return p, jnp.isfinite(total[best]) & jnp.all(jnp.isfinite(p))
+
+
+def _dlt_normal(xh, u, v, w):
+    """Normal equations of the DLT-type rows ``[xh, 0, -u xh]``,
+    ``[0, xh, -v xh]`` (``w`` 0 or 1: the control points; ``xh`` ``k`` ``(m, B)``
+    arrays whose last is 1, the unknown fixed to 1), from the four weighted
+    scatter sums ``sum w c xh xh^T``, ``c`` in ``(1, u, v, u^2 + v^2)``:
+    ``(3k - 1, 3k - 1, B)`` and ``(3k - 1, B)``.  (The rows' products
+    formed one by one, half of them zero, cost 4x more.)"""
+    k = len(xh)
+    pairs = [(i, j) for i in range(k) for j in range(i, k)]
+    prod = jnp.stack([w * xh[i] * xh[j] for i, j in pairs])  # (np, m, B)
+    s = jnp.sum(jnp.stack([jnp.ones_like(u), u, v, u * u + v * v])[:, None] * prod[None], axis=2)  # (4, np, B)
+    idx, sign, ridx, rsign = _dlt_layout(k)
+    flat = jnp.concatenate([s.reshape(-1, s.shape[-1]), jnp.zeros_like(s[0, :1])])  # last row: zero
+    # one gather with a constant index table (stacking 121 entries one by one cost a second of compilation)
+    return flat[idx] * sign[..., None], flat[ridx] * rsign[:, None]
+
+
+@functools.lru_cache(maxsize=4)
+def _dlt_layout(k: int):
+    """Index and sign tables of :func:`_dlt_normal`: entry ``(r, c)`` of the
+    normal matrix is ``sign * s[idx]``, ``s`` the scatter sums flattened
+    ``(c, pair)`` with a zero appended."""
+    pairs = [(i, j) for i in range(k) for j in range(i, k)]
+    at = {pq: n for n, pq in enumerate(pairs)}
+    zero = 4 * len(pairs)
+
+    def sym(c, i, j):
+        return c * len(pairs) + at[min(i, j), max(i, j)]
+
+    def entry(r, c):
+        (br, i), (bc, j) = divmod(r, k), divmod(c, k)
+        if br > bc:
+            return entry(c, r)
+        if br == bc:
+            return (sym(3, i, j), 1.0) if br == 2 else (sym(0, i, j), 1.0)
+        if bc == 2:  # blocks (0, 2) and (1, 2): -sum u xh xh^T, -sum v xh xh^T
+            return sym(1 + br, i, j), -1.0
+        return zero, 0.0
+
+    big = 3 * k - 1
+    table = [[entry(r, c) for c in range(big)] for r in range(big)]
+    rhs = [(sym(1, i, k - 1), 1.0) for i in range(k)] + [(sym(2, i, k - 1), 1.0) for i in range(k)] + [
+        (sym(3, i, k - 1), -1.0) for i in range(k - 1)]
+    return (np.array([[e[0] for e in row] for row in table]), np.array([[e[1] for e in row] for row in table]),
+            np.array([e[0] for e in rhs]), np.array([e[1] for e in rhs]))
+
+
+def _sq_errors_lanes(r_cv, c, uv, rel, ctrl):
+    """:func:`_sq_errors` per lane (``(3, 3, B)``, ``(3, B)``, ``(2, m, B)``,
+    ``(3, m, B)``): ``(m, B)``, +inf behind the camera and off the control points."""
+    p = jnp.stack([sum(r_cv[i, j][None] * (rel[j] - c[j][None]) for j in range(3)) for i in range(3)])
+    front = p[2] > 0
+    zs = jnp.where(front, p[2], 1.0)
+    e = (p[0] / zs - uv[0]) ** 2 + (p[1] / zs - uv[1]) ** 2
+    return jnp.where(front & jnp.isfinite(e) & ctrl, e, jnp.inf)
+
+
+def linear_start_lanes(inp, opt):
+    """:func:`linear_start` for a batch of lanes (``inp`` a lanes
+    :class:`._types.Inputs`; the same formulas as :func:`candidates` with
+    no subsets, written per lane): ``(6, B)`` and ``(B,)``."""
+    cam = opt.camera
+    k1, k2, k3, p1, p2 = (cam.distortion[i] for i in range(5))
+    xd = (inp.xy[0] - cam.principal_point[0]) / cam.focal_length
+    yd = (inp.xy[1] - cam.principal_point[1]) / cam.focal_length
+
+    def undistort(_, xn):  # camera.undistort_normalised's fixed point, 20 iterations
+        x, y = xn
+        r2 = x * x + y * y
+        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - x
+        dy = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - y
+        return xd - dx, yd - dy
+
+    x, y = jax.lax.fori_loop(0, 20, undistort, (xd, yd))
+    uv = jnp.stack([x, -y])  # OpenCV's frame: y down
+    wf = inp.ctrl.astype(float)
+    n_ctrl = jnp.sum(wf, axis=0)
+    # Hartley normalisation of the image points; the ground is centred.
+    mu = jnp.sum(uv * wf[None], axis=1) / n_ctrl[None]
+    su = jnp.sqrt(jnp.sum(wf * ((uv[0] - mu[0][None]) ** 2 + (uv[1] - mu[1][None]) ** 2), axis=0) / (2.0 * n_ctrl))
+    un, vn = (uv[0] - mu[0][None]) / su[None], (uv[1] - mu[1][None]) / su[None]
+    centre = jnp.sum(inp.ground * wf[None], axis=1) / n_ctrl[None]
+    rel = inp.ground - centre[:, None]
+    scale = jnp.sqrt(jnp.sum(rel * rel * wf[None], axis=(0, 1)) / n_ctrl)
+    one = jnp.ones_like(un)
+    z1, o1 = jnp.zeros_like(su), jnp.ones_like(su)
+    t_inv = jnp.stack([jnp.stack([su, z1, mu[0]]), jnp.stack([z1, su, mu[1]]), jnp.stack([z1, z1, o1])])  # undoes it
+
+    # homography (plane -> normalised image), Zhang 2000 sec. 3.1
+    a = sum(rel[i] * inp.basis[i, 0][None] for i in range(3)) / scale[None]
+    b = sum(rel[i] * inp.basis[i, 1][None] for i in range(3)) / scale[None]
+    h = _lanes.spd_solve(*_dlt_normal([a, b, one], un, vn, wf))
+    hm = _lanes.matmul3(t_inv, jnp.concatenate([h, one[:1]]).reshape(3, 3, -1))
+    lam_h = 0.5 * (jnp.sqrt(jnp.sum(hm[:, 0] ** 2, axis=0)) + jnp.sqrt(jnp.sum(hm[:, 1] ** 2, axis=0)))
+    c1, c2 = hm[:, 0] / lam_h[None], hm[:, 1] / lam_h[None]
+
+    # calibrated DLT x ~ [M | m] X, Hartley & Zisserman 2003 sec. 7.1
+    sol = _lanes.spd_solve(*_dlt_normal([rel[i] / scale[None] for i in range(3)] + [one], un, vn, wf))
+    pm = jnp.stack([sum(t_inv[i, k][None] * jnp.concatenate([sol, one[:1]]).reshape(3, 4, -1)[k] for k in range(3))
+                    for i in range(3)])  # (3, 4, B)
+    mm = pm[:, :3] / _lanes.lane(scale, 3)
+    lam_d = jnp.mean(jnp.sqrt(jnp.sum(mm * mm, axis=1)), axis=0)
+
+    # Both rotations in one polar iteration (lanes side by side).
+    b_ = un.shape[-1]
+    rot = _lanes.nearest_rotation(jnp.concatenate([jnp.stack([c1, c2, _lanes.cross(c1, c2)], axis=1), mm], axis=-1))
+    r_h = _lanes.matmul3(rot[..., :b_], jnp.swapaxes(inp.basis, 0, 1))
+    r_d = rot[..., b_:]
+    c_h = -_lanes.matmul3(jnp.swapaxes(r_h, 0, 1), hm[:, 2] * (scale / lam_h)[None])
+    c_d = -_lanes.matmul3(jnp.swapaxes(r_d, 0, 1), pm[:, 3] / lam_d[None])
+    two = lambda a: jnp.concatenate([a, a], axis=-1)  # noqa: E731
+    err = _sq_errors_lanes(jnp.concatenate([r_h, r_d], axis=-1), jnp.concatenate([c_h, c_d], axis=-1), two(uv),
+                           two(rel), two(inp.ctrl))
+    tot = jnp.sum(jnp.where(two(inp.ctrl), err, 0.0), axis=0)
+    tot_h, tot_d = tot[:b_], tot[b_:]
+    tot_h = jnp.where(jnp.isnan(tot_h), jnp.inf, tot_h)
+    tot_d = jnp.where(jnp.isnan(tot_d) | ~opt.dlt_ok, jnp.inf, tot_d)
+    dlt = tot_d < tot_h  # ties: the homography (argmin's first)
+    r_cv, c = _lanes.sel(dlt, r_d, r_h), _lanes.sel(dlt, c_d, c_h) + centre
+    world = jnp.transpose(r_cv, (2, 1, 0)) * jnp.asarray(np.diag(OPENCV_FROM_PHOTAX))[None, None]  # (B, 3, 3): R_cv^T F
+    p = jnp.concatenate([c, angles(world, opt.pok).T])
+    return p, jnp.isfinite(jnp.minimum(tot_h, tot_d)) & jnp.all(jnp.isfinite(p), axis=0)

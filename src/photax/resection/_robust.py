@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import _adjust, _linear
+from . import _adjust, _lanes, _linear
 from ._types import Inputs, Options, Output
 
 N_SUBSETS = 32  # random subsets for the robust start: P(all 32 contain a blunder) < 1e-4 at 20 % blunders
@@ -48,10 +48,10 @@ def lmeds_start(uv, ground, ctrl, basis, subset_idx, dlt_ok, pok):
 
 
 def starts(inp: Inputs, opt: Options):
-    """Starts ``(b, 6)`` for a chunk of images (leading axis ``b``): ``inp.init``
-    where ``inp.use_init``, else the LMedS start.  A chunk whose images all
-    have a start (the user's, or the cheap path's solution for images that
-    only failed the test) skips the LMedS candidates: a ``cond`` on the whole
+    """Starts ``(6, B)`` for a chunk of lanes: ``inp.init`` where
+    ``inp.use_init``, else the LMedS start.  A chunk whose images all have a
+    start (the user's, or the cheap path's solution for images that only
+    failed the test) skips the LMedS candidates: a ``cond`` on the whole
     chunk, so it is not computed and thrown away (they were three quarters
     of the robust path's time)."""
 
@@ -60,23 +60,27 @@ def starts(inp: Inputs, opt: Options):
         return lmeds_start(uv, i.ground, i.ctrl, i.basis, opt.subsets, opt.dlt_ok, opt.pok)
 
     return jax.lax.cond(jnp.all(inp.use_init), lambda: inp.init,
-                        lambda: jnp.where(inp.use_init[:, None], inp.init, jax.vmap(lmeds)(inp)))
+                        lambda: _lanes.sel(inp.use_init, inp.init, jax.vmap(lmeds)(inp.per_image()).T))
 
 
 def solve_robust(inp: Inputs, opt: Options, start) -> Output:
-    """From ``start`` (:func:`starts`): adjust - test - exclude the worst point, until the test passes."""
+    """From ``start`` ``(6, B)`` (:func:`starts`): adjust - test - exclude the
+    worst point, until the test passes; each lane snoops on its own (a lane
+    whose test passed is left as it is while the others go on)."""
+    m, b = inp.ctrl.shape
 
     def body(carry):  # adjust; test; exclude the worst point if the test fails
-        _, used, stat_at, _, _ = carry
-        out = _adjust.adjust(start, inp, used, opt)
-        go, k, stat, c = _adjust.test(out, used, opt)
-        used = jnp.where(go, used.at[k].set(False), used)
-        stat_at = jnp.where(go, stat_at.at[k].set(stat[k]), stat_at)
-        return out, used, stat_at, go, c
+        out, used, stat_at, go, c = carry
+        new = _adjust.adjust(start, inp, used, opt, active=go)
+        exclude, k, stat, c_new = _adjust.test(new, used, opt)
+        out = jax.tree_util.tree_map(lambda x, y: _lanes.sel(go, x, y), new, out)
+        hit = (jnp.arange(m)[:, None] == k[None, :]) & (go & exclude)[None]  # (m, B): the point excluded now
+        return (out, used & ~hit, jnp.where(hit[:, None, :], stat, stat_at), go & exclude,
+                jnp.where(go, c_new, c))
 
-    blank = Output.blank(inp.xy.shape[0])
-    first = {k: getattr(blank, k) for k in ("params", "sigma0", "qxx", "residuals", "redundancy", "w", "depth",
-                                              "axis", "result", "steps")}
-    carry = (first, inp.ctrl, jnp.full(inp.xy.shape, jnp.nan), jnp.array(True), jnp.array(0.0))
-    out, used, stat_at, _, c = jax.lax.while_loop(lambda s: s[3], body, carry)
-    return Output(**out, start=start, used=used, stat_at=stat_at, critical=c, retry=jnp.array(0))
+    blank = Output.blank(m)
+    first = {k: jnp.zeros(getattr(blank, k).shape + (b,), getattr(blank, k).dtype)
+             for k in ("params", "sigma0", "qxx", "residuals", "redundancy", "w", "depth", "axis", "result", "steps")}
+    carry = (first, inp.ctrl, jnp.full((m, 2, b), jnp.nan), jnp.ones(b, bool), jnp.zeros(b))
+    out, used, stat_at, _, c = jax.lax.while_loop(lambda s: jnp.any(s[3]), body, carry)
+    return Output(**out, start=start, used=used, stat_at=stat_at, critical=c, retry=jnp.zeros(b, int))

@@ -5,14 +5,16 @@ optimistix passes its ``Solution`` and solver states: adding an option or an
 output means adding a field here and setting it where the module is built
 (:func:`photax.resection._api._options`, the solver that fills it).
 
-Shapes are per image; :func:`photax.resection._api` ``vmap``-s over a leading
-batch axis of :class:`Inputs` (options are shared by the batch).
+Inside the compiled code every array carries the batch of images as its
+last axis (lanes, :mod:`._lanes`); options are shared by the batch.
 ``m`` is the point count padded to a bucket (16, 32, ...).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -24,15 +26,27 @@ from ..camera import FrameCamera
 
 
 class Inputs(eqx.Module):
-    """One image's data, ground reduced to the control points' centroid."""
+    """A batch of ``B`` images' data, the images on the last axis (lanes,
+    :mod:`._lanes`), ground reduced to the control points' centroid."""
 
-    xy: Array  # (m, 2) image-plane coordinates (padding: 0)
-    ground: Array  # (m, 3) ground minus origin, metres
-    weight: Array  # (m, 2) 1 / sigma^2 (padding: 1)
-    ctrl: Array  # (m,) bool: a control point (not a check point, not padding)
-    basis: Array  # (3, 3) principal axes of the control points, last = plane normal
-    init: Array  # (6,) the user's start (C - origin, angles), or zeros
-    use_init: Array  # () bool: start from ``init`` instead of the linear start
+    xy: Array  # (2, m, B) image-plane coordinates (padding: 0)
+    ground: Array  # (3, m, B) ground minus origin, metres
+    weight: Array  # (2, m, B) 1 / sigma^2 (padding: 1)
+    ctrl: Array  # (m, B) bool: a control point (not a check point, not padding)
+    basis: Array  # (3, 3, B) principal axes of the control points (columns), last = plane normal
+    init: Array  # (6, B) the user's start (C - origin, angles), or zeros
+    use_init: Array  # (B,) bool: start from ``init`` instead of the linear start
+
+    def per_image(self) -> "Inputs":
+        """The image axis first, each image in its natural layout (``xy`` ``(B, m, 2)``,
+        ``basis`` ``(B, 3, 3)``, ...): for per-image code under ``vmap``."""
+        t = functools.partial(jnp.transpose, axes=(2, 1, 0))
+        return Inputs(xy=t(self.xy), ground=t(self.ground), weight=t(self.weight), ctrl=self.ctrl.T,
+                      basis=jnp.transpose(self.basis, (2, 0, 1)), init=self.init.T, use_init=self.use_init)
+
+    def take(self, idx) -> "Inputs":
+        """The lanes ``idx`` (numpy or JAX)."""
+        return jax.tree_util.tree_map(lambda a: a[..., idx], self)
 
 
 class Options(eqx.Module):
@@ -54,7 +68,10 @@ class Options(eqx.Module):
 
 
 class Output(eqx.Module):
-    """What the compiled solver returns for one image (local coordinates)."""
+    """What the compiled solver returns for each image (local coordinates):
+    the shapes below per image, with the lanes last inside the compiled code
+    (``params`` ``(6, B)``) and the images first once :func:`pack`-ed and
+    :func:`unpack`-ed (``params`` ``(B, 6)``)."""
 
     params: Array  # (6,) (C - origin, angles), angles wrapped to (-pi, pi]
     start: Array  # (6,) the start the adjustment ran from
@@ -82,23 +99,54 @@ class Output(eqx.Module):
 
 
 def pack(out: Output) -> Array:
-    """All leaves as one float64 vector (per image): one device-to-host copy instead of 15."""
-    return jnp.concatenate([jnp.ravel(x).astype(float) for x in jax.tree_util.tree_leaves(out)])
+    """All leaves (lanes last) as one float64 ``(B, L)`` array, the images first: one
+    device-to-host copy instead of 15."""
+    leaves = jax.tree_util.tree_leaves(out)
+    b = leaves[0].shape[-1]
+    return jnp.concatenate([jnp.moveaxis(x, -1, 0).reshape(b, -1).astype(float) for x in leaves], axis=1)
+
+
+class HostOutput(NamedTuple):
+    """:class:`Output` on the host, the images first (numpy leaves): a plain
+    tuple, whose attributes cost nothing to read (an ``equinox.Module``'s
+    cost a microsecond each, and a single resection reads about forty).
+    Its fields are :class:`Output`'s, in the same order."""
+
+    params: np.ndarray
+    start: np.ndarray
+    sigma0: np.ndarray
+    qxx: np.ndarray
+    residuals: np.ndarray
+    redundancy: np.ndarray
+    w: np.ndarray
+    depth: np.ndarray
+    axis: np.ndarray
+    result: np.ndarray
+    steps: np.ndarray
+    used: np.ndarray
+    stat_at: np.ndarray
+    critical: np.ndarray
+    retry: np.ndarray
 
 
 @functools.lru_cache(maxsize=32)
 def _layout(m: int):
-    leaves, treedef = jax.tree_util.tree_flatten(jax.eval_shape(lambda: Output.blank(m)))
-    return [(x.shape, x.dtype) for x in leaves], treedef
-
-
-def unpack(flat: np.ndarray, m: int) -> Output:
-    """Inverse of :func:`pack` for any leading batch axes; numpy leaves."""
-    layout, treedef = _layout(m)
-    leaves, i = [], 0
-    for shape, dtype in layout:
-        size = int(np.prod(shape))
-        v = flat[..., i : i + size].reshape(flat.shape[:-1] + shape)
-        leaves.append(v > 0.5 if dtype == bool else (v.astype(dtype) if dtype != v.dtype else v))
+    blank = Output.blank(m)
+    names = [f.name for f in dataclasses.fields(Output)]
+    assert tuple(names) == HostOutput._fields, "HostOutput must list Output's fields in order"
+    layout, i = [], 0
+    for name in names:
+        x = getattr(blank, name)
+        size = int(np.prod(x.shape))
+        layout.append((slice(i, i + size), x.shape, x.dtype))
         i += size
-    return jax.tree_util.tree_unflatten(treedef, leaves)
+    return layout
+
+
+def unpack(flat: np.ndarray, m: int) -> HostOutput:
+    """Inverse of :func:`pack` for any leading batch axes; numpy leaves."""
+    leaves = []
+    for where, shape, dtype in _layout(m):
+        v = flat[..., where].reshape(flat.shape[:-1] + shape)
+        leaves.append(v > 0.5 if dtype == bool else (v.astype(dtype) if dtype != v.dtype else v))
+    return HostOutput(*leaves)
