@@ -42,10 +42,15 @@ _ROBUST_CHUNK = 32  # images per call of the robust path (a few per cent of a ba
 # of the default (MLIR) fusion emitters and runs as fast (measured on the cheap path, 1024 images:
 # first call 6.2-6.8 vs 4.2 s CPU, warm 24 vs 23-26 us per image).
 _COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
+# The robust program runs for the few images the cheap path hands over, but every first run (a command
+# with an empty cache, a notebook) compiles it: at -O0 it compiles in 5.4 instead of 8.1 CPU s (first
+# resect_batch, 2,048 images, a quarter with a blunder) and that batch runs 1.2x longer warm (79 vs 65 ms);
+# a batch with a few per cent of such images loses ~1 %.
+_ROBUST_OPTIONS = dict(_COMPILER_OPTIONS, xla_backend_optimization_level=0)
 _solve_cheap = disk_cached(jax.jit(lambda inp, opt: pack(_adjust.solve_cheap(inp, opt)),
                                    compiler_options=_COMPILER_OPTIONS), "resect_cheap", _COMPILER_OPTIONS)
 _solve_robust = disk_cached(jax.jit(lambda inp, opt: pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt))),
-                                    compiler_options=_COMPILER_OPTIONS), "resect_robust", _COMPILER_OPTIONS)
+                                    compiler_options=_ROBUST_OPTIONS), "resect_robust", _ROBUST_OPTIONS)
 
 
 class _CameraInfo(NamedTuple):
