@@ -2,7 +2,7 @@
 
 Run:  python benchmarks/bench_bundle.py [--repeat 3] [--scipy-repeat 1]
       python benchmarks/bench_bundle.py --grid 10 20 30 [--ceres-up-to 30] [--seed 0]
-      python benchmarks/bench_bundle.py --grid 100 --ceres-up-to 100     (10,000 images; hours)
+      python benchmarks/bench_bundle.py --grid 100 --ceres-up-to 50      (10,000 images; the block is generated in ~20 s)
       python benchmarks/bench_bundle.py --report       (table and plot from the saved rows)
 
 With ``--grid``, synthetic blocks of ``g x g`` images (:func:`synthetic_bal`,
