@@ -167,3 +167,20 @@ def test_block_visibility_matches_projecting_every_point_into_every_image():
     np.testing.assert_array_equal(obs_i, np.concatenate(ref_i))
     np.testing.assert_array_equal(obs_p, np.concatenate(ref_p))
     np.testing.assert_allclose(obs_xy, np.concatenate(ref_xy), rtol=0, atol=1e-9)
+
+
+def test_chunked_linearisation_matches_whole():
+    """Large problems are linearised in chunks of observations (the last one
+    overlapping the one before): the same normal-equation blocks as the
+    whole-problem form, with a Huber loss so the corrector is exercised."""
+    from photax.bundle._linearise import _linearise_chunked
+
+    _, s, n_c, _, _, _, _, _ = _system("shared_camera")
+    problem = _shared_camera()
+    state = _start_state(problem, problem.analyse(None)[3])
+    loss, scale = jnp.asarray(1), jnp.asarray(1.0)
+    whole = _linearise(state, s, loss, scale, n_c=n_c)
+    k = s.obs_image.shape[0]
+    chunked = jax.jit(_linearise_chunked, static_argnums=(4, 5))(state, s, loss, scale, n_c, k // 3 + 7)
+    for name, a, b in zip(whole._fields, whole, chunked):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(a))), err_msg=name)

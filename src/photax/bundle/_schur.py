@@ -17,36 +17,55 @@ from ._structure import _State, _Structure
 
 
 
-def _schur_parts(lin: _Lin, s: _Structure, lam: Array, n_c: int):
-    """Damped ``V^-1``, ``Y^T = V^-1 W^T`` per observation ``(k, 3, w)`` and
-    the reduced right-hand side ``g_c - W V^-1 g_p`` (in unknown order)."""
-    n_img = lin.u_img.shape[0]
+def _damped_vinv(lin: _Lin, s: _Structure, lam: Array):
+    """``(n_pts, 3, 3)`` damped ``V^-1`` (fixed points: identity)."""
     v = lin.v + (lam * lin.d_p * s.mask_p + (1.0 - s.mask_p))[:, :, None] * jnp.eye(3)[None, :, :]
-    vinv = jax.vmap(inv3)(v)  # (n, 3, 3) by the adjugate: elementwise, faster than batched LU on CPU
-    vo = vinv[s.obs_point]
-    # Unrolled over the 3-long axis: faster than a batched dot of tiny matrices on XLA CPU.
-    yt = sum(vo[:, :, j, None] * lin.wt[:, None, j, :] for j in range(3))
-    vg = sum(vo[:, :, j] * lin.g_p[s.obs_point][:, j, None] for j in range(3))  # V^-1 g_p per observation
+    return jax.vmap(inv3)(v)  # by the adjugate: elementwise, faster than batched LU on CPU
+
+
+def _yt_of(vinv_obs: Array, wt: Array) -> Array:
+    """``Y^T = V^-1 W^T`` ``(m, 3, w)`` of observations, from their points'
+    ``V^-1`` ``(m, 3, 3)`` and ``W^T`` ``(m, 3, w)``; unrolled over the
+    3-long axis: faster than a batched dot of tiny matrices on XLA CPU."""
+    return sum(vinv_obs[:, :, j, None] * wt[:, None, j, :] for j in range(3))
+
+
+def _reduced_rhs(lin: _Lin, s: _Structure, vinv: Array, n_c: int):
+    """The reduced right-hand side ``g_c - W V^-1 g_p`` (in unknown order)."""
+    n_img = lin.u_img.shape[0]
+    vg = jnp.einsum("pij,pj->pi", vinv, lin.g_p)[s.obs_point]  # V^-1 g_p per observation
     rhs_img = lin.g_img - jax.ops.segment_sum(jnp.sum(lin.wt * vg[:, :, None], axis=1), s.obs_image, num_segments=n_img)
-    rhs = jnp.zeros(n_c).at[s.image_ext.ravel()].add(rhs_img.ravel())
-    return vinv, yt, rhs
+    return jnp.zeros(n_c).at[s.image_ext.ravel()].add(rhs_img.ravel())
 
 
 def _schur_blocks(lin: _Lin, s: _Structure, lam: Array, n_c: int):
     """The blocks ``- sum Y_a W_b^T`` of the Schur complement, one per key
     ``(key_a, key_b)`` (see :func:`_reduced_system`), ``(n_keys, w, w)``,
-    the reduced right-hand side and the damped ``V^-1``."""
-    vinv, yt, rhs = _schur_parts(lin, s, lam, n_c)
+    the reduced right-hand side and the damped ``V^-1``.
+
+    Memory: nothing per observation or per chunk is stored beyond ``W^T``
+    itself.  ``Y^T = V^-1 W^T`` is formed piece by piece inside the loop
+    over the pieces of chunks (each observation's a few times, once per
+    pair it starts: cheap beside the ``w x w`` products), and each piece's
+    products are added into the blocks at once (a scan), instead of
+    stacking all chunks' products and summing them afterwards -- at 10,000
+    images those two arrays were 1.7 and ~1.6 GB."""
+    vinv = _damped_vinv(lin, s, lam)
+    rhs = _reduced_rhs(lin, s, vinv, n_c)
     n_pieces, piece, _ = s.chunk_a.shape
-    w = yt.shape[2]
-    take = functools.partial(jnp.take, axis=0, mode="fill", fill_value=0.0)  # index k pads the chunks
+    w = lin.wt.shape[2]
+    take = functools.partial(jnp.take, axis=0, mode="fill", fill_value=0)  # index k pads the chunks: zeros
+    keys = s.chunk_key.reshape(n_pieces, piece)
 
-    def products(idx):  # (piece, w, w): Y_a W_b^T summed over each chunk
-        ya, wb = take(yt, idx[0]).reshape(piece, -1, w), take(lin.wt, idx[1]).reshape(piece, -1, w)
-        return jax.lax.dot_general(ya, wb, (((1,), (1,)), ((0,), (0,))))
+    def add_piece(blocks, x):  # Y_a W_b^T summed over each chunk of the piece, added to its block
+        a, b, key = x
+        ya = _yt_of(take(vinv, take(s.obs_point, a.ravel())), take(lin.wt, a.ravel())).reshape(piece, -1, w)
+        wb = take(lin.wt, b.ravel()).reshape(piece, -1, w)
+        prod = jax.lax.dot_general(ya, wb, (((1,), (1,)), ((0,), (0,))))
+        return blocks.at[key].add(prod, indices_are_sorted=True), None
 
-    prod = jax.lax.map(products, (s.chunk_a, s.chunk_b)).reshape(n_pieces * piece, w, w)
-    blocks = jax.ops.segment_sum(prod, s.chunk_key, num_segments=s.key_a.shape[0], indices_are_sorted=True)
+    blocks0 = jnp.zeros((s.key_a.shape[0], w, w))
+    blocks, _ = jax.lax.scan(add_piece, blocks0, (s.chunk_a, s.chunk_b, keys))
     return blocks, rhs, vinv
 
 
@@ -125,7 +144,9 @@ def _solve_cg(lin: _Lin, s: _Structure, lam: Array, n_c: int):
     over its private unknowns (exterior orientation, intrinsics of a camera
     of its own), and of the diagonal for the unknowns shared by several
     images (:mod:`._sparse`'s border)."""
-    vinv, yt, rhs = _schur_parts(lin, s, lam, n_c)
+    vinv = _damped_vinv(lin, s, lam)
+    rhs = _reduced_rhs(lin, s, vinv, n_c)
+    yt = _yt_of(vinv[s.obs_point], lin.wt)  # (k, 3, w): the memory fallback stores it (only this path)
     ext, n_img, n_pts, wo = s.image_ext, lin.u_img.shape[0], lin.v.shape[0], jnp.swapaxes(lin.wt, 1, 2)
     w = ext.shape[1]
     damp = lam * lin.d_c * s.mask_c + (1.0 - s.mask_c)
