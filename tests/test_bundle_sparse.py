@@ -184,3 +184,15 @@ def test_chunked_linearisation_matches_whole():
     chunked = jax.jit(_linearise_chunked, static_argnums=(4, 5))(state, s, loss, scale, n_c, k // 3 + 7)
     for name, a, b in zip(whole._fields, whole, chunked):
         np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(a))), err_msg=name)
+
+
+def test_streamed_schur_blocks_match_stored():
+    """Large problems form ``Y^T`` piece by piece and add each piece's
+    products as they come: the same blocks of ``S`` as forming it whole."""
+    from photax.bundle._schur import _schur_blocks
+
+    _, s, n_c, lin, lam, _, _, _ = _system("shared_camera")
+    f = jax.jit(_schur_blocks, static_argnames=("n_c", "stream"))
+    stored, streamed = f(lin, s, lam, n_c, stream=False), f(lin, s, lam, n_c, stream=True)
+    for a, b in zip(stored, streamed):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(a))))

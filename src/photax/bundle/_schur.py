@@ -33,28 +33,48 @@ def _yt_of(vinv_obs: Array, wt: Array) -> Array:
 def _reduced_rhs(lin: _Lin, s: _Structure, vinv: Array, n_c: int):
     """The reduced right-hand side ``g_c - W V^-1 g_p`` (in unknown order)."""
     n_img = lin.u_img.shape[0]
-    vg = jnp.einsum("pij,pj->pi", vinv, lin.g_p)[s.obs_point]  # V^-1 g_p per observation
+    vg = sum(vinv[:, :, j] * lin.g_p[:, j, None] for j in range(3))[s.obs_point]  # V^-1 g_p per observation (unrolled: see _yt_of)
     rhs_img = lin.g_img - jax.ops.segment_sum(jnp.sum(lin.wt * vg[:, :, None], axis=1), s.obs_image, num_segments=n_img)
     return jnp.zeros(n_c).at[s.image_ext.ravel()].add(rhs_img.ravel())
 
 
-def _schur_blocks(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+#: Bytes of a stored ``Y^T`` ``(k, 3, w)`` up to which :func:`_schur_blocks`
+#: forms it once and sums the products of all chunks in one batched pass
+#: (fastest: problem-49-7776's trial step is 10 % slower streamed); above
+#: it, ``Y^T`` is formed piece by piece and the products are added as they
+#: come (memory: at 10,000 images ``Y^T`` alone is 1.7 GB, the stacked
+#: products ~1.6 GB).
+SCHUR_STORE_BYTES = 1 << 28
+
+
+def _schur_blocks(lin: _Lin, s: _Structure, lam: Array, n_c: int, stream: bool | None = None):
     """The blocks ``- sum Y_a W_b^T`` of the Schur complement, one per key
     ``(key_a, key_b)`` (see :func:`_reduced_system`), ``(n_keys, w, w)``,
     the reduced right-hand side and the damped ``V^-1``.
 
-    Memory: nothing per observation or per chunk is stored beyond ``W^T``
-    itself.  ``Y^T = V^-1 W^T`` is formed piece by piece inside the loop
-    over the pieces of chunks (each observation's a few times, once per
-    pair it starts: cheap beside the ``w x w`` products), and each piece's
-    products are added into the blocks at once (a scan), instead of
-    stacking all chunks' products and summing them afterwards -- at 10,000
-    images those two arrays were 1.7 and ~1.6 GB."""
+    ``stream`` (default: when ``Y^T`` would pass :data:`SCHUR_STORE_BYTES`):
+    nothing per observation or per chunk is stored beyond ``W^T`` itself:
+    ``Y^T = V^-1 W^T`` is formed piece by piece inside the loop over the
+    pieces of chunks (each observation's a few times, once per pair it
+    starts: cheap beside the ``w x w`` products), and each piece's products
+    are added into the blocks at once (a scan)."""
     vinv = _damped_vinv(lin, s, lam)
     rhs = _reduced_rhs(lin, s, vinv, n_c)
     n_pieces, piece, _ = s.chunk_a.shape
-    w = lin.wt.shape[2]
+    k, _, w = lin.wt.shape
     take = functools.partial(jnp.take, axis=0, mode="fill", fill_value=0)  # index k pads the chunks: zeros
+    if stream is None:
+        stream = 8 * k * 3 * w > SCHUR_STORE_BYTES
+    if not stream:
+        yt = _yt_of(vinv[s.obs_point], lin.wt)
+
+        def products(idx):  # (piece, w, w): Y_a W_b^T summed over each chunk
+            ya, wb = take(yt, idx[0]).reshape(piece, -1, w), take(lin.wt, idx[1]).reshape(piece, -1, w)
+            return jax.lax.dot_general(ya, wb, (((1,), (1,)), ((0,), (0,))))
+
+        prod = jax.lax.map(products, (s.chunk_a, s.chunk_b)).reshape(n_pieces * piece, w, w)
+        blocks = jax.ops.segment_sum(prod, s.chunk_key, num_segments=s.key_a.shape[0], indices_are_sorted=True)
+        return blocks, rhs, vinv
     keys = s.chunk_key.reshape(n_pieces, piece)
 
     def add_piece(blocks, x):  # Y_a W_b^T summed over each chunk of the piece, added to its block
