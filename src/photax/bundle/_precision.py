@@ -13,7 +13,7 @@ from jax import Array
 from ..rotation import angles_from_matrix_unchecked, axis_angle_to_matrix
 from ._linearise import _Lin
 from ._schur import _band_shape, _reduced_band, _reduced_system, _yt_of
-from ._sparse import band_cholesky, band_selected_inverse, flat_index
+from ._sparse import band_cholesky, band_selected_inverse, band_take, flat_index
 from ._structure import _Structure
 
 @functools.partial(jax.jit, static_argnames=("n_c",))
@@ -54,11 +54,10 @@ def _covariances_band(lin: _Lin, s: _Structure, n_c: int):
     f = band_cholesky(m)
     ok = jnp.all(jnp.isfinite(f.d)) & jnp.all(jnp.isfinite(f.e))
     z = band_selected_inverse(f)
-    zflat = jnp.concatenate([z.d.ravel(), z.b.ravel(), z.c.ravel(), z.e.ravel()])
     mask = s.mask_c
 
     def q(r, c):  # entries (r, c) of the reduced-camera cofactor matrix, fixed unknowns 0
-        return zflat[flat_index(s.band_chunk, s.band_offset, r, c, *shape, lower=False)] * mask[r] * mask[c]
+        return band_take(z, flat_index(s.band_chunk, s.band_offset, r, c, *shape, lower=False)) * mask[r] * mask[c]
 
     ext = s.image_ext
     q_img = q(ext[:, :, None], ext[:, None, :])

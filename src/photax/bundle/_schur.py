@@ -12,7 +12,7 @@ from jax import Array
 from .._linalg import inv3
 from ..rotation import axis_angle_to_matrix
 from ._linearise import _cost, _Lin
-from ._sparse import band_cholesky, band_solve, flat_index, unflatten
+from ._sparse import Band, band_add, band_cholesky, band_solve, flat_index
 from ._structure import _State, _Structure
 
 
@@ -130,18 +130,18 @@ def _reduced_band(lin: _Lin, s: _Structure, lam: Array, n_c: int, diag: Array):
     blocks, rhs, vinv = _schur_blocks(lin, s, lam, n_c)
     shape = _band_shape(s)
     n_chunks, cw, n_b = shape
-    flat = [jnp.zeros(2 * n_chunks * cw * cw + n_chunks * n_b * cw + n_b * n_b)]
+    pad = (s.band_perm == n_c).astype(float)  # padding slots: 1 on the diagonal
+    m = [Band(pad[:, :, None] * jnp.eye(cw)[None], jnp.zeros((n_chunks, cw, cw)), jnp.zeros((n_chunks, n_b, cw)),
+              jnp.zeros((n_b, n_b)))]  # fmt: skip
 
-    def put(rows, cols, values):
+    def put(rows, cols, values):  # scattered into each array in place: no concatenated copy
         idx = flat_index(s.band_chunk, s.band_offset, rows, cols, *shape, lower=True)
-        flat[0] = flat[0].at[idx].add(values, mode="drop")
+        m[0] = band_add(m[0], jnp.broadcast_to(idx, values.shape), values)
 
     _scatter_schur(put, lin, s, blocks)
     every = jnp.arange(n_c)
     put(every, every, diag)
-    m = unflatten(flat[0], *shape)
-    pad = (s.band_perm == n_c).astype(float)
-    return m._replace(d=m.d + pad[:, :, None] * jnp.eye(cw)[None]), rhs, vinv
+    return m[0], rhs, vinv
 
 
 def _solve_band(lin: _Lin, s: _Structure, lam: Array, n_c: int):
