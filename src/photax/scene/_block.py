@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..camera import FrameCamera
-from ..collinearity import ExteriorOrientation, project
+from ..collinearity import ExteriorOrientation
 
 
 @dataclasses.dataclass(frozen=True)
@@ -172,7 +172,7 @@ def _visible(xyz, n_fixed, n_tie, col_x, row_y, reach, eo, cam, half_w, half_h):
     wy = int(np.floor(2 * reach / step_y)) + 2 if n_row > 1 else 1
     pos, rot = np.asarray(eo.position), np.asarray(eo.rotation)
     project_pairs = _pair_projector(cam)
-    out_i, out_p, out_xy = [], [], []
+    out_i, out_p, out_xy = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [np.zeros((0, 2))]
 
     def pairs(first, last):
         p = xyz[first:last]
