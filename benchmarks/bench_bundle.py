@@ -458,6 +458,7 @@ def growth_report() -> None:
     n = [r["images"] for r in rows]
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.6))
     ax[0].loglog(n, [r["photax_s"] for r in rows], "o-", label="photax (banded Schur)")
+    ax[0].loglog(n, [r["photax_s"] / r["photax_iterations"] for r in rows], "o:", label="photax per iteration")
     ax[0].loglog(n, [r["precision_s"] for r in rows], "s--", label="photax precision")
     ce = [r for r in rows if "ceres_s" in r]
     if ce:
