@@ -449,7 +449,9 @@ def growth_report() -> None:
               "Where photax was re-run without Ceres, Ceres' figures (and the ratio) are those measured earlier "
               "on the same block (its JSON's `ceres_date`)."]  # fmt: skip
     lines += [f"Measured: {r['images']} images {r['date'][:16]} UTC ({r['command']})"
-              + ("" if "ceres_s" in r else "; Ceres not run at this size") for r in rows]  # fmt: skip
+              + ("; Ceres not run at this size" if "ceres_s" not in r else
+                 f"; Ceres measured separately {r['ceres_date'][:16]} UTC at load {r['ceres_load_average'][0]:.1f}, "
+                 "so its ratio mixes two loads" if "ceres_date" in r else "") for r in rows]  # fmt: skip
     lines += ["At 10,000 images, before the memory cuts of docs/architecture.md (bundle), the OOM killer ended photax at 14 GB in "
               "its 8th iteration (`bench_bundle_10000_oom.log`); the row above is the run after them "
               "(`bench_bundle_10000.log`: one line per iteration, the process's RSS by /usr/bin/time)."]  # fmt: skip
