@@ -140,3 +140,59 @@ def test_band_path_is_pure_jax(system):
     _, s, n_c, lin, lam, *_ = system
     jaxpr = str(jax.make_jaxpr(lambda lin, s, lam: _solve_band(lin, s, lam, n_c))(lin, s, lam))
     assert "callback" not in jaxpr and "cholesky" in jaxpr and "scan" in jaxpr
+
+
+def test_block_visibility_matches_projecting_every_point_into_every_image():
+    """The generator's vectorised visibility (only the images within reach of
+    each point are projected) finds exactly the observations of projecting
+    every point into every image with :func:`photax.collinearity.project`."""
+    from photax.collinearity import ExteriorOrientation, project
+    from photax.scene._block import _visible
+
+    rng = np.random.default_rng(3)
+    cam = photax.FrameCamera.from_pixels(3000.0, (4000, 3000))
+    col_x, row_y = 240.0 * np.arange(4), 360.0 * np.arange(3)
+    n = 3000
+    xyz = np.column_stack([rng.uniform(-600, 1300, n), rng.uniform(-500, 1200, n), rng.uniform(0, 150, n)])
+    pos = np.array([[x, y, 675.0] for y in row_y for x in col_x])
+    eo = ExteriorOrientation(pos, rng.uniform(-0.035, 0.035, (len(pos), 3)), "omega-phi-kappa")
+    reach = 750.0 * (0.5 * np.hypot(4000, 3000) / 3000.0 + np.tan(np.radians(2.0)) + 0.1)
+    obs_i, obs_p, obs_xy = _visible(xyz, 1000, n, col_x, row_y, reach, eo, cam, 1920.0, 1440.0)  # all points
+    ref_i, ref_p, ref_xy = [], [], []
+    for i in range(len(pos)):
+        xy = np.asarray(project(xyz, ExteriorOrientation(pos[i], eo.angles[i], "omega-phi-kappa"), cam))
+        inside = np.flatnonzero((np.abs(xy[:, 0]) < 1920.0) & (np.abs(xy[:, 1]) < 1440.0))
+        ref_i.append(np.full(len(inside), i)), ref_p.append(inside), ref_xy.append(xy[inside])
+    assert len(obs_i) > 1.5 * n
+    np.testing.assert_array_equal(obs_i, np.concatenate(ref_i))
+    np.testing.assert_array_equal(obs_p, np.concatenate(ref_p))
+    np.testing.assert_allclose(obs_xy, np.concatenate(ref_xy), rtol=0, atol=1e-9)
+
+
+def test_chunked_linearisation_matches_whole():
+    """Large problems are linearised in chunks of observations (the last one
+    overlapping the one before): the same normal-equation blocks as the
+    whole-problem form, with a Huber loss so the corrector is exercised."""
+    from photax.bundle._linearise import _linearise_chunked
+
+    _, s, n_c, _, _, _, _, _ = _system("shared_camera")
+    problem = _shared_camera()
+    state = _start_state(problem, problem.analyse(None)[3])
+    loss, scale = jnp.asarray(1), jnp.asarray(1.0)
+    whole = _linearise(state, s, loss, scale, n_c=n_c)
+    k = s.obs_image.shape[0]
+    chunked = jax.jit(_linearise_chunked, static_argnums=(4, 5))(state, s, loss, scale, n_c, k // 3 + 7)
+    for name, a, b in zip(whole._fields, whole, chunked):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(a))), err_msg=name)
+
+
+def test_streamed_schur_blocks_match_stored():
+    """Large problems form ``Y^T`` piece by piece and add each piece's
+    products as they come: the same blocks of ``S`` as forming it whole."""
+    from photax.bundle._schur import _schur_blocks
+
+    _, s, n_c, lin, lam, _, _, _ = _system("shared_camera")
+    f = jax.jit(_schur_blocks, static_argnames=("n_c", "stream"))
+    stored, streamed = f(lin, s, lam, n_c, stream=False), f(lin, s, lam, n_c, stream=True)
+    for a, b in zip(stored, streamed):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(a))))

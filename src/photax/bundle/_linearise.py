@@ -82,15 +82,14 @@ class _Lin(NamedTuple):
     gmax: Array  # max |g|
 
 
-@functools.partial(jax.jit, static_argnames=("n_c",))
-def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int) -> _Lin:
-    n_img, n_pts = state.centre.shape[0], state.xyz.shape[0]
-    w = 6 + s.active.shape[0]
+def _observation_terms(state: _State, s: _Structure, loss: Array, scale: Array):
+    """Per-observation terms of the normal equations for the observations of
+    ``s``: residuals ``r0`` ``(m, 2)``, ``rho`` and ``rho'`` ``(m,)``, the
+    corrected Jacobians ``jc`` ``(m, 2, w)`` and ``jp`` ``(m, 2, 3)``, and the
+    gradient contributions ``(m, w)``, ``(m, 3)``."""
     proj, jc, jp = _project_obs(state, s, jacobians=True)
     r0 = (proj - s.obs_xy) / s.obs_sigma
     rho, weight, rho2 = _rho(jnp.sum(r0 * r0, axis=1), loss, scale)
-    rp = _prior_residuals(state, s)
-    cost = 0.5 * jnp.sum(rho) + 0.5 * jnp.sum(rp * rp)
     sqrt_rho1, alpha_sq = _corrector(r0, weight, rho2)
     # Corrected Jacobian sqrt(rho') (I - alpha r r^T / s) J / sigma (see
     # _corrector); the gradient rho' J^T r / sigma is formed from J itself,
@@ -105,6 +104,43 @@ def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int
 
     jc, g_obs_c = correct(jc, s.mask_c[s.image_ext[s.obs_image]])
     jp, g_obs_p = correct(jp, s.mask_p[s.obs_point])
+    return r0, rho, weight, jc, jp, g_obs_c, g_obs_p
+
+
+def _finish_lin(state, s, n_c, cost_obs, r0, weight, wt, u_img, v, g_img, g_p) -> _Lin:
+    """The :class:`_Lin` from the sums over observations: priors, ``g_c``,
+    the damping diagonal and ``max |g|``."""
+    rp = _prior_residuals(state, s)
+    pw = s.prior_w * s.mask_p
+    v = v + pw[:, :, None] * jnp.eye(3)[None, :, :]
+    g_p = g_p + pw * (state.xyz - s.prior_xyz)
+    flat = s.image_ext.ravel()
+    g_c = jnp.zeros(n_c).at[flat].add(g_img.ravel())
+    # LM damping D: the diagonal of the normal matrix J~^T J~ (Ceres).
+    d_c = jnp.zeros(n_c).at[flat].add(jnp.diagonal(u_img, axis1=1, axis2=2).ravel())
+    d_p = jnp.diagonal(v, axis1=1, axis2=2)
+    clamp = functools.partial(jnp.clip, min=1e-6, max=1e32)
+    gmax = jnp.maximum(jnp.max(jnp.abs(g_c), initial=0.0), jnp.max(jnp.abs(g_p), initial=0.0))
+    cost = cost_obs + 0.5 * jnp.sum(rp * rp)
+    return _Lin(cost, r0, weight, wt, u_img, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax)
+
+
+#: Observations beyond which :func:`_linearise` runs in chunks of
+#: :data:`LIN_CHUNK` (:func:`_linearise_chunked`): its whole-problem form
+#: holds several ``(k, 2, w)`` Jacobian copies at once (1.7 GB of transients
+#: at 2,500 images, ~7 GB at 10,000); below it the whole form is kept for its
+#: speed (``U`` by GEMMs over image chunks).
+LIN_WHOLE = 1 << 20
+LIN_CHUNK = 1 << 16
+
+
+@functools.partial(jax.jit, static_argnames=("n_c",))
+def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int) -> _Lin:
+    if s.obs_image.shape[0] > LIN_WHOLE:
+        return _linearise_chunked(state, s, loss, scale, n_c, LIN_CHUNK)
+    n_img, n_pts = state.centre.shape[0], state.xyz.shape[0]
+    w = 6 + s.active.shape[0]
+    r0, rho, weight, jc, jp, g_obs_c, g_obs_p = _observation_terms(state, s, loss, scale)
     seg = functools.partial(jax.ops.segment_sum, num_segments=n_img)
     segp = functools.partial(jax.ops.segment_sum, num_segments=n_pts)
     jct, jpt = jnp.swapaxes(jc, 1, 2), jnp.swapaxes(jp, 1, 2)
@@ -113,14 +149,43 @@ def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int
     u_img = jax.ops.segment_sum(jax.lax.dot_general(jcc, jcc, (((1,), (1,)), ((0,), (0,)))), s.image_of_chunk,
                                 num_segments=n_img, indices_are_sorted=True)  # fmt: skip
     g_img = seg(g_obs_c, s.obs_image)
-    pw = s.prior_w * s.mask_p
-    v = segp(_outer_sum(jpt, jpt), s.obs_point) + pw[:, :, None] * jnp.eye(3)[None, :, :]
-    g_p = segp(g_obs_p, s.obs_point) + pw * (state.xyz - s.prior_xyz)
-    flat = s.image_ext.ravel()
-    g_c = jnp.zeros(n_c).at[flat].add(g_img.ravel())
-    # LM damping D: the diagonal of the normal matrix J~^T J~ (Ceres).
-    d_c = jnp.zeros(n_c).at[flat].add(jnp.diagonal(u_img, axis1=1, axis2=2).ravel())
-    d_p = jnp.diagonal(v, axis1=1, axis2=2)
-    clamp = functools.partial(jnp.clip, min=1e-6, max=1e32)
-    gmax = jnp.maximum(jnp.max(jnp.abs(g_c), initial=0.0), jnp.max(jnp.abs(g_p), initial=0.0))
-    return _Lin(cost, r0, weight, _outer_sum(jpt, jct), u_img, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax)
+    v = segp(_outer_sum(jpt, jpt), s.obs_point)
+    g_p = segp(g_obs_p, s.obs_point)
+    return _finish_lin(state, s, n_c, 0.5 * jnp.sum(rho), r0, weight, _outer_sum(jpt, jct), u_img, v, g_img, g_p)
+
+
+def _linearise_chunked(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int, chunk: int) -> _Lin:
+    """:func:`_linearise` in a scan over ``chunk`` observations at a time:
+    only ``r``, ``rho'`` and ``W^T`` are kept per observation (written in
+    place into the scan's carry), the sums ``U``, ``V``, ``g`` are added
+    chunk by chunk, so the transients are one chunk's.  The last chunk
+    starts at ``k - chunk`` (no padding) and adds only the observations the
+    others did not."""
+    n_img, n_pts, k = state.centre.shape[0], state.xyz.shape[0], s.obs_image.shape[0]
+    w = 6 + s.active.shape[0]
+    chunk = min(chunk, k)
+    n_steps = -(-k // chunk)
+
+    def step(carry, i):
+        r_all, wgt_all, wt_all, u, v, g_img, g_p, cost = carry
+        first = jnp.minimum(i * chunk, k - chunk)
+        new = (first + jnp.arange(chunk)) >= i * chunk  # not done by the previous chunk
+        sl = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=first, slice_size=chunk)
+        sub = s._replace(obs_image=sl(s.obs_image), obs_point=sl(s.obs_point), obs_xy=sl(s.obs_xy),
+                         obs_sigma=sl(s.obs_sigma))  # fmt: skip
+        r0, rho, weight, jc, jp, g_obs_c, g_obs_p = _observation_terms(state, sub, loss, scale)
+        m = new.astype(float)
+        jct, jpt = jnp.swapaxes(jc, 1, 2) * m[:, None, None], jnp.swapaxes(jp, 1, 2)
+        u = u.at[sub.obs_image].add(_outer_sum(jct, jct))
+        v = v.at[sub.obs_point].add(_outer_sum(jpt * m[:, None, None], jpt))
+        g_img = g_img.at[sub.obs_image].add(g_obs_c * m[:, None])
+        g_p = g_p.at[sub.obs_point].add(g_obs_p * m[:, None])
+        upd = functools.partial(jax.lax.dynamic_update_slice_in_dim, start_index=first, axis=0)
+        carry = (upd(r_all, r0), upd(wgt_all, weight), upd(wt_all, _outer_sum(jpt, jnp.swapaxes(jc, 1, 2))),
+                 u, v, g_img, g_p, cost + 0.5 * jnp.sum(rho * m))  # fmt: skip
+        return carry, None
+
+    init = (jnp.zeros((k, 2)), jnp.zeros(k), jnp.zeros((k, 3, w)), jnp.zeros((n_img, w, w)), jnp.zeros((n_pts, 3, 3)),
+            jnp.zeros((n_img, w)), jnp.zeros((n_pts, 3)), jnp.zeros(()))  # fmt: skip
+    (r0, weight, wt, u_img, v, g_img, g_p, cost), _ = jax.lax.scan(step, init, jnp.arange(n_steps))
+    return _finish_lin(state, s, n_c, cost, r0, weight, wt, u_img, v, g_img, g_p)

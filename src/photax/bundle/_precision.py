@@ -12,14 +12,9 @@ from jax import Array
 
 from ..rotation import angles_from_matrix_unchecked, axis_angle_to_matrix
 from ._linearise import _Lin
-from ._schur import _band_shape, _reduced_band, _reduced_system
-from ._sparse import band_cholesky, band_selected_inverse, flat_index
+from ._schur import _band_shape, _reduced_band, _reduced_system, _yt_of
+from ._sparse import band_cholesky, band_selected_inverse, band_take, flat_index
 from ._structure import _Structure
-
-#: Observation pairs per step of the banded point-covariance sum (bounds the
-#: gathered blocks to a few MB whatever the block's size).
-PAIR_PIECE = 16384
-
 
 @functools.partial(jax.jit, static_argnames=("n_c",))
 def _covariances(lin: _Lin, s: _Structure, n_c: int):
@@ -49,7 +44,7 @@ def _covariances_band(lin: _Lin, s: _Structure, n_c: int):
     reduced-camera inverse on its pattern by selected inversion of the
     banded factor (:func:`._sparse.band_selected_inverse`), and the point
     blocks from them by the same Schur relation, summed over observation
-    pairs in pieces of :data:`PAIR_PIECE` (memory bounded whatever the
+    pairs in the pieces of the Schur assembly (memory bounded whatever the
     block's size).  Returns each image's block
     ``(n_img, w, w)`` (its unknowns in ``image_ext`` order), the intrinsics'
     diagonal ``(a n_cam,)``, the point blocks and whether the factor is
@@ -57,43 +52,39 @@ def _covariances_band(lin: _Lin, s: _Structure, n_c: int):
     shape = _band_shape(s)
     m, _, vinv = _reduced_band(lin, s, jnp.zeros(()), n_c, 1.0 - s.mask_c)
     f = band_cholesky(m)
+    ok = jnp.all(jnp.isfinite(f.d)) & jnp.all(jnp.isfinite(f.e))
     z = band_selected_inverse(f)
-    zflat = jnp.concatenate([z.d.ravel(), z.b.ravel(), z.c.ravel(), z.e.ravel()])
     mask = s.mask_c
 
     def q(r, c):  # entries (r, c) of the reduced-camera cofactor matrix, fixed unknowns 0
-        return zflat[flat_index(s.band_chunk, s.band_offset, r, c, *shape, lower=False)] * mask[r] * mask[c]
+        return band_take(z, flat_index(s.band_chunk, s.band_offset, r, c, *shape, lower=False)) * mask[r] * mask[c]
 
     ext = s.image_ext
     q_img = q(ext[:, :, None], ext[:, None, :])
     cam = jnp.arange(6 * ext.shape[0], n_c)
     q_cam = q(cam, cam)
-    y = jnp.einsum("kji,kjl->kil", lin.wt, vinv[s.obs_point])  # (k, w, 3)
-    n_pts, k = lin.v.shape[0], s.obs_image.shape[0]
+    n_pts = lin.v.shape[0]
     # Pairs (a, a) -- each observation with itself, weight 1/2 as the sum adds
-    # each term and its transpose -- and (a, b), a < b, weight 1.
-    own = jnp.arange(k, dtype=s.pair_a.dtype)
-    pair_a, pair_b = jnp.concatenate([own, s.pair_a]), jnp.concatenate([own, s.pair_b])
-    weight = jnp.concatenate([jnp.full(k, 0.5), jnp.ones(s.pair_a.shape[0])])
-    n_pairs = pair_a.shape[0]
-    piece = max(1, min(PAIR_PIECE, n_pairs))
-    pad = -n_pairs % piece
-    pa = jnp.concatenate([pair_a, jnp.full(pad, k, pair_a.dtype)]).reshape(-1, piece)
-    pb = jnp.concatenate([pair_b, jnp.full(pad, k, pair_b.dtype)]).reshape(-1, piece)
-    wp = jnp.concatenate([weight, jnp.zeros(pad)]).reshape(-1, piece)
-    y_pad = jnp.concatenate([y, jnp.zeros((1,) + y.shape[1:])])
-    img_pad = jnp.concatenate([s.obs_image, jnp.zeros(1, s.obs_image.dtype)])
-    pt_pad = jnp.concatenate([s.obs_point, jnp.full(1, n_pts, s.obs_point.dtype)])  # padding: dropped
+    # each term and its transpose -- and (a, b), a < b, weight 1: those of the
+    # Schur assembly's chunks (padding: index k, gathered as zeros), a piece
+    # at a time, Y^T = V^-1 W^T formed per piece (nothing per observation stored).
+    take = functools.partial(jnp.take, axis=0, mode="fill", fill_value=0)
+    n_pieces, piece, _ = s.chunk_a.shape
+    weights = jnp.where(s.key_off[s.chunk_key] > 0, 1.0, 0.5).reshape(n_pieces, piece)
 
-    def add_pairs(acc, idx):
-        a, b, wgt = idx
-        ea, eb = ext[img_pad[a]], ext[img_pad[b]]
-        qo = jnp.einsum("pia,pij,pjb->pab", y_pad[a], q(ea[:, :, None], eb[:, None, :]), y_pad[b]) * wgt[:, None, None]
-        return acc + jax.ops.segment_sum(qo + jnp.swapaxes(qo, 1, 2), pt_pad[a], num_segments=n_pts), None
+    def add_pairs(acc, x):
+        a, b, wgt = x
+        a, b = a.ravel(), b.ravel()
+        pt = jnp.take(s.obs_point, a, mode="fill", fill_value=n_pts)  # padding: dropped by the scatter
+        yta = _yt_of(take(vinv, pt), take(lin.wt, a))  # (m, 3, w)
+        ytb = _yt_of(take(vinv, pt), take(lin.wt, b))  # same point
+        ea, eb = ext[take(s.obs_image, a)], ext[take(s.obs_image, b)]
+        qo = jnp.einsum("pai,pij,pbj->pab", yta, q(ea[:, :, None], eb[:, None, :]), ytb) * jnp.repeat(wgt, a.shape[0] // piece)[:, None, None]
+        return acc.at[pt].add(qo + jnp.swapaxes(qo, 1, 2), mode="drop"), None  # in place
 
-    q_p, _ = jax.lax.scan(add_pairs, vinv, (pa, pb, wp))
+    q_p, _ = jax.lax.scan(add_pairs, vinv, (s.chunk_a, s.chunk_b, weights))
     q_p = q_p * (s.mask_p[:, :, None] * s.mask_p[:, None, :])
-    return q_img, q_cam, q_p, jnp.all(jnp.isfinite(f.d)) & jnp.all(jnp.isfinite(f.e))
+    return q_img, q_cam, q_p, ok
 
 
 @functools.partial(jax.jit, static_argnames=("convention",))

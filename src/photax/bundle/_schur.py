@@ -12,41 +12,80 @@ from jax import Array
 from .._linalg import inv3
 from ..rotation import axis_angle_to_matrix
 from ._linearise import _cost, _Lin
-from ._sparse import band_cholesky, band_solve, flat_index, unflatten
+from ._sparse import Band, band_add, band_cholesky, band_solve, flat_index
 from ._structure import _State, _Structure
 
 
 
-def _schur_parts(lin: _Lin, s: _Structure, lam: Array, n_c: int):
-    """Damped ``V^-1``, ``Y^T = V^-1 W^T`` per observation ``(k, 3, w)`` and
-    the reduced right-hand side ``g_c - W V^-1 g_p`` (in unknown order)."""
-    n_img = lin.u_img.shape[0]
+def _damped_vinv(lin: _Lin, s: _Structure, lam: Array):
+    """``(n_pts, 3, 3)`` damped ``V^-1`` (fixed points: identity)."""
     v = lin.v + (lam * lin.d_p * s.mask_p + (1.0 - s.mask_p))[:, :, None] * jnp.eye(3)[None, :, :]
-    vinv = jax.vmap(inv3)(v)  # (n, 3, 3) by the adjugate: elementwise, faster than batched LU on CPU
-    vo = vinv[s.obs_point]
-    # Unrolled over the 3-long axis: faster than a batched dot of tiny matrices on XLA CPU.
-    yt = sum(vo[:, :, j, None] * lin.wt[:, None, j, :] for j in range(3))
-    vg = sum(vo[:, :, j] * lin.g_p[s.obs_point][:, j, None] for j in range(3))  # V^-1 g_p per observation
+    return jax.vmap(inv3)(v)  # by the adjugate: elementwise, faster than batched LU on CPU
+
+
+def _yt_of(vinv_obs: Array, wt: Array) -> Array:
+    """``Y^T = V^-1 W^T`` ``(m, 3, w)`` of observations, from their points'
+    ``V^-1`` ``(m, 3, 3)`` and ``W^T`` ``(m, 3, w)``; unrolled over the
+    3-long axis: faster than a batched dot of tiny matrices on XLA CPU."""
+    return sum(vinv_obs[:, :, j, None] * wt[:, None, j, :] for j in range(3))
+
+
+def _reduced_rhs(lin: _Lin, s: _Structure, vinv: Array, n_c: int):
+    """The reduced right-hand side ``g_c - W V^-1 g_p`` (in unknown order)."""
+    n_img = lin.u_img.shape[0]
+    vg = sum(vinv[:, :, j] * lin.g_p[:, j, None] for j in range(3))[s.obs_point]  # V^-1 g_p per observation (unrolled: see _yt_of)
     rhs_img = lin.g_img - jax.ops.segment_sum(jnp.sum(lin.wt * vg[:, :, None], axis=1), s.obs_image, num_segments=n_img)
-    rhs = jnp.zeros(n_c).at[s.image_ext.ravel()].add(rhs_img.ravel())
-    return vinv, yt, rhs
+    return jnp.zeros(n_c).at[s.image_ext.ravel()].add(rhs_img.ravel())
 
 
-def _schur_blocks(lin: _Lin, s: _Structure, lam: Array, n_c: int):
+#: Bytes of a stored ``Y^T`` ``(k, 3, w)`` up to which :func:`_schur_blocks`
+#: forms it once and sums the products of all chunks in one batched pass
+#: (fastest: problem-49-7776's trial step is 10 % slower streamed); above
+#: it, ``Y^T`` is formed piece by piece and the products are added as they
+#: come (memory: at 10,000 images ``Y^T`` alone is 1.7 GB, the stacked
+#: products ~1.6 GB).
+SCHUR_STORE_BYTES = 1 << 28
+
+
+def _schur_blocks(lin: _Lin, s: _Structure, lam: Array, n_c: int, stream: bool | None = None):
     """The blocks ``- sum Y_a W_b^T`` of the Schur complement, one per key
     ``(key_a, key_b)`` (see :func:`_reduced_system`), ``(n_keys, w, w)``,
-    the reduced right-hand side and the damped ``V^-1``."""
-    vinv, yt, rhs = _schur_parts(lin, s, lam, n_c)
+    the reduced right-hand side and the damped ``V^-1``.
+
+    ``stream`` (default: when ``Y^T`` would pass :data:`SCHUR_STORE_BYTES`):
+    nothing per observation or per chunk is stored beyond ``W^T`` itself:
+    ``Y^T = V^-1 W^T`` is formed piece by piece inside the loop over the
+    pieces of chunks (each observation's a few times, once per pair it
+    starts: cheap beside the ``w x w`` products), and each piece's products
+    are added into the blocks at once (a scan)."""
+    vinv = _damped_vinv(lin, s, lam)
+    rhs = _reduced_rhs(lin, s, vinv, n_c)
     n_pieces, piece, _ = s.chunk_a.shape
-    w = yt.shape[2]
-    take = functools.partial(jnp.take, axis=0, mode="fill", fill_value=0.0)  # index k pads the chunks
+    k, _, w = lin.wt.shape
+    take = functools.partial(jnp.take, axis=0, mode="fill", fill_value=0)  # index k pads the chunks: zeros
+    if stream is None:
+        stream = 8 * k * 3 * w > SCHUR_STORE_BYTES
+    if not stream:
+        yt = _yt_of(vinv[s.obs_point], lin.wt)
 
-    def products(idx):  # (piece, w, w): Y_a W_b^T summed over each chunk
-        ya, wb = take(yt, idx[0]).reshape(piece, -1, w), take(lin.wt, idx[1]).reshape(piece, -1, w)
-        return jax.lax.dot_general(ya, wb, (((1,), (1,)), ((0,), (0,))))
+        def products(idx):  # (piece, w, w): Y_a W_b^T summed over each chunk
+            ya, wb = take(yt, idx[0]).reshape(piece, -1, w), take(lin.wt, idx[1]).reshape(piece, -1, w)
+            return jax.lax.dot_general(ya, wb, (((1,), (1,)), ((0,), (0,))))
 
-    prod = jax.lax.map(products, (s.chunk_a, s.chunk_b)).reshape(n_pieces * piece, w, w)
-    blocks = jax.ops.segment_sum(prod, s.chunk_key, num_segments=s.key_a.shape[0], indices_are_sorted=True)
+        prod = jax.lax.map(products, (s.chunk_a, s.chunk_b)).reshape(n_pieces * piece, w, w)
+        blocks = jax.ops.segment_sum(prod, s.chunk_key, num_segments=s.key_a.shape[0], indices_are_sorted=True)
+        return blocks, rhs, vinv
+    keys = s.chunk_key.reshape(n_pieces, piece)
+
+    def add_piece(blocks, x):  # Y_a W_b^T summed over each chunk of the piece, added to its block
+        a, b, key = x
+        ya = _yt_of(take(vinv, take(s.obs_point, a.ravel())), take(lin.wt, a.ravel())).reshape(piece, -1, w)
+        wb = take(lin.wt, b.ravel()).reshape(piece, -1, w)
+        prod = jax.lax.dot_general(ya, wb, (((1,), (1,)), ((0,), (0,))))
+        return blocks.at[key].add(prod, indices_are_sorted=True), None
+
+    blocks0 = jnp.zeros((s.key_a.shape[0], w, w))
+    blocks, _ = jax.lax.scan(add_piece, blocks0, (s.chunk_a, s.chunk_b, keys))
     return blocks, rhs, vinv
 
 
@@ -91,18 +130,18 @@ def _reduced_band(lin: _Lin, s: _Structure, lam: Array, n_c: int, diag: Array):
     blocks, rhs, vinv = _schur_blocks(lin, s, lam, n_c)
     shape = _band_shape(s)
     n_chunks, cw, n_b = shape
-    flat = [jnp.zeros(2 * n_chunks * cw * cw + n_chunks * n_b * cw + n_b * n_b)]
+    pad = (s.band_perm == n_c).astype(float)  # padding slots: 1 on the diagonal
+    m = [Band(pad[:, :, None] * jnp.eye(cw)[None], jnp.zeros((n_chunks, cw, cw)), jnp.zeros((n_chunks, n_b, cw)),
+              jnp.zeros((n_b, n_b)))]  # fmt: skip
 
-    def put(rows, cols, values):
+    def put(rows, cols, values):  # scattered into each array in place: no concatenated copy
         idx = flat_index(s.band_chunk, s.band_offset, rows, cols, *shape, lower=True)
-        flat[0] = flat[0].at[idx].add(values, mode="drop")
+        m[0] = band_add(m[0], jnp.broadcast_to(idx, values.shape), values)
 
     _scatter_schur(put, lin, s, blocks)
     every = jnp.arange(n_c)
     put(every, every, diag)
-    m = unflatten(flat[0], *shape)
-    pad = (s.band_perm == n_c).astype(float)
-    return m._replace(d=m.d + pad[:, :, None] * jnp.eye(cw)[None]), rhs, vinv
+    return m[0], rhs, vinv
 
 
 def _solve_band(lin: _Lin, s: _Structure, lam: Array, n_c: int):
@@ -125,7 +164,9 @@ def _solve_cg(lin: _Lin, s: _Structure, lam: Array, n_c: int):
     over its private unknowns (exterior orientation, intrinsics of a camera
     of its own), and of the diagonal for the unknowns shared by several
     images (:mod:`._sparse`'s border)."""
-    vinv, yt, rhs = _schur_parts(lin, s, lam, n_c)
+    vinv = _damped_vinv(lin, s, lam)
+    rhs = _reduced_rhs(lin, s, vinv, n_c)
+    yt = _yt_of(vinv[s.obs_point], lin.wt)  # (k, 3, w): the memory fallback stores it (only this path)
     ext, n_img, n_pts, wo = s.image_ext, lin.u_img.shape[0], lin.v.shape[0], jnp.swapaxes(lin.wt, 1, 2)
     w = ext.shape[1]
     damp = lam * lin.d_c * s.mask_c + (1.0 - s.mask_c)
