@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..io import read_camera_unit, read_gcps, write_bal, write_block
     from ..io.atomic import check_output_path
+    from ..io.block import check_block_output
     from ..io.raster import read_dem
     from ..ties import bundle_problem, match_ties
     from ._common import read_oriented_images
@@ -48,10 +49,7 @@ def run(args: argparse.Namespace) -> int:
     bal = args.out.lower().endswith((".txt", ".txt.bz2", ".bal"))
     out = pathlib.Path(args.out)
     if not bal:  # before the matching, not after
-        if out.exists() and (not out.is_dir() or any(out.iterdir())):
-            raise ValueError(f"refusing to write the block {out}: it exists and is not an empty folder "
-                             "(a BAL file ends in .txt, .txt.bz2 or .bal)")
-        check_output_path(out / "block.json", files)
+        check_block_output(out, files)
         unit = read_camera_unit(args.camera)
         if unit is None:
             raise ValueError(f"{args.camera}: the block's camera file needs a unit; give --camera as a photax "

@@ -317,13 +317,9 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
     import tempfile
 
     from ..bundle import INTRINSICS
-    from .atomic import check_output_path
     from .camera_file import write_camera
 
-    folder = pathlib.Path(folder)
-    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
-        raise ValueError(f"refusing to write the block {folder}: it exists and is not an empty folder")
-    check_output_path(folder / "block.json", inputs)
+    folder = check_block_output(folder, inputs)
     p = problem
     if np.any(p.obs_sigma[:, 0] != p.obs_sigma[:, 1]):
         raise ValueError("the block format has one sigma per observation: x and y sigmas differ")
@@ -368,6 +364,18 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
         os.replace(tmp, folder)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    return folder
+
+
+def check_block_output(folder, inputs=()) -> pathlib.Path:
+    """Refuse a block output that exists and is not an empty folder, or that
+    would overwrite an input; return it as a Path (call it before the work)."""
+    from .atomic import check_output_path
+
+    folder = pathlib.Path(folder)
+    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
+        raise ValueError(f"refusing to write the block {folder}: it exists and is not an empty folder")
+    check_output_path(folder / "block.json", inputs)
     return folder
 
 
