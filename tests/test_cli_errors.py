@@ -8,7 +8,6 @@ sidecar naming (``x.prj``, ``x.tif.aux.xml``, ``x.tif.ovr``, ``x.tfw``,
 import json
 import os
 import shutil
-import sys
 
 import numpy as np
 import pytest

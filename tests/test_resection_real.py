@@ -2,7 +2,6 @@
 
 import cv2
 import numpy as np
-import pytest
 
 import photax as ptx
 from conftest import shared_file
