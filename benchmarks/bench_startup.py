@@ -26,7 +26,8 @@ one, with the load average beside it.  Parts:
   imports, reading the inputs, the grid, the first orthorectify_file call
   (tracing + lowering + cache read + work, with JAX's own log of the
   tracing, lowering and compile/cache-read seconds) and a second identical
-  call (the work alone).
+  call (the work alone), with the resident and peak memory after each
+  phase (issue 8's memory target is 1.5 x oty's peak).
 
 Python byte-code: the checkout's own modules are compiled to a byte-code
 cache in a temporary PYTHONPYCACHEPREFIX by a first run (as an installed
@@ -239,11 +240,18 @@ _PHASES = r"""
 import dataclasses, logging, os, sys, time
 t0, c0 = time.perf_counter(), time.process_time()
 marks = []
+def rss():
+    with open("/proc/self/status") as f:
+        d = dict(line.split(":", 1) for line in f if ":" in line)
+    return int(d["VmRSS"].split()[0]) / 1024, int(d["VmHWM"].split()[0]) / 1024
 def mark(name):
-    marks.append((name, time.perf_counter() - t0, time.process_time() - c0))
+    marks.append((name, time.perf_counter() - t0, time.process_time() - c0, *rss()))
 import jax
 jax.config.update("jax_log_compiles", True)
 mark("import jax")
+import jax.numpy as jnp
+jnp.zeros(1).block_until_ready()
+mark("JAX's CPU backend (first array)")
 import photax.cli
 from photax.io.orientation import read_exterior, read_interior
 from photax.io.raster import read_dem
@@ -261,8 +269,8 @@ for label in ("orthorectify_file, first call", "orthorectify_file, second call (
                       compress="deflate")
     mark(label)
 prev = (0.0, 0.0)
-for name, w, c in marks:
-    print(f"@@ {name}|{w - prev[0]:.4f}|{c - prev[1]:.4f}")
+for name, w, c, r, hwm in marks:
+    print(f"@@ {name}|{w - prev[0]:.4f}|{c - prev[1]:.4f}|{r:.0f}|{hwm:.0f}")
     prev = (w, c)
 """
 
@@ -288,15 +296,15 @@ def bench_breakdown(env, repeat, data, tmp):
             continue
         for line in p.stdout.splitlines():
             if line.startswith("@@ "):
-                name, w, c = line[3:].split("|")
-                phases.setdefault(name, []).append((float(w), float(c)))
+                name, w, c, r, hwm = line[3:].split("|")
+                phases.setdefault(name, []).append((float(w), float(c), float(r), float(hwm)))
         for k, rx in _LOG.items():
             logs[k].append(sum(float(x) for x in rx.findall(p.stderr)))
         hits.append((p.stderr.count("Persistent compilation cache hit"), len(_LOG["compile or cache read"].findall(p.stderr))))
     for name, v in phases.items():
-        w, c = statistics.median(x[0] for x in v), statistics.median(x[1] for x in v)
-        print(f"{name:45s} wall {w:.3f} s, cpu {c:.3f} s")
-        record(f"breakdown warm ortho: {name}", photax_s=w, cpu_s=c)
+        w, c, r, hwm = (statistics.median(x[i] for x in v) for i in range(4))
+        print(f"{name:45s} wall {w:.3f} s, cpu {c:.3f} s; after it: resident {r:.0f} MiB, peak {hwm:.0f} MiB")
+        record(f"breakdown warm ortho: {name}", photax_s=w, cpu_s=c, rss_mib=r, peak_mib=hwm)
     for k, v in logs.items():
         print(f"  JAX log, summed over every jitted call: {k} {statistics.median(v):.3f} s wall")
         record(f"breakdown warm ortho: JAX {k} (sum)", photax_s=statistics.median(v))
