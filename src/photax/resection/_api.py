@@ -33,7 +33,8 @@ from ._checks import (CAUSES, Prepared, _bucket, _critical_table, _frame, _pixel
 from ._result import ResectionResult
 from ._types import Inputs, Options, Output, pack, unpack
 
-_CHUNK = 1024  # images per call of the cheap path in resect_batch: one compilation for any batch size
+_CHUNK = 2048  # images per call of the cheap path in resect_batch: one compilation for any batch size
+# (per image, 2,048 lanes ran 6 % faster than 1,024 and 25 % faster than 256: fewer kernel launches per image)
 _ROBUST_CHUNK = 32  # images per call of the robust path (a few per cent of a batch go there)
 
 # The compiled solvers: a batch of images (lanes last, :mod:`._lanes`) in, a packed (B, L) float array out.
@@ -138,16 +139,18 @@ def _call(fn, inp: Inputs, opt: Options, chunk: int | None, m: int) -> Output:
     # per single resection); block_until_ready waits without spinning.
     b = inp.use_init.shape[0]
     if chunk is None:
-        return unpack(np.asarray(jax.block_until_ready(fn(inp, opt))), m)
+        return unpack(np.array(jax.block_until_ready(fn(inp, opt))), m)  # a writeable copy (_merge_one)
     nb = -(-b // chunk) * chunk
-    idx = np.concatenate([np.arange(b), np.zeros(nb - b, int)])
-    parts = [fn(inp.take(idx[i : i + chunk]), opt) for i in range(0, nb, chunk)]  # dispatched asynchronously
+    # Whole chunks as slices (views); the last one padded with copies of the first image.
+    parts = [fn(inp.take(slice(i, i + chunk)), opt) for i in range(0, b - chunk + 1, chunk)]  # asynchronous
+    if nb - b:
+        rest = b - b % chunk
+        parts.append(fn(inp.take(np.concatenate([np.arange(rest, b), np.zeros(nb - b, int)])), opt))
     return unpack(np.concatenate([np.asarray(x) for x in jax.block_until_ready(parts)])[:b], m)
 
 
 def _merge_one(a: np.ndarray, idx, x) -> np.ndarray:
-    a = a.copy()
-    a[idx] = x
+    a[idx] = x  # in place: the arrays of an unpacked output are this call's own
     return a
 
 
@@ -473,7 +476,7 @@ def resect_batch(
         (``result[i]`` is the ``i``-th image's result).
     """
     prep = validate(image_xy, ground_xyz, camera, sigma, None, None, initial, convention, alpha, batch=True)
-    m = _bucket(prep.xy.shape[1])
+    m = _bucket(prep.xy.shape[1], batch=True)
     opt = _options(prep, camera, convention, robust, alpha, max_steps, m)
     with _solver_errors():
         out, screened = _solve(prep, opt, m, batch=True, robust=robust, camera=camera)

@@ -103,8 +103,12 @@ def _check_geometry(ground: np.ndarray, xy: np.ndarray, ctrl: np.ndarray, names,
     return np.stack([vt[0], np.cross(vt[2], vt[0]), vt[2]], axis=1)
 
 
-def _bucket(n: int) -> int:
-    # Pad to a few sizes so a new number of points rarely means a new compilation.
+def _bucket(n: int, batch: bool = False) -> int:
+    """Points padded to: a few sizes for a single image (16, 32, ...), so that a new number of
+    points rarely means a new compilation; for a batch, the next multiple of 4, as padded points
+    cost as much as real ones (12 GCPs padded to 16: the cheap path 1.3x slower)."""
+    if batch:
+        return -(-n // 4) * 4
     return max(16, 1 << (n - 1).bit_length())
 
 
