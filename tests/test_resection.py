@@ -294,7 +294,8 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
     """The code written per lane (images on the last axis), with distortion, for both conventions: the
     linear start on noise-free 3-D control against the truth; the closed-form collinearity Jacobian
     against ``jax.jacfwd`` of ``ptx.project`` (an independent implementation); the Cholesky solve of the
-    normal equations against numpy's ``solve``."""
+    normal equations against numpy's ``solve``, and the inverse it gives the precision (``M^T M``, ``M = L^-1 D``)
+    against numpy's ``inv``."""
     import jax
     import jax.numpy as jnp
 
@@ -305,7 +306,8 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
     def lanes(inp, opt, p):
         v, a, pred, _ = evaluate(p, inp, inp.ctrl, opt)
         n, g = _normal(a, v)
-        return _linear.linear_start_lanes(inp, opt), (a, pred, n, g), _lanes.cho_solve(n, g[:, None])[:, 0]
+        return (_linear.linear_start_lanes(inp, opt), (a, pred, n, g), _lanes.cho_solve(n, g[:, None])[:, 0],
+                _lanes.inverse_factor(n))
 
     cam = ptx.FrameCamera(0.15324, (1e-4, -2e-4), (0.05, -0.02, 0.01, 1e-4, -2e-4))
     rng = np.random.default_rng(8)
@@ -322,7 +324,7 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
         np.testing.assert_allclose(start[:3], p[:3], rtol=0, atol=1e-6)
         np.testing.assert_allclose(start[3:], p[3:], rtol=0, atol=1e-9)
         p = p + rng.normal(0.0, [[3.0], [3.0], [3.0], [0.01], [0.01], [0.01]], p.shape)  # away from the solution
-        _, (a, pred, n, g), x = lanes(inp, opt, jnp.asarray(p))
+        _, (a, pred, n, g), x, mf = lanes(inp, opt, jnp.asarray(p))
 
         def model(q, g, o):
             return ptx.project(g, ptx.ExteriorOrientation(q[:3] + o, q[3:], convention), cam)
@@ -334,3 +336,6 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
                                    atol=1e-9 * np.abs(want).max())
         want = np.linalg.solve(np.transpose(np.asarray(n), (2, 0, 1)), np.asarray(g).T[..., None])[..., 0].T
         np.testing.assert_allclose(x, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+        mf = np.transpose(np.asarray(mf), (2, 0, 1))
+        inv = np.linalg.inv(np.transpose(np.asarray(n), (2, 0, 1)))
+        np.testing.assert_allclose(np.swapaxes(mf, 1, 2) @ mf, inv, rtol=1e-8, atol=1e-12 * np.abs(inv).max())
