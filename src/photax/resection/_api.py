@@ -51,6 +51,11 @@ _solve_cheap = disk_cached(jax.jit(lambda inp, opt: pack(_adjust.solve_cheap(inp
                                    compiler_options=_COMPILER_OPTIONS), "resect_cheap", _COMPILER_OPTIONS)
 _solve_robust = disk_cached(jax.jit(lambda inp, opt: pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt))),
                                     compiler_options=_ROBUST_OPTIONS), "resect_robust", _ROBUST_OPTIONS)
+# resect_batch's robust chunks, compiled with optimisation: measured on the 237 of 10,000 images whose test
+# fails (Pope's tau at alpha = 0.001, no blunder), 10.8 vs 20.9 ms at -O0, for 4.1 vs 2.3 s of first compilation.
+_solve_robust_batch = disk_cached(
+    jax.jit(lambda inp, opt: pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt))),
+            compiler_options=_COMPILER_OPTIONS), "resect_robust_batch", _COMPILER_OPTIONS)
 
 
 class _CameraInfo(NamedTuple):
@@ -174,6 +179,7 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
     screened = _screen(prep, out, camera)
     # A converged but implausible cheap result (e.g. a local minimum far from a poor linear start) also
     # goes to the full robust path: its LMedS start is what the real data of test_resection_real needs.
+    robust_fn = _solve_robust_batch if batch else _solve_robust
     full = (out.retry == 2) | screened[0]
     quick = np.flatnonzero((out.retry == 1) & ~full)
     chunk = _ROBUST_CHUNK if batch else None
@@ -181,7 +187,7 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
         # Only the blunder test failed: snoop from the cheap solution, without the LMedS start (its
         # least-squares solution is the start data snooping is defined from; Baarda 1968).
         sub = dataclasses.replace(inp.take(quick), init=out.params[quick].T, use_init=np.ones(quick.size, bool))
-        again = _call(_solve_robust, sub, opt, chunk, m)
+        again = _call(robust_fn, sub, opt, chunk, m)
         out = _merge(out, quick, again)
         # What this does not settle (failed, implausible, points behind the camera) gets the full path.
         failed = _screen(_take_prep(prep, quick), again, camera)[0] | (again.result != RESULTS.successful)
@@ -189,7 +195,7 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
         full[quick[failed]] = True
     idx = np.flatnonzero(full)
     if idx.size:
-        out = _merge(out, idx, _call(_solve_robust, inp.take(idx), opt, chunk, m))
+        out = _merge(out, idx, _call(robust_fn, inp.take(idx), opt, chunk, m))
     changed = np.union1d(quick, idx)
     if changed.size:  # screen again only the images the robust path changed
         again = _screen(_take_prep(prep, changed), _take(out, changed), camera)
