@@ -178,7 +178,7 @@ def single_breakdown(xy, ground):
     opt = _api._options(prep, CAM, "phi-omega-kappa", True, 0.001, 50, m)
     inp = _api._inputs(prep, m)
     flat = jax.block_until_ready(_api._solve_cheap(inp, opt))
-    out = _api.unpack(np.asarray(flat), m)
+    out = _api.unpack(np.asarray(flat).T, m)
     screened = _api._screen(prep, out, CAM)
     stages = {
         "whole resect": lambda: ptx.resect(xy, ground, CAM),
@@ -186,7 +186,7 @@ def single_breakdown(xy, ground):
         "options and inputs": lambda: (_api._options(prep, CAM, "phi-omega-kappa", True, 0.001, 50, m),
                                        _api._inputs(prep, m)),
         "compiled cheap path (dispatch and run)": lambda: jax.block_until_ready(_api._solve_cheap(inp, opt)),
-        "result to host, unpack": lambda: _api.unpack(np.asarray(flat), m),
+        "result to host, unpack": lambda: _api.unpack(np.asarray(flat).T, m),
         "plausibility screen": lambda: _api._screen(prep, out, CAM),
         "finish (result object, messages)": lambda: _api._finish(prep, out, CAM, "phi-omega-kappa", False,
                                                                  screened=screened),

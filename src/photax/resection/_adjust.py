@@ -262,7 +262,9 @@ def precision(p, inp: Inputs, used, opt: Options, ev=None) -> dict:
     red = 2.0 * jnp.sum(used.astype(float), axis=0) - 6.0
     sigma0 = jnp.where(red > 0, jnp.sqrt(jnp.sum(v * v, axis=(0, 1)) / jnp.where(red > 0, red, 1.0)), jnp.nan)
     ma = [sum(mf[i, j][None, None] * a[j] for j in range(i + 1)) for i in range(6)]  # (2, m, B) each
-    r_i = jnp.where(used[None], 1.0 - sum(x * x for x in ma), 0.0)
+    # a barrier: otherwise XLA recomputes r_i inside each transposing copy that reads it (the outputs'
+    # redundancy and w: measured, those two copies were 1 us per image)
+    r_i = jax.lax.optimization_barrier(jnp.where(used[None], 1.0 - sum(x * x for x in ma), 0.0))
     ok = r_i > 1e-10
     # v is observed - computed (the Gauss-Newton form); w and residuals are reported computed - observed.
     w = jnp.where(ok, -v / jnp.sqrt(jnp.where(ok, r_i, 1.0)), jnp.nan)

@@ -143,14 +143,14 @@ def _call(fn, inp: Inputs, opt: Options, chunk: int | None, m: int) -> Output:
     # per single resection); block_until_ready waits without spinning.
     b = inp.use_init.shape[0]
     if chunk is None:
-        return unpack(np.array(jax.block_until_ready(fn(inp, opt))), m)  # a writeable copy (_merge_one)
+        return unpack(np.array(np.asarray(jax.block_until_ready(fn(inp, opt))).T), m)  # a copy (_merge_one writes)
     nb = -(-b // chunk) * chunk
     # Whole chunks as slices (views); the last one padded with copies of the first image.
     parts = [fn(inp.take(slice(i, i + chunk)), opt) for i in range(0, b - chunk + 1, chunk)]  # asynchronous
     if nb - b:
         rest = b - b % chunk
         parts.append(fn(inp.take(np.concatenate([np.arange(rest, b), np.zeros(nb - b, int)])), opt))
-    return unpack(np.concatenate([np.asarray(x) for x in jax.block_until_ready(parts)])[:b], m)
+    return unpack(np.concatenate([np.asarray(x).T for x in jax.block_until_ready(parts)])[:b], m)
 
 
 def _merge_one(a: np.ndarray, idx, x) -> np.ndarray:
