@@ -8,8 +8,9 @@ every image, then :func:`._robust.solve_robust` for the compacted set of
 images the cheap path hands over (``retry``): first those that only failed
 the blunder test, from their cheap solution; then, from the LMedS start,
 the rest and those the first pass left failed.  Each compiles once per
-padded point count (16, 32, ...) and batch shape (1 for ``resect``,
-fixed-size chunks for ``resect_batch``).
+padded point count (16, 32, ... for ``resect``; the next multiple of 4 for
+``resect_batch``) and batch shape (1 for ``resect``, fixed-size chunks for
+``resect_batch``, whose robust chunks have their own optimised program).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ output means adding a field here and setting it where the module is built
 
 Inside the compiled code every array carries the batch of images as its
 last axis (lanes, :mod:`._lanes`); options are shared by the batch.
-``m`` is the point count padded to a bucket (16, 32, ...).
+``m`` is the point count padded (16, 32, ... for one image; a multiple of 4 for a batch).
 """
 
 from __future__ import annotations
