@@ -105,12 +105,13 @@ def _finite(n, g):
     return jnp.all(jnp.isfinite(n), axis=(0, 1)) & jnp.all(jnp.isfinite(g), axis=0)
 
 
-def _iterate(start, inp: Inputs, used, opt: Options, active=None):
+def _iterate(start, inp: Inputs, used, opt: Options, active=None, steps0=None):
     """The Gauss-Newton loop over the lanes: ``(p, steps, RESULTS code,
     (evaluation at p, normal equations at p))`` (they spare
     :func:`precision` computing them again).  ``active`` ``(B,)``: lanes to
     adjust (the others are left as they start, and do not keep the loop
-    running).
+    running).  ``steps0`` ``(B,)``: steps already taken to reach ``start``
+    (they count towards ``max_steps``; default none).
 
     The loop's first pass evaluates the start and takes no step, so that
     :func:`evaluate` is traced once (each copy was most of a second of
@@ -143,7 +144,8 @@ def _iterate(start, inp: Inputs, used, opt: Options, active=None):
         return (p, ev, ne, k + (run & ~first).astype(int), jnp.where(run, stop, done), jnp.where(run, code_new, code),
                 jnp.array(False))
 
-    carry = (start, ev0, ne0, zeros, done0, zeros + RESULTS.successful, jnp.array(True))
+    carry = (start, ev0, ne0, zeros if steps0 is None else steps0, done0, zeros + RESULTS.successful,
+             jnp.array(True))
     p, ev, ne, steps, done, code, _ = jax.lax.while_loop(cond, body, carry)
     code = jnp.where(done, code, RESULTS.max_steps_reached)
     return p, steps, code, (ev, ne)
@@ -163,10 +165,12 @@ def _iterate_fixed(start, inp: Inputs, used, opt: Options):
     loop: a lane that has converged keeps taking rounding-level steps), then
     the solve of the next step; where it is below ``STEP_TOL`` the lane has
     converged: that step is :func:`_iterate`'s confirming step, added
-    without evaluating the model there again.  Every other lane (slower convergence, a
-    non-finite or singular step, ``max_steps`` reached first) is adjusted
-    again from its start by :func:`_iterate`, ``GROUP`` lanes gathered at a
-    time: its result is then exactly the per-lane loop's.
+    without evaluating the model there again.  Every other lane is handed
+    to :func:`_iterate`, ``GROUP`` lanes gathered at a time: one that only
+    needs more steps goes on from where it is (its ``FIXED_STEPS`` counted),
+    one whose step became non-finite or singular, or that reached
+    ``max_steps`` first, starts again from its start; either way its result
+    is the per-lane loop's.
 
     Returns ``(p, steps, code, (evaluation at p, normal equations at p))``
     as :func:`_iterate`."""
@@ -195,16 +199,22 @@ def _iterate_fixed(start, inp: Inputs, used, opt: Options):
     # the per-lane loop's answer to rounding, and the residuals and normal equations kept are those one
     # step before, which differ from them by less than STEP_TOL's effect (~1e-8 relative).
     p = p + jnp.where(done, dp, 0.0)
+    # Lanes that only need more steps go on from p (the per-lane loop would have reached the same point
+    # in FIXED_STEPS steps); the others (non-finite, max_steps reached) start again from their start.
+    go_on = (first_small == 0) & (FIXED_STEPS < opt.max_steps) & jnp.all(jnp.isfinite(p), axis=0)
+    go_on &= jnp.all(jnp.isfinite(dp), axis=0) & _finite(*ne)
+    go_on_p, go_on_k = _lanes.sel(go_on, p, start), jnp.where(go_on, FIXED_STEPS, 0)
 
     g = min(GROUP, b)  # (b >= GROUP where this is used)
 
-    def again(c):  # the next GROUP lanes not yet done: the per-lane loop from their start
+    def again(c):  # the next GROUP lanes not yet done: the per-lane loop (going on, or from their start)
         p, steps, code, ev, ne, done = c
         idx = jnp.nonzero(~done, size=g, fill_value=b)[0]
         valid = idx < b
         take = jnp.minimum(idx, b - 1)
         sub = jax.tree_util.tree_map(lambda a: a[..., take], inp)
-        p_g, steps_g, code_g, (ev_g, ne_g) = _iterate(start[:, take], sub, used[:, take], opt, active=valid)
+        p_g, steps_g, code_g, (ev_g, ne_g) = _iterate(go_on_p[:, take], sub, used[:, take], opt, active=valid,
+                                                      steps0=go_on_k[take])
         put = lambda full, part: full.at[..., idx].set(part, mode="drop")  # noqa: E731 (fill lanes dropped)
         ev, ne = jax.tree_util.tree_map(put, (ev, ne), (ev_g, ne_g))
         return put(p, p_g), put(steps, steps_g), put(code, code_g), ev, ne, put(done, valid)
