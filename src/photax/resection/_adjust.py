@@ -156,7 +156,7 @@ def _iterate(start, inp: Inputs, used, opt: Options, active=None, steps0=None):
 # ~97 % of images (quadratic convergence); the rest are adjusted again, compacted GROUP lanes at a
 # time, by the per-lane loop (:func:`_iterate`).
 FIXED_STEPS = 3
-GROUP = 64  # (a batch of fewer lanes than _lanes.UNROLL_LANES keeps the per-lane loop)
+GROUP = 64
 
 
 def _iterate_fixed(start, inp: Inputs, used, opt: Options):
@@ -205,7 +205,7 @@ def _iterate_fixed(start, inp: Inputs, used, opt: Options):
     go_on &= jnp.all(jnp.isfinite(dp), axis=0) & _finite(*ne)
     go_on_p, go_on_k = _lanes.sel(go_on, p, start), jnp.where(go_on, FIXED_STEPS, 0)
 
-    g = min(GROUP, b)  # (b >= GROUP where this is used)
+    g = min(GROUP, b)
 
     def again(c):  # the next GROUP lanes not yet done: the per-lane loop (going on, or from their start)
         p, steps, code, ev, ne, done = c
@@ -238,8 +238,9 @@ def gauss_newton(start, inp: Inputs, used, opt: Options, active=None, fixed=Fals
     # differentiate); custom_root then attaches the implicit derivative at its solution.
     nograd = jax.lax.stop_gradient
     args = nograd(start), jax.tree_util.tree_map(nograd, inp), used, jax.tree_util.tree_map(nograd, opt)
-    # A batch of fewer lanes than a group (a single resect: one lane) keeps the per-lane loop: the
-    # fixed steps would save nothing there, and cost a second loop's kernels and compilation.
+    # Only resect_batch's large chunks take the fixed steps; a single resect (one lane) and small
+    # batches keep the per-lane loop: the fixed steps would save little there, and cost a second loop's
+    # kernels and compilation.
     fixed = fixed and start.shape[-1] >= _lanes.UNROLL_LANES
     p, steps, code, ev = _iterate_fixed(*args) if fixed else _iterate(*args, active)
 

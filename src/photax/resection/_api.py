@@ -34,7 +34,10 @@ from ._checks import (CAUSES, Prepared, _bucket, _critical_table, _frame, _pixel
 from ._result import ResectionResult
 from ._types import Inputs, Options, Output, pack, unpack
 
-_CHUNK = 1024  # images per call of the cheap path in resect_batch: one compilation for any batch size
+_CHUNK = 1024  # images per call of the cheap path in a resect_batch of this many images or more
+# ... and in a smaller one: its program compiles in half the CPU time (LAPACK for the linear start's
+# systems, _lanes.solve_spd), and a few images do not pay for 1,024 lanes.
+_SMALL_CHUNK = 64
 _ROBUST_CHUNK = 32  # images per call of the robust path (a few per cent of a batch go there)
 
 # The compiled solvers: a batch of images (lanes last, :mod:`._lanes`) in, a packed (B, L) float array out.
@@ -52,8 +55,10 @@ _solve_cheap = disk_cached(jax.jit(lambda inp, opt: pack(_adjust.solve_cheap(inp
                                    compiler_options=_COMPILER_OPTIONS), "resect_cheap", _COMPILER_OPTIONS)
 _solve_robust = disk_cached(jax.jit(lambda inp, opt: pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt))),
                                     compiler_options=_ROBUST_OPTIONS), "resect_robust", _ROBUST_OPTIONS)
-# resect_batch's robust chunks, compiled with optimisation: measured on the 237 of 10,000 images whose test
-# fails (Pope's tau at alpha = 0.001, no blunder), 10.8 vs 20.9 ms at -O0, for 4.1 vs 2.3 s of first compilation.
+# The robust chunks of a large resect_batch (_ROBUST_OPT_MIN images or more), compiled with optimisation:
+# measured on the 237 of 10,000 images whose test fails (Pope's tau at alpha = 0.001, no blunder), 10.8 vs
+# 20.9 ms at -O0, for about 2.7 s more CPU of first compilation, which a small batch would not win back.
+_ROBUST_OPT_MIN = 2048
 _solve_robust_batch = disk_cached(
     jax.jit(lambda inp, opt: pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt))),
             compiler_options=_COMPILER_OPTIONS), "resect_robust_batch", _COMPILER_OPTIONS)
@@ -174,13 +179,14 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
         # A command resects one image; when its robust program is not made yet (first run, empty
         # cache), compile it beside the cheap one: most first runs on real data need both.
         _solve_robust.prefetch(inp, opt)
-    out = _call(_solve_cheap, inp, opt, _CHUNK if batch else None, m)
+    b = len(prep.xy)
+    out = _call(_solve_cheap, inp, opt, (_CHUNK if b >= _CHUNK else _SMALL_CHUNK) if batch else None, m)
     if not robust:
         return out, None
     screened = _screen(prep, out, camera)
     # A converged but implausible cheap result (e.g. a local minimum far from a poor linear start) also
     # goes to the full robust path: its LMedS start is what the real data of test_resection_real needs.
-    robust_fn = _solve_robust_batch if batch else _solve_robust
+    robust_fn = _solve_robust_batch if batch and b >= _ROBUST_OPT_MIN else _solve_robust
     full = (out.retry == 2) | screened[0]
     quick = np.flatnonzero((out.retry == 1) & ~full)
     chunk = _ROBUST_CHUNK if batch else None

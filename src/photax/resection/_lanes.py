@@ -140,17 +140,17 @@ def spd_solve(a, b):
     return lapack(jnp.transpose(a, (2, 0, 1)), b.T[:, :, None])[:, :, 0].T
 
 
-# From this many lanes on, :func:`solve_spd` unrolls (a batch); below it (a single resection) LAPACK.
-UNROLL_LANES = 64
+# From this many lanes on (resect_batch's large chunks), :func:`solve_spd` unrolls; below it LAPACK.
+UNROLL_LANES = 1024
 
 
 def solve_spd(a, b):
     """``a x = b`` for ``(k, k, B)`` SPD ``a`` and ``(k, B)`` ``b``: unrolled
     (:func:`cho_solve`) for a batch of ``UNROLL_LANES`` or more, LAPACK
     (:func:`spd_solve`) below.  Measured on 1,024 lanes: 0.20 / 0.42 us per
-    lane for k = 8 / 11 unrolled, 0.85 / 1.64 by LAPACK; unrolled, the two
-    linear-start systems cost 1.5 s more compilation, which a single
-    resection (one lane, dispatch-bound) would pay for nothing."""
+    lane for k = 8 / 11 unrolled, 0.85 / 1.64 by LAPACK; but unrolled, the
+    two linear-start systems double the cheap path's compilation (6.4 vs
+    3.1 s CPU), which only a large batch wins back."""
     if a.shape[-1] >= UNROLL_LANES:
         return cho_solve(a, b[:, None])[:, 0]
     return spd_solve(a, b)
