@@ -40,7 +40,7 @@ _CHUNK = 1024  # images per call of the cheap path in a resect_batch of this man
 _SMALL_CHUNK = 64
 _ROBUST_CHUNK = 32  # images per call of the robust path (a few per cent of a batch go there)
 
-# The compiled solvers: a batch of images (lanes last, :mod:`._lanes`) in, a packed (B, L) float array out.
+# The compiled solvers: a batch of images (lanes last, :mod:`._lanes`) in, a packed (L, B) float array out.
 # Kept on disk when a program opts in (the command line does): tracing them was 2.4 s of a warm `photax resect`.
 # XLA:CPU's classic loop emitters: the element-wise lane code compiles in about two thirds of the CPU time
 # of the default (MLIR) fusion emitters and runs as fast (measured on the cheap path, 1024 images:
