@@ -143,8 +143,14 @@ def main():
     def loop(flag):
         return lambda: [opencv(ground[i], pixel[i], flag) for i in range(args.images)]
 
-    batch(False)()
-    batch(True)()  # compile
+    # first calls of the large-batch programs (1,024-image chunks; the robust one from 2,048 images), which
+    # the 64-image first calls above do not make
+    for robust in (False, True):
+        t0, c0 = time.perf_counter(), time.process_time()
+        batch(robust)()
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        record(f"first call resect_batch({args.images} images, robust={robust}) (CPU)", photax_s=cpu, wall_s=wall)
+        print(f"first call resect_batch({args.images} images, robust={robust}): {wall:.2f} s wall, {cpu:.2f} s CPU")
     runs = {"resect_batch(robust=False)": batch(False), "resect_batch(robust=True)": batch(True),
             "SQPNP loop": loop(cv2.SOLVEPNP_SQPNP), "ITERATIVE loop": loop(cv2.SOLVEPNP_ITERATIVE)}
     tn = interleaved(runs, repeat=5, warmup=0)
@@ -163,6 +169,7 @@ def main():
     c_cv = ground[0].mean(0) - cv2.Rodrigues(r)[0].T @ t.ravel()
     print(f"image 0: |C_photax - C_opencv| = {np.linalg.norm(np.asarray(res[0].exterior.position) - c_cv):.2e} m")
     accuracy(res, ground, pixel, truth)
+    batch_breakdown(xy, ground)
     solver_overhead(xy, ground)
 
 
@@ -178,7 +185,7 @@ def single_breakdown(xy, ground):
     opt = _api._options(prep, CAM, "phi-omega-kappa", True, 0.001, 50, m)
     inp = _api._inputs(prep, m)
     flat = jax.block_until_ready(_api._solve_cheap(inp, opt))
-    out = _api.unpack(np.asarray(flat), m)
+    out = _api.unpack(np.asarray(flat).T, m)
     screened = _api._screen(prep, out, CAM)
     stages = {
         "whole resect": lambda: ptx.resect(xy, ground, CAM),
@@ -186,7 +193,7 @@ def single_breakdown(xy, ground):
         "options and inputs": lambda: (_api._options(prep, CAM, "phi-omega-kappa", True, 0.001, 50, m),
                                        _api._inputs(prep, m)),
         "compiled cheap path (dispatch and run)": lambda: jax.block_until_ready(_api._solve_cheap(inp, opt)),
-        "result to host, unpack": lambda: _api.unpack(np.asarray(flat), m),
+        "result to host, unpack": lambda: _api.unpack(np.asarray(flat).T, m),
         "plausibility screen": lambda: _api._screen(prep, out, CAM),
         "finish (result object, messages)": lambda: _api._finish(prep, out, CAM, "phi-omega-kappa", False,
                                                                  screened=screened),
@@ -195,6 +202,39 @@ def single_breakdown(xy, ground):
         t = median_cpu_time(f, repeat=301, warmup=5)
         record(f"single resect stage: {name} (CPU)", photax_s=t)
         print(f"single resect stage {name}: {t * 1e3:.3f} ms CPU")
+
+
+def batch_breakdown(xy, ground):
+    """Where resect_batch's CPU time goes, per image: its stages run one by one (median CPU time)."""
+    from photax.resection import _api, _checks
+
+    def prepare():
+        return _checks.validate(xy, ground, CAM, None, None, None, None, "phi-omega-kappa", 0.001, batch=True)
+
+    prep = prepare()
+    m = _checks._bucket(prep.xy.shape[1], batch=True)
+    opt = _api._options(prep, CAM, "phi-omega-kappa", True, 0.001, 20, m)
+    inp = _api._inputs(prep, m)
+    out = _api._call(_api._solve_cheap, inp, opt, _api._CHUNK, m)
+    screened = _api._screen(prep, out, CAM)
+    stages = {
+        "whole resect_batch (robust)": lambda: ptx.resect_batch(xy, ground, CAM),
+        "whole resect_batch (robust=False)": lambda: ptx.resect_batch(xy, ground, CAM, robust=False),
+        "validate": prepare,
+        "inputs (lanes)": lambda: _api._inputs(prep, m),
+        "compiled cheap path, to host, unpack": lambda: _api._call(_api._solve_cheap, inp, opt, _api._CHUNK, m),
+        "plausibility screen": lambda: _api._screen(prep, out, CAM),
+        "finish (result object, messages)": lambda: _api._finish(prep, out, CAM, "phi-omega-kappa", True,
+                                                                 screened=screened),
+    }
+    n = len(xy)
+    retry = np.bincount(out.retry, minlength=3)
+    print(f"batch breakdown ({n} images, {load()}): {retry[1]} images go to the robust path from their cheap "
+          f"solution (only the test failed), {retry[2]} from the LMedS start")
+    for name, f in stages.items():
+        t = median_cpu_time(f, repeat=5, warmup=1)
+        record(f"resect_batch stage: {name} (CPU per image)", photax_s=t / n)
+        print(f"resect_batch stage {name}: {t / n * 1e6:.2f} us CPU per image")
 
 
 def accuracy(res, ground, pixel, truth):
@@ -227,6 +267,10 @@ def solver_overhead(xy, ground):
         p, steps = _adjust.gauss_newton(p0, i, i.ctrl, opt)[:2]
         return p.T, steps
 
+    def ours_fixed(i, p0):  # the cheap path's loop: fixed steps on all lanes, slow lanes re-run
+        p, steps = _adjust.gauss_newton(p0, i, i.ctrl, opt, fixed=True)[:2]
+        return p.T, steps
+
     def one(i, p0):  # optimistix: one image (one lane), vmapped
         i = jax.tree_util.tree_map(lambda a: a[..., None], i)
 
@@ -246,19 +290,22 @@ def solver_overhead(xy, ground):
     theirs = jax.vmap(one, in_axes=(-1, -1))
 
     runs = {}
-    for name, fn in (("photax Gauss-Newton loop", ours), ("optimistix.GaussNewton", theirs)):
+    for name, fn in (("photax Gauss-Newton loop", ours), ("optimistix.GaussNewton", theirs),
+                     ("photax fixed-step loop (cheap path)", ours_fixed)):
         f = jax.jit(fn)
         t0 = time.perf_counter()
         jax.block_until_ready(f(inp, starts))
         compile_s = time.perf_counter() - t0
-        t = median_time(lambda: jax.block_until_ready(f(inp, starts)), repeat=5)
+        t = median_cpu_time(lambda: jax.block_until_ready(f(inp, starts)), repeat=9)
         p, steps = f(inp, starts)
         runs[name] = (t, np.asarray(p), float(jnp.mean(steps)))
         print(f"{name}: {b} images {t * 1e3:.2f} ms ({t / b / runs[name][2] * 1e6:.2f} us per image-step, "
               f"{runs[name][2]:.1f} steps), first call {compile_s:.2f} s")
-    (t0_, p0_, _), (t1_, p1_, _) = runs.values()
+    (t0_, p0_, _), (t1_, p1_, _), (t2_, p2_, _) = runs.values()
     print(f"solver overhead: optimistix / photax loop = {t1_ / t0_:.2f}; max |dp| between them "
           f"{np.nanmax(np.abs(p0_ - p1_)):.1e}")
+    print(f"fixed-step loop / per-lane loop = {t2_ / t0_:.2f}; max |dp| between them {np.nanmax(np.abs(p0_ - p2_)):.1e}")
+    record("Gauss-Newton fixed-step loop / per-lane loop (1024 images)", ratio=t2_ / t0_)
 
 
 if __name__ == "__main__":

@@ -155,6 +155,51 @@ def test_batch_agrees_with_single_and_flags_blunders():
         assert batch[i].outliers.tolist() == one.outliers.tolist()
 
 
+def test_large_batch_program_matches_the_per_lane_loop(monkeypatch):
+    """resect_batch's program for large chunks (Gauss-Newton as fixed steps on every lane, the slow lanes
+    gathered into groups for the per-lane loop; the linear start's systems by the unrolled Cholesky) gives
+    what the small-batch program gives (the per-lane loop, LAPACK): here both on 64 lanes, the large one by
+    lowering its thresholds.  Noisy images from the linear start (3-4 steps), and images from a far start
+    (more steps: the group path, over several groups), with a ``max_steps`` they reach or not."""
+    import jax
+
+    from photax.resection import _adjust, _api, _lanes
+    from photax.resection._types import pack
+
+    rng = np.random.default_rng(21)
+    scenes = [_scene(rng, (rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(-np.pi, np.pi)),
+                     relief=rng.choice([0.0, 200.0])) for _ in range(40)]
+    ground = np.stack([s[0] for s in scenes])
+    xy = np.stack([s[1] for s in scenes]) + rng.normal(0.0, 5e-6, (40, 12, 2))
+    truth = np.stack([np.asarray(s[2].to_vector()) for s in scenes])
+    far = truth + np.where(np.arange(40)[:, None] % 2, 1.0, 0.01) * rng.normal(0.0, [30.0] * 3 + [0.05] * 3, (40, 6))
+    init = ptx.ExteriorOrientation(far[:, :3], far[:, 3:])
+
+    def run(**kw):
+        return [ptx.resect_batch(xy, ground, CAM, robust=False, **kw),
+                ptx.resect_batch(xy, ground, CAM, robust=False, initial=init, max_steps=6, **kw),
+                ptx.resect_batch(xy, ground, CAM, robust=False, initial=init, max_steps=3, **kw)]
+
+    small = run()
+    monkeypatch.setattr(_api, "_CHUNK", 64)
+    monkeypatch.setattr(_lanes, "UNROLL_LANES", 64)
+    monkeypatch.setattr(_adjust, "GROUP", 8)  # several groups
+    # a new jitted function, traced with those settings (the module's own has its 64-lane program already)
+    monkeypatch.setattr(_api, "_solve_cheap", jax.jit(lambda inp, opt: pack(_adjust.solve_cheap(inp, opt))))
+    large = run()
+    for a, b in zip(small, large):
+        assert a.result.tolist() == b.result.tolist()
+        assert a.iterations.tolist() == b.iterations.tolist()
+        np.testing.assert_allclose(np.asarray(b.exterior.position), np.asarray(a.exterior.position), rtol=0, atol=1e-7)
+        np.testing.assert_allclose(np.asarray(b.exterior.angles), np.asarray(a.exterior.angles), rtol=0, atol=1e-11)
+        ok = a.converged
+        np.testing.assert_allclose(b.std[ok], a.std[ok], rtol=1e-6)
+        np.testing.assert_allclose(b.redundancy[ok], a.redundancy[ok], rtol=0, atol=1e-8)  # one step before
+    assert small[0].converged.all() and (small[0].iterations >= 3).any() and (small[1].iterations > 4).any()
+    assert not small[2].converged.all() and small[1].converged.sum() > small[2].converged.sum()
+    np.testing.assert_allclose(np.asarray(small[0].exterior.position), truth[:, :3], rtol=0, atol=1.0)  # 5 um noise
+
+
 def test_check_points_and_reports():
     rng = np.random.default_rng(6)
     cam, eo, ground, xy = _pixel_scene(rng, n=14)
@@ -294,7 +339,8 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
     """The code written per lane (images on the last axis), with distortion, for both conventions: the
     linear start on noise-free 3-D control against the truth; the closed-form collinearity Jacobian
     against ``jax.jacfwd`` of ``ptx.project`` (an independent implementation); the Cholesky solve of the
-    normal equations against numpy's ``solve``."""
+    normal equations against numpy's ``solve``, and the inverse it gives the precision (``M^T M``, ``M = L^-1 D``)
+    against numpy's ``inv``."""
     import jax
     import jax.numpy as jnp
 
@@ -305,7 +351,8 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
     def lanes(inp, opt, p):
         v, a, pred, _ = evaluate(p, inp, inp.ctrl, opt)
         n, g = _normal(a, v)
-        return _linear.linear_start_lanes(inp, opt), (a, pred, n, g), _lanes.cho_solve(n, g[:, None])[:, 0]
+        return (_linear.linear_start_lanes(inp, opt), (a, pred, n, g), _lanes.cho_solve(n, g[:, None])[:, 0],
+                _lanes.inverse_factor(n))
 
     cam = ptx.FrameCamera(0.15324, (1e-4, -2e-4), (0.05, -0.02, 0.01, 1e-4, -2e-4))
     rng = np.random.default_rng(8)
@@ -322,7 +369,7 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
         np.testing.assert_allclose(start[:3], p[:3], rtol=0, atol=1e-6)
         np.testing.assert_allclose(start[3:], p[3:], rtol=0, atol=1e-9)
         p = p + rng.normal(0.0, [[3.0], [3.0], [3.0], [0.01], [0.01], [0.01]], p.shape)  # away from the solution
-        _, (a, pred, n, g), x = lanes(inp, opt, jnp.asarray(p))
+        _, (a, pred, n, g), x, mf = lanes(inp, opt, jnp.asarray(p))
 
         def model(q, g, o):
             return ptx.project(g, ptx.ExteriorOrientation(q[:3] + o, q[3:], convention), cam)
@@ -334,3 +381,6 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
                                    atol=1e-9 * np.abs(want).max())
         want = np.linalg.solve(np.transpose(np.asarray(n), (2, 0, 1)), np.asarray(g).T[..., None])[..., 0].T
         np.testing.assert_allclose(x, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+        mf = np.transpose(np.asarray(mf), (2, 0, 1))
+        inv = np.linalg.inv(np.transpose(np.asarray(n), (2, 0, 1)))
+        np.testing.assert_allclose(np.swapaxes(mf, 1, 2) @ mf, inv, rtol=1e-8, atol=1e-12 * np.abs(inv).max())

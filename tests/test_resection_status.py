@@ -182,6 +182,7 @@ def test_errors_inside_the_solver_are_reported_in_photax_words(monkeypatch):
     broken.prefetch = lambda *args: None  # the compiled solvers' interface (photax._aot.disk_cached)
     monkeypatch.setattr(resection._api, "_solve_cheap", broken)
     monkeypatch.setattr(resection._api, "_solve_robust", broken)
+    monkeypatch.setattr(resection._api, "_solve_robust_batch", broken)
     for call in (lambda: ptx.resect(xy, ground, cam, throw=False), lambda: ptx.resect_batch(xy[None], ground[None], cam)):
         with pytest.raises(ptx.ConvergenceError) as info:
             call()

@@ -34,7 +34,6 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from .._linalg import cho_solve
 from ..collinearity import _angle_axes
 from ..errors import RESULTS, from_optimistix
 from . import _lanes, _linear
@@ -106,12 +105,13 @@ def _finite(n, g):
     return jnp.all(jnp.isfinite(n), axis=(0, 1)) & jnp.all(jnp.isfinite(g), axis=0)
 
 
-def _iterate(start, inp: Inputs, used, opt: Options, active=None):
+def _iterate(start, inp: Inputs, used, opt: Options, active=None, steps0=None):
     """The Gauss-Newton loop over the lanes: ``(p, steps, RESULTS code,
     (evaluation at p, normal equations at p))`` (they spare
     :func:`precision` computing them again).  ``active`` ``(B,)``: lanes to
     adjust (the others are left as they start, and do not keep the loop
-    running).
+    running).  ``steps0`` ``(B,)``: steps already taken to reach ``start``
+    (they count towards ``max_steps``; default none).
 
     The loop's first pass evaluates the start and takes no step, so that
     :func:`evaluate` is traced once (each copy was most of a second of
@@ -144,13 +144,87 @@ def _iterate(start, inp: Inputs, used, opt: Options, active=None):
         return (p, ev, ne, k + (run & ~first).astype(int), jnp.where(run, stop, done), jnp.where(run, code_new, code),
                 jnp.array(False))
 
-    carry = (start, ev0, ne0, zeros, done0, zeros + RESULTS.successful, jnp.array(True))
+    carry = (start, ev0, ne0, zeros if steps0 is None else steps0, done0, zeros + RESULTS.successful,
+             jnp.array(True))
     p, ev, ne, steps, done, code, _ = jax.lax.while_loop(cond, body, carry)
     code = jnp.where(done, code, RESULTS.max_steps_reached)
     return p, steps, code, (ev, ne)
 
 
-def gauss_newton(start, inp: Inputs, used, opt: Options, active=None):
+# The cheap path's Gauss-Newton: a fixed number of steps for every lane, then the stopping rule
+# checked once.  From the linear start, 3 steps and the solve of a 4th that is below STEP_TOL settle
+# ~97 % of images (quadratic convergence); the rest are adjusted again, compacted GROUP lanes at a
+# time, by the per-lane loop (:func:`_iterate`).
+FIXED_STEPS = 3
+GROUP = 64
+
+
+def _iterate_fixed(start, inp: Inputs, used, opt: Options):
+    """:func:`_iterate` for the cheap path, in two parts: ``FIXED_STEPS``
+    Gauss-Newton steps on every lane at once (no per-lane bookkeeping in the
+    loop: a lane that has converged keeps taking rounding-level steps), then
+    the solve of the next step; where it is below ``STEP_TOL`` the lane has
+    converged: that step is :func:`_iterate`'s confirming step, added
+    without evaluating the model there again.  Every other lane is handed
+    to :func:`_iterate`, ``GROUP`` lanes gathered at a time: one that only
+    needs more steps goes on from where it is (its ``FIXED_STEPS`` counted),
+    one whose step became non-finite or singular, or that reached
+    ``max_steps`` first, starts again from its start; either way its result
+    is the per-lane loop's.
+
+    Returns ``(p, steps, code, (evaluation at p, normal equations at p))``
+    as :func:`_iterate`."""
+    m, b = used.shape
+
+    def body(i, c):  # step, evaluate there, solve the next step
+        p, dp, _, _, first_small = c
+        p = p + dp
+        ev = evaluate(p, inp, used, opt)
+        ne = _normal(ev[1], ev[0])
+        dp = _lanes.cho_solve(ne[0], ne[1][:, None])[:, 0]
+        small = jnp.all(jnp.abs(dp) <= STEP_TOL * (1.0 + jnp.abs(p + dp)), axis=0)
+        return p, dp, ev, ne, jnp.where((first_small == 0) & small, i + 1, first_small)
+
+    ev0 = (jnp.zeros((2, m, b)), jnp.zeros((6, 2, m, b)), jnp.zeros((2, m, b)), jnp.zeros((m, b)))
+    ne0 = (jnp.zeros((6, 6, b)), jnp.zeros((6, b)))
+    zeros = jnp.zeros(b, int)
+    p, dp, ev, ne, first_small = jax.lax.fori_loop(0, FIXED_STEPS + 1, body,
+                                                   (start, jnp.zeros_like(start), ev0, ne0, zeros))
+    # converged: the last solved step is small, none was non-finite, the rule fired within max_steps
+    done = (first_small > 0) & (first_small <= opt.max_steps) & jnp.all(jnp.isfinite(dp), axis=0)
+    done &= _finite(*ne)
+    steps = jnp.where(done, first_small, zeros)
+    code = zeros + RESULTS.successful
+    # The small step is taken without evaluating there (that evaluation only confirmed it): p is then
+    # the per-lane loop's answer to rounding, and the residuals and normal equations kept are those one
+    # step before, which differ from them by less than STEP_TOL's effect (~1e-8 relative).
+    p = p + jnp.where(done, dp, 0.0)
+    # Lanes that only need more steps go on from p (the per-lane loop would have reached the same point
+    # in FIXED_STEPS steps); the others (non-finite, max_steps reached) start again from their start.
+    go_on = (first_small == 0) & (FIXED_STEPS < opt.max_steps) & jnp.all(jnp.isfinite(p), axis=0)
+    go_on &= jnp.all(jnp.isfinite(dp), axis=0) & _finite(*ne)
+    go_on_p, go_on_k = _lanes.sel(go_on, p, start), jnp.where(go_on, FIXED_STEPS, 0)
+
+    g = min(GROUP, b)
+
+    def again(c):  # the next GROUP lanes not yet done: the per-lane loop (going on, or from their start)
+        p, steps, code, ev, ne, done = c
+        idx = jnp.nonzero(~done, size=g, fill_value=b)[0]
+        valid = idx < b
+        take = jnp.minimum(idx, b - 1)
+        sub = jax.tree_util.tree_map(lambda a: a[..., take], inp)
+        p_g, steps_g, code_g, (ev_g, ne_g) = _iterate(go_on_p[:, take], sub, used[:, take], opt, active=valid,
+                                                      steps0=go_on_k[take])
+        put = lambda full, part: full.at[..., idx].set(part, mode="drop")  # noqa: E731 (fill lanes dropped)
+        ev, ne = jax.tree_util.tree_map(put, (ev, ne), (ev_g, ne_g))
+        return put(p, p_g), put(steps, steps_g), put(code, code_g), ev, ne, put(done, valid)
+
+    p, steps, code, ev, ne, _ = jax.lax.while_loop(lambda c: ~jnp.all(c[5]), again,
+                                                   (p, steps, code, ev, ne, done))
+    return p, steps, code, (ev, ne)
+
+
+def gauss_newton(start, inp: Inputs, used, opt: Options, active=None, fixed=False):
     """Gauss-Newton from ``start`` ``(6, B)``: ``(p, steps, code, evaluation at p)``;
     ``p`` differentiable with respect to ``inp`` and ``opt.camera`` through
     the optimality condition ``A(p)^T v(p) = 0`` (``jax.lax.custom_root``);
@@ -163,8 +237,12 @@ def gauss_newton(start, inp: Inputs, used, opt: Options, active=None):
     # The loop runs on values only (no tangents enter the while_loop, which reverse mode cannot
     # differentiate); custom_root then attaches the implicit derivative at its solution.
     nograd = jax.lax.stop_gradient
-    p, steps, code, ev = _iterate(nograd(start), jax.tree_util.tree_map(nograd, inp), used,
-                                  jax.tree_util.tree_map(nograd, opt), active)
+    args = nograd(start), jax.tree_util.tree_map(nograd, inp), used, jax.tree_util.tree_map(nograd, opt)
+    # Only resect_batch's large chunks take the fixed steps; a single resect (one lane) and small
+    # batches keep the per-lane loop: the fixed steps would save little there, and cost a second loop's
+    # kernels and compilation.
+    fixed = fixed and start.shape[-1] >= _lanes.UNROLL_LANES
+    p, steps, code, ev = _iterate_fixed(*args) if fixed else _iterate(*args, active)
 
     def tangent_solve(g, y):  # only traced under differentiation; the lanes are independent systems
         eye = jnp.eye(6)[:, :, None] * jnp.ones((1, 1, y.shape[-1]))
@@ -185,16 +263,19 @@ def precision(p, inp: Inputs, used, opt: Options, ev=None) -> dict:
         ev = evaluate(p, inp, used, opt)
         ev = (ev, _normal(ev[1], ev[0]))
     (v, a, pred, depth), (n, _) = ev
-    # Q_xx by LAPACK, one matrix per image: unrolled over 6 right-hand sides (as the steps' solve is)
-    # it cost a second of compilation for a fraction of a microsecond per image.
-    qxx = jnp.transpose(cho_solve(jnp.transpose(n, (2, 0, 1)), jnp.broadcast_to(jnp.eye(6), (n.shape[-1], 6, 6))),
-                        (1, 2, 0))
-    qxx = 0.5 * (qxx + jnp.swapaxes(qxx, 0, 1))
+    # From the Cholesky factor, per lane (:func:`._lanes.inverse_factor`): N^-1 = M^T M with M = L^-1 D,
+    # so Q_xx = M^T M and diag(A Q_xx A^T) = |M a|^2 for each observation's row a (21 products instead
+    # of 36, no LAPACK call per image; a broadcast (6, 6, 2, m, B) product reduced over its leading axes
+    # ran 15x slower on XLA:CPU).
+    mf = _lanes.inverse_factor(n)
+    qxx = jnp.stack([jnp.stack([sum(mf[i, j] * mf[i, k] for i in range(max(j, k), 6)) for k in range(6)])
+                     for j in range(6)])
     red = 2.0 * jnp.sum(used.astype(float), axis=0) - 6.0
     sigma0 = jnp.where(red > 0, jnp.sqrt(jnp.sum(v * v, axis=(0, 1)) / jnp.where(red > 0, red, 1.0)), jnp.nan)
-    # diag(A Q_xx A^T) as 36 explicit products: a broadcast (6, 6, 2, m, B) product reduced over its
-    # leading axes ran 15x slower on XLA:CPU
-    r_i = jnp.where(used[None], 1.0 - sum(a[j] * qxx[j, k][None, None] * a[k] for j in range(6) for k in range(6)), 0.0)
+    ma = [sum(mf[i, j][None, None] * a[j] for j in range(i + 1)) for i in range(6)]  # (2, m, B) each
+    # a barrier: otherwise XLA recomputes r_i inside each transposing copy that reads it (the outputs'
+    # redundancy and w: measured, those two copies were 1 us per image)
+    r_i = jax.lax.optimization_barrier(jnp.where(used[None], 1.0 - sum(x * x for x in ma), 0.0))
     ok = r_i > 1e-10
     # v is observed - computed (the Gauss-Newton form); w and residuals are reported computed - observed.
     w = jnp.where(ok, -v / jnp.sqrt(jnp.where(ok, r_i, 1.0)), jnp.nan)
@@ -204,9 +285,10 @@ def precision(p, inp: Inputs, used, opt: Options, ev=None) -> dict:
                 depth=depth, axis=axis)
 
 
-def adjust(start, inp: Inputs, used, opt: Options, active=None) -> dict:
-    """Gauss-Newton from ``start`` with the points ``used``, then precision."""
-    p, steps, code, ev = gauss_newton(start, inp, used, opt, active)
+def adjust(start, inp: Inputs, used, opt: Options, active=None, fixed=False) -> dict:
+    """Gauss-Newton from ``start`` with the points ``used``, then precision
+    (``fixed``: :func:`_iterate_fixed`, the cheap path's loop)."""
+    p, steps, code, ev = gauss_newton(start, inp, used, opt, active, fixed)
     return dict(precision(p, inp, used, opt, ev), result=code, steps=steps)
 
 
@@ -236,7 +318,7 @@ def solve_cheap(inp: Inputs, opt: Options) -> Output:
     behind the camera (2)."""
     lin, lin_ok = _linear.linear_start_lanes(inp, opt)
     start = _lanes.sel(inp.use_init, inp.init, lin)
-    out = adjust(start, inp, inp.ctrl, opt)
+    out = adjust(start, inp, inp.ctrl, opt, fixed=True)
     go, _, _, c = test(out, inp.ctrl, opt)
     behind = jnp.any(inp.ctrl & ~(out["depth"] > 0), axis=0)
     bad_start = ~inp.use_init & ~lin_ok

@@ -8,8 +8,9 @@ every image, then :func:`._robust.solve_robust` for the compacted set of
 images the cheap path hands over (``retry``): first those that only failed
 the blunder test, from their cheap solution; then, from the LMedS start,
 the rest and those the first pass left failed.  Each compiles once per
-padded point count (16, 32, ...) and batch shape (1 for ``resect``,
-fixed-size chunks for ``resect_batch``).
+padded point count (16, 32, ... for ``resect``; the next multiple of 4 for
+``resect_batch``) and batch shape (1 for ``resect``, fixed-size chunks for
+``resect_batch``, whose robust chunks have their own optimised program).
 """
 
 from __future__ import annotations
@@ -33,10 +34,13 @@ from ._checks import (CAUSES, Prepared, _bucket, _critical_table, _frame, _pixel
 from ._result import ResectionResult
 from ._types import Inputs, Options, Output, pack, unpack
 
-_CHUNK = 1024  # images per call of the cheap path in resect_batch: one compilation for any batch size
+_CHUNK = 1024  # images per call of the cheap path in a resect_batch of this many images or more
+# ... and in a smaller one: its program compiles in half the CPU time (LAPACK for the linear start's
+# systems, _lanes.solve_spd), and a few images do not pay for 1,024 lanes.
+_SMALL_CHUNK = 64
 _ROBUST_CHUNK = 32  # images per call of the robust path (a few per cent of a batch go there)
 
-# The compiled solvers: a batch of images (lanes last, :mod:`._lanes`) in, a packed (B, L) float array out.
+# The compiled solvers: a batch of images (lanes last, :mod:`._lanes`) in, a packed (L, B) float array out.
 # Kept on disk when a program opts in (the command line does): tracing them was 2.4 s of a warm `photax resect`.
 # XLA:CPU's classic loop emitters: the element-wise lane code compiles in about two thirds of the CPU time
 # of the default (MLIR) fusion emitters and runs as fast (measured on the cheap path, 1024 images:
@@ -51,6 +55,13 @@ _solve_cheap = disk_cached(jax.jit(lambda inp, opt: pack(_adjust.solve_cheap(inp
                                    compiler_options=_COMPILER_OPTIONS), "resect_cheap", _COMPILER_OPTIONS)
 _solve_robust = disk_cached(jax.jit(lambda inp, opt: pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt))),
                                     compiler_options=_ROBUST_OPTIONS), "resect_robust", _ROBUST_OPTIONS)
+# The robust chunks of a large resect_batch (_ROBUST_OPT_MIN images or more), compiled with optimisation:
+# measured on the 237 of 10,000 images whose test fails (Pope's tau at alpha = 0.001, no blunder), 10.8 vs
+# 20.9 ms at -O0, for about 2.7 s more CPU of first compilation, which a small batch would not win back.
+_ROBUST_OPT_MIN = 2048
+_solve_robust_batch = disk_cached(
+    jax.jit(lambda inp, opt: pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt))),
+            compiler_options=_COMPILER_OPTIONS), "resect_robust_batch", _COMPILER_OPTIONS)
 
 
 class _CameraInfo(NamedTuple):
@@ -138,16 +149,18 @@ def _call(fn, inp: Inputs, opt: Options, chunk: int | None, m: int) -> Output:
     # per single resection); block_until_ready waits without spinning.
     b = inp.use_init.shape[0]
     if chunk is None:
-        return unpack(np.asarray(jax.block_until_ready(fn(inp, opt))), m)
+        return unpack(np.array(np.asarray(jax.block_until_ready(fn(inp, opt))).T), m)  # a copy (_merge_one writes)
     nb = -(-b // chunk) * chunk
-    idx = np.concatenate([np.arange(b), np.zeros(nb - b, int)])
-    parts = [fn(inp.take(idx[i : i + chunk]), opt) for i in range(0, nb, chunk)]  # dispatched asynchronously
-    return unpack(np.concatenate([np.asarray(x) for x in jax.block_until_ready(parts)])[:b], m)
+    # Whole chunks as slices (views); the last one padded with copies of the first image.
+    parts = [fn(inp.take(slice(i, i + chunk)), opt) for i in range(0, b - chunk + 1, chunk)]  # asynchronous
+    if nb - b:
+        rest = b - b % chunk
+        parts.append(fn(inp.take(np.concatenate([np.arange(rest, b), np.zeros(nb - b, int)])), opt))
+    return unpack(np.concatenate([np.asarray(x).T for x in jax.block_until_ready(parts)])[:b], m)
 
 
 def _merge_one(a: np.ndarray, idx, x) -> np.ndarray:
-    a = a.copy()
-    a[idx] = x
+    a[idx] = x  # in place: the arrays of an unpacked output are this call's own
     return a
 
 
@@ -166,12 +179,14 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
         # A command resects one image; when its robust program is not made yet (first run, empty
         # cache), compile it beside the cheap one: most first runs on real data need both.
         _solve_robust.prefetch(inp, opt)
-    out = _call(_solve_cheap, inp, opt, _CHUNK if batch else None, m)
+    b = len(prep.xy)
+    out = _call(_solve_cheap, inp, opt, (_CHUNK if b >= _CHUNK else _SMALL_CHUNK) if batch else None, m)
     if not robust:
         return out, None
     screened = _screen(prep, out, camera)
     # A converged but implausible cheap result (e.g. a local minimum far from a poor linear start) also
     # goes to the full robust path: its LMedS start is what the real data of test_resection_real needs.
+    robust_fn = _solve_robust_batch if batch and b >= _ROBUST_OPT_MIN else _solve_robust
     full = (out.retry == 2) | screened[0]
     quick = np.flatnonzero((out.retry == 1) & ~full)
     chunk = _ROBUST_CHUNK if batch else None
@@ -179,7 +194,7 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
         # Only the blunder test failed: snoop from the cheap solution, without the LMedS start (its
         # least-squares solution is the start data snooping is defined from; Baarda 1968).
         sub = dataclasses.replace(inp.take(quick), init=out.params[quick].T, use_init=np.ones(quick.size, bool))
-        again = _call(_solve_robust, sub, opt, chunk, m)
+        again = _call(robust_fn, sub, opt, chunk, m)
         out = _merge(out, quick, again)
         # What this does not settle (failed, implausible, points behind the camera) gets the full path.
         failed = _screen(_take_prep(prep, quick), again, camera)[0] | (again.result != RESULTS.successful)
@@ -187,7 +202,7 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
         full[quick[failed]] = True
     idx = np.flatnonzero(full)
     if idx.size:
-        out = _merge(out, idx, _call(_solve_robust, inp.take(idx), opt, chunk, m))
+        out = _merge(out, idx, _call(robust_fn, inp.take(idx), opt, chunk, m))
     changed = np.union1d(quick, idx)
     if changed.size:  # screen again only the images the robust path changed
         again = _screen(_take_prep(prep, changed), _take(out, changed), camera)
@@ -219,7 +234,8 @@ def _screen(prep: Prepared, out: Output, camera):
     finite = np.all(np.isfinite(out.params), axis=1)
     p = np.where(finite[:, None], out.params, np.nan_to_num(out.start))  # finite values; the status says it failed
     adjustment = np.where(finite, out.result, RESULTS.nonfinite)
-    d2 = np.sum(out.residuals[:, :n] ** 2, axis=2)
+    res = out.residuals[:, :n]
+    d2 = res[..., 0] ** 2 + res[..., 1] ** 2
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.sum(d2 * used, axis=1) / used.sum(1))
     half, f = _camera_info(camera)[:2]
@@ -252,16 +268,21 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
             code[i] = RESULTS.implausible
     red = 2.0 * n_used - 6.0
     sigma_known = prep.sigma_known
-    cov = np.where((red > 0)[:, None, None], out.sigma0[:, None, None] ** 2 * out.qxx,
-                   out.qxx if sigma_known else np.nan)
+    cov = out.sigma0[:, None, None] ** 2 * out.qxx
+    if not np.all(red > 0):  # (the where only when needed: it cost a fifth of this function on 10,000 images)
+        cov = np.where((red > 0)[:, None, None], cov, out.qxx if sigma_known else np.nan)
     std = np.sqrt(np.abs(np.diagonal(cov, axis1=1, axis2=2)))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / (std[:, :, None] * std[:, None, :])
         check_rms = np.sqrt(np.sum(d2 * prep.is_check, axis=1) / prep.is_check.sum(1))
         # sigma0 = 0 exactly (exact data from an exact start): tau is 0/0, undefined (NaN)
         stat = out.w[:, :n] / (1.0 if sigma_known else out.sigma0[:, None, None])
-    stat = np.where(used[:, :, None], stat, out.stat_at[:, :n])
-    messages = [_message(c, s, solver)[1] for c, s in zip(adjustment.tolist(), out.steps.tolist())]
+    if not used.all():
+        stat = np.where(used[:, :, None], stat, out.stat_at[:, :n])
+    # one message per distinct (result, steps), spread over the images by one index
+    uniq, inv = np.unique(adjustment.astype(np.int64) * 1_000_000 + out.steps, return_inverse=True)
+    texts = np.array([_message(int(u // 1_000_000), int(u % 1_000_000), solver)[1] for u in uniq], object)
+    messages = texts[inv.reshape(-1)].tolist()
     for i in np.flatnonzero((code != RESULTS.successful) | (red <= 0)):
         m = messages[i] if gn_failure is None else f"{gn_failure}; then {messages[i]}"
         if code[i] == RESULTS.behind_camera:
@@ -282,13 +303,15 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
                   converged=code == RESULTS.successful, message=messages, result=code)
     common = dict(names=list(names), statistic="w" if sigma_known else "tau", pixel_size=_camera_info(camera).pixel_size)
     if batch:
-        ext = ExteriorOrientation(*jax.device_put((p[:, :3] + prep.origin, p[:, 3:])), convention)
+        ext = ExteriorOrientation(p[:, :3] + prep.origin, p[:, 3:], convention)
         return ResectionResult(exterior=ext, **fields, **common)
     one = {k: v[0] for k, v in fields.items()}
     for k in ("sigma0", "critical", "rms", "check_rms"):
         one[k] = float(one[k])
     one.update(iterations=int(one["iterations"]), converged=bool(one["converged"]), result=RESULTS(int(one["result"])))
-    ext = ExteriorOrientation(*jax.device_put((p[0, :3] + prep.origin[0], p[0, 3:])), convention)  # one transfer
+    # numpy in: ExteriorOrientation's own conversion is the one transfer (through jax.device_put first,
+    # its conversion of the device arrays still cost an operation each: 180 instead of 127 us)
+    ext = ExteriorOrientation(p[0, :3] + prep.origin[0], p[0, 3:], convention)
     return ResectionResult(exterior=ext, **one, **common)
 
 
@@ -473,7 +496,7 @@ def resect_batch(
         (``result[i]`` is the ``i``-th image's result).
     """
     prep = validate(image_xy, ground_xyz, camera, sigma, None, None, initial, convention, alpha, batch=True)
-    m = _bucket(prep.xy.shape[1])
+    m = _bucket(prep.xy.shape[1], batch=True)
     opt = _options(prep, camera, convention, robust, alpha, max_steps, m)
     with _solver_errors():
         out, screened = _solve(prep, opt, m, batch=True, robust=robust, camera=camera)

@@ -255,7 +255,8 @@ def linear_start_lanes(inp, opt):
         dy = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - y
         return xd - dx, yd - dy
 
-    x, y = jax.lax.fori_loop(0, 20, undistort, (xd, yd))
+    # No distortion (the common case of a calibrated, undistorted camera): the fixed point is the start.
+    x, y = jax.lax.fori_loop(0, jnp.where(jnp.any(cam.distortion != 0.0), 20, 0), undistort, (xd, yd))
     uv = jnp.stack([x, -y])  # OpenCV's frame: y down
     wf = inp.ctrl.astype(float)
     n_ctrl = jnp.sum(wf, axis=0)
@@ -273,13 +274,13 @@ def linear_start_lanes(inp, opt):
     # homography (plane -> normalised image), Zhang 2000 sec. 3.1
     a = sum(rel[i] * inp.basis[i, 0][None] for i in range(3)) / scale[None]
     b = sum(rel[i] * inp.basis[i, 1][None] for i in range(3)) / scale[None]
-    h = _lanes.spd_solve(*_dlt_normal([a, b, one], un, vn, wf))
+    h = _lanes.solve_spd(*_dlt_normal([a, b, one], un, vn, wf))
     hm = _lanes.matmul3(t_inv, jnp.concatenate([h, one[:1]]).reshape(3, 3, -1))
     lam_h = 0.5 * (jnp.sqrt(jnp.sum(hm[:, 0] ** 2, axis=0)) + jnp.sqrt(jnp.sum(hm[:, 1] ** 2, axis=0)))
     c1, c2 = hm[:, 0] / lam_h[None], hm[:, 1] / lam_h[None]
 
     # calibrated DLT x ~ [M | m] X, Hartley & Zisserman 2003 sec. 7.1
-    sol = _lanes.spd_solve(*_dlt_normal([rel[i] / scale[None] for i in range(3)] + [one], un, vn, wf))
+    sol = _lanes.solve_spd(*_dlt_normal([rel[i] / scale[None] for i in range(3)] + [one], un, vn, wf))
     pm = jnp.stack([sum(t_inv[i, k][None] * jnp.concatenate([sol, one[:1]]).reshape(3, 4, -1)[k] for k in range(3))
                     for i in range(3)])  # (3, 4, B)
     mm = pm[:, :3] / _lanes.lane(scale, 3)
