@@ -73,7 +73,8 @@ class _Lin(NamedTuple):
     weight: Array  # (k,) rho'(|r|^2) (1 without a robust loss)
     jc: Array  # (k, 2, w) corrected, masked camera-side Jacobian J~c / sigma
     jp: Array  # (k, 2, 3) the same for the point
-    u_img: Array  # (n_img, w, w) sum of Jc^T Jc per image
+    u_diag: Array  # (n_img, w) diagonal of U_i = sum Jc^T Jc per image (U itself: _u_of; the Schur
+    # products add it into S's diagonal blocks, see photax.bundle._schur._pair_products)
     v: Array  # (n_pts, 3, 3)
     g_img: Array  # (n_img, w)
     g_c: Array  # (N,)
@@ -125,7 +126,7 @@ def _observation_terms(state: _State, s: _Structure, loss: Array, scale: Array):
     return r0, rho, weight, jc, jp, g_obs_c, g_obs_p
 
 
-def _finish_lin(state, s, n_c, cost_obs, r0, weight, jc, jp, u_img, v, g_img, g_p) -> _Lin:
+def _finish_lin(state, s, n_c, cost_obs, r0, weight, jc, jp, u_diag, v, g_img, g_p) -> _Lin:
     """The :class:`_Lin` from the sums over observations: priors, ``g_c``,
     the damping diagonal and ``max |g|``."""
     rp = _prior_residuals(state, s)
@@ -135,19 +136,19 @@ def _finish_lin(state, s, n_c, cost_obs, r0, weight, jc, jp, u_img, v, g_img, g_
     flat = s.image_ext.ravel()
     g_c = jnp.zeros(n_c).at[flat].add(g_img.ravel())
     # LM damping D: the diagonal of the normal matrix J~^T J~ (Ceres).
-    d_c = jnp.zeros(n_c).at[flat].add(jnp.diagonal(u_img, axis1=1, axis2=2).ravel())
+    d_c = jnp.zeros(n_c).at[flat].add(u_diag.ravel())
     d_p = jnp.diagonal(v, axis1=1, axis2=2)
     clamp = functools.partial(jnp.clip, min=1e-6, max=1e32)
     gmax = jnp.maximum(jnp.max(jnp.abs(g_c), initial=0.0), jnp.max(jnp.abs(g_p), initial=0.0))
     cost = cost_obs + 0.5 * jnp.sum(rp * rp)
-    return _Lin(cost, r0, weight, jc, jp, u_img, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax)
+    return _Lin(cost, r0, weight, jc, jp, u_diag, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax)
 
 
 #: Observations beyond which :func:`_linearise` runs in chunks of
 #: :data:`LIN_CHUNK` (:func:`_linearise_chunked`): its whole-problem form
 #: holds several ``(k, 2, w)`` Jacobian copies at once (1.7 GB of transients
 #: at 2,500 images, ~7 GB at 10,000); below it the whole form is kept for its
-#: speed (``U`` by GEMMs over image chunks).
+#: speed.
 LIN_WHOLE = 1 << 20
 LIN_CHUNK = 1 << 16
 
@@ -157,19 +158,24 @@ def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int
     if s.obs_image.shape[0] > LIN_WHOLE:
         return _linearise_chunked(state, s, loss, scale, n_c, LIN_CHUNK)
     n_img, n_pts = state.centre.shape[0], state.xyz.shape[0]
-    w = 6 + s.active.shape[0]
     r0, rho, weight, jc, jp, g_obs_c, g_obs_p = _observation_terms(state, s, loss, scale)
     seg = functools.partial(jax.ops.segment_sum, num_segments=n_img)
     segp = functools.partial(jax.ops.segment_sum, num_segments=n_pts)
     jpt = jnp.swapaxes(jp, 1, 2)
-    # U_i = sum Jc^T Jc over the image's observations: GEMMs over chunks of them.
-    jcc = jnp.take(jc, s.image_chunk, axis=0, mode="fill", fill_value=0.0).reshape(s.image_chunk.shape[0], -1, w)
-    u_img = jax.ops.segment_sum(jax.lax.dot_general(jcc, jcc, (((1,), (1,)), ((0,), (0,)))), s.image_of_chunk,
-                                num_segments=n_img, indices_are_sorted=True)  # fmt: skip
+    u_diag = seg(jc[:, 0] ** 2 + jc[:, 1] ** 2, s.obs_image)  # U itself is summed in the Schur pass
     g_img = seg(g_obs_c, s.obs_image)
     v = segp(_outer_sum(jpt, jpt), s.obs_point)
     g_p = segp(g_obs_p, s.obs_point)
-    return _finish_lin(state, s, n_c, 0.5 * jnp.sum(rho), r0, weight, jc, jp, u_img, v, g_img, g_p)
+    return _finish_lin(state, s, n_c, 0.5 * jnp.sum(rho), r0, weight, jc, jp, u_diag, v, g_img, g_p)
+
+
+def _u_of(jc: Array, s: _Structure, n_img: int) -> Array:
+    """``(n_img, w, w)`` ``U_i = sum Jc^T Jc`` over each image's observations
+    (GEMMs over chunks of them), for the paths that need ``U`` alone (CG)."""
+    w = jc.shape[2]
+    jcc = jnp.take(jc, s.image_chunk, axis=0, mode="fill", fill_value=0.0).reshape(s.image_chunk.shape[0], -1, w)
+    return jax.ops.segment_sum(jax.lax.dot_general(jcc, jcc, (((1,), (1,)), ((0,), (0,)))), s.image_of_chunk,
+                               num_segments=n_img, indices_are_sorted=True)  # fmt: skip
 
 
 def _linearise_chunked(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int, chunk: int) -> _Lin:
@@ -194,7 +200,7 @@ def _linearise_chunked(state: _State, s: _Structure, loss: Array, scale: Array, 
         r0, rho, weight, jc, jp, g_obs_c, g_obs_p = _observation_terms(state, sub, loss, scale)
         m = new.astype(float)
         jct, jpt = jnp.swapaxes(jc, 1, 2) * m[:, None, None], jnp.swapaxes(jp, 1, 2)
-        u = u.at[sub.obs_image].add(_outer_sum(jct, jct))
+        u = u.at[sub.obs_image].add(jct[:, :, 0] ** 2 + jct[:, :, 1] ** 2)  # diag(U)
         v = v.at[sub.obs_point].add(_outer_sum(jpt * m[:, None, None], jpt))
         g_img = g_img.at[sub.obs_image].add(g_obs_c * m[:, None])
         g_p = g_p.at[sub.obs_point].add(g_obs_p * m[:, None])
@@ -203,7 +209,7 @@ def _linearise_chunked(state: _State, s: _Structure, loss: Array, scale: Array, 
                  cost + 0.5 * jnp.sum(rho * m))  # fmt: skip
         return carry, None
 
-    init = (jnp.zeros((k, 2)), jnp.zeros(k), jnp.zeros((k, 2, w)), jnp.zeros((k, 2, 3)), jnp.zeros((n_img, w, w)),
+    init = (jnp.zeros((k, 2)), jnp.zeros(k), jnp.zeros((k, 2, w)), jnp.zeros((k, 2, 3)), jnp.zeros((n_img, w)),
             jnp.zeros((n_pts, 3, 3)), jnp.zeros((n_img, w)), jnp.zeros((n_pts, 3)), jnp.zeros(()))  # fmt: skip
-    (r0, weight, jc, jp, u_img, v, g_img, g_p, cost), _ = jax.lax.scan(step, init, jnp.arange(n_steps))
-    return _finish_lin(state, s, n_c, cost, r0, weight, jc, jp, u_img, v, g_img, g_p)
+    (r0, weight, jc, jp, u_diag, v, g_img, g_p, cost), _ = jax.lax.scan(step, init, jnp.arange(n_steps))
+    return _finish_lin(state, s, n_c, cost, r0, weight, jc, jp, u_diag, v, g_img, g_p)

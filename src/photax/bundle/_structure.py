@@ -106,7 +106,9 @@ def _chunks(pa: np.ndarray, pb: np.ndarray, obs_image: np.ndarray, n_obs: int, n
     key = (off * n_img + obs_image[a]) * n_img + obs_image[b]
     srt = np.argsort(key, kind="stable")
     a, b, key = a[srt], b[srt], key[srt]
-    uniq, kid, counts = np.unique(key, return_inverse=True, return_counts=True)
+    first = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))  # key is sorted: no second sort (np.unique)
+    uniq, counts = key[first], np.diff(np.append(first, len(key)))
+    kid = np.repeat(np.arange(len(uniq)), counts)
     n_ch = -(-counts // CHUNK)  # chunks per block
     first_pair = np.concatenate([[0], np.cumsum(counts)[:-1]])
     first_chunk = np.concatenate([[0], np.cumsum(n_ch)[:-1]])
