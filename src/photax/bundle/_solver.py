@@ -322,7 +322,9 @@ def _lm_loop(state, lin, s, kw, solver, rule: StoppingRule, gn: bool, mu: float,
     # Least squares: the trial linearises at its candidate (whose cost comes
     # with it), kept when the step is accepted, so each step projects the
     # observations once, not twice (its cost, then the linearisation at the
-    # new point): 900-image block 0.85x the CPU time.  Not with a robust loss
+    # new point): 900-image block 0.89x the CPU time (interleaved runs at
+    # load 4-5; 0.76x with the step extension it made unprofitable removed,
+    # see the module docstring).  Not with a robust loss
     # (the point pass moves the candidate), nor where the linearisation is
     # chunked for memory (two would coexist: 10,000 images).
     fuse = not robust and s.obs_image.shape[0] <= LIN_WHOLE
@@ -349,17 +351,13 @@ def _lm_loop(state, lin, s, kw, solver, rule: StoppingRule, gn: bool, mu: float,
         old = cost
         if accepted:
             state, cost = new, new_cost
-            if lin_new is not None:  # the candidate's own (least squares, see fuse)
-                lin = lin_new
-            else:
-                lin_new = None  # freed first
-                lin = _linearise(state, s, **kw)
+            lin = lin_new if lin_new is not None else _linearise(state, s, **kw)  # the candidate's own: see fuse
             gmax = float(lin.gmax)
             mu = mu / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             mu, nu = min(mu, 1e16), 2.0
         else:
             mu, nu = mu / nu, nu * 2.0
-        lin_new = None
+        lin_new = None  # a rejected candidate's linearisation is freed before the next trial
         history.append(dict(iteration=it, cost=cost, candidate_cost=new_cost if math.isfinite(new_cost) else None, relative_decrease=rho, trust_radius=mu,
                             step_norm=step, gradient_max=gmax, accepted=bool(accepted),
                             seconds=time.perf_counter() - t0))  # fmt: skip
