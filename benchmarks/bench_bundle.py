@@ -332,6 +332,21 @@ def _timed(fn):
     return out, time.perf_counter() - t0
 
 
+def _cpu() -> float:
+    """CPU seconds of this process (all threads) and its children."""
+    import resource
+
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def _timed_cpu(fn):
+    """``(out, wall s, CPU s)`` of ``fn()``."""
+    c0 = _cpu()
+    out, wall = _timed(fn)
+    return out, wall, _cpu() - c0
+
+
 def precision_at(result):
     """photax's precision at an adjusted BAL block: the problem at the
     solution, gauge ``fix_first_camera``, no iteration (``max_steps=0``)."""
@@ -359,17 +374,18 @@ def block_comparison(grids, seed: int, ceres_up_to: int, single_from: int, radiu
         t_first = float("nan")
         if not once:
             _, t_first = _timed(lambda: photax_bal(bal_problem(d), **tr))
-        (res, t_warm), peak = peak_memory(lambda: (lambda problem: _timed(lambda: photax_bal(problem, verbose=once, **tr)))(bal_problem(d)))
+        (res, t_warm, cpu_warm), peak = peak_memory(lambda: (lambda problem: _timed_cpu(lambda: photax_bal(problem, verbose=once, **tr)))(bal_problem(d)))
         if once:
             t_first = t_warm
         cost = bal_cost(*photax_solution(res), d)
         print(f"  photax : cost {cost:.7e} after {res.iterations} iterations ({res.message}), "
-              f"{'warm ' if not once else ''}{t_warm:.2f} s (first call {t_first:.2f} s), peak {mib(peak)}, "
+              f"{'warm ' if not once else ''}{t_warm:.2f} s (first call {t_first:.2f} s), CPU {cpu_warm:.2f} s "
+              f"({cpu_warm / max(res.iterations, 1):.3f} s per iteration), peak {mib(peak)}, "
               f"load average {os.getloadavg()}", flush=True)  # fmt: skip
         (prec, t_prec), peak_prec = peak_memory(lambda: _timed(lambda: precision_at(res)))
         ok = prec.exterior_std is not None and bool(np.all(np.isfinite(prec.exterior_std[1:])))
         row = dict(grid=g, initial_trust_radius=radius, images=len(d.cameras), points=len(d.points), observations=len(d.observations),
-                   photax_s=t_warm, photax_first_call_s=t_first, photax_iterations=res.iterations, photax_cost=cost,
+                   photax_s=t_warm, photax_cpu_s=cpu_warm, photax_first_call_s=t_first, photax_iterations=res.iterations, photax_cost=cost,
                    photax_converged=res.converged, photax_peak_bytes=peak, precision_s=t_prec,
                    precision_peak_bytes=peak_prec, precision_ok=ok, solver=_solver_of(res),
                    median_exterior_std=np.median(prec.exterior_std, axis=0).tolist() if ok else None,
@@ -379,14 +395,16 @@ def block_comparison(grids, seed: int, ceres_up_to: int, single_from: int, radiu
         if g <= ceres_up_to:
             def ceres_run():
                 solve, to_bal = ceres_bal(d, "SPARSE_SCHUR", num_threads=2, progress=once, initial_trust_radius=radius)
-                return _timed(solve), to_bal
+                return _timed_cpu(solve), to_bal
 
-            ((summary, t_c), to_bal), peak_c = peak_memory(ceres_run)
+            ((summary, t_c, cpu_c), to_bal), peak_c = peak_memory(ceres_run)
             c_c = bal_cost(*to_bal(), d)
-            row.update(ceres_s=t_c, ceres_iterations=summary.num_successful_steps + summary.num_unsuccessful_steps,
+            row.update(ceres_s=t_c, ceres_cpu_s=cpu_c, cpu_ratio=cpu_warm / cpu_c,
+                       ceres_iterations=summary.num_successful_steps + summary.num_unsuccessful_steps,
                        ceres_cost=c_c, ceres_peak_bytes=peak_c, ratio=t_warm / t_c, first_call_ratio=t_first / t_c,
                        cost_excess=(cost - c_c) / c_c, ceres_load_average=[round(v, 2) for v in os.getloadavg()])  # fmt: skip
-            print(f"  Ceres  : cost {c_c:.7e} after {row['ceres_iterations']} iterations, {t_c:.2f} s, peak "
+            print(f"  Ceres  : cost {c_c:.7e} after {row['ceres_iterations']} iterations, {t_c:.2f} s (CPU {cpu_c:.2f} s, "
+                  f"{cpu_c / max(row['ceres_iterations'], 1):.3f} s per iteration; photax/Ceres CPU {cpu_warm / cpu_c:.2f}), peak "
                   f"{mib(peak_c)} (in this process); ratio photax/Ceres {t_warm / t_c:.2f} (first call "
                   f"{t_first / t_c:.2f}), cost {(cost - c_c) / c_c:+.2e} relative", flush=True)  # fmt: skip
             _save_row(row)
@@ -416,7 +434,7 @@ def _save_row(row: dict) -> None:
     if "ceres_s" not in row and path.is_file():  # Ceres not re-run: keep its figures, say when they were measured
         before = json.loads(path.read_text())
         if "ceres_s" in before:
-            keep = ("ceres_s", "ceres_iterations", "ceres_cost", "ceres_peak_bytes", "ceres_load_average")
+            keep = ("ceres_s", "ceres_cpu_s", "ceres_iterations", "ceres_cost", "ceres_peak_bytes", "ceres_load_average")
             out.update({k: before[k] for k in keep if k in before}, ceres_date=before.get("ceres_date", before["date"]),
                        ratio=row["photax_s"] / before["ceres_s"], cost_excess=(row["photax_cost"] - before["ceres_cost"]) / before["ceres_cost"])  # fmt: skip
     path.write_text(json.dumps(out, indent=1) + "\n")

@@ -71,8 +71,10 @@ class _Lin(NamedTuple):
     cost: Array
     r: Array  # (k, 2) residuals (projected - observed) / sigma, not robustified
     weight: Array  # (k,) rho'(|r|^2) (1 without a robust loss)
-    wt: Array  # (k, 3, w) W^T per observation: Jp^T Jc
-    u_img: Array  # (n_img, w, w) sum of Jc^T Jc per image
+    jc: Array  # (k, 2, w) corrected, masked camera-side Jacobian J~c / sigma
+    jp: Array  # (k, 2, 3) the same for the point
+    u_diag: Array  # (n_img, w) diagonal of U_i = sum Jc^T Jc per image (U itself: _u_of; the Schur
+    # products add it into S's diagonal blocks, see photax.bundle._schur._pair_products)
     v: Array  # (n_pts, 3, 3)
     g_img: Array  # (n_img, w)
     g_c: Array  # (N,)
@@ -80,6 +82,13 @@ class _Lin(NamedTuple):
     d_c: Array  # (N,) diag(J^T J), clamped
     d_p: Array  # (n_pts, 3)
     gmax: Array  # max |g|
+
+    @property
+    def wt(self) -> Array:
+        """``(k, 3, w)`` ``W^T = Jp^T Jc`` per observation, formed on use:
+        the solver's passes use the rank-2 factors ``jc``, ``jp`` directly
+        (fewer bytes and flops; :func:`photax.bundle._schur._schur_blocks`)."""
+        return _outer_sum(jnp.swapaxes(self.jp, 1, 2), jnp.swapaxes(self.jc, 1, 2))
 
 
 def _observation_terms(state: _State, s: _Structure, loss: Array, scale: Array):
@@ -89,25 +98,35 @@ def _observation_terms(state: _State, s: _Structure, loss: Array, scale: Array):
     gradient contributions ``(m, w)``, ``(m, 3)``."""
     proj, jc, jp = _project_obs(state, s, jacobians=True)
     r0 = (proj - s.obs_xy) / s.obs_sigma
-    rho, weight, rho2 = _rho(jnp.sum(r0 * r0, axis=1), loss, scale)
-    sqrt_rho1, alpha_sq = _corrector(r0, weight, rho2)
-    # Corrected Jacobian sqrt(rho') (I - alpha r r^T / s) J / sigma (see
-    # _corrector); the gradient rho' J^T r / sigma is formed from J itself,
-    # which equals J~^T r~ without dividing by 1 - alpha.
-    rg = r0 * weight[:, None]
+    jc = jc / s.obs_sigma[:, :, None] * s.mask_c[s.image_ext[s.obs_image]][:, None, :]
+    jp = jp / s.obs_sigma[:, :, None] * s.mask_p[s.obs_point][:, None, :]
 
-    def correct(j, mask):
-        j = j / s.obs_sigma[:, :, None] * mask[:, None, :]
-        g = jnp.einsum("kri,kr->ki", j, rg)
-        j = j - (alpha_sq[:, None] * r0)[:, :, None] * jnp.einsum("kr,krj->kj", r0, j)[:, None, :]
-        return j * sqrt_rho1[:, None, None], g
+    def rdot(r, j):  # (m, cols) r^T j per observation, the 2 rows summed out (a batched dot is slower on CPU)
+        return r[:, 0, None] * j[:, 0] + r[:, 1, None] * j[:, 1]
 
-    jc, g_obs_c = correct(jc, s.mask_c[s.image_ext[s.obs_image]])
-    jp, g_obs_p = correct(jp, s.mask_p[s.obs_point])
+    def plain(r0, jc, jp):  # least squares: rho = s, rho' = 1, no correction (~20 % of the pass)
+        return jnp.sum(r0 * r0, axis=1), jnp.ones(r0.shape[0]), jc, jp, rdot(r0, jc), rdot(r0, jp)
+
+    def robust(r0, jc, jp):
+        rho, weight, rho2 = _rho(jnp.sum(r0 * r0, axis=1), loss, scale)
+        sqrt_rho1, alpha_sq = _corrector(r0, weight, rho2)
+        # Corrected Jacobian sqrt(rho') (I - alpha r r^T / s) J / sigma (see
+        # _corrector); the gradient rho' J^T r / sigma is formed from J itself,
+        # which equals J~^T r~ without dividing by 1 - alpha.
+        rg = r0 * weight[:, None]
+
+        def correct(j):
+            j = j - (alpha_sq[:, None] * r0)[:, :, None] * rdot(r0, j)[:, None, :]
+            return j * sqrt_rho1[:, None, None]
+
+        return rho, weight, correct(jc), correct(jp), rdot(rg, jc), rdot(rg, jp)
+
+    # One branch runs (XLA's conditional): the loss stays a traced code, no recompilation per loss.
+    rho, weight, jc, jp, g_obs_c, g_obs_p = jax.lax.cond(loss == 0, plain, robust, r0, jc, jp)
     return r0, rho, weight, jc, jp, g_obs_c, g_obs_p
 
 
-def _finish_lin(state, s, n_c, cost_obs, r0, weight, wt, u_img, v, g_img, g_p) -> _Lin:
+def _finish_lin(state, s, n_c, cost_obs, r0, weight, jc, jp, u_diag, v, g_img, g_p) -> _Lin:
     """The :class:`_Lin` from the sums over observations: priors, ``g_c``,
     the damping diagonal and ``max |g|``."""
     rp = _prior_residuals(state, s)
@@ -117,19 +136,19 @@ def _finish_lin(state, s, n_c, cost_obs, r0, weight, wt, u_img, v, g_img, g_p) -
     flat = s.image_ext.ravel()
     g_c = jnp.zeros(n_c).at[flat].add(g_img.ravel())
     # LM damping D: the diagonal of the normal matrix J~^T J~ (Ceres).
-    d_c = jnp.zeros(n_c).at[flat].add(jnp.diagonal(u_img, axis1=1, axis2=2).ravel())
+    d_c = jnp.zeros(n_c).at[flat].add(u_diag.ravel())
     d_p = jnp.diagonal(v, axis1=1, axis2=2)
     clamp = functools.partial(jnp.clip, min=1e-6, max=1e32)
     gmax = jnp.maximum(jnp.max(jnp.abs(g_c), initial=0.0), jnp.max(jnp.abs(g_p), initial=0.0))
     cost = cost_obs + 0.5 * jnp.sum(rp * rp)
-    return _Lin(cost, r0, weight, wt, u_img, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax)
+    return _Lin(cost, r0, weight, jc, jp, u_diag, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax)
 
 
 #: Observations beyond which :func:`_linearise` runs in chunks of
 #: :data:`LIN_CHUNK` (:func:`_linearise_chunked`): its whole-problem form
 #: holds several ``(k, 2, w)`` Jacobian copies at once (1.7 GB of transients
 #: at 2,500 images, ~7 GB at 10,000); below it the whole form is kept for its
-#: speed (``U`` by GEMMs over image chunks).
+#: speed.
 LIN_WHOLE = 1 << 20
 LIN_CHUNK = 1 << 16
 
@@ -139,24 +158,29 @@ def _linearise(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int
     if s.obs_image.shape[0] > LIN_WHOLE:
         return _linearise_chunked(state, s, loss, scale, n_c, LIN_CHUNK)
     n_img, n_pts = state.centre.shape[0], state.xyz.shape[0]
-    w = 6 + s.active.shape[0]
     r0, rho, weight, jc, jp, g_obs_c, g_obs_p = _observation_terms(state, s, loss, scale)
     seg = functools.partial(jax.ops.segment_sum, num_segments=n_img)
     segp = functools.partial(jax.ops.segment_sum, num_segments=n_pts)
-    jct, jpt = jnp.swapaxes(jc, 1, 2), jnp.swapaxes(jp, 1, 2)
-    # U_i = sum Jc^T Jc over the image's observations: GEMMs over chunks of them.
-    jcc = jnp.take(jc, s.image_chunk, axis=0, mode="fill", fill_value=0.0).reshape(s.image_chunk.shape[0], -1, w)
-    u_img = jax.ops.segment_sum(jax.lax.dot_general(jcc, jcc, (((1,), (1,)), ((0,), (0,)))), s.image_of_chunk,
-                                num_segments=n_img, indices_are_sorted=True)  # fmt: skip
+    jpt = jnp.swapaxes(jp, 1, 2)
+    u_diag = seg(jc[:, 0] ** 2 + jc[:, 1] ** 2, s.obs_image)  # U itself is summed in the Schur pass
     g_img = seg(g_obs_c, s.obs_image)
     v = segp(_outer_sum(jpt, jpt), s.obs_point)
     g_p = segp(g_obs_p, s.obs_point)
-    return _finish_lin(state, s, n_c, 0.5 * jnp.sum(rho), r0, weight, _outer_sum(jpt, jct), u_img, v, g_img, g_p)
+    return _finish_lin(state, s, n_c, 0.5 * jnp.sum(rho), r0, weight, jc, jp, u_diag, v, g_img, g_p)
+
+
+def _u_of(jc: Array, s: _Structure, n_img: int) -> Array:
+    """``(n_img, w, w)`` ``U_i = sum Jc^T Jc`` over each image's observations
+    (GEMMs over chunks of them), for the paths that need ``U`` alone (CG)."""
+    w = jc.shape[2]
+    jcc = jnp.take(jc, s.image_chunk, axis=0, mode="fill", fill_value=0.0).reshape(s.image_chunk.shape[0], -1, w)
+    return jax.ops.segment_sum(jax.lax.dot_general(jcc, jcc, (((1,), (1,)), ((0,), (0,)))), s.image_of_chunk,
+                               num_segments=n_img, indices_are_sorted=True)  # fmt: skip
 
 
 def _linearise_chunked(state: _State, s: _Structure, loss: Array, scale: Array, n_c: int, chunk: int) -> _Lin:
     """:func:`_linearise` in a scan over ``chunk`` observations at a time:
-    only ``r``, ``rho'`` and ``W^T`` are kept per observation (written in
+    only ``r``, ``rho'`` and the Jacobians are kept per observation (written in
     place into the scan's carry), the sums ``U``, ``V``, ``g`` are added
     chunk by chunk, so the transients are one chunk's.  The last chunk
     starts at ``k - chunk`` (no padding) and adds only the observations the
@@ -167,7 +191,7 @@ def _linearise_chunked(state: _State, s: _Structure, loss: Array, scale: Array, 
     n_steps = -(-k // chunk)
 
     def step(carry, i):
-        r_all, wgt_all, wt_all, u, v, g_img, g_p, cost = carry
+        r_all, wgt_all, jc_all, jp_all, u, v, g_img, g_p, cost = carry
         first = jnp.minimum(i * chunk, k - chunk)
         new = (first + jnp.arange(chunk)) >= i * chunk  # not done by the previous chunk
         sl = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=first, slice_size=chunk)
@@ -176,16 +200,16 @@ def _linearise_chunked(state: _State, s: _Structure, loss: Array, scale: Array, 
         r0, rho, weight, jc, jp, g_obs_c, g_obs_p = _observation_terms(state, sub, loss, scale)
         m = new.astype(float)
         jct, jpt = jnp.swapaxes(jc, 1, 2) * m[:, None, None], jnp.swapaxes(jp, 1, 2)
-        u = u.at[sub.obs_image].add(_outer_sum(jct, jct))
+        u = u.at[sub.obs_image].add(jct[:, :, 0] ** 2 + jct[:, :, 1] ** 2)  # diag(U)
         v = v.at[sub.obs_point].add(_outer_sum(jpt * m[:, None, None], jpt))
         g_img = g_img.at[sub.obs_image].add(g_obs_c * m[:, None])
         g_p = g_p.at[sub.obs_point].add(g_obs_p * m[:, None])
         upd = functools.partial(jax.lax.dynamic_update_slice_in_dim, start_index=first, axis=0)
-        carry = (upd(r_all, r0), upd(wgt_all, weight), upd(wt_all, _outer_sum(jpt, jnp.swapaxes(jc, 1, 2))),
-                 u, v, g_img, g_p, cost + 0.5 * jnp.sum(rho * m))  # fmt: skip
+        carry = (upd(r_all, r0), upd(wgt_all, weight), upd(jc_all, jc), upd(jp_all, jp), u, v, g_img, g_p,
+                 cost + 0.5 * jnp.sum(rho * m))  # fmt: skip
         return carry, None
 
-    init = (jnp.zeros((k, 2)), jnp.zeros(k), jnp.zeros((k, 3, w)), jnp.zeros((n_img, w, w)), jnp.zeros((n_pts, 3, 3)),
-            jnp.zeros((n_img, w)), jnp.zeros((n_pts, 3)), jnp.zeros(()))  # fmt: skip
-    (r0, weight, wt, u_img, v, g_img, g_p, cost), _ = jax.lax.scan(step, init, jnp.arange(n_steps))
-    return _finish_lin(state, s, n_c, cost, r0, weight, wt, u_img, v, g_img, g_p)
+    init = (jnp.zeros((k, 2)), jnp.zeros(k), jnp.zeros((k, 2, w)), jnp.zeros((k, 2, 3)), jnp.zeros((n_img, w)),
+            jnp.zeros((n_pts, 3, 3)), jnp.zeros((n_img, w)), jnp.zeros((n_pts, 3)), jnp.zeros(()))  # fmt: skip
+    (r0, weight, jc, jp, u_diag, v, g_img, g_p, cost), _ = jax.lax.scan(step, init, jnp.arange(n_steps))
+    return _finish_lin(state, s, n_c, cost, r0, weight, jc, jp, u_diag, v, g_img, g_p)

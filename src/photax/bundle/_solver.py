@@ -24,10 +24,14 @@ above Ceres').  The centre step now turns with the camera, ``C <- C + R'
 R^T dC`` (:func:`photax.bundle._schur._trial`): 15 iterations on the same
 path as Ceres (same radii and costs to 4 digits), 27 to 28 at 900 images.
 
-Least squares then extends a step whose gain ratio exceeds 1
-(:func:`_extrapolate`): 14 and 26 iterations, final costs 1.2e-6 and 1.0e-6
-below Ceres'.  problem-49-7776 never has a gain ratio above 1 (33
-iterations before and after, no extra cost evaluation).
+A least-squares step is not extended when its gain ratio exceeds 1 (it
+was, 2026-11-24, doubling the step while the cost fell: 14 and 26
+iterations at 400 and 900 images instead of 15 and 28).  Since the trial
+linearises at its candidate (one projection pass per accepted step instead
+of two, see :func:`_lm_loop`), an extension costs that linearisation and a
+cost pass per multiple, more than the iteration it saves: the whole
+adjustment took 0.75x (400 images) and 0.85x (900 images) the CPU time
+without it, to final costs still 0.9e-6 and 1.9e-6 below Ceres'.
 
 Why the robust adjustment converges, and fast
 ---------------------------------------------
@@ -97,9 +101,9 @@ import numpy as np
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..errors import ConvergenceError
-from ..rotation import angles_from_matrix_unchecked, axis_angle_to_matrix, matrix_to_axis_angle, rotation_matrix
+from ..rotation import angles_from_matrix_unchecked, rotation_matrix
 from .._linalg import inv3
-from ._linearise import _cost, _linearise, _prior_residuals, _project_obs
+from ._linearise import LIN_WHOLE, _linearise, _prior_residuals, _project_obs
 from ._robust import _LOSS_CODE, _corrector, _rho
 from ._precision import _covariances, _covariances_band, _orientation_covariances, _standard_deviations
 from ._problem import BundleProblem, Gauge, Loss
@@ -315,6 +319,15 @@ def _lm_loop(state, lin, s, kw, solver, rule: StoppingRule, gn: bool, mu: float,
     :func:`_point_pass` (see the module docstring).  Returns ``(state, lin,
     cost, history, converged, message, iterations)``."""
     cost, nu = float(lin.cost), 2.0
+    # Least squares: the trial linearises at its candidate (whose cost comes
+    # with it), kept when the step is accepted, so each step projects the
+    # observations once, not twice (its cost, then the linearisation at the
+    # new point): 900-image block 0.89x the CPU time (interleaved runs at
+    # load 4-5; 0.76x with the step extension it made unprofitable removed,
+    # see the module docstring).  Not with a robust loss
+    # (the point pass moves the candidate), nor where the linearisation is
+    # chunked for memory (two would coexist: 10,000 images).
+    fuse = not robust and s.obs_image.shape[0] <= LIN_WHOLE
     history: list[dict] = []
     gmax = float(lin.gmax)
     message = rule.at_start(gmax)
@@ -324,7 +337,8 @@ def _lm_loop(state, lin, s, kw, solver, rule: StoppingRule, gn: bool, mu: float,
         it += 1
         t0 = time.perf_counter()
         lam = 0.0 if gn else 1.0 / mu
-        new, new_cost, pred, step, xnorm = _trial(state, lin, s, jnp.asarray(lam), **kw, solver=solver)
+        new, new_cost, pred, step, xnorm, lin_new = _trial(state, lin, s, jnp.asarray(lam), **kw, solver=solver,
+                                                            relinearise=fuse)  # fmt: skip
         new_cost, pred, step, xnorm = float(new_cost), float(pred), float(step), float(xnorm)
         gain = 0.0  # decrease by the point pass, credited to the prediction too
         if robust and math.isfinite(new_cost):
@@ -333,23 +347,19 @@ def _lm_loop(state, lin, s, kw, solver, rule: StoppingRule, gn: bool, mu: float,
             if pass_cost < new_cost:  # finite and lower (a = 0 keeps the trial point)
                 new, gain, new_cost = passed, new_cost - pass_cost, pass_cost
         rho = (cost - new_cost) / (pred + gain) if pred > 0 else -1.0
-        multiple = 1
-        if not robust and not gn and rho > EXTRAPOLATE_ABOVE and math.isfinite(new_cost):
-            new, multiple, extra = _extrapolate(state, new, new_cost, s, kw["loss"], kw["scale"])
-            if extra > 0:  # credited to the prediction too, as the point pass's decrease
-                rho, new_cost = (cost - new_cost + extra) / (pred + extra), new_cost - extra
         accepted = (gn and math.isfinite(new_cost)) or (rho > 1e-3 and math.isfinite(new_cost))
         old = cost
         if accepted:
             state, cost = new, new_cost
-            lin = _linearise(state, s, **kw)
+            lin = lin_new if lin_new is not None else _linearise(state, s, **kw)  # the candidate's own: see fuse
             gmax = float(lin.gmax)
             mu = mu / max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
             mu, nu = min(mu, 1e16), 2.0
         else:
             mu, nu = mu / nu, nu * 2.0
+        lin_new = None  # a rejected candidate's linearisation is freed before the next trial
         history.append(dict(iteration=it, cost=cost, candidate_cost=new_cost if math.isfinite(new_cost) else None, relative_decrease=rho, trust_radius=mu,
-                            step_norm=step, step_multiple=multiple, gradient_max=gmax, accepted=bool(accepted),
+                            step_norm=step, gradient_max=gmax, accepted=bool(accepted),
                             seconds=time.perf_counter() - t0))  # fmt: skip
         if verbose:
             _print_step(bar, it, cost, old, gmax, step, mu, accepted, new_cost)
@@ -367,54 +377,6 @@ def _lm_loop(state, lin, s, kw, solver, rule: StoppingRule, gn: bool, mu: float,
     if not converged and not message:
         message = f"no convergence within max_iterations = {rule.max_iterations}"
     return state, lin, cost, history, converged, message, it
-
-
-#: Least squares: after a step whose gain ratio exceeds this (the cost fell
-#: by more than the model predicted), the step is extended (:func:`_extrapolate`).
-EXTRAPOLATE_ABOVE = 1.0
-#: The longest multiple of an LM step that :func:`_extrapolate` tries.
-EXTRAPOLATE_MAX = 8
-
-
-@jax.jit
-def _along(state: _State, new: _State, t, s, loss, scale):
-    """The point ``t`` times the step from ``state`` to ``new`` along the
-    solver's update (rotation vector, centre step in the camera frame,
-    intrinsics and points linear), and its cost."""
-    dr = matrix_to_axis_angle(jnp.einsum("nji,njk->nik", state.rot, new.rot))
-    rot = state.rot @ axis_angle_to_matrix(t * dr)
-    body = jnp.einsum("nji,nj->ni", new.rot, new.centre - state.centre)  # R_new^T (C_new - C) = R^T dC
-    out = _State(rot, state.centre + t * jnp.einsum("nij,nj->ni", rot, body), state.intr + t * (new.intr - state.intr),
-                 state.xyz + t * (new.xyz - state.xyz))  # fmt: skip
-    c = _cost(out, s, loss, scale)
-    return out, jnp.where(jnp.isfinite(c), c, jnp.inf)
-
-
-def _extrapolate(state: _State, new: _State, new_cost: float, s, loss, scale):
-    """Extend a least-squares LM step that did better than its model.
-
-    A gain ratio above 1 means the cost fell faster along the step than the
-    Gauss–Newton model, whose curvature then overestimates the cost's: on a
-    block whose free focal lengths trade against the flying heights the
-    steps undershoot the valley's floor by a factor that stays 1.5-3 for
-    many iterations (linear convergence, the cost change halving per step;
-    Ceres' gain ratios there are 1.0-1.7 too).  The step is doubled (2, 4,
-    ... :data:`EXTRAPOLATE_MAX` times) while the cost keeps falling, one
-    cost evaluation each (a projection pass, about 5 % of an iteration).
-    Returns the best point, its multiple and its decrease below the trial
-    point (0: the trial point).  Like the point pass, the extra decrease is
-    credited to both sides of the gain ratio (a "magical step", Conn, Gould
-    & Toint 2000, sec. 10.4.1), so the ratio still judges the model."""
-    best, best_cost, multiple = new, new_cost, 1
-    t = 2
-    while t <= EXTRAPOLATE_MAX:
-        cand, c = _along(state, new, jnp.asarray(float(t)), s, loss, scale)
-        c = float(c)
-        if not c < best_cost:
-            break
-        best, best_cost, multiple = cand, c, t
-        t *= 2
-    return best, multiple, new_cost - best_cost
 
 
 #: Multiples of its reweighted Gauss–Newton step among which the point pass

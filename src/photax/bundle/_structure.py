@@ -106,7 +106,9 @@ def _chunks(pa: np.ndarray, pb: np.ndarray, obs_image: np.ndarray, n_obs: int, n
     key = (off * n_img + obs_image[a]) * n_img + obs_image[b]
     srt = np.argsort(key, kind="stable")
     a, b, key = a[srt], b[srt], key[srt]
-    uniq, kid, counts = np.unique(key, return_inverse=True, return_counts=True)
+    first = np.flatnonzero(np.concatenate([[True], key[1:] != key[:-1]]))  # key is sorted: no second sort (np.unique)
+    uniq, counts = key[first], np.diff(np.append(first, len(key)))
+    kid = np.repeat(np.arange(len(uniq)), counts)
     n_ch = -(-counts // CHUNK)  # chunks per block
     first_pair = np.concatenate([[0], np.cumsum(counts)[:-1]])
     first_chunk = np.concatenate([[0], np.cumsum(n_ch)[:-1]])
@@ -177,9 +179,15 @@ def _topology(problem) -> _Topology:
     pa, pb, *_ = observation_pairs(problem.obs_point, problem.obs_image, n_img)
     ca, cb, ck, ka, kb, koff = _chunks(pa, pb, problem.obs_image, problem.n_observations, n_img)
     band = band_layout(cols, ka, kb, n_c)
+    # The per-observation and per-pair index arrays in int32 (bounds checked
+    # below): they are read on every pass over the observations (the Schur
+    # product gathers by chunk_a, chunk_b), half the bytes of int64.
+    idx32 = [problem.obs_image, problem.obs_point, cols, pa, pb, ca, cb, ck, ka, kb, *_image_chunks(problem.obs_image, n_img)]
+    if max((int(np.max(v, initial=0)) for v in idx32), default=0) >= 2**31 - 1:
+        raise ValueError("the problem has more than 2^31 observations or pairs: too large")
+    i32 = [jnp.asarray(v, dtype=jnp.int32) for v in idx32]
     return _Topology(
-        *(jnp.asarray(v) for v in (problem.obs_image, problem.obs_point, cols, pa, pb, ca, cb, ck, ka, kb)),
-        jnp.asarray(koff, dtype=float), *(jnp.asarray(v) for v in _image_chunks(problem.obs_image, n_img)),
+        *i32[:10], jnp.asarray(koff, dtype=float), *i32[10:],
         jnp.asarray(active), jnp.asarray(problem.image_camera), *(jnp.asarray(v) for v in band), n_c, w,
     )  # fmt: skip
 
