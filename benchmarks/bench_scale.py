@@ -27,11 +27,12 @@ shows each run.  Measured, in this order, each once (a big run is minutes):
    default malloc: a freed buffer above its dynamic mmap threshold stays in
    the freeing thread's arena, so a chunk measured alone reuses what the
    compilation left, and the whole write's peak includes the pools of the
-   2 worker threads and the main thread).  Then, last, with glibc's mmap
-   threshold fixed at 128 KiB (``mallopt``): every buffer is mapped when
-   allocated and unmapped when freed, so resident memory is the bytes in
-   use -- the like-for-like ratio (the whole write is ~3x the CPU time so:
-   fresh pages for every buffer).  (Before 2026-11-24 07:30 the "chunk"
+   2 worker threads and the main thread).  Then, last, in a fresh process
+   with glibc's mmap threshold fixed at 128 KiB from the start
+   (``MALLOC_MMAP_THRESHOLD_``): every buffer is mapped when allocated and
+   unmapped when freed, so resident memory is the bytes in use -- the
+   like-for-like ratio (the kernels fault in fresh pages for every buffer:
+   more CPU time).  (Before 2026-11-24 07:30 the "chunk"
    was a 1024^2 slice straddling 4 chunks of 1000^2, measured against the
    pools only: 4-11 MiB.)
 2. photax into memory: the same array computed into a NumPy array
@@ -146,7 +147,9 @@ def _write(arr, label: str) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "ortho.tif")
         print(f"photax orthorectify_dask -> to_raster ({arr.data.npartitions} chunks of {chunk}^2, {label})")
-        with ProgressBar(dt=0.5):  # timed inside: the bar's thread ends at its next tick
+        # dt 0.5 s: Dask's finish callback waits for the bar's next tick inside the
+        # timed call (dt=5 added up to 5 s to the times before 2026-11-24 07:40).
+        with ProgressBar(dt=0.5):
             _trim()
             t0, c0 = time.perf_counter(), time.process_time()
             faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
@@ -161,41 +164,52 @@ def _write(arr, label: str) -> dict:
                 "peak_bytes": peak, "load": load}
 
 
-def _live(args, ortho, chunk_default, write_default) -> None:
-    """The same measurements with every buffer above 128 KiB mapped when
-    allocated and unmapped when freed (glibc's ``M_MMAP_THRESHOLD`` fixed at
-    its initial 128 KiB: no dynamic threshold, so no pools of freed buffers
-    in the threads' arenas): resident memory is then the bytes in use, for
-    the chunk alone and for the whole write alike -- the like-for-like
-    ratio.  Last: it is process-wide and makes the kernels fault in fresh
-    pages for every buffer (~3x the CPU time)."""
-    import ctypes
+def _live(args, chunk_default, write_default) -> None:
+    """The same measurements in a fresh process with glibc's mmap threshold
+    fixed at its initial 128 KiB (``MALLOC_MMAP_THRESHOLD_``, read when
+    malloc starts: set later, ``mallopt`` would still serve buffers from
+    the pools already there): every buffer above it is mapped when allocated
+    and unmapped when freed, no pools of freed buffers in the threads'
+    arenas, so resident memory is the bytes in use, for the chunk alone and
+    for the whole write alike -- the like-for-like ratio (the kernels fault
+    in fresh pages for every buffer: more CPU time)."""
+    import json
+    import subprocess
 
-    try:
-        ok = ctypes.CDLL("libc.so.6").mallopt(-3, 128 * 1024)  # M_MMAP_THRESHOLD
-    except (OSError, AttributeError):
-        ok = 0
-    if not ok:
-        print("not glibc: live-memory figures skipped")
-        return
-    print("live memory (glibc mmap threshold fixed at 128 KiB):")
-    for c, arr in ortho.items():
-        live = _chunk_peak(arr)
-        w = _write(arr, "mmap threshold fixed")
-        print(f"chunks {c}: one chunk {mib(live)} live ({mib(chunk_default[c])} with the default allocator); "
-              f"whole write {mib(w['peak_bytes'])} live = {w['peak_bytes'] / live:.2f}x, "
-              f"{mib(write_default[c]['peak_bytes'])} with the default allocator = "
-              f"{write_default[c]['peak_bytes'] / live:.2f}x the live chunk (load {w['load']:.1f})")
-        record(f"photax to_raster chunks={c}", size=args.size, chunks=c, chunk_shape=list(arr.data.chunksize),
-               chunk_live_bytes=live, chunk_default_bytes=chunk_default[c], write_live=w,
-               write_default=write_default[c], live_over_chunk=w["peak_bytes"] / live,
-               default_over_chunk=write_default[c]["peak_bytes"] / live)
+    env = dict(os.environ, MALLOC_MMAP_THRESHOLD_=str(128 * 1024))
+    cmd = [sys.executable, __file__, "--size", str(args.size), "--image", str(args.image), "--live-child",
+           "--chunks", *map(str, args.chunks)]
+    print("live memory (a fresh process, glibc's mmap threshold fixed at 128 KiB):", flush=True)
+    out = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, text=True, check=True).stdout
+    text, _, tail = out.rpartition("@@live ")
+    print(text, end="")
+    live = json.loads(tail)
+    for c in args.chunks:
+        chunk, w = live[str(c)]["chunk"], live[str(c)]["write"]
+        d = write_default[c]
+        print(f"chunks {c}: one chunk {mib(chunk)} live ({mib(chunk_default[c])} with the default allocator); "
+              f"whole write {mib(w['peak_bytes'])} live = {w['peak_bytes'] / chunk:.2f}x; "
+              f"{mib(d['peak_bytes'])} with the default allocator = {d['peak_bytes'] / chunk:.2f}x the live chunk "
+              f"(load {w['load']:.1f} / {d['load']:.1f})")
+        record(f"photax to_raster chunks={c}", size=args.size, chunks=c, chunk_shape=live[str(c)]["shape"],
+               chunk_live_bytes=chunk, chunk_default_bytes=chunk_default[c], write_live=w, write_default=d,
+               live_over_chunk=w["peak_bytes"] / chunk, default_over_chunk=d["peak_bytes"] / chunk)
         if c == args.chunks[0]:
-            d = write_default[c]
             record("photax to_raster", seconds=d["seconds"], cpu_seconds=d["cpu_seconds"],
                    mpix_per_s=d["mpix_per_s"], peak_bytes=d["peak_bytes"], peak_live_bytes=w["peak_bytes"],
-                   chunk_bytes=live, peak_over_chunk=w["peak_bytes"] / live,
-                   default_peak_over_chunk=d["peak_bytes"] / live, size=args.size, chunks=c, load=d["load"])
+                   chunk_bytes=chunk, peak_over_chunk=w["peak_bytes"] / chunk,
+                   default_peak_over_chunk=d["peak_bytes"] / chunk, size=args.size, chunks=c, load=d["load"])
+
+
+def _live_child(ortho) -> None:
+    """In the child of :func:`_live`: each chunk size's chunk and whole write."""
+    import json
+
+    res = {}
+    for c, arr in ortho.items():
+        res[c] = {"chunk": _chunk_peak(arr), "write": _write(arr, "mmap threshold fixed"),
+                  "shape": list(arr.data.chunksize)}
+    print("@@live " + json.dumps(res))
 
 
 def main() -> None:
@@ -205,8 +219,10 @@ def main() -> None:
                     help="chunk edges (several: a sweep; the first is used against the peers)")
     ap.add_argument("--image", type=int, default=2000, help="rendered image width in pixels")
     ap.add_argument("--no-peers", action="store_true")
+    ap.add_argument("--live-child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
-    start("bench_scale")
+    if not args.live_child:
+        start("bench_scale")
     import dask
     import dask.array as da
     from dask.diagnostics import ProgressBar
@@ -221,6 +237,9 @@ def main() -> None:
     ortho = {c: photax.orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=c) for c in args.chunks}
     for arr in ortho.values():
         _block(arr).compute()  # compiles the kernels (not timed)
+    if args.live_child:
+        _live_child(ortho)
+        return
     # 1. The user's process (glibc malloc as configured by default).
     chunk_default = {c: _chunk_peak(arr) for c, arr in ortho.items()}
     write_default = {c: _write(arr, "default allocator") for c, arr in ortho.items()}
@@ -228,7 +247,7 @@ def main() -> None:
     dst = np.empty((args.size, args.size), np.uint8)
     def store(data) -> float:
         """Seconds to compute a lazy array into ``dst``, with a progress bar
-        (timed inside it: the bar's thread ends only at its next tick)."""
+        (its last tick, <= 0.5 s, is inside the time)."""
         with ProgressBar(dt=0.5):
             t0 = time.perf_counter()
             da.store(data, dst, lock=False)
@@ -243,7 +262,7 @@ def main() -> None:
     ours = dt
     if not args.no_peers:
         _peers(args, s, image, grid, ours_out, ours, dst, store)
-    _live(args, ortho, chunk_default, write_default)
+    _live(args, chunk_default, write_default)
 
 
 def _peers(args, s, image, grid, ours_out, ours, dst, store) -> None:
@@ -279,9 +298,9 @@ def _peers(args, s, image, grid, ours_out, ours, dst, store) -> None:
     a = np.c_[pix + 0.5, np.ones(len(pix))]
     coef, *_ = np.linalg.lstsq(a, ground, rcond=None)
     src_affine = Affine(coef[0, 0], coef[1, 0], coef[2, 0], coef[0, 1], coef[1, 1], coef[2, 1])
-    src = wrap_xr(da.from_array(image, chunks=args.chunks), GeoBox(image.shape, src_affine, CRS))
+    src = wrap_xr(da.from_array(image, chunks=args.chunks[0]), GeoBox(image.shape, src_affine, CRS))
     dst_box = GeoBox((args.size, args.size), grid.transform, CRS)
-    out = xr_reproject(src, dst_box, resampling="bilinear", chunks=(args.chunks, args.chunks))
+    out = xr_reproject(src, dst_box, resampling="bilinear", chunks=(args.chunks[0], args.chunks[0]))
     print("odc-geo xr_reproject (affine, bilinear, Dask threads) -> memory")
     dt = store(out.data)
     load = os.getloadavg()[0]
