@@ -173,3 +173,68 @@ def test_dead_worker_is_retried_and_a_failed_write_leaves_nothing(scene, cluster
         to_raster(arr.copy(data=arr.data.map_blocks(fail, meta=arr.data._meta)), out, cog=True)
     assert out.read_bytes() == b"previous result"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["died", "o.tif"]
+
+
+def test_window_check_by_strips_equals_whole_chunk():
+    """The chunk's window check reads the sample bounds strip by strip (no float64 copy of the
+    chunk's positions): the same bounds as the whole-chunk formula it replaced, with NaN
+    positions, samples outside the image, a chunk cropped from its padded shape and several strips."""
+    from photax.tiled import _STRIP, _sample_bounds
+
+    rng = np.random.default_rng(3)
+    h, w, size = 2 * _STRIP + 5, 37, (50, 60)
+    pos = rng.uniform(-20, 70, (2, h + 3, w + 4)).astype(np.float32)
+    pos[0, 5, 6] = np.nan
+    pos[:, h:, :] = 1e6  # padding rows beyond the chunk: ignored
+    origin = np.array([3.25, -2.5])
+    p = pos[:, :h, :w].astype(float) + origin[:, None, None]  # the formula before (whole chunk at once)
+    ok = np.isfinite(p).all(axis=0)
+    ok &= (p[0] >= -0.5) & (p[0] <= size[1] - 0.5) & (p[1] >= -0.5) & (p[1] <= size[0] - 0.5)
+    want = p[0][ok].min(), p[0][ok].max(), p[1][ok].min(), p[1][ok].max()
+    assert _sample_bounds(pos, origin, h, w, size) == want
+    assert _sample_bounds(pos + 500, origin, h, w, size) is None  # nothing inside the image
+
+
+def test_write_bounds_chunks_in_flight_and_gdal_cache(scene, tmp_path, monkeypatch):
+    """Issue 12, memory of the write: ``to_raster`` on the threaded scheduler (2 workers) never
+    holds more computed chunks than workers waiting for the writer (counted by hooks on the chunk
+    kernel and on rioxarray's window writer, not by timing), writes with GDAL's block cache bounded
+    (``GDAL_CACHEMAX`` seen by each write), and the file equals the in-memory ortho."""
+    import threading
+
+    import dask
+    from rasterio.env import get_gdal_config
+    from rioxarray.raster_writer import RasterioWriter
+
+    from photax import tiled
+
+    s, grid = scene
+    image = np.stack([(s.image * 250).astype(np.uint8) + b for b in (1, 3)])  # as above: its kernels, compiled
+    state = {"computed": 0, "written": 0, "most": 0, "cache": set()}
+    mutex = threading.Lock()
+    real_chunk, real_write = tiled._ortho_chunk, RasterioWriter.__setitem__
+
+    def chunk(*args):
+        out = real_chunk(*args)
+        with mutex:
+            state["computed"] += 1
+            state["most"] = max(state["most"], state["computed"] - state["written"])
+        return out
+
+    def write(self, key, item):
+        state["cache"].add(get_gdal_config("GDAL_CACHEMAX"))
+        real_write(self, key, item)
+        with mutex:
+            state["written"] += 1
+
+    monkeypatch.setattr(tiled, "_ortho_chunk", chunk)
+    monkeypatch.setattr(RasterioWriter, "__setitem__", write)
+    arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=40, resampling="cubic", approx=None)
+    with dask.config.set(scheduler="threads", num_workers=2):
+        to_raster(arr, tmp_path / "o.tif")
+    n = len(list(_tiles(grid.shape, 40)))
+    assert state["computed"] >= n // 2 and state["written"] == n  # (chunks off the DEM are not computed)
+    assert 1 <= state["most"] <= 2
+    assert state["cache"] == {16 << 20}
+    with rasterio.open(tmp_path / "o.tif") as ds:
+        np.testing.assert_array_equal(ds.read(), _ortho(s, grid, image, resampling="cubic", approx=None))

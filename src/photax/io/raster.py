@@ -9,12 +9,16 @@ from __future__ import annotations
 
 import contextlib
 import pathlib
+import threading
 import warnings
 
 import numpy as np
 
 from ..dem import DEM
 from .atomic import atomic_path
+
+
+_WARNINGS_LOCK = threading.Lock()
 
 
 def open_raster(path):
@@ -28,7 +32,9 @@ def open_raster(path):
     if not path.is_file():
         raise FileNotFoundError(f"no such raster file: {path}")
     try:
-        with warnings.catch_warnings():
+        # catch_warnings swaps process-wide filters: two threads (Dask workers
+        # reading windows) interleaving it could restore the other's filters mid-open.
+        with _WARNINGS_LOCK, warnings.catch_warnings():
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
             return rasterio.open(path)
     except rasterio.errors.RasterioIOError as exc:
