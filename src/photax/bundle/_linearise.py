@@ -88,7 +88,13 @@ class _Lin(NamedTuple):
         """``(k, 3, w)`` ``W^T = Jp^T Jc`` per observation, formed on use:
         the solver's passes use the rank-2 factors ``jc``, ``jp`` directly
         (fewer bytes and flops; :func:`photax.bundle._schur._schur_blocks`)."""
-        return _outer_sum(jnp.swapaxes(self.jp, 1, 2), jnp.swapaxes(self.jc, 1, 2))
+        return _wt_of(self.jc, self.jp)
+
+
+def _wt_of(jc: Array, jp: Array) -> Array:
+    """``(m, 3, w)`` ``W^T = Jp^T Jc`` of observations from their Jacobians
+    ``(m, 2, w)``, ``(m, 2, 3)``."""
+    return _outer_sum(jnp.swapaxes(jp, 1, 2), jnp.swapaxes(jc, 1, 2))
 
 
 def _observation_terms(state: _State, s: _Structure, loss: Array, scale: Array):

@@ -11,8 +11,8 @@ import numpy as np
 from jax import Array
 
 from ..rotation import angles_from_matrix_unchecked, axis_angle_to_matrix
-from ._linearise import _Lin
-from ._schur import _band_shape, _reduced_band, _reduced_system, _wt_rows, _yt_of
+from ._linearise import _Lin, _wt_of
+from ._schur import _band_shape, _reduced_band, _reduced_system, _yt_of
 from ._sparse import band_cholesky, band_selected_inverse, band_take, flat_index
 from ._structure import _Structure
 
@@ -76,8 +76,8 @@ def _covariances_band(lin: _Lin, s: _Structure, n_c: int):
         a, b, wgt = x
         a, b = a.ravel(), b.ravel()
         pt = jnp.take(s.obs_point, a, mode="fill", fill_value=n_pts)  # padding: dropped by the scatter
-        yta = _yt_of(take(vinv, pt), _wt_rows(take(lin.jc, a), take(lin.jp, a)))  # (m, 3, w)
-        ytb = _yt_of(take(vinv, pt), _wt_rows(take(lin.jc, b), take(lin.jp, b)))  # same point
+        yta = _yt_of(take(vinv, pt), _wt_of(take(lin.jc, a), take(lin.jp, a)))  # (m, 3, w)
+        ytb = _yt_of(take(vinv, pt), _wt_of(take(lin.jc, b), take(lin.jp, b)))  # same point
         ea, eb = ext[take(s.obs_image, a)], ext[take(s.obs_image, b)]
         qo = jnp.einsum("pai,pij,pbj->pab", yta, q(ea[:, :, None], eb[:, None, :]), ytb) * jnp.repeat(wgt, a.shape[0] // piece)[:, None, None]
         return acc.at[pt].add(qo + jnp.swapaxes(qo, 1, 2), mode="drop"), None  # in place

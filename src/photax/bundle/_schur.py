@@ -30,12 +30,6 @@ def _yt_of(vinv_obs: Array, wt: Array) -> Array:
     return sum(vinv_obs[:, :, j, None] * wt[:, None, j, :] for j in range(3))
 
 
-def _wt_rows(jc: Array, jp: Array) -> Array:
-    """``(m, 3, w)`` ``W^T = Jp^T Jc`` of observations from their Jacobians
-    ``(m, 2, w)``, ``(m, 2, 3)`` (:class:`._linearise._Lin`)."""
-    return sum(jp[:, r, :, None] * jc[:, r, None, :] for r in range(2))
-
-
 def _jc_dot(jc: Array, x: Array) -> Array:
     """``(m, 2)`` ``J x`` per observation for ``J`` ``(m, 2, n)``, ``x`` ``(m, n)``
     (unrolled over ``n``: XLA CPU's reductions over a short minor axis are slow)."""

@@ -53,15 +53,18 @@ _COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 _ROBUST_OPTIONS = dict(_COMPILER_OPTIONS, xla_backend_optimization_level=0)
 _solve_cheap = disk_cached(jax.jit(lambda inp, opt: pack(_adjust.solve_cheap(inp, opt)),
                                    compiler_options=_COMPILER_OPTIONS), "resect_cheap", _COMPILER_OPTIONS)
-_solve_robust = disk_cached(jax.jit(lambda inp, opt: pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt))),
-                                    compiler_options=_ROBUST_OPTIONS), "resect_robust", _ROBUST_OPTIONS)
+def _robust_program(inp, opt):
+    return pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt)))
+
+
+_solve_robust = disk_cached(jax.jit(_robust_program, compiler_options=_ROBUST_OPTIONS), "resect_robust",
+                            _ROBUST_OPTIONS)
 # The robust chunks of a large resect_batch (_ROBUST_OPT_MIN images or more), compiled with optimisation:
 # measured on the 237 of 10,000 images whose test fails (Pope's tau at alpha = 0.001, no blunder), 10.8 vs
 # 20.9 ms at -O0, for about 2.7 s more CPU of first compilation, which a small batch would not win back.
 _ROBUST_OPT_MIN = 2048
-_solve_robust_batch = disk_cached(
-    jax.jit(lambda inp, opt: pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt))),
-            compiler_options=_COMPILER_OPTIONS), "resect_robust_batch", _COMPILER_OPTIONS)
+_solve_robust_batch = disk_cached(jax.jit(_robust_program, compiler_options=_COMPILER_OPTIONS),
+                                  "resect_robust_batch", _COMPILER_OPTIONS)
 
 
 class _CameraInfo(NamedTuple):

@@ -131,7 +131,7 @@ def nearest_rotation(m, iterations: int = 8):
     return jax.lax.fori_loop(0, iterations, lambda _, q: 0.5 * (q + jnp.swapaxes(inv3(q), 0, 1)), q)
 
 
-def spd_solve(a, b):
+def _spd_solve_lapack(a, b):
     """``a x = b`` for ``(k, k, B)`` SPD ``a`` and ``(k, B)`` ``b`` by LAPACK, one
     matrix per lane (:func:`photax._linalg.cho_solve`; for the larger
     systems, where unrolling would cost compile time)."""
@@ -147,10 +147,10 @@ UNROLL_LANES = 1024
 def solve_spd(a, b):
     """``a x = b`` for ``(k, k, B)`` SPD ``a`` and ``(k, B)`` ``b``: unrolled
     (:func:`cho_solve`) for a batch of ``UNROLL_LANES`` or more, LAPACK
-    (:func:`spd_solve`) below.  Measured on 1,024 lanes: 0.20 / 0.42 us per
+    (:func:`_spd_solve_lapack`) below.  Measured on 1,024 lanes: 0.20 / 0.42 us per
     lane for k = 8 / 11 unrolled, 0.85 / 1.64 by LAPACK; but unrolled, the
     two linear-start systems double the cheap path's compilation (6.4 vs
     3.1 s CPU), which only a large batch wins back."""
     if a.shape[-1] >= UNROLL_LANES:
         return cho_solve(a, b[:, None])[:, 0]
-    return spd_solve(a, b)
+    return _spd_solve_lapack(a, b)
