@@ -16,7 +16,10 @@ shows each run.  Measured, in this order, each once (a big run is minutes):
    whole path a user runs), for each ``--chunks``: wall and CPU time,
    MPix/s, and the peak resident memory above the start
    (``_common.peak_memory``: the kernel's high-water mark).  Compilation is
-   done first on one chunk (not timed: a big run pays it once, ~2 s).
+   done first on one chunk, and a first write of a small ortho (2 x 2
+   chunks) loads the writing code (not timed or measured: a big run pays
+   them once, ~2 s and ~10 MiB of modules and thread pools; before
+   2026-11-24 09:30 they were inside the first chunk size's peak).
    "One chunk's working set" is what computing one chunk must hold -- its
    source window, its mapping (the ``(2, h, w)`` float32 positions), its
    output and the kernels' temporaries -- measured as the peak resident
@@ -237,6 +240,10 @@ def main() -> None:
     ortho = {c: photax.orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=c) for c in args.chunks}
     for arr in ortho.values():
         _block(arr).compute()  # compiles the kernels (not timed)
+    with tempfile.TemporaryDirectory() as tmp:  # loads the writing code (not measured)
+        small = square_grid(s, 2 * args.chunks[0])
+        photax.to_raster(photax.orthorectify_dask(image, s.exterior, s.camera, s.dem, small, chunks=args.chunks[0]),
+                         os.path.join(tmp, "warm.tif"))
     if args.live_child:
         _live_child(ortho)
         return

@@ -19,7 +19,8 @@ from photax.rectification._tiling import _tiles
 
 pytestmark = needs("dask", "rioxarray")
 
-from photax.tiled import orthorectify_dask, to_raster  # noqa: E402
+from photax.io.lazy import to_raster  # noqa: E402
+from photax.tiled import orthorectify_dask  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -195,46 +196,101 @@ def test_window_check_by_strips_equals_whole_chunk():
     assert _sample_bounds(pos + 500, origin, h, w, size) is None  # nothing inside the image
 
 
-def test_write_bounds_chunks_in_flight_and_gdal_cache(scene, tmp_path, monkeypatch):
-    """Issue 12, memory of the write: ``to_raster`` on the threaded scheduler (2 workers) never
-    holds more computed chunks than workers waiting for the writer (counted by hooks on the chunk
-    kernel and on rioxarray's window writer, not by timing), writes with GDAL's block cache bounded
-    (``GDAL_CACHEMAX`` seen by each write), and the file equals the in-memory ortho."""
+def test_write_one_writer_bounded_chunks_aligned_tiles(scene, tmp_path, monkeypatch):
+    """Issue 12, memory of the write: ``to_raster`` on the threaded scheduler with 2 threads
+    computes one chunk at a time while its writer thread writes (counted by hooks on the chunk
+    kernel and on the writer, not by timing), holds at most 3 computed chunks not yet written
+    (one being written, one queued, one waiting in its worker: the hook counts it on arrival), writes with GDAL's block cache
+    bounded (``GDAL_CACHEMAX`` seen by the writer) and with GeoTIFF tiles that divide the chunks
+    (read back from the file), and the file equals the in-memory ortho."""
     import threading
 
     import dask
     from rasterio.env import get_gdal_config
-    from rioxarray.raster_writer import RasterioWriter
 
     from photax import tiled
+    from photax.io import lazy
 
     s, grid = scene
     image = np.stack([(s.image * 250).astype(np.uint8) + b for b in (1, 3)])  # as above: its kernels, compiled
-    state = {"computed": 0, "written": 0, "most": 0, "cache": set()}
+    state = {"computed": 0, "handed": 0, "written": 0, "running": 0, "most_running": 0, "most_unwritten": 0,
+             "cache": set()}
     mutex = threading.Lock()
-    real_chunk, real_write = tiled._ortho_chunk, RasterioWriter.__setitem__
+    real_chunk, real_hand, real_write = tiled._ortho_chunk, lazy._Writer.__setitem__, lazy._Writer._write
 
     def chunk(*args):
+        with mutex:
+            state["running"] += 1
+            state["most_running"] = max(state["most_running"], state["running"])
         out = real_chunk(*args)
         with mutex:
+            state["running"] -= 1
             state["computed"] += 1
-            state["most"] = max(state["most"], state["computed"] - state["written"])
         return out
 
-    def write(self, key, item):
+    def hand(self, key, block):  # a computed chunk (or a fill, off the DEM), as its worker hands it over
+        with mutex:
+            state["handed"] += 1
+            state["most_unwritten"] = max(state["most_unwritten"], state["handed"] - state["written"])
+        real_hand(self, key, block)
+
+    def write(self, key, block):
         state["cache"].add(get_gdal_config("GDAL_CACHEMAX"))
-        real_write(self, key, item)
+        real_write(self, key, block)
         with mutex:
             state["written"] += 1
 
     monkeypatch.setattr(tiled, "_ortho_chunk", chunk)
-    monkeypatch.setattr(RasterioWriter, "__setitem__", write)
+    monkeypatch.setattr(lazy._Writer, "__setitem__", hand)
+    monkeypatch.setattr(lazy._Writer, "_write", write)
     arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=40, resampling="cubic", approx=None)
     with dask.config.set(scheduler="threads", num_workers=2):
         to_raster(arr, tmp_path / "o.tif")
     n = len(list(_tiles(grid.shape, 40)))
-    assert state["computed"] >= n // 2 and state["written"] == n  # (chunks off the DEM are not computed)
-    assert 1 <= state["most"] <= 2
+    assert state["computed"] >= n // 2 and state["handed"] == state["written"] == n  # (fills off the DEM)
+    assert state["most_running"] == 1 and 1 <= state["most_unwritten"] <= 3
     assert state["cache"] == {16 << 20}
     with rasterio.open(tmp_path / "o.tif") as ds:
         np.testing.assert_array_equal(ds.read(), _ortho(s, grid, image, resampling="cubic", approx=None))
+        (th, tw), = set(ds.block_shapes)
+    for edges, tile in zip(arr.data.chunks[-2:], (th, tw)):
+        assert tile % 16 == 0 and all(e % tile == 0 for e in edges[:-1])
+
+
+def test_write_error_leaves_nothing_and_returns(scene, tmp_path, monkeypatch):
+    """A write that fails in the writer thread (disk full, say) is raised in the caller's thread
+    (the workers waiting to hand it a chunk stop too: no hang), the previous file stays and no
+    partial file is left; the same on the synchronous scheduler."""
+    import dask
+
+    from photax.io import lazy
+
+    s, grid = scene
+    arr = orthorectify_dask(s.image.astype(np.float32), s.exterior, s.camera, s.dem, grid, chunks=40, approx=None)
+    real, calls = lazy._Writer._write, []
+
+    def failing(self, key, block):
+        calls.append(1)
+        if len(calls) == 2:
+            raise OSError("No space left on device (injected)")
+        real(self, key, block)
+
+    monkeypatch.setattr(lazy._Writer, "_write", failing)
+    out = tmp_path / "o.tif"
+    for scheduler in ("threads", "sync"):
+        calls.clear()
+        out.write_bytes(b"previous result")
+        with dask.config.set(scheduler=scheduler), pytest.raises(OSError, match="injected"):
+            to_raster(arr, out)
+        assert out.read_bytes() == b"previous result"
+        assert [p.name for p in tmp_path.iterdir()] == ["o.tif"]
+
+
+def test_tile_edge_divides_chunks():
+    from photax.io.lazy import _tile_edge
+
+    assert _tile_edge((1008,) * 19 + (848,)) == 336  # 1008 = 3 x 336
+    assert _tile_edge((2000,) * 10) == 400
+    assert _tile_edge((512, 512, 100)) == 256
+    assert _tile_edge((100, 100, 7)) == 256  # no multiple of 16 divides 100: GDAL's default
+    assert _tile_edge((48,)) == 48

@@ -16,7 +16,7 @@ from photax.scene import texture
 pytestmark = needs("dask", "rioxarray")
 
 from photax import mosaic  # noqa: E402
-from photax.tiled import _dataarray, to_raster  # noqa: E402
+from photax.io.lazy import dataarray, to_raster  # noqa: E402
 
 ROWS, COLS, RES = 120, 200, 3.0
 X0, Y1 = 500_000.0, 4_000_360.0
@@ -33,7 +33,7 @@ def _render(c0, c1, shift_px, gain, roof_shift, buildings):
         rr, cc = slice(br, br + 12), slice(bc + roof_shift - c0, bc + roof_shift - c0 + 12)
         v[rr, cc] = 0.95 * gain
     grid = Grid((RES, 0, X0 + c0 * RES, 0, -RES, Y1), (ROWS, c1 - c0), crs="EPSG:32633")
-    return _dataarray(v.astype(np.float32), grid, np.asarray(np.nan, dtype=np.float32), "ortho")
+    return dataarray(v.astype(np.float32), grid, np.asarray(np.nan, dtype=np.float32), "ortho")
 
 
 @pytest.fixture(scope="module")
@@ -163,7 +163,7 @@ def test_order_independent_and_bad_input(scene):
     with pytest.raises(ValueError, match="overlaps no other"):
         mosaic([a, far])
     # Other bad input, each a ValueError naming what is wrong (no ortho is computed for these).
-    half = _dataarray(a.values[::2, ::2], Grid((2 * RES, 0, X0, 0, -2 * RES, Y1), (60, 65), crs="EPSG:32633"),
+    half = dataarray(a.values[::2, ::2], Grid((2 * RES, 0, X0, 0, -2 * RES, Y1), (60, 65), crs="EPSG:32633"),
                       np.asarray(np.nan, dtype=np.float32), "o")
     off = b.assign_coords(x=b.x + RES / 2).rio.write_transform(b.rio.transform() * rasterio.Affine.translation(0.5, 0))
     for orthos, kwargs, match in (
@@ -216,7 +216,7 @@ def test_lazy_from_files_equals_in_memory_and_stays_in_chunks(scene, tmp_path):
     for name, o in (("a", a), ("b", b)):
         o.rio.to_raster(tmp_path / f"{name}.tif", tiled=True, blockxsize=32, blockysize=32)
         paths.append(tmp_path / f"{name}.tif")
-    dsm_da = _dataarray(dsm, Grid((RES, 0, X0, 0, -RES, Y1), (ROWS, COLS), crs="EPSG:32633"), np.asarray(np.nan), "d")
+    dsm_da = dataarray(dsm, Grid((RES, 0, X0, 0, -RES, Y1), (ROWS, COLS), crs="EPSG:32633"), np.asarray(np.nan), "d")
     dsm_da.rio.to_raster(tmp_path / "dsm.tif")
     import rioxarray
 

@@ -42,7 +42,8 @@ _LAZY: dict[str, str] = {
     "intersect": ".intersection",
     # Dask/xarray/rioxarray (the optional dask extra) are imported inside these modules' functions only.
     "mosaic": ".mosaicking",
-    **dict.fromkeys(("orthorectify_dask", "to_raster"), ".tiled"),
+    "orthorectify_dask": ".tiled",
+    "to_raster": ".io.lazy",
     **dict.fromkeys(("OrthoUncertainty", "ortho_uncertainty"), ".uncertainty"),
     **dict.fromkeys(("read_bal", "read_camera", "read_gcps", "read_json", "write_bal", "write_camera",
                      "write_json"), ".io"),
@@ -114,7 +115,8 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers (never run)
     )
     from .intersection import intersect as intersect
     from .mosaicking import mosaic as mosaic
-    from .tiled import orthorectify_dask as orthorectify_dask, to_raster as to_raster
+    from .io.lazy import to_raster as to_raster
+    from .tiled import orthorectify_dask as orthorectify_dask
     from .uncertainty import OrthoUncertainty as OrthoUncertainty, ortho_uncertainty as ortho_uncertainty
     from .io import (
         read_bal as read_bal,

@@ -43,7 +43,7 @@ the output.  Lazy orthos given as Dask-backed DataArrays (e.g. from
 :func:`photax.orthorectify_dask`, whose chunks cost a kernel call each)
 are instead computed once and kept (``dask.persist``, in their own dtype)
 when they hold at most ``_PERSIST_BYTES`` (1 GiB) in all; raster paths
-are read twice (reading is cheap), as are larger lazy orthos.  Write the result with :func:`photax.tiled.to_raster`
+are read twice (reading is cheap), as are larger lazy orthos.  Write the result with :func:`photax.to_raster`
 (``cog=True``: a tiled, compressed Cloud-Optimized GeoTIFF with overviews).
 """
 
@@ -395,7 +395,7 @@ def mosaic(
     from scipy import ndimage
 
     from .rectification._grid import Grid
-    from .tiled import _dataarray
+    from .io.lazy import dataarray
 
     orthos = list(orthos)
     if not orthos:
@@ -513,7 +513,7 @@ def mosaic(
             row.append(da.from_delayed(task, (nb, h, w), dtype=float))
         rows.append(row)
     data = da.block(rows)
-    arr = _dataarray(data[0] if nb == 1 else data, Grid(transform, shape, crs), np.asarray(np.nan), "mosaic")
+    arr = dataarray(data[0] if nb == 1 else data, Grid(transform, shape, crs), np.asarray(np.nan), "mosaic")
     if info is not None:
         g, o = (gains[pos, 0], offs[pos, 0]) if nb == 1 else (gains[pos], offs[pos])
         info.update(gains=g, offsets=o, labels=np.where(labels >= 0, np.asarray(order)[labels], -1),

@@ -39,6 +39,7 @@ import numpy as np
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, depth, project
 from .dem import DEM
+from .io.lazy import dataarray
 from .rectification._grid import Grid
 from .rectification._ortho import OrthoModel, _check_image_size
 from .rectification._tiling import _approx_arg, _check_approx, _check_resampling, _fill_value, _layout, _tiles
@@ -164,14 +165,15 @@ def _sample_bounds(pos, origin, h, w, size):
     return None if bounds[0] == np.inf else tuple(bounds)
 
 
-def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, resampling, fill, prepared):
-    """One output chunk ``(B, h, w)``: positions, window check, resampling."""
+def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, resampling, fill, prepared, bands):
+    """One output chunk ``(B, h, w)`` (``(h, w)`` unless ``bands``): positions,
+    window check, resampling; ``data`` the input window, or a raster's path."""
     from .rectification._approx import _tile_positions
     from .rectification._indirect import _resample_tile
     from .resampling import _compute_dtype, _source
 
-    if isinstance(data, tuple):  # (path,): read on the worker
-        data = _read_window(data[0], window)
+    if isinstance(data, str):  # a raster's path: read on the worker
+        data = _read_window(data, window)
     r0, c0, h, w = tile
     wr, wc, wh, ww = window
     pos, origin, _, _ = _tile_positions(model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float), layout,
@@ -193,7 +195,8 @@ def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, res
     offset = jnp.asarray(o - np.array([wc, wr]), dtype=jnp.int32)
     fill_j = jnp.full((flat.shape[0],), fill, dtype=dtype)
     block = _resample_tile(flat, pos, origin, offset, fill_j, size, (wh, ww), resampling, compute, dtype)
-    return np.asarray(block)[:, :h, :w]
+    block = np.asarray(block)[:, :h, :w]
+    return block if bands else block[0]
 
 
 def orthorectify_dask(
@@ -212,7 +215,7 @@ def orthorectify_dask(
     """:func:`photax.orthorectify` as a lazy, chunked ``xarray.DataArray``.
 
     Nothing is computed until ``.compute()``, ``.rio.to_raster(...)`` or
-    :func:`to_raster` (atomic) is called, on whatever Dask scheduler is
+    :func:`photax.to_raster` (atomic) is called, on whatever Dask scheduler is
     active (threads by default, a ``dask.distributed.Client`` when one
     exists).  Each chunk reads only the input window it needs (see the
     module docstring).
@@ -248,8 +251,8 @@ def orthorectify_dask(
     """
     # Over 80 lines: the docstring documents every argument, and the body builds the
     # task graph in one pass (windows, padded shapes, chunks) that reads top to bottom.
-    import dask
     import dask.array as da
+    from dask.highlevelgraph import HighLevelGraph
 
     resampling = _check_resampling(resampling)
     approx = _check_approx(approx)
@@ -293,117 +296,30 @@ def orthorectify_dask(
         coef = np.asarray(_bspline_coefficients(image, _compute_dtype(dtype))).reshape(
             shape[0], size[0] + 2 * pad, size[1] + 2 * pad)
 
-    token = f"{name}-{uuid.uuid4().hex}"
-    model_d = dask.delayed(model, name=f"{token}-model")
-    blocks, row = [], []
-    task = dask.delayed(_ortho_chunk, pure=True)
-    for k, (t, win) in enumerate(zip(tiles, windows)):
+    # One graph layer: per chunk a task (or a fill) holding its input window, and the model's key.
+    # (A dask.delayed + from_delayed per chunk joined by da.block made 3 layers per chunk, whose
+    # bookkeeping grew the write's peak by ~5 MiB at 1,600 chunks.)
+    key = f"{name}-{uuid.uuid4().hex}"
+    lead_index = (0,) if lead else ()
+    dsk = {f"{key}-model": model}
+    rows, cols = sorted({t[0] for t in tiles}), sorted({t[1] for t in tiles})
+    for t, win in zip(tiles, windows):
         r0, c0, h, w = t
+        out = (key, *lead_index, rows.index(r0), cols.index(c0))
         if win is None:
-            block = da.full((shape[0], h, w), fill, dtype=dtype, chunks=(shape[0], h, w))
+            dsk[out] = (np.full, (shape[0], h, w) if lead else (h, w), fill, dtype)
+            continue
+        wr, wc, wh, ww = win
+        if path is not None:
+            data = path
+        elif prepared:
+            data = coef[:, wr : wr + wh + 2 * pad, wc : wc + ww + 2 * pad].reshape(shape[0], -1)
         else:
-            wr, wc, wh, ww = win
-            if path is not None:
-                data = (path,)
-            elif prepared:
-                data = coef[:, wr : wr + wh + 2 * pad, wc : wc + ww + 2 * pad].reshape(shape[0], -1)
-            else:
-                data = image[:, wr : wr + wh, wc : wc + ww]
-            data_d = dask.delayed(data, name=f"{token}-in-{k}") if path is None else data
-            value = task(data_d, model_d, transform, t, win, layout, approx, size, resampling, fill, prepared,
-                         dask_key_name=f"{token}-chunk-{k}")
-            block = da.from_delayed(value, (shape[0], h, w), dtype=dtype)
-        row.append(block)
-        if c0 + w == grid.shape[1]:
-            blocks.append(row)
-            row = []
-    data = da.block(blocks)
-    return _dataarray(data if lead else data[0], grid, fill, name)
-
-
-def _dataarray(data, grid: Grid, fill, name: str):
-    """A DataArray with rioxarray's georeference: dims y, x (band), pixel
-    centre coordinates when the grid is north-up, CRS, transform, nodata."""
-    import rioxarray  # noqa: F401  (registers the .rio accessor)
-    import xarray as xr
-
-    a, b, xoff, d, e, yoff = tuple(grid.transform)[:6]
-    dims = ("band", "y", "x") if data.ndim == 3 else ("y", "x")
-    coords = {}
-    if b == 0 and d == 0:
-        coords["x"] = xoff + a * (np.arange(grid.shape[1]) + 0.5)
-        coords["y"] = yoff + e * (np.arange(grid.shape[0]) + 0.5)
-    if data.ndim == 3:
-        coords["band"] = np.arange(1, data.shape[0] + 1)
-    arr = xr.DataArray(data, dims=dims, coords=coords, name=name)
-    arr = arr.rio.write_transform(grid.transform)
-    if grid.crs is not None:
-        arr = arr.rio.write_crs(grid.crs)
-    return arr.rio.write_nodata(fill.item(), encoded=False)
-
-
-def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False, inputs=(), **kwargs):
-    """Write a (Dask-backed) georeferenced DataArray to a GeoTIFF, atomically.
-
-    Chunk by chunk through rioxarray's ``.rio.to_raster`` (``dask.array.store``
-    under a lock: a ``dask.distributed.Lock`` when a client is active, else a
-    thread lock) into a temporary file beside ``path``, renamed onto ``path``
-    only when every chunk is written (:func:`photax.io.atomic.atomic_path`):
-    a failing chunk, a dead worker or an interrupt leaves ``path`` as it was
-    and no partial file.  Plain ``.rio.to_raster(path)`` writes in place.
-    GDAL's block cache (``GDAL_CACHEMAX``) is bounded to two chunks' bytes
-    (at least 16 MiB) for the write, in this process (the writes of a
-    threaded scheduler, the COG copy).
-
-    Args:
-        data: an ``xarray.DataArray`` with a rioxarray georeference (e.g.
-            from :func:`orthorectify_dask` or :func:`photax.mosaic`).
-        path: the output file.
-        compress: GeoTIFF compression.
-        cog: write a Cloud-Optimized GeoTIFF (tiled, compressed, with
-            overviews; GDAL's COG driver copies the written GeoTIFF).
-        inputs: paths ``path`` must not overwrite.
-        kwargs: more creation options for rasterio.
-
-    Returns:
-        ``path``.
-    """
-    import threading
-
-    import rasterio
-    import rioxarray  # noqa: F401
-
-    from .io.atomic import atomic_path
-
-    lock = threading.Lock()
-    try:
-        from distributed import Lock, get_client
-
-        get_client()  # ValueError without a client
-        lock = Lock(f"photax-write-{uuid.uuid4().hex}")
-    except (ImportError, ValueError):
-        pass
-    options = dict(driver="GTiff", tiled=True, blockxsize=256, blockysize=256, BIGTIFF="IF_SAFER")
-    if compress:
-        options["compress"] = compress
-    options.update(kwargs)
-    # GDAL's block cache bounded for the write (default: 5 % of the RAM): two
-    # chunks' bytes, at least 16 MiB.  Each chunk's write closes the file
-    # (flushing its blocks), but GDAL's COG copy reads the whole raster through
-    # the cache: 172 MiB for a 100 MPix uint8 ortho by default, 55 MiB so.
-    chunk = data.data.chunksize if hasattr(data.data, "chunksize") else data.shape
-    cache = max(16 << 20, 2 * math.prod(chunk) * data.dtype.itemsize)
-    with atomic_path(path, inputs=inputs) as tmp, rasterio.Env(GDAL_CACHEMAX=cache):
-        if not cog:
-            data.rio.to_raster(tmp, lock=lock, **options)
-        else:
-            import rasterio.shutil
-
-            plain = tmp.with_name(tmp.name + ".gtiff")
-            try:
-                data.rio.to_raster(plain, lock=lock, **options)
-                rasterio.shutil.copy(plain, tmp, driver="COG", compress=compress or "deflate", overviews="AUTO")
-            finally:
-                if plain.exists():
-                    plain.unlink()
-    return path
+            data = image[:, wr : wr + wh, wc : wc + ww]
+        dsk[out] = (_ortho_chunk, data, f"{key}-model", transform, t, win, layout, approx, size, resampling, fill,
+                    prepared, bool(lead))
+    heights = tuple(h for r0, c0, h, w in tiles if c0 == 0)
+    widths = tuple(w for r0, c0, h, w in tiles if r0 == 0)
+    graph = HighLevelGraph.from_collections(key, dsk, dependencies=())
+    data = da.Array(graph, key, chunks=((shape[0],), heights, widths)[0 if lead else 1 :], dtype=dtype)
+    return dataarray(data, grid, fill, name)

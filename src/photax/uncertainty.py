@@ -395,7 +395,7 @@ class OrthoUncertainty:
         :attr:`grid`, georeferenced the rioxarray way."""
         import xarray as xr
 
-        from .tiled import _dataarray
+        from .io.lazy import dataarray
 
         fill = np.asarray(np.nan)
         layers = {
@@ -403,7 +403,7 @@ class OrthoUncertainty:
             "ground_major": self.ground_ellipse[0], "ground_minor": self.ground_ellipse[1],
             "ground_angle": self.ground_ellipse[2], "sigma_col": self.image_std[0], "sigma_row": self.image_std[1],
         }
-        return xr.Dataset({k: _dataarray(v, self.grid, fill, k) for k, v in layers.items()})
+        return xr.Dataset({k: dataarray(v, self.grid, fill, k) for k, v in layers.items()})
 
 
 def _coarse(grid: Grid, factor: int) -> Grid:

@@ -18,7 +18,7 @@ Then gains and offsets are balanced in the overlaps, seamlines of least
 difference cut (kept off raised objects with ``--dsm``), the images
 feathered across them and the mosaic written chunk by chunk as a
 Cloud-Optimized GeoTIFF, atomically (:func:`photax.mosaicking.mosaic`,
-:func:`photax.tiled.to_raster`).  Exit codes: 0 done, 2 bad input.
+:func:`photax.to_raster`).  Exit codes: 0 done, 2 bad input.
 """
 
 from __future__ import annotations
@@ -169,7 +169,7 @@ def run(args) -> int:
     from ..mosaicking import _lattice, mosaic
     from ..progress import progress_bar
     from ..rectification._grid import Grid
-    from ..tiled import _dataarray, to_raster
+    from ..io.lazy import dataarray, to_raster
 
     if args.chunks < 16:
         raise ValueError(f"--chunks must be at least 16 pixels, got {args.chunks}")
@@ -200,7 +200,7 @@ def run(args) -> int:
         dsm = None
         if args.dsm:  # resampled onto the mosaic grid in memory (one array of the mosaic's size)
             transform, shape, crs, _ = _lattice([_read(p) for p in paths])
-            template = _dataarray(np.zeros(shape), Grid(transform, shape, crs), np.asarray(np.nan), "t")
+            template = dataarray(np.zeros(shape), Grid(transform, shape, crs), np.asarray(np.nan), "t")
             dsm = _read(args.dsm, True).rio.reproject_match(template).values
             if args.dem:
                 dsm = dsm - _read(args.dem, True).rio.reproject_match(template).values

@@ -1,0 +1,236 @@
+"""Lazy georeferenced rasters: the ``xarray.DataArray`` photax returns for
+rasters larger than memory (:func:`photax.orthorectify_dask`,
+:func:`photax.mosaic`, :func:`photax.ortho_uncertainty`) and its atomic
+GeoTIFF writer.
+
+:func:`to_raster` writes chunk by chunk.  Without a ``dask.distributed``
+client one thread writes: it keeps the output open for the
+whole write and takes the chunks as Dask computes them through a queue of
+one, while the other threads compute -- a pipeline stage, where
+rioxarray's ``.rio.to_raster`` makes every worker queue on a lock, reopen
+the file and hold its own GDAL state to write its chunk.  The GeoTIFF's
+tiles divide the chunks (336 px for chunks of 1008), so each chunk writes
+whole tiles, each compressed once: a tile straddling two chunks is written
+part-empty, then read back, merged and appended again, which costs CPU and
+leaves dead bytes in the file.  With a ``dask.distributed`` client the
+workers write (rioxarray's way, under a distributed lock; the file must be
+where they can reach it).
+
+Dask, xarray, rioxarray and rasterio are imported inside the functions
+(the optional ``dask`` extra).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import queue
+import threading
+import uuid
+
+import numpy as np
+
+from .atomic import atomic_path
+
+
+def dataarray(data, grid, fill, name: str):
+    """A DataArray with rioxarray's georeference: dims y, x (band), pixel
+    centre coordinates when the :class:`photax.Grid` is north-up, CRS,
+    transform, nodata ``fill`` (a NumPy scalar)."""
+    import rioxarray  # noqa: F401  (registers the .rio accessor)
+    import xarray as xr
+
+    a, b, xoff, d, e, yoff = tuple(grid.transform)[:6]
+    dims = ("band", "y", "x") if data.ndim == 3 else ("y", "x")
+    coords = {}
+    if b == 0 and d == 0:
+        coords["x"] = xoff + a * (np.arange(grid.shape[1]) + 0.5)
+        coords["y"] = yoff + e * (np.arange(grid.shape[0]) + 0.5)
+    if data.ndim == 3:
+        coords["band"] = np.arange(1, data.shape[0] + 1)
+    arr = xr.DataArray(data, dims=dims, coords=coords, name=name)
+    arr = arr.rio.write_transform(grid.transform)
+    if grid.crs is not None:
+        arr = arr.rio.write_crs(grid.crs)
+    return arr.rio.write_nodata(fill.item(), encoded=False)
+
+
+def _tile_edge(chunks: tuple[int, ...]) -> int:
+    """GeoTIFF tile edge along an axis chunked as ``chunks``: the multiple
+    of 16 (the format's rule) dividing every chunk but the last that is
+    nearest 256 (GDAL's default) in ratio, up to 1024; 256 if there is none."""
+    inner = math.gcd(*chunks[:-1]) if len(chunks) > 1 else chunks[0]
+    edges = [t for t in range(16, min(inner, 1024) + 1, 16) if inner % t == 0]
+    return min(edges, key=lambda t: abs(math.log(t / 256))) if edges else 256
+
+
+class _Writer:
+    """One thread writing chunks into one open rasterio dataset, fed through
+    a queue of one; ``put`` raises the writer's error once it has failed."""
+
+    def __init__(self, dataset):
+        self._ds = dataset
+        self._queue = queue.Queue(maxsize=1)
+        self._error = None
+        self._thread = threading.Thread(target=self._run, name="photax-writer", daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        try:
+            while (item := self._queue.get()) is not None:
+                self._write(*item)
+        except BaseException as err:  # noqa: BLE001  (kept, raised by put() and close() in the caller's thread)
+            self._error = err
+
+    def _write(self, key, block):
+        """Write one chunk: ``key`` is its (band,) row and column slices."""
+        from rasterio.windows import Window
+
+        ys, xs = key[-2:]
+        window = Window(xs.start, ys.start, xs.stop - xs.start, ys.stop - ys.start)
+        if block.ndim == 2:
+            self._ds.write(block, 1, window=window)
+        else:
+            start, stop, step = key[0].indices(self._ds.count)
+            self._ds.write(block, list(range(start + 1, stop + 1, step)), window=window)
+
+    def _put(self, item):
+        while self._error is None and self._thread.is_alive():
+            try:
+                self._queue.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+        if self._error is not None:
+            raise self._error
+        raise RuntimeError("photax: the GeoTIFF writer thread has stopped")
+
+    def __setitem__(self, key, block):  # dask.array.store's target, called by the workers
+        self._put((key, np.asarray(block)))
+
+    def close(self):
+        """Wait for the chunks queued; raise the writer's error if any."""
+        if self._thread.is_alive():
+            self._put(None)
+            self._thread.join()
+            self._ds = None
+        if self._error is not None:
+            raise self._error
+
+
+def _on_cluster() -> bool:
+    """Whether Dask's scheduler in effect is a ``dask.distributed`` client's."""
+    from dask.base import get_scheduler
+
+    owner = getattr(get_scheduler(), "__self__", None)
+    return type(owner).__module__.split(".")[0] == "distributed"
+
+
+def _profile(data, options) -> dict:
+    """rasterio's creation profile for the DataArray ``data``."""
+    shape = data.shape
+    profile = dict(driver="GTiff", width=shape[-1], height=shape[-2], count=shape[0] if data.ndim == 3 else 1,
+                   dtype=data.dtype, crs=data.rio.crs, transform=data.rio.transform(),
+                   nodata=data.rio.encoded_nodata if data.rio.encoded_nodata is not None else data.rio.nodata)
+    profile.update(options)
+    return profile
+
+
+def _write_local(data, path, options: dict) -> None:
+    """Write ``data`` to ``path`` on Dask's local scheduler: of Dask's
+    ``num_workers`` threads (default the CPU count) one writes, the others
+    compute (at least one).  The synchronous scheduler computes in this
+    thread; the processes one is replaced by threads (the writer is here)."""
+    import dask
+    import dask.array as da
+    import dask.local
+    import rasterio
+    from dask.base import get_scheduler
+
+    with rasterio.open(path, "w", **_profile(data, options)) as ds:
+        if isinstance(data.name, str):
+            ds.descriptions = (data.name,) * ds.count
+        tags = {k: v for k, v in data.attrs.items() if not k.startswith("_") and k != "grid_mapping"}
+        if tags:
+            ds.update_tags(**tags)
+        if not hasattr(data.data, "dask"):
+            ds.write(np.asarray(data.data), None if data.ndim == 3 else 1)
+            return
+        sync = get_scheduler() is dask.local.get_sync
+        threads = int(dask.config.get("num_workers", None) or os.cpu_count() or 1)
+        writer = _Writer(ds)
+        try:
+            da.store(data.data, writer, lock=False, scheduler="sync" if sync else "threads",
+                     num_workers=max(threads - 1, 1))
+        finally:
+            writer.close()
+
+
+def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False, inputs=(), **kwargs):
+    """Write a (Dask-backed) georeferenced DataArray to a GeoTIFF, atomically.
+
+    Chunk by chunk into a temporary file beside ``path``, renamed onto
+    ``path`` only when every chunk is written
+    (:func:`photax.io.atomic.atomic_path`): a failing chunk, a dead worker
+    or an interrupt leaves ``path`` as it was and no partial file.  On
+    Dask's local schedulers one thread writes while ``num_workers - 1``
+    compute (see the module docstring), with GeoTIFF tiles that divide the
+    chunks; with a ``dask.distributed`` client the workers write, through
+    rioxarray's ``.rio.to_raster`` under a distributed lock.  GDAL's block
+    cache (``GDAL_CACHEMAX``) is bounded to two chunks' bytes (at least
+    16 MiB) for the write, in this process (the writer, the COG copy).
+    Plain ``.rio.to_raster(path)`` writes in place, rioxarray's way.
+
+    Args:
+        data: an ``xarray.DataArray`` with a rioxarray georeference (e.g.
+            from :func:`photax.orthorectify_dask` or :func:`photax.mosaic`).
+        path: the output file.
+        compress: GeoTIFF compression.
+        cog: write a Cloud-Optimized GeoTIFF (tiled, compressed, with
+            overviews; GDAL's COG driver copies the written GeoTIFF).
+        inputs: paths ``path`` must not overwrite.
+        kwargs: more creation options for rasterio (``blockxsize`` and
+            ``blockysize`` replace the tiles chosen to divide the chunks).
+
+    Returns:
+        ``path``.
+    """
+    import rasterio
+    import rioxarray  # noqa: F401
+
+    on_cluster = _on_cluster()
+    options = dict(driver="GTiff", tiled=True, BIGTIFF="IF_SAFER", blockxsize=256, blockysize=256)
+    if hasattr(data.data, "chunks"):  # tiles dividing the chunks
+        ys, xs = data.data.chunks[-2:]
+        options.update(blockysize=_tile_edge(ys), blockxsize=_tile_edge(xs))
+    if compress:
+        options["compress"] = compress
+    options.update(kwargs)
+    # GDAL's block cache bounded for the write (default: 5 % of the RAM): two
+    # chunks' bytes, at least 16 MiB.  GDAL's COG copy reads the whole raster
+    # through the cache: 172 MiB for a 100 MPix uint8 ortho by default, 55 MiB so.
+    chunk = data.data.chunksize if hasattr(data.data, "chunksize") else data.shape
+    cache = max(16 << 20, 2 * math.prod(chunk) * data.dtype.itemsize)
+
+    def write(target):
+        if not on_cluster:
+            _write_local(data, target, options)
+            return
+        from distributed import Lock
+
+        data.rio.to_raster(target, lock=Lock(f"photax-write-{uuid.uuid4().hex}"), **options)
+
+    with atomic_path(path, inputs=inputs) as tmp, rasterio.Env(GDAL_CACHEMAX=cache):
+        if not cog:
+            write(tmp)
+        else:
+            import rasterio.shutil
+
+            plain = tmp.with_name(tmp.name + ".gtiff")
+            try:
+                write(plain)
+                rasterio.shutil.copy(plain, tmp, driver="COG", compress=compress or "deflate", overviews="AUTO")
+            finally:
+                if plain.exists():
+                    plain.unlink()
+    return path
