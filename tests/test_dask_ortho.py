@@ -286,6 +286,27 @@ def test_write_error_leaves_nothing_and_returns(scene, tmp_path, monkeypatch):
         assert [p.name for p in tmp_path.iterdir()] == ["o.tif"]
 
 
+def test_write_other_schedulers_band_chunks_and_dims(scene, tmp_path):
+    """``to_raster`` on the processes scheduler (its chunks computed on threads: the writer is in
+    this process) and the synchronous one, with bands in separate chunks, writes the in-memory
+    ortho; an array with its bands last is refused, not written scrambled."""
+    import dask
+
+    s, grid = scene
+    image = np.stack([(s.image * 250).astype(np.uint8) + b for b in (1, 3)])
+    arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=40, resampling="cubic", approx=None)
+    ref = _ortho(s, grid, image, resampling="cubic", approx=None)
+    for scheduler in ("processes", "sync"):
+        with dask.config.set(scheduler=scheduler):
+            to_raster(arr.chunk({"band": 1}), tmp_path / f"{scheduler}.tif")
+        with rasterio.open(tmp_path / f"{scheduler}.tif") as ds:
+            np.testing.assert_array_equal(ds.read(), ref)
+            assert ds.descriptions == ("ortho", "ortho")
+    with pytest.raises(ValueError, match="transpose"):
+        to_raster(arr.transpose("y", "x", "band"), tmp_path / "t.tif")
+    assert not (tmp_path / "t.tif").exists()
+
+
 def test_tile_edge_divides_chunks():
     from photax.io.lazy import _tile_edge
 

@@ -198,6 +198,9 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
     import rasterio
     import rioxarray  # noqa: F401
 
+    if data.ndim not in (2, 3) or tuple(data.dims[-2:]) != (data.rio.y_dim, data.rio.x_dim):
+        raise ValueError(f"to_raster writes (band, y, x) or (y, x) arrays, got dims {data.dims}: "
+                         f"transpose it first (data.transpose(..., {data.rio.y_dim!r}, {data.rio.x_dim!r}))")
     on_cluster = _on_cluster()
     options = dict(driver="GTiff", tiled=True, BIGTIFF="IF_SAFER", blockxsize=256, blockysize=256)
     if hasattr(data.data, "chunks"):  # tiles dividing the chunks
