@@ -302,10 +302,11 @@ def orthorectify_dask(
     key = f"{name}-{uuid.uuid4().hex}"
     lead_index = (0,) if lead else ()
     dsk = {f"{key}-model": model}
-    rows, cols = sorted({t[0] for t in tiles}), sorted({t[1] for t in tiles})
+    row_of = {r: i for i, r in enumerate(sorted({t[0] for t in tiles}))}  # block index of a tile's origin
+    col_of = {c: j for j, c in enumerate(sorted({t[1] for t in tiles}))}
     for t, win in zip(tiles, windows):
         r0, c0, h, w = t
-        out = (key, *lead_index, rows.index(r0), cols.index(c0))
+        out = (key, *lead_index, row_of[r0], col_of[c0])
         if win is None:
             dsk[out] = (np.full, (shape[0], h, w) if lead else (h, w), fill, dtype)
             continue

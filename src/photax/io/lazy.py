@@ -113,7 +113,6 @@ class _Writer:
         if self._thread.is_alive():
             self._put(None)
             self._thread.join()
-            self._ds = None
         if self._error is not None:
             raise self._error
 
