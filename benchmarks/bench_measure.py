@@ -54,7 +54,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _common import median_time, mib, peak_memory, ratio_line, record, start  # noqa: E402
 
 import photax as ptx  # noqa: E402
-from photax.measure import _render as R  # noqa: E402
+from photax.scene import patterns as R  # noqa: E402
 from photax.measure import locate_corners, match_lsm, match_ncc  # noqa: E402
 
 TILE, C, KINDS = 45, 22, 100

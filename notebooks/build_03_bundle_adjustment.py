@@ -25,7 +25,7 @@ import numpy as np
 
 import photax as ptx
 from photax import plot
-from photax.bundle import synthetic_block
+from photax.scene import synthetic_block
 
 
 def find_shared(name):

@@ -29,7 +29,7 @@ from matplotlib.patches import Ellipse
 
 import photax as ptx
 from photax.io import read_geotiff
-from photax.measure import _render
+from photax.scene import patterns
 
 
 def find_shared(name):
@@ -50,8 +50,8 @@ if ngi is not None:
     crop = grey[r0:r0 + 256, c0:c0 + 256]  # a 256 x 256 px piece of the frame
     source = f"NGI aerial frame {ngi.name}, rows {r0}-{r0 + 255}, columns {c0}-{c0 + 255}"
 else:  # no shared data: a rendered scene with blobs, edges and corners stands in
-    crop = 255 * _render.texture((256, 256), blobs=300, sigma=(2.0, 6.0), seed=1)
-    crop += 60 * _render.render(_render.corner((128.3, 128.6), 0.3, 1.7), (256, 256))
+    crop = 255 * patterns.texture((256, 256), blobs=300, sigma=(2.0, 6.0), seed=1)
+    crop += 60 * patterns.render(patterns.corner((128.3, 128.6), 0.3, 1.7), (256, 256))
     crop = np.clip(crop, 0, 255)
     source = "rendered stand-in (the NGI frame is not in ../../shared/data)"
 print(f"image: {source}; {crop.shape[1]} x {crop.shape[0]} px, grey {crop.min():.0f}-{crop.max():.0f}")"""),
@@ -103,13 +103,13 @@ circles_true = np.array([[50.3, 140.6], [130.7, 125.2]])
 
 def scene(x, y):
     v = np.max([band(t, r)(x, y) for t, r in lines_true], axis=0)
-    return np.maximum(v, np.max([_render.disc(c, 12.0)(x, y) for c in circles_true], axis=0))
+    return np.maximum(v, np.max([patterns.disc(c, 12.0)(x, y) for c in circles_true], axis=0))
 
 
-synth = _render.render(scene, (180, 180), blur=0.7, noise=0.01, rng=rng, supersample=8)
+synth = patterns.render(scene, (180, 180), blur=0.7, noise=0.01, rng=rng, supersample=8)
 edges = m.canny(synth, 1.0, 0.1, 0.25)
 # lines: the votes of thin (1.5 px) line pixels, weighted by their grey value; circles: Canny edges
-thin = _render.render(lambda x, y: np.max([band(t, r)(x, y) for t, r in lines_true], 0), (180, 180), supersample=8)
+thin = patterns.render(lambda x, y: np.max([band(t, r)(x, y) for t, r in lines_true], 0), (180, 180), supersample=8)
 hl = m.hough_lines(thin, max_lines=3)
 hc = m.hough_circles(edges, [12.0], max_circles=2)
 print("lines found (theta deg, rho px):", np.round(np.c_[np.degrees(hl.theta), hl.rho], 2).tolist())
@@ -178,7 +178,7 @@ the **grey-value centroid** and an **ellipse** fitted to sub-pixel edge points. 
 the targets shows what each is worth; each result also carries its own covariance."""),
     ("code", """truth = np.stack(np.meshgrid(np.arange(20, 200, 30.0), np.arange(20, 140, 30.0)), -1).reshape(-1, 2)
 truth = truth + rng.uniform(-0.5, 0.5, truth.shape)
-targets = _render.render(lambda x, y: np.max([_render.disc(c, 6.0)(x, y) for c in truth], 0), (140, 200),
+targets = patterns.render(lambda x, y: np.max([patterns.disc(c, 6.0)(x, y) for c in truth], 0), (140, 200),
                          blur=0.7, noise=0.01, rng=rng, supersample=8)
 approx = truth + rng.uniform(-1.5, 1.5, truth.shape)
 print(f"{len(truth)} targets")
@@ -195,8 +195,8 @@ approximation within a few pixels (from NCC, say). Below: a textured template, t
 shifted by a known amount with gain 0.9 and offset 0.05, and the start moved further and further
 away from the true match: how many iterations LSM needs and where it stops converging."""),
     ("code", """shift = np.array([0.37, -0.21])
-tpl = _render.texture((80, 80), seed=3, noise=0.01, rng=rng)
-srch = 0.9 * _render.texture((80, 80), seed=3, shift=shift, noise=0.01 / 0.9, rng=rng) + 0.05
+tpl = patterns.texture((80, 80), seed=3, noise=0.01, rng=rng)
+srch = 0.9 * patterns.texture((80, 80), seed=3, shift=shift, noise=0.01 / 0.9, rng=rng) + 0.05
 offsets = np.linspace(0, 6, 25)
 angle = rng.uniform(0, 2 * np.pi, (len(offsets), 8))
 start = 40.0 + shift + offsets[:, None, None] * np.stack([np.cos(angle), np.sin(angle)], -1)

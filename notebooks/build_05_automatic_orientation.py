@@ -33,8 +33,8 @@ from photax import plot
 from photax.collinearity import stack_exteriors
 from photax.interior import find_fiducials
 from photax.scene import detailed_texture, fiducial_scan, render_image
-from photax.ties import bundle_problem, match_ties, project_pixels
-from photax.transfer import transfer_points
+from photax.matching.ties import bundle_problem, match_ties, project_pixels
+from photax.matching.transfer import transfer_points
 
 rng = np.random.default_rng(5)"""),
     ("md", """## 1. Fiducial marks: interior orientation of a scan
@@ -263,7 +263,7 @@ axes[0].legend()
 axes[1].legend()
 plt.tight_layout()"""),
     ("md", """Registration converges from offsets of up to about 21 px of reprojection error on these
-images (tests/test_register.py); further off, the status says it did not converge. A
+images (tests/test_registration.py); further off, the status says it did not converge. A
 reference that the image does not see gives a status saying so, not a wrong orientation.
 
 ## The same chain on the command line

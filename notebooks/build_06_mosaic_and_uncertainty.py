@@ -71,7 +71,7 @@ fig.tight_layout()"""),
 `xarray.DataArray` with its CRS and transform (rioxarray): nothing runs until `.compute()`,
 `.rio.to_raster(...)` or a `dask.distributed` client asks for it, and each chunk reads only
 the window of the image it needs. The tiles are the same as the whole-image function's, bit
-for bit (tests/test_dask_ortho.py)."""),
+for bit (tests/test_rectification_dask.py)."""),
     ("code", """lazy = [ptx.orthorectify_dask(img, e, camera, dem, g, chunks=128, approx=None)
         for img, e, g in zip(images, exteriors, grids)]
 print(f"ortho 0: {lazy[0].shape} px, chunks {lazy[0].chunks}, {lazy[0].rio.crs}, dask: {type(lazy[0].data).__name__}")

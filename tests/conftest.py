@@ -69,11 +69,12 @@ def shared_file(name: str) -> pathlib.Path:
 # their measured wall time in the suite (2026-11-24); the rest keep their
 # order.
 _HEAVY_FIRST = (
-    "test_notebooks.py", "test_transfer_ties.py", "test_bundle_real.py", "test_compare.py",
+    "test_notebooks.py", "test_matching.py", "test_bundle_real.py", "test_compare.py",
     "test_measure_locators.py", "test_rectify.py", "test_fuzz_readers.py", "test_resample.py", "test_bundle.py",
-    "test_cli_errors.py", "test_cli_sample.py", "test_resection.py", "test_dask_ortho.py", "test_mosaic_block.py",
+    "test_cli_errors.py", "test_cli_sample.py", "test_resection.py", "test_rectification_dask.py",
+    "test_mosaic_block.py",
     "test_measure_operators.py", "test_uncertainty.py", "test_bundle_sparse.py", "test_polynomial.py",
-    "test_cli.py", "test_progress.py", "test_epipolar.py", "test_register.py",
+    "test_cli.py", "test_progress.py", "test_epipolar.py", "test_registration.py",
 )
 
 

@@ -11,7 +11,7 @@ from conftest import shared_file
 from scipy.spatial.transform import Rotation
 
 import photax as ptx
-from photax.bundle import synthetic_block
+from photax.scene import synthetic_block
 from photax.bundle._linearise import _linearise, _prior_residuals, _project_obs, _residuals
 from photax.bundle._schur import _trial
 from photax.bundle._structure import _analyse, _State

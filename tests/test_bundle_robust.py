@@ -12,7 +12,7 @@ import pytest
 from conftest import ROOT
 
 import photax as ptx
-from photax.bundle import synthetic_block
+from photax.scene import synthetic_block
 from photax.bundle._linearise import _cost, _linearise, _prior_residuals, _residuals
 from photax.bundle._robust import _LOSS_CODE, _corrector, _rho
 from photax.bundle._solver import _point_costs, _point_pass

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import photax
-from photax.bundle import synthetic_block
+from photax.scene import synthetic_block
 from photax.bundle._linearise import _linearise
 from photax.bundle._schur import _band_shape, _reduced_band, _reduced_system, _solve_band, _solve_cg
 from photax.bundle._solver import _start_state

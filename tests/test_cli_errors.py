@@ -245,7 +245,8 @@ def test_no_file_cites_the_shared_folder():
 
 
 def test_bundle_report_plurals_and_units():
-    from photax.bundle import bundle_adjust, synthetic_block
+    from photax.bundle import bundle_adjust
+    from photax.scene import synthetic_block
 
     problem, _ = synthetic_block(0, noise_px=0.5)  # the demo's block: its compilation is shared
     text = bundle_adjust(problem).report(unit="m")

@@ -1,6 +1,6 @@
 """``photax measure`` and ``photax.io.write_gcps``.
 
-Images are rendered (area-sampled discs and a wedge, photax.measure._render) with known
+Images are rendered (area-sampled discs and a wedge, photax.scene.patterns) with known
 centres / corners; the CLI's CSV must give them back, with a sigma and a status per point,
 and its GCP output must read back with read_gcps.
 """
@@ -14,7 +14,7 @@ import pytest
 from photax.cli import main
 from photax.io import read_gcps, write_gcps
 from photax.io.gcp import GCPTable
-from photax.measure import _render
+from photax.scene import patterns
 
 rasterio = pytest.importorskip("rasterio")
 import rasterio.transform  # noqa: E402
@@ -33,9 +33,9 @@ def _write_tif(path, image):
 @pytest.fixture(scope="module")
 def targets_tif(tmp_path_factory):
     def pattern(x, y):
-        return np.max([_render.disc(c, RADIUS)(x, y) for c in CENTRES], axis=0)
+        return np.max([patterns.disc(c, RADIUS)(x, y) for c in CENTRES], axis=0)
 
-    img = _render.render(pattern, (80, 96), blur=0.7, noise=0.01, low=20.0, high=220.0,
+    img = patterns.render(pattern, (80, 96), blur=0.7, noise=0.01, low=20.0, high=220.0,
                          rng=np.random.default_rng(3))
     path = tmp_path_factory.mktemp("measure") / "targets.tif"
     _write_tif(path, np.clip(np.round(img * 100), 0, 65535).astype(np.uint16))  # uint16 input
@@ -102,7 +102,7 @@ def test_measure_interest_points_refined(tmp_path):
     def square(x, y):
         return ((x >= 20.35) & (x <= 52.35) & (y >= 15.6) & (y <= 47.6)).astype(float)
 
-    img = _render.render(square, (64, 72), blur=0.7, noise=0.005, rng=np.random.default_rng(1))
+    img = patterns.render(square, (64, 72), blur=0.7, noise=0.005, rng=np.random.default_rng(1))
     tif = tmp_path / "square.tif"
     _write_tif(tif, img)
     out = tmp_path / "ip.csv"

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import photax
-from photax.epipolar import epipolar_pair
+from photax.matching.epipolar import epipolar_pair
 from photax.measure import match_lsm
 from photax.scene import render_image
 

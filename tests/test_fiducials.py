@@ -281,7 +281,7 @@ def test_scanned_camera_file_round_trip(tmp_path):
 def test_bundle_self_calibration_keeps_the_scan_transform():
     """Self-calibration adjusts the camera inside the film and keeps the scanner's transformation.
     The block and start camera are test_bundle's self-calibration test's (same compiled shapes)."""
-    from photax.bundle import synthetic_block
+    from photax.scene import synthetic_block
 
     kw = dict(noise_px=0.0, relief=250.0, tilt_deg=8.0, distortion=(-0.04, 0.0, 0.0, 0.0, 0.0), n_control=8, n_tie=80)
     problem, truth = synthetic_block(5, **kw)

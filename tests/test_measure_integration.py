@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import photax as ptx
-from photax.measure import _render
+from photax.scene import patterns
 
 CAMERA = ptx.FrameCamera(8.0, (0.02, -0.015), pixel_size=0.01, image_size=(320, 240))  # mm
 EXTERIOR = ptx.ExteriorOrientation([10.0, -5.0, 100.0], np.radians([3.0, -2.0, 20.0]))
@@ -82,11 +82,11 @@ def _render_targets(camera, exterior, ground, radius, shape, rng, blur=0.7, nois
     for h in hs:
         c = h @ [0.0, 0.0, 1.0]
         cc, rr = np.round(c[:2] / c[2]).astype(int)
-        pat = _render.projected_disc(h, radius)
+        pat = patterns.projected_disc(h, radius)
         c0, r0 = cc - half, rr - half
-        img[r0:r0 + 2 * half + 1, c0:c0 + 2 * half + 1] = _render.render(
+        img[r0:r0 + 2 * half + 1, c0:c0 + 2 * half + 1] = patterns.render(
             lambda x, y, pat=pat, c0=c0, r0=r0: pat(x + c0, y + r0), (2 * half + 1, 2 * half + 1))
-    img = _render._finish(img, blur, 0.0, 0.0, 1.0, None)
+    img = patterns._finish(img, blur, 0.0, 0.0, 1.0, None)
     return img + rng.normal(0.0, noise, img.shape), hs
 
 

@@ -1,7 +1,7 @@
 """Sub-pixel locators of photax.measure against rendered images with known truth
 and against OpenCV (cornerSubPix, matchTemplate, fitEllipse) side by side.
 
-Every image comes from photax.measure._render: analytic patterns area-sampled
+Every image comes from photax.scene.patterns: analytic patterns area-sampled
 at 16 x 16 sub-samples per pixel (textures integrated exactly), then blurred
 and noised.  Seeds are fixed; the figures are those the issue asks for.
 """
@@ -14,7 +14,7 @@ import pytest
 
 import photax  # noqa: F401  (float64)
 from photax.measure import Status, ellipse_centre_offset, locate_corners, locate_targets, match_lsm, match_ncc
-from photax.measure import _render as R
+from photax.scene import patterns as R
 
 
 def rmse(err):

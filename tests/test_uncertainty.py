@@ -151,7 +151,7 @@ def test_bundle_result_gives_each_image_its_covariance_block():
     ortho_uncertainty of the result uses that block, correlations included."""
     from rasterio import Affine
 
-    from photax.bundle import synthetic_block
+    from photax.scene import synthetic_block
     from photax.rectification import Grid
 
     problem, _ = synthetic_block(0, strips=3, images_per_strip=5, n_tie=300)

@@ -15,7 +15,7 @@ import pathlib
 
 import numpy as np
 
-from photax.bundle import synthetic_block
+from photax.scene import synthetic_block
 
 HERE = pathlib.Path(__file__).resolve().parent
 

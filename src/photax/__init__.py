@@ -33,23 +33,24 @@ _LAZY: dict[str, str] = {
     **dict.fromkeys(("ModelComparison", "compare_models"), ".compare"),
     **dict.fromkeys(("ExteriorOrientation", "depth", "image_to_ground", "look_at", "project"), ".collinearity"),
     "DEM": ".dem",
-    **dict.fromkeys(("EpipolarPair", "epipolar_pair"), ".epipolar"),
+    **dict.fromkeys(("EpipolarPair", "epipolar_pair"), ".matching"),
     **dict.fromkeys(("InteriorOrientation", "ScannedCamera", "find_fiducials", "interior_orientation"), ".interior"),
-    **dict.fromkeys(("Registration", "register_to_ortho"), ".registration"),
-    **dict.fromkeys(("TiePoints", "match_ties"), ".ties"),
-    **dict.fromkeys(("Transfer", "transfer_points"), ".transfer"),
+    **dict.fromkeys(("Registration", "register_to_ortho"), ".matching"),
+    **dict.fromkeys(("TiePoints", "match_ties"), ".matching"),
+    **dict.fromkeys(("Transfer", "transfer_points"), ".matching"),
     **dict.fromkeys(("RESULTS", "ConvergenceError"), ".errors"),
     "intersect": ".intersection",
     # Dask/xarray/rioxarray (the optional dask extra) are imported inside these modules' functions only.
     "mosaic": ".mosaicking",
-    "orthorectify_dask": ".tiled",
+    "orthorectify_dask": ".rectification",
     "to_raster": ".io.lazy",
     **dict.fromkeys(("OrthoUncertainty", "ortho_uncertainty"), ".uncertainty"),
     **dict.fromkeys(("read_bal", "read_camera", "read_gcps", "read_json", "write_bal", "write_camera",
                      "write_json"), ".io"),
     **dict.fromkeys(("PolynomialModel", "ProjectiveModel", "fit_polynomial", "fit_projective"), ".polynomial"),
     **dict.fromkeys(("Resampling", "resample"), ".resampling"),
-    **dict.fromkeys(("Grid", "orthorectify", "orthorectify_file", "rectify", "rectify_file"), ".rectification"),
+    **dict.fromkeys(("orthorectify", "orthorectify_file", "rectify", "rectify_file"), ".rectification"),
+    "Grid": ".grid",
     **dict.fromkeys(("ResectionResult", "resect", "resect_batch"), ".resection"),
     **dict.fromkeys(("Scene", "relief_scene"), ".scene"),
     **dict.fromkeys(("angles_from_matrix", "axis_angle_to_matrix", "convert_angles", "matrix_to_axis_angle",
@@ -102,7 +103,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers (never run)
         compare_models as compare_models,
     )
     from .dem import DEM as DEM
-    from .epipolar import EpipolarPair as EpipolarPair, epipolar_pair as epipolar_pair
+    from .matching import EpipolarPair as EpipolarPair, epipolar_pair as epipolar_pair
     from .interior import (
         InteriorOrientation as InteriorOrientation,
         ScannedCamera as ScannedCamera,
@@ -116,7 +117,7 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers (never run)
     from .intersection import intersect as intersect
     from .mosaicking import mosaic as mosaic
     from .io.lazy import to_raster as to_raster
-    from .tiled import orthorectify_dask as orthorectify_dask
+    from .rectification import orthorectify_dask as orthorectify_dask
     from .uncertainty import OrthoUncertainty as OrthoUncertainty, ortho_uncertainty as ortho_uncertainty
     from .io import (
         read_bal as read_bal,
@@ -127,9 +128,9 @@ if TYPE_CHECKING:  # the same names, eagerly, for type checkers (never run)
         write_camera as write_camera,
         write_json as write_json,
     )
-    from .registration import Registration as Registration, register_to_ortho as register_to_ortho
-    from .ties import TiePoints as TiePoints, match_ties as match_ties
-    from .transfer import Transfer as Transfer, transfer_points as transfer_points
+    from .matching import Registration as Registration, register_to_ortho as register_to_ortho
+    from .matching import TiePoints as TiePoints, match_ties as match_ties
+    from .matching import Transfer as Transfer, transfer_points as transfer_points
     from .polynomial import (
         PolynomialModel as PolynomialModel,
         ProjectiveModel as ProjectiveModel,

@@ -169,7 +169,8 @@ def bundle_section(out: pathlib.Path) -> str:
     import matplotlib.pyplot as plt
 
     from . import plot
-    from .bundle import bundle_adjust, synthetic_block
+    from .bundle import bundle_adjust
+    from .scene import synthetic_block
 
     problem, truth = synthetic_block(0, noise_px=0.5)
     res = bundle_adjust(problem)

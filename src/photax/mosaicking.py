@@ -394,7 +394,7 @@ def mosaic(
     from rasterio import Affine
     from scipy import ndimage
 
-    from .rectification._grid import Grid
+    from .grid import Grid
     from .io.lazy import dataarray
 
     orthos = list(orthos)

@@ -65,7 +65,7 @@ import numpy as np
 from .camera import FrameCamera, intrinsics_jacobian
 from .collinearity import ExteriorOrientation, angle_axes, collinearity_jacobian
 from .dem import DEM
-from .rectification._grid import Grid
+from .grid import Grid
 
 _BLOCK = 1 << 14  # points per jitted call (padded): one compilation, bounded memory
 _STRIP = 1 << 19  # pixels per strip at most: its intermediates stay small

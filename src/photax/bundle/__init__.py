@@ -84,5 +84,3 @@ from ._solver import (
     bundle_adjust as bundle_adjust,
 )
 from ._start import initialize_block as initialize_block
-from ._structure import CHUNK as CHUNK, PIECE as PIECE, Analysis as Analysis
-from ._synthetic import SyntheticBlock as SyntheticBlock, synthetic_block as synthetic_block

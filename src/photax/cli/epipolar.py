@@ -9,7 +9,7 @@ with ``--exterior-left`` / ``--exterior-right``).  Writes
 rows are epipolar lines; their transform is the pixel grid itself, x = col,
 y = row) and ``OUT.json`` with the epipolar
 rotation, principal distance, baseline and each side's pixel offsets
-(:class:`photax.epipolar.EpipolarPair`).  Exit codes: 0 done, 2 bad input.
+(:class:`photax.EpipolarPair`).  Exit codes: 0 done, 2 bad input.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     import numpy as np  # here, not at import: photax --help loads no numpy
 
-    from ..epipolar import epipolar_pair
+    from ..matching import epipolar_pair
     from ..io.atomic import check_output_path
     from ..io.orientation import read_exterior, read_interior
     from ..io.raster import read_geotiff, write_geotiff

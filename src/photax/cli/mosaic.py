@@ -168,7 +168,7 @@ def run(args) -> int:
     from ..io.atomic import check_output_path
     from ..mosaicking import _lattice, mosaic
     from ..progress import progress_bar
-    from ..rectification._grid import Grid
+    from ..grid import Grid
     from ..io.lazy import dataarray, to_raster
 
     if args.chunks < 16:

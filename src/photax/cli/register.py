@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.orientation import read_exterior, read_interior
     from ..io.raster import read_dem, read_geotiff
     from ..io.results import write_json
-    from ..registration import register_to_ortho
+    from ..matching import register_to_ortho
     from ._common import input_file
 
     files = [args.image, args.camera, args.exterior, args.ortho, args.dem]

@@ -42,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.block import check_block_output
     from ..io.raster import read_dem
-    from ..ties import bundle_problem, match_ties
+    from ..matching import bundle_problem, match_ties
     from ._common import read_oriented_images
 
     files, camera, names, images, exterior = read_oriented_images(args, [args.gcps])

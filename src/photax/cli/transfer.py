@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..io import read_gcps
     from ..io.raster import read_dem, read_geotiff
-    from ..transfer import transfer_points
+    from ..matching import transfer_points
     from ._common import read_oriented_images
 
     files, camera, names, images, exterior = read_oriented_images(args, [args.gcps, args.template])

@@ -277,7 +277,7 @@ def target_homography(camera, exterior, centre, normal=(0.0, 0.0, 1.0)) -> np.nd
     Returns:
         ``(3, 3)`` or ``(n, 3, 3)``, plane ``(u, v, 1)`` -> pixel ``(col, row, 1)``,
         for :func:`ellipse_centre_offset` (``radius`` in ground units) and
-        :func:`photax.measure._render.projected_disc`.
+        :func:`photax.scene.patterns.projected_disc`.
     """
     c = np.asarray(centre, dtype=np.float64)
     n = np.asarray(normal, dtype=np.float64)

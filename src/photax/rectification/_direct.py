@@ -11,7 +11,7 @@ import numpy as np
 from jax import Array
 
 from ._approx import _map_tile
-from ._grid import Grid
+from ..grid import Grid
 from ._tiling import _check_model, _progress, _tiles
 
 @eqx.filter_jit

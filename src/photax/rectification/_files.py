@@ -15,7 +15,7 @@ from ..collinearity import ExteriorOrientation
 from ..dem import DEM
 from ..resampling import Resampling
 from ._approx import _tile_positions
-from ._grid import Grid, ortho_grid
+from ..grid import Grid, ortho_grid
 from ._indirect import _resample_tile
 from ._ortho import OrthoModel, _check_image_size
 from ._tiling import (

@@ -18,7 +18,7 @@ from jax import Array
 from ..resampling import Resampling
 from ._approx import _bounds, _chunk_positions, _lattice_cells, _tile_plan
 from ._direct import _rectify_direct
-from ._grid import Grid
+from ..grid import Grid
 from ._tiling import (
     _STEP,
     _approx_arg,

@@ -12,7 +12,7 @@ from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, depth, project
 from ..dem import DEM
 from ..resampling import Resampling
-from ._grid import Grid, ortho_grid
+from ..grid import Grid, ortho_grid
 from ._indirect import rectify
 
 class OrthoModel(eqx.Module):

@@ -6,8 +6,11 @@
 * :func:`sample_points` and :func:`render_sample_image` (:mod:`._sample`): the
   sample image and GCPs that ``data/make_sample.py`` and ``photax demo`` write;
 * :func:`block_scene` (:mod:`._block`): a block of strips for bundle adjustment
-  (:func:`photax.bundle.synthetic_block` packs it into a problem);
+  and :func:`synthetic_block` (:mod:`._bundle`), which packs it into a
+  :class:`photax.BundleProblem`;
 * :func:`texture` (:mod:`._texture`): the ground texture all of them are painted with;
+* :mod:`.patterns`: analytic patterns (corners, discs, rings, textures)
+  area-sampled into small images, for the image-measurement tests and notebook;
 * :func:`render_image` (:mod:`._render`): the image a frame camera takes of a
   textured DEM with survey targets, area-sampled, blurred and noised;
 * :func:`fiducial_scan` (:mod:`._fiducials`): a scanned film frame's fiducial
@@ -20,6 +23,7 @@ reduce them to a local origin shows it.  Frames and units: ``docs/conventions.md
 from ._fiducials import fiducial_scan as fiducial_scan
 from ._render import render_image as render_image
 from ._block import BlockScene as BlockScene, block_scene as block_scene
+from ._bundle import SyntheticBlock as SyntheticBlock, synthetic_block as synthetic_block
 from ._relief import Scene as Scene, relief_scene as relief_scene
 from ._sample import (
     SAMPLE_BLUNDER as SAMPLE_BLUNDER,

@@ -1,6 +1,6 @@
 """A synthetic aerial block with known truth: strips of frames over smooth terrain.
 
-The measurements and start values of :func:`photax.bundle.synthetic_block`
+The measurements and start values of :func:`photax.scene.synthetic_block`
 (which packs them into a :class:`photax.BundleProblem`), used by the tests,
 the bundle notebook, the demo and ``data/block/make_block.py``.  Nothing here
 depends on the adjustment, so the bundle module can import it.

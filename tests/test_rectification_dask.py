@@ -1,4 +1,4 @@
-"""Orthorectification on Dask (photax.tiled): lazy chunks equal the
+"""Orthorectification on Dask (photax.rectification._dask): lazy chunks equal the
 whole-image photax.orthorectify bit for bit, from an array and from a file,
 on the threaded scheduler and on a 2-process dask.distributed cluster;
 georeference read back with rasterio; atomic writing.
@@ -20,7 +20,7 @@ from photax.rectification._tiling import _tiles
 pytestmark = needs("dask", "rioxarray")
 
 from photax.io.lazy import to_raster  # noqa: E402
-from photax.tiled import orthorectify_dask  # noqa: E402
+from photax.rectification._dask import orthorectify_dask  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +76,7 @@ def test_file_input_georeference_and_atomic_write(scene, tmp_path, monkeypatch):
         assert ds.crs == rasterio.CRS.from_epsg(32633)
         np.testing.assert_array_equal(ds.read(), ref)
     # A chunk that fails mid-run: the previous file stays, no partial file is left.
-    import photax.tiled as tiled
+    import photax.rectification._dask as tiled
 
     real, calls = tiled._ortho_chunk, []
 
@@ -180,7 +180,7 @@ def test_window_check_by_strips_equals_whole_chunk():
     """The chunk's window check reads the sample bounds strip by strip (no float64 copy of the
     chunk's positions): the same bounds as the whole-chunk formula it replaced, with NaN
     positions, samples outside the image, a chunk cropped from its padded shape and several strips."""
-    from photax.tiled import _STRIP, _sample_bounds
+    from photax.rectification._dask import _STRIP, _sample_bounds
 
     rng = np.random.default_rng(3)
     h, w, size = 2 * _STRIP + 5, 37, (50, 60)

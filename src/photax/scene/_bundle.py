@@ -10,8 +10,8 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from ..scene import block_scene
-from ._problem import BundleProblem
+from ._block import block_scene
+from ..bundle import BundleProblem
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""Registration of a rendered image to the scene's exact orthophoto (photax.registration).
+"""Registration of a rendered image to the scene's exact orthophoto (photax.matching.registration).
 
 Truth: the rendering orientation; the reference orthophoto is the ground
 texture sampled on a ground grid (what a perfect orthophoto shows).  The
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import photax
-from photax.registration import register_to_ortho
+from photax.matching.registration import register_to_ortho
 from photax.scene import detailed_texture, render_image
 
 X0, Y0 = 500_000.0, 4_000_000.0

@@ -37,9 +37,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .camera import FrameCamera
-from .collinearity import ExteriorOrientation, depth, image_to_ground, project, stack_exteriors
-from .dem import DEM
+from ..camera import FrameCamera
+from ..collinearity import ExteriorOrientation, depth, image_to_ground, project, stack_exteriors
+from ..dem import DEM
 
 __all__ = ["TiePoints", "match_ties", "bundle_problem"]
 
@@ -160,7 +160,7 @@ def match_chunks(stack, ti, si, txy, sxy, *, window: int, search: int, back: boo
     Where NCC fails, LSM starts at ``sxy``; where forward LSM fails, the back
     match starts at ``sxy``.
     """
-    from .measure import match_lsm, match_ncc
+    from ..measure import match_lsm, match_ncc
 
     ti, si = np.asarray(ti, dtype=int), np.asarray(si, dtype=int)
     txy, sxy = np.asarray(txy, dtype=float), np.asarray(sxy, dtype=float)
@@ -293,7 +293,7 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
     """
     # Over 80 lines: one pipeline (interest points, owner rule, candidate pairs, batched
     # NCC/LSM, two-way check, guided outlier test) whose arrays flow from step to step.
-    from .measure import interest_points
+    from ..measure import interest_points
 
     stack, eo = check_block(images, camera, exterior)
     m = len(stack)
@@ -399,7 +399,7 @@ def bundle_problem(camera: FrameCamera, exterior, ties: TiePoints | None = None,
         exterior: ``m`` approximate orientations (start values).
         ties: :class:`TiePoints` from :func:`match_ties`, or None.
         gcps: a :class:`photax.io.GCPTable` in pixels (e.g.
-            :attr:`photax.transfer.Transfer.table`) whose image names are in
+            :attr:`photax.Transfer.table`) whose image names are in
             ``image_names``, or None.
         image_names: ``m`` names (default ``"0", "1", ...``, matching
             :func:`photax.transfer_points`' default).
@@ -412,7 +412,7 @@ def bundle_problem(camera: FrameCamera, exterior, ties: TiePoints | None = None,
         with approximate (monoplotted) coordinates.  Tie and check points
         measured in fewer than two images are left out (they cannot be intersected).
     """
-    from .bundle import BundleProblem
+    from ..bundle import BundleProblem
 
     eo = stack_exteriors(exterior)
     m = eo.position.shape[0]

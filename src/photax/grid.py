@@ -16,10 +16,10 @@ import numpy as np
 from jax import Array
 from rasterio import Affine
 
-from .._aot import disk_cached
-from ..camera import FrameCamera
-from ..collinearity import ExteriorOrientation, image_to_ground
-from ..dem import DEM
+from ._aot import disk_cached
+from .camera import FrameCamera
+from .collinearity import ExteriorOrientation, image_to_ground
+from .dem import DEM
 
 
 @dataclasses.dataclass(frozen=True)

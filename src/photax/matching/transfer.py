@@ -21,8 +21,8 @@ import pathlib
 import jax.numpy as jnp
 import numpy as np
 
-from .camera import FrameCamera
-from .dem import DEM
+from ..camera import FrameCamera
+from ..dem import DEM
 from .ties import check_block, chunks_of, inside, match_chunks, match_sigma, padded, project_pixels
 
 __all__ = ["Transfer", "transfer_points", "write_odm_gcps"]
@@ -52,7 +52,7 @@ class Transfer:
 
     def write(self, path, *, format: str = "csv", crs: str | None = None) -> pathlib.Path:
         """Write the GCP list: ``"csv"`` (:func:`photax.io.write_gcps`) or ``"odm"`` (``gcp_list.txt``)."""
-        from .io import write_gcps
+        from ..io import write_gcps
 
         if format == "csv":
             return write_gcps(path, self.table)
@@ -67,7 +67,7 @@ def write_odm_gcps(path, table, *, crs: str | None = None) -> pathlib.Path:
     Pixel convention as :func:`photax.io.read_gcps` reads it (integer = pixel
     centre, kept as is).  ODM has no sigma or role column: they are not written.
     """
-    from .io.atomic import atomic_write
+    from ..io.atomic import atomic_write
 
     crs = crs if crs is not None else table.crs
     if not crs or "\n" in crs:
@@ -124,7 +124,7 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
         (no measurement to match from), ``"inconsistent"`` (matched more than
         ``search`` px from where the point's other measurements put it).
     """
-    from .io import GCPTable
+    from ..io import GCPTable
 
     stack, eo = check_block(images, camera, exterior)
     m = len(stack)

@@ -30,10 +30,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .camera import FrameCamera
-from .collinearity import ExteriorOrientation, project
-from .dem import DEM
-from .resampling import resample
+from ..camera import FrameCamera
+from ..collinearity import ExteriorOrientation, project
+from ..dem import DEM
+from ..resampling import resample
 
 
 @dataclasses.dataclass(frozen=True)

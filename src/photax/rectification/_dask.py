@@ -36,14 +36,14 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .camera import FrameCamera
-from .collinearity import ExteriorOrientation, depth, project
-from .dem import DEM
-from .io.lazy import dataarray
-from .rectification._grid import Grid
-from .rectification._ortho import OrthoModel, _check_image_size
-from .rectification._tiling import _approx_arg, _check_approx, _check_resampling, _fill_value, _layout, _tiles
-from .resampling import Resampling
+from ..camera import FrameCamera
+from ..collinearity import ExteriorOrientation, depth, project
+from ..dem import DEM
+from ..io.lazy import dataarray
+from ..grid import Grid
+from ._ortho import OrthoModel, _check_image_size
+from ._tiling import _approx_arg, _check_approx, _check_resampling, _fill_value, _layout, _tiles
+from ..resampling import Resampling
 
 _EDGE_POINTS = 9  # points per chunk edge projected to find its window
 _SLACK = 2  # extra input pixels around the window (lens distortion bends the chunk's edges)
@@ -136,7 +136,7 @@ def _read_window(path, window):
     """The ``(B, h, w)`` input window ``(r0, c0, h, w)`` of a raster file (runs on a worker)."""
     from rasterio.windows import Window
 
-    from .io.raster import open_raster
+    from ..io.raster import open_raster
 
     r0, c0, h, w = window
     with open_raster(path) as src:
@@ -168,9 +168,9 @@ def _sample_bounds(pos, origin, h, w, size):
 def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, resampling, fill, prepared, bands):
     """One output chunk ``(B, h, w)`` (``(h, w)`` unless ``bands``): positions,
     window check, resampling; ``data`` the input window, or a raster's path."""
-    from .rectification._approx import _tile_positions
-    from .rectification._indirect import _resample_tile
-    from .resampling import _compute_dtype, _source
+    from ._approx import _tile_positions
+    from ._indirect import _resample_tile
+    from ..resampling import _compute_dtype, _source
 
     if isinstance(data, str):  # a raster's path: read on the worker
         data = _read_window(data, window)
@@ -264,7 +264,7 @@ def orthorectify_dask(
         raise ValueError(f"chunks must be a positive number of pixels, got {chunks!r}")
     path = None
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
-        from .io.raster import open_raster
+        from ..io.raster import open_raster
 
         path = str(image)
         with open_raster(path) as src:
@@ -290,7 +290,7 @@ def orthorectify_dask(
     transform = tuple(grid.transform)[:6]
     prepared = path is None and kernel.prefilter
     if prepared:  # the whole image's B-spline coefficients, sliced per window: exact
-        from .resampling import _BSPLINE_PAD, _bspline_coefficients, _compute_dtype
+        from ..resampling import _BSPLINE_PAD, _bspline_coefficients, _compute_dtype
 
         pad = _BSPLINE_PAD
         coef = np.asarray(_bspline_coefficients(image, _compute_dtype(dtype))).reshape(

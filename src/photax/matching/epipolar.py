@@ -36,9 +36,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .camera import FrameCamera
-from .collinearity import ExteriorOrientation
-from .resampling import Resampling, resample
+from ..camera import FrameCamera
+from ..collinearity import ExteriorOrientation
+from ..resampling import Resampling, resample
 
 _MAX_AREA = 4.0  # an epipolar image larger than this many times the original: the geometry does not allow it
 _MIN_ANGLE = 25.0  # degrees between the baseline and the viewing direction, at least

@@ -1,0 +1,24 @@
+"""Image matching guided by approximate orientations: the stage between image
+measurement (:mod:`photax.measure`'s operators) and bundle adjustment.
+
+* :mod:`.ties` -- tie points between overlapping images (:func:`match_ties`), and
+  :func:`bundle_problem`, which joins ties and transferred GCPs into a
+  :class:`photax.BundleProblem`;
+* :mod:`.transfer` -- GCP transfer into every image that sees the point
+  (:func:`transfer_points`);
+* :mod:`.registration` -- an image matched to a reference orthophoto refines
+  its exterior orientation (:func:`register_to_ortho`);
+* :mod:`.epipolar` -- epipolar (normalised) image pairs, where stereo
+  correspondences lie on rows, and points from x-parallax (:func:`epipolar_pair`).
+"""
+
+from .epipolar import EpipolarPair as EpipolarPair, epipolar_pair as epipolar_pair
+from .registration import Registration as Registration, register_to_ortho as register_to_ortho
+from .ties import (
+    TiePoints as TiePoints,
+    bundle_problem as bundle_problem,
+    match_ties as match_ties,
+    monoplot_pixels as monoplot_pixels,
+    project_pixels as project_pixels,
+)
+from .transfer import Transfer as Transfer, transfer_points as transfer_points
