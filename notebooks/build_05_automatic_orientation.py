@@ -33,8 +33,7 @@ from photax import plot
 from photax.collinearity import stack_exteriors
 from photax.interior import find_fiducials
 from photax.scene import detailed_texture, fiducial_scan, render_image
-from photax.matching.ties import bundle_problem, match_ties, project_pixels
-from photax.matching.transfer import transfer_points
+from photax.matching import bundle_problem, match_ties, project_pixels, transfer_points
 
 rng = np.random.default_rng(5)"""),
     ("md", """## 1. Fiducial marks: interior orientation of a scan

@@ -22,8 +22,7 @@ import photax
 from photax.collinearity import stack_exteriors
 from photax.io import read_gcps
 from photax.scene import render_image
-from photax.matching.ties import bundle_problem, match_ties, monoplot_pixels, project_pixels
-from photax.matching.transfer import transfer_points
+from photax.matching import bundle_problem, match_ties, monoplot_pixels, project_pixels, transfer_points
 
 X0, Y0 = 500_000.0, 4_000_000.0
 W, H = 300, 200

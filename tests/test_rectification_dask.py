@@ -208,7 +208,7 @@ def test_write_one_writer_bounded_chunks_aligned_tiles(scene, tmp_path, monkeypa
     import dask
     from rasterio.env import get_gdal_config
 
-    from photax import tiled
+    import photax.rectification._dask as tiled
     from photax.io import lazy
 
     s, grid = scene

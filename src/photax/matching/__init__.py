@@ -1,6 +1,9 @@
 """Image matching guided by approximate orientations: the stage between image
 measurement (:mod:`photax.measure`'s operators) and bundle adjustment.
 
+* :mod:`._predict` -- what both share: ground points predicted in the images
+  with the approximate orientations (:func:`project_pixels`), image points
+  monoplotted on the DEM (:func:`monoplot_pixels`), chunked NCC + LSM;
 * :mod:`.ties` -- tie points between overlapping images (:func:`match_ties`), and
   :func:`bundle_problem`, which joins ties and transferred GCPs into a
   :class:`photax.BundleProblem`;
@@ -14,11 +17,6 @@ measurement (:mod:`photax.measure`'s operators) and bundle adjustment.
 
 from .epipolar import EpipolarPair as EpipolarPair, epipolar_pair as epipolar_pair
 from .registration import Registration as Registration, register_to_ortho as register_to_ortho
-from .ties import (
-    TiePoints as TiePoints,
-    bundle_problem as bundle_problem,
-    match_ties as match_ties,
-    monoplot_pixels as monoplot_pixels,
-    project_pixels as project_pixels,
-)
+from ._predict import monoplot_pixels as monoplot_pixels, project_pixels as project_pixels
+from .ties import TiePoints as TiePoints, bundle_problem as bundle_problem, match_ties as match_ties
 from .transfer import Transfer as Transfer, transfer_points as transfer_points

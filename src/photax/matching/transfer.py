@@ -23,7 +23,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..dem import DEM
-from .ties import check_block, chunks_of, inside, match_chunks, match_sigma, padded, project_pixels
+from ._predict import check_block, chunks_of, inside, match_chunks, match_sigma, padded, project_pixels
 
 __all__ = ["Transfer", "transfer_points", "write_odm_gcps"]
 

@@ -1,0 +1,180 @@
+"""What tie matching and GCP transfer share: predicting where a ground point
+images with the approximate orientations (and where an image point meets the
+DEM), and matching fixed-size chunks of points between image pairs (NCC, then
+LSM, optionally back) so that both stages share one compilation.
+
+Used by :mod:`.ties` and :mod:`.transfer`; :func:`project_pixels` and
+:func:`monoplot_pixels` are re-exported by :mod:`photax.matching`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..camera import FrameCamera
+from ..collinearity import ExteriorOrientation, depth, image_to_ground, project, stack_exteriors
+from ..dem import DEM
+
+
+@eqx.filter_jit
+def _project_all(ground, eo, camera):
+    """``(n, 3)`` ground -> ``(m, n, 2)`` pixels in each of the ``m`` images (NaN behind the camera)."""
+
+    def one(e):
+        px = camera.image_to_pixel(project(ground, e, camera))
+        return jnp.where((depth(ground, e) > 0)[:, None], px, jnp.nan)
+
+    return jax.vmap(one)(eo)
+
+
+@eqx.filter_jit
+def _monoplot_all(px, eo, camera, dem):
+    """``(m, n, 2)`` pixels of each image -> ``(m, n, 3)`` ground on the DEM (NaN: ray misses it)."""
+    return jax.vmap(lambda p, e: image_to_ground(camera.pixel_to_image(p), e, camera, dem=dem))(px, eo)
+
+
+def _bucket(n: int, base: int = 32) -> int:
+    """Padded length: few distinct shapes, so few compilations."""
+    b = base
+    while b < n:
+        b *= 2
+    return b
+
+
+def project_pixels(ground, exterior: ExteriorOrientation, camera: FrameCamera) -> np.ndarray:
+    """``(n, 3)`` ground points into ``m`` images: ``(m, n, 2)`` pixels (column, row), NaN behind."""
+    g = np.asarray(ground, dtype=float)
+    n = len(g)
+    pad = np.zeros((_bucket(n), 3))
+    pad[:n] = np.nan_to_num(g)
+    out = np.array(_project_all(jnp.asarray(pad), exterior, camera))[:, :n]
+    out[:, ~np.all(np.isfinite(g), axis=1)] = np.nan
+    return out
+
+
+def monoplot_pixels(px, exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM) -> np.ndarray:
+    """``(m, n, 2)`` pixels of each image -> ``(m, n, 3)`` ground on the DEM (NaN where the ray misses)."""
+    px = np.asarray(px, dtype=float)
+    m, n = px.shape[:2]
+    pad = np.zeros((m, _bucket(n), 2))
+    pad[:, :n] = np.nan_to_num(px)
+    out = np.array(_monoplot_all(jnp.asarray(pad), exterior, camera, dem))[:, :n]
+    out[~np.all(np.isfinite(px), axis=2)] = np.nan
+    return out
+
+
+def inside(px, size, margin: float) -> np.ndarray:
+    """Whether pixels ``(..., 2)`` lie at least ``margin`` px inside an image of ``size`` ``(w, h)``."""
+    w, h = size
+    px = np.asarray(px)
+    with np.errstate(invalid="ignore"):
+        return (np.all(np.isfinite(px), axis=-1) & (px[..., 0] >= margin) & (px[..., 0] <= w - 1 - margin)
+                & (px[..., 1] >= margin) & (px[..., 1] <= h - 1 - margin))
+
+
+def check_block(images, camera: FrameCamera, exterior) -> tuple[np.ndarray, ExteriorOrientation]:
+    """Images as one ``(m, h, w)`` float64 stack matching the camera and one orientation each."""
+    if not isinstance(camera, FrameCamera) or camera.image_size is None:
+        raise ValueError("camera: give a FrameCamera with image_size (the images' (width, height))")
+    imgs = [np.asarray(im, dtype=float) for im in images]
+    w, h = camera.image_size
+    for k, im in enumerate(imgs):
+        if im.shape != (h, w):
+            raise ValueError(f"images[{k}]: shape {im.shape}, but camera.image_size is (w, h) = {(w, h)}")
+    eo = stack_exteriors(exterior)
+    if eo.position.shape[0] != len(imgs):
+        raise ValueError(f"exterior: {eo.position.shape[0]} orientations for {len(imgs)} images")
+    if not (np.all(np.isfinite(np.asarray(eo.position))) and np.all(np.isfinite(np.asarray(eo.angles)))):
+        raise ValueError("exterior: approximate orientations must be finite (resect or initialise first)")
+    return np.stack(imgs), eo
+
+
+def padded(stack, pad: int) -> np.ndarray:
+    """Images framed by ``pad`` px of zeros, so a search window near the border stays inside the array
+    (a zero frame has no texture: windows reaching into it correlate badly and are rejected)."""
+    return np.pad(stack, ((0, 0), (pad, pad), (pad, pad)))
+
+
+def match_sigma(cov) -> np.ndarray:
+    """``(n,)`` one sigma per matched point from ``(n, 2, 2)`` shift covariances, px."""
+    cov = np.asarray(cov)
+    return np.sqrt((cov[..., 0, 0] + cov[..., 1, 1]) / 2)
+
+
+BATCH = 8  # image pairs per compiled matching call: one shape for transfer_points and match_ties
+POINTS = 16  # points per image pair in a call
+
+
+@dataclasses.dataclass(frozen=True)
+class ChunkMatches:
+    """:func:`match_chunks`' output, ``(c, POINTS, ...)`` numpy arrays (``xy`` in the stack's pixels)."""
+
+    ncc_valid: np.ndarray
+    rho: np.ndarray
+    lsm_valid: np.ndarray
+    lsm_xy: np.ndarray
+    lsm_cov: np.ndarray
+    back_valid: np.ndarray | None
+    back_xy: np.ndarray | None
+
+
+def match_chunks(stack, ti, si, txy, sxy, *, window: int, search: int, back: bool = False) -> ChunkMatches:
+    """NCC within ``search`` px, then LSM from its peak (and LSM back, with ``back``) of ``c`` chunks.
+
+    Chunk ``k`` matches the points ``txy[k]`` ``(POINTS, 2)`` of ``stack[ti[k]]`` into
+    ``stack[si[k]]`` around ``sxy[k]``.  The chunks go in calls of :data:`BATCH`
+    (padded with copies of the first), so every caller with images of one shape
+    (``stack`` ``(k, h, w)``) and one ``window`` / ``search`` shares one compilation
+    of :func:`photax.measure.match_ncc` and :func:`photax.measure.match_lsm`.
+    Where NCC fails, LSM starts at ``sxy``; where forward LSM fails, the back
+    match starts at ``sxy``.
+    """
+    from ..measure import match_lsm, match_ncc
+
+    ti, si = np.asarray(ti, dtype=int), np.asarray(si, dtype=int)
+    txy, sxy = np.asarray(txy, dtype=float), np.asarray(sxy, dtype=float)
+    c = len(ti)
+    pad = -c % BATCH
+    if pad:
+        ti, si = np.concatenate([ti, np.repeat(ti[:1], pad)]), np.concatenate([si, np.repeat(si[:1], pad)])
+        txy, sxy = (np.concatenate([a, np.repeat(a[:1], pad, 0)]) for a in (txy, sxy))
+    out: dict[str, list] = {k: [] for k in ("ncc_valid", "rho", "lsm_valid", "lsm_xy", "lsm_cov", "back_valid",
+                                             "back_xy")}
+    for a in range(0, len(ti), BATCH):
+        b = slice(a, a + BATCH)
+        T, S = jnp.asarray(stack[ti[b]]), jnp.asarray(stack[si[b]])
+        ncc, rho = match_ncc(T, txy[b], S, sxy[b], window=window, search=search, return_rho=True)
+        nxy = np.where(np.asarray(ncc.valid)[..., None], np.asarray(ncc.xy), sxy[b])
+        fwd = match_lsm(T, txy[b], S, nxy, window=window)
+        out["ncc_valid"].append(np.asarray(ncc.valid))
+        out["rho"].append(np.asarray(rho))
+        out["lsm_valid"].append(np.asarray(fwd.valid))
+        out["lsm_xy"].append(np.asarray(fwd.xy))
+        out["lsm_cov"].append(np.asarray(fwd.covariance))
+        if back:
+            fxy = np.where(np.asarray(fwd.valid)[..., None], np.asarray(fwd.xy), sxy[b])
+            bk = match_lsm(S, fxy, T, txy[b], window=window)
+            out["back_valid"].append(np.asarray(bk.valid))
+            out["back_xy"].append(np.asarray(bk.xy))
+    cat = {k: np.concatenate(v)[:c] if v else None for k, v in out.items()}
+    return ChunkMatches(**cat)
+
+
+def chunks_of(groups: dict, fill_xy: np.ndarray) -> tuple[list, np.ndarray, np.ndarray]:
+    """Split ``{key: (idx (n,), txy (n, 2), sxy (n, 2))}`` into chunks of up to :data:`POINTS`:
+    ``(chunk list of (key, idx), txy (c, POINTS, 2), sxy (c, POINTS, 2))``, unused slots at ``fill_xy``."""
+    chunks, t_all, s_all = [], [], []
+    for key, (idx, t, s) in groups.items():
+        for a in range(0, len(idx), POINTS):
+            n = len(idx[a:a + POINTS])
+            tc, sc = np.broadcast_to(fill_xy, (POINTS, 2)).copy(), np.broadcast_to(fill_xy, (POINTS, 2)).copy()
+            tc[:n], sc[:n] = t[a:a + POINTS], s[a:a + POINTS]
+            chunks.append((key, idx[a:a + POINTS]))
+            t_all.append(tc)
+            s_all.append(sc)
+    return chunks, np.array(t_all).reshape(-1, POINTS, 2), np.array(s_all).reshape(-1, POINTS, 2)
