@@ -204,15 +204,15 @@ def bench_breakdown(n, repeat):
 
     from photax.rectification._approx import _tile_plan, _tile_positions
     from photax.rectification._indirect import _rectify_tile, _resample_tile
-    from photax.rectification._tiling import _approx_arg, _layout, _tiles
-    from photax.resampling import _source
+    from photax.rectification._tiling import _approx_arg, _layout, tile_windows
+    from photax.resampling import gather_source
 
     image = synthetic_image(n)
     model, grid, _, _ = polynomial_case(n)
     cols, rows = maps(model, grid)
     c32, r32 = cv2_maps(cols, rows)
     transform = jnp.asarray(tuple(grid.transform)[:6])
-    tiles = list(_tiles(grid.shape, 1024))
+    tiles = list(tile_windows(grid.shape, 1024))
     layout = _layout(*tiles[0][2:])
     size = image.shape
     fill = jnp.zeros((1,), jnp.uint8)
@@ -237,7 +237,7 @@ def bench_breakdown(n, repeat):
     print(f"file path: plan + positions stored per tile: {ns['positions']:.2f} ns/px")
     record("breakdown plan", photax_ns_per_px=ns["plan"])
     for label in ("bilinear", "cubic", "lanczos", "lanczos4"):
-        flat = _source(image[None], label, jnp.float32)
+        flat = gather_source(image[None], label, jnp.float32)
 
         def resample_only():
             for p, o, _, _ in pos:

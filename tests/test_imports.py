@@ -109,6 +109,66 @@ def test_no_import_cycle():
     assert cycle is None, "import cycle: " + " -> ".join(cycle)
 
 
+# --- private names stay inside their unit ------------------------------------
+
+# Private utility modules other units may import from (each says so in its docstring).
+PRIVATE_UTILITIES = ("photax._aot", "photax._linalg", "photax._triangulation", "photax.io._files")
+
+
+def _unit(module: str) -> str:
+    """The top-level unit of a module: ``photax.rectification._files`` -> ``photax.rectification``."""
+    return ".".join(module.split(".")[:2])
+
+
+def _private_crossings(sources: dict[str, tuple[str, bool]]) -> list[str]:
+    """``"importer: module.name"`` for every private name (``_x``, or any name reached through a
+    private module) imported from another top-level unit, outside :data:`PRIVATE_UTILITIES`.
+    ``sources``: ``{module: (source text, is a package __init__)}``."""
+    found = []
+    for name, (text, is_pkg) in sources.items():
+        package = name if is_pkg else name.rpartition(".")[0]
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = package.split(".")
+                    mod = ".".join(base[: len(base) - (node.level - 1)] + ([node.module] if node.module else []))
+                else:
+                    mod = node.module or ""
+                targets = [f"{mod}.{a.name}" for a in node.names]
+            elif isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            else:
+                continue
+            for t in targets:
+                if t.split(".")[0] != "photax" or _unit(t) == _unit(name):
+                    continue
+                if any(t == m or t.startswith(m + ".") for m in PRIVATE_UTILITIES):
+                    continue
+                if any(s.startswith("_") and not s.startswith("__") for s in t.split(".")[1:]):
+                    found.append(f"{name}: {t}")
+    return sorted(found)
+
+
+def test_crossing_finder_finds_planted_crossings():
+    src = {
+        "photax.a": ("from .rectification._tiling import tiles\nfrom .b import _x\nfrom ._linalg import inv3", False),
+        "photax.rectification._dask": ("from ._tiling import _tiles\nfrom ..resampling import _source", False),
+        "photax.cli": ("from photax import _aot\nimport photax.bundle._schur", True),
+    }
+    assert _private_crossings(src) == [
+        "photax.a: photax.b._x", "photax.a: photax.rectification._tiling.tiles",
+        "photax.cli: photax.bundle._schur", "photax.rectification._dask: photax.resampling._source",
+    ]
+
+
+def test_no_private_name_crosses_units():
+    sources = {_module_name(p): (p.read_text(), p.name == "__init__.py") for p in SRC.rglob("*.py")}
+    assert _private_crossings(sources) == []
+    for m in PRIVATE_UTILITIES:  # and each says what it is
+        doc = ast.get_docstring(ast.parse(sources[m][0])) or ""
+        assert "Private utility module" in doc, m
+
+
 @pytest.mark.parametrize("name", sorted(_module_name(p) for p in SRC.rglob("*.py")))
 def test_every_module_imports(name):
     assert importlib.import_module(name).__name__ == name

@@ -117,3 +117,71 @@ def test_block_bad_input(block, tmp_path, capsys):
     assert "no image in" in capsys.readouterr().err and not (tmp_path / "m.tif").exists()
     assert main(["mosaic", "-o", str(tmp_path / "m.tif")]) == 2
     assert "give the ORTHO files" in capsys.readouterr().err
+
+
+def test_block_library_calls(block, tmp_path, monkeypatch):
+    """What the CLI's --block is built from: read_exteriors parses the file once and finds what
+    read_exterior finds image by image; orthorectify_block puts every image on one pixel lattice,
+    each ortho the very pixels of orthorectify_file on its own grid; heights_on_grid gives the DEM's
+    plane (truth: Z = 20 + 0.03 (X - X0) - 0.02 (Y - Y0)) on the mosaic's grid."""
+    import photax.io.orientation as orientation
+    from photax.grid import ortho_grid
+    from photax.io import block_images, read_camera, read_dem, read_exterior, read_exteriors
+    from photax.mosaicking import heights_on_grid, mosaic_grid
+    from photax.rectification import orthorectify_block, orthorectify_file
+
+    parsed, real = [], orientation.read_json
+    monkeypatch.setattr(orientation, "read_json", lambda p: parsed.append(p) or real(p))
+    table, crs = read_exteriors(block / "bundle.json", ["img2", "elsewhere/img0.tif"])
+    assert len(parsed) == 1 and list(table) == ["img2", "elsewhere/img0.tif"] and crs is None
+    for name, e in table.items():
+        ref = read_exterior(block / "bundle.json", name)[0]
+        np.testing.assert_array_equal(e.position, ref.position)
+        np.testing.assert_array_equal(e.angles, ref.angles)
+    with pytest.raises(ValueError, match="img7"):
+        read_exteriors(block / "bundle.json", ["img7"])
+
+    images, exteriors, crs = block_images(block / "bundle.json", block / "images")
+    assert [p.name for p in images] == ["img0.tif", "img1.tif", "img2.tif"] and crs is None
+    camera, dem = read_camera(block / "camera.yaml"), read_dem(block / "dem.tif")
+    seen = []
+    paths = orthorectify_block(images, exteriors, camera, dem, tmp_path, crs="EPSG:32634", callback=seen.append)
+    assert seen == [0, 1, 2] and [p.parent for p in paths] == [tmp_path] * 3
+    transforms = []
+    for image, e, path in zip(images, exteriors, paths):
+        with rasterio.open(path) as ds:
+            v, t = ds.read(1), ds.transform
+            assert ds.crs == rasterio.CRS.from_epsg(32634)  # the orientation file's CRS, not the DEM's
+        transforms.append(t)
+        ref = tmp_path / "ref.tif"
+        orthorectify_file(image, ref, e, camera, dem, ortho_grid(e, camera, dem, abs(t.a)))
+        with rasterio.open(ref) as ds:
+            np.testing.assert_array_equal(v, ds.read(1))
+            assert ds.transform == t
+    t0 = transforms[0]
+    for t in transforms[1:]:  # one lattice: the same pixel size, whole pixels apart
+        assert (t.a, t.e) == (t0.a, t0.e)
+        offset = np.array([(t.c - t0.c) / t0.a, (t.f - t0.f) / t0.e])
+        np.testing.assert_allclose(offset, np.round(offset), atol=1e-6)
+
+    grid = mosaic_grid(paths)
+    assert grid.transform.a == t0.a and grid.crs == rasterio.CRS.from_epsg(32634)
+    h = heights_on_grid(block / "dem.tif", photax.Grid(grid.transform, grid.shape, dem.crs))  # the coordinates' CRS
+    xy = grid.xy()
+    plane = 20 + 0.03 * (xy[..., 0] - X0) - 0.02 * (xy[..., 1] - Y0)
+    ok = np.isfinite(h)
+    assert ok.mean() > 0.9
+    # nearest-neighbour resampling of the 4 m DEM: off by at most half a cell's slope, 0.05 * 4 / 2 m
+    assert np.max(np.abs(h[ok] - plane[ok])) <= 0.1 + 1e-9
+
+
+def test_ortho_grid_takes_the_crs(block):
+    from photax.grid import ortho_grid
+    from photax.io import read_camera, read_dem
+
+    camera, dem = read_camera(block / "camera.yaml"), read_dem(block / "dem.tif")
+    e = photax.ExteriorOrientation([X0, Y0, 300.0], np.radians([0.5, -0.4, 0.0]))
+    default = ortho_grid(e, camera, dem)
+    named = ortho_grid(e, camera, dem, crs="EPSG:32634")
+    assert default.crs == dem.crs and named.crs == "EPSG:32634"
+    assert (named.transform, named.shape) == (default.transform, default.shape)  # only the label differs

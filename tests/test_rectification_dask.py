@@ -15,7 +15,7 @@ import rasterio
 import photax
 from photax.io.raster import write_geotiff
 from photax.rectification import Grid, ortho_grid
-from photax.rectification._tiling import _tiles
+from photax.rectification._tiling import tile_windows
 
 pytestmark = needs("dask", "rioxarray")
 
@@ -51,7 +51,7 @@ def test_tiled_equals_whole_image_exactly(scene, resampling, chunks, approx):
     arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=chunks, resampling=resampling,
                             approx=approx)
     assert arr.dims == ("y", "x") and arr.dtype == np.float32 and arr.shape == grid.shape
-    tiles = list(_tiles(grid.shape, chunks))
+    tiles = list(tile_windows(grid.shape, chunks))
     assert arr.chunks[0] == tuple(t[2] for t in tiles if t[1] == 0)
     assert arr.chunks[1] == tuple(t[3] for t in tiles if t[0] == 0)
     out = arr.compute().values
@@ -246,7 +246,7 @@ def test_write_one_writer_bounded_chunks_aligned_tiles(scene, tmp_path, monkeypa
     arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=40, resampling="cubic", approx=None)
     with dask.config.set(scheduler="threads", num_workers=2):
         to_raster(arr, tmp_path / "o.tif")
-    n = len(list(_tiles(grid.shape, 40)))
+    n = len(list(tile_windows(grid.shape, 40)))
     assert state["computed"] >= n // 2 and state["handed"] == state["written"] == n  # (fills off the DEM)
     assert state["most_running"] == 1 and 1 <= state["most_unwritten"] <= 3
     assert state["cache"] == {16 << 20}

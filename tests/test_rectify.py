@@ -277,10 +277,10 @@ def _approx_positions(model, grid, approx, tile, size):
     """Per-pixel positions the approximate mapping resamples at, and its
     reported check error (the file path's internal helper)."""
     from photax.rectification._approx import _tile_positions
-    from photax.rectification._tiling import _approx_arg, _layout, _tiles
+    from photax.rectification._tiling import _approx_arg, _layout, tile_windows
 
     out = np.full((2,) + grid.shape, np.nan)
-    tiles = list(_tiles(grid.shape, tile))
+    tiles = list(tile_windows(grid.shape, tile))
     layout = _layout(*tiles[0][2:])
     transform = jnp.asarray(tuple(grid.transform)[:6])
     worst = 0.0

@@ -36,6 +36,9 @@ go with the exported function's compilation too, and into its key.
 background thread (when disk caching is on and it is not made yet), so that
 a command which will probably need a second program compiles both at once:
 XLA compiles without holding the GIL, and this machine has two cores.
+
+Private utility module: other photax units import its names directly
+(``tests/test_imports.py`` lists the modules allowed that).
 """
 
 from __future__ import annotations

@@ -1,6 +1,9 @@
 """Small dense linear algebra shared by resection and bundle adjustment:
 3x3 inverses by the adjugate (elementwise, vectorises under ``vmap``),
 the nearest rotation, and a Jacobi-scaled Cholesky solve.
+
+Private utility module: other photax units import its names directly
+(``tests/test_imports.py`` lists the modules allowed that).
 """
 
 from __future__ import annotations

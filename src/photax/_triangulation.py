@@ -14,6 +14,9 @@ the sum of squared perpendicular distances of ``X`` to the rays::
     =>  [sum_i (I - u_i u_i^T)] X = sum_i (I - u_i u_i^T) C_i
 
 (Hartley & Zisserman, "Multiple View Geometry", 2nd ed., sec. 12.2).
+
+Private utility module: other photax units import its names directly
+(``tests/test_imports.py`` lists the modules allowed that).
 """
 
 from __future__ import annotations

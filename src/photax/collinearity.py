@@ -169,12 +169,13 @@ def angle_axes(angles: Array, convention: Convention = "phi-omega-kappa") -> Arr
     """
     check_convention(convention)
     angles = jnp.asarray(angles)
-    return _angle_axes(angles, rotation_matrix(angles, convention), convention == "phi-omega-kappa")
+    return angle_axes_of(angles, rotation_matrix(angles, convention), convention == "phi-omega-kappa")
 
 
-def _angle_axes(angles: Array, rotation: Array, pok) -> Array:
+def angle_axes_of(angles: Array, rotation: Array, pok) -> Array:
     """:func:`angle_axes` with the convention as a (possibly traced) flag
-    ``pok`` (True: phi-omega-kappa) and ``R`` given."""
+    ``pok`` (True: phi-omega-kappa) and ``R`` given (resection's lanes carry
+    the convention as data)."""
     c, s = jnp.cos(angles[..., 0]), jnp.sin(angles[..., 0])
     zero, one = jnp.zeros_like(c), jnp.ones_like(c)
     w1 = jnp.where(pok, jnp.stack([zero, -one, zero], -1), jnp.stack([one, zero, zero], -1))

@@ -239,11 +239,11 @@ class ModelComparison:
         """
         from .progress import progress_bar
         from .rectification import rectify
-        from .rectification._tiling import _tiles
+        from .rectification import tile_windows
 
         grid = ortho_grid(self.exterior, self.camera, self.dem, self.gsd) if grid is None else grid
         names = self.names if names is None else list(names)
-        tiles = len(list(_tiles(grid.shape, 1024)))  # rectify's default tile
+        tiles = len(list(tile_windows(grid.shape, 1024)))  # rectify's default tile
         models = {n: self[n].model for n in names}
         # The polynomials as one order: one compiled rectification kernel for all of them, not one per order.
         top = max((m.order for m in models.values() if isinstance(m, PolynomialModel)), default=0)

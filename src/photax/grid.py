@@ -1,4 +1,6 @@
-"""Output raster grids: :class:`Grid` and the footprint grid of an image on a DEM.
+"""Output raster grids: :class:`Grid` (what rectification, the mosaic and the
+uncertainty rasters are computed on) and :func:`ortho_grid`, the grid of an
+image's footprint on a DEM.
 
 Raster georeference at pixel *corners*, pixel centres at ``+0.5``
 (``docs/conventions.md``).
@@ -124,7 +126,8 @@ def _shoelace(p: np.ndarray) -> float:
 
 
 def ortho_grid(
-    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, resolution=None, *, per_side: int = 16
+    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, resolution=None, *, crs=None,
+    per_side: int = 16,
 ) -> Grid:
     """The grid covering an image's footprint on a DEM.
 
@@ -136,6 +139,9 @@ def ortho_grid(
     Args:
         resolution: ground pixel size; default the mean ground sampling
             distance ``sqrt(footprint area / image area in pixels)``.
+        crs: the grid's CRS (e.g. the one an orientation file names); default
+            the DEM's.  Coordinates are not transformed: it names the CRS the
+            DEM and the orientation are already in.
     """
     if camera.image_size is None:
         raise ValueError("camera must have an image_size to find the image footprint")
@@ -165,4 +171,4 @@ def ortho_grid(
     )
     if not (bounds[2] > bounds[0] and bounds[3] > bounds[1]):
         raise ValueError("the image footprint does not overlap the DEM")
-    return Grid.from_bounds(bounds, resolution, crs=dem.crs)
+    return Grid.from_bounds(bounds, resolution, crs=dem.crs if crs is None else crs)

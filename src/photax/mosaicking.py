@@ -86,6 +86,47 @@ def _lattice(orthos):
     return transform, (r1 - r0, c1 - c0), crs, [(b[0] - r0, b[1] - c0) for b in boxes]
 
 
+def mosaic_grid(orthos):
+    """The :class:`photax.grid.Grid` :func:`mosaic` puts ``orthos`` on: the union of their
+    footprints on their one CRS and pixel lattice.
+
+    Args:
+        orthos: raster paths or georeferenced ``xarray.DataArray``\\ s, as for :func:`mosaic`.
+
+    Raises:
+        ValueError: orthos in different CRSs, resolutions or lattices, or not north-up.
+    """
+    from .grid import Grid
+
+    orthos = [_open(o, k, 1024) for k, o in enumerate(orthos)]
+    if not orthos:
+        raise ValueError("orthos must hold at least one ortho")
+    transform, shape, crs, _ = _lattice(orthos)
+    return Grid(transform, shape, crs)
+
+
+def heights_on_grid(path, grid) -> np.ndarray:
+    """``(rows, cols)`` a single-band height raster (DSM, DEM) of any georeference resampled onto
+    ``grid`` (rioxarray's ``reproject_match``; in memory: one array of the grid's size), as
+    :func:`mosaic`'s ``dsm`` and ``dem`` want it on :func:`mosaic_grid`.
+
+    Raises:
+        ValueError: a raster with more than one band, naming it.
+    """
+    import rioxarray
+
+    from .io.lazy import dataarray
+    from .io.raster import open_raster
+
+    with open_raster(path):  # a clear error for a missing or unreadable file
+        pass
+    arr = rioxarray.open_rasterio(path, masked=True)
+    if arr.sizes.get("band", 1) != 1:
+        raise ValueError(f"{path}: {arr.sizes['band']} bands; a height raster has one")
+    template = dataarray(np.zeros(grid.shape), grid, np.asarray(np.nan), "t")
+    return arr.squeeze("band", drop=True).rio.reproject_match(template).values
+
+
 def _open(o, k: int, chunks: int):
     """Ortho ``k`` as a ``(band, y, x)`` DataArray (one band for a 2-D one; a
     raster path is opened lazily, in chunks)."""

@@ -114,9 +114,11 @@ class Resampling(str, enum.Enum):
 
 
 RESAMPLING: tuple[str, ...] = tuple(k.value for k in Resampling)  # the kernel names, in order
-_BSPLINE_PAD = 12  # scipy's npad for mode="nearest"
+# BSPLINE_PAD, THREADS, bspline_coefficients, gather_source, compute_dtype and interpolate are the kernel
+# layer photax.rectification (and uncertainty's thread pool) build on: public names, not in photax.__all__.
+BSPLINE_PAD = 12  # scipy's npad for mode="nearest"
 _CHUNK = 4096  # output samples per lax.map step (measured best of 4096 / 65536)
-_THREADS = min(os.cpu_count() or 1, 8)
+THREADS = min(os.cpu_count() or 1, 8)
 _BUCKET = 1 << 15  # below: pad to a power of two; above: split over threads
 
 
@@ -213,7 +215,7 @@ def _pad_width(method: str) -> int:
     """Replicated border so that every tap of a valid sample is in bounds:
     valid samples have ``floor(x)`` in [-1, W-1] (nearest: [0, W])."""
     kernel = Resampling(method)
-    return _BSPLINE_PAD if kernel.prefilter else max(kernel.taps // 2, 1)
+    return BSPLINE_PAD if kernel.prefilter else max(kernel.taps // 2, 1)
 
 
 def _aligned_empty(shape, dtype) -> np.ndarray:
@@ -234,7 +236,7 @@ def _to_device(a: np.ndarray) -> Array:
     return jax.device_put(a)
 
 
-def _bspline_coefficients(img: np.ndarray, compute) -> Array:
+def bspline_coefficients(img: np.ndarray, compute) -> Array:
     """:func:`_prepare` for ``"bspline"`` on a concrete image, in numpy:
     scipy's ``spline_filter1d`` (mode ``"mirror"``) is the same recursive
     filter as :func:`_bspline_prefilter_axis` and much faster than a
@@ -242,7 +244,7 @@ def _bspline_coefficients(img: np.ndarray, compute) -> Array:
     this padding and filtering."""
     from scipy import ndimage
 
-    p = _BSPLINE_PAD
+    p = BSPLINE_PAD
     c = np.pad(img, ((0, 0), (p, p), (p, p)), mode="edge").astype(np.float64)
     for axis in (1, 2):
         c = ndimage.spline_filter1d(c, 3, axis=axis, mode="mirror", output=np.float64)
@@ -265,7 +267,7 @@ def _edge_pad(img: np.ndarray, p: int) -> np.ndarray:
     return out
 
 
-def _source(img, method: str, compute) -> Array:
+def gather_source(img, method: str, compute) -> Array:
     """The padded flat gather source of a ``(B, H, W)`` image: the B-spline
     prefilter in numpy when the image is concrete, else :func:`_prepare`.
     A concrete image (numpy or jax) is padded in numpy (numpy's edge pad is
@@ -273,12 +275,12 @@ def _source(img, method: str, compute) -> Array:
     if isinstance(img, jax.core.Tracer):
         return _prepare(img, method=method, compute=compute)
     if method == "bspline":
-        return _bspline_coefficients(np.asarray(img), compute)
+        return bspline_coefficients(np.asarray(img), compute)
     img = _edge_pad(np.asarray(img), _pad_width(method))
     return _to_device(img.reshape(img.shape[0], -1))
 
 
-def _compute_dtype(dtype):
+def compute_dtype(dtype):
     """Weights and sums: float64 for float64 images, else float32."""
     return jnp.float64 if dtype == jnp.float64 else jnp.float32
 
@@ -297,7 +299,7 @@ def _prepare(img, *, method, compute):
     return img.reshape(img.shape[0], -1)
 
 
-def _interp(flat, x, y, fill, lo, hi, off, *, shape, method, a, compute, out_dtype):
+def interpolate(flat, x, y, fill, lo, hi, off, *, shape, method, a, compute, out_dtype):
     """Grey values at positions ``x, y`` (any one shape ``S``, any float
     dtype): the core shared with :mod:`photax.rectification`.
 
@@ -373,7 +375,7 @@ def _sample(flat, cols, rows, fill, start, *, shape, method, a, compute, out_dty
         at = jnp.minimum(i * chunk, size - chunk)
         x = jax.lax.dynamic_slice(cols, (start + at,), (chunk,))
         y = jax.lax.dynamic_slice(rows, (start + at,), (chunk,))
-        v = _interp(flat, x, y, fill, lo, hi, off, shape=shape, method=method, a=a, compute=compute,
+        v = interpolate(flat, x, y, fill, lo, hi, off, shape=shape, method=method, a=a, compute=compute,
                     out_dtype=out_dtype)
         return jax.lax.dynamic_update_slice(out, v, (0, at))
 
@@ -414,7 +416,7 @@ def resample(
     """
     # Over 80 lines because the docstring documents every argument; the body is ~50 lines.
     method = Resampling.check(method, "method").value
-    # numpy stays numpy: _source pads it in numpy anyway, and jnp.asarray
+    # numpy stays numpy: gather_source pads it in numpy anyway, and jnp.asarray
     # would first copy it whole (~10 ms for 4096^2).
     image = image if isinstance(image, (jax.Array, np.ndarray)) else np.asarray(image)
     if image.ndim < 2 or min(image.shape[-2:]) < 1:
@@ -439,15 +441,15 @@ def resample(
     h, w = image.shape[-2:]
     if n == 0:
         return jnp.zeros(lead + shape, dtype=dtype)
-    compute = _compute_dtype(dtype)
-    flat = _source(image.reshape((-1, h, w)), method, compute)
+    compute = compute_dtype(dtype)
+    flat = gather_source(image.reshape((-1, h, w)), method, compute)
     fill = jnp.full((flat.shape[0],), nodata, dtype=dtype)
     if n < _BUCKET:
         # Small requests are padded to a power of two: a handful of
         # compilations instead of one per sample count.
         m = max(64, 1 << (n - 1).bit_length())
         cols, rows = (jnp.pad(v.reshape(-1), (0, m - n), constant_values=jnp.nan) for v in (cols, rows))
-    parts = min(_THREADS, n // _BUCKET)
+    parts = min(THREADS, n // _BUCKET)
     if parts < 2 or any(isinstance(v, jax.core.Tracer) for v in (cols, rows, flat)):
         parts = 1
     size = -(-cols.size // parts)

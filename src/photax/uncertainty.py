@@ -545,10 +545,10 @@ def ortho_uncertainty(
 
     from concurrent.futures import ThreadPoolExecutor
 
-    from .resampling import _THREADS
+    from .resampling import THREADS
 
     strips = range(0, rows, th)
-    with ThreadPoolExecutor(max(1, min(_THREADS, len(strips)))) as pool:  # XLA and copies release the GIL
+    with ThreadPoolExecutor(max(1, min(THREADS, len(strips)))) as pool:  # XLA and copies release the GIL
         list(pool.map(one, strips))
     out = out[:, :rows, :cols]
     return OrthoUncertainty(grid, out[:3], out[3:])

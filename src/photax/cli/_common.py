@@ -74,7 +74,7 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     ``args.camera``, ``args.exterior`` and ``args.dem`` plus the ``extra`` files,
     each checked as readable, and ``args.out`` checked against all of them."""
     from ..io.atomic import check_output_path
-    from ..io.orientation import read_exterior, read_interior
+    from ..io.orientation import read_exteriors, read_interior
     from ..io.raster import read_geotiff
 
     files = [*args.images, args.camera, args.exterior, args.dem, *[f for f in extra if f]]
@@ -84,5 +84,6 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     camera = read_interior(args.camera)
     names = [pathlib.Path(f).stem for f in args.images]
     images = [read_geotiff(f)[0][0].astype(float) for f in args.images]
-    exterior = [read_exterior(args.exterior, f)[0] for f in args.images]
+    table = read_exteriors(args.exterior, args.images)[0]  # the file parsed once
+    exterior = [table[f] for f in args.images]
     return files, camera, names, images, exterior

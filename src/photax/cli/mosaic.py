@@ -17,7 +17,8 @@ Two ways in:
 Then gains and offsets are balanced in the overlaps, seamlines of least
 difference cut (kept off raised objects with ``--dsm``), the images
 feathered across them and the mosaic written chunk by chunk as a
-Cloud-Optimized GeoTIFF, atomically (:func:`photax.mosaicking.mosaic`,
+Cloud-Optimized GeoTIFF, atomically (:func:`photax.io.block_images`,
+:func:`photax.rectification.orthorectify_block`, :func:`photax.mosaic`,
 :func:`photax.to_raster`).  Exit codes: 0 done, 2 bad input.
 """
 
@@ -61,95 +62,6 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _read(path, one_band: bool = False):
-    """A raster as a (lazy) DataArray; ``one_band``: a DSM/DEM, as ``(y, x)``."""
-    import rioxarray
-
-    from ..io.raster import open_raster
-
-    with open_raster(path):  # a clear error for a missing or unreadable file
-        pass
-    arr = rioxarray.open_rasterio(path, masked=True)
-    if not one_band:
-        return arr
-    if arr.sizes.get("band", 1) != 1:
-        raise ValueError(f"{path}: {arr.sizes['band']} bands; a height raster has one")
-    return arr.squeeze("band", drop=True)
-
-
-def block_orientations(path, folder) -> tuple[list, list, str | None]:
-    """``(image paths, exterior orientations, crs or None)`` of a block.
-
-    ``path``: a ``photax bundle --json`` result (``images``: a list of
-    ``name, position, angles_rad``, the ``convention`` beside it), a
-    ``photax resect --json`` result (``images`` keyed by name) or an
-    orthority exterior CSV; each name is matched to the file of ``folder``
-    with the same stem.
-
-    Raises:
-        ValueError: naming the file: no orientations, an entry without
-            them, or an image missing from ``folder``.
-    """
-    from ..io.orientation import exterior_from_result
-    from ..io.orthority import read_orthority_crs, read_orthority_exterior
-    from ..io.results import read_json
-
-    path = pathlib.Path(path)
-    if path.suffix.lower() == ".json":
-        data = read_json(path)
-        images = data.get("images") if isinstance(data, dict) else None
-        crs = data.get("crs")
-        if isinstance(images, (list, dict)) and images:  # photax bundle --json (a list) or resect --json
-            names = [e.get("name") if isinstance(e, dict) else None for e in images] if isinstance(images, list) \
-                else list(images)
-            if not all(isinstance(n, str) for n in names):
-                raise ValueError(f"{path}: every image needs a 'name' (photax bundle --json)")
-            table = {pathlib.Path(n).stem: exterior_from_result(path, data, n)[0] for n in names}
-        else:
-            raise ValueError(f"{path}: no 'images' (expected a photax bundle or resect --json result)")
-    else:
-        table, crs = read_orthority_exterior(path), read_orthority_crs(path)
-    if not table:
-        raise ValueError(f"{path}: no image orientations")
-    files = {p.stem: p for p in sorted(pathlib.Path(folder).iterdir()) if p.is_file()}
-    missing = [n for n in table if n not in files]
-    if missing:
-        raise ValueError(f"{path}: no image in {folder} for {sorted(missing)}")
-    return [files[n] for n in table], list(table.values()), crs
-
-
-def _orthorectify_block(args, tmp, inputs, bar) -> list:
-    """Every image of ``--block`` orthorectified into ``tmp`` on one lattice; their paths."""
-    import dataclasses
-
-    import numpy as np
-
-    from ..io.atomic import check_output_path
-    from ..io.orientation import read_interior
-    from ..io.raster import read_dem
-    from ..rectification import ortho_grid, orthorectify_file
-
-    images, exteriors, crs = block_orientations(args.block, args.images)
-    inputs += [str(p) for p in images]
-    check_output_path(args.out, inputs)
-    camera = read_interior(args.camera, args.camera_name)
-    dem = read_dem(args.dem)
-    res = args.resolution
-    if res is None:  # one resolution for all: one pixel lattice (Grid.from_bounds snaps to it)
-        res = float(np.median([abs(ortho_grid(e, camera, dem).transform.a) for e in exteriors]))
-    bar.total = (bar.total or 0) + len(images)
-    paths = []
-    for k, (image, e) in enumerate(zip(images, exteriors)):
-        grid = ortho_grid(e, camera, dem, res)
-        if crs is not None:
-            grid = dataclasses.replace(grid, crs=crs)
-        out = pathlib.Path(tmp) / f"{k:05d}-{image.stem}.tif"
-        orthorectify_file(image, out, e, camera, dem, grid, resampling=args.resampling, tile=args.chunks)
-        paths.append(out)
-        bar.update()
-    return paths
-
-
 def _dask_progress(bar):
     """A Dask callback advancing ``bar`` by one per task (its total grows by each graph's size)."""
     from dask.callbacks import Callback
@@ -166,10 +78,12 @@ def run(args) -> int:
     import numpy as np
 
     from ..io.atomic import check_output_path
-    from ..mosaicking import _lattice, mosaic
+    from ..io.lazy import to_raster
+    from ..io.orientation import block_images, read_interior
+    from ..io.raster import read_dem
+    from ..mosaicking import heights_on_grid, mosaic, mosaic_grid
     from ..progress import progress_bar
-    from ..grid import Grid
-    from ..io.lazy import dataarray, to_raster
+    from ..rectification import orthorectify_block
 
     if args.chunks < 16:
         raise ValueError(f"--chunks must be at least 16 pixels, got {args.chunks}")
@@ -192,21 +106,30 @@ def run(args) -> int:
         if f:
             inputs.append(str(input_file(f, "DSM/DEM")))
     check_output_path(args.out, inputs)  # fail before the work, not after
+    if args.block:
+        images, exteriors, crs = block_images(args.block, args.images)
+        inputs += [str(p) for p in images]
+        check_output_path(args.out, inputs)
+        camera, dem = read_interior(args.camera, args.camera_name), read_dem(args.dem)
     out_dir = pathlib.Path(args.out).resolve().parent
     # One bar, "mosaic": the block's images, then every Dask task of the mosaic and of its writing.
     with tempfile.TemporaryDirectory(dir=out_dir, prefix=".photax-mosaic-") as tmp, progress_bar(
             args.progress and args.command, None, desc="mosaic", unit="step") as bar:
-        paths = _orthorectify_block(args, tmp, inputs, bar) if args.block else list(args.orthos)
-        dsm = None
-        if args.dsm:  # resampled onto the mosaic grid in memory (one array of the mosaic's size)
-            transform, shape, crs, _ = _lattice([_read(p) for p in paths])
-            template = dataarray(np.zeros(shape), Grid(transform, shape, crs), np.asarray(np.nan), "t")
-            dsm = _read(args.dsm, True).rio.reproject_match(template).values
-            if args.dem:
-                dsm = dsm - _read(args.dem, True).rio.reproject_match(template).values
+        if args.block:
+            bar.total = (bar.total or 0) + len(images)
+            paths = orthorectify_block(images, exteriors, camera, dem, tmp, resolution=args.resolution, crs=crs,
+                                       resampling=args.resampling, tile=args.chunks,
+                                       callback=lambda k: bar.update())
+        else:
+            paths = list(args.orthos)
+        dsm = dem_on_grid = None
+        if args.dsm:
+            grid = mosaic_grid(paths)
+            dsm = heights_on_grid(args.dsm, grid)
+            dem_on_grid = heights_on_grid(args.dem, grid) if args.dem else None
         info = {}
         with _dask_progress(bar):
-            out = mosaic([str(p) for p in paths], method=args.method, dsm=dsm, raised=args.raised,
+            out = mosaic([str(p) for p in paths], method=args.method, dsm=dsm, dem=dem_on_grid, raised=args.raised,
                          balance=args.balance, feather=args.feather, chunks=args.chunks, info=info)
             to_raster(out.astype(np.float32), args.out, cog=True, inputs=inputs)
     gains = ", ".join("/".join(f"{x:.3f}" for x in np.atleast_1d(g)) for g in info["gains"])  # per band: a/b/c

@@ -59,11 +59,7 @@ def run(args: argparse.Namespace) -> int:
     camera = read_interior(args.camera, args.camera_name)
     exterior, crs = read_exterior(args.exterior, args.image)
     dem = read_dem(args.dem)
-    grid = ortho_grid(exterior, camera, dem, args.resolution)
-    if crs is not None:
-        import dataclasses
-
-        grid = dataclasses.replace(grid, crs=crs)
+    grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
     orthorectify_file(
         image, args.out, exterior, camera, dem, grid, resampling=args.resampling, tile=args.tile,
         progress=args.progress and args.command,  # one bar, labelled "ortho"

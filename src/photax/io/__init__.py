@@ -24,7 +24,8 @@ _LAZY = {
     **dict.fromkeys(("read_camera", "write_camera"), ".camera_file"),
     **dict.fromkeys(("GCPTable", "read_gcps", "write_gcps"), ".gcp"),
     **dict.fromkeys(("read_orthority_crs", "read_orthority_exterior", "read_orthority_interior"), ".orthority"),
-    **dict.fromkeys(("read_camera_unit", "read_exterior", "read_interior"), ".orientation"),
+    **dict.fromkeys(("block_images", "read_camera_unit", "read_exterior", "read_exteriors", "read_interior"),
+                    ".orientation"),
     **dict.fromkeys(("read_dem", "read_geotiff", "write_geotiff"), ".raster"),
     **dict.fromkeys(("read_json", "write_json"), ".results"),
 }
@@ -55,8 +56,10 @@ if TYPE_CHECKING:
         read_orthority_interior as read_orthority_interior,
     )
     from .orientation import (
+        block_images as block_images,
         read_camera_unit as read_camera_unit,
         read_exterior as read_exterior,
+        read_exteriors as read_exteriors,
         read_interior as read_interior,
     )
     from .raster import read_dem as read_dem, read_geotiff as read_geotiff, write_geotiff as write_geotiff

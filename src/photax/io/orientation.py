@@ -4,7 +4,9 @@
   or an orthority interior YAML (:mod:`photax.io.orthority`) -- an orthority
   file has a ``type`` key, or maps camera names to mappings that each have one;
 * :func:`read_exterior`: a ``photax resect --json`` result (``.json``) or an
-  orthority exterior CSV (+ ``.prj`` beside it);
+  orthority exterior CSV (+ ``.prj`` beside it); :func:`read_exteriors` reads
+  many images' orientations from one such file, parsing it once, and
+  :func:`block_images` pairs them with the image files of a folder;
 * :func:`read_camera_unit`: the length unit a photax camera file is written in.
 
 The readers' contract holds (:mod:`photax.io`): a malformed file is a
@@ -110,6 +112,67 @@ def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
     if stem not in table:
         raise ValueError(f"{path}: no orientation for image {stem!r}")
     return table[stem], read_orthority_crs(path)
+
+
+def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
+    """``({name: ExteriorOrientation}, crs or None)`` from one orientation file, parsed once.
+
+    Args:
+        path: a ``photax resect --json`` or ``photax bundle --json`` result, or
+            an orthority exterior CSV (the formats of :func:`read_exterior`).
+        names: the images wanted (paths or names), each found as
+            :func:`read_exterior` finds one; keys are the names as given, in
+            their order.  ``None``: every image of the file, keyed by its
+            name's stem.
+
+    Raises:
+        ValueError: naming the file: malformed, no images, or no (solved)
+            orientation for one of ``names``.
+    """
+    path = pathlib.Path(path)
+    if path.suffix.lower() == ".json":
+        data = read_json(path)
+        if names is None:
+            images = data.get("images") if isinstance(data, dict) else None
+            if not isinstance(images, (list, dict)) or not images:
+                raise ValueError(f"{path}: no 'images' (expected a photax bundle or resect --json result)")
+            names = [e.get("name") if isinstance(e, dict) else None for e in images] if isinstance(images, list) \
+                else list(images)
+            if not all(isinstance(n, str) for n in names):
+                raise ValueError(f"{path}: every image needs a 'name' (photax bundle --json)")
+            table = {pathlib.Path(n).stem: exterior_from_result(path, data, n)[0] for n in names}
+        else:
+            table = {n: exterior_from_result(path, data, n)[0] for n in names}
+        return table, data.get("crs") if isinstance(data, dict) else None
+    rows, crs = read_orthority_exterior(path), read_orthority_crs(path)
+    if names is None:
+        if not rows:
+            raise ValueError(f"{path}: no image orientations")
+        return dict(rows), crs
+    table = {}
+    for n in names:
+        stem = pathlib.Path(n).stem
+        if stem not in rows:
+            raise ValueError(f"{path}: no orientation for image {stem!r}")
+        table[n] = rows[stem]
+    return table, crs
+
+
+def block_images(path, folder) -> tuple[list[pathlib.Path], list[ExteriorOrientation], str | None]:
+    """``(image files, exterior orientations, crs or None)`` of a block: every
+    orientation of ``path`` (:func:`read_exteriors`) with the file of
+    ``folder`` of the same stem.
+
+    Raises:
+        ValueError: naming the file: no orientations, or an image missing
+            from ``folder``.
+    """
+    table, crs = read_exteriors(path)
+    files = {p.stem: p for p in sorted(pathlib.Path(folder).iterdir()) if p.is_file()}
+    missing = [n for n in table if n not in files]
+    if missing:
+        raise ValueError(f"{path}: no image in {folder} for {sorted(missing)}")
+    return [files[n] for n in table], list(table.values()), crs
 
 
 def exterior_from_result(path, data, image) -> tuple[ExteriorOrientation, str | None]:

@@ -42,13 +42,19 @@ pixel coordinates; raster georeference at pixel corners).
 # _tiling (tiles, thread pool, progress, checks),
 # _approx (input positions: lattice, checks, exact fallback), _indirect
 # (rectify), _direct (direct mapping), _ortho (OrthoModel, orthorectify),
-# _files (rectify_file, orthorectify_file: windowed reads), _dask
+# _files (rectify_file, orthorectify_file, orthorectify_block: windowed
+# reads), _dask
 # (orthorectify_dask: the same kernels, one Dask task per chunk).
 # The output grid (Grid, ortho_grid) lives in photax.grid.
 
 from ..resampling import Resampling as Resampling
 from ._dask import orthorectify_dask as orthorectify_dask
-from ._files import orthorectify_file as orthorectify_file, rectify_file as rectify_file
+from ._files import (
+    orthorectify_block as orthorectify_block,
+    orthorectify_file as orthorectify_file,
+    rectify_file as rectify_file,
+)
 from ..grid import Grid as Grid, ortho_grid as ortho_grid
 from ._indirect import rectify as rectify
 from ._ortho import OrthoModel as OrthoModel, orthorectify as orthorectify
+from ._tiling import tile_windows as tile_windows

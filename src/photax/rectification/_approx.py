@@ -115,7 +115,7 @@ def _lattice_cells(rel: Array, s: int) -> Array:
     same float32 values.
 
     Written as broadcasts of the lattice only, so that a consumer fusing it
-    (:func:`photax.resampling._interp`) computes each position with two
+    (:func:`photax.resampling.interpolate`) computes each position with two
     multiply-adds from values it already has, and no position array is ever
     stored (measured: storing the tile's positions and resampling them in
     16-row strips cost ~25 % more per pixel than this one fused pass).

@@ -42,7 +42,7 @@ from ..dem import DEM
 from ..io.lazy import dataarray
 from ..grid import Grid
 from ._ortho import OrthoModel, _check_image_size
-from ._tiling import _approx_arg, _check_approx, _check_resampling, _fill_value, _layout, _tiles
+from ._tiling import _approx_arg, _check_approx, _check_resampling, _fill_value, _layout, tile_windows
 from ..resampling import Resampling
 
 _EDGE_POINTS = 9  # points per chunk edge projected to find its window
@@ -170,7 +170,7 @@ def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, res
     window check, resampling; ``data`` the input window, or a raster's path."""
     from ._approx import _tile_positions
     from ._indirect import _resample_tile
-    from ..resampling import _compute_dtype, _source
+    from ..resampling import compute_dtype, gather_source
 
     if isinstance(data, str):  # a raster's path: read on the worker
         data = _read_window(data, window)
@@ -190,8 +190,8 @@ def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, res
                 f"photax: the input window {window} of output chunk {tile} misses some of its samples "
                 f"(columns {cmin:.1f}..{cmax:.1f}, rows {rmin:.1f}..{rmax:.1f}); please report this")
     dtype = np.dtype(fill.dtype)
-    compute = _compute_dtype(dtype)
-    flat = jnp.asarray(data) if prepared else _source(np.asarray(data), resampling, compute)
+    compute = compute_dtype(dtype)
+    flat = jnp.asarray(data) if prepared else gather_source(np.asarray(data), resampling, compute)
     offset = jnp.asarray(o - np.array([wc, wr]), dtype=jnp.int32)
     fill_j = jnp.full((flat.shape[0],), fill, dtype=dtype)
     block = _resample_tile(flat, pos, origin, offset, fill_j, size, (wh, ww), resampling, compute, dtype)
@@ -282,7 +282,7 @@ def orthorectify_dask(
     _check_image_size(shape, camera)
     fill = _fill_value(dtype, nodata)
     size = tuple(shape[-2:])
-    tiles = list(_tiles(grid.shape, int(chunks)))
+    tiles = list(tile_windows(grid.shape, int(chunks)))
     layout = _layout(*tiles[0][2:])
     kernel = Resampling(resampling)
     windows, _ = _windows(exterior, camera, dem, grid, tiles, size, kernel.margin)
@@ -290,10 +290,10 @@ def orthorectify_dask(
     transform = tuple(grid.transform)[:6]
     prepared = path is None and kernel.prefilter
     if prepared:  # the whole image's B-spline coefficients, sliced per window: exact
-        from ..resampling import _BSPLINE_PAD, _bspline_coefficients, _compute_dtype
+        from ..resampling import BSPLINE_PAD, bspline_coefficients, compute_dtype
 
-        pad = _BSPLINE_PAD
-        coef = np.asarray(_bspline_coefficients(image, _compute_dtype(dtype))).reshape(
+        pad = BSPLINE_PAD
+        coef = np.asarray(bspline_coefficients(image, compute_dtype(dtype))).reshape(
             shape[0], size[0] + 2 * pad, size[1] + 2 * pad)
 
     # One graph layer: per chunk a task (or a fill) holding its input window, and the model's key.

@@ -12,7 +12,7 @@ from jax import Array
 
 from ._approx import _map_tile
 from ..grid import Grid
-from ._tiling import _check_model, _progress, _tiles
+from ._tiling import _check_model, _progress, tile_windows
 
 @eqx.filter_jit
 def _forward_rows(inverse, offset: Array, shape: tuple[int, int]) -> Array:
@@ -59,7 +59,7 @@ def _rectify_direct(image, model, grid, fill, tile, progress, inverse):
     # input pixel reached.
     holes = 0
     transform = jnp.asarray(tuple(grid.transform)[:6])
-    for r0, c0, h, w in _tiles(grid.shape, int(tile)):
+    for r0, c0, h, w in tile_windows(grid.shape, int(tile)):
         cols, rows = (np.asarray(v) for v in _map_tile(model, transform, jnp.array([r0, c0], dtype=float), (h, w)))
         inside = (cols >= -0.5) & (cols <= W - 0.5) & (rows >= -0.5) & (rows <= H - 0.5)
         holes += int(np.count_nonzero(inside & ~hit[r0 : r0 + h, c0 : c0 + w]))

@@ -26,7 +26,7 @@ from ._tiling import (
     _fill_value,
     _layout,
     _run_tiles,
-    _tiles,
+    tile_windows,
 )
 
 # Compiled executables kept on disk by photax._aot when a compilation cache
@@ -112,7 +112,7 @@ def rectify_file(
 
     from ..io.atomic import atomic_path
     from ..io.raster import open_raster
-    from ..resampling import _compute_dtype, _source
+    from ..resampling import compute_dtype, gather_source
 
     resampling = _check_resampling(resampling)
     _check_model(model)
@@ -128,11 +128,11 @@ def rectify_file(
         # numpy, not jnp, for the kernels' arguments: each eager jnp conversion is a
         # small compiled program of its own (lowered again in every process).
         transform = np.asarray(tuple(grid.transform)[:6], dtype=float)
-        tiles = list(_tiles(grid.shape, tile))
+        tiles = list(tile_windows(grid.shape, tile))
         layout = _layout(*tiles[0][2:])
         fill_j = np.full((src.count,), fill, dtype=fill.dtype)
         size = (src.height, src.width)
-        compute, out_dtype = _compute_dtype(fill.dtype), np.dtype(fill.dtype)
+        compute, out_dtype = compute_dtype(fill.dtype), np.dtype(fill.dtype)
         lock = threading.Lock()  # a rasterio dataset is not thread-safe
 
         def one(t):
@@ -148,7 +148,7 @@ def rectify_file(
                 data = src.read(window=Window(win[1], win[0], win[3], win[2]))
             offset = np.asarray(o - np.array([win[1], win[0]]), dtype=np.int32)
             # Full-size tiles (edge tiles cropped after): fewer compilations.
-            block = _resample_tile(_source(data, resampling, compute), pos, origin, offset, fill_j, size,
+            block = _resample_tile(gather_source(data, resampling, compute), pos, origin, offset, fill_j, size,
                                    data.shape[-2:], resampling, compute, out_dtype)
             return np.asarray(block)[:, :h, :w], err, n_exact
 
@@ -202,3 +202,52 @@ def orthorectify_file(
         src_path, dst_path, OrthoModel(exterior, camera, dem), grid, resampling=resampling, nodata=nodata,
         tile=tile, progress=progress, compress=compress, inputs=inputs, approx=approx, info=info,
     )
+
+
+def orthorectify_block(
+    images,
+    exteriors,
+    camera: FrameCamera,
+    dem: DEM,
+    folder,
+    *,
+    resolution=None,
+    crs=None,
+    resampling: Resampling | str = "bilinear",
+    tile: int = 1024,
+    callback: Callable[[int], None] | None = None,
+) -> list:
+    """Every image of a block orthorectified into ``folder``, all on one pixel lattice (ready for
+    :func:`photax.mosaic`): :func:`orthorectify_file` per image.
+
+    Args:
+        images: the image files, one per orientation.
+        exteriors: their :class:`photax.ExteriorOrientation`\\ s.
+        camera, dem: shared by all.
+        folder: where the orthos go, named ``{k:05d}-{image stem}.tif``.
+        resolution: ground pixel size of all of them; default the median of the images' ground
+            sampling distances (one resolution: :meth:`Grid.from_bounds` snaps every grid to it).
+        crs: the grids' CRS (the orientation file's); default the DEM's.
+        callback: called with ``k`` after image ``k`` is written (progress).
+
+    Returns:
+        the ortho paths, in the order of ``images``.
+    """
+    import pathlib
+
+    images, exteriors = list(images), list(exteriors)
+    if len(images) != len(exteriors):
+        raise ValueError(f"exteriors: {len(exteriors)} orientations for {len(images)} images")
+    if not images:
+        raise ValueError("images: a block needs at least one image")
+    if resolution is None:
+        resolution = float(np.median([abs(ortho_grid(e, camera, dem).transform.a) for e in exteriors]))
+    paths = []
+    for k, (image, e) in enumerate(zip(images, exteriors)):
+        out = pathlib.Path(folder) / f"{k:05d}-{pathlib.Path(image).stem}.tif"
+        grid = ortho_grid(e, camera, dem, resolution, crs=crs)
+        orthorectify_file(image, out, e, camera, dem, grid, resampling=resampling, tile=tile)
+        paths.append(out)
+        if callback is not None:
+            callback(k)
+    return paths

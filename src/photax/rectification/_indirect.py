@@ -1,7 +1,7 @@
 """Indirect mapping (output -> input), the default: :func:`rectify`.
 
 Per tile one jitted function maps the output pixels to input positions
-(:mod:`._approx`) and resamples there (:func:`photax.resampling._interp`),
+(:mod:`._approx`) and resamples there (:func:`photax.resampling.interpolate`),
 tiles on a thread pool (:func:`._tiling._run_tiles`).
 """
 
@@ -28,18 +28,18 @@ from ._tiling import (
     _fill_value,
     _layout,
     _run_tiles,
-    _tiles,
+    tile_windows,
 )
 
 @eqx.filter_jit
 def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, method, compute, out_dtype):
     """One output tile, mapping and resampling fused: ``(block, err, n_exact)``.
 
-    ``flat`` is the whole image prepared by :func:`photax.resampling._source`;
+    ``flat`` is the whole image prepared by :func:`photax.resampling.gather_source`;
     ``block`` is ``(B, *layout[0])``, ``n_exact`` the number of chunks mapped
     exactly (all of them when ``approx`` is 0).
     """
-    from ..resampling import _interp
+    from ..resampling import interpolate
 
     (tr, tc), s, cw = layout
     plan = _tile_plan(model, transform, offset, layout, approx, size)
@@ -52,7 +52,7 @@ def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, me
         def body(k, out):
             i, j = k // nc, k % nc
             pos = _chunk_positions(model, transform, offset, plan, i, j, layout, exact).reshape(2, -1)
-            v = _interp(flat, pos[0], pos[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5,
+            v = interpolate(flat, pos[0], pos[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5,
                         compute=compute, out_dtype=out_dtype)
             return jax.lax.dynamic_update_slice(out, v.reshape(-1, s, cw), (0, i * s, j * cw))
 
@@ -64,7 +64,7 @@ def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, me
         # faster than any loop over strips: XLA:CPU's in-place
         # dynamic-update-slice of each strip's result is not vectorised.
         p = _lattice_cells(plan[0], s)
-        v = _interp(flat, p[0], p[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5, compute=compute,
+        v = interpolate(flat, p[0], p[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5, compute=compute,
                     out_dtype=out_dtype)
         return v.reshape(-1, tr, tc)
 
@@ -80,7 +80,7 @@ def _resample_tile(flat, pos, origin, offset, fill, size, window, method, comput
     """Resample the window ``flat`` (prepared, ``window`` = (h, w)) at
     ``pos`` relative to ``origin`` (image pixels); ``offset`` = origin minus
     the window's (col, row); footprint: the whole image ``size`` (H, W)."""
-    from ..resampling import _interp
+    from ..resampling import interpolate
 
     lo, hi = _bounds(origin, size, pos.dtype)
     tr, tc = pos.shape[1:]
@@ -91,7 +91,7 @@ def _resample_tile(flat, pos, origin, offset, fill, size, window, method, comput
     # exact loop by float32 round-off: 1 grey value in 40,000 for cubic).
     def body(i, out):
         p = jax.lax.dynamic_slice(pos, (0, i * _STEP, 0), (2, _STEP, tc)).reshape(2, -1)
-        v = _interp(flat, p[0], p[1], fill, lo, hi, offset, shape=window, method=method, a=-0.5,
+        v = interpolate(flat, p[0], p[1], fill, lo, hi, offset, shape=window, method=method, a=-0.5,
                     compute=compute, out_dtype=out_dtype)
         return jax.lax.dynamic_update_slice(out, v.reshape(-1, _STEP, tc), (0, i * _STEP, 0))
 
@@ -172,7 +172,7 @@ def rectify(
     _check_model(model)
     if not isinstance(grid, Grid):
         raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
-    # numpy stays numpy (no jnp.asarray copy): _source pads it in numpy.
+    # numpy stays numpy (no jnp.asarray copy): gather_source pads it in numpy.
     image = image if isinstance(image, (jax.Array, np.ndarray)) else np.asarray(image)
     if image.ndim < 2 or min(image.shape[-2:]) < 1:
         raise ValueError(f"image must have shape (..., H, W), got {image.shape}")
@@ -181,18 +181,18 @@ def rectify(
         return _rectify_direct(image, model, grid, fill, tile, progress, inverse)
     if mapping != "indirect":
         raise ValueError(f"mapping must be 'indirect' or 'direct', got {mapping!r}")
-    from ..resampling import _compute_dtype, _source
+    from ..resampling import compute_dtype, gather_source
 
     approx = _check_approx(approx)
-    tiles = list(_tiles(grid.shape, int(tile)))
+    tiles = list(tile_windows(grid.shape, int(tile)))
     layout = _layout(*tiles[0][2:])  # every call gets this shape (edge tiles are cropped): one compilation
     out = np.empty(image.shape[:-2] + grid.shape, dtype=image.dtype)
     size = tuple(image.shape[-2:])
-    flat = _source(image.reshape((-1,) + size), resampling, _compute_dtype(image.dtype))
+    flat = gather_source(image.reshape((-1,) + size), resampling, compute_dtype(image.dtype))
     transform = jnp.asarray(tuple(grid.transform)[:6])
     fill_j = jnp.full((flat.shape[0],), fill, dtype=image.dtype)
 
-    compute, out_dtype = _compute_dtype(image.dtype), np.dtype(image.dtype)
+    compute, out_dtype = compute_dtype(image.dtype), np.dtype(image.dtype)
 
     approx_j = _approx_arg(approx)
 

@@ -27,7 +27,7 @@ def _layout(rows: int, cols: int) -> tuple[tuple[int, int], int, int]:
     return (tr, tc), s, q * s
 
 
-def _tiles(shape: tuple[int, int], tile: int):
+def tile_windows(shape: tuple[int, int], tile: int):
     """``(r0, c0, h, w)`` of the tiles covering ``shape``, row by row: about
     ``tile`` pixels square, balanced (a 4097-row grid gets five 832-row
     tiles, not four of 1024 and one of 1) and multiples of the lattice step
@@ -52,10 +52,10 @@ def _run_tiles(fn, tiles, progress, desc: str, info: dict | None, approx: float,
     from collections import deque
     from concurrent.futures import ThreadPoolExecutor
 
-    from ..resampling import _THREADS
+    from ..resampling import THREADS
 
     worst, exact = 0.0, 0
-    threads = max(1, min(_THREADS, len(tiles)))
+    threads = max(1, min(THREADS, len(tiles)))
     with _progress(len(tiles), progress, desc) as bar, ThreadPoolExecutor(threads) as pool:
         running = deque()
         for i in range(len(tiles) + 1):

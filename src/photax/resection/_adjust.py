@@ -34,7 +34,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
-from ..collinearity import _angle_axes
+from ..collinearity import angle_axes_of
 from ..errors import RESULTS, from_optimistix
 from . import _lanes, _linear
 from ._types import Inputs, Options, Output
@@ -68,7 +68,7 @@ def evaluate(p, inp: Inputs, used, opt: Options):
     """
     cam = opt.camera
     rot = rotation(p, opt.pok)
-    axes = jnp.transpose(_angle_axes(p[3:].T, jnp.transpose(rot, (2, 0, 1)), opt.pok), (1, 2, 0))  # (k, 3, B)
+    axes = jnp.transpose(angle_axes_of(p[3:].T, jnp.transpose(rot, (2, 0, 1)), opt.pok), (1, 2, 0))  # (k, 3, B)
     d = inp.ground - p[:3, None, :]  # (3, m, B)
     q = _lanes.rt_times(rot, d)
     x, y = -q[0] / q[2], -q[1] / q[2]
