@@ -112,7 +112,7 @@ def test_no_import_cycle():
 # --- private names stay inside their unit ------------------------------------
 
 # Private utility modules other units may import from (each says so in its docstring).
-PRIVATE_UTILITIES = ("photax._aot", "photax._linalg", "photax._triangulation", "photax.io._files")
+PRIVATE_UTILITIES = ("photax._aot", "photax._lazy", "photax._linalg", "photax._triangulation", "photax.io._files")
 
 
 def _unit(module: str) -> str:
@@ -176,26 +176,49 @@ def test_every_module_imports(name):
 
 # --- start-up: lazy public names ---------------------------------------------
 
-def _type_checking_names(path: pathlib.Path) -> set[str]:
-    """Names bound by the ``if TYPE_CHECKING:`` block of a package ``__init__``."""
-    tree = ast.parse(path.read_text())
-    block = next(n for n in tree.body if isinstance(n, ast.If) and getattr(n.test, "id", None) == "TYPE_CHECKING")
-    return {a.asname or a.name for n in ast.walk(block) if isinstance(n, ast.ImportFrom) for a in n.names}
-
-
 @pytest.mark.parametrize("package", ["photax", "photax.io"])
-def test_lazy_names_match_the_type_checking_block_and_resolve(package):
+def test_the_stub_is_the_one_list_of_public_names(package):
+    # photax/__init__.pyi (photax.io's too) names every public name once; each resolves to the object
+    # of the module the stub names, and dir() lists exactly these (no TYPE_CHECKING, os, sys, ...).
+    from photax._lazy import stub_names
+
     mod = importlib.import_module(package)
-    path = pathlib.Path(mod.__file__)
-    public = set(mod._LAZY) | set(getattr(mod, "_SUBMODULES", ()))
-    assert _type_checking_names(path) == public
-    for name in sorted(public):
-        value = getattr(mod, name)
-        home = importlib.import_module(mod._LAZY[name], package) if name in mod._LAZY else value
-        assert value is getattr(home, name, value)
-    assert public <= set(dir(mod)) and set(mod.__all__) >= public
+    names, submodules, version = stub_names(mod.__file__)
+    public = {*names, *submodules, *(["__version__"] if version else [])}
+    assert dir(mod) == sorted(public) == mod.__all__
+    for name, home in sorted(names.items()):
+        assert getattr(mod, name) is getattr(importlib.import_module(home, package), name), name
+    for name in submodules:
+        assert getattr(mod, name) is importlib.import_module(f"{package}.{name}")
     with pytest.raises(AttributeError, match="no_such_name"):
         mod.no_such_name  # noqa: B018
+
+
+def test_readers_of_the_readme_are_top_level():
+    import photax.io
+
+    for name in ("read_geotiff", "read_dem", "write_geotiff"):
+        assert getattr(photax, name) is getattr(photax.io, name)
+    assert not {"TYPE_CHECKING", "annotations", "importlib", "os", "sys"} & set(dir(photax))
+
+
+def test_stub_reader_refuses_what_it_cannot_mirror(tmp_path):
+    from photax._lazy import stub_names
+
+    (tmp_path / "__init__.pyi").write_text("from .a import x as y\n")
+    with pytest.raises(ValueError, match="line 1"):
+        stub_names(tmp_path / "__init__.py")
+    (tmp_path / "__init__.pyi").write_text('"""doc"""\nfrom . import sub as sub\nfrom .a import x as x, z\n'
+                                           "__version__: str\n")
+    assert stub_names(tmp_path / "__init__.py") == ({"x": ".a", "z": ".a"}, {"sub"}, True)
+
+
+def test_the_stubs_ship():
+    # setuptools installs only .py files unless package-data names the stubs.
+    import tomllib
+
+    data = tomllib.loads((SRC.parents[1] / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]
+    assert "*.pyi" in data["photax"] and (SRC / "__init__.pyi").is_file() and (SRC / "io" / "__init__.pyi").is_file()
 
 
 def test_cli_choices_are_the_library_lists():
