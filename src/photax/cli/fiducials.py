@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import io as _io
 
 
 
@@ -58,34 +57,6 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _read_named(path, columns: tuple[str, str], what: str) -> tuple[list[str], np.ndarray]:
-    """``name,a,b`` rows of a CSV with a header naming those columns (file and line in errors)."""
-    import numpy as np  # here, not at import: photax --help loads no numpy
-
-    from ..io._files import file_error, read_text
-
-    text = read_text(path)
-    rows = list(csv.reader(_io.StringIO(text)))
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
-    if not rows:
-        raise file_error(path, None, f"empty {what}")
-    head = [c.strip().lower() for c in rows[0]]
-    want = ("name", *columns)
-    if not all(c in head for c in want):
-        raise file_error(path, 1, f"expected a header with the columns {', '.join(want)}, got {', '.join(head)}")
-    idx = [head.index(c) for c in want]
-    names, vals = [], []
-    for k, r in enumerate(rows[1:], start=2):
-        try:
-            names.append(r[idx[0]].strip())
-            vals.append([float(r[idx[1]]), float(r[idx[2]])])
-        except (ValueError, IndexError):
-            raise file_error(path, k, f"expected name,{columns[0]},{columns[1]} with numbers, got {','.join(r)}") from None
-    if len(set(names)) != len(names):
-        raise file_error(path, None, "duplicated mark names")
-    return names, np.asarray(vals, dtype=float)
-
-
 def run(args: argparse.Namespace) -> int:
     import numpy as np  # here, not at import: photax --help loads no numpy
 
@@ -93,7 +64,8 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import atomic_write, check_output_path
     from ..io.results import write_json
     from ._common import input_file
-    from .measure import read_image
+    from ..io.points import read_named_points
+    from ..io.raster import read_grey
 
     input_file(args.scan, "scan")
     input_file(args.fiducials, "fiducial file")
@@ -118,18 +90,18 @@ def run(args: argparse.Namespace) -> int:
         if unit not in ("mm", "m"):
             raise ValueError(f"{args.camera}: the calibrated camera must be in film units (unit: mm or m), "
                              f"got {unit!r}: the fiducials are in them")
-    names, fid = _read_named(args.fiducials, ("x", "y"), "fiducial file")
+    names, fid = read_named_points(args.fiducials, ("x", "y"), "fiducial file")
     approx = None
     if args.approx:
         input_file(args.approx, "approximate positions")
-        anames, axy = _read_named(args.approx, ("col", "row"), "approximate positions")
+        anames, axy = read_named_points(args.approx, ("col", "row"), "approximate positions")
         missing = sorted(set(names) - set(anames))
         if missing:
             raise ValueError(f"{args.approx}: no approximate position for the marks {', '.join(missing)}")
         approx = axy[[anames.index(n) for n in names]]
     elif args.pixel_size is None:
         raise ValueError("give --pixel-size (the scan resolution, mm per pixel) or --approx")
-    scan = read_image(args.scan, None)
+    scan = read_grey(args.scan)
     res = find_fiducials(scan, fid, pixel_size=args.pixel_size, approx_xy=approx, mark=args.mark,
                          mark_size=args.mark_size, line_width=args.line_width, bright=not args.dark,
                          search=args.search, model=args.model, sigma=args.sigma)

@@ -27,12 +27,6 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-import pathlib
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    import numpy as np
-
 _METHODS = ("wong-trinder", "centroid", "ellipse")
 
 
@@ -64,61 +58,6 @@ def add_parser(sub) -> None:
     p.set_defaults(func=run)
 
 
-def read_image(path, band: int | None) -> np.ndarray:
-    """One ``(rows, cols)`` grey image from a raster file, in its own grey values."""
-    import numpy as np
-
-    from ..io.raster import read_geotiff
-
-    data, _ = read_geotiff(path)
-    if band is not None:
-        if not 1 <= band <= data.shape[0]:
-            raise ValueError(f"--band {band}: {path} has {data.shape[0]} band(s)")
-        return data[band - 1]
-    return data[0] if data.shape[0] == 1 else data[:3].astype(np.float64).mean(axis=0)
-
-
-def read_points(path, image_name: str | None):
-    """``(names, approx (n, 2), table)`` from a GCP file or a ``name,col,row`` CSV
-    (``table`` is the GCP table, or None for a plain list)."""
-    import numpy as np
-
-    from ..io._files import read_text, split_lines
-    from ..io.gcp import read_gcps
-
-    path = pathlib.Path(path)
-    lines = [(i + 1, s) for i, s in enumerate(split_lines(read_text(path, "point file")))
-             if s.strip() and not s.lstrip().startswith("#")]
-    if not lines:
-        raise ValueError(f"{path}: no points")
-    header = [h.strip().lower() for h in next(csv.reader([lines[0][1]]))]
-    if header in (["name", "col", "row"], ["name", "column", "row"]):
-        names, xy = [], []
-        for line, text in lines[1:]:
-            f = [s.strip() for s in next(csv.reader([text]))]
-            if len(f) != 3:
-                raise ValueError(f"{path}, line {line}: expected 3 columns name,col,row, got {len(f)}")
-            try:
-                c, r = float(f[1]), float(f[2])
-            except ValueError:
-                raise ValueError(f"{path}, line {line}: col and row must be numbers, got {f[1]!r}, {f[2]!r}") from None
-            if not (math.isfinite(c) and math.isfinite(r)):
-                raise ValueError(f"{path}, line {line}: col and row must be finite")
-            names.append(f[0] or f"p{len(names) + 1}")
-            xy.append((c, r))
-        if not names:
-            raise ValueError(f"{path}: no points")
-        return np.asarray(names), np.asarray(xy, dtype=float), None
-    table = read_gcps(path, format="csv")
-    if table.pixel is None:
-        raise ValueError(f"{path}: the GCPs give image-plane x, y; measuring needs approximate pixels (col, row)")
-    if image_name is not None:
-        table = table.select(image_name)
-    elif len(table.image_names) > 1:
-        raise ValueError(f"{path}: points of several images {table.image_names}; choose one with --image-name")
-    return table.names, table.pixel, table
-
-
 def _write_csv(out, names, approx, res, strength, inputs) -> None:
     import numpy as np
 
@@ -146,6 +85,8 @@ def run(args: argparse.Namespace) -> int:
     from .. import measure
     from ..io.atomic import check_output_path
     from ..io.gcp import write_gcps
+    from ..io.points import read_pixel_points
+    from ..io.raster import read_grey
 
     points = args.targets or args.corners
     inputs = [p for p in (args.image, points) if p]
@@ -158,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--targets needs --radius (the target's image radius in px)")
     if args.count < 1:
         raise ValueError(f"--count must be >= 1, got {args.count}")
-    image = read_image(args.image, args.band)
+    image = read_grey(args.image, args.band)
     strength, table = None, None
     if args.interest:
         found = measure.interest_points(image, args.interest, min_distance=args.min_distance, max_points=args.count)
@@ -166,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         names = np.asarray([f"p{i + 1}" for i in range(len(approx))])
         strength = np.asarray(found.strength)
     else:
-        names, approx, table = read_points(points, args.image_name)
+        names, approx, table = read_pixel_points(points, args.image_name)
     kw = {} if args.window is None else {"window": args.window}
     if len(approx) == 0:
         res = None

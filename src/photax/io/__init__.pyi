@@ -17,5 +17,11 @@ from .orthority import (
     read_orthority_exterior as read_orthority_exterior,
     read_orthority_interior as read_orthority_interior,
 )
-from .raster import read_dem as read_dem, read_geotiff as read_geotiff, write_geotiff as write_geotiff
+from .points import read_named_points as read_named_points, read_pixel_points as read_pixel_points
+from .raster import (
+    read_dem as read_dem,
+    read_geotiff as read_geotiff,
+    read_grey as read_grey,
+    write_geotiff as write_geotiff,
+)
 from .results import read_json as read_json, write_json as write_json

@@ -6,9 +6,6 @@ The contract (``docs/architecture.md``): a reader returns a result or raises
 no line applies); a missing file is ``FileNotFoundError`` naming it.  No
 parser's own exception (YAML, JSON, Unicode, csv) reaches the caller.  The
 fuzz tests (``tests/test_fuzz_readers.py``) hold every reader to it.
-
-Private utility module: other photax units import its names directly
-(``tests/test_imports.py`` lists the modules allowed that).
 """
 
 from __future__ import annotations

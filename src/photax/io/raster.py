@@ -54,6 +54,21 @@ def read_geotiff(path) -> tuple[np.ndarray, dict]:
 
 
 @contextlib.contextmanager
+def read_grey(path, band: int | None = None) -> np.ndarray:
+    """One ``(rows, cols)`` grey image from a raster file, in its own grey values: band ``band``
+    (1-based), or the only band, or the mean of the first three (RGB).
+
+    Raises:
+        ValueError: ``band`` not in the file, naming it.
+    """
+    data, _ = read_geotiff(path)
+    if band is not None:
+        if not 1 <= band <= data.shape[0]:
+            raise ValueError(f"--band {band}: {path} has {data.shape[0]} band(s)")
+        return data[band - 1]
+    return data[0] if data.shape[0] == 1 else data[:3].astype(np.float64).mean(axis=0)
+
+
 def _damaged(path):
     """A file GDAL opens but cannot decode (truncated, corrupt): ValueError naming it."""
     from rasterio._err import CPLE_BaseError
