@@ -53,7 +53,6 @@ def read_geotiff(path) -> tuple[np.ndarray, dict]:
         return src.read(), dict(src.profile)
 
 
-@contextlib.contextmanager
 def read_grey(path, band: int | None = None) -> np.ndarray:
     """One ``(rows, cols)`` grey image from a raster file, in its own grey values: band ``band``
     (1-based), or the only band, or the mean of the first three (RGB).
@@ -69,6 +68,7 @@ def read_grey(path, band: int | None = None) -> np.ndarray:
     return data[0] if data.shape[0] == 1 else data[:3].astype(np.float64).mean(axis=0)
 
 
+@contextlib.contextmanager
 def _damaged(path):
     """A file GDAL opens but cannot decode (truncated, corrupt): ValueError naming it."""
     from rasterio._err import CPLE_BaseError

@@ -38,15 +38,16 @@ Frames and conventions: ``docs/conventions.md`` (pixel centres at integer
 pixel coordinates; raster georeference at pixel corners).
 """
 
-# Re-exports only; the modules, in pipeline order:
-# _tiling (tiles, thread pool, progress, checks),
-# _approx (input positions: lattice, checks, exact fallback), _indirect
-# (rectify), _direct (direct mapping), _ortho (OrthoModel, orthorectify),
-# _files (rectify_file, orthorectify_file, orthorectify_block: windowed
-# reads), _dask
-# (orthorectify_dask: the same kernels, one Dask task per chunk).
-# The output grid (Grid, ortho_grid) lives in photax.grid.
+# Re-exports only; three entry points (rectify in memory, rectify_file file to
+# file, orthorectify_dask on Dask) over one kernel set.  The modules, in
+# pipeline order: _tiling (tiles, thread pool, progress, checks), _approx
+# (input positions: lattice, checks, exact fallback), _indirect (rectify),
+# _direct (direct mapping), _ortho (OrthoModel, orthorectify), _files
+# (rectify_file, orthorectify_file, orthorectify_block: windowed reads),
+# _dask (orthorectify_dask: one Dask task per chunk).  The output grid (Grid,
+# ortho_grid) lives in photax.grid, the resampling kernels in photax.resampling.
 
+from ..grid import Grid as Grid, ortho_grid as ortho_grid
 from ..resampling import Resampling as Resampling
 from ._dask import orthorectify_dask as orthorectify_dask
 from ._files import (
@@ -54,7 +55,6 @@ from ._files import (
     orthorectify_file as orthorectify_file,
     rectify_file as rectify_file,
 )
-from ..grid import Grid as Grid, ortho_grid as ortho_grid
 from ._indirect import rectify as rectify
 from ._ortho import OrthoModel as OrthoModel, orthorectify as orthorectify
 from ._tiling import tile_windows as tile_windows
