@@ -42,7 +42,8 @@ from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, project, project_jacobian
 from .dem import DEM
 from .polynomial import PolynomialModel, fit_polynomial, fit_projective, n_coefficients
-from .rectification import Grid, OrthoModel, ortho_grid
+from .grid import Grid, ortho_grid
+from .rectification import OrthoModel
 from .resampling import Resampling
 
 

@@ -115,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         names = ["collinearity", *(n for n in comparison.names if n.startswith("polynomial"))]
         grid = None
         if args.resolution is not None:
-            from ..rectification import ortho_grid
+            from ..grid import ortho_grid
 
             grid = ortho_grid(comparison.exterior, camera, dem, args.resolution)
         rectified, grid = comparison.rectify(shown, names, grid=grid, progress=args.progress and args.command)

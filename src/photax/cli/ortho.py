@@ -45,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.orientation import read_exterior, read_interior
     from ..io.raster import read_dem
-    from ..rectification import ortho_grid, orthorectify_file
+    from ..grid import ortho_grid
+    from ..rectification import orthorectify_file
     from ._common import ground_unit, input_file
 
     image = input_file(args.image, "image")

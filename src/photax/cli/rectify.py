@@ -39,7 +39,8 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.gcp import read_gcps
     from ..polynomial import fit_polynomial
-    from ..rectification import Grid, rectify_file
+    from ..grid import Grid
+    from ..rectification import rectify_file
     from ._common import ground_unit, input_file, plural
 
     image = input_file(args.image, "image")

@@ -45,7 +45,8 @@ pixel coordinates; raster georeference at pixel corners).
 # _direct (direct mapping), _ortho (OrthoModel, orthorectify), _files
 # (rectify_file, orthorectify_file, orthorectify_block: windowed reads),
 # _dask (orthorectify_dask: one Dask task per chunk).  The output grid (Grid,
-# ortho_grid) lives in photax.grid, the resampling kernels in photax.resampling.
+# ortho_grid) lives in photax.grid (re-exported here), the resampling kernels
+# in photax.resampling.
 
 from ..grid import Grid as Grid, ortho_grid as ortho_grid
 from ..resampling import Resampling as Resampling
