@@ -436,3 +436,53 @@ def test_seeds_are_valid(work, bal_seed, tif_seeds):
             path.write_bytes(raw)
             sane(read(path))
     _sane_block(read_block(DATA / "block"))
+
+
+# --- many orientations from one file, point lists ----------------------------------
+
+EXTERIORS_JSON = [
+    json.dumps({"converged": True, "convention": "phi-omega-kappa", "crs": "EPSG:32633",
+                "images": [{"name": "img0", "position": [500000.0, 4000000.0, 300.0], "angles_rad": [0.01, 0.0, 0.1]},
+                           {"name": "img1", "position": [500100.0, 4000000.0, 300.0], "angles_rad": [0.0, 0.02, 0.1]}]
+                }).encode(),
+    json.dumps({"images": {"a.tif": {"status": "solved", "position": [1.0, 2.0, 3.0], "angles_rad": [0.0, 0.0, 0.0],
+                                     "convention": "omega-phi-kappa"}}}).encode(),
+]
+
+
+@FUZZ
+@given(data=mutated(EXTERIORS_JSON))
+def test_fuzz_read_exteriors(work, data):
+    from photax.io import read_exteriors
+
+    path = work / "block.json"
+    path.write_bytes(data)
+
+    def sane(result):
+        table, crs = result
+        assert table and (crs is None or isinstance(crs, str) or crs)
+        for eo in table.values():
+            _finite(eo.position, eo.angles)
+
+    _expect_valueerror_or_sane(read_exteriors, path, sane)
+
+
+NAMED = [b"name,x,y\nF1,-106.0,-106.0\nF2,106.0,106.0\nF3,-106.0,106.0\n",
+         b"name,col,row\nF1,10.5,20.25\nF2,3000,4000\n"]
+
+
+@FUZZ
+@given(data=mutated(NAMED))
+def test_fuzz_read_named_points(work, data):
+    from photax.io.points import read_named_points
+
+    path = work / "marks.csv"
+    path.write_bytes(data)
+
+    def sane(result):
+        names, xy = result
+        assert len(names) == len(set(names)) == len(xy) and xy.shape[1:] == (2,)
+        _finite(xy)
+
+    _expect_valueerror_or_sane(lambda p: read_named_points(p, ("x", "y"), "fiducial file"), path, sane,
+                               r": (empty fiducial file|no points in the fiducial file|duplicated mark names)$", lines=True)

@@ -117,8 +117,8 @@ def run(args) -> int:
             args.progress and args.command, None, desc="mosaic", unit="step") as bar:
         if args.block:
             bar.total = (bar.total or 0) + len(images)
-            paths = orthorectify_block(images, exteriors, camera, dem, tmp, resolution=args.resolution, crs=crs,
-                                       resampling=args.resampling, tile=args.chunks,
+            paths = orthorectify_block(images, exteriors, camera, dem, tmp, resolution=args.resolution,
+                                       crs=crs, resampling=args.resampling, tile=args.chunks,
                                        callback=lambda k: bar.update())
         else:
             paths = list(args.orthos)
@@ -129,8 +129,9 @@ def run(args) -> int:
             dem_on_grid = heights_on_grid(args.dem, grid) if args.dem else None
         info = {}
         with _dask_progress(bar):
-            out = mosaic([str(p) for p in paths], method=args.method, dsm=dsm, dem=dem_on_grid, raised=args.raised,
-                         balance=args.balance, feather=args.feather, chunks=args.chunks, info=info)
+            out = mosaic([str(p) for p in paths], method=args.method, dsm=dsm, dem=dem_on_grid,
+                         raised=args.raised, balance=args.balance, feather=args.feather, chunks=args.chunks,
+                         info=info)
             to_raster(out.astype(np.float32), args.out, cog=True, inputs=inputs)
     gains = ", ".join("/".join(f"{x:.3f}" for x in np.atleast_1d(g)) for g in info["gains"])  # per band: a/b/c
     print(f"photax mosaic: {plural(len(paths), 'ortho')} -> {args.out} ({out.shape[-1]} x {out.shape[-2]} px"

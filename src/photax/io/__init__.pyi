@@ -1,7 +1,12 @@
 """photax.io's public names: the one list (read by photax._lazy at import time, and by type checkers)."""
 
 from .atomic import atomic_path as atomic_path, atomic_write as atomic_write
-from .bal import BALData as BALData, read_bal as read_bal, read_bal_arrays as read_bal_arrays, write_bal as write_bal
+from .bal import (
+    BALData as BALData,
+    read_bal as read_bal,
+    read_bal_arrays as read_bal_arrays,
+    write_bal as write_bal,
+)
 from .block import read_block as read_block, write_block as write_block
 from .camera_file import read_camera as read_camera, write_camera as write_camera
 from .gcp import GCPTable as GCPTable, read_gcps as read_gcps, write_gcps as write_gcps

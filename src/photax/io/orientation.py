@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import pathlib
 
+import numpy as np
+
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ._files import file_error, load_yaml, read_text
@@ -136,8 +138,10 @@ def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], st
             images = data.get("images") if isinstance(data, dict) else None
             if not isinstance(images, (list, dict)) or not images:
                 raise ValueError(f"{path}: no 'images' (expected a photax bundle or resect --json result)")
-            names = [e.get("name") if isinstance(e, dict) else None for e in images] if isinstance(images, list) \
-                else list(images)
+            if isinstance(images, list):
+                names = [e.get("name") if isinstance(e, dict) else None for e in images]
+            else:
+                names = list(images)
             if not all(isinstance(n, str) for n in names):
                 raise ValueError(f"{path}: every image needs a 'name' (photax bundle --json)")
             table = {pathlib.Path(n).stem: exterior_from_result(path, data, n)[0] for n in names}
@@ -190,9 +194,16 @@ def exterior_from_result(path, data, image) -> tuple[ExteriorOrientation, str | 
         convention = data.get("convention", convention)
         if convention is None:
             raise KeyError("convention")
-        return ExteriorOrientation(data["position"], data["angles_rad"], convention), crs
-    except (KeyError, TypeError, AttributeError):
+        position, angles = (np.asarray(data[k], dtype=float) for k in ("position", "angles_rad"))
+    except (KeyError, TypeError, AttributeError, ValueError, OverflowError):
         raise ValueError(f"{path}: expected 'position', 'angles_rad' and 'convention' (photax resect --json)") from None
+    finite = np.isfinite(position).all() and np.isfinite(angles).all()
+    if position.shape != (3,) or angles.shape != (3,) or not finite:
+        raise ValueError(f"{path}: 'position' and 'angles_rad' must be 3 finite numbers each")
+    try:
+        return ExteriorOrientation(position, angles, convention), crs
+    except ValueError as exc:  # an unknown convention
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def read_camera_unit(path) -> str | None:

@@ -13,7 +13,6 @@ the file (and line where one applies).
 from __future__ import annotations
 
 import csv
-import io
 import math
 import pathlib
 
@@ -25,23 +24,33 @@ from .gcp import read_gcps
 
 def read_named_points(path, columns: tuple[str, str], what: str) -> tuple[list[str], np.ndarray]:
     """``name,a,b`` rows of a CSV with a header naming those columns (file and line in errors)."""
-    text = read_text(path)
-    rows = list(csv.reader(io.StringIO(text)))
-    rows = [r for r in rows if r and any(c.strip() for c in r)]
+    rows = []
+    for k, line in enumerate(split_lines(read_text(path)), start=1):
+        try:
+            r = next(csv.reader([line]), [])
+        except csv.Error as exc:
+            raise file_error(path, k, f"not a CSV line ({exc})") from None
+        if r and any(c.strip() for c in r):
+            rows.append((k, r))
     if not rows:
         raise file_error(path, None, f"empty {what}")
-    head = [c.strip().lower() for c in rows[0]]
+    head = [c.strip().lower() for c in rows[0][1]]
     want = ("name", *columns)
     if not all(c in head for c in want):
-        raise file_error(path, 1, f"expected a header with the columns {', '.join(want)}, got {', '.join(head)}")
+        raise file_error(path, rows[0][0], f"expected a header with the columns {', '.join(want)}, "
+                         f"got {', '.join(head)}")
     idx = [head.index(c) for c in want]
     names, vals = [], []
-    for k, r in enumerate(rows[1:], start=2):
+    for k, r in rows[1:]:
         try:
             names.append(r[idx[0]].strip())
             vals.append([float(r[idx[1]]), float(r[idx[2]])])
+            if not (math.isfinite(vals[-1][0]) and math.isfinite(vals[-1][1])):
+                raise ValueError
         except (ValueError, IndexError):
-            raise file_error(path, k, f"expected name,{columns[0]},{columns[1]} with numbers, got {','.join(r)}") from None
+            raise file_error(path, k, f"expected name,{columns[0]},{columns[1]} with finite numbers, got {','.join(r)}") from None
+    if not names:
+        raise file_error(path, None, f"no points in the {what}")
     if len(set(names)) != len(names):
         raise file_error(path, None, "duplicated mark names")
     return names, np.asarray(vals, dtype=float)
