@@ -25,11 +25,36 @@ def build_parser() -> argparse.ArgumentParser:
         description="Photogrammetry on JAX: resection, bundle adjustment, rectification.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
     for name in SUBCOMMANDS:
         importlib.import_module(f"{__name__}.{name}").add_parser(sub)
     parser.subcommands = sub.choices  # name -> its parser, for errors in its own words
     return parser
+
+
+class _Formatter(argparse.HelpFormatter):
+    """Every option's default in its help, unless the help already says it."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        shown = action.default not in (None, False, True, argparse.SUPPRESS) and action.option_strings
+        return f"{text} (default: %(default)s)" if shown and "default" not in text else text
+
+
+class _Parser(argparse.ArgumentParser):
+    """A subcommand's parser: defaults shown, and its epilog (the examples) printed as written."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kwargs)
+
+    def format_help(self) -> str:
+        epilog, self.epilog = self.epilog, None
+        try:
+            text = super().format_help()
+        finally:
+            self.epilog = epilog
+        return f"{text}\n{epilog.strip(chr(10))}\n" if epilog else text
 
 
 def _version() -> str:
@@ -67,6 +92,10 @@ def _enable_compilation_cache() -> None:
         return
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     jax.config.update("jax_compilation_cache_dir", os.path.join(base, "photax", "jax"))
+
+
+# Optional dependencies -> the extra of pyproject.toml that brings them.
+_EXTRAS = {"dask": "dask", "xarray": "dask", "rioxarray": "dask", "distributed": "dask", "odc": "bench"}
 
 
 def _one_line(exc: BaseException) -> str:
@@ -201,6 +230,12 @@ def _main(argv: list[str] | None) -> int:
     except Exception as exc:  # a bug or a dependency's failure: still one line, no traceback
         if interrupted.is_set():  # e.g. ImportError from a Ctrl-C inside a C extension's start
             return stopped()
+        extra = _EXTRAS.get((getattr(exc, "name", None) or "").partition(".")[0])
+        if isinstance(exc, ModuleNotFoundError) and extra:  # a usage error: say what to install
+            module = exc.name.partition(".")[0]
+            print(f'{command}: error: needs {module}, in the {extra} extra: pip install "photax[{extra}]"',
+                  file=sys.stderr)
+            return 2
         if os.environ.get("PHOTAX_TRACEBACK"):
             raise
         print(f"{command}: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
