@@ -29,7 +29,11 @@ PARSERS = build_parser().subcommands
 
 def _options(name):
     """The visible options of a subcommand: argparse actions with option strings, less --help."""
-    return [a for a in PARSERS[name]._actions if a.option_strings and a.help != "==SUPPRESS==" and a.dest != "help"]
+    return [
+        a
+        for a in PARSERS[name]._actions
+        if a.option_strings and a.help != "==SUPPRESS==" and a.dest != "help"
+    ]
 
 
 @pytest.mark.parametrize("name", SUBCOMMANDS)
@@ -38,7 +42,9 @@ def test_every_help_has_an_example_and_every_option_says_what_it_is(name):
     assert re.search(r"^examples?:\n  photax " + name + " ", text, re.MULTILINE), text
     missing = [a.option_strings[-1] for a in _options(name) if not (a.help or "").strip()]
     assert missing == [], f"photax {name}: options without help text"
-    arguments = [a.dest for a in PARSERS[name]._actions if not a.option_strings and not (a.help or "").strip()]
+    arguments = [
+        a.dest for a in PARSERS[name]._actions if not a.option_strings and not (a.help or "").strip()
+    ]
     assert arguments == [], f"photax {name}: arguments without help text"
 
 
@@ -58,10 +64,18 @@ def test_defaults_are_shown_and_old_spellings_still_parse():
     assert "(default: bilinear)" in " ".join(PARSERS["ortho"].format_help().split())
     assert "(default: affine)" in " ".join(PARSERS["fiducials"].format_help().split())
     parser = build_parser()
-    old = {("compare", "--out"): "out_dir", ("demo", "--out"): "out_dir", ("resect", "--json"): "out",
-           ("bundle", "--json"): "out"}
-    required = {"compare": ["G.csv", "--camera", "c", "--dem", "d"], "demo": [], "resect": ["G.csv", "--camera", "c"],
-                "bundle": ["block"]}
+    old = {
+        ("compare", "--out"): "out_dir",
+        ("demo", "--out"): "out_dir",
+        ("resect", "--json"): "out",
+        ("bundle", "--json"): "out",
+    }
+    required = {
+        "compare": ["G.csv", "--camera", "c", "--dem", "d"],
+        "demo": [],
+        "resect": ["G.csv", "--camera", "c"],
+        "bundle": ["block"],
+    }
     for (name, flag), dest in old.items():
         args = parser.parse_args([name, *required[name], flag, "x"])
         assert getattr(args, dest) == "x", (name, flag)
@@ -77,8 +91,20 @@ def test_version(capsys):
 
 
 def test_a_mistyped_option_shows_the_subcommands_usage(capsys):
-    argv = ["ortho", "image.tif", "--dem", "d.tif", "--camera", "c.yaml", "--exterior", "e.json", "-o", "o.tif",
-            "--resolutoin", "2"]
+    argv = [
+        "ortho",
+        "image.tif",
+        "--dem",
+        "d.tif",
+        "--camera",
+        "c.yaml",
+        "--exterior",
+        "e.json",
+        "-o",
+        "o.tif",
+        "--resolutoin",
+        "2",
+    ]
     with pytest.raises(SystemExit) as stop:
         main(argv)
     assert stop.value.code == 2
@@ -95,10 +121,19 @@ def test_a_missing_optional_dependency_names_the_extra(tmp_path, capsys, monkeyp
     for module in [m for m in sys.modules if m.startswith(("dask.", "xarray.", "rioxarray."))]:
         monkeypatch.delitem(sys.modules, module)
     out = tmp_path / "m.tif"
-    argv = ["mosaic", str(DATA / "sample_image.tif"), str(DATA / "sample_image.tif"), "-o", str(out), "--no-progress"]
+    argv = [
+        "mosaic",
+        str(DATA / "sample_image.tif"),
+        str(DATA / "sample_image.tif"),
+        "-o",
+        str(out),
+        "--no-progress",
+    ]
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert re.fullmatch(r'photax mosaic: error: needs \w+, in the dask extra: pip install "photax\[dask\]"\n', err), err
+    assert re.fullmatch(
+        r'photax mosaic: error: needs \w+, in the dask extra: pip install "photax\[dask\]"\n', err
+    ), err
     assert not out.exists()
 
 
@@ -113,8 +148,12 @@ def test_the_notebooks_extra_brings_what_every_notebook_imports():
     have |= {"ipython"}  # IPython comes with ipykernel (its kernel)
     dists = importlib.metadata.packages_distributions()
     for nb in sorted((ROOT / "notebooks").glob("*.ipynb")):
-        code = "\n".join("".join(c["source"]) for c in json.loads(nb.read_text())["cells"] if c["cell_type"] == "code")
-        imported = {m.split(".")[0] for m in re.findall(r"^\s*(?:import|from)\s+([\w.]+)", code, re.MULTILINE)}
+        code = "\n".join(
+            "".join(c["source"]) for c in json.loads(nb.read_text())["cells"] if c["cell_type"] == "code"
+        )
+        imported = {
+            m.split(".")[0] for m in re.findall(r"^\s*(?:import|from)\s+([\w.]+)", code, re.MULTILINE)
+        }
         third_party = {m for m in imported if m not in sys.stdlib_module_names and m != "photax"}
         needed = {d.lower() for m in third_party for d in dists.get(m, [m])}
         # photax's Dask-backed functions import the dask extra's packages themselves
@@ -131,8 +170,16 @@ def test_ortho_height_equals_an_ortho_on_a_constant_dem_file(tmp_path, capsys):
     h = 95.0
     flat = tmp_path / "flat.tif"
     write_geotiff(flat, np.full((50, 50), h), (200.0, 0.0, x - 5000.0, 0.0, -200.0, y + 5000.0))
-    common = [str(DATA / "sample_image.tif"), "--camera", str(DATA / "sample_camera.yaml"),
-              "--exterior", str(DATA / "sample_truth.json"), "--resolution", "2", "--no-progress"]
+    common = [
+        str(DATA / "sample_image.tif"),
+        "--camera",
+        str(DATA / "sample_camera.yaml"),
+        "--exterior",
+        str(DATA / "sample_truth.json"),
+        "--resolution",
+        "2",
+        "--no-progress",
+    ]
     assert main(["ortho", *common, "--dem", str(flat), "-o", str(tmp_path / "dem.tif")]) == 0
     assert main(["ortho", *common, "--height", str(h), "-o", str(tmp_path / "height.tif")]) == 0
     capsys.readouterr()

@@ -14,6 +14,10 @@ import signal
 import sys
 import threading
 
+# Imported here, not in the handler: a Ctrl-C while main() imported it made the handler's own
+# import fail ("partially initialized module").  Cheap: pathlib, tempfile, threading.
+from ..io.atomic import interrupted
+
 # Subcommand modules, in the order ``photax --help`` lists them.
 SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "mosaic", "compare", "bundle", "measure", "fiducials", "epipolar",
                "transfer", "ties", "register"]
@@ -128,8 +132,6 @@ class _CtrlC:
         self.raised = self.waiting = self.done = False
 
     def __call__(self, signum, frame) -> None:
-        from ..io.atomic import interrupted
-
         interrupted.set()
         if self.done:
             return
@@ -184,8 +186,6 @@ def main(argv: list[str] | None = None) -> int:
         handler = _CtrlC()
         previous = signal.signal(signal.SIGINT, handler)
     try:
-        from ..io.atomic import interrupted
-
         interrupted.clear()  # an earlier in-process run's
         status = _main(argv)
     finally:
@@ -202,8 +202,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    from ..io.atomic import interrupted
-
     command = "photax"
 
     def stopped() -> int:
@@ -242,7 +240,7 @@ def _main(argv: list[str] | None) -> int:
               "(PHOTAX_TRACEBACK=1 shows where)", file=sys.stderr)
         return 2
     if interrupted.is_set():  # after its last output was written: say so
-        print(f"\n{command}: interrupted after writing its outputs", file=sys.stderr)
+        print(f"\n{command}: interrupted as it ended (what it wrote was written before)", file=sys.stderr)
         return 130
     return status
 
