@@ -41,7 +41,8 @@ class _Formatter(argparse.HelpFormatter):
 
     def _get_help_string(self, action):
         text = action.help or ""
-        shown = action.default not in (None, False, True, argparse.SUPPRESS) and action.option_strings
+        unset = any(action.default is x for x in (None, False, True, argparse.SUPPRESS))  # 0 and 1.0 are values
+        shown = action.option_strings and not unset
         return f"{text} (default: %(default)s)" if shown and "default" not in text else text
 
 
