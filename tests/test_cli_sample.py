@@ -30,12 +30,12 @@ DATA = ROOT / "data"
 README = ROOT / "README.md"
 
 QUICK_START = [
-    "photax resect data/sample_gcps.csv --camera data/sample_camera.yaml --json out/resect.json",
+    "photax resect data/sample_gcps.csv --camera data/sample_camera.yaml -o out/resect.json",
     "photax ortho data/sample_image.tif --dem data/sample_dem.tif --camera data/sample_camera.yaml "
-    "--exterior out/resect.json --out out/ortho.tif",
-    "photax rectify data/sample_image.tif --gcps data/sample_gcps.csv --order 3 --out out/rect.tif",
+    "--exterior out/resect.json -o out/ortho.tif",
+    "photax rectify data/sample_image.tif --gcps data/sample_gcps.csv --order 3 -o out/rect.tif",
     "photax compare data/sample_gcps.csv --camera data/sample_camera.yaml --dem data/sample_dem.tif "
-    "--image data/sample_image.tif --orders 1-5 --out out/compare",
+    "--image data/sample_image.tif --orders 1-5 -o out/compare",
 ]
 
 

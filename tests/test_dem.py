@@ -92,3 +92,12 @@ def test_gradients_finite_where_defined(dem):
 def test_insane_grids_are_refused(heights, transform, words):
     with pytest.raises(ValueError, match=words):
         DEM(heights, transform)
+
+
+def test_flat_dem_is_its_height_everywhere_inside_its_bounds():
+    """Every quadrant and corner of its bounds (was NaN but in the quadrant above and right of the centre)."""
+    dem = DEM.flat(95.0, (100.0, 200.0, 300.0, 600.0))
+    x = np.array([100.0, 300.0, 120.0, 280.0, 120.0, 280.0, 200.0])
+    y = np.array([200.0, 600.0, 210.0, 210.0, 590.0, 590.0, 400.0])
+    np.testing.assert_allclose(np.asarray(dem.height(x, y)), 95.0, rtol=1e-15)
+    assert np.isnan(np.asarray(dem.height(np.array([99.0]), np.array([400.0]))))[0]  # outside: no height

@@ -17,13 +17,13 @@ from photax.cli import main
 from photax.io.camera_file import write_camera
 from photax.io.raster import write_geotiff
 
-BAR = re.compile(r"([A-Za-z][\w ]*): +\d+%\|")  # "ortho:  40%|####  | 2/5 [...]"
+BAR = re.compile(r"([A-Za-z][\w ]*): +(?:\d+%\||\d+\w* \[)")  # "ortho:  40%|####  | 2/5 [...]", "bundle: 3it [..."
 
 
 def bars(err: str) -> list[str]:
     """Labels of the bars in ``err``, one per bar, in order."""
     closed = [m.group(1) for line in err.split("\n") if (m := BAR.match(line.split("\r")[-1]))]
-    assert set(BAR.findall(err)) <= set(closed)  # no other bar drawn and wiped
+    assert {m.group(1) for m in BAR.finditer(err)} <= set(closed)  # no other bar drawn and wiped
     return closed
 
 
@@ -81,6 +81,9 @@ def test_one_bar_per_command_named_after_it(scene, tmp_path, capsys, command):
     assert bars(captured.err) == [command], captured.err
     if command == "bundle":
         assert "bundle:" not in captured.out  # the bar is on stderr, the report on stdout
+        # iterations and cost, no total: max_iterations is a limit, so a percentage or an ETA would lie
+        last = captured.err.split("\n")[0].split("\r")[-1]
+        assert re.match(r"bundle: 3it \[[\d:]+, .*cost=", last) and "%" not in captured.err, last
     if command in ("rectify", "bundle"):  # the cheap ones
         assert main([*args, "--no-progress"]) in (0, 1)
         assert bars(capsys.readouterr().err) == []
@@ -122,3 +125,27 @@ def test_compare_advances_one_bar_over_all_models():
     with pytest.raises(ValueError, match="progress"):
         with progress_bar(3.5, 1, desc="x"):
             pass
+
+
+def _screen(err: str) -> list[str]:
+    """What a terminal shows of ``err``: each ``\\r`` returns to the line's start and overwrites."""
+    lines = []
+    for line in err.split("\n"):
+        shown = ""
+        for part in line.split("\r"):
+            shown = part + shown[len(part):]
+        lines.append(shown.rstrip())
+    return [s for s in lines if s]
+
+
+def test_an_error_leaves_its_message_not_a_bar(scene, tmp_path, capsys, monkeypatch):
+    """An error while a bar is open ends in the one-line message alone (was: "rectify: 0%|..." above it)."""
+    import photax.rectification._files
+
+    def broken(*a, **k):
+        raise ValueError("a tile went wrong")
+
+    monkeypatch.setattr(photax.rectification._files, "_resample_tile", broken)
+    assert main(commands(scene, tmp_path)["rectify"]) == 2
+    assert _screen(capsys.readouterr().err) == ["photax rectify: error: a tile went wrong"]
+    assert list(tmp_path.iterdir()) == []

@@ -49,9 +49,12 @@ class DEM(eqx.Module):
 
     @classmethod
     def flat(cls, height: float, bounds: tuple[float, float, float, float]) -> "DEM":
-        """A constant-height DEM over ``(xmin, ymin, xmax, ymax)``."""
+        """A constant-height DEM over ``(xmin, ymin, xmax, ymax)``: its 2 x 2 pixel centres are
+        those corners, so :meth:`height` is ``height`` everywhere inside them (it was NaN in all
+        but the quadrant above and right of the centre)."""
         xmin, ymin, xmax, ymax = bounds
-        return cls(np.full((2, 2), float(height)), (xmax - xmin, 0, xmin, 0, -(ymax - ymin), ymax))
+        w, h = xmax - xmin, ymax - ymin
+        return cls(np.full((2, 2), float(height)), (w, 0, xmin - w / 2, 0, -h, ymax + h / 2))
 
     @jax.jit
     def ground_to_pixel(self, x: Array, y: Array) -> tuple[Array, Array]:

@@ -52,7 +52,8 @@ def progress_bar(progress, total: int | None, *, desc: str, unit: str = "it"):
 
     Args:
         progress: ``False``/``None``, ``True``, a label, or an open bar.
-        total: number of steps (ignored when ``progress`` is an open bar).
+        total: number of steps, or ``None`` where it is not known (the bar
+            counts them); ignored when ``progress`` is an open bar.
         desc: the label when ``progress is True``.
         unit: what one step is ("tile", "it", "section").
 
@@ -69,6 +70,20 @@ def progress_bar(progress, total: int | None, *, desc: str, unit: str = "it"):
         label = progress
     else:
         raise ValueError(f"progress must be a bool, a label or a progress bar, got {progress!r}")
+    return _bar(total, label, unit)
+
+
+@contextlib.contextmanager
+def _bar(total, label: str, unit: str):
+    """A tqdm bar kept on screen when its work is done, wiped when it fails: an error
+    ends in its one-line message, not in a bar's fragment ("mosaic: 0step")."""
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, desc=label, unit=unit, dynamic_ncols=True)
+    bar = tqdm(total=total, desc=label, unit=unit, dynamic_ncols=True)
+    try:
+        yield bar
+    except BaseException:
+        bar.leave = False
+        raise
+    finally:
+        bar.close()

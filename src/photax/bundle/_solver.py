@@ -201,8 +201,9 @@ def bundle_adjust(
         initialize: fill NaN orientations / points with
             :func:`initialize_block` (``"auto"``: only when some are NaN).
         verbose: print one line per iteration.
-        progress: a progress bar over the iterations: ``True`` (labelled
-            "bundle"), a label, or an open bar (:mod:`photax.progress`).
+        progress: a progress bar counting the iterations, with the cost (no
+            total: ``max_steps`` is a limit, not a forecast): ``True``
+            (labelled "bundle"), a label, or an open bar (:mod:`photax.progress`).
         throw: raise :class:`photax.ConvergenceError` when the adjustment fails
             (no convergence within ``max_steps``, singular normal
             equations); else return the result with ``converged=False``.
@@ -234,8 +235,9 @@ def bundle_adjust(
             if progress:  # one bar, labelled "bundle" or by the caller (photax.progress)
                 from ..progress import progress_bar
 
-                # Leaving the stack closes a bar of its own, not a caller's.
-                bar = bars.enter_context(progress_bar(progress, max_iterations, desc="bundle", unit="it"))
+                # Leaving the stack closes a bar of its own, not a caller's.  No total: the loop
+                # stops long before max_iterations as a rule, so a percentage and an ETA would lie.
+                bar = bars.enter_context(progress_bar(progress, None, desc="bundle", unit="it"))
             lin = _linearise(state, s, **kw)
             initial_cost = float(lin.cost)
             state, lin, cost, history, converged, message, it = _lm_loop(

@@ -10,7 +10,13 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
+import threading
+
+# Imported here, not in the handler: a Ctrl-C while main() imported it made the handler's own
+# import fail ("partially initialized module").  Cheap: pathlib, tempfile, threading.
+from ..io.atomic import interrupted
 
 # Subcommand modules, in the order ``photax --help`` lists them.
 SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "mosaic", "compare", "bundle", "measure", "fiducials", "epipolar",
@@ -22,10 +28,47 @@ def build_parser() -> argparse.ArgumentParser:
         prog="photax",
         description="Photogrammetry on JAX: resection, bundle adjustment, rectification.",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
     for name in SUBCOMMANDS:
         importlib.import_module(f"{__name__}.{name}").add_parser(sub)
+    parser.subcommands = sub.choices  # name -> its parser, for errors in its own words
     return parser
+
+
+class _Formatter(argparse.HelpFormatter):
+    """Every option's default in its help, unless the help already says it."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        unset = any(action.default is x for x in (None, False, True, argparse.SUPPRESS))  # 0 and 1.0 are values
+        shown = action.option_strings and not unset
+        return f"{text} (default: %(default)s)" if shown and "default" not in text else text
+
+
+class _Parser(argparse.ArgumentParser):
+    """A subcommand's parser: defaults shown, and its epilog (the examples) printed as written."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kwargs)
+
+    def format_help(self) -> str:
+        epilog, self.epilog = self.epilog, None
+        try:
+            text = super().format_help()
+        finally:
+            self.epilog = epilog
+        return f"{text}\n{epilog.strip(chr(10))}\n" if epilog else text
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("photax")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "(not installed)"
 
 
 def _enable_compilation_cache() -> None:
@@ -56,6 +99,10 @@ def _enable_compilation_cache() -> None:
     jax.config.update("jax_compilation_cache_dir", os.path.join(base, "photax", "jax"))
 
 
+# Optional dependencies -> the extra of pyproject.toml that brings them.
+_EXTRAS = {"dask": "dask", "xarray": "dask", "rioxarray": "dask", "distributed": "dask", "odc": "bench"}
+
+
 def _one_line(exc: BaseException) -> str:
     """An exception as one line of text, in photax's words where we can."""
     if isinstance(exc, OSError) and exc.strerror and not isinstance(exc, FileExistsError):
@@ -68,6 +115,61 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(text.split())  # no multi-line messages from dependencies
 
 
+class _CtrlC:
+    """The SIGINT handler of a command: Ctrl-C at any moment ends it with 130 and nothing written.
+
+    Ctrl-C sets :data:`photax.io.atomic.interrupted` (no output is committed
+    after it) and raises ``KeyboardInterrupt`` -- but not while a C extension
+    module starts (jaxlib, GDAL: raised there it crashed the process or came
+    out as "ImportError: Encountered an error while initializing the
+    extension") or in a garbage-collector callback (JAX has one; Python drops
+    their exceptions), nor again while the first one unwinds (so that
+    temporaries are removed).  Until :func:`main` has seen it, the handler
+    looks again every 0.1 s: a ``KeyboardInterrupt`` that a dependency
+    caught let the command run on to its end.
+    """
+
+    def __init__(self):
+        self.raised = self.waiting = self.done = False
+
+    def __call__(self, signum, frame) -> None:
+        interrupted.set()
+        if self.done:
+            return
+        self._look_again()
+        if _not_now(frame) or (self.raised and sys.exc_info()[0] is not None):
+            return  # not now; or the first one still unwinding
+        self.raised = True
+        raise KeyboardInterrupt
+
+    def _look_again(self) -> None:
+        if not self.waiting:
+            self.waiting = True
+            timer = threading.Timer(0.1, self._again)
+            timer.daemon = True
+            timer.start()
+
+    def _again(self) -> None:
+        self.waiting = False
+        if not self.done and signal.getsignal(signal.SIGINT) is self:
+            os.kill(os.getpid(), signal.SIGINT)
+
+
+def _not_now(frame) -> bool:
+    """Whether a ``KeyboardInterrupt`` raised in ``frame`` would crash or vanish: inside
+    the start of a C extension module (``import jaxlib``...) or a garbage-collector
+    callback (Python ignores their exceptions)."""
+    import gc
+    from importlib.machinery import ExtensionFileLoader
+
+    callbacks = {getattr(cb, "__code__", None) for cb in gc.callbacks}
+    while frame is not None:
+        if frame.f_code in callbacks or isinstance(frame.f_locals.get("self"), ExtensionFileLoader):
+            return True
+        frame = frame.f_back
+    return False
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``photax`` console script.
 
@@ -75,31 +177,73 @@ def main(argv: list[str] | None = None) -> int:
     the adjustment converged); 1 when a run finished but some image was not
     solved or the adjustment did not converge (its outputs are still
     written, with a status); 2 for usage and input errors (one line on
-    stderr, no output written); 130 on Ctrl-C (no partial output: every
-    file is written to a temporary name and renamed at the end).  Set
-    ``PHOTAX_TRACEBACK=1`` to see the traceback of an unexpected error.
+    stderr, no output written); 130 on Ctrl-C, at any moment (no partial
+    output: every file is written to a temporary name and renamed at the
+    end, and nothing is renamed after a Ctrl-C).  Set ``PHOTAX_TRACEBACK=1``
+    to see the traceback of an unexpected error.
     """
-    command = "photax"
+    handler, previous = None, None
+    if threading.current_thread() is threading.main_thread():
+        handler = _CtrlC()
+        previous = signal.signal(signal.SIGINT, handler)
     try:
-        args = build_parser().parse_args(argv)
-        command = f"photax {args.command}"
-        _enable_compilation_cache()
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
+        interrupted.clear()  # an earlier in-process run's
+        status = _main(argv)
+    finally:
+        if handler is not None:
+            handler.done = True
+            signal.signal(signal.SIGINT, previous)
+    if status == 130 and argv is None:
+        # The process ends here: Python's own shutdown, with JAX's threads
+        # (a compilation in flight) half-way, crashed it (SIGSEGV) now and then.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(130)
+    return status
+
+
+def _main(argv: list[str] | None) -> int:
+    command = "photax"
+
+    def stopped() -> int:
         print(f"\n{command}: interrupted; nothing written", file=sys.stderr)
         return 130
+
+    try:
+        parser = build_parser()
+        args, extra = parser.parse_known_args(argv)
+        if extra:  # in the subcommand's words (argparse's own error shows the top-level usage)
+            parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+        command = f"photax {args.command}"
+        _enable_compilation_cache()
+        status = int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        return stopped()
     except (ValueError, OSError) as exc:
+        if interrupted.is_set():
+            return stopped()
         if os.environ.get("PHOTAX_TRACEBACK"):
             raise
         print(f"{command}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except Exception as exc:  # a bug or a dependency's failure: still one line, no traceback
+        if interrupted.is_set():  # e.g. ImportError from a Ctrl-C inside a C extension's start
+            return stopped()
+        extra = _EXTRAS.get((getattr(exc, "name", None) or "").partition(".")[0])
+        if isinstance(exc, ModuleNotFoundError) and extra:  # a usage error: say what to install
+            module = exc.name.partition(".")[0]
+            print(f'{command}: error: needs {module}, in the {extra} extra: pip install "photax[{extra}]"',
+                  file=sys.stderr)
+            return 2
         if os.environ.get("PHOTAX_TRACEBACK"):
             raise
         print(f"{command}: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
               "(PHOTAX_TRACEBACK=1 shows where)", file=sys.stderr)
         return 2
-
+    if interrupted.is_set():  # after its last output was written: say so
+        print(f"\n{command}: interrupted as it ended (what it wrote was written before)", file=sys.stderr)
+        return 130
+    return status
 
 if __name__ == "__main__":
     sys.exit(main())

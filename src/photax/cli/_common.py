@@ -62,8 +62,9 @@ def add_oriented_images(p) -> None:
     """The arguments :func:`read_oriented_images` reads: IMAGES of one camera, their
     approximate orientations, the DEM, and the matching search radius."""
     p.add_argument("images", nargs="+", metavar="IMAGE", help="images of one camera (any GDAL raster)")
-    p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE")
-    p.add_argument("--exterior", required=True, help="approximate orientations (resect --json or orthority CSV)")
+    p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
+                   help="photax camera file or orthority interior YAML (--interior is an alias)")
+    p.add_argument("--exterior", required=True, help="approximate orientations (resect -o or orthority CSV)")
     p.add_argument("--dem", required=True, help="DEM raster in the ground CRS")
     p.add_argument("--search", type=int, default=12, help="search radius around the prediction, px (default 12)")
 

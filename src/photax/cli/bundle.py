@@ -16,6 +16,8 @@ def add_parser(sub) -> None:
         help="bundle adjustment of a block (BAL file or block folder)",
         description="Adjust exterior orientations, points and (optionally) interior orientation of a block "
         "by Levenberg-Marquardt with a Schur complement; print progress and a report.",
+        epilog="examples:\n  photax bundle data/block --loss huber -o block.json\n"
+        "  photax bundle problem-49-7776-pre.txt --gauge damped\n",
     )
     p.add_argument("file", metavar="FILE", help="a BAL file (.txt or .txt.bz2) or a block folder (block.json, "
                    "observations.csv, points.csv; see photax.io.block)")  # fmt: skip
@@ -28,7 +30,8 @@ def add_parser(sub) -> None:
     p.add_argument("--max-steps", "--max-iterations", dest="max_steps", type=int, default=50,
                    help="LM iterations at most, accepted and rejected steps (--max-iterations is an alias)")
     p.add_argument("--quiet", action="store_true", help="no per-iteration lines")
-    p.add_argument("--json", metavar="OUT", help="also write the results as JSON")
+    p.add_argument("-o", "--out", metavar="OUT_JSON", help="also write the results as JSON")
+    p.add_argument("--json", dest="out", help=argparse.SUPPRESS)  # the old name of --out
     p.add_argument("--camera-out", metavar="OUT",
                    help="block folders: write the self-calibrated camera (one with 'free' intrinsics) as a photax "
                    "camera file OUT (.yaml or .json), ready for resect/ortho; with several, OUT is a folder of "
@@ -54,8 +57,8 @@ def run(args: argparse.Namespace) -> int:
         inputs = [path, *(input_file(path / n, "block file") for n in ("block.json", "points.csv", "observations.csv"))]
     else:
         inputs = [input_file(path, "BAL file")]
-    if args.json:
-        check_output_path(args.json, inputs)  # fail before the work, not after
+    if args.out:
+        check_output_path(args.out, inputs)  # fail before the work, not after
     problem = read_block(path) if fmt == "block" else read_bal(path)
     cameras_out = _camera_outputs(args.camera_out, fmt, path, problem, inputs) if args.camera_out else []
     gauge = {"auto": "damped" if fmt == "bal" else None, "none": None}.get(args.gauge, args.gauge)
@@ -67,9 +70,9 @@ def run(args: argparse.Namespace) -> int:
                            max_steps=args.max_steps, verbose=not args.quiet, throw=False,
                            progress=args.progress and args.command)  # fmt: skip
     print(result.report())
-    if args.json:
-        write_json(result.to_dict(), args.json, inputs=inputs)
-        print(f"wrote {args.json}")
+    if args.out:
+        write_json(result.to_dict(), args.out, inputs=inputs)
+        print(f"wrote {args.out}")
     if cameras_out and not result.converged:
         print(f"camera files not written: the adjustment did not converge ({result.message})")
     elif cameras_out:

@@ -3,7 +3,7 @@
 Resects the image from the control points (``role`` = control), fits
 polynomials of the requested orders and the projective transform to the same
 points, evaluates all of them on the check points (``role`` = check) and over
-the image footprint, prints the table and, with ``--out``, writes
+the image footprint, prints the table and, with ``--out-dir``, writes
 ``comparison.md``, ``comparison.json``, ``error_maps.png``, ``rmse.png`` and
 (with ``--image``) ``rectified.png``, each atomically.  Exit codes: 0 done,
 2 bad input.
@@ -35,6 +35,8 @@ def add_parser(sub) -> None:
         help="compare collinearity+DEM with polynomial rectification on the same GCPs",
         description="Fit collinearity (by resection) and polynomials to the same GCPs; report GCP and "
         "check-point RMSE, redundancy, condition and error maps against collinearity with the DEM.",
+        epilog="example:\n  photax compare data/sample_gcps.csv --camera data/sample_camera.yaml "
+        "--dem data/sample_dem.tif --image data/sample_image.tif --orders 1-5 -o compare\n",
     )
     p.add_argument("gcps", metavar="GCP_FILE", help="GCP list with pixel positions (CSV with optional role column, or ODM)")
     p.add_argument("--camera", required=True, help="photax camera file, or orthority interior YAML")
@@ -43,7 +45,8 @@ def add_parser(sub) -> None:
     p.add_argument("--image", help="the image: also write the rectified images side by side")
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
     p.add_argument("--orders", type=parse_orders, default=(1, 2, 3, 4, 5), help="polynomial orders (default 1-5)")
-    p.add_argument("--out", metavar="DIR", help="folder for the table (md, json) and figures (png)")
+    p.add_argument("-o", "--out-dir", metavar="DIR", help="folder for the table (md, json) and figures (png)")
+    p.add_argument("--out", dest="out_dir", help=argparse.SUPPRESS)  # the old name of --out-dir
     p.add_argument("--resolution", type=float, metavar="SIZE",
                    help="ground pixel size of the rectified images in rectified.png (default: the GSD)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
@@ -82,10 +85,10 @@ def run(args: argparse.Namespace) -> int:
     if args.image:
         input_file(args.image, "image")
     inputs = [p for p in (args.gcps, args.camera, args.dem, args.image) if p]
-    if args.out is not None:
-        out = pathlib.Path(args.out)
+    if args.out_dir is not None:
+        out = pathlib.Path(args.out_dir)
         if out.exists() and not out.is_dir():
-            raise ValueError(f"--out {out}: is a file, expected a folder")
+            raise ValueError(f"--out-dir {out}: is a file, expected a folder")
         for name in ("comparison.md", "comparison.json", "error_maps.png", "rmse.png", "rectified.png"):
             check_output_path(out / name, inputs)  # fail before the work, not after
     if args.resolution is not None and not args.resolution > 0:
@@ -104,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         orders=args.orders, gcp_names=table.names[~check],
     )
     print(comparison.table("text"))
-    if args.out is None:
+    if args.out_dir is None:
         return 0
     figures = {"error_maps.png": comparison.plot_error_maps(), "rmse.png": comparison.plot_rmse()}
     if args.image:

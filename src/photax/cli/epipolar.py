@@ -2,7 +2,7 @@
 
 LEFT and RIGHT are two images of one camera (``--camera``: a photax camera
 file or an orthority interior YAML) with their exterior orientations
-(``--exterior``: a ``photax resect --json`` result holding both images, named
+(``--exterior``: a ``photax resect -o`` result holding both images, named
 like the image files, or an orthority exterior CSV; or one file per image
 with ``--exterior-left`` / ``--exterior-right``).  Writes
 ``OUT_left.tif`` and ``OUT_right.tif`` (float32, NaN outside the originals;
@@ -27,16 +27,19 @@ def add_parser(sub) -> None:
         help="resample a stereo pair into epipolar images (corresponding points on the same row)",
         description="Resample two oriented images of one camera onto a common plane parallel to their "
         "baseline, so that corresponding points lie on the same row.",
+        epilog="example:\n  photax epipolar left.tif right.tif --camera cam.yaml --exterior oriented.json "
+        "-o pair\n",
     )
     p.add_argument("left", metavar="LEFT", help="left image (any GDAL raster)")
     p.add_argument("right", metavar="RIGHT", help="right image")
     p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
                    help="photax camera file or orthority interior YAML")
-    p.add_argument("--exterior", help="orientation file holding both images (resect --json or orthority CSV)")
+    p.add_argument("--exterior", help="orientation file holding both images (resect -o or orthority CSV)")
     p.add_argument("--exterior-left", metavar="FILE", help="the left image's orientation file")
     p.add_argument("--exterior-right", metavar="FILE", help="the right image's orientation file")
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
-    p.add_argument("--resampling", choices=RESAMPLING, default="cubic")
+    p.add_argument("--resampling", choices=RESAMPLING, default="cubic",
+                   help="interpolation of the grey values")
     p.add_argument("-o", "--out", required=True, metavar="OUT",
                    help="output prefix: OUT_left.tif, OUT_right.tif and OUT.json")
     p.set_defaults(func=run)

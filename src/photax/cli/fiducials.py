@@ -33,12 +33,16 @@ def add_parser(sub) -> None:
         help="measure the fiducial marks of a scan and fit its interior orientation (film -> pixel)",
         description="Find the fiducial marks of a scanned photograph by template matching, check them against "
         "the calibrated pattern (blunder test), and fit the film -> pixel transformation.",
+        epilog="example:\n  photax fiducials scan.tif --fiducials marks.csv --pixel-size 0.5 "
+        "--camera calibrated.yaml --camera-out scan_camera.yaml -o interior.json\n",
     )
     p.add_argument("scan", metavar="SCAN", help="the scanned image (any GDAL raster; first band or mean of RGB)")
     p.add_argument("--fiducials", required=True, metavar="CSV", help="calibrated marks: name,x,y in mm (y up)")
     p.add_argument("--pixel-size", type=float, metavar="MM", help="scan resolution in mm per pixel (without --approx)")
     p.add_argument("--approx", metavar="CSV", help="approximate mark positions: name,col,row")
-    p.add_argument("--model", choices=("similarity", "affine", "bilinear", "projective"), default="affine")
+    p.add_argument("--model", choices=("similarity", "affine", "bilinear", "projective"), default="affine",
+                   help="film -> pixel transformation (similarity: 4 parameters, affine 6, bilinear 8, "
+                   "projective 8)")
     p.add_argument("--mark", choices=("cross", "dot", "ring"), default="cross", help="the marks' shape")
     p.add_argument("--mark-size", type=float, default=1.0, metavar="MM",
                    help="half-length of a cross's bars, or a dot's / ring's radius, mm")

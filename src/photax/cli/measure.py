@@ -36,6 +36,9 @@ def add_parser(sub) -> None:
         help="measure interest points, target centres or corners in an image (sub-pixel, with sigma)",
         description="Measure points in an image: interest points, or the sub-pixel centres of circular targets "
         "or corners near approximate positions. Writes a CSV with sigma per coordinate and a status per point.",
+        epilog="examples:\n  photax measure data/sample_image.tif --targets data/sample_gcps.csv --radius 6 "
+        "-o measured.csv --gcp-out gcps.csv\n"
+        "  photax measure image.tif --interest foerstner --count 200 -o points.csv\n",
     )
     p.add_argument("image", metavar="IMAGE", help="image file (GeoTIFF, PNG, ... read with rasterio)")
     mode = p.add_mutually_exclusive_group(required=True)

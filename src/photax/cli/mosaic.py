@@ -35,6 +35,8 @@ def add_parser(sub) -> None:
         help="join orthophotos, or orthorectify a whole block, into one seamless mosaic (Cloud-Optimized GeoTIFF)",
         description="Balance, cut seamlines of least difference and feather orthophotos into one mosaic. "
         "With --block, orthorectify every image of a block first.",
+        epilog="examples:\n  photax mosaic A.tif B.tif -o mosaic.tif\n"
+        "  photax mosaic --block bundle.json --images DIR --camera cam.yaml --dem dem.tif -o mosaic.tif\n",
     )
     p.add_argument("orthos", nargs="*", metavar="ORTHO", help="orthophoto GeoTIFFs (one CRS, one pixel lattice, one number of bands: "
                    "RGB orthos share one seam, each band gets its own gain)")
@@ -51,13 +53,14 @@ def add_parser(sub) -> None:
     p.add_argument("--chunks", type=int, default=1024, metavar="PX", help="chunk edge (memory ~ chunks^2)")
     b = p.add_argument_group("block workflow (instead of ORTHOs)")
     b.add_argument("--block", metavar="ORIENTATIONS",
-                   help="photax bundle --json or photax resect --json result, or orthority exterior CSV")
+                   help="photax bundle -o or photax resect -o result (JSON), or orthority exterior CSV")
     b.add_argument("--images", metavar="DIR", help="folder of the block's images (matched by file stem)")
     b.add_argument("--camera", "--interior", dest="camera", metavar="CAMERA_FILE",
                    help="photax camera file or orthority interior YAML")
     b.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
     b.add_argument("--resolution", type=float, help="ground pixel size (default: the median ground sampling distance)")
-    b.add_argument("--resampling", choices=RESAMPLING, default="bilinear")
+    b.add_argument("--resampling", choices=RESAMPLING, default="bilinear",
+                   help="interpolation of the grey values")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 

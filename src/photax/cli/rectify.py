@@ -18,13 +18,16 @@ def add_parser(sub) -> None:
         "rectify",
         help="polynomial rectification of an image from GCPs",
         description="Fit a polynomial map -> pixel to the GCPs and resample IMAGE onto a map grid covering them.",
+        epilog="example:\n  photax rectify data/sample_image.tif --gcps data/sample_gcps.csv --order 3 "
+        "-o rect.tif\n",
     )
     p.add_argument("image", metavar="IMAGE", help="the image (any GDAL raster)")
     p.add_argument("--gcps", required=True, metavar="GCP_FILE", help="GCP list with pixel positions (CSV or ODM)")
     p.add_argument("--order", type=int, default=1, help="polynomial order 1-5 (default 1)")
-    p.add_argument("--out", required=True, help="output GeoTIFF")
+    p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="map pixel size (default: the mean GCP scale)")
-    p.add_argument("--resampling", choices=RESAMPLING, default="bilinear")
+    p.add_argument("--resampling", choices=RESAMPLING, default="bilinear",
+                   help="interpolation of the grey values")
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")

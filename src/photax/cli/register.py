@@ -15,10 +15,13 @@ import argparse
 def add_parser(sub) -> None:
     p = sub.add_parser("register", help="refine an orientation by matching the image to a reference orthophoto",
                        description="Gauss-Newton on the grey-value differences between the image and the "
-                       "reference orthophoto rendered into it, coarse to fine.")
-    p.add_argument("image", metavar="IMAGE")
-    p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE")
-    p.add_argument("--exterior", required=True, help="approximate orientation (resect --json or orthority CSV)")
+                       "reference orthophoto rendered into it, coarse to fine.",
+                       epilog="example:\n  photax register img.tif --camera cam.yaml --exterior approx.json "
+                       "--ortho reference.tif --dem dem.tif -o refined.json\n")
+    p.add_argument("image", metavar="IMAGE", help="the image to orient (any GDAL raster)")
+    p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
+                   help="photax camera file or orthority interior YAML (--interior is an alias)")
+    p.add_argument("--exterior", required=True, help="approximate orientation (resect -o or orthority CSV)")
     p.add_argument("--ortho", required=True, help="reference orthophoto (GeoTIFF, ground CRS)")
     p.add_argument("--dem", required=True, help="DEM raster in the ground CRS")
     p.add_argument("--levels", default="8,4,2,1", metavar="L,...",

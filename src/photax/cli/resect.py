@@ -1,7 +1,7 @@
 """``photax resect``: space resection of every image in a GCP file.
 
 Exit codes: 0 every requested image solved; 1 some were not (too few
-points, not converged; ``--json`` is still written with a ``status`` per
+points, not converged; ``--out`` is still written with a ``status`` per
 image); 2 bad input (a one-line message on stderr, nothing written).
 """
 
@@ -42,7 +42,7 @@ fiducial marks (written by photax fiducials --camera-out; pixels go through it):
     scan: {model: affine, film_centre: [0.3, -0.1], film_scale: 149.8,
            params: [1199.6, 1563.2, 1.1, 1200.2, -0.9, 1563.5]}
 
-exit status: 0 every image solved, 1 some not solved (--json still written,
+exit status: 0 every image solved, 1 some not solved (-o still written,
 with a status per image), 2 usage or input error, 130 interrupted.
 """
 
@@ -53,13 +53,15 @@ def add_parser(sub) -> None:
         help="space resection of images from ground control points",
         description="Estimate each image's exterior orientation from its GCPs and print parameters +- std, "
         "sigma0, per-point residuals, flagged blunders and check-point residuals.",
-        epilog=CAMERA_FILE_HELP,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=CAMERA_FILE_HELP
+        + "\nexample:\n  photax resect data/sample_gcps.csv --camera data/sample_camera.yaml "
+        "-o resect.json\n",
     )
     p.add_argument("gcp_file", metavar="GCP_FILE", help="GCP list: CSV with header, or OpenDroneMap gcp_list.txt")
     p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file (YAML/JSON; format below)")
     p.add_argument("--image", metavar="NAME", help="only this image (default: every image with enough points)")
-    p.add_argument("--json", metavar="OUT", help="also write the results as JSON")
+    p.add_argument("-o", "--out", metavar="OUT_JSON", help="also write the results as JSON")
+    p.add_argument("--json", dest="out", help=argparse.SUPPRESS)  # the old name of --out
     p.add_argument("--convention", choices=CONVENTIONS, default="phi-omega-kappa", help="angle convention of the result")
     p.add_argument("--no-robust", dest="robust", action="store_false",
                    help="no robust start and no blunder detection (plain least squares)")
@@ -100,8 +102,8 @@ def run(args: argparse.Namespace) -> int:
     gcp_path = input_file(args.gcp_file, "GCP file")
     camera_path = input_file(args.camera, "camera file")
     inputs = [gcp_path, camera_path]
-    if args.json:
-        check_output_path(args.json, inputs)  # fail before the work, not after
+    if args.out:
+        check_output_path(args.out, inputs)  # fail before the work, not after
     if args.sigma is not None and not args.sigma > 0:
         raise ValueError(f"--sigma must be positive, got {args.sigma}")
     table = read_gcps(gcp_path, format=args.format)
@@ -141,8 +143,8 @@ def run(args: argparse.Namespace) -> int:
         results[name] = {"status": "solved" if converged else "not converged", **res.to_dict()}
     solved = len(images) - failed
     print(f"{solved} of {plural(len(images), 'image')} solved" + (f", {failed} not" if failed else ""))
-    if args.json:
+    if args.out:
         write_json({"gcp_file": str(args.gcp_file), "camera_file": str(args.camera), "crs": table.crs,
-                    "convention": args.convention, "images": results}, args.json, inputs=inputs)
-        print(f"wrote {args.json}")
+                    "convention": args.convention, "images": results}, args.out, inputs=inputs)
+        print(f"wrote {args.out}")
     return 1 if failed else 0

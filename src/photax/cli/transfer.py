@@ -1,7 +1,7 @@
 """``photax transfer``: measure GCPs in every image that sees them (:func:`photax.transfer_points`).
 
 IMAGES of one camera (``--camera``) with approximate orientations
-(``--exterior``: a ``photax resect --json`` file holding them, or an orthority
+(``--exterior``: a ``photax resect -o`` file holding them, or an orthority
 exterior CSV), a DEM and a GCP file (``--gcps``, CSV or ODM list).  GCPs
 measured in one of the IMAGES (the file's image column names it) are
 transferred from there; the others, known only on the ground, are found with
@@ -20,11 +20,14 @@ def add_parser(sub) -> None:
 
     p = sub.add_parser("transfer", help="transfer GCPs into every image that sees them (NCC + least-squares matching)",
                        description="Predict ground control points in every image with approximate orientations "
-                       "and the DEM, and measure them there by image matching.")
+                       "and the DEM, and measure them there by image matching.",
+                       epilog="example:\n  photax transfer img*.tif --camera cam.yaml --exterior approx.json "
+                       "--dem dem.tif --gcps gcps.csv --template target.tif -o measured.csv\n")
     add_oriented_images(p)
     p.add_argument("--gcps", required=True, help="GCP file (CSV or ODM gcp_list.txt)")
     p.add_argument("--template", help="raster of the survey target, for points measured in no image")
-    p.add_argument("--format", choices=("csv", "odm"), default="csv")
+    p.add_argument("--format", choices=("csv", "odm"), default="csv",
+                   help="format of the output GCP list: photax CSV or OpenDroneMap gcp_list.txt")
     p.add_argument("-o", "--out", required=True, help="output GCP list")
     p.set_defaults(func=run)
 

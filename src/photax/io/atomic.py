@@ -6,7 +6,20 @@ import contextlib
 import os
 import pathlib
 import tempfile
+import threading
 from typing import IO, Iterable, Iterator
+
+# Set by the command line's Ctrl-C handler (photax.cli): from then on no output is committed,
+# even where a dependency swallowed the KeyboardInterrupt (it was raised inside an import or a
+# callback that ignores it) and the run went on to its end.
+interrupted = threading.Event()
+
+
+def commit(tmp, out) -> None:
+    """Rename ``tmp`` onto ``out``; ``KeyboardInterrupt`` instead after a Ctrl-C (:data:`interrupted`)."""
+    if interrupted.is_set():
+        raise KeyboardInterrupt
+    os.replace(tmp, out)
 
 
 def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
@@ -87,7 +100,7 @@ def atomic_path(out, inputs: Iterable = ()) -> Iterator[pathlib.Path]:
     tmp_path = pathlib.Path(tmp)
     try:
         yield tmp_path
-        os.replace(tmp_path, out)
+        commit(tmp_path, out)
     finally:
         if tmp_path.exists():
             tmp_path.unlink()

@@ -312,11 +312,11 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
             ``image_size``, or a non-empty ``folder``.
     """
     import json
-    import os
     import shutil
     import tempfile
 
     from ..bundle import INTRINSICS
+    from .atomic import commit
     from .camera_file import write_camera
 
     folder = check_block_output(folder, inputs)
@@ -361,7 +361,7 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
         (tmp / "observations.csv").write_text("\n".join(rows) + "\n")
         if folder.exists():
             folder.rmdir()  # empty (checked above)
-        os.replace(tmp, folder)
+        commit(tmp, folder)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return folder
