@@ -301,15 +301,15 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
         messages[i] = m
     names = prep.names if prep.names is not None else [f"P{k}" for k in range(n)]
     fields = dict(sigma0=out.sigma0, covariance=cov, std=std, correlation=corr, residuals=resid,
-                  outliers=outliers, check=prep.is_check, redundancy=out.redundancy[:, :n], normalized=stat,
-                  critical=out.critical, rms=rms, check_rms=check_rms, iterations=out.steps,
+                  outliers=outliers, check=prep.is_check, redundancy=out.redundancy[:, :n], normalised=stat,
+                  critical=out.critical, rmse=rms, check_rmse=check_rms, iterations=out.steps,
                   converged=code == RESULTS.successful, message=messages, result=code)
     common = dict(names=list(names), statistic="w" if sigma_known else "tau", pixel_size=_camera_info(camera).pixel_size)
     if batch:
         ext = ExteriorOrientation(p[:, :3] + prep.origin, p[:, 3:], convention)
         return ResectionResult(exterior=ext, **fields, **common)
     one = {k: v[0] for k, v in fields.items()}
-    for k in ("sigma0", "critical", "rms", "check_rms"):
+    for k in ("sigma0", "critical", "rmse", "check_rmse"):
         one[k] = float(one[k])
     one.update(iterations=int(one["iterations"]), converged=bool(one["converged"]), result=RESULTS(int(one["result"])))
     # numpy in: ExteriorOrientation's own conversion is the one transfer (through jax.device_put first,
@@ -430,9 +430,9 @@ def _swap_hint(xy, ground, settings) -> str | None:
         except (ValueError, ConvergenceError):
             continue
         if res.converged:
-            rms = f"{res.rms / res.pixel_size:.3g} px" if res.pixel_size else f"{res.rms:.3g}"
+            rms = f"{res.rmse / res.pixel_size:.3g} px" if res.pixel_size else f"{res.rmse:.3g}"
             k = int(res.outliers.sum())
-            fits.append(f"{text} (then rms {rms}, {k} point{'' if k == 1 else 's'} excluded)")
+            fits.append(f"{text} (then rmse {rms}, {k} point{'' if k == 1 else 's'} excluded)")
     if not fits:
         return None
     # For (nearly) planar GCPs any mirroring of the image undoes any mirroring of the ground: name all that fit.
