@@ -130,6 +130,22 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
 
     Raises:
         photax.ConvergenceError: with ``throw=True``, when it did not converge.
+
+    Examples:
+        A start 25 m off, refined against the scene's true orthophoto and DEM:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> scene = ptx.relief_scene(300.0, seed=0, image_size=(400, 300), focal_px=400.0)
+        >>> start = ptx.ExteriorOrientation(np.asarray(scene.exterior.position) + [20.0, -15.0, 0.0],
+        ...                                 scene.exterior.angles)
+        >>> reg = ptx.register_to_ortho(scene.image, scene.camera, start, scene.ortho, scene.ortho_transform,
+        ...                             scene.dem, levels=(4, 2, 1))
+        >>> reg.converged, reg.result.name
+        (True, 'successful')
+        >>> err = np.asarray(reg.exterior.position) - np.asarray(scene.exterior.position)
+        >>> bool(np.all(np.abs(err) < 1.0))  # metres; the pixel is 7.5 m on the ground
+        True
     """
     # Over 80 lines: argument checks, then one coarse-to-fine Gauss-Newton loop whose
     # state (parameters, damping, history) is shared by every level; kept in one piece.
