@@ -120,7 +120,8 @@ def test_polynomials_cannot_follow_relief(hills, hills_cmp):
     for m in polys:
         assert 0.1 * d_rms < m.error_rmse < 1.5 * d_rms
     # error_rms is the old name of error_rmse (docs/conventions.md, "Words"): kept, with a warning
-    with pytest.warns(DeprecationWarning, match="ModelResult.error_rms is deprecated: use ModelResult.error_rmse"):
+    warning = "ModelResult.error_rms is deprecated: use ModelResult.error_rmse"
+    with pytest.warns(DeprecationWarning, match=warning):
         assert polys[0].error_rms == polys[0].error_rmse
     # mean GSD = (H - mean terrain height) / f
     assert c.gsd == pytest.approx((hills.flying_height - float(np.mean(hills.dem.heights))) / 1000, rel=0.03)

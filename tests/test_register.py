@@ -71,20 +71,22 @@ def test_too_far_off_raises_or_is_reported(scene):
     start = photax.ExteriorOrientation(np.asarray(TRUE.position) + [60.0, 40.0, 0.0], TRUE.angles)
     with pytest.raises(photax.ConvergenceError, match="registration failed"):
         register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8)
-    res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8, throw=False)
+    res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
+                            throw=False)
     assert not res.converged and res.result != photax.RESULTS.successful
     assert res.message.startswith(res.result.text) and np.all(np.isfinite(res.exterior.position))
     # an orientation 10 km away sees nothing of the reference: said so, not a wrong orientation
     far = photax.ExteriorOrientation(np.asarray(TRUE.position) + [10_000.0, 0.0, 0.0], TRUE.angles)
-    res = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8, throw=False)
+    res = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
+                            throw=False)
     assert not res.converged and "sees (almost) nothing" in res.message, res.message
     assert res.result == photax.RESULTS.implausible
     # method= is the old name of resampling=: the same answer, with a DeprecationWarning
     with pytest.warns(DeprecationWarning, match=r"register_to_ortho\(method=\) is deprecated"):
         old = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
                                 throw=False, method="nearest")
-    new = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8, throw=False,
-                            resampling="nearest")
+    new = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
+                            throw=False, resampling="nearest")
     np.testing.assert_array_equal(old.exterior.position, new.exterior.position)
     with pytest.raises(ValueError, match="give resampling= only"):
         register_to_ortho(image, CAM, far, ortho, transform, dem, method="nearest", resampling="cubic")

@@ -336,7 +336,8 @@ def test_method_is_the_deprecated_name_of_resampling():
     new = np.asarray(resample(IMG, c, r, resampling="cubic"))
     np.testing.assert_allclose(new, np.asarray(resample(IMG, c, r, "cubic")), rtol=0, atol=0)
     assert not np.allclose(new, np.asarray(resample(IMG, c, r, "bilinear")))  # the kernel is honoured
-    with pytest.warns(DeprecationWarning, match=r"resample\(method=\) is deprecated: use resample\(resampling=\)"):
+    warning = r"resample\(method=\) is deprecated: use resample\(resampling=\)"
+    with pytest.warns(DeprecationWarning, match=warning):
         old = np.asarray(resample(IMG, c, r, method="cubic"))
     np.testing.assert_array_equal(old, new)
     with pytest.raises(ValueError, match="give resampling= only"):

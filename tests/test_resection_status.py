@@ -91,7 +91,8 @@ def test_sample_with_east_and_north_swapped_fails_in_photax_words(sample):
     ground = table.ground[:, [1, 0, 2]]
     res = _resect_sample(table, camera, ground=ground)
     # near-nadir: an image y reversal is the same as a ground reflection, so both fit; the swap is named
-    _fails(res, "swapped or mirrored axes", "fit if", "the ground E and N (X and Y) are swapped (then rmse 0.")
+    _fails(res, "swapped or mirrored axes", "fit if",
+           "the ground E and N (X and Y) are swapped (then rmse 0.")
     with pytest.raises(ptx.ConvergenceError) as info:
         _resect_sample(table, camera, ground=ground, throw=True)
     _no_dependency_text(info.value)
@@ -255,7 +256,8 @@ def test_summary_residual_table_columns_are_separated_and_aligned(sample_result)
     text = sample_result.summary()  # no camera_unit: the longest heads, "vx [image-plane units]"
     lines = text.splitlines()
     head = next(i for i, line in enumerate(lines) if line.strip().startswith("point"))
-    heads = ["point", "role", "vx [px]", "vy [px]", "vx [image-plane units]", "vy [image-plane units]", "w_x", "w_y"]
+    heads = ["point", "role", "vx [px]", "vy [px]", "vx [image-plane units]", "vy [image-plane units]",
+             "w_x", "w_y"]
     cells = [(m.start(), m.end()) for m in re.finditer(r"\S+(?: \S+)*", lines[head])]
     assert [lines[head][a:b] for a, b in cells] == heads
     rows = lines[head + 1:head + 1 + len(sample_result.names)]
@@ -276,7 +278,8 @@ def test_old_result_names_warn_and_give_the_new_values(sample_result):
     res = sample_result
     assert res.rmse > 0 and res.check_rmse > 0
     for old, new in (("rms", "rmse"), ("check_rms", "check_rmse"), ("normalized", "normalised")):
-        with pytest.warns(DeprecationWarning, match=f"ResectionResult.{old} is deprecated: use ResectionResult.{new}"):
+        warning = f"ResectionResult.{old} is deprecated: use ResectionResult.{new}"
+        with pytest.warns(DeprecationWarning, match=warning):
             value = getattr(res, old)
         np.testing.assert_array_equal(value, getattr(res, new))
     assert {"rmse", "check_rmse"} <= res.to_dict().keys() and "normalised" in res.to_dict()["points"][0]
@@ -291,7 +294,8 @@ def test_summary_units_pixels_and_no_grid():
     metres = ptx.FrameCamera(3000 * 4.4e-6)  # no pixel grid: the camera's unit only
     res = ptx.resect(xy * 4.4e-6, ground, metres)
     text = res.summary(camera_unit="m")
-    assert res.pixel_size is None and f"rmse = {res.rmse:.4g} m" in text and "vx [m]" in text and "px" not in text
+    assert res.pixel_size is None and f"rmse = {res.rmse:.4g} m" in text
+    assert "vx [m]" in text and "px" not in text
 
 
 def test_residuals_are_computed_minus_observed(sample, sample_result):

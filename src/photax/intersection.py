@@ -112,7 +112,8 @@ def intersect(
         >>> scene = ptx.relief_scene(300.0, seed=0, image_size=(400, 300), focal_px=400.0)
         >>> second = ptx.ExteriorOrientation(np.asarray(scene.exterior.position) + [1500.0, 0.0, 0.0],
         ...                                  scene.exterior.angles)
-        >>> xy = np.stack([ptx.project(scene.check_ground, e, scene.camera) for e in (scene.exterior, second)])
+        >>> xy = np.stack([ptx.project(scene.check_ground, e, scene.camera)
+        ...                for e in (scene.exterior, second)])
         >>> points = ptx.intersect(xy, [scene.exterior, second], scene.camera)
         >>> points.shape, bool(np.abs(points - scene.check_ground).max() < 1e-6)  # metres
         ((60, 3), True)

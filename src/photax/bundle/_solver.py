@@ -260,8 +260,8 @@ def bundle_adjust(
                 loss != "none", verbose, bar,
             )  # fmt: skip
         message = stop_message(code, rule_text, max_steps=max_iterations)
-        return _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, code,
-                       message, it, throw, time.perf_counter() - t_start, solver)  # fmt: skip
+        return _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history,
+                       code, message, it, throw, time.perf_counter() - t_start, solver)  # fmt: skip
 
 
 def _check_options(problem: BundleProblem, loss, loss_scale, method, gauge) -> None:
@@ -521,7 +521,8 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     check = problem.roles == "check"
     result = BundleResult(
         exterior=eo, rotation=rot, cameras=cams, points=pts, cost=float(cost), initial_cost=float(initial_cost),
-        history=history, converged=code == RESULTS.successful, message=message, iterations=iterations, residuals=residuals,
+        history=history, converged=code == RESULTS.successful, message=message, iterations=iterations,
+        residuals=residuals,
         weights=weight, sigma0=sigma0, redundancy=redundancy, exterior_std=eo_std, camera_std=cam_std,
         point_std=pt_std, point_cov=pt_cov, check_residuals=pts[check] - problem.points[check], problem=problem,
         seconds=seconds, result=RESULTS(code), orientation_cov=eo_cov,

@@ -57,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
     e = res.exterior
     write_json({"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention},
                 "status": "solved" if res.converged else "not converged", "converged": res.converged,
-                "result": res.result.name, "correlation": res.correlation, "steps": res.steps, "rmse": res.rmse,
+                "result": res.result.name, "correlation": res.correlation, "steps": res.steps,
+                "rmse": res.rmse,
                 "history": res.history, "message": res.message},
                args.out, inputs=files)
     print(f"{'converged' if res.converged else 'NOT converged'}: {res.message}; wrote {args.out}")
