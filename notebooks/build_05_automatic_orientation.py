@@ -253,7 +253,7 @@ hist = reg.history
 fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
 for level in sorted({h["level"] for h in hist}, reverse=True):
     idx = [i for i, h in enumerate(hist) if h["level"] == level]
-    axes[0].plot(idx, [hist[i]["rms"] for i in idx], "o-", label=f"level {level} " + (f"(blur {level / 2:g} px)" if level > 1 else "(no blur)"))
+    axes[0].plot(idx, [hist[i]["rmse"] for i in idx], "o-", label=f"level {level} " + (f"(blur {level / 2:g} px)" if level > 1 else "(no blur)"))
     axes[1].semilogy(idx, [hist[i]["shift_px"] for i in idx], "o-", label=f"level {level}")
 axes[1].axhline(1e-3, color="gray", ls=":", label="tolerance")
 axes[0].set(xlabel="Gauss-Newton step", ylabel="grey rms before the step", title="registration: residuals")

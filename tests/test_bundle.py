@@ -357,7 +357,25 @@ def test_outcome_codes_and_throw(block):
     problem, _ = block
     short = ptx.bundle_adjust(problem, max_steps=1, throw=False)
     assert not short.converged and short.result == ptx.RESULTS.max_steps_reached
-    assert "max_iterations = 1" in short.message
+    assert "max_steps = 1" in short.message
     with pytest.raises(ptx.ConvergenceError, match="bundle adjustment failed"):
         ptx.bundle_adjust(problem, max_steps=1)
     assert ptx.bundle_adjust(problem).result == ptx.RESULTS.successful
+
+
+def test_stop_code_is_carried_not_read_from_the_message(block, monkeypatch):
+    """The code comes from where the loop stops and the message is made from it: other words for
+    every stop leave the codes as they were (issue 26: the code used to be parsed from the text)."""
+    from photax.bundle import _result
+
+    problem, _ = block
+    words = {code: f"stop {code.name} #{{max_steps}}{{where}}" for code in _result.STOP_WORDS}
+    monkeypatch.setattr(_result, "STOP_WORDS", words)
+    short = ptx.bundle_adjust(problem, max_steps=1, throw=False)
+    assert short.result == ptx.RESULTS.max_steps_reached and short.message == "stop max_steps_reached #1"
+    # each failure's words name it, and the converged message names the rule that held
+    assert _result.stop_message(ptx.RESULTS.singular, at_solution=True) == "stop singular #0 at the solution"
+    rule = "function tolerance: |dcost|/cost = 1e-07 <= 1e-06"
+    assert _result.stop_message(ptx.RESULTS.successful, rule) == rule
+    full = ptx.bundle_adjust(problem)
+    assert full.converged and full.message.startswith(("function", "gradient", "parameter"))

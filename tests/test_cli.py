@@ -61,7 +61,7 @@ def test_resect_sample_recovers_truth_and_flags_the_blunder(tmp_path, capsys):
     out = tmp_path / "r.json"
     assert main(["resect", str(GCPS), "--camera", str(CAMERA), "--json", str(out)]) == 0
     text = capsys.readouterr().out
-    assert f"blunder: {SAMPLE_BLUNDER[0]} excluded" in text and "check points: rms" in text
+    assert f"blunder: {SAMPLE_BLUNDER[0]} excluded" in text and "check points: rmse" in text
     r = json.loads(out.read_text())["images"]["IMG_0001"]
     truth = json.loads(TRUTH.read_text())
     est = np.array(r["position"] + r["angles_rad"])

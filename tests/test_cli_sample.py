@@ -273,3 +273,25 @@ def test_bundle_writes_the_self_calibrated_camera(tmp_path, capsys):
     # this small block (8 frames, flat control) holds f only loosely: the check is against its own sigma
     assert 0 < sf < 200 and abs(f - 3000.0) < 4 * sf, (f, sf)
     assert cam.image_size == tuple(size) and float(cam.pixel_size[0]) == 1.0  # in the start file's unit, px
+
+
+def test_readme_python_resection_reports_what_the_cli_reports(tmp_path, monkeypatch, capsys):
+    """Issue 26: the README's Python snippet (no sigma: Pope's tau, sigma0 in px) and ``photax resect``
+    (the file's sigma column: Baarda's w) reported different sigma0 and tests on data/sample_gcps.csv.
+    The snippet, run as the README shows it, prints the CLI's report for the image: the same sigma0,
+    test and residuals."""
+    block = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)[0]
+    lines = block.splitlines()
+    end = next(i for i, line in enumerate(lines) if line.startswith("print(res.summary("))
+    monkeypatch.chdir(ROOT)
+    space = {}
+    exec("\n".join(lines[: end + 1]), space)  # the README's lines up to its print of the summary
+    printed = capsys.readouterr().out
+    assert main(["resect", "data/sample_gcps.csv", "--camera", "data/sample_camera.yaml", "--json",
+                 str(tmp_path / "r.json")]) == 0
+    cli = capsys.readouterr().out
+    data = json.loads((tmp_path / "r.json").read_text())["images"]["IMG_0001"]
+    res = space["res"]
+    assert res.statistic == data["statistic"] == "w"
+    assert res.sigma0 == pytest.approx(data["sigma0"], rel=1e-9)
+    assert printed.strip() and printed.strip() in cli

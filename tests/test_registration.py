@@ -50,7 +50,12 @@ def test_from_5_m_and_0_2_degrees_to_a_tenth_of_a_pixel(scene):
     before = np.sqrt(np.mean(np.sum((_px(start, g) - _px(TRUE, g)) ** 2, 1)))
     assert before > 4.0  # px: a real starting error
     res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1))
-    assert res.converged, res.message
+    assert res.converged and res.result == photax.RESULTS.successful, res.message
+    # rmse per level, the finest the history's last (its last step moved < 1e-3 px); rms is its old
+    # name, kept with a DeprecationWarning
+    assert len(res.rmse) == 3 and res.rmse[-1] == pytest.approx(res.history[-1]["rmse"], rel=1e-3)
+    with pytest.warns(DeprecationWarning, match="Registration.rms is deprecated"):
+        assert res.rms == res.rmse
     after = np.sqrt(np.mean(np.sum((_px(res.exterior, g) - _px(TRUE, g)) ** 2, 1)))
     assert after <= 0.1, after
     # the history: one entry per step, levels coarse to fine, the last step below the tolerance
@@ -59,15 +64,32 @@ def test_from_5_m_and_0_2_degrees_to_a_tenth_of_a_pixel(scene):
     assert res.history[-1]["shift_px"] < 1e-3 < res.history[0]["shift_px"]
 
 
-def test_too_far_off_is_reported(scene):
+def test_too_far_off_raises_or_is_reported(scene):
+    """One estimate: a failure raises ConvergenceError by default (docs/architecture.md, "Outcomes and
+    throw"); with throw=False it comes back with its RESULTS code and the code's words."""
     dem, image, ortho, transform, _ = scene
     start = photax.ExteriorOrientation(np.asarray(TRUE.position) + [60.0, 40.0, 0.0], TRUE.angles)
-    res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8)
-    assert not res.converged and res.message
+    with pytest.raises(photax.ConvergenceError, match="registration failed"):
+        register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8)
+    res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
+                            throw=False)
+    assert not res.converged and res.result != photax.RESULTS.successful
+    assert res.message.startswith(res.result.text) and np.all(np.isfinite(res.exterior.position))
     # an orientation 10 km away sees nothing of the reference: said so, not a wrong orientation
     far = photax.ExteriorOrientation(np.asarray(TRUE.position) + [10_000.0, 0.0, 0.0], TRUE.angles)
-    res = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8)
+    res = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
+                            throw=False)
     assert not res.converged and "sees (almost) nothing" in res.message, res.message
+    assert res.result == photax.RESULTS.implausible
+    # method= is the old name of resampling=: the same answer, with a DeprecationWarning
+    with pytest.warns(DeprecationWarning, match=r"register_to_ortho\(method=\) is deprecated"):
+        old = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
+                                throw=False, method="nearest")
+    new = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
+                            throw=False, resampling="nearest")
+    np.testing.assert_array_equal(old.exterior.position, new.exterior.position)
+    with pytest.raises(ValueError, match="give resampling= only"):
+        register_to_ortho(image, CAM, far, ortho, transform, dem, method="nearest", resampling="cubic")
 
 
 def test_cli_register(scene, tmp_path):
@@ -97,6 +119,7 @@ def test_cli_register(scene, tmp_path):
                      str(max_steps), "-o", str(out)]) == code
         data = photax.read_json(out)
         assert data["status"] == ("solved" if code == 0 else "not converged") and data["message"]
+        assert (data["result"] == "successful") == (code == 0) and len(data["rmse"]) == len(data["steps"])
         if code == 0:
             refined, _ = read_exterior(out, paths["image"])  # the output is an --exterior input of other commands
             after = np.sqrt(np.mean(np.sum((_px(refined, g) - _px(TRUE, g)) ** 2, 1)))

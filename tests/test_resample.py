@@ -309,7 +309,7 @@ def test_cli_choices_are_the_registry():
 
 
 def test_bad_arguments():
-    with pytest.raises(ValueError, match="method"):
+    with pytest.raises(ValueError, match="resampling must be one of"):
         resample(IMG, [1.0], [1.0], "bicubic")
     with pytest.raises(ValueError, match=r"\(\.\.\., H, W\)"):
         resample(np.ones(5), [1.0], [1.0])
@@ -327,3 +327,18 @@ def test_bspline_prefilter_numpy_equals_traced():
     direct = np.asarray(resample(IMG, gc, gr, "bspline"))
     jitted = np.asarray(jax.jit(lambda im: resample(im, gc, gr, "bspline"))(jnp.asarray(IMG)))
     np.testing.assert_allclose(direct, jitted, rtol=0, atol=1e-12)
+
+
+def test_method_is_the_deprecated_name_of_resampling():
+    """``resampling=`` as in rectify and the CLI; the old ``method=`` gives the same samples with a
+    DeprecationWarning, and both at once is refused."""
+    c, r = np.array([3.3, 7.8]), np.array([5.1, 2.6])
+    new = np.asarray(resample(IMG, c, r, resampling="cubic"))
+    np.testing.assert_allclose(new, np.asarray(resample(IMG, c, r, "cubic")), rtol=0, atol=0)
+    assert not np.allclose(new, np.asarray(resample(IMG, c, r, "bilinear")))  # the kernel is honoured
+    warning = r"resample\(method=\) is deprecated: use resample\(resampling=\)"
+    with pytest.warns(DeprecationWarning, match=warning):
+        old = np.asarray(resample(IMG, c, r, method="cubic"))
+    np.testing.assert_array_equal(old, new)
+    with pytest.raises(ValueError, match="give resampling= only"):
+        resample(IMG, c, r, "nearest", method="cubic")

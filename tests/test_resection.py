@@ -54,7 +54,7 @@ def test_noise_free_recovers_orientation(kind, angles, convention, relief):
     assert np.all(_angle_diff(res.exterior.angles, truth.angles) < 1e-8)
     assert -np.pi < float(res.exterior.kappa) <= np.pi
     assert not res.outliers.any()
-    assert res.rms < 1e-12
+    assert res.rmse < 1e-12
 
 
 def test_settings_cached_per_camera_follow_the_camera():
@@ -65,8 +65,8 @@ def test_settings_cached_per_camera_follow_the_camera():
     other = ptx.FrameCamera(0.9 * CAM.focal_length)
     first, wrong = ptx.resect(xy, ground, CAM), ptx.resect(xy, ground, other, throw=False)
     again, copy = ptx.resect(xy, ground, CAM), ptx.resect(xy, ground, ptx.FrameCamera(CAM.focal_length))
-    assert first.rms < 1e-12 and again.rms < 1e-12 and copy.rms < 1e-12
-    assert wrong.rms > 1e-6  # the 10 % focal length error shows (planar GCPs with relief: not absorbed)
+    assert first.rmse < 1e-12 and again.rmse < 1e-12 and copy.rmse < 1e-12
+    assert wrong.rmse > 1e-6  # the 10 % focal length error shows (planar GCPs with relief: not absorbed)
     for res in (again, copy):
         np.testing.assert_array_equal(np.asarray(res.exterior.to_vector()), np.asarray(first.exterior.to_vector()))
 
@@ -129,7 +129,7 @@ def test_twenty_pixel_blunder_is_flagged_by_name(sigma):
     text = res.summary()
     assert "blunder: GCP07" in text
     assert res.statistic == ("w" if sigma else "tau")
-    assert np.abs(res.normalized[7]).max() > res.critical
+    assert np.abs(res.normalised[7]).max() > res.critical
     # the orientation is that of the clean points: within 4 reported std of the truth
     err = np.asarray(res.exterior.to_vector()) - np.asarray(eo.to_vector())
     assert np.all(np.abs(err) < 4 * res.std), err / res.std
@@ -212,12 +212,12 @@ def test_check_points_and_reports():
     res = ptx.resect(check_xy, ground, cam, check=check, names=names, sigma=0.3)
     ref = ptx.resect(noisy[~check], ground[~check], cam, sigma=0.3)
     np.testing.assert_allclose(np.asarray(res.exterior.to_vector()), np.asarray(ref.exterior.to_vector()), atol=1e-9)
-    assert res.check_rms > 30 and res.rms < 1.0 and not res.outliers.any()
-    assert np.all(np.isnan(res.normalized[check])) and np.all(res.redundancy[check] == 0)
+    assert res.check_rmse > 30 and res.rmse < 1.0 and not res.outliers.any()
+    assert np.all(np.isnan(res.normalised[check])) and np.all(res.redundancy[check] == 0)
     d = json.loads(json.dumps(res.to_dict()))
     assert [p["role"] for p in d["points"]].count("check") == 2 and d["converged"] is True
     np.testing.assert_allclose(d["correlation"], np.asarray(res.correlation))
-    assert "check points: rms" in res.summary() and "P5" in res.summary()
+    assert "check points: rmse" in res.summary() and "P5" in res.summary()
     # correlation is the normalised covariance
     np.testing.assert_allclose(np.diag(res.correlation), 1.0)
 

@@ -24,13 +24,13 @@ def _opencv_centre_and_rms(ground, pixel, origin):
 
 
 def test_real_gcp_list_resection_matches_opencv():
-    table = ptx.io.read_gcps(shared_file("gcp_list_floatxy_raw.txt"))
+    table = ptx.read_gcps(shared_file("gcp_list_floatxy_raw.txt"))
     images = _images(table)
     assert len(images) >= 6
     for image in images:
         sub = table.select(image)
         res = ptx.resect(sub.image_plane(CAM), sub.ground, CAM, names=list(sub.names))
-        print(f"{image}: {len(sub.names)} targets, rms {res.rms:.2f} px, "
+        print(f"{image}: {len(sub.names)} targets, rms {res.rmse:.2f} px, "
               f"outliers {[n for n, o in zip(sub.names, res.outliers) if o]}")
         assert res.converged
         keep = ~res.outliers
@@ -39,13 +39,13 @@ def test_real_gcp_list_resection_matches_opencv():
         # ~75 m flight height; both minimise the same reprojection error on the same
         # inliers, so photax's RMS (pixel units here) cannot be worse than OpenCV's
         np.testing.assert_allclose(np.asarray(res.exterior.position), ref, atol=1e-3)
-        assert res.rms <= ref_rms * (1 + 1e-6)
+        assert res.rmse <= ref_rms * (1 + 1e-6)
         assert 50 < float(res.exterior.Z) - sub.ground[:, 2].mean() < 120
 
 
 def test_real_duplicate_target_is_a_blunder():
     # IMG_5352 has HV11 twice with different pixels: one of the two is wrong.
-    table = ptx.io.read_gcps(shared_file("gcp_list_floatxy_raw.txt"))
+    table = ptx.read_gcps(shared_file("gcp_list_floatxy_raw.txt"))
     sub = table.select("IMG_5352.JPG")
     hv11 = np.flatnonzero(np.asarray(sub.names) == "HV11")
     assert len(hv11) == 2
@@ -58,4 +58,4 @@ def test_real_duplicate_target_is_a_blunder():
     assert "blunder: HV11" in res.summary()
     # the kept HV11 measurement fits, the flagged one does not
     d = np.hypot(*res.residuals[hv11].T)
-    assert d.min() < 3 * res.rms < d.max()
+    assert d.min() < 3 * res.rmse < d.max()

@@ -9,6 +9,7 @@ compiled solver (resection compiles once per camera grid and point bucket).
 """
 
 import pathlib
+import re
 
 import numpy as np
 import pytest
@@ -71,14 +72,14 @@ def test_sample_still_succeeds_with_its_blunder(sample_result):
     res = sample_result
     assert res.converged, res.message
     assert [str(n) for n in np.asarray(res.names)[res.outliers]] == ["P07"]  # the sample's one 15 px blunder
-    assert res.rms / res.pixel_size < 1.0
+    assert res.rmse / res.pixel_size < 1.0
 
 
 def test_sample_with_column_and_row_swapped_fails(sample):
     # before: "converged", camera 320 m below the ground, 8 of 12 control points excluded
     table, camera = sample
     res = _resect_sample(table, camera, pixel=table.pixel[:, ::-1])
-    _fails(res, "column and row", "fit if the image column and row are swapped (then rms 0.")
+    _fails(res, "column and row", "fit if the image column and row are swapped (then rmse 0.")
     with pytest.raises(ptx.ConvergenceError, match="column and row") as info:
         _resect_sample(table, camera, pixel=table.pixel[:, ::-1], throw=True)
     _no_dependency_text(info.value)
@@ -90,7 +91,8 @@ def test_sample_with_east_and_north_swapped_fails_in_photax_words(sample):
     ground = table.ground[:, [1, 0, 2]]
     res = _resect_sample(table, camera, ground=ground)
     # near-nadir: an image y reversal is the same as a ground reflection, so both fit; the swap is named
-    _fails(res, "swapped or mirrored axes", "fit if", "the ground E and N (X and Y) are swapped (then rms 0.")
+    _fails(res, "swapped or mirrored axes", "fit if",
+           "the ground E and N (X and Y) are swapped (then rmse 0.")
     with pytest.raises(ptx.ConvergenceError) as info:
         _resect_sample(table, camera, ground=ground, throw=True)
     _no_dependency_text(info.value)
@@ -228,8 +230,8 @@ def test_summary_has_units_on_every_number(sample_result):
     text = res.summary(crs="EPSG:32633", camera_unit="mm")
     ps = float(np.mean(np.asarray(read_camera(ROOT / "data" / "sample_camera.yaml").pixel_size)))
     assert res.pixel_size == pytest.approx(ps)
-    assert f"rms = {res.rms / ps:.3f} px ({res.rms:.4g} mm)" in text
-    assert f"check points: rms = {res.check_rms / ps:.3f} px ({res.check_rms:.4g} mm)" in text
+    assert f"rmse = {res.rmse / ps:.3f} px ({res.rmse:.4g} mm)" in text
+    assert f"check points: rmse = {res.check_rmse / ps:.3f} px ({res.check_rmse:.4g} mm)" in text
     x = _row(text, "X [m]").split()
     assert float(x[2]) == pytest.approx(float(res.exterior.X), abs=1e-4) and x[-1] == "m"
     assert float(x[3]) == pytest.approx(res.std[0], abs=1e-4)
@@ -247,16 +249,53 @@ def test_summary_has_units_on_every_number(sample_result):
     assert "X [ft]" in res.summary(ground_unit="ft")
 
 
+def test_summary_residual_table_columns_are_separated_and_aligned(sample_result):
+    """Issue 26: without camera_unit the header read ``vy [px]vx [image-plane units]vy ...``. Every header
+    cell stands apart (two spaces at least) and ends where its column's values end (right-aligned), or
+    starts where they start (name and role)."""
+    text = sample_result.summary()  # no camera_unit: the longest heads, "vx [image-plane units]"
+    lines = text.splitlines()
+    head = next(i for i, line in enumerate(lines) if line.strip().startswith("point"))
+    heads = ["point", "role", "vx [px]", "vy [px]", "vx [image-plane units]", "vy [image-plane units]",
+             "w_x", "w_y"]
+    cells = [(m.start(), m.end()) for m in re.finditer(r"\S+(?: \S+)*", lines[head])]
+    assert [lines[head][a:b] for a, b in cells] == heads
+    rows = lines[head + 1:head + 1 + len(sample_result.names)]
+    for row, name in zip(rows, sample_result.names):
+        spans = [(m.start(), m.end()) for m in re.finditer(r"\S+", row)]
+        assert row[slice(*spans[0])] == name and len(spans) == len(heads)
+        assert spans[0][0] == cells[0][0] and spans[1][0] == cells[1][0]  # left-aligned: same start
+        assert [e for _, e in spans[2:]] == [e for _, e in cells[2:]]  # right-aligned: same end
+    # the values are the residuals: the check that the columns hold what their heads say
+    k = list(sample_result.names).index("P07")
+    p07 = rows[k].split()
+    np.testing.assert_allclose([float(v) for v in p07[4:6]], sample_result.residuals[k], rtol=1e-3)
+
+
+def test_old_result_names_warn_and_give_the_new_values(sample_result):
+    """rms, check_rms and normalized are the old names of rmse, check_rmse and normalised
+    (docs/conventions.md, "Words"): still there, each with a DeprecationWarning."""
+    res = sample_result
+    assert res.rmse > 0 and res.check_rmse > 0
+    for old, new in (("rms", "rmse"), ("check_rms", "check_rmse"), ("normalized", "normalised")):
+        warning = f"ResectionResult.{old} is deprecated: use ResectionResult.{new}"
+        with pytest.warns(DeprecationWarning, match=warning):
+            value = getattr(res, old)
+        np.testing.assert_array_equal(value, getattr(res, new))
+    assert {"rmse", "check_rmse"} <= res.to_dict().keys() and "normalised" in res.to_dict()["points"][0]
+
+
 def test_summary_units_pixels_and_no_grid():
     cam, eo, ground, xy = _scene(40)
     res = ptx.resect(xy, ground, cam)  # pixel camera, no sigma: Pope's tau, sigma0 in pixels
     text = res.summary()
-    assert f"sigma0 = {res.sigma0:.3f} px" in text and f"rms = {res.rms:.3f} px" in text
+    assert f"sigma0 = {res.sigma0:.3f} px" in text and f"rmse = {res.rmse:.3f} px" in text
     assert "vx [px]" in text and "X [m]" in text and "image-plane units" not in text
     metres = ptx.FrameCamera(3000 * 4.4e-6)  # no pixel grid: the camera's unit only
     res = ptx.resect(xy * 4.4e-6, ground, metres)
     text = res.summary(camera_unit="m")
-    assert res.pixel_size is None and f"rms = {res.rms:.4g} m" in text and "vx [m]" in text and "px" not in text
+    assert res.pixel_size is None and f"rmse = {res.rmse:.4g} m" in text
+    assert "vx [m]" in text and "px" not in text
 
 
 def test_residuals_are_computed_minus_observed(sample, sample_result):

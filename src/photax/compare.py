@@ -38,6 +38,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._deprecation import alias
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, project, project_jacobian
 from .dem import DEM
@@ -87,10 +88,13 @@ class ModelResult:
         return np.hypot(self.error[..., 0], self.error[..., 1])
 
     @property
-    def error_rms(self) -> float:
-        """RMS of the error map over the cells inside the image, pixels."""
+    def error_rmse(self) -> float:
+        """RMS of the error map over the cells inside the image, pixels
+        (``error_rms`` is its deprecated old name)."""
         m = self.error_magnitude
         return float(np.sqrt(np.nanmean(m**2))) if np.isfinite(m).any() else math.nan
+
+    error_rms = alias("error_rmse")
 
     @property
     def error_max(self) -> float:
@@ -176,11 +180,11 @@ class ModelComparison:
     def table(self, fmt: str = "markdown") -> str:
         """The comparison as a markdown (``fmt="markdown"``) or plain text table."""
         head = ["model", "params", "redundancy", "condition", "GCP RMSE [px]", "check RMSE [px]",
-                "check RMSE [m]", "map RMS [px]", "map max [px]"]
+                "check RMSE [m]", "map RMSE [px]", "map max [px]"]
         rows = []
         for m in self.models:
             rows.append([m.name, str(m.n_params), str(m.redundancy), f"{m.condition:.3g}", f"{m.gcp_rmse:.3f}",
-                         f"{m.check_rmse:.3f}", f"{m.check_rmse * self.gsd:.3f}", f"{m.error_rms:.2f}",
+                         f"{m.check_rmse:.3f}", f"{m.check_rmse * self.gsd:.3f}", f"{m.error_rmse:.2f}",
                          f"{m.error_max:.2f}"])
         notes = [f"{k}: {v}" for k, v in self.skipped.items()]
         if self.excluded is not None and self.excluded.any():
@@ -213,7 +217,7 @@ class ModelComparison:
                 {"name": m.name, "n_params": m.n_params, "redundancy": m.redundancy,
                  "condition": num(m.condition), "gcp_rmse_px": num(m.gcp_rmse),
                  "check_rmse_px": num(m.check_rmse), "check_rmse_m": num(m.check_rmse * self.gsd),
-                 "map_rms_px": num(m.error_rms), "map_max_px": num(m.error_max)}
+                 "map_rmse_px": num(m.error_rmse), "map_max_px": num(m.error_max)}
                 for m in self.models
             ],
             "skipped": dict(self.skipped),
@@ -364,6 +368,21 @@ def compare_models(
     Raises:
         ValueError: bad shapes or values, a camera without a pixel grid.
         photax.ConvergenceError: the resection failed.
+
+    Examples:
+        Over 300 m of relief only collinearity with the DEM fits the check points to the 0.3 px noise;
+        plane-to-plane models leave the relief displacement:
+
+        >>> import photax as ptx
+        >>> scene = ptx.relief_scene(300.0, seed=0, image_size=(400, 300), focal_px=400.0)
+        >>> c = ptx.compare_models(scene.gcp_ground, scene.gcp_pixel, scene.camera, scene.dem, orders=(1, 3),
+        ...                        check_ground=scene.check_ground, check_pixel=scene.check_pixel)
+        >>> c.names
+        ['collinearity', 'polynomial 1', 'polynomial 3', 'projective']
+        >>> min(c.models, key=lambda m: m.check_rmse).name
+        'collinearity'
+        >>> bool(c["collinearity"].check_rmse < 3 * scene.noise_px < c["polynomial 3"].check_rmse)
+        True
     """
     # Over 80 lines only by its docstring; the body is ~55 lines, one step
     # (fit, evaluate on the grid and the points) per model.

@@ -145,8 +145,8 @@ def resection_section(out: pathlib.Path) -> str:
           f"`sample/sample_camera.yaml`. The measurements carry {SAMPLE_NOISE_PX} px noise and "
           f"`{SAMPLE_BLUNDER[0]}` a deliberate {SAMPLE_BLUNDER[1][0]:g} px blunder.", "",
           f"Result: {res.message}; sigma0 = {res.sigma0:.3f} (a-priori sigma {SAMPLE_NOISE_PX} px), "
-          f"control RMS = {res.rms / float(camera.pixel_size[0]):.3f} px, "
-          f"check-point RMS = {res.check_rms / float(camera.pixel_size[0]):.3f} px.", "",
+          f"control RMS = {res.rmse / float(camera.pixel_size[0]):.3f} px, "
+          f"check-point RMS = {res.check_rmse / float(camera.pixel_size[0]):.3f} px.", "",
           "| parameter | estimate | std | truth | error | error/std |", "|---|---:|---:|---:|---:|---:|"]
     for r in rows:
         f = "{:.3f}" if r["unit"] == "m" else "{:.5f}"

@@ -281,7 +281,7 @@ def comparison_error_maps(comparison, names: Sequence[str] | None = None, *, vma
         if len(comparison.check_ground):
             ax.plot(*to_km(comparison.check_ground), "o", mfc="none", color="lime", ms=4, label="check point")
         m = comparison[name]
-        ax.set_title(f"{name}\ncheck RMSE {m.check_rmse:.2f} px, map RMS {m.error_rms:.1f} px, "
+        ax.set_title(f"{name}\ncheck RMSE {m.check_rmse:.2f} px, map RMSE {m.error_rmse:.1f} px, "
                      f"max {m.error_max:.0f} px", fontsize=9)
         ax.set_xlabel(f"easting - {x0:.0f} m [km]")
         ax.set_ylabel(f"northing - {y0:.0f} m [km]")

@@ -306,6 +306,20 @@ def fit_polynomial(src_xy, dst_xy, order: int, *, weights=None) -> PolynomialMod
         ValueError: wrong shapes, NaN/inf, too few or duplicated points, or a
             rank-deficient design (points on a line or a curve that cannot
             determine the polynomial).
+
+    Examples:
+        Ground ``(X, Y)`` -> pixel of an aerial frame over flat land: order 2 takes up the 2-degree
+        tilt, and the check points fit to the 0.3 px measurement noise:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> flat = ptx.relief_scene(0.0, seed=1, image_size=(400, 300), focal_px=400.0)
+        >>> model = ptx.fit_polynomial(flat.gcp_ground[:, :2], flat.gcp_pixel, order=2)
+        >>> model.residuals.shape, bool(model.rmse < 3 * flat.noise_px)
+        ((30, 2), True)
+        >>> error = np.asarray(model(flat.check_ground[:, :2])) - flat.check_pixel_true
+        >>> bool(np.sqrt(np.mean(np.sum(error**2, axis=1))) < 3 * flat.noise_px)
+        True
     """
     if not isinstance(order, (int, np.integer)) or not 1 <= order <= MAX_ORDER:
         raise ValueError(f"order must be an integer from 1 to {MAX_ORDER}, got {order!r}")
@@ -437,6 +451,20 @@ def fit_projective(src_xy, dst_xy, *, weights=None, refine: bool = True, throw: 
     Raises:
         ValueError: wrong shapes, NaN/inf, fewer than 4 or duplicated points,
             or a degenerate configuration (3 of 4 points collinear).
+
+    Examples:
+        A plane maps projectively: ground ``(X, Y)`` -> pixel of a frame over flat land, checked on
+        the noise-free projections of the check points:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> flat = ptx.relief_scene(0.0, seed=1, image_size=(400, 300), focal_px=400.0)
+        >>> model = ptx.fit_projective(flat.gcp_ground[:, :2], flat.gcp_pixel)
+        >>> model.converged, model.result.name
+        (True, 'successful')
+        >>> error = np.asarray(model(flat.check_ground[:, :2])) - flat.check_pixel_true
+        >>> print(f"check points off by {np.sqrt(np.mean(np.sum(error**2, axis=1))):.1f} px")
+        check points off by 0.1 px
     """
     src, dst, w = _check_pairs(src_xy, dst_xy, weights, 4, "a projective transform")
     n = src.shape[0]

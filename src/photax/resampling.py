@@ -65,6 +65,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ._deprecation import renamed_argument
+
 
 class Resampling(str, enum.Enum):
     """The interpolation kernels, and what each needs: the one list of them.
@@ -387,10 +389,11 @@ def resample(
     image,
     cols,
     rows,
-    method: Resampling | str = "bilinear",
+    resampling: Resampling | str = "bilinear",
     *,
     nodata=None,
     a: float = -0.5,
+    method: Resampling | str | None = None,
 ) -> Array:
     """Sample ``image`` at fractional pixel positions ``(cols, rows)``.
 
@@ -400,14 +403,15 @@ def resample(
         cols, rows: fractional column and row of each sample, pixel-centre
             convention (see the module docstring); broadcast to a common
             shape ``S``.
-        method: ``"nearest"``, ``"bilinear"``, ``"cubic"`` (cubic convolution
+        resampling: ``"nearest"``, ``"bilinear"``, ``"cubic"`` (cubic convolution
             with parameter ``a``), ``"lanczos"`` (Lanczos-3), ``"lanczos4"``
             (Lanczos-4, OpenCV's) or ``"bspline"`` (prefiltered cubic
-            B-spline).
+            B-spline); ``method`` is its deprecated old name (the word of
+            :func:`photax.rectify` and the CLI is ``resampling``).
         nodata: value of samples outside the footprint
             ``[-0.5, W-0.5] x [-0.5, H-0.5]``; default NaN for float images,
             0 for integer images.
-        a: cubic-convolution parameter (``method="cubic"`` only): -0.5 Keys
+        a: cubic-convolution parameter (``resampling="cubic"`` only): -0.5 Keys
             (default, GDAL), -0.75 OpenCV, -1 the course text.
 
     Returns:
@@ -415,7 +419,8 @@ def resample(
         and clipped to the dtype's range).
     """
     # Over 80 lines because the docstring documents every argument; the body is ~50 lines.
-    method = Resampling.check(method, "method").value
+    resampling = renamed_argument("resample", "method", method, "resampling", resampling, "bilinear")
+    method = Resampling.check(resampling, "resampling").value
     # numpy stays numpy: gather_source pads it in numpy anyway, and jnp.asarray
     # would first copy it whole (~10 ms for 4096^2).
     image = image if isinstance(image, (jax.Array, np.ndarray)) else np.asarray(image)

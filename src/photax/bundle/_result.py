@@ -171,18 +171,24 @@ class BundleResult:
         return out
 
 
-def outcome(converged: bool, message: str, cost: float) -> RESULTS:
-    """The :class:`photax.RESULTS` code of a finished adjustment from its
-    status: the solver loop (``_solver._lm_loop``) and the precision step
-    stop with one of these messages, so the code follows the message's
-    opening words."""
-    if converged:
-        return RESULTS.successful
-    if not math.isfinite(cost):
-        return RESULTS.nonfinite
-    if message.startswith(("the normal equations are singular", "the normal equations became singular")):
-        return RESULTS.singular
-    if message.startswith("no convergence within"):
-        return RESULTS.max_steps_reached
-    return RESULTS.solver_failed  # the trust region shrank to nothing: no decrease possible
+#: What each way of stopping short says; the solver carries the :class:`photax.RESULTS`
+#: code from where it stops (``_solver._lm_loop``, the precision step of
+#: ``_solver._finish``) and :func:`stop_message` words it -- nothing reads a
+#: message back.
+STOP_WORDS = {
+    RESULTS.max_steps_reached: "no convergence within max_steps = {max_steps}",
+    RESULTS.singular: "the normal equations are singular{where} (datum defect or undetermined parameters)",
+    RESULTS.solver_failed: "trust region radius below 1e-32: no decrease possible",
+    RESULTS.nonfinite: "the cost at the start values is not finite (NaN or inf): check observations, sigmas, "
+    "start values",
+}
 
+
+def stop_message(code: RESULTS, rule: str = "", *, max_steps: int = 0, at_solution: bool = False) -> str:
+    """The message of an adjustment that stopped with ``code``: for
+    ``successful`` the stopping rule that held (``rule``, from
+    :class:`StoppingRule`), else the words of :data:`STOP_WORDS`."""
+    if code == RESULTS.successful:
+        return rule or RESULTS.successful.text
+    words = STOP_WORDS.get(RESULTS(code), RESULTS(code).text)
+    return words.format(max_steps=max_steps, where=" at the solution" if at_solution else "")

@@ -2,7 +2,7 @@
 
 IMAGE with its camera and approximate orientation, a reference orthophoto and
 a DEM in the same ground CRS.  Writes the refined orientation as JSON
-(``{"exterior": {...}, "converged", "correlation", "message"}``, read back by
+(``{"exterior": {...}, "converged", "result", "correlation", "message"}``, read back by
 ``--exterior`` options) and prints the status.  Exit codes: 0 converged,
 1 not converged (the JSON is still written), 2 bad input.
 """
@@ -56,11 +56,13 @@ def run(args: argparse.Namespace) -> int:
     ortho, profile = read_geotiff(args.ortho)
     transform = tuple(profile["transform"])[:6]
     res = register_to_ortho(image, camera, exterior, ortho[0].astype(float), transform, read_dem(args.dem),
-                            levels=levels, max_steps=args.max_steps)
+                            levels=levels, max_steps=args.max_steps, throw=False)
     e = res.exterior
     write_json({"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention},
                 "status": "solved" if res.converged else "not converged", "converged": res.converged,
-                "correlation": res.correlation, "steps": res.steps, "rms": res.rms, "history": res.history, "message": res.message},
+                "result": res.result.name, "correlation": res.correlation, "steps": res.steps,
+                "rmse": res.rmse,
+                "history": res.history, "message": res.message},
                args.out, inputs=files)
     print(f"{'converged' if res.converged else 'NOT converged'}: {res.message}; wrote {args.out}")
     return 0 if res.converged else 1

@@ -30,9 +30,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._deprecation import alias, renamed_argument
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, project
 from ..dem import DEM
+from ..errors import RESULTS, ConvergenceError
 from ..resampling import resample
 
 
@@ -42,23 +44,34 @@ class Registration:
 
     Attributes:
         exterior: the refined exterior orientation.
-        converged: whether the finest level's steps fell below the tolerance.
+        converged: ``result == RESULTS.successful``: the finest level's
+            steps fell below the tolerance and the final correlation reached
+            ``min_correlation``.
         steps: Gauss-Newton steps per level.
-        rms: grey-value rms of the residuals per level (after its last step).
+        rmse: grey-value rms of the residuals per level (after its last
+            step); ``rms`` is its deprecated old name.
         correlation: correlation coefficient of image and ortho at the end.
-        message: what happened.
-        history: one dict per Gauss-Newton step: ``level``, ``rms`` (grey
+        message: what happened, in the words of :data:`photax.RESULTS`.
+        history: one dict per Gauss-Newton step: ``level``, ``rmse`` (grey
             rms of the residuals before the step) and ``shift_px`` (the most
             any ground point's image moved by the step, px): the convergence.
+        result: the :class:`photax.RESULTS` code: ``successful``,
+            ``max_steps_reached`` (the finest level did not settle),
+            ``nonfinite`` (a step became NaN), ``implausible`` (the image
+            sees almost nothing of the ortho, or the final correlation is
+            below ``min_correlation``: a wrong match).
     """
 
     exterior: ExteriorOrientation
     converged: bool
     steps: list
-    rms: list
+    rmse: list
     correlation: float
     message: str
     history: list = dataclasses.field(default_factory=list)
+    result: RESULTS = RESULTS.successful
+
+    rms = alias("rmse")
 
 
 @partial(jax.jit, static_argnames=("method",))
@@ -89,7 +102,8 @@ def _linearise(p, base, image, ground, grey, camera, *, method):
 
 def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation, reference_ortho, ortho_transform,
                       dem: DEM, *, levels=(8, 4, 2, 1), max_steps: int = 15, tol: float = 1e-3,
-                      method: str = "bilinear", min_correlation: float = 0.8) -> Registration:
+                      resampling: str = "bilinear", min_correlation: float = 0.8, throw: bool = True,
+                      method: str | None = None) -> Registration:
     """Refine ``exterior`` so that ``image`` matches ``reference_ortho`` (module docstring).
 
     Args:
@@ -103,17 +117,41 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
         levels: coarse-to-fine levels, px (blur and sampling step).
         max_steps: Gauss-Newton steps per level at most.
         tol: stop a level when a step moves no ground point's image by more than ``tol`` px.
-        method: resampling kernel.
+        resampling: resampling kernel (:func:`photax.resample`); ``method``
+            is its deprecated old name.
         min_correlation: below this final correlation of image and ortho the
             result is reported as not converged (a wrong local minimum).
+        throw: raise :class:`photax.ConvergenceError` when the registration
+            fails (one estimate: ``True`` by default, docs/architecture.md);
+            ``False`` returns it with ``converged=False`` and its ``result``.
 
     Returns:
         :class:`Registration`.
+
+    Raises:
+        photax.ConvergenceError: with ``throw=True``, when it did not converge.
+
+    Examples:
+        A start 25 m off, refined against the scene's true orthophoto and DEM:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> scene = ptx.relief_scene(300.0, seed=0, image_size=(400, 300), focal_px=400.0)
+        >>> start = ptx.ExteriorOrientation(np.asarray(scene.exterior.position) + [20.0, -15.0, 0.0],
+        ...                                 scene.exterior.angles)
+        >>> reg = ptx.register_to_ortho(scene.image, scene.camera, start, scene.ortho, scene.ortho_transform,
+        ...                             scene.dem, levels=(4, 2, 1))
+        >>> reg.converged, reg.result.name
+        (True, 'successful')
+        >>> err = np.asarray(reg.exterior.position) - np.asarray(scene.exterior.position)
+        >>> bool(np.all(np.abs(err) < 1.0))  # metres; the pixel is 7.5 m on the ground
+        True
     """
     # Over 80 lines: argument checks, then one coarse-to-fine Gauss-Newton loop whose
     # state (parameters, damping, history) is shared by every level; kept in one piece.
     from scipy.ndimage import gaussian_filter
 
+    method = renamed_argument("register_to_ortho", "method", method, "resampling", resampling, "bilinear")
     img = np.asarray(image, dtype=float)
     ref = np.asarray(reference_ortho, dtype=float)
     if not levels or min(levels) < 1:
@@ -128,7 +166,7 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
     p = np.zeros(8)
     p[7] = 1.0
     steps, rmss, history = [], [], []
-    converged = False
+    converged, finite = False, True
     overlap = True
     finest = min(levels)
     # one point count for every level (the finest's, to a power of two): one compilation
@@ -163,22 +201,22 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
             scale = np.sqrt(np.maximum(np.diag(nmat), 1e-30))
             ns = nmat / np.outer(scale, scale) + 1e-6 * np.eye(8)
             dp = -np.linalg.solve(ns, g / scale) / scale
-            if not np.all(np.isfinite(dp)):
+            finite = bool(np.all(np.isfinite(dp)))
+            if not finite:
                 break
             p = p + dp
             move = np.asarray(_shift(jnp.asarray(p - dp), jnp.asarray(p), base, jnp.asarray(ground), camera))
-            history.append({"level": level, "rms": float(np.sqrt(np.sum(w * v * v) / w.sum())),
+            history.append({"level": level, "rmse": float(np.sqrt(np.sum(w * v * v) / w.sum())),
                             "shift_px": float(np.max(move[w > 0]))})
             if np.max(move[w > 0]) < tol:  # the step moved no ground point's image by tol px
                 done = True
                 break
         v, ok = (np.asarray(t) for t in _residuals(jnp.asarray(p), *args, method=method))
         sel = ok & live
-        if not overlap:
-            steps.append(k)
+        steps.append(k)
+        if not overlap or not finite:
             rmss.append(float("nan"))
             break
-        steps.append(k)
         rmss.append(float(np.sqrt(np.mean(v[sel] ** 2))) if sel.any() else float("nan"))
         converged = done
     pred = np.asarray(_residuals(jnp.asarray(p), *args, method=method)[0])[sel] + grey[sel]
@@ -186,19 +224,25 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
     out = ExteriorOrientation(np.asarray(base[:3]) + p[:3], np.asarray(base[3:]) + p[3:6], "phi-omega-kappa")
     out = out.to_convention(exterior.convention)
     if not overlap:
-        converged = False
-        msg = (f"only {int(sel.sum())} of the ortho's ground points fall inside the image at level {level}: "
-               "the orientation sees (almost) nothing of the reference orthophoto")
+        code, detail = RESULTS.implausible, (
+            f"only {int(sel.sum())} of the ortho's ground points fall inside the image at level {level}: "
+            "the orientation sees (almost) nothing of the reference orthophoto")
+    elif not finite:
+        code, detail = RESULTS.nonfinite, f"a Gauss-Newton step at level {level}"
     elif converged and not corr >= min_correlation:
-        converged = False
-        msg = (f"converged to a correlation of only {corr:.3f} (< {min_correlation}): a wrong match, "
-               "the start is too far off or the ortho does not show this image's ground")
+        code, detail = RESULTS.implausible, (
+            f"converged to a correlation of only {corr:.3f} (< {min_correlation}): a wrong match, "
+            "the start is too far off or the ortho does not show this image's ground")
     elif converged:
-        msg = f"converged: correlation {corr:.4f}, grey rms {rmss[-1]:.4g}"
+        code, detail = RESULTS.successful, f"correlation {corr:.4f}, grey rmse {rmss[-1]:.4g}"
     else:
-        msg = f"did not converge in {max_steps} steps at the finest level (correlation {corr:.4f})"
-    return Registration(exterior=out, converged=converged, steps=steps, rms=rmss, correlation=corr, message=msg,
-                        history=history)
+        code, detail = RESULTS.max_steps_reached, (
+            f"{max_steps} steps at the finest level (correlation {corr:.4f})")
+    msg = f"{code.text}: {detail}"
+    if throw and code != RESULTS.successful:
+        raise ConvergenceError(f"registration failed: {msg}")
+    return Registration(exterior=out, converged=code == RESULTS.successful, steps=steps, rmse=rmss,
+                        correlation=corr, message=msg, history=history, result=code)
 
 
 def _px_ratio(camera, ext, ortho_cell, dem) -> float:

@@ -165,6 +165,20 @@ def rectify(
     Returns:
         ``(..., rows, cols)`` numpy array in the input dtype; with
         ``mapping="direct"`` the tuple ``(array, holes)``.
+
+    Examples:
+        A frame over flat land rectified by the projective model of its control points onto the grid
+        of the scene's true orthophoto (the ground texture itself), which it reproduces:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> flat = ptx.relief_scene(0.0, seed=1, image_size=(400, 300), focal_px=400.0)
+        >>> model = ptx.fit_projective(flat.gcp_ground[:, :2], flat.gcp_pixel)
+        >>> grid = ptx.Grid(flat.ortho_transform, flat.ortho.shape)
+        >>> out = ptx.rectify(flat.image, model, grid, resampling="cubic")
+        >>> seen = np.isfinite(out)  # NaN outside the image
+        >>> out.shape == grid.shape, bool(np.corrcoef(out[seen], flat.ortho[seen])[0, 1] > 0.95)
+        (True, True)
     """
     # Over 80 lines only by its docstring, the reference for every argument
     # the other entry points share; the work is in _tiling and _approx.

@@ -8,6 +8,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._deprecation import alias
 from ..collinearity import ExteriorOrientation
 from ..errors import RESULTS
 
@@ -30,13 +31,15 @@ class ResectionResult:
         outliers: ``(n,)`` True for points excluded by data snooping.
         check: ``(n,)`` True for check points (not used in the fit).
         redundancy: ``(n, 2)`` redundancy numbers (0 for excluded points).
-        normalized: ``(n, 2)`` test statistics (Baarda's w or Pope's tau);
+        normalised: ``(n, 2)`` test statistics (Baarda's w or Pope's tau);
             for outliers the values with which they were rejected; NaN for
             check points.
         critical: critical value the statistics were tested against.
-        rms: RMS reprojection error of the control inliers,
+        rmse: RMS reprojection error of the control inliers,
             ``sqrt(mean(vx^2 + vy^2))``, image-plane units.
-        check_rms: the same for the check points (NaN without any).
+        check_rmse: the same for the check points (NaN without any).
+        rms, check_rms, normalized: the deprecated old names of ``rmse``,
+            ``check_rmse`` and ``normalised`` (docs/conventions.md, "Words").
         iterations: Gauss-Newton (or LM) steps of the final adjustment.
         converged: whether the estimate can be trusted.
         message: why it stopped or failed.
@@ -58,10 +61,10 @@ class ResectionResult:
     outliers: np.ndarray
     check: np.ndarray
     redundancy: np.ndarray
-    normalized: np.ndarray
+    normalised: np.ndarray
     critical: Any
-    rms: Any
-    check_rms: Any
+    rmse: Any
+    check_rmse: Any
     iterations: Any
     converged: Any
     message: Any
@@ -69,6 +72,10 @@ class ResectionResult:
     statistic: str = "w"
     pixel_size: float | None = None
     result: Any = RESULTS.successful
+
+    rms = alias("rmse")
+    check_rms = alias("check_rmse")
+    normalized = alias("normalised")
 
     # -- batches -----------------------------------------------------------
     def __len__(self) -> int:
@@ -142,28 +149,28 @@ class ResectionResult:
             s0 = f"sigma0 = {self.sigma0:.4g} (unitless: a-priori sigma given)"
         else:
             s0 = f"sigma0 = {image_value(self.sigma0)}"
-        lines.append(f"  {s0}   rms = {image_value(self.rms)}")
+        lines.append(f"  {s0}   rmse = {image_value(self.rmse)}")
         lines.append(f"  control points used = {n_used} of {n_ctrl}   iterations = {self.iterations}")
         if ps is not None:
             heads = ["vx [px]", "vy [px]"] + ([f"vx [{cu}]", f"vy [{cu}]"] if both else [])
         else:
             heads = [f"vx [{cu}]", f"vy [{cu}]"]
-        lines.append(f"  {'point':<12}{'role':<9}" + "".join(f"{h:>13}" for h in heads)
-                     + f"{self.statistic + '_x':>9}{self.statistic + '_y':>9}")
+        rows = []
         for k, name in enumerate(self.names):
             role = "check" if self.check[k] else ("OUTLIER" if self.outliers[k] else "control")
             vx, vy = self.residuals[k]
-            wx, wy = self.normalized[k]
+            wx, wy = self.normalised[k]
             if ps is not None:
                 cols = [f"{vx / ps:.3f}", f"{vy / ps:.3f}"] + ([f"{vx:.4g}", f"{vy:.4g}"] if both else [])
             else:
                 cols = [f"{vx:.4g}", f"{vy:.4g}"]
-            lines.append(f"  {str(name):<12}{role:<9}" + "".join(f"{c:>13}" for c in cols) + f"{wx:>9.2f}{wy:>9.2f}")
+            rows.append([str(name), role, *cols, f"{wx:.2f}", f"{wy:.2f}"])
+        lines += _table(["point", "role", *heads, self.statistic + "_x", self.statistic + "_y"], rows, left=2)
         for k in np.flatnonzero(self.outliers):
             lines.append(f"  blunder: {self.names[k]} excluded (|{self.statistic}| = "
                          f"{_blunder_stat(self, k):.2f} > {self.critical:.2f})")
         if np.any(self.check):
-            lines.append(f"  check points: rms = {image_value(self.check_rms)}")
+            lines.append(f"  check points: rmse = {image_value(self.check_rmse)}")
         return "\n".join(lines)
 
     def to_dict(self) -> dict:
@@ -181,8 +188,8 @@ class ResectionResult:
             "std": tolist(self.std),
             "covariance": tolist(self.covariance),
             "correlation": tolist(self.correlation),
-            "rms": float(self.rms),
-            "check_rms": float(self.check_rms),
+            "rmse": float(self.rmse),
+            "check_rmse": float(self.check_rmse),
             "iterations": int(self.iterations),
             "converged": bool(self.converged),
             "message": str(self.message),
@@ -196,13 +203,26 @@ class ResectionResult:
                     "outlier": bool(self.outliers[k]),
                     "residual": self.residuals[k].tolist(),
                     "redundancy": self.redundancy[k].tolist(),
-                    "normalized": self.normalized[k].tolist(),
+                    "normalised": self.normalised[k].tolist(),
                 }
                 for k in range(len(self.names))
             ],
         }
         json.dumps(out)  # fail here, not in the caller, if something is not serialisable
         return out
+
+
+def _table(heads: list[str], rows: list[list[str]], left: int) -> list[str]:
+    """Lines of a table indented by two spaces: the first ``left`` columns
+    left-aligned, the others right-aligned, each as wide as its widest entry
+    (header included) and two spaces apart."""
+    width = [max(len(c) for c in col) for col in zip(heads, *rows)]
+
+    def line(cells):
+        return "  " + "  ".join(c.ljust(w) if j < left else c.rjust(w)
+                                for j, (c, w) in enumerate(zip(cells, width))).rstrip()
+
+    return [line(heads)] + [line(r) for r in rows]
 
 
 _UNIT_ABBREVIATIONS = {"metre": "m", "meter": "m", "foot": "ft", "US survey foot": "US ft", "kilometre": "km"}
@@ -224,5 +244,5 @@ def _crs_unit(crs: str | None) -> str:
 
 
 def _blunder_stat(res: ResectionResult, k: int) -> float:
-    return float(np.nanmax(np.abs(res.normalized[k])))
+    return float(np.nanmax(np.abs(res.normalised[k])))
 
