@@ -1,6 +1,6 @@
 """Old public names kept as aliases that warn (``docs/conventions.md``, "Words").
 
-A private utility module, imported across photax's units as ``_linalg`` is:
+Private utility module, imported across photax's units as ``_linalg`` is:
 the one way an old attribute or keyword name is kept working while it says
 what replaced it.
 """
