@@ -8,9 +8,12 @@ registers its parser and sets ``func`` to its runner) and a runner
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
+import signal
 import sys
+import threading
 
 # Subcommand modules, in the order ``photax --help`` lists them.
 SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "mosaic", "compare", "bundle", "measure", "fiducials", "epipolar",
@@ -68,6 +71,34 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(text.split())  # no multi-line messages from dependencies
 
 
+@contextlib.contextmanager
+def _signals_remove_temporaries(command: list[str]):
+    """While the command runs, SIGTERM, SIGHUP and SIGINT first remove the
+    temporaries being written (:func:`photax.io.atomic.cleanup_temporaries`):
+    SIGINT then raises KeyboardInterrupt as usual, SIGTERM and SIGHUP end the
+    process with status 128 + the signal's number.  Only in the main thread
+    (where Python runs signal handlers); the previous handlers come back after."""
+    from ..io.atomic import cleanup_temporaries
+
+    def handler(signum, frame):
+        cleanup_temporaries()
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        name = signal.Signals(signum).name
+        print(f"\n{command[0]}: stopped by {name}; the files being written were removed", file=sys.stderr, flush=True)
+        os._exit(128 + signum)  # now, not after Dask's or GDAL's threads finish
+
+    wanted = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n)]
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        previous = {s: signal.signal(s, handler) for s in wanted}
+    try:
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``photax`` console script.
 
@@ -75,28 +106,32 @@ def main(argv: list[str] | None = None) -> int:
     the adjustment converged); 1 when a run finished but some image was not
     solved or the adjustment did not converge (its outputs are still
     written, with a status); 2 for usage and input errors (one line on
-    stderr, no output written); 130 on Ctrl-C (no partial output: every
-    file is written to a temporary name and renamed at the end).  Set
+    stderr, no output written), and for an output that could not be written
+    (a full disk, ``ulimit -f``: the message says what was needed and what is
+    free; the previous file is kept); 130 on Ctrl-C, 143 on SIGTERM, 129 on
+    SIGHUP (no partial output: every file is written to a temporary name,
+    synced and renamed at the end; the signal removes the temporary).  Set
     ``PHOTAX_TRACEBACK=1`` to see the traceback of an unexpected error.
     """
-    command = "photax"
+    command = ["photax"]  # a list: the signal handler sees the subcommand once it is known
     try:
-        args = build_parser().parse_args(argv)
-        command = f"photax {args.command}"
-        _enable_compilation_cache()
-        return int(args.func(args) or 0)
+        with _signals_remove_temporaries(command):
+            args = build_parser().parse_args(argv)
+            command[0] = f"photax {args.command}"
+            _enable_compilation_cache()
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        print(f"\n{command}: interrupted; nothing written", file=sys.stderr)
+        print(f"\n{command[0]}: interrupted; nothing written", file=sys.stderr)
         return 130
     except (ValueError, OSError) as exc:
         if os.environ.get("PHOTAX_TRACEBACK"):
             raise
-        print(f"{command}: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"{command[0]}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except Exception as exc:  # a bug or a dependency's failure: still one line, no traceback
         if os.environ.get("PHOTAX_TRACEBACK"):
             raise
-        print(f"{command}: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
+        print(f"{command[0]}: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
               "(PHOTAX_TRACEBACK=1 shows where)", file=sys.stderr)
         return 2
 
