@@ -220,7 +220,8 @@ def test_cli_rectify_past_the_file_size_limit_exits_2_and_keeps_the_old_file(tmp
     out.write_bytes(OLD)
     cmd = [*PHOTAX, "rectify", str(DATA / "sample_image.tif"), "--gcps", str(DATA / "sample_gcps.csv"),
            "--resolution", "1", "--no-progress", "--out", str(out)]
-    p = subprocess.run(_limited(50_000, cmd), capture_output=True, text=True, env=_env(), timeout=600, check=False)
+    p = subprocess.run(_limited(50_000, cmd), capture_output=True, text=True, env=_env(), timeout=600,
+                       check=False)
     # (the output is about 140 kB)
     assert p.returncode == 2, p.stdout + p.stderr
     assert "wrote" not in p.stdout
@@ -247,10 +248,12 @@ def test_cli_compare_that_fails_writes_nothing(tmpfs, capsys):
 
 _WRITER = """
 import sys, time
-from photax.cli import _signals_remove_temporaries
+from photax.cli import _all_or_nothing
 from photax.io.atomic import atomic_write
-with _signals_remove_temporaries(["photax test"]):
-    with atomic_write(sys.argv[1]) as fh:
+with _all_or_nothing(["photax test"]):
+    with atomic_write(sys.argv[1]) as fh:  # a first output, complete
+        fh.write("new")
+    with atomic_write(sys.argv[2]) as fh:  # the second being written
         fh.write("x" * 10_000_000)
         fh.flush()
         print("writing", flush=True)
@@ -259,18 +262,40 @@ with _signals_remove_temporaries(["photax test"]):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
-def test_a_signal_during_a_write_removes_the_temporary(tmp_path, sig):
-    out = tmp_path / "o.txt"
-    out.write_bytes(OLD)
-    p = subprocess.Popen([sys.executable, "-c", _WRITER, str(out)], stdout=subprocess.PIPE,
+def test_a_signal_during_a_write_removes_the_temporary_and_takes_back_the_run(tmp_path, sig):
+    first, second = tmp_path / "a.txt", tmp_path / "b.txt"
+    first.write_bytes(OLD)
+    p = subprocess.Popen([sys.executable, "-c", _WRITER, str(first), str(second)], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, env=_env())
     assert p.stdout.readline() == b"writing\n"
+    assert first.read_text() == "new"
     assert len([q for q in tmp_path.iterdir() if q.name.endswith(".part")]) == 1  # a 10 MB temporary
     p.send_signal(sig)
     _, err = p.communicate(timeout=60)
     # SIGINT: KeyboardInterrupt, uncaught here, so Python ends by SIGINT (-2)
     assert p.returncode == (-sig if sig == signal.SIGINT else 128 + sig), err
-    assert sorted(q.name for q in tmp_path.iterdir()) == ["o.txt"] and out.read_bytes() == OLD
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["a.txt"] and first.read_bytes() == OLD
+
+
+def test_a_run_that_fails_writes_nothing(tmp_path):
+    from photax.io import write_geotiff, write_json
+    from photax.io.atomic import all_or_nothing
+
+    kept, new, folder = tmp_path / "kept.json", tmp_path / "new.tif", tmp_path / "empty"
+    kept.write_bytes(OLD)
+    folder.mkdir()
+    with pytest.raises(RuntimeError, match="later"), all_or_nothing():
+        write_json({"a": 1}, kept)
+        write_geotiff(new, _pixels(), tuple(_grid().transform)[:6])
+        _block(folder)
+        assert json.loads(kept.read_text()) == {"a": 1} and new.exists() and (folder / "block.json").exists()
+        raise RuntimeError("a later step fails")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "kept.json"]
+    assert kept.read_bytes() == OLD and list(folder.iterdir()) == []
+    with all_or_nothing():  # and one that succeeds keeps its outputs, no copy of the old ones
+        write_json({"a": 2}, kept)
+    assert json.loads(kept.read_text()) == {"a": 2}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "kept.json"]
 
 
 def test_sigterm_during_a_large_ortho_leaves_no_temporary(tmp_path):
@@ -288,7 +313,7 @@ def test_sigterm_during_a_large_ortho_leaves_no_temporary(tmp_path):
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=120)
     assert sorted(q.name for q in tmp_path.iterdir()) == ["o.tif"] and out.read_bytes() == OLD
-    assert p.returncode == 128 + signal.SIGTERM and b"stopped by SIGTERM" in err, err
+    assert p.returncode == 128 + signal.SIGTERM and b"stopped by SIGTERM; nothing written" in err, err
 
 
 def test_stale_temporaries_are_removed_on_the_next_write(tmp_path):
@@ -314,7 +339,7 @@ def test_stale_temporaries_are_removed_on_the_next_write(tmp_path):
 
 def test_main_restores_the_signal_handlers():
     before = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT)}
-    with photax.cli._signals_remove_temporaries(["photax"]):
+    with photax.cli._all_or_nothing(["photax"]):
         assert signal.getsignal(signal.SIGTERM) is not before[signal.SIGTERM]
     assert {s: signal.getsignal(s) for s in before} == before
 

@@ -72,20 +72,22 @@ def _one_line(exc: BaseException) -> str:
 
 
 @contextlib.contextmanager
-def _signals_remove_temporaries(command: list[str]):
-    """While the command runs, SIGTERM, SIGHUP and SIGINT first remove the
-    temporaries being written (:func:`photax.io.atomic.cleanup_temporaries`):
+def _all_or_nothing(command: list[str]):
+    """Run the command all or nothing (:func:`photax.io.atomic.all_or_nothing`:
+    when it fails, the outputs it completed are taken back); SIGTERM, SIGHUP
+    and SIGINT first remove the temporaries being written and take back the
+    outputs (:func:`photax.io.atomic.cleanup_temporaries`):
     SIGINT then raises KeyboardInterrupt as usual, SIGTERM and SIGHUP end the
     process with status 128 + the signal's number.  Only in the main thread
     (where Python runs signal handlers); the previous handlers come back after."""
-    from ..io.atomic import cleanup_temporaries
+    from ..io.atomic import all_or_nothing, cleanup_temporaries
 
     def handler(signum, frame):
         cleanup_temporaries()
         if signum == signal.SIGINT:
             raise KeyboardInterrupt
         name = signal.Signals(signum).name
-        print(f"\n{command[0]}: stopped by {name}; the files being written were removed", file=sys.stderr, flush=True)
+        print(f"\n{command[0]}: stopped by {name}; nothing written", file=sys.stderr, flush=True)
         os._exit(128 + signum)  # now, not after Dask's or GDAL's threads finish
 
     wanted = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n)]
@@ -93,7 +95,8 @@ def _signals_remove_temporaries(command: list[str]):
     if threading.current_thread() is threading.main_thread():
         previous = {s: signal.signal(s, handler) for s in wanted}
     try:
-        yield
+        with all_or_nothing():  # and a command that fails writes nothing
+            yield
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
@@ -115,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     """
     command = ["photax"]  # a list: the signal handler sees the subcommand once it is known
     try:
-        with _signals_remove_temporaries(command):
+        with _all_or_nothing(command):
             args = build_parser().parse_args(argv)
             command[0] = f"photax {args.command}"
             _enable_compilation_cache()

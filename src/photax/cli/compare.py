@@ -12,8 +12,8 @@ the image footprint, prints the table and, with ``--out``, writes
 from __future__ import annotations
 
 import argparse
-import contextlib
 import pathlib
+import shutil
 
 
 def parse_orders(text: str) -> tuple[int, ...]:
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..compare import compare_models
-    from ..io.atomic import atomic_paths, check_output_path
+    from ..io.atomic import atomic_path, atomic_write, check_output_path
     from ..io.gcp import read_gcps
     from ..io.orientation import read_interior
     from ..io.raster import read_dem, read_geotiff
@@ -121,24 +121,24 @@ def run(args: argparse.Namespace) -> int:
             grid = ortho_grid(comparison.exterior, camera, dem, args.resolution)
         rectified, grid = comparison.rectify(shown, names, grid=grid, progress=args.progress and args.command)
         figures["rectified.png"] = comparison.plot_rectified(rectified, grid)
-    # Everything is computed before the first file is written, and the files
-    # are renamed into place together once all are written: a failure (an
-    # error, a full disk, Ctrl-C) leaves the folder as it was.
-    names = ["comparison.md", "comparison.json", *figures]
+    # Everything is computed before the first file is written; a failure
+    # while writing (a full disk) takes back the files written before it
+    # (the command runs all or nothing: photax.io.atomic.all_or_nothing)
+    # and the folder made here.
     created = not out.exists()
     try:
-        with atomic_paths([out / name for name in names], inputs=inputs) as tmps:
-            tmp = dict(zip(names, tmps))
-            tmp["comparison.md"].write_text(comparison.table() + "\n", encoding="utf-8")
-            write_json(comparison.to_dict(), tmp["comparison.json"])
-            for name, fig in figures.items():
-                fig.savefig(tmp[name], format="png", dpi=110)
-                plt.close(fig)
+        out.mkdir(parents=True, exist_ok=True)
+        with atomic_write(out / "comparison.md", inputs=inputs) as fh:
+            fh.write(comparison.table() + "\n")
+        write_json(comparison.to_dict(), out / "comparison.json", inputs=inputs)
+        for name, fig in figures.items():
+            with atomic_path(out / name, inputs=inputs) as tmp:
+                fig.savefig(tmp, format="png", dpi=110)
+            plt.close(fig)
     except BaseException:
         if created:
-            with contextlib.suppress(OSError):
-                out.rmdir()  # the folder this run made, empty again
+            shutil.rmtree(out, ignore_errors=True)
         raise
-    print(f"wrote {', '.join(names)} to {out}")
+    print(f"wrote {', '.join(['comparison.md', 'comparison.json', *figures])} to {out}")
     return 0
 

@@ -22,10 +22,13 @@ from typing import IO, Iterable, Iterator
 # cleanup_temporaries() removes.  A set, not guarded by a lock: add/discard
 # are atomic under the GIL and a signal handler must not wait on a lock.
 _LIVE: set[str] = set()
-# The temporaries' names: tempfile's 8 random characters, and the COG
-# writer's intermediate GeoTIFF (photax.io.lazy).
-_PART = re.compile(r"\..+\.[a-z0-9_]{8}\.part(\.gtiff)?")
+# The temporaries' names: tempfile's 8 random characters; with a suffix, the COG
+# writer's intermediate GeoTIFF (photax.io.lazy), a previous file kept by all_or_nothing().
+_PART = re.compile(r"\..+\.[a-z0-9_]{8}\.part(\.gtiff|\.old)?")
 STALE_AFTER = 24 * 3600  # seconds: a temporary untouched this long is a leftover
+# Outputs renamed into place in the all_or_nothing() block in effect, as
+# (output, the previous file kept as a hard link or None, whether it existed).
+_RUN: list | None = None
 
 
 def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
@@ -135,6 +138,7 @@ def atomic_path(out, inputs: Iterable = (), *, size: int | None = None,
         os.chmod(tmp, (0o777 if folder else 0o666) & ~umask)
         yield tmp
         _fsync(tmp)
+        _keep_previous(out, tmp)
         os.replace(tmp, out)
         _fsync_folder(parent)
     except BaseException as exc:
@@ -157,14 +161,6 @@ def atomic_write(out, mode: str = "w", inputs: Iterable = (), *, size: int | Non
 
 
 @contextlib.contextmanager
-def atomic_paths(outs: Iterable, inputs: Iterable = ()) -> Iterator[list[pathlib.Path]]:
-    """Several outputs written together (:func:`atomic_path` each): all are
-    renamed at the end, after every one was written; none on a failure."""
-    with contextlib.ExitStack() as stack:
-        yield [stack.enter_context(atomic_path(out, inputs)) for out in outs]
-
-
-@contextlib.contextmanager
 def temporary(path) -> Iterator[pathlib.Path]:
     """A further temporary file of a write (e.g. an intermediate copy),
     removed at the end of the block and by :func:`cleanup_temporaries`."""
@@ -177,12 +173,65 @@ def temporary(path) -> Iterator[pathlib.Path]:
         _LIVE.discard(os.path.abspath(path))
 
 
+@contextlib.contextmanager
+def all_or_nothing() -> Iterator[None]:
+    """A run that writes all its outputs or none: when the block raises, the
+    outputs :func:`atomic_path` renamed into place in it are taken back (the
+    previous files restored, new ones removed).  The CLI runs each command
+    in one: a command that fails writes nothing, even after some of its
+    outputs were complete.  The previous files are kept meanwhile as hard
+    links (no copy); where the file system has none, a replaced file stays."""
+    global _RUN
+    outer, _RUN = _RUN, []
+    try:
+        yield
+    except BaseException:
+        _take_back()
+        raise
+    finally:
+        for _, previous, _ in _RUN or ():
+            if previous is not None:
+                _remove(previous)
+                _LIVE.discard(os.path.abspath(previous))
+        _RUN = outer
+
+
+def _keep_previous(out: pathlib.Path, tmp: pathlib.Path) -> None:
+    """In an :func:`all_or_nothing` block: note ``out`` as renamed into place,
+    keeping the file it replaces (a hard link ``TMP.old``)."""
+    if _RUN is None:
+        return
+    previous = None
+    if out.is_file() and not out.is_symlink():
+        with contextlib.suppress(OSError):
+            os.link(out, f"{tmp}.old")
+            previous = f"{tmp}.old"
+            _LIVE.add(os.path.abspath(previous))
+    _RUN.append((out, previous, out.exists()))
+
+
+def _take_back() -> None:
+    """Undo the renames of the :func:`all_or_nothing` block in effect, last first."""
+    while _RUN:
+        out, previous, existed = _RUN.pop()
+        if previous is not None:
+            with contextlib.suppress(OSError):
+                os.replace(previous, out)
+        elif not existed or out.is_dir():  # a new file, or a block written into an empty folder
+            _remove(out)
+            if existed:
+                out.mkdir()
+
+
 def cleanup_temporaries() -> None:
-    """Remove every temporary this process is writing (:func:`atomic_path`).
+    """Remove every temporary this process is writing (:func:`atomic_path`),
+    after taking back the outputs of the :func:`all_or_nothing` block in
+    effect.
 
     For signal handlers (the CLI calls it on SIGTERM, SIGINT and SIGHUP):
-    the outputs being written are then left as they were before the run.
+    the outputs are then left as they were before the run.
     """
+    _take_back()
     for path in list(_LIVE):
         _remove(path)
         _LIVE.discard(path)
