@@ -200,6 +200,22 @@ def test_a_known_size_is_refused_before_writing_with_the_figures(tmpfs):
     assert out.read_bytes() == OLD and sorted(p.name for p in tmpfs.iterdir()) == ["filler", "o.tif"]
 
 
+def test_json_over_the_file_size_limit_is_refused_before_writing(tmp_path):
+    # issue 27: `resect --json` under `ulimit -f` failed with "File too large" and no file name.
+    out = tmp_path / "r.json"
+    out.write_bytes(OLD)
+    data = {"result": list(range(1000))}
+    size = len((json.dumps(data, indent=2) + "\n").encode())
+    code = "import sys; from photax.io import write_json; write_json({'result': list(range(1000))}, sys.argv[1])"
+    p = subprocess.run(_limited(1000, [sys.executable, "-c", code, str(out)]), capture_output=True, text=True,
+                       env=_env(), timeout=120, check=False)
+    assert p.returncode == 1
+    last = p.stderr.strip().splitlines()[-1]
+    assert last.startswith("OSError: [Errno 27] not written (the existing file is kept): file too large: "
+                           f"{size / 1e3:.3g} kB needed, the file size limit (ulimit -f) is 1 kB"), last
+    assert str(out) in last and out.read_bytes() == OLD and sorted(tmp_path.iterdir()) == [out]
+
+
 # -- the command line ----------------------------------------------------------------------------
 
 def test_cli_ortho_onto_a_full_disk_exits_2_and_keeps_the_old_ortho(tmpfs, capsys):
@@ -325,15 +341,16 @@ def test_stale_temporaries_are_removed_on_the_next_write(tmp_path):
     (tmp_path / ".blk.q1w2e3r4.part").mkdir()  # a block folder's
     stale.append(tmp_path / ".blk.q1w2e3r4.part")
     fresh = tmp_path / ".o.json.f5g6h7j8.part"  # another process may be writing it
+    kept = tmp_path / ".o.json.f5g6h7j9.part.old"  # a previous file another run keeps: linked now
     others = [tmp_path / "notes.part", tmp_path / ".o.json.part", tmp_path / "o.json.a1b2c3d4.part"]
-    for f in [*stale[:-1], fresh, *others]:
+    for f in [*stale[:-1], fresh, kept, *others]:
         f.write_text("x")
     old = time.time() - 2 * day
-    for f in [*stale, *others]:
+    for f in [*stale, kept, *others]:
         os.utime(f, (old, old))
     write_json({"a": 1}, tmp_path / "o.json")
-    kept = ["o.json", fresh.name, *(o.name for o in others)]
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(kept)
+    left = ["o.json", fresh.name, kept.name, *(o.name for o in others)]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(left)
     assert json.loads((tmp_path / "o.json").read_text()) == {"a": 1}
 
 

@@ -249,7 +249,9 @@ def remove_stale_temporaries(folder, max_age: float = STALE_AFTER) -> None:
         if not _PART.fullmatch(entry.name) or os.path.abspath(entry.path) in _LIVE:
             continue
         with contextlib.suppress(OSError):
-            if now - entry.stat(follow_symlinks=False).st_mtime > max_age:
+            st = entry.stat(follow_symlinks=False)
+            # a previous file kept as a link (.old) has its old mtime: its ctime is the link's
+            if now - (st.st_ctime if entry.name.endswith(".old") else st.st_mtime) > max_age:
                 _remove(entry.path)
 
 
@@ -264,12 +266,17 @@ def check_space(out, size: int) -> None:
     out = pathlib.Path(out)
     free = _free(out.parent)
     if free is not None and size > free:
-        raise OSError(errno.ENOSPC, f"not written: no space left on device: {_human(size)} needed, "
-                                    f"{_human(free)} free", str(out))
+        raise _not_written(out, errno.ENOSPC, f"{_human(size)} needed, {_human(free)} free")
     limit = _file_size_limit()
     if limit is not None and size > limit:
-        raise OSError(errno.EFBIG, f"not written: file too large: {_human(size)} needed, the file size "
-                                   f"limit (ulimit -f) is {_human(limit)}", str(out))
+        raise _not_written(out, errno.EFBIG, f"{_human(size)} needed, the file size limit (ulimit -f) is "
+                                             f"{_human(limit)}")
+
+
+def _not_written(out: pathlib.Path, no: int, detail: str) -> OSError:
+    """The error of an output not written: ``OUT: not written: CAUSE: DETAIL`` in the CLI."""
+    kept = " (the existing file is kept)" if out.exists() else ""
+    return OSError(no, f"not written{kept}: {_FULL[no]}: {detail}", str(out))
 
 
 def _human(n: int) -> str:
@@ -383,13 +390,9 @@ def _write_failure(out: pathlib.Path, tmp: pathlib.Path, exc: BaseException,
         return None
     _remove(tmp)
     needed = _human(size) if size else f"more than {_human(written)}"
-    limit = _file_size_limit()
+    limit, free = _file_size_limit(), _free(out.parent)
     if no == errno.EFBIG and limit is not None:
-        text = f"file too large: {needed} needed, the file size limit (ulimit -f) is {_human(limit)}"
-    elif no == errno.EIO:
-        text = f"input/output error ({' '.join(str(exc).split())[:200]})"
-    else:
-        free = _free(out.parent)
-        text = f"{_FULL[no]}: {needed} needed, {_human(free) if free is not None else 'unknown'} free"
-    kept = " (the existing file is kept)" if out.exists() else ""
-    return OSError(no, f"not written{kept}: {text}", str(out))
+        return _not_written(out, no, f"{needed} needed, the file size limit (ulimit -f) is {_human(limit)}")
+    if no == errno.EIO:
+        return _not_written(out, no, " ".join(str(exc).split())[:200])
+    return _not_written(out, no, f"{needed} needed, {_human(free) if free is not None else 'unknown'} free")
