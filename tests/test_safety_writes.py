@@ -206,7 +206,7 @@ def test_json_over_the_file_size_limit_is_refused_before_writing(tmp_path):
     out.write_bytes(OLD)
     data = {"result": list(range(1000))}
     size = len((json.dumps(data, indent=2) + "\n").encode())
-    code = "import sys; from photax.io import write_json; write_json({'result': list(range(1000))}, sys.argv[1])"
+    code = f"import sys\nfrom photax.io import write_json\nwrite_json({data!r}, sys.argv[1])"
     p = subprocess.run(_limited(1000, [sys.executable, "-c", code, str(out)]), capture_output=True, text=True,
                        env=_env(), timeout=120, check=False)
     assert p.returncode == 1
