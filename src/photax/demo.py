@@ -22,7 +22,7 @@ from typing import Callable
 import numpy as np
 
 from .camera import FrameCamera
-from .io.atomic import atomic_write
+from .io.atomic import atomic_path, atomic_write
 from .io.camera_file import read_camera, write_camera
 from .io.gcp import GCPTable, read_gcps
 from .io.results import write_json
@@ -107,6 +107,12 @@ def write_sample(out_dir) -> dict[str, pathlib.Path]:
 # --------------------------------------------------------------------------- sections
 
 
+def _savefig(fig, path: pathlib.Path, **kwargs) -> None:
+    """``fig.savefig(path)``, atomically (:mod:`photax.io.atomic`)."""
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format=path.suffix.lstrip("."), **kwargs)
+
+
 def _residual_pixels(residuals, camera: FrameCamera) -> np.ndarray:
     """Image-plane residuals (y up) -> (column, row) pixel residuals."""
     ps = np.asarray(camera.pixel_size)
@@ -135,7 +141,7 @@ def resection_section(out: pathlib.Path) -> str:
     plot.residual_vectors(ax, table.pixel, _residual_pixels(res.residuals, camera), table.names,
                           outliers=res.outliers, check=res.check, image_size=camera.image_size,
                           title=f"{SAMPLE_IMAGE}: residuals after resection")
-    fig.savefig(out / "resection_residuals.png", dpi=110, bbox_inches="tight")
+    _savefig(fig, out / "resection_residuals.png", dpi=110, bbox_inches="tight")
     plt.close(fig)
 
     rows = plot.precision_rows(res, truth)
@@ -178,7 +184,7 @@ def bundle_section(out: pathlib.Path) -> str:
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
     plot.convergence(axes[0], res)
     plot.bundle_residuals(axes[1], res)
-    fig.savefig(out / "bundle.png", dpi=110, bbox_inches="tight")
+    _savefig(fig, out / "bundle.png", dpi=110, bbox_inches="tight")
     plt.close(fig)
     pos_err = np.linalg.norm(np.asarray(res.exterior.position) - np.asarray(truth.exterior.position), axis=1)
     tie = problem.roles == "tie"
@@ -214,7 +220,7 @@ def rectification_section(out: pathlib.Path) -> str:
                "comparison_rectified.png": c.plot_rectified(images, grid, reference=s.ortho,
                                                             reference_transform=s.ortho_transform, ncols=2)}
     for name, fig in figures.items():
-        fig.savefig(out / name, dpi=100)
+        _savefig(fig, out / name, dpi=100)
         plt.close(fig)
     poly = [c[n] for n in c.names if n.startswith("polynomial")]
     best = min(poly, key=lambda m: m.check_rmse)

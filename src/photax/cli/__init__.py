@@ -8,6 +8,7 @@ registers its parser and sets ``func`` to its runner) and a runner
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import signal
@@ -170,6 +171,35 @@ def _not_now(frame) -> bool:
     return False
 
 
+@contextlib.contextmanager
+def _all_or_nothing(command: list[str]):
+    """Run the command all or nothing (:func:`photax.io.atomic.all_or_nothing`:
+    when it fails, the outputs it completed are taken back); SIGTERM, SIGHUP
+    and SIGINT first remove the temporaries being written and take back the
+    outputs (:func:`photax.io.atomic.cleanup_temporaries`):
+    SIGINT then raises KeyboardInterrupt as usual, SIGTERM and SIGHUP end the
+    process with status 128 + the signal's number.  Only in the main thread
+    (where Python runs signal handlers); the previous handlers come back after."""
+    from ..io.atomic import all_or_nothing, cleanup_temporaries
+
+    def handler(signum, frame):
+        cleanup_temporaries()
+        name = signal.Signals(signum).name
+        print(f"\n{command[0]}: stopped by {name}; nothing written", file=sys.stderr, flush=True)
+        os._exit(128 + signum)  # now, not after Dask's or GDAL's threads finish
+
+    wanted = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        previous = {s: signal.signal(s, handler) for s in wanted}
+    try:
+        with all_or_nothing():  # and a command that fails writes nothing
+            yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``photax`` console script.
 
@@ -177,11 +207,16 @@ def main(argv: list[str] | None = None) -> int:
     the adjustment converged); 1 when a run finished but some image was not
     solved or the adjustment did not converge (its outputs are still
     written, with a status); 2 for usage and input errors (one line on
-    stderr, no output written); 130 on Ctrl-C, at any moment (no partial
-    output: every file is written to a temporary name and renamed at the
-    end, and nothing is renamed after a Ctrl-C).  Set ``PHOTAX_TRACEBACK=1``
-    to see the traceback of an unexpected error.
+    stderr, no output written), and for an output that could not be written
+    (a full disk, ``ulimit -f``: the message says what was needed and what is
+    free; the previous file is kept); 130 on Ctrl-C, at any moment, 143 on
+    SIGTERM, 129 on SIGHUP (no partial output: every file is written to a
+    temporary name, synced and renamed at the end; nothing is renamed after a
+    Ctrl-C, and a command that fails takes back the outputs it had finished).
+    Set ``PHOTAX_TRACEBACK=1`` to see the traceback of an unexpected error.
     """
+    from ..io.atomic import cleanup_temporaries
+
     handler, previous = None, None
     if threading.current_thread() is threading.main_thread():
         handler = _CtrlC()
@@ -193,6 +228,8 @@ def main(argv: list[str] | None = None) -> int:
         if handler is not None:
             handler.done = True
             signal.signal(signal.SIGINT, previous)
+    if status == 130:
+        cleanup_temporaries()
     if status == 130 and argv is None:
         # The process ends here: Python's own shutdown, with JAX's threads
         # (a compilation in flight) half-way, crashed it (SIGSEGV) now and then.
@@ -203,20 +240,21 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str] | None) -> int:
-    command = "photax"
+    command = ["photax"]  # a list: the SIGTERM handler sees the subcommand once it is known
 
     def stopped() -> int:
-        print(f"\n{command}: interrupted; nothing written", file=sys.stderr)
+        print(f"\n{command[0]}: interrupted; nothing written", file=sys.stderr)
         return 130
 
     try:
-        parser = build_parser()
-        args, extra = parser.parse_known_args(argv)
-        if extra:  # in the subcommand's words (argparse's own error shows the top-level usage)
-            parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
-        command = f"photax {args.command}"
-        _enable_compilation_cache()
-        status = int(args.func(args) or 0)
+        with _all_or_nothing(command):  # a command that fails writes nothing
+            parser = build_parser()
+            args, extra = parser.parse_known_args(argv)
+            if extra:  # in the subcommand's words (argparse's own error shows the top-level usage)
+                parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+            command[0] = f"photax {args.command}"
+            _enable_compilation_cache()
+            status = int(args.func(args) or 0)
     except KeyboardInterrupt:
         return stopped()
     except (ValueError, OSError) as exc:
@@ -224,7 +262,7 @@ def _main(argv: list[str] | None) -> int:
             return stopped()
         if os.environ.get("PHOTAX_TRACEBACK"):
             raise
-        print(f"{command}: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"{command[0]}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except Exception as exc:  # a bug or a dependency's failure: still one line, no traceback
         if interrupted.is_set():  # e.g. ImportError from a Ctrl-C inside a C extension's start
@@ -232,18 +270,19 @@ def _main(argv: list[str] | None) -> int:
         extra = _EXTRAS.get((getattr(exc, "name", None) or "").partition(".")[0])
         if isinstance(exc, ModuleNotFoundError) and extra:  # a usage error: say what to install
             module = exc.name.partition(".")[0]
-            print(f'{command}: error: needs {module}, in the {extra} extra: pip install "photax[{extra}]"',
+            print(f'{command[0]}: error: needs {module}, in the {extra} extra: pip install "photax[{extra}]"',
                   file=sys.stderr)
             return 2
         if os.environ.get("PHOTAX_TRACEBACK"):
             raise
-        print(f"{command}: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
+        print(f"{command[0]}: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
               "(PHOTAX_TRACEBACK=1 shows where)", file=sys.stderr)
         return 2
     if interrupted.is_set():  # after its last output was written: say so
-        print(f"\n{command}: interrupted as it ended (what it wrote was written before)", file=sys.stderr)
+        print(f"\n{command[0]}: interrupted as it ended (what it wrote was written before)", file=sys.stderr)
         return 130
     return status
+
 
 if __name__ == "__main__":
     sys.exit(main())

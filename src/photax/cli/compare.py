@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import pathlib
+import shutil
 
 
 def parse_orders(text: str) -> tuple[int, ...]:
@@ -123,16 +124,24 @@ def run(args: argparse.Namespace) -> int:
             grid = ortho_grid(comparison.exterior, camera, dem, args.resolution)
         rectified, grid = comparison.rectify(shown, names, grid=grid, progress=args.progress and args.command)
         figures["rectified.png"] = comparison.plot_rectified(rectified, grid)
-    # Everything is computed before the first file is written: an error or
-    # Ctrl-C above leaves the folder as it was.
-    out.mkdir(parents=True, exist_ok=True)
-    with atomic_write(out / "comparison.md", inputs=inputs) as fh:
-        fh.write(comparison.table() + "\n")
-    write_json(comparison.to_dict(), out / "comparison.json", inputs=inputs)
-    for name, fig in figures.items():
-        with atomic_path(out / name, inputs=inputs) as tmp:
-            fig.savefig(tmp, format="png", dpi=110)
-        plt.close(fig)
+    # Everything is computed before the first file is written; a failure
+    # while writing (a full disk) takes back the files written before it
+    # (the command runs all or nothing: photax.io.atomic.all_or_nothing)
+    # and the folder made here.
+    created = not out.exists()
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        with atomic_write(out / "comparison.md", inputs=inputs) as fh:
+            fh.write(comparison.table() + "\n")
+        write_json(comparison.to_dict(), out / "comparison.json", inputs=inputs)
+        for name, fig in figures.items():
+            with atomic_path(out / name, inputs=inputs) as tmp:
+                fig.savefig(tmp, format="png", dpi=110)
+            plt.close(fig)
+    except BaseException:
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
     print(f"wrote {', '.join(['comparison.md', 'comparison.json', *figures])} to {out}")
     return 0
 

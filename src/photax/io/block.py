@@ -312,11 +312,9 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
             ``image_size``, or a non-empty ``folder``.
     """
     import json
-    import shutil
-    import tempfile
 
     from ..bundle import INTRINSICS
-    from .atomic import commit
+    from .atomic import atomic_path
     from .camera_file import write_camera
 
     folder = check_block_output(folder, inputs)
@@ -332,10 +330,7 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
     n_cam = len(p.cameras)
     units = [units] * n_cam if units is None or isinstance(units, str) else list(units)
     cam_names = ["cam"] if n_cam == 1 else [f"cam{j + 1}" for j in range(n_cam)]
-    parent = folder.resolve().parent
-    parent.mkdir(parents=True, exist_ok=True)
-    tmp = pathlib.Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".part", dir=parent))
-    try:
+    with atomic_path(folder.resolve(), folder=True) as tmp:  # renamed onto ``folder`` (empty) at the end
         cameras = {}
         for j, (name, cam) in enumerate(zip(cam_names, p.cameras)):
             if cam.image_size is None:
@@ -359,11 +354,6 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
             f"{_csv_name(p.image_names[i])},{_csv_name(p.point_names[k])},{c!r},{r!r},{s!r}"
             for i, k, (c, r), s in zip(p.obs_image.tolist(), p.obs_point.tolist(), px.tolist(), spx.tolist())]
         (tmp / "observations.csv").write_text("\n".join(rows) + "\n")
-        if folder.exists():
-            folder.rmdir()  # empty (checked above)
-        commit(tmp, folder)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     return folder
 
 

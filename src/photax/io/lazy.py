@@ -30,7 +30,7 @@ import uuid
 
 import numpy as np
 
-from .atomic import atomic_path
+from .atomic import atomic_path, temporary
 
 
 def dataarray(data, grid, fill, name: str):
@@ -76,9 +76,12 @@ class _Writer:
         self._thread.start()
 
     def _run(self):
+        from .raster import gdal_errors
+
         try:
-            while (item := self._queue.get()) is not None:
-                self._write(*item)
+            with gdal_errors():  # a failing write raises, in this thread (close's in the caller's)
+                while (item := self._queue.get()) is not None:
+                    self._write(*item)
         except BaseException as err:  # noqa: BLE001  (kept, raised by put() and close() in the caller's thread)
             self._error = err
 
@@ -146,7 +149,9 @@ def _write_local(data, path, options: dict) -> None:
     import rasterio
     from dask.base import get_scheduler
 
-    with rasterio.open(path, "w", **_profile(data, options)) as ds:
+    from .raster import gdal_errors
+
+    with gdal_errors(), rasterio.open(path, "w", **_profile(data, options)) as ds:
         if isinstance(data.name, str):
             ds.descriptions = (data.name,) * ds.count
         tags = {k: v for k, v in data.attrs.items() if not k.startswith("_") and k != "grid_mapping"}
@@ -222,17 +227,19 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
 
         data.rio.to_raster(target, lock=Lock(f"photax-write-{uuid.uuid4().hex}"), **options)
 
-    with atomic_path(path, inputs=inputs) as tmp, rasterio.Env(GDAL_CACHEMAX=cache):
+    # Uncompressed, the size is known: refused before the work when the disk cannot hold it.
+    size = None if compress or cog else data.size * data.dtype.itemsize
+    with atomic_path(path, inputs=inputs, size=size) as tmp, rasterio.Env(GDAL_CACHEMAX=cache):
         if not cog:
             write(tmp)
         else:
             import rasterio.shutil
 
-            plain = tmp.with_name(tmp.name + ".gtiff")
-            try:
+            from .raster import gdal_errors
+
+            with temporary(tmp.with_name(tmp.name + ".gtiff")) as plain:
                 write(plain)
-                rasterio.shutil.copy(plain, tmp, driver="COG", compress=compress or "deflate", overviews="AUTO")
-            finally:
-                if plain.exists():
-                    plain.unlink()
+                with gdal_errors():
+                    rasterio.shutil.copy(plain, tmp, driver="COG", compress=compress or "deflate",
+                                         overviews="AUTO")
     return path

@@ -8,6 +8,9 @@ GDAL affine ``(a, b, xoff, d, e, yoff)`` at pixel corners
 from __future__ import annotations
 
 import contextlib
+import errno
+import logging
+import os
 import pathlib
 import threading
 import warnings
@@ -16,7 +19,6 @@ import numpy as np
 
 from ..dem import DEM
 from .atomic import atomic_path
-
 
 _WARNINGS_LOCK = threading.Lock()
 
@@ -133,12 +135,84 @@ def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), c
         profile.update(tiled=True, blockxsize=256, blockysize=256)
     if compress:
         profile["compress"] = compress
-    with atomic_path(path, inputs) as tmp, warnings.catch_warnings():
+    with atomic_path(path, inputs, size=None if compress else a.nbytes) as tmp, warnings.catch_warnings():
         if transform is None:
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-        with rasterio.open(tmp, "w", **profile) as dst:
+        with gdal_errors(), rasterio.open(tmp, "w", **profile) as dst:
             dst.write(a)
     return pathlib.Path(path)
+
+
+# rasterio's GDAL error handler (active while a dataset is open) logs each
+# failure, at INFO, to these loggers, and raises only for some of them.
+_GDAL_LOGGERS = ("rasterio._env", "rasterio._err")
+_GDAL_FAILURE = "GDAL signalled an error"
+_CAPTURES: list = []  # the live gdal_errors() captures
+_CAPTURES_LOCK = threading.Lock()
+_LEVELS: dict = {}  # the loggers' own levels, restored when the last capture ends
+
+
+class _Capture(logging.Filter):
+    """A filter on rasterio's loggers keeping the GDAL failures one thread logs;
+    the records only let through to make it see them are dropped after."""
+
+    def __init__(self):
+        super().__init__()
+        self.thread = threading.get_ident()
+        self.messages: list[str] = []
+
+    def filter(self, record):
+        if record.thread == self.thread and record.getMessage().startswith(_GDAL_FAILURE):
+            self.messages.append(" ".join(record.getMessage().split()))
+        return record.levelno >= _LEVELS.get(record.name, (None, logging.WARNING))[1]
+
+
+@contextlib.contextmanager
+def gdal_errors():
+    """Raise the GDAL failures in this thread during the block, even those
+    rasterio lets pass: a GeoTIFF's blocks and directory are written from
+    GDAL's cache when the dataset closes, and a write failing there (a full
+    disk) only printed ``_tiffWriteProc: No space left on device`` and
+    returned, leaving a truncated file.
+
+    Raises:
+        OSError: after the block, when GDAL signalled a failure in it (errno
+            ``ENOSPC``, ``EFBIG``, ``EDQUOT`` when its message says so, else
+            ``EIO``), with GDAL's messages; chained to the exception the
+            block raised, if any.
+    """
+    capture = _Capture()
+    with _CAPTURES_LOCK:
+        if not _CAPTURES:
+            for name in _GDAL_LOGGERS:
+                logger = logging.getLogger(name)
+                _LEVELS[name] = (logger.level, logger.getEffectiveLevel())
+                logger.setLevel(min(logging.INFO, logger.getEffectiveLevel()))
+        _CAPTURES.append(capture)
+        for name in _GDAL_LOGGERS:
+            logging.getLogger(name).addFilter(capture)
+    try:
+        yield
+    except Exception as exc:
+        if capture.messages:
+            raise _gdal_failure(capture.messages) from exc
+        raise
+    finally:
+        with _CAPTURES_LOCK:
+            for name in _GDAL_LOGGERS:
+                logging.getLogger(name).removeFilter(capture)
+            _CAPTURES.remove(capture)
+            if not _CAPTURES:
+                for name in _GDAL_LOGGERS:
+                    logging.getLogger(name).setLevel(_LEVELS.pop(name)[0])
+    if capture.messages:
+        raise _gdal_failure(capture.messages)
+
+
+def _gdal_failure(messages: list[str]) -> OSError:
+    text = "; ".join(dict.fromkeys(m.removeprefix(_GDAL_FAILURE + ": ") for m in messages))
+    no = next((n for n in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT) if os.strerror(n) in text), errno.EIO)
+    return OSError(no, f"GDAL: {text[:300]}")
 
 
 _UNIT_SYMBOLS = {"metre": "m", "meter": "m", "degree": "°", "foot": "ft", "US survey foot": "US survey ft",

@@ -54,10 +54,10 @@ def write_json(obj, path, *, inputs=()) -> pathlib.Path:
     Returns:
         the path written.
     """
-    data = to_jsonable(obj)
-    with atomic_write(path, inputs=inputs, encoding="utf-8") as fh:
-        json.dump(data, fh, indent=2, allow_nan=False)
-        fh.write("\n")
+    text = json.dumps(to_jsonable(obj), indent=2, allow_nan=False) + "\n"
+    data = text.encode("utf-8")  # its size known: refused at once when the disk cannot hold it
+    with atomic_write(path, "wb", inputs=inputs, size=len(data)) as fh:
+        fh.write(data)
     return pathlib.Path(path)
 
 

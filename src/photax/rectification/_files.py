@@ -110,8 +110,8 @@ def rectify_file(
     import rasterio
     from rasterio.windows import Window
 
-    from ..io.atomic import atomic_path
-    from ..io.raster import open_raster
+    from ..io.atomic import atomic_path, check_space
+    from ..io.raster import gdal_errors, open_raster
     from ..resampling import compute_dtype, gather_source
 
     resampling = _check_resampling(resampling)
@@ -121,6 +121,8 @@ def rectify_file(
     if tile < 1:
         raise ValueError(f"tile must be a positive number of pixels, got {tile!r}")
     with open_raster(src_path) as src, atomic_path(dst_path, inputs=(src_path, *inputs)) as tmp:
+        if not compress:  # the size is known: refused before the work when the disk cannot hold it
+            check_space(dst_path, grid.width * grid.height * src.count * np.dtype(src.dtypes[0]).itemsize)
         if nodata is None:
             nodata = src.nodata
         fill = _fill_value(src.dtypes[0], nodata)
@@ -153,7 +155,7 @@ def rectify_file(
             return np.asarray(block)[:, :h, :w], err, n_exact
 
         chunks = (layout[0][0] // layout[1]) * (layout[0][1] // layout[2])
-        with rasterio.open(tmp, "w", **profile) as dst:
+        with gdal_errors(), rasterio.open(tmp, "w", **profile) as dst:
             _run_tiles(one, tiles, progress, "rectify", info, approx, chunks,
                        lambda t, block: dst.write(block, window=Window(t[1], t[0], t[3], t[2])))
     return grid
