@@ -84,7 +84,10 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
         command = f"photax {args.command}"
         _enable_compilation_cache()
-        return int(args.func(args) or 0)
+        from ..io._files import recording_inputs
+
+        with recording_inputs():  # every file read is an input: never an output (photax.io.atomic)
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print(f"\n{command}: interrupted; nothing written", file=sys.stderr)
         return 130

@@ -62,9 +62,9 @@ def _read_named(path, columns: tuple[str, str], what: str) -> tuple[list[str], n
     """``name,a,b`` rows of a CSV with a header naming those columns (file and line in errors)."""
     import numpy as np  # here, not at import: photax --help loads no numpy
 
-    from ..io._files import file_error, read_text
+    from ..io._files import excerpt, file_error, read_text
 
-    text = read_text(path)
+    text = read_text(path, what)
     rows = list(csv.reader(_io.StringIO(text)))
     rows = [r for r in rows if r and any(c.strip() for c in r)]
     if not rows:
@@ -72,7 +72,8 @@ def _read_named(path, columns: tuple[str, str], what: str) -> tuple[list[str], n
     head = [c.strip().lower() for c in rows[0]]
     want = ("name", *columns)
     if not all(c in head for c in want):
-        raise file_error(path, 1, f"expected a header with the columns {', '.join(want)}, got {', '.join(head)}")
+        got = excerpt(", ".join(head), 80) if set(head) & set(want) else "none of them"  # else some other file
+        raise file_error(path, 1, f"expected a header with the columns {', '.join(want)}, got {got}")
     idx = [head.index(c) for c in want]
     names, vals = [], []
     for k, r in enumerate(rows[1:], start=2):

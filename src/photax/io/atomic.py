@@ -8,6 +8,8 @@ import pathlib
 import tempfile
 from typing import IO, Iterable, Iterator
 
+from ._files import inputs_read
+
 
 def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
     try:
@@ -44,7 +46,9 @@ def _same_place(a: pathlib.Path, b: pathlib.Path) -> bool:
 def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
     """Refuse an output path that is one of the inputs; return it as a Path.
 
-    Inputs include their sidecar files (:func:`sidecars`: ``.prj``,
+    Inputs are ``inputs`` and every file the readers opened in this command
+    (:func:`photax.io._files.recording_inputs`: a block's camera files, a CSV's
+    ``.prj``...), each with its sidecar files (:func:`sidecars`: ``.prj``,
     ``.aux.xml``, ``.ovr``, world files, ``.msk``...).  An existing folder
     is refused as an output file.
 
@@ -54,7 +58,7 @@ def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
     out = pathlib.Path(out)
     if out.is_dir():
         raise ValueError(f"refusing to write {out}: it is a folder")
-    for src in inputs:
+    for src in [*inputs, *inputs_read()]:
         if src is None:
             continue
         src = pathlib.Path(src)
@@ -98,3 +102,29 @@ def atomic_write(out, mode: str = "w", inputs: Iterable = (), **open_kwargs) -> 
     """``open()`` for writing, atomically (see :func:`atomic_path`)."""
     with atomic_path(out, inputs) as tmp, open(tmp, mode, **open_kwargs) as fh:
         yield fh
+
+
+# Windows device names: a file called so (with any extension) is the device there.
+_RESERVED = {"CON", "PRN", "AUX", "NUL", *(f"{p}{i}" for p in ("COM", "LPT") for i in range(1, 10))}
+
+
+def output_name(name, what: str = "name") -> str:
+    """``name`` (read from a file: a camera's, an image's) checked as one file
+    name inside an output folder, never a path out of it.
+
+    Raises:
+        ValueError: an empty name, ``.`` or ``..``, a ``/``, ``\\``, NUL or
+            other control character, leading or trailing blanks, a trailing
+            dot, a Windows device name (``CON``, ``NUL``, ``COM1``...), or
+            over 200 bytes.
+    """
+    from ._files import excerpt
+
+    text = str(name)
+    bad = (not text.strip() or text in (".", "..") or any(c in text for c in "/\\") or text != text.strip()
+           or any(ord(c) < 32 or ord(c) == 127 for c in text) or text.endswith(".")
+           or text.split(".")[0].upper() in _RESERVED or len(text.encode("utf-8", "replace")) > 200)
+    if bad:
+        raise ValueError(f"{what} {excerpt(text)} cannot be a file name (no '/', '\\', '..', control "
+                         "characters, device names such as CON or NUL, or empty names); rename it")
+    return text
