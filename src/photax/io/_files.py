@@ -101,12 +101,12 @@ def check_regular(path, what: str = "file", st: os.stat_result | None = None) ->
     return st
 
 
-def _too_large(path, what: str, size: int, limit: int) -> ValueError:
-    def mb(n):
-        return f"{n / MiB:.3g} MiB" if n < GiB else f"{n / GiB:.3g} GiB"
+def _too_large(path, what: str, size: int, limit: int, over: bool = False) -> ValueError:
+    def amount(n):
+        return f"{n} bytes" if n < MiB else f"{n / MiB:.3g} MiB" if n < GiB else f"{n / GiB:.3g} GiB"
 
-    return ValueError(f"{path}: {'over ' if size > limit else ''}{mb(size)}, too large for a {what} "
-                      f"(at most {mb(limit)}); is this the right file?")
+    return ValueError(f"{path}: {'over ' * over}{amount(size)}, too large for a {what} "
+                      f"(at most {amount(limit)}); is this the right file?")
 
 
 def read_bytes(path, what: str = "file") -> bytes:
@@ -140,7 +140,7 @@ def read_bytes(path, what: str = "file") -> bytes:
         except OSError as exc:
             raise ValueError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
     if len(raw) > limit:
-        raise _too_large(path, what, len(raw), limit)
+        raise _too_large(path, what, limit, limit, over=True)
     return raw
 
 

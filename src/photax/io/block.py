@@ -17,7 +17,15 @@ from ..bundle import INTRINSICS, ROLES, BundleProblem
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import check_convention
-from ._files import as_numbers, excerpt, load_json, number, read_text, split_lines, where
+from ._files import (
+    as_numbers,
+    excerpt,
+    load_json,
+    number,
+    read_text,
+    split_lines,
+    where,
+)
 
 
 def read_block(folder) -> BundleProblem:
