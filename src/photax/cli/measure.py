@@ -83,7 +83,7 @@ def read_points(path, image_name: str | None):
     (``table`` is the GCP table, or None for a plain list)."""
     import numpy as np
 
-    from ..io._files import read_text, split_lines
+    from ..io._files import excerpt, read_text, split_lines
     from ..io.gcp import read_gcps
 
     path = pathlib.Path(path)
@@ -101,7 +101,8 @@ def read_points(path, image_name: str | None):
             try:
                 c, r = float(f[1]), float(f[2])
             except ValueError:
-                raise ValueError(f"{path}, line {line}: col and row must be numbers, got {f[1]!r}, {f[2]!r}") from None
+                got = f"{excerpt(f[1])}, {excerpt(f[2])}"
+                raise ValueError(f"{path}, line {line}: col and row must be numbers, got {got}") from None
             if not (math.isfinite(c) and math.isfinite(r)):
                 raise ValueError(f"{path}, line {line}: col and row must be finite")
             names.append(f[0] or f"p{len(names) + 1}")

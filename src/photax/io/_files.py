@@ -1,5 +1,6 @@
-"""What every reader shares: opening a file, decoding it, parsing YAML/JSON,
-and reporting a bad file as one ``ValueError`` line naming the file and line.
+"""What every reader shares: opening a file (regular files of a bounded size,
+recorded as the command's inputs), decoding it, parsing YAML/JSON, and
+reporting a bad file as one ``ValueError`` line naming the file and line.
 
 The contract (``docs/architecture.md``): a reader returns a result or raises
 ``ValueError("<file>, line <n>: <what is wrong>")`` (``"<file>: ..."`` when
