@@ -24,6 +24,7 @@ from photax.io.bal import read_bal_arrays
 from photax.io.block import read_block
 from photax.io.camera_file import read_camera
 from photax.io.gcp import read_gcps
+from photax.io.orientation import read_interior
 from photax.io.orthority import read_orthority_exterior
 from photax.io.raster import open_raster
 from photax.io.results import read_json
@@ -267,3 +268,17 @@ def test_a_camera_file_with_a_typo_quotes_a_short_excerpt(tmp_path):
     with pytest.raises(ValueError, match="pixel_size") as exc:
         read_camera(cam)
     assert len(str(exc.value)) < len(str(cam)) + 300
+
+
+def test_a_yaml_alias_bomb_is_refused_at_once(tmp_path):
+    # 1 kB of nested aliases ("billion laughs"): 9**9 values; read whole, it ran out of time and memory
+    levels = ", ".join(f"&a{i} [" + ",".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, 9))
+    cam = tmp_path / "bomb.yaml"
+    cam.write_text(f"focal_length: 1\nunit: mm\ndescription: [&a0 [1,1,1,1,1,1,1,1,1], {levels}]\n"
+                   "pixel_size: *a8\n")
+    assert cam.stat().st_size < 1000
+    with pytest.raises(ValueError, match=r"line 3: not valid YAML: its aliases expand to over 100000 values"):
+        read_interior(cam)
+    cam.write_text("focal_length: &f 8.8\nunit: mm\nprincipal_point: &pp [0.1, 0.2]\n"
+                   "name: *f\ndescription: *pp\n")  # a few aliases are fine
+    assert read_camera(cam).focal_length == 8.8

@@ -237,9 +237,42 @@ class Mapping(dict):
         return self.lines.get(key)
 
 
+#: Values a YAML file may expand to through its aliases (``*name``): a kilobyte of
+#: nested aliases ("billion laughs") otherwise expands to billions.
+MAX_YAML_ALIAS_VALUES = 100_000
+
+
 class _Loader(yaml.SafeLoader):
     """SafeLoader that rejects duplicate keys (the second silently won) and
-    records each key's line."""
+    aliases expanding to over :data:`MAX_YAML_ALIAS_VALUES` values, and records
+    each key's line."""
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._sizes: dict[int, int] = {}
+        self._expanded = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            node = self.anchors.get(event.anchor)
+            if node is not None:
+                self._expanded += self._size(node)
+                if self._expanded > MAX_YAML_ALIAS_VALUES:
+                    raise yaml.composer.ComposerError(
+                        None, None, f"its aliases expand to over {MAX_YAML_ALIAS_VALUES} values", event.start_mark
+                    )
+        return super().compose_node(parent, index)
+
+    def _size(self, node) -> int:
+        """Values in ``node``, aliases expanded (memoised: each anchor is counted once)."""
+        if id(node) not in self._sizes:
+            self._sizes[id(node)] = 1  # an alias to an ancestor counts once
+            if isinstance(node, yaml.SequenceNode):
+                self._sizes[id(node)] = 1 + sum(self._size(v) for v in node.value)
+            elif isinstance(node, yaml.MappingNode):
+                self._sizes[id(node)] = 1 + sum(self._size(k) + self._size(v) for k, v in node.value)
+        return self._sizes[id(node)]
 
     def construct_mapping(self, node, deep=False):
         if not isinstance(node, yaml.MappingNode):

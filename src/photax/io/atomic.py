@@ -8,7 +8,7 @@ import pathlib
 import tempfile
 from typing import IO, Iterable, Iterator
 
-from ._files import inputs_read
+from ._files import excerpt, inputs_read
 
 
 def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
@@ -118,8 +118,6 @@ def output_name(name, what: str = "name") -> str:
             dot, a Windows device name (``CON``, ``NUL``, ``COM1``...), or
             over 200 bytes.
     """
-    from ._files import excerpt
-
     text = str(name)
     bad = (not text.strip() or text in (".", "..") or any(c in text for c in "/\\") or text != text.strip()
            or any(ord(c) < 32 or ord(c) == 127 for c in text) or text.endswith(".")
