@@ -132,6 +132,7 @@ def alarm():
     signal.signal(signal.SIGALRM, old)
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="no FIFOs here")
 @pytest.mark.parametrize("what", sorted(READERS))
 def test_readers_refuse_fifos_and_devices(tmp_path, alarm, what):
     fifo = tmp_path / "pipe"
@@ -145,6 +146,7 @@ def test_readers_refuse_fifos_and_devices(tmp_path, alarm, what):
         READERS[what](tmp_path)
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo") or not os.path.exists("/dev/zero"), reason="no FIFOs, devices")
 @pytest.mark.parametrize("argv, what", [
     (["resect", str(GCPS), "--camera", "{}"], "camera file"),
     (["resect", "{}", "--camera", str(CAMERA)], "GCP file"),
@@ -162,11 +164,20 @@ def test_cli_refuses_a_fifo_or_device_at_once(tmp_path, capsys, alarm, argv, wha
         assert f"{what} {special}: " in err and "not a regular file" in err
 
 
-def test_block_camera_file_dev_zero(tmp_path, capsys, alarm):
+@pytest.mark.skipif(not os.path.exists("/dev/zero"), reason="no /dev/zero")
+def test_block_files_dev_zero(tmp_path, capsys, alarm):
     block = _block(tmp_path, {"cam": {"file": "/dev/zero"}})
     assert main(["bundle", str(block), "--quiet"]) == 2
     err = _error(capsys, "bundle")
     assert "/dev/zero: a character device, not a regular file; expected a camera file" in err
+    for name in ("block.json", "points.csv"):  # a block folder's own files, linked to a device
+        saved = (block / name).read_bytes()
+        (block / name).unlink()
+        (block / name).symlink_to("/dev/zero")
+        assert main(["bundle", str(block), "--quiet"]) == 2
+        assert f"{name}: a character device, not a regular file" in _error(capsys, "bundle")
+        (block / name).unlink()
+        (block / name).write_bytes(saved)
 
 
 def test_size_limits(tmp_path, monkeypatch):
