@@ -106,7 +106,7 @@ def test_output_name():
     for good in ("cam", "cam.1", "Kamera ä", "a..b", "CONSOLE", "com10"):
         assert output_name(good) == good
     for bad in ("a/b", "/etc/passwd", "..", ".", "", "   ", "a\\b", "x\x00", "tab\tx", "aux", "Nul.yaml",
-                "COM3", "end.", "x" * 201):
+                "COM3", "con .txt", "end.", "x" * 201):
         with pytest.raises(ValueError, match="cannot be a file name"):
             output_name(bad, "camera")
 

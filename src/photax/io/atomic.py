@@ -121,7 +121,7 @@ def output_name(name, what: str = "name") -> str:
     text = str(name)
     bad = (not text.strip() or text in (".", "..") or any(c in text for c in "/\\") or text != text.strip()
            or any(ord(c) < 32 or ord(c) == 127 for c in text) or text.endswith(".")
-           or text.split(".")[0].upper() in _RESERVED or len(text.encode("utf-8", "replace")) > 200)
+           or text.split(".")[0].strip().upper() in _RESERVED or len(text.encode("utf-8", "replace")) > 200)
     if bad:
         raise ValueError(f"{what} {excerpt(text)} cannot be a file name (no '/', '\\', '..', control "
                          "characters, device names such as CON or NUL, or empty names); rename it")
