@@ -24,6 +24,12 @@ def input_file(path, what: str) -> pathlib.Path:
         raise ValueError(f"{what} {p}: no such file")
     if p.is_dir():
         raise ValueError(f"{what} {p}: is a folder, expected a file")
+    from ..io._files import check_regular
+
+    try:
+        check_regular(p, what)  # a FIFO would block the open() below, a device never end
+    except ValueError as exc:
+        raise ValueError(f"{what} {exc}") from None
     try:
         with open(p, "rb"):
             pass

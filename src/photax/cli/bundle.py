@@ -57,9 +57,10 @@ def run(args: argparse.Namespace) -> int:
         inputs = [path, *(input_file(path / n, "block file") for n in ("block.json", "points.csv", "observations.csv"))]
     else:
         inputs = [input_file(path, "BAL file")]
-    if args.out:
-        check_output_path(args.out, inputs)  # fail before the work, not after
     problem = read_block(path) if fmt == "block" else read_bal(path)
+    # After reading (the inputs now include the camera files block.json names), before the work:
+    if args.out:
+        check_output_path(args.out, inputs)
     cameras_out = _camera_outputs(args.camera_out, fmt, path, problem, inputs) if args.camera_out else []
     gauge = {"auto": "damped" if fmt == "bal" else None, "none": None}.get(args.gauge, args.gauge)
     n_ctrl, n_chk = int((problem.roles == "control").sum()), int((problem.roles == "check").sum())
@@ -88,23 +89,26 @@ def run(args: argparse.Namespace) -> int:
 def _camera_outputs(out, fmt: str, folder: pathlib.Path, problem, inputs: list) -> list:
     """``[(camera index, path, unit)]`` for ``--camera-out``: the block's
     self-calibrated cameras, checked before the work (a BAL file, no free
-    intrinsics, a path that is an input: ValueError)."""
-    import json
-
-    from ..io.atomic import check_output_path
+    intrinsics, a camera name that is no file name, a path that is an input: ValueError).
+    The camera files read are inputs already (recorded by the readers)."""
+    from ..io._files import load_json, read_text
+    from ..io.atomic import check_output_path, output_name
     from ..io.orientation import read_camera_unit
 
     if fmt != "block":
         raise ValueError("--camera-out needs a block folder (a BAL file's cameras are not photax cameras)")
-    meta = json.loads((folder / "block.json").read_text())["cameras"]  # read_block keeps this order
+    meta_path = folder / "block.json"
+    meta = load_json(meta_path, read_text(meta_path, "block file"))["cameras"]  # read_block keeps this order
     names = list(meta)
     free = [j for j in range(len(names)) if problem.free_intrinsics[j].any()]
     if not free:
         raise ValueError("--camera-out: no camera of the block is self-calibrated (give it 'free' in block.json)")
-    files = [folder / meta[names[j]]["file"] for j in free if "file" in meta[names[j]]]
-    inputs.extend(files)  # a camera file read is an input too: never overwritten
     out = pathlib.Path(out)
-    paths = [out] if len(free) == 1 else [out / f"{names[j]}.yaml" for j in free]
+    # a name from block.json becomes a file name in OUT, never a path out of it
+    paths = [out] if len(free) == 1 else [out / f"{output_name(names[j], 'camera')}.yaml" for j in free]
+    folded = [p.name.lower() for p in paths]
+    if len(set(folded)) < len(folded):  # one file on a case-insensitive disk (macOS, Windows)
+        raise ValueError("--camera-out: two self-calibrated cameras have the same name up to case")
     if len(free) > 1 and out.exists() and not out.is_dir():
         raise ValueError(f"--camera-out: {len(free)} self-calibrated cameras need a folder, {out} is a file")
     if len(free) == 1 and out.suffix.lower() not in (".yaml", ".yml", ".json"):

@@ -4,8 +4,9 @@ Every reader keeps one contract: it returns a sane result (finite numbers,
 positive focal lengths, pixel and image sizes, unique names where names must
 be unique) or raises ``ValueError("<file>, line <n>: <what is wrong>")``
 (``"<file>: ..."`` where no line applies, e.g. a missing key in JSON); a
-folder or an unreadable file is a ``ValueError`` naming the path, a missing
-file a ``FileNotFoundError``.  The shared pieces (opening, decoding, strict
+folder, a FIFO or device, a file over its size limit or an unreadable file is
+a ``ValueError`` naming the path, a missing file a ``FileNotFoundError``; no
+content of a file that is not of the reader's format is quoted.  The shared pieces (opening, decoding, strict
 YAML/JSON with key lines) are in :mod:`photax.io._files`;
 ``tests/test_fuzz_readers.py`` holds every reader to the contract.
 """

@@ -1,5 +1,6 @@
-"""What every reader shares: opening a file, decoding it, parsing YAML/JSON,
-and reporting a bad file as one ``ValueError`` line naming the file and line.
+"""What every reader shares: opening a file (regular files of a bounded size,
+recorded as the command's inputs), decoding it, parsing YAML/JSON, and
+reporting a bad file as one ``ValueError`` line naming the file and line.
 
 The contract (``docs/architecture.md``): a reader returns a result or raises
 ``ValueError("<file>, line <n>: <what is wrong>")`` (``"<file>: ..."`` when
@@ -10,9 +11,14 @@ fuzz tests (``tests/test_fuzz_readers.py``) hold every reader to it.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import json
 import math
+import os
 import pathlib
+import re
+import stat
 
 import numpy as np
 import yaml
@@ -28,23 +34,136 @@ def file_error(path, line: int | None, message: str) -> ValueError:
     return ValueError(f"{where(path, line)}: {' '.join(str(message).split())}")
 
 
-def read_bytes(path, what: str = "file") -> bytes:
-    """The bytes of ``path``.
+# --- Opening: regular files of a sane size, recorded as inputs -----------------------
+
+#: The largest file each reader reads, by the ``what`` it names the file with
+#: (``docs/architecture.md``).  Small files are configuration (a camera, a CRS);
+#: tables (GCPs, orientations, blocks, results) may be large; BAL files larger.
+MiB, GiB = 1 << 20, 1 << 30
+MAX_BYTES = {"camera file": MiB, "orthority interior file": MiB, ".prj file": MiB, "fiducial file": MiB,
+             "BAL file": 4 * GiB}
+MAX_BYTES_DEFAULT = GiB
+
+_INPUTS: contextvars.ContextVar[set | None] = contextvars.ContextVar("photax_inputs", default=None)
+
+
+@contextlib.contextmanager
+def recording_inputs():
+    """Record, while open, every file the readers open (:func:`read_bytes`,
+    :func:`photax.io.raster.open_raster`): one command's set of inputs, which
+    :func:`photax.io.atomic.check_output_path` refuses to write over.  The CLI
+    opens one per command; yields the set of paths."""
+    token = _INPUTS.set(set())
+    try:
+        yield _INPUTS.get()
+    finally:
+        _INPUTS.reset(token)
+
+
+def note_input(path) -> None:
+    """Add ``path`` to the inputs being recorded (nothing when none are)."""
+    seen = _INPUTS.get()
+    if seen is not None:
+        seen.add(pathlib.Path(path).absolute())
+
+
+def inputs_read() -> tuple[pathlib.Path, ...]:
+    """The inputs recorded so far (empty outside :func:`recording_inputs`)."""
+    return tuple(_INPUTS.get() or ())
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def check_regular(path, what: str = "file", st: os.stat_result | None = None) -> os.stat_result:
+    """``os.stat(path)`` after checking ``path`` is a regular file (symbolic links followed).
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: ``path`` is a folder, or cannot be read (permissions,
-            I/O error), naming ``path``.
+        ValueError: a folder, a device, a FIFO or a socket, naming ``path``.
     """
     path = pathlib.Path(path)
-    if path.is_dir():
+    if st is None:
+        try:
+            st = path.stat()
+        except FileNotFoundError:
+            raise FileNotFoundError(f"{path}: no such {what}") from None
+        except OSError as exc:
+            raise ValueError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    if stat.S_ISDIR(st.st_mode):
         raise ValueError(f"{path}: is a folder, expected a {what}")
+    if not stat.S_ISREG(st.st_mode):
+        raise ValueError(f"{path}: {_kind(st.st_mode)}, not a regular file; expected a {what}")
+    return st
+
+
+def _too_large(path, what: str, size: int, limit: int, over: bool = False) -> ValueError:
+    def amount(n):
+        return f"{n} bytes" if n < MiB else f"{n / MiB:.3g} MiB" if n < GiB else f"{n / GiB:.3g} GiB"
+
+    return ValueError(f"{path}: {'over ' * over}{amount(size)}, too large for a {what} "
+                      f"(at most {amount(limit)}); is this the right file?")
+
+
+def read_bytes(path, what: str = "file") -> bytes:
+    """The bytes of ``path``: a regular file of at most ``MAX_BYTES[what]``.
+
+    The file is recorded as an input (:func:`recording_inputs`).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: ``path`` is a folder, a device, a FIFO or a socket, is
+            larger than the limit, or cannot be read (permissions, I/O
+            error), naming ``path``.
+    """
+    path = pathlib.Path(path)
+    limit = MAX_BYTES.get(what, MAX_BYTES_DEFAULT)
+    note_input(path)
+    check_regular(path, what)  # before opening: opening a FIFO would block, a device may act
     try:
-        return path.read_bytes()
+        # O_NONBLOCK: should the path have become a FIFO since the check, open() returns at once
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_BINARY", 0))
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: no such {what}") from None
     except OSError as exc:  # PermissionError, EIO, ...
         raise ValueError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    with open(fd, "rb", closefd=True) as fh:
+        st = check_regular(path, what, os.fstat(fd))
+        if st.st_size > limit:
+            raise _too_large(path, what, st.st_size, limit)
+        try:
+            raw = fh.read(limit + 1)  # a file growing while read is still bounded
+        except OSError as exc:
+            raise ValueError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+    if len(raw) > limit:
+        raise _too_large(path, what, limit, limit, over=True)
+    return raw
+
+
+def excerpt(value, n: int = 40) -> str:
+    """A short printable quotation of ``value`` for an error message: ``repr``
+    of its text with control and other unprintable characters escaped, cut
+    after ``n`` characters (``'abc…'``).  Quote file content only through this,
+    and only from a file that is of the expected format."""
+    if not isinstance(value, str):  # a number, a list: its repr (which escapes what it quotes), cut
+        text = repr(value)
+        return text if len(text) <= n else text[:n] + "…"
+    body = repr(value[:n])
+    return body if len(value) <= n else body[:-1] + "…" + body[-1]
+
+
+# Parser messages quote the text they stopped at; of a file that did not parse
+# only a character or a token name (``'\t'``, ``'<scalar>'``) is kept.
+_QUOTED = re.compile(r"(['\"])(?!<)[^'\"]{5,}\1")
+
+
+def _parser_problem(text) -> str:
+    return _QUOTED.sub("(...)", " ".join(str(text).split()))
 
 
 def decode(path, raw: bytes) -> str:
@@ -96,9 +215,9 @@ def number(path, line: int | None, text, what: str) -> float:
     try:
         value = float(text)
     except (TypeError, ValueError, OverflowError):
-        raise file_error(path, line, f"{what} is not a number: {str(text)!r}") from None
+        raise file_error(path, line, f"{what} is not a number: {excerpt(str(text))}") from None
     if not math.isfinite(value):
-        raise file_error(path, line, f"{what} is not finite: {str(text)!r}")
+        raise file_error(path, line, f"{what} is not finite: {excerpt(str(text))}")
     return value
 
 
@@ -118,9 +237,42 @@ class Mapping(dict):
         return self.lines.get(key)
 
 
+#: Values a YAML file may expand to through its aliases (``*name``): a kilobyte of
+#: nested aliases ("billion laughs") otherwise expands to billions.
+MAX_YAML_ALIAS_VALUES = 100_000
+
+
 class _Loader(yaml.SafeLoader):
     """SafeLoader that rejects duplicate keys (the second silently won) and
-    records each key's line."""
+    aliases expanding to over :data:`MAX_YAML_ALIAS_VALUES` values, and records
+    each key's line."""
+
+    def __init__(self, stream):
+        super().__init__(stream)
+        self._sizes: dict[int, int] = {}
+        self._expanded = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            node = self.anchors.get(event.anchor)
+            if node is not None:
+                self._expanded += self._size(node)
+                if self._expanded > MAX_YAML_ALIAS_VALUES:
+                    raise yaml.composer.ComposerError(
+                        None, None, f"its aliases expand to over {MAX_YAML_ALIAS_VALUES} values", event.start_mark
+                    )
+        return super().compose_node(parent, index)
+
+    def _size(self, node) -> int:
+        """Values in ``node``, aliases expanded (memoised: each anchor is counted once)."""
+        if id(node) not in self._sizes:
+            self._sizes[id(node)] = 1  # an alias to an ancestor counts once
+            if isinstance(node, yaml.SequenceNode):
+                self._sizes[id(node)] = 1 + sum(self._size(v) for v in node.value)
+            elif isinstance(node, yaml.MappingNode):
+                self._sizes[id(node)] = 1 + sum(self._size(k) + self._size(v) for k, v in node.value)
+        return self._sizes[id(node)]
 
     def construct_mapping(self, node, deep=False):
         if not isinstance(node, yaml.MappingNode):
@@ -137,7 +289,7 @@ class _Loader(yaml.SafeLoader):
                 ) from None
             if key in out:
                 raise yaml.constructor.ConstructorError(
-                    None, None, f"duplicate key {key!r} (first on line {lines[key]})", key_node.start_mark
+                    None, None, f"a key given twice (first on line {lines[key]})", key_node.start_mark
                 )
             out[key] = self.construct_object(value_node, deep=deep)
             lines[key] = key_node.start_mark.line + 1
@@ -157,12 +309,13 @@ def load_yaml(path, text: str):
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line = None if mark is None else mark.line + 1
-        raise file_error(path, line, f"not valid YAML: {exc.problem or exc.context}") from None
+        problem = _parser_problem(exc.problem or exc.context)
+        raise file_error(path, line, f"not valid YAML: {problem}") from None
     except yaml.reader.ReaderError as exc:
         line = text.count("\n", 0, max(exc.position, 0)) + 1
         raise file_error(path, line, f"not valid YAML: {exc.reason} character {exc.character!r}") from None
     except yaml.YAMLError as exc:
-        raise file_error(path, None, f"not valid YAML: {exc}") from None
+        raise file_error(path, None, f"not valid YAML: {_parser_problem(exc)}") from None
     except RecursionError:
         raise file_error(path, None, "not valid YAML: nested too deeply") from None
     except (ValueError, OverflowError) as exc:  # a scalar constructor gave up
@@ -195,7 +348,7 @@ def load_json(path, text: str):
         out = {}
         for key, value in items:
             if key in out:
-                raise _Bad(f"duplicate key {key!r}", json.dumps(key))
+                raise _Bad("a key given twice", json.dumps(key))
             out[key] = value
         return Mapping(out)
 

@@ -19,6 +19,8 @@ import threading
 import time
 from typing import IO, Iterable, Iterator
 
+from ._files import excerpt, inputs_read
+
 # Temporaries being written by this process (absolute paths): what
 # cleanup_temporaries() removes.  A set, not guarded by a lock: add/discard
 # are atomic under the GIL and a signal handler must not wait on a lock.
@@ -80,7 +82,9 @@ def _same_place(a: pathlib.Path, b: pathlib.Path) -> bool:
 def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
     """Refuse an output path that is one of the inputs; return it as a Path.
 
-    Inputs include their sidecar files (:func:`sidecars`: ``.prj``,
+    Inputs are ``inputs`` and every file the readers opened in this command
+    (:func:`photax.io._files.recording_inputs`: a block's camera files, a CSV's
+    ``.prj``...), each with its sidecar files (:func:`sidecars`: ``.prj``,
     ``.aux.xml``, ``.ovr``, world files, ``.msk``...).  An existing folder
     is refused as an output file.
 
@@ -90,7 +94,7 @@ def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
     out = pathlib.Path(out)
     if out.is_dir():
         raise ValueError(f"refusing to write {out}: it is a folder")
-    for src in inputs:
+    for src in [*inputs, *inputs_read()]:
         if src is None:
             continue
         src = pathlib.Path(src)
@@ -410,3 +414,27 @@ def _write_failure(out: pathlib.Path, tmp: pathlib.Path, exc: BaseException,
     if no == errno.EIO:
         return _not_written(out, no, " ".join(str(exc).split())[:200])
     return _not_written(out, no, f"{needed} needed, {_human(free) if free is not None else 'unknown'} free")
+
+
+# Windows device names: a file called so (with any extension) is the device there.
+_RESERVED = {"CON", "PRN", "AUX", "NUL", *(f"{p}{i}" for p in ("COM", "LPT") for i in range(1, 10))}
+
+
+def output_name(name, what: str = "name") -> str:
+    """``name`` (read from a file: a camera's, an image's) checked as one file
+    name inside an output folder, never a path out of it.
+
+    Raises:
+        ValueError: an empty name, ``.`` or ``..``, a ``/``, ``\\``, NUL or
+            other control character, leading or trailing blanks, a trailing
+            dot, a Windows device name (``CON``, ``NUL``, ``COM1``...), or
+            over 200 bytes.
+    """
+    text = str(name)
+    bad = (not text.strip() or text in (".", "..") or any(c in text for c in "/\\") or text != text.strip()
+           or any(ord(c) < 32 or ord(c) == 127 for c in text) or text.endswith(".")
+           or text.split(".")[0].strip().upper() in _RESERVED or len(text.encode("utf-8", "replace")) > 200)
+    if bad:
+        raise ValueError(f"{what} {excerpt(text)} cannot be a file name (no '/', '\\', '..', control "
+                         "characters, device names such as CON or NUL, or empty names); rename it")
+    return text

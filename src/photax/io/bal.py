@@ -38,7 +38,7 @@ from ..bundle import BundleProblem, BundleResult
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import angles_from_matrix, axis_angle_to_matrix, matrix_to_axis_angle
-from ._files import read_bytes, where
+from ._files import MAX_BYTES, excerpt, read_bytes, where
 from .atomic import atomic_write
 
 
@@ -63,13 +63,30 @@ class BALData:
     observations: np.ndarray
 
 
+class _TooLarge(Exception):
+    """The decompressed BAL file passed ``MAX_BYTES["BAL file"]``."""
+
+
 def _read_bytes(path: pathlib.Path) -> bytes:
     raw = read_bytes(path, "BAL file")
     if path.suffix == ".bz2":
+        limit, out, size = MAX_BYTES["BAL file"], [], 0
         try:
-            return bz2.decompress(raw)
+            while raw:  # stream after stream, as bz2.decompress, but never past the limit (a bzip2 bomb)
+                unpack = bz2.BZ2Decompressor()
+                out.append(unpack.decompress(raw, max_length=limit + 1 - size))
+                size += len(out[-1])
+                if size > limit or not unpack.eof and not unpack.needs_input:
+                    raise _TooLarge
+                if not unpack.eof:
+                    raise EOFError("Compressed file ended before the end-of-stream marker was reached")
+                raw = unpack.unused_data
+        except _TooLarge:
+            raise ValueError(f"{path}: decompresses to over {limit / 2**30:.3g} GiB, "
+                             "too large for a BAL file") from None
         except (OSError, ValueError, EOFError) as exc:
             raise ValueError(f"{path}: not a readable bzip2 file ({exc})") from None
+        return b"".join(out)
     return raw
 
 
@@ -100,7 +117,8 @@ def _floats(tokens: list[bytes], lines: np.ndarray, path, what: str) -> np.ndarr
         except ValueError:
             ok = False
         if not ok:
-            raise ValueError(f"{where(path, line)}: {what}: {tok.decode(errors='replace')!r} is not a finite number")
+            shown = excerpt(tok.decode(errors="replace"))
+            raise ValueError(f"{where(path, line)}: {what}: {shown} is not a finite number")
     raise AssertionError("unreachable")
 
 
@@ -127,10 +145,10 @@ def read_bal_arrays(path) -> BALData:
     head = tokens[: int(per_line[lines[0]])]
     try:
         m, n, k = (int(v) for v in head)
-    except ValueError:
-        shown = b" ".join(head).decode(errors="replace")
+    except ValueError:  # not a BAL file: none of its content is quoted
         raise ValueError(
-            f"{where(path, lines[0])}: expected a BAL header 'n_cameras n_points n_observations', got {shown!r}"
+            f"{where(path, lines[0])}: not a BAL file (a header 'n_cameras n_points n_observations' of three "
+            "whole numbers expected)"
         ) from None
     if min(m, n, k) < 1:
         raise ValueError(f"{where(path, lines[0])}: header counts must be positive, got {m} {n} {k}")

@@ -17,7 +17,15 @@ from ..bundle import INTRINSICS, ROLES, BundleProblem
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import check_convention
-from ._files import as_numbers, load_json, number, read_text, split_lines, where
+from ._files import (
+    as_numbers,
+    excerpt,
+    load_json,
+    number,
+    read_text,
+    split_lines,
+    where,
+)
 
 
 def read_block(folder) -> BundleProblem:
@@ -72,7 +80,7 @@ def read_block(folder) -> BundleProblem:
         raise meta_file.bad(str(exc)) from None
     unit = meta.get("angle_unit", "degrees")
     if unit not in ("degrees", "radians"):
-        raise meta_file.bad(f"angle_unit must be 'degrees' or 'radians', got {unit!r}")
+        raise meta_file.bad(f"angle_unit must be 'degrees' or 'radians', got {excerpt(unit)}")
     cameras, images = meta.get("cameras"), meta.get("images")
     if not isinstance(cameras, dict) or not cameras or not isinstance(images, list) or not images:
         raise meta_file.bad("needs a non-empty object 'cameras' and a non-empty list 'images'")
@@ -105,7 +113,8 @@ class _Meta:
     def vector(self, where_, value, n, what):
         v = as_numbers(value)
         if v is None or v.shape != ((n,) if n else ()) or not np.all(np.isfinite(v)):
-            raise self.bad(f"{where_}: {what} must be {n or 1} finite number{'s' if n > 1 else ''}, got {value!r}")
+            raise self.bad(f"{where_}: {what} must be {n or 1} finite number{'s' if n > 1 else ''}, "
+                           f"got {excerpt(value)}")
         return v
 
 
@@ -113,7 +122,7 @@ def _read_cameras(meta: _Meta, cameras: dict) -> tuple[list[FrameCamera], np.nda
     """``block.json``'s cameras and their free intrinsics ``(n_cameras, 8)``."""
     cams, free = [], np.zeros((len(cameras), 8), dtype=bool)
     for j, name in enumerate(cameras):
-        c, at = cameras[name], f"camera {name!r}"
+        c, at = cameras[name], f"camera {excerpt(name)}"
         if isinstance(c, dict) and "file" in c:
             cams.append(_camera_file(meta, at, c))
             free[j] = _free(meta, at, c)
@@ -122,12 +131,12 @@ def _read_cameras(meta: _Meta, cameras: dict) -> tuple[list[FrameCamera], np.nda
             raise meta.bad(f"{at}: needs focal_length_px and image_size")
         unknown = sorted(set(c) - {"focal_length_px", "image_size", "principal_point_px", "distortion", "free"})
         if unknown:
-            raise meta.bad(f"{at}: unknown key {unknown[0]!r}")
+            raise meta.bad(f"{at}: unknown key {excerpt(unknown[0])}")
         f = float(meta.vector(at, c["focal_length_px"], 0, "focal_length_px"))
         size = meta.vector(at, c["image_size"], 2, "image_size")
         if not f > 0 or np.any(size < 1) or np.any(size != np.round(size)) or np.any(size > 2**31 - 1):
             raise meta.bad(f"{at}: focal_length_px must be positive and image_size whole pixels >= 1, "
-                           f"got {c['focal_length_px']!r} and {c['image_size']!r}")
+                           f"got {excerpt(c['focal_length_px'])} and {excerpt(c['image_size'])}")
         pp = c.get("principal_point_px")
         pp = None if pp is None else tuple(meta.vector(at, pp, 2, "principal_point_px"))
         dist = c.get("distortion")
@@ -141,7 +150,7 @@ def _free(meta: _Meta, at: str, c: dict) -> np.ndarray:
     """``(8,)`` the camera entry's free intrinsics."""
     names_free = c.get("free", [])
     if not isinstance(names_free, list) or not all(isinstance(n, str) for n in names_free):
-        raise meta.bad(f"{at}: free must be a list of names from {INTRINSICS}, got {names_free!r}")
+        raise meta.bad(f"{at}: free must be a list of names from {INTRINSICS}, got {excerpt(names_free)}")
     unknown = set(names_free) - set(INTRINSICS)
     if unknown:
         raise meta.bad(f"{at}: unknown free parameters {sorted(unknown)}; use {INTRINSICS}")
@@ -156,9 +165,10 @@ def _camera_file(meta: _Meta, at: str, c: dict) -> FrameCamera:
 
     unknown = sorted(set(c) - {"file", "free"})
     if unknown:
-        raise meta.bad(f"{at}: unknown key {unknown[0]!r} (a camera given by file has only file and free)")
+        raise meta.bad(f"{at}: unknown key {excerpt(unknown[0])} "
+                       "(a camera given by file has only file and free)")
     if not isinstance(c["file"], str) or not c["file"].strip():
-        raise meta.bad(f"{at}: file must be the path of a camera file, got {c['file']!r}")
+        raise meta.bad(f"{at}: file must be the path of a camera file, got {excerpt(c['file'])}")
     cam = read_camera(meta.path.parent / c["file"])
     if cam.image_size is None or cam.pixel_size is None:
         raise meta.bad(f"{at}: the camera file {c['file']} needs image_size and a pixel size (pixels are observed)")
@@ -174,10 +184,10 @@ def _read_images(meta: _Meta, images: list, cam_names: list[str], unit: str):
         if not isinstance(im, dict):
             raise meta.bad(f"{at}: expected an object with name, camera, position, angles")
         if not isinstance(im.get("camera"), str) or im["camera"] not in cam_names:
-            raise meta.bad(f"{at}: camera {im.get('camera')!r} is not in 'cameras'")
+            raise meta.bad(f"{at}: camera {excerpt(im.get('camera'))} is not in 'cameras'")
         name = im.get("name", f"image {i}")
         if not isinstance(name, str) or not name.strip() or name in names:
-            raise meta.bad(f"{at}: image names must be distinct, non-empty text, got {name!r}")
+            raise meta.bad(f"{at}: image names must be distinct, non-empty text, got {excerpt(name)}")
         names.append(name)
         img_cam.append(cam_names.index(im["camera"]))
         p, a = im.get("position"), im.get("angles")
@@ -185,7 +195,7 @@ def _read_images(meta: _Meta, images: list, cam_names: list[str], unit: str):
         a = [np.nan] * 3 if a is None else meta.vector(at, a, 3, "angles")
         ang.append(np.radians(a) if unit == "degrees" else np.asarray(a, dtype=float))
         if not isinstance(im.get("fixed", False), bool):
-            raise meta.bad(f"{at}: fixed must be true or false, got {im['fixed']!r}")
+            raise meta.bad(f"{at}: fixed must be true or false, got {excerpt(im['fixed'])}")
         fixed.append(im.get("fixed", False))
     return names, img_cam, pos, ang, fixed
 
@@ -199,8 +209,10 @@ def _rows(path: pathlib.Path, required, optional=()):
         missing = sorted(set(required) - set(header))
         unknown = sorted(set(header) - set(required) - set(optional))
         if missing or unknown or len(set(header)) != len(header):
+            # a header naming none of the columns: some other file, none of it quoted
+            got = f"got {excerpt(header, 80)}" if set(header) & set(required) else "got none of them"
             raise ValueError(f"{where(path, 1)}: the header must name the columns {list(required)} "
-                             f"(and optionally {list(optional)}) once each, got {header}")
+                             f"(and optionally {list(optional)}) once each, {got}")
         for row in reader:
             line = reader.line_num
             if not row or not "".join(row).strip():
@@ -218,12 +230,13 @@ def _read_points(ppath: pathlib.Path):
     plines: dict[str, int] = {}
     for line, row in _rows(ppath, ("name", "X", "Y", "Z", "role"), ("sigma",)):
         if row["role"] not in ROLES:
-            raise ValueError(f"{where(ppath, line)}: role must be one of {ROLES}, got {row['role']!r}")
+            raise ValueError(f"{where(ppath, line)}: role must be one of {ROLES}, got {excerpt(row['role'])}")
         name = row["name"]
         if not name:
             raise ValueError(f"{where(ppath, line)}: empty point name")
         if name in plines:
-            raise ValueError(f"{where(ppath, line)}: point {name!r} again (first on line {plines[name]})")
+            raise ValueError(f"{where(ppath, line)}: point {excerpt(name)} again "
+                             f"(first on line {plines[name]})")
         plines[name] = line
         given = [row[k] != "" for k in "XYZ"]
         if any(given) and not all(given) or (row["role"] == "control" and not all(given)):
@@ -233,7 +246,8 @@ def _read_points(ppath: pathlib.Path):
         roles.append(row["role"])
         s = number(ppath, line, row["sigma"], "sigma") if row.get("sigma") else 0.0
         if s < 0:
-            raise ValueError(f"{where(ppath, line)}: sigma must be >= 0 (0 fixes the point), got {row['sigma']!r}")
+            raise ValueError(f"{where(ppath, line)}: sigma must be >= 0 (0 fixes the point), "
+                             f"got {excerpt(row['sigma'])}")
         psig.append(s)
     if not pnames:
         raise ValueError(f"{ppath}: no points")
@@ -248,10 +262,12 @@ def _read_observations(opath: pathlib.Path, names: list[str], pnames: list[str])
     seen: dict[tuple[str, str], int] = {}
     for line, row in _rows(opath, ("image", "point", "col", "row"), ("sigma_px",)):
         if row["image"] not in iidx or row["point"] not in pidx:
-            raise ValueError(f"{where(opath, line)}: unknown image {row['image']!r} or point {row['point']!r}")
+            raise ValueError(f"{where(opath, line)}: unknown image {excerpt(row['image'])} "
+                             f"or point {excerpt(row['point'])}")
         pair = (row["image"], row["point"])
         if pair in seen:
-            raise ValueError(f"{where(opath, line)}: point {pair[1]!r} measured again in image {pair[0]!r} "
+            raise ValueError(f"{where(opath, line)}: point {excerpt(pair[1])} measured again "
+                             f"in image {excerpt(pair[0])} "
                              f"(first on line {seen[pair]})")
         seen[pair] = line
         oi.append(iidx[row["image"]])
@@ -259,7 +275,8 @@ def _read_observations(opath: pathlib.Path, names: list[str], pnames: list[str])
         px.append([number(opath, line, row["col"], "col"), number(opath, line, row["row"], "row")])
         s = number(opath, line, row["sigma_px"], "sigma_px") if row.get("sigma_px") else 1.0
         if not s > 0:
-            raise ValueError(f"{where(opath, line)}: sigma_px must be positive, got {row['sigma_px']!r}")
+            raise ValueError(f"{where(opath, line)}: sigma_px must be positive, "
+                             f"got {excerpt(row['sigma_px'])}")
         osig.append(s)
     if not oi:
         raise ValueError(f"{opath}: no observations")

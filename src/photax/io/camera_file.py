@@ -64,7 +64,7 @@ import numpy as np
 import yaml
 
 from ..camera import FrameCamera
-from ._files import Mapping, as_numbers, file_error, load_json, load_yaml, read_text, where
+from ._files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, where
 from .atomic import atomic_write
 
 _KEYS = {"focal_length", "unit", "principal_point", "principal_point_px", "pixel_size",
@@ -78,8 +78,13 @@ def _load(path: pathlib.Path) -> dict:
     text = read_text(path, "camera file")
     data = load_json(path, text) if path.suffix.lower() == ".json" else load_yaml(path, text)
     if not isinstance(data, dict):
-        raise file_error(path, None, "a camera file must be a mapping of keys to values "
-                                     f"(focal_length: ..., unit: ...), got {type(data).__name__}")
+        got = "nothing" if data is None else f"a {type(data).__name__}"
+        raise file_error(path, None, f"not a photax camera file (YAML mapping expected: focal_length: ..., "
+                                     f"unit: ...), got {got}")
+    if data and not set(data) & _KEYS:
+        # No key is a camera key: some other file (a key of it may be a secret): quote none of it.
+        raise file_error(path, None, "not a photax camera file (YAML mapping with focal_length or "
+                         f"focal_length_px expected; none of its {len(data)} keys is a camera key)")
     return data
 
 
@@ -92,16 +97,17 @@ def _vector(path, data, key, n, scalar_ok=False) -> np.ndarray:
     value = data[key]
     v = as_numbers(value)
     if v is None:
-        raise ValueError(f"{_at(path, data, key)}: {key} must be numbers, got {value!r}") from None
+        raise ValueError(f"{_at(path, data, key)}: {key} must be numbers, got {excerpt(value)}") from None
     shapes = ((n,), ()) if scalar_ok else ((n,),)
     if v.shape not in shapes or not np.all(np.isfinite(v)):
-        raise ValueError(f"{_at(path, data, key)}: {key} must be {n} finite number{'s' if n > 1 else ''}, got {value!r}")
+        raise ValueError(f"{_at(path, data, key)}: {key} must be {n} finite number{'s' if n > 1 else ''}, "
+                         f"got {excerpt(value)}")
     return v
 
 
 def _positive(path, data, key, v) -> np.ndarray:
     if not np.all(v > 0):
-        raise ValueError(f"{_at(path, data, key)}: {key} must be positive, got {data[key]!r}")
+        raise ValueError(f"{_at(path, data, key)}: {key} must be positive, got {excerpt(data[key])}")
     return v
 
 
@@ -126,7 +132,7 @@ def _distortion(path, data) -> np.ndarray:
                          f"accepted: {', '.join(_DIST)}, convention")
     if convention not in ("photax", "opencv"):
         raise ValueError(f"{_at(path, value, 'convention')}: distortion.convention must be 'photax' or 'opencv', "
-                         f"got {convention!r}")
+                         f"got {excerpt(convention)}")
     d = np.array([_scalar(path, value, k) if k in value else 0.0 for k in _DIST])
     if convention == "opencv":
         d[3] = -d[3]  # OpenCV's y is down, so its p1 is minus ours
@@ -144,7 +150,7 @@ def read_camera(path) -> FrameCamera:
     data = _load(path)
     unknown = sorted(set(data) - _KEYS, key=str)
     if unknown:
-        raise ValueError(f"{_at(path, data, unknown[0])}: unknown key {unknown[0]!r}; "
+        raise ValueError(f"{_at(path, data, unknown[0])}: unknown key {excerpt(unknown[0])}; "
                          f"accepted: {', '.join(sorted(_KEYS))}")
     distortion = _distortion(path, data)
     size = None
@@ -152,7 +158,7 @@ def read_camera(path) -> FrameCamera:
         size = _vector(path, data, "image_size", 2)
         if np.any(size <= 0) or np.any(size != np.round(size)) or np.any(size > 2**31 - 1):
             raise ValueError(f"{_at(path, data, 'image_size')}: image_size must be [width, height] in whole "
-                             f"pixels, got {data['image_size']!r}")
+                             f"pixels, got {excerpt(data['image_size'])}")
         size = (int(size[0]), int(size[1]))
     if "focal_length_px" in data:
         extra = sorted(set(data) & {"focal_length", "unit", "pixel_size", "principal_point", "scan"})
@@ -170,7 +176,7 @@ def read_camera(path) -> FrameCamera:
     unit = data.get("unit")
     if not isinstance(unit, str) or unit not in _UNITS:
         raise ValueError(f"{_at(path, data, 'unit') if 'unit' in data else path}: unit must be one of "
-                         f"{_UNITS}, got {unit!r}")
+                         f"{_UNITS}, got {excerpt(unit)}")
     f = _positive(path, data, "focal_length", _scalar(path, data, "focal_length"))
     pixel_size = None
     if "pixel_size" in data:
@@ -178,7 +184,7 @@ def read_camera(path) -> FrameCamera:
     if unit == "px":
         if pixel_size is not None and not np.all(pixel_size == 1):
             raise ValueError(f"{_at(path, data, 'pixel_size')}: with unit px the pixel_size is 1, "
-                             f"got {data['pixel_size']!r}")
+                             f"got {excerpt(data['pixel_size'])}")
         pixel_size = 1.0 if size is not None else None
     if "scan" in data:
         return _scanned(path, data, f, distortion, pixel_size, size, unit)
@@ -220,7 +226,8 @@ def _scanned(path, data, f, distortion, pixel_size, size, unit):
                          f"a scan block has {', '.join(_SCAN_KEYS)}")
     model = scan["model"]
     if model not in N_PARAMS:
-        raise ValueError(f"{_at(path, scan, 'model')}: scan.model must be one of {sorted(N_PARAMS)}, got {model!r}")
+        raise ValueError(f"{_at(path, scan, 'model')}: scan.model must be one of {sorted(N_PARAMS)}, "
+                         f"got {excerpt(model)}")
     params = _vector(path, scan, "params", N_PARAMS[model])
     centre = _vector(path, scan, "film_centre", 2)
     scale = _positive(path, scan, "film_scale", _scalar(path, scan, "film_scale"))

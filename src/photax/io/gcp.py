@@ -54,7 +54,7 @@ from typing import Literal
 
 import numpy as np
 
-from ._files import file_error, number, read_text, split_lines
+from ._files import excerpt, file_error, number, read_text, split_lines
 
 _ROLES = ("control", "check")
 
@@ -174,7 +174,7 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTab
         crs = numbered[0][1].strip()
         if _looks_like_measurement(crs):
             raise ValueError(f"{path}, line {numbered[0][0]}: an ODM GCP list starts with its CRS "
-                             f"(e.g. EPSG:32633 or a PROJ string), got a measurement: {crs!r}")
+                             f"(e.g. EPSG:32633 or a PROJ string), got a measurement: {excerpt(crs)}")
         rows = _parse_odm(path, numbered[1:])
     else:
         raise ValueError(f"format must be 'auto', 'csv' or 'odm', got {format!r}")
@@ -202,10 +202,12 @@ def _check_points(path, rows) -> None:
     for i, name in enumerate(rows["names"]):
         j = first.setdefault(name, i)
         if rows["ground"][i] != rows["ground"][j]:
-            raise file_error(path, rows["lines"][i], f"point {name!r} has ground coordinates {rows['ground'][i]}, "
+            raise file_error(path, rows["lines"][i], f"point {excerpt(name)} has ground coordinates "
+                             f"{rows['ground'][i]}, "
                              f"but {rows['ground'][j]} on line {rows['lines'][j]}; one name, one point")
         if rows["role"][i] != rows["role"][j]:
-            raise file_error(path, rows["lines"][i], f"point {name!r} is a {rows['role'][i]} point here "
+            raise file_error(path, rows["lines"][i], f"point {excerpt(name)} is a {rows['role'][i]} "
+                             "point here "
                              f"but a {rows['role'][j]} point on line {rows['lines'][j]}")
 
 
@@ -221,6 +223,13 @@ def _auto_names(rows) -> None:
             rows["names"][i] = ids.setdefault(tuple(rows["ground"][i]), f"gcp{len(ids) + 1}")
 
 
+def _is_number(text: str) -> bool:
+    try:
+        return math.isfinite(float(text))
+    except ValueError:
+        return False
+
+
 def _looks_like_measurement(text: str) -> bool:
     f = text.split()
     try:
@@ -231,14 +240,17 @@ def _looks_like_measurement(text: str) -> bool:
 
 def _parse_odm(path, numbered) -> dict[str, list]:
     rows = _empty_rows()
-    for line, text in numbered:
+    for i, (line, text) in enumerate(numbered):
         f = text.split()
-        if len(f) < 6:
-            raise ValueError(f"{path}, line {line}: expected 'E N h col row image [name]', "
-                             f"got {len(f)} columns: {text.strip()!r}")
         try:
+            if len(f) < 6:
+                raise file_error(path, line, f"expected 'E N h col row image [name]', got {len(f)} columns: "
+                                 f"{excerpt(text.strip())}")
             values = [_number(path, line, f[k], w) for k, w in enumerate(("E", "N", "h", "col", "row"))]
         except ValueError as exc:
+            if i == 0 and sum(_is_number(v) for v in f[:5]) < 3:  # some other file: none of it quoted
+                raise file_error(path, line, "not a GCP file (a CSV with a header, or an OpenDroneMap list: "
+                                 "a CRS line, then lines 'E N h col row image [name]', expected)") from None
             raise ValueError(f"{exc} (columns are 'E N h col row image [name]')") from None
         rows["ground"].append(values[:3])
         rows["pixel"].append(values[3:])
@@ -260,6 +272,9 @@ def _csv_columns(path, header: list[str], hline: int = 1) -> dict[str, int]:
     low = [h.strip().lower() for h in header]
     raw = [h.strip() for h in header]
     cols: dict[str, int] = {}
+    # a coordinate column: the file is meant as a GCP file, and its header may be quoted
+    coordinates = {"image_x", "image_y", "col", "column", "row", *(n for g in _GROUND.values() for n in g)}
+    known = bool(coordinates & set(low))
     both_case = {"X", "x"} <= set(raw)
     named_en = bool({"easting", "e"} & set(low))
     for i, (r, lo) in enumerate(zip(raw, low)):
@@ -272,19 +287,23 @@ def _csv_columns(path, header: list[str], hline: int = 1) -> dict[str, int]:
             key = "col"
         else:
             key = next((k for k, names in _GROUND.items() if lo in names), lo if lo in _OTHER else None)
+        if key is None and not known:  # no column photax knows: some other file, none of it quoted
+            raise file_error(path, hline, "not a GCP file (a CSV header naming E, N, h and col, row or x, y "
+                             "expected)")
         if key is None:
-            raise ValueError(f"{path}, line {hline}: unknown column {r!r}; accepted: name, image, "
+            raise ValueError(f"{path}, line {hline}: unknown column {excerpt(r)}; accepted: name, image, "
                              "E/easting/X, N/northing/Y, h/height/Z, col/column, row, x, y, sigma, role")
         if key in cols:
-            raise ValueError(f"{path}, line {hline}: two columns mean the same thing: {raw[cols[key]]!r} and {r!r}")
+            raise ValueError(f"{path}, line {hline}: two columns mean the same thing: "
+                             f"{excerpt(raw[cols[key]])} and {excerpt(r)}")
         cols[key] = i
     missing = [w for w, k in (("easting", "e"), ("northing", "n"), ("height", "h")) if k not in cols]
     if missing:
-        raise ValueError(f"{path}, line {hline}: no {'/'.join(missing)} column in {raw}")
+        raise ValueError(f"{path}, line {hline}: no {'/'.join(missing)} column in {excerpt(raw, 80)}")
     has_px, has_xy = {"col", "row"} <= cols.keys(), {"x", "y"} <= cols.keys()
     if has_px == has_xy:
         raise ValueError(f"{path}, line {hline}: give pixel columns (col, row) or image-plane columns "
-                         f"(x, y), exactly one pair; header is {raw}")
+                         f"(x, y), exactly one pair; header is {excerpt(raw, 80)}")
     return cols
 
 
@@ -316,7 +335,7 @@ def _parse_csv(path, numbered) -> dict[str, list]:
         rows["sigma"].append(sigma)
         role = f[cols["role"]].lower() if "role" in cols and f[cols["role"]] else "control"
         if role not in _ROLES:
-            raise ValueError(f"{path}, line {line}: role must be 'control' or 'check', got {role!r}")
+            raise ValueError(f"{path}, line {line}: role must be 'control' or 'check', got {excerpt(role)}")
         rows["role"].append(role)
         rows["lines"].append(line)
     _auto_names(rows)

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from ._files import file_error, load_yaml, read_text
+from ._files import excerpt, file_error, load_yaml, read_text
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
 from .orthority import read_orthority_crs, read_orthority_exterior, read_orthority_interior
@@ -75,15 +75,16 @@ def _pick_image(path, images, image) -> dict:
         p = pathlib.Path(image)
         matches = [n for n in images if n in (p.name, p.stem) or pathlib.Path(n).stem == p.stem]
         if len(matches) != 1:
-            raise ValueError(f"{path}: holds {len(images)} images {sorted(images)}, none named like "
+            raise ValueError(f"{path}: holds {len(images)} images {excerpt(sorted(images), 80)}, "
+                             "none named like "
                              f"{p.name!r}; rename the image or keep only its result")
         name, entry = matches[0], images[matches[0]]
     if not isinstance(entry, dict):
-        raise ValueError(f"{path}: the result of image {name!r} is not an object")
+        raise ValueError(f"{path}: the result of image {excerpt(name)} is not an object")
     status = entry.get("status", "solved" if entry.get("converged", True) else "not converged")
     if status != "solved" or "skipped" in entry:
         why = entry.get("message") or entry.get("skipped") or status
-        raise ValueError(f"{path}: image {name!r} was not solved ({why}); no orientation to use")
+        raise ValueError(f"{path}: image {excerpt(name)} was not solved ({why}); no orientation to use")
     return entry
 
 

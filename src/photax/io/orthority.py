@@ -30,7 +30,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from ._files import Mapping, as_numbers, file_error, load_yaml, read_text, split_lines, where
+from ._files import Mapping, as_numbers, excerpt, file_error, load_yaml, read_text, split_lines, where
 
 
 def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCamera:
@@ -39,35 +39,38 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
     kind = p.get("type")
     if not isinstance(kind, str) or kind.lower() != "pinhole":
         raise ValueError(
-            f"{at('type')}: camera {name!r} has type {kind!r}; photax reads orthority 'pinhole' "
+            f"{at('type')}: camera {excerpt(name)} has type {excerpt(kind)}; "
+            "photax reads orthority 'pinhole' "
             "cameras only (brown/opencv/fisheye distortion models are not converted)"
         )
 
     def numbers(key, n, default=None, scalar_ok=False):
         if key not in p:
             if default is None:
-                raise ValueError(f"{at(key)}: camera {name!r}: missing parameter {key!r}")
+                raise ValueError(f"{at(key)}: camera {excerpt(name)}: missing parameter {excerpt(key)}")
             return np.asarray(default, dtype=float)
         value = p[key]
         v = as_numbers(value)
         ok_shapes = ((n,), ()) if scalar_ok else ((n,),)
         if v is None or v.shape not in ok_shapes or not np.all(np.isfinite(v)):
-            raise ValueError(f"{at(key)}: camera {name!r}: {key} must be {n} finite number"
-                             f"{'s' if n > 1 else ''}, got {value!r}")
+            raise ValueError(f"{at(key)}: camera {excerpt(name)}: {key} must be {n} finite number"
+                             f"{'s' if n > 1 else ''}, got {excerpt(value)}")
         return v
 
     im_size = numbers("im_size", 2)
     if np.any(im_size < 1) or np.any(im_size != np.round(im_size)) or np.any(im_size > 2**31 - 1):
-        raise ValueError(f"{at('im_size')}: camera {name!r}: im_size must be [width, height] in whole pixels, "
-                         f"got {p['im_size']!r}")
+        raise ValueError(f"{at('im_size')}: camera {excerpt(name)}: im_size must be [width, height] "
+                         "in whole pixels, "
+                         f"got {excerpt(p['im_size'])}")
     w, h = (int(v) for v in im_size)
     focal = np.broadcast_to(numbers("focal_len", 2, scalar_ok=True), (2,))
     if not np.all(focal > 0):
-        raise ValueError(f"{at('focal_len')}: camera {name!r}: focal_len must be positive, got {p['focal_len']!r}")
+        raise ValueError(f"{at('focal_len')}: camera {excerpt(name)}: focal_len must be positive, "
+                         f"got {excerpt(p['focal_len'])}")
     sensor = numbers("sensor_size", 2) if p.get("sensor_size") is not None else None
     if sensor is not None and not np.all(sensor > 0):
-        raise ValueError(f"{at('sensor_size')}: camera {name!r}: sensor_size must be positive, "
-                         f"got {p['sensor_size']!r}")
+        raise ValueError(f"{at('sensor_size')}: camera {excerpt(name)}: sensor_size must be positive, "
+                         f"got {excerpt(p['sensor_size'])}")
     cx, cy = float(numbers("cx", 1, 0.0, scalar_ok=True)), float(numbers("cy", 1, 0.0, scalar_ok=True))
     with np.errstate(over="ignore", under="ignore"):
         if sensor is None:
@@ -85,7 +88,8 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
         principal_point = np.array([cx * m * size[0], -cy * m * size[1]])  # y up in photax
     if not (np.isfinite(f) and f > 0 and np.all(np.isfinite(size)) and np.all(size > 0)
             and np.all(np.isfinite(principal_point))):
-        raise ValueError(f"{at('focal_len')}: camera {name!r}: focal_len, sensor_size, cx, cy give a camera "
+        raise ValueError(f"{at('focal_len')}: camera {excerpt(name)}: "
+                         "focal_len, sensor_size, cx, cy give a camera "
                          f"out of range (f = {f:g}, pixel size = {size.tolist()})")
     return FrameCamera(f, principal_point, pixel_size=size, image_size=(w, h))
 
@@ -149,19 +153,23 @@ def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation
     else:
         index = list(range(7))
     out: dict[str, ExteriorOrientation] = {}
-    for n, row in rows:
+    for k, (n, row) in enumerate(rows):
         try:
             name, *vals = (row[i] for i in index)
             x, y, z, omega, phi, kappa = (float(v) for v in vals)
         except (IndexError, ValueError):
-            raise ValueError(f"{path}, line {n}: expected {', '.join(_COLUMNS)}, got {row}") from None
+            if k == 0 and "filename" not in header:  # some other file: none of it quoted
+                raise file_error(path, n, "not an orthority exterior file (a CSV with a header filename, x, "
+                                 "y, z, omega, phi, kappa, or rows of those 7 values, expected)") from None
+            got = excerpt(row, 80)
+            raise ValueError(f"{path}, line {n}: expected {', '.join(_COLUMNS)}, got {got}") from None
         if not all(math.isfinite(v) for v in (x, y, z, omega, phi, kappa)):
-            raise ValueError(f"{path}, line {n}: non-finite value in {row}")
+            raise ValueError(f"{path}, line {n}: non-finite value in {excerpt(row, 80)}")
         key = pathlib.PurePath(name).stem
         if not key:
             raise file_error(path, n, f"empty file name in {row}")
         if key in out:
-            raise ValueError(f"{path}, line {n}: duplicate file name {key!r}")
+            raise ValueError(f"{path}, line {n}: duplicate file name {excerpt(key)}")
         out[key] = ExteriorOrientation((x, y, z), np.radians([omega, phi, kappa]), "omega-phi-kappa")
     if not out:
         raise file_error(path, None, "no exterior orientations")

@@ -18,14 +18,14 @@ import pathlib
 
 import numpy as np
 
-from ._files import file_error, read_text, split_lines
+from ._files import excerpt, file_error, read_text, split_lines
 from .gcp import read_gcps
 
 
 def read_named_points(path, columns: tuple[str, str], what: str) -> tuple[list[str], np.ndarray]:
     """``name,a,b`` rows of a CSV with a header naming those columns (file and line in errors)."""
     rows = []
-    for k, line in enumerate(split_lines(read_text(path)), start=1):
+    for k, line in enumerate(split_lines(read_text(path, what)), start=1):
         try:
             r = next(csv.reader([line]), [])
         except csv.Error as exc:
@@ -37,8 +37,8 @@ def read_named_points(path, columns: tuple[str, str], what: str) -> tuple[list[s
     head = [c.strip().lower() for c in rows[0][1]]
     want = ("name", *columns)
     if not all(c in head for c in want):
-        raise file_error(path, rows[0][0], f"expected a header with the columns {', '.join(want)}, "
-                         f"got {', '.join(head)}")
+        got = excerpt(", ".join(head), 80) if set(head) & set(want) else "none of them"  # else some other file
+        raise file_error(path, rows[0][0], f"expected a header with the columns {', '.join(want)}, got {got}")
     idx = [head.index(c) for c in want]
     names, vals = [], []
     for k, r in rows[1:]:
@@ -74,7 +74,8 @@ def read_pixel_points(path, image_name: str | None = None):
             try:
                 c, r = float(f[1]), float(f[2])
             except ValueError:
-                raise ValueError(f"{path}, line {line}: col and row must be numbers, got {f[1]!r}, {f[2]!r}") from None
+                got = f"{excerpt(f[1])}, {excerpt(f[2])}"
+                raise ValueError(f"{path}, line {line}: col and row must be numbers, got {got}") from None
             if not (math.isfinite(c) and math.isfinite(r)):
                 raise ValueError(f"{path}, line {line}: col and row must be finite")
             names.append(f[0] or f"p{len(names) + 1}")

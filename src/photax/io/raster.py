@@ -28,11 +28,14 @@ def open_raster(path):
     (a raw photo) is fine, so rasterio's NotGeoreferencedWarning is silenced."""
     import rasterio
 
+    from ._files import check_regular, note_input
+
     path = pathlib.Path(path)
-    if path.is_dir():
-        raise ValueError(f"{path}: is a folder, expected a raster file")
-    if not path.is_file():
-        raise FileNotFoundError(f"no such raster file: {path}")
+    note_input(path)
+    try:
+        check_regular(path, "raster file")
+    except FileNotFoundError:
+        raise FileNotFoundError(f"no such raster file: {path}") from None
     try:
         # catch_warnings swaps process-wide filters: two threads (Dask workers
         # reading windows) interleaving it could restore the other's filters mid-open.
