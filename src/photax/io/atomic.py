@@ -19,7 +19,6 @@ import threading
 import time
 from typing import IO, Iterable, Iterator
 
-from ._files import excerpt, inputs_read
 
 # Temporaries being written by this process (absolute paths): what
 # cleanup_temporaries() removes.  A set, not guarded by a lock: add/discard
@@ -94,6 +93,8 @@ def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
     out = pathlib.Path(out)
     if out.is_dir():
         raise ValueError(f"refusing to write {out}: it is a folder")
+    from ._files import inputs_read  # here: the CLI imports this module before numpy
+
     for src in [*inputs, *inputs_read()]:
         if src is None:
             continue
@@ -430,6 +431,8 @@ def output_name(name, what: str = "name") -> str:
             dot, a Windows device name (``CON``, ``NUL``, ``COM1``...), or
             over 200 bytes.
     """
+    from ._files import excerpt
+
     text = str(name)
     bad = (not text.strip() or text in (".", "..") or any(c in text for c in "/\\") or text != text.strip()
            or any(ord(c) < 32 or ord(c) == 127 for c in text) or text.endswith(".")
