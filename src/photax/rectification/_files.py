@@ -22,6 +22,7 @@ from ._tiling import (
     _approx_arg,
     _check_approx,
     _check_model,
+    _check_output_size,
     _check_resampling,
     _fill_value,
     _layout,
@@ -82,6 +83,7 @@ def rectify_file(
     inputs=(),
     approx: float | None = 0.125,
     info: dict | None = None,
+    hint: Callable[[], str] | None = None,
 ) -> Grid:
     """:func:`rectify` from one raster file to a GeoTIFF, window by window.
 
@@ -101,6 +103,8 @@ def rectify_file(
         compress: GeoTIFF compression (``"deflate"``, ``"lzw"``, None...).
         inputs: further paths the output must not overwrite (e.g. a DEM).
         approx, info: as in :func:`rectify`.
+        hint: called only when the output cannot fit on the disk (checked before any work: uncompressed
+            size against ``shutil.disk_usage``); its sentence ends the error message.
 
     Returns:
         ``grid``.
@@ -124,6 +128,7 @@ def rectify_file(
         if nodata is None:
             nodata = src.nodata
         fill = _fill_value(src.dtypes[0], nodata)
+        _check_output_size(grid.shape, src.count, src.dtypes[0], path=dst_path, hint=hint)
         profile = _geotiff_profile(grid, src.count, src.dtypes[0], fill, compress)
         # numpy, not jnp, for the kernels' arguments: each eager jnp conversion is a
         # small compiled program of its own (lowered again in every process).
@@ -201,4 +206,13 @@ def orthorectify_file(
     return rectify_file(
         src_path, dst_path, OrthoModel(exterior, camera, dem), grid, resampling=resampling, nodata=nodata,
         tile=tile, progress=progress, compress=compress, inputs=inputs, approx=approx, info=info,
+        hint=lambda: _gsd_hint(exterior, camera, dem, grid),
     )
+
+
+def _gsd_hint(exterior, camera, dem, grid) -> str:
+    """The resolution the image supports, for an output that does not fit."""
+    from ._grid import ground_sampling_distance
+
+    gsd = ground_sampling_distance(exterior, camera, dem)
+    return f"the image's ground sampling distance is {gsd:.4g} (this grid: {abs(grid.transform.a):.4g})"

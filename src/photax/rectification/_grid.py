@@ -123,20 +123,31 @@ def _shoelace(p: np.ndarray) -> float:
     return 0.5 * abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(np.roll(p[:, 0], -1), p[:, 1])))
 
 
-def ortho_grid(
-    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, resolution=None, *, per_side: int = 16
-) -> Grid:
-    """The grid covering an image's footprint on a DEM.
+MIN_PIXELS = 16  # an output grid has at least 16 x 16 pixels
+GSD_FACTOR = 100.0  # and a resolution within GSD / 100 .. 100 GSD
 
-    The image outline (``per_side`` points per edge, on the outer pixel
-    edges) is cut with the DEM by :func:`photax.image_to_ground`; rays that
-    miss the DEM are cut with the plane at the DEM's mean height.  The
-    bounds are clipped to the DEM and snapped to the resolution.
 
-    Args:
-        resolution: ground pixel size; default the mean ground sampling
-            distance ``sqrt(footprint area / image area in pixels)``.
-    """
+def check_resolution(resolution: float, gsd: float, bounds, what: str = "the image") -> None:
+    """Refuse a pixel size outside what ``what`` supports: between ``gsd / 100`` and ``100 gsd``, and
+    no coarser than a ``16 x 16`` pixel grid over ``bounds`` (xmin, ymin, xmax, ymax). The message names
+    the ground sampling distance ``gsd`` and the supported range."""
+    side = min(bounds[2] - bounds[0], bounds[3] - bounds[1])
+    lo, hi = gsd / GSD_FACTOR, min(GSD_FACTOR * gsd, side / MIN_PIXELS)
+    r = float(np.max(np.asarray(resolution, dtype=float)))
+    r_min = float(np.min(np.asarray(resolution, dtype=float)))
+    if not (lo <= r_min and r <= hi):
+        if hi < lo:
+            raise ValueError(f"{what}'s footprint ({side:.4g} across) is too small for a {MIN_PIXELS} x "
+                             f"{MIN_PIXELS} pixel grid at {lo:.4g} (its ground sampling distance {gsd:.4g} / "
+                             f"{GSD_FACTOR:g})")
+        text = f"{float(resolution):g}" if np.ndim(resolution) == 0 else str(tuple(np.asarray(resolution).tolist()))
+        raise ValueError(f"resolution {text} is outside what {what} supports: its ground sampling "
+                         f"distance is {gsd:.4g}; choose from {lo:.4g} to {hi:.4g} (at most {GSD_FACTOR:g} "
+                         f"times finer or coarser than the GSD, at least {MIN_PIXELS} x {MIN_PIXELS} pixels)")
+
+
+def _footprint_outline(exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, per_side: int):
+    """``(ground (4 per_side, 2), pixel outline (4 per_side, 2))`` of the image's outer pixel edges."""
     if camera.image_size is None:
         raise ValueError("camera must have an image_size to find the image footprint")
     w, h = camera.image_size
@@ -154,8 +165,36 @@ def ortho_grid(
     ground = np.where(np.isfinite(ground), ground, flat)[:, :2]
     if not np.all(np.isfinite(ground)):
         raise ValueError("the image outline does not reach the ground (camera looks above the horizon)")
-    if resolution is None:
-        resolution = math.sqrt(_shoelace(ground) / _shoelace(px))
+    return ground, px
+
+
+def ground_sampling_distance(exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM,
+                             *, per_side: int = 16) -> float:
+    """The image's mean ground sampling distance on ``dem``: ``sqrt(footprint area / image area in pixels)``
+    (ground units per pixel)."""
+    ground, px = _footprint_outline(exterior, camera, dem, per_side)
+    return math.sqrt(_shoelace(ground) / _shoelace(px))
+
+
+def ortho_grid(
+    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, resolution=None, *, per_side: int = 16
+) -> Grid:
+    """The grid covering an image's footprint on a DEM.
+
+    The image outline (``per_side`` points per edge, on the outer pixel
+    edges) is cut with the DEM by :func:`photax.image_to_ground`; rays that
+    miss the DEM are cut with the plane at the DEM's mean height.  The
+    bounds are clipped to the DEM and snapped to the resolution.
+
+    Args:
+        resolution: ground pixel size; default the mean ground sampling
+            distance ``sqrt(footprint area / image area in pixels)``
+            (:func:`ground_sampling_distance`).  A resolution more than 100
+            times finer or coarser than it, or one giving fewer than 16 x 16
+            pixels, is refused with the supported range (:func:`check_resolution`).
+    """
+    ground, px = _footprint_outline(exterior, camera, dem, per_side)
+    gsd = math.sqrt(_shoelace(ground) / _shoelace(px))
     dxmin, dymin, dxmax, dymax = dem.bounds
     bounds = (
         max(ground[:, 0].min(), dxmin),
@@ -165,4 +204,8 @@ def ortho_grid(
     )
     if not (bounds[2] > bounds[0] and bounds[3] > bounds[1]):
         raise ValueError("the image footprint does not overlap the DEM")
+    if resolution is None:
+        resolution = gsd
+    else:
+        check_resolution(resolution, gsd, bounds)
     return Grid.from_bounds(bounds, resolution, crs=dem.crs)

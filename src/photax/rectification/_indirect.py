@@ -25,6 +25,7 @@ from ._tiling import (
     _check_approx,
     _check_model,
     _check_resampling,
+    _check_output_size,
     _fill_value,
     _layout,
     _run_tiles,
@@ -177,6 +178,7 @@ def rectify(
     if image.ndim < 2 or min(image.shape[-2:]) < 1:
         raise ValueError(f"image must have shape (..., H, W), got {image.shape}")
     fill = _fill_value(image.dtype, nodata)
+    _check_output_size(grid.shape, int(np.prod(image.shape[:-2], dtype=np.int64)), image.dtype)
     if mapping == "direct":
         return _rectify_direct(image, model, grid, fill, tile, progress, inverse)
     if mapping != "indirect":

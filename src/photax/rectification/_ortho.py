@@ -84,6 +84,11 @@ def orthorectify(
     _check_image_size(image.shape, camera)
     if grid is None:
         grid = ortho_grid(exterior, camera, dem, resolution)
+    from ._files import _gsd_hint
+    from ._tiling import _check_output_size
+
+    bands = int(np.prod(image.shape[:-2], dtype=np.int64))
+    _check_output_size(grid.shape, bands, image.dtype, hint=lambda: _gsd_hint(exterior, camera, dem, grid))
     model = OrthoModel(exterior, camera, dem)
     out = rectify(image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress,
                   approx=approx, info=info)
