@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import RESAMPLING
+from ._common import NODATA_HELP, RESAMPLING, nodata_value
 
 
 def add_parser(sub) -> None:
@@ -36,6 +36,7 @@ def add_parser(sub) -> None:
     p.add_argument("--resolution", type=float, help="ground pixel size (default: the mean ground sampling distance)")
     p.add_argument("--resampling", choices=RESAMPLING, default="bilinear")
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
+    p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
@@ -65,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
 
         grid = dataclasses.replace(grid, crs=crs)
     orthorectify_file(
-        image, args.out, exterior, camera, dem, grid, resampling=args.resampling, tile=args.tile,
+        image, args.out, exterior, camera, dem, grid, resampling=args.resampling, nodata=args.nodata,
+        tile=args.tile,
         progress=args.progress and args.command,  # one bar, labelled "ortho"
     )
     print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} "

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import RESAMPLING
+from ._common import NODATA_HELP, RESAMPLING, nodata_value
 
 
 def add_parser(sub) -> None:
@@ -26,6 +26,7 @@ def add_parser(sub) -> None:
     p.add_argument("--resolution", type=float, help="map pixel size (default: the mean GCP scale)")
     p.add_argument("--resampling", choices=RESAMPLING, default="bilinear")
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
+    p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
@@ -68,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--resolution must be positive, got {resolution}")
     bounds = (*ground.min(axis=0), *ground.max(axis=0))
     grid = Grid.from_bounds(bounds, resolution, crs=table.crs)
-    rectify_file(image, args.out, model, grid, resampling=args.resampling, tile=args.tile,
+    rectify_file(image, args.out, model, grid, resampling=args.resampling, nodata=args.nodata, tile=args.tile,
                  progress=args.progress and args.command, inputs=[args.gcps])
     print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {resolution:g} {ground_unit(table.crs, 'map units')}, "
           f"order {args.order}, {plural(len(ground), 'GCP')}, rmse {float(model.rmse):.3g} px")

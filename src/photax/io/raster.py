@@ -41,8 +41,12 @@ def open_raster(path):
         raise ValueError(f"{path}: not a raster GDAL can read ({exc})") from None
 
 
-def read_geotiff(path) -> tuple[np.ndarray, dict]:
+def read_geotiff(path, *, masked: bool = False) -> tuple[np.ndarray, dict]:
     """Read all bands of a raster.
+
+    Args:
+        masked: return a ``numpy.ma.MaskedArray`` masked where the file has no data (its nodata value,
+            its per-dataset mask band or alpha band: rasterio's ``read(masked=True)``).
 
     Returns:
         ``(array, profile)``: ``array`` is ``(bands, rows, cols)`` in the
@@ -50,7 +54,7 @@ def read_geotiff(path) -> tuple[np.ndarray, dict]:
         as ``rasterio.Affine``, ``crs``, ``nodata``, ``dtype``, ...).
     """
     with open_raster(path) as src, _damaged(path):
-        return src.read(), dict(src.profile)
+        return src.read(masked=masked), dict(src.profile)
 
 
 @contextlib.contextmanager
@@ -86,7 +90,8 @@ def read_dem(path, band: int = 1) -> DEM:
         raise ValueError(f"{path}: {exc}") from None
 
 
-def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), compress: str | None = "deflate") -> pathlib.Path:
+def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), compress: str | None = "deflate",
+                  mask=None) -> pathlib.Path:
     """Write a ``(bands, rows, cols)`` or ``(rows, cols)`` array as a GeoTIFF, atomically.
 
     Args:
@@ -99,6 +104,9 @@ def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), c
         crs: anything rasterio accepts (EPSG code, WKT, PROJ string), or None.
         nodata: the nodata value to record, or None.
         compress: GeoTIFF compression, or None.
+        mask: ``(rows, cols)`` bool, True where the pixels hold data: written as GDAL's internal
+            per-dataset mask band (rasterio's ``read_masks``, ``read(masked=True)``), which, unlike a
+            nodata value, takes no grey value away from the data.
     """
     import rasterio
     from rasterio import Affine
@@ -118,11 +126,17 @@ def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), c
         profile.update(tiled=True, blockxsize=256, blockysize=256)
     if compress:
         profile["compress"] = compress
-    with atomic_path(path, inputs) as tmp, warnings.catch_warnings():
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != a.shape[1:]:
+            raise ValueError(f"mask must be (rows, cols) = {a.shape[1:]}, got shape {mask.shape}")
+    with atomic_path(path, inputs) as tmp, warnings.catch_warnings(), rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
         if transform is None:
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         with rasterio.open(tmp, "w", **profile) as dst:
             dst.write(a)
+            if mask is not None:
+                dst.write_mask(np.where(mask, np.uint8(255), np.uint8(0)))
     return pathlib.Path(path)
 
 
