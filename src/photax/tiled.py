@@ -264,10 +264,11 @@ def orthorectify_dask(
         raise ValueError(f"chunks must be a positive number of pixels, got {chunks!r}")
     path = None
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
-        from .io.raster import open_raster
+        from .io.raster import check_palette, open_raster
 
         path = str(image)
         with open_raster(path) as src:
+            check_palette(path, src, resampling)  # colour indices: nearest neighbour only
             shape, dtype = (src.count, src.height, src.width), np.dtype(src.dtypes[0])
             if nodata is None:
                 nodata = src.nodata

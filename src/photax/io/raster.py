@@ -57,6 +57,29 @@ def read_geotiff(path, *, masked: bool = False) -> tuple[np.ndarray, dict]:
         return src.read(masked=masked), dict(src.profile)
 
 
+def colormap(src) -> dict | None:
+    """The colour map of an open palette raster (its band 1 values index colours), or None."""
+    from rasterio.enums import ColorInterp
+
+    if src.count < 1 or src.colorinterp[0] != ColorInterp.palette:
+        return None
+    try:
+        return src.colormap(1)
+    except ValueError:  # rasterio: "NULL color table"
+        return None
+
+
+def check_palette(path, src, resampling) -> dict | None:
+    """A palette image's colour map, refusing any resampling but nearest neighbour: its values are
+    colour indices, which interpolation would turn into other colours (index 2 between 1 and 3)."""
+    cmap = colormap(src)
+    if cmap is not None and str(getattr(resampling, "value", resampling)) != "nearest":
+        raise ValueError(f"{path} is a palette image (its values index a colour map): only nearest-neighbour "
+                         f"resampling keeps them, got {str(getattr(resampling, 'value', resampling))!r}; "
+                         "use resampling='nearest' (--resampling nearest)")
+    return cmap
+
+
 @contextlib.contextmanager
 def _damaged(path):
     """A file GDAL opens but cannot decode (truncated, corrupt): ValueError naming it."""

@@ -107,6 +107,8 @@ def rectify_file(
             per-dataset mask band (``rasterio``'s ``read_masks`` / ``read(masked=True)``; the pixels under
             the mask are 0). Pixels the input's own mask or alpha band marks as no data (nearest input
             pixel) are no data in the output too.
+        resampling: the kernel; None: ``"bilinear"``, or ``"nearest"`` for a palette image (values
+            indexing a colour map), which takes no other kernel and keeps its colour map.
         compress: GeoTIFF compression (``"deflate"``, ``"lzw"``, None...).
         inputs: further paths the output must not overwrite (e.g. a DEM).
         approx, info: as in :func:`rectify`.
@@ -123,16 +125,20 @@ def rectify_file(
     from rasterio.windows import Window
 
     from ..io.atomic import atomic_path
-    from ..io.raster import open_raster
+    from ..io.raster import check_palette, colormap, open_raster
     from ..resampling import _compute_dtype, _source
 
-    resampling = _check_resampling(resampling)
+    auto = resampling is None
+    resampling = _check_resampling("bilinear" if auto else resampling)
     _check_model(model)
     approx = _check_approx(approx)
     tile = int(tile)
     if tile < 1:
         raise ValueError(f"tile must be a positive number of pixels, got {tile!r}")
     with open_raster(src_path) as src, atomic_path(dst_path, inputs=(src_path, *inputs)) as tmp:
+        if auto and colormap(src) is not None:
+            resampling = _check_resampling("nearest")
+        cmap = check_palette(src_path, src, resampling)
         if nodata is None:
             nodata = src.nodata
         # No nodata value for an integer image: a mask band, so that no grey value is lost to it.
@@ -181,6 +187,8 @@ def rectify_file(
 
         chunks = (layout[0][0] // layout[1]) * (layout[0][1] // layout[2])
         with rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), rasterio.open(tmp, "w", **profile) as dst:
+            if cmap is not None:
+                dst.write_colormap(1, cmap)
             _run_tiles(one, tiles, progress, "rectify", info, approx, chunks, sink)
     return grid
 
