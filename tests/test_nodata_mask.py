@@ -114,3 +114,22 @@ def test_cli_nodata(setup, tmp_path, capsys):
     with rasterio.open(tmp_path / "a.tif") as a, rasterio.open(tmp_path / "b.tif") as b:
         assert a.nodata is None and rasterio.enums.MaskFlags.per_dataset in a.mask_flag_enums[0]
         assert b.nodata == 7
+
+
+def test_dask_ortho_with_its_mask(setup):
+    pytest.importorskip("dask")
+    pytest.importorskip("rioxarray")
+    from photax.io.lazy import to_raster
+    from photax.tiled import orthorectify_dask
+
+    s, tmp, paths, grid = setup
+    ref, *_ = _ortho(s, grid, paths["f64"], tmp / "fd.tif", tile=256)
+    ortho, valid = orthorectify_dask(paths["u8"], s["exterior"], s["camera"], s["dem"], grid, chunks=256,
+                                     resampling="nearest", mask=True)
+    to_raster(ortho, tmp / "d.tif", mask=valid)
+    with rasterio.open(tmp / "d.tif") as ds:
+        data, mask = ds.read(1), ds.read_masks(1)
+        assert ds.nodata is None
+    footprint = np.isfinite(ref)
+    assert np.array_equal(mask > 0, footprint)
+    assert np.array_equal(data[footprint], ref[footprint].astype(np.uint8)) and np.sum(data[footprint] == 0) > 1000

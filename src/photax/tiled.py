@@ -199,6 +199,17 @@ def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, res
     return block if bands else block[0]
 
 
+def _valid_chunk(model, transform, tile, layout, approx, size):
+    """``(h, w)`` bool: where the output chunk ``tile`` has data (the resampling's footprint test)."""
+    from .rectification._approx import _tile_positions
+    from .rectification._files import _valid
+
+    r0, c0, h, w = tile
+    pos, origin, _, _ = _tile_positions(model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float), layout,
+                                        _approx_arg(approx), size)
+    return _valid(np.asarray(pos)[:, :h, :w], np.asarray(origin), size, None, None)
+
+
 def orthorectify_dask(
     image,
     exterior: ExteriorOrientation,
@@ -211,6 +222,7 @@ def orthorectify_dask(
     nodata=None,
     approx: float | None = 0.125,
     name: str = "ortho",
+    mask: bool = False,
 ):
     """:func:`photax.orthorectify` as a lazy, chunked ``xarray.DataArray``.
 
@@ -242,12 +254,16 @@ def orthorectify_dask(
         nodata: default the file's nodata, else NaN (float) or 0 (integer).
         approx: as in :func:`photax.rectify`; None for the exact mapping.
         name: the DataArray's name.
+        mask: also return where the output has data, a lazy ``(y, x)`` bool DataArray: with
+            ``to_raster(ortho, path, mask=valid)`` an integer ortho keeps every grey value (the file
+            carries a mask band, not the nodata value 0 that would take true black for no data).
 
     Returns:
         A Dask-backed ``xarray.DataArray`` with dims ``("y", "x")`` or
         ``("band", "y", "x")``, pixel-centre coordinates (north-up grids),
         and the CRS, transform and nodata written the rioxarray way
-        (``.rio.crs``, ``.rio.transform()``, ``.rio.nodata``).
+        (``.rio.crs``, ``.rio.transform()``, ``.rio.nodata``); with ``mask=True`` the pair
+        ``(ortho, valid)``.
     """
     # Over 80 lines: the docstring documents every argument, and the body builds the
     # task graph in one pass (windows, padded shapes, chunks) that reads top to bottom.
@@ -324,4 +340,16 @@ def orthorectify_dask(
     widths = tuple(w for r0, c0, h, w in tiles if r0 == 0)
     graph = HighLevelGraph.from_collections(key, dsk, dependencies=())
     data = da.Array(graph, key, chunks=((shape[0],), heights, widths)[0 if lead else 1 :], dtype=dtype)
-    return dataarray(data, grid, fill, name)
+    out = dataarray(data, grid, fill, name)
+    if not mask:
+        return out
+    vkey = f"{key}-valid"
+    vdsk = {f"{vkey}-model": model}
+    for t, win in zip(tiles, windows):
+        r0, c0, h, w = t
+        out_key = (vkey, row_of[r0], col_of[c0])
+        vdsk[out_key] = ((np.zeros, (h, w), bool) if win is None else
+                         (_valid_chunk, f"{vkey}-model", transform, t, layout, approx, size))
+    valid = da.Array(HighLevelGraph.from_collections(vkey, vdsk, dependencies=()), vkey, chunks=(heights, widths),
+                     dtype=bool)
+    return out, dataarray(valid, grid, np.asarray(False), f"{name}_valid")
