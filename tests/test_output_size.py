@@ -16,7 +16,8 @@ import pytest
 
 from photax.demo import sample_scene
 from photax.rectification import ortho_grid, orthorectify, orthorectify_file
-from photax.rectification import _grid as grid_module, _tiling
+from photax.io import _size
+from photax.rectification import _grid as grid_module
 
 DATA = pathlib.Path(__file__).resolve().parents[1] / "data"
 
@@ -66,13 +67,13 @@ def _image(s):
 def test_in_memory_output_refused_when_memory_is_short(scene, monkeypatch):
     grid = ortho_grid(scene["exterior"], scene["camera"], scene["dem"], 0.5)
     need = grid.height * grid.width * 1  # uint8, one band
-    monkeypatch.setattr(_tiling, "_available_memory", lambda: need - 1)
+    monkeypatch.setattr(_size, "_available_memory", lambda: need - 1)
     with pytest.raises(ValueError) as err:
         orthorectify(_image(scene), scene["exterior"], scene["camera"], scene["dem"], grid)
     msg = str(err.value)
     assert f"{grid.height * grid.width:,} pixels" in msg and "of memory available" in msg
     assert "orthorectify_file" in msg and "ground sampling distance" in msg
-    monkeypatch.setattr(_tiling, "_available_memory", lambda: need)  # exactly enough: it runs
+    monkeypatch.setattr(_size, "_available_memory", lambda: need)  # exactly enough: it runs
     out, _ = orthorectify(_image(scene), scene["exterior"], scene["camera"], scene["dem"], grid)
     assert out.shape == grid.shape
 
@@ -108,3 +109,18 @@ def test_cli_ortho_typo_is_a_usage_error(tmp_path, capsys, resolution):
     err = capsys.readouterr().err
     assert code == 2 and "ground sampling distance" in err and "choose from" in err
     assert not (tmp_path / "o.tif").exists()
+
+
+def test_to_raster_refused_when_the_disk_is_short(tmp_path, monkeypatch):
+    pytest.importorskip("rioxarray")
+    from photax.io.lazy import dataarray, to_raster
+    from photax.rectification import Grid
+
+    grid = Grid.from_bounds((0.0, 0.0, 300.0, 200.0), 1.0)
+    arr = dataarray(np.zeros((2, 200, 300), np.uint16), grid, np.asarray(0, np.uint16), "x")
+    need = 2 * 200 * 300 * 2
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(need * 10, need * 9, need - 1))
+    with pytest.raises(ValueError, match=r"60,000 pixels x 2 band\(s\) needs 240 KB"):
+        to_raster(arr, tmp_path / "x.tif")
+    assert list(tmp_path.iterdir()) == []

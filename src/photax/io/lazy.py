@@ -30,6 +30,7 @@ import uuid
 
 import numpy as np
 
+from ._size import check_output_size
 from .atomic import atomic_path
 
 
@@ -201,6 +202,8 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
     16 MiB) for the write, in this process (the writer, the COG copy).
     Plain ``.rio.to_raster(path)`` writes in place, rioxarray's way.
 
+    The output's uncompressed size is checked against the free disk space before any work.
+
     Args:
         data: an ``xarray.DataArray`` with a rioxarray georeference (e.g.
             from :func:`photax.orthorectify_dask` or :func:`photax.mosaic`).
@@ -239,6 +242,8 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
     if compress:
         options["compress"] = compress
     options.update(kwargs)
+    bands = data.shape[0] if data.ndim == 3 else 1
+    check_output_size(data.shape[-2:], bands + (mask is not None), data.dtype, path=path)
     if mask is not None:
         options["nodata"] = None  # the mask band, not a value, says where there is no data
     # GDAL's block cache bounded for the write (default: 5 % of the RAM): two

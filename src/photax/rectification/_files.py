@@ -13,16 +13,16 @@ from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
+from ..io._size import check_output_size
 from ..resampling import Resampling
 from ._approx import _tile_positions
-from ._grid import Grid, ortho_grid
+from ._grid import Grid, gsd_hint, ortho_grid
 from ._indirect import _resample_tile
 from ._ortho import OrthoModel, _check_image_size
 from ._tiling import (
     _approx_arg,
     _check_approx,
     _check_model,
-    _check_output_size,
     _check_resampling,
     _fill_value,
     _layout,
@@ -144,7 +144,7 @@ def rectify_file(
         # No nodata value for an integer image: a mask band, so that no grey value is lost to it.
         masked = nodata is None and not np.issubdtype(np.dtype(src.dtypes[0]), np.floating)
         fill = _fill_value(src.dtypes[0], nodata)
-        _check_output_size(grid.shape, src.count + masked, src.dtypes[0], path=dst_path, hint=hint)
+        check_output_size(grid.shape, src.count + masked, src.dtypes[0], path=dst_path, hint=hint)
         profile = _geotiff_profile(grid, src.count, src.dtypes[0], None if masked else fill, compress)
         src_masked = any(MaskFlags.per_dataset in f or MaskFlags.alpha in f for f in src.mask_flag_enums)
         # numpy, not jnp, for the kernels' arguments: each eager jnp conversion is a
@@ -250,13 +250,6 @@ def orthorectify_file(
     return rectify_file(
         src_path, dst_path, OrthoModel(exterior, camera, dem), grid, resampling=resampling, nodata=nodata,
         tile=tile, progress=progress, compress=compress, inputs=inputs, approx=approx, info=info,
-        hint=lambda: _gsd_hint(exterior, camera, dem, grid),
+        hint=lambda: gsd_hint(exterior, camera, dem, grid),
     )
 
-
-def _gsd_hint(exterior, camera, dem, grid) -> str:
-    """The resolution the image supports, for an output that does not fit."""
-    from ._grid import ground_sampling_distance
-
-    gsd = ground_sampling_distance(exterior, camera, dem)
-    return f"the image's ground sampling distance is {gsd:.4g} (this grid: {abs(grid.transform.a):.4g})"

@@ -176,6 +176,12 @@ def ground_sampling_distance(exterior: ExteriorOrientation, camera: FrameCamera,
     return math.sqrt(_shoelace(ground) / _shoelace(px))
 
 
+def gsd_hint(exterior, camera, dem, grid) -> str:
+    """The resolution the image supports, for an output that does not fit."""
+    gsd = ground_sampling_distance(exterior, camera, dem)
+    return f"the image's ground sampling distance is {gsd:.4g} (this grid: {abs(grid.transform.a):.4g})"
+
+
 def ortho_grid(
     exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, resolution=None, *, per_side: int = 16
 ) -> Grid:
