@@ -15,9 +15,8 @@ import numpy as np
 import pytest
 
 from photax.demo import sample_scene
-from photax.rectification import ortho_grid, orthorectify, orthorectify_file
+from photax.rectification import ground_sampling_distance, ortho_grid, orthorectify, orthorectify_file
 from photax.io import _size
-from photax.rectification import _grid as grid_module
 
 DATA = pathlib.Path(__file__).resolve().parents[1] / "data"
 
@@ -34,7 +33,7 @@ def _closed_form_gsd(s):
 
 
 def test_gsd_matches_the_closed_form(scene):
-    gsd = grid_module.ground_sampling_distance(scene["exterior"], scene["camera"], scene["dem"])
+    gsd = ground_sampling_distance(scene["exterior"], scene["camera"], scene["dem"])
     assert gsd == pytest.approx(_closed_form_gsd(scene), rel=0.03)  # tilt 1-2 deg, relief: a few %
 
 
@@ -124,3 +123,12 @@ def test_to_raster_refused_when_the_disk_is_short(tmp_path, monkeypatch):
     with pytest.raises(ValueError, match=r"60,000 pixels x 2 band\(s\) needs 240 KB"):
         to_raster(arr, tmp_path / "x.tif")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_rectify_resolution_outside_the_gcps_scale(tmp_path, capsys):
+    """``photax rectify --resolution 1e308`` wrote a 1 x 1 image with exit 0 (issue 27)."""
+    from photax.cli import main
+
+    code = main(["rectify", str(DATA / "sample_image.tif"), "--gcps", str(DATA / "sample_gcps.csv"), "--order",
+                 "1", "--out", str(tmp_path / "r.tif"), "--resolution", "1e308", "--no-progress"])
+    assert code == 2 and "choose from" in capsys.readouterr().err and not (tmp_path / "r.tif").exists()

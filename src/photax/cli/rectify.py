@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.gcp import read_gcps
     from ..polynomial import fit_polynomial
-    from ..rectification import Grid, rectify_file
+    from ..rectification import Grid, check_resolution, rectify_file
     from ._common import ground_unit, input_file, plural
 
     image = input_file(args.image, "image")
@@ -60,15 +60,15 @@ def run(args: argparse.Namespace) -> int:
     control = ~table.check
     ground, pixel = table.ground[control, :2], table.pixel[control]
     model = fit_polynomial(ground, pixel, args.order)
-    if args.resolution is None:
-        # Map units per pixel from the GCP spread (square root of the area ratio).
-        span = np.ptp(ground, axis=0).prod() / max(np.ptp(pixel, axis=0).prod(), 1e-12)
-        resolution = float(np.sqrt(span))
-    else:
-        resolution = args.resolution
+    # Map units per pixel from the GCP spread (square root of the area ratio): the image's sampling distance.
+    span = np.ptp(ground, axis=0).prod() / max(np.ptp(pixel, axis=0).prod(), 1e-12)
+    gsd = float(np.sqrt(span))
+    resolution = gsd if args.resolution is None else args.resolution
     if not resolution > 0:
         raise ValueError(f"--resolution must be positive, got {resolution}")
     bounds = (*ground.min(axis=0), *ground.max(axis=0))
+    if args.resolution is not None:
+        check_resolution(resolution, gsd, bounds, "the GCPs' footprint")
     grid = Grid.from_bounds(bounds, resolution, crs=table.crs)
     rectify_file(image, args.out, model, grid, resampling=args.resampling, nodata=args.nodata, tile=args.tile,
                  progress=args.progress and args.command, inputs=[args.gcps])

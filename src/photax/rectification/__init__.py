@@ -47,5 +47,6 @@ pixel coordinates; raster georeference at pixel corners).
 from ..resampling import Resampling as Resampling
 from ._files import orthorectify_file as orthorectify_file, rectify_file as rectify_file
 from ._grid import Grid as Grid, ortho_grid as ortho_grid
+from ._grid import check_resolution as check_resolution, ground_sampling_distance as ground_sampling_distance
 from ._indirect import rectify as rectify
 from ._ortho import OrthoModel as OrthoModel, orthorectify as orthorectify
