@@ -8,7 +8,6 @@ import json
 import pathlib
 
 import numpy as np
-import pytest
 
 from photax.measure import Status, _render as R, locate_corners, locate_targets, match_lsm, target_kind
 
@@ -119,8 +118,9 @@ def test_not_finite():
 
 
 def test_cli_readme_example(tmp_path, capsys):
-    """README: ``photax measure data/sample_image.tif --targets data/sample_gcps.csv --radius 6 -o measured.csv
-    --gcp-out gcps.csv``: 15 targets measured (the blunder reported as no target), a GCP file resect reads."""
+    """README: ``photax measure data/sample_image.tif --targets data/sample_gcps.csv --radius 6
+    -o measured.csv --gcp-out gcps.csv``: 15 targets measured (the blunder reported as no target), a GCP
+    file resect reads."""
     from photax.cli import main
     from photax.io import read_gcps
 

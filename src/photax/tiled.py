@@ -205,8 +205,8 @@ def _valid_chunk(model, transform, tile, layout, approx, size):
     from .rectification._files import _valid
 
     r0, c0, h, w = tile
-    pos, origin, _, _ = _tile_positions(model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float), layout,
-                                        _approx_arg(approx), size)
+    pos, origin, _, _ = _tile_positions(model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float),
+                                        layout, _approx_arg(approx), size)
     return _valid(np.asarray(pos)[:, :h, :w], np.asarray(origin), size, None, None)
 
 
@@ -350,6 +350,6 @@ def orthorectify_dask(
         out_key = (vkey, row_of[r0], col_of[c0])
         vdsk[out_key] = ((np.zeros, (h, w), bool) if win is None else
                          (_valid_chunk, f"{vkey}-model", transform, t, layout, approx, size))
-    valid = da.Array(HighLevelGraph.from_collections(vkey, vdsk, dependencies=()), vkey, chunks=(heights, widths),
-                     dtype=bool)
+    vgraph = HighLevelGraph.from_collections(vkey, vdsk, dependencies=())
+    valid = da.Array(vgraph, vkey, chunks=(heights, widths), dtype=bool)
     return out, dataarray(valid, grid, np.asarray(False), f"{name}_valid")

@@ -13,8 +13,8 @@ RESAMPLING = ("nearest", "bilinear", "cubic", "lanczos", "lanczos4", "bspline")
 
 
 NODATA_HELP = ("value of output pixels without data, recorded as the file's nodata (default: the input's "
-               "nodata; else NaN for float images, and for integer images no value but an internal mask band, "
-               "so that no grey value, true black included, is lost)")
+               "nodata; else NaN for float images, and for integer images no value but an internal mask "
+               "band, so that no grey value, true black included, is lost)")
 
 
 def nodata_value(text: str) -> float:

@@ -61,9 +61,9 @@ def add_parser(sub) -> None:
     p.add_argument("--min-distance", type=int, default=5, help="interest points: px between two points")
     p.add_argument("--radius", type=float, help="targets: image radius of a target in px (required)")
     p.add_argument("--method", choices=_METHODS, default="auto",
-                   help="targets: centring method: quartered (black-and-white sectors: Förstner's crossing point), "
-                   "ellipse, wong-trinder or centroid (discs); auto (default) picks quartered or ellipse from "
-                   "the grey values around the approximate positions")
+                   help="targets: centring method: quartered (black-and-white sectors: Förstner's crossing "
+                   "point), ellipse, wong-trinder or centroid (discs); auto (default) picks quartered or "
+                   "ellipse from the grey values around the approximate positions")
     p.add_argument("--polarity", choices=("bright", "dark"), default="bright", help="targets: bright or dark")
     p.add_argument("--window", type=int, help="half-size of the measuring window in px (default per locator)")
     p.set_defaults(func=run)
@@ -178,7 +178,8 @@ def run(args: argparse.Namespace) -> int:
     elif args.targets:
         method = args.method
         if method == "auto":
-            method = "quartered" if measure.target_kind(image, approx, args.radius) == "quartered" else "ellipse"
+            kind = measure.target_kind(image, approx, args.radius)
+            method = "quartered" if kind == "quartered" else "ellipse"
             print(f"targets look {'quartered' if method == 'quartered' else 'like discs'}: --method {method}")
         res = measure.locate_targets(image, approx, args.radius, method=method, polarity=args.polarity, **kw)
     else:

@@ -35,7 +35,8 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="ground pixel size (default: the mean ground sampling distance)")
     p.add_argument("--resampling", choices=RESAMPLING, default=None,
-                   help="resampling kernel (default bilinear; nearest for a palette image, which takes no other)")
+                   help="resampling kernel (default bilinear; nearest for a palette image, which takes "
+                   "no other)")
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")

@@ -25,7 +25,8 @@ def add_parser(sub) -> None:
     p.add_argument("--out", required=True, help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="map pixel size (default: the mean GCP scale)")
     p.add_argument("--resampling", choices=RESAMPLING, default=None,
-                   help="resampling kernel (default bilinear; nearest for a palette image, which takes no other)")
+                   help="resampling kernel (default bilinear; nearest for a palette image, which takes "
+                   "no other)")
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")

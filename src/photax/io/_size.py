@@ -42,8 +42,10 @@ def check_output_size(shape, bands: int, dtype, *, path=None, hint=None) -> None
             "; a file output (rectify_file / orthorectify_file, streamed tile by tile) needs only disk space")
     else:
         folder = pathlib.Path(path).resolve().parent
-        room, where, fix = shutil.disk_usage(folder).free, f"free on the disk of {folder} (uncompressed size)", ""
+        room, fix = shutil.disk_usage(folder).free, ""
+        where = f"free on the disk of {folder} (uncompressed size)"
     if nbytes > room:
         more = f"; {hint()}" if hint is not None else ""
-        raise ValueError(f"the output grid of {rows:,} x {cols:,} = {pixels:,} pixels x {bands} band(s) needs "
+        raise ValueError(f"the output grid of {rows:,} x {cols:,} = {pixels:,} pixels x {bands} band(s) "
+                         f"needs "
                          f"{_human(nbytes)}, more than the {_human(room)} {where}{fix}{more}")

@@ -234,7 +234,8 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
         if tuple(mask.shape) != tuple(data.shape[-2:]):
             raise ValueError(f"mask must be (y, x) = {tuple(data.shape[-2:])}, got shape {tuple(mask.shape)}")
         if on_cluster:
-            raise ValueError("to_raster: mask= is written by the local schedulers only, not a distributed client")
+            raise ValueError("to_raster: mask= is written by the local schedulers only, "
+                             "not by a distributed client")
     options = dict(driver="GTiff", tiled=True, BIGTIFF="IF_SAFER", blockxsize=256, blockysize=256)
     if hasattr(data.data, "chunks"):  # tiles dividing the chunks
         ys, xs = data.data.chunks[-2:]
@@ -260,7 +261,8 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
 
         data.rio.to_raster(target, lock=Lock(f"photax-write-{uuid.uuid4().hex}"), **options)
 
-    with atomic_path(path, inputs=inputs) as tmp, rasterio.Env(GDAL_CACHEMAX=cache, GDAL_TIFF_INTERNAL_MASK=True):
+    env = rasterio.Env(GDAL_CACHEMAX=cache, GDAL_TIFF_INTERNAL_MASK=True)
+    with atomic_path(path, inputs=inputs) as tmp, env:
         if not cog:
             write(tmp)
         else:

@@ -113,8 +113,8 @@ def read_dem(path, band: int = 1) -> DEM:
         raise ValueError(f"{path}: {exc}") from None
 
 
-def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), compress: str | None = "deflate",
-                  mask=None) -> pathlib.Path:
+def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(),
+                  compress: str | None = "deflate", mask=None) -> pathlib.Path:
     """Write a ``(bands, rows, cols)`` or ``(rows, cols)`` array as a GeoTIFF, atomically.
 
     Args:
@@ -153,7 +153,8 @@ def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), c
         mask = np.asarray(mask)
         if mask.shape != a.shape[1:]:
             raise ValueError(f"mask must be (rows, cols) = {a.shape[1:]}, got shape {mask.shape}")
-    with atomic_path(path, inputs) as tmp, warnings.catch_warnings(), rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True):
+    env = rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True)
+    with atomic_path(path, inputs) as tmp, warnings.catch_warnings(), env:
         if transform is None:
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         with rasterio.open(tmp, "w", **profile) as dst:

@@ -27,7 +27,7 @@ class Status(enum.IntEnum):
     LEFT_WINDOW = 4  # the solution moved further from the approximation than the window allows
     ILL_CONDITIONED = 5  # gradients all in one direction (an edge, not a point: q below its threshold),
     # or a match (NCC, LSM) whose correlation or radiometric gain is not positive
-    NO_TARGET = 6  # no blob above the background's noise, it touches the window border, or no quartered pattern
+    NO_TARGET = 6  # no blob above the background's noise or one touching the border; no quartered pattern
     NOT_FINITE = 7  # NaN/inf pixel values in the window
 
 

@@ -278,7 +278,8 @@ def locate_targets(
         NaN with ``valid = False``.
     """
     if method not in ("wong-trinder", "centroid", "ellipse", "quartered", "auto"):
-        raise ValueError(f"method: expected 'wong-trinder', 'centroid', 'ellipse', 'quartered' or 'auto', got {method!r}")
+        raise ValueError("method: expected 'wong-trinder', 'centroid', 'ellipse', 'quartered' or 'auto', "
+                         f"got {method!r}")
     if polarity not in ("bright", "dark"):
         raise ValueError(f"polarity: expected 'bright' or 'dark', got {polarity!r}")
     if not radius > 0:

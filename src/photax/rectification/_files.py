@@ -165,14 +165,17 @@ def rectify_file(
             # The window from the very positions resampled: none falls outside it.
             win = _source_window(p[0] + o[0], p[1] + o[1], src.width, src.height, Resampling(resampling).margin)
             if win is None:
-                return (np.full((src.count, h, w), fill, dtype=fill.dtype), np.zeros((h, w), bool)), err, n_exact
+                empty = np.full((src.count, h, w), fill, dtype=fill.dtype)
+                return (empty, np.zeros((h, w), bool)), err, n_exact
+            window = Window(win[1], win[0], win[3], win[2])
             with lock:
-                data = src.read(window=Window(win[1], win[0], win[3], win[2]))
-                src_mask = src.read_masks(1, window=Window(win[1], win[0], win[3], win[2])) if src_masked else None
+                data = src.read(window=window)
+                src_mask = src.read_masks(1, window=window) if src_masked else None
             offset = np.asarray(o - np.array([win[1], win[0]]), dtype=np.int32)
             # Full-size tiles (edge tiles cropped after): fewer compilations.
-            block = np.asarray(_resample_tile(_source(data, resampling, compute), pos, origin, offset, fill_j, size,
-                                              data.shape[-2:], resampling, compute, out_dtype))[:, :h, :w]
+            block = _resample_tile(_source(data, resampling, compute), pos, origin, offset, fill_j, size,
+                                   data.shape[-2:], resampling, compute, out_dtype)
+            block = np.asarray(block)[:, :h, :w]
             valid = _valid(p, o, size, win, src_mask)
             if src_mask is not None:
                 block = np.where(valid, block, fill)

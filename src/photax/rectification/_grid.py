@@ -127,20 +127,24 @@ MIN_PIXELS = 16  # an output grid has at least 16 x 16 pixels
 GSD_FACTOR = 100.0  # and a resolution within GSD / 100 .. 100 GSD
 
 
-def check_resolution(resolution: float, gsd: float, bounds, what: str = "the image") -> None:
+def check_resolution(resolution, gsd: float, bounds, what: str = "the image") -> None:
     """Refuse a pixel size outside what ``what`` supports: between ``gsd / 100`` and ``100 gsd``, and
-    no coarser than a ``16 x 16`` pixel grid over ``bounds`` (xmin, ymin, xmax, ymax). The message names
-    the ground sampling distance ``gsd`` and the supported range."""
+    giving a grid over ``bounds`` (xmin, ymin, xmax, ymax; :meth:`Grid.from_bounds`) of at least
+    ``16 x 16`` pixels. The message names the ground sampling distance ``gsd`` and a supported range
+    (up to ``side / 16``, which always gives 16 pixels)."""
     side = min(bounds[2] - bounds[0], bounds[3] - bounds[1])
     lo, hi = gsd / GSD_FACTOR, min(GSD_FACTOR * gsd, side / MIN_PIXELS)
-    r = float(np.max(np.asarray(resolution, dtype=float)))
-    r_min = float(np.min(np.asarray(resolution, dtype=float)))
-    if not (lo <= r_min and r <= hi):
-        if hi < lo:
-            raise ValueError(f"{what}'s footprint ({side:.4g} across) is too small for a {MIN_PIXELS} x "
-                             f"{MIN_PIXELS} pixel grid at {lo:.4g} (its ground sampling distance {gsd:.4g} / "
-                             f"{GSD_FACTOR:g})")
-        text = f"{float(resolution):g}" if np.ndim(resolution) == 0 else str(tuple(np.asarray(resolution).tolist()))
+    if hi < lo:
+        raise ValueError(f"{what}'s footprint ({side:.4g} across) is too small for a {MIN_PIXELS} x "
+                         f"{MIN_PIXELS} pixel grid at {lo:.4g} (its ground sampling distance {gsd:.4g} / "
+                         f"{GSD_FACTOR:g})")
+    res = np.asarray(resolution, dtype=float)
+    ok = lo <= float(np.min(res)) and float(np.max(res)) <= GSD_FACTOR * gsd
+    if ok:
+        shape = Grid.from_bounds(bounds, resolution).shape
+        ok = min(shape) >= MIN_PIXELS
+    if not ok:
+        text = f"{float(res):g}" if res.ndim == 0 else str(tuple(res.tolist()))
         raise ValueError(f"resolution {text} is outside what {what} supports: its ground sampling "
                          f"distance is {gsd:.4g}; choose from {lo:.4g} to {hi:.4g} (at most {GSD_FACTOR:g} "
                          f"times finer or coarser than the GSD, at least {MIN_PIXELS} x {MIN_PIXELS} pixels)")
