@@ -78,8 +78,8 @@ def test_nodata_option_records_a_value_and_no_mask(setup):
     assert np.array_equal(data == 255, ~np.isfinite(ref) | (ref == 255))
 
 
-def test_input_mask_is_respected(setup):
-    s, tmp, paths, grid = setup
+def _masked_inputs(tmp, paths):
+    """The uint8 input with an internal mask over a block, and the same as float64 with NaN there."""
     with open_raster(paths["u8"]) as src:
         img, profile = src.read(1), dict(src.profile)
     profile.pop("transform", None)
@@ -92,6 +92,12 @@ def test_input_mask_is_respected(setup):
     nan_in = tmp / "nan_in.tif"
     with rasterio.open(nan_in, "w", **dict(profile, dtype="float64")) as dst:
         dst.write(np.where(invalid, np.nan, img.astype(np.float64)), 1)
+    return masked_in, nan_in
+
+
+def test_input_mask_is_respected(setup):
+    s, tmp, paths, grid = setup
+    masked_in, nan_in = _masked_inputs(tmp, paths)
     ref, *_ = _ortho(s, grid, nan_in, tmp / "rf.tif")  # nearest: NaN input pixels give NaN exactly
     data, mask, _, _ = _ortho(s, grid, masked_in, tmp / "rm.tif")
     plain, *_ = _ortho(s, grid, paths["f64"], tmp / "rp.tif")
@@ -134,3 +140,18 @@ def test_dask_ortho_with_its_mask(setup):
     assert np.array_equal(mask > 0, footprint)
     assert np.array_equal(data[footprint], ref[footprint].astype(np.uint8))
     assert np.sum(data[footprint] == 0) > 1000
+
+
+def test_dask_ortho_respects_the_input_mask(setup):
+    pytest.importorskip("dask")
+    pytest.importorskip("rioxarray")
+    from photax.tiled import orthorectify_dask
+
+    s, tmp, paths, grid = setup
+    masked_in, nan_in = _masked_inputs(tmp, paths)
+    ref, *_ = _ortho(s, grid, nan_in, tmp / "rfd.tif", tile=256)
+    ortho, valid = orthorectify_dask(masked_in, s["exterior"], s["camera"], s["dem"], grid, chunks=256,
+                                     resampling="nearest", mask=True)
+    valid, data = valid.values, ortho.values[0]  # from a file: (band, y, x)
+    assert np.array_equal(valid, np.isfinite(ref))
+    assert np.all(data[~valid] == 0) and np.array_equal(data[valid], ref[valid].astype(np.uint8))
