@@ -155,3 +155,18 @@ def test_dask_ortho_respects_the_input_mask(setup):
     valid, data = valid.values, ortho.values[0]  # from a file: (band, y, x)
     assert np.array_equal(valid, np.isfinite(ref))
     assert np.all(data[~valid] == 0) and np.array_equal(data[valid], ref[valid].astype(np.uint8))
+
+
+def test_write_geotiff_mask_round_trip(tmp_path):
+    from photax.io import write_geotiff
+
+    data = np.zeros((2, 40, 50), np.uint8)  # all true black
+    valid = np.zeros((40, 50), bool)
+    valid[5:30, 10:45] = True
+    write_geotiff(tmp_path / "m.tif", data, (1, 0, 0, 0, -1, 40), "EPSG:32633", mask=valid)
+    with rasterio.open(tmp_path / "m.tif") as ds:
+        assert ds.nodata is None and np.array_equal(ds.read_masks(1) > 0, valid)
+    back, _ = read_geotiff(tmp_path / "m.tif", masked=True)
+    assert np.array_equal(~np.ma.getmaskarray(back[1]), valid) and np.all(back[:, valid] == 0)
+    with pytest.raises(ValueError, match="mask"):
+        write_geotiff(tmp_path / "n.tif", data, None, mask=valid[:-1])
