@@ -125,24 +125,35 @@ def _shoelace(p: np.ndarray) -> float:
     return 0.5 * abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(np.roll(p[:, 0], -1), p[:, 1])))
 
 
-def ortho_grid(
-    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, resolution=None, *, crs=None,
-    per_side: int = 16,
-) -> Grid:
-    """The grid covering an image's footprint on a DEM.
+MIN_PIXELS = 16  # an output grid has at least 16 x 16 pixels
+GSD_FACTOR = 100.0  # and a resolution within GSD / 100 .. 100 GSD
 
-    The image outline (``per_side`` points per edge, on the outer pixel
-    edges) is cut with the DEM by :func:`photax.image_to_ground`; rays that
-    miss the DEM are cut with the plane at the DEM's mean height.  The
-    bounds are clipped to the DEM and snapped to the resolution.
 
-    Args:
-        resolution: ground pixel size; default the mean ground sampling
-            distance ``sqrt(footprint area / image area in pixels)``.
-        crs: the grid's CRS (e.g. the one an orientation file names); default
-            the DEM's.  Coordinates are not transformed: it names the CRS the
-            DEM and the orientation are already in.
-    """
+def check_resolution(resolution, gsd: float, bounds, what: str = "the image") -> None:
+    """Refuse a pixel size outside what ``what`` supports: between ``gsd / 100`` and ``100 gsd``, and
+    giving a grid over ``bounds`` (xmin, ymin, xmax, ymax; :meth:`Grid.from_bounds`) of at least
+    ``16 x 16`` pixels. The message names the ground sampling distance ``gsd`` and a supported range
+    (up to ``side / 16``, which always gives 16 pixels)."""
+    side = min(bounds[2] - bounds[0], bounds[3] - bounds[1])
+    lo, hi = gsd / GSD_FACTOR, min(GSD_FACTOR * gsd, side / MIN_PIXELS)
+    if hi < lo:
+        raise ValueError(f"{what}'s footprint ({side:.4g} across) is too small for a {MIN_PIXELS} x "
+                         f"{MIN_PIXELS} pixel grid at {lo:.4g} (its ground sampling distance {gsd:.4g} / "
+                         f"{GSD_FACTOR:g})")
+    res = np.asarray(resolution, dtype=float)
+    ok = lo <= float(np.min(res)) and float(np.max(res)) <= GSD_FACTOR * gsd
+    if ok:
+        shape = Grid.from_bounds(bounds, resolution).shape
+        ok = min(shape) >= MIN_PIXELS
+    if not ok:
+        text = f"{float(res):g}" if res.ndim == 0 else str(tuple(res.tolist()))
+        raise ValueError(f"resolution {text} is outside what {what} supports: its ground sampling "
+                         f"distance is {gsd:.4g}; choose from {lo:.4g} to {hi:.4g} (at most {GSD_FACTOR:g} "
+                         f"times finer or coarser than the GSD, at least {MIN_PIXELS} x {MIN_PIXELS} pixels)")
+
+
+def _footprint_outline(exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, per_side: int):
+    """``(ground (4 per_side, 2), pixel outline (4 per_side, 2))`` of the image's outer pixel edges."""
     if camera.image_size is None:
         raise ValueError("camera must have an image_size to find the image footprint")
     w, h = camera.image_size
@@ -160,8 +171,46 @@ def ortho_grid(
     ground = np.where(np.isfinite(ground), ground, flat)[:, :2]
     if not np.all(np.isfinite(ground)):
         raise ValueError("the image outline does not reach the ground (camera looks above the horizon)")
-    if resolution is None:
-        resolution = math.sqrt(_shoelace(ground) / _shoelace(px))
+    return ground, px
+
+
+def ground_sampling_distance(exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM,
+                             *, per_side: int = 16) -> float:
+    """The image's mean ground sampling distance on ``dem``: ``sqrt(footprint area / image area in pixels)``
+    (ground units per pixel)."""
+    ground, px = _footprint_outline(exterior, camera, dem, per_side)
+    return math.sqrt(_shoelace(ground) / _shoelace(px))
+
+
+def gsd_hint(exterior, camera, dem, grid) -> str:
+    """The resolution the image supports, for an output that does not fit."""
+    gsd = ground_sampling_distance(exterior, camera, dem)
+    return f"the image's ground sampling distance is {gsd:.4g} (this grid: {abs(grid.transform.a):.4g})"
+
+
+def ortho_grid(
+    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, resolution=None, *, crs=None,
+    per_side: int = 16,
+) -> Grid:
+    """The grid covering an image's footprint on a DEM.
+
+    The image outline (``per_side`` points per edge, on the outer pixel
+    edges) is cut with the DEM by :func:`photax.image_to_ground`; rays that
+    miss the DEM are cut with the plane at the DEM's mean height.  The
+    bounds are clipped to the DEM and snapped to the resolution.
+
+    Args:
+        resolution: ground pixel size; default the mean ground sampling
+            distance ``sqrt(footprint area / image area in pixels)``
+            (:func:`ground_sampling_distance`).  A resolution more than 100
+            times finer or coarser than it, or one giving fewer than 16 x 16
+            pixels, is refused with the supported range (:func:`check_resolution`).
+        crs: the grid's CRS (e.g. the one an orientation file names); default
+            the DEM's.  Coordinates are not transformed: it names the CRS the
+            DEM and the orientation are already in.
+    """
+    ground, px = _footprint_outline(exterior, camera, dem, per_side)
+    gsd = math.sqrt(_shoelace(ground) / _shoelace(px))
     dxmin, dymin, dxmax, dymax = dem.bounds
     bounds = (
         max(ground[:, 0].min(), dxmin),
@@ -171,4 +220,8 @@ def ortho_grid(
     )
     if not (bounds[2] > bounds[0] and bounds[3] > bounds[1]):
         raise ValueError("the image footprint does not overlap the DEM")
+    if resolution is None:
+        resolution = gsd
+    else:
+        check_resolution(resolution, gsd, bounds)
     return Grid.from_bounds(bounds, resolution, crs=dem.crs if crs is None else crs)

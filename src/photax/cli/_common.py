@@ -12,6 +12,21 @@ CONVENTIONS = ("phi-omega-kappa", "omega-phi-kappa")
 RESAMPLING = ("nearest", "bilinear", "cubic", "lanczos", "lanczos4", "bspline")
 
 
+NODATA_HELP = ("value of output pixels without data, recorded as the file's nodata (default: the input's "
+               "nodata; else NaN for float images, and for integer images no value but an internal mask "
+               "band, so that no grey value, true black included, is lost)")
+
+
+def nodata_value(text: str) -> float:
+    """``--nodata``: a number or ``nan``."""
+    import argparse
+
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or nan, got {text!r}") from None
+
+
 def input_file(path, what: str) -> pathlib.Path:
     """``path`` as a Path after checking it is a readable file.
 

@@ -5,8 +5,10 @@ Three modes, one output format:
 * ``--interest METHOD``: interest points (Förstner, Harris or Moravec), the
   ``--count`` strongest, each refined by Förstner's sub-pixel locator
   (:func:`photax.measure.locate_corners`), which gives its sigma;
-* ``--targets POINTS --radius R``: centres of circular targets near the
-  approximate positions in POINTS (:func:`photax.measure.locate_targets`);
+* ``--targets POINTS --radius R``: centres of circular targets (discs, or
+  quartered black-and-white discs: ``--method``, chosen from the image by
+  default) near the approximate positions in POINTS
+  (:func:`photax.measure.locate_targets`);
 * ``--corners POINTS``: corners near the approximate positions
   (:func:`photax.measure.locate_corners`).
 
@@ -27,7 +29,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-_METHODS = ("wong-trinder", "centroid", "ellipse")
+_METHODS = ("auto", "quartered", "ellipse", "wong-trinder", "centroid")
 
 
 def add_parser(sub) -> None:
@@ -55,7 +57,10 @@ def add_parser(sub) -> None:
     p.add_argument("--count", type=int, default=500, help="interest points: at most this many, strongest first")
     p.add_argument("--min-distance", type=int, default=5, help="interest points: px between two points")
     p.add_argument("--radius", type=float, help="targets: image radius of a target in px (required)")
-    p.add_argument("--method", choices=_METHODS, default="ellipse", help="targets: centring method")
+    p.add_argument("--method", choices=_METHODS, default="auto",
+                   help="targets: centring method: quartered (black-and-white sectors: Förstner's crossing "
+                   "point), ellipse, wong-trinder or centroid (discs); auto (default) picks quartered or "
+                   "ellipse from the grey values around the approximate positions")
     p.add_argument("--polarity", choices=("bright", "dark"), default="bright", help="targets: bright or dark")
     p.add_argument("--window", type=int, help="half-size of the measuring window in px (default per locator)")
     p.set_defaults(func=run)
@@ -115,7 +120,12 @@ def run(args: argparse.Namespace) -> int:
     if len(approx) == 0:
         res = None
     elif args.targets:
-        res = measure.locate_targets(image, approx, args.radius, method=args.method, polarity=args.polarity, **kw)
+        method = args.method
+        if method == "auto":
+            kind = measure.target_kind(image, approx, args.radius)
+            method = "quartered" if kind == "quartered" else "ellipse"
+            print(f"targets look {'quartered' if method == 'quartered' else 'like discs'}: --method {method}")
+        res = measure.locate_targets(image, approx, args.radius, method=method, polarity=args.polarity, **kw)
     else:
         res = measure.locate_corners(image, approx, **kw)
     if res is None:

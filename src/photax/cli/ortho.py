@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from ._common import RESAMPLING
+from ._common import NODATA_HELP, RESAMPLING, nodata_value
 
 
 def add_parser(sub) -> None:
@@ -45,9 +45,11 @@ def add_parser(sub) -> None:
                    "or orthority exterior CSV")  # fmt: skip
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="ground pixel size (default: the mean ground sampling distance)")
-    p.add_argument("--resampling", choices=RESAMPLING, default="bilinear",
-                   help="interpolation of the grey values")
+    p.add_argument("--resampling", choices=RESAMPLING, default=None,
+                   help="resampling kernel (default bilinear; nearest for a palette image, which takes "
+                   "no other)")
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
+    p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
@@ -77,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
     dem = read_dem(args.dem) if args.dem is not None else _flat_dem(args.height, exterior)
     grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
     orthorectify_file(
-        image, args.out, exterior, camera, dem, grid, resampling=args.resampling, tile=args.tile,
+        image, args.out, exterior, camera, dem, grid, resampling=args.resampling, nodata=args.nodata,
+        tile=args.tile,
         progress=args.progress and args.command,  # one bar, labelled "ortho"
     )
     print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} "

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import RESAMPLING
+from ._common import NODATA_HELP, RESAMPLING, nodata_value
 
 
 def add_parser(sub) -> None:
@@ -26,9 +26,11 @@ def add_parser(sub) -> None:
     p.add_argument("--order", type=int, default=1, help="polynomial order 1-5 (default 1)")
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="map pixel size (default: the mean GCP scale)")
-    p.add_argument("--resampling", choices=RESAMPLING, default="bilinear",
-                   help="interpolation of the grey values")
+    p.add_argument("--resampling", choices=RESAMPLING, default=None,
+                   help="resampling kernel (default bilinear; nearest for a palette image, which takes "
+                   "no other)")
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
+    p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
@@ -42,7 +44,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.gcp import read_gcps
     from ..polynomial import fit_polynomial
-    from ..grid import Grid
+    from ..grid import Grid, check_resolution
     from ..rectification import rectify_file
     from ._common import ground_unit, input_file, plural
 
@@ -62,17 +64,17 @@ def run(args: argparse.Namespace) -> int:
     control = ~table.check
     ground, pixel = table.ground[control, :2], table.pixel[control]
     model = fit_polynomial(ground, pixel, args.order)
-    if args.resolution is None:
-        # Map units per pixel from the GCP spread (square root of the area ratio).
-        span = np.ptp(ground, axis=0).prod() / max(np.ptp(pixel, axis=0).prod(), 1e-12)
-        resolution = float(np.sqrt(span))
-    else:
-        resolution = args.resolution
+    # Map units per pixel from the GCP spread (square root of the area ratio): the image's sampling distance.
+    span = np.ptp(ground, axis=0).prod() / max(np.ptp(pixel, axis=0).prod(), 1e-12)
+    gsd = float(np.sqrt(span))
+    resolution = gsd if args.resolution is None else args.resolution
     if not resolution > 0:
         raise ValueError(f"--resolution must be positive, got {resolution}")
     bounds = (*ground.min(axis=0), *ground.max(axis=0))
+    if args.resolution is not None:
+        check_resolution(resolution, gsd, bounds, "the GCPs' footprint")
     grid = Grid.from_bounds(bounds, resolution, crs=table.crs)
-    rectify_file(image, args.out, model, grid, resampling=args.resampling, tile=args.tile,
+    rectify_file(image, args.out, model, grid, resampling=args.resampling, nodata=args.nodata, tile=args.tile,
                  progress=args.progress and args.command, inputs=[args.gcps])
     print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {resolution:g} {ground_unit(table.crs, 'map units')}, "
           f"order {args.order}, {plural(len(ground), 'GCP')}, rmse {float(model.rmse):.3g} px")

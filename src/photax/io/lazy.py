@@ -30,6 +30,7 @@ import uuid
 
 import numpy as np
 
+from ._size import check_output_size
 from .atomic import atomic_path, temporary
 
 
@@ -85,13 +86,16 @@ class _Writer:
         except BaseException as err:  # noqa: BLE001  (kept, raised by put() and close() in the caller's thread)
             self._error = err
 
-    def _write(self, key, block):
-        """Write one chunk: ``key`` is its (band,) row and column slices."""
+    def _write(self, key, block, mask=False):
+        """Write one chunk: ``key`` is its (band,) row and column slices; ``mask``: ``block`` is the
+        (rows, cols) validity, written to the dataset's mask band."""
         from rasterio.windows import Window
 
         ys, xs = key[-2:]
         window = Window(xs.start, ys.start, xs.stop - xs.start, ys.stop - ys.start)
-        if block.ndim == 2:
+        if mask:
+            self._ds.write_mask(np.where(block, np.uint8(255), np.uint8(0)), window=window)
+        elif block.ndim == 2:
             self._ds.write(block, 1, window=window)
         else:
             start, stop, step = key[0].indices(self._ds.count)
@@ -110,6 +114,17 @@ class _Writer:
 
     def __setitem__(self, key, block):  # dask.array.store's target, called by the workers
         self._put((key, np.asarray(block)))
+
+    @property
+    def mask(self):
+        """A ``dask.array.store`` target writing the validity chunks to the mask band, through this thread."""
+        writer = self
+
+        class _Mask:
+            def __setitem__(self, key, block):
+                writer._put((key, np.asarray(block), True))
+
+        return _Mask()
 
     def close(self):
         """Wait for the chunks queued; raise the writer's error if any."""
@@ -138,7 +153,7 @@ def _profile(data, options) -> dict:
     return profile
 
 
-def _write_local(data, path, options: dict) -> None:
+def _write_local(data, path, options: dict, mask=None) -> None:
     """Write ``data`` to ``path`` on Dask's local scheduler: of Dask's
     ``num_workers`` threads (default the CPU count) one writes, the others
     compute (at least one).  The synchronous scheduler computes in this
@@ -157,20 +172,27 @@ def _write_local(data, path, options: dict) -> None:
         tags = {k: v for k, v in data.attrs.items() if not k.startswith("_") and k != "grid_mapping"}
         if tags:
             ds.update_tags(**tags)
-        if not hasattr(data.data, "dask"):
+        if not hasattr(data.data, "dask") and not hasattr(mask, "dask"):
             ds.write(np.asarray(data.data), None if data.ndim == 3 else 1)
+            if mask is not None:
+                ds.write_mask(np.where(np.asarray(mask), np.uint8(255), np.uint8(0)))
             return
         sync = get_scheduler() is dask.local.get_sync
         threads = int(dask.config.get("num_workers", None) or os.cpu_count() or 1)
         writer = _Writer(ds)
+        sources, targets = [da.asarray(data.data)], [writer]
+        if mask is not None:
+            sources.append(da.asarray(mask).rechunk(sources[0].chunks[-2:]))
+            targets.append(writer.mask)
         try:
-            da.store(data.data, writer, lock=False, scheduler="sync" if sync else "threads",
+            da.store(sources, targets, lock=False, scheduler="sync" if sync else "threads",
                      num_workers=max(threads - 1, 1))
         finally:
             writer.close()
 
 
-def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False, inputs=(), **kwargs):
+def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False, inputs=(), mask=None,
+              **kwargs):
     """Write a (Dask-backed) georeferenced DataArray to a GeoTIFF, atomically.
 
     Chunk by chunk into a temporary file beside ``path``, renamed onto
@@ -185,6 +207,8 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
     16 MiB) for the write, in this process (the writer, the COG copy).
     Plain ``.rio.to_raster(path)`` writes in place, rioxarray's way.
 
+    The output's uncompressed size is checked against the free disk space before any work.
+
     Args:
         data: an ``xarray.DataArray`` with a rioxarray georeference (e.g.
             from :func:`photax.orthorectify_dask` or :func:`photax.mosaic`).
@@ -193,6 +217,10 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
         cog: write a Cloud-Optimized GeoTIFF (tiled, compressed, with
             overviews; GDAL's COG driver copies the written GeoTIFF).
         inputs: paths ``path`` must not overwrite.
+        mask: ``(y, x)`` bool (NumPy, Dask or DataArray), True where the pixels hold data (e.g. from
+            ``orthorectify_dask(..., mask=True)``): written as GDAL's internal per-dataset mask band
+            instead of a nodata value, so that no grey value (true black in a uint8 ortho) is taken
+            for no data. Local Dask schedulers only.
         kwargs: more creation options for rasterio (``blockxsize`` and
             ``blockysize`` replace the tiles chosen to divide the chunks).
 
@@ -206,6 +234,13 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
         raise ValueError(f"to_raster writes (band, y, x) or (y, x) arrays, got dims {data.dims}: "
                          f"transpose it first (data.transpose(..., {data.rio.y_dim!r}, {data.rio.x_dim!r}))")
     on_cluster = _on_cluster()
+    if mask is not None:
+        mask = getattr(mask, "data", mask)
+        if tuple(mask.shape) != tuple(data.shape[-2:]):
+            raise ValueError(f"mask must be (y, x) = {tuple(data.shape[-2:])}, got shape {tuple(mask.shape)}")
+        if on_cluster:
+            raise ValueError("to_raster: mask= is written by the local schedulers only, "
+                             "not by a distributed client")
     options = dict(driver="GTiff", tiled=True, BIGTIFF="IF_SAFER", blockxsize=256, blockysize=256)
     if hasattr(data.data, "chunks"):  # tiles dividing the chunks
         ys, xs = data.data.chunks[-2:]
@@ -213,6 +248,10 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
     if compress:
         options["compress"] = compress
     options.update(kwargs)
+    bands = data.shape[0] if data.ndim == 3 else 1
+    check_output_size(data.shape[-2:], bands + (mask is not None), data.dtype, path=path)
+    if mask is not None:
+        options["nodata"] = None  # the mask band, not a value, says where there is no data
     # GDAL's block cache bounded for the write (default: 5 % of the RAM): two
     # chunks' bytes, at least 16 MiB.  GDAL's COG copy reads the whole raster
     # through the cache: 172 MiB for a 100 MPix uint8 ortho by default, 55 MiB so.
@@ -221,7 +260,7 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
 
     def write(target):
         if not on_cluster:
-            _write_local(data, target, options)
+            _write_local(data, target, options, mask)
             return
         from distributed import Lock
 
@@ -229,7 +268,8 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
 
     # Uncompressed, the size is known: refused before the work when the disk cannot hold it.
     size = None if compress or cog else data.size * data.dtype.itemsize
-    with atomic_path(path, inputs=inputs, size=size) as tmp, rasterio.Env(GDAL_CACHEMAX=cache):
+    env = rasterio.Env(GDAL_CACHEMAX=cache, GDAL_TIFF_INTERNAL_MASK=True)
+    with atomic_path(path, inputs=inputs, size=size) as tmp, env:
         if not cog:
             write(tmp)
         else:

@@ -46,8 +46,12 @@ def open_raster(path):
         raise ValueError(f"{path}: not a raster GDAL can read ({exc})") from None
 
 
-def read_geotiff(path) -> tuple[np.ndarray, dict]:
+def read_geotiff(path, *, masked: bool = False) -> tuple[np.ndarray, dict]:
     """Read all bands of a raster.
+
+    Args:
+        masked: return a ``numpy.ma.MaskedArray`` masked where the file has no data (its nodata value,
+            its per-dataset mask band or alpha band: rasterio's ``read(masked=True)``).
 
     Returns:
         ``(array, profile)``: ``array`` is ``(bands, rows, cols)`` in the
@@ -55,7 +59,30 @@ def read_geotiff(path) -> tuple[np.ndarray, dict]:
         as ``rasterio.Affine``, ``crs``, ``nodata``, ``dtype``, ...).
     """
     with open_raster(path) as src, _damaged(path):
-        return src.read(), dict(src.profile)
+        return src.read(masked=masked), dict(src.profile)
+
+
+def colormap(src) -> dict | None:
+    """The colour map of an open palette raster (its band 1 values index colours), or None."""
+    from rasterio.enums import ColorInterp
+
+    if src.count < 1 or src.colorinterp[0] != ColorInterp.palette:
+        return None
+    try:
+        return src.colormap(1)
+    except ValueError:  # rasterio: "NULL color table"
+        return None
+
+
+def check_palette(path, src, resampling) -> dict | None:
+    """A palette image's colour map, refusing any resampling but nearest neighbour: its values are
+    colour indices, which interpolation would turn into other colours (index 2 between 1 and 3)."""
+    cmap = colormap(src)
+    if cmap is not None and str(getattr(resampling, "value", resampling)) != "nearest":
+        raise ValueError(f"{path} is a palette image (its values index a colour map): only nearest-neighbour "
+                         f"resampling keeps them, got {str(getattr(resampling, 'value', resampling))!r}; "
+                         "use resampling='nearest' (--resampling nearest)")
+    return cmap
 
 
 def read_grey(path, band: int | None = None) -> np.ndarray:
@@ -106,7 +133,8 @@ def read_dem(path, band: int = 1) -> DEM:
         raise ValueError(f"{path}: {exc}") from None
 
 
-def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), compress: str | None = "deflate") -> pathlib.Path:
+def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(),
+                  compress: str | None = "deflate", mask=None) -> pathlib.Path:
     """Write a ``(bands, rows, cols)`` or ``(rows, cols)`` array as a GeoTIFF, atomically.
 
     Args:
@@ -119,6 +147,9 @@ def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), c
         crs: anything rasterio accepts (EPSG code, WKT, PROJ string), or None.
         nodata: the nodata value to record, or None.
         compress: GeoTIFF compression, or None.
+        mask: ``(rows, cols)`` bool, True where the pixels hold data: written as GDAL's internal
+            per-dataset mask band (rasterio's ``read_masks``, ``read(masked=True)``), which, unlike a
+            nodata value, takes no grey value away from the data.
     """
     import rasterio
     from rasterio import Affine
@@ -138,11 +169,18 @@ def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(), c
         profile.update(tiled=True, blockxsize=256, blockysize=256)
     if compress:
         profile["compress"] = compress
-    with atomic_path(path, inputs, size=None if compress else a.nbytes) as tmp, warnings.catch_warnings():
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != a.shape[1:]:
+            raise ValueError(f"mask must be (rows, cols) = {a.shape[1:]}, got shape {mask.shape}")
+    env = rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True)
+    with atomic_path(path, inputs, size=None if compress else a.nbytes) as tmp, warnings.catch_warnings(), env:
         if transform is None:
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         with gdal_errors(), rasterio.open(tmp, "w", **profile) as dst:
             dst.write(a)
+            if mask is not None:
+                dst.write_mask(np.where(mask, np.uint8(255), np.uint8(0)))
     return pathlib.Path(path)
 
 

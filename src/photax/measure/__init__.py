@@ -22,4 +22,4 @@ from ._interest import non_maximum_suppression as non_maximum_suppression
 from ._matching import match_lsm as match_lsm, match_ncc as match_ncc
 from ._result import LocateResult as LocateResult, Status as Status
 from ._targets import ellipse_centre_offset as ellipse_centre_offset, locate_targets as locate_targets
-from ._targets import target_homography as target_homography
+from ._targets import target_homography as target_homography, target_kind as target_kind

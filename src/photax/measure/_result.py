@@ -22,11 +22,12 @@ class Status(enum.IntEnum):
 
     OK = 0
     OUTSIDE = 1  # the measuring window (plus interpolation margin) is not inside the image
-    TEXTURELESS = 2  # flat window: no gradient / no contrast, normal equations singular
+    TEXTURELESS = 2  # flat window: constant grey values (no gradient at all)
     NOT_CONVERGED = 3  # iterations ended before the update fell below the tolerance
     LEFT_WINDOW = 4  # the solution moved further from the approximation than the window allows
-    ILL_CONDITIONED = 5  # gradients all in one direction (an edge, not a point) or q below its threshold
-    NO_TARGET = 6  # no blob above the threshold, or it touches the window border
+    ILL_CONDITIONED = 5  # gradients all in one direction (an edge, not a point: q below its threshold),
+    # or a match (NCC, LSM) whose correlation or radiometric gain is not positive
+    NO_TARGET = 6  # no blob above the background's noise or one touching the border; no quartered pattern
     NOT_FINITE = 7  # NaN/inf pixel values in the window
 
 
@@ -36,8 +37,10 @@ MESSAGES = {
     Status.TEXTURELESS: "no texture in the window (constant grey values)",
     Status.NOT_CONVERGED: "did not converge",
     Status.LEFT_WINDOW: "moved out of the window",
-    Status.ILL_CONDITIONED: "ill-conditioned (gradients in one direction only: an edge, not a point)",
-    Status.NO_TARGET: "no target found (nothing above the threshold, or it touches the window border)",
+    Status.ILL_CONDITIONED: "ill-conditioned (gradients in one direction only: an edge, not a point; "
+                            "or a match with no positive correlation)",
+    Status.NO_TARGET: "no target found (no disc stands out of the background, no quartered pattern, "
+                      "or the disc touches the window border)",
     Status.NOT_FINITE: "non-finite pixel values in the window",
 }
 

@@ -56,6 +56,7 @@ from ._files import (
     orthorectify_file as orthorectify_file,
     rectify_file as rectify_file,
 )
+from ..grid import check_resolution as check_resolution, ground_sampling_distance as ground_sampling_distance
 from ._indirect import rectify as rectify
 from ._ortho import OrthoModel as OrthoModel, orthorectify as orthorectify
 from ._tiling import tile_windows as tile_windows

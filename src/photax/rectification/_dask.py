@@ -132,15 +132,27 @@ def _windows(exterior, camera, dem, grid, tiles, size, margin):
     return out, wh
 
 
-def _read_window(path, window):
-    """The ``(B, h, w)`` input window ``(r0, c0, h, w)`` of a raster file (runs on a worker)."""
+def _read_window(path, window, mask=False):
+    """The ``(B, h, w)`` input window ``(r0, c0, h, w)`` of a raster file (runs on a worker); ``mask``:
+    its ``(h, w)`` mask instead (0: no data; the file's mask or alpha band)."""
     from rasterio.windows import Window
 
     from ..io.raster import open_raster
 
     r0, c0, h, w = window
     with open_raster(path) as src:
-        return src.read(window=Window(c0, r0, w, h))
+        win = Window(c0, r0, w, h)
+        return src.read_masks(1, window=win) if mask else src.read(window=win)
+
+
+def _masked_file(path) -> bool:
+    """Whether a raster marks no data by a mask or alpha band (not by a nodata value)."""
+    from rasterio.enums import MaskFlags
+
+    from .io.raster import open_raster
+
+    with open_raster(path) as src:
+        return any(MaskFlags.per_dataset in f or MaskFlags.alpha in f for f in src.mask_flag_enums)
 
 
 _STRIP = 64  # rows of positions checked at a time: float64 copies of a strip, not of the chunk
@@ -165,13 +177,16 @@ def _sample_bounds(pos, origin, h, w, size):
     return None if bounds[0] == np.inf else tuple(bounds)
 
 
-def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, resampling, fill, prepared, bands):
+def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, resampling, fill, prepared, bands,
+                 masked=False):
     """One output chunk ``(B, h, w)`` (``(h, w)`` unless ``bands``): positions,
-    window check, resampling; ``data`` the input window, or a raster's path."""
+    window check, resampling; ``data`` the input window, or a raster's path (``masked``: whose mask
+    band's no-data pixels give ``fill``)."""
+    from ..resampling import compute_dtype, gather_source
     from ._approx import _tile_positions
     from ._indirect import _resample_tile
-    from ..resampling import compute_dtype, gather_source
 
+    src_mask = _read_window(data, window, mask=True) if masked else None
     if isinstance(data, str):  # a raster's path: read on the worker
         data = _read_window(data, window)
     r0, c0, h, w = tile
@@ -196,7 +211,24 @@ def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, res
     fill_j = jnp.full((flat.shape[0],), fill, dtype=dtype)
     block = _resample_tile(flat, pos, origin, offset, fill_j, size, (wh, ww), resampling, compute, dtype)
     block = np.asarray(block)[:, :h, :w]
+    if src_mask is not None:
+        from .rectification._files import _valid
+
+        block = np.where(_valid(np.asarray(pos)[:, :h, :w], o, size, window, src_mask), block, fill)
     return block if bands else block[0]
+
+
+def _valid_chunk(model, transform, tile, layout, approx, size, path=None, window=None):
+    """``(h, w)`` bool: where the output chunk ``tile`` has data (the resampling's footprint test, and the
+    mask band of the raster ``path`` over the input ``window`` when given)."""
+    from .rectification._approx import _tile_positions
+    from .rectification._files import _valid
+
+    r0, c0, h, w = tile
+    pos, origin, _, _ = _tile_positions(model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float),
+                                        layout, _approx_arg(approx), size)
+    src_mask = None if path is None else _read_window(path, window, mask=True)
+    return _valid(np.asarray(pos)[:, :h, :w], np.asarray(origin), size, window, src_mask)
 
 
 def orthorectify_dask(
@@ -211,6 +243,7 @@ def orthorectify_dask(
     nodata=None,
     approx: float | None = 0.125,
     name: str = "ortho",
+    mask: bool = False,
 ):
     """:func:`photax.orthorectify` as a lazy, chunked ``xarray.DataArray``.
 
@@ -242,12 +275,16 @@ def orthorectify_dask(
         nodata: default the file's nodata, else NaN (float) or 0 (integer).
         approx: as in :func:`photax.rectify`; None for the exact mapping.
         name: the DataArray's name.
+        mask: also return where the output has data, a lazy ``(y, x)`` bool DataArray: with
+            ``to_raster(ortho, path, mask=valid)`` an integer ortho keeps every grey value (the file
+            carries a mask band, not the nodata value 0 that would take true black for no data).
 
     Returns:
         A Dask-backed ``xarray.DataArray`` with dims ``("y", "x")`` or
         ``("band", "y", "x")``, pixel-centre coordinates (north-up grids),
         and the CRS, transform and nodata written the rioxarray way
-        (``.rio.crs``, ``.rio.transform()``, ``.rio.nodata``).
+        (``.rio.crs``, ``.rio.transform()``, ``.rio.nodata``); with ``mask=True`` the pair
+        ``(ortho, valid)``.
     """
     # Over 80 lines: the docstring documents every argument, and the body builds the
     # task graph in one pass (windows, padded shapes, chunks) that reads top to bottom.
@@ -264,15 +301,18 @@ def orthorectify_dask(
         raise ValueError(f"chunks must be a positive number of pixels, got {chunks!r}")
     path = None
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
-        from ..io.raster import open_raster
+        from ..io.raster import check_palette, open_raster
 
         path = str(image)
         with open_raster(path) as src:
+            check_palette(path, src, resampling)  # colour indices: nearest neighbour only
             shape, dtype = (src.count, src.height, src.width), np.dtype(src.dtypes[0])
             if nodata is None:
                 nodata = src.nodata
+        masked = _masked_file(path)  # its mask or alpha band says where the input has no data
         lead = (shape[0],)
     else:
+        masked = False
         image = np.asarray(image)
         if image.ndim not in (2, 3) or min(image.shape) < 1:
             raise ValueError(f"image must have shape (H, W) or (bands, H, W), got {image.shape}")
@@ -318,9 +358,22 @@ def orthorectify_dask(
         else:
             data = image[:, wr : wr + wh, wc : wc + ww]
         dsk[out] = (_ortho_chunk, data, f"{key}-model", transform, t, win, layout, approx, size, resampling, fill,
-                    prepared, bool(lead))
+                    prepared, bool(lead), masked)
     heights = tuple(h for r0, c0, h, w in tiles if c0 == 0)
     widths = tuple(w for r0, c0, h, w in tiles if r0 == 0)
     graph = HighLevelGraph.from_collections(key, dsk, dependencies=())
     data = da.Array(graph, key, chunks=((shape[0],), heights, widths)[0 if lead else 1 :], dtype=dtype)
-    return dataarray(data, grid, fill, name)
+    out = dataarray(data, grid, fill, name)
+    if not mask:
+        return out
+    vkey = f"{key}-valid"
+    vdsk = {f"{vkey}-model": model}
+    for t, win in zip(tiles, windows):
+        r0, c0, h, w = t
+        out_key = (vkey, row_of[r0], col_of[c0])
+        vdsk[out_key] = ((np.zeros, (h, w), bool) if win is None else
+                         (_valid_chunk, f"{vkey}-model", transform, t, layout, approx, size,
+                          path if masked else None, win))
+    vgraph = HighLevelGraph.from_collections(vkey, vdsk, dependencies=())
+    valid = da.Array(vgraph, vkey, chunks=(heights, widths), dtype=bool)
+    return out, dataarray(valid, grid, np.asarray(False), f"{name}_valid")

@@ -13,9 +13,10 @@ from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
+from ..io._size import check_output_size
 from ..resampling import Resampling
 from ._approx import _tile_positions
-from ..grid import Grid, ortho_grid
+from ..grid import Grid, gsd_hint, ortho_grid
 from ._indirect import _resample_tile
 from ._ortho import OrthoModel, _check_image_size
 from ._tiling import (
@@ -56,11 +57,13 @@ def _source_window(cols: np.ndarray, rows: np.ndarray, width: int, height: int, 
     return r0, c0, h, w
 
 
-def _geotiff_profile(grid: Grid, count: int, dtype, fill: np.ndarray, compress: str | None) -> dict:
-    """The rasterio profile of the output: tiled 256 x 256, BigTIFF if needed."""
+def _geotiff_profile(grid: Grid, count: int, dtype, fill: np.ndarray | None, compress: str | None) -> dict:
+    """The rasterio profile of the output: tiled 256 x 256, BigTIFF if needed; ``fill`` None: no nodata
+    value (the output carries a mask band instead)."""
     profile = dict(
         driver="GTiff", width=grid.width, height=grid.height, count=count, dtype=dtype,
-        transform=grid.transform, crs=grid.crs, nodata=fill.item(), tiled=True, blockxsize=256,
+        transform=grid.transform, crs=grid.crs, nodata=None if fill is None else fill.item(), tiled=True,
+        blockxsize=256,
         blockysize=256, BIGTIFF="IF_SAFER",
     )
     if compress:
@@ -82,6 +85,7 @@ def rectify_file(
     inputs=(),
     approx: float | None = 0.125,
     info: dict | None = None,
+    hint: Callable[[], str] | None = None,
 ) -> Grid:
     """:func:`rectify` from one raster file to a GeoTIFF, window by window.
 
@@ -97,10 +101,19 @@ def rectify_file(
     Args:
         src_path: input raster (any GDAL format); all bands are rectified.
         dst_path: output GeoTIFF (tiled, BigTIFF if needed).
-        nodata: default the input's nodata, else NaN/0 as in :func:`rectify`.
+        nodata: the value of output pixels without data, recorded as the file's nodata. Default the
+            input's nodata; else, for a floating-point image, NaN; for an integer image (where any value
+            may be a real grey value: a true-black 0 must stay data) no nodata value but GDAL's internal
+            per-dataset mask band (``rasterio``'s ``read_masks`` / ``read(masked=True)``; the pixels under
+            the mask are 0). Pixels the input's own mask or alpha band marks as no data (nearest input
+            pixel) are no data in the output too.
+        resampling: the kernel; None: ``"bilinear"``, or ``"nearest"`` for a palette image (values
+            indexing a colour map), which takes no other kernel and keeps its colour map.
         compress: GeoTIFF compression (``"deflate"``, ``"lzw"``, None...).
         inputs: further paths the output must not overwrite (e.g. a DEM).
         approx, info: as in :func:`rectify`.
+        hint: called only when the output cannot fit on the disk (checked before any work: uncompressed
+            size against ``shutil.disk_usage``); its sentence ends the error message.
 
     Returns:
         ``grid``.
@@ -108,25 +121,32 @@ def rectify_file(
     # Over 80 lines only by its docstring; the per-tile work is the closure
     # ``one`` (window, read, resample), the rest is setup.
     import rasterio
+    from rasterio.enums import MaskFlags
     from rasterio.windows import Window
 
-    from ..io.atomic import atomic_path, check_space
-    from ..io.raster import gdal_errors, open_raster
+    from ..io.atomic import atomic_path
+    from ..io.raster import check_palette, colormap, gdal_errors, open_raster
     from ..resampling import compute_dtype, gather_source
 
-    resampling = _check_resampling(resampling)
+    auto = resampling is None
+    resampling = _check_resampling("bilinear" if auto else resampling)
     _check_model(model)
     approx = _check_approx(approx)
     tile = int(tile)
     if tile < 1:
         raise ValueError(f"tile must be a positive number of pixels, got {tile!r}")
     with open_raster(src_path) as src, atomic_path(dst_path, inputs=(src_path, *inputs)) as tmp:
-        if not compress:  # the size is known: refused before the work when the disk cannot hold it
-            check_space(dst_path, grid.width * grid.height * src.count * np.dtype(src.dtypes[0]).itemsize)
+        if auto and colormap(src) is not None:
+            resampling = _check_resampling("nearest")
+        cmap = check_palette(src_path, src, resampling)
         if nodata is None:
             nodata = src.nodata
+        # No nodata value for an integer image: a mask band, so that no grey value is lost to it.
+        masked = nodata is None and not np.issubdtype(np.dtype(src.dtypes[0]), np.floating)
         fill = _fill_value(src.dtypes[0], nodata)
-        profile = _geotiff_profile(grid, src.count, src.dtypes[0], fill, compress)
+        check_output_size(grid.shape, src.count + masked, src.dtypes[0], path=dst_path, hint=hint)
+        profile = _geotiff_profile(grid, src.count, src.dtypes[0], None if masked else fill, compress)
+        src_masked = any(MaskFlags.per_dataset in f or MaskFlags.alpha in f for f in src.mask_flag_enums)
         # numpy, not jnp, for the kernels' arguments: each eager jnp conversion is a
         # small compiled program of its own (lowered again in every process).
         transform = np.asarray(tuple(grid.transform)[:6], dtype=float)
@@ -145,20 +165,50 @@ def rectify_file(
             # The window from the very positions resampled: none falls outside it.
             win = _source_window(p[0] + o[0], p[1] + o[1], src.width, src.height, Resampling(resampling).margin)
             if win is None:
-                return np.full((src.count, h, w), fill, dtype=fill.dtype), err, n_exact
+                empty = np.full((src.count, h, w), fill, dtype=fill.dtype)
+                return (empty, np.zeros((h, w), bool)), err, n_exact
+            window = Window(win[1], win[0], win[3], win[2])
             with lock:
-                data = src.read(window=Window(win[1], win[0], win[3], win[2]))
+                data = src.read(window=window)
+                src_mask = src.read_masks(1, window=window) if src_masked else None
             offset = np.asarray(o - np.array([win[1], win[0]]), dtype=np.int32)
             # Full-size tiles (edge tiles cropped after): fewer compilations.
             block = _resample_tile(gather_source(data, resampling, compute), pos, origin, offset, fill_j, size,
                                    data.shape[-2:], resampling, compute, out_dtype)
-            return np.asarray(block)[:, :h, :w], err, n_exact
+            block = np.asarray(block)[:, :h, :w]
+            valid = _valid(p, o, size, win, src_mask)
+            if src_mask is not None:
+                block = np.where(valid, block, fill)
+            return (block, valid), err, n_exact
+
+        def sink(t, result):
+            block, valid = result
+            window = Window(t[1], t[0], t[3], t[2])
+            dst.write(block, window=window)
+            if masked:
+                dst.write_mask(np.where(valid, np.uint8(255), np.uint8(0)), window=window)
 
         chunks = (layout[0][0] // layout[1]) * (layout[0][1] // layout[2])
-        with gdal_errors(), rasterio.open(tmp, "w", **profile) as dst:
-            _run_tiles(one, tiles, progress, "rectify", info, approx, chunks,
-                       lambda t, block: dst.write(block, window=Window(t[1], t[0], t[3], t[2])))
+        with gdal_errors(), rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), rasterio.open(tmp, "w", **profile) as dst:
+            if cmap is not None:
+                dst.write_colormap(1, cmap)
+            _run_tiles(one, tiles, progress, "rectify", info, approx, chunks, sink)
     return grid
+
+
+def _valid(pos, origin, size, win, src_mask) -> np.ndarray:
+    """Where a tile's positions ``pos`` (relative to ``origin``) have data: inside the image footprint, the
+    resampling kernels' own test (:func:`photax.rectification._approx._bounds`, in ``pos``' dtype), and,
+    with the input's mask ``src_mask`` over the window ``win``, on a valid input pixel (the nearest one)."""
+    lo = (np.array([-0.5, -0.5]) - origin).astype(pos.dtype)
+    hi = (np.array([size[1] - 0.5, size[0] - 0.5]) - origin).astype(pos.dtype)
+    with np.errstate(invalid="ignore"):
+        valid = (pos[0] >= lo[0]) & (pos[0] <= hi[0]) & (pos[1] >= lo[1]) & (pos[1] <= hi[1])
+    if src_mask is not None:
+        col = np.clip(np.rint(np.where(valid, pos[0] + origin[0], 0.0)) - win[1], 0, src_mask.shape[1] - 1)
+        row = np.clip(np.rint(np.where(valid, pos[1] + origin[1], 0.0)) - win[0], 0, src_mask.shape[0] - 1)
+        valid &= src_mask[row.astype(np.intp), col.astype(np.intp)] > 0
+    return valid
 
 
 def orthorectify_file(
@@ -203,6 +253,7 @@ def orthorectify_file(
     return rectify_file(
         src_path, dst_path, OrthoModel(exterior, camera, dem), grid, resampling=resampling, nodata=nodata,
         tile=tile, progress=progress, compress=compress, inputs=inputs, approx=approx, info=info,
+        hint=lambda: gsd_hint(exterior, camera, dem, grid),
     )
 
 

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ..io._size import check_output_size
 from ..resampling import Resampling
 from ._approx import _bounds, _chunk_positions, _lattice_cells, _tile_plan
 from ._direct import _rectify_direct
@@ -191,6 +192,7 @@ def rectify(
     if image.ndim < 2 or min(image.shape[-2:]) < 1:
         raise ValueError(f"image must have shape (..., H, W), got {image.shape}")
     fill = _fill_value(image.dtype, nodata)
+    check_output_size(grid.shape, int(np.prod(image.shape[:-2], dtype=np.int64)), image.dtype)
     if mapping == "direct":
         return _rectify_direct(image, model, grid, fill, tile, progress, inverse)
     if mapping != "indirect":

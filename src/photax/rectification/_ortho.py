@@ -11,8 +11,9 @@ from jax import Array
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, depth, project
 from ..dem import DEM
+from ..io._size import check_output_size
 from ..resampling import Resampling
-from ..grid import Grid, ortho_grid
+from ..grid import Grid, gsd_hint, ortho_grid
 from ._indirect import rectify
 
 class OrthoModel(eqx.Module):
@@ -100,6 +101,8 @@ def orthorectify(
     _check_image_size(image.shape, camera)
     if grid is None:
         grid = ortho_grid(exterior, camera, dem, resolution)
+    bands = int(np.prod(image.shape[:-2], dtype=np.int64))
+    check_output_size(grid.shape, bands, image.dtype, hint=lambda: gsd_hint(exterior, camera, dem, grid))
     model = OrthoModel(exterior, camera, dem)
     out = rectify(image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress,
                   approx=approx, info=info)
