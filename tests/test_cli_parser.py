@@ -61,7 +61,7 @@ def test_one_vocabulary_for_outputs_and_progress(name):
 
 
 def test_defaults_are_shown_and_old_spellings_still_parse():
-    assert "(default: bilinear)" in " ".join(PARSERS["ortho"].format_help().split())
+    assert "default: bilinear" in " ".join(PARSERS["ortho"].format_help().split())
     assert "(default: affine)" in " ".join(PARSERS["fiducials"].format_help().split())
     parser = build_parser()
     old = {

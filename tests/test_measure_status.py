@@ -9,7 +9,8 @@ import pathlib
 
 import numpy as np
 
-from photax.measure import Status, _render as R, locate_corners, locate_targets, match_lsm, target_kind
+from photax.measure import Status, locate_corners, locate_targets, match_lsm, target_kind
+from photax.scene import patterns as R
 
 DATA = pathlib.Path(__file__).resolve().parents[1] / "data"
 RADIUS = 6.0

@@ -126,7 +126,7 @@ def test_dask_ortho_with_its_mask(setup):
     pytest.importorskip("dask")
     pytest.importorskip("rioxarray")
     from photax.io.lazy import to_raster
-    from photax.tiled import orthorectify_dask
+    from photax.rectification import orthorectify_dask
 
     s, tmp, paths, grid = setup
     ref, *_ = _ortho(s, grid, paths["f64"], tmp / "fd.tif", tile=256)
@@ -145,7 +145,7 @@ def test_dask_ortho_with_its_mask(setup):
 def test_dask_ortho_respects_the_input_mask(setup):
     pytest.importorskip("dask")
     pytest.importorskip("rioxarray")
-    from photax.tiled import orthorectify_dask
+    from photax.rectification import orthorectify_dask
 
     s, tmp, paths, grid = setup
     masked_in, nan_in = _masked_inputs(tmp, paths)

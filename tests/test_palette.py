@@ -60,7 +60,7 @@ def test_palette_refused_by_dask_kernels(palette_tif):
     pytest.importorskip("dask")
     pytest.importorskip("rioxarray")
     from photax.demo import sample_scene
-    from photax.tiled import orthorectify_dask
+    from photax.rectification import orthorectify_dask
 
     s = sample_scene()
     path, _ = palette_tif

@@ -17,7 +17,7 @@ import signal
 import pytest
 from conftest import ROOT
 
-import photax.io._files as files
+import photax.io.files as files
 from photax.cli import main
 from photax.io.atomic import check_output_path, output_name
 from photax.io.bal import read_bal_arrays

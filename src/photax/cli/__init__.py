@@ -254,7 +254,7 @@ def _main(argv: list[str] | None) -> int:
                 parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
             command[0] = f"photax {args.command}"
             _enable_compilation_cache()
-            from ..io._files import recording_inputs
+            from ..io.files import recording_inputs
 
             with recording_inputs():  # every file read is an input: never an output (photax.io.atomic)
                 status = int(args.func(args) or 0)

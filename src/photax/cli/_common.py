@@ -39,7 +39,7 @@ def input_file(path, what: str) -> pathlib.Path:
         raise ValueError(f"{what} {p}: no such file")
     if p.is_dir():
         raise ValueError(f"{what} {p}: is a folder, expected a file")
-    from ..io._files import check_regular
+    from ..io.files import check_regular
 
     try:
         check_regular(p, what)  # a FIFO would block the open() below, a device never end

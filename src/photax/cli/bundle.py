@@ -91,7 +91,7 @@ def _camera_outputs(out, fmt: str, folder: pathlib.Path, problem, inputs: list) 
     self-calibrated cameras, checked before the work (a BAL file, no free
     intrinsics, a camera name that is no file name, a path that is an input: ValueError).
     The camera files read are inputs already (recorded by the readers)."""
-    from ..io._files import load_json, read_text
+    from ..io.files import load_json, read_text
     from ..io.atomic import check_output_path, output_name
     from ..io.orientation import read_camera_unit
 

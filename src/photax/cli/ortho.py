@@ -46,7 +46,7 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="ground pixel size (default: the mean ground sampling distance)")
     p.add_argument("--resampling", choices=RESAMPLING, default=None,
-                   help="resampling kernel (default bilinear; nearest for a palette image, which takes "
+                   help="resampling kernel (default: bilinear; nearest for a palette image, which takes "
                    "no other)")
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)

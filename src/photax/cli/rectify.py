@@ -27,7 +27,7 @@ def add_parser(sub) -> None:
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="map pixel size (default: the mean GCP scale)")
     p.add_argument("--resampling", choices=RESAMPLING, default=None,
-                   help="resampling kernel (default bilinear; nearest for a palette image, which takes "
+                   help="resampling kernel (default: bilinear; nearest for a palette image, which takes "
                    "no other)")
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)

@@ -7,7 +7,7 @@ be unique) or raises ``ValueError("<file>, line <n>: <what is wrong>")``
 folder, a FIFO or device, a file over its size limit or an unreadable file is
 a ``ValueError`` naming the path, a missing file a ``FileNotFoundError``; no
 content of a file that is not of the reader's format is quoted.  The shared pieces (opening, decoding, strict
-YAML/JSON with key lines) are in :mod:`photax.io._files`;
+YAML/JSON with key lines) are in :mod:`photax.io.files`;
 ``tests/test_fuzz_readers.py`` holds every reader to the contract.
 """
 

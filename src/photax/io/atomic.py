@@ -82,7 +82,7 @@ def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
     """Refuse an output path that is one of the inputs; return it as a Path.
 
     Inputs are ``inputs`` and every file the readers opened in this command
-    (:func:`photax.io._files.recording_inputs`: a block's camera files, a CSV's
+    (:func:`photax.io.files.recording_inputs`: a block's camera files, a CSV's
     ``.prj``...), each with its sidecar files (:func:`sidecars`: ``.prj``,
     ``.aux.xml``, ``.ovr``, world files, ``.msk``...).  An existing folder
     is refused as an output file.
@@ -93,7 +93,7 @@ def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
     out = pathlib.Path(out)
     if out.is_dir():
         raise ValueError(f"refusing to write {out}: it is a folder")
-    from ._files import inputs_read  # here: the CLI imports this module before numpy
+    from .files import inputs_read  # here: the CLI imports this module before numpy
 
     for src in [*inputs, *inputs_read()]:
         if src is None:
@@ -431,7 +431,7 @@ def output_name(name, what: str = "name") -> str:
             dot, a Windows device name (``CON``, ``NUL``, ``COM1``...), or
             over 200 bytes.
     """
-    from ._files import excerpt
+    from .files import excerpt
 
     text = str(name)
     bad = (not text.strip() or text in (".", "..") or any(c in text for c in "/\\") or text != text.strip()

@@ -38,7 +38,7 @@ from ..bundle import BundleProblem, BundleResult
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import angles_from_matrix, axis_angle_to_matrix, matrix_to_axis_angle
-from ._files import MAX_BYTES, excerpt, read_bytes, where
+from .files import MAX_BYTES, excerpt, read_bytes, where
 from .atomic import atomic_write
 
 

@@ -17,7 +17,7 @@ from ..bundle import INTRINSICS, ROLES, BundleProblem
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import check_convention
-from ._files import (
+from .files import (
     as_numbers,
     excerpt,
     load_json,

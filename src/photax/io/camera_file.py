@@ -64,7 +64,7 @@ import numpy as np
 import yaml
 
 from ..camera import FrameCamera
-from ._files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, where
+from .files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, where
 from .atomic import atomic_write
 
 _KEYS = {"focal_length", "unit", "principal_point", "principal_point_px", "pixel_size",

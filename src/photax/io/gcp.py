@@ -54,7 +54,7 @@ from typing import Literal
 
 import numpy as np
 
-from ._files import excerpt, file_error, number, read_text, split_lines
+from .files import excerpt, file_error, number, read_text, split_lines
 
 _ROLES = ("control", "check")
 

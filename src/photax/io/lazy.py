@@ -30,7 +30,7 @@ import uuid
 
 import numpy as np
 
-from ._size import check_output_size
+from .sizes import check_output_size
 from .atomic import atomic_path, temporary
 
 

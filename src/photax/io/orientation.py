@@ -21,7 +21,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from ._files import excerpt, file_error, load_yaml, read_text
+from .files import excerpt, file_error, load_yaml, read_text
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
 from .orthority import read_orthority_crs, read_orthority_exterior, read_orthority_interior

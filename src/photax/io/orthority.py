@@ -30,7 +30,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from ._files import Mapping, as_numbers, excerpt, file_error, load_yaml, read_text, split_lines, where
+from .files import Mapping, as_numbers, excerpt, file_error, load_yaml, read_text, split_lines, where
 
 
 def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCamera:

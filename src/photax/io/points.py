@@ -18,7 +18,7 @@ import pathlib
 
 import numpy as np
 
-from ._files import excerpt, file_error, read_text, split_lines
+from .files import excerpt, file_error, read_text, split_lines
 from .gcp import read_gcps
 
 

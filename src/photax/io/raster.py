@@ -28,7 +28,7 @@ def open_raster(path):
     (a raw photo) is fine, so rasterio's NotGeoreferencedWarning is silenced."""
     import rasterio
 
-    from ._files import check_regular, note_input
+    from .files import check_regular, note_input
 
     path = pathlib.Path(path)
     note_input(path)

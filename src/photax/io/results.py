@@ -9,7 +9,7 @@ import pathlib
 
 import numpy as np
 
-from ._files import load_json, read_text
+from .files import load_json, read_text
 from .atomic import atomic_write
 
 

@@ -149,7 +149,7 @@ def _masked_file(path) -> bool:
     """Whether a raster marks no data by a mask or alpha band (not by a nodata value)."""
     from rasterio.enums import MaskFlags
 
-    from .io.raster import open_raster
+    from ..io.raster import open_raster
 
     with open_raster(path) as src:
         return any(MaskFlags.per_dataset in f or MaskFlags.alpha in f for f in src.mask_flag_enums)
@@ -212,7 +212,7 @@ def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, res
     block = _resample_tile(flat, pos, origin, offset, fill_j, size, (wh, ww), resampling, compute, dtype)
     block = np.asarray(block)[:, :h, :w]
     if src_mask is not None:
-        from .rectification._files import _valid
+        from ._files import _valid
 
         block = np.where(_valid(np.asarray(pos)[:, :h, :w], o, size, window, src_mask), block, fill)
     return block if bands else block[0]
@@ -221,8 +221,8 @@ def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, res
 def _valid_chunk(model, transform, tile, layout, approx, size, path=None, window=None):
     """``(h, w)`` bool: where the output chunk ``tile`` has data (the resampling's footprint test, and the
     mask band of the raster ``path`` over the input ``window`` when given)."""
-    from .rectification._approx import _tile_positions
-    from .rectification._files import _valid
+    from ._approx import _tile_positions
+    from ._files import _valid
 
     r0, c0, h, w = tile
     pos, origin, _, _ = _tile_positions(model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float),

@@ -13,7 +13,7 @@ from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
-from ..io._size import check_output_size
+from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ._approx import _tile_positions
 from ..grid import Grid, gsd_hint, ortho_grid

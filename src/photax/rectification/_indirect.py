@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..io._size import check_output_size
+from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ._approx import _bounds, _chunk_positions, _lattice_cells, _tile_plan
 from ._direct import _rectify_direct

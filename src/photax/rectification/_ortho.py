@@ -11,7 +11,7 @@ from jax import Array
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, depth, project
 from ..dem import DEM
-from ..io._size import check_output_size
+from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ..grid import Grid, gsd_hint, ortho_grid
 from ._indirect import rectify
