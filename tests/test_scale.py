@@ -1,0 +1,82 @@
+"""Inputs at scale (issue 27): data snooping that does not refit once per
+blunder, GCP files of 10^5 lines, and no crash at exit after a large resection.
+
+No timings here (benchmarks/bench_gcp_io.py and the commit messages have
+them): what is tested is that the fast paths give the slow paths' answers.
+"""
+
+import numpy as np
+import pytest
+from scipy import special
+
+import photax as ptx
+from photax.resection import _adjust
+
+CAM = ptx.FrameCamera(0.15324)  # metres on the image plane
+SIGMA = 5e-6  # 5 um image measurements
+EO = ptx.ExteriorOrientation([512_000.0, 4_321_000.0, 1600.0], [0.02, -0.01, 0.6])
+
+
+def _points(n, seed):
+    """``n`` image points with N(0, SIGMA) noise and their ground points (UTM-scale, 40 m relief)."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(-0.09, 0.09, (n, 2))
+    ground = np.asarray(ptx.image_to_ground(xy, EO, CAM, height=100.0 + rng.uniform(0.0, 40.0, n)))
+    return xy + rng.normal(0.0, SIGMA, (n, 2)), ground
+
+
+def _one_at_a_time(xy, ground, alpha=0.001):
+    """Baarda's data snooping as the textbook writes it, through the public API:
+    fit, exclude the point with the largest |w| above the critical value, fit again."""
+    c = np.sqrt(2.0) * special.erfinv(1.0 - alpha)  # two-sided normal quantile (3.29)
+    out = np.zeros(len(xy), bool)
+    while True:
+        r = ptx.resect(xy, ground, CAM, sigma=SIGMA, check=out, robust=False)
+        w = np.where(out, 0.0, np.max(np.nan_to_num(np.abs(np.asarray(r.normalized))), axis=1))
+        if w.max() <= c:
+            return out, r
+        out[np.argmax(w)] = True
+
+
+@pytest.mark.parametrize("n, sizes", [(40, (60.0, 25.0, 9.0)), (400, (80.0, 30.0, 12.0, 8.0, 6.0, 5.0))])
+def test_snooping_excludes_what_one_at_a_time_snooping_excludes(n, sizes):
+    """Blunders of 5-80 sigma: the same points excluded and the same orientation
+    as one exclusion per refit (several per round where the points are many)."""
+    xy, ground = _points(n, seed=n)
+    idx = np.random.default_rng(1).choice(n, len(sizes), replace=False)
+    xy[idx, 0] += np.asarray(sizes) * SIGMA
+    want, ref = _one_at_a_time(xy, ground)
+    got = ptx.resect(xy, ground, CAM, sigma=SIGMA)
+    assert set(np.flatnonzero(want)) >= set(idx)
+    np.testing.assert_array_equal(np.asarray(got.outliers), want)
+    np.testing.assert_allclose(np.asarray(got.exterior.position), np.asarray(ref.exterior.position), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(got.exterior.angles), np.asarray(ref.exterior.angles), atol=1e-10)
+
+
+def _test_round(n, sizes, seed=0):
+    """The points one round of the test excludes, for an adjustment of all ``n`` points."""
+    from photax.resection._api import _bucket, _inputs, _options
+    from photax.resection._checks import validate
+
+    xy, ground = _points(n, seed)
+    idx = np.random.default_rng(seed).choice(n, len(sizes), replace=False)
+    xy[idx, 0] += np.asarray(sizes) * SIGMA
+    prep = validate(xy, ground, CAM, SIGMA, None, None, None, "phi-omega-kappa", 0.001, batch=False)
+    m = _bucket(n)
+    opt = _options(prep, CAM, "phi-omega-kappa", True, 0.001, 50, m)
+    inp = _inputs(prep, m)
+    cheap = _adjust.solve_cheap(inp, opt)  # linear start, one adjustment of all points
+    out = {k: getattr(cheap, k) for k in ("w", "sigma0", "redundancy", "result")}
+    go, excluded, _, _ = _adjust.test(out, inp.ctrl, opt)
+    return bool(go[0]), set(np.flatnonzero(np.asarray(excluded)[:n, 0])), set(idx)
+
+
+def test_many_points_exclude_every_clear_blunder_in_one_round():
+    go, excluded, blunders = _test_round(2000, (50.0, 20.0, 12.0, 9.0, 7.0))
+    assert go and excluded >= blunders  # (and the odd chance point above 3.29 of 4,000 observations)
+
+
+def test_few_points_exclude_only_the_worst_per_round():
+    """12 points: a 40-sigma blunder pulls the others' residuals, so only it goes."""
+    go, excluded, blunders = _test_round(12, (40.0, 15.0), seed=3)
+    assert go and len(excluded) == 1 and excluded < blunders
