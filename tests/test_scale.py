@@ -80,3 +80,81 @@ def test_few_points_exclude_only_the_worst_per_round():
     """12 points: a 40-sigma blunder pulls the others' residuals, so only it goes."""
     go, excluded, blunders = _test_round(12, (40.0, 15.0), seed=3)
     assert go and len(excluded) == 1 and excluded < blunders
+
+
+# --- GCP files of 10^5 lines -----------------------------------------------------------------------
+
+
+def _gcp_csv(path, n, seed=0, bad=None):
+    """A GCP CSV of ``n`` measurements with every optional column in use (empty names and sigmas,
+    roles in any case, spaces around fields, comments); ``bad``: ``(row, text)`` replaces one easting."""
+    rng = np.random.default_rng(seed)
+    half = n // 2  # every point measured in two images
+    g = (rng.uniform(0.0, 1.0, (half, 3)) * [1e3, 1e3, 50.0] + [512_000.0, 4.1e6, 10.0]).tolist()
+    px = (rng.uniform(0.0, 1.0, (n, 2)) * [4000.0, 3000.0]).tolist()
+    lines = ["# crs: EPSG:32633", "name, image ,E,N,h,col,row,sigma,role"]
+    for i in range(n):
+        p = i % half
+        name = "" if p % 7 == 3 else f"P{p}"
+        e = repr(g[p][0]) if bad is None or bad[0] != i else bad[1].format(repr(g[p][0]))
+        sigma = "" if i % 5 == 0 else f"{0.1 + i % 3 * 0.2:.1f}"
+        role = (["check", " Check", "CHECK "] if p % 4 == 1 and name else ["control", "", "Control "])[i % 3]
+        lines.append(f"{name},IMG_{i // half} ,{e}, {g[p][1]!r},{g[p][2]!r},{px[i][0]!r} ,{px[i][1]!r},{sigma},{role}")
+        if i % 1000 == 10:
+            lines += ["# a comment", ""]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _same_tables(a, b):
+    for field in ("names", "images", "role", "lines", "ground", "pixel", "sigma"):
+        np.testing.assert_array_equal(getattr(a, field), getattr(b, field), err_msg=field)
+    assert a.crs == b.crs and a.image_xy is None and b.image_xy is None
+
+
+@pytest.mark.parametrize("fmt", ["csv", "odm"])
+def test_whole_file_parsing_equals_the_line_by_line_parser(tmp_path, monkeypatch, fmt):
+    from photax.io import gcp
+
+    path = _gcp_csv(tmp_path / "g.csv", 3000)
+    if fmt == "odm":  # the same measurements as an ODM list: E N h col row image [name]
+        t = gcp.read_gcps(path)
+        rows = [f"{e!r} {n!r} {h!r} {c!r} {r!r} {im}" + (f" Q{nm} extra" if k % 2 else "")
+                for k, ((e, n, h), (c, r), im, nm) in enumerate(zip(t.ground.tolist(), t.pixel.tolist(),
+                                                                    t.images, t.names))]
+        path = tmp_path / "gcp_list.txt"
+        path.write_text("EPSG:32633\n" + "\n".join(rows) + "\n")
+    calls = []
+    fast_rows = gcp._fast_rows
+    monkeypatch.setattr(gcp, "_fast_rows", lambda *a, **k: calls.append(1) or fast_rows(*a, **k))
+    fast = gcp.read_gcps(path)
+    assert calls and len(fast) == 3000  # the fast path was taken
+    monkeypatch.setattr(gcp, "_fast_rows", lambda *a, **k: None)  # every line through the line parser
+    _same_tables(fast, gcp.read_gcps(path))
+
+
+@pytest.mark.parametrize("bad, message", [
+    ("5.12e5x", "E is not a number: '5.12e5x'"),
+    ("inf", "E is not finite: 'inf'"),
+    ("1,2", "expected 9 columns, got 10"),
+    ('"{}"', None),  # its own value quoted: a valid CSV field, read by the line-by-line parser
+])
+def test_a_malformed_line_deep_in_a_big_file_is_named(tmp_path, bad, message):
+    path = _gcp_csv(tmp_path / "g.csv", 100_000, bad=(87_654, bad))
+    line = 2 + 87_654 + 1 + 2 * (87_654 // 1000 + 1)  # 2 lines of header, 2 per comment block above
+    text = path.read_text().split("\n")[line - 1]
+    if message is None:
+        t = ptx.read_gcps(path)
+        assert text.split(",")[2] == f'"{float(t.ground[87_654, 0])!r}"' and t.lines[87_654] == line
+        return
+    assert text.split(",")[2] == bad.split(",")[0]
+    with pytest.raises(ValueError, match=f"g.csv, line {line}: {message}"):
+        ptx.read_gcps(path)
+
+
+@pytest.mark.parametrize("sigma_known", [True, False])
+def test_critical_table_is_the_critical_value_per_point_count(sigma_known):
+    from photax.resection._checks import _critical, _critical_table
+
+    table = _critical_table(0.001, sigma_known, 300)
+    np.testing.assert_array_equal(table, [_critical(0.001, sigma_known, 2.0 * k - 6.0) for k in range(301)])
