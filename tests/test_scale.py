@@ -158,3 +158,31 @@ def test_critical_table_is_the_critical_value_per_point_count(sigma_known):
 
     table = _critical_table(0.001, sigma_known, 300)
     np.testing.assert_array_equal(table, [_critical(0.001, sigma_known, 2.0 * k - 6.0) for k in range(301)])
+
+
+def test_resect_of_3000_gcps_exits_cleanly(tmp_path):
+    """``photax resect`` with 3,000 GCPs printed its result, then aborted (exit 134,
+    "FATAL: exception not rethrown") while its background compilation was still
+    running; noise-free points pass the blunder test, so that program is not waited for."""
+    import json
+    import pathlib
+    import subprocess
+    import sys
+
+    data = pathlib.Path(__file__).resolve().parents[1] / "data"
+    truth = json.loads((data / "sample_truth.json").read_text())
+    cam = ptx.read_camera(data / "sample_camera.yaml")
+    eo = ptx.ExteriorOrientation(truth["position"], truth["angles_rad"])
+    rng = np.random.default_rng(5)
+    g = np.column_stack([np.asarray(truth["position"][:2]) + rng.uniform(-150.0, 150.0, (3000, 2)),
+                         rng.uniform(30.0, 70.0, 3000)])
+    px = np.asarray(cam.image_to_pixel(ptx.project(g, eo, cam)))
+    assert np.all((px > 0) & (px < [999, 749]))
+    path = tmp_path / "gcps.csv"
+    path.write_text("E,N,h,col,row\n" + "".join(f"{a!r},{b!r},{c!r},{d!r},{e!r}\n"
+                                                for a, b, c, d, e in np.column_stack([g, px]).tolist()))
+    proc = subprocess.run([sys.executable, "-c", "import sys; from photax.cli import main; sys.exit(main())",
+                           "resect", str(path), "--camera", str(data / "sample_camera.yaml")],
+                          capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "1 of 1 image solved" in proc.stdout and "terminate" not in proc.stderr
