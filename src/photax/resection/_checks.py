@@ -21,6 +21,7 @@ import functools
 
 import numpy as np
 
+from .._float64 import as_float64
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import check_convention
@@ -40,7 +41,7 @@ _MAX_TILT = 60.0  # degrees: below this slope of the GCPs' plane, "above" and "b
 
 
 def _as_points(a, name: str, width: int, batch: bool) -> np.ndarray:
-    a = np.asarray(a, dtype=float)
+    a = as_float64(a, name)
     want = 3 if batch else 2
     if a.ndim != want or a.shape[-1] != width:
         shape = "(b, n, %d)" % width if batch else "(n, %d)" % width
