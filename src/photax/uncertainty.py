@@ -65,6 +65,7 @@ import numpy as np
 from .camera import FrameCamera, intrinsics_jacobian
 from .collinearity import ExteriorOrientation, angle_axes, collinearity_jacobian
 from .dem import DEM
+from .io.crs import check_dem
 from .rectification._grid import Grid
 
 _BLOCK = 1 << 14  # points per jitted call (padded): one compilation, bounded memory
@@ -468,6 +469,7 @@ def ortho_uncertainty(
         :class:`OrthoUncertainty`, float32 rasters (float64 with ``step=1``).
     """
     # Over 80 lines because the docstring documents every argument; the body is ~55 lines.
+    check_dem(dem, grid)
     exterior, covariance = _orientation(exterior, covariance, image)
     cov = np.asarray(covariance, dtype=float)
     if cov.shape not in ((6, 6), (_N, _N)) or not np.all(np.isfinite(cov)):

@@ -86,3 +86,12 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     images = [read_geotiff(f)[0][0].astype(float) for f in args.images]
     exterior = [read_exterior(args.exterior, f)[0] for f in args.images]
     return files, camera, names, images, exterior
+
+
+def check_crs(orientation_crs, what_orientation: str, dem, what_dem: str) -> None:
+    """Where an orientation meets a DEM: neither geographic, both in one CRS (:mod:`photax.io.crs`)."""
+    from ..io.crs import require_projected, require_same
+
+    require_projected(orientation_crs, what_orientation)
+    require_projected(dem.crs, what_dem)
+    require_same(orientation_crs, what_orientation, dem.crs, what_dem)

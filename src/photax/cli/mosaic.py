@@ -128,12 +128,14 @@ def _orthorectify_block(args, tmp, inputs, bar) -> list:
     from ..io.orientation import read_interior
     from ..io.raster import read_dem
     from ..rectification import ortho_grid, orthorectify_file
+    from ._common import check_crs
 
     images, exteriors, crs = block_orientations(args.block, args.images)
     inputs += [str(p) for p in images]
     check_output_path(args.out, inputs)
     camera = read_interior(args.camera, args.camera_name)
     dem = read_dem(args.dem)
+    check_crs(crs, f"the block's orientations ({args.block})", dem, f"the DEM ({args.dem})")
     res = args.resolution
     if res is None:  # one resolution for all: one pixel lattice (Grid.from_bounds snaps to it)
         res = float(np.median([abs(ortho_grid(e, camera, dem).transform.a) for e in exteriors]))

@@ -46,7 +46,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.orientation import read_exterior, read_interior
     from ..io.raster import read_dem
     from ..rectification import ortho_grid, orthorectify_file
-    from ._common import ground_unit, input_file
+    from ._common import check_crs, ground_unit, input_file
 
     image = input_file(args.image, "image")
     input_file(args.dem, "DEM")
@@ -59,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
     camera = read_interior(args.camera, args.camera_name)
     exterior, crs = read_exterior(args.exterior, args.image)
     dem = read_dem(args.dem)
+    check_crs(crs, f"the orientation ({args.exterior})", dem, f"the DEM ({args.dem})")
     grid = ortho_grid(exterior, camera, dem, args.resolution)
     if crs is not None:
         import dataclasses

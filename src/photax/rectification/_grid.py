@@ -20,6 +20,7 @@ from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, image_to_ground
 from ..dem import DEM
+from ..io.crs import check_dem, describe
 
 
 @dataclasses.dataclass(frozen=True)
@@ -139,6 +140,7 @@ def ortho_grid(
     """
     if camera.image_size is None:
         raise ValueError("camera must have an image_size to find the image footprint")
+    check_dem(dem)  # a geographic DEM's degrees are not the orientation's metres
     w, h = camera.image_size
     t = np.linspace(0.0, 1.0, per_side, endpoint=False)
     x0, x1, y0, y1 = -0.5, w - 0.5, -0.5, h - 0.5
@@ -164,5 +166,8 @@ def ortho_grid(
         min(ground[:, 1].max(), dymax),
     )
     if not (bounds[2] > bounds[0] and bounds[3] > bounds[1]):
-        raise ValueError("the image footprint does not overlap the DEM")
+        f = (ground[:, 0].min(), ground[:, 1].min(), ground[:, 0].max(), ground[:, 1].max())
+        box = lambda b: f"E {b[0]:.1f}..{b[2]:.1f}, N {b[1]:.1f}..{b[3]:.1f}"  # noqa: E731
+        raise ValueError(f"the image footprint ({box(f)}) does not overlap the DEM ({box(dem.bounds)}, "
+                         f"{describe(dem.crs)}); are the orientation and the DEM in the same CRS?")
     return Grid.from_bounds(bounds, resolution, crs=dem.crs)

@@ -11,6 +11,7 @@ from jax import Array
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, depth, project
 from ..dem import DEM
+from ..io.crs import check_dem
 from ..resampling import Resampling
 from ._grid import Grid, ortho_grid
 from ._indirect import rectify
@@ -84,6 +85,7 @@ def orthorectify(
     _check_image_size(image.shape, camera)
     if grid is None:
         grid = ortho_grid(exterior, camera, dem, resolution)
+    check_dem(dem, grid)
     model = OrthoModel(exterior, camera, dem)
     out = rectify(image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress,
                   approx=approx, info=info)
