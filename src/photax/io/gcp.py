@@ -327,7 +327,7 @@ def _parse_csv(path, numbered) -> dict:
     joined = "\n".join(texts)
     # Plain CSV (no quotes, no carriage return, every line the header's number of fields): one split of
     # the whole body, as csv.reader would split each line.
-    if not {'"', "\r"} & set(head + joined) and all(t.count(",") == k - 1 for t in texts):
+    if not any(c in head or c in joined for c in '"\r') and all(t.count(",") == k - 1 for t in texts):
         flat = joined.replace("\n", ",").split(",")
         col = lambda key: flat[cols[key]::k] if key in cols else [""] * len(texts)  # noqa: E731
         fast = _fast_rows(body, dict(e=col("e"), n=col("n"), h=col("h"), u=col("col" if pix else "x"),
@@ -367,22 +367,27 @@ def _fast_rows(body, fields: dict[str, list[str]], pixel: bool) -> dict | None:
         num = [np.fromiter(map(float, fields[key]), float, len(body)) for key in ("e", "n", "h", "u", "v")]
     except ValueError:
         return None
-    sig_text = [t.strip() for t in fields.get("sigma", [""] * len(body))]
-    given = np.fromiter(map(bool, sig_text), bool, len(body))
+    n = len(body)
+    # Columns of few distinct texts (sigma, role, image): each distinct text converted once.
+    sig_map = {t: t.strip() for t in set(fields.get("sigma", [""]))}
+    sig_text = [sig_map[t] for t in fields["sigma"]] if "sigma" in fields else [""] * n
+    given = np.fromiter(map(bool, sig_text), bool, n)
     try:
-        sigma = np.fromiter((float(t) if t else math.nan for t in sig_text), float, len(body))
+        sigma = np.fromiter((float(t) if t else math.nan for t in sig_text), float, n)
     except ValueError:
         return None
-    role = np.asarray([t.strip().lower() or "control" for t in fields.get("role", [""] * len(body))], dtype=str)
+    role_map = {t: t.strip().lower() or "control" for t in set(fields.get("role", [""]))}
+    role = np.asarray([role_map[t] for t in fields["role"]] if "role" in fields else ["control"] * n, dtype=str)
     ground, coords = np.stack(num[:3], axis=1), np.stack(num[3:], axis=1)
     if not (np.all(np.isfinite(ground)) and np.all(np.isfinite(coords)) and np.all(np.isin(role, _ROLES))
             and np.all(np.isfinite(sigma[given]) & (sigma[given] > 0))):
         return None
-    names = np.empty(len(body), dtype=object)
+    names = np.empty(n, dtype=object)
     names[:] = [t.strip() or None for t in fields["name"]]
-    return dict(names=names, images=[t.strip() for t in fields["image"]], ground=ground,
+    image_map = {t: t.strip() for t in set(fields["image"])}
+    return dict(names=names, images=[image_map[t] for t in fields["image"]], ground=ground,
                 pixel=coords if pixel else None, image_xy=None if pixel else coords, sigma=sigma, role=role,
-                lines=np.fromiter((line for line, _ in body), int, len(body)))
+                lines=np.fromiter((line for line, _ in body), int, n))
 
 
 
