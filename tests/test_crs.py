@@ -106,3 +106,19 @@ def test_one_crs_in_any_spelling_is_the_same():
     pcrs.require_same(None, "a", "EPSG:4326", "b")  # unknown: nothing to compare
     with pytest.raises(ValueError, match="EPSG:32633 but b in EPSG:32733"):
         pcrs.require_same(wkt, "a", "EPSG:32733", "b")
+
+
+@pytest.mark.parametrize("command", ["compare", "transfer", "register"])
+def test_every_command_that_meets_a_dem_compares_crs(tmp_path, capsys, command):
+    dem = str(_dem(tmp_path / "dem35s.tif", "EPSG:32735"))
+    gcps, out = str(DATA / "sample_gcps.csv"), str(tmp_path / "out")
+    argv = {
+        "compare": ["compare", gcps, "--camera", str(CAMERA), "--dem", dem, "--image", str(IMAGE), "--out", out],
+        "transfer": ["transfer", str(IMAGE), "--camera", str(CAMERA), "--exterior", str(TRUTH), "--dem", dem,
+                     "--gcps", gcps, "--template", str(IMAGE), "--out", out],
+        "register": ["register", str(IMAGE), "--camera", str(CAMERA), "--exterior", str(TRUTH), "--dem", dem,
+                     "--ortho", str(DEM), "--out", out],
+    }[command]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "EPSG:32633" in err and "EPSG:32735" in err, err

@@ -75,7 +75,9 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     each checked as readable, and ``args.out`` checked against all of them."""
     from ..io.atomic import check_output_path
     from ..io.orientation import read_exterior, read_interior
-    from ..io.raster import read_geotiff
+    import types
+
+    from ..io.raster import open_raster, read_geotiff
 
     files = [*args.images, args.camera, args.exterior, args.dem, *[f for f in extra if f]]
     for f in files:
@@ -84,8 +86,12 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     camera = read_interior(args.camera)
     names = [pathlib.Path(f).stem for f in args.images]
     images = [read_geotiff(f)[0][0].astype(float) for f in args.images]
-    exterior = [read_exterior(args.exterior, f)[0] for f in args.images]
-    return files, camera, names, images, exterior
+    read = [read_exterior(args.exterior, f) for f in args.images]
+    with open_raster(args.dem) as src:  # the DEM's CRS against the orientations' (the caller reads the heights)
+        dem_crs = src.crs.to_wkt() if src.crs else None
+    check_crs(read[0][1], f"the orientations ({args.exterior})", types.SimpleNamespace(crs=dem_crs),
+              f"the DEM ({args.dem})")
+    return files, camera, names, images, [e for e, _ in read]
 
 
 def check_crs(orientation_crs, what_orientation: str, dem, what_dem: str) -> None:
