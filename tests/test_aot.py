@@ -116,3 +116,28 @@ def test_compiler_options_and_prefetch(folder):
     # the same function without options is another entry
     np.testing.assert_allclose(_aot.disk_cached(jax.jit(plain), "o")(x), np.sin(x) * 2.0, rtol=1e-15)
     assert len(list(folder.glob("o-*.bin"))) == 2
+
+
+def test_a_prefetch_still_running_at_exit_is_waited_for(tmp_path):
+    """The interpreter waits for a prefetch thread instead of killing it.  A
+    daemon thread inside XLA at interpreter exit aborted ``photax resect``
+    after it had printed its result (SIGABRT, "FATAL: exception not
+    rethrown"); here the traced function sleeps, so the process exits while
+    the thread is busy, and the entry exists only if the thread finished."""
+    import subprocess
+    import sys
+
+    script = f"""
+import time, jax, jax.numpy as jnp
+jax.config.update("jax_compilation_cache_dir", {str(tmp_path)!r})
+from photax import _aot
+_aot.enable()
+def slow(x):
+    time.sleep(1.5)  # while tracing, in the prefetch thread
+    return jnp.cos(x)
+_aot.disk_cached(jax.jit(slow), "slow").prefetch(jnp.zeros(3))
+"""
+    proc = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert len(list((tmp_path / "photax-aot").glob("slow-*.bin"))) == 1

@@ -36,6 +36,12 @@ go with the exported function's compilation too, and into its key.
 background thread (when disk caching is on and it is not made yet), so that
 a command which will probably need a second program compiles both at once:
 XLA compiles without holding the GIL, and this machine has two cores.
+The thread is not a daemon: the interpreter waits for it at exit.  A
+daemon thread still inside XLA when the interpreter finalises is ended by
+``pthread_exit``, whose unwinding through the C++ frames aborted the
+process (``terminate called ... FATAL: exception not rethrown``, SIGABRT,
+after ``photax resect`` had printed its result); waiting also keeps the
+compiled program for the next run.
 
 Private utility module: other photax units import its names directly
 (``tests/test_imports.py`` lists the modules allowed that).
@@ -159,7 +165,7 @@ def disk_cached(fn, name: str, compiler_options: dict | None = None):
             except Exception:  # noqa: S110 - the real call raises it again, where it belongs
                 pass
 
-        threading.Thread(target=run, name=f"photax-prefetch-{name}", daemon=True).start()
+        threading.Thread(target=run, name=f"photax-prefetch-{name}", daemon=False).start()
 
     call.prefetch = prefetch
     return call

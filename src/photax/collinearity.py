@@ -21,6 +21,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from ._float64 import as_float64
 from .camera import FrameCamera, distort, distortion_jacobian
 from .dem import DEM
 from .rotation import (
@@ -50,6 +51,8 @@ class ExteriorOrientation(eqx.Module):
     convention: str = eqx.field(static=True, default="phi-omega-kappa")
 
     def __init__(self, position, angles, convention: Convention = "phi-omega-kappa"):
+        if not isinstance(position, jax.core.Tracer):  # a float32 position has lost digits: say so
+            position = as_float64(position, "position", resolution=1e-3)  # a millimetre (of metres)
         self.position = jnp.asarray(position, dtype=float)
         self.angles = jnp.asarray(angles, dtype=float)
         self.convention = check_convention(convention)

@@ -22,6 +22,7 @@ from ._aot import disk_cached
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, image_to_ground
 from .dem import DEM
+from .io.crs import check_dem, describe
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,6 +157,7 @@ def _footprint_outline(exterior: ExteriorOrientation, camera: FrameCamera, dem: 
     """``(ground (4 per_side, 2), pixel outline (4 per_side, 2))`` of the image's outer pixel edges."""
     if camera.image_size is None:
         raise ValueError("camera must have an image_size to find the image footprint")
+    check_dem(dem)  # a geographic DEM's degrees are not the orientation's metres
     w, h = camera.image_size
     t = np.linspace(0.0, 1.0, per_side, endpoint=False)
     x0, x1, y0, y1 = -0.5, w - 0.5, -0.5, h - 0.5
@@ -219,7 +221,10 @@ def ortho_grid(
         min(ground[:, 1].max(), dymax),
     )
     if not (bounds[2] > bounds[0] and bounds[3] > bounds[1]):
-        raise ValueError("the image footprint does not overlap the DEM")
+        f = (ground[:, 0].min(), ground[:, 1].min(), ground[:, 0].max(), ground[:, 1].max())
+        box = lambda b: f"E {b[0]:.1f}..{b[2]:.1f}, N {b[1]:.1f}..{b[3]:.1f}"  # noqa: E731
+        raise ValueError(f"the image footprint ({box(f)}) does not overlap the DEM ({box(dem.bounds)}, "
+                         f"{describe(dem.crs)}); are the orientation and the DEM in the same CRS?")
     if resolution is None:
         resolution = gsd
     else:

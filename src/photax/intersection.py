@@ -18,6 +18,7 @@ import dataclasses
 
 import numpy as np
 
+from ._float64 import as_float64
 from ._triangulation import triangulate
 from .bundle import BundleProblem, bundle_adjust
 from .camera import FrameCamera
@@ -146,7 +147,7 @@ def _observations(image_xy, m: int, obs_image, obs_point, n_points):
     """:func:`intersect`'s two input layouts as one list: ``(xy (k, 2),
     image index (k,), point index (k,), number of points)``, or a
     ValueError naming the argument."""
-    xy = np.asarray(image_xy, dtype=float)
+    xy = as_float64(image_xy, "image_xy")
     if obs_image is None and obs_point is None:
         if xy.ndim != 3 or xy.shape[0] != m or xy.shape[2] != 2:
             raise ValueError(f"image_xy must be (m, n, 2) = ({m}, n, 2) in the table layout, got {xy.shape}")

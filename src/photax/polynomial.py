@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ._float64 import as_float64
 from .errors import RESULTS, ConvergenceError, from_optimistix
 
 MAX_ORDER = 5
@@ -60,7 +61,7 @@ def n_coefficients(order: int) -> int:
 
 
 def _points(name: str, xy) -> np.ndarray:
-    p = np.asarray(xy, dtype=float)
+    p = as_float64(xy, name)
     if p.ndim != 2 or p.shape[1] != 2:
         raise ValueError(f"{name} must have shape (n, 2), got {p.shape}")
     bad = ~np.isfinite(p).all(axis=1)

@@ -66,6 +66,7 @@ from .camera import FrameCamera, intrinsics_jacobian
 from .collinearity import ExteriorOrientation, angle_axes, collinearity_jacobian
 from .dem import DEM
 from .grid import Grid
+from .io.crs import check_dem
 
 _BLOCK = 1 << 14  # points per jitted call (padded): one compilation, bounded memory
 _STRIP = 1 << 19  # pixels per strip at most: its intermediates stay small
@@ -487,6 +488,7 @@ def ortho_uncertainty(
         True
     """
     # Over 80 lines because the docstring documents every argument; the body is ~55 lines.
+    check_dem(dem, grid)
     exterior, covariance = _orientation(exterior, covariance, image)
     cov = np.asarray(covariance, dtype=float)
     if cov.shape not in ((6, 6), (_N, _N)) or not np.all(np.isfinite(cov)):

@@ -6,6 +6,7 @@ from typing import Literal, Sequence
 
 import numpy as np
 
+from .._float64 import as_float64
 from ..camera import FrameCamera
 from ..collinearity import stack_exteriors
 from ._structure import Analysis, _analyse, _gauge_mask, _origin, _same_topology, _Topology, _topology
@@ -85,7 +86,7 @@ class BundleProblem:
             raise ValueError("cameras must be a FrameCamera or a non-empty sequence of them")
         eo = stack_exteriors(exterior)
         n_img, n_cam = eo.position.shape[0], len(cams)
-        pts = np.array(points, dtype=float)
+        pts = as_float64(points, "points").copy()
         if pts.ndim != 2 or pts.shape[1] != 3:
             raise ValueError(f"points must have shape (n_points, 3), got {pts.shape}")
         n_pts = len(pts)
@@ -179,7 +180,7 @@ def _observations(obs_image, obs_point, obs_xy, n_img: int, n_pts: int):
     """``obs_image``, ``obs_point`` ``(k,)`` integer indices in range and
     ``obs_xy`` ``(k, 2)`` finite, as numpy arrays."""
     oi, op = np.asarray(obs_image), np.asarray(obs_point)
-    xy = np.array(obs_xy, dtype=float)
+    xy = as_float64(obs_xy, "obs_xy").copy()
     k = len(xy)
     if xy.shape != (k, 2) or oi.shape != (k,) or op.shape != (k,):
         raise ValueError(

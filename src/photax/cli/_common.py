@@ -96,8 +96,10 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     ``args.camera``, ``args.exterior`` and ``args.dem`` plus the ``extra`` files,
     each checked as readable, and ``args.out`` checked against all of them."""
     from ..io.atomic import check_output_path
+    import types
+
     from ..io.orientation import read_exteriors, read_interior
-    from ..io.raster import read_geotiff
+    from ..io.raster import open_raster, read_geotiff
 
     files = [*args.images, args.camera, args.exterior, args.dem, *[f for f in extra if f]]
     for f in files:
@@ -106,6 +108,19 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     camera = read_interior(args.camera)
     names = [pathlib.Path(f).stem for f in args.images]
     images = [read_geotiff(f)[0][0].astype(float) for f in args.images]
-    table = read_exteriors(args.exterior, args.images)[0]  # the file parsed once
+    table, crs = read_exteriors(args.exterior, args.images)  # the file parsed once
     exterior = [table[f] for f in args.images]
+    with open_raster(args.dem) as src:  # the DEM's CRS against the orientations' (the caller reads the heights)
+        dem_crs = src.crs.to_wkt() if src.crs else None
+    check_crs(crs, f"the orientations ({args.exterior})", types.SimpleNamespace(crs=dem_crs),
+              f"the DEM ({args.dem})")
     return files, camera, names, images, exterior
+
+
+def check_crs(orientation_crs, what_orientation: str, dem, what_dem: str) -> None:
+    """Where an orientation meets a DEM: neither geographic, both in one CRS (:mod:`photax.io.crs`)."""
+    from ..io.crs import require_projected, require_same
+
+    require_projected(orientation_crs, what_orientation)
+    require_projected(dem.crs, what_dem)
+    require_same(orientation_crs, what_orientation, dem.crs, what_dem)

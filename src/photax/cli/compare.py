@@ -78,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.orientation import read_interior
     from ..io.raster import read_dem, read_geotiff
     from ..io.results import write_json
-    from ._common import input_file
+    from ._common import check_crs, input_file
 
     gcp_path = input_file(args.gcps, "GCP file")
     input_file(args.camera, "camera file")
@@ -100,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.camera}: the camera needs image_size (and a pixel size)")
     pixel = table.pixel if table.pixel is not None else np.asarray(camera.image_to_pixel(table.image_xy))
     dem = read_dem(args.dem)
+    check_crs(table.crs, f"the GCPs ({args.gcps})", dem, f"the DEM ({args.dem})")
     check = table.check
     comparison = compare_models(
         table.ground[~check], pixel[~check], camera, dem,

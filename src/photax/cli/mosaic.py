@@ -87,6 +87,7 @@ def run(args) -> int:
     from ..mosaicking import heights_on_grid, mosaic, mosaic_grid
     from ..progress import progress_bar
     from ..rectification import orthorectify_block
+    from ._common import check_crs
 
     if args.chunks < 16:
         raise ValueError(f"--chunks must be at least 16 pixels, got {args.chunks}")
@@ -114,6 +115,7 @@ def run(args) -> int:
         inputs += [str(p) for p in images]
         check_output_path(args.out, inputs)
         camera, dem = read_interior(args.camera, args.camera_name), read_dem(args.dem)
+        check_crs(crs, f"the block's orientations ({args.block})", dem, f"the DEM ({args.dem})")
     out_dir = pathlib.Path(args.out).resolve().parent
     # One bar, "mosaic": the block's images, then every Dask task of the mosaic and of its writing.
     with tempfile.TemporaryDirectory(dir=out_dir, prefix=".photax-mosaic-") as tmp, progress_bar(

@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.raster import read_dem
     from ..grid import ortho_grid
     from ..rectification import orthorectify_file
-    from ._common import ground_unit, input_file
+    from ._common import check_crs, ground_unit, input_file
 
     image = input_file(args.image, "image")
     if args.dem is not None:
@@ -77,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
     camera = read_interior(args.camera, args.camera_name)
     exterior, crs = read_exterior(args.exterior, args.image)
     dem = read_dem(args.dem) if args.dem is not None else _flat_dem(args.height, exterior)
+    if args.dem is not None:
+        check_crs(crs, f"the orientation ({args.exterior})", dem, f"the DEM ({args.dem})")
     grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
     orthorectify_file(
         image, args.out, exterior, camera, dem, grid, resampling=args.resampling, nodata=args.nodata,

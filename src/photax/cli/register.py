@@ -35,7 +35,9 @@ def add_parser(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.orientation import read_exterior, read_interior
+    from ..io.crs import require_same
     from ..io.raster import read_dem, read_geotiff
+    from ._common import check_crs
     from ..io.results import write_json
     from ..matching import register_to_ortho
     from ._common import input_file
@@ -51,11 +53,14 @@ def run(args: argparse.Namespace) -> int:
     if not levels or min(levels) < 1 or args.max_steps < 1:
         raise ValueError(f"--levels must be positive and --max-steps at least 1, got {args.levels!r} and {args.max_steps}")
     camera = read_interior(args.camera)
-    exterior, _ = read_exterior(args.exterior, args.image)
+    exterior, crs = read_exterior(args.exterior, args.image)
     image = read_geotiff(args.image)[0][0].astype(float)
     ortho, profile = read_geotiff(args.ortho)
     transform = tuple(profile["transform"])[:6]
-    res = register_to_ortho(image, camera, exterior, ortho[0].astype(float), transform, read_dem(args.dem),
+    dem = read_dem(args.dem)
+    check_crs(crs, f"the orientation ({args.exterior})", dem, f"the DEM ({args.dem})")
+    require_same(dem.crs, f"the DEM ({args.dem})", profile.get("crs"), f"the ortho ({args.ortho})")
+    res = register_to_ortho(image, camera, exterior, ortho[0].astype(float), transform, dem,
                             levels=levels, max_steps=args.max_steps, throw=False)
     e = res.exterior
     write_json({"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention},

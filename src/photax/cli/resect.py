@@ -93,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
 
     from ..io.atomic import check_output_path
     from ..io.camera_file import read_camera
+    from ..io.crs import require_projected
     from ..io.gcp import read_gcps
     from ..io.orientation import read_camera_unit
     from ..io.results import write_json
@@ -107,6 +108,7 @@ def run(args: argparse.Namespace) -> int:
     if args.sigma is not None and not args.sigma > 0:
         raise ValueError(f"--sigma must be positive, got {args.sigma}")
     table = read_gcps(gcp_path, format=args.format)
+    require_projected(table.crs, f"the GCPs ({args.gcp_file})")  # degrees are not metres
     camera = read_camera(camera_path)
     if table.pixel is not None and (camera.pixel_size is None or camera.image_size is None):
         raise ValueError(f"{args.camera}: the GCPs are in pixels, so the camera needs pixel_size and image_size")
@@ -140,7 +142,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {label}: NOT SOLVED - {res.message}")
         print()
         failed += not converged
-        results[name] = {"status": "solved" if converged else "not converged", **res.to_dict()}
+        if args.json:  # the per-point dicts cost seconds for 10^5 points: only when written
+            results[name] = {"status": "solved" if converged else "not converged", **res.to_dict()}
     solved = len(images) - failed
     print(f"{solved} of {plural(len(images), 'image')} solved" + (f", {failed} not" if failed else ""))
     if args.out:

@@ -39,6 +39,7 @@ import numpy as np
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, depth, project
 from ..dem import DEM
+from ..io.crs import check_dem
 from ..io.lazy import dataarray
 from ..grid import Grid
 from ._ortho import OrthoModel, _check_image_size
@@ -291,6 +292,7 @@ def orthorectify_dask(
     import dask.array as da
     from dask.highlevelgraph import HighLevelGraph
 
+    check_dem(dem, grid)
     resampling = _check_resampling(resampling)
     approx = _check_approx(approx)
     if not isinstance(grid, Grid):

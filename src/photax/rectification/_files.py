@@ -13,6 +13,7 @@ from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
+from ..io.crs import check_dem
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ._approx import _tile_positions
@@ -250,6 +251,7 @@ def orthorectify_file(
         _check_image_size((src.height, src.width), camera)
     if grid is None:
         grid = ortho_grid(exterior, camera, dem, resolution)
+    check_dem(dem, grid)
     return rectify_file(
         src_path, dst_path, OrthoModel(exterior, camera, dem), grid, resampling=resampling, nodata=nodata,
         tile=tile, progress=progress, compress=compress, inputs=inputs, approx=approx, info=info,

@@ -11,6 +11,7 @@ from jax import Array
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, depth, project
 from ..dem import DEM
+from ..io.crs import check_dem
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ..grid import Grid, gsd_hint, ortho_grid
@@ -101,6 +102,7 @@ def orthorectify(
     _check_image_size(image.shape, camera)
     if grid is None:
         grid = ortho_grid(exterior, camera, dem, resolution)
+    check_dem(dem, grid)
     bands = int(np.prod(image.shape[:-2], dtype=np.int64))
     check_output_size(grid.shape, bands, image.dtype, hint=lambda: gsd_hint(exterior, camera, dem, grid))
     model = OrthoModel(exterior, camera, dem)

@@ -21,6 +21,7 @@ import functools
 
 import numpy as np
 
+from .._float64 import as_float64
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import check_convention
@@ -40,7 +41,7 @@ _MAX_TILT = 60.0  # degrees: below this slope of the GCPs' plane, "above" and "b
 
 
 def _as_points(a, name: str, width: int, batch: bool) -> np.ndarray:
-    a = np.asarray(a, dtype=float)
+    a = as_float64(a, name)
     want = 3 if batch else 2
     if a.ndim != want or a.shape[-1] != width:
         shape = "(b, n, %d)" % width if batch else "(n, %d)" % width
@@ -128,8 +129,18 @@ def _critical(alpha: float, sigma_known: bool, red: float) -> float:
 
 @functools.lru_cache(maxsize=64)
 def _critical_table(alpha: float, sigma_known: bool, m: int) -> np.ndarray:
-    """Critical values indexed by the number of control points in use (0..m)."""
-    return np.array([_critical(alpha, sigma_known, 2.0 * k - 6.0) for k in range(m + 1)])
+    """Critical values indexed by the number of control points in use (0..m): :func:`_critical`
+    for each, computed as arrays (one scalar call each was 2.5 s of a 10^5-point resection)."""
+    from scipy import special
+
+    red = 2.0 * np.arange(m + 1) - 6.0
+    if sigma_known:
+        return np.full(m + 1, _critical(alpha, True, 0.0))
+    out = np.full(m + 1, np.inf)
+    ok = red >= 2
+    t = special.stdtrit(red[ok] - 1, 1.0 - alpha / 2.0)
+    out[ok] = t * np.sqrt(red[ok]) / np.sqrt(red[ok] - 1 + t * t)
+    return out
 
 
 def _pixel_size(camera: FrameCamera) -> float | None:

@@ -156,10 +156,11 @@ class ResectionResult:
         else:
             heads = [f"vx [{cu}]", f"vy [{cu}]"]
         rows = []
-        for k, name in enumerate(self.names):
-            role = "check" if self.check[k] else ("OUTLIER" if self.outliers[k] else "control")
-            vx, vy = self.residuals[k]
-            wx, wy = self.normalised[k]
+        # Python floats, not numpy scalars: formatting those was most of a 10^5-point report's time
+        for name, check, outlier, (vx, vy), (wx, wy) in zip(
+                self.names, np.asarray(self.check, bool).tolist(), np.asarray(self.outliers, bool).tolist(),
+                np.asarray(self.residuals).tolist(), np.asarray(self.normalised).tolist()):
+            role = "check" if check else ("OUTLIER" if outlier else "control")
             if ps is not None:
                 cols = [f"{vx / ps:.3f}", f"{vy / ps:.3f}"] + ([f"{vx:.4g}", f"{vy:.4g}"] if both else [])
             else:
@@ -196,19 +197,17 @@ class ResectionResult:
             "result": RESULTS(int(self.result)).name,
             "statistic": self.statistic,
             "critical": float(self.critical),
-            "points": [
-                {
-                    "name": str(self.names[k]),
-                    "role": "check" if self.check[k] else "control",
-                    "outlier": bool(self.outliers[k]),
-                    "residual": self.residuals[k].tolist(),
-                    "redundancy": self.redundancy[k].tolist(),
-                    "normalised": self.normalised[k].tolist(),
-                }
-                for k in range(len(self.names))
-            ],
         }
         json.dumps(out)  # fail here, not in the caller, if something is not serialisable
+        # the points: built from lists of Python values (one tolist per array, not per point)
+        out["points"] = [
+            {"name": str(name), "role": "check" if check else "control", "outlier": outlier, "residual": v,
+             "redundancy": r, "normalised": w}
+            for name, check, outlier, v, r, w in zip(
+                self.names, np.asarray(self.check, bool).tolist(), np.asarray(self.outliers, bool).tolist(),
+                np.asarray(self.residuals).tolist(), np.asarray(self.redundancy).tolist(),
+                np.asarray(self.normalised).tolist())
+        ]
         return out
 
 

@@ -10,8 +10,10 @@ reprojection error wins; candidates that put points behind the camera lose.
 
 **Data snooping** (Baarda 1968; Pope 1976 tau test): while the largest
 standardised residual exceeds the critical value and redundancy allows,
-the worst point (both coordinates) is excluded and the adjustment repeated
-from the start - inside the compiled function, a ``lax.while_loop``
+the worst point (both coordinates) is excluded - with every other point
+whose test fails even after the flagged points' pull on it is taken away
+(:func:`._adjust.test`: a large set is not refitted once per blunder) -
+and the adjustment repeated from the start - inside the compiled function, a ``lax.while_loop``
 with one adjustment in its body (traced once).
 """
 
@@ -72,9 +74,9 @@ def solve_robust(inp: Inputs, opt: Options, start) -> Output:
     def body(carry):  # adjust; test; exclude the worst point if the test fails
         out, used, stat_at, go, c = carry
         new = _adjust.adjust(start, inp, used, opt, active=go)
-        exclude, k, stat, c_new = _adjust.test(new, used, opt)
+        exclude, worst, stat, c_new = _adjust.test(new, used, opt)
         out = jax.tree_util.tree_map(lambda x, y: _lanes.sel(go, x, y), new, out)
-        hit = (jnp.arange(m)[:, None] == k[None, :]) & (go & exclude)[None]  # (m, B): the point excluded now
+        hit = worst & (go & exclude)[None]  # (m, B): the points excluded now
         return (out, used & ~hit, jnp.where(hit[:, None, :], stat, stat_at), go & exclude,
                 jnp.where(go, c_new, c))
 

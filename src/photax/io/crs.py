@@ -1,0 +1,69 @@
+"""CRS checks where two georeferenced inputs meet (issue 27).
+
+photax computes in the ground CRS of the orientation, in metres (or the
+CRS's linear unit): the collinearity equations need a Cartesian frame.  So
+
+* a **geographic** CRS (degrees) where ground coordinates are needed is
+  refused, naming it: an orientation or a DEM in EPSG:4326 made a one-pixel
+  "ortho" of 5.8 degrees, with exit 0;
+* two inputs in **different** CRSs (the orientation's and the DEM's, the
+  DEM's and an output grid's) are refused, naming both: photax does not
+  reproject a DEM (resampling heights, and their vertical datum, is the
+  user's choice: ``gdalwarp -t_srs <the orientation's CRS> dem.tif
+  dem_utm.tif``).  A DEM labelled EPSG:32735 under an orientation in
+  EPSG:32633 was used as if the numbers matched;
+* an input without a CRS is not compared (nothing to compare with).
+
+CRSs are compared by :class:`rasterio.crs.CRS` equality (OSR's ``IsSame``:
+``EPSG:32633``, its WKT and its PROJ string are the same CRS).
+"""
+
+from __future__ import annotations
+
+
+def _parse(crs):
+    from rasterio.crs import CRS
+    from rasterio.errors import CRSError
+
+    if crs is None or crs == "":
+        return None
+    try:
+        return CRS.from_user_input(crs)
+    except (CRSError, ValueError, TypeError):
+        return None
+
+
+def describe(crs) -> str:
+    """A short name of ``crs``: ``EPSG:32633`` when it has a code, else its PROJ string or text."""
+    c = _parse(crs)
+    if c is None:
+        return "no CRS" if crs is None or crs == "" else str(crs)[:80]
+    code = c.to_epsg()
+    if code is not None:
+        return f"EPSG:{code}"
+    text = c.to_proj4() or c.to_string()
+    return text if len(text) <= 80 else text[:77] + "..."
+
+
+def require_projected(crs, what: str) -> None:
+    """ValueError when ``crs`` (of ``what``, e.g. "the DEM") is geographic."""
+    c = _parse(crs)
+    if c is not None and c.is_geographic:
+        raise ValueError(f"{what} is in a geographic CRS ({describe(crs)}, degrees); photax needs ground "
+                         "coordinates in metres: reproject it to a projected CRS (e.g. its UTM zone)")
+
+
+def require_same(a, what_a: str, b, what_b: str) -> None:
+    """ValueError naming both when ``a`` and ``b`` are both known and differ."""
+    ca, cb = _parse(a), _parse(b)
+    if ca is None or cb is None or ca == cb:
+        return
+    raise ValueError(f"{what_a} is in {describe(a)} but {what_b} in {describe(b)}; photax does not reproject "
+                     f"between them (a DEM: gdalwarp -t_srs {describe(a)} dem.tif dem_reprojected.tif)")
+
+
+def check_dem(dem, grid=None) -> None:
+    """A DEM for the collinearity equations: projected, and in the output grid's CRS when both have one."""
+    require_projected(dem.crs, "the DEM")
+    if grid is not None:
+        require_same(dem.crs, "the DEM", grid.crs, "the output grid")
