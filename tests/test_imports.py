@@ -112,7 +112,7 @@ def test_no_import_cycle():
 # --- private names stay inside their unit ------------------------------------
 
 # Private utility modules other units may import from (each says so in its docstring).
-PRIVATE_UTILITIES = ("photax._aot", "photax._deprecation", "photax._lazy", "photax._linalg", "photax._triangulation")
+PRIVATE_UTILITIES = ("photax._aot", "photax._deprecation", "photax._float64", "photax._lazy", "photax._linalg", "photax._triangulation")
 
 
 def _unit(module: str) -> str:

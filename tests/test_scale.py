@@ -33,7 +33,7 @@ def _one_at_a_time(xy, ground, sigma, alpha=0.001):
     out = np.zeros(len(xy), bool)
     while True:
         r = ptx.resect(xy, ground, CAM, sigma=sigma, check=out, robust=False)
-        w = np.where(out, 0.0, np.max(np.nan_to_num(np.abs(np.asarray(r.normalized))), axis=1))
+        w = np.where(out, 0.0, np.max(np.nan_to_num(np.abs(np.asarray(r.normalised))), axis=1))
         if w.max() <= (c if sigma is not None else float(r.critical)):
             return out, r
         out[np.argmax(w)] = True

@@ -1,5 +1,8 @@
 """Float64 at the public entry points: coordinates that arrive as float32.
 
+Private utility module: other photax units import its names directly
+(``tests/test_imports.py`` lists the modules allowed that).
+
 photax computes in float64 (``import photax`` turns on JAX's 64-bit mode).
 Input that is already float32 -- a float32 numpy array, or a jax array made
 before ``import photax``, when JAX still defaults to float32 -- is converted

@@ -142,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {label}: NOT SOLVED - {res.message}")
         print()
         failed += not converged
-        if args.json:  # the per-point dicts cost seconds for 10^5 points: only when written
+        if args.out:  # the per-point dicts cost seconds for 10^5 points: only when written
             results[name] = {"status": "solved" if converged else "not converged", **res.to_dict()}
     solved = len(images) - failed
     print(f"{solved} of {plural(len(images), 'image')} solved" + (f", {failed} not" if failed else ""))
