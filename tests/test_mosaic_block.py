@@ -7,6 +7,7 @@ centre (photax.scene.texture) and the gain of 1.1.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 
@@ -143,7 +144,8 @@ def test_block_library_calls(block, tmp_path, monkeypatch):
 
     images, exteriors, crs = block_images(block / "bundle.json", block / "images")
     assert [p.name for p in images] == ["img0.tif", "img1.tif", "img2.tif"] and crs is None
-    camera, dem = read_camera(block / "camera.yaml"), read_dem(block / "dem.tif")
+    camera, dem_file = read_camera(block / "camera.yaml"), read_dem(block / "dem.tif")
+    dem = dataclasses.replace(dem_file, crs=None)  # a DEM without a CRS: the orientation file's names the grids'
     seen = []
     paths = orthorectify_block(images, exteriors, camera, dem, tmp_path, crs="EPSG:32634", callback=seen.append)
     assert seen == [0, 1, 2] and [p.parent for p in paths] == [tmp_path] * 3
@@ -151,7 +153,7 @@ def test_block_library_calls(block, tmp_path, monkeypatch):
     for image, e, path in zip(images, exteriors, paths):
         with rasterio.open(path) as ds:
             v, t = ds.read(1), ds.transform
-            assert ds.crs == rasterio.CRS.from_epsg(32634)  # the orientation file's CRS, not the DEM's
+            assert ds.crs == rasterio.CRS.from_epsg(32634)  # the orientation file's CRS
         transforms.append(t)
         ref = tmp_path / "ref.tif"
         orthorectify_file(image, ref, e, camera, dem, ortho_grid(e, camera, dem, abs(t.a)))
@@ -166,7 +168,7 @@ def test_block_library_calls(block, tmp_path, monkeypatch):
 
     grid = mosaic_grid(paths)
     assert grid.transform.a == t0.a and grid.crs == rasterio.CRS.from_epsg(32634)
-    h = heights_on_grid(block / "dem.tif", photax.Grid(grid.transform, grid.shape, dem.crs))  # the coordinates' CRS
+    h = heights_on_grid(block / "dem.tif", photax.Grid(grid.transform, grid.shape, dem_file.crs))  # the coordinates' CRS
     xy = grid.xy()
     plane = 20 + 0.03 * (xy[..., 0] - X0) - 0.02 * (xy[..., 1] - Y0)
     ok = np.isfinite(h)
@@ -182,6 +184,8 @@ def test_ortho_grid_takes_the_crs(block):
     camera, dem = read_camera(block / "camera.yaml"), read_dem(block / "dem.tif")
     e = photax.ExteriorOrientation([X0, Y0, 300.0], np.radians([0.5, -0.4, 0.0]))
     default = ortho_grid(e, camera, dem)
-    named = ortho_grid(e, camera, dem, crs="EPSG:32634")
+    named = ortho_grid(e, camera, dataclasses.replace(dem, crs=None), crs="EPSG:32634")  # a DEM without one
     assert default.crs == dem.crs and named.crs == "EPSG:32634"
+    with pytest.raises(ValueError, match="does not reproject"):  # a DEM labelled otherwise: never relabelled
+        ortho_grid(e, camera, dem, crs="EPSG:32634")
     assert (named.transform, named.shape) == (default.transform, default.shape)  # only the label differs

@@ -7,6 +7,7 @@ output's bytes as rows x cols x bands x itemsize.
 """
 
 import collections
+import errno
 import pathlib
 import re
 import shutil
@@ -16,7 +17,7 @@ import pytest
 
 from photax.demo import sample_scene
 from photax.rectification import ground_sampling_distance, ortho_grid, orthorectify, orthorectify_file
-from photax.io import _size
+from photax.io import sizes as _size
 
 DATA = pathlib.Path(__file__).resolve().parents[1] / "data"
 
@@ -85,10 +86,18 @@ def test_file_output_refused_when_the_disk_is_short(scene, tmp_path, monkeypatch
     real = shutil.disk_usage
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(need * 10, need * 10 - need + 1, need - 1))
     out = tmp_path / "o.tif"
-    with pytest.raises(ValueError, match=r"free on the disk") as err:
-        orthorectify_file(src, out, scene["exterior"], scene["camera"], scene["dem"], grid)
+    with pytest.raises(OSError, match=r"no space left on device: .* free on the disk") as err:
+        orthorectify_file(src, out, scene["exterior"], scene["camera"], scene["dem"], grid, compress=None)
     assert f"{need:,} pixels" in str(err.value) and "ground sampling distance" in str(err.value)
+    assert err.value.errno == errno.ENOSPC and err.value.filename == str(out)
     assert list(tmp_path.iterdir()) == []  # nothing written, no temporary left
+    # compressed (the default), its size is not known: refused only where even 100:1 could not fit
+    orthorectify_file(src, out, scene["exterior"], scene["camera"], scene["dem"], grid)
+    out.unlink()
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(need * 10, need * 10, need // 100 - 1))
+    with pytest.raises(OSError, match=r"even at 100:1 compression"):
+        orthorectify_file(src, out, scene["exterior"], scene["camera"], scene["dem"], grid)
+    assert list(tmp_path.iterdir()) == []
     monkeypatch.setattr(shutil, "disk_usage", real)
     orthorectify_file(src, out, scene["exterior"], scene["camera"], scene["dem"], grid)
     assert out.exists()
@@ -120,8 +129,8 @@ def test_to_raster_refused_when_the_disk_is_short(tmp_path, monkeypatch):
     need = 2 * 200 * 300 * 2
     usage = collections.namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(need * 10, need * 9, need - 1))
-    with pytest.raises(ValueError, match=r"60,000 pixels x 2 band\(s\) needs 240 KB"):
-        to_raster(arr, tmp_path / "x.tif")
+    with pytest.raises(OSError, match=r"60,000 pixels x 2 band\(s\) needs 240 KB"):
+        to_raster(arr, tmp_path / "x.tif", compress=None)
     assert list(tmp_path.iterdir()) == []
 
 

@@ -22,7 +22,7 @@ from ._aot import disk_cached
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, image_to_ground
 from .dem import DEM
-from .io.crs import check_dem, describe
+from .io.crs import check_dem, describe, require_same
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,9 +207,9 @@ def ortho_grid(
             (:func:`ground_sampling_distance`).  A resolution more than 100
             times finer or coarser than it, or one giving fewer than 16 x 16
             pixels, is refused with the supported range (:func:`check_resolution`).
-        crs: the grid's CRS (e.g. the one an orientation file names); default
-            the DEM's.  Coordinates are not transformed: it names the CRS the
-            DEM and the orientation are already in.
+        crs: the grid's CRS (e.g. the one an orientation file names) where the DEM has none;
+            default the DEM's.  Coordinates are not transformed: a DEM labelled with another
+            CRS is refused (:func:`photax.io.crs.check_dem`), never relabelled.
     """
     ground, px = _footprint_outline(exterior, camera, dem, per_side)
     gsd = math.sqrt(_shoelace(ground) / _shoelace(px))
@@ -229,4 +229,5 @@ def ortho_grid(
         resolution = gsd
     else:
         check_resolution(resolution, gsd, bounds)
+    require_same(dem.crs, "the DEM", crs, "the grid's crs=")  # names a CRS where the DEM has none
     return Grid.from_bounds(bounds, resolution, crs=dem.crs if crs is None else crs)

@@ -285,14 +285,14 @@ def check_space(out, size: int) -> None:
     out = pathlib.Path(out)
     free = _free(out.parent)
     if free is not None and size > free:
-        raise _not_written(out, errno.ENOSPC, f"{_human(size)} needed, {_human(free)} free")
+        raise not_written(out, errno.ENOSPC, f"{_human(size)} needed, {_human(free)} free")
     limit = _file_size_limit()
     if limit is not None and size > limit:
-        raise _not_written(out, errno.EFBIG, f"{_human(size)} needed, the file size limit (ulimit -f) is "
+        raise not_written(out, errno.EFBIG, f"{_human(size)} needed, the file size limit (ulimit -f) is "
                                              f"{_human(limit)}")
 
 
-def _not_written(out: pathlib.Path, no: int, detail: str) -> OSError:
+def not_written(out: pathlib.Path, no: int, detail: str) -> OSError:
     """The error of an output not written: ``OUT: not written: CAUSE: DETAIL`` in the CLI."""
     kept = " (the existing file is kept)" if out.exists() else ""
     return OSError(no, f"not written{kept}: {_FULL[no]}: {detail}", str(out))
@@ -411,10 +411,10 @@ def _write_failure(out: pathlib.Path, tmp: pathlib.Path, exc: BaseException,
     needed = _human(size) if size else f"more than {_human(written)}"
     limit, free = _file_size_limit(), _free(out.parent)
     if no == errno.EFBIG and limit is not None:
-        return _not_written(out, no, f"{needed} needed, the file size limit (ulimit -f) is {_human(limit)}")
+        return not_written(out, no, f"{needed} needed, the file size limit (ulimit -f) is {_human(limit)}")
     if no == errno.EIO:
-        return _not_written(out, no, " ".join(str(exc).split())[:200])
-    return _not_written(out, no, f"{needed} needed, {_human(free) if free is not None else 'unknown'} free")
+        return not_written(out, no, " ".join(str(exc).split())[:200])
+    return not_written(out, no, f"{needed} needed, {_human(free) if free is not None else 'unknown'} free")
 
 
 # Windows device names: a file called so (with any extension) is the device there.

@@ -249,7 +249,8 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
         options["compress"] = compress
     options.update(kwargs)
     bands = data.shape[0] if data.ndim == 3 else 1
-    check_output_size(data.shape[-2:], bands + (mask is not None), data.dtype, path=path)
+    check_output_size(data.shape[-2:], bands + (mask is not None), data.dtype, path=path,
+                      compressed=bool(compress or cog))
     if mask is not None:
         options["nodata"] = None  # the mask band, not a value, says where there is no data
     # GDAL's block cache bounded for the write (default: 5 % of the RAM): two

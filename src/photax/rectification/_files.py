@@ -145,7 +145,8 @@ def rectify_file(
         # No nodata value for an integer image: a mask band, so that no grey value is lost to it.
         masked = nodata is None and not np.issubdtype(np.dtype(src.dtypes[0]), np.floating)
         fill = _fill_value(src.dtypes[0], nodata)
-        check_output_size(grid.shape, src.count + masked, src.dtypes[0], path=dst_path, hint=hint)
+        check_output_size(grid.shape, src.count + masked, src.dtypes[0], path=dst_path, hint=hint,
+                          compressed=bool(compress))
         profile = _geotiff_profile(grid, src.count, src.dtypes[0], None if masked else fill, compress)
         src_masked = any(MaskFlags.per_dataset in f or MaskFlags.alpha in f for f in src.mask_flag_enums)
         # numpy, not jnp, for the kernels' arguments: each eager jnp conversion is a
