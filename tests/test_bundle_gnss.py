@@ -5,6 +5,8 @@ against the information-weighted mean of its resection and the
 observations, a block with ties and GNSS alone against its truth, the
 datum checks, bad sigmas and the CLI."""
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -49,13 +51,17 @@ def test_schur_step_with_gnss_equals_dense_normal_equations(solver):
     g_sig = rng.uniform(0.3, 1.0, (n_img, 3))
     a_sig = rng.uniform(0.001, 0.004, (n_img, 3))
     lever = np.array([0.2, -0.4, 1.3])
-    problem = problem.replace(gnss_position=gnss, gnss_sigma=g_sig, attitude=att, attitude_sigma=a_sig, lever_arm=lever)
+    problem = problem.replace(
+        gnss_position=gnss, gnss_sigma=g_sig, attitude=att, attitude_sigma=a_sig, lever_arm=lever
+    )
     origin = np.round(problem.points.mean(0))
     s, n_c, _ = _analyse(problem, np.zeros((n_img, 6), bool), origin)
     intr = np.stack([np.r_[float(c.focal_length), np.asarray(c.principal_point), np.asarray(c.distortion)]
                      for c in problem.cameras])  # fmt: skip
-    state = _State(jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
-                   jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]))  # fmt: skip
+    state = _State(
+        jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
+        jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]),
+    )  # fmt: skip
     lam, none, one = 1e-3, jnp.asarray(0), jnp.asarray(1.0)
     lin = _linearise(state, s, none, one, n_c)
     new, *_ = _trial(state, lin, s, jnp.asarray(lam), none, one, n_c, solver=solver)
@@ -72,7 +78,9 @@ def test_schur_step_with_gnss_equals_dense_normal_equations(solver):
         centre = state.centre + jnp.einsum("nij,nkj,nk->ni", rot, state.rot, dimg[:, 3:])
         return _State(rot, centre, state.intr, state.xyz + x[n_c:].reshape(n_pts, 3))
 
-    def angle_rows(rot):  # angles of R_obs Exp(e) to first order in e = Log(R_obs^T R): d angles / d e at R_obs
+    def angle_rows(
+        rot,
+    ):  # angles of R_obs Exp(e) to first order in e = Log(R_obs^T R): d angles / d e at R_obs
         e = ptx.matrix_to_axis_angle(jnp.swapaxes(r_obs, 1, 2) @ rot)
         jac = jax.vmap(jax.jacfwd(lambda d, r: ptx.angles_from_matrix(r @ ptx.axis_angle_to_matrix(d), conv)),
                        in_axes=(None, 0))(jnp.zeros(3), r_obs)  # fmt: skip
@@ -83,7 +91,9 @@ def test_schur_step_with_gnss_equals_dense_normal_equations(solver):
         antenna = st.centre + jnp.einsum("nij,j->ni", st.rot, jnp.asarray(lever))
         r_g = ((antenna - g_local) / g_sig)[seen_g]
         r_a = (angle_rows(st.rot) / a_sig)[seen_a]
-        return jnp.concatenate([_residuals(st, s).ravel(), _prior_residuals(st, s).ravel(), r_g.ravel(), r_a.ravel()])
+        return jnp.concatenate(
+            [_residuals(st, s).ravel(), _prior_residuals(st, s).ravel(), r_g.ravel(), r_a.ravel()]
+        )
 
     x0 = jnp.zeros(n_c + 3 * n_pts)
     free = np.concatenate([np.asarray(s.mask_c), np.asarray(s.mask_p).ravel()]) > 0
@@ -94,7 +104,11 @@ def test_schur_step_with_gnss_equals_dense_normal_equations(solver):
     dx = np.zeros(len(free))
     dx[free] = np.linalg.solve(H + lam * np.diag(np.clip(np.diag(H), 1e-6, 1e32)), -J.T @ r)
     ref = apply(jnp.asarray(dx))
-    tol = dict(centre=1e-7, rot=1e-11, xyz=1e-7) if solver != "cg" else dict(centre=2e-3, rot=1e-7, xyz=2e-3)
+    tol = (
+        {"centre": 1e-7, "rot": 1e-11, "xyz": 1e-7}
+        if solver != "cg"
+        else {"centre": 2e-3, "rot": 1e-7, "xyz": 2e-3}
+    )
     np.testing.assert_allclose(new.centre, ref.centre, atol=tol["centre"])
     np.testing.assert_allclose(new.rot, ref.rot, atol=tol["rot"])
     np.testing.assert_allclose(new.xyz, ref.xyz, atol=tol["xyz"])
@@ -108,7 +122,8 @@ def _single_image():
                                    "omega-phi-kappa")  # fmt: skip
     pts = np.column_stack([rng.uniform(-250, 250, (12, 2)) + [500100.0, 4000050.0], rng.uniform(0, 60, 12)])
     obs = np.asarray(ptx.project(pts, true, cam)) + 0.5 * rng.standard_normal((12, 2))
-    start = ptx.ExteriorOrientation(np.array([[500103.0, 4000048.0, 702.0]]), np.array([[0.025, -0.01, 0.31]]),
+    start = ptx.ExteriorOrientation(np.array([[500103.0, 4000048.0, 702.0]]),
+                                    np.array([[0.025, -0.01, 0.31]]),
                                     "omega-phi-kappa")  # fmt: skip
     return ptx.BundleProblem(cam, start, pts, np.zeros(12, int), np.arange(12), obs, obs_sigma=0.5,
                              roles=["control"] * 12)  # fmt: skip
@@ -133,7 +148,7 @@ def test_single_image_is_the_information_weighted_mean_of_resection_and_observat
     x_o = np.concatenate([x_r[:3] + [2.0, -1.5, 1.0], x_r[3:] + [0.004, -0.003, 0.005]])
     sig = np.array([0.5, 0.5, 0.8, 0.002, 0.002, 0.003])
     p = np.diag(1.0 / sig**2)
-    kw = dict(gnss_position=x_o[None, :3], gnss_sigma=sig[None, :3])
+    kw = {"gnss_position": x_o[None, :3], "gnss_sigma": sig[None, :3]}
     if with_attitude:
         kw.update(attitude=x_o[None, 3:], attitude_sigma=sig[None, 3:])
     else:
@@ -177,7 +192,10 @@ def test_ties_and_gnss_alone_recover_the_block(free_block):
     chk = problem.roles == "check"
     assert np.all(np.abs(res.check_residuals) < 3 * res.point_std[chk])
     # redundancy: 2 per image observation + 3 per GNSS position - 6 per image - 3 per point
-    assert res.redundancy == 2 * problem.n_observations + 3 * problem.n_images - 6 * problem.n_images - 3 * problem.n_points
+    assert (
+        res.redundancy
+        == 2 * problem.n_observations + 3 * problem.n_images - 6 * problem.n_images - 3 * problem.n_points
+    )
     assert 0.8 < res.sigma0 < 1.2
     report = res.report(unit="m")
     assert f"GNSS positions ({problem.n_images}): residual RMS" in report
@@ -209,7 +227,9 @@ def test_one_strip_with_gnss_alone_is_refused_until_attitudes_fix_its_roll():
     two = gp.replace(gnss_position=np.where(np.arange(5)[:, None] < 2, np.nan, gp.gnss_position))
     with pytest.raises(ValueError, match="no datum"):  # 3 positions on a line: no datum either
         ptx.bundle_adjust(two)
-    att = np.asarray(truth.exterior.angles) + np.radians(0.01) * np.random.default_rng(4).standard_normal((5, 3))
+    att = np.asarray(truth.exterior.angles) + np.radians(0.01) * np.random.default_rng(4).standard_normal(
+        (5, 3)
+    )
     res = ptx.bundle_adjust(gp.replace(attitude=att, attitude_sigma=np.radians(0.01)))
     assert res.converged
     assert "attitudes (5): residual RMS" in res.report()
@@ -244,18 +264,20 @@ def test_a_block_held_together_only_by_gnss_is_reported(free_block):
 @pytest.mark.parametrize(
     "kw, match",
     [
-        (dict(gnss_sigma=0.0), "gnss_sigma must be positive"),
-        (dict(gnss_sigma=-1.0), "gnss_sigma must be positive"),
-        (dict(gnss_sigma=np.nan), "gnss_sigma must be positive"),
-        (dict(), "needs gnss_sigma"),
-        (dict(gnss_sigma=1.0, lever_arm=[0, 0]), "lever_arm"),
+        ({"gnss_sigma": 0.0}, "gnss_sigma must be positive"),
+        ({"gnss_sigma": -1.0}, "gnss_sigma must be positive"),
+        ({"gnss_sigma": np.nan}, "gnss_sigma must be positive"),
+        ({}, "needs gnss_sigma"),
+        ({"gnss_sigma": 1.0, "lever_arm": [0, 0]}, "lever_arm"),
     ],
 )
 def test_bad_gnss_sigma_is_refused(free_block, kw, match):
     problem, truth = free_block
     with pytest.raises(ValueError, match=match):
-        ptx.BundleProblem(problem.cameras, problem.exterior, problem.points, problem.obs_image, problem.obs_point,
-                          problem.obs_xy, gnss_position=np.asarray(truth.exterior.position), **kw)  # fmt: skip
+        ptx.BundleProblem(
+            problem.cameras, problem.exterior, problem.points, problem.obs_image, problem.obs_point,
+            problem.obs_xy, gnss_position=np.asarray(truth.exterior.position), **kw,
+        )  # fmt: skip
 
 
 @pytest.mark.parametrize("sigma", [0.0, -0.1])
@@ -276,11 +298,12 @@ def test_cli_position_sigma_takes_the_start_positions_as_gnss(free_block, tmp_pa
     assert main(["bundle", str(folder), "--position-sigma", "0", "--quiet", "--no-progress"]) == 2
     assert "--position-sigma must be a positive number" in capsys.readouterr().err
     out = tmp_path / "res.json"
-    assert main(["bundle", str(folder), "--position-sigma", "5", "--quiet", "--no-progress", "-o", str(out)]) == 0
+    assert (
+        main(["bundle", str(folder), "--position-sigma", "5", "--quiet", "--no-progress", "-o", str(out)])
+        == 0
+    )
     text = capsys.readouterr().out
     assert "GNSS positions (8): residual RMS" in text
-    import json
-
     images = json.loads(out.read_text())["images"]
     pos = np.array([img["position"] for img in images])
     std = np.array([img["std"][:3] for img in images])

@@ -125,7 +125,9 @@ class BundleProblem:
         fixed = _fixed_exterior(fixed_exterior, n_img)
         _check_datum(op, role, pts, point_names)
         self.gnss_position, self.gnss_sigma = _camera_observations(gnss_position, gnss_sigma, n_img, "gnss")
-        self.attitude, self.attitude_sigma = _camera_observations(attitude, attitude_sigma, n_img, "attitude")
+        self.attitude, self.attitude_sigma = _camera_observations(
+            attitude, attitude_sigma, n_img, "attitude"
+        )
         self.lever_arm = _lever_arm(lever_arm, n_img, self.gnss_position)
         self.cameras: tuple[FrameCamera, ...] = cams
         self.exterior = eo
@@ -287,20 +289,27 @@ def _camera_observations(values, sigma, n_img: int, name: str):
         raise ValueError(f"{label} must have shape (n_images, 3) = ({n_img}, 3), got {v.shape}")
     partial = np.any(np.isnan(v), axis=1) & ~np.all(np.isnan(v), axis=1)
     if np.any(partial) or np.any(np.isinf(v)):
-        raise ValueError(f"{label}: row {int(np.argmax(partial | np.any(np.isinf(v), axis=1)))} is partly "
-                         "missing or infinite (a row is all finite, or all NaN: no observation)")  # fmt: skip
+        row = int(np.argmax(partial | np.any(np.isinf(v), axis=1)))
+        raise ValueError(
+            f"{label}: row {row} is partly missing or infinite (a row is all finite, or all NaN: "
+            "no observation)"
+        )
     if sigma is None:
         raise ValueError(f"{label} needs {name}_sigma (its standard deviation per axis)")
     sig = np.asarray(sigma, dtype=float)
     if sig.ndim > 2 or (sig.ndim >= 1 and sig.shape[0] != n_img) or (sig.ndim == 2 and sig.shape[1] != 3):
-        raise ValueError(f"{name}_sigma must be a scalar, (n_images,) or (n_images, 3), got shape {sig.shape}")
+        raise ValueError(
+            f"{name}_sigma must be a scalar, (n_images,) or (n_images, 3), got shape {sig.shape}"
+        )
     sig = _per_row(sig, n_img, 3)
     seen = np.all(np.isfinite(v), axis=1)
     bad = seen[:, None] & ~(np.isfinite(sig) & (sig > 0))
     if np.any(bad):
         i = int(np.argmax(bad.any(axis=1)))
-        raise ValueError(f"{name}_sigma must be positive and finite where {label} is given: image {i} has "
-                         f"{sig[i].tolist()} (to hold a value exactly, fix it with fixed_exterior)")  # fmt: skip
+        raise ValueError(
+            f"{name}_sigma must be positive and finite where {label} is given: image {i} has "
+            f"{sig[i].tolist()} (to hold a value exactly, fix it with fixed_exterior)"
+        )
     return v, np.where(seen[:, None], sig, np.nan)
 
 

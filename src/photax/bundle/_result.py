@@ -160,10 +160,11 @@ class BundleResult:
         parts = self.parts
         if len(parts) > 1:
             sizes = ", ".join(str(len(q)) for q in parts)
+            first, other = p.image_names[parts[0][0]], p.image_names[parts[1][0]]
             lines.append(
-                f"  WARNING: the block falls into {len(parts)} parts that share no point (images per part: {sizes}; "
-                f"e.g. {p.image_names[parts[1][0]]} is not tied to {p.image_names[parts[0][0]]}): their relative "
-                "orientation rests on the GNSS / attitude observations and control alone"
+                f"  WARNING: the block falls into {len(parts)} parts that share no point (images per part: "
+                f"{sizes}; e.g. {other} is not tied to {first}): their relative orientation rests on the "
+                "GNSS / attitude observations and control alone"
             )
         return "\n".join(lines)
 
@@ -181,8 +182,8 @@ class BundleResult:
             rms = np.sqrt(np.mean(r**2, axis=0))
             worst = int(np.flatnonzero(seen)[np.argmax(np.max(np.abs(r), axis=1))])
             lines.append(
-                f"  {what} ({int(seen.sum())}): residual RMS {rms[0]:.4g}, {rms[1]:.4g}, {rms[2]:.4g}{unit}; "
-                f"max |r| {np.max(np.abs(r)):.4g}{unit} ({names[worst]})"
+                f"  {what} ({int(seen.sum())}): residual RMS {rms[0]:.4g}, {rms[1]:.4g}, "
+                f"{rms[2]:.4g}{unit}; max |r| {np.max(np.abs(r)):.4g}{unit} ({names[worst]})"
             )
         return lines
 
@@ -226,7 +227,8 @@ def _image_parts(problem: BundleProblem) -> list[list[int]]:
     from scipy.sparse.csgraph import connected_components
 
     n_img, n = problem.n_images, problem.n_images + problem.n_points
-    graph = coo_matrix((np.ones(problem.n_observations), (problem.obs_image, n_img + problem.obs_point)), shape=(n, n))
+    links = (problem.obs_image, n_img + problem.obs_point)
+    graph = coo_matrix((np.ones(problem.n_observations), links), shape=(n, n))
     _, label = connected_components(graph, directed=False)
     groups: dict[int, list[int]] = {}
     for i in range(n_img):

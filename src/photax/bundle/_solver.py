@@ -151,7 +151,8 @@ def _datum_defect(problem: BundleProblem) -> str:
             "the network has no datum: fewer than 3 control points or GNSS positions and no fixed "
             "orientations (7 parameters: translation, rotation, scale are free). Add control points, GNSS "
             "positions (gnss_position=, --position-sigma), fix orientations (fixed_exterior=), or choose "
-            "gauge='fix_first_camera' or gauge='damped' (LM damping handles the defect, as Ceres does for BAL)"
+            "gauge='fix_first_camera' or gauge='damped' (LM damping handles the defect, as Ceres does "
+            "for BAL)"
         )
     parts = [np.asarray(q) for q in _image_parts(problem)]
     for q in parts:
@@ -160,13 +161,15 @@ def _datum_defect(problem: BundleProblem) -> str:
             "the rest of the block"
         )  # fmt: skip
         if _datum_constraints(problem, q) < 7:
-            return (f"the network has no datum{where}: give it control points or GNSS positions of its own, or "
-                    "tie it to the rest")  # fmt: skip
+            return (
+                f"the network has no datum{where}: give it control points or GNSS positions of its own, "
+                "or tie it to the rest"
+            )
         if _gnss_on_a_line(problem, q):
             return (
-                f"the network has no datum{where}: its only datum, the GNSS positions, lie on one line (within "
-                "3 sigma), so the roll about that line is free. Add attitude observations (attitude=, "
-                "--attitude-sigma), control points, or a second strip"
+                f"the network has no datum{where}: its only datum, the GNSS positions, lie on one line "
+                "(within 3 sigma), so the roll about that line is free. Add attitude observations "
+                "(attitude=, --attitude-sigma), control points, or a second strip"
             )
     return ""
 
@@ -510,7 +513,7 @@ def _point_pass(state: _State, s, loss, scale):
     costs = jnp.where(allowed & jnp.isfinite(costs), costs, jnp.inf)
     best = jnp.argmin(costs, axis=0)  # a = 0, the trial point (finite cost), is always allowed
     new = state._replace(xyz=state.xyz + steps[best][:, None] * dx)
-    cameras = 0.5 * jnp.sum(_camera_prior(state, s) ** 2)  # the cameras' own observations: the pass keeps them
+    cameras = 0.5 * jnp.sum(_camera_prior(state, s) ** 2)  # the cameras' observations: the pass keeps them
     return new, jnp.sum(jnp.min(costs, axis=0)) + cameras
 
 
@@ -594,7 +597,8 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
         weights=weight, sigma0=sigma0, redundancy=redundancy, exterior_std=eo_std, camera_std=cam_std,
         point_std=pt_std, point_cov=pt_cov, check_residuals=pts[check] - problem.points[check], problem=problem,
         seconds=seconds, result=RESULTS(code), orientation_cov=eo_cov,
-        gnss_residuals=_gnss_residuals(problem, eo.position, rot), attitude_residuals=_attitude_residuals(problem, eo),
+        gnss_residuals=_gnss_residuals(problem, eo.position, rot),
+        attitude_residuals=_attitude_residuals(problem, eo),
     )  # fmt: skip
     if throw and not result.converged:
         raise ConvergenceError(f"bundle adjustment failed: {message}")

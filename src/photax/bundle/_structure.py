@@ -245,7 +245,8 @@ def _camera_priors(problem, origin: np.ndarray):
     if np.any(seen):
         r_obs = np.asarray(rotation_matrix(jnp.asarray(problem.attitude[seen]), conv))
         rot[seen] = r_obs
-        amap[seen] = np.asarray(_angle_jacobian(jnp.asarray(r_obs), conv)) / problem.attitude_sigma[seen][:, :, None]
+        jac = np.asarray(_angle_jacobian(jnp.asarray(r_obs), conv))
+        amap[seen] = jac / problem.attitude_sigma[seen][:, :, None]
     return gnss, (jnp.asarray(rot), jnp.asarray(amap))
 
 

@@ -32,8 +32,8 @@ def add_parser(sub) -> None:
                    help="take the images' start positions as GNSS observations of standard deviation SIGMA "
                    "(ground unit, > 0): with ties they give the block a datum without control")  # fmt: skip
     p.add_argument("--attitude-sigma", type=float, metavar="DEG",
-                   help="take the images' start angles as INS attitude observations of standard deviation DEG "
-                   "degrees (> 0)")  # fmt: skip
+                   help="take the images' start angles as INS attitude observations of standard "
+                   "deviation DEG degrees (> 0)")  # fmt: skip
     p.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="GNSS antenna offset from the projection centre in the camera frame (x right, y up, "
                    "z back; ground unit), with --position-sigma")  # fmt: skip
@@ -117,7 +117,8 @@ def _with_camera_observations(problem, args):
             raise ValueError(f"{flag} must be a positive number, got {sigma:g}")
         values = np.asarray(values, dtype=float)
         if not np.isfinite(values).all(axis=1).any():
-            raise ValueError(f"{flag}: no image has a start {'position' if key == 'gnss' else 'attitude'} to take")
+            what = "position" if key == "gnss" else "attitude"
+            raise ValueError(f"{flag}: no image has a start {what} to take")
         if key == "gnss":
             changes.update(gnss_position=values, gnss_sigma=sigma)
         else:
