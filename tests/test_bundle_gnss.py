@@ -297,6 +297,10 @@ def test_cli_position_sigma_takes_the_start_positions_as_gnss(free_block, tmp_pa
     assert "no datum" in capsys.readouterr().err
     assert main(["bundle", str(folder), "--position-sigma", "0", "--quiet", "--no-progress"]) == 2
     assert "--position-sigma must be a positive number" in capsys.readouterr().err
+    assert main(["bundle", str(folder), "--position-sigma", "5", "--attitude-sigma", "-0.1", "--quiet"]) == 2
+    assert "--attitude-sigma must be a positive number" in capsys.readouterr().err
+    assert main(["bundle", str(folder), "--lever-arm", "0", "0", "1", "--quiet"]) == 2
+    assert "--lever-arm needs --position-sigma" in capsys.readouterr().err
     out = tmp_path / "res.json"
     assert (
         main(["bundle", str(folder), "--position-sigma", "5", "--quiet", "--no-progress", "-o", str(out)])
@@ -308,3 +312,19 @@ def test_cli_position_sigma_takes_the_start_positions_as_gnss(free_block, tmp_pa
     pos = np.array([img["position"] for img in images])
     std = np.array([img["std"][:3] for img in images])
     assert np.all(np.abs(pos - np.asarray(truth.exterior.position)) < 3 * std)
+
+
+def test_robust_adjustment_counts_the_gnss_in_its_cost(free_block):
+    """Huber (with its point pass): the final cost is 0.5 sum rho(|r|^2) of
+    the image residuals plus 0.5 sum of the squared GNSS residuals over their
+    sigma, recomputed here from the result; the centres within 3 sigma."""
+    problem, truth = free_block
+    sigma, d = 0.5, 1.5
+    res = ptx.bundle_adjust(problem.replace(gnss_position=_gnss(truth, sigma, 7), gnss_sigma=sigma),
+                            loss="huber", loss_scale=d)  # fmt: skip
+    s2 = np.sum((res.residuals / problem.obs_sigma) ** 2, axis=1)
+    rho = np.where(s2 <= d**2, s2, 2 * d * np.sqrt(s2) - d**2)
+    expect = 0.5 * np.sum(rho) + 0.5 * np.sum((res.gnss_residuals / sigma) ** 2)
+    assert res.cost == pytest.approx(expect, rel=1e-9)
+    err = np.asarray(res.exterior.position) - np.asarray(truth.exterior.position)
+    assert np.all(np.abs(err) < 3 * res.exterior_std[:, :3])
