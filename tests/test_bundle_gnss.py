@@ -202,6 +202,10 @@ def test_ties_and_gnss_alone_recover_the_block(free_block):
     assert np.all(np.isfinite(res.gnss_residuals))
     assert all("gnss_residual" in img for img in res.to_dict()["images"])
     assert "parts" not in report and len(res.parts) == 1
+    # the banded path (large blocks; its selected inversion for the precision) sees the GNSS too
+    band = ptx.bundle_adjust(gp, linear_solver="band")
+    np.testing.assert_allclose(band.exterior.position, res.exterior.position, atol=1e-6)
+    np.testing.assert_allclose(band.exterior_std, res.exterior_std, rtol=1e-6)
 
 
 def test_lever_arm_is_applied(free_block):

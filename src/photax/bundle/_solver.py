@@ -543,6 +543,7 @@ def _print_step(bar, it, cost, old, gmax, step, mu, accepted, new_cost) -> None:
 
 
 # Jitted once: eagerly, each of their few dozen jnp operations compiles on first use.
+_camera_prior_jit = jax.jit(_camera_prior)
 _rotation = jax.jit(rotation_matrix, static_argnames="convention")
 _angles = jax.jit(angles_from_matrix_unchecked, static_argnames="convention")
 
@@ -574,7 +575,7 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     n_prior = int(np.sum(np.asarray(s.prior_w) > 0)) + n_cam_obs
     redundancy = 2 * problem.n_observations + n_prior - n_free + (7 if gauge == "damped" else 0)
     wsq = float(np.sum(weight[:, None] * np.asarray(lin.r) ** 2) + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w)))
-    wsq += float(np.sum(np.asarray(_camera_prior(state, s)) ** 2))
+    wsq += float(np.sum(np.asarray(_camera_prior_jit(state, s)) ** 2))
     sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
     eo_std = cam_std = pt_std = pt_cov = eo_cov = None
     if precision and gauge != "damped":
