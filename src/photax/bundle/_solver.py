@@ -225,7 +225,9 @@ def bundle_adjust(
             the LM damping, as Ceres does for BAL problems (the solution is
             one of the equivalent ones; precision is not reported).  ``None``
             (default) refuses a network whose datum is not defined by control
-            points or fixed orientations.
+            points, fixed orientations or GNSS positions / attitudes (each
+            part of a block that shares no point with the rest needs its
+            own; GNSS positions alone on one line leave the roll free).
         max_steps: iterations counted as Ceres does (accepted and
             rejected steps).  ``max_iterations`` is its old name (still
             accepted).
