@@ -13,7 +13,7 @@ from jax import Array
 
 from ..camera import distort, intrinsics_jacobian
 from ..collinearity import collinearity_rows
-from ..rotation import _skew, matrix_to_axis_angle
+from ..rotation import matrix_to_axis_angle
 from ._robust import _LOSS_CODE as _LOSS_CODE, _corrector, _rho
 from ._structure import _State, _Structure
 
@@ -53,6 +53,11 @@ def _prior_residuals(state: _State, s: _Structure) -> Array:
     return (state.xyz - s.prior_xyz) * jnp.sqrt(s.prior_w)
 
 
+def _cross_matrix(v: Array) -> Array:
+    """``(n, 3, 3)`` ``[v]x`` (``[v]x u = v x u``) of ``v`` ``(n, 3)``: its columns are ``v x e_k``."""
+    return jnp.swapaxes(jnp.cross(v[:, None, :], jnp.eye(3)[None]), 1, 2)
+
+
 def _camera_prior(state: _State, s: _Structure, jacobians: bool = False):
     """``(n_img, 6)`` weighted residuals of the images' GNSS positions and
     attitudes (0 where an image has none) and, with ``jacobians``, their
@@ -76,10 +81,10 @@ def _camera_prior(state: _State, s: _Structure, jacobians: bool = False):
     small = t2 < 1e-8
     t = jnp.sqrt(jnp.where(small, 1.0, t2))
     c = jnp.where(small, 1.0 / 12.0 + t2 / 720.0, 1.0 / t**2 - (1.0 + jnp.cos(t)) / (2.0 * t * jnp.sin(t)))
-    k = _skew(e)
+    k = _cross_matrix(e)
     jr_inv = jnp.eye(3)[None] + 0.5 * k + c[:, None, None] * (k @ k)
     w = s.gnss_w[:, :, None]
-    top = jnp.concatenate([-(state.rot @ _skew(s.lever)) * w, w * jnp.eye(3)[None]], axis=2)
+    top = jnp.concatenate([-(state.rot @ _cross_matrix(s.lever)) * w, w * jnp.eye(3)[None]], axis=2)
     bottom = jnp.concatenate([s.att_map @ jr_inv, jnp.zeros_like(jr_inv)], axis=2)
     mask = s.mask_c[s.image_ext[:, :6]]
     return r, jnp.concatenate([top, bottom], axis=1) * mask[:, None, :]

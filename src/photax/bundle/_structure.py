@@ -12,13 +12,16 @@ added per problem by :func:`_analyse`."""
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
 from .._triangulation import observation_pairs
+from ..rotation import angles_from_matrix_unchecked, axis_angle_to_matrix, rotation_matrix
 from ._sparse import band_layout
 
 
@@ -224,6 +227,18 @@ def _analyse(problem, fixed_extra: np.ndarray, origin: np.ndarray, topology: _To
     return s, t.n_c, t.w
 
 
+@functools.partial(jax.jit, static_argnames=("convention",))
+def _angle_jacobian(rot: Array, convention: str) -> Array:
+    """``(n, 3, 3)`` d(angles)/d(rotation increment about camera axes): the
+    attitude observations' weights (:func:`_camera_priors`) and the
+    precision of the angles (:mod:`._precision`)."""
+
+    def angles(dr, r):
+        return angles_from_matrix_unchecked(r @ axis_angle_to_matrix(dr), convention)[0]
+
+    return jax.vmap(jax.jacfwd(angles), in_axes=(None, 0))(jnp.zeros(3), rot)
+
+
 def _camera_priors(problem, origin: np.ndarray):
     """The structure's arrays of the GNSS positions ``(xyz, 1/sigma,
     lever arm)`` and of the attitudes ``(R_obs, map)``: an attitude's
@@ -231,9 +246,6 @@ def _camera_priors(problem, origin: np.ndarray):
     to angle differences (the convention's Jacobian at ``R_obs``) over
     their sigmas, so it needs no angle convention in the jitted code and
     does not wrap at +-pi."""
-    from ..rotation import rotation_matrix
-    from ._precision import _angle_jacobian  # (imports this module)
-
     seen = problem.gnss_observed[:, None]
     xyz = np.where(seen, problem.gnss_position - origin[None, :], 0.0)
     w = np.where(seen, 1.0 / np.where(seen, problem.gnss_sigma, 1.0), 0.0)
