@@ -160,7 +160,7 @@ def _datum_defect(problem: BundleProblem) -> str:
             f" of the part of {len(q)} image(s) from {problem.image_names[q[0]]} that shares no point with "
             "the rest of the block"
         )  # fmt: skip
-        if _datum_constraints(problem, q) < 7:
+        if _datum_constraints(problem, q) < (7 if len(q) > 1 else 6):  # one image: no scale to fix
             return (
                 f"the network has no datum{where}: give it control points or GNSS positions of its own, "
                 "or tie it to the rest"
