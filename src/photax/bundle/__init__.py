@@ -10,6 +10,11 @@ The model is the collinearity equations (``docs/conventions.md``) of
 and the solver minimises (Ceres' convention, 0.5 times the sum of squares)::
 
     cost = 0.5 sum_o rho(|r_o|^2) + 0.5 sum_{control p} |(X_p - X_p^survey) / sigma_p|^2
+           + 0.5 sum_{GNSS i} |(C_i + R_i l - G_i) / sigma_i|^2 + 0.5 sum_{INS i} |M_i Log(A_i^T R_i)|^2
+
+(the last two: an image's GNSS antenna position ``G_i`` with lever arm ``l``
+and its INS attitude ``A_i``, ``M_i`` mapping the rotation vector to angle
+differences over their sigmas; :func:`photax.bundle._linearise._camera_prior`)
 
 with ``rho(s) = s`` (no loss), Huber ``rho(s) = s`` for ``s <= d^2`` else
 ``2 d sqrt(s) - d^2``, or Cauchy ``rho(s) = d^2 log(1 + s / d^2)``

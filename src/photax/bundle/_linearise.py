@@ -13,6 +13,7 @@ from jax import Array
 
 from ..camera import distort, intrinsics_jacobian
 from ..collinearity import collinearity_rows
+from ..rotation import matrix_to_axis_angle
 from ._robust import _LOSS_CODE as _LOSS_CODE, _corrector, _rho
 from ._structure import _State, _Structure
 
@@ -52,11 +53,49 @@ def _prior_residuals(state: _State, s: _Structure) -> Array:
     return (state.xyz - s.prior_xyz) * jnp.sqrt(s.prior_w)
 
 
+def _cross_matrix(v: Array) -> Array:
+    """``(n, 3, 3)`` ``[v]x`` (``[v]x u = v x u``) of ``v`` ``(n, 3)``: its columns are ``v x e_k``."""
+    return jnp.swapaxes(jnp.cross(v[:, None, :], jnp.eye(3)[None]), 1, 2)
+
+
+def _camera_prior(state: _State, s: _Structure, jacobians: bool = False):
+    """``(n_img, 6)`` weighted residuals of the images' GNSS positions and
+    attitudes (0 where an image has none) and, with ``jacobians``, their
+    Jacobian ``(n_img, 6, 6)`` w.r.t. the image's ``(dr, dC)`` (masked).
+
+    Position: ``(C + R l - G) / sigma`` with ``l`` the lever arm; with
+    ``R <- R Exp(dr)`` and the centre step ``dC`` (world frame to first
+    order, see :func:`photax.bundle._schur._trial`) its Jacobian is
+    ``-R [l]x`` on ``dr`` and the identity on ``dC``, over sigma.
+    Attitude: ``M e`` with ``e = Log(R_obs^T R)`` and ``M`` the structure's
+    ``att_map`` (angle differences over their sigmas, to first order); on
+    ``dr`` its Jacobian is ``M J_r^-1(e)``, the inverse right Jacobian of
+    SO(3): ``I + [e]x / 2 + (1/t^2 - (1 + cos t) / (2 t sin t)) [e]x^2``."""
+    arm = jnp.einsum("nij,nj->ni", state.rot, s.lever)
+    r_pos = (state.centre + arm - s.gnss_xyz) * s.gnss_w
+    e = matrix_to_axis_angle(jnp.swapaxes(s.att_rot, 1, 2) @ state.rot)
+    r = jnp.concatenate([r_pos, jnp.einsum("nij,nj->ni", s.att_map, e)], axis=1)
+    if not jacobians:
+        return r
+    t2 = jnp.sum(e * e, axis=1)
+    small = t2 < 1e-8
+    t = jnp.sqrt(jnp.where(small, 1.0, t2))
+    c = jnp.where(small, 1.0 / 12.0 + t2 / 720.0, 1.0 / t**2 - (1.0 + jnp.cos(t)) / (2.0 * t * jnp.sin(t)))
+    k = _cross_matrix(e)
+    jr_inv = jnp.eye(3)[None] + 0.5 * k + c[:, None, None] * (k @ k)
+    w = s.gnss_w[:, :, None]
+    top = jnp.concatenate([-(state.rot @ _cross_matrix(s.lever)) * w, w * jnp.eye(3)[None]], axis=2)
+    bottom = jnp.concatenate([s.att_map @ jr_inv, jnp.zeros_like(jr_inv)], axis=2)
+    mask = s.mask_c[s.image_ext[:, :6]]
+    return r, jnp.concatenate([top, bottom], axis=1) * mask[:, None, :]
+
+
 @jax.jit
 def _cost(state: _State, s: _Structure, loss: Array, scale: Array) -> Array:
     r = _residuals(state, s)
     rho, _, _ = _rho(jnp.sum(r * r, axis=1), loss, scale)
-    return 0.5 * jnp.sum(rho) + 0.5 * jnp.sum(_prior_residuals(state, s) ** 2)
+    prior = jnp.sum(_prior_residuals(state, s) ** 2) + jnp.sum(_camera_prior(state, s) ** 2)
+    return 0.5 * jnp.sum(rho) + 0.5 * prior
 
 
 def _outer_sum(a: Array, b: Array) -> Array:
@@ -82,6 +121,8 @@ class _Lin(NamedTuple):
     d_c: Array  # (N,) diag(J^T J), clamped
     d_p: Array  # (n_pts, 3)
     gmax: Array  # max |g|
+    u_cam: Array  # (n_img, 6, 6) J^T J of the GNSS / attitude observations on (dr, dC), added to U's
+    # diagonal blocks (photax.bundle._schur._scatter_schur; in g_img, u_diag and cost already)
 
     @property
     def wt(self) -> Array:
@@ -136,6 +177,10 @@ def _finish_lin(state, s, n_c, cost_obs, r0, weight, jc, jp, u_diag, v, g_img, g
     """The :class:`_Lin` from the sums over observations: priors, ``g_c``,
     the damping diagonal and ``max |g|``."""
     rp = _prior_residuals(state, s)
+    rc, jcam = _camera_prior(state, s, jacobians=True)
+    u_cam = jnp.einsum("nki,nkj->nij", jcam, jcam)
+    g_img = g_img.at[:, :6].add(jnp.einsum("nki,nk->ni", jcam, rc))
+    u_diag = u_diag.at[:, :6].add(jnp.diagonal(u_cam, axis1=1, axis2=2))
     pw = s.prior_w * s.mask_p
     v = v + pw[:, :, None] * jnp.eye(3)[None, :, :]
     g_p = g_p + pw * (state.xyz - s.prior_xyz)
@@ -146,8 +191,8 @@ def _finish_lin(state, s, n_c, cost_obs, r0, weight, jc, jp, u_diag, v, g_img, g
     d_p = jnp.diagonal(v, axis1=1, axis2=2)
     clamp = functools.partial(jnp.clip, min=1e-6, max=1e32)
     gmax = jnp.maximum(jnp.max(jnp.abs(g_c), initial=0.0), jnp.max(jnp.abs(g_p), initial=0.0))
-    cost = cost_obs + 0.5 * jnp.sum(rp * rp)
-    return _Lin(cost, r0, weight, jc, jp, u_diag, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax)
+    cost = cost_obs + 0.5 * jnp.sum(rp * rp) + 0.5 * jnp.sum(rc * rc)
+    return _Lin(cost, r0, weight, jc, jp, u_diag, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax, u_cam)
 
 
 #: Observations beyond which :func:`_linearise` runs in chunks of

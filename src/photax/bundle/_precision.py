@@ -1,5 +1,5 @@
-"""Precision: cofactor matrices of the adjusted unknowns and the map from
-rotation increments to angles."""
+"""Precision: cofactor matrices of the adjusted unknowns, mapped to angles
+by :func:`photax.bundle._structure._angle_jacobian`."""
 
 from __future__ import annotations
 
@@ -10,11 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..rotation import angles_from_matrix_unchecked, axis_angle_to_matrix
 from ._linearise import _Lin, _wt_of
 from ._schur import _band_shape, _reduced_band, _reduced_system, _yt_of
 from ._sparse import band_cholesky, band_selected_inverse, band_take, flat_index
-from ._structure import _Structure
+from ._structure import _angle_jacobian, _Structure
 
 @functools.partial(jax.jit, static_argnames=("n_c",))
 def _covariances(lin: _Lin, s: _Structure, n_c: int):
@@ -85,16 +84,6 @@ def _covariances_band(lin: _Lin, s: _Structure, n_c: int):
     q_p, _ = jax.lax.scan(add_pairs, vinv, (s.chunk_a, s.chunk_b, weights))
     q_p = q_p * (s.mask_p[:, :, None] * s.mask_p[:, None, :])
     return q_img, q_cam, q_p, ok
-
-
-@functools.partial(jax.jit, static_argnames=("convention",))
-def _angle_jacobian(rot: Array, convention: str) -> Array:
-    """``(n, 3, 3)`` d(angles)/d(rotation increment about camera axes)."""
-
-    def angles(dr, r):
-        return angles_from_matrix_unchecked(r @ axis_angle_to_matrix(dr), convention)[0]
-
-    return jax.vmap(jax.jacfwd(angles), in_axes=(None, 0))(jnp.zeros(3), rot)
 
 
 def _standard_deviations(q_img, q_cam, q_p, var0: float, rot: Array, convention: str, active: Array, n_cameras: int):

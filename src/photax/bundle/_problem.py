@@ -61,6 +61,21 @@ class BundleProblem:
         fixed_exterior: ``(n_images,)`` or ``(n_images, 6)`` bool, parameters
             of :data:`EXTERIOR` held at their given values.  Default none.
         image_names, point_names: optional labels used in reports.
+        gnss_position: ``(n_images, 3)`` GNSS (or any surveyed) positions of
+            the images' antennas, ground unit, weighted observations of
+            ``C + R lever_arm`` (NaN rows: no observation).  With three or more
+            of them (not on one line) the block has a datum without control.
+        gnss_sigma: scalar, ``(n_images,)`` or ``(n_images, 3)`` standard
+            deviation of ``gnss_position`` per axis, ground unit, > 0
+            (to hold a centre exactly, use ``fixed_exterior``).  Needed with
+            ``gnss_position``.
+        attitude: ``(n_images, 3)`` INS attitude angles, radians, in the
+            convention of ``exterior`` (NaN rows: no observation).
+        attitude_sigma: scalar, ``(n_images,)`` or ``(n_images, 3)`` standard
+            deviation of ``attitude`` per angle, radians, > 0.
+        lever_arm: ``(3,)`` or ``(n_images, 3)`` antenna offset from the
+            projection centre in the camera frame (x right, y up, z back;
+            ground unit).  Default 0.
     """
 
     def __init__(
@@ -80,6 +95,11 @@ class BundleProblem:
         fixed_exterior=None,
         image_names: Sequence[str] | None = None,
         point_names: Sequence[str] | None = None,
+        gnss_position=None,
+        gnss_sigma=None,
+        attitude=None,
+        attitude_sigma=None,
+        lever_arm=None,
     ):
         cams = (cameras,) if isinstance(cameras, FrameCamera) else tuple(cameras)
         if not cams or not all(isinstance(c, FrameCamera) for c in cams):
@@ -105,6 +125,11 @@ class BundleProblem:
         free = _free_intrinsics(free_intrinsics, n_cam)
         fixed = _fixed_exterior(fixed_exterior, n_img)
         _check_datum(op, role, pts, point_names)
+        self.gnss_position, self.gnss_sigma = _camera_observations(gnss_position, gnss_sigma, n_img, "gnss")
+        self.attitude, self.attitude_sigma = _camera_observations(
+            attitude, attitude_sigma, n_img, "attitude"
+        )
+        self.lever_arm = _lever_arm(lever_arm, n_img, self.gnss_position)
         self.cameras: tuple[FrameCamera, ...] = cams
         self.exterior = eo
         self.points = pts
@@ -134,7 +159,9 @@ class BundleProblem:
             obs_point=self.obs_point, obs_xy=self.obs_xy, obs_sigma=self.obs_sigma,
             image_camera=self.image_camera, roles=self.roles, point_sigma=self.point_sigma,
             free_intrinsics=self.free_intrinsics, fixed_exterior=self.fixed_exterior,
-            image_names=self.image_names, point_names=self.point_names,
+            image_names=self.image_names, point_names=self.point_names, gnss_position=self.gnss_position,
+            gnss_sigma=self.gnss_sigma, attitude=self.attitude, attitude_sigma=self.attitude_sigma,
+            lever_arm=self.lever_arm,
         )  # fmt: skip
         args.update(changes)
         new = BundleProblem(**args)
@@ -165,10 +192,22 @@ class BundleProblem:
     def __repr__(self) -> str:
         n_ctrl = int(np.sum(self.roles == "control"))
         n_chk = int(np.sum(self.roles == "check"))
+        n_gnss, n_att = int(self.gnss_observed.sum()), int(self.attitude_observed.sum())
+        extra = (f", {n_gnss} GNSS positions" if n_gnss else "") + (f", {n_att} attitudes" if n_att else "")
         return (
             f"BundleProblem({self.n_images} images, {self.n_cameras} cameras, {self.n_points} points "
-            f"({n_ctrl} control, {n_chk} check), {self.n_observations} observations)"
+            f"({n_ctrl} control, {n_chk} check), {self.n_observations} observations{extra})"
         )
+
+    @property
+    def gnss_observed(self) -> np.ndarray:
+        """``(n_images,)`` bool: images with a GNSS position observation."""
+        return np.all(np.isfinite(self.gnss_position), axis=1)
+
+    @property
+    def attitude_observed(self) -> np.ndarray:
+        """``(n_images,)`` bool: images with an attitude observation."""
+        return np.all(np.isfinite(self.attitude), axis=1)
 
 
 # --------------------------------------------------------------------------
@@ -236,6 +275,56 @@ def _fixed_exterior(fixed_exterior, n_img: int) -> np.ndarray:
     if fixed.shape != (n_img, 6):
         raise ValueError(f"fixed_exterior must be (n_images,) or (n_images, 6), got {fixed.shape}")
     return fixed
+
+
+def _camera_observations(values, sigma, n_img: int, name: str):
+    """``(n_img, 3)`` per-image observations (NaN rows: none) and their
+    ``(n_img, 3)`` sigmas (> 0 and finite where observed; NaN elsewhere)."""
+    if values is None:
+        if sigma is not None:
+            raise ValueError(f"{name}_sigma is given without {'gnss_position' if name == 'gnss' else name}")
+        return np.full((n_img, 3), np.nan), np.full((n_img, 3), np.nan)
+    label = "gnss_position" if name == "gnss" else name
+    v = np.array(values, dtype=float)
+    if v.shape != (n_img, 3):
+        raise ValueError(f"{label} must have shape (n_images, 3) = ({n_img}, 3), got {v.shape}")
+    partial = np.any(np.isnan(v), axis=1) & ~np.all(np.isnan(v), axis=1)
+    if np.any(partial) or np.any(np.isinf(v)):
+        row = int(np.argmax(partial | np.any(np.isinf(v), axis=1)))
+        raise ValueError(
+            f"{label}: row {row} is partly missing or infinite (a row is all finite, or all NaN: "
+            "no observation)"
+        )
+    if sigma is None:
+        raise ValueError(f"{label} needs {name}_sigma (its standard deviation per axis)")
+    sig = np.asarray(sigma, dtype=float)
+    if sig.ndim > 2 or (sig.ndim >= 1 and sig.shape[0] != n_img) or (sig.ndim == 2 and sig.shape[1] != 3):
+        raise ValueError(
+            f"{name}_sigma must be a scalar, (n_images,) or (n_images, 3), got shape {sig.shape}"
+        )
+    sig = _per_row(sig, n_img, 3)
+    seen = np.all(np.isfinite(v), axis=1)
+    bad = seen[:, None] & ~(np.isfinite(sig) & (sig > 0))
+    if np.any(bad):
+        i = int(np.argmax(bad.any(axis=1)))
+        raise ValueError(
+            f"{name}_sigma must be positive and finite where {label} is given: image {i} has "
+            f"{sig[i].tolist()} (to hold a value exactly, fix it with fixed_exterior)"
+        )
+    return v, np.where(seen[:, None], sig, np.nan)
+
+
+def _lever_arm(lever_arm, n_img: int, gnss: np.ndarray) -> np.ndarray:
+    """``(n_img, 3)`` finite lever arms (default 0); only with GNSS positions."""
+    if lever_arm is None:
+        return np.zeros((n_img, 3))
+    arm = np.array(lever_arm, dtype=float)
+    if arm.shape not in ((3,), (n_img, 3)) or not np.all(np.isfinite(arm)):
+        raise ValueError(f"lever_arm must be finite, (3,) or (n_images, 3), got shape {arm.shape}")
+    arm = np.broadcast_to(arm, (n_img, 3)).copy()
+    if np.any(arm != 0) and not np.any(np.isfinite(gnss)):
+        raise ValueError("lever_arm is given without gnss_position (it offsets the GNSS antenna)")
+    return arm
 
 
 def _check_datum(obs_point: np.ndarray, role: np.ndarray, pts: np.ndarray, point_names) -> None:

@@ -53,6 +53,11 @@ class BundleResult:
             the per-image block of the inverse normal matrix times sigma0^2,
             with the exterior-intrinsics correlations; None like
             ``exterior_std``.  :func:`photax.ortho_uncertainty` uses it.
+        gnss_residuals: ``(n_images, 3)`` adjusted antenna position (centre
+            plus the turned lever arm) minus the GNSS observation, ground
+            unit; NaN rows for images without one.
+        attitude_residuals: ``(n_images, 3)`` adjusted minus observed
+            attitude angles (radians, wrapped); NaN rows where none.
     """
 
     exterior: ExteriorOrientation
@@ -78,6 +83,15 @@ class BundleResult:
     seconds: float = 0.0
     result: RESULTS = RESULTS.successful
     orientation_cov: np.ndarray | None = None
+    gnss_residuals: np.ndarray | None = None
+    attitude_residuals: np.ndarray | None = None
+
+    @property
+    def parts(self) -> list[list[int]]:
+        """The images grouped into parts that share tie, control or check
+        points (one part for a connected block); parts beyond the first are
+        held to each other only by GNSS / attitude observations or control."""
+        return _image_parts(self.problem)
 
     @property
     def check_names(self) -> list[str]:
@@ -142,7 +156,36 @@ class BundleResult:
             lines.append(
                 f"  check points ({len(self.check_residuals)}): RMS X {crms[0]:.4g}, Y {crms[1]:.4g}, Z {crms[2]:.4g} {u}"
             )
+        lines += self._camera_observation_lines(u)
+        parts = self.parts
+        if len(parts) > 1:
+            sizes = ", ".join(str(len(q)) for q in parts)
+            first, other = p.image_names[parts[0][0]], p.image_names[parts[1][0]]
+            lines.append(
+                f"  WARNING: the block falls into {len(parts)} parts that share no point (images per part: "
+                f"{sizes}; e.g. {other} is not tied to {first}): their relative orientation rests on the "
+                "GNSS / attitude observations and control alone"
+            )
         return "\n".join(lines)
+
+    def _camera_observation_lines(self, u: str) -> list[str]:
+        """The report's lines on the GNSS positions and attitudes: RMS and largest residual."""
+        lines = []
+        names = self.problem.image_names
+        for res, seen, what, scale, unit in (
+            (self.gnss_residuals, self.problem.gnss_observed, "GNSS positions", 1.0, f" {u}"),
+            (self.attitude_residuals, self.problem.attitude_observed, "attitudes", 180 / np.pi, " deg"),
+        ):
+            if res is None or not seen.any():
+                continue
+            r = res[seen] * scale
+            rms = np.sqrt(np.mean(r**2, axis=0))
+            worst = int(np.flatnonzero(seen)[np.argmax(np.max(np.abs(r), axis=1))])
+            lines.append(
+                f"  {what} ({int(seen.sum())}): residual RMS {rms[0]:.4g}, {rms[1]:.4g}, "
+                f"{rms[2]:.4g}{unit}; max |r| {np.max(np.abs(r)):.4g}{unit} ({names[worst]})"
+            )
+        return lines
 
     def to_dict(self) -> dict:
         """JSON-ready summary (lists of floats)."""
@@ -167,8 +210,30 @@ class BundleResult:
             "check_points": [
                 {"name": n, "residual": r.tolist()} for n, r in zip(self.check_names, self.check_residuals)
             ],
+            "parts": [[p.image_names[i] for i in q] for q in self.parts],
         }  # fmt: skip
+        for i, img in enumerate(out["images"]):  # the cameras' own observations, where given
+            if self.gnss_residuals is not None and p.gnss_observed[i]:
+                img["gnss_residual"] = self.gnss_residuals[i].tolist()
+            if self.attitude_residuals is not None and p.attitude_observed[i]:
+                img["attitude_residual_rad"] = self.attitude_residuals[i].tolist()
         return out
+
+
+def _image_parts(problem: BundleProblem) -> list[list[int]]:
+    """Images grouped by the points they share (connected components of the
+    image-point graph), largest part first."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    n_img, n = problem.n_images, problem.n_images + problem.n_points
+    links = (problem.obs_image, n_img + problem.obs_point)
+    graph = coo_matrix((np.ones(problem.n_observations), links), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    groups: dict[int, list[int]] = {}
+    for i in range(n_img):
+        groups.setdefault(int(label[i]), []).append(i)
+    return sorted(groups.values(), key=lambda g: (-len(g), g[0]))
 
 
 #: What each way of stopping short says; the solver carries the :class:`photax.RESULTS`

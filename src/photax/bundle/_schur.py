@@ -140,6 +140,7 @@ def _scatter_schur(put, lin: _Lin, s: _Structure, blocks: Array):
     ra, cb = ext[s.key_a], ext[s.key_b]
     put(ra[:, :, None], cb[:, None, :], -blocks)
     put(cb[:, :, None], ra[:, None, :], -jnp.swapaxes(blocks, 1, 2) * s.key_off[:, None, None])
+    put(ext[:, :6, None], ext[:, None, :6], lin.u_cam)  # GNSS / attitude observations: U's diagonal blocks
 
 
 def _reduced_system(lin: _Lin, s: _Structure, lam: Array, n_c: int):
@@ -213,8 +214,8 @@ def _solve_cg(lin: _Lin, s: _Structure, lam: Array, n_c: int):
     wt = lin.wt  # (k, 3, w) formed once
     yt = _yt_of(vinv[s.obs_point], wt)  # (k, 3, w): the memory fallback stores it (only this path)
     ext, n_img, n_pts, wo = s.image_ext, lin.g_img.shape[0], lin.v.shape[0], jnp.swapaxes(wt, 1, 2)
-    u_img = _u_of(lin.jc, s, n_img)
     w = ext.shape[1]
+    u_img = _u_of(lin.jc, s, n_img).at[:, :6, :6].add(lin.u_cam)  # with the GNSS / attitude observations
     damp = lam * lin.d_c * s.mask_c + (1.0 - s.mask_c)
     block = u_img - jax.ops.segment_sum(jnp.einsum("kai,kaj->kij", wt, yt), s.obs_image, num_segments=n_img)
     diag_img = jnp.diagonal(block, axis1=1, axis2=2)

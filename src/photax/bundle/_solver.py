@@ -103,20 +103,75 @@ from ..collinearity import ExteriorOrientation
 from ..errors import RESULTS, ConvergenceError
 from ..rotation import angles_from_matrix_unchecked, rotation_matrix
 from .._linalg import inv3
-from ._linearise import LIN_WHOLE, _linearise, _prior_residuals, _project_obs
+from ._linearise import LIN_WHOLE, _camera_prior, _linearise, _prior_residuals, _project_obs
 from ._robust import _LOSS_CODE, _corrector, _rho
 from ._precision import _covariances, _covariances_band, _orientation_covariances, _standard_deviations
 from ._problem import BundleProblem, Gauge, Loss
-from ._result import BundleResult, stop_message
+from ._result import BundleResult, _image_parts, stop_message
 from ._schur import _trial
 from ._sparse import choose_solver
 from ._start import _needs_init, initialize_block
 from ._structure import _State
 
-def _datum_constraints(problem: BundleProblem) -> int:
-    """Rough count of datum constraints (a network needs 7)."""
-    n_ctrl = int(np.sum(problem.roles == "control"))
-    return 3 * n_ctrl + int(problem.fixed_exterior.sum())
+def _datum_constraints(problem: BundleProblem, images=None) -> int:
+    """Rough count of datum constraints (a network needs 7) of the whole
+    block or of some ``images`` (a part): control points (seen by them),
+    fixed orientations, GNSS positions and attitudes, 3 each."""
+    ctrl = problem.roles == "control"
+    if images is None:
+        images = np.arange(problem.n_images)
+    else:
+        seen = np.isin(problem.obs_image, images)
+        ctrl = ctrl & np.isin(np.arange(problem.n_points), problem.obs_point[seen])
+    n_cam = int(problem.gnss_observed[images].sum() + problem.attitude_observed[images].sum())
+    return 3 * int(ctrl.sum()) + int(problem.fixed_exterior[images].sum()) + 3 * n_cam
+
+
+def _gnss_on_a_line(problem: BundleProblem, images) -> bool:
+    """Whether the datum of ``images`` rests on GNSS positions alone (no
+    control, fixed orientation or attitude) and they lie on one line within
+    3 sigma (one straight strip): the roll about it is then free."""
+    if _datum_constraints(problem, images) != 3 * int(problem.gnss_observed[images].sum()):
+        return False
+    seen = images[problem.gnss_observed[images]]
+    d = problem.gnss_position[seen] - problem.gnss_position[seen].mean(axis=0)
+    if len(d) < 3:
+        return False
+    _, _, vt = np.linalg.svd(d, full_matrices=False)
+    off_line = d - np.outer(d @ vt[0], vt[0])
+    spread = math.sqrt(np.mean(np.sum(off_line**2, axis=1)))
+    return spread < 3.0 * float(np.median(problem.gnss_sigma[seen]))
+
+
+def _datum_defect(problem: BundleProblem) -> str:
+    """Why the block (or one of its parts that share no point with the
+    rest) has no datum of its own, or ``""``."""
+    if _datum_constraints(problem) < 7:
+        return (
+            "the network has no datum: fewer than 3 control points or GNSS positions and no fixed "
+            "orientations (7 parameters: translation, rotation, scale are free). Add control points, GNSS "
+            "positions (gnss_position=, --position-sigma), fix orientations (fixed_exterior=), or choose "
+            "gauge='fix_first_camera' or gauge='damped' (LM damping handles the defect, as Ceres does "
+            "for BAL)"
+        )
+    parts = [np.asarray(q) for q in _image_parts(problem)]
+    for q in parts:
+        where = "" if len(parts) == 1 else (
+            f" of the part of {len(q)} image(s) from {problem.image_names[q[0]]} that shares no point with "
+            "the rest of the block"
+        )  # fmt: skip
+        if _datum_constraints(problem, q) < (7 if len(q) > 1 else 6):  # one image: no scale to fix
+            return (
+                f"the network has no datum{where}: give it control points or GNSS positions of its own, "
+                "or tie it to the rest"
+            )
+        if _gnss_on_a_line(problem, q):
+            return (
+                f"the network has no datum{where}: its only datum, the GNSS positions, lie on one line "
+                "(within 3 sigma), so the roll about that line is free. Add attitude observations "
+                "(attitude=, --attitude-sigma), control points, or a second strip"
+            )
+    return ""
 
 
 def _blas_threads(n_c: int, solver: str = "dense"):
@@ -170,7 +225,9 @@ def bundle_adjust(
             the LM damping, as Ceres does for BAL problems (the solution is
             one of the equivalent ones; precision is not reported).  ``None``
             (default) refuses a network whose datum is not defined by control
-            points or fixed orientations.
+            points, fixed orientations or GNSS positions / attitudes (each
+            part of a block that shares no point with the rest needs its
+            own; GNSS positions alone on one line leave the roll free).
         max_steps: iterations counted as Ceres does (accepted and
             rejected steps).  ``max_iterations`` is its old name (still
             accepted).
@@ -276,13 +333,9 @@ def _check_options(problem: BundleProblem, loss, loss_scale, method, gauge) -> N
         raise ValueError(f"gauge must be None, 'fix_first_camera' or 'damped', got {gauge!r}")
     if not loss_scale > 0:
         raise ValueError(f"loss_scale must be positive, got {loss_scale}")
-    if gauge is None and _datum_constraints(problem) < 7:
-        raise ValueError(
-            "the network has no datum: fewer than 3 control points and no fixed orientations "
-            "(7 parameters: translation, rotation, scale are free). Add control points, fix "
-            "orientations (fixed_exterior=), or choose gauge='fix_first_camera' or gauge='damped' "
-            "(LM damping handles the defect, as Ceres does for BAL)"
-        )
+    defect = _datum_defect(problem) if gauge is None else ""
+    if defect:
+        raise ValueError(defect)
 
 
 def _start_state(problem: BundleProblem, origin: np.ndarray) -> _State:
@@ -418,7 +471,7 @@ def _point_costs(state: _State, s, loss, scale):
     r = (_project_obs(state, s) - s.obs_xy) / s.obs_sigma
     rho, _, _ = _rho(jnp.sum(r * r, axis=1), loss, scale)
     per_point = jax.ops.segment_sum(0.5 * rho, s.obs_point, num_segments=state.xyz.shape[0])
-    return per_point + 0.5 * jnp.sum(_prior_residuals(state, s) ** 2, axis=1)
+    return per_point + 0.5 * jnp.sum(_prior_residuals(state, s) ** 2, axis=1)  # GNSS: _point_pass adds it
 
 
 @jax.jit
@@ -462,7 +515,22 @@ def _point_pass(state: _State, s, loss, scale):
     costs = jnp.where(allowed & jnp.isfinite(costs), costs, jnp.inf)
     best = jnp.argmin(costs, axis=0)  # a = 0, the trial point (finite cost), is always allowed
     new = state._replace(xyz=state.xyz + steps[best][:, None] * dx)
-    return new, jnp.sum(jnp.min(costs, axis=0))
+    cameras = 0.5 * jnp.sum(_camera_prior(state, s) ** 2)  # the cameras' observations: the pass keeps them
+    return new, jnp.sum(jnp.min(costs, axis=0)) + cameras
+
+
+def _gnss_residuals(problem: BundleProblem, position, rot: np.ndarray) -> np.ndarray:
+    """``(n_img, 3)`` adjusted antenna position ``C + R l`` minus the GNSS
+    observation (NaN where none)."""
+    antenna = np.asarray(position) + np.einsum("nij,nj->ni", rot, problem.lever_arm)
+    return antenna - problem.gnss_position
+
+
+def _attitude_residuals(problem: BundleProblem, eo: ExteriorOrientation) -> np.ndarray:
+    """``(n_img, 3)`` adjusted minus observed attitude angles, radians,
+    wrapped to ``[-pi, pi)`` (NaN where none)."""
+    d = np.asarray(eo.angles) - problem.attitude
+    return (d + np.pi) % (2 * np.pi) - np.pi
 
 
 def _print_step(bar, it, cost, old, gmax, step, mu, accepted, new_cost) -> None:
@@ -477,6 +545,7 @@ def _print_step(bar, it, cost, old, gmax, step, mu, accepted, new_cost) -> None:
 
 
 # Jitted once: eagerly, each of their few dozen jnp operations compiles on first use.
+_camera_prior_jit = jax.jit(_camera_prior)
 _rotation = jax.jit(rotation_matrix, static_argnames="convention")
 _angles = jax.jit(angles_from_matrix_unchecked, static_argnames="convention")
 
@@ -503,9 +572,12 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     weight = np.asarray(lin.weight)
     residuals = np.asarray(lin.r) * problem.obs_sigma
     n_free = int(np.asarray(s.mask_c).sum() + np.asarray(s.mask_p).sum())
-    n_prior = int(np.sum(np.asarray(s.prior_w) > 0))
+    # GNSS positions and attitudes are observations: 3 each in the redundancy, their residuals in sigma0
+    n_cam_obs = 3 * int(problem.gnss_observed.sum() + problem.attitude_observed.sum())
+    n_prior = int(np.sum(np.asarray(s.prior_w) > 0)) + n_cam_obs
     redundancy = 2 * problem.n_observations + n_prior - n_free + (7 if gauge == "damped" else 0)
     wsq = float(np.sum(weight[:, None] * np.asarray(lin.r) ** 2) + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w)))
+    wsq += float(np.sum(np.asarray(_camera_prior_jit(state, s)) ** 2))
     sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
     eo_std = cam_std = pt_std = pt_cov = eo_cov = None
     if precision and gauge != "damped":
@@ -528,6 +600,8 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
         weights=weight, sigma0=sigma0, redundancy=redundancy, exterior_std=eo_std, camera_std=cam_std,
         point_std=pt_std, point_cov=pt_cov, check_residuals=pts[check] - problem.points[check], problem=problem,
         seconds=seconds, result=RESULTS(code), orientation_cov=eo_cov,
+        gnss_residuals=_gnss_residuals(problem, eo.position, rot),
+        attitude_residuals=_attitude_residuals(problem, eo),
     )  # fmt: skip
     if throw and not result.converged:
         raise ConvergenceError(f"bundle adjustment failed: {message}")

@@ -12,13 +12,16 @@ added per problem by :func:`_analyse`."""
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
 from .._triangulation import observation_pairs
+from ..rotation import angles_from_matrix_unchecked, axis_angle_to_matrix, rotation_matrix
 from ._sparse import band_layout
 
 
@@ -34,6 +37,11 @@ class _Structure(NamedTuple):
     mask_p: Array  # (n_pts, 3)
     prior_xyz: Array  # (n_pts, 3) surveyed control coordinates (local origin)
     prior_w: Array  # (n_pts, 3) 1/sigma^2 of control priors, 0 elsewhere
+    gnss_xyz: Array  # (n_img, 3) GNSS antenna positions (local origin), 0 where none
+    gnss_w: Array  # (n_img, 3) 1/sigma of the GNSS positions, 0 where none
+    lever: Array  # (n_img, 3) antenna offset in the camera frame
+    att_rot: Array  # (n_img, 3, 3) observed attitude as world_from_camera (identity where none)
+    att_map: Array  # (n_img, 3, 3) diag(1/sigma) d(angles)/d(rotation vector) at att_rot, 0 where none
     pair_a: Array  # (n_pairs,) observations a < b of the same point (covariances)
     pair_b: Array
     chunk_a: Array  # (n_pieces, piece, CHUNK) observation pairs (a, b) of one block of S; k = padding
@@ -208,13 +216,50 @@ def _analyse(problem, fixed_extra: np.ndarray, origin: np.ndarray, topology: _To
     soft = ctrl[:, None] & (problem.point_sigma > 0)
     prior_w = np.where(soft, 1.0 / np.where(soft, problem.point_sigma, 1.0) ** 2, 0.0)
     prior = np.where(ctrl[:, None], problem.points - origin[None, :], 0.0)
+    gnss, att = _camera_priors(problem, origin)
     s = _Structure(
         t.obs_image, t.obs_point, jnp.asarray(problem.obs_xy), jnp.asarray(problem.obs_sigma), t.image_ext,
         jnp.asarray(mask_c, dtype=float), jnp.asarray(~hard, dtype=float), jnp.asarray(prior), jnp.asarray(prior_w),
+        *gnss, *att,
         t.pair_a, t.pair_b, t.chunk_a, t.chunk_b, t.chunk_key, t.key_a, t.key_b, t.key_off, t.image_chunk,
         t.image_of_chunk, t.active, t.image_camera, t.band_perm, t.band_border, t.band_chunk, t.band_offset,
     )  # fmt: skip
     return s, t.n_c, t.w
+
+
+@functools.partial(jax.jit, static_argnames=("convention",))
+def _angle_jacobian(rot: Array, convention: str) -> Array:
+    """``(n, 3, 3)`` d(angles)/d(rotation increment about camera axes): the
+    attitude observations' weights (:func:`_camera_priors`) and the
+    precision of the angles (:mod:`._precision`)."""
+
+    def angles(dr, r):
+        return angles_from_matrix_unchecked(r @ axis_angle_to_matrix(dr), convention)[0]
+
+    return jax.vmap(jax.jacfwd(angles), in_axes=(None, 0))(jnp.zeros(3), rot)
+
+
+def _camera_priors(problem, origin: np.ndarray):
+    """The structure's arrays of the GNSS positions ``(xyz, 1/sigma,
+    lever arm)`` and of the attitudes ``(R_obs, map)``: an attitude's
+    weighted residual is ``map Log(R_obs^T R)``, its rotation vector mapped
+    to angle differences (the convention's Jacobian at ``R_obs``) over
+    their sigmas, so it needs no angle convention in the jitted code and
+    does not wrap at +-pi."""
+    seen = problem.gnss_observed[:, None]
+    xyz = np.where(seen, problem.gnss_position - origin[None, :], 0.0)
+    w = np.where(seen, 1.0 / np.where(seen, problem.gnss_sigma, 1.0), 0.0)
+    gnss = (jnp.asarray(xyz), jnp.asarray(w), jnp.asarray(problem.lever_arm))
+    n_img, conv = problem.n_images, problem.exterior.convention
+    seen = problem.attitude_observed
+    rot = np.broadcast_to(np.eye(3), (n_img, 3, 3)).copy()
+    amap = np.zeros((n_img, 3, 3))
+    if np.any(seen):
+        r_obs = np.asarray(rotation_matrix(jnp.asarray(problem.attitude[seen]), conv))
+        rot[seen] = r_obs
+        jac = np.asarray(_angle_jacobian(jnp.asarray(r_obs), conv))
+        amap[seen] = jac / problem.attitude_sigma[seen][:, :, None]
+    return gnss, (jnp.asarray(rot), jnp.asarray(amap))
 
 
 class Analysis(NamedTuple):

@@ -17,7 +17,8 @@ def add_parser(sub) -> None:
         description="Adjust exterior orientations, points and (optionally) interior orientation of a block "
         "by Levenberg-Marquardt with a Schur complement; print progress and a report.",
         epilog="examples:\n  photax bundle data/block --loss huber -o block.json\n"
-        "  photax bundle problem-49-7776-pre.txt --gauge damped\n",
+        "  photax bundle problem-49-7776-pre.txt --gauge damped\n"
+        "  photax bundle data/block --position-sigma 3 --attitude-sigma 0.1   # GNSS/INS-aided, no control\n",
     )
     p.add_argument("file", metavar="FILE", help="a BAL file (.txt or .txt.bz2) or a block folder (block.json, "
                    "observations.csv, points.csv; see photax.io.block)")  # fmt: skip
@@ -27,6 +28,15 @@ def add_parser(sub) -> None:
     p.add_argument("--loss-scale", type=float, default=1.0, metavar="D", help="loss scale in sigmas (default 1)")
     p.add_argument("--gauge", choices=("auto", "none", "fix_first_camera", "damped"), default="auto",
                    help="datum of a network without control (auto: 'damped' for BAL, none for blocks)")  # fmt: skip
+    p.add_argument("--position-sigma", type=float, metavar="SIGMA",
+                   help="take the images' start positions as GNSS observations of standard deviation SIGMA "
+                   "(ground unit, > 0): with ties they give the block a datum without control")  # fmt: skip
+    p.add_argument("--attitude-sigma", type=float, metavar="DEG",
+                   help="take the images' start angles as INS attitude observations of standard "
+                   "deviation DEG degrees (> 0)")  # fmt: skip
+    p.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="GNSS antenna offset from the projection centre in the camera frame (x right, y up, "
+                   "z back; ground unit), with --position-sigma")  # fmt: skip
     p.add_argument("--max-steps", "--max-iterations", dest="max_steps", type=int, default=50,
                    help="LM iterations at most, accepted and rejected steps (--max-iterations is an alias)")
     p.add_argument("--quiet", action="store_true", help="no per-iteration lines")
@@ -58,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         inputs = [input_file(path, "BAL file")]
     problem = read_block(path) if fmt == "block" else read_bal(path)
+    problem = _with_camera_observations(problem, args)
     # After reading (the inputs now include the camera files block.json names), before the work:
     if args.out:
         check_output_path(args.out, inputs)
@@ -84,6 +95,39 @@ def run(args: argparse.Namespace) -> int:
             write_camera(result.cameras[j], out, unit=unit, inputs=inputs)
             print(f"wrote {out}")
     return 0 if result.converged else 1
+
+
+def _with_camera_observations(problem, args):
+    """The problem with its start positions / angles as GNSS / INS
+    observations (``--position-sigma``, ``--attitude-sigma``,
+    ``--lever-arm``); ValueError for a sigma that is not positive, or no
+    start value to take."""
+    import math
+
+    import numpy as np
+
+    changes = {}
+    for flag, sigma, values, key in (
+        ("--position-sigma", args.position_sigma, problem.exterior.position, "gnss"),
+        ("--attitude-sigma", args.attitude_sigma, problem.exterior.angles, "attitude"),
+    ):
+        if sigma is None:
+            continue
+        if not (math.isfinite(sigma) and sigma > 0):
+            raise ValueError(f"{flag} must be a positive number, got {sigma:g}")
+        values = np.asarray(values, dtype=float)
+        if not np.isfinite(values).all(axis=1).any():
+            what = "position" if key == "gnss" else "attitude"
+            raise ValueError(f"{flag}: no image has a start {what} to take")
+        if key == "gnss":
+            changes.update(gnss_position=values, gnss_sigma=sigma)
+        else:
+            changes.update(attitude=values, attitude_sigma=math.radians(sigma))
+    if args.lever_arm is not None:
+        if args.position_sigma is None:
+            raise ValueError("--lever-arm needs --position-sigma (it offsets the GNSS antenna)")
+        changes["lever_arm"] = args.lever_arm
+    return problem.replace(**changes) if changes else problem
 
 
 def _camera_outputs(out, fmt: str, folder: pathlib.Path, problem, inputs: list) -> list:
