@@ -10,8 +10,8 @@ import filecmp
 import shutil
 
 import pytest
-
 from conftest import SHARED_DATA
+
 from photax.cli import main
 
 NGI, IO = SHARED_DATA / "orthority" / "ngi", SHARED_DATA / "orthority" / "io"

@@ -62,11 +62,13 @@ def test_terrestrial_views_equal_truth_within_sigma(name):
     assert res.converged, res.message
     conv = res.exterior.convention
     angles = np.asarray(eo.to_convention(conv).angles)
-    # the same rotation has two angle triplets (a, b, c) and (a + pi, pi - b, c + pi): the one nearer the result
+    # one rotation, two angle triplets (a, b, c) and (a + pi, pi - b, c + pi): the one nearer the result
     other = angles + [np.pi, np.pi - 2 * angles[1], np.pi]
-    np.testing.assert_allclose(ptx.rotation_matrix(other, conv), ptx.rotation_matrix(angles, conv), atol=1e-12)
-    wrap = lambda a: (a + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
-    d_ang = min((wrap(np.asarray(res.exterior.angles) - a) for a in (angles, other)), key=lambda d: np.abs(d).max())
+    np.testing.assert_allclose(ptx.rotation_matrix(other, conv), ptx.rotation_matrix(angles, conv),
+                               atol=1e-12)
+    got = np.asarray(res.exterior.angles)
+    d_ang = min(((got - a + np.pi) % (2 * np.pi) - np.pi for a in (angles, other)),
+                key=lambda d: np.abs(d).max())
     diff = np.concatenate([np.asarray(res.exterior.position) - np.asarray(eo.position), d_ang])
     assert np.all(np.abs(diff) < 3.0 * res.std), (diff, res.std)
     assert res.outliers.sum() == 0
@@ -84,7 +86,7 @@ MIRRORS = {
 def test_mirrored_terrestrial_views_are_refused(name, mirror):
     # A proper camera fits a mirrored building only approximately (here rmse ~45 px on the façade,
     # converged all the same, before the mirrored fit was compared); the mirror is named.
-    eo, ground, xy = _view(name)
+    _, ground, xy = _view(name)
     xy_m, ground_m = MIRRORS[mirror](xy, ground)
     res = ptx.resect(xy_m, ground_m, CAMERA, throw=False)
     assert not res.converged and "mirror" in res.message, res.message

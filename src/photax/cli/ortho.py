@@ -25,7 +25,8 @@ def add_parser(sub) -> None:
     p = sub.add_parser(
         "ortho",
         help="orthorectify an image with a DEM or on flat ground (collinearity equations)",
-        description="Orthorectify IMAGE (or every IMAGE, into --out-dir): every ground pixel gets its height from the DEM (or --height) and "
+        description="Orthorectify IMAGE (or every IMAGE, into --out-dir): every ground pixel gets its "
+        "height from the DEM (or --height) and "
         "its grey value from the image position given by the collinearity equations. Occlusions are not "
         "detected.",
         epilog="examples:\n  photax ortho data/sample_image.tif --dem data/sample_dem.tif "

@@ -29,8 +29,8 @@ from ..collinearity import ExteriorOrientation
 from ..errors import RESULTS, ConvergenceError
 from ..rotation import Convention
 from . import _adjust, _robust
-from ._checks import (_MAX_TILT, _PLANAR, CAUSES, MIRROR, Prepared, _bucket, _critical_table, _frame, _pixel_size,
-                      _plausibility, _point_label, implausible, validate)
+from ._checks import (_MAX_TILT, _PLANAR, CAUSES, MIRROR, Prepared, _bucket, _critical_table, _frame,
+                      _pixel_size, _plausibility, _point_label, implausible, validate)
 from ._result import ResectionResult
 from ._types import Inputs, Options, Output, pack, unpack
 
@@ -242,7 +242,8 @@ def _screen(prep: Prepared, out: Output, camera):
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.sum(d2 * used, axis=1) / used.sum(1))
     half, f = _camera_info(camera)[:2]
-    bad = implausible(prep.xy, ctrl, ctrl & ~used, p[:, :3], out.axis, prep.basis[:, :, 2], prep.planar, rms, half, f)
+    bad = implausible(prep.xy, ctrl, ctrl & ~used, p[:, :3], out.axis, prep.basis[:, :, 2], prep.planar, rms,
+                      half, f)
     return (adjustment == RESULTS.successful) & bad, p, rms, d2, adjustment
 
 
@@ -265,8 +266,8 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
     normal = prep.basis[:, :, 2]
     reasons = {}
     for i in np.flatnonzero((code == RESULTS.successful) & screen):
-        why = _plausibility(prep.xy[i], ctrl[i], outliers[i], p[i, :3], out.axis[i], normal[i], prep.planar[i], rms[i],
-                            half, f)
+        why = _plausibility(prep.xy[i], ctrl[i], outliers[i], p[i, :3], out.axis[i], normal[i],
+                            prep.planar[i], rms[i], half, f)
         if why is not None:
             reasons[i] = why
             code[i] = RESULTS.implausible

@@ -200,10 +200,10 @@ def _plausibility(xy, ctrl, outliers, centre, axis, normal, planar, rms, half, f
     n = normal if normal[2] >= 0 else -normal
     if planar and n[2] > np.cos(np.radians(_MAX_TILT)):
         if float(centre @ n) < 0 and float(axis @ n) > 0:
-            return (f"{MIRROR}: the camera is below the level, planar control points, looking up at them - a mirrored "
-                    "image or ground is fitted exactly by the camera reflected through their plane, and ground is "
-                    "seen from above (Z must be up; a swap of image column/row or x/y, or of ground E/N, mirrors "
-                    "the scene)")
+            return (f"{MIRROR}: the camera is below the level, planar control points, looking up at "
+                    "them - a mirrored image or ground is fitted exactly by the camera reflected through "
+                    "their plane, and ground is seen from above (Z must be up; a swap of image column/row "
+                    "or x/y, or of ground E/N, mirrors the scene)")
     return None
 
 
