@@ -531,8 +531,9 @@ def resect_batch(
     squares start over random subsets, data snooping).  Each image has its
     own ``converged``, ``result`` and ``message``.  Unlike :func:`resect`
     there is no Levenberg-Marquardt fallback (a failed image is reported,
-    not retried) and the swap hints are not tried; the plausibility checks
-    apply per image.
+    not retried), the swap hints are not tried and the mirrored fit is not
+    compared (:func:`resect`'s mirror test for GCPs with relief); the
+    plausibility checks apply per image.
 
     Args:
         image_xy: ``(b, n, 2)`` image-plane coordinates.
