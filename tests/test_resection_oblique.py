@@ -24,6 +24,9 @@ NOISE = 0.5  # px
 
 def _building(kind, rng, n=16):
     """Control points on a building: the wall y = 0 (east-west) and, for ``corner``, the wall x = 0."""
+    if kind == "terrain":  # level ground with 6 m of relief, 240 m across
+        x, y, z = rng.uniform(-120, 120, n), rng.uniform(-60, 60, n), rng.uniform(0, 6, n)
+        return ORIGIN + np.column_stack([x, y, z])
     if kind == "facade":  # one wall, 24 m wide, floors 2-14 m; windows 0.3 m in, balconies 1.2 m out
         x, z = rng.uniform(-12, 12, n), rng.uniform(2, 14, n)
         y = rng.choice([0.0, -0.3, -1.2], n)
@@ -40,6 +43,7 @@ VIEWS = {  # ground points, camera position, point looked at (all relative to OR
     "facade, oblique 45 deg": ("facade", [-25, -25, 1.6], [0, 0, 1.6]),
     "facade, looking up 20 deg": ("facade", [0, -22, 1.6], [0, 0, 9.6]),
     "corner, looking up 25 deg": ("corner", [-10, -10, 1.6], [5, 5, 10]),
+    "terrain, oblique 45 deg down": ("terrain", [0, -300, 300], [0, 0, 0]),
 }
 
 
