@@ -60,6 +60,7 @@ from .rectification import (
     orthorectify as orthorectify,
     orthorectify_dask as orthorectify_dask,
     orthorectify_file as orthorectify_file,
+    orthorectify_files as orthorectify_files,
     rectify as rectify,
     rectify_file as rectify_file,
 )

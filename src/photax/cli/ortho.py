@@ -1,4 +1,4 @@
-"""``photax ortho``: orthorectify an image with its orientation and a DEM (or flat ground, ``--height``).
+"""``photax ortho``: orthorectify images with their orientations and a DEM (or flat ground, ``--height``).
 
 ``--camera`` (alias ``--interior``) is a photax camera file (YAML/JSON,
 :mod:`photax.io.camera_file`) or an orthority interior YAML
@@ -7,7 +7,10 @@
 like IMAGE's stem when it holds several) or an orthority exterior CSV (+ .prj beside it): the formats
 are told apart by :mod:`photax.io.orientation`.  The output
 GeoTIFF is written tile by tile into a temporary file renamed at the end; it
-may not be an input or an input's sidecar.  Exit codes: 0 done, 2 bad input.
+may not be an input or an input's sidecar.  Several images (``--out-dir DIR``) run in one process
+under one progress bar (:func:`photax.orthorectify_files`): each ortho is ``DIR/STEM_ortho.tif``,
+bit for bit what the command writes for that image alone; the orientation file is parsed once.
+Exit codes: 0 done, 1 some image failed (named on stderr; the others are written), 2 bad input.
 """
 
 from __future__ import annotations
@@ -22,15 +25,18 @@ def add_parser(sub) -> None:
     p = sub.add_parser(
         "ortho",
         help="orthorectify an image with a DEM or on flat ground (collinearity equations)",
-        description="Orthorectify IMAGE: every ground pixel gets its height from the DEM (or --height) and "
+        description="Orthorectify IMAGE (or every IMAGE, into --out-dir): every ground pixel gets its "
+        "height from the DEM (or --height) and "
         "its grey value from the image position given by the collinearity equations. Occlusions are not "
         "detected.",
         epilog="examples:\n  photax ortho data/sample_image.tif --dem data/sample_dem.tif "
         "--camera data/sample_camera.yaml --exterior resect.json -o ortho.tif\n"
+        "  photax ortho ngi/*.tif --dem dem.tif --camera cam.yaml --exterior ext.csv --out-dir orthos  "
+        "# a block, one process\n"
         "  photax ortho IMAGE.tif --height 120 --camera cam.yaml --exterior resect.json -o ortho.tif  "
         "# flat ground at Z = 120\n",
     )
-    p.add_argument("image", metavar="IMAGE", help="the image (any GDAL raster)")
+    p.add_argument("image", metavar="IMAGE", nargs="+", help="the image(s) (any GDAL raster)")
     ground = p.add_mutually_exclusive_group(required=True)
     ground.add_argument("--dem", help="DEM raster in the ground CRS of the orientation")
     ground.add_argument("--height", type=float, metavar="H",
@@ -43,7 +49,9 @@ def add_parser(sub) -> None:
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
                    "several), "
                    "or orthority exterior CSV")  # fmt: skip
-    p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
+    out = p.add_mutually_exclusive_group(required=True)
+    out.add_argument("-o", "--out", metavar="OUT_TIF", help="output GeoTIFF (one IMAGE)")
+    out.add_argument("--out-dir", metavar="DIR", help="output folder: DIR/STEM_ortho.tif for each IMAGE")
     p.add_argument("--resolution", type=float, help="ground pixel size (default: the mean ground sampling distance)")
     p.add_argument("--resampling", choices=RESAMPLING, default=None,
                    help="resampling kernel (default: bilinear; nearest for a palette image, which takes "
@@ -56,6 +64,15 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.out_dir is not None:
+        return _run_block(args)
+    if len(args.image) > 1:
+        raise ValueError(f"-o/--out names one output for {len(args.image)} images: give --out-dir DIR")
+    args.image = args.image[0]
+    return _run_one(args)
+
+
+def _run_one(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.orientation import read_exterior, read_interior
     from ..io.raster import read_dem
@@ -90,14 +107,93 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_block(args: argparse.Namespace) -> int:
+    """Every IMAGE into --out-dir, in one process: a failed image is named, the others written (exit 1)."""
+    import pathlib
+    import sys
+
+    from ..io.atomic import check_output_path, output_name
+    from ..io.orientation import read_exterior, read_exteriors, read_interior
+    from ..io.raster import read_dem
+    from ..rectification import orthorectify_files
+    from ._common import ground_unit, input_file
+
+    if args.dem is not None:
+        input_file(args.dem, "DEM")
+    elif not math.isfinite(args.height):
+        raise ValueError(f"--height must be a finite number, got {args.height}")
+    input_file(args.camera, "camera file")
+    input_file(args.exterior, "exterior file")
+    if args.resolution is not None and not args.resolution > 0:
+        raise ValueError(f"--resolution must be positive, got {args.resolution}")
+    folder = pathlib.Path(args.out_dir)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"--out-dir {folder}: is a file, expected a folder")
+    outputs = [folder / f"{output_name(pathlib.Path(i).stem, 'image name')}_ortho.tif" for i in args.image]
+    seen = {}
+    for image, out in zip(args.image, outputs):
+        if out in seen:
+            raise ValueError(f"images {seen[out]} and {image} would both be written to {out}: same name")
+        seen[out] = image
+    inputs = [*args.image, *(p for p in (args.dem, args.camera, args.exterior) if p is not None)]
+    for out in outputs:
+        check_output_path(out, inputs)  # fail before the work, not after
+    camera = read_interior(args.camera, args.camera_name)
+    failed = {}
+    try:  # the file parsed once
+        table, crs = read_exteriors(args.exterior, args.image)
+    except ValueError:  # some image has no orientation there: each image found (or named) on its own
+        table, crs = {}, None
+        for image in args.image:
+            try:
+                table[image], crs = read_exterior(args.exterior, image)
+            except ValueError as exc:
+                failed[image] = exc
+    for image in args.image:
+        if image not in failed:
+            try:
+                input_file(image, "image")
+            except ValueError as exc:
+                failed[image] = exc
+    todo = [k for k, image in enumerate(args.image) if image not in failed]
+    exteriors = [table[args.image[k]] for k in todo]
+    if args.dem is not None:
+        dem = read_dem(args.dem)
+    else:
+        dem = _flat_dem(args.height, exteriors) if exteriors else None
+    results = orthorectify_files(
+        [args.image[k] for k in todo], [outputs[k] for k in todo], exteriors, camera, dem,
+        resolution=args.resolution, crs=crs, resampling=args.resampling, tile=args.tile,
+        progress=args.progress and args.command,
+    ) if todo else []
+    for k, grid in zip(todo, results):
+        if isinstance(grid, Exception):
+            failed[args.image[k]] = grid
+        else:
+            print(f"wrote {outputs[k]}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} "
+                  f"{ground_unit(grid.crs)}")
+    for image in args.image:
+        if image in failed:
+            print(f"{args.command}: {image} failed: {failed[image]}", file=sys.stderr)
+    if failed:
+        print(f"{args.command}: {len(failed)} of {len(args.image)} images failed; the others are written",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
 def _flat_dem(height: float, exterior):
-    """``--height``: a constant-height DEM under the camera, valid within 1000 flying heights
-    of its nadir (a ray reaching the ground farther out is within 0.06 degrees of the horizon);
-    ortho_grid cuts the grid down to the image's footprint."""
+    """``--height``: a constant-height DEM under the camera (a list: under every camera), valid
+    within 1000 flying heights of its nadir (a ray reaching the ground farther out is within
+    0.06 degrees of the horizon); ortho_grid cuts the grid down to the image's footprint."""
     import numpy as np
 
     from ..dem import DEM
 
-    x, y, z = np.asarray(exterior.position, dtype=float)
-    r = 1e3 * max(abs(z - height), 1.0)
-    return DEM.flat(height, (x - r, y - r, x + r, y + r))
+    boxes = []
+    for e in exterior if isinstance(exterior, list) else [exterior]:
+        x, y, z = np.asarray(e.position, dtype=float)
+        r = 1e3 * max(abs(z - height), 1.0)
+        boxes.append((x - r, y - r, x + r, y + r))
+    b = np.array(boxes)
+    return DEM.flat(height, (*b[:, :2].min(axis=0), *b[:, 2:].max(axis=0)))

@@ -54,6 +54,7 @@ from ._dask import orthorectify_dask as orthorectify_dask
 from ._files import (
     orthorectify_block as orthorectify_block,
     orthorectify_file as orthorectify_file,
+    orthorectify_files as orthorectify_files,
     rectify_file as rectify_file,
 )
 from ..grid import check_resolution as check_resolution, ground_sampling_distance as ground_sampling_distance

@@ -307,3 +307,64 @@ def orthorectify_block(
         if callback is not None:
             callback(k)
     return paths
+
+
+def orthorectify_files(
+    images,
+    outputs,
+    exteriors,
+    camera: FrameCamera,
+    dem: DEM,
+    *,
+    resolution=None,
+    crs=None,
+    resampling: Resampling | str = "bilinear",
+    tile: int = 1024,
+    compress: str | None = "deflate",
+    progress: bool | str = False,
+) -> list:
+    """Many images orthorectified in one call, each exactly as :func:`orthorectify_file` does it
+    alone (its own footprint grid from :func:`photax.ortho_grid`), under one progress bar over all
+    their tiles.  An image that fails does not stop the others: its exception is its result.
+
+    Unlike :func:`orthorectify_block` (one shared lattice for a mosaic), each ortho is what
+    ``photax ortho IMAGE -o OUT`` writes for that image, bit for bit.
+
+    Args:
+        images: the image files.
+        outputs: one output GeoTIFF per image (each written atomically).
+        exteriors: one :class:`photax.ExteriorOrientation` per image.
+        camera, dem: shared by all.
+        resolution: ground pixel size; default each image's mean ground sampling distance.
+        crs: the grids' CRS (the orientation file's); default the DEM's.
+
+    Returns:
+        per image, its output :class:`photax.Grid`, or the exception that stopped it.
+    """
+    from ..progress import progress_bar
+
+    images, outputs, exteriors = list(images), list(outputs), list(exteriors)
+    if not len(images) == len(outputs) == len(exteriors):
+        raise ValueError(f"{len(images)} images, {len(outputs)} outputs and {len(exteriors)} orientations: "
+                         "one of each per image")
+    from ..io.raster import open_raster
+
+    results: list = []
+    for image, e in zip(images, exteriors):  # the grids first: the bar's total is every image's tiles
+        try:
+            with open_raster(image) as src:
+                _check_image_size((src.height, src.width), camera)
+            results.append(ortho_grid(e, camera, dem, resolution, crs=crs))
+        except (ValueError, OSError) as exc:
+            results.append(exc)
+    total = sum(len(list(tile_windows(g.shape, tile))) for g in results if isinstance(g, Grid))
+    with progress_bar(progress, total, desc="ortho", unit="tile") as bar:
+        for k, (image, out, e) in enumerate(zip(images, outputs, exteriors)):
+            if not isinstance(results[k], Grid):
+                continue
+            try:
+                orthorectify_file(image, out, e, camera, dem, results[k], resampling=resampling, tile=tile,
+                                  progress=bar, compress=compress)
+            except (ValueError, OSError) as exc:  # this image's; KeyboardInterrupt and bugs stop the run
+                results[k] = exc
+    return results

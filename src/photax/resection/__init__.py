@@ -33,7 +33,15 @@ reduced to the centroid of the control points before anything is computed
 5. **Plausibility** (:mod:`._checks`): a converged adjustment is still a
    failure (``converged=False``, ``result`` = ``RESULTS.implausible`` or
    ``behind_camera``, the reason in ``message``) when image and ground
-   evidently do not belong together.  When a single-image resection fails,
+   evidently do not belong together.  A mirror image (image or ground
+   mirrored: a swap of axes) is told by the handedness of the image-ground
+   correspondence, never by where the camera is (façades, oblique and
+   upward-looking views are seen from below their points): a single
+   :func:`resect` refuses a converged solution when the image reversed in
+   x fits far better (GCPs with relief); the mirror of *planar* GCPs fits
+   exactly, from the camera reflected through their plane, so there only
+   the side they are seen from decides - known for level ones (the ground,
+   seen from above), not for a planar façade.  When a single-image resection fails,
    the usual GCP-file mistakes are tried (image column/row swapped, row
    direction reversed, ground E/N swapped) and those that make it fit are
    named in the message.

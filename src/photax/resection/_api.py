@@ -29,8 +29,8 @@ from ..collinearity import ExteriorOrientation
 from ..errors import RESULTS, ConvergenceError
 from ..rotation import Convention
 from . import _adjust, _robust
-from ._checks import (CAUSES, Prepared, _bucket, _critical_table, _frame, _pixel_size, _plausibility, _point_label,
-                      implausible, validate)
+from ._checks import (_MAX_TILT, _PLANAR, CAUSES, MIRROR, Prepared, _bucket, _critical_table, _frame,
+                      _pixel_size, _plausibility, _point_label, implausible, validate)
 from ._result import ResectionResult
 from ._types import Inputs, Options, Output, pack, unpack
 
@@ -215,7 +215,7 @@ def _solve(prep: Prepared, opt: Options, m: int, batch: bool, robust: bool, came
 
 def _take_prep(prep: Prepared, idx) -> Prepared:
     """The images ``idx`` of a prepared batch."""
-    per_image = ("xy", "ground", "weight", "is_check", "origin", "basis", "init")
+    per_image = ("xy", "ground", "weight", "is_check", "origin", "basis", "planar", "init")
     return dataclasses.replace(prep, **{k: getattr(prep, k)[idx] for k in per_image})
 
 
@@ -242,7 +242,8 @@ def _screen(prep: Prepared, out: Output, camera):
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.sum(d2 * used, axis=1) / used.sum(1))
     half, f = _camera_info(camera)[:2]
-    bad = implausible(prep.xy, ctrl, ctrl & ~used, p[:, :3], out.axis, prep.basis[:, :, 2], rms, half, f)
+    bad = implausible(prep.xy, ctrl, ctrl & ~used, p[:, :3], out.axis, prep.basis[:, :, 2], prep.planar, rms,
+                      half, f)
     return (adjustment == RESULTS.successful) & bad, p, rms, d2, adjustment
 
 
@@ -265,7 +266,8 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
     normal = prep.basis[:, :, 2]
     reasons = {}
     for i in np.flatnonzero((code == RESULTS.successful) & screen):
-        why = _plausibility(prep.xy[i], ctrl[i], outliers[i], p[i, :3], out.axis[i], normal[i], rms[i], half, f)
+        why = _plausibility(prep.xy[i], ctrl[i], outliers[i], p[i, :3], out.axis[i], normal[i],
+                            prep.planar[i], rms[i], half, f)
         if why is not None:
             reasons[i] = why
             code[i] = RESULTS.implausible
@@ -390,6 +392,8 @@ def resect(
     settings = dict(camera=camera, sigma=sigma, check=check, names=names, initial=initial, convention=convention,
                     robust=robust, alpha=alpha, max_steps=max_steps)
     res = _resect_one(image_xy, ground_xyz, fallback=True, **settings)
+    if res.converged:
+        res = _mirror_test(res, np.asarray(image_xy, float), np.asarray(ground_xyz, float), settings)
     if not res.converged and initial is None and "wrong units (e.g." not in res.message:  # units: no swap helps
         hint = _swap_hint(np.asarray(image_xy, float), np.asarray(ground_xyz, float), settings)
         if hint:
@@ -415,6 +419,36 @@ def _resect_one(image_xy, ground_xyz, *, camera, sigma, check, names, initial, c
         lm = _adjust.levenberg_marquardt(_inputs(prep, m), lanes, opt, int(max_steps))
         out = jax.tree_util.tree_map(lambda a: np.moveaxis(np.asarray(a), -1, 0), jax.device_get(lm))
     return _finish(prep, out, camera, convention, batch=False, solver="lm", gn_failure=gn)
+
+
+def _mirror_test(res: ResectionResult, xy, ground, settings) -> ResectionResult:
+    """A converged resection refused when the image reversed in x fits far better (rmse below half,
+    no more points excluded): the correspondence of image and ground has the wrong handedness.
+
+    A mirrored image of GCPs with relief is fitted only approximately by a proper camera (a rotation,
+    not a reflection), so the mirrored fit reveals it, wherever the camera is: a façade, an oblique or
+    upward-looking view.  Level planar GCPs are left to the plausibility check (their mirror fits
+    exactly, from below the ground); a planar GCP set of another slope is seen exactly as well from
+    either side: nothing in the data tells its mirror apart.  Gauss-Newton only (the compiled program
+    of the first resection), from the linear start.
+    """
+    ctrl = np.ones(len(ground), bool) if settings["check"] is None else ~np.asarray(settings["check"])
+    g = ground[ctrl] - ground[ctrl].mean(axis=0)
+    _, sv, vt = np.linalg.svd(g, full_matrices=False)
+    if sv[2] < _PLANAR * sv[0] and abs(vt[2, 2]) > np.cos(np.radians(_MAX_TILT)):
+        return res
+    try:
+        mirrored = _resect_one(xy * [-1.0, 1.0], ground, fallback=False, **{**settings, "initial": None})
+    except (ValueError, ConvergenceError):
+        return res
+    if not (mirrored.converged and mirrored.rmse < 0.5 * res.rmse
+            and mirrored.outliers.sum() <= res.outliers.sum()):
+        return res
+    unit = (lambda r: f"{r / res.pixel_size:.3g} px") if res.pixel_size else (lambda r: f"{r:.3g}")
+    why = (f"{MIRROR}: the control points fit far better with the image x axis reversed (rmse "
+           f"{unit(mirrored.rmse)} against {unit(res.rmse)}): the image or the ground is mirrored")
+    return dataclasses.replace(res, converged=False, result=RESULTS.implausible,
+                               message=f"{why}; {CAUSES} (the adjustment itself: {res.message})")
 
 
 def _swap_hint(xy, ground, settings) -> str | None:
@@ -497,8 +531,9 @@ def resect_batch(
     squares start over random subsets, data snooping).  Each image has its
     own ``converged``, ``result`` and ``message``.  Unlike :func:`resect`
     there is no Levenberg-Marquardt fallback (a failed image is reported,
-    not retried) and the swap hints are not tried; the plausibility checks
-    apply per image.
+    not retried), the swap hints are not tried and the mirrored fit is not
+    compared (:func:`resect`'s mirror test for GCPs with relief); the
+    plausibility checks apply per image.
 
     Args:
         image_xy: ``(b, n, 2)`` image-plane coordinates.

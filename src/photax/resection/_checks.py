@@ -7,8 +7,8 @@ screens a batch for solutions that converged but cannot be right, and
 :func:`_plausibility` words the reason for the images it flags:
 
 more than a third of the control points excluded; residuals above 2 % of
-the frame diagonal; the mirror-image solution (camera below the GCPs' plane
-- for planes flatter than 60 degrees - looking up at it; Z is up); image
+the frame diagonal; the mirror-image solution of level, planar GCPs (the
+camera below their plane, looking up at it; Z is up); image
 coordinates outside 1.5 times the frame, or spanning less than 1 % of it
 (without a frame: farther than 4 f from the centre, or spanning less than
 0.005 f) - a wrong unit.
@@ -36,7 +36,12 @@ _MAX_FIELD = 4.0  # no frame known: image points farther out than this times f (
 # Image points spanning less than this share of the frame (40 px of 4000), or of f without a frame: a wrong unit
 # (metres for mm shrink the points 1000-fold: a GCP set spanning the whole frame would span 1e-3 of it).
 _MIN_SPREAD, _MIN_SPREAD_F = 0.01, 5e-3
-_MAX_TILT = 60.0  # degrees: below this slope of the GCPs' plane, "above" and "below" it are defined
+# A mirrored image of planar GCPs is fitted exactly by the camera reflected through their plane: the
+# data cannot tell the two apart, only which side of the plane can be seen. For level planar GCPs (the
+# ground: slope below this, relief below _PLANAR of their extent) that is the upper side; a façade can be
+# seen from either side, and GCPs with relief decide it themselves (resect compares the mirrored fit).
+_MAX_TILT = 60.0  # degrees
+MIRROR = "the solution is a mirror image"
 
 
 
@@ -77,7 +82,8 @@ def _check_geometry(ground: np.ndarray, xy: np.ndarray, ctrl: np.ndarray, names,
     """Degenerate configurations -> ValueError.
 
     Returns the ``(3, 3)`` right-handed principal axes of the control points
-    (the last one the normal of their best-fitting plane).
+    (the last one the normal of their best-fitting plane) and whether they are planar
+    (relief below ``_PLANAR`` of their extent, or fewer than 4 distinct points).
     """
     idx = np.flatnonzero(ctrl)
     g, x = ground[idx], xy[idx]
@@ -101,7 +107,7 @@ def _check_geometry(ground: np.ndarray, xy: np.ndarray, ctrl: np.ndarray, names,
         if not planar and distinct < 6:
             raise ValueError(f"the automatic start needs at least 6 control points for a non-planar GCP set "
                              f"(relief {s[2] / s[0]:.2f} of the extent), got {distinct}; give initial= or more points")
-    return np.stack([vt[0], np.cross(vt[2], vt[0]), vt[2]], axis=1)
+    return np.stack([vt[0], np.cross(vt[2], vt[0]), vt[2]], axis=1), planar
 
 
 def _bucket(n: int, batch: bool = False) -> int:
@@ -155,20 +161,22 @@ def _frame(camera: FrameCamera) -> tuple[np.ndarray | None, float]:
     return 0.5 * np.asarray(camera.image_size, float) * np.asarray(camera.pixel_size, float), f
 
 
-def _plausibility(xy, ctrl, outliers, centre, axis, normal, rms, half, f):
+def _plausibility(xy, ctrl, outliers, centre, axis, normal, planar, rms, half, f):
     """Checks that make a converged adjustment a failure, with the reason.
 
     A resection can converge to a wrong answer when image and ground do not
     belong together: it then excludes many points as blunders, fits with
     residuals no measurement has, or finds the mirror image of the true
-    orientation (the camera below the GCPs' plane, looking up at it:
-    swapping x/y or E/N reflects the scene, and a reflected planar scene is
-    seen exactly from the mirrored camera).  Returns None when it passes.
+    orientation (swapping x/y or E/N reflects the scene, and a reflected
+    planar scene is seen exactly from the camera reflected through its
+    plane).  Only for level planar GCPs (the ground) is the side known: the
+    camera below them, looking up, is the mirror.  Returns None when it passes.
 
     ``xy`` (n, 2) image points; ``ctrl``, ``outliers`` (n,) masks;
     ``centre`` (3,) projection centre relative to a point of the GCPs'
     plane; ``axis`` (3,) viewing direction;
-    ``normal`` (3,) normal of the GCPs' best-fitting plane; ``rms`` of the
+    ``normal`` (3,) normal of the GCPs' best-fitting plane, ``planar`` whether they
+    lie on it; ``rms`` of the
     control inliers; ``half`` half frame or None; ``f`` focal length.
     """
     c = xy[ctrl]
@@ -201,14 +209,16 @@ def _plausibility(xy, ctrl, outliers, centre, axis, normal, rms, half, f):
         return (f"the residuals (rms {rms:.4g}) are {rms / size:.1%} of the {'frame diagonal' if half is not None else 'focal length'}, "
                 "far beyond measurement error: image and ground coordinates do not fit together")
     n = normal if normal[2] >= 0 else -normal
-    if n[2] > np.cos(np.radians(_MAX_TILT)):
+    if planar and n[2] > np.cos(np.radians(_MAX_TILT)):
         if float(centre @ n) < 0 and float(axis @ n) > 0:
-            return ("the solution is a mirror image: the camera is below the control points' plane, looking up at it "
-                    "(Z must be up, and a swap of image column/row or x/y, or of ground E/N, mirrors the scene)")
+            return (f"{MIRROR}: the camera is below the level, planar control points, looking up at "
+                    "them - a mirrored image or ground is fitted exactly by the camera reflected through "
+                    "their plane, and ground is seen from above (Z must be up; a swap of image column/row "
+                    "or x/y, or of ground E/N, mirrors the scene)")
     return None
 
 
-def implausible(xy, ctrl, outliers, centre, axis, normal, rms, half, f) -> np.ndarray:
+def implausible(xy, ctrl, outliers, centre, axis, normal, planar, rms, half, f) -> np.ndarray:
     """:func:`_plausibility`'s decision for a batch, vectorised: ``(b,)`` True
     where a converged solution cannot be right (arguments with a leading
     ``b`` axis; ``half`` and ``f`` shared)."""
@@ -231,7 +241,7 @@ def implausible(xy, ctrl, outliers, centre, axis, normal, rms, half, f) -> np.nd
         bad |= np.sum(outliers, axis=1) > _MAX_EXCLUDED * np.sum(ctrl, axis=1)
         bad |= rms > _MAX_RMS * size
         n = np.where(normal[:, 2:] >= 0, normal, -normal)
-        flat = n[:, 2] > np.cos(np.radians(_MAX_TILT))
+        flat = planar & (n[:, 2] > np.cos(np.radians(_MAX_TILT)))
         bad |= flat & (np.sum(centre * n, axis=1) < 0) & (np.sum(axis * n, axis=1) > 0)
     return bad
 
@@ -246,6 +256,7 @@ class Prepared:
     is_check: np.ndarray  # (b, n) bool
     origin: np.ndarray  # (b, 3) centroid of the control points
     basis: np.ndarray  # (b, 3, 3) principal axes of the control points
+    planar: np.ndarray  # (b,) the control points lie on a plane (relief below _PLANAR of their extent)
     init: np.ndarray  # (b, 6) user start relative to origin, or zeros
     has_initial: bool
     names: list | None
@@ -295,9 +306,10 @@ def validate(image_xy, ground_xyz, camera, sigma, check, names, initial, convent
         raise ValueError(f"alpha must be in (0, 1), got {alpha}")
     if batch:
         origin = ground.mean(axis=1)
-        basis = _batch_geometry(ground, origin, initial is None)
+        basis, planar = _batch_geometry(ground, origin, initial is None)
     else:
-        basis = _check_geometry(ground[0], xy[0], ctrl, names, initial is None)[None]
+        basis, planar = _check_geometry(ground[0], xy[0], ctrl, names, initial is None)
+        basis, planar = basis[None], np.array([planar])
         origin = ground[0][ctrl].mean(axis=0)[None]
     init = np.zeros((b, 6))
     if initial is not None:
@@ -311,7 +323,7 @@ def validate(image_xy, ground_xyz, camera, sigma, check, names, initial, convent
         if init.shape != ((b, 6) if batch else (6,)):
             raise ValueError(f"initial must have batch shape ({b},), got {init.shape[:-1]}")
         init = init.reshape(b, 6)
-    return Prepared(xy, ground, weight, np.broadcast_to(is_check, (b, n)), origin, basis, init,
+    return Prepared(xy, ground, weight, np.broadcast_to(is_check, (b, n)), origin, basis, planar, init,
                     initial is not None, names, sigma is not None, np.flatnonzero(ctrl))
 
 
@@ -324,12 +336,12 @@ def _batch_geometry(ground: np.ndarray, origin: np.ndarray, need_init: bool) -> 
     collinear = (s[:, 0] == 0) | (s[:, 1] < 1e-6 * s[:, 0])
     if np.any(collinear):
         raise ValueError(f"collinear control points in images {np.flatnonzero(collinear)[:10].tolist()}")
+    flat = s[:, 2] < _PLANAR * s[:, 0]
     if need_init and n < 6:
-        flat = s[:, 2] < _PLANAR * s[:, 0]
         if not np.all(flat):
             raise ValueError(f"images {np.flatnonzero(~flat)[:10].tolist()} have non-planar GCPs: "
                              "the automatic start needs 6 points for them")
-    return np.stack([vt[:, 0], np.cross(vt[:, 2], vt[:, 0]), vt[:, 2]], axis=2)
+    return np.stack([vt[:, 0], np.cross(vt[:, 2], vt[:, 0]), vt[:, 2]], axis=2), flat
 
 
 def _principal_axes(centred: np.ndarray, sweeps: int = 6) -> tuple[np.ndarray, np.ndarray]:
