@@ -24,8 +24,25 @@ from ..collinearity import ExteriorOrientation
 from ._files import excerpt, file_error, load_yaml, read_text
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
-from .orthority import read_orthority_crs, read_orthority_exterior, read_orthority_interior
+from .opensfm import is_reconstruction, read_opensfm_cameras, read_opensfm_shots
+from .orthority import (
+    read_orthority_exterior_crs,
+    read_orthority_geojson,
+    read_orthority_interior,
+)
 from .results import read_json
+
+
+def _table(path: pathlib.Path, data=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
+    """``({stem: orientation}, crs)`` of a file holding a table of orientations: an
+    OpenSfM/ODM ``reconstruction.json`` (its parsed JSON ``data``), an orthority
+    GeoJSON or an orthority exterior CSV (any column layout)."""
+    if data is not None:  # JSON already parsed: a reconstruction
+        table, crs, _ = read_opensfm_shots(path)
+        return table, crs
+    if path.suffix.lower() == ".geojson":
+        return read_orthority_geojson(path)
+    return read_orthority_exterior_crs(path)
 
 
 def _is_orthority_interior(path: pathlib.Path) -> bool:
@@ -52,9 +69,12 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
             missing or unknown for a multi-camera file (listing the names).
     """
     path = pathlib.Path(path)
-    if not _is_orthority_interior(path):
+    if path.suffix.lower() == ".json" and is_reconstruction(read_json(path)):
+        cameras = read_opensfm_cameras(path)
+    elif not _is_orthority_interior(path):
         return read_camera(path)
-    cameras = read_orthority_interior(path)
+    else:
+        cameras = read_orthority_interior(path)
     if name is None and len(cameras) == 1:
         return next(iter(cameras.values()))
     if name not in cameras:
@@ -108,13 +128,14 @@ def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
             ``image``, or several candidates.
     """
     path = pathlib.Path(path)
-    if path.suffix.lower() == ".json":
-        return exterior_from_result(path, read_json(path), image)
-    table = read_orthority_exterior(path)
+    data = read_json(path) if path.suffix.lower() == ".json" else None
+    if data is not None and not is_reconstruction(data):
+        return exterior_from_result(path, data, image)
+    table, crs = _table(path, data)
     stem = pathlib.Path(image).stem
     if stem not in table:
         raise ValueError(f"{path}: no orientation for image {stem!r}")
-    return table[stem], read_orthority_crs(path)
+    return table[stem], crs
 
 
 def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
@@ -133,8 +154,8 @@ def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], st
             orientation for one of ``names``.
     """
     path = pathlib.Path(path)
-    if path.suffix.lower() == ".json":
-        data = read_json(path)
+    data = read_json(path) if path.suffix.lower() == ".json" else None
+    if data is not None and not is_reconstruction(data):
         if names is None:
             images = data.get("images") if isinstance(data, dict) else None
             if not isinstance(images, (list, dict)) or not images:
@@ -149,7 +170,7 @@ def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], st
         else:
             table = {n: exterior_from_result(path, data, n)[0] for n in names}
         return table, data.get("crs") if isinstance(data, dict) else None
-    rows, crs = read_orthority_exterior(path), read_orthority_crs(path)
+    rows, crs = _table(path, data)
     if names is None:
         if not rows:
             raise ValueError(f"{path}: no image orientations")
@@ -209,6 +230,32 @@ def exterior_from_result(path, data, image) -> tuple[ExteriorOrientation, str | 
 
 def read_camera_unit(path) -> str | None:
     """The length unit of a photax camera file: its ``unit:`` (``"mm"``, ``"m"``,
-    ``"px"``), ``"px"`` for the ``focal_length_px`` shorthand, None if not given."""
-    data = _load_camera_mapping(pathlib.Path(path))
+    ``"px"``), ``"px"`` for the ``focal_length_px`` shorthand and for an
+    OpenSfM/ODM ``reconstruction.json`` (read in pixels); None if not given, as
+    for an orthority interior file (its focal length and sensor size share a
+    unit it does not name: :func:`camera_in_pixels`)."""
+    path = pathlib.Path(path)
+    if path.suffix.lower() == ".json" and is_reconstruction(read_json(path)):
+        return "px"
+    if _is_orthority_interior(path):
+        return None
+    data = _load_camera_mapping(path)
     return "px" if "focal_length_px" in data else data.get("unit")
+
+
+def camera_in_pixels(camera: FrameCamera) -> FrameCamera:
+    """``camera`` with the pixel as its length unit (focal length, principal point
+    divided by the pixel size): the same geometry, for a file that must name its
+    unit (a block) when the source names none (orthority's interior files).
+
+    Raises:
+        ValueError: no pixel grid, non-square pixels, or a scanned camera.
+    """
+    if camera.pixel_size is None or camera.image_size is None or getattr(camera, "transform", None) is not None:
+        raise ValueError("the camera has no pixel grid (or is a scan): give a photax camera file with a unit")
+    sx, sy = (float(v) for v in np.asarray(camera.pixel_size))
+    if not np.isclose(sx, sy, rtol=1e-12, atol=0):
+        raise ValueError(f"the camera's pixels are not square ({sx:g} x {sy:g}): a block camera in pixels "
+                         "needs square pixels; give a photax camera file with unit mm or m")
+    return FrameCamera(camera.focal_length / sx, camera.principal_point / sx, camera.distortion,
+                       pixel_size=1.0, image_size=camera.image_size)
