@@ -297,3 +297,24 @@ def test_orthority_interior_in_a_block_goes_in_pixels(tmp_path):
     np.testing.assert_allclose(np.asarray(px.image_to_pixel(px.project(pts))),
                                np.asarray(camera.image_to_pixel(camera.project(pts))), rtol=0, atol=1e-9)
     assert read_camera_unit(shared_file("orthority/odm/opensfm/reconstruction.json")) == "px"
+
+
+def test_cli_ties_with_an_orthority_interior(tmp_path):
+    """``photax ties`` with ngi_int_param.yaml (refused before: "the block's camera
+    file needs a unit") writes a block whose camera, in pixels, is the file's."""
+    from photax.cli import main
+    from photax.io import read_block
+
+    ngi = shared_file("orthority/ngi/dem.tif").parent
+    interior = shared_file("orthority/io/ngi_int_param.yaml")
+    images = [str(ngi / f"3324c_2015_1004_05_018{k}_RGB.tif") for k in (2, 4)]
+    out = tmp_path / "block"
+    assert main(["ties", *images, "--camera", str(interior), "--exterior",
+                 str(shared_file("orthority/io/ngi_xyz_opk.csv")), "--dem", str(ngi / "dem.tif"),
+                 "--points", "50", "-o", str(out)]) == 0
+    problem = read_block(out)
+    camera, block_camera = read_interior(interior), problem.cameras[0]
+    assert block_camera.image_size == camera.image_size == (640, 1152)
+    pts = np.random.default_rng(4).normal(0, 1, (20, 3)) - [0, 0, 3]
+    np.testing.assert_allclose(np.asarray(block_camera.image_to_pixel(block_camera.project(pts))),
+                               np.asarray(camera.image_to_pixel(camera.project(pts))), rtol=0, atol=1e-9)

@@ -1,10 +1,11 @@
 """``photax ortho``: orthorectify an image with its orientation and a DEM (or flat ground, ``--height``).
 
 ``--camera`` (alias ``--interior``) is a photax camera file (YAML/JSON,
-:mod:`photax.io.camera_file`) or an orthority interior YAML
-(``--camera-name`` picks a camera of a multi-camera file); ``--exterior`` a
+:mod:`photax.io.camera_file`), an orthority interior YAML or an OpenSfM/ODM
+``reconstruction.json`` (``--camera-name`` picks a camera of a multi-camera file); ``--exterior`` a
 ``photax resect -o`` or ``photax bundle -o`` result (the image named
-like IMAGE's stem when it holds several) or an orthority exterior CSV (+ .prj beside it): the formats
+like IMAGE's stem when it holds several), an orthority exterior CSV (+ .prj beside it) or GeoJSON,
+or a ``reconstruction.json``: the formats
 are told apart by :mod:`photax.io.orientation`.  The output
 GeoTIFF is written tile by tile into a temporary file renamed at the end; it
 may not be an input or an input's sidecar.  Exit codes: 0 done, 2 bad input.
@@ -37,12 +38,13 @@ def add_parser(sub) -> None:
                         help="flat ground at height H instead of a DEM (a constant-height DEM under "
                         "the image)")
     p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
-                   help="photax camera file (see photax resect --help), or orthority interior YAML "
-                   "(--interior is an alias)")  # fmt: skip
+                   help="photax camera file (see photax resect --help), orthority interior YAML or "
+                   "OpenSfM/ODM reconstruction.json (--interior is an alias)")  # fmt: skip
     p.add_argument("--exterior", required=True,
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
                    "several), "
-                   "or orthority exterior CSV")  # fmt: skip
+                   "orthority exterior CSV (x y z omega phi kappa, or latitude longitude altitude roll pitch "
+                   "yaw) or GeoJSON, or OpenSfM/ODM reconstruction.json")  # fmt: skip
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="ground pixel size (default: the mean ground sampling distance)")
     p.add_argument("--resampling", choices=RESAMPLING, default="bilinear",

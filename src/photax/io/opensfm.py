@@ -113,7 +113,7 @@ def _camera(path, name, p) -> FrameCamera:
     aspect = fx / fy  # photax: one principal distance, the pixel height carries fx / fy
     pp = (values.get("c_x", 0.0) * m, -values.get("c_y", 0.0) * m * aspect)
     k1, k2, k3, p1, p2 = (values.get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2"))
-    return FrameCamera(fx, pp, (k1, k2, k3, -p1, p2), pixel_size=(1.0, aspect), image_size=(w, h))
+    return FrameCamera(fx, pp, (k1, k2, k3, 0.0 - p1, p2), pixel_size=(1.0, aspect), image_size=(w, h))
 
 
 def read_opensfm_cameras(path) -> dict[str, FrameCamera]:

@@ -1,10 +1,14 @@
 """Orientation files whatever their format: the format is detected here.
 
-* :func:`read_interior`: a photax camera file (:mod:`photax.io.camera_file`)
-  or an orthority interior YAML (:mod:`photax.io.orthority`) -- an orthority
-  file has a ``type`` key, or maps camera names to mappings that each have one;
-* :func:`read_exterior`: a ``photax resect --json`` result (``.json``) or an
-  orthority exterior CSV (+ ``.prj`` beside it); :func:`read_exteriors` reads
+* :func:`read_interior`: a photax camera file (:mod:`photax.io.camera_file`),
+  an orthority interior YAML (:mod:`photax.io.orthority`) -- an orthority
+  file has a ``type`` key, or maps camera names to mappings that each have one --
+  or an OpenSfM/ODM ``reconstruction.json`` (:mod:`photax.io.opensfm`: a JSON list
+  of objects with ``shots``);
+* :func:`read_exterior`: a ``photax resect --json`` result (``.json``), a
+  ``reconstruction.json``, an orthority GeoJSON (``.geojson``) or an orthority
+  exterior CSV (+ ``.prj`` beside it; or latitude, longitude, altitude, roll,
+  pitch, yaw); :func:`read_exteriors` reads
   many images' orientations from one such file, parsing it once, and
   :func:`block_images` pairs them with the image files of a folder;
 * :func:`read_camera_unit`: the length unit a photax camera file is written in.
@@ -116,8 +120,9 @@ def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
     the angle convention beside it: with one image it is used whatever its
     name; with several, the one named like ``image`` (file name or stem); an
     image that was not solved, or any image of an adjustment that did not
-    converge, is refused.  Any other file is read as an orthority exterior
-    CSV and ``image``'s stem looked up in it.
+    converge, is refused.  A ``reconstruction.json`` (a JSON list), a
+    ``.geojson`` and any other file (an orthority exterior CSV) are read as
+    tables of orientations and ``image``'s stem looked up in them.
 
     Args:
         path: the orientation file.

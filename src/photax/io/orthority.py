@@ -112,7 +112,7 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
                          f"out of range (f = {f:g}, pixel size = {size.tolist()})")
     dist = [float(numbers(k, 1, 0.0, scalar_ok=True)) if kind != "pinhole" else 0.0
             for k in ("k1", "k2", "k3", "p1", "p2")]
-    dist[3] = -dist[3]  # OpenCV's p1 is for y down; photax's image plane has y up (photax.camera)
+    dist[3] = 0.0 - dist[3]  # OpenCV's p1 is for y down; photax's image plane has y up (photax.camera)
     return FrameCamera(f, principal_point, dist, pixel_size=size, image_size=(w, h))
 
 
