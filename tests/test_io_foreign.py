@@ -55,7 +55,8 @@ def synthetic(tmp_path_factory):
     rng = np.random.default_rng(3)
     ground = np.c_[REF[0] + rng.uniform(-8e-4, 8e-4, 60), REF[1] + rng.uniform(-8e-4, 8e-4, 60),
                    rng.uniform(20, 60, 60)]
-    cams = [(REF[0] + 5e-4, REF[1] - 6e-4, 160.0), (REF[0] - 4e-4, REF[1] + 3e-4, 150.0), (REF[0], REF[1], 170.0)]
+    cams = [(REF[0] + 5e-4, REF[1] - 6e-4, 160.0), (REF[0] - 4e-4, REF[1] + 3e-4, 150.0),
+            (REF[0], REF[1], 170.0)]
     shots, pixels = {}, {}
     g_topo = _topocentric(*ground.T)
     for j, lla in enumerate(cams):
@@ -157,7 +158,8 @@ def test_odm_reconstruction_as_orthority_reads_it():
         camera = read_interior(path)
         for name, e in ext_param.items():
             np.testing.assert_allclose(np.asarray(table[name].position), e["xyz"], rtol=0, atol=1e-6)
-            np.testing.assert_allclose(_rot(table[name]), _orthority_opk_rotation(e["opk"]), rtol=0, atol=1e-12)
+            np.testing.assert_allclose(_rot(table[name]), _orthority_opk_rotation(e["opk"]), rtol=0,
+                                       atol=1e-12)
             ref_cam = create_camera(**int_param[e["camera"]], xyz=e["xyz"], opk=e["opk"])
             ji = np.random.default_rng(0).uniform([0, 0], [1367, 911], (100, 2))
             xyz = ref_cam.pixel_to_world_z(ji.T, 80.0).T
@@ -202,7 +204,8 @@ def test_cli_ortho_of_odm_images_matches_oty_odm(tmp_path):
     for image in sorted((odm / "images").glob("*.tif")):
         ours = tmp_path / f"{image.stem}.tif"
         assert main(["ortho", str(image), "--camera", str(rec), "--exterior", str(rec), "--dem",
-                     str(odm / "odm_dem" / "dsm.tif"), "--resolution", "0.4", "--no-progress", "-o", str(ours)]) == 0
+                     str(odm / "odm_dem" / "dsm.tif"), "--resolution", "0.4", "--no-progress",
+                     "-o", str(ours)]) == 0
         with rasterio.open(ours) as a, rasterio.open(out / f"{image.stem}_ORTHO.tif") as b:
             assert a.crs == b.crs
             win_a, win_b = _common_windows(a, b)
@@ -230,8 +233,8 @@ def test_orthority_brown_and_opencv_interiors_project_as_orthority(tmp_path, kin
     from orthority.camera import create_camera
     from orthority.enums import CameraType
 
-    params = dict(im_size=(1368, 912), focal_len=0.6664, cx=-0.0015, cy=0.0047, k1=-0.264, k2=0.1019, p1=0.00073,
-                  p2=0.00026, k3=-0.0258)
+    params = {"im_size": (1368, 912), "focal_len": 0.6664, "cx": -0.0015, "cy": 0.0047, "k1": -0.264,
+              "k2": 0.1019, "p1": 0.00073, "p2": 0.00026, "k3": -0.0258}
     text = f"drone:\n  type: {kind}\n" + "".join(f"  {k}: {list(v) if isinstance(v, tuple) else v}\n"
                                                  for k, v in params.items())
     path = tmp_path / "int.yaml"

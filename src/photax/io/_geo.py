@@ -50,7 +50,8 @@ def ecef_from_enu(lat_deg, lon_deg) -> np.ndarray:
     la, lo = np.radians(lat_deg), np.radians(lon_deg)
     sl, cl, so, co = np.sin(la), np.cos(la), np.sin(lo), np.cos(lo)
     z = np.zeros_like(sl)
-    cols = [np.stack([-so, co, z], -1), np.stack([-sl * co, -sl * so, cl], -1), np.stack([cl * co, cl * so, sl], -1)]
+    east, north = np.stack([-so, co, z], -1), np.stack([-sl * co, -sl * so, cl], -1)
+    cols = [east, north, np.stack([cl * co, cl * so, sl], -1)]
     return np.stack(cols, axis=-1)
 
 

@@ -85,7 +85,8 @@ def _camera(path, name, p) -> FrameCamera:
         raise file_error(path, None, f"camera {excerpt(name)} is not an object")
     kind = p.get("projection_type")
     if kind not in _KEYS:
-        raise file_error(path, None, f"camera {excerpt(name)} has projection_type {excerpt(kind)}: photax reads "
+        raise file_error(path, None, f"camera {excerpt(name)} has projection_type {excerpt(kind)}: "
+                         "photax reads "
                          "'perspective' and 'brown' cameras only (fisheye, fisheye_opencv, spherical and "
                          "the other OpenSfM models have no photax camera)")
     unknown = sorted(set(p) - _IGNORED - set(_KEYS[kind]))

@@ -256,7 +256,8 @@ def camera_in_pixels(camera: FrameCamera) -> FrameCamera:
     Raises:
         ValueError: no pixel grid, non-square pixels, or a scanned camera.
     """
-    if camera.pixel_size is None or camera.image_size is None or getattr(camera, "transform", None) is not None:
+    scanned = getattr(camera, "transform", None) is not None
+    if camera.pixel_size is None or camera.image_size is None or scanned:
         raise ValueError("the camera has no pixel grid (or is a scan): give a photax camera file with a unit")
     sx, sy = (float(v) for v in np.asarray(camera.pixel_size))
     if not np.isclose(sx, sy, rtol=1e-12, atol=0):

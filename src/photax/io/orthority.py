@@ -56,8 +56,8 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
             "cameras only (the fisheye model has no photax camera)"
         )
     if kind == "opencv":  # photax's distortion is OpenCV's 5-term model: the others must be zero
-        extra = [k for k in _OPENCV_EXTRA if k in p and (as_numbers(p[k]) is None or as_numbers(p[k]).shape != ()
-                                                          or float(as_numbers(p[k])) != 0.0)]
+        values = {k: as_numbers(p[k]) for k in _OPENCV_EXTRA if k in p}
+        extra = [k for k, v in values.items() if v is None or v.shape != () or float(v) != 0.0]
         if extra:
             raise ValueError(f"{at(extra[0])}: camera {excerpt(name)}: the opencv parameters {extra} are not "
                              "zero; photax's camera has k1, k2, k3, p1, p2 only (rational, thin-prism and "
