@@ -83,9 +83,22 @@ def synthetic(tmp_path_factory):
     return dict(path=path, crs=crs, ground=xyz, pixels=pixels)
 
 
-def test_opensfm_brown_camera_projects_as_opencv(synthetic):
-    camera = read_opensfm_cameras(synthetic["path"])["cam"]
-    k, dist = _k_and_dist(BROWN)
+PERSPECTIVE = {"projection_type": "perspective", "width": 900, "height": 1200, "focal": 0.81, "k1": -0.12,
+               "k2": 0.03}
+
+
+@pytest.mark.parametrize("model", ["brown", "perspective"])
+def test_opensfm_camera_projects_as_opencv(synthetic, tmp_path, model):
+    """In OpenSfM's units (normalised by max(width, height), here once by the height)."""
+    params = BROWN if model == "brown" else PERSPECTIVE
+    rec = json.loads(synthetic["path"].read_text())
+    rec[0]["cameras"]["v2 cam"] = params
+    path = tmp_path / "rec.json"
+    path.write_text(json.dumps(rec))
+    camera = read_opensfm_cameras(path)["cam"]
+    full = {"focal_x": params.get("focal"), "focal_y": params.get("focal"), "c_x": 0.0, "c_y": 0.0, "k3": 0.0,
+            "p1": 0.0, "p2": 0.0, **params}
+    k, dist = _k_and_dist(full)
     pts = np.random.default_rng(0).normal(0, 1, (50, 3)) + [0, 0, 4]  # OpenCV camera frame, in front
     ref = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), k, dist)[0][:, 0]
     ours = np.asarray(camera.image_to_pixel(camera.project(pts * [1, -1, -1])))  # photax frame: y up, z back
@@ -321,3 +334,25 @@ def test_cli_ties_with_an_orthority_interior(tmp_path):
     pts = np.random.default_rng(4).normal(0, 1, (20, 3)) - [0, 0, 3]
     np.testing.assert_allclose(np.asarray(block_camera.image_to_pixel(block_camera.project(pts))),
                                np.asarray(camera.image_to_pixel(camera.project(pts))), rtol=0, atol=1e-9)
+
+
+def test_oty_exported_params_read_as_the_reconstruction(tmp_path):
+    """``oty odm --export-params`` writes the reconstruction as orthority files (a
+    ``brown`` interior YAML, an exterior GeoJSON): photax reads both to the same
+    cameras and orientations as the reconstruction itself."""
+    odm = shared_file("orthority/odm/opensfm/reconstruction.json").parents[1]
+    oty = shutil.which("oty", path=str(pathlib.Path(sys.executable).parent)) or shutil.which("oty")
+    if oty is None:
+        pytest.skip("orthority's oty command is not installed")
+    subprocess.run([oty, "odm", "-dd", str(odm), "-od", str(tmp_path), "--export-params"], check=True,
+                   capture_output=True)
+    rec = odm / "opensfm" / "reconstruction.json"
+    a, b = read_interior(tmp_path / "int_param.yaml"), read_interior(rec)
+    pts = np.random.default_rng(5).normal(0, 1, (50, 3)) - [0, 0, 3]
+    np.testing.assert_allclose(np.asarray(a.image_to_pixel(a.project(pts))),
+                               np.asarray(b.image_to_pixel(b.project(pts))), rtol=0, atol=1e-9)
+    (ta, crs_a), (tb, crs_b) = read_exteriors(tmp_path / "ext_param.geojson"), read_exteriors(rec)
+    assert set(ta) == set(tb) and pyproj.CRS(crs_a) == pyproj.CRS(crs_b)
+    for name in tb:
+        np.testing.assert_allclose(np.asarray(ta[name].position), np.asarray(tb[name].position), atol=1e-8)
+        np.testing.assert_allclose(_rot(ta[name]), _rot(tb[name]), atol=1e-12)
