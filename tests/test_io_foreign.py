@@ -356,3 +356,24 @@ def test_oty_exported_params_read_as_the_reconstruction(tmp_path):
     for name in tb:
         np.testing.assert_allclose(np.asarray(ta[name].position), np.asarray(tb[name].position), atol=1e-8)
         np.testing.assert_allclose(_rot(ta[name]), _rot(tb[name]), atol=1e-12)
+
+
+def test_cli_resect_takes_an_orthority_interior(tmp_path):
+    """``photax resect --camera`` reads an orthority brown interior as ``ortho`` does:
+    the sample camera written in orthority's units resects the sample image to the
+    same orientation as the photax camera file."""
+    from photax.cli import main
+
+    data = pathlib.Path(__file__).resolve().parents[1] / "data"
+    m, size = 1000, 0.0176  # max(width, height) and the pixel size, mm
+    (tmp_path / "int.yaml").write_text(
+        "sample:\n  type: brown\n  im_size: [1000, 750]\n  focal_len: 8.8\n  sensor_size: [17.6, 13.2]\n"
+        f"  cx: {0.011 / (m * size)!r}\n  cy: {0.0066 / (m * size)!r}\n  k1: -0.02\n  k2: 0.004\n")
+    results = []
+    for camera in (data / "sample_camera.yaml", tmp_path / "int.yaml"):
+        out = tmp_path / f"{camera.stem}.json"
+        assert main(["resect", str(data / "sample_gcps.csv"), "--camera", str(camera), "-o", str(out)]) == 0
+        results.append(json.loads(out.read_text()))
+    (a, b) = (next(iter(r["images"].values())) for r in results)
+    np.testing.assert_allclose(a["position"], b["position"], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(a["angles_rad"], b["angles_rad"], rtol=0, atol=1e-9)

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from ._files import excerpt, file_error, load_yaml, read_text
+from ._files import MAX_BYTES, check_regular, excerpt, file_error, load_yaml, read_text
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
 from .opensfm import is_reconstruction, read_opensfm_cameras, read_opensfm_shots
@@ -60,6 +60,16 @@ def _is_orthority_interior(path: pathlib.Path) -> bool:
     return "type" in data or all(isinstance(v, dict) and "type" in v for v in data.values())
 
 
+def _is_reconstruction_file(path: pathlib.Path) -> bool:
+    """An OpenSfM ``reconstruction.json`` given as a camera file: a JSON list, or a
+    ``.json`` too large for a camera file (then read, and checked, as a reconstruction)."""
+    if path.suffix.lower() != ".json":
+        return False
+    if check_regular(path, "camera file").st_size > MAX_BYTES["camera file"]:
+        return True
+    return is_reconstruction(read_json(path))
+
+
 def read_interior(path, name: str | None = None) -> FrameCamera:
     """A :class:`photax.FrameCamera` from a photax camera file or an orthority interior YAML.
 
@@ -73,7 +83,7 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
             missing or unknown for a multi-camera file (listing the names).
     """
     path = pathlib.Path(path)
-    if path.suffix.lower() == ".json" and is_reconstruction(read_json(path)):
+    if _is_reconstruction_file(path):
         cameras = read_opensfm_cameras(path)
     elif not _is_orthority_interior(path):
         return read_camera(path)
@@ -240,7 +250,7 @@ def read_camera_unit(path) -> str | None:
     for an orthority interior file (its focal length and sensor size share a
     unit it does not name: :func:`camera_in_pixels`)."""
     path = pathlib.Path(path)
-    if path.suffix.lower() == ".json" and is_reconstruction(read_json(path)):
+    if _is_reconstruction_file(path):
         return "px"
     if _is_orthority_interior(path):
         return None
