@@ -377,3 +377,27 @@ def test_cli_resect_takes_an_orthority_interior(tmp_path):
     (a, b) = (next(iter(r["images"].values())) for r in results)
     np.testing.assert_allclose(a["position"], b["position"], rtol=0, atol=1e-6)
     np.testing.assert_allclose(a["angles_rad"], b["angles_rad"], rtol=0, atol=1e-9)
+
+
+def test_odm_reconstruction_into_another_crs():
+    """``crs=`` (the ortho command passes the DEM's): ODM's shots into TWD97 / TM2
+    (EPSG:3826) are the UTM ones moved by PROJ, turned by the difference of the two
+    grids' meridian convergences (pyproj's factors) about the vertical."""
+    path = shared_file("orthority/odm/opensfm/reconstruction.json")
+    utm, crs_utm = read_exteriors(path)
+    tm2, crs_tm2 = read_exteriors(path, crs="EPSG:3826")
+    assert (crs_utm, crs_tm2) == ("EPSG:32651", "EPSG:3826")
+    to_tm2 = pyproj.Transformer.from_crs("EPSG:32651", "EPSG:3826", always_xy=True)
+    to_ll = pyproj.Transformer.from_crs("EPSG:32651", "EPSG:4326", always_xy=True)
+    for name, eo in utm.items():
+        x, y, z = np.asarray(eo.position)
+        np.testing.assert_allclose(np.asarray(tm2[name].position), [*to_tm2.transform(x, y), z], rtol=0,
+                                   atol=1e-6)
+        lon, lat = to_ll.transform(x, y)
+        gamma = [pyproj.Proj(c).get_factors(lon, lat).meridian_convergence
+                 for c in ("EPSG:32651", "EPSG:3826")]
+        turn = _rot(tm2[name]) @ _rot(eo).T
+        np.testing.assert_allclose(turn[2], [0, 0, 1], atol=1e-12)
+        angle = np.degrees(np.arctan2(turn[1, 0], turn[0, 0]))
+        # grid azimuths are true azimuths minus the convergence: a turn by gamma_utm - gamma_tm2 the other way
+        assert abs(angle - (gamma[1] - gamma[0])) < 1e-6 and abs(angle) > 0.5

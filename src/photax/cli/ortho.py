@@ -75,8 +75,10 @@ def run(args: argparse.Namespace) -> int:
     if args.resolution is not None and not args.resolution > 0:
         raise ValueError(f"--resolution must be positive, got {args.resolution}")
     camera = read_interior(args.camera, args.camera_name)
-    exterior, crs = read_exterior(args.exterior, args.image)
-    dem = read_dem(args.dem) if args.dem is not None else _flat_dem(args.height, exterior)
+    dem = read_dem(args.dem) if args.dem is not None else None
+    # positions given in latitude/longitude or a topocentric frame go into the DEM's CRS
+    exterior, crs = read_exterior(args.exterior, args.image, crs=dem.crs if dem is not None else None)
+    dem = dem if dem is not None else _flat_dem(args.height, exterior)
     grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
     orthorectify_file(
         image, args.out, exterior, camera, dem, grid, resampling=args.resampling, tile=args.tile,

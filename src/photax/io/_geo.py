@@ -18,13 +18,16 @@ _E2 = _F * (2.0 - _F)
 
 
 def projected_crs(text, what: str = "crs"):
-    """A ``pyproj.CRS`` from ``text`` (EPSG code, WKT, PROJ string); it must be projected."""
+    """A ``pyproj.CRS`` from ``text`` (EPSG code, WKT, PROJ string); it must be projected
+    (of a compound CRS, its horizontal part: heights are not converted here)."""
     import pyproj
 
     try:
         crs = pyproj.CRS.from_user_input(text)
     except pyproj.exceptions.CRSError as exc:
         raise ValueError(f"{what}: not a CRS ({' '.join(str(exc).split())[:120]})") from None
+    if crs.is_compound:  # a DEM's horizontal + vertical CRS: positions go to the horizontal one
+        crs = crs.sub_crs_list[0]
     if not crs.is_projected:
         raise ValueError(f"{what}: {crs.name!r} is not a projected CRS (x, y in metres are needed)")
     return crs
@@ -121,3 +124,17 @@ def topocentric_to_projected(points, reference_lla, crs) -> tuple[np.ndarray, np
     xyz = project_lla(lat, lon, h, crs)
     local_from_topo = np.swapaxes(ecef_from_enu(lat, lon), -1, -2) @ r0
     return xyz, grid_from_enu(lat, lon, crs) @ local_from_topo
+
+
+def reproject(xyz, source, target) -> tuple[np.ndarray, np.ndarray]:
+    """``(..., 3)`` positions in the projected ``source`` CRS -> ``target``, with the
+    ``(..., 3, 3)`` rotation from ``source``'s grid frame to ``target``'s at each point
+    (the difference of their meridian convergences); heights unchanged."""
+    import pyproj
+
+    xyz = np.asarray(xyz, dtype=float)
+    t = pyproj.Transformer.from_crs(source, "EPSG:4979", always_xy=True)
+    lon, lat, h = (np.asarray(v) for v in t.transform(xyz[..., 0], xyz[..., 1], xyz[..., 2]))
+    out = project_lla(lat, lon, h, target)
+    turn = grid_from_enu(lat, lon, target) @ np.swapaxes(grid_from_enu(lat, lon, source), -1, -2)
+    return out, turn

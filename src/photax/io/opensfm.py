@@ -31,9 +31,12 @@ orthority 0.7's reader of the same file:
   - ``"topocentric"``: positions exactly, through geocentric coordinates;
     each rotation turned into the grid frame at the camera (its own
     vertical, then the meridian convergence: ``photax.io._geo``);
-  - ``"grid"``: positions are offsets from ``reference_lla``'s projected
-    position and rotations are already in the grid frame (what orthority
-    assumes of every reconstruction).
+  - ``"grid"``: positions are offsets from ``reference_lla``'s position in
+    its UTM zone and rotations are already in that grid's frame (what
+    orthority assumes of every reconstruction).
+
+  Into another projected CRS (``crs=``, e.g. the DEM's) the UTM positions are
+  moved by PROJ and the rotations turned by the two grids' convergence.
 
   The grid's scale factor (1 +- 4e-4 within a UTM zone) is not applied to
   the camera.
@@ -49,7 +52,7 @@ from ..camera import FrameCamera, from_opencv_extrinsics
 from ..collinearity import ExteriorOrientation
 from ..rotation import angles_from_matrix, axis_angle_to_matrix
 from ._files import as_numbers, excerpt, file_error, load_json, read_text
-from ._geo import project_lla, projected_crs, topocentric_to_projected, utm_crs
+from ._geo import project_lla, projected_crs, reproject, topocentric_to_projected, utm_crs
 
 _WHAT = "OpenSfM reconstruction"
 _KEYS = {"perspective": ("focal", "k1", "k2"),
@@ -207,14 +210,15 @@ def read_opensfm_shots(path, crs=None, frame: str | None = None
 
 def _to_grid(centre, r_frame, gps, lla, crs, frame):
     """Shot centres and world_from_camera rotations in the reconstruction's frame ->
-    projected positions and rotations (module docstring)."""
-    xyz_t, grid_from_topo = topocentric_to_projected(centre, lla, crs)
-    xyz_g = project_lla(*lla, crs) + centre
+    projected positions and rotations in ``crs`` (module docstring)."""
+    utm = utm_crs(lla[0], lla[1])  # ODM's grid-aligned frame is its UTM zone's
+    xyz_t, grid_from_topo = topocentric_to_projected(centre, lla, utm)
+    xyz_g = project_lla(*lla, utm) + centre
     if frame is None:
         has = np.all(np.isfinite(gps), axis=-1)
         spread = float(np.max(np.linalg.norm(xyz_t - xyz_g, axis=-1)))
         if has.any():
-            truth = topocentric_to_projected(gps[has], lla, crs)[0]
+            truth = topocentric_to_projected(gps[has], lla, utm)[0]
             err_t = np.linalg.norm(xyz_t[has] - truth, axis=-1).mean()
             err_g = np.linalg.norm(xyz_g[has] - truth, axis=-1).mean()
             frame = "topocentric" if err_t <= err_g else "grid"
@@ -224,5 +228,10 @@ def _to_grid(centre, r_frame, gps, lla, crs, frame):
             raise ValueError(f"no shot has a gps_position to tell OpenSfM's topocentric frame from ODM's "
                              f"grid-aligned one (they differ by up to {spread:.3g} m here): name the frame")
     if frame == "topocentric":
-        return xyz_t, grid_from_topo @ r_frame
-    return xyz_g, r_frame
+        xyz, rotation = xyz_t, grid_from_topo @ r_frame
+    else:
+        xyz, rotation = xyz_g, r_frame
+    if crs == utm:
+        return xyz, rotation
+    xyz, turn = reproject(xyz, utm, crs)
+    return xyz, turn @ rotation

@@ -37,16 +37,18 @@ from .orthority import (
 from .results import read_json
 
 
-def _table(path: pathlib.Path, data=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
+def _table(path: pathlib.Path, data=None, crs=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
     """``({stem: orientation}, crs)`` of a file holding a table of orientations: an
     OpenSfM/ODM ``reconstruction.json`` (its parsed JSON ``data``), an orthority
-    GeoJSON or an orthority exterior CSV (any column layout)."""
+    GeoJSON or an orthority exterior CSV (any column layout); ``crs``: the
+    projected CRS wanted of the formats whose positions are geographic or
+    topocentric (reconstruction, latitude/longitude CSV), default their UTM zone."""
     if data is not None:  # JSON already parsed: a reconstruction
-        table, crs, _ = read_opensfm_shots(path)
+        table, crs, _ = read_opensfm_shots(path, crs)
         return table, crs
     if path.suffix.lower() == ".geojson":
         return read_orthority_geojson(path)
-    return read_orthority_exterior_crs(path)
+    return read_orthority_exterior_crs(path, crs)
 
 
 def _is_orthority_interior(path: pathlib.Path) -> bool:
@@ -122,7 +124,7 @@ def _pick_image(path, images, image) -> dict:
     return entry
 
 
-def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
+def read_exterior(path, image, crs=None) -> tuple[ExteriorOrientation, str | None]:
     """``(ExteriorOrientation, crs or None)`` of ``image`` from a JSON or CSV file.
 
     A ``photax resect --json`` file (``.json``) holds ``images`` keyed by
@@ -137,6 +139,10 @@ def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
     Args:
         path: the orientation file.
         image: the image's path or name.
+        crs: the projected CRS (EPSG code, WKT, PROJ string; of a compound
+            CRS its horizontal part) into which a reconstruction's or a
+            latitude/longitude CSV's positions are converted (e.g. the DEM's);
+            default their UTM zone.  Other formats name their own CRS.
 
     Raises:
         ValueError: naming the file: malformed, no (solved) orientation for
@@ -146,14 +152,14 @@ def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
     data = read_json(path) if path.suffix.lower() == ".json" else None
     if data is not None and not is_reconstruction(data):
         return exterior_from_result(path, data, image)
-    table, crs = _table(path, data)
+    table, crs = _table(path, data, crs)
     stem = pathlib.Path(image).stem
     if stem not in table:
         raise ValueError(f"{path}: no orientation for image {stem!r}")
     return table[stem], crs
 
 
-def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
+def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
     """``({name: ExteriorOrientation}, crs or None)`` from one orientation file, parsed once.
 
     Args:
@@ -163,6 +169,7 @@ def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], st
             :func:`read_exterior` finds one; keys are the names as given, in
             their order.  ``None``: every image of the file, keyed by its
             name's stem.
+        crs: as :func:`read_exterior`'s.
 
     Raises:
         ValueError: naming the file: malformed, no images, or no (solved)
@@ -185,7 +192,7 @@ def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], st
         else:
             table = {n: exterior_from_result(path, data, n)[0] for n in names}
         return table, data.get("crs") if isinstance(data, dict) else None
-    rows, crs = _table(path, data)
+    rows, crs = _table(path, data, crs)
     if names is None:
         if not rows:
             raise ValueError(f"{path}: no image orientations")

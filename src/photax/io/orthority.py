@@ -158,19 +158,21 @@ def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation
     return table
 
 
-def read_orthority_exterior_crs(csv_path) -> tuple[dict[str, ExteriorOrientation], str | None]:
+def read_orthority_exterior_crs(csv_path, crs=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
     """:func:`read_orthority_exterior` with the CRS of its positions: the ``.prj``
     beside an ``x y z omega phi kappa`` file (None without one); for a
     ``latitude longitude altitude roll pitch yaw`` file the WGS84 UTM zone of
     the mean position, into which positions are projected and roll, pitch,
     yaw (degrees; body x forward, y right, z down, the camera's x along the
     body's y: the usual drone geometry) turned into omega, phi, kappa at each
-    camera with the meridian convergence, as orthority (and Pix4D) do.
-    Heights stay as given (ellipsoidal for GNSS)."""
-    return _read_csv(pathlib.Path(csv_path))
+    camera with the meridian convergence, as orthority (and Pix4D) do, or
+    into ``crs`` (a projected CRS) when given; ``crs`` is not used for an
+    ``x y z`` file, whose CRS is its ``.prj``'s.  Heights stay as given
+    (ellipsoidal for GNSS)."""
+    return _read_csv(pathlib.Path(csv_path), crs)
 
 
-def _read_csv(path: pathlib.Path):
+def _read_csv(path: pathlib.Path, crs=None):
     text = read_text(path, "orthority exterior file")
     lines = [(i + 1, ln) for i, ln in enumerate(split_lines(text)) if ln.strip() and not ln.startswith("#")]
     if not lines:
@@ -228,13 +230,12 @@ def _read_csv(path: pathlib.Path):
         raise file_error(path, None, "no exterior orientations")
     values = np.asarray(values, dtype=float)
     if columns is _COLUMNS:
-        crs = read_orthority_crs(path)
         return {k: ExteriorOrientation(v[:3], np.radians(v[3:]), "omega-phi-kappa")
-                for k, v in zip(names, values)}, crs
-    from ._geo import utm_crs
+                for k, v in zip(names, values)}, read_orthority_crs(path)
+    from ._geo import projected_crs, utm_crs
 
     lat, lon = values[:, 0], values[:, 1]
-    target = utm_crs(lat.mean(), lon.mean())
+    target = projected_crs(crs) if crs is not None else utm_crs(lat.mean(), lon.mean())
     try:
         xyz, opk = lla_rpy_to_xyz_opk(values[:, :3], np.radians(values[:, 3:]), target)
     except ValueError as exc:
