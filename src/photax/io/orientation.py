@@ -206,16 +206,16 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
     return table, crs
 
 
-def block_images(path, folder) -> tuple[list[pathlib.Path], list[ExteriorOrientation], str | None]:
+def block_images(path, folder, crs=None) -> tuple[list[pathlib.Path], list[ExteriorOrientation], str | None]:
     """``(image files, exterior orientations, crs or None)`` of a block: every
     orientation of ``path`` (:func:`read_exteriors`) with the file of
-    ``folder`` of the same stem.
+    ``folder`` of the same stem; ``crs`` as :func:`read_exterior`'s.
 
     Raises:
         ValueError: naming the file: no orientations, or an image missing
             from ``folder``.
     """
-    table, crs = read_exteriors(path)
+    table, crs = read_exteriors(path, crs=crs)
     files = {p.stem: p for p in sorted(pathlib.Path(folder).iterdir()) if p.is_file()}
     missing = [n for n in table if n not in files]
     if missing:
