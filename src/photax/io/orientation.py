@@ -29,11 +29,7 @@ from ._files import MAX_BYTES, check_regular, excerpt, file_error, load_yaml, re
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
 from .opensfm import is_reconstruction, read_opensfm_cameras, read_opensfm_shots
-from .orthority import (
-    read_orthority_exterior_crs,
-    read_orthority_geojson,
-    read_orthority_interior,
-)
+from .orthority import read_orthority_exterior_crs, read_orthority_geojson, read_orthority_interior
 from .results import read_json
 
 

@@ -30,16 +30,8 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from ._files import (
-    Mapping,
-    as_numbers,
-    excerpt,
-    file_error,
-    load_yaml,
-    read_text,
-    split_lines,
-    where,
-)
+from ._files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, split_lines
+from ._files import where
 
 _OPENCV_EXTRA = ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
 
@@ -277,8 +269,6 @@ def read_orthority_geojson(path) -> tuple[dict[str, ExteriorOrientation], str]:
     ExteriorOrientation}, crs)``; each feature's ``properties`` hold
     ``filename``, ``xyz`` (in ``world_crs``) and ``opk`` (radians, orthority's
     omega-phi-kappa = photax's); the point geometry (lon, lat) is not used."""
-    from ._files import load_json
-
     path = pathlib.Path(path)
     data = load_json(path, read_text(path, "orthority exterior file"))
     if not isinstance(data, dict) or data.get("type") != "FeatureCollection" \
