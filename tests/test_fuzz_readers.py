@@ -36,7 +36,13 @@ from photax.io.bal import BALData, read_bal, read_bal_arrays, write_bal_arrays
 from photax.io.block import read_block
 from photax.io.camera_file import read_camera
 from photax.io.gcp import read_gcps
-from photax.io.orthority import read_orthority_exterior, read_orthority_interior
+from photax.io.opensfm import read_opensfm_cameras, read_opensfm_shots
+from photax.io.orthority import (
+    read_orthority_exterior,
+    read_orthority_exterior_crs,
+    read_orthority_geojson,
+    read_orthority_interior,
+)
 from photax.io.results import read_json
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -259,6 +265,93 @@ def test_fuzz_read_orthority_exterior(work, data):
     _expect_valueerror_or_sane(read_orthority_exterior, path, sane, r": no exterior orientations$", lines=True)
 
 
+ORTHO_LLA = [
+    b"filename latitude longitude altitude roll pitch yaw camera\n"
+    b'a.tif 24.68027804 120.9517016 186.57 0.0 30.0 92.9 "cam 1"\n'
+    b'b.tif 24.68014678 120.95166508 186.65 0.0 30.0 -175.8 "cam 1"\n',
+    *_shared_seed("orthority/io/odm_lla_rpy.csv"),
+]
+
+
+@FUZZ
+@given(data=mutated(ORTHO_LLA))
+def test_fuzz_read_orthority_lla_rpy(work, data):
+    path = work / "lla_rpy.csv"
+    path.write_bytes(data)
+
+    def sane(result):
+        eos, crs = result
+        assert eos
+        for eo in eos.values():
+            _finite(eo.position, eo.angles)
+
+    whole_file = r": no exterior orientations$|: positions outside|latitude/longitude out of range"
+    _expect_valueerror_or_sane(read_orthority_exterior_crs, path, sane, whole_file, lines=True)
+
+
+ORTHO_GEOJSON = [
+    json.dumps({"type": "FeatureCollection", "world_crs": "EPSG:32735", "features": [
+        {"type": "Feature", "properties": {"filename": "a.tif", "camera": "c", "xyz": [1.0, 2.0, 3.0],
+                                           "opk": [0.01, -0.02, 3.1]},
+         "geometry": {"type": "Point", "coordinates": [24.4, -33.6, 3.0]}}]}).encode(),
+    *_shared_seed("orthority/io/ngi_ext_param.geojson"),
+]
+
+
+@FUZZ
+@given(data=mutated(ORTHO_GEOJSON))
+def test_fuzz_read_orthority_geojson(work, data):
+    path = work / "ext.geojson"
+    path.write_bytes(data)
+
+    def sane(result):
+        eos, crs = result
+        assert eos and isinstance(crs, str) and crs.strip()
+        for eo in eos.values():
+            _finite(eo.position, eo.angles)
+
+    _expect_valueerror_or_sane(read_orthority_geojson, path, sane)
+
+
+OPENSFM = [
+    json.dumps([{"cameras": {"v2 cam": {"projection_type": "brown", "width": 100, "height": 80,
+                                        "focal_x": 0.7, "focal_y": 0.71, "c_x": 0.01, "c_y": -0.02,
+                                        "k1": -0.1, "k2": 0.01,
+                                        "k3": 0.0, "p1": 0.001, "p2": 0.0}},
+                 "shots": {"a.JPG": {"rotation": [2.6, 0.05, -0.01], "translation": [-74.0, -17.7, 222.6],
+                                     "camera": "v2 cam", "gps_position": [80.0, -119.0, 186.4]},
+                           "b.JPG": {"rotation": [1.9, -2.0, 0.55], "translation": [-71.8, 195.5, 100.9],
+                                     "camera": "v2 cam", "gps_position": [115.3, -73.8, 186.6]}},
+                 "reference_lla": {"latitude": 24.68, "longitude": 120.95, "altitude": 0.0}}]).encode(),
+    json.dumps([{"cameras": {"c": {"projection_type": "perspective", "width": 64, "height": 48, "focal": 0.9,
+                                   "k1": 0.0, "k2": 0.0}},
+                 "shots": {"x": {"rotation": [3.1, 0.0, 0.0], "translation": [0.0, 0.0, 50.0], "camera": "c",
+                                 "gps_position": [0.1, 0.2, 49.9]}},
+                 "reference_lla": {"latitude": -33.6, "longitude": 24.4, "altitude": 10.0}}]).encode(),
+]
+
+
+@FUZZ
+@given(data=mutated(OPENSFM))
+def test_fuzz_read_opensfm(work, data):
+    path = work / "reconstruction.json"
+    path.write_bytes(data)
+
+    def sane_cameras(cams):
+        assert cams
+        for cam in cams.values():
+            _sane_camera(cam)
+
+    def sane_shots(result):
+        eos, crs, names = result
+        assert eos and isinstance(crs, str) and set(names) == set(eos)
+        for eo in eos.values():
+            _finite(eo.position, eo.angles)
+
+    _expect_valueerror_or_sane(read_opensfm_cameras, path, sane_cameras)
+    _expect_valueerror_or_sane(read_opensfm_shots, path, sane_shots)
+
+
 # --- BAL ---------------------------------------------------------------------------
 
 
@@ -428,6 +521,10 @@ def test_seeds_are_valid(work, bal_seed, tif_seeds):
              (read_camera, "s.json", CAMERA_JSON, _sane_camera),
              (read_orthority_interior, "s_int.yaml", ORTHO_INT, lambda c: [_sane_camera(v) for v in c.values()]),
              (read_orthority_exterior, "s_ext.csv", ORTHO_EXT, lambda e: len(e) >= 2 or None),
+             (read_orthority_exterior_crs, "s_lla.csv", ORTHO_LLA[:1], lambda e: len(e[0]) == 2 or None),
+             (read_orthority_geojson, "s.geojson", ORTHO_GEOJSON[:1], lambda e: len(e[0]) == 1 or None),
+             (read_opensfm_cameras, "s_rec.json", OPENSFM, lambda c: [_sane_camera(v) for v in c.values()]),
+             (read_opensfm_shots, "s_rec.json", OPENSFM, lambda e: len(e[0]) >= 1 or None),
              (read_bal_arrays, "s.txt", [bal_seed], _sane_bal), (read_json, "s.json", RESULT, lambda o: None),
              (read_dem, "s.tif", tif_seeds, lambda d: None)]  # fmt: skip
     for read, name, seeds, sane in cases:

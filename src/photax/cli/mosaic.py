@@ -111,10 +111,10 @@ def run(args) -> int:
             inputs.append(str(input_file(f, "DSM/DEM")))
     check_output_path(args.out, inputs)  # fail before the work, not after
     if args.block:
-        images, exteriors, crs = block_images(args.block, args.images)
+        camera, dem = read_interior(args.camera, args.camera_name), read_dem(args.dem)
+        images, exteriors, crs = block_images(args.block, args.images, crs=dem.crs)  # lat/lon: the DEM's CRS
         inputs += [str(p) for p in images]
         check_output_path(args.out, inputs)
-        camera, dem = read_interior(args.camera, args.camera_name), read_dem(args.dem)
         check_crs(crs, f"the block's orientations ({args.block})", dem, f"the DEM ({args.dem})")
     out_dir = pathlib.Path(args.out).resolve().parent
     # One bar, "mosaic": the block's images, then every Dask task of the mosaic and of its writing.

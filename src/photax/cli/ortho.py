@@ -1,10 +1,11 @@
 """``photax ortho``: orthorectify images with their orientations and a DEM (or flat ground, ``--height``).
 
 ``--camera`` (alias ``--interior``) is a photax camera file (YAML/JSON,
-:mod:`photax.io.camera_file`) or an orthority interior YAML
-(``--camera-name`` picks a camera of a multi-camera file); ``--exterior`` a
+:mod:`photax.io.camera_file`), an orthority interior YAML or an OpenSfM/ODM
+``reconstruction.json`` (``--camera-name`` picks a camera of a multi-camera file); ``--exterior`` a
 ``photax resect -o`` or ``photax bundle -o`` result (the image named
-like IMAGE's stem when it holds several) or an orthority exterior CSV (+ .prj beside it): the formats
+like IMAGE's stem when it holds several), an orthority exterior CSV (+ .prj beside it) or GeoJSON,
+or a ``reconstruction.json``: the formats
 are told apart by :mod:`photax.io.orientation`.  The output
 GeoTIFF is written tile by tile into a temporary file renamed at the end; it
 may not be an input or an input's sidecar.  Several images (``--out-dir DIR``) run in one process
@@ -43,12 +44,13 @@ def add_parser(sub) -> None:
                         help="flat ground at height H instead of a DEM (a constant-height DEM under "
                         "the image)")
     p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
-                   help="photax camera file (see photax resect --help), or orthority interior YAML "
-                   "(--interior is an alias)")  # fmt: skip
+                   help="photax camera file (see photax resect --help), orthority interior YAML or "
+                   "OpenSfM/ODM reconstruction.json (--interior is an alias)")  # fmt: skip
     p.add_argument("--exterior", required=True,
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
                    "several), "
-                   "or orthority exterior CSV")  # fmt: skip
+                   "orthority exterior CSV (x y z omega phi kappa, or latitude longitude altitude roll pitch "
+                   "yaw) or GeoJSON, or OpenSfM/ODM reconstruction.json")  # fmt: skip
     out = p.add_mutually_exclusive_group(required=True)
     out.add_argument("-o", "--out", metavar="OUT_TIF", help="output GeoTIFF (one IMAGE)")
     out.add_argument("--out-dir", metavar="DIR", help="output folder: DIR/STEM_ortho.tif for each IMAGE")
@@ -92,8 +94,10 @@ def _run_one(args: argparse.Namespace) -> int:
     if args.resolution is not None and not args.resolution > 0:
         raise ValueError(f"--resolution must be positive, got {args.resolution}")
     camera = read_interior(args.camera, args.camera_name)
-    exterior, crs = read_exterior(args.exterior, args.image)
-    dem = read_dem(args.dem) if args.dem is not None else _flat_dem(args.height, exterior)
+    dem = read_dem(args.dem) if args.dem is not None else None
+    # positions given in latitude/longitude or a topocentric frame go into the DEM's CRS
+    exterior, crs = read_exterior(args.exterior, args.image, crs=dem.crs if dem is not None else None)
+    dem = dem if dem is not None else _flat_dem(args.height, exterior)
     if args.dem is not None:
         check_crs(crs, f"the orientation ({args.exterior})", dem, f"the DEM ({args.dem})")
     grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
@@ -116,7 +120,7 @@ def _run_block(args: argparse.Namespace) -> int:
     from ..io.orientation import read_exterior, read_exteriors, read_interior
     from ..io.raster import read_dem
     from ..rectification import orthorectify_files
-    from ._common import ground_unit, input_file
+    from ._common import check_crs, ground_unit, input_file
 
     if args.dem is not None:
         input_file(args.dem, "DEM")
@@ -139,14 +143,16 @@ def _run_block(args: argparse.Namespace) -> int:
     for out in outputs:
         check_output_path(out, inputs)  # fail before the work, not after
     camera = read_interior(args.camera, args.camera_name)
+    dem = read_dem(args.dem) if args.dem is not None else None
+    dem_crs = dem.crs if dem is not None else None  # positions in latitude/longitude go into the DEM's CRS
     failed = {}
     try:  # the file parsed once
-        table, crs = read_exteriors(args.exterior, args.image)
+        table, crs = read_exteriors(args.exterior, args.image, crs=dem_crs)
     except ValueError:  # some image has no orientation there: each image found (or named) on its own
         table, crs = {}, None
         for image in args.image:
             try:
-                table[image], crs = read_exterior(args.exterior, image)
+                table[image], crs = read_exterior(args.exterior, image, crs=dem_crs)
             except ValueError as exc:
                 failed[image] = exc
     for image in args.image:
@@ -157,8 +163,8 @@ def _run_block(args: argparse.Namespace) -> int:
                 failed[image] = exc
     todo = [k for k, image in enumerate(args.image) if image not in failed]
     exteriors = [table[args.image[k]] for k in todo]
-    if args.dem is not None:
-        dem = read_dem(args.dem)
+    if dem is not None:
+        check_crs(crs, f"the orientations ({args.exterior})", dem, f"the DEM ({args.dem})")
     else:
         dem = _flat_dem(args.height, exteriors) if exteriors else None
     results = orthorectify_files(

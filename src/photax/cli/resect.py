@@ -58,7 +58,9 @@ def add_parser(sub) -> None:
         "-o resect.json\n",
     )
     p.add_argument("gcp_file", metavar="GCP_FILE", help="GCP list: CSV with header, or OpenDroneMap gcp_list.txt")
-    p.add_argument("--camera", required=True, metavar="CAMERA_FILE", help="camera file (YAML/JSON; format below)")
+    p.add_argument("--camera", required=True, metavar="CAMERA_FILE",
+                   help="camera file (YAML/JSON; format below), orthority interior YAML or OpenSfM/ODM "
+                   "reconstruction.json")
     p.add_argument("--image", metavar="NAME", help="only this image (default: every image with enough points)")
     p.add_argument("-o", "--out", metavar="OUT_JSON", help="also write the results as JSON")
     p.add_argument("--json", dest="out", help=argparse.SUPPRESS)  # the old name of --out
@@ -92,10 +94,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..io.atomic import check_output_path
-    from ..io.camera_file import read_camera
     from ..io.crs import require_projected
     from ..io.gcp import read_gcps
-    from ..io.orientation import read_camera_unit
+    from ..io.orientation import read_camera_unit, read_interior
     from ..io.results import write_json
     from ..resection import resect
     from ._common import input_file, plural
@@ -109,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--sigma must be positive, got {args.sigma}")
     table = read_gcps(gcp_path, format=args.format)
     require_projected(table.crs, f"the GCPs ({args.gcp_file})")  # degrees are not metres
-    camera = read_camera(camera_path)
+    camera = read_interior(camera_path)  # a photax camera file, an orthority interior, a reconstruction.json
     if table.pixel is not None and (camera.pixel_size is None or camera.image_size is None):
         raise ValueError(f"{args.camera}: the GCPs are in pixels, so the camera needs pixel_size and image_size")
     if args.image is not None:

@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io import read_camera_unit, read_gcps, write_bal, write_block
     from ..io.atomic import check_output_path
     from ..io.block import check_block_output
+    from ..io.orientation import camera_in_pixels
     from ..io.raster import read_dem
     from ..matching import bundle_problem, match_ties
     from ._common import read_oriented_images
@@ -53,9 +54,11 @@ def run(args: argparse.Namespace) -> int:
     if not bal:  # before the matching, not after
         check_block_output(out, files)
         unit = read_camera_unit(args.camera)
-        if unit is None:
-            raise ValueError(f"{args.camera}: the block's camera file needs a unit; give --camera as a photax "
-                             "camera file (unit: mm, m or px)")
+        if unit is None:  # an orthority interior file: its unit is unnamed, the block's camera goes in pixels
+            try:
+                camera, unit = camera_in_pixels(camera), "px"
+            except ValueError as exc:
+                raise ValueError(f"{args.camera}: {exc}") from None
     else:
         check_output_path(out, files)
     ties = match_ties(images, camera, exterior, read_dem(args.dem), max_points=args.points, search=args.search)

@@ -17,9 +17,12 @@ from .orientation import (
     read_exteriors as read_exteriors,
     read_interior as read_interior,
 )
+from .opensfm import read_opensfm_cameras as read_opensfm_cameras, read_opensfm_shots as read_opensfm_shots
 from .orthority import (
     read_orthority_crs as read_orthority_crs,
     read_orthority_exterior as read_orthority_exterior,
+    read_orthority_exterior_crs as read_orthority_exterior_crs,
+    read_orthority_geojson as read_orthority_geojson,
     read_orthority_interior as read_orthority_interior,
 )
 from .points import read_named_points as read_named_points, read_pixel_points as read_pixel_points

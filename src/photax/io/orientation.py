@@ -1,10 +1,14 @@
 """Orientation files whatever their format: the format is detected here.
 
-* :func:`read_interior`: a photax camera file (:mod:`photax.io.camera_file`)
-  or an orthority interior YAML (:mod:`photax.io.orthority`) -- an orthority
-  file has a ``type`` key, or maps camera names to mappings that each have one;
-* :func:`read_exterior`: a ``photax resect --json`` result (``.json``) or an
-  orthority exterior CSV (+ ``.prj`` beside it); :func:`read_exteriors` reads
+* :func:`read_interior`: a photax camera file (:mod:`photax.io.camera_file`),
+  an orthority interior YAML (:mod:`photax.io.orthority`) -- an orthority
+  file has a ``type`` key, or maps camera names to mappings that each have one --
+  or an OpenSfM/ODM ``reconstruction.json`` (:mod:`photax.io.opensfm`: a JSON list
+  of objects with ``shots``);
+* :func:`read_exterior`: a ``photax resect --json`` result (``.json``), a
+  ``reconstruction.json``, an orthority GeoJSON (``.geojson``) or an orthority
+  exterior CSV (+ ``.prj`` beside it; or latitude, longitude, altitude, roll,
+  pitch, yaw); :func:`read_exteriors` reads
   many images' orientations from one such file, parsing it once, and
   :func:`block_images` pairs them with the image files of a folder;
 * :func:`read_camera_unit`: the length unit a photax camera file is written in.
@@ -21,11 +25,26 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from .files import excerpt, file_error, load_yaml, read_text
+from .files import MAX_BYTES, check_regular, excerpt, file_error, load_yaml, read_text
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
-from .orthority import read_orthority_crs, read_orthority_exterior, read_orthority_interior
+from .opensfm import is_reconstruction, read_opensfm_cameras, read_opensfm_shots
+from .orthority import read_orthority_exterior_crs, read_orthority_geojson, read_orthority_interior
 from .results import read_json
+
+
+def _table(path: pathlib.Path, data=None, crs=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
+    """``({stem: orientation}, crs)`` of a file holding a table of orientations: an
+    OpenSfM/ODM ``reconstruction.json`` (its parsed JSON ``data``), an orthority
+    GeoJSON or an orthority exterior CSV (any column layout); ``crs``: the
+    projected CRS wanted of the formats whose positions are geographic or
+    topocentric (reconstruction, latitude/longitude CSV), default their UTM zone."""
+    if data is not None:  # JSON already parsed: a reconstruction
+        table, crs, _ = read_opensfm_shots(path, crs)
+        return table, crs
+    if path.suffix.lower() == ".geojson":
+        return read_orthority_geojson(path)
+    return read_orthority_exterior_crs(path, crs)
 
 
 def _is_orthority_interior(path: pathlib.Path) -> bool:
@@ -37,6 +56,16 @@ def _is_orthority_interior(path: pathlib.Path) -> bool:
         return False
     # orthority's single-camera form has "type" at the top; a photax camera file never does.
     return "type" in data or all(isinstance(v, dict) and "type" in v for v in data.values())
+
+
+def _is_reconstruction_file(path: pathlib.Path) -> bool:
+    """An OpenSfM ``reconstruction.json`` given as a camera file: a JSON list, or a
+    ``.json`` too large for a camera file (then read, and checked, as a reconstruction)."""
+    if path.suffix.lower() != ".json":
+        return False
+    if check_regular(path, "camera file").st_size > MAX_BYTES["camera file"]:
+        return True
+    return is_reconstruction(read_json(path))
 
 
 def read_interior(path, name: str | None = None) -> FrameCamera:
@@ -52,9 +81,12 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
             missing or unknown for a multi-camera file (listing the names).
     """
     path = pathlib.Path(path)
-    if not _is_orthority_interior(path):
+    if _is_reconstruction_file(path):
+        cameras = read_opensfm_cameras(path)
+    elif not _is_orthority_interior(path):
         return read_camera(path)
-    cameras = read_orthority_interior(path)
+    else:
+        cameras = read_orthority_interior(path)
     if name is None and len(cameras) == 1:
         return next(iter(cameras.values()))
     if name not in cameras:
@@ -88,7 +120,7 @@ def _pick_image(path, images, image) -> dict:
     return entry
 
 
-def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
+def read_exterior(path, image, crs=None) -> tuple[ExteriorOrientation, str | None]:
     """``(ExteriorOrientation, crs or None)`` of ``image`` from a JSON or CSV file.
 
     A ``photax resect --json`` file (``.json``) holds ``images`` keyed by
@@ -96,28 +128,34 @@ def read_exterior(path, image) -> tuple[ExteriorOrientation, str | None]:
     the angle convention beside it: with one image it is used whatever its
     name; with several, the one named like ``image`` (file name or stem); an
     image that was not solved, or any image of an adjustment that did not
-    converge, is refused.  Any other file is read as an orthority exterior
-    CSV and ``image``'s stem looked up in it.
+    converge, is refused.  A ``reconstruction.json`` (a JSON list), a
+    ``.geojson`` and any other file (an orthority exterior CSV) are read as
+    tables of orientations and ``image``'s stem looked up in them.
 
     Args:
         path: the orientation file.
         image: the image's path or name.
+        crs: the projected CRS (EPSG code, WKT, PROJ string; of a compound
+            CRS its horizontal part) into which a reconstruction's or a
+            latitude/longitude CSV's positions are converted (e.g. the DEM's);
+            default their UTM zone.  Other formats name their own CRS.
 
     Raises:
         ValueError: naming the file: malformed, no (solved) orientation for
             ``image``, or several candidates.
     """
     path = pathlib.Path(path)
-    if path.suffix.lower() == ".json":
-        return exterior_from_result(path, read_json(path), image)
-    table = read_orthority_exterior(path)
+    data = read_json(path) if path.suffix.lower() == ".json" else None
+    if data is not None and not is_reconstruction(data):
+        return exterior_from_result(path, data, image)
+    table, crs = _table(path, data, crs)
     stem = pathlib.Path(image).stem
     if stem not in table:
         raise ValueError(f"{path}: no orientation for image {stem!r}")
-    return table[stem], read_orthority_crs(path)
+    return table[stem], crs
 
 
-def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
+def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
     """``({name: ExteriorOrientation}, crs or None)`` from one orientation file, parsed once.
 
     Args:
@@ -127,14 +165,15 @@ def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], st
             :func:`read_exterior` finds one; keys are the names as given, in
             their order.  ``None``: every image of the file, keyed by its
             name's stem.
+        crs: as :func:`read_exterior`'s.
 
     Raises:
         ValueError: naming the file: malformed, no images, or no (solved)
             orientation for one of ``names``.
     """
     path = pathlib.Path(path)
-    if path.suffix.lower() == ".json":
-        data = read_json(path)
+    data = read_json(path) if path.suffix.lower() == ".json" else None
+    if data is not None and not is_reconstruction(data):
         if names is None:
             images = data.get("images") if isinstance(data, dict) else None
             if not isinstance(images, (list, dict)) or not images:
@@ -149,7 +188,7 @@ def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], st
         else:
             table = {n: exterior_from_result(path, data, n)[0] for n in names}
         return table, data.get("crs") if isinstance(data, dict) else None
-    rows, crs = read_orthority_exterior(path), read_orthority_crs(path)
+    rows, crs = _table(path, data, crs)
     if names is None:
         if not rows:
             raise ValueError(f"{path}: no image orientations")
@@ -163,16 +202,16 @@ def read_exteriors(path, names=None) -> tuple[dict[str, ExteriorOrientation], st
     return table, crs
 
 
-def block_images(path, folder) -> tuple[list[pathlib.Path], list[ExteriorOrientation], str | None]:
+def block_images(path, folder, crs=None) -> tuple[list[pathlib.Path], list[ExteriorOrientation], str | None]:
     """``(image files, exterior orientations, crs or None)`` of a block: every
     orientation of ``path`` (:func:`read_exteriors`) with the file of
-    ``folder`` of the same stem.
+    ``folder`` of the same stem; ``crs`` as :func:`read_exterior`'s.
 
     Raises:
         ValueError: naming the file: no orientations, or an image missing
             from ``folder``.
     """
-    table, crs = read_exteriors(path)
+    table, crs = read_exteriors(path, crs=crs)
     files = {p.stem: p for p in sorted(pathlib.Path(folder).iterdir()) if p.is_file()}
     missing = [n for n in table if n not in files]
     if missing:
@@ -209,6 +248,33 @@ def exterior_from_result(path, data, image) -> tuple[ExteriorOrientation, str | 
 
 def read_camera_unit(path) -> str | None:
     """The length unit of a photax camera file: its ``unit:`` (``"mm"``, ``"m"``,
-    ``"px"``), ``"px"`` for the ``focal_length_px`` shorthand, None if not given."""
-    data = _load_camera_mapping(pathlib.Path(path))
+    ``"px"``), ``"px"`` for the ``focal_length_px`` shorthand and for an
+    OpenSfM/ODM ``reconstruction.json`` (read in pixels); None if not given, as
+    for an orthority interior file (its focal length and sensor size share a
+    unit it does not name: :func:`camera_in_pixels`)."""
+    path = pathlib.Path(path)
+    if _is_reconstruction_file(path):
+        return "px"
+    if _is_orthority_interior(path):
+        return None
+    data = _load_camera_mapping(path)
     return "px" if "focal_length_px" in data else data.get("unit")
+
+
+def camera_in_pixels(camera: FrameCamera) -> FrameCamera:
+    """``camera`` with the pixel as its length unit (focal length, principal point
+    divided by the pixel size): the same geometry, for a file that must name its
+    unit (a block) when the source names none (orthority's interior files).
+
+    Raises:
+        ValueError: no pixel grid, non-square pixels, or a scanned camera.
+    """
+    scanned = getattr(camera, "transform", None) is not None
+    if camera.pixel_size is None or camera.image_size is None or scanned:
+        raise ValueError("the camera has no pixel grid (or is a scan): give a photax camera file with a unit")
+    sx, sy = (float(v) for v in np.asarray(camera.pixel_size))
+    if not np.isclose(sx, sy, rtol=1e-12, atol=0):
+        raise ValueError(f"the camera's pixels are not square ({sx:g} x {sy:g}): a block camera in pixels "
+                         "needs square pixels; give a photax camera file with unit mm or m")
+    return FrameCamera(camera.focal_length / sx, camera.principal_point / sx, camera.distortion,
+                       pixel_size=1.0, image_size=camera.image_size)

@@ -30,19 +30,29 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from .files import Mapping, as_numbers, excerpt, file_error, load_yaml, read_text, split_lines, where
+from .files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, split_lines, where
+
+_OPENCV_EXTRA = ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
 
 
 def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCamera:
     # Messages point at the key's line, or at the camera's for a missing key.
     at = lambda key: where(path, p.line(key) if isinstance(p, Mapping) and key in p else line)  # noqa: E731
     kind = p.get("type")
-    if not isinstance(kind, str) or kind.lower() != "pinhole":
+    kind = kind.lower() if isinstance(kind, str) else kind
+    if kind not in ("pinhole", "brown", "opencv"):
         raise ValueError(
             f"{at('type')}: camera {excerpt(name)} has type {excerpt(kind)}; "
-            "photax reads orthority 'pinhole' "
-            "cameras only (brown/opencv/fisheye distortion models are not converted)"
+            "photax reads orthority 'pinhole', 'brown' and 'opencv' "
+            "cameras only (the fisheye model has no photax camera)"
         )
+    if kind == "opencv":  # photax's distortion is OpenCV's 5-term model: the others must be zero
+        values = {k: as_numbers(p[k]) for k in _OPENCV_EXTRA if k in p}
+        extra = [k for k, v in values.items() if v is None or v.shape != () or float(v) != 0.0]
+        if extra:
+            raise ValueError(f"{at(extra[0])}: camera {excerpt(name)}: the opencv parameters {extra} are not "
+                             "zero; photax's camera has k1, k2, k3, p1, p2 only (rational, thin-prism and "
+                             "tilt terms are not converted)")
 
     def numbers(key, n, default=None, scalar_ok=False):
         if key not in p:
@@ -91,7 +101,10 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
         raise ValueError(f"{at('focal_len')}: camera {excerpt(name)}: "
                          "focal_len, sensor_size, cx, cy give a camera "
                          f"out of range (f = {f:g}, pixel size = {size.tolist()})")
-    return FrameCamera(f, principal_point, pixel_size=size, image_size=(w, h))
+    dist = [float(numbers(k, 1, 0.0, scalar_ok=True)) if kind != "pinhole" else 0.0
+            for k in ("k1", "k2", "k3", "p1", "p2")]
+    dist[3] = 0.0 - dist[3]  # OpenCV's p1 is for y down; photax's image plane has y up (photax.camera)
+    return FrameCamera(f, principal_point, dist, pixel_size=size, image_size=(w, h))
 
 
 def read_orthority_interior(path) -> dict[str, FrameCamera]:
@@ -113,6 +126,7 @@ def read_orthority_interior(path) -> dict[str, FrameCamera]:
 
 
 _COLUMNS = ["filename", "x", "y", "z", "omega", "phi", "kappa"]
+_LLA_RPY = ["filename", "latitude", "longitude", "altitude", "roll", "pitch", "yaw"]
 
 
 def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation]:
@@ -120,13 +134,36 @@ def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation
 
     Columns ``filename, x, y, z, omega, phi, kappa`` (with or without that
     header line; comma, tab, semicolon or space separated; an optional
-    ``camera`` column is ignored).  Positions are in the CRS of the ``.prj``
-    beside the file (see :func:`read_orthority_crs`); angles are degrees in
-    orthority's omega-phi-kappa, which is photax's ``"omega-phi-kappa"``
-    convention unchanged (module docstring).  Keys are file names without
-    extension, as orthority matches them.
+    ``camera`` column is ignored), or, with a header,
+    ``filename, latitude, longitude, altitude, roll, pitch, yaw`` (a drone's
+    GNSS and attitude: see :func:`read_orthority_exterior_crs`, which also
+    gives the CRS).  Positions are in the CRS of the ``.prj`` beside the file
+    (see :func:`read_orthority_crs`); angles are degrees in orthority's
+    omega-phi-kappa, which is photax's ``"omega-phi-kappa"`` convention
+    unchanged (module docstring).  Keys are file names without extension, as
+    orthority matches them.
     """
-    path = pathlib.Path(csv_path)
+    table, _ = _read_csv(pathlib.Path(csv_path))
+    if prj is not None and not pathlib.Path(prj).is_file():
+        raise FileNotFoundError(f"no such .prj file: {prj}")
+    return table
+
+
+def read_orthority_exterior_crs(csv_path, crs=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
+    """:func:`read_orthority_exterior` with the CRS of its positions: the ``.prj``
+    beside an ``x y z omega phi kappa`` file (None without one); for a
+    ``latitude longitude altitude roll pitch yaw`` file the WGS84 UTM zone of
+    the mean position, into which positions are projected and roll, pitch,
+    yaw (degrees; body x forward, y right, z down, the camera's x along the
+    body's y: the usual drone geometry) turned into omega, phi, kappa at each
+    camera with the meridian convergence, as orthority (and Pix4D) do, or
+    into ``crs`` (a projected CRS) when given; ``crs`` is not used for an
+    ``x y z`` file, whose CRS is its ``.prj``'s.  Heights stay as given
+    (ellipsoidal for GNSS)."""
+    return _read_csv(pathlib.Path(csv_path), crs)
+
+
+def _read_csv(path: pathlib.Path, crs=None):
     text = read_text(path, "orthority exterior file")
     lines = [(i + 1, ln) for i, ln in enumerate(split_lines(text)) if ln.strip() and not ln.startswith("#")]
     if not lines:
@@ -138,44 +175,125 @@ def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation
     rows = []
     for n, ln in lines:
         try:
-            rows.extend((n, [c.strip() for c in row]) for row in csv.reader([ln], dialect))
+            rows.extend((n, [c.strip().strip("'") for c in row if c.strip()] if dialect.delimiter == " "
+                         else [c.strip().strip("'") for c in row]) for row in csv.reader([ln], dialect))
         except csv.Error as exc:
             raise file_error(path, n, f"not a CSV line ({exc})") from None
     if not rows:
         raise file_error(path, None, "no exterior orientations")
     header = [c.lower() for c in rows[0][1]]
+    columns = _COLUMNS
     if "filename" in header:
         rows = rows[1:]
-        missing = [c for c in _COLUMNS if c not in header]
+        if all(c in header for c in _LLA_RPY[1:]) and not all(c in header for c in _COLUMNS):
+            columns = _LLA_RPY
+        missing = [c for c in columns if c not in header]
         if missing:
-            raise ValueError(f"{path}, line {lines[0][0]}: header lacks the columns {missing}")
-        index = [header.index(c) for c in _COLUMNS]
+            raise ValueError(f"{path}, line {lines[0][0]}: header lacks the columns {missing} (photax reads "
+                             "x, y, z, omega, phi, kappa or latitude, longitude, altitude, roll, pitch, yaw)")
+        index = [header.index(c) for c in columns]
     else:
         index = list(range(7))
-    out: dict[str, ExteriorOrientation] = {}
+    names, values, at = [], [], []
     for k, (n, row) in enumerate(rows):
         try:
             name, *vals = (row[i] for i in index)
-            x, y, z, omega, phi, kappa = (float(v) for v in vals)
+            vals = [float(v) for v in vals]
         except (IndexError, ValueError):
             if k == 0 and "filename" not in header:  # some other file: none of it quoted
                 raise file_error(path, n, "not an orthority exterior file (a CSV with a header filename, x, "
                                  "y, z, omega, phi, kappa, or rows of those 7 values, expected)") from None
             got = excerpt(row, 80)
-            raise ValueError(f"{path}, line {n}: expected {', '.join(_COLUMNS)}, got {got}") from None
-        if not all(math.isfinite(v) for v in (x, y, z, omega, phi, kappa)):
+            raise ValueError(f"{path}, line {n}: expected {', '.join(columns)}, got {got}") from None
+        if not all(math.isfinite(v) for v in vals):
             raise ValueError(f"{path}, line {n}: non-finite value in {excerpt(row, 80)}")
+        if columns is _LLA_RPY and not (abs(vals[0]) <= 90 and abs(vals[1]) <= 360 and abs(vals[2]) < 1e7):
+            raise ValueError(f"{path}, line {n}: latitude, longitude or altitude out of range")
         key = pathlib.PurePath(name).stem
         if not key:
             raise file_error(path, n, f"empty file name in {row}")
-        if key in out:
+        if key in names:
             raise ValueError(f"{path}, line {n}: duplicate file name {excerpt(key)}")
-        out[key] = ExteriorOrientation((x, y, z), np.radians([omega, phi, kappa]), "omega-phi-kappa")
+        names.append(key)
+        values.append(vals)
+        at.append(n)
+    if not names:
+        raise file_error(path, None, "no exterior orientations")
+    values = np.asarray(values, dtype=float)
+    if columns is _COLUMNS:
+        return {k: ExteriorOrientation(v[:3], np.radians(v[3:]), "omega-phi-kappa")
+                for k, v in zip(names, values)}, read_orthority_crs(path)
+    from ._geo import projected_crs, utm_crs
+
+    lat, lon = values[:, 0], values[:, 1]
+    target = projected_crs(crs) if crs is not None else utm_crs(lat.mean(), lon.mean())
+    try:
+        xyz, opk = lla_rpy_to_xyz_opk(values[:, :3], np.radians(values[:, 3:]), target)
+    except ValueError as exc:
+        raise file_error(path, None, str(exc)) from None
+    return {k: ExteriorOrientation(p, a, "omega-phi-kappa") for k, p, a in zip(names, xyz, opk)}, \
+        target.to_string()
+
+
+#: Rotation from the camera frame (x right, y up, z back) to a drone's body frame
+#: (x forward, y right, z down) of a camera looking down with its top to the front
+#: (orthority's and Pix4D's default ``C_bB``).
+BODY_FROM_CAMERA = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+def lla_rpy_to_xyz_opk(lla, rpy, crs, body_from_camera=BODY_FROM_CAMERA) -> tuple[np.ndarray, np.ndarray]:
+    """WGS84 ``(lat, lon, h)`` (degrees, ``(n, 3)``) and roll, pitch, yaw (radians,
+    ``(n, 3)``: body -> north-east-down, ``R = Rz(yaw) Ry(pitch) Rx(roll)``) ->
+    positions in the projected ``crs`` and omega, phi, kappa (radians, photax's
+    ``"omega-phi-kappa"`` world_from_camera) there, the Pix4D way orthority
+    follows: ``world_from_camera = grid_from_ned C_nb C_bB``, ``grid_from_ned``
+    from grid north at the camera (meridian convergence) and the vertical.
+    """
+    from ..rotation import angles_from_matrix, rotation_matrix
+    from ._geo import grid_from_enu, project_lla
+
+    lla, rpy = np.asarray(lla, dtype=float), np.asarray(rpy, dtype=float)
+    xyz = project_lla(lla[:, 0], lla[:, 1], lla[:, 2], crs)
+    r, p, y = rpy[:, 0], rpy[:, 1], rpy[:, 2]
+    # Rz(yaw) Ry(pitch) Rx(roll) is photax's "omega-phi-kappa" matrix Rx Ry Rz transposed with negated angles.
+    c_nb = np.swapaxes(np.asarray(rotation_matrix(np.stack([-r, -p, -y], -1), "omega-phi-kappa")), -1, -2)
+    enu_from_ned = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    grid = grid_from_enu(lla[:, 0], lla[:, 1], crs, delta=1e-7) @ enu_from_ned
+    opk = np.asarray(angles_from_matrix(grid @ c_nb @ np.asarray(body_from_camera), "omega-phi-kappa"))
+    return xyz, opk
+
+
+def read_orthority_geojson(path) -> tuple[dict[str, ExteriorOrientation], str]:
+    """orthority's exterior GeoJSON (``--export-params``): ``({file stem:
+    ExteriorOrientation}, crs)``; each feature's ``properties`` hold
+    ``filename``, ``xyz`` (in ``world_crs``) and ``opk`` (radians, orthority's
+    omega-phi-kappa = photax's); the point geometry (lon, lat) is not used."""
+    path = pathlib.Path(path)
+    data = load_json(path, read_text(path, "orthority exterior file"))
+    if not isinstance(data, dict) or data.get("type") != "FeatureCollection" \
+            or not isinstance(data.get("features"), list):
+        raise file_error(path, None, "not an orthority exterior GeoJSON (a FeatureCollection with "
+                         "'world_crs' and features of filename, xyz, opk expected)")
+    crs = data.get("world_crs")
+    if not isinstance(crs, str) or not crs.strip():
+        raise file_error(path, None, "'world_crs' must be the CRS of the positions (WKT, EPSG or PROJ text)")
+    out: dict[str, ExteriorOrientation] = {}
+    for k, feature in enumerate(data["features"]):
+        props = feature.get("properties") if isinstance(feature, dict) else None
+        name = props.get("filename") if isinstance(props, dict) else None
+        xyz = as_numbers(props.get("xyz")) if isinstance(props, dict) else None
+        opk = as_numbers(props.get("opk")) if isinstance(props, dict) else None
+        if not isinstance(name, str) or xyz is None or opk is None or xyz.shape != (3,) or opk.shape != (3,) \
+                or not np.all(np.isfinite(xyz) & np.isfinite(opk)):
+            raise file_error(path, None, f"feature {k}: properties need a filename, and xyz and opk of 3 "
+                             "finite numbers each")
+        key = pathlib.PurePath(name).stem
+        if not key or key in out:
+            raise file_error(path, None, f"feature {k}: an empty or repeated filename {excerpt(name)}")
+        out[key] = ExteriorOrientation(xyz, opk, "omega-phi-kappa")
     if not out:
         raise file_error(path, None, "no exterior orientations")
-    if prj is not None and not pathlib.Path(prj).is_file():
-        raise FileNotFoundError(f"no such .prj file: {prj}")
-    return out
+    return out, crs
 
 
 def read_orthority_crs(csv_path, prj=None) -> str | None:
