@@ -21,7 +21,7 @@ from ..io.atomic import interrupted
 
 # Subcommand modules, in the order ``photax --help`` lists them.
 SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "mosaic", "compare", "bundle", "measure", "fiducials", "epipolar",
-               "transfer", "ties", "register"]
+               "transfer", "ties", "register", "sharpen"]
 
 
 def build_parser() -> argparse.ArgumentParser:
