@@ -1,6 +1,6 @@
 """photax's public names: the one list (read by photax._lazy at import time, and by type checkers)."""
 
-from . import measure as measure
+from . import fusion as fusion, measure as measure
 from .bundle import (
     BundleProblem as BundleProblem,
     BundleResult as BundleResult,
@@ -18,6 +18,7 @@ from .collinearity import (
 from .compare import ModelComparison as ModelComparison, compare_models as compare_models
 from .dem import DEM as DEM
 from .errors import RESULTS as RESULTS, ConvergenceError as ConvergenceError
+from .fusion import pansharpen as pansharpen
 from .grid import Grid as Grid
 from .interior import (
     InteriorOrientation as InteriorOrientation,
