@@ -178,7 +178,7 @@ def degrade(image, ratio: int, nyquist_gain: float = 0.3):
     """``(bands, rows, cols)`` reduced by the integer ``ratio``: a Gaussian matched to an MTF of gain
     ``nyquist_gain`` at the reduced grid's Nyquist frequency, then sampled (bilinear) at the centres of the
     ``ratio x ratio`` blocks: ``(bands, rows // ratio, cols // ratio)`` float32."""
-    from ..resampling import resample
+    from ..resampling import resample_grid
     from ._sharpen import _gaussian, mtf_sigma
 
     a = np.asarray(image, dtype=np.float32)
@@ -191,8 +191,7 @@ def degrade(image, ratio: int, nyquist_gain: float = 0.3):
     s = mtf_sigma(ratio, nyquist_gain)
     low = np.stack([_gaussian(b, s) for b in a])
     centre = (ratio - 1) / 2
-    rows, cols = np.mgrid[0:h, 0:w].astype(np.float64) * ratio + centre
-    return np.asarray(resample(low, cols, rows, "bilinear"))
+    return resample_grid(low, np.arange(w) * ratio + centre, np.arange(h) * ratio + centre, "bilinear")
 
 
 def wald_protocol(pan, ms, method: str = "gs", *, nyquist_gain=0.3, block: int = BLOCK, **kwargs) -> dict:

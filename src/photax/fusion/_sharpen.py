@@ -164,7 +164,7 @@ def pansharpen(
             (it would return the PAN rescaled), its pixels are not larger than the PAN's, too few pixels
             are valid in both to estimate the statistics, or a bad argument.
     """
-    from ..resampling import Resampling, resample
+    from ..resampling import Resampling
 
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -237,10 +237,10 @@ def pansharpen(
         raise ValueError("the PAN is constant where both images are valid: no detail to inject")
 
     # --- the MS on the PAN grid with photax's kernel
-    m_up = np.asarray(resample(m, cols, rows, resampling))
+    m_up = _sample(m, cols, rows, resampling)
     valid = covered & pan_ok[r0:r1, c0:c1]
     if not ms_ok.all():  # a PAN pixel is valid where the four nearest MS pixels are
-        valid &= np.asarray(resample(ms_ok.astype(np.float32)[None], cols, rows, "bilinear"))[0] > 1 - 1e-6
+        valid &= _sample(ms_ok.astype(np.float32)[None], cols, rows, "bilinear")[0] > 1 - 1e-6
     pc = p[r0:r1, c0:c1]
 
     def matched(x, mu, s):  # the PAN (or its low-pass) with the mean and std of a target
@@ -301,7 +301,7 @@ def pansharpen(
             for s in sigmas:
                 if s not in cache:
                     dec = _at_ms(_gaussian(p, s), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape, ms.shape)
-                    cache[s] = np.asarray(resample(dec[None], cols, rows, resampling))[0]
+                    cache[s] = _sample(dec[None], cols, rows, resampling)[0]
             lows = [cache[s] for s in sigmas]
         for k in range(bands):
             if method in ("hpf", "mtf_glp"):
@@ -317,6 +317,17 @@ def pansharpen(
                      float(ratio), clipped)
 
 
+def _sample(image, cols, rows, resampling):
+    """``(B, h, w)`` ``image`` at the positions ``(cols, rows)`` (each ``(H, W)``) with photax's kernel: on a
+    separable lattice (axis-aligned grids, the usual case) by :func:`photax.resampling.resample_grid`, which
+    traces and compiles nothing, else by :func:`photax.resample`."""
+    from ..resampling import resample, resample_grid
+
+    if np.abs(cols - cols[:1]).max() <= 1e-9 and np.abs(rows - rows[:, :1]).max() <= 1e-9:
+        return resample_grid(image, cols[0], rows[:, 0], resampling)
+    return np.asarray(resample(image, cols, rows, resampling))
+
+
 def _valid(a, nodata):
     ok = np.isfinite(a) if np.issubdtype(a.dtype, np.floating) else np.ones(a.shape, bool)
     if nodata is not None and not np.isnan(nodata):
@@ -326,10 +337,8 @@ def _valid(a, nodata):
 
 def _at_ms(image, pan_transform, pan_crs, ms_transform, ms_crs, pan_shape, ms_shape):
     """A PAN-grid ``image`` sampled (bilinear) at the MS pixel centres; outside the PAN: its mean."""
-    from ..resampling import resample
-
     cols, rows = _geometry.positions(ms_shape[1:], ms_transform, ms_crs, pan_shape, pan_transform, pan_crs)
-    out = np.asarray(resample(image.astype(np.float32), cols, rows, "bilinear"))
+    out = _sample(image.astype(np.float32)[None], cols, rows, "bilinear")[0]
     return np.where(np.isfinite(out), out, np.float32(image.mean()))
 
 
