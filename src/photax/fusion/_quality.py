@@ -178,7 +178,7 @@ def degrade(image, ratio: int, nyquist_gain: float = 0.3):
     """``(bands, rows, cols)`` reduced by the integer ``ratio``: a Gaussian matched to an MTF of gain
     ``nyquist_gain`` at the reduced grid's Nyquist frequency, then sampled (bilinear) at the centres of the
     ``ratio x ratio`` blocks: ``(bands, rows // ratio, cols // ratio)`` float32."""
-    from ..resampling import resample_grid
+    from ..kernels import resample_grid
     from ._sharpen import _gaussian, mtf_sigma
 
     a = np.asarray(image, dtype=np.float32)

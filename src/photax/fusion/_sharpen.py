@@ -164,7 +164,7 @@ def pansharpen(
             (it would return the PAN rescaled), its pixels are not larger than the PAN's, too few pixels
             are valid in both to estimate the statistics, or a bad argument.
     """
-    from ..resampling import Resampling
+    from ..kernels import Resampling
 
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -319,12 +319,14 @@ def pansharpen(
 
 def _sample(image, cols, rows, resampling):
     """``(B, h, w)`` ``image`` at the positions ``(cols, rows)`` (each ``(H, W)``) with photax's kernel: on a
-    separable lattice (axis-aligned grids, the usual case) by :func:`photax.resampling.resample_grid`, which
+    separable lattice (axis-aligned grids, the usual case) by :func:`photax.kernels.resample_grid`, which
     traces and compiles nothing, else by :func:`photax.resample`."""
-    from ..resampling import resample, resample_grid
+    from ..kernels import resample_grid
 
     if np.abs(cols - cols[:1]).max() <= 1e-9 and np.abs(rows - rows[:, :1]).max() <= 1e-9:
         return resample_grid(image, cols[0], rows[:, 0], resampling)
+    from ..resampling import resample  # JAX: imported only for grids that are not axis-aligned
+
     return np.asarray(resample(image, cols, rows, resampling))
 
 

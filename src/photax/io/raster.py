@@ -17,7 +17,6 @@ import warnings
 
 import numpy as np
 
-from ..dem import DEM
 from .atomic import atomic_path
 
 _WARNINGS_LOCK = threading.Lock()
@@ -85,7 +84,7 @@ def _damaged(path):
         raise ValueError(f"{path}: a damaged raster, GDAL cannot read it ({' '.join(str(exc).split())})") from None
 
 
-def read_dem(path, band: int = 1) -> DEM:
+def read_dem(path, band: int = 1) -> "DEM":  # noqa: F821
     """Read a DEM raster as a :class:`photax.DEM` (nodata cells -> NaN).
 
     The CRS is kept as WKT text.  Only heights and the georeference are
@@ -100,6 +99,8 @@ def read_dem(path, band: int = 1) -> DEM:
         transform = tuple(src.transform)[:6]
     if nodata is not None and not np.isnan(nodata):
         heights[heights == nodata] = np.nan
+    from ..dem import DEM  # JAX: not for the commands that only read rasters (photax sharpen)
+
     try:
         return DEM(heights, transform, crs)
     except ValueError as exc:  # e.g. a singular georeference
