@@ -54,8 +54,10 @@ from .mosaicking import mosaic as mosaic
 from .polynomial import (
     PolynomialModel as PolynomialModel,
     ProjectiveModel as ProjectiveModel,
+    TPSModel as TPSModel,
     fit_polynomial as fit_polynomial,
     fit_projective as fit_projective,
+    fit_tps as fit_tps,
 )
 from .rectification import (
     orthorectify as orthorectify,
