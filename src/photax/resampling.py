@@ -74,7 +74,6 @@ from .kernels import (  # noqa: F401  (re-exported: the kernel layer's names, wh
     resample_grid,
 )
 
-
 # BSPLINE_PAD, THREADS, bspline_coefficients, gather_source, compute_dtype and interpolate are the kernel
 # layer photax.rectification (and uncertainty's thread pool) build on: public names, not in photax.__all__.
 _CHUNK = 4096  # output samples per lax.map step (measured best of 4096 / 65536)

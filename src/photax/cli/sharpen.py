@@ -81,8 +81,8 @@ def run(args) -> int:
         pan_t is None or (pan_crs == ms_crs and (pan_t * pan_t.scale(ratio)).almost_equals(ms_t)))
     if args.assess and not same_bounds:
         raise ValueError("--assess needs PAN and MS covering the same bounds with an integer pixel-size ratio")
-    opts = dict(weights=weights, resampling=args.resampling, nyquist_gain=gain,
-                pan_nodata=pan_profile.get("nodata"), ms_nodata=ms_profile.get("nodata"))
+    opts = {"weights": weights, "resampling": args.resampling, "nyquist_gain": gain,
+            "pan_nodata": pan_profile.get("nodata"), "ms_nodata": ms_profile.get("nodata")}
     out = pansharpen(pan, ms, args.method, pan_transform=pan_t, ms_transform=ms_t, pan_crs=pan_crs, ms_crs=ms_crs,
                      **opts)
     write_geotiff(args.out, out.image, out.transform, crs=pan_crs, nodata=out.nodata, inputs=inputs)
@@ -93,7 +93,7 @@ def run(args) -> int:
           f"ratio {out.ratio:.3g}{w}{note})")
     if args.assess:
         opts.pop("pan_nodata"), opts.pop("ms_nodata")
-        r = int(round(ratio))
+        r = round(ratio)
         wald = wald_protocol(pan, ms, args.method, **opts)
         full = qnr(out.image.astype(np.float64), ms.astype(np.float64), pan, r)
         exp = assess(wald["ms_low"].repeat(r, 1).repeat(r, 2), wald["reference"], r)  # no sharpening at all

@@ -209,7 +209,7 @@ def wald_protocol(pan, ms, method: str = "gs", *, nyquist_gain=0.3, block: int =
     pan = pan[0] if pan.ndim == 3 else pan
     ms = np.asarray(ms)
     rh, rw = pan.shape[0] / ms.shape[1], pan.shape[1] / ms.shape[2]
-    ratio = int(round(rh))
+    ratio = round(rh)
     if abs(rh - ratio) > 1e-9 or abs(rw - ratio) > 1e-9 or ratio < 2:
         raise ValueError(f"Wald's protocol needs an integer PAN/MS size ratio >= 2, got {rh:g} x {rw:g}")
     h, w = ms.shape[1] // ratio * ratio, ms.shape[2] // ratio * ratio

@@ -325,7 +325,9 @@ def _sample(image, cols, rows, resampling):
 
     if np.abs(cols - cols[:1]).max() <= 1e-9 and np.abs(rows - rows[:, :1]).max() <= 1e-9:
         return resample_grid(image, cols[0], rows[:, 0], resampling)
-    from ..resampling import resample  # JAX: imported only for grids that are not axis-aligned
+    from ..resampling import (
+        resample,  # JAX: imported only for grids that are not axis-aligned
+    )
 
     return np.asarray(resample(image, cols, rows, resampling))
 

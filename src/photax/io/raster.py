@@ -14,10 +14,14 @@ import os
 import pathlib
 import threading
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .atomic import atomic_path
+
+if TYPE_CHECKING:
+    from ..dem import DEM
 
 _WARNINGS_LOCK = threading.Lock()
 
@@ -84,7 +88,7 @@ def _damaged(path):
         raise ValueError(f"{path}: a damaged raster, GDAL cannot read it ({' '.join(str(exc).split())})") from None
 
 
-def read_dem(path, band: int = 1) -> "DEM":  # noqa: F821
+def read_dem(path, band: int = 1) -> DEM:
     """Read a DEM raster as a :class:`photax.DEM` (nodata cells -> NaN).
 
     The CRS is kept as WKT text.  Only heights and the georeference are
@@ -99,7 +103,8 @@ def read_dem(path, band: int = 1) -> "DEM":  # noqa: F821
         transform = tuple(src.transform)[:6]
     if nodata is not None and not np.isnan(nodata):
         heights[heights == nodata] = np.nan
-    from ..dem import DEM  # JAX: not for the commands that only read rasters (photax sharpen)
+    # Imported here: DEM brings JAX, which the commands that only read rasters never load.
+    from ..dem import DEM
 
     try:
         return DEM(heights, transform, crs)
