@@ -137,7 +137,7 @@ def resample_grid(image, cols, rows, resampling: Resampling | str = "bilinear", 
 
     The same kernels, edges, footprint and rounding as :func:`photax.resample` (equal to float rounding), for
     the positions of an axis-aligned grid (a north-up raster onto another of the same CRS): each axis is
-    one sparse matrix of the kernel's weights, so nothing is traced or compiled.
+    one gather per tap, so nothing is traced or compiled.
 
     Args:
         image: ``(..., H, W)`` grey values, any integer or float dtype.
@@ -147,8 +147,6 @@ def resample_grid(image, cols, rows, resampling: Resampling | str = "bilinear", 
     Returns:
         ``(..., H_out, W_out)`` array of ``image``'s dtype.
     """
-    from scipy import sparse
-
     method = Resampling.check(resampling, "resampling").value
     image = np.asarray(image)
     if image.ndim < 2 or min(image.shape[-2:]) < 1:
@@ -167,23 +165,24 @@ def resample_grid(image, cols, rows, resampling: Resampling | str = "bilinear", 
 
         for axis in (1, 2):
             src = ndimage.spline_filter1d(src, 3, axis=axis, mode="mirror", output=np.float64)
+        src = src.astype(compute)
     taps = Resampling(method).taps
     first = 0 if method == "nearest" else taps // 2 - 1
 
     def axis(x, n):
+        """The first tap's index in the padded axis, the taps' weights and the footprint test."""
         x = np.asarray(x, dtype=np.float64).ravel()
         valid = (x >= -0.5) & (x <= n - 0.5)
         x0 = np.where(valid, np.floor(x + 0.5) if method == "nearest" else np.floor(x), 0)
-        wts = [np.asarray(v, dtype=np.float64) for v in kernel_weights(method, (x - x0).astype(compute), a)]
+        wts = [np.asarray(v, dtype=compute) for v in kernel_weights(method, (x - x0).astype(compute), a)]
         base = np.clip(x0.astype(np.int64), first - pad, n + pad - taps + first) + pad - first
-        ij = np.arange(x.size)
-        at = np.concatenate([base + k for k in range(taps)])
-        m = sparse.csr_matrix((np.concatenate(wts), (np.tile(ij, taps), at)), shape=(x.size, n + 2 * pad))
-        return m, valid
+        return base, wts, valid
 
-    wr, vr = axis(rows, h)
-    wc, vc = axis(cols, w)
-    out = np.stack([wr @ (wc @ b.T).T for b in src])  # (H_out, Hp) (Hp, Wp) (Wp, W_out)
+    br, wr, vr = axis(rows, h)
+    bc, wc, vc = axis(cols, w)
+    # One gather per tap and axis (columns, then rows), as resample's taps: no scipy.sparse to import.
+    tmp = sum(src[:, :, bc + k] * wc[k] for k in range(taps))  # (B, Hp, W_out)
+    out = sum(tmp[:, br + k, :] * wr[k][:, None] for k in range(taps))  # (B, H_out, W_out)
     if is_int:
         info = np.iinfo(dtype)
         out = np.clip(np.round(out), info.min, info.max)
