@@ -323,3 +323,36 @@ def test_the_command_lists_the_library_methods():
     from photax.cli import sharpen
 
     assert sharpen.METHODS == METHODS
+
+
+def test_an_ms_in_another_crs_is_sharpened_on_the_pan_grid():
+    """The truth on a Web Mercator PAN grid, the MS its average on a UTM grid of 4x larger pixels (GDAL):
+    sharpened through both CRSs (the JAX resampler: the positions are not a separable lattice), the
+    result is closer to the truth than the MS interpolated alone."""
+    from rasterio.warp import Resampling, reproject, transform_bounds
+
+    from photax.fusion._geometry import positions
+    from photax.resampling import resample
+
+    left, bottom, right, top = transform_bounds("EPSG:32633", "EPSG:3857", 500000, 4000000, 500512, 4000512)
+    pan_t = Affine(2.0, 0, left, 0, -2.0, top)
+    shape = (int((top - bottom) / 2), int((right - left) / 2))
+    truth = np.stack([100 + 20 * _texture(shape, k) + 10 * _texture(shape, 10, 1.0) for k in range(3)])
+    pan = np.tensordot([0.5, 0.3, 0.2], truth, 1)
+    ms_t = Affine(8.0, 0, 500000.0, 0, -8.0, 4000512.0)
+    ms = np.full((3, 64, 64), np.nan)
+    reproject(truth, ms, src_transform=pan_t, src_crs="EPSG:3857", dst_transform=ms_t, dst_crs="EPSG:32633",
+              resampling=Resampling.average, src_nodata=np.nan, dst_nodata=np.nan)
+    out = pansharpen(pan, ms, "gs", pan_transform=pan_t, ms_transform=ms_t, pan_crs="EPSG:3857",
+                     ms_crs="EPSG:32633")
+    r0, c0 = out.window
+    rows, cols = out.image.shape[1:]
+    inner = np.zeros((rows, cols), bool)
+    inner[8:-8, 8:-8] = True
+    ok = out.valid & inner
+    assert ok.mean() > 0.5
+    ref = truth[:, r0 : r0 + rows, c0 : c0 + cols]
+    cp, rp = positions(pan.shape, pan_t, "EPSG:3857", ms.shape[1:], ms_t, "EPSG:32633")
+    plain = np.asarray(resample(ms, cp, rp, "cubic"))[:, r0 : r0 + rows, c0 : c0 + cols]
+    assert ergas(out.image[:, ok][..., None], ref[:, ok][..., None], 4) < 0.6 * ergas(
+        plain[:, ok][..., None], ref[:, ok][..., None], 4)  # measured 0.30 against 0.67
