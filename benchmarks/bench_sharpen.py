@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import pathlib
+import resource
 import statistics
 import sys
 import tempfile
@@ -75,7 +75,8 @@ def main() -> None:
     print(f"ratio photax / oty: wall {med['photax'] / med['oty']:.2f} (target <= 1), CPU "
           f"{cpu['photax'] / cpu['oty']:.2f}, peak memory {mem['photax'] / mem['oty']:.2f}")
     record("GS pan-sharpening whole process, warm compile cache, vs oty sharpen", photax_s=med["photax"],
-           peer_s=med["oty"], ratio=med["photax"] / med["oty"], photax_cpu_s=cpu["photax"], peer_cpu_s=cpu["oty"],
+           peer_s=med["oty"], ratio=med["photax"] / med["oty"], photax_cpu_s=cpu["photax"],
+           peer_cpu_s=cpu["oty"],
            cpu_ratio=cpu["photax"] / cpu["oty"], photax_cold_s=cold,
            photax_bytes=mem["photax"], peer_bytes=mem["oty"], load=[round(v, 2) for v in os.getloadavg()])
 

@@ -163,7 +163,7 @@ def test_every_method_recovers_detail_the_interpolation_lost(method):
 
 def test_integer_output_is_the_float_result_rounded_and_clipped():
     _, pan, ms = _scene()
-    ms8 = np.round((ms - ms.min()) / np.ptp(ms) * 255).astype(np.uint8)  # the full range: sharpening overshoots
+    ms8 = np.round((ms - ms.min()) / np.ptp(ms) * 255).astype(np.uint8)  # the full range: it overshoots
     f = pansharpen(pan, ms8.astype(np.float32), "mtf_glp")
     i = pansharpen(pan, ms8, "mtf_glp")
     assert i.image.dtype == np.uint8

@@ -16,7 +16,8 @@ def _points(n=25, seed=0):
     rng = np.random.default_rng(seed)
     src = rng.uniform([500000, 4000000], [503000, 4002000], size=(n, 2))  # map metres: raw values are large
     u = (src - src.mean(0)) / 1000
-    dst = np.stack([800 + 310 * u[:, 0] + 20 * np.sin(u[:, 1] * 2), 600 - 305 * u[:, 1] + 15 * u[:, 0] ** 2], 1)
+    dst = np.stack([800 + 310 * u[:, 0] + 20 * np.sin(u[:, 1] * 2),
+                    600 - 305 * u[:, 1] + 15 * u[:, 0] ** 2], 1)
     return src, dst
 
 

@@ -578,7 +578,8 @@ class TPSModel(eqx.Module):
             raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
         one = (1,) * (p.ndim - 1)  # explicit broadcasting (photax runs with rank promotion as an error)
         u = (p - self.src_centre.reshape(one + (2,))) / self.src_scale.reshape(one + (1,))
-        d2 = jnp.sum((u[..., None, :] - self.centres.reshape(one + self.centres.shape)) ** 2, axis=-1)  # (..., n)
+        centres = self.centres.reshape(one + self.centres.shape)
+        d2 = jnp.sum((u[..., None, :] - centres) ** 2, axis=-1)  # (..., n)
         return self.affine[0].reshape(one + (2,)) + u @ self.affine[1:] + _tps_kernel(d2) @ self.weights
 
     def transform(self, x, y) -> tuple[Array, Array]:
@@ -588,7 +589,7 @@ class TPSModel(eqx.Module):
 
 
 def _tps_kernel(d2):
-    """``U = r^2 log r = d2 log(d2) / 2`` of squared distances, 0 at 0 (the double-where: finite gradients)."""
+    """``U = r^2 log r = d2 log(d2) / 2`` of squared distances, 0 at 0 (double-where: finite gradients)."""
     safe = jnp.where(d2 > 0, d2, 1.0)
     return jnp.where(d2 > 0, 0.5 * safe * jnp.log(safe), 0.0)
 
@@ -638,5 +639,6 @@ def fit_tps(src_xy, dst_xy, smoothing: float = 0.0) -> TPSModel:
         wi, ai = _tps_solve(u[keep], dst[keep], float(smoothing))
         d2 = np.sum((u[i] - u[keep]) ** 2, axis=-1)
         loo[i] = ai[0] + u[i] @ ai[1:] + np.asarray(_tps_kernel(d2)) @ wi - dst[i]
-    return dataclasses.replace(model, residuals=jnp.asarray(v), rmse=jnp.asarray(np.sqrt(np.sum(v**2) / len(v))),
+    rmse = np.sqrt(np.sum(v**2) / len(v))
+    return dataclasses.replace(model, residuals=jnp.asarray(v), rmse=jnp.asarray(rmse),
                                loo_residuals=jnp.asarray(loo))

@@ -106,8 +106,8 @@ def _cd_mult(a, b):
         return a * b
     h = n // 2
     p, q, r, s = a[..., :h], a[..., h:], b[..., :h], b[..., h:]
-    return np.concatenate([_cd_mult(p, r) - _cd_mult(_cd_conj(s), q), _cd_mult(s, p) + _cd_mult(q, _cd_conj(r))],
-                          axis=-1)
+    first = _cd_mult(p, r) - _cd_mult(_cd_conj(s), q)
+    return np.concatenate([first, _cd_mult(s, p) + _cd_mult(q, _cd_conj(r))], axis=-1)
 
 
 def q2n(fused, reference, block: int = BLOCK) -> float:
@@ -122,7 +122,8 @@ def q2n(fused, reference, block: int = BLOCK) -> float:
     cov = _cd_mult(dz, _cd_conj(dy)).mean(1)
     vz, vy = (dz * dz).sum(-1).mean(1), (dy * dy).sum(-1).mean(1)
     amz, amy = np.sqrt((mz * mz).sum(-1)), np.sqrt((my * my).sum(-1))
-    mean_term = np.where(amz**2 + amy**2 > 0, 2 * amz * amy / np.where(amz**2 + amy**2 > 0, amz**2 + amy**2, 1), 1.0)
+    msum = amz**2 + amy**2
+    mean_term = np.where(msum > 0, 2 * amz * amy / np.where(msum > 0, msum, 1), 1.0)
     var = vz + vy
     q = np.where(var > 0, 2 * np.sqrt((cov * cov).sum(-1)) / np.where(var > 0, var, 1), 1.0) * mean_term
     return float(q.mean())

@@ -253,11 +253,13 @@ def pansharpen(
             v = vecs[:, -1] * np.sign(vecs[:, -1].sum() or 1.0)
             inten = np.tensordot(v.astype(np.float32), m_up - mu_m[:, None, None].astype(np.float32), 1)
             gains, w_out = v, v
-            fused = m_up + gains[:, None, None].astype(np.float32) * (matched(pc, 0.0, np.sqrt(vals[-1])) - inten)
+            p_pc = matched(pc, 0.0, np.sqrt(vals[-1]))  # the PAN matched to the first component
+            fused = m_up + gains[:, None, None].astype(np.float32) * (p_pc - inten)
         else:
             if method == "gsa":
                 sig = float(np.mean([mtf_sigma(ratio, g) for g in gains_nyq]))
-                p_mtf = _at_ms(_gaussian(p, sig), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape, ms.shape)
+                p_mtf = _at_ms(_gaussian(p, sig), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape,
+                               ms.shape)
                 design = np.concatenate([m[:, lo].T, np.ones((n, 1), np.float32)], axis=1).astype(np.float64)
                 coef = np.linalg.lstsq(design, p_mtf[lo].astype(np.float64), rcond=None)[0]
                 wts, offset = coef[:-1], coef[-1]
@@ -300,7 +302,8 @@ def pansharpen(
             cache = {}
             for s in sigmas:
                 if s not in cache:
-                    dec = _at_ms(_gaussian(p, s), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape, ms.shape)
+                    dec = _at_ms(_gaussian(p, s), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape,
+                                 ms.shape)
                     cache[s] = _sample(dec[None], cols, rows, resampling)[0]
             lows = [cache[s] for s in sigmas]
         for k in range(bands):
