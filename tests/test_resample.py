@@ -342,3 +342,21 @@ def test_method_is_the_deprecated_name_of_resampling():
     np.testing.assert_array_equal(old, new)
     with pytest.raises(ValueError, match="give resampling= only"):
         resample(IMG, c, r, "nearest", method="cubic")
+
+
+@pytest.mark.parametrize("method", photax.resampling.RESAMPLING)
+@pytest.mark.parametrize("dtype", [np.float32, np.uint8])
+def test_resample_grid_is_resample_on_a_lattice(method, dtype):
+    """The separable numpy path (pan-sharpening's MS onto the PAN grid) against the JAX kernels on the
+    same positions, footprint edges and outside included: equal to float32 rounding (integers exactly,
+    but for a tie at .5 rounding either way)."""
+    from photax.resampling import resample_grid
+
+    rng = np.random.default_rng(3)
+    img = (rng.random((2, 30, 40)) * 250).astype(dtype)
+    cols, rows = np.linspace(-0.7, 39.8, 57), np.linspace(-0.5, 29.6, 23)
+    ours = resample_grid(img, cols, rows, method)
+    ref = np.asarray(resample(img, *np.meshgrid(cols, rows), method))
+    assert ours.dtype == ref.dtype and ours.shape == ref.shape
+    np.testing.assert_array_equal(np.isnan(ours.astype(float)), np.isnan(ref.astype(float)))
+    np.testing.assert_allclose(ours.astype(float), ref.astype(float), atol=1 if dtype == np.uint8 else 5e-4)  # 2e-6 of the range

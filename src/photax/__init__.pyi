@@ -1,6 +1,6 @@
 """photax's public names: the one list (read by photax._lazy at import time, and by type checkers)."""
 
-from . import measure as measure
+from . import fusion as fusion, measure as measure
 from .bundle import (
     BundleProblem as BundleProblem,
     BundleResult as BundleResult,
@@ -18,6 +18,7 @@ from .collinearity import (
 from .compare import ModelComparison as ModelComparison, compare_models as compare_models
 from .dem import DEM as DEM
 from .errors import RESULTS as RESULTS, ConvergenceError as ConvergenceError
+from .fusion import pansharpen as pansharpen
 from .grid import Grid as Grid
 from .interior import (
     InteriorOrientation as InteriorOrientation,
@@ -53,8 +54,10 @@ from .mosaicking import mosaic as mosaic
 from .polynomial import (
     PolynomialModel as PolynomialModel,
     ProjectiveModel as ProjectiveModel,
+    TPSModel as TPSModel,
     fit_polynomial as fit_polynomial,
     fit_projective as fit_projective,
+    fit_tps as fit_tps,
 )
 from .rectification import (
     orthorectify as orthorectify,

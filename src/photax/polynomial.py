@@ -1,5 +1,5 @@
-"""Plane-to-plane models fitted to control points: polynomials of order 1-5
-and the 8-parameter projective transform.
+"""Plane-to-plane models fitted to control points: polynomials of order 1-5,
+the 8-parameter projective transform and the thin-plate spline (``fit_tps``).
 
 Polynomial of order ``n`` (docs/maths.md, "Polynomial rectification")::
 
@@ -535,3 +535,111 @@ def _refine(hn: np.ndarray, ps: np.ndarray, pd: np.ndarray, w: np.ndarray) -> tu
     if code == RESULTS.nonfinite:
         return hn, code
     return np.concatenate([np.asarray(p), [fixed]]).reshape(3, 3), code
+
+
+class TPSModel(eqx.Module):
+    """A thin-plate spline ``dst = f(src)`` fitted by :func:`fit_tps`.
+
+    ``f(p) = a_0 + a_1 x + a_2 y + sum_i w_i U(|p - c_i|)``, ``U(r) = r^2 log r`` (Bookstein 1989), per
+    destination axis, on source points centred and scaled by one factor (an isotropic normalisation leaves
+    the interpolating spline unchanged: ``U(s r) = s^2 U(r) + s^2 log(s) r^2``, and the side conditions
+    ``sum w_i = 0``, ``sum w_i c_i = 0`` turn the ``r^2`` term into a constant).  ``model(xy)``: ``(..., 2)``
+    source -> ``(..., 2)`` destination points, jax-traceable (a :func:`photax.rectify` model); its cost
+    grows with the number of control points per evaluated point.
+
+    Attributes:
+        centres: ``(n, 2)`` normalised control points ``c_i``.
+        weights: ``(n, 2)`` spline weights ``w_i`` (columns X, Y).
+        affine: ``(3, 2)`` ``a_0, a_1, a_2``.
+        src_centre: ``(2,)``; src_scale: ``()`` the normalisation.
+        smoothing: ``lambda`` added to the kernel's diagonal (0: interpolation).
+        residuals: ``(n, 2)`` ``model(src) - dst`` (0 to rounding when ``smoothing == 0``).
+        rmse: radial RMS of ``residuals``.
+        loo_residuals: ``(n, 2)`` leave-one-out residuals: the spline fitted without point ``i``,
+            evaluated at it, minus ``dst_i`` (NaN where the other points cannot carry a spline).
+        src_xy, dst_xy: the control points.
+    """
+
+    centres: Array
+    weights: Array
+    affine: Array
+    src_centre: Array
+    src_scale: Array
+    smoothing: float = eqx.field(static=True)
+    residuals: Array
+    rmse: Array
+    loo_residuals: Array
+    src_xy: Array
+    dst_xy: Array
+
+    def __call__(self, xy) -> Array:
+        """``(..., 2)`` source points -> ``(..., 2)`` destination points."""
+        p = jnp.asarray(xy, dtype=float)
+        if p.shape[-1:] != (2,):
+            raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
+        one = (1,) * (p.ndim - 1)  # explicit broadcasting (photax runs with rank promotion as an error)
+        u = (p - self.src_centre.reshape(one + (2,))) / self.src_scale.reshape(one + (1,))
+        centres = self.centres.reshape(one + self.centres.shape)
+        d2 = jnp.sum((u[..., None, :] - centres) ** 2, axis=-1)  # (..., n)
+        return self.affine[0].reshape(one + (2,)) + u @ self.affine[1:] + _tps_kernel(d2) @ self.weights
+
+    def transform(self, x, y) -> tuple[Array, Array]:
+        """Separate-coordinate form ``X, Y = model.transform(x, y)``."""
+        out = self(jnp.stack([jnp.asarray(x, dtype=float), jnp.asarray(y, dtype=float)], axis=-1))
+        return out[..., 0], out[..., 1]
+
+
+def _tps_kernel(d2):
+    """``U = r^2 log r = d2 log(d2) / 2`` of squared distances, 0 at 0 (double-where: finite gradients)."""
+    safe = jnp.where(d2 > 0, d2, 1.0)
+    return jnp.where(d2 > 0, 0.5 * safe * jnp.log(safe), 0.0)
+
+
+def _tps_solve(u: np.ndarray, v: np.ndarray, smoothing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Weights ``(n, 2)`` and affine part ``(3, 2)`` of the spline through ``v`` at normalised ``u``:
+    ``[[K + lambda I, P], [P^T, 0]] [w; a] = [v; 0]``, ``P = [1, x, y]``."""
+    n = u.shape[0]
+    d2 = np.sum((u[:, None] - u[None]) ** 2, axis=-1)
+    k = np.asarray(_tps_kernel(d2)) + smoothing * np.eye(n)
+    p = np.concatenate([np.ones((n, 1)), u], axis=1)
+    m = np.block([[k, p], [p.T, np.zeros((3, 3))]])
+    sol = np.linalg.solve(m, np.concatenate([v, np.zeros((3, 2))]))
+    return sol[:n], sol[n:]
+
+
+def fit_tps(src_xy, dst_xy, smoothing: float = 0.0) -> TPSModel:
+    """Thin-plate spline ``dst = f(src)`` through the control points (Bookstein 1989; GDAL's ``-tps``).
+
+    With ``smoothing == 0`` the spline interpolates: ``f(src_i) = dst_i``; ``smoothing > 0`` (in
+    normalised units: the source points are scaled to a largest distance of 1 from their centre) trades
+    that for a smoother map.  Fit ``fit_tps(map_xy, pixel_xy)`` for indirect rectification, as for
+    :func:`fit_polynomial`.
+
+    Raises:
+        ValueError: wrong shapes, NaN/inf, duplicated or fewer than 3 points, points all on one line, or a
+            negative smoothing.
+    """
+    if not (np.isfinite(smoothing) and smoothing >= 0):
+        raise ValueError(f"smoothing must be finite and >= 0, got {smoothing!r}")
+    src, dst, _ = _check_pairs(src_xy, dst_xy, None, 3, "a thin-plate spline")
+    centre = src.mean(axis=0)
+    scale = float(np.sqrt(np.sum((src - centre) ** 2, axis=1)).max())
+    u = (src - centre) / scale
+    if np.linalg.matrix_rank(np.concatenate([np.ones((len(u), 1)), u], axis=1), tol=1e-10) < 3:
+        raise ValueError("src_xy points all lie on one line: a thin-plate spline needs them spread in 2-D")
+    w, a = _tps_solve(u, dst, float(smoothing))
+    model = TPSModel(jnp.asarray(u), jnp.asarray(w), jnp.asarray(a), jnp.asarray(centre), jnp.asarray(scale),
+                     float(smoothing), jnp.zeros_like(jnp.asarray(dst)), jnp.asarray(0.0),
+                     jnp.full(dst.shape, jnp.nan), jnp.asarray(src), jnp.asarray(dst))
+    v = np.asarray(model(src)) - dst
+    loo = np.full(dst.shape, np.nan)
+    for i in range(len(u)):
+        keep = np.arange(len(u)) != i
+        if keep.sum() < 3 or np.linalg.matrix_rank(np.c_[np.ones(keep.sum()), u[keep]], tol=1e-10) < 3:
+            continue
+        wi, ai = _tps_solve(u[keep], dst[keep], float(smoothing))
+        d2 = np.sum((u[i] - u[keep]) ** 2, axis=-1)
+        loo[i] = ai[0] + u[i] @ ai[1:] + np.asarray(_tps_kernel(d2)) @ wi - dst[i]
+    rmse = np.sqrt(np.sum(v**2) / len(v))
+    return dataclasses.replace(model, residuals=jnp.asarray(v), rmse=jnp.asarray(rmse),
+                               loo_residuals=jnp.asarray(loo))

@@ -55,7 +55,6 @@ evaluated in chunks with ``lax.map`` so the working set stays in cache.
 
 from __future__ import annotations
 
-import enum
 import os
 from concurrent.futures import ThreadPoolExecutor
 from functools import partial
@@ -66,119 +65,24 @@ import numpy as np
 from jax import Array
 
 from ._deprecation import renamed_argument
+from .kernels import (  # noqa: F401  (re-exported: the kernel layer's names, where they always were)
+    BSPLINE_PAD,
+    RESAMPLING,
+    Resampling,
+    kernel_weights,
+    pad_width,
+    resample_grid,
+)
 
-
-class Resampling(str, enum.Enum):
-    """The interpolation kernels, and what each needs: the one list of them.
-
-    A member is its name (a ``str``: ``Resampling.cubic == "cubic"``), so
-    every function taking ``resampling``/``method`` accepts either; the CLI's
-    ``--resampling`` choices are :data:`RESAMPLING`.
-
-    Attributes:
-        taps: neighbours per axis the kernel weights; the first is at
-            ``floor(x) - (taps // 2 - 1)`` (nearest: at ``floor(x + 0.5)``).
-        margin: input pixels around a sample position that the kernel reads,
-            plus one: the margin a windowed read
-            (:func:`photax.rectify_file`) needs to give the same result as
-            the whole image.  The B-spline prefilter is recursive (pole
-            0.268), so its influence decays by 1e-14 over 24 pixels but never
-            quite ends: file and memory agree to ~1e-7 (the window edge, not
-            the image's, is padded before the prefilter).
-        prefilter: the kernel works on prefiltered coefficients (B-spline),
-            not on the grey values themselves.
-    """
-
-    def __new__(cls, name: str, taps: int, margin: int, prefilter: bool):
-        member = str.__new__(cls, name)
-        member._value_ = name
-        member.taps, member.margin, member.prefilter = taps, margin, prefilter
-        return member
-
-    nearest = ("nearest", 1, 2, False)
-    bilinear = ("bilinear", 2, 2, False)
-    cubic = ("cubic", 4, 3, False)
-    lanczos = ("lanczos", 6, 4, False)
-    lanczos4 = ("lanczos4", 8, 5, False)
-    bspline = ("bspline", 4, 24, True)
-
-    def __str__(self) -> str:
-        return self.value
-
-    @classmethod
-    def check(cls, value, argument: str = "resampling") -> "Resampling":
-        """``value`` (a name or member) as a member; a ValueError naming
-        ``argument`` otherwise."""
-        try:
-            return cls(value)
-        except ValueError:
-            raise ValueError(f"{argument} must be one of {RESAMPLING}, got {value!r}") from None
-
-
-RESAMPLING: tuple[str, ...] = tuple(k.value for k in Resampling)  # the kernel names, in order
 # BSPLINE_PAD, THREADS, bspline_coefficients, gather_source, compute_dtype and interpolate are the kernel
 # layer photax.rectification (and uncertainty's thread pool) build on: public names, not in photax.__all__.
-BSPLINE_PAD = 12  # scipy's npad for mode="nearest"
 _CHUNK = 4096  # output samples per lax.map step (measured best of 4096 / 65536)
 THREADS = min(os.cpu_count() or 1, 8)
 _BUCKET = 1 << 15  # below: pad to a power of two; above: split over threads
 
 
-def _cubic_weights(t: Array, a: float) -> list[Array]:
-    """Keys' cubic-convolution weights of the 4 taps at offsets -1, 0, 1, 2
-    from ``floor(x)``; ``t = x - floor(x)`` in ``[0, 1)``."""
-    def near(s):  # |s| <= 1
-        return ((a + 2) * s - (a + 3)) * s * s + 1
-
-    def far(s):  # 1 < |s| <= 2
-        return ((a * s - 5 * a) * s + 8 * a) * s - 4 * a
-
-    return [far(1 + t), near(t), near(1 - t), far(2 - t)]
-
-
-def _bspline_weights(t: Array) -> list[Array]:
-    """Cubic B-spline weights of the taps at -1, 0, 1, 2 from ``floor(x)``."""
-    u = 1 - t
-    return [u * u * u / 6, (4 - 6 * t * t + 3 * t * t * t) / 6,
-            (4 - 6 * u * u + 3 * u * u * u) / 6, t * t * t / 6]
-
-
-def _lanczos_weights(t: Array, a: int = 3) -> list[Array]:
-    """Lanczos-``a`` weights of the ``2a`` taps at ``-(a-1) .. a`` from
-    ``floor(x)``, normalised to sum to one.
-
-    Tap ``i`` is at distance ``d = t + k``, ``k = a-1-i``, and
-    ``sinc(d) sinc(d/a) = a sin(pi d) sin(pi d/a) / (pi d)^2`` with
-    ``sin(pi d) = (-1)^k sin(pi t)`` and ``sin(pi d/a)`` by the angle sum
-    from ``sin, cos(pi t/a)``: three sines per axis instead of ``4a``
-    (OpenCV's ``interpolateLanczos4`` does the same).  The constant factor
-    cancels in the normalisation; at ``d = 0`` the limit ``pi^2/a`` of
-    ``sin(pi d) sin(pi d/a) / d^2``.
-    """
-    s = jnp.sin(jnp.pi * t)
-    sa, ca = jnp.sin(jnp.pi / a * t), jnp.cos(jnp.pi / a * t)
-    w = []
-    for i in range(2 * a):
-        k = a - 1 - i
-        d = t + k
-        num = (s if k % 2 == 0 else -s) * (sa * float(np.cos(np.pi * k / a)) + ca * float(np.sin(np.pi * k / a)))
-        w.append(jnp.where(jnp.abs(d) < 1e-8, float(np.pi**2 / a), num / jnp.where(d == 0, 1, d * d)))
-    total = sum(w)
-    return [wi / total for wi in w]
-
-
 def _weights(method: str, t: Array, a: float) -> list[Array]:
-    if method == "nearest":
-        return [jnp.ones_like(t)]
-    if method == "bilinear":
-        return [1 - t, t]
-    if method == "cubic":
-        return _cubic_weights(t, a)
-    if method == "lanczos":
-        return _lanczos_weights(t)
-    if method == "lanczos4":
-        return _lanczos_weights(t, 4)
-    return _bspline_weights(t)
+    return kernel_weights(method, t, a, xp=jnp)
 
 
 def _bspline_prefilter_axis(c: Array, axis: int) -> Array:
@@ -213,11 +117,7 @@ def _bspline_prefilter_axis(c: Array, axis: int) -> Array:
     return jnp.moveaxis(cm, 0, axis)
 
 
-def _pad_width(method: str) -> int:
-    """Replicated border so that every tap of a valid sample is in bounds:
-    valid samples have ``floor(x)`` in [-1, W-1] (nearest: [0, W])."""
-    kernel = Resampling(method)
-    return BSPLINE_PAD if kernel.prefilter else max(kernel.taps // 2, 1)
+_pad_width = pad_width
 
 
 def _aligned_empty(shape, dtype) -> np.ndarray:
@@ -471,3 +371,4 @@ def resample(
             pieces = list(pool.map(lambda s: jax.block_until_ready(run(s)), starts))
         out = jnp.concatenate([p[:, k * size - s:] for k, (p, s) in enumerate(zip(pieces, starts))], axis=1)
     return out.reshape(lead + shape)
+

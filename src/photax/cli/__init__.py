@@ -21,7 +21,7 @@ from ..io.atomic import interrupted
 
 # Subcommand modules, in the order ``photax --help`` lists them.
 SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "mosaic", "compare", "bundle", "measure", "fiducials", "epipolar",
-               "transfer", "ties", "register"]
+               "transfer", "ties", "register", "sharpen"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -253,7 +253,8 @@ def _main(argv: list[str] | None) -> int:
             if extra:  # in the subcommand's words (argparse's own error shows the top-level usage)
                 parser.subcommands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
             command[0] = f"photax {args.command}"
-            _enable_compilation_cache()
+            if getattr(args, "compiles", True):  # a command that compiles nothing need not import JAX for it
+                _enable_compilation_cache()
             from ..io.files import recording_inputs
 
             with recording_inputs():  # every file read is an input: never an output (photax.io.atomic)

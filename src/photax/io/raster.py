@@ -14,11 +14,14 @@ import os
 import pathlib
 import threading
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..dem import DEM
 from .atomic import atomic_path
+
+if TYPE_CHECKING:
+    from ..dem import DEM
 
 _WARNINGS_LOCK = threading.Lock()
 
@@ -127,6 +130,9 @@ def read_dem(path, band: int = 1) -> DEM:
         transform = tuple(src.transform)[:6]
     if nodata is not None and not np.isnan(nodata):
         heights[heights == nodata] = np.nan
+    # Imported here: DEM brings JAX, which the commands that only read rasters never load.
+    from ..dem import DEM
+
     try:
         return DEM(heights, transform, crs)
     except ValueError as exc:  # e.g. a singular georeference
