@@ -8,6 +8,7 @@ error naming the CRSs (exit 2 on the command line), never used as metres.
 import json
 
 import numpy as np
+import pyproj
 import pytest
 import rasterio
 from conftest import ROOT
@@ -122,3 +123,18 @@ def test_every_command_that_meets_a_dem_compares_crs(tmp_path, capsys, command):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "EPSG:32633" in err and "EPSG:32735" in err, err
+
+
+def test_a_compound_crs_meets_its_horizontal_part():
+    """The NGI DEM is transverse Mercator + a vertical CRS, its orientations the transverse Mercator alone:
+    the same ground coordinates (a real pair, orthority's test data, refused before the horizontal
+    comparison); another horizontal CRS under the same vertical one is still refused."""
+    from photax.io.crs import require_same
+
+    tm = "+proj=tmerc +lat_0=0 +lon_0=25 +k=1 +x_0=0 +y_0=0 +datum=WGS84 +units=m +no_defs"
+    compound = pyproj.CRS.from_user_input("EPSG:32735+5773").to_wkt()
+    require_same(compound, "the DEM", "EPSG:32735", "the orientations")
+    tm_compound = pyproj.crs.CompoundCRS("tm + EGM96", [pyproj.CRS(tm), pyproj.CRS("EPSG:5773")]).to_wkt()
+    require_same(tm_compound, "the DEM", tm, "the orientations")
+    with pytest.raises(ValueError, match="does not reproject"):
+        require_same(compound, "the DEM", "EPSG:32734", "the orientations")

@@ -15,7 +15,10 @@ CRS's linear unit): the collinearity equations need a Cartesian frame.  So
 * an input without a CRS is not compared (nothing to compare with).
 
 CRSs are compared by :class:`rasterio.crs.CRS` equality (OSR's ``IsSame``:
-``EPSG:32633``, its WKT and its PROJ string are the same CRS).
+``EPSG:32633``, its WKT and its PROJ string are the same CRS), and failing that
+by their horizontal parts (pyproj): a DEM in a compound CRS (the NGI DEM:
+transverse Mercator + a vertical CRS) meets an orientation in its horizontal
+CRS.  Vertical datums are not compared here: heights are taken as they are.
 """
 
 from __future__ import annotations
@@ -56,10 +59,25 @@ def require_projected(crs, what: str) -> None:
 def require_same(a, what_a: str, b, what_b: str) -> None:
     """ValueError naming both when ``a`` and ``b`` are both known and differ."""
     ca, cb = _parse(a), _parse(b)
-    if ca is None or cb is None or ca == cb:
+    if ca is None or cb is None or ca == cb or _same_horizontal(ca, cb):
         return
     raise ValueError(f"{what_a} is in {describe(a)} but {what_b} in {describe(b)}; photax does not reproject "
                      f"between them (a DEM: gdalwarp -t_srs {describe(a)} dem.tif dem_reprojected.tif)")
+
+
+def _horizontal(crs):
+    """The horizontal part of a rasterio CRS, as a pyproj CRS (a compound CRS's first component)."""
+    import pyproj
+
+    c = pyproj.CRS.from_wkt(crs.to_wkt())
+    return c.sub_crs_list[0] if c.is_compound else c
+
+
+def _same_horizontal(a, b) -> bool:
+    try:
+        return _horizontal(a).equals(_horizontal(b), ignore_axis_order=True)
+    except Exception:  # noqa: BLE001 -- a CRS pyproj cannot read: not the same
+        return False
 
 
 def check_dem(dem, grid=None) -> None:
