@@ -231,10 +231,11 @@ def _pair_moments(vi, vj, bi, bj):
                      (a * b).sum(axis=ax)])
 
 
-def _balance(n: int, moments: dict):
+def _balance(n: int, moments: dict, names=None):
     """Gains and offsets ``(n,)``, ``(n,)`` by least squares in the overlaps
     from the pairs' moments ``{(i, j): [count, Sa, Sb, Saa, Sbb, Sab]}``,
-    with the datum ``mean(g) = 1``, ``mean(o) = 0`` (Lagrange multipliers).
+    with the datum ``mean(g) = 1``, ``mean(o) = 0`` (Lagrange multipliers);
+    ``names`` of the images for messages.
 
     Well-posed at any overlap size: the sums become each pair's means and
     (co)variances, grey values are centred on the overlaps' pooled mean and
@@ -267,10 +268,13 @@ def _balance(n: int, moments: dict):
     C = np.zeros((2, 2 * n))
     C[0, 0::2], C[1, 1::2] = 1.0 / n, 1.0 / n
     K = np.block([[N, C.T], [C, np.zeros((2, 2))]])
+    for k in range(n):  # an ortho constant in all its overlaps: its gain and offset are one unknown
+        if N[2 * k, 2 * k] - N[2 * k, 2 * k + 1] ** 2 / max(N[2 * k + 1, 2 * k + 1], 1e-300) <= 1e-12 * N.trace():
+            raise ValueError(f"the overlaps do not determine the gain of {names[k] if names else f'ortho {k}'}: "
+                             "it is constant in them; mosaic without balancing")
     sv = np.linalg.svd(K, compute_uv=False)
     if sv[-1] <= 1e-10 * sv[0]:
-        raise ValueError("the overlaps do not determine every gain and offset (an ortho constant in its overlaps?): "
-                         "mosaic without balancing")
+        raise ValueError("the overlaps do not determine every gain and offset: mosaic without balancing")
     x = np.linalg.solve(K, np.concatenate([np.zeros(2 * n), [1.0, 0.0]]))[: 2 * n]
     g = x[0::2]
     return g, sd * x[1::2] + mu * (1 - g)
@@ -584,7 +588,8 @@ def mosaic(
     gains, offs = np.ones((n, nb)), np.zeros((n, nb))  # (canonical image, band)
     if balance and n > 1:
         for b in range(nb):
-            gains[:, b], offs[:, b] = _balance(n, {p: tuple(x[b] for x in v) for p, v in canon.items()})
+            gains[:, b], offs[:, b] = _balance(n, {p: tuple(x[b] for x in v) for p, v in canon.items()},
+                                               [f"orthos[{k}]{_name(orthos[k], is_path[k])}" for k in order])
         for k in range(n):
             if np.any(gains[pos[k]] <= 0):
                 raise ValueError(f"balancing gives orthos[{k}]{_name(orthos[k], is_path[k])} a gain of "
