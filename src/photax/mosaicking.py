@@ -434,6 +434,49 @@ def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, wind
     return np.where(inner >= 0, out, np.where(cnt > 0, rest / np.maximum(cnt, 1), np.nan))
 
 
+def _write_source_index(path, labels, s, grid, chunks, inputs):
+    """The source-index GeoTIFF: ``labels`` (seam grid, cells of ``s`` px) at full resolution on ``grid``,
+    int16, -1 (its nodata) for no image; written chunk by chunk, atomically."""
+    import dask.array as da
+
+    from .io.lazy import dataarray, to_raster
+
+    if labels.max() >= np.iinfo(np.int16).max:
+        raise ValueError(f"a source index holds at most {np.iinfo(np.int16).max} orthos, got {labels.max() + 1}")
+    lab = da.from_array(labels.astype(np.int16), chunks=max(1, chunks // s))
+    if s > 1:
+        lab = lab.map_blocks(lambda b: np.repeat(np.repeat(b, s, 0), s, 1), chunks=tuple(
+            tuple(c * s for c in cs) for cs in lab.chunks), dtype=np.int16)
+    lab = lab[: grid.shape[0], : grid.shape[1]].rechunk(chunks)
+    to_raster(dataarray(lab, grid, np.int16(-1), "source_index"), path, inputs=inputs)
+
+
+def _write_seamlines(path, labels, transform, crs, names, inputs):
+    """The seamlines as GeoJSON: one (multi)polygon per ortho, the area of the mosaic it is the source of
+    (``labels`` vectorised on the seam grid ``transform``; neighbours share the seam as an edge), with
+    properties ``index`` (in the order given) and ``source`` (its file, or null); the CRS in a ``crs``
+    member (GeoJSON 2008; the coordinates are in the orthos' CRS)."""
+    import json
+
+    from rasterio import features
+
+    from .io.atomic import atomic_write
+
+    parts = {}
+    for geom, value in features.shapes(labels.astype(np.int32), mask=labels >= 0, connectivity=4,
+                                       transform=transform):
+        parts.setdefault(int(value), []).append(geom["coordinates"])
+    feats = [{"type": "Feature", "properties": {"index": k, "source": names[k]},
+              "geometry": {"type": "MultiPolygon", "coordinates": parts[k]}} for k in sorted(parts)]
+    epsg = crs.to_epsg() if crs is not None else None
+    doc = {"type": "FeatureCollection", "features": feats}
+    if crs is not None:
+        doc["crs"] = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{epsg}" if epsg
+                                                      else crs.to_wkt()}}
+    with atomic_write(path, inputs=inputs) as fh:
+        json.dump(doc, fh)
+
+
 def mosaic(
     orthos,
     *,
@@ -447,6 +490,8 @@ def mosaic(
     chunks: int = 1024,
     seam_scale: int | None = None,
     info: dict | None = None,
+    seamlines=None,
+    source_index=None,
 ):
     """Join orthophotos into one mosaic without visible seams, lazily.
 
@@ -477,6 +522,14 @@ def mosaic(
             each seam-grid cell comes from, -1 for none; at full resolution
             when ``seam_scale == 1``), ``seam_scale`` and ``order`` (the
             canonical order the seams were made in).
+        seamlines: a path: write the seamlines there as GeoJSON, one
+            (multi)polygon per ortho (the area it is the source of, on the
+            seam grid; properties ``index``, in the order given, and
+            ``source``, its file), in the orthos' CRS.
+        source_index: a path: write a GeoTIFF on the mosaic grid there, int16,
+            the index (in the order given) of the ortho each pixel comes from
+            (its seam-grid cell's label; within ``feather`` px of a seam the
+            pixel blends it with its neighbour), -1 for none.
 
     Returns:
         Lazy ``xarray.DataArray`` (float64, Dask chunks of ``chunks``) on the
@@ -632,8 +685,15 @@ def mosaic(
         rows.append(row)
     data = da.block(rows)
     arr = dataarray(data[0] if nb == 1 else data, Grid(transform, shape, crs), np.asarray(np.nan), "mosaic")
+    given = np.where(labels >= 0, np.asarray(order)[labels], -1)
+    names = [orthos[k].encoding.get("source") if is_path[k] else None for k in range(n)]
+    inputs = [x for x in names if x]
+    if source_index is not None:
+        _write_source_index(source_index, given, s, Grid(transform, shape, crs), chunks, inputs)
+    if seamlines is not None:
+        _write_seamlines(seamlines, given, tc, crs, names, inputs)
     if info is not None:
         g, o = (gains[pos, 0], offs[pos, 0]) if nb == 1 else (gains[pos], offs[pos])
-        info.update(gains=g, offsets=o, labels=np.where(labels >= 0, np.asarray(order)[labels], -1),
+        info.update(gains=g, offsets=o, labels=given,
                     order=order, seam_scale=s)
     return arr

@@ -50,6 +50,10 @@ def add_parser(sub) -> None:
                    help="height above ground of a raised object (default 2)")
     p.add_argument("--no-balance", dest="balance", action="store_false", help="no gain/offset balancing")
     p.add_argument("--feather", type=int, default=8, metavar="PX", help="blend half-width across seams (default 8)")
+    p.add_argument("--seamlines", metavar="PATH", help="also write the seamlines as GeoJSON: one polygon per ortho, "
+                   "the area it is the source of")
+    p.add_argument("--source-index", metavar="PATH", help="also write a GeoTIFF of the index (0-based, in the "
+                   "order given; -1 none) of the ortho each pixel comes from")
     p.add_argument("--chunks", type=int, default=1024, metavar="PX", help="chunk edge (memory ~ chunks^2)")
     b = p.add_argument_group("block workflow (instead of ORTHOs)")
     b.add_argument("--block", metavar="ORIENTATIONS",
@@ -108,11 +112,16 @@ def run(args) -> int:
     for f in (args.dsm, args.dem):
         if f:
             inputs.append(str(input_file(f, "DSM/DEM")))
-    check_output_path(args.out, inputs)  # fail before the work, not after
+    outs = [o for o in (args.out, args.seamlines, args.source_index) if o]
+    if len({pathlib.Path(o).resolve() for o in outs}) < len(outs):
+        raise ValueError("-o, --seamlines and --source-index must be different files")
+    for o in outs:
+        check_output_path(o, inputs)  # fail before the work, not after
     if args.block:
         images, exteriors, crs = block_images(args.block, args.images)
         inputs += [str(p) for p in images]
-        check_output_path(args.out, inputs)
+        for o in outs:
+            check_output_path(o, inputs)
         camera, dem = read_interior(args.camera, args.camera_name), read_dem(args.dem)
     out_dir = pathlib.Path(args.out).resolve().parent
     # One bar, "mosaic": the block's images, then every Dask task of the mosaic and of its writing.
@@ -134,9 +143,12 @@ def run(args) -> int:
         with _dask_progress(bar):
             out = mosaic([str(p) for p in paths], method=args.method, dsm=dsm, dem=dem_on_grid,
                          raised=args.raised, balance=args.balance, feather=args.feather, chunks=args.chunks,
-                         info=info)
+                         info=info, seamlines=args.seamlines, source_index=args.source_index)
             to_raster(out.astype(np.float32), args.out, cog=True, inputs=inputs)
     gains = ", ".join("/".join(f"{x:.3f}" for x in np.atleast_1d(g)) for g in info["gains"])  # per band: a/b/c
     print(f"photax mosaic: {plural(len(paths), 'ortho')} -> {args.out} ({out.shape[-1]} x {out.shape[-2]} px"
           f"{f', {out.shape[0]} bands' if out.ndim == 3 else ''}; gains {gains})")
+    for what, path in (("seamlines", args.seamlines), ("source index", args.source_index)):
+        if path:
+            print(f"photax mosaic: {what} -> {path}")
     return 0
