@@ -124,4 +124,13 @@ def test_ngi_cli_mosaic_writes_seamlines_and_source_index(orthos, tmp_path, caps
     assert "4 orthos" in text and "seamlines ->" in text and "source index ->" in text
     with rasterio.open(out) as ds, rasterio.open(tmp_path / "i.tif") as idx:
         assert ds.shape == idx.shape and set(np.unique(idx.read(1))) == {-1, 0, 1, 2, 3}
+        # In the orthos' type (uint8, nodata 0), as they are: the library's mosaic rounded.
+        assert ds.dtypes[0] == "uint8" and ds.nodata == 0
+        written = ds.read()
+    from photax import mosaic
+
+    ref = mosaic(paths).values
+    ok = np.isfinite(ref)
+    assert np.array_equal(written == 0, ~ok)
+    np.testing.assert_array_equal(written[ok], np.clip(np.round(ref[ok]), 1, 255))
     assert main(args[:-5] + ["--seamlines", str(out), "--no-progress"]) == 2  # one file for two outputs

@@ -407,31 +407,24 @@ def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, wind
     dr, dc = r0 - wr0, c0 - wc0
     inner = full[dr : dr + h, dc : dc + w]
     num, total = np.zeros((nb, h, w)), np.zeros((h, w))
-    rest, cnt = np.zeros((nb, h, w)), np.zeros((h, w))  # mean of what is there, for unlabelled pixels
+    unlabelled = inner < 0  # data in no labelled cell (a seam grid cell only partly covered): the mean of what is there
     for (pr, pc), v, k, g, o in zip(places, parts, idx, gains, offsets):
         v = np.asarray(v, dtype=float)
         box = (slice(pr, pr + v.shape[1]), slice(pc, pc + v.shape[2]))
         valid = np.all(np.isfinite(v), axis=0)
-        bal = np.where(valid, v * g[:, None, None] + o[:, None, None], 0.0)
-        rest[:, box[0], box[1]] += bal
-        cnt[box] += valid
         if feather > 0:
             f = feather
             a0, a1 = max(dr + pr - f, 0), min(dr + pr + v.shape[1] + f, full.shape[0])
             b0, b1 = max(dc + pc - f, 0), min(dc + pc + v.shape[2] + f, full.shape[1])
             own = full[a0:a1, b0:b1] == k
-            if not own.any():
-                continue
             share = ndimage.uniform_filter(own.astype(float), 2 * f + 1, mode="nearest") if not own.all() else own
-            wt = np.where(valid, share[dr + pr - a0 : dr + pr - a0 + v.shape[1], dc + pc - b0 : dc + pc - b0 + v.shape[2]],
-                          0.0)
+            share = share[dr + pr - a0 : dr + pr - a0 + v.shape[1], dc + pc - b0 : dc + pc - b0 + v.shape[2]]
         else:
-            wt = valid & (inner[box] == k)
-        num[:, box[0], box[1]] += bal * wt
+            share = inner[box] == k
+        wt = np.where(valid, np.where(unlabelled[box], 1.0, share), 0.0)
+        num[:, box[0], box[1]] += np.where(valid, v * g[:, None, None] + o[:, None, None], 0.0) * wt
         total[box] += wt
-    out = np.where(total > 0, num / np.where(total > 0, total, 1), np.nan)
-    # Pixels with data in no labelled cell (a seam grid cell only partly covered): the mean of what is there.
-    return np.where(inner >= 0, out, np.where(cnt > 0, rest / np.maximum(cnt, 1), np.nan))
+    return np.where(total > 0, num / np.where(total > 0, total, 1), np.nan)
 
 
 def _write_source_index(path, labels, s, grid, chunks, inputs):

@@ -40,7 +40,8 @@ def add_parser(sub) -> None:
     )
     p.add_argument("orthos", nargs="*", metavar="ORTHO", help="orthophoto GeoTIFFs (one CRS, one pixel lattice, one number of bands: "
                    "RGB orthos share one seam, each band gets its own gain)")
-    p.add_argument("-o", "--out", required=True, help="output mosaic (Cloud-Optimized GeoTIFF)")
+    p.add_argument("-o", "--out", required=True, help="output mosaic (Cloud-Optimized GeoTIFF, in the orthos' "
+                   "data type: uint8 orthos give a uint8 mosaic, rounded, with their nodata)")
     p.add_argument("--method", choices=("seamline", "voronoi"), default="seamline",
                    help="seams of least difference (default) or nearest footprint centre")
     p.add_argument("--dsm", help="surface model raster: seams avoid raised objects "
@@ -77,6 +78,24 @@ def _dask_progress(bar):
         bar.total = (bar.total or 0) + len(dsk)
 
     return Callback(start=start, posttask=lambda *a: bar.update())
+
+
+def _in_dtype(out, path):
+    """The mosaic in the data type of the ortho at ``path``: integer orthos (e.g. uint8 RGB) give a
+    mosaic rounded and clipped to that type, with their nodata value (the type's minimum if none; it is
+    kept out of the data); float orthos give float32 with NaN."""
+    import numpy as np
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        dtype, nodata = np.dtype(ds.dtypes[0]), ds.nodata
+    if not np.issubdtype(dtype, np.integer):
+        return out.astype(np.float32)
+    lo, hi = np.iinfo(dtype).min, np.iinfo(dtype).max
+    nodata = lo if nodata is None or not lo <= nodata <= hi else int(nodata)
+    lo, hi = (lo + 1, hi) if nodata == lo else (lo, hi - 1) if nodata == hi else (lo, hi)
+    data = out.fillna(nodata).round().clip(lo, hi).where(out.notnull(), nodata).astype(dtype)
+    return data.rio.write_nodata(nodata, encoded=False)
 
 
 def run(args) -> int:
@@ -144,7 +163,7 @@ def run(args) -> int:
             out = mosaic([str(p) for p in paths], method=args.method, dsm=dsm, dem=dem_on_grid,
                          raised=args.raised, balance=args.balance, feather=args.feather, chunks=args.chunks,
                          info=info, seamlines=args.seamlines, source_index=args.source_index)
-            to_raster(out.astype(np.float32), args.out, cog=True, inputs=inputs)
+            to_raster(_in_dtype(out, paths[0]), args.out, cog=True, inputs=inputs)
     gains = ", ".join("/".join(f"{x:.3f}" for x in np.atleast_1d(g)) for g in info["gains"])  # per band: a/b/c
     print(f"photax mosaic: {plural(len(paths), 'ortho')} -> {args.out} ({out.shape[-1]} x {out.shape[-2]} px"
           f"{f', {out.shape[0]} bands' if out.ndim == 3 else ''}; gains {gains})")
