@@ -16,11 +16,16 @@ images) in every band.
    ``sum_pairs sum_overlap (g_i v_i + o_i - g_j v_j - o_j)^2`` with the datum
    ``mean(g) = 1, mean(o) = 0`` (without it all gains could shrink to 0).
    Only the pairs' first and second moments enter the normal equations; they
-   are summed chunk by chunk over each overlap window at full resolution.
+   are summed chunk by chunk over each overlap window at full resolution, and
+   enter as each overlap's means and (co)variances, in grey values centred and
+   scaled by the overlaps' pooled mean and spread, weighted by the overlap's
+   share of pixels: well-posed at any overlap size.  A gain <= 0 or one the
+   overlaps do not determine is an error, not a blank mosaic.
 2. **Seamlines**, on the *seam grid*: the union grid coarsened by
    ``seam_scale`` (cells of ``s x s`` pixels, their mean; a cell is an
-   image's only where all its pixels are; ``s = 1``, full resolution, for
-   mosaics up to 4 Mpx by default).  Images are added one at a time in a
+   image's only where all its pixels are; by default the smallest ``s`` with
+   at most 4 Mpx on the seam grid and at most 8192 cells in any two orthos'
+   overlap box: the maximum flow's cost grows faster than the overlap).  Images are added one at a time in a
    canonical order (by their footprint centre, not the order given, so the
    result does not depend on it).  In each overlap between the mosaic so far
    and the next image the seam is the **minimum s-t cut** (Kwatra et al.
@@ -33,17 +38,21 @@ images) in every band.
    image whose nadir is nearest (the simple option).
 3. **Feathering**, per output chunk at full resolution: across each seam
    the images are blended linearly over ``feather`` pixels on either side
-   (weights from distance transforms of the labels in the chunk grown by
-   ``feather + 1`` pixels, which is exact: a label farther away gets weight 0).
+   (an image's weight is the share of its label in the ``(2 feather + 1)^2``
+   box round the pixel, from the labels in the chunk grown by ``feather + 1``
+   pixels: exact, a label farther away gets weight 0).
+
+On request the seamlines are written as GeoJSON (a polygon per ortho) and
+the source index as a GeoTIFF (which ortho each pixel comes from).
 
 Memory: the seam grid (``n`` footprints of ``1/s^2`` of their pixels, the
 labels) is in memory; the full-resolution orthos are only ever read chunk
 by chunk, twice: once for the overlap moments and the seam grid, once for
-the output.  Lazy orthos given as Dask-backed DataArrays (e.g. from
-:func:`photax.orthorectify_dask`, whose chunks cost a kernel call each)
-are instead computed once and kept (``dask.persist``, in their own dtype)
-when they hold at most ``_PERSIST_BYTES`` (1 GiB) in all; raster paths
-are read twice (reading is cheap), as are larger lazy orthos.  Write the result with :func:`photax.to_raster`
+the output.  Lazy orthos (raster paths, or Dask-backed DataArrays, e.g.
+from :func:`photax.orthorectify_dask`, whose chunks cost a kernel call each)
+are instead read or computed once and kept (``dask.persist``, chunk by chunk,
+in their own dtype) when they hold at most ``_PERSIST_BYTES`` (1 GiB) in all;
+larger ones are read twice.  Write the result with :func:`photax.to_raster`
 (``cog=True``: a tiled, compressed Cloud-Optimized GeoTIFF with overviews).
 """
 
@@ -508,8 +517,8 @@ def mosaic(
             hard seams).
         chunks: Dask chunk edge of the returned array (and of path inputs).
         seam_scale: cell edge ``s`` in pixels of the grid the seams are cut
-            on (default the smallest with at most 4 Mpx on the union grid; 1
-            for full resolution).
+            on (default the smallest with at most 4 Mpx on the union grid and
+            8192 cells in any two orthos' overlap box; 1 for full resolution).
         info: a dict to receive ``gains`` and ``offsets`` ``(n,)`` (per
             ortho, in the order given; ``(n, bands)`` with several bands), ``labels`` (the index of the ortho
             each seam-grid cell comes from, -1 for none; at full resolution
@@ -532,7 +541,9 @@ def mosaic(
 
     Raises:
         ValueError: no orthos, orthos in different CRSs, resolutions or pixel
-            lattices, an ortho that overlaps no other, bad arguments.
+            lattices, an ortho with no valid pixel, an ortho that overlaps no
+            other, groups of orthos with no overlap between them, a gain the
+            balancing leaves undetermined or makes <= 0, bad arguments.
     """
     # Over 80 lines: the docstring documents every argument; the body reads top to bottom:
     # inputs, one pass for moments and the seam grid, seams, then the output graph.
