@@ -181,13 +181,26 @@ def _components(n: int, edges) -> list[list[int]]:
     return [np.flatnonzero(comp == c).tolist() for c in np.unique(comp)]
 
 
-def _lazy(o, chunks: int):
+def _edges(off: int, size: int, chunks: int) -> tuple:
+    """Chunk sizes of an axis of ``size`` at ``off`` on the union grid, cut where the union grid's
+    ``chunks`` are."""
+    cuts = [0, *range(-off % chunks or chunks, size, chunks), size]
+    return tuple(b - a for a, b in zip(cuts[:-1], cuts[1:]) if b > a)
+
+
+def _align(o, off, chunks: int):
+    """Dask-backed ortho ``o`` at ``off`` rechunked on the union grid's ``chunks``."""
+    return o.chunk({o.dims[0]: -1, "y": _edges(off[0], o.shape[1], chunks), "x": _edges(off[1], o.shape[2], chunks)})
+
+
+def _lazy(o, chunks: int, off=(0, 0)):
     """The ortho's values as a ``(bands, h, w)`` float64 Dask array, NaN for no data."""
     import dask.array as da
 
     v = o.data
     if not isinstance(v, da.Array):
-        v = da.from_array(np.asarray(v), chunks=(-1, chunks, chunks))
+        v = da.from_array(np.asarray(v), chunks=(-1, _edges(off[0], v.shape[1], chunks),
+                                                 _edges(off[1], v.shape[2], chunks)))
     v = v.astype(float)
     nd = o.rio.nodata
     if nd is not None and not np.isnan(nd):
@@ -415,25 +428,32 @@ def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, wind
     full = lab[(np.arange(wr0, wr1) // s - lab_origin[0])[:, None], (np.arange(wc0, wc1) // s - lab_origin[1])[None]]
     dr, dc = r0 - wr0, c0 - wc0
     inner = full[dr : dr + h, dc : dc + w]
-    num, total = np.zeros((nb, h, w)), np.zeros((h, w))
+    # In float32 (the orthos' grey values need no more; half the memory traffic of float64).
+    num, total = np.zeros((nb, h, w), np.float32), np.zeros((h, w), np.float32)
     unlabelled = inner < 0  # data in no labelled cell (a seam grid cell only partly covered): the mean of what is there
     for (pr, pc), v, k, g, o in zip(places, parts, idx, gains, offsets):
-        v = np.asarray(v, dtype=float)
-        box = (slice(pr, pr + v.shape[1]), slice(pc, pc + v.shape[2]))
-        valid = np.all(np.isfinite(v), axis=0)
+        bal = np.multiply(v, g.astype(np.float32)[:, None, None], dtype=np.float32)
+        bal += o.astype(np.float32)[:, None, None]
+        valid = np.isfinite(bal).all(axis=0)
+        box = (slice(pr, pr + bal.shape[1]), slice(pc, pc + bal.shape[2]))
         if feather > 0:
             f = feather
-            a0, a1 = max(dr + pr - f, 0), min(dr + pr + v.shape[1] + f, full.shape[0])
-            b0, b1 = max(dc + pc - f, 0), min(dc + pc + v.shape[2] + f, full.shape[1])
-            own = full[a0:a1, b0:b1] == k
-            share = ndimage.uniform_filter(own.astype(float), 2 * f + 1, mode="nearest") if not own.all() else own
-            share = share[dr + pr - a0 : dr + pr - a0 + v.shape[1], dc + pc - b0 : dc + pc - b0 + v.shape[2]]
+            a0, a1 = max(dr + pr - f, 0), min(dr + pr + bal.shape[1] + f, full.shape[0])
+            b0, b1 = max(dc + pc - f, 0), min(dc + pc + bal.shape[2] + f, full.shape[1])
+            own = (full[a0:a1, b0:b1] == k).astype(np.float32)
+            wt = ndimage.uniform_filter(own, 2 * f + 1, mode="nearest") if not own.all() else own
+            wt = wt[dr + pr - a0 : dr + pr - a0 + bal.shape[1], dc + pc - b0 : dc + pc - b0 + bal.shape[2]].copy()
         else:
-            share = inner[box] == k
-        wt = np.where(valid, np.where(unlabelled[box], 1.0, share), 0.0)
-        num[:, box[0], box[1]] += np.where(valid, v * g[:, None, None] + o[:, None, None], 0.0) * wt
+            wt = (inner[box] == k).astype(np.float32)
+        wt[unlabelled[box]] = 1.0
+        wt[~valid] = 0.0
+        np.nan_to_num(bal, copy=False)
+        bal *= wt
+        num[:, box[0], box[1]] += bal
         total[box] += wt
-    return np.where(total > 0, num / np.where(total > 0, total, 1), np.nan)
+    out = np.full((nb, h, w), np.nan)
+    np.divide(num, total, out=out, where=total > 0)
+    return out
 
 
 def _write_source_index(path, labels, s, grid, chunks, inputs):
@@ -570,12 +590,13 @@ def mosaic(
     for k, o in enumerate(orthos):
         if o.shape[0] != nb:
             raise ValueError(f"orthos[{k}] has {o.shape[0]} bands, orthos[0] {nb}: one number of bands only")
+    transform, shape, crs, offsets = _lattice(orthos)
     lazy = [k for k, o in enumerate(orthos) if isinstance(o.data, da.Array)]
     if lazy and sum(orthos[k].nbytes for k in lazy) <= _PERSIST_BYTES:
-        # Computed (or read) once here, chunk by chunk, and read from memory by both passes below.
-        for k, o in zip(lazy, dask.persist(*(orthos[k] for k in lazy))):
+        # Computed (or read) once here, chunk by chunk, and read from memory by both passes below; in
+        # chunks on the output's (a chunk of the output then reads whole input chunks, no concatenation).
+        for k, o in zip(lazy, dask.persist(*(_align(orthos[k], offsets[k], chunks) for k in lazy))):
             orthos[k] = o
-    transform, shape, crs, offsets = _lattice(orthos)
     n = len(orthos)
     boxes = [(r, c, o.shape[-2], o.shape[-1]) for o, (r, c) in zip(orthos, offsets)]
     if seam_scale is None:
@@ -587,7 +608,7 @@ def mosaic(
     else:
         s = int(seam_scale)
     shape_c = (-(-shape[0] // s), -(-shape[1] // s))
-    vals = [_lazy(o, chunks) for o in orthos]
+    vals = [_lazy(o, chunks, off) for o, off in zip(orthos, offsets)]
     seam = [_seam_grid(v, b, s, chunks) for v, b in zip(vals, boxes)]
     pairs = {}
     for i in range(n):

@@ -94,8 +94,11 @@ def _in_dtype(out, path):
     lo, hi = np.iinfo(dtype).min, np.iinfo(dtype).max
     nodata = lo if nodata is None or not lo <= nodata <= hi else int(nodata)
     lo, hi = (lo + 1, hi) if nodata == lo else (lo, hi - 1) if nodata == hi else (lo, hi)
-    data = out.fillna(nodata).round().clip(lo, hi).where(out.notnull(), nodata).astype(dtype)
-    return data.rio.write_nodata(nodata, encoded=False)
+
+    def convert(v):  # one pass per chunk
+        return np.where(np.isnan(v), nodata, np.clip(np.rint(v), lo, hi)).astype(dtype)
+
+    return out.copy(data=out.data.map_blocks(convert, dtype=dtype)).rio.write_nodata(nodata, encoded=False)
 
 
 def run(args) -> int:
