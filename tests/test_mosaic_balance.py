@@ -8,6 +8,8 @@ A zero-residual solution is unique up to a common gain ``c`` and offset ``d``; t
 mean offset 0) fixes them, so the recovered gains are ``g / mean(g)`` and offsets ``(o - mean(o)) / mean(g)``.
 """
 
+import re
+
 import numpy as np
 import pytest
 from conftest import needs
@@ -102,3 +104,23 @@ def test_mosaic_refusals():
     # An inverted image (a negative) cannot be balanced by a positive gain: an error, not a blank mosaic.
     with pytest.raises(ValueError, match=r"orthos\[1\] a gain of .*<= 0"):
         mosaic([a, _ortho(255 - scene[:, 50:130], 50), _ortho(scene[:, 100:180], 100)])
+
+
+@pytestmark_dask
+def test_cli_refuses_an_empty_ortho_and_orthos_that_do_not_overlap(tmp_path, capsys):
+    """Exit 2 with one line naming the file, never a blank mosaic with exit 0."""
+    from photax.cli import main
+
+    scene = np.random.default_rng(1).uniform(20, 200, (40, 200))
+    paths = {}
+    for name, o in (("a", _ortho(scene[:, :80], 0)), ("b", _ortho(scene[:, 50:130], 50)),
+                    ("empty", _ortho(np.full((40, 80), np.nan), 50)), ("far", _ortho(scene[:, 150:200], 150))):
+        o.rio.to_raster(tmp_path / f"{name}.tif")
+        paths[name] = str(tmp_path / f"{name}.tif")
+    out = tmp_path / "m.tif"
+    for names, match in ((("a", "empty"), r"orthos\[1\] \(.*empty\.tif\) has no valid pixel"),
+                         (("a", "b", "far"), r"orthos\[2\] \(.*far\.tif\) overlaps no other ortho")):
+        assert main(["mosaic", *(paths[n] for n in names), "-o", str(out), "--no-progress"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and re.search(match, err), err
+        assert not out.exists()
