@@ -447,7 +447,7 @@ def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, wind
             wt = (inner[box] == k).astype(np.float32)
         wt[unlabelled[box]] = 1.0
         wt[~valid] = 0.0
-        np.nan_to_num(bal, copy=False)
+        bal[:, ~valid] = 0.0  # NaN * 0 would be NaN
         bal *= wt
         num[:, box[0], box[1]] += bal
         total[box] += wt

@@ -96,7 +96,10 @@ def _in_dtype(out, path):
     lo, hi = (lo + 1, hi) if nodata == lo else (lo, hi - 1) if nodata == hi else (lo, hi)
 
     def convert(v):  # one pass per chunk
-        return np.where(np.isnan(v), nodata, np.clip(np.rint(v), lo, hi)).astype(dtype)
+        r = np.rint(v)
+        np.minimum(np.maximum(r, lo, out=r), hi, out=r)
+        r[np.isnan(v)] = nodata
+        return r.astype(dtype)
 
     return out.copy(data=out.data.map_blocks(convert, dtype=dtype)).rio.write_nodata(nodata, encoded=False)
 
