@@ -30,7 +30,7 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(__file__))
-from _common import median_time, median_times, ratio_line, record, start  # noqa: E402
+from _common import median_time, median_times, ratio_line, record, start
 
 
 def make_orthos(data: pathlib.Path, folder: pathlib.Path) -> list[str]:
@@ -45,19 +45,36 @@ def make_orthos(data: pathlib.Path, folder: pathlib.Path) -> list[str]:
     ngi = data / "orthority"
     with rasterio.open(ngi / "ngi" / "dem.tif") as src:
         profile, heights = src.profile, src.read()
-    profile.update(crs=rasterio.CRS.from_string((ngi / "io" / "ngi_xyz_opk.prj").read_text()))
+    profile.update(
+        crs=rasterio.CRS.from_string((ngi / "io" / "ngi_xyz_opk.prj").read_text())
+    )
     with rasterio.open(folder / "dem.tif", "w", **profile) as dst:
         dst.write(heights)
     images, exteriors, crs = block_images(ngi / "io" / "ngi_xyz_opk.csv", ngi / "ngi")
     camera = read_interior(ngi / "io" / "ngi_int_param.yaml", None)
-    return [str(p) for p in orthorectify_block(images, exteriors, camera, read_dem(folder / "dem.tif"), folder,
-                                               resolution=5.0, crs=crs)]
+    return [
+        str(p)
+        for p in orthorectify_block(
+            images,
+            exteriors,
+            camera,
+            read_dem(folder / "dem.tif"),
+            folder,
+            resolution=5.0,
+            crs=crs,
+        )
+    ]
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--data", default=str(pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"))
+    ap.add_argument(
+        "--data",
+        default=str(
+            pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"
+        ),
+    )
     args = ap.parse_args()
     data = pathlib.Path(args.data)
     if not (data / "orthority" / "ngi" / "dem.tif").is_file():
@@ -77,31 +94,83 @@ def main() -> None:
             arr, transform = rasterio.merge.merge(paths)
             with rasterio.open(paths[0]) as ds:
                 profile = ds.profile
-            profile.update(height=arr.shape[1], width=arr.shape[2], transform=transform, compress="deflate",
-                           tiled=True, blockxsize=256, blockysize=256)
+            profile.update(
+                height=arr.shape[1],
+                width=arr.shape[2],
+                transform=transform,
+                compress="deflate",
+                tiled=True,
+                blockxsize=256,
+                blockysize=256,
+            )
             with rasterio.open(tmp / "merge.tif", "w", **profile) as dst:
                 dst.write(arr)
 
         info = {}
 
         def ours(cog=False):
-            to_raster(_in_dtype(mosaic(paths, info=info), paths[0]), tmp / "mosaic.tif", cog=cog)
+            to_raster(
+                _in_dtype(mosaic(paths, info=info), paths[0]),
+                tmp / "mosaic.tif",
+                cog=cog,
+            )
 
-        t = median_times({"merge": merge, "photax": ours, "photax_cog": lambda: ours(True),
-                          "seams": lambda: mosaic(paths)}, repeat=args.repeat)
-        print(f"load average {[round(v, 2) for v in os.getloadavg()]} (1, 5, 15 min) at the end")
+        t = median_times(
+            {
+                "merge": merge,
+                "photax": ours,
+                "photax_cog": lambda: ours(True),
+                "seams": lambda: mosaic(paths),
+            },
+            repeat=args.repeat,
+        )
+        print(
+            f"load average {[round(v, 2) for v in os.getloadavg()]} (1, 5, 15 min) at the end"
+        )
         with rasterio.open(tmp / "mosaic.tif") as ds:
             shape, dtype = ds.shape, ds.dtypes[0]
-        print(f"NGI mosaic {shape[1]} x {shape[0]} px, 3 bands, {dtype}, seam grid {info['seam_scale']} px; gains "
-              + ", ".join("/".join(f"{x:.3f}" for x in g) for g in info["gains"]))
-        print(ratio_line("photax.mosaic vs rasterio.merge (to GeoTIFF)", t["photax"], t["merge"]) + "  (target <= 4)")
-        print(ratio_line("photax.mosaic (COG, as the CLI writes) vs rasterio.merge", t["photax_cog"], t["merge"]))
-        print(ratio_line("photax.mosaic up to the lazy result (seams) vs rasterio.merge", t["seams"], t["merge"]))
+        print(
+            f"NGI mosaic {shape[1]} x {shape[0]} px, 3 bands, {dtype}, seam grid {info['seam_scale']} px; gains "
+            + ", ".join("/".join(f"{x:.3f}" for x in g) for g in info["gains"])
+        )
+        print(
+            ratio_line(
+                "photax.mosaic vs rasterio.merge (to GeoTIFF)", t["photax"], t["merge"]
+            )
+            + "  (target <= 4)"
+        )
+        print(
+            ratio_line(
+                "photax.mosaic (COG, as the CLI writes) vs rasterio.merge",
+                t["photax_cog"],
+                t["merge"],
+            )
+        )
+        print(
+            ratio_line(
+                "photax.mosaic up to the lazy result (seams) vs rasterio.merge",
+                t["seams"],
+                t["merge"],
+            )
+        )
         # CPU time (all threads, user + system): less sensitive than wall time to the other jobs of a busy machine.
-        cpu = {k: median_time(fn, repeat=args.repeat, clock=time.process_time) for k, fn in (("merge", merge),
-                                                                                           ("photax", ours))}
-        print(ratio_line("CPU time: photax.mosaic vs rasterio.merge (to GeoTIFF)", cpu["photax"], cpu["merge"]))
-        record("ngi", mosaic_px=list(shape), seam_scale=info["seam_scale"], repeat=args.repeat)
+        cpu = {
+            k: median_time(fn, repeat=args.repeat, clock=time.process_time)
+            for k, fn in (("merge", merge), ("photax", ours))
+        }
+        print(
+            ratio_line(
+                "CPU time: photax.mosaic vs rasterio.merge (to GeoTIFF)",
+                cpu["photax"],
+                cpu["merge"],
+            )
+        )
+        record(
+            "ngi",
+            mosaic_px=list(shape),
+            seam_scale=info["seam_scale"],
+            repeat=args.repeat,
+        )
 
 
 if __name__ == "__main__":

@@ -22,14 +22,29 @@ def _moments(n, count, rng, noise=0.0):
     extra pairs, each image with independent noise of variance ``noise``; the true gains and offsets."""
     g = rng.uniform(0.6, 1.5, n)
     o = rng.uniform(-40, 40, n)
-    pairs = {(i, i + 1) for i in range(n - 1)} | {tuple(sorted(rng.choice(n, 2, replace=False))) for _ in range(n)}
+    pairs = {(i, i + 1) for i in range(n - 1)} | {
+        tuple(sorted(rng.choice(n, 2, replace=False))) for _ in range(n)
+    }
     out = {}
     for i, j in sorted(pairs):
-        mt, vt = rng.uniform(60, 200), rng.uniform(400, 2000)  # the scene's mean and variance in the overlap
+        mt, vt = (
+            rng.uniform(60, 200),
+            rng.uniform(400, 2000),
+        )  # the scene's mean and variance in the overlap
         ma, mb = (mt - o[i]) / g[i], (mt - o[j]) / g[j]
-        vaa, vbb, vab = vt / g[i] ** 2 + noise, vt / g[j] ** 2 + noise, vt / (g[i] * g[j])
-        out[(i, j)] = [count, count * ma, count * mb, count * (vaa + ma * ma), count * (vbb + mb * mb),
-                       count * (vab + ma * mb)]
+        vaa, vbb, vab = (
+            vt / g[i] ** 2 + noise,
+            vt / g[j] ** 2 + noise,
+            vt / (g[i] * g[j]),
+        )
+        out[(i, j)] = [
+            count,
+            count * ma,
+            count * mb,
+            count * (vaa + ma * ma),
+            count * (vbb + mb * mb),
+            count * (vab + ma * mb),
+        ]
     return out, g, o
 
 
@@ -45,9 +60,13 @@ def test_known_gains_and_offsets_recovered_at_any_overlap_size(n, count):
     gains, offsets = _balance(n, moments)
     np.testing.assert_allclose(gains, g / g.mean(), rtol=2e-3)
     np.testing.assert_allclose(offsets, (o - o.mean()) / g.mean(), atol=0.5)
-    exact, _ = _balance(n, _moments(n, count, np.random.default_rng(n * 1000 + count % 997))[0])
+    exact, _ = _balance(
+        n, _moments(n, count, np.random.default_rng(n * 1000 + count % 997))[0]
+    )
     np.testing.assert_allclose(exact, g / g.mean(), rtol=1e-8)  # without noise: exact
-    assert gains.mean() == pytest.approx(1.0) and offsets.mean() == pytest.approx(0.0, abs=1e-9)
+    assert gains.mean() == pytest.approx(1.0) and offsets.mean() == pytest.approx(
+        0.0, abs=1e-9
+    )
 
 
 def test_unequal_overlap_sizes_and_noise():
@@ -61,7 +80,14 @@ def test_unequal_overlap_sizes_and_noise():
         cnt = float(10 ** rng.uniform(4, 7))
         ma, mb = m[1], m[2]
         vaa, vbb, vab = m[3] - ma * ma + 1.0, m[4] - mb * mb + 1.0, m[5] - ma * mb
-        moments[p] = [cnt, cnt * ma, cnt * mb, cnt * (vaa + ma * ma), cnt * (vbb + mb * mb), cnt * (vab + ma * mb)]
+        moments[p] = [
+            cnt,
+            cnt * ma,
+            cnt * mb,
+            cnt * (vaa + ma * ma),
+            cnt * (vbb + mb * mb),
+            cnt * (vab + ma * mb),
+        ]
     gains, offsets = _balance(n, moments)
     np.testing.assert_allclose(gains, g / g.mean(), rtol=0.02)
     np.testing.assert_allclose(offsets, (o - o.mean()) / g.mean(), atol=3.0)
@@ -70,8 +96,17 @@ def test_unequal_overlap_sizes_and_noise():
 def test_undetermined_gain_is_refused():
     """Image 2 constant (50) in its only overlap: its gain and offset are one unknown; refused, not guessed."""
     moments, _, _ = _moments(2, 10**6, np.random.default_rng(1))
-    moments[(1, 2)] = [1e6, 1e8, 5e7, 1e10 + 1e9, 2.5e9, 5e9]  # a: mean 100, variance 1000; b == 50
-    with pytest.raises(ValueError, match="do not determine the gain of ortho 2: it is constant"):
+    moments[(1, 2)] = [
+        1e6,
+        1e8,
+        5e7,
+        1e10 + 1e9,
+        2.5e9,
+        5e9,
+    ]  # a: mean 100, variance 1000; b == 50
+    with pytest.raises(
+        ValueError, match="do not determine the gain of ortho 2: it is constant"
+    ):
         _balance(3, moments)
 
 
@@ -83,8 +118,17 @@ def _ortho(values, col0, res=2.0):
     from photax.grid import Grid
     from photax.io.lazy import dataarray
 
-    grid = Grid((res, 0, 500_000.0 + col0 * res, 0, -res, 4_000_000.0), values.shape, crs="EPSG:32633")
-    return dataarray(np.asarray(values, dtype=np.float32), grid, np.asarray(np.nan, dtype=np.float32), "o")
+    grid = Grid(
+        (res, 0, 500_000.0 + col0 * res, 0, -res, 4_000_000.0),
+        values.shape,
+        crs="EPSG:32633",
+    )
+    return dataarray(
+        np.asarray(values, dtype=np.float32),
+        grid,
+        np.asarray(np.nan, dtype=np.float32),
+        "o",
+    )
 
 
 @pytestmark_dask
@@ -94,12 +138,15 @@ def test_mosaic_refusals():
     rng = np.random.default_rng(0)
     scene = rng.uniform(20, 200, (40, 200))
     a, b = _ortho(scene[:, :80], 0), _ortho(scene[:, 50:130] * 1.2 + 5, 50)
-    mosaic([a, b]).values  # fine
+    assert np.isfinite(mosaic([a, b]).values).all()  # fine
     with pytest.raises(ValueError, match=r"orthos\[1\] has no valid pixel"):
         mosaic([a, _ortho(np.full((40, 80), np.nan), 50)])
     # Two groups joined within, not between: said plainly.
     c, d = _ortho(scene[:, 140:170], 140), _ortho(scene[:, 160:200], 160)
-    with pytest.raises(ValueError, match=r"do not all overlap.*orthos\[0\], orthos\[1\]\}.*orthos\[2\], orthos\[3\]"):
+    with pytest.raises(
+        ValueError,
+        match=r"do not all overlap.*orthos\[0\], orthos\[1\]\}.*orthos\[2\], orthos\[3\]",
+    ):
         mosaic([a, b, c, d])
     # An inverted image (a negative) cannot be balanced by a positive gain: an error, not a blank mosaic.
     with pytest.raises(ValueError, match=r"orthos\[1\] a gain of .*<= 0"):
@@ -113,14 +160,25 @@ def test_cli_refuses_an_empty_ortho_and_orthos_that_do_not_overlap(tmp_path, cap
 
     scene = np.random.default_rng(1).uniform(20, 200, (40, 200))
     paths = {}
-    for name, o in (("a", _ortho(scene[:, :80], 0)), ("b", _ortho(scene[:, 50:130], 50)),
-                    ("empty", _ortho(np.full((40, 80), np.nan), 50)), ("far", _ortho(scene[:, 150:200], 150))):
+    for name, o in (
+        ("a", _ortho(scene[:, :80], 0)),
+        ("b", _ortho(scene[:, 50:130], 50)),
+        ("empty", _ortho(np.full((40, 80), np.nan), 50)),
+        ("far", _ortho(scene[:, 150:200], 150)),
+    ):
         o.rio.to_raster(tmp_path / f"{name}.tif")
         paths[name] = str(tmp_path / f"{name}.tif")
     out = tmp_path / "m.tif"
-    for names, match in ((("a", "empty"), r"orthos\[1\] \(.*empty\.tif\) has no valid pixel"),
-                         (("a", "b", "far"), r"orthos\[2\] \(.*far\.tif\) overlaps no other ortho")):
-        assert main(["mosaic", *(paths[n] for n in names), "-o", str(out), "--no-progress"]) == 2
+    for names, match in (
+        (("a", "empty"), r"orthos\[1\] \(.*empty\.tif\) has no valid pixel"),
+        (("a", "b", "far"), r"orthos\[2\] \(.*far\.tif\) overlaps no other ortho"),
+    ):
+        assert (
+            main(
+                ["mosaic", *(paths[n] for n in names), "-o", str(out), "--no-progress"]
+            )
+            == 2
+        )
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and re.search(match, err), err
         assert not out.exists()

@@ -37,7 +37,15 @@ def orthos(tmp_path_factory):
         dst.write(heights)
     images, exteriors, crs = block_images(NGI / "io" / "ngi_xyz_opk.csv", NGI / "ngi")
     camera = read_interior(NGI / "io" / "ngi_int_param.yaml", None)
-    paths = orthorectify_block(images, exteriors, camera, read_dem(tmp / "dem.tif"), tmp, resolution=5.0, crs=crs)
+    paths = orthorectify_block(
+        images,
+        exteriors,
+        camera,
+        read_dem(tmp / "dem.tif"),
+        tmp,
+        resolution=5.0,
+        crs=crs,
+    )
     return [str(p) for p in paths], tmp
 
 
@@ -62,7 +70,12 @@ def test_ngi_mosaic_is_balanced_and_equals_the_orthos_away_from_seams(orthos):
 
     paths, tmp = orthos
     info = {}
-    out = mosaic(paths, info=info, seamlines=tmp / "seams.geojson", source_index=tmp / "source.tif")
+    out = mosaic(
+        paths,
+        info=info,
+        seamlines=tmp / "seams.geojson",
+        source_index=tmp / "source.tif",
+    )
     m = out.values
     stack, merged, transform = _on_union(paths)
     assert m.shape == merged.shape and out.rio.transform().almost_equals(transform)
@@ -81,7 +94,12 @@ def test_ngi_mosaic_is_balanced_and_equals_the_orthos_away_from_seams(orthos):
                 for b in range(3):
                     a, c = stack[i][b][both], stack[j][b][both]
                     raw.append(abs(a.mean() - c.mean()))
-                    bal.append(abs((g[i, b] * a + o[i, b]).mean() - (g[j, b] * c + o[j, b]).mean()))
+                    bal.append(
+                        abs(
+                            (g[i, b] * a + o[i, b]).mean()
+                            - (g[j, b] * c + o[j, b]).mean()
+                        )
+                    )
     assert max(raw) > 30 and max(bal) < min(5, max(raw) / 10), (raw, bal)
     # Away from the seams (feather + a seam cell from any label change), each pixel is its source ortho,
     # balanced: g v + o to float32 rounding.  rasterio.merge shows the first ortho there instead, raw: where
@@ -92,23 +110,35 @@ def test_ngi_mosaic_is_balanced_and_equals_the_orthos_away_from_seams(orthos):
     from scipy import ndimage
 
     s, feather = info["seam_scale"], 8
-    first = np.argmax(np.all(np.isfinite(stack), axis=1), axis=0)  # merge's source (first wins)
+    first = np.argmax(
+        np.all(np.isfinite(stack), axis=1), axis=0
+    )  # merge's source (first wins)
     checked = 0
     for k in range(4):
         inner = ndimage.binary_erosion(src == k, iterations=feather + s)
         ours = g[k][:, None] * stack[k][:, inner] + o[k][:, None]
         np.testing.assert_allclose(m[:, inner], ours, atol=1e-3)
         same = inner & (first == k)
-        np.testing.assert_allclose(m[:, same], merged[:, same], rtol=0,
-                                   atol=np.max(np.abs((g[k] - 1)[:, None] * merged[:, same] + o[k][:, None])) + 1e-3)
+        np.testing.assert_allclose(
+            m[:, same],
+            merged[:, same],
+            rtol=0,
+            atol=np.max(np.abs((g[k] - 1)[:, None] * merged[:, same] + o[k][:, None]))
+            + 1e-3,
+        )
         checked += inner.sum()
     assert checked > 0.7 * valid.sum()
     # The seamlines GeoJSON: one polygon per ortho, rasterised back it is the source index.
     doc = json.loads((tmp / "seams.geojson").read_text())
     assert [f["properties"]["index"] for f in doc["features"]] == [0, 1, 2, 3]
     assert doc["features"][0]["properties"]["source"] == paths[0]
-    back = rasterio.features.rasterize(((f["geometry"], f["properties"]["index"]) for f in doc["features"]),
-                                       out_shape=src.shape, transform=transform, fill=-1, dtype="int16")
+    back = rasterio.features.rasterize(
+        ((f["geometry"], f["properties"]["index"]) for f in doc["features"]),
+        out_shape=src.shape,
+        transform=transform,
+        fill=-1,
+        dtype="int16",
+    )
     assert np.mean(back == src) > 0.999
 
 
@@ -117,8 +147,17 @@ def test_ngi_cli_mosaic_writes_seamlines_and_source_index(orthos, tmp_path, caps
 
     paths, _ = orthos
     out = tmp_path / "m.tif"
-    args = ["mosaic", *paths, "-o", str(out), "--seamlines", str(tmp_path / "s.geojson"),
-            "--source-index", str(tmp_path / "i.tif"), "--no-progress"]
+    args = [
+        "mosaic",
+        *paths,
+        "-o",
+        str(out),
+        "--seamlines",
+        str(tmp_path / "s.geojson"),
+        "--source-index",
+        str(tmp_path / "i.tif"),
+        "--no-progress",
+    ]
     assert main(args) == 0
     text = capsys.readouterr().out
     assert "4 orthos" in text and "seamlines ->" in text and "source index ->" in text
@@ -133,4 +172,6 @@ def test_ngi_cli_mosaic_writes_seamlines_and_source_index(orthos, tmp_path, caps
     ok = np.isfinite(ref)
     assert np.array_equal(written == 0, ~ok)
     np.testing.assert_array_equal(written[ok], np.clip(np.round(ref[ok]), 1, 255))
-    assert main(args[:-5] + ["--seamlines", str(out), "--no-progress"]) == 2  # one file for two outputs
+    assert (
+        main(args[:-5] + ["--seamlines", str(out), "--no-progress"]) == 2
+    )  # one file for two outputs

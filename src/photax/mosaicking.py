@@ -58,6 +58,7 @@ larger ones are read twice.  Write the result with :func:`photax.to_raster`
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -177,7 +178,8 @@ def _components(n: int, edges) -> list[list[int]]:
     from scipy.sparse.csgraph import connected_components
 
     e = np.asarray(list(edges), dtype=np.int64).reshape(-1, 2)
-    _, comp = connected_components(coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)), directed=False)
+    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    _, comp = connected_components(graph, directed=False)
     return [np.flatnonzero(comp == c).tolist() for c in np.unique(comp)]
 
 
@@ -185,12 +187,13 @@ def _edges(off: int, size: int, chunks: int) -> tuple:
     """Chunk sizes of an axis of ``size`` at ``off`` on the union grid, cut where the union grid's
     ``chunks`` are."""
     cuts = [0, *range(-off % chunks or chunks, size, chunks), size]
-    return tuple(b - a for a, b in zip(cuts[:-1], cuts[1:]) if b > a)
+    return tuple(b - a for a, b in itertools.pairwise(cuts) if b > a)
 
 
 def _align(o, off, chunks: int):
     """Dask-backed ortho ``o`` at ``off`` rechunked on the union grid's ``chunks``."""
-    return o.chunk({o.dims[0]: -1, "y": _edges(off[0], o.shape[1], chunks), "x": _edges(off[1], o.shape[2], chunks)})
+    ys, xs = _edges(off[0], o.shape[1], chunks), _edges(off[1], o.shape[2], chunks)
+    return o.chunk({o.dims[0]: -1, "y": ys, "x": xs})
 
 
 def _lazy(o, chunks: int, off=(0, 0)):
@@ -277,7 +280,8 @@ def _balance(n: int, moments: dict, names=None):
             stats[p] = (cnt / total, ma, mb, max(saa / cnt - ma * ma, 0.0), max(sbb / cnt - mb * mb, 0.0),
                         sab / cnt - ma * mb)
     mu = sum(w * (ma + mb) / 2 for w, ma, mb, *_ in stats.values())
-    spread = sum(w * (vaa + vbb + (ma - mu) ** 2 + (mb - mu) ** 2) / 2 for w, ma, mb, vaa, vbb, _ in stats.values())
+    spread = sum(w * (vaa + vbb + (ma - mu) ** 2 + (mb - mu) ** 2) / 2
+                 for w, ma, mb, vaa, vbb, _ in stats.values())
     sd = math.sqrt(spread) if spread > 0 else 1.0
     N = np.zeros((2 * n, 2 * n))
     for (i, j), (w, ma, mb, vaa, vbb, vab) in stats.items():
@@ -285,15 +289,18 @@ def _balance(n: int, moments: dict, names=None):
         a, b = (ma - mu) / sd, (mb - mu) / sd
         eaa, ebb, eab = vaa / sd**2 + a * a, vbb / sd**2 + b * b, vab / sd**2 + a * b
         idx = [2 * i, 2 * i + 1, 2 * j, 2 * j + 1]
-        N[np.ix_(idx, idx)] += w * np.array([[eaa, a, -eab, -a], [a, 1, -b, -1], [-eab, -b, ebb, b], [-a, -1, b, 1]])
-    # Datum mean(g) = 1, mean(o) = 0; in these units the offsets o' = (o - mu (1 - g)) / sd, so mean(o') = 0 too.
+        N[np.ix_(idx, idx)] += w * np.array([[eaa, a, -eab, -a], [a, 1, -b, -1], [-eab, -b, ebb, b],
+                                             [-a, -1, b, 1]])
+    # Datum mean(g) = 1, mean(o) = 0; in these units the offsets o' = (o - mu (1 - g)) / sd: mean(o') = 0.
     C = np.zeros((2, 2 * n))
     C[0, 0::2], C[1, 1::2] = 1.0 / n, 1.0 / n
     K = np.block([[N, C.T], [C, np.zeros((2, 2))]])
     for k in range(n):  # an ortho constant in all its overlaps: its gain and offset are one unknown
-        if N[2 * k, 2 * k] - N[2 * k, 2 * k + 1] ** 2 / max(N[2 * k + 1, 2 * k + 1], 1e-300) <= 1e-12 * N.trace():
-            raise ValueError(f"the overlaps do not determine the gain of {names[k] if names else f'ortho {k}'}: "
-                             "it is constant in them; mosaic without balancing")
+        gg, go, oo = N[2 * k, 2 * k], N[2 * k, 2 * k + 1], N[2 * k + 1, 2 * k + 1]
+        if gg - go**2 / max(oo, 1e-300) <= 1e-12 * N.trace():  # its variance in the overlaps, ~0
+            name = names[k] if names else f"ortho {k}"
+            raise ValueError(f"the overlaps do not determine the gain of {name}: it is constant in them; "
+                             "mosaic without balancing")
     sv = np.linalg.svd(K, compute_uv=False)
     if sv[-1] <= 1e-10 * sv[0]:
         raise ValueError("the overlaps do not determine every gain and offset: mosaic without balancing")
@@ -430,7 +437,7 @@ def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, wind
     inner = full[dr : dr + h, dc : dc + w]
     # In float32 (the orthos' grey values need no more; half the memory traffic of float64).
     num, total = np.zeros((nb, h, w), np.float32), np.zeros((h, w), np.float32)
-    unlabelled = inner < 0  # data in no labelled cell (a seam grid cell only partly covered): the mean of what is there
+    unlabelled = inner < 0  # in no labelled cell (a seam cell only partly covered): the mean of what is there
     for (pr, pc), v, k, g, o in zip(places, parts, idx, gains, offsets):
         bal = np.multiply(v, g.astype(np.float32)[:, None, None], dtype=np.float32)
         bal += o.astype(np.float32)[:, None, None]
@@ -442,7 +449,8 @@ def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, wind
             b0, b1 = max(dc + pc - f, 0), min(dc + pc + bal.shape[2] + f, full.shape[1])
             own = (full[a0:a1, b0:b1] == k).astype(np.float32)
             wt = ndimage.uniform_filter(own, 2 * f + 1, mode="nearest") if not own.all() else own
-            wt = wt[dr + pr - a0 : dr + pr - a0 + bal.shape[1], dc + pc - b0 : dc + pc - b0 + bal.shape[2]].copy()
+            r, c = dr + pr - a0, dc + pc - b0
+            wt = wt[r : r + bal.shape[1], c : c + bal.shape[2]].copy()
         else:
             wt = (inner[box] == k).astype(np.float32)
         wt[unlabelled[box]] = 1.0
@@ -464,7 +472,8 @@ def _write_source_index(path, labels, s, grid, chunks, inputs):
     from .io.lazy import dataarray, to_raster
 
     if labels.max() >= np.iinfo(np.int16).max:
-        raise ValueError(f"a source index holds at most {np.iinfo(np.int16).max} orthos, got {labels.max() + 1}")
+        raise ValueError(f"a source index holds at most {np.iinfo(np.int16).max} orthos, "
+                         f"got {labels.max() + 1}")
     lab = da.from_array(labels.astype(np.int16), chunks=max(1, chunks // s))
     if s > 1:
         lab = lab.map_blocks(lambda b: np.repeat(np.repeat(b, s, 0), s, 1), chunks=tuple(
@@ -641,8 +650,9 @@ def mosaic(
                              "nothing to join it by")
     groups = _components(n, [p for p in moments if moments[p][0][0] > 0])
     if len(groups) > 1:
-        raise ValueError("the orthos do not all overlap: they fall into " + " and ".join(
-            "{" + ", ".join(f"orthos[{k}]" for k in g) + "}" for g in groups) + ", with no overlap between the groups")
+        sets = " and ".join("{" + ", ".join(f"orthos[{k}]" for k in g) + "}" for g in groups)
+        raise ValueError(f"the orthos do not all overlap: they fall into {sets}, "
+                         "with no overlap between the groups")
     tc = transform * Affine.scale(s)
     if nadirs is None:
         nadirs = []
@@ -671,8 +681,8 @@ def mosaic(
         for k in range(n):
             if np.any(gains[pos[k]] <= 0):
                 raise ValueError(f"balancing gives orthos[{k}]{_name(orthos[k], is_path[k])} a gain of "
-                                 f"{np.min(gains[pos[k]]):.3g} (<= 0): its grey values do not match the others' "
-                                 "in the overlaps; mosaic without balancing")
+                                 f"{np.min(gains[pos[k]]):.3g} (<= 0): its grey values do not match the "
+                                 "others' in the overlaps; mosaic without balancing")
     up = np.zeros(shape_c, dtype=bool)
     if raised_c is not None:
         # Keep the seams a blend's width off raised objects too: feathering must not mix a roof in.

@@ -40,8 +40,9 @@ def add_parser(sub) -> None:
     )
     p.add_argument("orthos", nargs="*", metavar="ORTHO", help="orthophoto GeoTIFFs (one CRS, one pixel lattice, one number of bands: "
                    "RGB orthos share one seam, each band gets its own gain)")
-    p.add_argument("-o", "--out", required=True, help="output mosaic (Cloud-Optimized GeoTIFF, in the orthos' "
-                   "data type: uint8 orthos give a uint8 mosaic, rounded, with their nodata)")
+    p.add_argument("-o", "--out", required=True,
+                   help="output mosaic (Cloud-Optimized GeoTIFF, in the orthos' data type: uint8 orthos "
+                   "give a uint8 mosaic, rounded, with their nodata)")
     p.add_argument("--method", choices=("seamline", "voronoi"), default="seamline",
                    help="seams of least difference (default) or nearest footprint centre")
     p.add_argument("--dsm", help="surface model raster: seams avoid raised objects "
@@ -51,10 +52,12 @@ def add_parser(sub) -> None:
                    help="height above ground of a raised object (default 2)")
     p.add_argument("--no-balance", dest="balance", action="store_false", help="no gain/offset balancing")
     p.add_argument("--feather", type=int, default=8, metavar="PX", help="blend half-width across seams (default 8)")
-    p.add_argument("--seamlines", metavar="PATH", help="also write the seamlines as GeoJSON: one polygon per ortho, "
-                   "the area it is the source of")
-    p.add_argument("--source-index", metavar="PATH", help="also write a GeoTIFF of the index (0-based, in the "
-                   "order given; -1 none) of the ortho each pixel comes from")
+    p.add_argument("--seamlines", metavar="PATH",
+                   help="also write the seamlines as GeoJSON: one polygon per ortho, the area it is the "
+                   "source of")
+    p.add_argument("--source-index", metavar="PATH",
+                   help="also write a GeoTIFF of the index (0-based, in the order given; -1 none) of the "
+                   "ortho each pixel comes from")
     p.add_argument("--chunks", type=int, default=1024, metavar="PX", help="chunk edge (memory ~ chunks^2)")
     b = p.add_argument_group("block workflow (instead of ORTHOs)")
     b.add_argument("--block", metavar="ORIENTATIONS",
