@@ -609,9 +609,9 @@ def mosaic(
     n = len(orthos)
     boxes = [(r, c, o.shape[-2], o.shape[-1]) for o, (r, c) in zip(orthos, offsets)]
     if seam_scale is None:
+        meet = max((_meet(boxes[i], boxes[j]) for i in range(n) for j in range(i + 1, n)), default=0)
         s = max(1, math.ceil(math.sqrt(shape[0] * shape[1] / _SEAM_PIXELS)),
-                math.ceil(math.sqrt(max((_meet(a, b) for a in boxes for b in boxes if a is not b), default=0)
-                                    / _SEAM_OVERLAP)))
+                math.ceil(math.sqrt(meet / _SEAM_OVERLAP)))
     elif isinstance(seam_scale, bool) or not isinstance(seam_scale, (int, np.integer)) or seam_scale < 1:
         raise ValueError(f"seam_scale must be a positive number of pixels, got {seam_scale!r}")
     else:
