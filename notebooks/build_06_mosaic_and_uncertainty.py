@@ -93,7 +93,9 @@ estimates a gain and an offset per ortho by least squares in the overlaps, cuts 
 along the path where the orthos differ least (red), and blends 8 px across the cut."""),
     ("code", """info = {}
 mosaic = ptx.mosaic(orthos, info=info).compute()
-labels = info["labels"]  # index of the ortho each pixel comes from, -1: no data
+# Index of the ortho each pixel comes from (-1: no data), from the seam grid's cells of seam_scale px.
+s = info["seam_scale"]
+labels = np.repeat(np.repeat(info["labels"], s, 0), s, 1)[: mosaic.shape[0], : mosaic.shape[1]]
 with tempfile.TemporaryDirectory() as tmp:
     paths = [str(pathlib.Path(tmp) / f"ortho{k}.tif") for k in range(len(orthos))]
     for o, p in zip(orthos, paths):

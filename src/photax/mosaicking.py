@@ -16,11 +16,16 @@ images) in every band.
    ``sum_pairs sum_overlap (g_i v_i + o_i - g_j v_j - o_j)^2`` with the datum
    ``mean(g) = 1, mean(o) = 0`` (without it all gains could shrink to 0).
    Only the pairs' first and second moments enter the normal equations; they
-   are summed chunk by chunk over each overlap window at full resolution.
+   are summed chunk by chunk over each overlap window at full resolution, and
+   enter as each overlap's means and (co)variances, in grey values centred and
+   scaled by the overlaps' pooled mean and spread, weighted by the overlap's
+   share of pixels: well-posed at any overlap size.  A gain <= 0 or one the
+   overlaps do not determine is an error, not a blank mosaic.
 2. **Seamlines**, on the *seam grid*: the union grid coarsened by
    ``seam_scale`` (cells of ``s x s`` pixels, their mean; a cell is an
-   image's only where all its pixels are; ``s = 1``, full resolution, for
-   mosaics up to 4 Mpx by default).  Images are added one at a time in a
+   image's only where all its pixels are; by default the smallest ``s`` with
+   at most 4 Mpx on the seam grid and at most 8192 cells in any two orthos'
+   overlap box: the maximum flow's cost grows faster than the overlap).  Images are added one at a time in a
    canonical order (by their footprint centre, not the order given, so the
    result does not depend on it).  In each overlap between the mosaic so far
    and the next image the seam is the **minimum s-t cut** (Kwatra et al.
@@ -33,28 +38,36 @@ images) in every band.
    image whose nadir is nearest (the simple option).
 3. **Feathering**, per output chunk at full resolution: across each seam
    the images are blended linearly over ``feather`` pixels on either side
-   (weights from distance transforms of the labels in the chunk grown by
-   ``feather + 1`` pixels, which is exact: a label farther away gets weight 0).
+   (an image's weight is the share of its label in the ``(2 feather + 1)^2``
+   box round the pixel, from the labels in the chunk grown by ``feather + 1``
+   pixels: exact, a label farther away gets weight 0).
+
+On request the seamlines are written as GeoJSON (a polygon per ortho) and
+the source index as a GeoTIFF (which ortho each pixel comes from).
 
 Memory: the seam grid (``n`` footprints of ``1/s^2`` of their pixels, the
 labels) is in memory; the full-resolution orthos are only ever read chunk
 by chunk, twice: once for the overlap moments and the seam grid, once for
-the output.  Lazy orthos given as Dask-backed DataArrays (e.g. from
-:func:`photax.orthorectify_dask`, whose chunks cost a kernel call each)
-are instead computed once and kept (``dask.persist``, in their own dtype)
-when they hold at most ``_PERSIST_BYTES`` (1 GiB) in all; raster paths
-are read twice (reading is cheap), as are larger lazy orthos.  Write the result with :func:`photax.to_raster`
+the output.  Lazy orthos (raster paths, or Dask-backed DataArrays, e.g.
+from :func:`photax.orthorectify_dask`, whose chunks cost a kernel call each)
+are instead read or computed once and kept (``dask.persist``, chunk by chunk,
+in their own dtype) when they hold at most ``_PERSIST_BYTES`` (1 GiB) in all;
+larger ones are read twice.  Write the result with :func:`photax.to_raster`
 (``cog=True``: a tiled, compressed Cloud-Optimized GeoTIFF with overviews).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 
 _SCALE = 1000  # integer edge capacities: cost units per grey-value unit
-_SEAM_PIXELS = 1 << 22  # default seam grid: at most 4 Mpx (s = 1 up to that)
+_SEAM_PIXELS = 1 << 22  # default seam grid: at most 4 Mpx (s = 1 up to that) ...
+# ... and at most this many cells in the bounding box of any two orthos' overlap: scipy's maximum flow
+# grows faster than linearly (NGI, 5 m: 0.03 s for 8k cells, 0.2 s for 34k, 6 s for 139k).
+_SEAM_OVERLAP = 1 << 13
 _PERSIST_BYTES = 1 << 30  # lazy orthos given as DataArrays, up to this in all, are computed once and kept
 
 
@@ -153,13 +166,44 @@ def _open(o, k: int, chunks: int):
     return o
 
 
-def _lazy(o, chunks: int):
+def _name(o, is_path: bool) -> str:
+    """`` (PATH)`` for an ortho opened from a raster file, else ''."""
+    src = o.encoding.get("source") if is_path else None
+    return f" ({src})" if src else ""
+
+
+def _components(n: int, edges) -> list[list[int]]:
+    """The connected components (sorted lists of nodes) of the graph on ``range(n)`` with ``edges``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    e = np.asarray(list(edges), dtype=np.int64).reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+    _, comp = connected_components(graph, directed=False)
+    return [np.flatnonzero(comp == c).tolist() for c in np.unique(comp)]
+
+
+def _edges(off: int, size: int, chunks: int) -> tuple:
+    """Chunk sizes of an axis of ``size`` at ``off`` on the union grid, cut where the union grid's
+    ``chunks`` are."""
+    cuts = [0, *range(-off % chunks or chunks, size, chunks), size]
+    return tuple(b - a for a, b in itertools.pairwise(cuts) if b > a)
+
+
+def _align(o, off, chunks: int):
+    """Dask-backed ortho ``o`` at ``off`` rechunked on the union grid's ``chunks``."""
+    ys, xs = _edges(off[0], o.shape[1], chunks), _edges(off[1], o.shape[2], chunks)
+    return o.chunk({o.dims[0]: -1, "y": ys, "x": xs})
+
+
+def _lazy(o, chunks: int, off=(0, 0)):
     """The ortho's values as a ``(bands, h, w)`` float64 Dask array, NaN for no data."""
     import dask.array as da
 
     v = o.data
     if not isinstance(v, da.Array):
-        v = da.from_array(np.asarray(v), chunks=(-1, chunks, chunks))
+        v = da.from_array(np.asarray(v), chunks=(-1, _edges(off[0], v.shape[1], chunks),
+                                                 _edges(off[1], v.shape[2], chunks)))
     v = v.astype(float)
     nd = o.rio.nodata
     if nd is not None and not np.isnan(nd):
@@ -185,6 +229,13 @@ def _seam_grid(v, box, s: int, chunks: int):
     return da.coarsen(np.mean, v.rechunk((-1, step, step)), {1: s, 2: s}), (r // s, c // s)
 
 
+def _meet(a, b) -> int:
+    """Pixels in the intersection of the boxes ``a`` and ``b`` ``(row, col, h, w)``."""
+    h = min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0])
+    w = min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])
+    return max(h, 0) * max(w, 0)
+
+
 def _pair_moments(vi, vj, bi, bj):
     """Lazy ``(6, bands)``: ``[count, sum a, sum b, sum a^2, sum b^2, sum ab]``
     per band over the pixels where both orthos have data in every band
@@ -205,24 +256,57 @@ def _pair_moments(vi, vj, bi, bj):
                      (a * b).sum(axis=ax)])
 
 
-def _balance(n: int, moments: dict):
+def _balance(n: int, moments: dict, names=None):
     """Gains and offsets ``(n,)``, ``(n,)`` by least squares in the overlaps
     from the pairs' moments ``{(i, j): [count, Sa, Sb, Saa, Sbb, Sab]}``,
-    with the datum ``mean(g) = 1``, ``mean(o) = 0`` (Lagrange multipliers)."""
+    with the datum ``mean(g) = 1``, ``mean(o) = 0`` (Lagrange multipliers);
+    ``names`` of the images for messages.
+
+    Well-posed at any overlap size: the sums become each pair's means and
+    (co)variances, grey values are centred on the overlaps' pooled mean and
+    scaled by their pooled spread, and each pair is weighted by its share of
+    the overlap pixels, so the normal equations hold numbers of order 1 beside
+    the datum's (raw sums of 1e5 pixels, ~1e10, drowned it: all gains 0).
+
+    Raises:
+        ValueError: the overlaps leave a gain undetermined (an ortho constant
+            in its overlaps).  The caller checks the gains' signs.
+    """
+    stats = {}
+    total = sum(float(v[0]) for v in moments.values() if v[0] > 0)
+    for p, (cnt, sa, sb, saa, sbb, sab) in moments.items():
+        if cnt > 0:
+            ma, mb = sa / cnt, sb / cnt
+            stats[p] = (cnt / total, ma, mb, max(saa / cnt - ma * ma, 0.0), max(sbb / cnt - mb * mb, 0.0),
+                        sab / cnt - ma * mb)
+    mu = sum(w * (ma + mb) / 2 for w, ma, mb, *_ in stats.values())
+    spread = sum(w * (vaa + vbb + (ma - mu) ** 2 + (mb - mu) ** 2) / 2
+                 for w, ma, mb, vaa, vbb, _ in stats.values())
+    sd = math.sqrt(spread) if spread > 0 else 1.0
     N = np.zeros((2 * n, 2 * n))
-    for (i, j), (cnt, sa, sb, saa, sbb, sab) in moments.items():
-        if cnt == 0:
-            continue
-        # Residual g_i a + o_i - g_j b - o_j: design row [a, 1, -b, -1] at (gi, oi, gj, oj).
+    for (i, j), (w, ma, mb, vaa, vbb, vab) in stats.items():
+        # Residual g_i a + o_i - g_j b - o_j, a and b in units (v - mu) / sd: design row [a, 1, -b, -1].
+        a, b = (ma - mu) / sd, (mb - mu) / sd
+        eaa, ebb, eab = vaa / sd**2 + a * a, vbb / sd**2 + b * b, vab / sd**2 + a * b
         idx = [2 * i, 2 * i + 1, 2 * j, 2 * j + 1]
-        block = np.array([[saa, sa, -sab, -sa], [sa, cnt, -sb, -cnt], [-sab, -sb, sbb, sb], [-sa, -cnt, sb, cnt]])
-        N[np.ix_(idx, idx)] += block
+        N[np.ix_(idx, idx)] += w * np.array([[eaa, a, -eab, -a], [a, 1, -b, -1], [-eab, -b, ebb, b],
+                                             [-a, -1, b, 1]])
+    # Datum mean(g) = 1, mean(o) = 0; in these units the offsets o' = (o - mu (1 - g)) / sd: mean(o') = 0.
     C = np.zeros((2, 2 * n))
-    C[0, 0::2], C[1, 1::2] = 1.0, 1.0
+    C[0, 0::2], C[1, 1::2] = 1.0 / n, 1.0 / n
     K = np.block([[N, C.T], [C, np.zeros((2, 2))]])
-    rhs = np.concatenate([np.zeros(2 * n), [n, 0.0]])
-    x = np.linalg.lstsq(K, rhs, rcond=None)[0][: 2 * n]
-    return x[0::2], x[1::2]
+    for k in range(n):  # an ortho constant in all its overlaps: its gain and offset are one unknown
+        gg, go, oo = N[2 * k, 2 * k], N[2 * k, 2 * k + 1], N[2 * k + 1, 2 * k + 1]
+        if gg - go**2 / max(oo, 1e-300) <= 1e-12 * N.trace():  # its variance in the overlaps, ~0
+            name = names[k] if names else f"ortho {k}"
+            raise ValueError(f"the overlaps do not determine the gain of {name}: it is constant in them; "
+                             "mosaic without balancing")
+    sv = np.linalg.svd(K, compute_uv=False)
+    if sv[-1] <= 1e-10 * sv[0]:
+        raise ValueError("the overlaps do not determine every gain and offset: mosaic without balancing")
+    x = np.linalg.solve(K, np.concatenate([np.zeros(2 * n), [1.0, 0.0]]))[: 2 * n]
+    g = x[0::2]
+    return g, sd * x[1::2] + mu * (1 - g)
 
 
 def _min_cut(cost_h, cost_v, region, src, snk):
@@ -337,41 +421,91 @@ def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, wind
     """One output chunk ``(bands, h, w)``: the intersecting orthos ``parts``
     (canonical indices ``idx``, at ``places`` in the chunk), balanced (gains
     and offsets ``(m, bands)``) and feathered across the labels (seam grid
-    ``lab`` at ``lab_origin``, cells of ``s`` px), the same weights in every band."""
+    ``lab`` at ``lab_origin``, cells of ``s`` px), the same weights in every band.
+
+    Each ortho is handled on its own box in the chunk (no ``(m, bands, h, w)`` stack): its weight is
+    the share of its label in the ``(2 feather + 1)^2`` box round the pixel, which falls linearly from
+    1 (``feather`` px inside its label) to 0 (``feather`` px outside) across a straight seam; 0 where
+    it has no data."""
     from scipy import ndimage
 
     r0, c0, h, w = tile
     (wr0, wr1), (wc0, wc1) = window
-    m, nb = len(parts), gains.shape[1]
-    vals = np.full((m, nb, h, w), np.nan)
-    for p, ((pr, pc), v) in enumerate(zip(places, parts)):
-        vals[p, :, pr : pr + v.shape[1], pc : pc + v.shape[2]] = v
-    valid = np.all(np.isfinite(vals), axis=1)  # (m, h, w): data in every band
-    bal = np.where(valid[:, None], vals * gains[:, :, None, None] + offsets[:, :, None, None], np.nan)
+    nb = gains.shape[1]
     full = lab[(np.arange(wr0, wr1) // s - lab_origin[0])[:, None], (np.arange(wc0, wc1) // s - lab_origin[1])[None]]
-    inner = full[r0 - wr0 : r0 - wr0 + h, c0 - wc0 : c0 - wc0 + w]
-    if feather > 0:
-        # Weight of image k falls linearly from 1 (feather px inside its label) to 0 (feather px outside).
-        wts = np.zeros((m, h, w))
-        for p, k in enumerate(idx):
-            own = full == k
-            if not own.any():
-                continue
-            inside = ndimage.distance_transform_edt(own) if not own.all() else np.full(own.shape, np.inf)
-            outside = ndimage.distance_transform_edt(~own)
-            signed = np.where(own, inside - 0.5, 0.5 - outside)[r0 - wr0 : r0 - wr0 + h, c0 - wc0 : c0 - wc0 + w]
-            wts[p] = np.where(valid[p], np.clip(0.5 + signed / (2 * feather), 0.0, 1.0), 0.0)
-        total = wts.sum(axis=0)
-        out = np.where(total > 0, np.nansum(np.nan_to_num(bal) * wts[:, None], axis=0) / np.where(total > 0, total, 1),
-                       np.nan)
-    else:
-        out = np.full((nb, h, w), np.nan)
-        for p, k in enumerate(idx):
-            out[:, inner == k] = bal[p][:, inner == k]
-    # Pixels with data in no labelled cell (a seam grid cell only partly covered): the mean of what is there.
-    cnt = valid.sum(axis=0)
-    rest = np.where(cnt > 0, np.nan_to_num(bal).sum(axis=0) / np.maximum(cnt, 1), np.nan)
-    return np.where(inner >= 0, out, rest)
+    dr, dc = r0 - wr0, c0 - wc0
+    inner = full[dr : dr + h, dc : dc + w]
+    # In float32 (the orthos' grey values need no more; half the memory traffic of float64).
+    num, total = np.zeros((nb, h, w), np.float32), np.zeros((h, w), np.float32)
+    unlabelled = inner < 0  # in no labelled cell (a seam cell only partly covered): the mean of what is there
+    for (pr, pc), v, k, g, o in zip(places, parts, idx, gains, offsets):
+        bal = np.multiply(v, g.astype(np.float32)[:, None, None], dtype=np.float32)
+        bal += o.astype(np.float32)[:, None, None]
+        valid = np.isfinite(bal).all(axis=0)
+        box = (slice(pr, pr + bal.shape[1]), slice(pc, pc + bal.shape[2]))
+        if feather > 0:
+            f = feather
+            a0, a1 = max(dr + pr - f, 0), min(dr + pr + bal.shape[1] + f, full.shape[0])
+            b0, b1 = max(dc + pc - f, 0), min(dc + pc + bal.shape[2] + f, full.shape[1])
+            own = (full[a0:a1, b0:b1] == k).astype(np.float32)
+            wt = ndimage.uniform_filter(own, 2 * f + 1, mode="nearest") if not own.all() else own
+            r, c = dr + pr - a0, dc + pc - b0
+            wt = wt[r : r + bal.shape[1], c : c + bal.shape[2]].copy()
+        else:
+            wt = (inner[box] == k).astype(np.float32)
+        wt[unlabelled[box]] = 1.0
+        wt[~valid] = 0.0
+        bal[:, ~valid] = 0.0  # NaN * 0 would be NaN
+        bal *= wt
+        num[:, box[0], box[1]] += bal
+        total[box] += wt
+    out = np.full((nb, h, w), np.nan)
+    np.divide(num, total, out=out, where=total > 0)
+    return out
+
+
+def _write_source_index(path, labels, s, grid, chunks, inputs):
+    """The source-index GeoTIFF: ``labels`` (seam grid, cells of ``s`` px) at full resolution on ``grid``,
+    int16, -1 (its nodata) for no image; written chunk by chunk, atomically."""
+    import dask.array as da
+
+    from .io.lazy import dataarray, to_raster
+
+    if labels.max() >= np.iinfo(np.int16).max:
+        raise ValueError(f"a source index holds at most {np.iinfo(np.int16).max} orthos, "
+                         f"got {labels.max() + 1}")
+    lab = da.from_array(labels.astype(np.int16), chunks=max(1, chunks // s))
+    if s > 1:
+        lab = lab.map_blocks(lambda b: np.repeat(np.repeat(b, s, 0), s, 1), chunks=tuple(
+            tuple(c * s for c in cs) for cs in lab.chunks), dtype=np.int16)
+    lab = lab[: grid.shape[0], : grid.shape[1]].rechunk(chunks)
+    to_raster(dataarray(lab, grid, np.int16(-1), "source_index"), path, inputs=inputs)
+
+
+def _write_seamlines(path, labels, transform, crs, names, inputs):
+    """The seamlines as GeoJSON: one (multi)polygon per ortho, the area of the mosaic it is the source of
+    (``labels`` vectorised on the seam grid ``transform``; neighbours share the seam as an edge), with
+    properties ``index`` (in the order given) and ``source`` (its file, or null); the CRS in a ``crs``
+    member (GeoJSON 2008; the coordinates are in the orthos' CRS)."""
+    import json
+
+    from rasterio import features
+
+    from .io.atomic import atomic_write
+
+    parts = {}
+    for geom, value in features.shapes(labels.astype(np.int32), mask=labels >= 0, connectivity=4,
+                                       transform=transform):
+        parts.setdefault(int(value), []).append(geom["coordinates"])
+    feats = [{"type": "Feature", "properties": {"index": k, "source": names[k]},
+              "geometry": {"type": "MultiPolygon", "coordinates": parts[k]}} for k in sorted(parts)]
+    epsg = crs.to_epsg() if crs is not None else None
+    doc = {"type": "FeatureCollection", "features": feats}
+    if crs is not None:
+        doc["crs"] = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{epsg}" if epsg
+                                                      else crs.to_wkt()}}
+    with atomic_write(path, inputs=inputs) as fh:
+        json.dump(doc, fh)
 
 
 def mosaic(
@@ -387,6 +521,8 @@ def mosaic(
     chunks: int = 1024,
     seam_scale: int | None = None,
     info: dict | None = None,
+    seamlines=None,
+    source_index=None,
 ):
     """Join orthophotos into one mosaic without visible seams, lazily.
 
@@ -410,13 +546,21 @@ def mosaic(
             hard seams).
         chunks: Dask chunk edge of the returned array (and of path inputs).
         seam_scale: cell edge ``s`` in pixels of the grid the seams are cut
-            on (default the smallest with at most 4 Mpx on the union grid; 1
-            for full resolution).
+            on (default the smallest with at most 4 Mpx on the union grid and
+            8192 cells in any two orthos' overlap box; 1 for full resolution).
         info: a dict to receive ``gains`` and ``offsets`` ``(n,)`` (per
             ortho, in the order given; ``(n, bands)`` with several bands), ``labels`` (the index of the ortho
             each seam-grid cell comes from, -1 for none; at full resolution
             when ``seam_scale == 1``), ``seam_scale`` and ``order`` (the
             canonical order the seams were made in).
+        seamlines: a path: write the seamlines there as GeoJSON, one
+            (multi)polygon per ortho (the area it is the source of, on the
+            seam grid; properties ``index``, in the order given, and
+            ``source``, its file), in the orthos' CRS.
+        source_index: a path: write a GeoTIFF on the mosaic grid there, int16,
+            the index (in the order given) of the ortho each pixel comes from
+            (its seam-grid cell's label; within ``feather`` px of a seam the
+            pixel blends it with its neighbour), -1 for none.
 
     Returns:
         Lazy ``xarray.DataArray`` (float64, Dask chunks of ``chunks``) on the
@@ -426,7 +570,9 @@ def mosaic(
 
     Raises:
         ValueError: no orthos, orthos in different CRSs, resolutions or pixel
-            lattices, an ortho that overlaps no other, bad arguments.
+            lattices, an ortho with no valid pixel, an ortho that overlaps no
+            other, groups of orthos with no overlap between them, a gain the
+            balancing leaves undetermined or makes <= 0, bad arguments.
     """
     # Over 80 lines: the docstring documents every argument; the body reads top to bottom:
     # inputs, one pass for moments and the seam grid, seams, then the output graph.
@@ -453,22 +599,25 @@ def mosaic(
     for k, o in enumerate(orthos):
         if o.shape[0] != nb:
             raise ValueError(f"orthos[{k}] has {o.shape[0]} bands, orthos[0] {nb}: one number of bands only")
-    lazy = [k for k, o in enumerate(orthos) if not is_path[k] and isinstance(o.data, da.Array)]
-    if lazy and sum(orthos[k].nbytes for k in lazy) <= _PERSIST_BYTES:
-        # Computed once here, read from memory by both passes below (else each pass recomputes them).
-        for k, o in zip(lazy, dask.persist(*(orthos[k] for k in lazy))):
-            orthos[k] = o
     transform, shape, crs, offsets = _lattice(orthos)
+    lazy = [k for k, o in enumerate(orthos) if isinstance(o.data, da.Array)]
+    if lazy and sum(orthos[k].nbytes for k in lazy) <= _PERSIST_BYTES:
+        # Computed (or read) once here, chunk by chunk, and read from memory by both passes below; in
+        # chunks on the output's (a chunk of the output then reads whole input chunks, no concatenation).
+        for k, o in zip(lazy, dask.persist(*(_align(orthos[k], offsets[k], chunks) for k in lazy))):
+            orthos[k] = o
     n = len(orthos)
+    boxes = [(r, c, o.shape[-2], o.shape[-1]) for o, (r, c) in zip(orthos, offsets)]
     if seam_scale is None:
-        s = max(1, math.ceil(math.sqrt(shape[0] * shape[1] / _SEAM_PIXELS)))
+        meet = max((_meet(boxes[i], boxes[j]) for i in range(n) for j in range(i + 1, n)), default=0)
+        s = max(1, math.ceil(math.sqrt(shape[0] * shape[1] / _SEAM_PIXELS)),
+                math.ceil(math.sqrt(meet / _SEAM_OVERLAP)))
     elif isinstance(seam_scale, bool) or not isinstance(seam_scale, (int, np.integer)) or seam_scale < 1:
         raise ValueError(f"seam_scale must be a positive number of pixels, got {seam_scale!r}")
     else:
         s = int(seam_scale)
     shape_c = (-(-shape[0] // s), -(-shape[1] // s))
-    boxes = [(r, c, o.shape[-2], o.shape[-1]) for o, (r, c) in zip(orthos, offsets)]
-    vals = [_lazy(o, chunks) for o in orthos]
+    vals = [_lazy(o, chunks, off) for o, off in zip(orthos, offsets)]
     seam = [_seam_grid(v, b, s, chunks) for v, b in zip(vals, boxes)]
     pairs = {}
     for i in range(n):
@@ -489,11 +638,21 @@ def mosaic(
             up = da.coarsen(np.any, up.rechunk(max(s, chunks // s * s)), {0: s, 1: s})
         raised_c = up
     # One pass over the inputs: the seam grid, the overlap moments and the raised cells.
-    cells, moments, raised_c = dask.compute([c for c, _ in seam], pairs, raised_c)
+    counts = [da.all(da.isfinite(v), axis=0).sum() for v in vals]
+    cells, moments, raised_c, counts = dask.compute([c for c, _ in seam], pairs, raised_c, counts)
     cells = [np.asarray(c, dtype=float) for c in cells]
     for k in range(n):
+        if counts[k] == 0:
+            raise ValueError(f"orthos[{k}]{_name(orthos[k], is_path[k])} has no valid pixel (all no-data)")
+    for k in range(n):
         if n > 1 and not any(moments[p][0][0] > 0 for p in moments if k in p):
-            raise ValueError(f"orthos[{k}] overlaps no other ortho: nothing to join it by")
+            raise ValueError(f"orthos[{k}]{_name(orthos[k], is_path[k])} overlaps no other ortho: "
+                             "nothing to join it by")
+    groups = _components(n, [p for p in moments if moments[p][0][0] > 0])
+    if len(groups) > 1:
+        sets = " and ".join("{" + ", ".join(f"orthos[{k}]" for k in g) + "}" for g in groups)
+        raise ValueError(f"the orthos do not all overlap: they fall into {sets}, "
+                         "with no overlap between the groups")
     tc = transform * Affine.scale(s)
     if nadirs is None:
         nadirs = []
@@ -517,7 +676,13 @@ def mosaic(
     gains, offs = np.ones((n, nb)), np.zeros((n, nb))  # (canonical image, band)
     if balance and n > 1:
         for b in range(nb):
-            gains[:, b], offs[:, b] = _balance(n, {p: tuple(x[b] for x in v) for p, v in canon.items()})
+            gains[:, b], offs[:, b] = _balance(n, {p: tuple(x[b] for x in v) for p, v in canon.items()},
+                                               [f"orthos[{k}]{_name(orthos[k], is_path[k])}" for k in order])
+        for k in range(n):
+            if np.any(gains[pos[k]] <= 0):
+                raise ValueError(f"balancing gives orthos[{k}]{_name(orthos[k], is_path[k])} a gain of "
+                                 f"{np.min(gains[pos[k]]):.3g} (<= 0): its grey values do not match the "
+                                 "others' in the overlaps; mosaic without balancing")
     up = np.zeros(shape_c, dtype=bool)
     if raised_c is not None:
         # Keep the seams a blend's width off raised objects too: feathering must not mix a roof in.
@@ -555,8 +720,15 @@ def mosaic(
         rows.append(row)
     data = da.block(rows)
     arr = dataarray(data[0] if nb == 1 else data, Grid(transform, shape, crs), np.asarray(np.nan), "mosaic")
+    given = np.where(labels >= 0, np.asarray(order)[labels], -1)
+    names = [orthos[k].encoding.get("source") if is_path[k] else None for k in range(n)]
+    inputs = [x for x in names if x]
+    if source_index is not None:
+        _write_source_index(source_index, given, s, Grid(transform, shape, crs), chunks, inputs)
+    if seamlines is not None:
+        _write_seamlines(seamlines, given, tc, crs, names, inputs)
     if info is not None:
         g, o = (gains[pos, 0], offs[pos, 0]) if nb == 1 else (gains[pos], offs[pos])
-        info.update(gains=g, offsets=o, labels=np.where(labels >= 0, np.asarray(order)[labels], -1),
+        info.update(gains=g, offsets=o, labels=given,
                     order=order, seam_scale=s)
     return arr

@@ -40,7 +40,9 @@ def add_parser(sub) -> None:
     )
     p.add_argument("orthos", nargs="*", metavar="ORTHO", help="orthophoto GeoTIFFs (one CRS, one pixel lattice, one number of bands: "
                    "RGB orthos share one seam, each band gets its own gain)")
-    p.add_argument("-o", "--out", required=True, help="output mosaic (Cloud-Optimized GeoTIFF)")
+    p.add_argument("-o", "--out", required=True,
+                   help="output mosaic (Cloud-Optimized GeoTIFF, in the orthos' data type: uint8 orthos "
+                   "give a uint8 mosaic, rounded, with their nodata)")
     p.add_argument("--method", choices=("seamline", "voronoi"), default="seamline",
                    help="seams of least difference (default) or nearest footprint centre")
     p.add_argument("--dsm", help="surface model raster: seams avoid raised objects "
@@ -50,6 +52,12 @@ def add_parser(sub) -> None:
                    help="height above ground of a raised object (default 2)")
     p.add_argument("--no-balance", dest="balance", action="store_false", help="no gain/offset balancing")
     p.add_argument("--feather", type=int, default=8, metavar="PX", help="blend half-width across seams (default 8)")
+    p.add_argument("--seamlines", metavar="PATH",
+                   help="also write the seamlines as GeoJSON: one polygon per ortho, the area it is the "
+                   "source of")
+    p.add_argument("--source-index", metavar="PATH",
+                   help="also write a GeoTIFF of the index (0-based, in the order given; -1 none) of the "
+                   "ortho each pixel comes from")
     p.add_argument("--chunks", type=int, default=1024, metavar="PX", help="chunk edge (memory ~ chunks^2)")
     b = p.add_argument_group("block workflow (instead of ORTHOs)")
     b.add_argument("--block", metavar="ORIENTATIONS",
@@ -73,6 +81,30 @@ def _dask_progress(bar):
         bar.total = (bar.total or 0) + len(dsk)
 
     return Callback(start=start, posttask=lambda *a: bar.update())
+
+
+def _in_dtype(out, path):
+    """The mosaic in the data type of the ortho at ``path``: integer orthos (e.g. uint8 RGB) give a
+    mosaic rounded and clipped to that type, with their nodata value (the type's minimum if none; it is
+    kept out of the data); float orthos give float32 with NaN."""
+    import numpy as np
+    import rasterio
+
+    with rasterio.open(path) as ds:
+        dtype, nodata = np.dtype(ds.dtypes[0]), ds.nodata
+    if not np.issubdtype(dtype, np.integer):
+        return out.astype(np.float32)
+    lo, hi = np.iinfo(dtype).min, np.iinfo(dtype).max
+    nodata = lo if nodata is None or not lo <= nodata <= hi else int(nodata)
+    lo, hi = (lo + 1, hi) if nodata == lo else (lo, hi - 1) if nodata == hi else (lo, hi)
+
+    def convert(v):  # one pass per chunk
+        r = np.rint(v)
+        np.minimum(np.maximum(r, lo, out=r), hi, out=r)
+        r[np.isnan(v)] = nodata
+        return r.astype(dtype)
+
+    return out.copy(data=out.data.map_blocks(convert, dtype=dtype)).rio.write_nodata(nodata, encoded=False)
 
 
 def run(args) -> int:
@@ -109,12 +141,17 @@ def run(args) -> int:
     for f in (args.dsm, args.dem):
         if f:
             inputs.append(str(input_file(f, "DSM/DEM")))
-    check_output_path(args.out, inputs)  # fail before the work, not after
+    outs = [o for o in (args.out, args.seamlines, args.source_index) if o]
+    if len({pathlib.Path(o).resolve() for o in outs}) < len(outs):
+        raise ValueError("-o, --seamlines and --source-index must be different files")
+    for o in outs:
+        check_output_path(o, inputs)  # fail before the work, not after
     if args.block:
         camera, dem = read_interior(args.camera, args.camera_name), read_dem(args.dem)
         images, exteriors, crs = block_images(args.block, args.images, crs=dem.crs)  # lat/lon: the DEM's CRS
         inputs += [str(p) for p in images]
-        check_output_path(args.out, inputs)
+        for o in outs:
+            check_output_path(o, inputs)
         check_crs(crs, f"the block's orientations ({args.block})", dem, f"the DEM ({args.dem})")
     out_dir = pathlib.Path(args.out).resolve().parent
     # One bar, "mosaic": the block's images, then every Dask task of the mosaic and of its writing.
@@ -136,9 +173,12 @@ def run(args) -> int:
         with _dask_progress(bar):
             out = mosaic([str(p) for p in paths], method=args.method, dsm=dsm, dem=dem_on_grid,
                          raised=args.raised, balance=args.balance, feather=args.feather, chunks=args.chunks,
-                         info=info)
-            to_raster(out.astype(np.float32), args.out, cog=True, inputs=inputs)
+                         info=info, seamlines=args.seamlines, source_index=args.source_index)
+            to_raster(_in_dtype(out, paths[0]), args.out, cog=True, inputs=inputs)
     gains = ", ".join("/".join(f"{x:.3f}" for x in np.atleast_1d(g)) for g in info["gains"])  # per band: a/b/c
     print(f"photax mosaic: {plural(len(paths), 'ortho')} -> {args.out} ({out.shape[-1]} x {out.shape[-2]} px"
           f"{f', {out.shape[0]} bands' if out.ndim == 3 else ''}; gains {gains})")
+    for what, path in (("seamlines", args.seamlines), ("source index", args.source_index)):
+        if path:
+            print(f"photax mosaic: {what} -> {path}")
     return 0
