@@ -22,7 +22,7 @@ import statistics
 import subprocess
 import sys
 import time
-from typing import Callable
+from collections.abc import Callable
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 _RUN: dict = {}
@@ -36,8 +36,13 @@ def machine() -> dict:
             model = next((ln.split(":", 1)[1].strip() for ln in fh if ln.startswith("model name")), model)
     except OSError:
         pass
-    return dict(cpus=os.cpu_count(), cpu_model=model, load_average=[round(v, 2) for v in os.getloadavg()],
-                system=platform.platform(), python=platform.python_version())
+    return dict(
+        cpus=os.cpu_count(),
+        cpu_model=model,
+        load_average=[round(v, 2) for v in os.getloadavg()],
+        system=platform.platform(),
+        python=platform.python_version(),
+    )
 
 
 def start(name: str) -> dict:
@@ -45,8 +50,13 @@ def start(name: str) -> dict:
     load; at exit write the recorded figures to ``results/<name>.json``."""
     command = "python " + " ".join(shlex.quote(a) for a in [os.path.relpath(sys.argv[0])] + sys.argv[1:])
     _RUN.clear()
-    _RUN.update(benchmark=name, command=command, date=datetime.datetime.now(datetime.timezone.utc).isoformat(
-        timespec="seconds"), machine=machine(), figures={})
+    _RUN.update(
+        benchmark=name,
+        command=command,
+        date=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+        machine=machine(),
+        figures={},
+    )
     m = _RUN["machine"]
     print(f"reproduce with: {command}")
     print(f"{m['cpus']} x {m['cpu_model']}, load average {m['load_average']} (1, 5, 15 min) at the start")

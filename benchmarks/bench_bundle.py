@@ -165,9 +165,18 @@ def scipy_recipe(d: BALData):
 _FLIP = OPENCV_FROM_PHOTAX
 
 
-def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int = 2, *, loss: str = "none",
-              loss_scale: float = 1.0, max_num_iterations: int | None = None, refine_intrinsics: bool = True,
-              progress: bool = False, initial_trust_radius: float | None = None):
+def ceres_bal(
+    d: BALData,
+    linear_solver: str = "DENSE_SCHUR",
+    num_threads: int = 2,
+    *,
+    loss: str = "none",
+    loss_scale: float = 1.0,
+    max_num_iterations: int | None = None,
+    refine_intrinsics: bool = True,
+    progress: bool = False,
+    initial_trust_radius: float | None = None,
+):
     """Build the BAL problem as a pycolmap reconstruction and a Ceres solver.
 
     Returns ``(solve, to_bal)``: ``solve()`` runs Ceres and returns its
@@ -188,12 +197,16 @@ def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int =
     idx_in_image = np.empty(len(d.observations), dtype=np.int64)
     for i, cam in enumerate(d.cameras):
         rec.add_camera_with_trivial_rig(
-            pycolmap.Camera(model="RADIAL", width=1, height=1, params=[cam[6], 0.0, 0.0, cam[7], cam[8]], camera_id=i + 1)
+            pycolmap.Camera(
+                model="RADIAL", width=1, height=1, params=[cam[6], 0.0, 0.0, cam[7], cam[8]], camera_id=i + 1
+            )
         )
         sel = np.flatnonzero(d.camera_index == i)
         idx_in_image[sel] = np.arange(len(sel))
         R = _FLIP @ Rotation.from_rotvec(cam[:3]).as_matrix()
-        img = pycolmap.Image(name=str(i), keypoints=d.observations[sel] * np.array([[1.0, -1.0]]), camera_id=i + 1, image_id=i + 1)
+        img = pycolmap.Image(
+            name=str(i), keypoints=d.observations[sel] * np.array([[1.0, -1.0]]), camera_id=i + 1, image_id=i + 1
+        )
         rec.add_image_with_trivial_frame(img, pycolmap.Rigid3d(np.hstack([R, (_FLIP @ cam[3:6])[:, None]])))
     order = np.argsort(d.point_index, kind="stable")
     tracks = np.split(order, np.flatnonzero(np.diff(d.point_index[order])) + 1)
@@ -202,7 +215,9 @@ def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int =
         for j, obs in enumerate(tracks)
     ]  # fmt: skip
     opts = pycolmap.BundleAdjustmentOptions(
-        refine_focal_length=refine_intrinsics, refine_extra_params=refine_intrinsics, refine_principal_point=False,
+        refine_focal_length=refine_intrinsics,
+        refine_extra_params=refine_intrinsics,
+        refine_principal_point=False,
         print_summary=False,
     )
     opts.ceres.auto_select_solver_type = False
@@ -245,8 +260,9 @@ def ceres_bal(d: BALData, linear_solver: str = "DENSE_SCHUR", num_threads: int =
 # --------------------------------------------------------------------------
 
 
-def synthetic_bal(grid: int, seed: int = 0, points_per_image: int = 160, noise_px: float = 0.5,
-                  relief: float = 150.0) -> BALData:
+def synthetic_bal(
+    grid: int, seed: int = 0, points_per_image: int = 160, noise_px: float = 0.5, relief: float = 150.0
+) -> BALData:
     """A BAL-style aerial block of ``grid x grid`` images from the one scene
     generator (:func:`photax.scene.block_scene`): downward-looking frames
     (4000 x 3000 px, f = 3000 px, flown 600 m above terrain of ``relief`` m,
@@ -374,7 +390,9 @@ def block_comparison(grids, seed: int, ceres_up_to: int, single_from: int, radiu
         t_first = float("nan")
         if not once:
             _, t_first = _timed(lambda: photax_bal(bal_problem(d), **tr))
-        (res, t_warm, cpu_warm), peak = peak_memory(lambda: (lambda problem: _timed_cpu(lambda: photax_bal(problem, verbose=once, **tr)))(bal_problem(d)))
+        (res, t_warm, cpu_warm), peak = peak_memory(
+            lambda: (lambda problem: _timed_cpu(lambda: photax_bal(problem, verbose=once, **tr)))(bal_problem(d))
+        )
         if once:
             t_first = t_warm
         cost = bal_cost(*photax_solution(res), d)
@@ -393,6 +411,7 @@ def block_comparison(grids, seed: int, ceres_up_to: int, single_from: int, radiu
         print(f"  photax precision {t_prec:.2f} s ({'ok' if ok else 'MISSING'}), peak {mib(peak_prec)}", flush=True)
         _save_row(row)
         if g <= ceres_up_to:
+
             def ceres_run():
                 solve, to_bal = ceres_bal(d, "SPARSE_SCHUR", num_threads=2, progress=once, initial_trust_radius=radius)
                 return _timed_cpu(solve), to_bal
@@ -427,14 +446,21 @@ def _save_row(row: dict) -> None:
 
     from _common import machine
 
-    out = dict(row, date=datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+    out = dict(row, date=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
                command="python " + " ".join([os.path.relpath(sys.argv[0])] + sys.argv[1:]), machine=machine())  # fmt: skip
     tag = "" if row.get("initial_trust_radius") is None else f"_tr{row['initial_trust_radius']:g}"
     path = RESULTS / f"bench_bundle_block_{row['images']}{tag}.json"
     if "ceres_s" not in row and path.is_file():  # Ceres not re-run: keep its figures, say when they were measured
         before = json.loads(path.read_text())
         if "ceres_s" in before:
-            keep = ("ceres_s", "ceres_cpu_s", "ceres_iterations", "ceres_cost", "ceres_peak_bytes", "ceres_load_average")
+            keep = (
+                "ceres_s",
+                "ceres_cpu_s",
+                "ceres_iterations",
+                "ceres_cost",
+                "ceres_peak_bytes",
+                "ceres_load_average",
+            )
             out.update({k: before[k] for k in keep if k in before}, ceres_date=before.get("ceres_date", before["date"]),
                        ratio=row["photax_s"] / before["ceres_s"], cost_excess=(row["photax_cost"] - before["ceres_cost"]) / before["ceres_cost"])  # fmt: skip
     path.write_text(json.dumps(out, indent=1) + "\n")
@@ -503,11 +529,19 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", type=int, nargs="+", help="synthetic g x g blocks instead of problem-49-7776")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--ceres-up-to", type=int, default=30, help="largest grid also solved by Ceres")
-    ap.add_argument("--single-from", type=int, default=60,
-                    help="from this grid on photax runs once (with compilation) and prints each iteration")
+    ap.add_argument(
+        "--single-from",
+        type=int,
+        default=60,
+        help="from this grid on photax runs once (with compilation) and prints each iteration",
+    )
     ap.add_argument("--report", action="store_true", help="only rebuild the growth table and plot")
-    ap.add_argument("--initial-trust-radius", type=float, default=None,
-                    help="both solvers' initial trust radius (default: theirs, 1e4); rows kept apart")
+    ap.add_argument(
+        "--initial-trust-radius",
+        type=float,
+        default=None,
+        help="both solvers' initial trust radius (default: theirs, 1e4); rows kept apart",
+    )
     ap.add_argument("--data", type=pathlib.Path, default=DATA)
     ap.add_argument("--repeat", type=int, default=3, help="runs of photax and Ceres (median)")
     ap.add_argument("--scipy-repeat", type=int, default=1, help="runs of the SciPy recipe (~1-3 min each)")
@@ -527,10 +561,16 @@ def main(argv=None) -> int:
         return 1
     full = read_bal_arrays(args.data)
     clean = drop_points_behind(full)
-    print(f"problem-49-7776: {len(full.cameras)} cameras, {len(full.points)} points, {len(full.observations)} observations")
-    print(f"  without the points behind their cameras: {len(clean.points)} points, {len(clean.observations)} observations")
+    print(
+        f"problem-49-7776: {len(full.cameras)} cameras, {len(full.points)} points, {len(full.observations)} observations"
+    )
+    print(
+        f"  without the points behind their cameras: {len(clean.points)} points, {len(clean.observations)} observations"
+    )
     print("  machine: 2 cores; Ceres num_threads=2; photax on JAX CPU; times are medians of --repeat runs;")
-    print("  photax's time includes its structure analysis, Ceres' its preprocessor; peaks include building the problem\n")
+    print(
+        "  photax's time includes its structure analysis, Ceres' its preprocessor; peaks include building the problem\n"
+    )
 
     # ---- photax vs Ceres on the same (cheirality-clean) problem ----
     p_clean = bal_problem(clean)
@@ -550,6 +590,7 @@ def main(argv=None) -> int:
     print(f"  photax       : cost {c_pc:.6e} after {res_c.iterations} iterations, warm {t_pc:.2f} s, "
           f"first call {t_first_c:.2f} s, peak {mib(peak_pc)} (fresh process: {mib(fresh_peak('photax', args.data))})")  # fmt: skip
     for solver in ("DENSE_SCHUR", "SPARSE_SCHUR"):
+
         def ceres_run():  # memory: building the reconstruction + solve; time: the solve
             solve, to_bal = ceres_bal(clean, solver, num_threads=2)
             return _timed(solve), to_bal
@@ -563,8 +604,15 @@ def main(argv=None) -> int:
         print(f"  Ceres {solver:12s}: cost {c_c:.6e} (Ceres reports {summary.final_cost:.6e}) after "
               f"{summary.num_successful_steps + summary.num_unsuccessful_steps} iterations, {t_c:.2f} s, peak {mib(fresh_peak(solver, args.data))} (fresh process; in this one "
               f"{mib(peak)}: Ceres reuses pages photax freed)")  # fmt: skip
-        record(f"vs Ceres {solver}", photax_s=t_pc, peer_s=t_c, ratio=t_pc / t_c, first_call_ratio=t_first_c / t_c,
-               cost_photax=c_pc, cost_peer=c_c)
+        record(
+            f"vs Ceres {solver}",
+            photax_s=t_pc,
+            peer_s=t_c,
+            ratio=t_pc / t_c,
+            first_call_ratio=t_first_c / t_c,
+            cost_photax=c_pc,
+            cost_peer=c_c,
+        )
         print(f"  ratio photax/Ceres {solver} (warm)       : {t_pc / t_c:.2f}")
         print(f"  ratio photax/Ceres {solver} (first call) : {t_first_c / t_c:.2f}")
         print(f"  cost photax - Ceres: {c_pc - c_c:+.4g} ({(c_pc - c_c) / c_c:+.2e} relative)")
@@ -599,7 +647,13 @@ def main(argv=None) -> int:
     print(f"  ratio photax/scipy (full convergence, warm)       : {t_px / t_sp:.3f}  ({t_sp / t_px:.1f}x faster)")
     print(f"  ratio photax/scipy (full convergence, first call) : {t_first / t_sp:.3f}\n")
     record("vs SciPy recipe, time to SciPy's cost", photax_s=t_reach, peer_s=t_sp, ratio=t_reach / t_sp)
-    record("vs SciPy recipe, full convergence", photax_s=t_px, peer_s=t_sp, ratio=t_px / t_sp, first_call_ratio=t_first / t_sp)
+    record(
+        "vs SciPy recipe, full convergence",
+        photax_s=t_px,
+        peer_s=t_sp,
+        ratio=t_px / t_sp,
+        first_call_ratio=t_first / t_sp,
+    )
 
     return 0
 

@@ -48,8 +48,10 @@ def write_gcps(path: pathlib.Path, n: int, seed: int = 1) -> pathlib.Path:
     g, px = g[inside][:n], px[inside][:n] + rng.normal(0.0, 0.3, (n, 2))
     with open(path, "w") as fh:
         fh.write(f"# crs: {truth['crs']}\nname,image,E,N,h,col,row,sigma,role\n")
-        fh.writelines(f"P{i},IMG_0001,{a:.3f},{b:.3f},{c:.3f},{d:.3f},{e:.3f},0.3,control\n"
-                      for i, (a, b, c, d, e) in enumerate(np.column_stack([g, px]).tolist()))
+        fh.writelines(
+            f"P{i},IMG_0001,{a:.3f},{b:.3f},{c:.3f},{d:.3f},{e:.3f},0.3,control\n"
+            for i, (a, b, c, d, e) in enumerate(np.column_stack([g, px]).tolist())
+        )
     return path
 
 
@@ -76,9 +78,17 @@ def main() -> None:
             record(f"read_gcps {n} lines", **fig)
         camera = str(DATA / "sample_camera.yaml")
         for n in args.resect:
-            cmd = [sys.executable, "-c", "import sys; from photax.cli import main; sys.exit(main(sys.argv[1:]))",
-                   "resect", str(files[n]), "--camera", camera,
-                   "--json", str(pathlib.Path(tmp) / "r.json")]
+            cmd = [
+                sys.executable,
+                "-c",
+                "import sys; from photax.cli import main; sys.exit(main(sys.argv[1:]))",
+                "resect",
+                str(files[n]),
+                "--camera",
+                camera,
+                "--json",
+                str(pathlib.Path(tmp) / "r.json"),
+            ]
             run_process(cmd)  # warms the compile cache for this point count
             wall, peak = run_process(cmd)
             print(f"photax resect, {n:>9,} GCPs: {wall:.2f} s, peak {peak / 2**20:.0f} MiB")

@@ -54,8 +54,8 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _common import median_time, mib, peak_memory, ratio_line, record, start  # noqa: E402
 
 import photax as ptx  # noqa: E402
-from photax.scene import patterns as R  # noqa: E402
 from photax.measure import locate_corners, match_lsm, match_ncc  # noqa: E402
+from photax.scene import patterns as R  # noqa: E402
 
 TILE, C, KINDS = 45, 22, 100
 
@@ -68,7 +68,7 @@ def test_image(n: int) -> np.ndarray:
         cy, cx, rad = rng.uniform(0, n), rng.uniform(0, n), rng.uniform(n / 80, n / 12)
         img[(r - cy) ** 2 + (c - cx) ** 2 < rad**2] += 60.0
         y0, x0 = rng.integers(0, n - n // 10, 2)
-        img[y0:y0 + n // 12, x0:x0 + n // 15] -= 50.0
+        img[y0 : y0 + n // 12, x0 : x0 + n // 15] -= 50.0
     img -= img.min()
     return np.clip(img / img.max() * 255.0, 0, 255).astype(np.uint8)
 
@@ -100,7 +100,7 @@ def tiled(patches, n):
     origin = np.zeros((n, 2))
     for i in range(n):
         r, c = divmod(i, cols)
-        img[r * TILE:(r + 1) * TILE, c * TILE:(c + 1) * TILE] = patches[i % len(patches)]
+        img[r * TILE : (r + 1) * TILE, c * TILE : (c + 1) * TILE] = patches[i % len(patches)]
         origin[i] = (c * TILE, r * TILE)
     return img, origin
 
@@ -128,8 +128,15 @@ def locators(n: int, repeat: int) -> None:
     kinds, truths = [], []
     for _ in range(KINDS):
         t = C + rng.uniform(-0.5, 0.5, 2)
-        kinds.append(R.render(R.corner(t, rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(60, 120))),
-                              (TILE, TILE), blur=0.7, noise=0.01, rng=rng))
+        kinds.append(
+            R.render(
+                R.corner(t, rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(60, 120))),
+                (TILE, TILE),
+                blur=0.7,
+                noise=0.01,
+                rng=rng,
+            )
+        )
         truths.append(t)
     img, origin = tiled(kinds, n)
     truth = origin + np.array(truths)[np.arange(n) % KINDS]
@@ -147,14 +154,22 @@ def locators(n: int, repeat: int) -> None:
     cxy, t_cv = timed("cv2.cornerSubPix", theirs, repeat)
     print(ratio_line(f"corners x{n} (warm)", t_ours, t_cv))
     print(f"corners rmse: photax {rmse(xy - truth):.4f} px, cornerSubPix {rmse(cxy - truth):.4f} px")
-    record("corners", points=n, photax_s=t_ours, opencv_s=t_cv, ratio_opencv=t_ours / t_cv,
-           rmse_photax_px=rmse(xy - truth), rmse_opencv_px=rmse(cxy - truth))
+    record(
+        "corners",
+        points=n,
+        photax_s=t_ours,
+        opencv_s=t_cv,
+        ratio_opencv=t_ours / t_cv,
+        rmse_photax_px=rmse(xy - truth),
+        rmse_opencv_px=rmse(cxy - truth),
+    )
 
     # --- matching: 21 x 21 templates, gain 0.9, offset 0.05, noise 1 %
     shifts = rng.uniform(-2, 2, (KINDS, 2))
     tk = [R.texture((TILE, TILE), seed=i, noise=0.01, rng=rng) for i in range(KINDS)]
-    sk = [0.9 * R.texture((TILE, TILE), seed=i, shift=s, noise=0.01 / 0.9, rng=rng) + 0.05
-          for i, s in enumerate(shifts)]
+    sk = [
+        0.9 * R.texture((TILE, TILE), seed=i, shift=s, noise=0.01 / 0.9, rng=rng) + 0.05 for i, s in enumerate(shifts)
+    ]
     timg, origin = tiled(tk, n)
     simg, _ = tiled(sk, n)
     txy = origin + C
@@ -174,8 +189,8 @@ def locators(n: int, repeat: int) -> None:
         ti = txy.astype(int)
         ai = approx.astype(int)
         for i in range(n):
-            tpl = t32[ti[i, 1] - w:ti[i, 1] + w + 1, ti[i, 0] - w:ti[i, 0] + w + 1]
-            big = s32[ai[i, 1] - w - s:ai[i, 1] + w + s + 1, ai[i, 0] - w - s:ai[i, 0] + w + s + 1]
+            tpl = t32[ti[i, 1] - w : ti[i, 1] + w + 1, ti[i, 0] - w : ti[i, 0] + w + 1]
+            big = s32[ai[i, 1] - w - s : ai[i, 1] + w + s + 1, ai[i, 0] - w - s : ai[i, 0] + w + s + 1]
             cc = cv2.matchTemplate(big, tpl, cv2.TM_CCOEFF_NORMED)
             _, _, _, (x, y) = cv2.minMaxLoc(cc)
             dx = dy = 0.0
@@ -193,11 +208,22 @@ def locators(n: int, repeat: int) -> None:
     cxy, t_cv = timed("cv2.matchTemplate + parabola (Python loop)", cv_ncc, repeat)
     print(ratio_line(f"LSM x{n} vs matchTemplate+parabola (warm)", t_lsm, t_cv))
     print(ratio_line(f"NCC x{n} vs matchTemplate+parabola (warm)", t_ncc, t_cv))
-    print(f"matching rmse: LSM {rmse(lxy - truth):.4f} px, photax NCC {rmse(nxy - truth):.4f} px, "
-          f"matchTemplate+parabola {rmse(cxy - truth):.4f} px")
-    record("matching", points=n, lsm_s=t_lsm, ncc_s=t_ncc, opencv_s=t_cv, ratio_lsm_opencv=t_lsm / t_cv,
-           ratio_ncc_opencv=t_ncc / t_cv, rmse_lsm_px=rmse(lxy - truth), rmse_ncc_px=rmse(nxy - truth),
-           rmse_opencv_px=rmse(cxy - truth))
+    print(
+        f"matching rmse: LSM {rmse(lxy - truth):.4f} px, photax NCC {rmse(nxy - truth):.4f} px, "
+        f"matchTemplate+parabola {rmse(cxy - truth):.4f} px"
+    )
+    record(
+        "matching",
+        points=n,
+        lsm_s=t_lsm,
+        ncc_s=t_ncc,
+        opencv_s=t_cv,
+        ratio_lsm_opencv=t_lsm / t_cv,
+        ratio_ncc_opencv=t_ncc / t_cv,
+        rmse_lsm_px=rmse(lxy - truth),
+        rmse_ncc_px=rmse(nxy - truth),
+        rmse_opencv_px=rmse(cxy - truth),
+    )
 
 
 def main(argv=None) -> int:
@@ -210,12 +236,19 @@ def main(argv=None) -> int:
     sys.stdout.reconfigure(line_buffering=True)
     start("bench_measure")
     print(f"{n} x {n} uint8, median of {rep} warm runs; jax {jax.__version__}, OpenCV {cv2.__version__}")
+    record("setup", size=n, repeat=rep, points=args.points)
+    operators(n, rep)  # its images are freed on return, before the locators' run
+    locators(args.points, rep)
+    return 0
+
+
+def operators(n: int, rep: int) -> None:
+    """Sobel and Canny on an ``n x n`` image against scikit-image and OpenCV."""
     img = test_image(n)
     jimg = jax.device_put(img)
     lo, hi = 0.1 * float(np.ptp(img)), 0.2 * float(np.ptp(img))
     sigma = 1.4
     f_img = img.astype(np.float64)
-    record("setup", size=n, repeat=rep, points=args.points)
 
     # ---- Sobel magnitude
     def ours_sobel():
@@ -236,11 +269,23 @@ def main(argv=None) -> int:
     print(f"Sobel  first call {first:.2f} s; |photax*4sqrt2 - OpenCV| max {dev:.1e} (grey/px)")
     print("  " + ratio_line("vs scikit-image", t_ours, t_sk))
     print("  " + ratio_line("vs OpenCV      ", t_ours, t_cv), f"| photax peak {mib(mem)}")
-    print(f"  CPU time: photax {c_ours * 1e3:.1f} ms, scikit-image {c_sk * 1e3:.1f} ms, OpenCV {c_cv * 1e3:.1f} ms;"
-          f" ratios {c_ours / c_sk:.2f}, {c_ours / c_cv:.2f}")
-    record("sobel", photax_first_s=first, photax_s=t_ours, skimage_s=t_sk, opencv_s=t_cv,
-           ratio_skimage=t_ours / t_sk, ratio_opencv=t_ours / t_cv, photax_peak_bytes=mem,
-           cpu_photax_s=c_ours, cpu_skimage_s=c_sk, cpu_opencv_s=c_cv)
+    print(
+        f"  CPU time: photax {c_ours * 1e3:.1f} ms, scikit-image {c_sk * 1e3:.1f} ms, OpenCV {c_cv * 1e3:.1f} ms;"
+        f" ratios {c_ours / c_sk:.2f}, {c_ours / c_cv:.2f}"
+    )
+    record(
+        "sobel",
+        photax_first_s=first,
+        photax_s=t_ours,
+        skimage_s=t_sk,
+        opencv_s=t_cv,
+        ratio_skimage=t_ours / t_sk,
+        ratio_opencv=t_ours / t_cv,
+        photax_peak_bytes=mem,
+        cpu_photax_s=c_ours,
+        cpu_skimage_s=c_sk,
+        cpu_opencv_s=c_cv,
+    )
 
     # ---- Canny
     def ours_canny():
@@ -263,18 +308,30 @@ def main(argv=None) -> int:
     a, b, c = np.asarray(ours_canny()), sk_canny(), cv_canny() > 0
     f1_sk = 2 * (a & b).sum() / (a.sum() + b.sum())
     f1_cv = 2 * (a & c).sum() / (a.sum() + c.sum())
-    print(f"Canny  first call {first:.2f} s; F1 vs scikit-image {f1_sk:.4f}, vs OpenCV {f1_cv:.3f}; "
-          f"{a.sum()} edge pixels")
+    print(
+        f"Canny  first call {first:.2f} s; F1 vs scikit-image {f1_sk:.4f}, vs OpenCV {f1_cv:.3f}; {a.sum()} edge pixels"
+    )
     print("  " + ratio_line("vs scikit-image", t_ours, t_sk))
     print("  " + ratio_line("vs OpenCV      ", t_ours, t_cv), f"| photax peak {mib(mem)}")
-    print(f"  CPU time: photax {c_ours * 1e3:.1f} ms, scikit-image {c_sk * 1e3:.1f} ms, OpenCV {c_cv * 1e3:.1f} ms;"
-          f" ratios {c_ours / c_sk:.2f}, {c_ours / c_cv:.2f}")
-    record("canny", photax_first_s=first, photax_s=t_ours, skimage_s=t_sk, opencv_s=t_cv,
-           ratio_skimage=t_ours / t_sk, ratio_opencv=t_ours / t_cv, photax_peak_bytes=mem,
-           cpu_photax_s=c_ours, cpu_skimage_s=c_sk, cpu_opencv_s=c_cv, f1_skimage=f1_sk, f1_opencv=f1_cv)
-    del img, jimg, f_img, a, b, c
-    locators(args.points, rep)
-    return 0
+    print(
+        f"  CPU time: photax {c_ours * 1e3:.1f} ms, scikit-image {c_sk * 1e3:.1f} ms, OpenCV {c_cv * 1e3:.1f} ms;"
+        f" ratios {c_ours / c_sk:.2f}, {c_ours / c_cv:.2f}"
+    )
+    record(
+        "canny",
+        photax_first_s=first,
+        photax_s=t_ours,
+        skimage_s=t_sk,
+        opencv_s=t_cv,
+        ratio_skimage=t_ours / t_sk,
+        ratio_opencv=t_ours / t_cv,
+        photax_peak_bytes=mem,
+        cpu_photax_s=c_ours,
+        cpu_skimage_s=c_sk,
+        cpu_opencv_s=c_cv,
+        f1_skimage=f1_sk,
+        f1_opencv=f1_cv,
+    )
 
 
 if __name__ == "__main__":

@@ -45,9 +45,7 @@ def make_orthos(data: pathlib.Path, folder: pathlib.Path) -> list[str]:
     ngi = data / "orthority"
     with rasterio.open(ngi / "ngi" / "dem.tif") as src:
         profile, heights = src.profile, src.read()
-    profile.update(
-        crs=rasterio.CRS.from_string((ngi / "io" / "ngi_xyz_opk.prj").read_text())
-    )
+    profile.update(crs=rasterio.CRS.from_string((ngi / "io" / "ngi_xyz_opk.prj").read_text()))
     with rasterio.open(folder / "dem.tif", "w", **profile) as dst:
         dst.write(heights)
     images, exteriors, crs = block_images(ngi / "io" / "ngi_xyz_opk.csv", ngi / "ngi")
@@ -71,9 +69,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument(
         "--data",
-        default=str(
-            pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"
-        ),
+        default=str(pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"),
     )
     args = ap.parse_args()
     data = pathlib.Path(args.data)
@@ -124,21 +120,14 @@ def main() -> None:
             },
             repeat=args.repeat,
         )
-        print(
-            f"load average {[round(v, 2) for v in os.getloadavg()]} (1, 5, 15 min) at the end"
-        )
+        print(f"load average {[round(v, 2) for v in os.getloadavg()]} (1, 5, 15 min) at the end")
         with rasterio.open(tmp / "mosaic.tif") as ds:
             shape, dtype = ds.shape, ds.dtypes[0]
         print(
             f"NGI mosaic {shape[1]} x {shape[0]} px, 3 bands, {dtype}, seam grid {info['seam_scale']} px; gains "
             + ", ".join("/".join(f"{x:.3f}" for x in g) for g in info["gains"])
         )
-        print(
-            ratio_line(
-                "photax.mosaic vs rasterio.merge (to GeoTIFF)", t["photax"], t["merge"]
-            )
-            + "  (target <= 4)"
-        )
+        print(ratio_line("photax.mosaic vs rasterio.merge (to GeoTIFF)", t["photax"], t["merge"]) + "  (target <= 4)")
         print(
             ratio_line(
                 "photax.mosaic (COG, as the CLI writes) vs rasterio.merge",

@@ -29,8 +29,12 @@ sys.path.insert(0, os.path.dirname(__file__))
 from _common import record, start
 from bench_startup import BIN, REPO, interleaved, load, show
 
-NAMES = ["3324c_2015_1004_05_0182_RGB", "3324c_2015_1004_05_0184_RGB", "3324c_2015_1004_06_0251_RGB",
-         "3324c_2015_1004_06_0253_RGB"]
+NAMES = [
+    "3324c_2015_1004_05_0182_RGB",
+    "3324c_2015_1004_05_0184_RGB",
+    "3324c_2015_1004_06_0251_RGB",
+    "3324c_2015_1004_06_0253_RGB",
+]
 
 
 def inputs(data: pathlib.Path, work: pathlib.Path) -> None:
@@ -50,31 +54,87 @@ def inputs(data: pathlib.Path, work: pathlib.Path) -> None:
 
 
 def photax_cmd(names, out_dir="photax"):
-    return [BIN / "photax", "ortho", *(f"{n}.tif" for n in names), "--dem", "dem.tif", "--interior",
-            "ngi_int_param.yaml", "--exterior", "ngi_xyz_opk.csv", "--out-dir", out_dir, "--resolution", "5",
-            "--resampling", "bilinear", "--no-progress"]
+    return [
+        BIN / "photax",
+        "ortho",
+        *(f"{n}.tif" for n in names),
+        "--dem",
+        "dem.tif",
+        "--interior",
+        "ngi_int_param.yaml",
+        "--exterior",
+        "ngi_xyz_opk.csv",
+        "--out-dir",
+        out_dir,
+        "--resolution",
+        "5",
+        "--resampling",
+        "bilinear",
+        "--no-progress",
+    ]
 
 
 def oty_cmd(names):
-    return [BIN / "oty", "frame", *(f"{n}.tif" for n in names), "--dem", "dem.tif", "--int-param",
-            "ngi_int_param.yaml", "--ext-param", "ngi_xyz_opk.csv", "--res", "5", "--interp", "bilinear",
-            "--dem-interp", "bilinear", "--compress", "deflate", "--no-write-mask", "--no-build-ovw",
-            "--out-dir", "oty", "--overwrite"]
+    return [
+        BIN / "oty",
+        "frame",
+        *(f"{n}.tif" for n in names),
+        "--dem",
+        "dem.tif",
+        "--int-param",
+        "ngi_int_param.yaml",
+        "--ext-param",
+        "ngi_xyz_opk.csv",
+        "--res",
+        "5",
+        "--interp",
+        "bilinear",
+        "--dem-interp",
+        "bilinear",
+        "--compress",
+        "deflate",
+        "--no-write-mask",
+        "--no-build-ovw",
+        "--out-dir",
+        "oty",
+        "--overwrite",
+    ]
 
 
 def singles_cmd(names):
     """Four ``photax ortho IMAGE -o OUT`` processes, one after the other (a shell loop)."""
-    one = [[BIN / "photax", "ortho", f"{n}.tif", "--dem", "dem.tif", "--interior", "ngi_int_param.yaml",
-            "--exterior", "ngi_xyz_opk.csv", "-o", f"single/{n}.tif", "--resolution", "5", "--resampling",
-            "bilinear", "--no-progress"] for n in names]
+    one = [
+        [
+            BIN / "photax",
+            "ortho",
+            f"{n}.tif",
+            "--dem",
+            "dem.tif",
+            "--interior",
+            "ngi_int_param.yaml",
+            "--exterior",
+            "ngi_xyz_opk.csv",
+            "-o",
+            f"single/{n}.tif",
+            "--resolution",
+            "5",
+            "--resampling",
+            "bilinear",
+            "--no-progress",
+        ]
+        for n in names
+    ]
     return ["sh", "-c", "mkdir -p single && " + " && ".join(shlex.join(map(str, c)) for c in one)]
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=3, help="timed processes per command (medians)")
-    ap.add_argument("--data", default=str(REPO.parent / "shared" / "data" / "orthority"),
-                    help="orthority's test data (ngi/ and io/)")
+    ap.add_argument(
+        "--data",
+        default=str(REPO.parent / "shared" / "data" / "orthority"),
+        help="orthority's test data (ngi/ and io/)",
+    )
     args = ap.parse_args()
     start("bench_ortho_block")
     data = pathlib.Path(args.data)
@@ -89,12 +149,20 @@ def main():
         (work / "oty").mkdir()
         drop = ("PYTHONDONTWRITEBYTECODE", "JAX_COMPILATION_CACHE_DIR")
         env = {k: v for k, v in os.environ.items() if k not in drop}
-        env.update(PYTHONPYCACHEPREFIX=str(tmp / "pycache"), PYTHONWARNINGS="ignore",
-                   JAX_COMPILATION_CACHE_DIR=str(tmp / "warm-cache"))
+        env.update(
+            PYTHONPYCACHEPREFIX=str(tmp / "pycache"),
+            PYTHONWARNINGS="ignore",
+            JAX_COMPILATION_CACHE_DIR=str(tmp / "warm-cache"),
+        )
         modules = "photax.cli, photax.rectification, photax.io.orientation, photax.io.raster, orthority.cli"
         subprocess.run([sys.executable, "-c", f"import {modules}"], env=env, check=True)  # byte-code for both
-        cmds = {"photax 4": photax_cmd(NAMES), "oty 4": oty_cmd(NAMES), "photax 1": photax_cmd(NAMES[:1]),
-                "oty 1": oty_cmd(NAMES[:1]), "photax 4 single processes": singles_cmd(NAMES)}
+        cmds = {
+            "photax 4": photax_cmd(NAMES),
+            "oty 4": oty_cmd(NAMES),
+            "photax 1": photax_cmd(NAMES[:1]),
+            "oty 1": oty_cmd(NAMES[:1]),
+            "photax 4 single processes": singles_cmd(NAMES),
+        }
         for k, c in cmds.items():
             print(f"{k}: " + shlex.join(map(str, c)).replace(str(BIN) + "/", ""))
         print(f"(in {work}, a copy of the NGI files; load average {load()} before)")
@@ -105,16 +173,32 @@ def main():
         ratio = wall["photax 4"] / wall["oty 4"]
         marginal = {p: (wall[f"{p} 4"] - wall[f"{p} 1"]) / 3 for p in ("photax", "oty")}
         w4, o4, single = wall["photax 4"], wall["oty 4"], wall["photax 4 single processes"]
-        print(f"\nfour NGI frames, one process each: photax {w4:.2f} s, oty {o4:.2f} s, ratio {ratio:.2f} "
-              f"(target <= 1.0); cpu ratio {t['photax 4'][1] / t['oty 4'][1]:.2f}")
-        print(f"per-image marginal time (t4 - t1) / 3: photax {marginal['photax']:.2f} s, "
-              f"oty {marginal['oty']:.2f} s (target photax <= oty)")
-        print(f"four single-image photax processes: {single:.2f} s ({single / w4:.2f} x the block command); "
-              f"load {load()}")
-        record("NGI 4 frames, one ortho process vs oty frame (wall)", photax_s=w4, peer_s=o4,
-               ratio=ratio, photax_cpu_s=t["photax 4"][1], peer_cpu_s=t["oty 4"][1], load=load())
-        record("NGI per-image marginal ortho time vs oty frame", photax_s=marginal["photax"],
-               peer_s=marginal["oty"], ratio=marginal["photax"] / marginal["oty"])
+        print(
+            f"\nfour NGI frames, one process each: photax {w4:.2f} s, oty {o4:.2f} s, ratio {ratio:.2f} "
+            f"(target <= 1.0); cpu ratio {t['photax 4'][1] / t['oty 4'][1]:.2f}"
+        )
+        print(
+            f"per-image marginal time (t4 - t1) / 3: photax {marginal['photax']:.2f} s, "
+            f"oty {marginal['oty']:.2f} s (target photax <= oty)"
+        )
+        print(
+            f"four single-image photax processes: {single:.2f} s ({single / w4:.2f} x the block command); load {load()}"
+        )
+        record(
+            "NGI 4 frames, one ortho process vs oty frame (wall)",
+            photax_s=w4,
+            peer_s=o4,
+            ratio=ratio,
+            photax_cpu_s=t["photax 4"][1],
+            peer_cpu_s=t["oty 4"][1],
+            load=load(),
+        )
+        record(
+            "NGI per-image marginal ortho time vs oty frame",
+            photax_s=marginal["photax"],
+            peer_s=marginal["oty"],
+            ratio=marginal["photax"] / marginal["oty"],
+        )
         record("NGI 4 frames as 4 single-image photax processes", photax_s=single, block_s=w4)
 
 

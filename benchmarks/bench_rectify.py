@@ -103,11 +103,15 @@ def report_ours(name, run, ours, repeat):
     """The approximate mapping's achieved error, photax approx vs exact, peak memory."""
     info = {}
     run(resampling="bilinear", info=info)
-    print(f"{name} approx: max position error at the check positions {info['approx_error']:.4f} px "
-          f"(threshold {info['approx']}), {100 * info['exact_fraction']:.1f}% of chunks mapped exactly")
+    print(
+        f"{name} approx: max position error at the check positions {info['approx_error']:.4f} px "
+        f"(threshold {info['approx']}), {100 * info['exact_fraction']:.1f}% of chunks mapped exactly"
+    )
     record(f"{name} approx", approx_error_px=info["approx_error"], exact_fraction=info["exact_fraction"])
-    t = median_times({"approx": lambda: run(resampling="bilinear"), "exact": lambda: run(resampling="bilinear", approx=0)},
-                     repeat=max(1, repeat // 2))
+    t = median_times(
+        {"approx": lambda: run(resampling="bilinear"), "exact": lambda: run(resampling="bilinear", approx=0)},
+        repeat=max(1, repeat // 2),
+    )
     print(ratio_line(f"{name} bilinear approx=0.125 vs photax exact (approx=0)", t["approx"], t["exact"]))
     _, peak = peak_memory(lambda: run(resampling="bilinear"))
     record(f"{name} bilinear photax peak memory", bytes=peak)
@@ -115,8 +119,12 @@ def report_ours(name, run, ours, repeat):
 
 
 # photax method -> (OpenCV flag, OpenCV taps per axis, photax taps per axis)
-CV2 = {"bilinear": (cv2.INTER_LINEAR, 2, 2), "cubic": (cv2.INTER_CUBIC, 4, 4), "lanczos": (cv2.INTER_LANCZOS4, 8, 6),
-       "lanczos4": (cv2.INTER_LANCZOS4, 8, 8)}
+CV2 = {
+    "bilinear": (cv2.INTER_LINEAR, 2, 2),
+    "cubic": (cv2.INTER_CUBIC, 4, 4),
+    "lanczos": (cv2.INTER_LANCZOS4, 8, 6),
+    "lanczos4": (cv2.INTER_LANCZOS4, 8, 8),
+}
 
 
 def cv2_maps(cols, rows):
@@ -133,14 +141,25 @@ def vs_cv2(name, run, image, cols, rows, methods, repeat):
     ours = {}
     for label in methods:
         flag, k_cv, k_ours = CV2[label]
-        t = median_times({"photax": lambda: run(resampling=label),
-                          "cv2": lambda: cv2.remap(image, c32, r32, flag, borderMode=cv2.BORDER_CONSTANT)}, repeat)
+        t = median_times(
+            {
+                "photax": lambda: run(resampling=label),
+                "cv2": lambda: cv2.remap(image, c32, r32, flag, borderMode=cv2.BORDER_CONSTANT),
+            },
+            repeat,
+        )
         ours[label] = t["photax"]
         if k_cv == k_ours:
             print(ratio_line(f"{name} {label} vs cv2.remap", t["photax"], t["cv2"]))
         else:
-            print(ratio_line(f"{name} {label} ({k_ours}x{k_ours} taps) vs cv2.remap INTER_LANCZOS4 ({k_cv}x{k_cv} taps: "
-                             f"a different kernel)", t["photax"], t["cv2"]))
+            print(
+                ratio_line(
+                    f"{name} {label} ({k_ours}x{k_ours} taps) vs cv2.remap INTER_LANCZOS4 ({k_cv}x{k_cv} taps: "
+                    f"a different kernel)",
+                    t["photax"],
+                    t["cv2"],
+                )
+            )
             per_tap = (t["photax"] / k_ours**2) / (t["cv2"] / k_cv**2)
             record(f"{name} {label} vs cv2 per tap", ratio=per_tap)
             print(f"{name} {label} vs cv2.remap INTER_LANCZOS4 per tap (time / taps): ratio photax/peer {per_tap:.2f}")
@@ -154,7 +173,9 @@ def peers(name, image, cols, rows, ours_by_order, slow_repeat):
     coords = np.stack([np.nan_to_num(rows, nan=-1e6), np.nan_to_num(cols, nan=-1e6)])
     for label, order in (("bilinear", 1), ("cubic", 3)):
         ours = ours_by_order[label]
-        t = median_time(lambda: ndimage.map_coordinates(image, coords, order=order, cval=0), repeat=slow_repeat, warmup=0)
+        t = median_time(
+            lambda: ndimage.map_coordinates(image, coords, order=order, cval=0), repeat=slow_repeat, warmup=0
+        )
         print(ratio_line(f"{name} {label} vs scipy map_coordinates(order={order})", ours, t))
         t = median_time(lambda: warp(image, coords, order=order, preserve_range=True), repeat=slow_repeat, warmup=0)
         print(ratio_line(f"{name} {label} vs skimage warp(order={order})", ours, t))
@@ -177,8 +198,17 @@ def bench_polynomial(n, repeat, slow_repeat):
         dst = np.zeros(grid.shape, np.uint8)
 
         def gdal():
-            reproject(image, dst, gcps=gcps, src_crs=CRS, dst_transform=grid.transform, dst_crs=CRS,
-                      resampling=rs, num_threads=2, MAX_GCP_ORDER=3)
+            reproject(
+                image,
+                dst,
+                gcps=gcps,
+                src_crs=CRS,
+                dst_transform=grid.transform,
+                dst_crs=CRS,
+                resampling=rs,
+                num_threads=2,
+                MAX_GCP_ORDER=3,
+            )
 
         t = median_times({"photax": lambda: run(resampling=label), "gdal": gdal}, repeat=max(1, repeat // 2))
         print(ratio_line(f"poly {label} vs GDAL reproject (GCP_POLYNOMIAL order 3, 2 threads)", t["photax"], t["gdal"]))
@@ -230,8 +260,10 @@ def bench_breakdown(n, repeat):
     plans()
     pos = positions()
     px = float(n * n)
-    ns = {"plan": median_cpu_time(plans, repeat=repeat) / px * 1e9,
-          "positions": median_cpu_time(positions, repeat=repeat) / px * 1e9}
+    ns = {
+        "plan": median_cpu_time(plans, repeat=repeat) / px * 1e9,
+        "positions": median_cpu_time(positions, repeat=repeat) / px * 1e9,
+    }
     print(f"\n== where the time goes ({n} x {n}, CPU ns per output pixel, all threads) ==")
     print(f"lattice plan alone (exact model on the 16-px lattice and check positions): {ns['plan']:.2f} ns/px")
     print(f"file path: plan + positions stored per tile: {ns['positions']:.2f} ns/px")
@@ -241,13 +273,17 @@ def bench_breakdown(n, repeat):
 
         def resample_only():
             for p, o, _, _ in pos:
-                jax.block_until_ready(_resample_tile(flat, p, o, o, fill, size, size, label, jnp.float32,
-                                                     np.dtype("uint8")))
+                jax.block_until_ready(
+                    _resample_tile(flat, p, o, o, fill, size, size, label, jnp.float32, np.dtype("uint8"))
+                )
 
         def kernels():
             for o in offsets:
-                jax.block_until_ready(_rectify_tile(model, flat, transform, o, fill, layout, approx, size, label,
-                                                    jnp.float32, np.dtype("uint8")))
+                jax.block_until_ready(
+                    _rectify_tile(
+                        model, flat, transform, o, fill, layout, approx, size, label, jnp.float32, np.dtype("uint8")
+                    )
+                )
 
         def whole():
             photax.rectify(image, model, grid, resampling=label)
@@ -258,13 +294,25 @@ def bench_breakdown(n, repeat):
         k_ns = median_cpu_time(kernels, repeat=repeat) / px * 1e9
         w_ns = median_cpu_time(whole, repeat=repeat) / px * 1e9
         flag, k_cv, k_ours = CV2[label]
-        ns_cv = median_cpu_time(lambda: cv2.remap(image, c32, r32, flag, borderMode=cv2.BORDER_CONSTANT),
-                                repeat=repeat) / px * 1e9
-        print(f"{label} ({k_ours}x{k_ours} taps): file path resampling from stored positions {ns[label]:.2f} ns/px; "
-              f"in memory: fused tile kernels one after another {k_ns:.2f} ns/px, whole rectify call {w_ns:.2f} "
-              f"ns/px; cv2.remap ({k_cv}x{k_cv} taps, maps given): {ns_cv:.2f} ns/px")
-        record(f"breakdown {label}", photax_ns_per_px=ns[label], tile_kernels_ns_per_px=k_ns, rectify_ns_per_px=w_ns,
-               cv2_ns_per_px=ns_cv, taps=k_ours**2, cv2_taps=k_cv**2)
+        ns_cv = (
+            median_cpu_time(lambda: cv2.remap(image, c32, r32, flag, borderMode=cv2.BORDER_CONSTANT), repeat=repeat)
+            / px
+            * 1e9
+        )
+        print(
+            f"{label} ({k_ours}x{k_ours} taps): file path resampling from stored positions {ns[label]:.2f} ns/px; "
+            f"in memory: fused tile kernels one after another {k_ns:.2f} ns/px, whole rectify call {w_ns:.2f} "
+            f"ns/px; cv2.remap ({k_cv}x{k_cv} taps, maps given): {ns_cv:.2f} ns/px"
+        )
+        record(
+            f"breakdown {label}",
+            photax_ns_per_px=ns[label],
+            tile_kernels_ns_per_px=k_ns,
+            rectify_ns_per_px=w_ns,
+            cv2_ns_per_px=ns_cv,
+            taps=k_ours**2,
+            cv2_taps=k_cv**2,
+        )
     per_tap = (ns["cubic"] - ns["bilinear"]) / 12
     fixed = ns["bilinear"] - 4 * per_tap
     record("breakdown positions", photax_ns_per_px=ns["positions"])
@@ -320,17 +368,39 @@ def bench_ngi(repeat, cli: bool, data, resolution: float = 5.0):
         for f in ("ngi_int_param.yaml", "ngi_xyz_opk.csv", "ngi_xyz_opk.prj", f"{name}.tif"):
             shutil.copy(data / f, f"{tmp}/{f}")
         image = f"{tmp}/{name}.tif"
-        ocam = PinholeCamera((640, 1152), 120.0, (92.16, 165.888), 0.0, 0.0,
-                             xyz=tuple(np.asarray(exterior.position)), opk=tuple(np.asarray(exterior.angles)))
+        ocam = PinholeCamera(
+            (640, 1152),
+            120.0,
+            (92.16, 165.888),
+            0.0,
+            0.0,
+            xyz=tuple(np.asarray(exterior.position)),
+            opk=tuple(np.asarray(exterior.angles)),
+        )
 
         def orth():
             Ortho(image, f"{tmp}/dem.tif", ocam, crs=prj).process(
-                f"{tmp}/o.tif", resolution=(resolution, resolution), interp="bilinear", dem_interp="bilinear",
-                compress="deflate", write_mask=False, build_ovw=False, overwrite=True)
+                f"{tmp}/o.tif",
+                resolution=(resolution, resolution),
+                interp="bilinear",
+                dem_interp="bilinear",
+                compress="deflate",
+                write_mask=False,
+                build_ovw=False,
+                overwrite=True,
+            )
 
         def ours():
-            photax.orthorectify_file(image, f"{tmp}/p.tif", exterior, camera, f"{tmp}/dem.tif", resolution=resolution,
-                                     resampling="bilinear", compress="deflate")
+            photax.orthorectify_file(
+                image,
+                f"{tmp}/p.tif",
+                exterior,
+                camera,
+                f"{tmp}/dem.tif",
+                resolution=resolution,
+                resampling="bilinear",
+                compress="deflate",
+            )
 
         t = median_times({"photax": ours, "orthority": orth}, repeat=repeat)
         shapes = []
@@ -343,13 +413,48 @@ def bench_ngi(repeat, cli: bool, data, resolution: float = 5.0):
         if not cli:
             return
         bindir = pathlib.Path(sys.executable).parent
-        photax_cmd = [str(bindir / "photax"), "ortho", image, "--dem", f"{tmp}/dem.tif", "--interior",
-                      f"{tmp}/ngi_int_param.yaml", "--exterior", f"{tmp}/ngi_xyz_opk.csv", "--out", f"{tmp}/pc.tif",
-                      "--resolution", str(resolution), "--resampling", "bilinear", "--no-progress"]
-        oty_cmd = [str(bindir / "oty"), "frame", image, "--dem", f"{tmp}/dem.tif", "--int-param",
-                   f"{tmp}/ngi_int_param.yaml", "--ext-param", f"{tmp}/ngi_xyz_opk.csv", "--res", str(resolution),
-                   "--interp", "bilinear", "--dem-interp", "bilinear", "--compress", "deflate", "--no-write-mask",
-                   "--no-build-ovw", "--out-dir", f"{tmp}/oty", "--overwrite"]
+        photax_cmd = [
+            str(bindir / "photax"),
+            "ortho",
+            image,
+            "--dem",
+            f"{tmp}/dem.tif",
+            "--interior",
+            f"{tmp}/ngi_int_param.yaml",
+            "--exterior",
+            f"{tmp}/ngi_xyz_opk.csv",
+            "--out",
+            f"{tmp}/pc.tif",
+            "--resolution",
+            str(resolution),
+            "--resampling",
+            "bilinear",
+            "--no-progress",
+        ]
+        oty_cmd = [
+            str(bindir / "oty"),
+            "frame",
+            image,
+            "--dem",
+            f"{tmp}/dem.tif",
+            "--int-param",
+            f"{tmp}/ngi_int_param.yaml",
+            "--ext-param",
+            f"{tmp}/ngi_xyz_opk.csv",
+            "--res",
+            str(resolution),
+            "--interp",
+            "bilinear",
+            "--dem-interp",
+            "bilinear",
+            "--compress",
+            "deflate",
+            "--no-write-mask",
+            "--no-build-ovw",
+            "--out-dir",
+            f"{tmp}/oty",
+            "--overwrite",
+        ]
         os.makedirs(f"{tmp}/oty", exist_ok=True)
         env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=f"{tmp}/jax-cache")  # starts empty: the first run is cold
         cold = run_process(photax_cmd, env)
@@ -360,11 +465,19 @@ def bench_ngi(repeat, cli: bool, data, resolution: float = 5.0):
         med = {k: (float(np.median([r[0] for r in v])), max(r[1] for r in v)) for k, v in runs.items()}
         print("photax: " + shlex.join(photax_cmd).replace(tmp, "$TMP"))
         print("oty:    " + shlex.join(oty_cmd).replace(tmp, "$TMP"))
-        print(ratio_line("NGI ortho whole CLI process, warm compile cache, vs oty frame", med["photax"][0], med["oty"][0]))
-        record("NGI ortho whole CLI process peak memory", photax_bytes=med["photax"][1], peer_bytes=med["oty"][1],
-               ratio=med["photax"][1] / med["oty"][1])
-        print(f"NGI ortho CLI peak resident memory: photax {mib(med['photax'][1])}, oty {mib(med['oty'][1])}, "
-              f"ratio {med['photax'][1] / med['oty'][1]:.2f}")
+        print(
+            ratio_line("NGI ortho whole CLI process, warm compile cache, vs oty frame", med["photax"][0], med["oty"][0])
+        )
+        record(
+            "NGI ortho whole CLI process peak memory",
+            photax_bytes=med["photax"][1],
+            peer_bytes=med["oty"][1],
+            ratio=med["photax"][1] / med["oty"][1],
+        )
+        print(
+            f"NGI ortho CLI peak resident memory: photax {mib(med['photax'][1])}, oty {mib(med['oty'][1])}, "
+            f"ratio {med['photax'][1] / med['oty'][1]:.2f}"
+        )
         record("NGI ortho whole CLI process, cold (empty compile cache)", photax_s=cold[0], photax_bytes=cold[1])
         print(f"NGI ortho CLI photax cold (empty compile cache): {cold[0]:.2f} s, peak {mib(cold[1])}")
 
@@ -377,23 +490,41 @@ def bench_big(n):
     with tempfile.TemporaryDirectory() as tmp:
         src = f"{tmp}/big_in.tif"
         block = synthetic_image(1024, seed=3)
-        with rasterio.open(src, "w", driver="GTiff", width=n, height=n, count=1, dtype="uint8", tiled=True,
-                           blockxsize=256, blockysize=256, BIGTIFF="IF_SAFER") as dst:
+        with rasterio.open(
+            src,
+            "w",
+            driver="GTiff",
+            width=n,
+            height=n,
+            count=1,
+            dtype="uint8",
+            tiled=True,
+            blockxsize=256,
+            blockysize=256,
+            BIGTIFF="IF_SAFER",
+        ) as dst:
             for r in range(0, n, 1024):
                 for c in range(0, n, 1024):
-                    dst.write(block[None, : min(1024, n - r), : min(1024, n - c)],
-                              window=Window(c, r, min(1024, n - c), min(1024, n - r)))
+                    dst.write(
+                        block[None, : min(1024, n - r), : min(1024, n - c)],
+                        window=Window(c, r, min(1024, n - c), min(1024, n - r)),
+                    )
 
         def once():
             t0 = time.perf_counter()
-            _, peak = peak_memory(lambda: photax.rectify_file(src, f"{tmp}/big_out.tif", model, grid, tile=1024,
-                                                              compress=None, progress=True))
+            _, peak = peak_memory(
+                lambda: photax.rectify_file(
+                    src, f"{tmp}/big_out.tif", model, grid, tile=1024, compress=None, progress=True
+                )
+            )
             return time.perf_counter() - t0, peak
 
         cold, warm = once(), once()  # the first call traces and compiles
         print(f"\n== {n} x {n} = {n * n / 1e6:.0f} MPix uint8 file -> file (rectify_file, bilinear, tile 1024) ==")
-        print(f"big rectify_file: cold (first call, with compilation) {cold[0]:.1f} s, warm {warm[0]:.1f} s, "
-              f"peak memory {mib(max(cold[1], warm[1]))} (target < 2048 MiB)")
+        print(
+            f"big rectify_file: cold (first call, with compilation) {cold[0]:.1f} s, warm {warm[0]:.1f} s, "
+            f"peak memory {mib(max(cold[1], warm[1]))} (target < 2048 MiB)"
+        )
         record("big rectify_file", n=n, cold_s=cold[0], warm_s=warm[0], peak_bytes=max(cold[1], warm[1]))
 
 
@@ -403,9 +534,14 @@ def main():
     ap.add_argument("--big", type=int, default=None, help="edge of the big file case (default 16384)")
     ap.add_argument("--no-big", action="store_true")
     ap.add_argument("--no-cli", action="store_true", help="skip the whole-process photax ortho / oty frame runs")
-    ap.add_argument("--data", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "data"),
-                    help="folder with the NGI files (default ../shared/data beside the repository)")
-    ap.add_argument("--only", choices=("poly", "breakdown", "ortho", "ngi", "big"), action="append", help="run only these parts")
+    ap.add_argument(
+        "--data",
+        default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared", "data"),
+        help="folder with the NGI files (default ../shared/data beside the repository)",
+    )
+    ap.add_argument(
+        "--only", choices=("poly", "breakdown", "ortho", "ngi", "big"), action="append", help="run only these parts"
+    )
     args = ap.parse_args()
     start("_".join(["bench_rectify"] + (["quick"] if args.quick else []) + sorted(args.only or [])))
     n = 1024 if args.quick else 4096

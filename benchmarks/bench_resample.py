@@ -26,9 +26,14 @@ from _common import median_times, mib, peak_memory, ratio_line, record, start
 from photax.resampling import resample
 
 # method -> (OpenCV flag, OpenCV taps per axis, photax taps per axis)
-FLAGS = {"nearest": (cv2.INTER_NEAREST, 1, 1), "bilinear": (cv2.INTER_LINEAR, 2, 2), "cubic": (cv2.INTER_CUBIC, 4, 4),
-         "lanczos": (cv2.INTER_LANCZOS4, 8, 6), "lanczos4": (cv2.INTER_LANCZOS4, 8, 8),
-         "bspline": (cv2.INTER_CUBIC, 4, 4)}
+FLAGS = {
+    "nearest": (cv2.INTER_NEAREST, 1, 1),
+    "bilinear": (cv2.INTER_LINEAR, 2, 2),
+    "cubic": (cv2.INTER_CUBIC, 4, 4),
+    "lanczos": (cv2.INTER_LANCZOS4, 8, 6),
+    "lanczos4": (cv2.INTER_LANCZOS4, 8, 8),
+    "bspline": (cv2.INTER_CUBIC, 4, 4),
+}
 
 
 def main(n: int = 4096, dtype: str = "uint8") -> None:
@@ -46,8 +51,10 @@ def main(n: int = 4096, dtype: str = "uint8") -> None:
         t = median_times({"photax": ours, "cv2": peer}, repeat=5)
         _, mem = peak_memory(ours)
         record(f"{method} photax peak memory", bytes=mem)
-        note = {"lanczos": " (Lanczos-3, 6x6 taps, vs INTER_LANCZOS4, 8x8: kernels differ)",
-                "lanczos4": " (Lanczos-4, 8x8 taps: the same kernel as INTER_LANCZOS4)"}.get(method, "")
+        note = {
+            "lanczos": " (Lanczos-3, 6x6 taps, vs INTER_LANCZOS4, 8x8: kernels differ)",
+            "lanczos4": " (Lanczos-4, 8x8 taps: the same kernel as INTER_LANCZOS4)",
+        }.get(method, "")
         if method == "bspline":
             note = " (vs cv2 INTER_CUBIC: OpenCV has no B-spline)"
         print(ratio_line(f"{method:8s}{note}", t["photax"], t["cv2"]), f"peak {mib(mem)}")

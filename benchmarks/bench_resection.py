@@ -31,8 +31,7 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _common import (median_cpu_time, median_time, mib, peak_memory, peak_rss, ratio_line, record,  # noqa: E402
-                     start)
+from _common import median_cpu_time, median_time, mib, peak_memory, peak_rss, ratio_line, record, start  # noqa: E402
 
 import photax as ptx  # noqa: E402
 
@@ -50,7 +49,8 @@ def scenes(rng, b, n=12):
     px = np.stack([rng.uniform(100, W - 100, (b, n)), rng.uniform(100, H - 100, (b, n))], axis=-1)
     xy = np.asarray(CAM.pixel_to_image(px))
     centre = np.array([500_000.0, 4_000_000.0, 0.0]) + np.stack(
-        [rng.uniform(-1000, 1000, b), rng.uniform(-1000, 1000, b), rng.uniform(700, 1200, b)], axis=1)
+        [rng.uniform(-1000, 1000, b), rng.uniform(-1000, 1000, b), rng.uniform(700, 1200, b)], axis=1
+    )
     angles = np.stack([rng.uniform(-0.1, 0.1, b), rng.uniform(-0.1, 0.1, b), rng.uniform(-np.pi, np.pi, b)], axis=1)
     rot = np.asarray(ptx.rotation_matrix(angles))  # (b, 3, 3) world_from_camera
     ray = np.concatenate([xy, np.full((b, n, 1), -F)], axis=2)
@@ -94,8 +94,10 @@ def main():
     rng = np.random.default_rng(0)
     xy, ground, pixel, truth = scenes(rng, args.images)
     sys.stdout.reconfigure(line_buffering=True)
-    print(f"jax {jax.__version__}, OpenCV {cv2.__version__}, {args.images} images x 12 GCPs, "
-          f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    print(
+        f"jax {jax.__version__}, OpenCV {cv2.__version__}, {args.images} images x 12 GCPs, "
+        f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"
+    )
     print("reproduce: PYTHONPATH=src python benchmarks/bench_resection.py --images", args.images)
 
     # --- first calls: tracing + compilation (+ one run); a cache dir in JAX_COMPILATION_CACHE_DIR would hide it.
@@ -107,10 +109,11 @@ def main():
     # A 20-pixel blunder tested with the true sigma (Baarda's w; Pope's tau misses this one among 12 points):
     # the robust path runs, and compiles.
     blunder[0, 3] += 20.0 * float(CAM.pixel_size[0])
-    for name, f in {"resect": lambda: ptx.resect(xy[0], ground[0], CAM),
-                    "resect_batch(robust=False)": lambda: ptx.resect_batch(xy[:64], ground[:64], CAM, robust=False),
-                    "resect_batch(robust=True), one blunder": lambda: ptx.resect_batch(blunder, ground[:64], CAM,
-                                                                                       sigma=0.5)}.items():
+    for name, f in {
+        "resect": lambda: ptx.resect(xy[0], ground[0], CAM),
+        "resect_batch(robust=False)": lambda: ptx.resect_batch(xy[:64], ground[:64], CAM, robust=False),
+        "resect_batch(robust=True), one blunder": lambda: ptx.resect_batch(blunder, ground[:64], CAM, sigma=0.5),
+    }.items():
         t0, c0 = time.perf_counter(), time.process_time()
         f()
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
@@ -119,10 +122,14 @@ def main():
     single_breakdown(xy[0], ground[0])
 
     # --- single-call latency (wall and CPU time: the machine may be shared)
-    one = {"resect (robust)": lambda: ptx.resect(xy[0], ground[0], CAM),
-           "resect (robust=False)": lambda: ptx.resect(xy[0], ground[0], CAM, robust=False)}
-    cv = {"ITERATIVE": lambda: opencv(ground[0], pixel[0], cv2.SOLVEPNP_ITERATIVE),
-          "SQPNP": lambda: opencv(ground[0], pixel[0], cv2.SOLVEPNP_SQPNP)}
+    one = {
+        "resect (robust)": lambda: ptx.resect(xy[0], ground[0], CAM),
+        "resect (robust=False)": lambda: ptx.resect(xy[0], ground[0], CAM, robust=False),
+    }
+    cv = {
+        "ITERATIVE": lambda: opencv(ground[0], pixel[0], cv2.SOLVEPNP_ITERATIVE),
+        "SQPNP": lambda: opencv(ground[0], pixel[0], cv2.SOLVEPNP_SQPNP),
+    }
     t1 = interleaved({**one, **cv}, repeat=201, warmup=3)
     print(f"latency measured at {load()}")
     # Interleaved, each call finds its caches evicted by the other library's: OpenCV's few-microsecond
@@ -151,8 +158,12 @@ def main():
         wall, cpu = time.perf_counter() - t0, time.process_time() - c0
         record(f"first call resect_batch({args.images} images, robust={robust}) (CPU)", photax_s=cpu, wall_s=wall)
         print(f"first call resect_batch({args.images} images, robust={robust}): {wall:.2f} s wall, {cpu:.2f} s CPU")
-    runs = {"resect_batch(robust=False)": batch(False), "resect_batch(robust=True)": batch(True),
-            "SQPNP loop": loop(cv2.SOLVEPNP_SQPNP), "ITERATIVE loop": loop(cv2.SOLVEPNP_ITERATIVE)}
+    runs = {
+        "resect_batch(robust=False)": batch(False),
+        "resect_batch(robust=True)": batch(True),
+        "SQPNP loop": loop(cv2.SOLVEPNP_SQPNP),
+        "ITERATIVE loop": loop(cv2.SOLVEPNP_ITERATIVE),
+    }
     tn = interleaved(runs, repeat=5, warmup=0)
     print(f"throughput measured at {load()}")
     for a in ("resect_batch(robust=False)", "resect_batch(robust=True)"):
@@ -161,9 +172,11 @@ def main():
             print(ratio_line(f"{args.images} images {a} vs {b} (CPU)", tn[a][1], tn[b][1]))
     res, mem = peak_memory(lambda: ptx.resect_batch(xy, ground, CAM))
     _, mem_cv = peak_memory(loop(cv2.SOLVEPNP_SQPNP))
-    print(f"peak memory above the start: resect_batch {mib(mem)}, OpenCV SQPNP loop {mib(mem_cv)}; "
-          f"absolute peak RSS of this process {mib(peak_rss())}; "
-          f"converged {int(np.sum(res.converged))}/{args.images}")
+    print(
+        f"peak memory above the start: resect_batch {mib(mem)}, OpenCV SQPNP loop {mib(mem_cv)}; "
+        f"absolute peak RSS of this process {mib(peak_rss())}; "
+        f"converged {int(np.sum(res.converged))}/{args.images}"
+    )
     # same answer: photax's centres vs SQPnP's (both least squares on the same points)
     r, t = opencv(ground[0], pixel[0], cv2.SOLVEPNP_ITERATIVE)
     c_cv = ground[0].mean(0) - cv2.Rodrigues(r)[0].T @ t.ravel()
@@ -190,13 +203,16 @@ def single_breakdown(xy, ground):
     stages = {
         "whole resect": lambda: ptx.resect(xy, ground, CAM),
         "validate": prepare,
-        "options and inputs": lambda: (_api._options(prep, CAM, "phi-omega-kappa", True, 0.001, 50, m),
-                                       _api._inputs(prep, m)),
+        "options and inputs": lambda: (
+            _api._options(prep, CAM, "phi-omega-kappa", True, 0.001, 50, m),
+            _api._inputs(prep, m),
+        ),
         "compiled cheap path (dispatch and run)": lambda: jax.block_until_ready(_api._solve_cheap(inp, opt)),
         "result to host, unpack": lambda: _api.unpack(np.asarray(flat).T, m),
         "plausibility screen": lambda: _api._screen(prep, out, CAM),
-        "finish (result object, messages)": lambda: _api._finish(prep, out, CAM, "phi-omega-kappa", False,
-                                                                 screened=screened),
+        "finish (result object, messages)": lambda: _api._finish(
+            prep, out, CAM, "phi-omega-kappa", False, screened=screened
+        ),
     }
     for name, f in stages.items():
         t = median_cpu_time(f, repeat=301, warmup=5)
@@ -224,13 +240,16 @@ def batch_breakdown(xy, ground):
         "inputs (lanes)": lambda: _api._inputs(prep, m),
         "compiled cheap path, to host, unpack": lambda: _api._call(_api._solve_cheap, inp, opt, _api._CHUNK, m),
         "plausibility screen": lambda: _api._screen(prep, out, CAM),
-        "finish (result object, messages)": lambda: _api._finish(prep, out, CAM, "phi-omega-kappa", True,
-                                                                 screened=screened),
+        "finish (result object, messages)": lambda: _api._finish(
+            prep, out, CAM, "phi-omega-kappa", True, screened=screened
+        ),
     }
     n = len(xy)
     retry = np.bincount(out.retry, minlength=3)
-    print(f"batch breakdown ({n} images, {load()}): {retry[1]} images go to the robust path from their cheap "
-          f"solution (only the test failed), {retry[2]} from the LMedS start")
+    print(
+        f"batch breakdown ({n} images, {load()}): {retry[1]} images go to the robust path from their cheap "
+        f"solution (only the test failed), {retry[2]} from the LMedS start"
+    )
     for name, f in stages.items():
         t = median_cpu_time(f, repeat=5, warmup=1)
         record(f"resect_batch stage: {name} (CPU per image)", photax_s=t / n)
@@ -244,8 +263,10 @@ def accuracy(res, ground, pixel, truth):
     for i in range(len(truth)):
         r, t = opencv(ground[i], pixel[i], cv2.SOLVEPNP_SQPNP)
         cv.append(np.linalg.norm(ground[i].mean(0) - cv2.Rodrigues(r)[0].T @ t.ravel() - truth[i]))
-    print(f"median centre error: photax {np.median(err):.4f} m, SQPnP {np.median(cv):.4f} m, "
-          f"ratio {np.median(err) / np.median(cv):.4f} (target within 2 %)")
+    print(
+        f"median centre error: photax {np.median(err):.4f} m, SQPnP {np.median(cv):.4f} m, "
+        f"ratio {np.median(err) / np.median(cv):.4f} (target within 2 %)"
+    )
 
 
 def solver_overhead(xy, ground):
@@ -290,8 +311,11 @@ def solver_overhead(xy, ground):
     theirs = jax.vmap(one, in_axes=(-1, -1))
 
     runs = {}
-    for name, fn in (("photax Gauss-Newton loop", ours), ("optimistix.GaussNewton", theirs),
-                     ("photax fixed-step loop (cheap path)", ours_fixed)):
+    for name, fn in (
+        ("photax Gauss-Newton loop", ours),
+        ("optimistix.GaussNewton", theirs),
+        ("photax fixed-step loop (cheap path)", ours_fixed),
+    ):
         f = jax.jit(fn)
         t0 = time.perf_counter()
         jax.block_until_ready(f(inp, starts))
@@ -299,12 +323,18 @@ def solver_overhead(xy, ground):
         t = median_cpu_time(lambda: jax.block_until_ready(f(inp, starts)), repeat=9)
         p, steps = f(inp, starts)
         runs[name] = (t, np.asarray(p), float(jnp.mean(steps)))
-        print(f"{name}: {b} images {t * 1e3:.2f} ms ({t / b / runs[name][2] * 1e6:.2f} us per image-step, "
-              f"{runs[name][2]:.1f} steps), first call {compile_s:.2f} s")
+        print(
+            f"{name}: {b} images {t * 1e3:.2f} ms ({t / b / runs[name][2] * 1e6:.2f} us per image-step, "
+            f"{runs[name][2]:.1f} steps), first call {compile_s:.2f} s"
+        )
     (t0_, p0_, _), (t1_, p1_, _), (t2_, p2_, _) = runs.values()
-    print(f"solver overhead: optimistix / photax loop = {t1_ / t0_:.2f}; max |dp| between them "
-          f"{np.nanmax(np.abs(p0_ - p1_)):.1e}")
-    print(f"fixed-step loop / per-lane loop = {t2_ / t0_:.2f}; max |dp| between them {np.nanmax(np.abs(p0_ - p2_)):.1e}")
+    print(
+        f"solver overhead: optimistix / photax loop = {t1_ / t0_:.2f}; max |dp| between them "
+        f"{np.nanmax(np.abs(p0_ - p1_)):.1e}"
+    )
+    print(
+        f"fixed-step loop / per-lane loop = {t2_ / t0_:.2f}; max |dp| between them {np.nanmax(np.abs(p0_ - p2_)):.1e}"
+    )
     record("Gauss-Newton fixed-step loop / per-lane loop (1024 images)", ratio=t2_ / t0_)
 
 

@@ -104,8 +104,9 @@ def gcps_for(s, grid: Grid):
     x, y = grid.transform * (cols.ravel(), rows.ravel())
     x, y = np.asarray(x), np.asarray(y)
     z = np.asarray(s.dem.height(jnp.asarray(x), jnp.asarray(y)))
-    pix = np.asarray(s.camera.image_to_pixel(photax.project(jnp.asarray(np.stack([x, y, z], -1)), s.exterior,
-                                                            s.camera)))
+    pix = np.asarray(
+        s.camera.image_to_pixel(photax.project(jnp.asarray(np.stack([x, y, z], -1)), s.exterior, s.camera))
+    )
     return pix, np.stack([x, y], -1)
 
 
@@ -161,10 +162,18 @@ def _write(arr, label: str) -> dict:
             faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
         load = os.getloadavg()[0]
         mpix = size**2 / 1e6
-        print(f"  {dt:.1f} s ({cpu:.1f} CPU s, {faults} page faults), {mpix / dt:.1f} MPix/s, peak {mib(peak)} above "
-              f"the start; file {mib(os.path.getsize(out))} (load {load:.1f})")
-        return {"seconds": dt, "cpu_seconds": cpu, "page_faults": faults, "mpix_per_s": mpix / dt,
-                "peak_bytes": peak, "load": load}
+        print(
+            f"  {dt:.1f} s ({cpu:.1f} CPU s, {faults} page faults), {mpix / dt:.1f} MPix/s, peak {mib(peak)} above "
+            f"the start; file {mib(os.path.getsize(out))} (load {load:.1f})"
+        )
+        return {
+            "seconds": dt,
+            "cpu_seconds": cpu,
+            "page_faults": faults,
+            "mpix_per_s": mpix / dt,
+            "peak_bytes": peak,
+            "load": load,
+        }
 
 
 def _live(args, chunk_default, write_default) -> None:
@@ -180,8 +189,17 @@ def _live(args, chunk_default, write_default) -> None:
     import subprocess
 
     env = dict(os.environ, MALLOC_MMAP_THRESHOLD_=str(128 * 1024))
-    cmd = [sys.executable, __file__, "--size", str(args.size), "--image", str(args.image), "--live-child",
-           "--chunks", *map(str, args.chunks)]
+    cmd = [
+        sys.executable,
+        __file__,
+        "--size",
+        str(args.size),
+        "--image",
+        str(args.image),
+        "--live-child",
+        "--chunks",
+        *map(str, args.chunks),
+    ]
     print("live memory (a fresh process, glibc's mmap threshold fixed at 128 KiB):", flush=True)
     out = subprocess.run(cmd, env=env, stdout=subprocess.PIPE, text=True, check=True).stdout
     text, _, tail = out.rpartition("@@live ")
@@ -190,18 +208,39 @@ def _live(args, chunk_default, write_default) -> None:
     for c in args.chunks:
         chunk, w = live[str(c)]["chunk"], live[str(c)]["write"]
         d = write_default[c]
-        print(f"chunks {c}: one chunk {mib(chunk)} live ({mib(chunk_default[c])} with the default allocator); "
-              f"whole write {mib(w['peak_bytes'])} live = {w['peak_bytes'] / chunk:.2f}x; "
-              f"{mib(d['peak_bytes'])} with the default allocator = {d['peak_bytes'] / chunk:.2f}x the live chunk "
-              f"(load {w['load']:.1f} / {d['load']:.1f})")
-        record(f"photax to_raster chunks={c}", size=args.size, chunks=c, chunk_shape=live[str(c)]["shape"],
-               chunk_live_bytes=chunk, chunk_default_bytes=chunk_default[c], write_live=w, write_default=d,
-               live_over_chunk=w["peak_bytes"] / chunk, default_over_chunk=d["peak_bytes"] / chunk)
+        print(
+            f"chunks {c}: one chunk {mib(chunk)} live ({mib(chunk_default[c])} with the default allocator); "
+            f"whole write {mib(w['peak_bytes'])} live = {w['peak_bytes'] / chunk:.2f}x; "
+            f"{mib(d['peak_bytes'])} with the default allocator = {d['peak_bytes'] / chunk:.2f}x the live chunk "
+            f"(load {w['load']:.1f} / {d['load']:.1f})"
+        )
+        record(
+            f"photax to_raster chunks={c}",
+            size=args.size,
+            chunks=c,
+            chunk_shape=live[str(c)]["shape"],
+            chunk_live_bytes=chunk,
+            chunk_default_bytes=chunk_default[c],
+            write_live=w,
+            write_default=d,
+            live_over_chunk=w["peak_bytes"] / chunk,
+            default_over_chunk=d["peak_bytes"] / chunk,
+        )
         if c == args.chunks[0]:
-            record("photax to_raster", seconds=d["seconds"], cpu_seconds=d["cpu_seconds"],
-                   mpix_per_s=d["mpix_per_s"], peak_bytes=d["peak_bytes"], peak_live_bytes=w["peak_bytes"],
-                   chunk_bytes=chunk, peak_over_chunk=w["peak_bytes"] / chunk,
-                   default_peak_over_chunk=d["peak_bytes"] / chunk, size=args.size, chunks=c, load=d["load"])
+            record(
+                "photax to_raster",
+                seconds=d["seconds"],
+                cpu_seconds=d["cpu_seconds"],
+                mpix_per_s=d["mpix_per_s"],
+                peak_bytes=d["peak_bytes"],
+                peak_live_bytes=w["peak_bytes"],
+                chunk_bytes=chunk,
+                peak_over_chunk=w["peak_bytes"] / chunk,
+                default_peak_over_chunk=d["peak_bytes"] / chunk,
+                size=args.size,
+                chunks=c,
+                load=d["load"],
+            )
 
 
 def _live_child(ortho) -> None:
@@ -210,16 +249,24 @@ def _live_child(ortho) -> None:
 
     res = {}
     for c, arr in ortho.items():
-        res[c] = {"chunk": _chunk_peak(arr), "write": _write(arr, "mmap threshold fixed"),
-                  "shape": list(arr.data.chunksize)}
+        res[c] = {
+            "chunk": _chunk_peak(arr),
+            "write": _write(arr, "mmap threshold fixed"),
+            "shape": list(arr.data.chunksize),
+        }
     print("@@live " + json.dumps(res))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--size", type=int, default=20000, help="output grid edge in pixels")
-    ap.add_argument("--chunks", type=int, nargs="+", default=[1024],
-                    help="chunk edges (several: a sweep; the first is used against the peers)")
+    ap.add_argument(
+        "--chunks",
+        type=int,
+        nargs="+",
+        default=[1024],
+        help="chunk edges (several: a sweep; the first is used against the peers)",
+    )
     ap.add_argument("--image", type=int, default=2000, help="rendered image width in pixels")
     ap.add_argument("--no-peers", action="store_true")
     ap.add_argument("--live-child", action="store_true", help=argparse.SUPPRESS)
@@ -235,15 +282,19 @@ def main() -> None:
     s, image = scene(args.image)
     grid = square_grid(s, args.size)
     mpix = args.size**2 / 1e6
-    print(f"scene {image.shape[1]} x {image.shape[0]} rendered in {time.perf_counter() - t0:.1f} s; output "
-          f"{args.size} x {args.size} ({mpix:.0f} MPix) at {grid.transform.a:.3f} m, chunks {args.chunks}")
+    print(
+        f"scene {image.shape[1]} x {image.shape[0]} rendered in {time.perf_counter() - t0:.1f} s; output "
+        f"{args.size} x {args.size} ({mpix:.0f} MPix) at {grid.transform.a:.3f} m, chunks {args.chunks}"
+    )
     ortho = {c: photax.orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=c) for c in args.chunks}
     for arr in ortho.values():
         _block(arr).compute()  # compiles the kernels (not timed)
     with tempfile.TemporaryDirectory() as tmp:  # loads the writing code (not measured)
         small = square_grid(s, 2 * args.chunks[0])
-        photax.to_raster(photax.orthorectify_dask(image, s.exterior, s.camera, s.dem, small, chunks=args.chunks[0]),
-                         os.path.join(tmp, "warm.tif"))
+        photax.to_raster(
+            photax.orthorectify_dask(image, s.exterior, s.camera, s.dem, small, chunks=args.chunks[0]),
+            os.path.join(tmp, "warm.tif"),
+        )
     if args.live_child:
         _live_child(ortho)
         return
@@ -252,6 +303,7 @@ def main() -> None:
     write_default = {c: _write(arr, "default allocator") for c, arr in ortho.items()}
     arr = ortho[args.chunks[0]]
     dst = np.empty((args.size, args.size), np.uint8)
+
     def store(data) -> float:
         """Seconds to compute a lazy array into ``dst``, with a progress bar
         (its last tick, <= 0.5 s, is inside the time)."""
@@ -287,8 +339,18 @@ def _peers(args, s, image, grid, ours_out, ours, dst, store) -> None:
     gcps = [GroundControlPoint(row=r, col=c, x=x, y=y) for (c, r), (x, y) in zip(pix + 0.5, ground)]
     print("GDAL rasterio.warp.reproject (GCP polynomial order 3, bilinear, 2 threads) -> memory")
     t0 = time.perf_counter()
-    reproject(image, dst, gcps=gcps, src_crs=CRS, dst_transform=grid.transform, dst_crs=CRS,
-              resampling=Resampling.bilinear, num_threads=2, MAX_GCP_ORDER=3, warp_mem_limit=512)
+    reproject(
+        image,
+        dst,
+        gcps=gcps,
+        src_crs=CRS,
+        dst_transform=grid.transform,
+        dst_crs=CRS,
+        resampling=Resampling.bilinear,
+        num_threads=2,
+        MAX_GCP_ORDER=3,
+        warp_mem_limit=512,
+    )
     dt = time.perf_counter() - t0
     load = os.getloadavg()[0]
     print(f"  {dt:.1f} s, {mpix / dt:.1f} MPix/s; photax / GDAL {ours / dt:.2f} (load {load:.1f}); {agree(dst)}")

@@ -39,14 +39,42 @@ def main() -> None:
     start("bench_sharpen")
     with tempfile.TemporaryDirectory() as tmp:
         tmp = pathlib.Path(tmp)
-        env = dict(os.environ, PYTHONPATH=str(ROOT / "src"), PYTHONPYCACHEPREFIX=str(tmp / "pycache"),
-                   PYTHONWARNINGS="ignore", JAX_COMPILATION_CACHE_DIR=str(tmp / "jax"))
+        env = dict(
+            os.environ,
+            PYTHONPATH=str(ROOT / "src"),
+            PYTHONPYCACHEPREFIX=str(tmp / "pycache"),
+            PYTHONWARNINGS="ignore",
+            JAX_COMPILATION_CACHE_DIR=str(tmp / "jax"),
+        )
         pan, ms = str(PAIR / "pan.tif"), str(PAIR / "ms.tif")
         cmds = {
-            "photax": [sys.executable, "-m", "photax.cli", "sharpen", pan, ms, "-o", str(tmp / "photax.tif"),
-                       "--method", "gs"],
-            "oty": [str(BIN / "oty"), "sharpen", "-p", pan, "-ms", ms, "-of", str(tmp / "oty.tif"), "-cm",
-                    "deflate", "-nbo", "-nwm", "-o"],
+            "photax": [
+                sys.executable,
+                "-m",
+                "photax.cli",
+                "sharpen",
+                pan,
+                ms,
+                "-o",
+                str(tmp / "photax.tif"),
+                "--method",
+                "gs",
+            ],
+            "oty": [
+                str(BIN / "oty"),
+                "sharpen",
+                "-p",
+                pan,
+                "-ms",
+                ms,
+                "-of",
+                str(tmp / "oty.tif"),
+                "-cm",
+                "deflate",
+                "-nbo",
+                "-nwm",
+                "-o",
+            ],
         }
         for cmd in cmds.values():  # warm: byte-code, photax's compile cache
             run_process(cmd, env=env)
@@ -69,16 +97,28 @@ def main() -> None:
     mem = {k: statistics.median(v) for k, v in peaks.items()}
     cpu = {k: statistics.median(v) for k, v in cpus.items()}
     for k in cmds:
-        print(f"{k:7s} median {med[k]:.2f} s of {[round(t, 2) for t in times[k]]}, CPU (user + system) "
-              f"{cpu[k]:.2f} s, peak {mem[k] / 2**20:.0f} MiB")
+        print(
+            f"{k:7s} median {med[k]:.2f} s of {[round(t, 2) for t in times[k]]}, CPU (user + system) "
+            f"{cpu[k]:.2f} s, peak {mem[k] / 2**20:.0f} MiB"
+        )
     print(f"photax first run with an empty compile cache: {cold:.2f} s")
-    print(f"ratio photax / oty: wall {med['photax'] / med['oty']:.2f} (target <= 1), CPU "
-          f"{cpu['photax'] / cpu['oty']:.2f}, peak memory {mem['photax'] / mem['oty']:.2f}")
-    record("GS pan-sharpening whole process, warm compile cache, vs oty sharpen", photax_s=med["photax"],
-           peer_s=med["oty"], ratio=med["photax"] / med["oty"], photax_cpu_s=cpu["photax"],
-           peer_cpu_s=cpu["oty"],
-           cpu_ratio=cpu["photax"] / cpu["oty"], photax_cold_s=cold,
-           photax_bytes=mem["photax"], peer_bytes=mem["oty"], load=[round(v, 2) for v in os.getloadavg()])
+    print(
+        f"ratio photax / oty: wall {med['photax'] / med['oty']:.2f} (target <= 1), CPU "
+        f"{cpu['photax'] / cpu['oty']:.2f}, peak memory {mem['photax'] / mem['oty']:.2f}"
+    )
+    record(
+        "GS pan-sharpening whole process, warm compile cache, vs oty sharpen",
+        photax_s=med["photax"],
+        peer_s=med["oty"],
+        ratio=med["photax"] / med["oty"],
+        photax_cpu_s=cpu["photax"],
+        peer_cpu_s=cpu["oty"],
+        cpu_ratio=cpu["photax"] / cpu["oty"],
+        photax_cold_s=cold,
+        photax_bytes=mem["photax"],
+        peer_bytes=mem["oty"],
+        load=[round(v, 2) for v in os.getloadavg()],
+    )
 
 
 if __name__ == "__main__":

@@ -113,15 +113,24 @@ def entries(cache: pathlib.Path) -> int:
 def bench_import(env, repeat):
     print("\n== import ==")
     py = sys.executable
-    cmds = {"python -c pass": ([py, "-c", "pass"], env),
-            "import jax": ([py, "-c", "import jax"], env),
-            "import photax": ([py, "-c", "import photax"], env),
-            "import photax; photax.orthorectify_file": ([py, "-c", "import photax; photax.orthorectify_file"], env)}
+    cmds = {
+        "python -c pass": ([py, "-c", "pass"], env),
+        "import jax": ([py, "-c", "import jax"], env),
+        "import photax": ([py, "-c", "import photax"], env),
+        "import photax; photax.orthorectify_file": ([py, "-c", "import photax; photax.orthorectify_file"], env),
+    }
     t = interleaved(cmds, repeat)
     for k, m in t.items():
         show(k, m)
-    record("import photax (whole process)", photax_s=t["import photax"][0], cpu_s=t["import photax"][1],
-           photax_bytes_peak=t["import photax"][2], bare_python_s=t["python -c pass"][0], target_s=0.5, load=load())
+    record(
+        "import photax (whole process)",
+        photax_s=t["import photax"][0],
+        cpu_s=t["import photax"][1],
+        photax_bytes_peak=t["import photax"][2],
+        bare_python_s=t["python -c pass"][0],
+        target_s=0.5,
+        load=load(),
+    )
     record("import jax (whole process, reference)", photax_s=t["import jax"][0], cpu_s=t["import jax"][1])
     k = "import photax; photax.orthorectify_file"
     record(k + " (whole process)", photax_s=t[k][0], cpu_s=t[k][1])
@@ -154,12 +163,48 @@ def ngi_files(data: pathlib.Path, tmp: pathlib.Path) -> bool:
 
 
 def ortho_cmds(tmp: pathlib.Path):
-    photax = [BIN / "photax", "ortho", f"{NAME}.tif", "--dem", "dem.tif", "--interior", "ngi_int_param.yaml",
-              "--exterior", "ngi_xyz_opk.csv", "--out", "photax.tif", "--resolution", "5", "--resampling", "bilinear",
-              "--no-progress"]
-    oty = [BIN / "oty", "frame", f"{NAME}.tif", "--dem", "dem.tif", "--int-param", "ngi_int_param.yaml",
-           "--ext-param", "ngi_xyz_opk.csv", "--res", "5", "--interp", "bilinear", "--dem-interp", "bilinear",
-           "--compress", "deflate", "--no-write-mask", "--no-build-ovw", "--out-dir", "oty", "--overwrite"]
+    photax = [
+        BIN / "photax",
+        "ortho",
+        f"{NAME}.tif",
+        "--dem",
+        "dem.tif",
+        "--interior",
+        "ngi_int_param.yaml",
+        "--exterior",
+        "ngi_xyz_opk.csv",
+        "--out",
+        "photax.tif",
+        "--resolution",
+        "5",
+        "--resampling",
+        "bilinear",
+        "--no-progress",
+    ]
+    oty = [
+        BIN / "oty",
+        "frame",
+        f"{NAME}.tif",
+        "--dem",
+        "dem.tif",
+        "--int-param",
+        "ngi_int_param.yaml",
+        "--ext-param",
+        "ngi_xyz_opk.csv",
+        "--res",
+        "5",
+        "--interp",
+        "bilinear",
+        "--dem-interp",
+        "bilinear",
+        "--compress",
+        "deflate",
+        "--no-write-mask",
+        "--no-build-ovw",
+        "--out-dir",
+        "oty",
+        "--overwrite",
+    ]
     return photax, oty
 
 
@@ -189,17 +234,37 @@ def bench_ortho(env, repeat, n_cold, data, tmp, oty_time):
     show("photax ortho, warm compile cache", t["photax"])
     show("oty frame", t["oty"])
     oty_time.update(wall=t["oty"][0], cpu=t["oty"][1], peak=t["oty"][2])
-    record("NGI ortho whole CLI process, warm compile cache, vs oty frame", photax_s=t["photax"][0],
-           peer_s=t["oty"][0], ratio=t["photax"][0] / t["oty"][0], photax_cpu_s=t["photax"][1],
-           peer_cpu_s=t["oty"][1], cpu_ratio=t["photax"][1] / t["oty"][1], load=load())
-    record("NGI ortho whole CLI process peak memory", photax_bytes=t["photax"][2], peer_bytes=t["oty"][2],
-           ratio=t["photax"][2] / t["oty"][2])
-    print(f"ratios photax / oty: wall {t['photax'][0] / t['oty'][0]:.2f}, cpu {t['photax'][1] / t['oty'][1]:.2f}, "
-          f"peak memory {t['photax'][2] / t['oty'][2]:.2f} (targets <= 1.5)")
+    record(
+        "NGI ortho whole CLI process, warm compile cache, vs oty frame",
+        photax_s=t["photax"][0],
+        peer_s=t["oty"][0],
+        ratio=t["photax"][0] / t["oty"][0],
+        photax_cpu_s=t["photax"][1],
+        peer_cpu_s=t["oty"][1],
+        cpu_ratio=t["photax"][1] / t["oty"][1],
+        load=load(),
+    )
+    record(
+        "NGI ortho whole CLI process peak memory",
+        photax_bytes=t["photax"][2],
+        peer_bytes=t["oty"][2],
+        ratio=t["photax"][2] / t["oty"][2],
+    )
+    print(
+        f"ratios photax / oty: wall {t['photax'][0] / t['oty'][0]:.2f}, cpu {t['photax'][1] / t['oty'][1]:.2f}, "
+        f"peak memory {t['photax'][2] / t['oty'][2]:.2f} (targets <= 1.5)"
+    )
     cold, n = cold_runs(photax, env, tmp, n_cold, work)
     show(f"photax ortho, empty compile cache (median of {n_cold})", cold, f", {n} cache entries written")
-    record("NGI ortho whole CLI process, cold (empty compile cache)", photax_s=cold[0], cpu_s=cold[1],
-           photax_bytes=cold[2], cache_entries=n, target_s=5.0, load=load())
+    record(
+        "NGI ortho whole CLI process, cold (empty compile cache)",
+        photax_s=cold[0],
+        cpu_s=cold[1],
+        photax_bytes=cold[2],
+        cache_entries=n,
+        target_s=5.0,
+        load=load(),
+    )
 
 
 def sample_cmds(out: pathlib.Path) -> dict[str, list]:
@@ -207,8 +272,18 @@ def sample_cmds(out: pathlib.Path) -> dict[str, list]:
     p = BIN / "photax"
     return {
         "resect": [p, "resect", "data/sample_gcps.csv", "--camera", "data/sample_camera.yaml"],
-        "rectify": [p, "rectify", "data/sample_image.tif", "--gcps", "data/sample_gcps.csv", "--order", "3",
-                    "--out", out / "rect.tif", "--no-progress"],
+        "rectify": [
+            p,
+            "rectify",
+            "data/sample_image.tif",
+            "--gcps",
+            "data/sample_gcps.csv",
+            "--order",
+            "3",
+            "--out",
+            out / "rect.tif",
+            "--no-progress",
+        ],
         "bundle": [p, "bundle", "data/block", "--quiet", "--no-progress"],
     }
 
@@ -226,12 +301,21 @@ def bench_samples(env, repeat, n_cold, tmp, parts, oty_time):
         t = interleaved({name: (cmd, dict(env, JAX_COMPILATION_CACHE_DIR=str(cache)))}, repeat, cwd=REPO)[name]
         show(f"photax {name}, warm compile cache", t)
         show(f"photax {name}, empty compile cache (median of {n_cold})", cold, f", {n} cache entries written")
-        fig = dict(photax_s=t[0], cpu_s=t[1], photax_bytes=t[2], empty_cache_s=cold[0], empty_cache_cpu_s=cold[1],
-                   cache_entries=n, load=load())
+        fig = dict(
+            photax_s=t[0],
+            cpu_s=t[1],
+            photax_bytes=t[2],
+            empty_cache_s=cold[0],
+            empty_cache_cpu_s=cold[1],
+            cache_entries=n,
+            load=load(),
+        )
         if oty_time:  # issue 8: resect within 1.5 x of orthority's CLI on the NGI ortho
             fig.update(peer_s=oty_time["wall"], ratio=t[0] / oty_time["wall"], peer_bytes=oty_time["peak"])
-            print(f"  vs oty frame's NGI ortho: wall ratio {t[0] / oty_time['wall']:.2f}, "
-                  f"peak memory ratio {t[2] / oty_time['peak']:.2f}")
+            print(
+                f"  vs oty frame's NGI ortho: wall ratio {t[0] / oty_time['wall']:.2f}, "
+                f"peak memory ratio {t[2] / oty_time['peak']:.2f}"
+            )
         record(f"photax {name} whole process, warm compile cache", **fig)
 
 
@@ -274,9 +358,11 @@ for name, w, c, r, hwm in marks:
     prev = (w, c)
 """
 
-_LOG = {"tracing": re.compile(r"Finished tracing.* in ([0-9.e-]+) sec"),
-        "lowering": re.compile(r"Finished jaxpr to MLIR module conversion.* in ([0-9.e-]+) sec"),
-        "compile or cache read": re.compile(r"Finished XLA compilation.* in ([0-9.e-]+) sec")}
+_LOG = {
+    "tracing": re.compile(r"Finished tracing.* in ([0-9.e-]+) sec"),
+    "lowering": re.compile(r"Finished jaxpr to MLIR module conversion.* in ([0-9.e-]+) sec"),
+    "compile or cache read": re.compile(r"Finished XLA compilation.* in ([0-9.e-]+) sec"),
+}
 
 
 def bench_breakdown(env, repeat, data, tmp):
@@ -300,7 +386,9 @@ def bench_breakdown(env, repeat, data, tmp):
                 phases.setdefault(name, []).append((float(w), float(c), float(r), float(hwm)))
         for k, rx in _LOG.items():
             logs[k].append(sum(float(x) for x in rx.findall(p.stderr)))
-        hits.append((p.stderr.count("Persistent compilation cache hit"), len(_LOG["compile or cache read"].findall(p.stderr))))
+        hits.append(
+            (p.stderr.count("Persistent compilation cache hit"), len(_LOG["compile or cache read"].findall(p.stderr)))
+        )
     for name, v in phases.items():
         w, c, r, hwm = (statistics.median(x[i] for x in v) for i in range(4))
         print(f"{name:45s} wall {w:.3f} s, cpu {c:.3f} s; after it: resident {r:.0f} MiB, peak {hwm:.0f} MiB")
@@ -326,8 +414,16 @@ def main():
         env = {k: v for k, v in os.environ.items() if k not in ("PYTHONDONTWRITEBYTECODE", "JAX_COMPILATION_CACHE_DIR")}
         env.update(PYTHONPYCACHEPREFIX=str(tmp / "pycache"), PYTHONWARNINGS="ignore")
         # byte-compile once (both programs then run from byte-code, as installed)
-        subprocess.run([sys.executable, "-c", "import photax.cli, photax.rectification, photax.resection, "
-                        "photax.bundle, photax.io.orientation, photax.io.raster, orthority.cli"], env=env, check=True)
+        subprocess.run(
+            [
+                sys.executable,
+                "-c",
+                "import photax.cli, photax.rectification, photax.resection, "
+                "photax.bundle, photax.io.orientation, photax.io.raster, orthority.cli",
+            ],
+            env=env,
+            check=True,
+        )
         if "import" in parts:
             bench_import(env, args.repeat)
         if "help" in parts:

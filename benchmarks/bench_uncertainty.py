@@ -49,8 +49,10 @@ def main() -> None:
     gsd = ortho_grid(s.exterior, s.camera, s.dem).transform.a
     grid = ortho_grid(s.exterior, s.camera, s.dem, resolution=gsd / args.oversample)
     mpix = grid.shape[0] * grid.shape[1] / 1e6
-    print(f"image {w} x {w * 4 // 5}, ortho grid {grid.shape[1]} x {grid.shape[0]} ({mpix:.2f} MPix), "
-          f"DEM {s.dem.heights.shape[1]} x {s.dem.heights.shape[0]}")
+    print(
+        f"image {w} x {w * 4 // 5}, ortho grid {grid.shape[1]} x {grid.shape[0]} ({mpix:.2f} MPix), "
+        f"DEM {s.dem.heights.shape[1]} x {s.dem.heights.shape[0]}"
+    )
     std = np.array([1.0, 1.0, 0.5, 4e-4, 4e-4, 2.5e-4])
     cov, cov_c = np.diag(std**2), np.diag([0.8, 0.5, 0.5]) ** 2
     image = np.asarray(s.image)
@@ -59,8 +61,9 @@ def main() -> None:
         return photax.orthorectify(image, s.exterior, s.camera, s.dem, grid=grid)
 
     def sigma(coarsen=1):
-        return photax.ortho_uncertainty(s.exterior, cov, s.camera, s.dem, grid, camera_covariance=cov_c,
-                                        dem_sigma=1.0, coarsen=coarsen).ground_var
+        return photax.ortho_uncertainty(
+            s.exterior, cov, s.camera, s.dem, grid, camera_covariance=cov_c, dem_sigma=1.0, coarsen=coarsen
+        ).ground_var
 
     fns = {"ortho": ortho, "uncertainty": sigma, "uncertainty coarsen=4": lambda: sigma(4)}
     first = {}
@@ -78,10 +81,19 @@ def main() -> None:
     cpu = {k: float(np.median(v)) for k, v in cpu.items()}
     load = os.getloadavg()[0]
     for k in fns:
-        print(f"{k:24s} first call {first[k]:6.2f} s, warm {warm[k]:6.3f} s wall ({mpix / warm[k]:5.1f} MPix/s) "
-              f"{cpu[k]:6.3f} s CPU; / ortho: wall {warm[k] / warm['ortho']:.2f}, CPU {cpu[k] / cpu['ortho']:.2f}")
-        record(k, first_s=first[k], warm_s=warm[k], cpu_s=cpu[k], mpix=mpix, ratio_to_ortho=warm[k] / warm["ortho"],
-               cpu_ratio_to_ortho=cpu[k] / cpu["ortho"])
+        print(
+            f"{k:24s} first call {first[k]:6.2f} s, warm {warm[k]:6.3f} s wall ({mpix / warm[k]:5.1f} MPix/s) "
+            f"{cpu[k]:6.3f} s CPU; / ortho: wall {warm[k] / warm['ortho']:.2f}, CPU {cpu[k] / cpu['ortho']:.2f}"
+        )
+        record(
+            k,
+            first_s=first[k],
+            warm_s=warm[k],
+            cpu_s=cpu[k],
+            mpix=mpix,
+            ratio_to_ortho=warm[k] / warm["ortho"],
+            cpu_ratio_to_ortho=cpu[k] / cpu["ortho"],
+        )
     print(f"load average (1 min) at the end: {load:.2f}")
 
 

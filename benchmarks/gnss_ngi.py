@@ -135,9 +135,11 @@ def main() -> None:
     for i, n in enumerate(names):
         print(f"{n}: dXYZ {np.round(dpos[i], 2)} m (sigma {np.round(sp[i], 2)}), "
               f"dangles {np.round(dang[i], 4)} deg (sigma {np.round(sa[i], 4)})")  # fmt: skip
-    print(f"max |dXYZ| {np.abs(dpos).max():.2f} m (target 4), max |dangle| {np.abs(dang).max():.4f} deg "
-          f"(target 0.05); max |d|/sigma positions {np.max(np.abs(dpos) / sp):.2f}, "
-          f"angles {np.max(np.abs(dang) / sa):.2f} (target 3)")
+    print(
+        f"max |dXYZ| {np.abs(dpos).max():.2f} m (target 4), max |dangle| {np.abs(dang).max():.4f} deg "
+        f"(target 0.05); max |d|/sigma positions {np.max(np.abs(dpos) / sp):.2f}, "
+        f"angles {np.max(np.abs(dang) / sa):.2f} (target 3)"
+    )
 
 
 if __name__ == "__main__":

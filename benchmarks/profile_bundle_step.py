@@ -29,9 +29,9 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 import jax  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+from bench_bundle import synthetic_bal  # noqa: E402
 from threadpoolctl import threadpool_limits  # noqa: E402
 
-from bench_bundle import synthetic_bal  # noqa: E402
 from photax.bundle import _linearise as li  # noqa: E402
 from photax.bundle import _schur as sc  # noqa: E402
 from photax.bundle import _solver as so  # noqa: E402

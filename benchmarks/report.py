@@ -58,13 +58,18 @@ def table(run: dict) -> str:
     for name, f in run["figures"].items():
         ours = f.get("photax_s", f.get("photax_bytes", f.get("bytes", f.get("cold_s"))))
         peer = f.get("peer_s", f.get("peer_bytes"))
-        unit = (lambda v: f"{v / 2**20:.0f} MiB") if ("photax_bytes" in f or "bytes" in f) and "photax_s" not in f \
+        unit = (
+            (lambda v: f"{v / 2**20:.0f} MiB")
+            if ("photax_bytes" in f or "bytes" in f) and "photax_s" not in f
             else (lambda v: f"{v * 1e3:.1f} ms" if v < 1 else f"{v:.2f} s")
+        )
         if "cold_s" in f:
             ours_s = f"cold {f['cold_s']:.1f} s, warm {f['warm_s']:.1f} s, peak {f['peak_bytes'] / 2**20:.0f} MiB"
         elif "photax_ns_per_px" in f or "photax_ns" in f:
             v = f.get("photax_ns_per_px", f.get("photax_ns"))
-            ours_s = f"{v:.2f} ns" + ("/px" if "photax_ns_per_px" in f else f" per tap, {f['fixed_ns_per_px']:.2f} ns/px fixed")
+            ours_s = f"{v:.2f} ns" + (
+                "/px" if "photax_ns_per_px" in f else f" per tap, {f['fixed_ns_per_px']:.2f} ns/px fixed"
+            )
             if "cv2_ns_per_px" in f:
                 peer, unit, ratio_cpu = f["cv2_ns_per_px"], (lambda v: f"{v:.2f} ns/px (cv2)"), v / f["cv2_ns_per_px"]
                 f = dict(f, ratio=ratio_cpu)
@@ -78,11 +83,15 @@ def table(run: dict) -> str:
             key, target = OTHER_RATIOS[name]
             ratio = f.get(key)
             ours_s = ours_s or ", ".join(f"{k} {_fmt(v)}" for k, v in f.items() if k != key)
-        verdict = "" if target is None or ratio is None else f"<= {target:g} " + ("met" if ratio <= target else "**missed**")
+        verdict = (
+            "" if target is None or ratio is None else f"<= {target:g} " + ("met" if ratio <= target else "**missed**")
+        )
         if "target_s" in f and isinstance(ours, (int, float)):  # an absolute target (bench_startup: import, --help)
             verdict = f"<= {f['target_s']:g} s " + ("met" if ours <= f["target_s"] else "**missed**")
-        lines.append(f"| {name.strip()} | {ours_s} | {unit(peer) if isinstance(peer, (int, float)) else ''} | "
-                     f"{'' if ratio is None else f'{ratio:.2f}'} | {verdict} |")
+        lines.append(
+            f"| {name.strip()} | {ours_s} | {unit(peer) if isinstance(peer, (int, float)) else ''} | "
+            f"{'' if ratio is None else f'{ratio:.2f}'} | {verdict} |"
+        )
     return "\n".join(lines)
 
 

@@ -7,7 +7,9 @@ committed without outputs; tests/test_notebooks.py executes it.
 from _build import write_notebook
 
 CELLS = [
-    ("md", """# Image measurement: edges, Hough, interest points, targets and matching
+    (
+        "md",
+        """# Image measurement: edges, Hough, interest points, targets and matching
 
 Every image coordinate that resection and bundle adjustment use has to be *measured*. This
 notebook runs the operators of `photax.measure` (seed 004 of the course notes) on a crop of a
@@ -20,8 +22,11 @@ real aerial frame and on rendered images whose truth is known:
 4. circular targets (Wong-Trinder, centroid, ellipse fit) and least-squares matching (LSM),
    with its pull-in range.
 
-Pixel convention: (column, row), the centre of the top-left pixel at (0, 0)."""),
-    ("code", """import pathlib
+Pixel convention: (column, row), the centre of the top-left pixel at (0, 0).""",
+    ),
+    (
+        "code",
+        """import pathlib
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -54,16 +59,22 @@ else:  # no shared data: a rendered scene with blobs, edges and corners stands i
     crop += 60 * patterns.render(patterns.corner((128.3, 128.6), 0.3, 1.7), (256, 256))
     crop = np.clip(crop, 0, 255)
     source = "rendered stand-in (the NGI frame is not in ../../shared/data)"
-print(f"image: {source}; {crop.shape[1]} x {crop.shape[0]} px, grey {crop.min():.0f}-{crop.max():.0f}")"""),
-    ("md", """## 1. Edge operators
+print(f"image: {source}; {crop.shape[1]} x {crop.shape[0]} px, grey {crop.min():.0f}-{crop.max():.0f}")""",
+    ),
+    (
+        "md",
+        """## 1. Edge operators
 
 First-derivative operators (Roberts' 2 x 2 cross, Sobel and Prewitt 3 x 3) give the gradient
 magnitude; the Laplace operator and the Laplacian of Gaussian (LoG) the second derivative,
 whose **zero crossings** mark edges. Canny smooths with a Gaussian, keeps only the local
 maxima of the gradient magnitude across the edge (non-maximum suppression) and links them
 with two thresholds (hysteresis). All of them agree with scikit-image to 1e-6
-(tests/test_measure_operators.py)."""),
-    ("code", """m = ptx.measure
+(tests/test_measure_operators.py).""",
+    ),
+    (
+        "code",
+        """m = ptx.measure
 log_response, log_edges = m.log(crop, 2.0)
 rng_grey = float(np.ptp(crop))
 panels = {
@@ -86,14 +97,20 @@ for ax, (name, img) in zip(axes.ravel(), panels.items()):
         ax.imshow(img, cmap="gray")
     ax.set_title(name)
     ax.set_axis_off()
-fig.tight_layout()"""),
-    ("md", """## 2. Hough transform
+fig.tight_layout()""",
+    ),
+    (
+        "md",
+        """## 2. Hough transform
 
 Each edge pixel (x, y) votes for every line through it, `rho = x cos(theta) + y sin(theta)`:
 a sinusoid in the (theta, rho) accumulator. Lines are its peaks, refined below the bin size.
 Circles of known radius: each edge pixel votes for the centres on a circle around it. Here on
-a rendered image with known lines and discs, so the found parameters can be checked."""),
-    ("code", """def band(theta, rho, width=1.5):
+a rendered image with known lines and discs, so the found parameters can be checked.""",
+    ),
+    (
+        "code",
+        """def band(theta, rho, width=1.5):
     return lambda x, y: (np.abs(x * np.cos(theta) + y * np.sin(theta) - rho) < width / 2).astype(float)
 
 
@@ -134,8 +151,11 @@ axes[1].set(xlabel="theta [deg]", ylabel="rho [px]", title="line accumulator (sq
 axes[2].imshow(hc.accumulator[0], cmap="magma")
 axes[2].plot(hc.xy[:, 0], hc.xy[:, 1], "co", mfc="none", ms=12)
 axes[2].set(title="circle accumulator (r = 12 px) and its peaks")
-fig.tight_layout()"""),
-    ("md", """## 3. Interest points and their precision
+fig.tight_layout()""",
+    ),
+    (
+        "md",
+        """## 3. Interest points and their precision
 
 Förstner's operator looks at the structure matrix `N = sum g g^T` of the gradients in a
 window: its **w** (`det N / tr N`, the size of the inverse error ellipse) says how precisely
@@ -143,8 +163,11 @@ a point could be located there, its **q** (`4 det N / tr(N)^2`, the roundness) w
 point (q near 1) or an edge (q near 0). Candidates above the seed's thresholds, thinned by
 non-maximum suppression, are then located to sub-pixel by `locate_corners` (the least-squares
 intersection of the edge lines in the window), whose covariance is drawn as error ellipses
-(magnified 10x)."""),
-    ("code", """ip = {name: m.interest_points(crop, name, min_distance=6, max_points=60)
+(magnified 10x).""",
+    ),
+    (
+        "code",
+        """ip = {name: m.interest_points(crop, name, min_distance=6, max_points=60)
       for name in ("moravec", "foerstner", "harris")}
 fine = m.locate_corners(crop, ip["foerstner"].xy, window=7, exclude=0.0)
 print(f"Förstner points: {len(ip['foerstner'].xy)}; sub-pixel locator: {fine.summary()}")
@@ -169,14 +192,20 @@ for xy, cov in zip(np.asarray(fine.xy)[ok], np.asarray(fine.covariance)[ok]):
 ax.plot(*np.asarray(fine.xy)[ok].T, "r.", ms=3)
 ax.set_title("Förstner points, sub-pixel, 1-sigma ellipses x 10")
 ax.set_axis_off()
-fig.tight_layout()"""),
-    ("md", """## 4. Circular targets
+fig.tight_layout()""",
+    ),
+    (
+        "md",
+        """## 4. Circular targets
 
 Three centring methods on rendered targets (radius 6 px, blur 0.7 px, noise 1 %) whose true
 centres are known: **Wong-Trinder** (threshold, then the centre of the binary blob),
 the **grey-value centroid** and an **ellipse** fitted to sub-pixel edge points. The RMSE over
-the targets shows what each is worth; each result also carries its own covariance."""),
-    ("code", """truth = np.stack(np.meshgrid(np.arange(20, 200, 30.0), np.arange(20, 140, 30.0)), -1).reshape(-1, 2)
+the targets shows what each is worth; each result also carries its own covariance.""",
+    ),
+    (
+        "code",
+        """truth = np.stack(np.meshgrid(np.arange(20, 200, 30.0), np.arange(20, 140, 30.0)), -1).reshape(-1, 2)
 truth = truth + rng.uniform(-0.5, 0.5, truth.shape)
 targets = patterns.render(lambda x, y: np.max([patterns.disc(c, 6.0)(x, y) for c in truth], 0), (140, 200),
                          blur=0.7, noise=0.01, rng=rng, supersample=8)
@@ -186,15 +215,21 @@ for method in ("wong-trinder", "centroid", "ellipse"):
     r = m.locate_targets(targets, approx, 6.0, method=method)
     err = np.asarray(r.xy) - truth
     print(f"{method:>13}: RMSE {np.sqrt(np.nanmean(np.sum(err**2, 1))):.4f} px, "
-          f"mean predicted sigma {np.nanmean(np.asarray(r.sigma)):.4f} px  ({r.summary()})")"""),
-    ("md", """## 5. Least-squares matching and its pull-in range
+          f"mean predicted sigma {np.nanmean(np.asarray(r.sigma)):.4f} px  ({r.summary()})")""",
+    ),
+    (
+        "md",
+        """## 5. Least-squares matching and its pull-in range
 
 LSM (Gruen 1985) fits 6 affine and 2 radiometric parameters so that the template matches the
 search window in the least-squares sense, iterating Gauss-Newton steps. It needs an
 approximation within a few pixels (from NCC, say). Below: a textured template, the same texture
 shifted by a known amount with gain 0.9 and offset 0.05, and the start moved further and further
-away from the true match: how many iterations LSM needs and where it stops converging."""),
-    ("code", """shift = np.array([0.37, -0.21])
+away from the true match: how many iterations LSM needs and where it stops converging.""",
+    ),
+    (
+        "code",
+        """shift = np.array([0.37, -0.21])
 tpl = patterns.texture((80, 80), seed=3, noise=0.01, rng=rng)
 srch = 0.9 * patterns.texture((80, 80), seed=3, shift=shift, noise=0.01 / 0.9, rng=rng) + 0.05
 offsets = np.linspace(0, 6, 25)
@@ -216,7 +251,8 @@ axes[0].set(xlabel="distance of the start from the match [px]", ylabel="fraction
 axes[1].plot(offsets, np.where(conv, its, np.nan).mean(axis=1), "o-")
 axes[1].set(xlabel="distance of the start from the match [px]", ylabel="iterations (converged)",
             title="Gauss-Newton iterations to 1e-3 px")
-fig.tight_layout()"""),
+fig.tight_layout()""",
+    ),
 ]
 
 

@@ -8,7 +8,9 @@ cheap (small rendered images, one matching shape for transfer and ties).
 from _build import write_notebook
 
 CELLS = [
-    ("md", """# From raw images to orientations without clicking
+    (
+        "md",
+        """# From raw images to orientations without clicking
 
 The course notes (seed 004: interior orientation, image matching, epipolar images; seed 000:
 registration) describe the chain from a photograph to its orientation. This notebook runs it
@@ -22,8 +24,11 @@ can be compared with the truth:
 4. an **epipolar** (normalised) pair;
 5. **registration** of an image to a reference orthophoto.
 
-Pixel convention: (column, row), the centre of the top-left pixel at (0, 0)."""),
-    ("code", """import jax.numpy as jnp
+Pixel convention: (column, row), the centre of the top-left pixel at (0, 0).""",
+    ),
+    (
+        "code",
+        """import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection
@@ -35,16 +40,22 @@ from photax.interior import find_fiducials
 from photax.scene import detailed_texture, fiducial_scan, render_image
 from photax.matching import bundle_problem, match_ties, project_pixels, transfer_points
 
-rng = np.random.default_rng(5)"""),
-    ("md", """## 1. Fiducial marks: interior orientation of a scan
+rng = np.random.default_rng(5)""",
+    ),
+    (
+        "md",
+        """## 1. Fiducial marks: interior orientation of a scan
 
 A film frame with 8 fiducial crosses (calibrated positions in mm, from the camera's
 calibration report) is scanned at 0.5 mm per pixel by a scanner that rotates, shears and
 slightly bends the film (an affine mapping plus a bilinear term). One mark is painted 5 px
 off, as a mark of the neighbouring frame would be. `find_fiducials` matches a cross
 template near where the calibration report puts each mark, refines the peak to sub-pixel
-and fits the film -> pixel transformation with a blunder test per mark."""),
-    ("code", """FID = np.array([[-106, 106], [0, 110], [106, 106], [110, 0], [106, -106], [0, -110], [-106, -106], [-110, 0]], float)
+and fits the film -> pixel transformation with a blunder test per mark.""",
+    ),
+    (
+        "code",
+        """FID = np.array([[-106, 106], [0, 110], [106, 106], [110, 0], [106, -106], [0, -110], [-106, -106], [-110, 0]], float)
 
 
 def scanner(f):  # the scan's true geometry: film (mm, y up) -> pixel (column, row)
@@ -78,19 +89,28 @@ axes[1].plot(*found.xy[k], "r+", ms=14, label="measured (flagged)")
 axes[1].plot(*io.pixel_from_film(FID[k:k + 1])[0], "gx", ms=10, label="where the fit puts it")
 axes[1].set_title(f"mark F{k + 1}: 5 px off its calibrated place")
 axes[1].legend(loc="lower right")
-plt.tight_layout()"""),
-    ("md", """The fitted transformation becomes a camera: `io.camera(focal_length, principal_point,
+plt.tight_layout()""",
+    ),
+    (
+        "md",
+        """The fitted transformation becomes a camera: `io.camera(focal_length, principal_point,
 image_size=...)` is a `ScannedCamera` whose pixels go through it, which `resect`,
 `bundle_adjust` and `orthorectify` accept. On the command line, `photax fiducials scan.tif
 --fiducials marks.csv --pixel-size 0.5 --camera calibrated.yaml --camera-out scan_camera.yaml`
 writes it as a camera file (a `scan:` block) that `photax resect`, `ortho`, `register`,
-`transfer` and `ties` read back."""),
-    ("code", """camera_scan = io.camera(153.0, (0.0, 0.0), image_size=(520, 500))
+`transfer` and `ties` read back.""",
+    ),
+    (
+        "code",
+        """camera_scan = io.camera(153.0, (0.0, 0.0), image_size=(520, 500))
 print(type(camera_scan).__name__, "- mean scan pixel on the film:", round(float(camera_scan.pixel_size[0]), 5), "mm")
 from photax.io.camera_file import camera_to_dict
 
-print(camera_to_dict(camera_scan, unit="mm")["scan"])"""),
-    ("md", """## 2. A rendered block: GCP transfer and tie points
+print(camera_to_dict(camera_scan, unit="mm")["scan"])""",
+    ),
+    (
+        "md",
+        """## 2. A rendered block: GCP transfer and tie points
 
 Six images in two strips (60 % forward, 30 % side overlap) over gentle terrain, with five
 survey targets (quartered discs) on the ground. The approximate orientations are the truth
@@ -102,8 +122,11 @@ moved by 5 m and turned by 1° in random directions — as from a GNSS/IMU, or a
   DEM, measured by normalised cross-correlation and least-squares matching).
 * `match_ties`: Förstner interest points in each image, predicted in the overlapping images
   through the DEM, matched by NCC then LSM, checked back and against the pair's smooth
-  prediction error."""),
-    ("code", """X0, Y0 = 500_000.0, 4_000_000.0
+  prediction error.""",
+    ),
+    (
+        "code",
+        """X0, Y0 = 500_000.0, 4_000_000.0
 W, H = 240, 160
 CAM = ptx.FrameCamera.from_pixels(240.0, (W, H))
 FLY = 320.0
@@ -141,11 +164,17 @@ err = table.pixel - true_px[table.images.astype(int), [int(s[3:]) - 1 for s in t
 print(f"GCPs: {len(table)} measurements of {len(set(table.names.tolist()))} points, "
       f"{np.sqrt(np.mean(err**2)):.3f} px rms from the truth")
 print(f"ties: {ties.n_tracks} tracks, {len(ties.obs_image)} observations; pairs:",
-      {f"{i}-{j}": f"{ties.pair_counts.get((i, j), 0)} ({s})" for (i, j), s in ties.pair_status.items() if s != "no overlap"})"""),
-    ("md", """The tie-point graph: every track on the ground (coloured by the number of images that see
+      {f"{i}-{j}": f"{ties.pair_counts.get((i, j), 0)} ({s})" for (i, j), s in ties.pair_status.items() if s != "no overlap"})""",
+    ),
+    (
+        "md",
+        """The tie-point graph: every track on the ground (coloured by the number of images that see
 it), the camera stations, and a line for every matched image pair, as thick as its number
-of matches. The GCPs are triangles (control) and circles (check)."""),
-    ("code", """fig, axes = plt.subplots(1, 2, figsize=(12, 5), gridspec_kw={"width_ratios": [1.4, 1]})
+of matches. The GCPs are triangles (control) and circles (check).""",
+    ),
+    (
+        "code",
+        """fig, axes = plt.subplots(1, 2, figsize=(12, 5), gridspec_kw={"width_ratios": [1.4, 1]})
 ax = axes[0]
 rays = np.bincount(ties.obs_point, minlength=ties.n_tracks)
 sc = ax.scatter(ties.ground[:, 0] - X0, ties.ground[:, 1] - Y0, c=rays, s=8, cmap="viridis", vmin=2, vmax=rays.max())
@@ -175,13 +204,19 @@ sel = table.images == str(k)
 ax.scatter(*table.pixel[sel].T, marker="+", s=120, color="tab:cyan", label="GCPs (transferred / template)")
 ax.set_title(f"image {k}: what was measured in it")
 ax.legend(loc="lower right", fontsize=8)
-plt.tight_layout()"""),
-    ("md", """## 3. Bundle adjustment of the block
+plt.tight_layout()""",
+    ),
+    (
+        "md",
+        """## 3. Bundle adjustment of the block
 
 The tie tracks and the transferred GCPs become a `BundleProblem` (`bundle_problem`), adjusted
 from the approximate orientations. The check points are left out of the adjustment and
-compared with their surveyed coordinates afterwards."""),
-    ("code", """result = ptx.bundle_adjust(bundle_problem(CAM, start, ties, table))
+compared with their surveyed coordinates afterwards.""",
+    ),
+    (
+        "code",
+        """result = ptx.bundle_adjust(bundle_problem(CAM, start, ties, table))
 print(result.report())
 eo = stack_exteriors(truth)
 d = np.concatenate([np.asarray(result.exterior.position) - np.asarray(eo.position),
@@ -202,14 +237,20 @@ axes[1].axhspan(-3, 3, color="0.9", zorder=0)
 axes[1].set(xlabel="image", ylabel="adjusted error / reported sigma", title="adjusted orientations: within 3 sigma?")
 axes[1].legend(fontsize=7, ncol=2)
 plt.tight_layout()
-print("adjusted errors within 3 sigma:", bool(np.all(np.abs(d) <= 3 * std)))"""),
-    ("md", """## 4. An epipolar pair
+print("adjusted errors within 3 sigma:", bool(np.all(np.abs(d) <= 3 * std)))""",
+    ),
+    (
+        "md",
+        """## 4. An epipolar pair
 
 `epipolar_pair` resamples two images onto a common plane parallel to their baseline, so that
 corresponding points lie on the same row (here images 0 and 1 with their adjusted
 orientations). The lines are every 20th row of the epipolar images: the same features lie
-on the same line in both."""),
-    ("code", """adjusted = [ptx.ExteriorOrientation(p, a, result.exterior.convention)
+on the same line in both.""",
+    ),
+    (
+        "code",
+        """adjusted = [ptx.ExteriorOrientation(p, a, result.exterior.convention)
             for p, a in zip(np.asarray(result.exterior.position), np.asarray(result.exterior.angles))]
 ep = ptx.epipolar_pair(images[0], images[1], CAM, adjusted[0], adjusted[1])
 fig, axes = plt.subplots(1, 2, figsize=(12, 4), sharey=True)
@@ -226,15 +267,21 @@ el, er = ep.to_epipolar("left", xl), ep.to_epipolar("right", xr)
 axes[0].plot(*el.T, "c+", ms=10)
 axes[1].plot(*er.T, "c+", ms=10)
 plt.tight_layout()
-print(f"y-parallax of {len(pair)} tie points: {np.sqrt(np.mean((el[:, 1] - er[:, 1]) ** 2)):.3f} px rms")"""),
-    ("md", """## 5. Registration to a reference orthophoto
+print(f"y-parallax of {len(pair)} tie points: {np.sqrt(np.mean((el[:, 1] - er[:, 1]) ** 2)):.3f} px rms")""",
+    ),
+    (
+        "md",
+        """## 5. Registration to a reference orthophoto
 
 `register_to_ortho` refines an approximate orientation by rendering the reference
 orthophoto into the image (collinearity + DEM + resampling) and minimising the grey-value
 differences by Gauss–Newton on JAX derivatives, coarse to fine. The reference here is the
 ground texture itself, sampled at 1 m (a perfect orthophoto); the start is 5 m and 0.2°
-off."""),
-    ("code", """k = 1
+off.""",
+    ),
+    (
+        "code",
+        """k = 1
 ortho_x = np.asarray(truth[k].position)[0] - X0 - 50 + (np.arange(100) + 0.5)  # 100 m x 70 m at 1 m
 ortho_y = np.asarray(truth[k].position)[1] - Y0 + 35 - (np.arange(70) + 0.5)
 ortho = np.asarray(detailed_texture(jnp.asarray(ortho_x)[None, :], jnp.asarray(ortho_y)[:, None]))
@@ -260,8 +307,11 @@ axes[0].set(xlabel="Gauss-Newton step", ylabel="grey rms before the step", title
 axes[1].set(xlabel="Gauss-Newton step", ylabel="largest image shift of the step (px)", title="registration: steps")
 axes[0].legend()
 axes[1].legend()
-plt.tight_layout()"""),
-    ("md", """Registration converges from offsets of up to about 21 px of reprojection error on these
+plt.tight_layout()""",
+    ),
+    (
+        "md",
+        """Registration converges from offsets of up to about 21 px of reprojection error on these
 images (tests/test_registration.py); further off, the status says it did not converge. A
 reference that the image does not see gives a status saying so, not a wrong orientation.
 
@@ -276,7 +326,8 @@ photax ties img*.tif --camera cam.yaml --exterior approx.json --dem dem.tif --gc
 photax bundle block --camera-out calibrated.yaml   # with "free" intrinsics in block/block.json
 photax epipolar left.tif right.tif --camera cam.yaml --exterior oriented.json -o pair
 photax register img.tif --camera cam.yaml --exterior approx.json --ortho reference.tif --dem dem.tif -o refined.json
-```"""),
+```""",
+    ),
 ]
 
 

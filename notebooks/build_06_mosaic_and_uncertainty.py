@@ -7,7 +7,9 @@ committed without outputs; tests/test_notebooks.py executes it.
 from _build import write_notebook
 
 CELLS = [
-    ("md", """# Orthos on Dask, a mosaic without seams, and how far off each pixel may be
+    (
+        "md",
+        """# Orthos on Dask, a mosaic without seams, and how far off each pixel may be
 
 A survey is many overlapping frames. This notebook takes a small rendered strip of three
 frames over a hill and
@@ -18,8 +20,11 @@ frames over a hill and
 3. maps the **geolocation uncertainty** of every mosaic pixel (`photax.ortho_uncertainty`):
    the standard deviation, in metres, of the ground position that the pixel shows.
 
-Everything is small (240 x 360 px frames, a 1 m ortho grid) so that it runs in seconds."""),
-    ("code", """import pathlib
+Everything is small (240 x 360 px frames, a 1 m ortho grid) so that it runs in seconds.""",
+    ),
+    (
+        "code",
+        """import pathlib
 import tempfile
 
 import matplotlib.pyplot as plt
@@ -64,15 +69,21 @@ for k, (ax, img) in enumerate(zip(axes[1:], images)):
     ax.imshow(img, cmap="gray", vmin=0, vmax=1.1)
     ax.set_title(f"frame {k} (gain {gains[k]})")
     ax.set_axis_off()
-fig.tight_layout()"""),
-    ("md", """## 1. Orthos on Dask
+fig.tight_layout()""",
+    ),
+    (
+        "md",
+        """## 1. Orthos on Dask
 
 `orthorectify_dask` takes the same arguments as `orthorectify` and returns a lazy, chunked
 `xarray.DataArray` with its CRS and transform (rioxarray): nothing runs until `.compute()`,
 `.rio.to_raster(...)` or a `dask.distributed` client asks for it, and each chunk reads only
 the window of the image it needs. The tiles are the same as the whole-image function's, bit
-for bit (tests/test_rectification_dask.py)."""),
-    ("code", """lazy = [ptx.orthorectify_dask(img, e, camera, dem, g, chunks=128, approx=None)
+for bit (tests/test_rectification_dask.py).""",
+    ),
+    (
+        "code",
+        """lazy = [ptx.orthorectify_dask(img, e, camera, dem, g, chunks=128, approx=None)
         for img, e, g in zip(images, exteriors, grids)]
 print(f"ortho 0: {lazy[0].shape} px, chunks {lazy[0].chunks}, {lazy[0].rio.crs}, dask: {type(lazy[0].data).__name__}")
 orthos = [o.compute() for o in lazy]
@@ -84,14 +95,20 @@ for k, (ax, o) in enumerate(zip(axes, orthos)):
     ax.set_title(f"ortho {k}")
     ax.set_xlabel("E - 500000 (m)")
 axes[0].set_ylabel("N - 4000000 (m)")
-fig.tight_layout()"""),
-    ("md", """## 2. Mosaic: seamlines, feathering, gain balancing -- against `rasterio.merge`
+fig.tight_layout()""",
+    ),
+    (
+        "md",
+        """## 2. Mosaic: seamlines, feathering, gain balancing -- against `rasterio.merge`
 
 `rasterio.merge` puts the orthos on one grid and keeps the first valid value (or the last, min,
 max): the seams run along the footprints' edges and the exposure steps show. `photax.mosaic`
 estimates a gain and an offset per ortho by least squares in the overlaps, cuts each overlap
-along the path where the orthos differ least (red), and blends 8 px across the cut."""),
-    ("code", """info = {}
+along the path where the orthos differ least (red), and blends 8 px across the cut.""",
+    ),
+    (
+        "code",
+        """info = {}
 mosaic = ptx.mosaic(orthos, info=info).compute()
 # Index of the ortho each pixel comes from (-1: no data), from the seam grid's cells of seam_scale px.
 s = info["seam_scale"]
@@ -119,8 +136,11 @@ axes[1].set_title("photax.mosaic, seamlines in red")
 for ax in axes:
     ax.set_xlabel("E - 500000 (m)")
 axes[0].set_ylabel("N - 4000000 (m)")
-fig.tight_layout()"""),
-    ("md", """## 3. How far off may each pixel be?
+fig.tight_layout()""",
+    ),
+    (
+        "md",
+        """## 3. How far off may each pixel be?
 
 An ortho pixel shows the ground point where the ray through its image position meets the DEM.
 If the exterior orientation is uncertain, so is that point. `ortho_uncertainty` propagates the
@@ -130,8 +150,11 @@ propagation, tests/test_uncertainty.py). A `ResectionResult`, or a `BundleResult
 `image=i`, can be passed in place of the exterior and its covariance; here each frame gets the
 precision a resection on a few control points typically has, frame 2 a 1.5 times weaker one
 (as if it had fewer, badly spread points). The mosaic's map takes, pixel by pixel, the map of
-the frame that the mosaic took the pixel from."""),
-    ("code", """mosaic_grid = ptx.Grid(mosaic.rio.transform(), mosaic.shape, crs=mosaic.rio.crs)
+the frame that the mosaic took the pixel from.""",
+    ),
+    (
+        "code",
+        """mosaic_grid = ptx.Grid(mosaic.rio.transform(), mosaic.shape, crs=mosaic.rio.crs)
 std = np.array([0.1, 0.1, 0.1, *np.radians([0.05, 0.05, 0.05])])  # X0, Y0, Z0 (m), omega, phi, kappa (rad)
 scale = [1.0, 1.0, 1.5]
 sigma = np.full(mosaic.shape, np.nan)
@@ -153,12 +176,16 @@ axes[1].set_title("the same sigma as contour lines over the mosaic")
 for ax in axes:
     ax.set_xlabel("E - 500000 (m)")
 axes[0].set_ylabel("N - 4000000 (m)")
-fig.tight_layout()"""),
-    ("md", """**How to read it:** where the map says 0.5 m, the ground point that the pixel shows is,
+fig.tight_layout()""",
+    ),
+    (
+        "md",
+        """**How to read it:** where the map says 0.5 m, the ground point that the pixel shows is,
 in root mean square, 0.5 m away from where the mosaic puts it (the seamlines in white); the
 error grows away from each frame's nadir (the angles' errors lever over a longer,
 more oblique ray) and jumps at the seamlines, where the mosaic switches to a frame with another
-orientation -- here to the weaker frame 2 on the right."""),
+orientation -- here to the weaker frame 2 on the right.""",
+    ),
 ]
 
 

@@ -21,13 +21,14 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 # (the default) compile about twice as slowly as the classic ones at the same
 # run time (measured: compare_models' first call 11.5/9.4 -> 6.9/5.0 CPU s,
 # warm calls unchanged), so the session uses the classic ones.
-_FAST_COMPILE = ("--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true "
-                 "--xla_cpu_use_fusion_emitters=false")
+_FAST_COMPILE = (
+    "--xla_backend_optimization_level=0 --xla_llvm_disable_expensive_passes=true --xla_cpu_use_fusion_emitters=false"
+)
 if _FAST_COMPILE not in os.environ.get("XLA_FLAGS", ""):  # the xdist workers inherit it already set
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {_FAST_COMPILE}".strip()
 
-import jax  # noqa: E402
-import pytest
+import jax  # noqa: E402 -- after XLA_FLAGS is set
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
@@ -69,12 +70,28 @@ def shared_file(name: str) -> pathlib.Path:
 # their measured wall time in the suite (2026-11-24); the rest keep their
 # order.
 _HEAVY_FIRST = (
-    "test_notebooks.py", "test_matching.py", "test_bundle_real.py", "test_compare.py",
-    "test_measure_locators.py", "test_rectify.py", "test_fuzz_readers.py", "test_resample.py", "test_bundle.py",
-    "test_cli_errors.py", "test_cli_sample.py", "test_resection.py", "test_rectification_dask.py",
+    "test_notebooks.py",
+    "test_matching.py",
+    "test_bundle_real.py",
+    "test_compare.py",
+    "test_measure_locators.py",
+    "test_rectify.py",
+    "test_fuzz_readers.py",
+    "test_resample.py",
+    "test_bundle.py",
+    "test_cli_errors.py",
+    "test_cli_sample.py",
+    "test_resection.py",
+    "test_rectification_dask.py",
     "test_mosaic_block.py",
-    "test_measure_operators.py", "test_uncertainty.py", "test_bundle_sparse.py", "test_polynomial.py",
-    "test_cli.py", "test_progress.py", "test_epipolar.py", "test_registration.py",
+    "test_measure_operators.py",
+    "test_uncertainty.py",
+    "test_bundle_sparse.py",
+    "test_polynomial.py",
+    "test_cli.py",
+    "test_progress.py",
+    "test_epipolar.py",
+    "test_registration.py",
 )
 
 

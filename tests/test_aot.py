@@ -137,7 +137,6 @@ def slow(x):
     return jnp.cos(x)
 _aot.disk_cached(jax.jit(slow), "slow").prefetch(jnp.zeros(3))
 """
-    proc = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True,
-                          timeout=120)
+    proc = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "photax-aot").glob("slow-*.bin"))) == 1

@@ -58,7 +58,9 @@ def test_dubrovnik_parse():
     np.testing.assert_array_equal(d.observations[0], [-3.859900e02, 3.871200e02])
     assert (d.camera_index[-1], d.point_index[-1]) == (2, 6)
     np.testing.assert_array_equal(d.observations[-1], [-5.841998e01, 1.108300e02])
-    np.testing.assert_array_equal(d.cameras[0, :3], [-1.6943983532198115e-02, 1.1171804676513932e-02, 2.4643508831711991e-03])
+    np.testing.assert_array_equal(
+        d.cameras[0, :3], [-1.6943983532198115e-02, 1.1171804676513932e-02, 2.4643508831711991e-03]
+    )
     assert d.cameras[0, 6] == 1.4300319432711681e03
     assert d.camera_index.dtype.kind == "i" and d.point_index.dtype.kind == "i"
 
@@ -180,7 +182,9 @@ def test_write_refuses_what_bal_cannot_hold(tmp_path):
     with pytest.raises(ValueError, match=r"cameras\[1\]"):
         write_bal(problem.replace(cameras=cams), tmp_path / "x.txt")
     shared = problem.replace(
-        cameras=problem.cameras[:1], image_camera=np.zeros(3, dtype=np.int64), free_intrinsics=problem.free_intrinsics[:1]
+        cameras=problem.cameras[:1],
+        image_camera=np.zeros(3, dtype=np.int64),
+        free_intrinsics=problem.free_intrinsics[:1],
     )
     with pytest.raises(ValueError, match="one camera per image"):
         write_bal(shared, tmp_path / "x.txt")

@@ -11,10 +11,10 @@ from conftest import shared_file
 from scipy.spatial.transform import Rotation
 
 import photax as ptx
-from photax.scene import synthetic_block
 from photax.bundle._linearise import _linearise, _prior_residuals, _project_obs, _residuals
 from photax.bundle._schur import _trial
 from photax.bundle._structure import _analyse, _State
+from photax.scene import synthetic_block
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +40,8 @@ def _angle_error(a, b):
 def test_schur_step_equals_dense_normal_equations():
     problem, _ = synthetic_block(3, n_tie=15, noise_px=1.0, start_error=(3.0, 0.01, 2.0))
     problem = problem.replace(
-        free_intrinsics=("f", "x0", "k1"), point_sigma=np.where(problem.roles == "control", 0.05, 0.0),
+        free_intrinsics=("f", "x0", "k1"),
+        point_sigma=np.where(problem.roles == "control", 0.05, 0.0),
     )  # a control point with a prior, self-calibration
     fixed = np.zeros((problem.n_images, 6), dtype=bool)
     fixed[1, 2] = fixed[2, 3:] = True  # a fixed height and a fixed attitude
@@ -53,7 +54,9 @@ def test_schur_step_equals_dense_normal_equations():
     )  # fmt: skip
     origin = np.round(problem.points.mean(0))
     s, n_c, _ = _analyse(problem, np.zeros((problem.n_images, 6), bool), origin)
-    intr = np.stack([np.r_[float(c.focal_length), np.asarray(c.principal_point), np.asarray(c.distortion)] for c in problem.cameras])
+    intr = np.stack(
+        [np.r_[float(c.focal_length), np.asarray(c.principal_point), np.asarray(c.distortion)] for c in problem.cameras]
+    )
     state = _State(jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
                    jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]))  # fmt: skip
     lam = 1e-3
@@ -94,7 +97,9 @@ def test_schur_step_equals_dense_normal_equations():
     fresh = _linearise(new, s, none, one, n_c)
     for name in fresh._fields:
         np.testing.assert_allclose(getattr(lin_new, name), getattr(fresh, name), rtol=1e-12, atol=1e-12, err_msg=name)
-    assert float(new_cost) == pytest.approx(0.5 * float(np.sum(np.asarray(jax.jit(residual)(jnp.asarray(dx))) ** 2)), rel=1e-9)
+    assert float(new_cost) == pytest.approx(
+        0.5 * float(np.sum(np.asarray(jax.jit(residual)(jnp.asarray(dx))) ** 2)), rel=1e-9
+    )
     # The matrix-free conjugate-gradient solver (for large blocks) gives the same step.
     # CG stops at a relative residual of 1e-8, so its step error is bounded by
     # cond(S) * 1e-8 relative: ask for 1e-3 of the step.
@@ -217,7 +222,10 @@ def test_start_values_by_resection_and_intersection():
     assert np.abs(np.asarray(start.exterior.position) - np.asarray(truth.exterior.position)).max() < 30.0
     res = ptx.bundle_adjust(problem)  # initialize="auto" does the same
     assert res.converged
-    assert np.abs(np.asarray(res.exterior.position) - np.asarray(truth.exterior.position)).max() < 4 * res.exterior_std[:, :3].max()
+    assert (
+        np.abs(np.asarray(res.exterior.position) - np.asarray(truth.exterior.position)).max()
+        < 4 * res.exterior_std[:, :3].max()
+    )
     assert np.sqrt(np.mean(res.check_residuals**2)) < 0.5
 
 

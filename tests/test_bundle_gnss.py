@@ -51,9 +51,7 @@ def test_schur_step_with_gnss_equals_dense_normal_equations(solver):
     g_sig = rng.uniform(0.3, 1.0, (n_img, 3))
     a_sig = rng.uniform(0.001, 0.004, (n_img, 3))
     lever = np.array([0.2, -0.4, 1.3])
-    problem = problem.replace(
-        gnss_position=gnss, gnss_sigma=g_sig, attitude=att, attitude_sigma=a_sig, lever_arm=lever
-    )
+    problem = problem.replace(gnss_position=gnss, gnss_sigma=g_sig, attitude=att, attitude_sigma=a_sig, lever_arm=lever)
     origin = np.round(problem.points.mean(0))
     s, n_c, _ = _analyse(problem, np.zeros((n_img, 6), bool), origin)
     intr = np.stack([np.r_[float(c.focal_length), np.asarray(c.principal_point), np.asarray(c.distortion)]
@@ -91,9 +89,7 @@ def test_schur_step_with_gnss_equals_dense_normal_equations(solver):
         antenna = st.centre + jnp.einsum("nij,j->ni", st.rot, jnp.asarray(lever))
         r_g = ((antenna - g_local) / g_sig)[seen_g]
         r_a = (angle_rows(st.rot) / a_sig)[seen_a]
-        return jnp.concatenate(
-            [_residuals(st, s).ravel(), _prior_residuals(st, s).ravel(), r_g.ravel(), r_a.ravel()]
-        )
+        return jnp.concatenate([_residuals(st, s).ravel(), _prior_residuals(st, s).ravel(), r_g.ravel(), r_a.ravel()])
 
     x0 = jnp.zeros(n_c + 3 * n_pts)
     free = np.concatenate([np.asarray(s.mask_c), np.asarray(s.mask_p).ravel()]) > 0
@@ -104,11 +100,7 @@ def test_schur_step_with_gnss_equals_dense_normal_equations(solver):
     dx = np.zeros(len(free))
     dx[free] = np.linalg.solve(H + lam * np.diag(np.clip(np.diag(H), 1e-6, 1e32)), -J.T @ r)
     ref = apply(jnp.asarray(dx))
-    tol = (
-        {"centre": 1e-7, "rot": 1e-11, "xyz": 1e-7}
-        if solver != "cg"
-        else {"centre": 2e-3, "rot": 1e-7, "xyz": 2e-3}
-    )
+    tol = {"centre": 1e-7, "rot": 1e-11, "xyz": 1e-7} if solver != "cg" else {"centre": 2e-3, "rot": 1e-7, "xyz": 2e-3}
     np.testing.assert_allclose(new.centre, ref.centre, atol=tol["centre"])
     np.testing.assert_allclose(new.rot, ref.rot, atol=tol["rot"])
     np.testing.assert_allclose(new.xyz, ref.xyz, atol=tol["xyz"])
@@ -231,9 +223,7 @@ def test_one_strip_with_gnss_alone_is_refused_until_attitudes_fix_its_roll():
     two = gp.replace(gnss_position=np.where(np.arange(5)[:, None] < 2, np.nan, gp.gnss_position))
     with pytest.raises(ValueError, match="no datum"):  # 3 positions on a line: no datum either
         ptx.bundle_adjust(two)
-    att = np.asarray(truth.exterior.angles) + np.radians(0.01) * np.random.default_rng(4).standard_normal(
-        (5, 3)
-    )
+    att = np.asarray(truth.exterior.angles) + np.radians(0.01) * np.random.default_rng(4).standard_normal((5, 3))
     res = ptx.bundle_adjust(gp.replace(attitude=att, attitude_sigma=np.radians(0.01)))
     assert res.converged
     assert "attitudes (5): residual RMS" in res.report()
@@ -306,10 +296,7 @@ def test_cli_position_sigma_takes_the_start_positions_as_gnss(free_block, tmp_pa
     assert main(["bundle", str(folder), "--lever-arm", "0", "0", "1", "--quiet"]) == 2
     assert "--lever-arm needs --position-sigma" in capsys.readouterr().err
     out = tmp_path / "res.json"
-    assert (
-        main(["bundle", str(folder), "--position-sigma", "5", "--quiet", "--no-progress", "-o", str(out)])
-        == 0
-    )
+    assert main(["bundle", str(folder), "--position-sigma", "5", "--quiet", "--no-progress", "-o", str(out)]) == 0
     text = capsys.readouterr().out
     assert "GNSS positions (8): residual RMS" in text
     images = json.loads(out.read_text())["images"]

@@ -12,11 +12,11 @@ import pytest
 from conftest import ROOT
 
 import photax as ptx
-from photax.scene import synthetic_block
 from photax.bundle._linearise import _cost, _linearise, _prior_residuals, _residuals
 from photax.bundle._robust import _LOSS_CODE, _corrector, _rho
 from photax.bundle._solver import _point_costs, _point_pass
 from photax.bundle._structure import _analyse, _State
+from photax.scene import synthetic_block
 
 
 def _rho_reference(s, loss, d):
@@ -38,7 +38,9 @@ def small():
                               point_sigma=np.where(problem.roles == "control", 0.05, 0.0))  # fmt: skip
     origin = np.round(problem.points.mean(0))
     s, n_c, _ = _analyse(problem, np.zeros((problem.n_images, 6), bool), origin)
-    intr = np.stack([np.r_[float(c.focal_length), np.asarray(c.principal_point), np.asarray(c.distortion)] for c in problem.cameras])
+    intr = np.stack(
+        [np.r_[float(c.focal_length), np.asarray(c.principal_point), np.asarray(c.distortion)] for c in problem.cameras]
+    )
     state = _State(jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
                    jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]))  # fmt: skip
     n_img, n_pts, a = problem.n_images, problem.n_points, len(s.active)

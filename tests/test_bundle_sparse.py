@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 import photax
-from photax.scene import synthetic_block
 from photax.bundle._linearise import _linearise
 from photax.bundle._schur import _band_shape, _reduced_band, _reduced_system, _solve_band, _solve_cg
 from photax.bundle._solver import _start_state
 from photax.bundle._sparse import band_cholesky, band_selected_inverse, choose_solver, flat_index
 from photax.io.bal import BALData, bal_problem, photax_to_bal
+from photax.scene import synthetic_block
 
 
 def _bal_like(strips=3, per_strip=6):
@@ -37,7 +37,7 @@ def _shared_camera():
     return problem.replace(free_intrinsics=("f", "x0", "y0", "k1"))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _system(name):
     """The problem's linearisation at its start and the damped dense reduced
     system (the reference), built once per session and name."""

@@ -23,7 +23,6 @@ def _opencv_pose(eo):
     return cv2.Rodrigues(r_cv)[0], t_cv
 
 
-
 def test_opencv_extrinsics_round_trip_and_frame():
     ground, eo = _scene(np.random.default_rng(2))
     r_cv, t_cv = opencv_extrinsics(eo.rotation, eo.position)
@@ -37,6 +36,7 @@ def test_opencv_extrinsics_round_trip_and_frame():
     np.testing.assert_allclose(c_back, np.asarray(eo.position), rtol=1e-12)
     with pytest.raises(ValueError):
         OPENCV_FROM_PHOTAX[0, 0] = 2.0  # shared constant: read-only
+
 
 @pytest.mark.parametrize("with_distortion", [False, True])
 def test_project_matches_opencv(with_distortion):
@@ -163,8 +163,9 @@ def test_intrinsics_and_per_row_jacobians_match_autodiff():
 
     rows = jax.jit(collinearity_rows, static_argnames=("wrt_ground", "dots"))  # one compilation each, not op by op
     xy, jac, q = rows(jnp.asarray(ground), pos, rot, None, intr[:, 0], intr[:, 1:3], intr[:, 3:], dots=True)
-    ref = jax.jit(jax.vmap(lambda k, x: (one(k, x, jnp.zeros(3)), jax.jacfwd(one, argnums=(0, 1, 2))(k, x, jnp.zeros(3)))))(
-        jnp.asarray(intr), jnp.asarray(ground))
+    ref = jax.jit(
+        jax.vmap(lambda k, x: (one(k, x, jnp.zeros(3)), jax.jacfwd(one, argnums=(0, 1, 2))(k, x, jnp.zeros(3))))
+    )(jnp.asarray(intr), jnp.asarray(ground))
     np.testing.assert_allclose(xy, ref[0], rtol=0, atol=1e-15)
     scale = float(jnp.abs(ref[1][1]).max())
     np.testing.assert_allclose(jac[..., 6:], ref[1][1], rtol=0, atol=1e-13 * scale)

@@ -38,7 +38,8 @@ def test_sample_files_are_current_and_consistent_with_truth(tmp_path):
     for key in ("image", "dem"):  # rasters: the same pixels and georeference (bytes may differ between GDALs)
         new, old = ptx.io.read_geotiff(fresh[key]), ptx.io.read_geotiff(DATA / f"sample_{key}.tif")
         assert np.abs(new[0].astype(float) - old[0].astype(float)).max() <= (1 if key == "image" else 0), (
-            f"sample_{key}.tif is stale: run python data/make_sample.py")
+            f"sample_{key}.tif is stale: run python data/make_sample.py"
+        )
         assert new[1]["transform"] == old[1]["transform"] and new[1]["crs"] == old[1]["crs"]
         assert (DATA / f"sample_{key}.tif").stat().st_size <= 2 * 1024**2
     # ... and the measurements are the truth projected by OpenCV, plus 0.3 px noise and one blunder.
@@ -76,7 +77,10 @@ def test_resect_all_images_skips_those_with_too_few_points(tmp_path, capsys):
     # still written, with a status per image.
     gcps = tmp_path / "two.csv"
     lines = GCPS.read_text().splitlines()
-    gcps.write_text("\n".join(lines + [ln.replace("IMG_0001", "IMG_0002") for ln in lines if ln.startswith(("P01,", "P02,"))]) + "\n")
+    gcps.write_text(
+        "\n".join(lines + [ln.replace("IMG_0001", "IMG_0002") for ln in lines if ln.startswith(("P01,", "P02,"))])
+        + "\n"
+    )
     out = tmp_path / "r.json"
     assert main(["resect", str(gcps), "--camera", str(CAMERA), "--json", str(out)]) == 1
     text = capsys.readouterr().out
@@ -92,8 +96,20 @@ def test_resect_odm_image_matches_opencv_solvepnp(tmp_path, capsys):
     cam_file = tmp_path / "canon.yaml"
     cam_file.write_text("focal_length_px: 2904.0\nimage_size: [4000, 3000]\n")
     out = tmp_path / "r.json"
-    rc = main(["resect", str(gcp_file), "--camera", str(cam_file), "--image", "IMG_5357.JPG",
-               "--convention", "omega-phi-kappa", "--json", str(out)])
+    rc = main(
+        [
+            "resect",
+            str(gcp_file),
+            "--camera",
+            str(cam_file),
+            "--image",
+            "IMG_5357.JPG",
+            "--convention",
+            "omega-phi-kappa",
+            "--json",
+            str(out),
+        ]
+    )
     assert rc == 0
     assert "== IMG_5357.JPG: 14 points (14 control, 0 check) ==" in capsys.readouterr().out
     r = json.loads(out.read_text())["images"]["IMG_5357.JPG"]
@@ -107,8 +123,9 @@ def test_resect_odm_image_matches_opencv_solvepnp(tmp_path, capsys):
     R = cv2.Rodrigues(rvec)[0]
     world_from_camera, position = from_opencv_extrinsics(R, tvec)
     np.testing.assert_allclose(r["position"], position + origin, atol=2e-3)
-    np.testing.assert_allclose(np.asarray(ptx.rotation_matrix(np.array(r["angles_rad"]), "omega-phi-kappa")),
-                               world_from_camera, atol=1e-6)
+    np.testing.assert_allclose(
+        np.asarray(ptx.rotation_matrix(np.array(r["angles_rad"]), "omega-phi-kappa")), world_from_camera, atol=1e-6
+    )
 
 
 def test_malformed_gcp_line_exit_2_with_line_number(tmp_path, capsys):
@@ -160,8 +177,13 @@ def test_console_script_subprocess(tmp_path):
     exe = pathlib.Path(sys.executable).with_name("photax")
     cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "photax.cli"]
     env = dict(os.environ, PYTHONWARNINGS="ignore")
-    proc = subprocess.run(cmd + ["resect", str(GCPS), "--camera", str(CAMERA), "--no-robust"],
-                          capture_output=True, text=True, env=env, timeout=600)
+    proc = subprocess.run(
+        cmd + ["resect", str(GCPS), "--camera", str(CAMERA), "--no-robust"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert proc.returncode == 0, proc.stderr
     assert "Space resection: converged" in proc.stdout and "OUTLIER" not in proc.stdout
     bad = tmp_path / "bad.txt"
@@ -175,12 +197,21 @@ def test_transfer_and_ties_read_their_inputs_and_refuse_bad_ones(tmp_path, capsy
     (cli/_common.read_oriented_images): a missing orientation file and an
     output that would overwrite an input are one-line errors, exit 2."""
     data = ROOT / "data"
-    common = [str(data / "sample_image.tif"), "--camera", str(data / "sample_camera.yaml"), "--dem",
-              str(data / "sample_dem.tif"), "--gcps", str(data / "sample_gcps.csv")]
+    common = [
+        str(data / "sample_image.tif"),
+        "--camera",
+        str(data / "sample_camera.yaml"),
+        "--dem",
+        str(data / "sample_dem.tif"),
+        "--gcps",
+        str(data / "sample_gcps.csv"),
+    ]
     for command in ("transfer", "ties"):
         assert main([command, *common, "--exterior", str(tmp_path / "missing.json"), "-o", str(tmp_path / "o")]) == 2
         assert "missing.json" in capsys.readouterr().err
-        assert main([command, *common, "--exterior", str(data / "sample_gcps.csv"),
-                     "-o", str(data / "sample_dem.tif")]) == 2
+        assert (
+            main([command, *common, "--exterior", str(data / "sample_gcps.csv"), "-o", str(data / "sample_dem.tif")])
+            == 2
+        )
         assert "refusing to write" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()

@@ -39,17 +39,48 @@ def _argv(command, tmp_path, **swap):
     out = str(tmp_path / "out.tif")
     return {
         "resect": ["resect", f["gcps"], "--camera", f["camera"], "--json", str(tmp_path / "r.json")],
-        "ortho": ["ortho", f["image"], "--dem", f["dem"], "--camera", f["camera"], "--exterior", f["exterior"],
-                  "--out", out],
+        "ortho": [
+            "ortho",
+            f["image"],
+            "--dem",
+            f["dem"],
+            "--camera",
+            f["camera"],
+            "--exterior",
+            f["exterior"],
+            "--out",
+            out,
+        ],
         "rectify": ["rectify", f["image"], "--gcps", f["gcps"], "--out", out],
-        "compare": ["compare", f["gcps"], "--camera", f["camera"], "--dem", f["dem"], "--image", f["image"],
-                    "--out", str(tmp_path / "cmp")],
+        "compare": [
+            "compare",
+            f["gcps"],
+            "--camera",
+            f["camera"],
+            "--dem",
+            f["dem"],
+            "--image",
+            f["image"],
+            "--out",
+            str(tmp_path / "cmp"),
+        ],
     }[command]
 
 
-CASES = [("resect", "gcps"), ("resect", "camera"), ("ortho", "image"), ("ortho", "dem"), ("ortho", "camera"),
-         ("ortho", "exterior"), ("rectify", "image"), ("rectify", "gcps"), ("compare", "gcps"),
-         ("compare", "camera"), ("compare", "dem"), ("compare", "image")]
+CASES = [
+    ("resect", "gcps"),
+    ("resect", "camera"),
+    ("ortho", "image"),
+    ("ortho", "dem"),
+    ("ortho", "camera"),
+    ("ortho", "exterior"),
+    ("rectify", "image"),
+    ("rectify", "gcps"),
+    ("compare", "gcps"),
+    ("compare", "camera"),
+    ("compare", "dem"),
+    ("compare", "image"),
+]
 
 
 @pytest.mark.parametrize("command,which", CASES)
@@ -133,14 +164,26 @@ def test_ctrl_c_during_ortho_leaves_no_partial_file(tmp_path, capsys, monkeypatc
         raise KeyboardInterrupt
 
     monkeypatch.setattr(photax.rectification._files, "_resample_tile", interrupted)
-    argv = _argv("ortho", tmp_path) + ["--resolution", "4", "--no-progress"]  # as in test_cli_sample: shared compilation
+    argv = _argv("ortho", tmp_path) + [
+        "--resolution",
+        "4",
+        "--no-progress",
+    ]  # as in test_cli_sample: shared compilation
     assert main(argv) == 130
     assert "interrupted" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []  # neither out.tif nor a .part file
 
 
-SIDECARS = ["{stem}.prj", "{name}.aux.xml", "{name}.ovr", "{stem}.tfw", "{stem}.tifw", "{stem}.wld", "{name}.msk",
-            "{stem}.TFW"]
+SIDECARS = [
+    "{stem}.prj",
+    "{name}.aux.xml",
+    "{name}.ovr",
+    "{stem}.tfw",
+    "{stem}.tifw",
+    "{stem}.wld",
+    "{name}.msk",
+    "{stem}.TFW",
+]
 
 
 @pytest.mark.parametrize("pattern", SIDECARS)
@@ -154,9 +197,17 @@ def test_check_output_path_refuses_sidecars(tmp_path, pattern):
     check_output_path(tmp_path / "sub" / out.name, [src])  # so is the same name elsewhere
 
 
-@pytest.mark.parametrize("which,pattern", [("exterior", "{stem}.prj"), ("image", "{name}.aux.xml"),
-                                           ("dem", "{stem}.tfw"), ("dem", "{name}.ovr"), ("image", "{name}.msk"),
-                                           ("camera", "{stem}.prj")])
+@pytest.mark.parametrize(
+    "which,pattern",
+    [
+        ("exterior", "{stem}.prj"),
+        ("image", "{name}.aux.xml"),
+        ("dem", "{stem}.tfw"),
+        ("dem", "{name}.ovr"),
+        ("image", "{name}.msk"),
+        ("camera", "{stem}.prj"),
+    ],
+)
 def test_ortho_never_overwrites_an_input_sidecar(tmp_path, capsys, which, pattern):
     # `photax ortho --out DIR/ngi_xyz_opk.prj` replaced the exterior's .prj with a GeoTIFF
     src = {"image": IMAGE, "dem": DEM, "camera": CAMERA, "exterior": TRUTH}[which]
@@ -188,8 +239,11 @@ def test_rectify_and_resect_refuse_sidecars(tmp_path, capsys):
 def test_too_few_points_is_not_success(tmp_path, capsys):
     # Two GCPs used to print "wrote out.json" and exit 0.
     two = tmp_path / "two.csv"
-    two.write_text("".join(ln for ln in GCPS.read_text().splitlines(True) if not ln.startswith("P")
-                           or ln.startswith(("P01,", "P02,"))))
+    two.write_text(
+        "".join(
+            ln for ln in GCPS.read_text().splitlines(True) if not ln.startswith("P") or ln.startswith(("P01,", "P02,"))
+        )
+    )
     out = tmp_path / "out.json"
     assert main(["resect", str(two), "--camera", str(CAMERA), "--json", str(out)]) == 1
     assert "0 of 1 image solved, 1 not" in capsys.readouterr().out
@@ -206,8 +260,11 @@ def test_not_converged_is_exit_1_with_status(tmp_path, capsys, monkeypatch):
     import dataclasses
 
     real = photax.resection.resect
-    monkeypatch.setattr(photax.resection, "resect",
-                        lambda *a, **k: dataclasses.replace(real(*a, **k), converged=False, message="diverged"))
+    monkeypatch.setattr(
+        photax.resection,
+        "resect",
+        lambda *a, **k: dataclasses.replace(real(*a, **k), converged=False, message="diverged"),
+    )
     out = tmp_path / "out.json"
     assert main(["resect", str(GCPS), "--camera", str(CAMERA), "--json", str(out)]) == 1
     assert "IMG_0001: NOT SOLVED - diverged" in capsys.readouterr().out
@@ -238,9 +295,14 @@ def test_units_from_the_crs():
 
 def test_no_file_cites_the_shared_folder():
     # A package user has no ../shared beside the checkout.
-    offenders = [str(p.relative_to(ROOT)) for d in ("src", "docs") for p in (ROOT / d).rglob("*")
-                 if p.is_file() and p.suffix in (".py", ".md", ".txt", ".yaml", ".json")
-                 and ("../shared" in p.read_text(errors="ignore") or "DESIGN.md" in p.read_text(errors="ignore"))]
+    offenders = [
+        str(p.relative_to(ROOT))
+        for d in ("src", "docs")
+        for p in (ROOT / d).rglob("*")
+        if p.is_file()
+        and p.suffix in (".py", ".md", ".txt", ".yaml", ".json")
+        and ("../shared" in p.read_text(errors="ignore") or "DESIGN.md" in p.read_text(errors="ignore"))
+    ]
     assert offenders == []
 
 
@@ -269,9 +331,14 @@ def test_ctrl_c_at_any_moment_of_a_real_run(tmp_path):
     # "started" once photax's main() is about to run: before it, Python's own handler is the one at work.
     code = "import sys; from photax.cli import main; print('started', file=sys.stderr, flush=True); sys.exit(main())"
     for delay in (0.05, 0.2, 0.35, 0.5, 0.7, 0.9, 1.2, 1.6, 2.2, 3.0):
-        proc = subprocess.Popen([sys.executable, "-c", code, "bundle", str(DATA / "block"), "--json", str(out),
-                                 "--quiet", "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                text=True, env=env, cwd=tmp_path)
+        proc = subprocess.Popen(
+            [sys.executable, "-c", code, "bundle", str(DATA / "block"), "--json", str(out), "--quiet", "--no-progress"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            env=env,
+            cwd=tmp_path,
+        )
         assert proc.stderr.readline() == "started\n"
         time.sleep(delay)
         proc.send_signal(signal.SIGINT)

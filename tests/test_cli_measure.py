@@ -16,7 +16,7 @@ from photax.io import read_gcps, write_gcps
 from photax.io.gcp import GCPTable
 from photax.scene import patterns
 
-rasterio = pytest.importorskip("rasterio")
+pytest.importorskip("rasterio")
 import rasterio.transform  # noqa: E402
 
 CENTRES = np.array([[20.3, 18.7], [61.45, 22.1], [24.8, 55.35], [70.2, 60.6]])  # col, row
@@ -24,9 +24,16 @@ RADIUS = 6.0
 
 
 def _write_tif(path, image):
-    with rasterio.open(path, "w", driver="GTiff", width=image.shape[1], height=image.shape[0], count=1,
-                       dtype=image.dtype,
-                       transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=image.shape[1],
+        height=image.shape[0],
+        count=1,
+        dtype=image.dtype,
+        transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5),
+    ) as dst:
         dst.write(image, 1)
 
 
@@ -35,8 +42,7 @@ def targets_tif(tmp_path_factory):
     def pattern(x, y):
         return np.max([patterns.disc(c, RADIUS)(x, y) for c in CENTRES], axis=0)
 
-    img = patterns.render(pattern, (80, 96), blur=0.7, noise=0.01, low=20.0, high=220.0,
-                         rng=np.random.default_rng(3))
+    img = patterns.render(pattern, (80, 96), blur=0.7, noise=0.01, low=20.0, high=220.0, rng=np.random.default_rng(3))
     path = tmp_path_factory.mktemp("measure") / "targets.tif"
     _write_tif(path, np.clip(np.round(img * 100), 0, 65535).astype(np.uint16))  # uint16 input
     return path
@@ -71,16 +77,35 @@ def test_measure_targets_plain_csv(targets_tif, tmp_path):
 
 def test_measure_targets_gcp_roundtrip(targets_tif, tmp_path):
     """A GCP file in, measured GCPs out: read_gcps reads them, with the measured sigma."""
-    table = GCPTable(names=np.array(["A", "B", "C", "D"]), images=np.array(["img"] * 4),
-                     ground=np.array([[100.0, 200.0, 10.0], [110.0, 200.0, 11.0], [100.0, 190.0, 12.0],
-                                      [110.0, 190.0, 13.0]]),
-                     pixel=np.round(CENTRES), image_xy=None, sigma=np.full(4, 2.0),
-                     role=np.array(["control", "control", "check", "control"]), crs="EPSG:32633")
+    table = GCPTable(
+        names=np.array(["A", "B", "C", "D"]),
+        images=np.array(["img"] * 4),
+        ground=np.array([[100.0, 200.0, 10.0], [110.0, 200.0, 11.0], [100.0, 190.0, 12.0], [110.0, 190.0, 13.0]]),
+        pixel=np.round(CENTRES),
+        image_xy=None,
+        sigma=np.full(4, 2.0),
+        role=np.array(["control", "control", "check", "control"]),
+        crs="EPSG:32633",
+    )
     gcp_in = tmp_path / "approx_gcps.csv"
     write_gcps(gcp_in, table)
     out, gcp_out = tmp_path / "out.csv", tmp_path / "measured_gcps.csv"
-    code = main(["measure", str(targets_tif), "--targets", str(gcp_in), "--radius", str(RADIUS),
-                 "--method", "wong-trinder", "-o", str(out), "--gcp-out", str(gcp_out)])
+    code = main(
+        [
+            "measure",
+            str(targets_tif),
+            "--targets",
+            str(gcp_in),
+            "--radius",
+            str(RADIUS),
+            "--method",
+            "wong-trinder",
+            "-o",
+            str(out),
+            "--gcp-out",
+            str(gcp_out),
+        ]
+    )
     assert code == 0
     back = read_gcps(gcp_out)
     assert back.names.tolist() == ["A", "B", "C", "D"] and back.crs == "EPSG:32633"
@@ -135,12 +160,16 @@ def test_write_gcps_roundtrip(tmp_path):
     rng = np.random.default_rng(0)
     for pixel in (True, False):
         coords = rng.normal(0, 1000, (5, 2)) * np.pi
-        table = GCPTable(names=np.array([f"P{i}" for i in range(5)]), images=np.array(["a", "a", "b", "b", "b"]),
-                         ground=rng.normal(5e5, 1e3, (5, 3)), pixel=coords if pixel else None,
-                         image_xy=None if pixel else coords,
-                         sigma=np.array([0.3, math.nan, 1 / 3, 0.25, 2.0]),
-                         role=np.array(["control", "check", "control", "control", "check"]),
-                         crs="EPSG:32633" if pixel else None)
+        table = GCPTable(
+            names=np.array([f"P{i}" for i in range(5)]),
+            images=np.array(["a", "a", "b", "b", "b"]),
+            ground=rng.normal(5e5, 1e3, (5, 3)),
+            pixel=coords if pixel else None,
+            image_xy=None if pixel else coords,
+            sigma=np.array([0.3, math.nan, 1 / 3, 0.25, 2.0]),
+            role=np.array(["control", "check", "control", "control", "check"]),
+            crs="EPSG:32633" if pixel else None,
+        )
         path = write_gcps(tmp_path / f"g{pixel}.csv", table)
         back = read_gcps(path)
         for field in ("names", "images", "role"):
@@ -150,7 +179,13 @@ def test_write_gcps_roundtrip(tmp_path):
         np.testing.assert_array_equal(back.sigma, table.sigma)  # NaN == NaN here
         assert back.crs == table.crs
     with pytest.raises(ValueError, match="non-finite"):
-        bad = GCPTable(names=np.array(["a"]), images=np.array([""]), ground=np.zeros((1, 3)),
-                       pixel=np.array([[math.nan, 1.0]]), image_xy=None, sigma=np.array([1.0]),
-                       role=np.array(["control"]))
+        bad = GCPTable(
+            names=np.array(["a"]),
+            images=np.array([""]),
+            ground=np.zeros((1, 3)),
+            pixel=np.array([[math.nan, 1.0]]),
+            image_xy=None,
+            sigma=np.array([1.0]),
+            role=np.array(["control"]),
+        )
         write_gcps(tmp_path / "bad.csv", bad)

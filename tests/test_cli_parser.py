@@ -29,11 +29,7 @@ PARSERS = build_parser().subcommands
 
 def _options(name):
     """The visible options of a subcommand: argparse actions with option strings, less --help."""
-    return [
-        a
-        for a in PARSERS[name]._actions
-        if a.option_strings and a.help != "==SUPPRESS==" and a.dest != "help"
-    ]
+    return [a for a in PARSERS[name]._actions if a.option_strings and a.help != "==SUPPRESS==" and a.dest != "help"]
 
 
 @pytest.mark.parametrize("name", SUBCOMMANDS)
@@ -42,9 +38,7 @@ def test_every_help_has_an_example_and_every_option_says_what_it_is(name):
     assert re.search(r"^examples?:\n  photax " + name + " ", text, re.MULTILINE), text
     missing = [a.option_strings[-1] for a in _options(name) if not (a.help or "").strip()]
     assert missing == [], f"photax {name}: options without help text"
-    arguments = [
-        a.dest for a in PARSERS[name]._actions if not a.option_strings and not (a.help or "").strip()
-    ]
+    arguments = [a.dest for a in PARSERS[name]._actions if not a.option_strings and not (a.help or "").strip()]
     assert arguments == [], f"photax {name}: arguments without help text"
 
 
@@ -131,9 +125,7 @@ def test_a_missing_optional_dependency_names_the_extra(tmp_path, capsys, monkeyp
     ]
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert re.fullmatch(
-        r'photax mosaic: error: needs \w+, in the dask extra: pip install "photax\[dask\]"\n', err
-    ), err
+    assert re.fullmatch(r'photax mosaic: error: needs \w+, in the dask extra: pip install "photax\[dask\]"\n', err), err
     assert not out.exists()
 
 
@@ -148,12 +140,8 @@ def test_the_notebooks_extra_brings_what_every_notebook_imports():
     have |= {"ipython"}  # IPython comes with ipykernel (its kernel)
     dists = importlib.metadata.packages_distributions()
     for nb in sorted((ROOT / "notebooks").glob("*.ipynb")):
-        code = "\n".join(
-            "".join(c["source"]) for c in json.loads(nb.read_text())["cells"] if c["cell_type"] == "code"
-        )
-        imported = {
-            m.split(".")[0] for m in re.findall(r"^\s*(?:import|from)\s+([\w.]+)", code, re.MULTILINE)
-        }
+        code = "\n".join("".join(c["source"]) for c in json.loads(nb.read_text())["cells"] if c["cell_type"] == "code")
+        imported = {m.split(".")[0] for m in re.findall(r"^\s*(?:import|from)\s+([\w.]+)", code, re.MULTILINE)}
         third_party = {m for m in imported if m not in sys.stdlib_module_names and m != "photax"}
         needed = {d.lower() for m in third_party for d in dists.get(m, [m])}
         # photax's Dask-backed functions import the dask extra's packages themselves

@@ -61,7 +61,7 @@ def _common_abs_diff(path_a, path_b):
     r0, c0 = max(0, dr), max(0, dc)
     r1, c1 = min(a.shape[0], b.shape[0] + dr), min(a.shape[1], b.shape[1] + dc)
     wa = a[r0:r1, c0:c1].astype(float)
-    wb = b[r0 - dr:r1 - dr, c0 - dc:c1 - dc].astype(float)
+    wb = b[r0 - dr : r1 - dr, c0 - dc : c1 - dc].astype(float)
     ok = (wa != na) & (wb != nb)
     return np.abs(wa - wb)[ok]
 
@@ -86,19 +86,21 @@ def test_sample_image_shows_targets_at_the_gcps():
     truth = json.loads((DATA / "sample_truth.json").read_text())["pixel_true"]
     true = np.array([truth[n] for n in table.names])
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
-    found = cv2.cornerSubPix(image.astype(np.float32), table.pixel.astype(np.float32).reshape(-1, 1, 2).copy(),
-                             (4, 4), (-1, -1), crit)[:, 0]
+    found = cv2.cornerSubPix(
+        image.astype(np.float32), table.pixel.astype(np.float32).reshape(-1, 1, 2).copy(), (4, 4), (-1, -1), crit
+    )[:, 0]
     err = np.linalg.norm(found - true, axis=1)
     blunder = table.names == SAMPLE_BLUNDER[0]
     assert err[~blunder].max() < 0.2, err
     # the blunder's target is where the truth says, 15 px from its measurement
-    at_target = cv2.cornerSubPix(image.astype(np.float32), np.float32(np.round(true[blunder])).reshape(-1, 1, 2).copy(),
-                                 (4, 4), (-1, -1), crit)[:, 0]
+    at_target = cv2.cornerSubPix(
+        image.astype(np.float32), np.float32(np.round(true[blunder])).reshape(-1, 1, 2).copy(), (4, 4), (-1, -1), crit
+    )[:, 0]
     assert np.linalg.norm(at_target - true[blunder]) < 0.2
     assert np.linalg.norm(table.pixel[blunder] - at_target) > 10
     # the targets are visible: black and white quadrants around each centre
     for c, r in np.round(true[~blunder]).astype(int):
-        patch = image[r - 4:r + 5, c - 4:c + 5].astype(int)
+        patch = image[r - 4 : r + 5, c - 4 : c + 5].astype(int)
         assert patch.max() - patch.min() > 150
 
 
@@ -107,19 +109,39 @@ def test_resect_then_ortho_subprocesses_match_the_true_orientation(tmp_path):
     # orthophoto from the true orientation: they must agree.
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     cmd = _photax_cmd()
-    common = ["ortho", str(DATA / "sample_image.tif"), "--dem", str(DATA / "sample_dem.tif"),
-              "--camera", str(DATA / "sample_camera.yaml"), "--resolution", "4", "--no-progress"]
+    common = [
+        "ortho",
+        str(DATA / "sample_image.tif"),
+        "--dem",
+        str(DATA / "sample_dem.tif"),
+        "--camera",
+        str(DATA / "sample_camera.yaml"),
+        "--resolution",
+        "4",
+        "--no-progress",
+    ]
     # The reference first, in this process: its compilation lands in the
     # session's persistent cache, which the subprocess below then reads.
     # sample_truth.json holds position / angles_rad / convention: a valid --exterior.
     assert main(common + ["--exterior", str(DATA / "sample_truth.json"), "--out", str(tmp_path / "true.tif")]) == 0
     res = tmp_path / "resect.json"
-    p = subprocess.run(cmd + ["resect", str(DATA / "sample_gcps.csv"), "--camera", str(DATA / "sample_camera.yaml"),
-                              "--json", str(res)], capture_output=True, text=True, env=env, timeout=600)
+    p = subprocess.run(
+        cmd
+        + ["resect", str(DATA / "sample_gcps.csv"), "--camera", str(DATA / "sample_camera.yaml"), "--json", str(res)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stderr
     assert f"blunder: {SAMPLE_BLUNDER[0]} excluded" in p.stdout
-    p = subprocess.run(cmd + common + ["--exterior", str(res), "--out", str(tmp_path / "resected.tif")],
-                       capture_output=True, text=True, env=env, timeout=600)
+    p = subprocess.run(
+        cmd + common + ["--exterior", str(res), "--out", str(tmp_path / "resected.tif")],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert p.returncode == 0, p.stderr
     assert "pixels of 4 m" in p.stdout and "Traceback" not in p.stderr
     d = _common_abs_diff(tmp_path / "resected.tif", tmp_path / "true.tif")
@@ -172,8 +194,23 @@ def test_ortho_picks_the_image_named_like_the_file(tmp_path, capsys):
     assert read_exterior(single, "x.tif")[0].convention == one["convention"]
     bad = tmp_path / "bad.json"
     bad.write_text(json.dumps({"images": {"IMG_0001": {"status": "skipped", "message": "need at least 3"}}}))
-    assert main(["ortho", str(DATA / "sample_image.tif"), "--dem", str(DATA / "sample_dem.tif"), "--interior",
-                 str(DATA / "sample_camera.yaml"), "--exterior", str(bad), "--out", str(tmp_path / "o.tif")]) == 2
+    assert (
+        main(
+            [
+                "ortho",
+                str(DATA / "sample_image.tif"),
+                "--dem",
+                str(DATA / "sample_dem.tif"),
+                "--interior",
+                str(DATA / "sample_camera.yaml"),
+                "--exterior",
+                str(bad),
+                "--out",
+                str(tmp_path / "o.tif"),
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "image 'IMG_0001' was not solved (need at least 3)" in err and err.count("\n") == 1
     assert not (tmp_path / "o.tif").exists()
@@ -264,8 +301,21 @@ def test_bundle_writes_the_self_calibrated_camera(tmp_path, capsys):
     (folder / "block.json").write_text(json.dumps(meta))
     assert main(["bundle", str(folder), "--camera-out", str(folder / "start.yaml"), "--quiet"]) == 2
     assert "refusing to write" in capsys.readouterr().err  # the camera file read is an input
-    assert main(["bundle", str(folder), "--camera-out", str(out), "--json", str(tmp_path / "r.json"), "--quiet",
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "bundle",
+                str(folder),
+                "--camera-out",
+                str(out),
+                "--json",
+                str(tmp_path / "r.json"),
+                "--quiet",
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     cam = read_camera(out)
     result = json.loads((tmp_path / "r.json").read_text())
     f, sf = result["cameras"][0]["focal_length"], result["cameras"][0]["std"][0]
@@ -287,8 +337,19 @@ def test_readme_python_resection_reports_what_the_cli_reports(tmp_path, monkeypa
     space = {}
     exec("\n".join(lines[: end + 1]), space)  # the README's lines up to its print of the summary
     printed = capsys.readouterr().out
-    assert main(["resect", "data/sample_gcps.csv", "--camera", "data/sample_camera.yaml", "--json",
-                 str(tmp_path / "r.json")]) == 0
+    assert (
+        main(
+            [
+                "resect",
+                "data/sample_gcps.csv",
+                "--camera",
+                "data/sample_camera.yaml",
+                "--json",
+                str(tmp_path / "r.json"),
+            ]
+        )
+        == 0
+    )
     cli = capsys.readouterr().out
     data = json.loads((tmp_path / "r.json").read_text())["images"]["IMG_0001"]
     res = space["res"]

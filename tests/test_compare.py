@@ -29,8 +29,9 @@ def hills():
 @pytest.fixture(scope="module")
 def hills_cmp(hills):
     s = hills
-    return compare_models(s.gcp_ground, s.gcp_pixel, s.camera, s.dem,
-                          check_ground=s.check_ground, check_pixel=s.check_pixel)
+    return compare_models(
+        s.gcp_ground, s.gcp_pixel, s.camera, s.dem, check_ground=s.check_ground, check_pixel=s.check_pixel
+    )
 
 
 @pytest.fixture(scope="module")
@@ -64,8 +65,9 @@ def test_scene_truth_is_consistent(hills, flat):
 def test_relief_displacement_is_r_h_over_H(hills):
     """Collinearity with the DEM minus collinearity on the datum = r h / H, radially outwards."""
     s = hills
-    c = compare_models(s.gcp_ground, s.gcp_pixel_true, s.camera, s.dem, exterior=s.exterior,
-                       orders=(1,), projective=False)
+    c = compare_models(
+        s.gcp_ground, s.gcp_pixel_true, s.camera, s.dem, exterior=s.exterior, orders=(1,), projective=False
+    )
     d = c.relief_displacement(datum=0.0)
     xy = c.grid.xy()
     h = np.asarray(s.dem.height(xy[..., 0], xy[..., 1]))
@@ -85,8 +87,17 @@ def test_relief_displacement_is_r_h_over_H(hills):
 def test_affine_error_is_the_unabsorbed_relief_displacement(hills):
     """Order-1 check residuals = d(check) - (affine LS fit of d at the GCPs)(check), exactly."""
     s = hills
-    c = compare_models(s.gcp_ground, s.gcp_pixel_true, s.camera, s.dem, exterior=s.exterior,
-                       check_ground=s.check_ground, check_pixel=s.check_pixel_true, orders=(1,), projective=False)
+    c = compare_models(
+        s.gcp_ground,
+        s.gcp_pixel_true,
+        s.camera,
+        s.dem,
+        exterior=s.exterior,
+        check_ground=s.check_ground,
+        check_pixel=s.check_pixel_true,
+        orders=(1,),
+        projective=False,
+    )
     H, nadir = s.flying_height, _nadir(s)
     d_gcp = (s.gcp_pixel_true - nadir) * s.gcp_ground[:, 2:3] / H
     d_chk = (s.check_pixel_true - nadir) * s.check_ground[:, 2:3] / H
@@ -129,8 +140,15 @@ def test_polynomials_cannot_follow_relief(hills, hills_cmp):
 
 def test_flat_terrain_models_agree(flat):
     s = flat
-    c = compare_models(s.gcp_ground, s.gcp_pixel, s.camera, s.dem, check_ground=s.check_ground,
-                       check_pixel=s.check_pixel, orders=(1, 2, 3))
+    c = compare_models(
+        s.gcp_ground,
+        s.gcp_pixel,
+        s.camera,
+        s.dem,
+        check_ground=s.check_ground,
+        check_pixel=s.check_pixel,
+        orders=(1, 2, 3),
+    )
     coll = c["collinearity"].check_rmse
     assert coll < 1.5 * np.sqrt(2) * NOISE
     # a plane maps projectively: the projective model is collinearity here
@@ -163,14 +181,16 @@ def test_a_blunder_rejected_by_the_resection_is_in_no_fit(hills):
     s = hills
     px = s.gcp_pixel.copy()
     px[7] += [25.0, -10.0]
-    c = compare_models(s.gcp_ground, px, s.camera, s.dem, orders=(2,), projective=False,
-                       gcp_names=[f"G{k}" for k in range(len(px))])
+    c = compare_models(
+        s.gcp_ground, px, s.camera, s.dem, orders=(2,), projective=False, gcp_names=[f"G{k}" for k in range(len(px))]
+    )
     assert c.excluded[7] and c.excluded.tolist() == np.asarray(c.resection.outliers).tolist()
     keep = ~c.excluded
     ref = fit_polynomial(s.gcp_ground[keep, :2], px[keep], 2)
     p2 = c["polynomial 2"]
-    np.testing.assert_allclose(np.asarray(p2.model(s.gcp_ground[:, :2])), np.asarray(ref(s.gcp_ground[:, :2])),
-                               atol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(p2.model(s.gcp_ground[:, :2])), np.asarray(ref(s.gcp_ground[:, :2])), atol=1e-9
+    )
     np.testing.assert_allclose(p2.gcp_rmse, np.sqrt(np.mean(np.sum(p2.gcp_residuals[keep] ** 2, axis=1))))
     assert np.linalg.norm(p2.gcp_residuals[7]) > 15  # the blunder shows in its residual
     note = [line for line in c.table("text").splitlines() if "left out of every fit" in line]
@@ -199,8 +219,9 @@ def test_figures(hills, hills_cmp):
 
 def test_skips_orders_without_enough_gcps(hills):
     s = hills
-    c = compare_models(s.gcp_ground[:12], s.gcp_pixel[:12], s.camera, s.dem, exterior=s.exterior,
-                       orders=(1, 4, 5), projective=False)
+    c = compare_models(
+        s.gcp_ground[:12], s.gcp_pixel[:12], s.camera, s.dem, exterior=s.exterior, orders=(1, 4, 5), projective=False
+    )
     assert c.names == ["collinearity", "polynomial 1"]
     assert "needs at least 15 GCPs, have 12" in c.skipped["polynomial 4"]
     assert "polynomial 5" in c.table()
@@ -237,15 +258,32 @@ def test_cli_compare(hills, tmp_path, capsys):
     s = hills
     rows = ["name,E,N,h,col,row,role"]
     for role, g, p in (("control", s.gcp_ground, s.gcp_pixel), ("check", s.check_ground, s.check_pixel)):
-        rows += [f"{role[:2]}{k},{x:.17g},{y:.17g},{z:.17g},{c:.17g},{r:.17g},{role}" for k, ((x, y, z), (c, r)) in enumerate(zip(g, p))]
+        rows += [
+            f"{role[:2]}{k},{x:.17g},{y:.17g},{z:.17g},{c:.17g},{r:.17g},{role}"
+            for k, ((x, y, z), (c, r)) in enumerate(zip(g, p))
+        ]
     (tmp_path / "gcps.csv").write_text("\n".join(rows) + "\n")
     write_camera(s.camera, tmp_path / "camera.yaml")
     write_geotiff(tmp_path / "dem.tif", np.asarray(s.dem.heights), tuple(np.asarray(s.dem.transform)))
     write_geotiff(tmp_path / "image.tif", (s.image * 255).astype(np.uint8), None)
     out = tmp_path / "out"
     files = [str(tmp_path / "gcps.csv"), "--camera", str(tmp_path / "camera.yaml"), "--dem", str(tmp_path / "dem.tif")]
-    assert main(["compare", *files, "--image", str(tmp_path / "image.tif"), "--orders", "1-2", "--out", str(out),
-                 "--no-progress"]) == 0
+    assert (
+        main(
+            [
+                "compare",
+                *files,
+                "--image",
+                str(tmp_path / "image.tif"),
+                "--orders",
+                "1-2",
+                "--out",
+                str(out),
+                "--no-progress",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "polynomial 2" in printed and "polynomial 3" not in printed
     for name in ["comparison.md", "comparison.json", "error_maps.png", "rmse.png", "rectified.png"]:

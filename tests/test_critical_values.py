@@ -30,7 +30,8 @@ def test_tau_and_normal(alpha, red):
 def test_two_coordinate(alpha, red):
     assert _critical2(alpha, True, red) == pytest.approx(np.sqrt(stats.chi2.ppf(1 - alpha, 2)), rel=1e-12)
     assert _critical2(alpha, False, red) == pytest.approx(
-        np.sqrt(red * stats.beta.ppf(1 - alpha, 1.0, 0.5 * (red - 2))), rel=1e-12)
+        np.sqrt(red * stats.beta.ppf(1 - alpha, 1.0, 0.5 * (red - 2))), rel=1e-12
+    )
 
 
 def test_no_estimate_without_redundancy():

@@ -20,16 +20,29 @@ from photax.cli import main
 from photax.io import crs as pcrs
 
 DATA = ROOT / "data"
-CAMERA, IMAGE, DEM, TRUTH = (DATA / "sample_camera.yaml", DATA / "sample_image.tif", DATA / "sample_dem.tif",
-                             DATA / "sample_truth.json")
+CAMERA, IMAGE, DEM, TRUTH = (
+    DATA / "sample_camera.yaml",
+    DATA / "sample_image.tif",
+    DATA / "sample_dem.tif",
+    DATA / "sample_truth.json",
+)
 
 
 def _dem(path, crs, transform=None):
     """The sample DEM's heights under another CRS label (and georeference)."""
     with rasterio.open(DEM) as src:
         heights, t = src.read(1), src.transform
-    with rasterio.open(path, "w", driver="GTiff", width=heights.shape[1], height=heights.shape[0], count=1,
-                       dtype=heights.dtype, crs=crs, transform=transform or t) as dst:
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=heights.shape[1],
+        height=heights.shape[0],
+        count=1,
+        dtype=heights.dtype,
+        crs=crs,
+        transform=transform or t,
+    ) as dst:
         dst.write(heights, 1)
     return path
 
@@ -41,8 +54,21 @@ def _exterior(path, crs):
 
 
 def _ortho(tmp_path, dem=DEM, exterior=TRUTH):
-    return main(["ortho", str(IMAGE), "--dem", str(dem), "--camera", str(CAMERA), "--exterior", str(exterior),
-                 "--out", str(tmp_path / "o.tif"), "--no-progress"])
+    return main(
+        [
+            "ortho",
+            str(IMAGE),
+            "--dem",
+            str(dem),
+            "--camera",
+            str(CAMERA),
+            "--exterior",
+            str(exterior),
+            "--out",
+            str(tmp_path / "o.tif"),
+            "--no-progress",
+        ]
+    )
 
 
 def test_dem_in_another_transverse_mercator_is_refused(tmp_path, capsys):
@@ -115,10 +141,36 @@ def test_every_command_that_meets_a_dem_compares_crs(tmp_path, capsys, command):
     gcps, out = str(DATA / "sample_gcps.csv"), str(tmp_path / "out")
     argv = {
         "compare": ["compare", gcps, "--camera", str(CAMERA), "--dem", dem, "--image", str(IMAGE), "--out", out],
-        "transfer": ["transfer", str(IMAGE), "--camera", str(CAMERA), "--exterior", str(TRUTH), "--dem", dem,
-                     "--gcps", gcps, "--template", str(IMAGE), "--out", out],
-        "register": ["register", str(IMAGE), "--camera", str(CAMERA), "--exterior", str(TRUTH), "--dem", dem,
-                     "--ortho", str(DEM), "--out", out],
+        "transfer": [
+            "transfer",
+            str(IMAGE),
+            "--camera",
+            str(CAMERA),
+            "--exterior",
+            str(TRUTH),
+            "--dem",
+            dem,
+            "--gcps",
+            gcps,
+            "--template",
+            str(IMAGE),
+            "--out",
+            out,
+        ],
+        "register": [
+            "register",
+            str(IMAGE),
+            "--camera",
+            str(CAMERA),
+            "--exterior",
+            str(TRUTH),
+            "--dem",
+            dem,
+            "--ortho",
+            str(DEM),
+            "--out",
+            out,
+        ],
     }[command]
     assert main(argv) == 2
     err = capsys.readouterr().err

@@ -61,7 +61,9 @@ def _case(scene, name):
 
 def _inside(px, m=12):
     w, h = CAM.image_size
-    return np.all(np.isfinite(px), 1) & (px[:, 0] > m) & (px[:, 0] < w - 1 - m) & (px[:, 1] > m) & (px[:, 1] < h - 1 - m)
+    return (
+        np.all(np.isfinite(px), 1) & (px[:, 0] > m) & (px[:, 0] < w - 1 - m) & (px[:, 1] > m) & (px[:, 1] < h - 1 - m)
+    )
 
 
 def _canvas(img, size=300):
@@ -132,7 +134,7 @@ def test_bad_geometry_is_refused(scene):
 
 
 def test_cli_epipolar(scene, tmp_path):
-    rasterio = pytest.importorskip("rasterio")
+    pytest.importorskip("rasterio")
     import rasterio.transform
 
     from photax.cli import main
@@ -141,22 +143,56 @@ def test_cli_epipolar(scene, tmp_path):
     paths = {}
     for name, e in (("left", LEFT), ("along", RIGHT["along"])):
         p = tmp_path / f"{name}.tif"
-        with rasterio.open(p, "w", driver="GTiff", width=200, height=160, count=1, dtype="float32",
-                           transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
+        with rasterio.open(
+            p,
+            "w",
+            driver="GTiff",
+            width=200,
+            height=160,
+            count=1,
+            dtype="float32",
+            transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5),
+        ) as dst:
             dst.write(img[name].astype(np.float32), 1)
-        photax.write_json({"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention}},
-                          tmp_path / f"{name}.json")
+        photax.write_json(
+            {"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention}},
+            tmp_path / f"{name}.json",
+        )
         paths[name] = p
     photax.write_camera(CAM, tmp_path / "cam.yaml")
     out = tmp_path / "pair"
-    code = main(["epipolar", str(paths["left"]), str(paths["along"]), "--camera", str(tmp_path / "cam.yaml"),
-                 "--exterior-left", str(tmp_path / "left.json"), "--exterior-right", str(tmp_path / "along.json"),
-                 "-o", str(out)])
+    code = main(
+        [
+            "epipolar",
+            str(paths["left"]),
+            str(paths["along"]),
+            "--camera",
+            str(tmp_path / "cam.yaml"),
+            "--exterior-left",
+            str(tmp_path / "left.json"),
+            "--exterior-right",
+            str(tmp_path / "along.json"),
+            "-o",
+            str(out),
+        ]
+    )
     assert code == 0
     pair = epipolar_pair(img["left"], img["along"], CAM, LEFT, RIGHT["along"])
     with rasterio.open(tmp_path / "pair_left.tif") as src:
         np.testing.assert_allclose(src.read(1), pair.left.astype(np.float32), atol=1e-4)
     meta = photax.read_json(tmp_path / "pair.json")
     np.testing.assert_allclose(meta["baseline"], pair.baseline)
-    assert main(["epipolar", str(paths["left"]), str(paths["along"]), "--camera", str(tmp_path / "cam.yaml"),
-                 "-o", str(out)]) == 2  # no orientation given
+    assert (
+        main(
+            [
+                "epipolar",
+                str(paths["left"]),
+                str(paths["along"]),
+                "--camera",
+                str(tmp_path / "cam.yaml"),
+                "-o",
+                str(out),
+            ]
+        )
+        == 2
+    )  # no orientation given

@@ -196,24 +196,51 @@ def test_bad_input():
 
 
 def test_cli_fiducials(scans, tmp_path):
-    rasterio = pytest.importorskip("rasterio")
+    pytest.importorskip("rasterio")
     import rasterio.transform
 
     from photax.cli import main
 
     img, truth = scans["affine-displaced"]
     tif = tmp_path / "scan.tif"
-    with rasterio.open(tif, "w", driver="GTiff", width=img.shape[1], height=img.shape[0], count=1,
-                       dtype="float32", transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5)) as dst:
+    with rasterio.open(
+        tif,
+        "w",
+        driver="GTiff",
+        width=img.shape[1],
+        height=img.shape[0],
+        count=1,
+        dtype="float32",
+        transform=rasterio.transform.from_origin(500000.0, 4100000.0, 0.5, 0.5),
+    ) as dst:
         dst.write(img.astype(np.float32), 1)
     fid = tmp_path / "fiducials.csv"
     fid.write_text("name,x,y\n" + "".join(f"F{i + 1},{x},{y}\n" for i, (x, y) in enumerate(FID)))
     out, table = tmp_path / "io.json", tmp_path / "marks.csv"
     cal, cam_file = tmp_path / "calibrated.yaml", tmp_path / "scan_camera.yaml"
     cal.write_text("focal_length: 153.0\nunit: mm\nprincipal_point: [0.01, -0.02]\n")  # the calibration report
-    code = main(["fiducials", str(tif), "--fiducials", str(fid), "--pixel-size", str(PS), "--mark-size", "4",
-                 "--line-width", "0.8", "-o", str(out), "--csv", str(table), "--camera", str(cal),
-                 "--camera-out", str(cam_file)])
+    code = main(
+        [
+            "fiducials",
+            str(tif),
+            "--fiducials",
+            str(fid),
+            "--pixel-size",
+            str(PS),
+            "--mark-size",
+            "4",
+            "--line-width",
+            "0.8",
+            "-o",
+            str(out),
+            "--csv",
+            str(table),
+            "--camera",
+            str(cal),
+            "--camera-out",
+            str(cam_file),
+        ]
+    )
     assert code == 1  # a mark flagged
     data = photax.read_json(out)
     marks = {m["name"]: m for m in data["marks"]}
@@ -234,8 +261,13 @@ def test_cli_fiducials(scans, tmp_path):
     ground = np.column_stack([rng.uniform(200, 1800, 12), rng.uniform(1200, 2800, 12), rng.uniform(40, 120, 12)])
     pix = _affine(np.asarray(photax.project(ground, ext, photax.FrameCamera(153.0, (0.01, -0.02)))))
     gcps = tmp_path / "gcps.csv"
-    gcps.write_text("name,image,E,N,h,col,row,role\n" + "".join(
-        f"P{i},scan,{','.join(map(repr, [*g.tolist(), *p.tolist()]))},control\n" for i, (g, p) in enumerate(zip(ground, pix))))
+    gcps.write_text(
+        "name,image,E,N,h,col,row,role\n"
+        + "".join(
+            f"P{i},scan,{','.join(map(repr, [*g.tolist(), *p.tolist()]))},control\n"
+            for i, (g, p) in enumerate(zip(ground, pix))
+        )
+    )
     assert main(["resect", str(gcps), "--camera", str(cam_file), "--json", str(tmp_path / "r.json")]) == 0
     via_file = photax.read_json(tmp_path / "r.json")["images"]["scan"]
     ref = photax.resect(mem_cam.pixel_to_image(pix), ground, mem_cam)
@@ -244,10 +276,27 @@ def test_cli_fiducials(scans, tmp_path):
     np.testing.assert_allclose(via_file["position"], np.asarray(ext.position), atol=0.5)  # m: marks to ~0.01 px
     bad = tmp_path / "bad.csv"
     bad.write_text("name,x\nF1,3\n")
-    assert main(["fiducials", str(tif), "--fiducials", str(bad), "--pixel-size", "0.5", "-o",
-                 str(tmp_path / "x.json")]) == 2
-    assert main(["fiducials", str(tif), "--fiducials", str(fid), "--pixel-size", "0.5", "-o",
-                 str(tmp_path / "x.json"), "--camera-out", str(tmp_path / "c.yaml")]) == 2  # without --camera
+    assert (
+        main(["fiducials", str(tif), "--fiducials", str(bad), "--pixel-size", "0.5", "-o", str(tmp_path / "x.json")])
+        == 2
+    )
+    assert (
+        main(
+            [
+                "fiducials",
+                str(tif),
+                "--fiducials",
+                str(fid),
+                "--pixel-size",
+                "0.5",
+                "-o",
+                str(tmp_path / "x.json"),
+                "--camera-out",
+                str(tmp_path / "c.yaml"),
+            ]
+        )
+        == 2
+    )  # without --camera
 
 
 def test_scanned_camera_file_round_trip(tmp_path):
@@ -261,17 +310,25 @@ def test_scanned_camera_file_round_trip(tmp_path):
         assert "scan:" in path.read_text() and "pixel_size" not in path.read_text()  # derived from the scan
         back = read_camera(path)
         assert isinstance(back, ScannedCamera) and back.transform.model == model and back.image_size == SIZE
-        for a, b in ((back.transform.params, cam.transform.params), (back.transform.film_centre, cam.transform.film_centre),
-                     (back.transform.film_scale, cam.transform.film_scale), (back.pixel_size, cam.pixel_size),
-                     (back.focal_length, cam.focal_length), (back.principal_point, cam.principal_point),
-                     (back.distortion, cam.distortion)):
+        for a, b in (
+            (back.transform.params, cam.transform.params),
+            (back.transform.film_centre, cam.transform.film_centre),
+            (back.transform.film_scale, cam.transform.film_scale),
+            (back.pixel_size, cam.pixel_size),
+            (back.focal_length, cam.focal_length),
+            (back.principal_point, cam.principal_point),
+            (back.distortion, cam.distortion),
+        ):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
         # and the file's transformation is the scanner's (the fit is exact on noise-free marks)
         np.testing.assert_allclose(np.asarray(back.image_to_pixel(FID)), fn(FID), atol=1e-8)
     text = (tmp_path / "affine.yaml").read_text()
-    for old, new, match in (("unit: mm", "unit: px", "film units"), ("model: affine", "model: conformal", "scan.model"),
-                            ("scan:", "scan:\n  order: 2", "unknown key scan.order"),
-                            ("image_size:", "image_sizes:", "unknown key|image_size")):
+    for old, new, match in (
+        ("unit: mm", "unit: px", "film units"),
+        ("model: affine", "model: conformal", "scan.model"),
+        ("scan:", "scan:\n  order: 2", "unknown key scan.order"),
+        ("image_size:", "image_sizes:", "unknown key|image_size"),
+    ):
         bad = tmp_path / "bad.yaml"
         bad.write_text(text.replace(old, new, 1))
         with pytest.raises(ValueError, match=match):
@@ -291,8 +348,12 @@ def test_bundle_self_calibration_keeps_the_scan_transform():
     cam = res.cameras[0]
     assert res.converged and isinstance(cam, ScannedCamera)
     assert cam.transform.model == "affine" and cam.image_size == start.image_size
-    for a, b in ((cam.transform.params, io.transform.params), (cam.transform.film_centre, io.transform.film_centre),
-                 (cam.transform.film_scale, io.transform.film_scale), (cam.pixel_size, start.pixel_size)):
+    for a, b in (
+        (cam.transform.params, io.transform.params),
+        (cam.transform.film_centre, io.transform.film_centre),
+        (cam.transform.film_scale, io.transform.film_scale),
+        (cam.pixel_size, start.pixel_size),
+    ):
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert abs(float(cam.focal_length) - float(truth.camera.focal_length)) < 1e-5
     assert abs(float(cam.distortion[0]) + 0.04) < 1e-9
@@ -303,7 +364,7 @@ def test_marks_not_found_get_a_status(scans):
     img, truth = scans["affine"]
     img = img.copy()
     c, r = np.round(truth[5]).astype(int)
-    img[r - 14:r + 15, c - 14:c + 15] = np.median(img)  # mark 6 gone: film base only
+    img[r - 14 : r + 15, c - 14 : c + 15] = np.median(img)  # mark 6 gone: film base only
     res = find_fiducials(img, FID, pixel_size=PS, **MARK)
     assert res.flagged.tolist() == [k == 5 for k in range(8)] and res.messages[5].startswith("not found"), res.messages
     assert np.sqrt(np.mean((res.xy[~res.flagged] - truth[~res.flagged]) ** 2)) <= 0.1

@@ -38,8 +38,9 @@ def _texture(shape, seed, sigma=2.0):
 
 def _scene(r=4, size=64, bands=3, weights=(0.5, 0.3, 0.2)):
     """A high-resolution truth (bands, size, size), its PAN (a known mix) and its MS (box averages)."""
-    truth = np.stack([100 + 20 * _texture((size, size), k) + 10 * _texture((size, size), 10, 1.0)
-                      for k in range(bands)])
+    truth = np.stack(
+        [100 + 20 * _texture((size, size), k) + 10 * _texture((size, size), 10, 1.0) for k in range(bands)]
+    )
     pan = np.tensordot(np.asarray(weights[:bands]), truth, 1)
     ms = truth.reshape(bands, size // r, r, size // r, r).mean(axis=(2, 4))
     return truth, pan, ms
@@ -185,11 +186,21 @@ def test_ms_mapped_onto_the_pan_grid_across_crss_like_gdal():
     left, bottom, right, top = transform_bounds("EPSG:32633", "EPSG:3857", 500000, 4000000, 500480, 4000480)
     pan_t = Affine(2.0, 0, left + 40, 0, -2.0, top - 40)
     shape = (int((top - bottom - 80) / 2), int((right - left - 80) / 2))
-    ours = np.asarray(resample(ms, *positions(shape, pan_t, "EPSG:3857", ms.shape[1:], ms_t, "EPSG:32633"),
-                               "bilinear"))[0]
+    ours = np.asarray(
+        resample(ms, *positions(shape, pan_t, "EPSG:3857", ms.shape[1:], ms_t, "EPSG:32633"), "bilinear")
+    )[0]
     gdal = np.full(shape, np.nan, np.float32)
-    reproject(ms, gdal, src_transform=ms_t, src_crs="EPSG:32633", dst_transform=pan_t, dst_crs="EPSG:3857",
-              resampling=Resampling.bilinear, src_nodata=np.nan, dst_nodata=np.nan)
+    reproject(
+        ms,
+        gdal,
+        src_transform=ms_t,
+        src_crs="EPSG:32633",
+        dst_transform=pan_t,
+        dst_crs="EPSG:3857",
+        resampling=Resampling.bilinear,
+        src_nodata=np.nan,
+        dst_nodata=np.nan,
+    )
     both = np.isfinite(ours) & np.isfinite(gdal)
     assert both.mean() > 0.9
     assert np.abs(ours - gdal)[both].max() < 0.05 * np.ptp(ms)
@@ -200,8 +211,7 @@ def test_the_output_is_the_pan_window_the_ms_covers():
     _, pan, ms = _scene()
     pan_t = Affine(1.0, 0, 1000.0, 0, -1.0, 2000.0)
     ms_t = Affine(4.0, 0, 1000.0 + 32, 0, -4.0, 2000.0)  # the MS starts 32 PAN columns in
-    out = pansharpen(pan, ms, "gs", pan_transform=pan_t, ms_transform=ms_t, pan_crs="EPSG:32633",
-                     ms_crs="EPSG:32633")
+    out = pansharpen(pan, ms, "gs", pan_transform=pan_t, ms_transform=ms_t, pan_crs="EPSG:32633", ms_crs="EPSG:32633")
     assert out.window == (0, 32)
     assert out.image.shape == (3, 64, 32)
     assert out.transform.almost_equals(Affine(1.0, 0, 1032.0, 0, -1.0, 2000.0))
@@ -288,8 +298,9 @@ def test_wald_protocol_on_the_real_pair_beats_orthority(tmp_path):
     ours = wald_protocol(pan, ms, "gsa", resampling="lanczos")
     write_geotiff(tmp_path / "p.tif", ours["pan_low"], None)
     write_geotiff(tmp_path / "m.tif", ours["ms_low"], None)
-    theirs = assess(_orthority(tmp_path / "p.tif", tmp_path / "m.tif", tmp_path / "o.tif", dtype="float32"),
-                    ours["reference"], 4)
+    theirs = assess(
+        _orthority(tmp_path / "p.tif", tmp_path / "m.tif", tmp_path / "o.tif", dtype="float32"), ours["reference"], 4
+    )
     assert ours["ERGAS"] < theirs["ERGAS"] and ours["SAM"] < theirs["SAM"]
     exp = wald_protocol(pan, ms, "gs", weights=[1, 1, 1])  # only its reduced pair
     plain = assess(exp["ms_low"].repeat(4, 1).repeat(4, 2), ours["reference"], 4)
@@ -305,8 +316,21 @@ def test_photax_sharpen_writes_the_pan_grid_and_prints_the_table(tmp_path, capsy
     write_geotiff(tmp_path / "pan.tif", pan.astype(np.float32), t, crs="EPSG:32633")
     write_geotiff(tmp_path / "ms.tif", ms.astype(np.float32), t * Affine.scale(4), crs="EPSG:32633")
     out = tmp_path / "sharp.tif"
-    assert main(["sharpen", str(tmp_path / "pan.tif"), str(tmp_path / "ms.tif"), "-o", str(out),
-                 "--method", "mtf_glp", "--assess"]) == 0
+    assert (
+        main(
+            [
+                "sharpen",
+                str(tmp_path / "pan.tif"),
+                str(tmp_path / "ms.tif"),
+                "-o",
+                str(out),
+                "--method",
+                "mtf_glp",
+                "--assess",
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert "ERGAS" in text and "QNR" in text
     data, profile = read_geotiff(out)
@@ -341,10 +365,18 @@ def test_an_ms_in_another_crs_is_sharpened_on_the_pan_grid():
     pan = np.tensordot([0.5, 0.3, 0.2], truth, 1)
     ms_t = Affine(8.0, 0, 500000.0, 0, -8.0, 4000512.0)
     ms = np.full((3, 64, 64), np.nan)
-    reproject(truth, ms, src_transform=pan_t, src_crs="EPSG:3857", dst_transform=ms_t, dst_crs="EPSG:32633",
-              resampling=Resampling.average, src_nodata=np.nan, dst_nodata=np.nan)
-    out = pansharpen(pan, ms, "gs", pan_transform=pan_t, ms_transform=ms_t, pan_crs="EPSG:3857",
-                     ms_crs="EPSG:32633")
+    reproject(
+        truth,
+        ms,
+        src_transform=pan_t,
+        src_crs="EPSG:3857",
+        dst_transform=ms_t,
+        dst_crs="EPSG:32633",
+        resampling=Resampling.average,
+        src_nodata=np.nan,
+        dst_nodata=np.nan,
+    )
+    out = pansharpen(pan, ms, "gs", pan_transform=pan_t, ms_transform=ms_t, pan_crs="EPSG:3857", ms_crs="EPSG:32633")
     r0, c0 = out.window
     rows, cols = out.image.shape[1:]
     inner = np.zeros((rows, cols), bool)
@@ -355,4 +387,5 @@ def test_an_ms_in_another_crs_is_sharpened_on_the_pan_grid():
     cp, rp = positions(pan.shape, pan_t, "EPSG:3857", ms.shape[1:], ms_t, "EPSG:32633")
     plain = np.asarray(resample(ms, cp, rp, "cubic"))[:, r0 : r0 + rows, c0 : c0 + cols]
     assert ergas(out.image[:, ok][..., None], ref[:, ok][..., None], 4) < 0.6 * ergas(
-        plain[:, ok][..., None], ref[:, ok][..., None], 4)  # measured 0.30 against 0.67
+        plain[:, ok][..., None], ref[:, ok][..., None], 4
+    )  # measured 0.30 against 0.67

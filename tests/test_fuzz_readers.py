@@ -58,12 +58,68 @@ FUZZ = settings(
 
 # Values that broke or could break a parser, as whole fields.
 HOSTILE = [
-    b"", b"0", b"-0", b"-1", b"-1e-9", b"1e999", b"-1e999", b"nan", b"NaN", b"inf", b"-inf", b"Infinity",
-    b"1e-400", b"9" * 400, b"99999999999999999999", b"0x10", b"1_000", b"1.5", b"2.5e3", b"true", b"null",
-    b"~", b"[]", b"{}", b"[1, 2]", b"[1, 2, 3]", b"[0, 0]", b"[-1, 5]", b"[1.5, 2]", b'"x"', b"'", b'"',
-    b"!!python/object:os.system", b"!!binary AAAA", b"&a", b"*a", b"2024-01-01", b"a,b", b"a;b", b"#",
-    b"control", b"check", b"tie", b"pinhole", b"brown", b"\xff\xfe", b"\x00", b"\xc3\xa9", b"\xe2\x80\xa8",
-    b"\t", b" ", b"\n", b"\r\n", b"\r", b"---", b"...", b"- ", b": ", b"P01", b"IMG_0001", b"cam", b"S1_1",
+    b"",
+    b"0",
+    b"-0",
+    b"-1",
+    b"-1e-9",
+    b"1e999",
+    b"-1e999",
+    b"nan",
+    b"NaN",
+    b"inf",
+    b"-inf",
+    b"Infinity",
+    b"1e-400",
+    b"9" * 400,
+    b"99999999999999999999",
+    b"0x10",
+    b"1_000",
+    b"1.5",
+    b"2.5e3",
+    b"true",
+    b"null",
+    b"~",
+    b"[]",
+    b"{}",
+    b"[1, 2]",
+    b"[1, 2, 3]",
+    b"[0, 0]",
+    b"[-1, 5]",
+    b"[1.5, 2]",
+    b'"x"',
+    b"'",
+    b'"',
+    b"!!python/object:os.system",
+    b"!!binary AAAA",
+    b"&a",
+    b"*a",
+    b"2024-01-01",
+    b"a,b",
+    b"a;b",
+    b"#",
+    b"control",
+    b"check",
+    b"tie",
+    b"pinhole",
+    b"brown",
+    b"\xff\xfe",
+    b"\x00",
+    b"\xc3\xa9",
+    b"\xe2\x80\xa8",
+    b"\t",
+    b" ",
+    b"\n",
+    b"\r\n",
+    b"\r",
+    b"---",
+    b"...",
+    b"- ",
+    b": ",
+    b"P01",
+    b"IMG_0001",
+    b"cam",
+    b"S1_1",
 ]
 SEPARATORS = [b",", b";", b"\t", b" ", b"\n", b":", b"-", b"[", b"]", b"{", b"}", b'"', b"#", b"\xff"]
 FIELD = re.compile(rb"[^\s,;:\[\]{}\"']+")
@@ -290,10 +346,24 @@ def test_fuzz_read_orthority_lla_rpy(work, data):
 
 
 ORTHO_GEOJSON = [
-    json.dumps({"type": "FeatureCollection", "world_crs": "EPSG:32735", "features": [
-        {"type": "Feature", "properties": {"filename": "a.tif", "camera": "c", "xyz": [1.0, 2.0, 3.0],
-                                           "opk": [0.01, -0.02, 3.1]},
-         "geometry": {"type": "Point", "coordinates": [24.4, -33.6, 3.0]}}]}).encode(),
+    json.dumps(
+        {
+            "type": "FeatureCollection",
+            "world_crs": "EPSG:32735",
+            "features": [
+                {
+                    "type": "Feature",
+                    "properties": {
+                        "filename": "a.tif",
+                        "camera": "c",
+                        "xyz": [1.0, 2.0, 3.0],
+                        "opk": [0.01, -0.02, 3.1],
+                    },
+                    "geometry": {"type": "Point", "coordinates": [24.4, -33.6, 3.0]},
+                }
+            ],
+        }
+    ).encode(),
     *_shared_seed("orthority/io/ngi_ext_param.geojson"),
 ]
 
@@ -314,20 +384,68 @@ def test_fuzz_read_orthority_geojson(work, data):
 
 
 OPENSFM = [
-    json.dumps([{"cameras": {"v2 cam": {"projection_type": "brown", "width": 100, "height": 80,
-                                        "focal_x": 0.7, "focal_y": 0.71, "c_x": 0.01, "c_y": -0.02,
-                                        "k1": -0.1, "k2": 0.01,
-                                        "k3": 0.0, "p1": 0.001, "p2": 0.0}},
-                 "shots": {"a.JPG": {"rotation": [2.6, 0.05, -0.01], "translation": [-74.0, -17.7, 222.6],
-                                     "camera": "v2 cam", "gps_position": [80.0, -119.0, 186.4]},
-                           "b.JPG": {"rotation": [1.9, -2.0, 0.55], "translation": [-71.8, 195.5, 100.9],
-                                     "camera": "v2 cam", "gps_position": [115.3, -73.8, 186.6]}},
-                 "reference_lla": {"latitude": 24.68, "longitude": 120.95, "altitude": 0.0}}]).encode(),
-    json.dumps([{"cameras": {"c": {"projection_type": "perspective", "width": 64, "height": 48, "focal": 0.9,
-                                   "k1": 0.0, "k2": 0.0}},
-                 "shots": {"x": {"rotation": [3.1, 0.0, 0.0], "translation": [0.0, 0.0, 50.0], "camera": "c",
-                                 "gps_position": [0.1, 0.2, 49.9]}},
-                 "reference_lla": {"latitude": -33.6, "longitude": 24.4, "altitude": 10.0}}]).encode(),
+    json.dumps(
+        [
+            {
+                "cameras": {
+                    "v2 cam": {
+                        "projection_type": "brown",
+                        "width": 100,
+                        "height": 80,
+                        "focal_x": 0.7,
+                        "focal_y": 0.71,
+                        "c_x": 0.01,
+                        "c_y": -0.02,
+                        "k1": -0.1,
+                        "k2": 0.01,
+                        "k3": 0.0,
+                        "p1": 0.001,
+                        "p2": 0.0,
+                    }
+                },
+                "shots": {
+                    "a.JPG": {
+                        "rotation": [2.6, 0.05, -0.01],
+                        "translation": [-74.0, -17.7, 222.6],
+                        "camera": "v2 cam",
+                        "gps_position": [80.0, -119.0, 186.4],
+                    },
+                    "b.JPG": {
+                        "rotation": [1.9, -2.0, 0.55],
+                        "translation": [-71.8, 195.5, 100.9],
+                        "camera": "v2 cam",
+                        "gps_position": [115.3, -73.8, 186.6],
+                    },
+                },
+                "reference_lla": {"latitude": 24.68, "longitude": 120.95, "altitude": 0.0},
+            }
+        ]
+    ).encode(),
+    json.dumps(
+        [
+            {
+                "cameras": {
+                    "c": {
+                        "projection_type": "perspective",
+                        "width": 64,
+                        "height": 48,
+                        "focal": 0.9,
+                        "k1": 0.0,
+                        "k2": 0.0,
+                    }
+                },
+                "shots": {
+                    "x": {
+                        "rotation": [3.1, 0.0, 0.0],
+                        "translation": [0.0, 0.0, 50.0],
+                        "camera": "c",
+                        "gps_position": [0.1, 0.2, 49.9],
+                    }
+                },
+                "reference_lla": {"latitude": -33.6, "longitude": 24.4, "altitude": 10.0},
+            }
+        ]
+    ).encode(),
 ]
 
 
@@ -482,8 +600,9 @@ def tif_seeds(tmp_path_factory) -> list[bytes]:
     folder = tmp_path_factory.mktemp("tif")
     z = np.arange(48, dtype=np.float32).reshape(6, 8)
     return [
-        write_geotiff(folder / f"{c}.tif", z, (1, 0, 500, 0, -1, 1000), crs="EPSG:32633", nodata=-9999, compress=c)
-        .read_bytes()
+        write_geotiff(
+            folder / f"{c}.tif", z, (1, 0, 500, 0, -1, 1000), crs="EPSG:32633", nodata=-9999, compress=c
+        ).read_bytes()
         for c in (None, "deflate")
     ]
 
@@ -538,12 +657,29 @@ def test_seeds_are_valid(work, bal_seed, tif_seeds):
 # --- many orientations from one file, point lists ----------------------------------
 
 EXTERIORS_JSON = [
-    json.dumps({"converged": True, "convention": "phi-omega-kappa", "crs": "EPSG:32633",
-                "images": [{"name": "img0", "position": [500000.0, 4000000.0, 300.0], "angles_rad": [0.01, 0.0, 0.1]},
-                           {"name": "img1", "position": [500100.0, 4000000.0, 300.0], "angles_rad": [0.0, 0.02, 0.1]}]
-                }).encode(),
-    json.dumps({"images": {"a.tif": {"status": "solved", "position": [1.0, 2.0, 3.0], "angles_rad": [0.0, 0.0, 0.0],
-                                     "convention": "omega-phi-kappa"}}}).encode(),
+    json.dumps(
+        {
+            "converged": True,
+            "convention": "phi-omega-kappa",
+            "crs": "EPSG:32633",
+            "images": [
+                {"name": "img0", "position": [500000.0, 4000000.0, 300.0], "angles_rad": [0.01, 0.0, 0.1]},
+                {"name": "img1", "position": [500100.0, 4000000.0, 300.0], "angles_rad": [0.0, 0.02, 0.1]},
+            ],
+        }
+    ).encode(),
+    json.dumps(
+        {
+            "images": {
+                "a.tif": {
+                    "status": "solved",
+                    "position": [1.0, 2.0, 3.0],
+                    "angles_rad": [0.0, 0.0, 0.0],
+                    "convention": "omega-phi-kappa",
+                }
+            }
+        }
+    ).encode(),
 ]
 
 
@@ -564,8 +700,10 @@ def test_fuzz_read_exteriors(work, data):
     _expect_valueerror_or_sane(read_exteriors, path, sane)
 
 
-NAMED = [b"name,x,y\nF1,-106.0,-106.0\nF2,106.0,106.0\nF3,-106.0,106.0\n",
-         b"name,col,row\nF1,10.5,20.25\nF2,3000,4000\n"]
+NAMED = [
+    b"name,x,y\nF1,-106.0,-106.0\nF2,106.0,106.0\nF3,-106.0,106.0\n",
+    b"name,col,row\nF1,10.5,20.25\nF2,3000,4000\n",
+]
 
 
 @FUZZ
@@ -581,5 +719,10 @@ def test_fuzz_read_named_points(work, data):
         assert len(names) == len(set(names)) == len(xy) and xy.shape[1:] == (2,)
         _finite(xy)
 
-    _expect_valueerror_or_sane(lambda p: read_named_points(p, ("x", "y"), "fiducial file"), path, sane,
-                               r": (empty fiducial file|no points in the fiducial file|duplicated mark names)$", lines=True)
+    _expect_valueerror_or_sane(
+        lambda p: read_named_points(p, ("x", "y"), "fiducial file"),
+        path,
+        sane,
+        r": (empty fiducial file|no points in the fiducial file|duplicated mark names)$",
+        lines=True,
+    )

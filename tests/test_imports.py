@@ -112,7 +112,14 @@ def test_no_import_cycle():
 # --- private names stay inside their unit ------------------------------------
 
 # Private utility modules other units may import from (each says so in its docstring).
-PRIVATE_UTILITIES = ("photax._aot", "photax._deprecation", "photax._float64", "photax._lazy", "photax._linalg", "photax._triangulation")
+PRIVATE_UTILITIES = (
+    "photax._aot",
+    "photax._deprecation",
+    "photax._float64",
+    "photax._lazy",
+    "photax._linalg",
+    "photax._triangulation",
+)
 
 
 def _unit(module: str) -> str:
@@ -156,8 +163,10 @@ def test_crossing_finder_finds_planted_crossings():
         "photax.cli": ("from photax import _aot\nimport photax.bundle._schur", True),
     }
     assert _private_crossings(src) == [
-        "photax.a: photax.b._x", "photax.a: photax.rectification._tiling.tiles",
-        "photax.cli: photax.bundle._schur", "photax.rectification._dask: photax.resampling._source",
+        "photax.a: photax.b._x",
+        "photax.a: photax.rectification._tiling.tiles",
+        "photax.cli: photax.bundle._schur",
+        "photax.rectification._dask: photax.resampling._source",
     ]
 
 
@@ -175,6 +184,7 @@ def test_every_module_imports(name):
 
 
 # --- start-up: lazy public names ---------------------------------------------
+
 
 @pytest.mark.parametrize("package", ["photax", "photax.io"])
 def test_the_stub_is_the_one_list_of_public_names(package):
@@ -208,8 +218,9 @@ def test_stub_reader_refuses_what_it_cannot_mirror(tmp_path):
     (tmp_path / "__init__.pyi").write_text("from .a import x as y\n")
     with pytest.raises(ValueError, match="line 1"):
         stub_names(tmp_path / "__init__.py")
-    (tmp_path / "__init__.pyi").write_text('"""doc"""\nfrom . import sub as sub\nfrom .a import x as x, z\n'
-                                           "__version__: str\n")
+    (tmp_path / "__init__.pyi").write_text(
+        '"""doc"""\nfrom . import sub as sub\nfrom .a import x as x, z\n__version__: str\n'
+    )
     assert stub_names(tmp_path / "__init__.py") == ({"x": ".a", "z": ".a"}, {"sub"}, True)
 
 
@@ -248,7 +259,13 @@ def test_import_photax_and_help_load_no_heavy_module():
     # see what ``import photax`` and building the CLI parser pull in.
     heavy = ("jax", "numpy", "scipy", "scipy.stats", "rasterio", "matplotlib", "equinox", "optimistix")
     env = {k: v for k, v in os.environ.items() if k != "JAX_ENABLE_X64"}
-    out = subprocess.run([sys.executable, "-c", _PROBE.format(heavy=heavy)], capture_output=True, text=True,
-                         env=env, timeout=120, check=True).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", _PROBE.format(heavy=heavy)],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=120,
+        check=True,
+    ).stdout.split()
     # and 64-bit mode is still on when JAX comes later
     assert out == ["[]", "[]", "True", "float64"], out

@@ -16,7 +16,10 @@ def _two_images():
     ground = np.column_stack([rng.uniform(-100, 100, 12), rng.uniform(-80, 80, 12), rng.uniform(0, 30, 12)])
     ground += np.array([500_000.0, 4_000_000.0, 50.0])
     centre = ground.mean(0)
-    eos = [ptx.look_at(centre + np.array([-60.0, 5.0, 400.0]), centre), ptx.look_at(centre + np.array([70.0, -8.0, 410.0]), centre)]
+    eos = [
+        ptx.look_at(centre + np.array([-60.0, 5.0, 400.0]), centre),
+        ptx.look_at(centre + np.array([70.0, -8.0, 410.0]), centre),
+    ]
     cam = ptx.FrameCamera.from_pixels(2500.0, (3000, 2000))
     xy = np.stack([np.asarray(ptx.project(ground, e, cam)) for e in eos])
     return ground, eos, cam, xy
@@ -81,7 +84,9 @@ def test_refined_points_match_scipy_least_squares():
     assert out.n_rays.tolist() == [2] * 4 + [3] * 8
     assert np.all(out.std > 0) and np.all(out.angle_deg > 10)
     assert out.residual_rms is out.residual_rmse  # the old name still works
-    assert out.result == ptx.RESULTS.successful and out.converged and "tolerance" in out.message  # the refinement's stop
+    assert (
+        out.result == ptx.RESULTS.successful and out.converged and "tolerance" in out.message
+    )  # the refinement's stop
 
 
 def test_list_layout_single_ray_and_narrow_angle():

@@ -24,7 +24,6 @@ from photax.io.gcp import read_gcps
 from photax.io.orthority import read_orthority_crs, read_orthority_exterior, read_orthority_interior
 from photax.io.results import read_json, write_json
 
-
 # --- GCP files ------------------------------------------------------------------
 
 
@@ -162,13 +161,23 @@ def test_camera_mm_file_projects_like_opencv(tmp_path):
     f_px = 8.8 / 0.0044
     K = np.array([[f_px, 0, 2010.0], [0, f_px, 1490.0], [0, 0, 1]])
     # The file's p1 is OpenCV's: passed to OpenCV unchanged.
-    np.testing.assert_allclose(ours, _opencv_pixels(ground, eo, K, np.array([-0.1, 0.02, 0.001, -0.0005, 0.0])), atol=1e-6)
+    np.testing.assert_allclose(
+        ours, _opencv_pixels(ground, eo, K, np.array([-0.1, 0.02, 0.001, -0.0005, 0.0])), atol=1e-6
+    )
 
 
 def test_camera_pixel_shorthand_and_round_trip(tmp_path):
     p = tmp_path / "cam.json"
-    p.write_text(json.dumps({"focal_length_px": 2904.0, "image_size": [4000, 3000],
-                             "principal_point_px": [2001.0, 1502.5], "distortion": [0.01, 0, 0, 1e-4, 0]}))
+    p.write_text(
+        json.dumps(
+            {
+                "focal_length_px": 2904.0,
+                "image_size": [4000, 3000],
+                "principal_point_px": [2001.0, 1502.5],
+                "distortion": [0.01, 0, 0, 1e-4, 0],
+            }
+        )
+    )
     cam = read_camera(p)
     ref = ptx.FrameCamera.from_pixels(2904.0, (4000, 3000), (2001.0, 1502.5), (0.01, 0, 0, 1e-4, 0))
     for a, b in ((cam.principal_point, ref.principal_point), (cam.distortion, ref.distortion)):
@@ -216,8 +225,12 @@ def test_write_json_arrays_nan_and_modules(tmp_path):
     obj = {"a": np.arange(3), "b": np.array([1.5, np.nan]), "eo": eo, "s": np.float64(2.5)}
     out = write_json(obj, tmp_path / "r.json")
     data = json.loads(out.read_text())  # the standard library is the reference reader
-    assert data == {"a": [0, 1, 2], "b": [1.5, None], "s": 2.5,
-                    "eo": {"position": [1.0, 2.0, 3.0], "angles": [0.1, 0.2, 0.3], "convention": "phi-omega-kappa"}}
+    assert data == {
+        "a": [0, 1, 2],
+        "b": [1.5, None],
+        "s": 2.5,
+        "eo": {"position": [1.0, 2.0, 3.0], "angles": [0.1, 0.2, 0.3], "convention": "phi-omega-kappa"},
+    }
     assert read_json(out) == data
 
 
@@ -316,11 +329,19 @@ def test_block_given_a_file_or_missing_folder(tmp_path):
     "text, words",
     [
         # Was silently accepted: a negative or zero pixel size.
-        ("focal_length: 8.8\nunit: mm\npixel_size: -0.0044\nimage_size: [40, 30]\n", "line 3: pixel_size must be positive"),
-        ("focal_length: 8.8\nunit: mm\npixel_size: [0.0044, 0]\nimage_size: [40, 30]\n", "line 3: pixel_size must be positive"),
+        (
+            "focal_length: 8.8\nunit: mm\npixel_size: -0.0044\nimage_size: [40, 30]\n",
+            "line 3: pixel_size must be positive",
+        ),
+        (
+            "focal_length: 8.8\nunit: mm\npixel_size: [0.0044, 0]\nimage_size: [40, 30]\n",
+            "line 3: pixel_size must be positive",
+        ),
         # Was: the second value silently won.
-        ("focal_length: 8.8\nunit: mm\nfocal_length: 88\n",
-         "line 3: not valid YAML: a key given twice \\(first on line 1\\)"),
+        (
+            "focal_length: 8.8\nunit: mm\nfocal_length: 88\n",
+            "line 3: not valid YAML: a key given twice \\(first on line 1\\)",
+        ),
         # Was a TypeError (sorting int and str keys).
         ("focal_length: 8.8\nunit: mm\n1: 2\n", "line 3: unknown key 1"),
         # Was: True read as 1.0.
@@ -365,7 +386,9 @@ def test_gcp_name_reused_for_another_point(tmp_path):
     with pytest.raises(ValueError, match=rf"^{p}, line 5: point 'A' has ground coordinates .* on line 3"):
         read_gcps(p)
     p.write_text("name,image,E,N,h,col,row,role\nA,i1,1,2,3,4,5,control\nA,i2,1,2,3,6,7,check\n")
-    with pytest.raises(ValueError, match=rf"^{p}, line 3: point 'A' is a check point here but a control point on line 2"):
+    with pytest.raises(
+        ValueError, match=rf"^{p}, line 3: point 'A' is a check point here but a control point on line 2"
+    ):
         read_gcps(p)
 
 
@@ -380,7 +403,10 @@ def test_gcp_header_errors_name_the_header_line(tmp_path):
     "text, words",
     [
         ("type: pinhole\nim_size: [400, 300]\nfocal_len: -0.8\n", "line 3: camera None: focal_len must be positive"),
-        ("type: pinhole\nim_size: [400, 300]\nfocal_len: 0.8\nsensor_size: [-1, 1]\n", "line 4: .*sensor_size must be positive"),
+        (
+            "type: pinhole\nim_size: [400, 300]\nfocal_len: 0.8\nsensor_size: [-1, 1]\n",
+            "line 4: .*sensor_size must be positive",
+        ),
         # Was read as [6, 4]: a string iterated character by character.
         ("type: pinhole\nim_size: '64'\nfocal_len: 0.8\n", "line 2: .*im_size must be 2 finite numbers"),
         ("type: pinhole\nim_size: [1e999, 3]\nfocal_len: 0.8\n", "line 2: .*im_size must be 2 finite numbers"),
@@ -404,15 +430,16 @@ def test_orthority_single_unnamed_camera(tmp_path):
     assert list(cams) == [None] and float(cams[None].focal_length) == pytest.approx(320.0)
 
 
-
 def test_read_interior_detects_the_format(tmp_path):
     """photax.io.read_interior gives what the format's own reader gives."""
     ortho1 = tmp_path / "one.yaml"
     ortho1.write_text("type: pinhole\nim_size: [400, 300]\nfocal_len: 0.8\n")
     assert float(ptx.io.read_interior(ortho1).focal_length) == pytest.approx(320.0)
     ortho2 = tmp_path / "two.yaml"
-    ortho2.write_text("a:\n  type: pinhole\n  im_size: [400, 300]\n  focal_len: 0.8\n"
-                      "b:\n  type: pinhole\n  im_size: [400, 300]\n  focal_len: 0.5\n")
+    ortho2.write_text(
+        "a:\n  type: pinhole\n  im_size: [400, 300]\n  focal_len: 0.8\n"
+        "b:\n  type: pinhole\n  im_size: [400, 300]\n  focal_len: 0.5\n"
+    )
     assert ptx.io.read_interior(ortho2, "b") == read_orthority_interior(ortho2)["b"]
     with pytest.raises(ValueError, match=rf"^{ortho2}: holds 2 cameras: name one .*\['a', 'b'\]"):
         ptx.io.read_interior(ortho2)
@@ -425,6 +452,7 @@ def test_read_interior_detects_the_format(tmp_path):
     cam.write_text("focal_length: 8.8\nunit: mm\nfocal_length: 9\n")
     with pytest.raises(ValueError, match=rf"^{cam}, line 3: "):  # the readers' contract: file and line
         ptx.io.read_interior(cam)
+
 
 def test_orthority_exterior_and_crs_errors(tmp_path):
     p = tmp_path / "ext.csv"
@@ -516,17 +544,23 @@ def test_block_round_trip(tmp_path):
 
     a = read_block(ROOT / "data" / "block")
     _same_problem(a, read_block(write_block(a, tmp_path / "b1")))
-    cam = ptx.FrameCamera(24.0, (0.01, -0.02), pixel_size=0.006, image_size=(4000, 3000),
-                          distortion=(1e-4, 0, 0, 0, 0))
+    cam = ptx.FrameCamera(24.0, (0.01, -0.02), pixel_size=0.006, image_size=(4000, 3000), distortion=(1e-4, 0, 0, 0, 0))
     roles = np.array(a.roles)
     seen = np.bincount(a.obs_point, minlength=a.n_points)
     roles[np.flatnonzero((roles == "control") & (seen >= 2))[-1]] = "check"
     pts = a.points.copy()
     pts[np.flatnonzero(roles == "tie")[0]] = np.nan
     xy = np.asarray(a.cameras[0].image_to_pixel(a.obs_xy))  # the same pixels, in a mm camera
-    b = a.replace(cameras=[cam], obs_xy=np.asarray(cam.pixel_to_image(xy)), obs_sigma=0.003, roles=roles,
-                  points=pts, point_sigma=np.where(roles == "control", 0.05, 0.0), free_intrinsics=("f", "k1"),
-                  fixed_exterior=np.arange(a.n_images) == 2)
+    b = a.replace(
+        cameras=[cam],
+        obs_xy=np.asarray(cam.pixel_to_image(xy)),
+        obs_sigma=0.003,
+        roles=roles,
+        points=pts,
+        point_sigma=np.where(roles == "control", 0.05, 0.0),
+        free_intrinsics=("f", "k1"),
+        fixed_exterior=np.arange(a.n_images) == 2,
+    )
     out = write_block(b, tmp_path / "b2", units="mm")
     _same_problem(b, read_block(out))
     assert read_camera(out / "cameras" / "cam.yaml").focal_length == 24.0

@@ -30,22 +30,40 @@ from photax.io.orientation import camera_in_pixels, read_camera_unit
 from photax.io.orthority import read_orthority_exterior_crs, read_orthority_interior
 
 REF = (24.6809, 120.9506, 12.0)  # the ODM test data's area: 2 degrees west of UTM 51's meridian
-BROWN = dict(projection_type="brown", width=1368, height=912, focal_x=0.6664, focal_y=0.6701, c_x=-0.0015,
-             c_y=0.0047, k1=-0.264, k2=0.1019, p1=0.00073, p2=0.00026, k3=-0.0258)
+BROWN = dict(
+    projection_type="brown",
+    width=1368,
+    height=912,
+    focal_x=0.6664,
+    focal_y=0.6701,
+    c_x=-0.0015,
+    c_y=0.0047,
+    k1=-0.264,
+    k2=0.1019,
+    p1=0.00073,
+    p2=0.00026,
+    k3=-0.0258,
+)
 
 
 def _topocentric(lat, lon, h):
     """PROJ's topocentric conversion at REF (independent of photax.io._geo)."""
     t = pyproj.Transformer.from_pipeline(
         "+proj=pipeline +step +proj=unitconvert +xy_in=deg +xy_out=rad +step +proj=cart +ellps=WGS84 "
-        f"+step +proj=topocentric +ellps=WGS84 +lat_0={REF[0]} +lon_0={REF[1]} +h_0={REF[2]}")
+        f"+step +proj=topocentric +ellps=WGS84 +lat_0={REF[0]} +lon_0={REF[1]} +h_0={REF[2]}"
+    )
     return np.stack(t.transform(lon, lat, h), axis=-1)
 
 
 def _k_and_dist(p):
     m = max(p["width"], p["height"])
-    k = np.array([[p["focal_x"] * m, 0, (p["width"] - 1) / 2 + p["c_x"] * m],
-                  [0, p["focal_y"] * m, (p["height"] - 1) / 2 + p["c_y"] * m], [0, 0, 1]])
+    k = np.array(
+        [
+            [p["focal_x"] * m, 0, (p["width"] - 1) / 2 + p["c_x"] * m],
+            [0, p["focal_y"] * m, (p["height"] - 1) / 2 + p["c_y"] * m],
+            [0, 0, 1],
+        ]
+    )
     return k, np.array([p["k1"], p["k2"], p["p1"], p["p2"], p["k3"]])
 
 
@@ -53,10 +71,10 @@ def _k_and_dist(p):
 def synthetic(tmp_path_factory):
     """Three shots over ground points given in latitude/longitude, their pixels by OpenCV."""
     rng = np.random.default_rng(3)
-    ground = np.c_[REF[0] + rng.uniform(-8e-4, 8e-4, 60), REF[1] + rng.uniform(-8e-4, 8e-4, 60),
-                   rng.uniform(20, 60, 60)]
-    cams = [(REF[0] + 5e-4, REF[1] - 6e-4, 160.0), (REF[0] - 4e-4, REF[1] + 3e-4, 150.0),
-            (REF[0], REF[1], 170.0)]
+    ground = np.c_[
+        REF[0] + rng.uniform(-8e-4, 8e-4, 60), REF[1] + rng.uniform(-8e-4, 8e-4, 60), rng.uniform(20, 60, 60)
+    ]
+    cams = [(REF[0] + 5e-4, REF[1] - 6e-4, 160.0), (REF[0] - 4e-4, REF[1] + 3e-4, 150.0), (REF[0], REF[1], 170.0)]
     shots, pixels = {}, {}
     g_topo = _topocentric(*ground.T)
     for j, lla in enumerate(cams):
@@ -70,21 +88,33 @@ def synthetic(tmp_path_factory):
         rvec, t = cv2.Rodrigues(r)[0].ravel(), -r @ c
         k, dist = _k_and_dist(BROWN)
         pixels[f"img{j}"] = cv2.projectPoints(g_topo, rvec, t, k, dist)[0][:, 0]
-        shots[f"img{j}.JPG"] = {"rotation": rvec.tolist(), "translation": t.tolist(), "camera": "v2 cam",
-                                "gps_position": (c + rng.normal(0, 0.05, 3)).tolist()}
-    rec = [{"cameras": {"v2 cam": BROWN}, "shots": shots,
-            "reference_lla": dict(zip(("latitude", "longitude", "altitude"), REF))}]
+        shots[f"img{j}.JPG"] = {
+            "rotation": rvec.tolist(),
+            "translation": t.tolist(),
+            "camera": "v2 cam",
+            "gps_position": (c + rng.normal(0, 0.05, 3)).tolist(),
+        }
+    rec = [
+        {
+            "cameras": {"v2 cam": BROWN},
+            "shots": shots,
+            "reference_lla": dict(zip(("latitude", "longitude", "altitude"), REF)),
+        }
+    ]
     path = tmp_path_factory.mktemp("osfm") / "reconstruction.json"
     path.write_text(json.dumps(rec))
     # A conformal CRS with scale 1 at REF and 0.84 degrees of meridian convergence there.
     crs = f"+proj=lcc +lat_1={REF[0]} +lat_0={REF[0]} +lon_0={REF[1] + 2} +k_0=1 +ellps=WGS84 +units=m"
-    xyz = np.stack(pyproj.Transformer.from_crs("EPSG:4979", crs, always_xy=True).transform(
-        ground[:, 1], ground[:, 0], ground[:, 2]), axis=-1)
+    xyz = np.stack(
+        pyproj.Transformer.from_crs("EPSG:4979", crs, always_xy=True).transform(
+            ground[:, 1], ground[:, 0], ground[:, 2]
+        ),
+        axis=-1,
+    )
     return dict(path=path, crs=crs, ground=xyz, pixels=pixels)
 
 
-PERSPECTIVE = {"projection_type": "perspective", "width": 900, "height": 1200, "focal": 0.81, "k1": -0.12,
-               "k2": 0.03}
+PERSPECTIVE = {"projection_type": "perspective", "width": 900, "height": 1200, "focal": 0.81, "k1": -0.12, "k2": 0.03}
 
 
 @pytest.mark.parametrize("model", ["brown", "perspective"])
@@ -96,8 +126,16 @@ def test_opensfm_camera_projects_as_opencv(synthetic, tmp_path, model):
     path = tmp_path / "rec.json"
     path.write_text(json.dumps(rec))
     camera = read_opensfm_cameras(path)["cam"]
-    full = {"focal_x": params.get("focal"), "focal_y": params.get("focal"), "c_x": 0.0, "c_y": 0.0, "k3": 0.0,
-            "p1": 0.0, "p2": 0.0, **params}
+    full = {
+        "focal_x": params.get("focal"),
+        "focal_y": params.get("focal"),
+        "c_x": 0.0,
+        "c_y": 0.0,
+        "k3": 0.0,
+        "p1": 0.0,
+        "p2": 0.0,
+        **params,
+    }
     k, dist = _k_and_dist(full)
     pts = np.random.default_rng(0).normal(0, 1, (50, 3)) + [0, 0, 4]  # OpenCV camera frame, in front
     ref = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), k, dist)[0][:, 0]
@@ -171,8 +209,7 @@ def test_odm_reconstruction_as_orthority_reads_it():
         camera = read_interior(path)
         for name, e in ext_param.items():
             np.testing.assert_allclose(np.asarray(table[name].position), e["xyz"], rtol=0, atol=1e-6)
-            np.testing.assert_allclose(_rot(table[name]), _orthority_opk_rotation(e["opk"]), rtol=0,
-                                       atol=1e-12)
+            np.testing.assert_allclose(_rot(table[name]), _orthority_opk_rotation(e["opk"]), rtol=0, atol=1e-12)
             ref_cam = create_camera(**int_param[e["camera"]], xyz=e["xyz"], opk=e["opk"])
             ji = np.random.default_rng(0).uniform([0, 0], [1367, 911], (100, 2))
             xyz = ref_cam.pixel_to_world_z(ji.T, 80.0).T
@@ -211,14 +248,52 @@ def test_cli_ortho_of_odm_images_matches_oty_odm(tmp_path):
         pytest.skip("orthority's oty command is not installed")
     out = tmp_path / "oty"
     out.mkdir()
-    subprocess.run([oty, "odm", "-dd", str(odm), "-od", str(out), "-r", "0.4", "-ap", "-i", "bilinear",
-                    "-di", "bilinear", "-cm", "deflate", "-nwm", "-o"], check=True, capture_output=True)
+    subprocess.run(
+        [
+            oty,
+            "odm",
+            "-dd",
+            str(odm),
+            "-od",
+            str(out),
+            "-r",
+            "0.4",
+            "-ap",
+            "-i",
+            "bilinear",
+            "-di",
+            "bilinear",
+            "-cm",
+            "deflate",
+            "-nwm",
+            "-o",
+        ],
+        check=True,
+        capture_output=True,
+    )
     rec = odm / "opensfm" / "reconstruction.json"
     for image in sorted((odm / "images").glob("*.tif")):
         ours = tmp_path / f"{image.stem}.tif"
-        assert main(["ortho", str(image), "--camera", str(rec), "--exterior", str(rec), "--dem",
-                     str(odm / "odm_dem" / "dsm.tif"), "--resolution", "0.4", "--no-progress",
-                     "-o", str(ours)]) == 0
+        assert (
+            main(
+                [
+                    "ortho",
+                    str(image),
+                    "--camera",
+                    str(rec),
+                    "--exterior",
+                    str(rec),
+                    "--dem",
+                    str(odm / "odm_dem" / "dsm.tif"),
+                    "--resolution",
+                    "0.4",
+                    "--no-progress",
+                    "-o",
+                    str(ours),
+                ]
+            )
+            == 0
+        )
         with rasterio.open(ours) as a, rasterio.open(out / f"{image.stem}_ORTHO.tif") as b:
             assert a.crs == b.crs
             win_a, win_b = _common_windows(a, b)
@@ -246,10 +321,20 @@ def test_orthority_brown_and_opencv_interiors_project_as_orthority(tmp_path, kin
     from orthority.camera import create_camera
     from orthority.enums import CameraType
 
-    params = {"im_size": (1368, 912), "focal_len": 0.6664, "cx": -0.0015, "cy": 0.0047, "k1": -0.264,
-              "k2": 0.1019, "p1": 0.00073, "p2": 0.00026, "k3": -0.0258}
-    text = f"drone:\n  type: {kind}\n" + "".join(f"  {k}: {list(v) if isinstance(v, tuple) else v}\n"
-                                                 for k, v in params.items())
+    params = {
+        "im_size": (1368, 912),
+        "focal_len": 0.6664,
+        "cx": -0.0015,
+        "cy": 0.0047,
+        "k1": -0.264,
+        "k2": 0.1019,
+        "p1": 0.00073,
+        "p2": 0.00026,
+        "k3": -0.0258,
+    }
+    text = f"drone:\n  type: {kind}\n" + "".join(
+        f"  {k}: {list(v) if isinstance(v, tuple) else v}\n" for k, v in params.items()
+    )
     path = tmp_path / "int.yaml"
     path.write_text(text + ("  k4: 0.0\n  s1: 0\n" if kind == "opencv" else ""))
     camera = read_interior(path)
@@ -310,8 +395,12 @@ def test_orthority_interior_in_a_block_goes_in_pixels(tmp_path):
     camera = read_interior(path)
     px = camera_in_pixels(camera)
     pts = np.random.default_rng(2).normal(0, 1, (20, 3)) - [0, 0, 3]
-    np.testing.assert_allclose(np.asarray(px.image_to_pixel(px.project(pts))),
-                               np.asarray(camera.image_to_pixel(camera.project(pts))), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(px.image_to_pixel(px.project(pts))),
+        np.asarray(camera.image_to_pixel(camera.project(pts))),
+        rtol=0,
+        atol=1e-9,
+    )
     assert read_camera_unit(shared_file("orthority/odm/opensfm/reconstruction.json")) == "px"
 
 
@@ -325,15 +414,35 @@ def test_cli_ties_with_an_orthority_interior(tmp_path):
     interior = shared_file("orthority/io/ngi_int_param.yaml")
     images = [str(ngi / f"3324c_2015_1004_05_018{k}_RGB.tif") for k in (2, 4)]
     out = tmp_path / "block"
-    assert main(["ties", *images, "--camera", str(interior), "--exterior",
-                 str(shared_file("orthority/io/ngi_xyz_opk.csv")), "--dem", str(ngi / "dem.tif"),
-                 "--points", "50", "-o", str(out)]) == 0
+    assert (
+        main(
+            [
+                "ties",
+                *images,
+                "--camera",
+                str(interior),
+                "--exterior",
+                str(shared_file("orthority/io/ngi_xyz_opk.csv")),
+                "--dem",
+                str(ngi / "dem.tif"),
+                "--points",
+                "50",
+                "-o",
+                str(out),
+            ]
+        )
+        == 0
+    )
     problem = read_block(out)
     camera, block_camera = read_interior(interior), problem.cameras[0]
     assert block_camera.image_size == camera.image_size == (640, 1152)
     pts = np.random.default_rng(4).normal(0, 1, (20, 3)) - [0, 0, 3]
-    np.testing.assert_allclose(np.asarray(block_camera.image_to_pixel(block_camera.project(pts))),
-                               np.asarray(camera.image_to_pixel(camera.project(pts))), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(block_camera.image_to_pixel(block_camera.project(pts))),
+        np.asarray(camera.image_to_pixel(camera.project(pts))),
+        rtol=0,
+        atol=1e-9,
+    )
 
 
 def test_oty_exported_params_read_as_the_reconstruction(tmp_path):
@@ -344,13 +453,15 @@ def test_oty_exported_params_read_as_the_reconstruction(tmp_path):
     oty = shutil.which("oty", path=str(pathlib.Path(sys.executable).parent)) or shutil.which("oty")
     if oty is None:
         pytest.skip("orthority's oty command is not installed")
-    subprocess.run([oty, "odm", "-dd", str(odm), "-od", str(tmp_path), "--export-params"], check=True,
-                   capture_output=True)
+    subprocess.run(
+        [oty, "odm", "-dd", str(odm), "-od", str(tmp_path), "--export-params"], check=True, capture_output=True
+    )
     rec = odm / "opensfm" / "reconstruction.json"
     a, b = read_interior(tmp_path / "int_param.yaml"), read_interior(rec)
     pts = np.random.default_rng(5).normal(0, 1, (50, 3)) - [0, 0, 3]
-    np.testing.assert_allclose(np.asarray(a.image_to_pixel(a.project(pts))),
-                               np.asarray(b.image_to_pixel(b.project(pts))), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(a.image_to_pixel(a.project(pts))), np.asarray(b.image_to_pixel(b.project(pts))), rtol=0, atol=1e-9
+    )
     (ta, crs_a), (tb, crs_b) = read_exteriors(tmp_path / "ext_param.geojson"), read_exteriors(rec)
     assert set(ta) == set(tb) and pyproj.CRS(crs_a) == pyproj.CRS(crs_b)
     for name in tb:
@@ -368,7 +479,8 @@ def test_cli_resect_takes_an_orthority_interior(tmp_path):
     m, size = 1000, 0.0176  # max(width, height) and the pixel size, mm
     (tmp_path / "int.yaml").write_text(
         "sample:\n  type: brown\n  im_size: [1000, 750]\n  focal_len: 8.8\n  sensor_size: [17.6, 13.2]\n"
-        f"  cx: {0.011 / (m * size)!r}\n  cy: {0.0066 / (m * size)!r}\n  k1: -0.02\n  k2: 0.004\n")
+        f"  cx: {0.011 / (m * size)!r}\n  cy: {0.0066 / (m * size)!r}\n  k1: -0.02\n  k2: 0.004\n"
+    )
     results = []
     for camera in (data / "sample_camera.yaml", tmp_path / "int.yaml"):
         out = tmp_path / f"{camera.stem}.json"
@@ -391,11 +503,9 @@ def test_odm_reconstruction_into_another_crs():
     to_ll = pyproj.Transformer.from_crs("EPSG:32651", "EPSG:4326", always_xy=True)
     for name, eo in utm.items():
         x, y, z = np.asarray(eo.position)
-        np.testing.assert_allclose(np.asarray(tm2[name].position), [*to_tm2.transform(x, y), z], rtol=0,
-                                   atol=1e-6)
+        np.testing.assert_allclose(np.asarray(tm2[name].position), [*to_tm2.transform(x, y), z], rtol=0, atol=1e-6)
         lon, lat = to_ll.transform(x, y)
-        gamma = [pyproj.Proj(c).get_factors(lon, lat).meridian_convergence
-                 for c in ("EPSG:32651", "EPSG:3826")]
+        gamma = [pyproj.Proj(c).get_factors(lon, lat).meridian_convergence for c in ("EPSG:32651", "EPSG:3826")]
         turn = _rot(tm2[name]) @ _rot(eo).T
         np.testing.assert_allclose(turn[2], [0, 0, 1], atol=1e-12)
         angle = np.degrees(np.arctan2(turn[1, 0], turn[0, 0]))

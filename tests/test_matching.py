@@ -21,8 +21,8 @@ import pytest
 import photax
 from photax.collinearity import stack_exteriors
 from photax.io import read_gcps
-from photax.scene import render_image
 from photax.matching import bundle_problem, match_ties, monoplot_pixels, project_pixels, transfer_points
+from photax.scene import render_image
 
 X0, Y0 = 500_000.0, 4_000_000.0
 W, H = 300, 200
@@ -49,23 +49,37 @@ def block():
     dem = _dem()
     base, side = 0.4 * W * GSD, 0.7 * H * GSD  # 60 % forward, 30 % side overlap
     rng = np.random.default_rng(3)
-    truth = [photax.ExteriorOrientation([X0 + (c - 1) * base, Y0 + (1 - r) * side, FLY + rng.uniform(-3, 3)],
-                                        np.radians(rng.uniform(-1, 1, 3))) for r in range(3) for c in range(3)]
+    truth = [
+        photax.ExteriorOrientation(
+            [X0 + (c - 1) * base, Y0 + (1 - r) * side, FLY + rng.uniform(-3, 3)], np.radians(rng.uniform(-1, 1, 3))
+        )
+        for r in range(3)
+        for c in range(3)
+    ]
     gx = X0 + np.array([-1.0, 0.1, 1.0, -0.9, 0.0, 1.1]) * base
     gy = Y0 + np.array([0.6, 0.5, 0.65, -0.6, -0.55, -0.5]) * side
     gcp = np.column_stack([gx, gy, np.asarray(dem.height(jnp.asarray(gx), jnp.asarray(gy)))])
-    images = [render_image(CAM, e, dem, origin=(X0, Y0), targets=gcp, target_radius=5.0, supersample=3, blur=0.5,
-                           noise=0.005, seed=k) for k, e in enumerate(truth)]
-    start = [photax.ExteriorOrientation(np.asarray(e.position) + 5.0 * _unit(rng.normal(size=3)),
-                                        np.asarray(e.angles) + np.radians(1.0) * _unit(rng.normal(size=3)))
-             for e in truth]
+    images = [
+        render_image(
+            CAM, e, dem, origin=(X0, Y0), targets=gcp, target_radius=5.0, supersample=3, blur=0.5, noise=0.005, seed=k
+        )
+        for k, e in enumerate(truth)
+    ]
+    start = [
+        photax.ExteriorOrientation(
+            np.asarray(e.position) + 5.0 * _unit(rng.normal(size=3)),
+            np.asarray(e.angles) + np.radians(1.0) * _unit(rng.normal(size=3)),
+        )
+        for e in truth
+    ]
     # the target as drawn on a survey sheet: a quartered disc of 5 m, at the GSD, north up
     k = np.arange(-10, 11) * GSD
     xx, yy = np.meshgrid(k, -k)
     template = np.where(np.hypot(xx, yy) < 5.0, 0.5 + 0.45 * np.tanh(xx / 0.4) * np.tanh(yy / 0.4), 0.5)
     roles = ["control"] * 4 + ["check"] * 2
-    transfer = transfer_points(images, CAM, start, dem, gcp, target_template=template, roles=roles, search=SEARCH,
-                               crs="EPSG:32633")
+    transfer = transfer_points(
+        images, CAM, start, dem, gcp, target_template=template, roles=roles, search=SEARCH, crs="EPSG:32633"
+    )
     ties = match_ties(images, CAM, start, dem, search=SEARCH)
     return dem, truth, start, images, gcp, transfer, ties
 
@@ -98,8 +112,13 @@ def test_bundle_recovers_the_rendering_orientations(block):
     res = photax.bundle_adjust(problem)
     assert res.converged, res.message
     eo = stack_exteriors(truth)
-    d = np.concatenate([np.asarray(res.exterior.position) - np.asarray(eo.position),
-                        np.asarray(res.exterior.angles) - np.asarray(eo.angles)], axis=1)
+    d = np.concatenate(
+        [
+            np.asarray(res.exterior.position) - np.asarray(eo.position),
+            np.asarray(res.exterior.angles) - np.asarray(eo.angles),
+        ],
+        axis=1,
+    )
     assert np.all(np.abs(d) <= 3 * res.exterior_std), np.round(np.abs(d) / res.exterior_std, 1)
     # check points: RMSE per coordinate against GSD x their image-measurement sigma (a posteriori)
     check = transfer.table.role == "check"
@@ -125,8 +144,7 @@ def test_bad_input_gets_a_status(block):
     dem, _, start, images, gcp, _, _ = block
     # a textureless image and an orientation 10 km away that sees nothing of the DEM
     far = photax.ExteriorOrientation(np.asarray(start[1].position) + [10_000.0, 0.0, 0.0], start[1].angles)
-    ties = match_ties([images[0], np.full((H, W), 0.4), images[1]], CAM, [start[0], start[4], far], dem,
-                      search=SEARCH)
+    ties = match_ties([images[0], np.full((H, W), 0.4), images[1]], CAM, [start[0], start[4], far], dem, search=SEARCH)
     assert block[6].pair_status[0, 8] == "no overlap"  # the block's opposite corners
     assert ties.image_status == ["ok", "textureless", "sees no DEM"]
     assert ties.pair_status[0, 1] == "textureless" and ties.pair_status[0, 2] == "sees no DEM"
@@ -136,8 +154,16 @@ def test_bad_input_gets_a_status(block):
     # a GCP measured in image 4 (the library's measurement) transferred into a textureless image and image 3
     t = block[5].table
     row = np.flatnonzero((t.images == "4") & (t.names == "gcp5"))[0]
-    tr = transfer_points([images[4], np.full((H, W), 0.4), images[3]], CAM, [start[4], start[4], start[3]], dem,
-                         gcp[4:5], reference_image=[0], reference_xy=t.pixel[row:row + 1], search=SEARCH)
+    tr = transfer_points(
+        [images[4], np.full((H, W), 0.4), images[3]],
+        CAM,
+        [start[4], start[4], start[3]],
+        dem,
+        gcp[4:5],
+        reference_image=[0],
+        reference_xy=t.pixel[row : row + 1],
+        search=SEARCH,
+    )
     assert [it["status"] for it in tr.items] == ["reference", "low correlation", "ok"], tr.items
     with pytest.raises(ValueError, match="exterior"):
         match_ties(images[:2], CAM, start[:1], dem)
@@ -164,13 +190,27 @@ def test_cli_transfer_and_ties(block, tmp_path):
         orient[f"img{k}"] = {"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention}}
     photax.write_json({"images": orient}, tmp_path / "ext.json")
     photax.write_camera(CAM, tmp_path / "cam.yaml")
-    write_geotiff(tmp_path / "dem.tif", np.asarray(dem.heights), np.asarray(dem.transform).tolist(), crs="EPSG:32633", compress=None)
+    write_geotiff(
+        tmp_path / "dem.tif",
+        np.asarray(dem.heights),
+        np.asarray(dem.transform).tolist(),
+        crs="EPSG:32633",
+        compress=None,
+    )
     # the GCPs the library measured in image 4 (renamed to its file) are transferred to the others
     t = transfer.table.subset(transfer.table.images == "4")
     assert len(t) >= 3
     photax.io.write_gcps(tmp_path / "in.csv", dataclasses.replace(t, images=np.full(len(t), "img4")))
-    common = ["--camera", str(tmp_path / "cam.yaml"), "--exterior", str(tmp_path / "ext.json"),
-              "--dem", str(tmp_path / "dem.tif"), "--search", str(SEARCH)]
+    common = [
+        "--camera",
+        str(tmp_path / "cam.yaml"),
+        "--exterior",
+        str(tmp_path / "ext.json"),
+        "--dem",
+        str(tmp_path / "dem.tif"),
+        "--search",
+        str(SEARCH),
+    ]
     assert main(["transfer", *paths, *common, "--gcps", str(tmp_path / "in.csv"), "-o", str(tmp_path / "out.csv")]) == 0
     out = read_gcps(tmp_path / "out.csv")
     assert set(out.names.tolist()) == set(t.names.tolist()) and len(out) > len(t)
@@ -180,8 +220,22 @@ def test_cli_transfer_and_ties(block, tmp_path):
     k = np.array([int(s[3:]) for s in out.images])
     p = np.array([int(n[3:]) - 1 for n in out.names])
     assert np.sqrt(np.mean((out.pixel - true_px[k, p]) ** 2)) <= 0.15
-    assert main(["ties", *paths, *common, "--points", "50", "--gcps", str(tmp_path / "out.csv"), "-o",
-                 str(tmp_path / "blk")]) == 0
+    assert (
+        main(
+            [
+                "ties",
+                *paths,
+                *common,
+                "--points",
+                "50",
+                "--gcps",
+                str(tmp_path / "out.csv"),
+                "-o",
+                str(tmp_path / "blk"),
+            ]
+        )
+        == 0
+    )
     prob = photax.io.read_block(tmp_path / "blk")  # a block folder: the GCPs stay control points
     assert prob.n_images == 3 and prob.n_observations >= 100 and prob.image_names == ("img3", "img4", "img5")
     ctrl = {n for n, r in zip(prob.point_names, prob.roles) if r != "tie"}

@@ -84,8 +84,9 @@ def _render_targets(camera, exterior, ground, radius, shape, rng, blur=0.7, nois
         cc, rr = np.round(c[:2] / c[2]).astype(int)
         pat = patterns.projected_disc(h, radius)
         c0, r0 = cc - half, rr - half
-        img[r0:r0 + 2 * half + 1, c0:c0 + 2 * half + 1] = patterns.render(
-            lambda x, y, pat=pat, c0=c0, r0=r0: pat(x + c0, y + r0), (2 * half + 1, 2 * half + 1))
+        img[r0 : r0 + 2 * half + 1, c0 : c0 + 2 * half + 1] = patterns.render(
+            lambda x, y, pat=pat, c0=c0, r0=r0: pat(x + c0, y + r0), (2 * half + 1, 2 * half + 1)
+        )
     img = patterns._finish(img, blur, 0.0, 0.0, 1.0, None)
     return img + rng.normal(0.0, noise, img.shape), hs
 
@@ -98,8 +99,7 @@ def test_measured_targets_feed_resect():
     # ground points under a 4 x 3 pixel grid (30 px from the border), heights +-3 m
     pc, pr = np.meshgrid(np.linspace(30, 289, 4), np.linspace(30, 209, 3))
     px = np.stack([pc.ravel(), pr.ravel()], 1) + rng.uniform(-5, 5, (12, 2))
-    ground = np.asarray(ptx.image_to_ground(CAMERA.pixel_to_image(px), EXTERIOR, CAMERA,
-                                            height=rng.uniform(-3, 3, 12)))
+    ground = np.asarray(ptx.image_to_ground(CAMERA.pixel_to_image(px), EXTERIOR, CAMERA, height=rng.uniform(-3, 3, 12)))
     radius = 0.7  # m: ~5.6 px at ~100 m with 8 mm / 10 um
     image, hs = _render_targets(CAMERA, EXTERIOR, ground, radius, (240, 320), rng)
     truth = _pixels(ground)

@@ -44,6 +44,7 @@ def f1(a, b):
 
 # ------------------------------------------------------------------ edges
 
+
 @pytest.mark.parametrize("name", ["sobel", "prewitt", "roberts", "laplace"])
 def test_edge_filters_match_skimage(name):
     im = smooth_random(33, 41)
@@ -72,8 +73,11 @@ def test_canny_matches_skimage_for_uint8_uint16_float():
     base = render(64, 72, lambda x, y: ((x - 30.4) ** 2 + (y - 33.1) ** 2 < 18.2**2) | ((x > 50.3) & (y < 20.7)))
     base = ndi.gaussian_filter(base, 0.7) + 0.02 * RNG.standard_normal(base.shape)
     base = (base - base.min()) / (base.max() - base.min())
-    images = {"float64": base, "uint8": np.round(base * 255).astype(np.uint8),
-              "uint16": np.round(base * 65535).astype(np.uint16)}
+    images = {
+        "float64": base,
+        "uint8": np.round(base * 255).astype(np.uint8),
+        "uint16": np.round(base * 65535).astype(np.uint16),
+    }
     for name, im in images.items():
         ours = np.asarray(M.canny(im, 1.2))
         ref = feature.canny(im, 1.2)  # both default to 0.1 / 0.2 of the (full) range here
@@ -137,6 +141,7 @@ def test_bad_input_is_a_clear_error_and_constant_images_give_no_nan():
 
 # ------------------------------------------------------------------ Hough
 
+
 def test_hough_lines_angle_and_offset_below_the_bin():
     # synthetic edge image: a one-pixel-wide line, area-sampled (weights = coverage)
     h = w = 96
@@ -189,17 +194,20 @@ def test_hough_circles_centres_within_a_fifth_of_a_pixel():
 
 # -------------------------------------------------------- interest operators
 
+
 def test_harris_foerstner_moravec_match_skimage():
     im = smooth_random(31, 37, seed=4)
     np.testing.assert_allclose(np.asarray(M.harris(im)), feature.corner_harris(im), atol=1e-6, rtol=0)
-    np.testing.assert_allclose(np.asarray(M.harris(im, method="eps")), feature.corner_harris(im, method="eps"),
-                               atol=1e-6, rtol=0)
+    np.testing.assert_allclose(
+        np.asarray(M.harris(im, method="eps")), feature.corner_harris(im, method="eps"), atol=1e-6, rtol=0
+    )
     w, q = M.foerstner(im, sigma=1.5)
     w_ref, q_ref = feature.corner_foerstner(im, sigma=1.5)
     np.testing.assert_allclose(np.asarray(w), w_ref, atol=1e-6, rtol=0)
     np.testing.assert_allclose(np.asarray(q), q_ref, atol=1e-6, rtol=0)
-    np.testing.assert_allclose(np.asarray(M.moravec(im, 3, method="shift")), feature.corner_moravec(im, 1),
-                               atol=1e-6, rtol=0)
+    np.testing.assert_allclose(
+        np.asarray(M.moravec(im, 3, method="shift")), feature.corner_moravec(im, 1), atol=1e-6, rtol=0
+    )
 
 
 def test_seed_forms_of_moravec_and_foerstner_against_loops():

@@ -17,8 +17,9 @@ RADIUS = 6.0
 
 
 def _disc_image(centre=(30.3, 29.6), shape=(60, 60), noise=0.01, seed=0):
-    return R.render(R.disc(centre, RADIUS), shape, blur=0.7, noise=noise, low=20.0, high=220.0,
-                    rng=np.random.default_rng(seed))
+    return R.render(
+        R.disc(centre, RADIUS), shape, blur=0.7, noise=noise, low=20.0, high=220.0, rng=np.random.default_rng(seed)
+    )
 
 
 def _noise_texture(shape=(60, 60), seed=1):
@@ -64,8 +65,11 @@ def test_disc_image_is_not_quartered_and_auto_takes_the_ellipse():
 
 def test_outside():
     img = _disc_image()
-    for res in (locate_targets(img, [[3.0, 30.0]], RADIUS), locate_corners(img, [[58.0, 3.0]]),
-                locate_targets(img, [[3.0, 30.0]], RADIUS, method="quartered")):
+    for res in (
+        locate_targets(img, [[3.0, 30.0]], RADIUS),
+        locate_corners(img, [[58.0, 3.0]]),
+        locate_targets(img, [[3.0, 30.0]], RADIUS, method="quartered"),
+    ):
         assert int(res.status[0]) == Status.OUTSIDE
 
 
@@ -126,8 +130,20 @@ def test_cli_readme_example(tmp_path, capsys):
     from photax.io import read_gcps
 
     out, gcps = tmp_path / "measured.csv", tmp_path / "gcps.csv"
-    code = main(["measure", str(DATA / "sample_image.tif"), "--targets", str(DATA / "sample_gcps.csv"),
-                 "--radius", "6", "-o", str(out), "--gcp-out", str(gcps)])
+    code = main(
+        [
+            "measure",
+            str(DATA / "sample_image.tif"),
+            "--targets",
+            str(DATA / "sample_gcps.csv"),
+            "--radius",
+            "6",
+            "-o",
+            str(out),
+            "--gcp-out",
+            str(gcps),
+        ]
+    )
     text = capsys.readouterr().out
     assert code == 1 and "15 ok, 1 no target found" in text and "no texture" not in text
     assert len(read_gcps(gcps).names) == 15

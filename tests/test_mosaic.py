@@ -4,11 +4,11 @@ differently in each ortho -- against rasterio.merge (first wins), the
 reference users have (rasterio #1428)."""
 
 import numpy as np
-import xarray as xr
 import pytest
-from conftest import needs
 import rasterio
 import rasterio.merge
+import xarray as xr
+from conftest import needs
 
 from photax.rectification import Grid
 from photax.scene import texture
@@ -159,19 +159,29 @@ def test_order_independent_and_bad_input(scene):
         mosaic([a, b.rio.write_crs("EPSG:32634")])
     far = _render(0, 50, 0.0, 1.0, 0, [])
     far = far.assign_coords(x=far.x + 9_999.0).rio.write_transform(
-        far.rio.transform() * rasterio.Affine.translation(9_999 / RES, 0))
+        far.rio.transform() * rasterio.Affine.translation(9_999 / RES, 0)
+    )
     with pytest.raises(ValueError, match="overlaps no other"):
         mosaic([a, far])
     # Other bad input, each a ValueError naming what is wrong (no ortho is computed for these).
-    half = dataarray(a.values[::2, ::2], Grid((2 * RES, 0, X0, 0, -2 * RES, Y1), (60, 65), crs="EPSG:32633"),
-                      np.asarray(np.nan, dtype=np.float32), "o")
+    half = dataarray(
+        a.values[::2, ::2],
+        Grid((2 * RES, 0, X0, 0, -2 * RES, Y1), (60, 65), crs="EPSG:32633"),
+        np.asarray(np.nan, dtype=np.float32),
+        "o",
+    )
     off = b.assign_coords(x=b.x + RES / 2).rio.write_transform(b.rio.transform() * rasterio.Affine.translation(0.5, 0))
     for orthos, kwargs, match in (
-        ([], {}, "at least one"), ([a, half], {}, "pixel size"), ([a, off], {}, "pixel lattice"),
-        ([a, a.expand_dims(band=3)], {}, "one number of bands"), ([a, a.values], {}, "georeferenced"),
+        ([], {}, "at least one"),
+        ([a, half], {}, "pixel size"),
+        ([a, off], {}, "pixel lattice"),
+        ([a, a.expand_dims(band=3)], {}, "one number of bands"),
+        ([a, a.values], {}, "georeferenced"),
         ([a.expand_dims(band=2).expand_dims(t=1), b], {}, "must be"),
-        ([a, "missing.tif"], {}, "missing.tif"), ([a, b], {"method": "median"}, "method"),
-        ([a, b], {"seam_scale": 0}, "seam_scale"), ([a, b], {"feather": -1}, "feather"),
+        ([a, "missing.tif"], {}, "missing.tif"),
+        ([a, b], {"method": "median"}, "method"),
+        ([a, b], {"seam_scale": 0}, "seam_scale"),
+        ([a, b], {"feather": -1}, "feather"),
         ([a, b], {"dsm": dsm[:, :100]}, "dsm must be on the mosaic grid"),
     ):
         with pytest.raises(ValueError, match=match):

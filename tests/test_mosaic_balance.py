@@ -22,9 +22,7 @@ def _moments(n, count, rng, noise=0.0):
     extra pairs, each image with independent noise of variance ``noise``; the true gains and offsets."""
     g = rng.uniform(0.6, 1.5, n)
     o = rng.uniform(-40, 40, n)
-    pairs = {(i, i + 1) for i in range(n - 1)} | {
-        tuple(sorted(rng.choice(n, 2, replace=False))) for _ in range(n)
-    }
+    pairs = {(i, i + 1) for i in range(n - 1)} | {tuple(sorted(rng.choice(n, 2, replace=False))) for _ in range(n)}
     out = {}
     for i, j in sorted(pairs):
         mt, vt = (
@@ -60,13 +58,9 @@ def test_known_gains_and_offsets_recovered_at_any_overlap_size(n, count):
     gains, offsets = _balance(n, moments)
     np.testing.assert_allclose(gains, g / g.mean(), rtol=2e-3)
     np.testing.assert_allclose(offsets, (o - o.mean()) / g.mean(), atol=0.5)
-    exact, _ = _balance(
-        n, _moments(n, count, np.random.default_rng(n * 1000 + count % 997))[0]
-    )
+    exact, _ = _balance(n, _moments(n, count, np.random.default_rng(n * 1000 + count % 997))[0])
     np.testing.assert_allclose(exact, g / g.mean(), rtol=1e-8)  # without noise: exact
-    assert gains.mean() == pytest.approx(1.0) and offsets.mean() == pytest.approx(
-        0.0, abs=1e-9
-    )
+    assert gains.mean() == pytest.approx(1.0) and offsets.mean() == pytest.approx(0.0, abs=1e-9)
 
 
 def test_unequal_overlap_sizes_and_noise():
@@ -104,9 +98,7 @@ def test_undetermined_gain_is_refused():
         2.5e9,
         5e9,
     ]  # a: mean 100, variance 1000; b == 50
-    with pytest.raises(
-        ValueError, match="do not determine the gain of ortho 2: it is constant"
-    ):
+    with pytest.raises(ValueError, match="do not determine the gain of ortho 2: it is constant"):
         _balance(3, moments)
 
 
@@ -173,12 +165,7 @@ def test_cli_refuses_an_empty_ortho_and_orthos_that_do_not_overlap(tmp_path, cap
         (("a", "empty"), r"orthos\[1\] \(.*empty\.tif\) has no valid pixel"),
         (("a", "b", "far"), r"orthos\[2\] \(.*far\.tif\) overlaps no other ortho"),
     ):
-        assert (
-            main(
-                ["mosaic", *(paths[n] for n in names), "-o", str(out), "--no-progress"]
-            )
-            == 2
-        )
+        assert main(["mosaic", *(paths[n] for n in names), "-o", str(out), "--no-progress"]) == 2
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1 and re.search(match, err), err
         assert not out.exists()

@@ -13,8 +13,8 @@ import re
 
 import numpy as np
 import pytest
-from conftest import needs
 import rasterio
+from conftest import needs
 
 import photax
 from photax.io import write_geotiff
@@ -52,17 +52,27 @@ def block(tmp_path_factory):
     dem_t = (cell, 0.0, X0 - 400, 0.0, -cell, Y0 + 400)
     write_geotiff(d / "dem.tif", heights, dem_t, crs="EPSG:32633")
     base = 0.4 * W * GSD
-    ext = [photax.ExteriorOrientation([X0 + (k - 1) * base, Y0, 300.0], np.radians([0.5, -0.4, 0.3 * k]))
-           for k in range(3)]
+    ext = [
+        photax.ExteriorOrientation([X0 + (k - 1) * base, Y0, 300.0], np.radians([0.5, -0.4, 0.3 * k])) for k in range(3)
+    ]
     (d / "images").mkdir()
     for k, e in enumerate(ext):
         img = _render(e)
         write_geotiff(d / "images" / f"img{k}.tif", (img * (1.1 if k == 1 else 1.0)).astype(np.float32), None)
     write_camera(CAM, d / "camera.yaml")
     # What photax bundle --json writes (BundleResult.to_dict): images [{name, position, angles_rad}], convention.
-    result = {"converged": True, "convention": ext[0].convention,
-              "images": [{"name": f"img{k}", "position": np.asarray(e.position).tolist(),
-                          "angles_rad": np.asarray(e.angles).tolist()} for k, e in enumerate(ext)]}
+    result = {
+        "converged": True,
+        "convention": ext[0].convention,
+        "images": [
+            {
+                "name": f"img{k}",
+                "position": np.asarray(e.position).tolist(),
+                "angles_rad": np.asarray(e.angles).tolist(),
+            }
+            for k, e in enumerate(ext)
+        ],
+    }
     (d / "bundle.json").write_text(json.dumps(result))
     return d
 
@@ -81,8 +91,21 @@ def test_block_to_mosaic_end_to_end(block, tmp_path, capsys):
     from photax.cli import main
 
     out = tmp_path / "mosaic.tif"
-    args = ["mosaic", "--block", str(block / "bundle.json"), "--images", str(block / "images"),
-            "--camera", str(block / "camera.yaml"), "--dem", str(block / "dem.tif"), "-o", str(out), "--chunks", "64"]
+    args = [
+        "mosaic",
+        "--block",
+        str(block / "bundle.json"),
+        "--images",
+        str(block / "images"),
+        "--camera",
+        str(block / "camera.yaml"),
+        "--dem",
+        str(block / "dem.tif"),
+        "-o",
+        str(out),
+        "--chunks",
+        "64",
+    ]
     assert main(args) == 0
     cap = capsys.readouterr()
     assert "3 orthos" in cap.out
@@ -107,8 +130,17 @@ def test_block_to_mosaic_end_to_end(block, tmp_path, capsys):
 def test_block_bad_input(block, tmp_path, capsys):
     from photax.cli import main
 
-    base = ["mosaic", "--images", str(block / "images"), "--camera", str(block / "camera.yaml"),
-            "--dem", str(block / "dem.tif"), "-o", str(tmp_path / "m.tif")]
+    base = [
+        "mosaic",
+        "--images",
+        str(block / "images"),
+        "--camera",
+        str(block / "camera.yaml"),
+        "--dem",
+        str(block / "dem.tif"),
+        "-o",
+        str(tmp_path / "m.tif"),
+    ]
     assert main(["mosaic", "--block", str(block / "bundle.json"), "-o", str(tmp_path / "m.tif")]) == 2
     assert "--block needs --images" in capsys.readouterr().err
     bad = json.loads((block / "bundle.json").read_text())
@@ -168,7 +200,9 @@ def test_block_library_calls(block, tmp_path, monkeypatch):
 
     grid = mosaic_grid(paths)
     assert grid.transform.a == t0.a and grid.crs == rasterio.CRS.from_epsg(32634)
-    h = heights_on_grid(block / "dem.tif", photax.Grid(grid.transform, grid.shape, dem_file.crs))  # the coordinates' CRS
+    h = heights_on_grid(
+        block / "dem.tif", photax.Grid(grid.transform, grid.shape, dem_file.crs)
+    )  # the coordinates' CRS
     xy = grid.xy()
     plane = 20 + 0.03 * (xy[..., 0] - X0) - 0.02 * (xy[..., 1] - Y0)
     ok = np.isfinite(h)

@@ -94,12 +94,7 @@ def test_ngi_mosaic_is_balanced_and_equals_the_orthos_away_from_seams(orthos):
                 for b in range(3):
                     a, c = stack[i][b][both], stack[j][b][both]
                     raw.append(abs(a.mean() - c.mean()))
-                    bal.append(
-                        abs(
-                            (g[i, b] * a + o[i, b]).mean()
-                            - (g[j, b] * c + o[j, b]).mean()
-                        )
-                    )
+                    bal.append(abs((g[i, b] * a + o[i, b]).mean() - (g[j, b] * c + o[j, b]).mean()))
     assert max(raw) > 30 and max(bal) < min(5, max(raw) / 10), (raw, bal)
     # Away from the seams (feather + a seam cell from any label change), each pixel is its source ortho,
     # balanced: g v + o to float32 rounding.  rasterio.merge shows the first ortho there instead, raw: where
@@ -110,9 +105,7 @@ def test_ngi_mosaic_is_balanced_and_equals_the_orthos_away_from_seams(orthos):
     from scipy import ndimage
 
     s, feather = info["seam_scale"], 8
-    first = np.argmax(
-        np.all(np.isfinite(stack), axis=1), axis=0
-    )  # merge's source (first wins)
+    first = np.argmax(np.all(np.isfinite(stack), axis=1), axis=0)  # merge's source (first wins)
     checked = 0
     for k in range(4):
         inner = ndimage.binary_erosion(src == k, iterations=feather + s)
@@ -123,8 +116,7 @@ def test_ngi_mosaic_is_balanced_and_equals_the_orthos_away_from_seams(orthos):
             m[:, same],
             merged[:, same],
             rtol=0,
-            atol=np.max(np.abs((g[k] - 1)[:, None] * merged[:, same] + o[k][:, None]))
-            + 1e-3,
+            atol=np.max(np.abs((g[k] - 1)[:, None] * merged[:, same] + o[k][:, None])) + 1e-3,
         )
         checked += inner.sum()
     assert checked > 0.7 * valid.sum()
@@ -172,6 +164,4 @@ def test_ngi_cli_mosaic_writes_seamlines_and_source_index(orthos, tmp_path, caps
     ok = np.isfinite(ref)
     assert np.array_equal(written == 0, ~ok)
     np.testing.assert_array_equal(written[ok], np.clip(np.round(ref[ok]), 1, 255))
-    assert (
-        main(args[:-5] + ["--seamlines", str(out), "--no-progress"]) == 2
-    )  # one file for two outputs
+    assert main(args[:-5] + ["--seamlines", str(out), "--no-progress"]) == 2  # one file for two outputs

@@ -110,10 +110,25 @@ def test_cli_nodata(setup, tmp_path, capsys):
 
     s, tmp, paths, grid = setup
     ext = tmp_path / "ext.json"
-    assert main(["resect", str(DATA / "sample_gcps.csv"), "--camera", str(DATA / "sample_camera.yaml"),
-                 "--json", str(ext)]) == 0
-    base = ["ortho", str(paths["u8"]), "--dem", str(DATA / "sample_dem.tif"), "--camera",
-            str(DATA / "sample_camera.yaml"), "--exterior", str(ext), "--resolution", "2", "--no-progress"]
+    assert (
+        main(
+            ["resect", str(DATA / "sample_gcps.csv"), "--camera", str(DATA / "sample_camera.yaml"), "--json", str(ext)]
+        )
+        == 0
+    )
+    base = [
+        "ortho",
+        str(paths["u8"]),
+        "--dem",
+        str(DATA / "sample_dem.tif"),
+        "--camera",
+        str(DATA / "sample_camera.yaml"),
+        "--exterior",
+        str(ext),
+        "--resolution",
+        "2",
+        "--no-progress",
+    ]
     assert main([*base, "--out", str(tmp_path / "a.tif")]) == 0
     assert main([*base, "--out", str(tmp_path / "b.tif"), "--nodata", "7"]) == 0
     assert main([*base, "--out", str(tmp_path / "c.tif"), "--nodata", "300"]) == 2  # not a uint8 value
@@ -130,8 +145,9 @@ def test_dask_ortho_with_its_mask(setup):
 
     s, tmp, paths, grid = setup
     ref, *_ = _ortho(s, grid, paths["f64"], tmp / "fd.tif", tile=256)
-    ortho, valid = orthorectify_dask(paths["u8"], s["exterior"], s["camera"], s["dem"], grid, chunks=256,
-                                     resampling="nearest", mask=True)
+    ortho, valid = orthorectify_dask(
+        paths["u8"], s["exterior"], s["camera"], s["dem"], grid, chunks=256, resampling="nearest", mask=True
+    )
     to_raster(ortho, tmp / "d.tif", mask=valid)
     with rasterio.open(tmp / "d.tif") as ds:
         data, mask = ds.read(1), ds.read_masks(1)
@@ -150,8 +166,9 @@ def test_dask_ortho_respects_the_input_mask(setup):
     s, tmp, paths, grid = setup
     masked_in, nan_in = _masked_inputs(tmp, paths)
     ref, *_ = _ortho(s, grid, nan_in, tmp / "rfd.tif", tile=256)
-    ortho, valid = orthorectify_dask(masked_in, s["exterior"], s["camera"], s["dem"], grid, chunks=256,
-                                     resampling="nearest", mask=True)
+    ortho, valid = orthorectify_dask(
+        masked_in, s["exterior"], s["camera"], s["dem"], grid, chunks=256, resampling="nearest", mask=True
+    )
     valid, data = valid.values, ortho.values[0]  # from a file: (band, y, x)
     assert np.array_equal(valid, np.isfinite(ref))
     assert np.all(data[~valid] == 0) and np.array_equal(data[valid], ref[valid].astype(np.uint8))

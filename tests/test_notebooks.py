@@ -37,8 +37,11 @@ _RESET = "%reset -f\nimport matplotlib.pyplot as _plt\n_plt.close('all')\ndel _p
 def _kernel_dir(tmp: pathlib.Path) -> pathlib.Path:
     spec_dir = tmp / "photax-test"
     spec_dir.mkdir()
-    spec = {"argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
-            "display_name": "photax test kernel", "language": "python"}
+    spec = {
+        "argv": [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"],
+        "display_name": "photax test kernel",
+        "language": "python",
+    }
     (spec_dir / "kernel.json").write_text(json.dumps(spec))
     return tmp
 
@@ -88,6 +91,11 @@ def test_notebook_runs(path, executed):
     errors = [o for c in nb.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "error"]
     assert not errors
     # No warning printed by a cell either (e.g. tqdm's TqdmWarning when ipywidgets is missing).
-    warned = [o.text for c in nb.cells if c.cell_type == "code" for o in c.outputs
-              if o.output_type == "stream" and o.name == "stderr" and "Warning" in o.text]
+    warned = [
+        o.text
+        for c in nb.cells
+        if c.cell_type == "code"
+        for o in c.outputs
+        if o.output_type == "stream" and o.name == "stderr" and "Warning" in o.text
+    ]
     assert not warned, warned

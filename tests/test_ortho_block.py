@@ -30,8 +30,19 @@ def images(tmp_path):
 
 
 def _common():
-    return ["--dem", str(NGI / "dem.tif"), "--camera", str(IO / "ngi_int_param.yaml"), "--exterior",
-            str(IO / "ngi_xyz_opk.csv"), "--resolution", "20", "--resampling", "cubic", "--no-progress"]
+    return [
+        "--dem",
+        str(NGI / "dem.tif"),
+        "--camera",
+        str(IO / "ngi_int_param.yaml"),
+        "--exterior",
+        str(IO / "ngi_xyz_opk.csv"),
+        "--resolution",
+        "20",
+        "--resampling",
+        "cubic",
+        "--no-progress",
+    ]
 
 
 def _singles(images, folder):
@@ -73,7 +84,8 @@ def test_block_usage_errors_exit_2(images, tmp_path, capsys):
     twin = tmp_path / "twin"
     twin.mkdir()
     shutil.copy(images[0], twin / images[0].name)
-    assert main(["ortho", str(images[0]), str(twin / images[0].name), "--out-dir", str(tmp_path / "o"),
-                 *_common()]) == 2
+    assert (
+        main(["ortho", str(images[0]), str(twin / images[0].name), "--out-dir", str(tmp_path / "o"), *_common()]) == 2
+    )
     assert "same name" in capsys.readouterr().err
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())

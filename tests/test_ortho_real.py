@@ -15,7 +15,6 @@ instead, i.e. the heights as stored, which is what photax uses.
 import numpy as np
 import pytest
 import rasterio
-
 from conftest import shared_file
 
 import photax
@@ -95,8 +94,13 @@ def test_ngi_ortho_agrees_with_orthority(ngi, resampling, max_mad):
 
     out = ngi["tmp"] / f"orthority_{resampling}.tif"
     Ortho(ngi["image"], ngi["dem"], _orthority_camera(ngi), crs=ngi["prj"]).process(
-        out, resolution=(6.0, 6.0), interp=resampling, dem_interp="bilinear", compress="deflate",
-        write_mask=False, overwrite=True,
+        out,
+        resolution=(6.0, 6.0),
+        interp=resampling,
+        dem_interp="bilinear",
+        compress="deflate",
+        write_mask=False,
+        overwrite=True,
     )
     with rasterio.open(out) as ds:
         ref, grid = ds.read(), Grid(ds.transform, ds.shape, ds.crs)
@@ -121,10 +125,23 @@ def test_ngi_ortho_agrees_with_orthority(ngi, resampling, max_mad):
 
 def test_cli_ortho_on_ngi(ngi, tmp_path):
     out = tmp_path / "ortho.tif"
-    rc = main([
-        "ortho", str(ngi["image"]), "--dem", str(ngi["dem"]), "--interior", str(ngi["interior"]),
-        "--exterior", str(ngi["csv"]), "--out", str(out), "--resolution", "12", "--no-progress",
-    ])
+    rc = main(
+        [
+            "ortho",
+            str(ngi["image"]),
+            "--dem",
+            str(ngi["dem"]),
+            "--interior",
+            str(ngi["interior"]),
+            "--exterior",
+            str(ngi["csv"]),
+            "--out",
+            str(out),
+            "--resolution",
+            "12",
+            "--no-progress",
+        ]
+    )
     assert rc == 0
     with rasterio.open(out) as ds:
         assert ds.res == (12.0, 12.0) and ds.count == 3
@@ -132,5 +149,21 @@ def test_cli_ortho_on_ngi(ngi, tmp_path):
         data = ds.read()
     assert 0.8 < np.mean(data[0] != 0) <= 1.0  # the footprint fills the grid
     # Refuses to overwrite an input.
-    assert main(["ortho", str(ngi["image"]), "--dem", str(ngi["dem"]), "--interior", str(ngi["interior"]),
-                 "--exterior", str(ngi["csv"]), "--out", str(ngi["dem"]), "--no-progress"]) == 2
+    assert (
+        main(
+            [
+                "ortho",
+                str(ngi["image"]),
+                "--dem",
+                str(ngi["dem"]),
+                "--interior",
+                str(ngi["interior"]),
+                "--exterior",
+                str(ngi["csv"]),
+                "--out",
+                str(ngi["dem"]),
+                "--no-progress",
+            ]
+        )
+        == 2
+    )

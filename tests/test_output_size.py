@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from photax.demo import sample_scene
-from photax.rectification import ground_sampling_distance, ortho_grid, orthorectify, orthorectify_file
 from photax.io import sizes as _size
+from photax.rectification import ground_sampling_distance, ortho_grid, orthorectify, orthorectify_file
 
 DATA = pathlib.Path(__file__).resolve().parents[1] / "data"
 
@@ -108,12 +108,30 @@ def test_cli_ortho_typo_is_a_usage_error(tmp_path, capsys, resolution):
     from photax.cli import main
 
     ext = tmp_path / "ext.json"
-    assert main(["resect", str(DATA / "sample_gcps.csv"), "--camera", str(DATA / "sample_camera.yaml"),
-                 "--json", str(ext)]) == 0
+    assert (
+        main(
+            ["resect", str(DATA / "sample_gcps.csv"), "--camera", str(DATA / "sample_camera.yaml"), "--json", str(ext)]
+        )
+        == 0
+    )
     capsys.readouterr()
-    code = main(["ortho", str(DATA / "sample_image.tif"), "--dem", str(DATA / "sample_dem.tif"), "--camera",
-                 str(DATA / "sample_camera.yaml"), "--exterior", str(ext), "--out", str(tmp_path / "o.tif"),
-                 "--resolution", resolution, "--no-progress"])
+    code = main(
+        [
+            "ortho",
+            str(DATA / "sample_image.tif"),
+            "--dem",
+            str(DATA / "sample_dem.tif"),
+            "--camera",
+            str(DATA / "sample_camera.yaml"),
+            "--exterior",
+            str(ext),
+            "--out",
+            str(tmp_path / "o.tif"),
+            "--resolution",
+            resolution,
+            "--no-progress",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2 and "ground sampling distance" in err and "choose from" in err
     assert not (tmp_path / "o.tif").exists()
@@ -138,6 +156,19 @@ def test_cli_rectify_resolution_outside_the_gcps_scale(tmp_path, capsys):
     """``photax rectify --resolution 1e308`` wrote a 1 x 1 image with exit 0 (issue 27)."""
     from photax.cli import main
 
-    code = main(["rectify", str(DATA / "sample_image.tif"), "--gcps", str(DATA / "sample_gcps.csv"),
-                 "--order", "1", "--out", str(tmp_path / "r.tif"), "--resolution", "1e308", "--no-progress"])
+    code = main(
+        [
+            "rectify",
+            str(DATA / "sample_image.tif"),
+            "--gcps",
+            str(DATA / "sample_gcps.csv"),
+            "--order",
+            "1",
+            "--out",
+            str(tmp_path / "r.tif"),
+            "--resolution",
+            "1e308",
+            "--no-progress",
+        ]
+    )
     assert code == 2 and "choose from" in capsys.readouterr().err and not (tmp_path / "r.tif").exists()

@@ -27,8 +27,17 @@ def palette_tif(tmp_path):
     idx[:, 25:50] = 3
     idx[20:45, :] = 5
     path = tmp_path / "palette.tif"
-    with rasterio.open(path, "w", driver="GTiff", width=W, height=H, count=1, dtype="uint8", crs="EPSG:32633",
-                       transform=rasterio.transform.from_origin(0, H, 1, 1)) as dst:
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=W,
+        height=H,
+        count=1,
+        dtype="uint8",
+        crs="EPSG:32633",
+        transform=rasterio.transform.from_origin(0, H, 1, 1),
+    ) as dst:
         dst.write(idx, 1)
         dst.write_colormap(1, CMAP)
     return path, idx

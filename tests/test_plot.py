@@ -15,8 +15,9 @@ def test_residual_vectors_draws_scaled_arrows_per_role():
     xy = np.array([[100.0, 200.0], [300.0, 50.0], [250.0, 250.0]])
     v = np.array([[1.0, -2.0], [0.5, 0.5], [30.0, 0.0]])
     fig, ax = plt.subplots()
-    scale = plot.residual_vectors(ax, xy, v, ["a", "b", "c"], outliers=[False, False, True],
-                                  check=[False, True, False], image_size=(400, 300))
+    scale = plot.residual_vectors(
+        ax, xy, v, ["a", "b", "c"], outliers=[False, False, True], check=[False, True, False], image_size=(400, 300)
+    )
     # Default exaggeration: the largest inlier vector (|(1, -2)|) spans 8 % of the width.
     np.testing.assert_allclose(scale, 0.08 * 400 / np.hypot(1.0, 2.0))
     quivers = [c for c in ax.collections if isinstance(c, matplotlib.quiver.Quiver)]
@@ -50,9 +51,11 @@ def test_precision_rows_error_over_std():
 def test_convergence_starts_at_the_initial_cost_with_whole_iterations():
     class Result:  # what bundle_adjust returns, the attributes convergence reads
         initial_cost = 5.0e4
-        history = [dict(iteration=1, cost=900.0, accepted=True, candidate_cost=900.0),
-                   dict(iteration=2, cost=900.0, accepted=False, candidate_cost=2.0e3),
-                   dict(iteration=3, cost=120.0, accepted=True, candidate_cost=120.0)]
+        history = [
+            dict(iteration=1, cost=900.0, accepted=True, candidate_cost=900.0),
+            dict(iteration=2, cost=900.0, accepted=False, candidate_cost=2.0e3),
+            dict(iteration=3, cost=120.0, accepted=True, candidate_cost=120.0),
+        ]
 
     fig, ax = plt.subplots()
     plot.convergence(ax, Result)
@@ -85,8 +88,21 @@ def _comparison(errors: dict, rng):
     assert grid.shape == (30, 40)
     gcp = np.column_stack([rng.uniform(1050, 1350, 8), rng.uniform(2050, 2250, 8), np.zeros(8)])
     check = np.column_stack([rng.uniform(1050, 1350, 5), rng.uniform(2050, 2250, 5), np.zeros(5)])
-    models = [ModelResult(name, None, 6, 10, 1.0, np.zeros((8, 2)), np.zeros((5, 2)), 0.1, 0.2,
-                          np.stack([e, np.zeros_like(e)], axis=-1)) for name, e in errors.items()]
+    models = [
+        ModelResult(
+            name,
+            None,
+            6,
+            10,
+            1.0,
+            np.zeros((8, 2)),
+            np.zeros((5, 2)),
+            0.1,
+            0.2,
+            np.stack([e, np.zeros_like(e)], axis=-1),
+        )
+        for name, e in errors.items()
+    ]
     return ModelComparison(models, None, None, None, grid, 10.0, gcp, np.zeros((8, 2)), check, np.zeros((5, 2)))
 
 
@@ -95,13 +111,20 @@ def test_error_maps_one_wild_model_does_not_black_out_the_others():
     good = {f"polynomial {k}": rng.uniform(0.0, 5.0, (30, 40)) for k in (1, 2, 3, 4)}
     wild = rng.uniform(0.0, 5.0, (30, 40))
     wild[:, :10] = 1000.0  # a quarter of the map: extrapolation outside the GCPs
-    c = _comparison({"collinearity": np.zeros((30, 40)), **good, "polynomial 5": wild, "projective":
-                     rng.uniform(0.0, 5.0, (30, 40))}, rng)
+    c = _comparison(
+        {
+            "collinearity": np.zeros((30, 40)),
+            **good,
+            "polynomial 5": wild,
+            "projective": rng.uniform(0.0, 5.0, (30, 40)),
+        },
+        rng,
+    )
     fig = c.plot_error_maps()
     panels = [ax for ax in fig.axes if ax.images and ax.get_title()]
     assert [ax.get_title().split("\n")[0] for ax in panels] == [*good, "polynomial 5", "projective"]
     # One scale for all panels (comparable colours) ...
-    (vmin, vmax), = {ax.images[0].get_clim() for ax in panels}
+    ((vmin, vmax),) = {ax.images[0].get_clim() for ax in panels}
     assert vmin == 0
     # ... on which every good map spans most of the colours, not the bottom 1 % of them.
     for ax in panels:

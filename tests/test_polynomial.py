@@ -26,6 +26,7 @@ def _random_poly(order, rng):
     def f(p, centre, half):
         u = (p - centre) / half
         return np.stack([u[:, 0] ** i * u[:, 1] ** j for i, j in exps], axis=1) @ coef + 2000
+
     return f
 
 
@@ -80,8 +81,10 @@ def test_matches_skimage_polynomial_and_affine():
     """
     src = RNG.uniform(0, 100, (30, 2))
     check = RNG.uniform(0, 100, (50, 2))
-    quad = lambda p: np.c_[3 + 1.1 * p[:, 0] + 0.2 * p[:, 1] + 1e-3 * p[:, 0] ** 2 - 2e-3 * p[:, 0] * p[:, 1],  # noqa: E731
-                           -2 + 0.9 * p[:, 1] - 0.1 * p[:, 0] + 3e-3 * p[:, 1] ** 2]
+    quad = lambda p: np.c_[
+        3 + 1.1 * p[:, 0] + 0.2 * p[:, 1] + 1e-3 * p[:, 0] ** 2 - 2e-3 * p[:, 0] * p[:, 1],  # noqa: E731
+        -2 + 0.9 * p[:, 1] - 0.1 * p[:, 0] + 3e-3 * p[:, 1] ** 2,
+    ]
     sk2 = PolynomialTransform.from_estimate(src, quad(src), order=2)
     np.testing.assert_allclose(np.asarray(fit_polynomial(src, quad(src), 2)(check)), sk2(check), rtol=0, atol=1e-8)
     aff = lambda p: p @ np.array([[1.1, -0.1], [0.2, 0.9]]) + [3.0, -2.0]  # noqa: E731
@@ -124,8 +127,10 @@ def test_inverse_round_trip(order):
     fresh points inside the domain."""
     src = UTM + RNG.uniform(0, 3000, (40, 2))
     u = (src - UTM - 1500) / 1500
-    dst = np.c_[2000 + 1800 * u[:, 0] + 100 * u[:, 1] + 30 * u[:, 0] ** 2 - 20 * u[:, 0] * u[:, 1] + 5 * u[:, 1] ** 3,
-                2000 - 50 * u[:, 0] + 1900 * u[:, 1] + 25 * u[:, 1] ** 2 + 8 * u[:, 0] ** 3]
+    dst = np.c_[
+        2000 + 1800 * u[:, 0] + 100 * u[:, 1] + 30 * u[:, 0] ** 2 - 20 * u[:, 0] * u[:, 1] + 5 * u[:, 1] ** 3,
+        2000 - 50 * u[:, 0] + 1900 * u[:, 1] + 25 * u[:, 1] ** 2 + 8 * u[:, 0] ** 3,
+    ]
     m = fit_polynomial(src, dst, order)
     lo, hi = src.min(axis=0), src.max(axis=0)
     fresh = lo + RNG.uniform(0, 1, (500, 2)) * (hi - lo)
@@ -233,7 +238,9 @@ def test_projective_least_squares_matches_opencv_and_skimage():
         cv_rmse = rmse(cv2.perspectiveTransform(src[None], cv_h)[0], dst)
         assert float(ours.rmse) <= cv_rmse * (1 + 1e-9)
         if not offset.any():
-            np.testing.assert_allclose(np.asarray(ours(check)), cv2.perspectiveTransform(check[None], cv_h)[0], rtol=0, atol=1e-3)
+            np.testing.assert_allclose(
+                np.asarray(ours(check)), cv2.perspectiveTransform(check[None], cv_h)[0], rtol=0, atol=1e-3
+            )
         dlt = fit_projective(src, dst, refine=False)
         sk = ProjectiveTransform.from_estimate(src, dst)
         # same estimator; ~1e-8 relative differences from the two SVD set-ups
@@ -247,7 +254,12 @@ def test_projective_inverse_is_exact():
     m = fit_projective(src, dst)
     p = RNG.uniform(0, 1000, (100, 2)) + UTM / 100
     np.testing.assert_allclose(np.asarray(m.inverse()(m(p))), p, rtol=0, atol=1e-7)
-    np.testing.assert_allclose(np.asarray(m.inverse().matrix), np.linalg.inv(np.asarray(m.matrix)) / np.linalg.inv(np.asarray(m.matrix))[2, 2], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(
+        np.asarray(m.inverse().matrix),
+        np.linalg.inv(np.asarray(m.matrix)) / np.linalg.inv(np.asarray(m.matrix))[2, 2],
+        rtol=1e-9,
+        atol=1e-12,
+    )
 
 
 def test_projective_errors():
@@ -277,7 +289,6 @@ def test_residual_sign_and_projective_outcome():
     assert proj.result == ptx.RESULTS.successful and proj.converged
     assert proj.inverse().result == proj.result
     assert float(proj.rmse) < float(fit_projective(src, dst, refine=False).rmse)
-
 
 
 @pytest.mark.parametrize("order", [1, 3])

@@ -59,8 +59,15 @@ def test_other_entry_points_warn_on_float32_world_coordinates(call):
         if call == "orientation":
             ptx.ExteriorOrientation(np.asarray(eo.position, np.float32), eo.angles)
         else:
-            ptx.BundleProblem(cam, [eo], ground.astype(np.float32), np.zeros(len(xy), int), np.arange(len(xy)), xy,
-                              roles=["control"] * len(xy))
+            ptx.BundleProblem(
+                cam,
+                [eo],
+                ground.astype(np.float32),
+                np.zeros(len(xy), int),
+                np.arange(len(xy)),
+                xy,
+                roles=["control"] * len(xy),
+            )
 
 
 def test_jax_arrays_made_before_import_photax():
@@ -80,6 +87,5 @@ ref = ptx.resect(xy, np.asarray(ground, np.float64), cam)
 assert any(issubclass(x.category, ptx._float64.PrecisionWarning) for x in w), [str(x.message) for x in w]
 assert np.abs(np.asarray(r.exterior.position) - np.asarray(ref.exterior.position)).max() < 1e-9
 """
-    proc = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True,
-                          timeout=300)
+    proc = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]

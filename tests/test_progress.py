@@ -48,27 +48,80 @@ def scene(tmp_path_factory):
     pixel = np.asarray(camera.image_to_pixel(photax.project(ground, exterior, camera)))
     rows = ["name,E,N,h,col,row,role"] + [
         f"p{k},{x:.17g},{y:.17g},{h:.17g},{u:.17g},{v:.17g},{'check' if k >= 16 else 'control'}"
-        for k, ((x, y, h), (u, v)) in enumerate(zip(ground, pixel))]
+        for k, ((x, y, h), (u, v)) in enumerate(zip(ground, pixel))
+    ]
     (d / "gcps.csv").write_text("\n".join(rows) + "\n")
     write_camera(camera, d / "camera.yaml")
     write_geotiff(d / "dem.tif", heights, transform)
     write_geotiff(d / "image.tif", rng.integers(1, 256, (3, 64, 96), dtype=np.uint8), None)
-    (d / "exterior.json").write_text(json.dumps({"position": list(map(float, exterior.position)),
-                                                 "angles_rad": list(map(float, exterior.angles)),
-                                                 "convention": exterior.convention}))
+    (d / "exterior.json").write_text(
+        json.dumps(
+            {
+                "position": list(map(float, exterior.position)),
+                "angles_rad": list(map(float, exterior.angles)),
+                "convention": exterior.convention,
+            }
+        )
+    )
     return d
 
 
 def commands(d, out):
-    files = {k: str(d / f) for k, f in [("gcps", "gcps.csv"), ("camera", "camera.yaml"), ("dem", "dem.tif"),
-                                          ("image", "image.tif"), ("exterior", "exterior.json")]}
+    files = {
+        k: str(d / f)
+        for k, f in [
+            ("gcps", "gcps.csv"),
+            ("camera", "camera.yaml"),
+            ("dem", "dem.tif"),
+            ("image", "image.tif"),
+            ("exterior", "exterior.json"),
+        ]
+    }
     return {
-        "rectify": ["rectify", files["image"], "--gcps", files["gcps"], "--order", "1", "--resolution", "10",
-                    "--tile", "16", "--out", str(out / "rect.tif")],
-        "ortho": ["ortho", files["image"], "--dem", files["dem"], "--interior", files["camera"],
-                  "--exterior", files["exterior"], "--resolution", "10", "--tile", "16", "--out", str(out / "o.tif")],
-        "compare": ["compare", files["gcps"], "--camera", files["camera"], "--dem", files["dem"],
-                    "--image", files["image"], "--orders", "1", "--out", str(out / "cmp")],
+        "rectify": [
+            "rectify",
+            files["image"],
+            "--gcps",
+            files["gcps"],
+            "--order",
+            "1",
+            "--resolution",
+            "10",
+            "--tile",
+            "16",
+            "--out",
+            str(out / "rect.tif"),
+        ],
+        "ortho": [
+            "ortho",
+            files["image"],
+            "--dem",
+            files["dem"],
+            "--interior",
+            files["camera"],
+            "--exterior",
+            files["exterior"],
+            "--resolution",
+            "10",
+            "--tile",
+            "16",
+            "--out",
+            str(out / "o.tif"),
+        ],
+        "compare": [
+            "compare",
+            files["gcps"],
+            "--camera",
+            files["camera"],
+            "--dem",
+            files["dem"],
+            "--image",
+            files["image"],
+            "--orders",
+            "1",
+            "--out",
+            str(out / "cmp"),
+        ],
         "bundle": ["bundle", str(ROOT / "data" / "block"), "--quiet", "--max-iterations", "3"],
     }
 
@@ -133,7 +186,7 @@ def _screen(err: str) -> list[str]:
     for line in err.split("\n"):
         shown = ""
         for part in line.split("\r"):
-            shown = part + shown[len(part):]
+            shown = part + shown[len(part) :]
         lines.append(shown.rstrip())
     return [s for s in lines if s]
 

@@ -9,8 +9,8 @@ scipy, OpenCV and orthority in test_rectify.py / test_ortho_real.py).
 
 import numpy as np
 import pytest
-from conftest import needs
 import rasterio
+from conftest import needs
 
 import photax
 from photax.io.raster import write_geotiff
@@ -41,15 +41,23 @@ def _ortho(s, grid, image, **kw):
 # the exact mapping.  (The approximate mapping's kernels cost ~10 s of
 # compilation more; its chunks are the tiles of orthorectify(tile=chunks),
 # equal bit for bit when checked by hand, but not tested here.)
-@pytest.mark.parametrize("resampling, chunks, approx", [
-    ("nearest", 37, None), ("bilinear", 48, None), ("cubic", 50, None), ("lanczos", 1000, None),
-    ("bspline", 37, None)])
+@pytest.mark.parametrize(
+    "resampling, chunks, approx",
+    [
+        ("nearest", 37, None),
+        ("bilinear", 48, None),
+        ("cubic", 50, None),
+        ("lanczos", 1000, None),
+        ("bspline", 37, None),
+    ],
+)
 def test_tiled_equals_whole_image_exactly(scene, resampling, chunks, approx):
     s, grid = scene
     image = s.image.astype(np.float32)
     ref = _ortho(s, grid, image, resampling=resampling, approx=approx, tile=chunks)
-    arr = orthorectify_dask(image, s.exterior, s.camera, s.dem, grid, chunks=chunks, resampling=resampling,
-                            approx=approx)
+    arr = orthorectify_dask(
+        image, s.exterior, s.camera, s.dem, grid, chunks=chunks, resampling=resampling, approx=approx
+    )
     assert arr.dims == ("y", "x") and arr.dtype == np.float32 and arr.shape == grid.shape
     tiles = list(tile_windows(grid.shape, chunks))
     assert arr.chunks[0] == tuple(t[2] for t in tiles if t[1] == 0)
@@ -109,8 +117,12 @@ def test_bad_input(scene):
 def cluster():
     """A dask.distributed cluster of 2 worker processes (one thread each), shared by the tests below."""
     distributed = pytest.importorskip("distributed")
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                  silence_logs=50) as cluster, distributed.Client(cluster) as client:
+    with (
+        distributed.LocalCluster(
+            n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0", silence_logs=50
+        ) as cluster,
+        distributed.Client(cluster) as client,
+    ):
         yield cluster, client
 
 
@@ -161,6 +173,7 @@ def test_dead_worker_is_retried_and_a_failed_write_leaves_nothing(scene, cluster
     assert len(set(client.run(os.getpid).values()) - pids) == 1  # one worker process was replaced
     with rasterio.open(out) as ds:
         np.testing.assert_array_equal(ds.read(1), ref)
+
     # A write that fails for good (a task raising on a worker; a worker dying more than the scheduler's
     # allowed-failures times ends the same way, with KilledWorker: not repeated here, each death
     # respawns a worker process): the previous file stays and no partial file is left.
@@ -213,8 +226,15 @@ def test_write_one_writer_bounded_chunks_aligned_tiles(scene, tmp_path, monkeypa
 
     s, grid = scene
     image = np.stack([(s.image * 250).astype(np.uint8) + b for b in (1, 3)])  # as above: its kernels, compiled
-    state = {"computed": 0, "handed": 0, "written": 0, "running": 0, "most_running": 0, "most_unwritten": 0,
-             "cache": set()}
+    state = {
+        "computed": 0,
+        "handed": 0,
+        "written": 0,
+        "running": 0,
+        "most_running": 0,
+        "most_unwritten": 0,
+        "cache": set(),
+    }
     mutex = threading.Lock()
     real_chunk, real_hand, real_write = tiled._ortho_chunk, lazy._Writer.__setitem__, lazy._Writer._write
 
@@ -252,7 +272,7 @@ def test_write_one_writer_bounded_chunks_aligned_tiles(scene, tmp_path, monkeypa
     assert state["cache"] == {16 << 20}
     with rasterio.open(tmp_path / "o.tif") as ds:
         np.testing.assert_array_equal(ds.read(), _ortho(s, grid, image, resampling="cubic", approx=None))
-        (th, tw), = set(ds.block_shapes)
+        ((th, tw),) = set(ds.block_shapes)
     for edges, tile in zip(arr.data.chunks[-2:], (th, tw)):
         assert tile % 16 == 0 and all(e % tile == 0 for e in edges[:-1])
 

@@ -253,11 +253,24 @@ def test_cli_rectify_with_gcps(tmp_path, src_tif):
     x, y = rng.uniform(1000, 1260, 12), rng.uniform(4980, 5200, 12)
     cols, rows = affine_np(x, y)
     gcps = tmp_path / "gcps.csv"
-    gcps.write_text("name,E,N,h,col,row\n" + "".join(
-        f"p{i},{x[i]:.12f},{y[i]:.12f},0,{cols[i]:.12f},{rows[i]:.12f}\n" for i in range(12)))
+    gcps.write_text(
+        "name,E,N,h,col,row\n"
+        + "".join(f"p{i},{x[i]:.12f},{y[i]:.12f},0,{cols[i]:.12f},{rows[i]:.12f}\n" for i in range(12))
+    )
     out = tmp_path / "rect.tif"
-    args = ["rectify", str(path), "--gcps", str(gcps), "--order", "1", "--out", str(out), "--resolution", "2",
-            "--no-progress"]
+    args = [
+        "rectify",
+        str(path),
+        "--gcps",
+        str(gcps),
+        "--order",
+        "1",
+        "--out",
+        str(out),
+        "--resolution",
+        "2",
+        "--no-progress",
+    ]
     assert main(args) == 0
     with rasterio.open(out) as ds:
         grid = Grid(ds.transform, ds.shape)
@@ -285,8 +298,9 @@ def _approx_positions(model, grid, approx, tile, size):
     transform = jnp.asarray(tuple(grid.transform)[:6])
     worst = 0.0
     for r0, c0, h, w in tiles:
-        pos, origin, err, _ = _tile_positions(model, transform, jnp.array([r0, c0], dtype=float), layout,
-                                              _approx_arg(approx), size)
+        pos, origin, err, _ = _tile_positions(
+            model, transform, jnp.array([r0, c0], dtype=float), layout, _approx_arg(approx), size
+        )
         out[:, r0 : r0 + h, c0 : c0 + w] = np.asarray(pos)[:, :h, :w] + np.asarray(origin)[:, None, None]
         worst = max(worst, float(err))
     return out, worst

@@ -45,8 +45,9 @@ def _px(e, g):
 
 def test_from_5_m_and_0_2_degrees_to_a_tenth_of_a_pixel(scene):
     dem, image, ortho, transform, g = scene
-    start = photax.ExteriorOrientation(np.asarray(TRUE.position) + [4.0, -3.0, 0.0],
-                                       np.asarray(TRUE.angles) + np.radians([0.2, -0.15, 0.1]))
+    start = photax.ExteriorOrientation(
+        np.asarray(TRUE.position) + [4.0, -3.0, 0.0], np.asarray(TRUE.angles) + np.radians([0.2, -0.15, 0.1])
+    )
     before = np.sqrt(np.mean(np.sum((_px(start, g) - _px(TRUE, g)) ** 2, 1)))
     assert before > 4.0  # px: a real starting error
     res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1))
@@ -60,7 +61,8 @@ def test_from_5_m_and_0_2_degrees_to_a_tenth_of_a_pixel(scene):
     assert after <= 0.1, after
     # the history: one entry per step, levels coarse to fine, the last step below the tolerance
     assert len(res.history) == sum(res.steps) and [h["level"] for h in res.history] == sorted(
-        (h["level"] for h in res.history), reverse=True)
+        (h["level"] for h in res.history), reverse=True
+    )
     assert res.history[-1]["shift_px"] < 1e-3 < res.history[0]["shift_px"]
 
 
@@ -71,22 +73,22 @@ def test_too_far_off_raises_or_is_reported(scene):
     start = photax.ExteriorOrientation(np.asarray(TRUE.position) + [60.0, 40.0, 0.0], TRUE.angles)
     with pytest.raises(photax.ConvergenceError, match="registration failed"):
         register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8)
-    res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
-                            throw=False)
+    res = register_to_ortho(image, CAM, start, ortho, transform, dem, levels=(4, 2, 1), max_steps=8, throw=False)
     assert not res.converged and res.result != photax.RESULTS.successful
     assert res.message.startswith(res.result.text) and np.all(np.isfinite(res.exterior.position))
     # an orientation 10 km away sees nothing of the reference: said so, not a wrong orientation
     far = photax.ExteriorOrientation(np.asarray(TRUE.position) + [10_000.0, 0.0, 0.0], TRUE.angles)
-    res = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
-                            throw=False)
+    res = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8, throw=False)
     assert not res.converged and "sees (almost) nothing" in res.message, res.message
     assert res.result == photax.RESULTS.implausible
     # method= is the old name of resampling=: the same answer, with a DeprecationWarning
     with pytest.warns(DeprecationWarning, match=r"register_to_ortho\(method=\) is deprecated"):
-        old = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
-                                throw=False, method="nearest")
-    new = register_to_ortho(image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8,
-                            throw=False, resampling="nearest")
+        old = register_to_ortho(
+            image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8, throw=False, method="nearest"
+        )
+    new = register_to_ortho(
+        image, CAM, far, ortho, transform, dem, levels=(4, 2, 1), max_steps=8, throw=False, resampling="nearest"
+    )
     np.testing.assert_array_equal(old.exterior.position, new.exterior.position)
     with pytest.raises(ValueError, match="give resampling= only"):
         register_to_ortho(image, CAM, far, ortho, transform, dem, method="nearest", resampling="cubic")
@@ -104,19 +106,48 @@ def test_cli_register(scene, tmp_path):
     paths = {k: tmp_path / f"{k}.tif" for k in ("image", "ortho", "dem")}
     write_geotiff(paths["image"], image, (0.5, 0.0, 0.0, 0.0, -0.5, 100.0), compress=None)  # not used
     write_geotiff(paths["ortho"], ortho, transform, crs="EPSG:32633", compress=None)
-    write_geotiff(paths["dem"], np.asarray(dem.heights), np.asarray(dem.transform).tolist(), crs="EPSG:32633", compress=None)
+    write_geotiff(
+        paths["dem"], np.asarray(dem.heights), np.asarray(dem.transform).tolist(), crs="EPSG:32633", compress=None
+    )
     photax.write_camera(CAM, tmp_path / "cam.yaml")
-    common = [str(paths["image"]), "--camera", str(tmp_path / "cam.yaml"), "--ortho", str(paths["ortho"]),
-              "--dem", str(paths["dem"]), "--levels", "4,2,1"]
-    for name, offset, max_steps, code in (("near", ([4.0, -3.0, 0.0], [0.2, -0.15, 0.1]), 15, 0),
-                                          ("far", ([60.0, 40.0, 0.0], [0.0, 0.0, 0.0]), 8, 1)):
-        start = photax.ExteriorOrientation(np.asarray(TRUE.position) + offset[0],
-                                           np.asarray(TRUE.angles) + np.radians(offset[1]))
-        photax.write_json({"exterior": {"position": start.position, "angles_rad": start.angles,
-                                        "convention": start.convention}}, tmp_path / f"{name}.json")
+    common = [
+        str(paths["image"]),
+        "--camera",
+        str(tmp_path / "cam.yaml"),
+        "--ortho",
+        str(paths["ortho"]),
+        "--dem",
+        str(paths["dem"]),
+        "--levels",
+        "4,2,1",
+    ]
+    for name, offset, max_steps, code in (
+        ("near", ([4.0, -3.0, 0.0], [0.2, -0.15, 0.1]), 15, 0),
+        ("far", ([60.0, 40.0, 0.0], [0.0, 0.0, 0.0]), 8, 1),
+    ):
+        start = photax.ExteriorOrientation(
+            np.asarray(TRUE.position) + offset[0], np.asarray(TRUE.angles) + np.radians(offset[1])
+        )
+        photax.write_json(
+            {"exterior": {"position": start.position, "angles_rad": start.angles, "convention": start.convention}},
+            tmp_path / f"{name}.json",
+        )
         out = tmp_path / f"{name}_out.json"
-        assert main(["register", *common, "--exterior", str(tmp_path / f"{name}.json"), "--max-steps",
-                     str(max_steps), "-o", str(out)]) == code
+        assert (
+            main(
+                [
+                    "register",
+                    *common,
+                    "--exterior",
+                    str(tmp_path / f"{name}.json"),
+                    "--max-steps",
+                    str(max_steps),
+                    "-o",
+                    str(out),
+                ]
+            )
+            == code
+        )
         data = photax.read_json(out)
         assert data["status"] == ("solved" if code == 0 else "not converged") and data["message"]
         assert (data["result"] == "successful") == (code == 0) and len(data["rmse"]) == len(data["steps"])
@@ -127,6 +158,10 @@ def test_cli_register(scene, tmp_path):
     # bad input: the output over an input, a missing file, nonsense levels
     assert main(["register", *common, "--exterior", str(tmp_path / "near.json"), "-o", str(paths["ortho"])]) == 2
     assert main(["register", *common, "--exterior", str(tmp_path / "none.json"), "-o", str(tmp_path / "x.json")]) == 2
-    assert main(["register", *common[:-1], "4,x", "--exterior", str(tmp_path / "near.json"), "-o",
-                 str(tmp_path / "x.json")]) == 2
+    assert (
+        main(
+            ["register", *common[:-1], "4,x", "--exterior", str(tmp_path / "near.json"), "-o", str(tmp_path / "x.json")]
+        )
+        == 2
+    )
     assert not (tmp_path / "x.json").exists()

@@ -92,10 +92,14 @@ def test_matches_gdal_keys_cubic_and_lanczos(method, resampling):
     out = np.full_like(IMG, np.nan)
     origin = (500000.0, 4000000.0)  # UTM 33N, 1 m pixels, north up
     reproject(
-        IMG, out,
-        src_transform=Affine(1, 0, origin[0], 0, -1, origin[1]), src_crs="EPSG:32633",
-        dst_transform=Affine(1, 0, origin[0] + dx, 0, -1, origin[1] - dy), dst_crs="EPSG:32633",
-        resampling=resampling, dst_nodata=np.nan,
+        IMG,
+        out,
+        src_transform=Affine(1, 0, origin[0], 0, -1, origin[1]),
+        src_crs="EPSG:32633",
+        dst_transform=Affine(1, 0, origin[0] + dx, 0, -1, origin[1] - dy),
+        dst_crs="EPSG:32633",
+        resampling=resampling,
+        dst_nodata=np.nan,
     )
     c, r = np.meshgrid(np.arange(w) + dx, np.arange(h) + dy)
     ours = np.asarray(resample(IMG, c, r, method))
@@ -107,10 +111,14 @@ def test_matches_gdal_keys_cubic_and_lanczos(method, resampling):
 def test_cubic_closed_form(a):
     """The 4 x 4 sum of DESIGN.md written out directly (distances to the 16
     neighbours, the piecewise kernel), for Keys' and the course text's a."""
+
     def kernel(t):
         t = np.abs(t)
-        return np.where(t <= 1, (a + 2) * t**3 - (a + 3) * t**2 + 1,
-                        np.where(t <= 2, a * t**3 - 5 * a * t**2 + 8 * a * t - 4 * a, 0.0))
+        return np.where(
+            t <= 1,
+            (a + 2) * t**3 - (a + 3) * t**2 + 1,
+            np.where(t <= 2, a * t**3 - 5 * a * t**2 + 8 * a * t - 4 * a, 0.0),
+        )
 
     h, w = IMG.shape
     cols, rows = _interior(300, h, w, 1)
@@ -202,7 +210,9 @@ def test_integer_images_are_rounded_and_clipped(dtype):
     cols, rows = _interior(400, 20, 30, 0)
     ours = np.asarray(resample(img, cols, rows, "cubic", a=-1.0))
     assert ours.dtype == dtype
-    ref = np.clip(np.round(np.asarray(resample(img.astype(np.float64), cols, rows, "cubic", a=-1.0))), info.min, info.max)
+    ref = np.clip(
+        np.round(np.asarray(resample(img.astype(np.float64), cols, rows, "cubic", a=-1.0))), info.min, info.max
+    )
     # float32 sums vs float64: a .5 tie may round either way
     assert np.abs(ours.astype(np.float64) - ref).max() <= 1
     assert (ours == info.max).any() and (ours == info.min).any()  # clipping happened
@@ -284,8 +294,9 @@ def test_registry_taps_and_margin_match_the_kernel(kernel):
     # The value at (8.3, 8.3) as a function of the image is linear: its
     # derivative w.r.t. the image gives the weight of every input pixel
     # (forward mode: reverse mode meets the NaN padding of the positions).
-    grad = np.asarray(jax.jacfwd(lambda im: resample(im, jnp.array([8.3]), jnp.array([8.3]), kernel.value)[0])(
-        jnp.asarray(impulse)))
+    grad = np.asarray(
+        jax.jacfwd(lambda im: resample(im, jnp.array([8.3]), jnp.array([8.3]), kernel.value)[0])(jnp.asarray(impulse))
+    )
     rows, cols = np.nonzero(np.abs(grad) > 1e-12)
     if kernel.prefilter:
         assert len(rows) > kernel.taps**2
@@ -359,4 +370,6 @@ def test_resample_grid_is_resample_on_a_lattice(method, dtype):
     ref = np.asarray(resample(img, *np.meshgrid(cols, rows), method))
     assert ours.dtype == ref.dtype and ours.shape == ref.shape
     np.testing.assert_array_equal(np.isnan(ours.astype(float)), np.isnan(ref.astype(float)))
-    np.testing.assert_allclose(ours.astype(float), ref.astype(float), atol=1 if dtype == np.uint8 else 5e-4)  # 2e-6 of the range
+    np.testing.assert_allclose(
+        ours.astype(float), ref.astype(float), atol=1 if dtype == np.uint8 else 5e-4
+    )  # 2e-6 of the range

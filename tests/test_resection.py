@@ -74,8 +74,14 @@ def test_settings_cached_per_camera_follow_the_camera():
 def test_initial_values_not_needed_for_any_kappa_batch():
     # many random attitudes at once, including strong obliques, through the batch path
     rng = np.random.default_rng(5)
-    scenes = [_scene(rng, (rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8), rng.uniform(-np.pi, np.pi)),
-                     relief=rng.choice([0.0, 200.0])) for _ in range(64)]
+    scenes = [
+        _scene(
+            rng,
+            (rng.uniform(-0.8, 0.8), rng.uniform(-0.8, 0.8), rng.uniform(-np.pi, np.pi)),
+            relief=rng.choice([0.0, 200.0]),
+        )
+        for _ in range(64)
+    ]
     ground, xy = np.stack([s[0] for s in scenes]), np.stack([s[1] for s in scenes])
     res = ptx.resect_batch(xy, ground, CAM)
     truth = np.stack([np.asarray(s[2].to_vector()) for s in scenes])
@@ -149,8 +155,9 @@ def test_batch_agrees_with_single_and_flags_blunders():
     assert not batch.outliers[[0, 2]].any()
     for i in range(3):
         one = ptx.resect(noisy[i], ground, cam, sigma=0.5)
-        np.testing.assert_allclose(np.asarray(batch[i].exterior.to_vector()), np.asarray(one.exterior.to_vector()),
-                                   rtol=0, atol=1e-7)
+        np.testing.assert_allclose(
+            np.asarray(batch[i].exterior.to_vector()), np.asarray(one.exterior.to_vector()), rtol=0, atol=1e-7
+        )
         np.testing.assert_allclose(batch[i].std, one.std, rtol=1e-6)
         assert batch[i].outliers.tolist() == one.outliers.tolist()
 
@@ -167,8 +174,14 @@ def test_large_batch_program_matches_the_per_lane_loop(monkeypatch):
     from photax.resection._types import pack
 
     rng = np.random.default_rng(21)
-    scenes = [_scene(rng, (rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(-np.pi, np.pi)),
-                     relief=rng.choice([0.0, 200.0])) for _ in range(40)]
+    scenes = [
+        _scene(
+            rng,
+            (rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3), rng.uniform(-np.pi, np.pi)),
+            relief=rng.choice([0.0, 200.0]),
+        )
+        for _ in range(40)
+    ]
     ground = np.stack([s[0] for s in scenes])
     xy = np.stack([s[1] for s in scenes]) + rng.normal(0.0, 5e-6, (40, 12, 2))
     truth = np.stack([np.asarray(s[2].to_vector()) for s in scenes])
@@ -176,9 +189,11 @@ def test_large_batch_program_matches_the_per_lane_loop(monkeypatch):
     init = ptx.ExteriorOrientation(far[:, :3], far[:, 3:])
 
     def run(**kw):
-        return [ptx.resect_batch(xy, ground, CAM, robust=False, **kw),
-                ptx.resect_batch(xy, ground, CAM, robust=False, initial=init, max_steps=6, **kw),
-                ptx.resect_batch(xy, ground, CAM, robust=False, initial=init, max_steps=3, **kw)]
+        return [
+            ptx.resect_batch(xy, ground, CAM, robust=False, **kw),
+            ptx.resect_batch(xy, ground, CAM, robust=False, initial=init, max_steps=6, **kw),
+            ptx.resect_batch(xy, ground, CAM, robust=False, initial=init, max_steps=3, **kw),
+        ]
 
     small = run()
     monkeypatch.setattr(_api, "_CHUNK", 64)
@@ -351,8 +366,12 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
     def lanes(inp, opt, p):
         v, a, pred, _ = evaluate(p, inp, inp.ctrl, opt)
         n, g = _normal(a, v)
-        return (_linear.linear_start_lanes(inp, opt), (a, pred, n, g), _lanes.cho_solve(n, g[:, None])[:, 0],
-                _lanes.inverse_factor(n))
+        return (
+            _linear.linear_start_lanes(inp, opt),
+            (a, pred, n, g),
+            _lanes.cho_solve(n, g[:, None])[:, 0],
+            _lanes.inverse_factor(n),
+        )
 
     cam = ptx.FrameCamera(0.15324, (1e-4, -2e-4), (0.05, -0.02, 0.01, 1e-4, -2e-4))
     rng = np.random.default_rng(8)
@@ -377,8 +396,9 @@ def test_lane_jacobian_and_solve_match_autodiff_and_lapack():
         args = (jnp.asarray(p.T), jnp.asarray(ground), jnp.asarray(prep.origin))
         want_xy, want = jax.jit(jax.vmap(lambda *x: (model(*x), jax.jacfwd(model)(*x))))(*args)  # (2, n, 2 [, 6])
         np.testing.assert_allclose(np.asarray(pred)[:, :9].transpose(2, 1, 0), want_xy, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(np.asarray(a)[:, :, :9].transpose(3, 2, 1, 0), want, rtol=1e-9,
-                                   atol=1e-9 * np.abs(want).max())
+        np.testing.assert_allclose(
+            np.asarray(a)[:, :, :9].transpose(3, 2, 1, 0), want, rtol=1e-9, atol=1e-9 * np.abs(want).max()
+        )
         want = np.linalg.solve(np.transpose(np.asarray(n), (2, 0, 1)), np.asarray(g).T[..., None])[..., 0].T
         np.testing.assert_allclose(x, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
         mf = np.transpose(np.asarray(mf), (2, 0, 1))

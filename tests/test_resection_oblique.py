@@ -68,11 +68,9 @@ def test_terrestrial_views_equal_truth_within_sigma(name):
     angles = np.asarray(eo.to_convention(conv).angles)
     # one rotation, two angle triplets (a, b, c) and (a + pi, pi - b, c + pi): the one nearer the result
     other = angles + [np.pi, np.pi - 2 * angles[1], np.pi]
-    np.testing.assert_allclose(ptx.rotation_matrix(other, conv), ptx.rotation_matrix(angles, conv),
-                               atol=1e-12)
+    np.testing.assert_allclose(ptx.rotation_matrix(other, conv), ptx.rotation_matrix(angles, conv), atol=1e-12)
     got = np.asarray(res.exterior.angles)
-    d_ang = min(((got - a + np.pi) % (2 * np.pi) - np.pi for a in (angles, other)),
-                key=lambda d: np.abs(d).max())
+    d_ang = min(((got - a + np.pi) % (2 * np.pi) - np.pi for a in (angles, other)), key=lambda d: np.abs(d).max())
     diff = np.concatenate([np.asarray(res.exterior.position) - np.asarray(eo.position), d_ang])
     assert np.all(np.abs(diff) < 3.0 * res.std), (diff, res.std)
     assert res.outliers.sum() == 0

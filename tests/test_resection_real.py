@@ -2,9 +2,9 @@
 
 import cv2
 import numpy as np
+from conftest import shared_file
 
 import photax as ptx
-from conftest import shared_file
 
 CAM = ptx.FrameCamera.from_pixels(2904.0, (4000, 3000))  # nominal focal length, centred principal point
 K = np.array([[2904.0, 0.0, 1999.5], [0.0, 2904.0, 1499.5], [0.0, 0.0, 1.0]])  # pixel centre = integer
@@ -30,8 +30,10 @@ def test_real_gcp_list_resection_matches_opencv():
     for image in images:
         sub = table.select(image)
         res = ptx.resect(sub.image_plane(CAM), sub.ground, CAM, names=list(sub.names))
-        print(f"{image}: {len(sub.names)} targets, rms {res.rmse:.2f} px, "
-              f"outliers {[n for n, o in zip(sub.names, res.outliers) if o]}")
+        print(
+            f"{image}: {len(sub.names)} targets, rms {res.rmse:.2f} px, "
+            f"outliers {[n for n, o in zip(sub.names, res.outliers) if o]}"
+        )
         assert res.converged
         keep = ~res.outliers
         origin = sub.ground[keep].mean(0)

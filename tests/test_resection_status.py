@@ -59,8 +59,15 @@ def sample():
 def _resect_sample(table, camera, pixel=None, ground=None, throw=False):
     pixel = table.pixel if pixel is None else pixel
     ground = table.ground if ground is None else ground
-    return ptx.resect(np.asarray(camera.pixel_to_image(pixel)), ground, camera, sigma=table.image_plane_sigma(camera),
-                      check=table.check, names=table.names, throw=throw)
+    return ptx.resect(
+        np.asarray(camera.pixel_to_image(pixel)),
+        ground,
+        camera,
+        sigma=table.image_plane_sigma(camera),
+        check=table.check,
+        names=table.names,
+        throw=throw,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -91,8 +98,7 @@ def test_sample_with_east_and_north_swapped_fails_in_photax_words(sample):
     ground = table.ground[:, [1, 0, 2]]
     res = _resect_sample(table, camera, ground=ground)
     # near-nadir: an image y reversal is the same as a ground reflection, so both fit; the swap is named
-    _fails(res, "swapped or mirrored axes", "fit if",
-           "the ground E and N (X and Y) are swapped (then rmse 0.")
+    _fails(res, "swapped or mirrored axes", "fit if", "the ground E and N (X and Y) are swapped (then rmse 0.")
     with pytest.raises(ptx.ConvergenceError) as info:
         _resect_sample(table, camera, ground=ground, throw=True)
     _no_dependency_text(info.value)
@@ -185,7 +191,10 @@ def test_errors_inside_the_solver_are_reported_in_photax_words(monkeypatch):
     monkeypatch.setattr(resection._api, "_solve_cheap", broken)
     monkeypatch.setattr(resection._api, "_solve_robust", broken)
     monkeypatch.setattr(resection._api, "_solve_robust_batch", broken)
-    for call in (lambda: ptx.resect(xy, ground, cam, throw=False), lambda: ptx.resect_batch(xy[None], ground[None], cam)):
+    for call in (
+        lambda: ptx.resect(xy, ground, cam, throw=False),
+        lambda: ptx.resect_batch(xy[None], ground[None], cam),
+    ):
         with pytest.raises(ptx.ConvergenceError) as info:
             call()
         _no_dependency_text(info.value)
@@ -256,11 +265,10 @@ def test_summary_residual_table_columns_are_separated_and_aligned(sample_result)
     text = sample_result.summary()  # no camera_unit: the longest heads, "vx [image-plane units]"
     lines = text.splitlines()
     head = next(i for i, line in enumerate(lines) if line.strip().startswith("point"))
-    heads = ["point", "role", "vx [px]", "vy [px]", "vx [image-plane units]", "vy [image-plane units]",
-             "w_x", "w_y"]
+    heads = ["point", "role", "vx [px]", "vy [px]", "vx [image-plane units]", "vy [image-plane units]", "w_x", "w_y"]
     cells = [(m.start(), m.end()) for m in re.finditer(r"\S+(?: \S+)*", lines[head])]
     assert [lines[head][a:b] for a, b in cells] == heads
-    rows = lines[head + 1:head + 1 + len(sample_result.names)]
+    rows = lines[head + 1 : head + 1 + len(sample_result.names)]
     for row, name in zip(rows, sample_result.names):
         spans = [(m.start(), m.end()) for m in re.finditer(r"\S+", row)]
         assert row[slice(*spans[0])] == name and len(spans) == len(heads)

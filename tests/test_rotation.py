@@ -4,7 +4,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 import photax as ptx
@@ -59,9 +60,7 @@ def test_unknown_convention_is_refused():
 def test_convert_between_conventions_keeps_the_matrix():
     pok = jnp.array([0.2, -0.4, 2.5])
     opk = ptx.convert_angles(pok, "phi-omega-kappa", "omega-phi-kappa")
-    np.testing.assert_allclose(
-        ptx.rotation_matrix(opk, "omega-phi-kappa"), ptx.rotation_matrix(pok), atol=1e-14
-    )
+    np.testing.assert_allclose(ptx.rotation_matrix(opk, "omega-phi-kappa"), ptx.rotation_matrix(pok), atol=1e-14)
 
 
 @settings(max_examples=200, deadline=None)

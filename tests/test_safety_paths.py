@@ -30,8 +30,9 @@ from photax.io.raster import open_raster
 from photax.io.results import read_json
 
 DATA = ROOT / "data"
-GCPS, CAMERA, IMAGE, DEM = (DATA / n for n in ("sample_gcps.csv", "sample_camera.yaml", "sample_image.tif",
-                                               "sample_dem.tif"))
+GCPS, CAMERA, IMAGE, DEM = (
+    DATA / n for n in ("sample_gcps.csv", "sample_camera.yaml", "sample_image.tif", "sample_dem.tif")
+)
 CAM_PX = "focal_length_px: 3000.0\nimage_size: [4000, 3000]\n"  # the sample block's camera, as a file
 SECRET = "S3CRET-VALUE-0123456789"
 
@@ -87,8 +88,7 @@ def test_every_file_a_reader_opens_is_an_input(tmp_path):
 # --- writes outside the folder asked for ---------------------------------------------
 
 
-@pytest.mark.parametrize("bad", ["../../x", "/ABS/x", "..", ".", "", " cam", "a\\b", "nul\x00x", "CON",
-                                 "lpt1.txt"])
+@pytest.mark.parametrize("bad", ["../../x", "/ABS/x", "..", ".", "", " cam", "a\\b", "nul\x00x", "CON", "lpt1.txt"])
 def test_bundle_camera_out_never_writes_outside_its_folder(tmp_path, capsys, bad):
     bad = bad.replace("/ABS", str(tmp_path / "abs"))
     (tmp_path / "abs").mkdir()
@@ -105,17 +105,37 @@ def test_bundle_camera_out_never_writes_outside_its_folder(tmp_path, capsys, bad
 def test_output_name():
     for good in ("cam", "cam.1", "Kamera ä", "a..b", "CONSOLE", "com10"):
         assert output_name(good) == good
-    for bad in ("a/b", "/etc/passwd", "..", ".", "", "   ", "a\\b", "x\x00", "tab\tx", "aux", "Nul.yaml",
-                "COM3", "con .txt", "end.", "x" * 201):
+    for bad in (
+        "a/b",
+        "/etc/passwd",
+        "..",
+        ".",
+        "",
+        "   ",
+        "a\\b",
+        "x\x00",
+        "tab\tx",
+        "aux",
+        "Nul.yaml",
+        "COM3",
+        "con .txt",
+        "end.",
+        "x" * 201,
+    ):
         with pytest.raises(ValueError, match="cannot be a file name"):
             output_name(bad, "camera")
 
 
 # --- reading only what a file should be ------------------------------------------------
 
-READERS = {"camera file": read_camera, "GCP file": read_gcps, "JSON file": read_json,
-           "orthority exterior file": read_orthority_exterior, "BAL file": read_bal_arrays,
-           "raster file": open_raster}
+READERS = {
+    "camera file": read_camera,
+    "GCP file": read_gcps,
+    "JSON file": read_json,
+    "orthority exterior file": read_orthority_exterior,
+    "BAL file": read_bal_arrays,
+    "raster file": open_raster,
+}
 
 
 @pytest.fixture
@@ -147,14 +167,18 @@ def test_readers_refuse_fifos_and_devices(tmp_path, alarm, what):
 
 
 @pytest.mark.skipif(not hasattr(os, "mkfifo") or not os.path.exists("/dev/zero"), reason="no FIFOs, devices")
-@pytest.mark.parametrize("argv, what", [
-    (["resect", str(GCPS), "--camera", "{}"], "camera file"),
-    (["resect", "{}", "--camera", str(CAMERA)], "GCP file"),
-    (["ortho", str(IMAGE), "--dem", str(DEM), "--camera", str(CAMERA), "--exterior", "{}", "--out", "o.tif"],
-     "exterior file"),
-    (["ortho", "{}", "--dem", str(DEM), "--camera", str(CAMERA), "--exterior", "x", "--out", "o.tif"],
-     "image"),
-])
+@pytest.mark.parametrize(
+    "argv, what",
+    [
+        (["resect", str(GCPS), "--camera", "{}"], "camera file"),
+        (["resect", "{}", "--camera", str(CAMERA)], "GCP file"),
+        (
+            ["ortho", str(IMAGE), "--dem", str(DEM), "--camera", str(CAMERA), "--exterior", "{}", "--out", "o.tif"],
+            "exterior file",
+        ),
+        (["ortho", "{}", "--dem", str(DEM), "--camera", str(CAMERA), "--exterior", "x", "--out", "o.tif"], "image"),
+    ],
+)
 def test_cli_refuses_a_fifo_or_device_at_once(tmp_path, capsys, alarm, argv, what):
     fifo = tmp_path / "pipe"
     os.mkfifo(fifo)
@@ -201,8 +225,9 @@ BAL = "1 1 1\n0 0 1.5 -2.5\n0.1 0.2 0.3 1 2 3 500 0 0\n1 2 -10\n"  # 1 camera, 1
 def test_bal_bz2_is_decompressed_only_up_to_the_limit(tmp_path, monkeypatch):
     plain = read_bal_arrays(_write(tmp_path / "p.txt", BAL.encode()))
     half = len(BAL) // 2  # two bzip2 streams, as pbzip2 writes them: still read whole
-    multi = read_bal_arrays(_write(tmp_path / "m.txt.bz2", bz2.compress(BAL[:half].encode())
-                                   + bz2.compress(BAL[half:].encode())))
+    multi = read_bal_arrays(
+        _write(tmp_path / "m.txt.bz2", bz2.compress(BAL[:half].encode()) + bz2.compress(BAL[half:].encode()))
+    )
     assert (multi.observations == plain.observations).all() and (multi.cameras == plain.cameras).all()
     bomb = _write(tmp_path / "bomb.txt.bz2", bz2.compress(BAL.encode() + b" " * 100_000))  # 100 kB from 100 B
     monkeypatch.setitem(files.MAX_BYTES, "BAL file", 10_000)
@@ -285,11 +310,11 @@ def test_a_yaml_alias_bomb_is_refused_at_once(tmp_path):
     # 1 kB of nested aliases ("billion laughs"): 9**9 values; read whole, it ran out of time and memory
     levels = ", ".join(f"&a{i} [" + ",".join([f"*a{i - 1}"] * 9) + "]" for i in range(1, 9))
     cam = tmp_path / "bomb.yaml"
-    cam.write_text(f"focal_length: 1\nunit: mm\ndescription: [&a0 [1,1,1,1,1,1,1,1,1], {levels}]\n"
-                   "pixel_size: *a8\n")
+    cam.write_text(f"focal_length: 1\nunit: mm\ndescription: [&a0 [1,1,1,1,1,1,1,1,1], {levels}]\npixel_size: *a8\n")
     assert cam.stat().st_size < 1000
     with pytest.raises(ValueError, match=r"line 3: not valid YAML: its aliases expand to over 100000 values"):
         read_interior(cam)
-    cam.write_text("focal_length: &f 8.8\nunit: mm\nprincipal_point: &pp [0.1, 0.2]\n"
-                   "name: *f\ndescription: *pp\n")  # a few aliases are fine
+    cam.write_text(
+        "focal_length: &f 8.8\nunit: mm\nprincipal_point: &pp [0.1, 0.2]\nname: *f\ndescription: *pp\n"
+    )  # a few aliases are fine
     assert read_camera(cam).focal_length == 8.8

@@ -26,9 +26,19 @@ from photax.cli import main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = ROOT / "data"
-ORTHO = ["ortho", str(DATA / "sample_image.tif"), "--dem", str(DATA / "sample_dem.tif"),
-         "--camera", str(DATA / "sample_camera.yaml"), "--exterior", str(DATA / "sample_truth.json"),
-         "--resolution", "0.5", "--no-progress"]
+ORTHO = [
+    "ortho",
+    str(DATA / "sample_image.tif"),
+    "--dem",
+    str(DATA / "sample_dem.tif"),
+    "--camera",
+    str(DATA / "sample_camera.yaml"),
+    "--exterior",
+    str(DATA / "sample_truth.json"),
+    "--resolution",
+    "0.5",
+    "--no-progress",
+]
 OLD = b"the previous result\n"
 PHOTAX = [sys.executable, "-c", "import sys, photax.cli; sys.exit(photax.cli.main(sys.argv[1:]))"]
 
@@ -40,8 +50,9 @@ def tmpfs(tmp_path):
     folder.mkdir()
     if os.geteuid() != 0 or shutil.which("mount") is None:
         pytest.skip("mounting a tmpfs needs root")
-    p = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(folder)], capture_output=True,
-                       check=False)
+    p = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(folder)], capture_output=True, check=False
+    )
     if p.returncode:
         pytest.skip(f"cannot mount a tmpfs here: {p.stderr.decode().strip()}")
     yield folder
@@ -70,20 +81,24 @@ def _limited(fsize: int, cmd: list[str]) -> list[str]:
     SIGXFSZ ignored so a write past it fails (EFBIG) rather than killing the process.
     Set by a small launcher, not a preexec_fn: forking this process (JAX's threads
     running) is unsafe."""
-    launcher = ("import os, resource, signal, sys; signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
-                "resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[1]),) * 2); "
-                "os.execv(sys.argv[2], sys.argv[2:])")
+    launcher = (
+        "import os, resource, signal, sys; signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[1]),) * 2); "
+        "os.execv(sys.argv[2], sys.argv[2:])"
+    )
     return [sys.executable, "-c", launcher, str(fsize), *cmd]
 
 
 def _env():
     """The subprocesses run the photax this process imported."""
     src = str(pathlib.Path(photax.cli.__file__).parents[2])
-    return dict(os.environ, PYTHONPATH=os.pathsep.join([src, os.environ.get("PYTHONPATH", "")]),
-                PYTHONWARNINGS="ignore")
+    return dict(
+        os.environ, PYTHONPATH=os.pathsep.join([src, os.environ.get("PYTHONPATH", "")]), PYTHONWARNINGS="ignore"
+    )
 
 
 # -- every writer, on a full disk ---------------------------------------------------------------
+
 
 def _grid():
     from photax.rectification import Grid
@@ -132,8 +147,16 @@ def _bal(out):
     from photax.io.bal import BALData, write_bal_arrays
 
     rng = np.random.default_rng(1)
-    write_bal_arrays(BALData(rng.normal(size=(2, 9)), rng.normal(size=(50, 3)), np.arange(100) % 2,
-                             np.arange(100) % 50, rng.normal(size=(100, 2))), out)
+    write_bal_arrays(
+        BALData(
+            rng.normal(size=(2, 9)),
+            rng.normal(size=(50, 3)),
+            np.arange(100) % 2,
+            np.arange(100) % 50,
+            rng.normal(size=(100, 2)),
+        ),
+        out,
+    )
 
 
 def _block(out):
@@ -207,16 +230,25 @@ def test_json_over_the_file_size_limit_is_refused_before_writing(tmp_path):
     data = {"result": list(range(1000))}
     size = len((json.dumps(data, indent=2) + "\n").encode())
     code = f"import sys\nfrom photax.io import write_json\nwrite_json({data!r}, sys.argv[1])"
-    p = subprocess.run(_limited(1000, [sys.executable, "-c", code, str(out)]), capture_output=True, text=True,
-                       env=_env(), timeout=120, check=False)
+    p = subprocess.run(
+        _limited(1000, [sys.executable, "-c", code, str(out)]),
+        capture_output=True,
+        text=True,
+        env=_env(),
+        timeout=120,
+        check=False,
+    )
     assert p.returncode == 1
     last = p.stderr.strip().splitlines()[-1]
-    assert last.startswith("OSError: [Errno 27] not written (the existing file is kept): file too large: "
-                           f"{size / 1e3:.3g} kB needed, the file size limit (ulimit -f) is 1 kB"), last
+    assert last.startswith(
+        "OSError: [Errno 27] not written (the existing file is kept): file too large: "
+        f"{size / 1e3:.3g} kB needed, the file size limit (ulimit -f) is 1 kB"
+    ), last
     assert str(out) in last and out.read_bytes() == OLD and sorted(tmp_path.iterdir()) == [out]
 
 
 # -- the command line ----------------------------------------------------------------------------
+
 
 def test_cli_ortho_onto_a_full_disk_exits_2_and_keeps_the_old_ortho(tmpfs, capsys):
     # issue 27: exit 0, "wrote ...", a truncated GeoTIFF in place of the good one.
@@ -225,8 +257,9 @@ def test_cli_ortho_onto_a_full_disk_exits_2_and_keeps_the_old_ortho(tmpfs, capsy
     _fill(tmpfs, leave=100_000)  # the ortho is about 400 kB
     assert main(ORTHO + ["--out", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
-    assert err.startswith(f"photax ortho: error: {out}: not written (the existing file is kept): "
-                          "no space left on device:"), err
+    assert err.startswith(
+        f"photax ortho: error: {out}: not written (the existing file is kept): no space left on device:"
+    ), err
     assert out.read_bytes() == OLD
     assert sorted(p.name for p in tmpfs.iterdir()) == ["filler", "o.tif"]
 
@@ -234,16 +267,27 @@ def test_cli_ortho_onto_a_full_disk_exits_2_and_keeps_the_old_ortho(tmpfs, capsy
 def test_cli_rectify_past_the_file_size_limit_exits_2_and_keeps_the_old_file(tmp_path):
     out = tmp_path / "r.tif"
     out.write_bytes(OLD)
-    cmd = [*PHOTAX, "rectify", str(DATA / "sample_image.tif"), "--gcps", str(DATA / "sample_gcps.csv"),
-           "--resolution", "1", "--no-progress", "--out", str(out)]
-    p = subprocess.run(_limited(50_000, cmd), capture_output=True, text=True, env=_env(), timeout=600,
-                       check=False)
+    cmd = [
+        *PHOTAX,
+        "rectify",
+        str(DATA / "sample_image.tif"),
+        "--gcps",
+        str(DATA / "sample_gcps.csv"),
+        "--resolution",
+        "1",
+        "--no-progress",
+        "--out",
+        str(out),
+    ]
+    p = subprocess.run(_limited(50_000, cmd), capture_output=True, text=True, env=_env(), timeout=600, check=False)
     # (the output is about 140 kB)
     assert p.returncode == 2, p.stdout + p.stderr
     assert "wrote" not in p.stdout
     err = p.stderr.strip().splitlines()[-1]
-    assert err.startswith(f"photax rectify: error: {out}: not written (the existing file is kept): "
-                          "file too large:") and "(ulimit -f) is 50 kB" in err, err
+    assert (
+        err.startswith(f"photax rectify: error: {out}: not written (the existing file is kept): file too large:")
+        and "(ulimit -f) is 50 kB" in err
+    ), err
     assert out.read_bytes() == OLD
     assert sorted(p.name for p in tmp_path.iterdir()) == ["r.tif"]
 
@@ -253,8 +297,17 @@ def test_cli_compare_that_fails_writes_nothing(tmpfs, capsys):
     # for the table (3 kB) but not the error maps (about 300 kB).
     _fill(tmpfs, leave=60_000)
     out = tmpfs / "cmp"
-    argv = ["compare", str(DATA / "sample_gcps.csv"), "--camera", str(DATA / "sample_camera.yaml"),
-            "--dem", str(DATA / "sample_dem.tif"), "--out", str(out), "--no-progress"]
+    argv = [
+        "compare",
+        str(DATA / "sample_gcps.csv"),
+        "--camera",
+        str(DATA / "sample_camera.yaml"),
+        "--dem",
+        str(DATA / "sample_dem.tif"),
+        "--out",
+        str(out),
+        "--no-progress",
+    ]
     assert main(argv) == 2
     assert "no space left on device" in capsys.readouterr().err
     assert sorted(p.name for p in tmpfs.iterdir()) == ["filler"]  # not even the folder
@@ -281,8 +334,12 @@ with _all_or_nothing(["photax test"]):
 def test_a_signal_during_a_write_removes_the_temporary_and_takes_back_the_run(tmp_path, sig):
     first, second = tmp_path / "a.txt", tmp_path / "b.txt"
     first.write_bytes(OLD)
-    p = subprocess.Popen([sys.executable, "-c", _WRITER, str(first), str(second)], stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, env=_env())
+    p = subprocess.Popen(
+        [sys.executable, "-c", _WRITER, str(first), str(second)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        env=_env(),
+    )
     assert p.stdout.readline() == b"writing\n"
     assert first.read_text() == "new"
     assert len([q for q in tmp_path.iterdir() if q.name.endswith(".part")]) == 1  # a 10 MB temporary
@@ -336,8 +393,11 @@ def test_stale_temporaries_are_removed_on_the_next_write(tmp_path):
     from photax.io import write_json
 
     day = 24 * 3600
-    stale = [tmp_path / ".o.json.a1b2c3d4.part", tmp_path / ".x.tif.zz_9yy8x.part",
-             tmp_path / ".x.tif.k2j3h4g5.part.gtiff"]
+    stale = [
+        tmp_path / ".o.json.a1b2c3d4.part",
+        tmp_path / ".x.tif.zz_9yy8x.part",
+        tmp_path / ".x.tif.k2j3h4g5.part.gtiff",
+    ]
     (tmp_path / ".blk.q1w2e3r4.part").mkdir()  # a block folder's
     stale.append(tmp_path / ".blk.q1w2e3r4.part")
     fresh = tmp_path / ".o.json.f5g6h7j8.part"  # another process may be writing it
@@ -359,4 +419,3 @@ def test_main_restores_the_signal_handlers():
     with photax.cli._all_or_nothing(["photax"]):
         assert signal.getsignal(signal.SIGTERM) is not before[signal.SIGTERM]
     assert {s: signal.getsignal(s) for s in before} == before
-

@@ -121,9 +121,10 @@ def test_whole_file_parsing_equals_the_line_by_line_parser(tmp_path, monkeypatch
     path = _gcp_csv(tmp_path / "g.csv", 3000)
     if fmt == "odm":  # the same measurements as an ODM list: E N h col row image [name]
         t = gcp.read_gcps(path)
-        rows = [f"{e!r} {n!r} {h!r} {c!r} {r!r} {im}" + (f" Q{nm} extra" if k % 2 else "")
-                for k, ((e, n, h), (c, r), im, nm) in enumerate(zip(t.ground.tolist(), t.pixel.tolist(),
-                                                                    t.images, t.names))]
+        rows = [
+            f"{e!r} {n!r} {h!r} {c!r} {r!r} {im}" + (f" Q{nm} extra" if k % 2 else "")
+            for k, ((e, n, h), (c, r), im, nm) in enumerate(zip(t.ground.tolist(), t.pixel.tolist(), t.images, t.names))
+        ]
         path = tmp_path / "gcp_list.txt"
         path.write_text("EPSG:32633\n" + "\n".join(rows) + "\n")
     calls = []
@@ -135,12 +136,15 @@ def test_whole_file_parsing_equals_the_line_by_line_parser(tmp_path, monkeypatch
     _same_tables(fast, gcp.read_gcps(path))
 
 
-@pytest.mark.parametrize("bad, message", [
-    ("5.12e5x", "E is not a number: '5.12e5x'"),
-    ("inf", "E is not finite: 'inf'"),
-    ("1,2", "expected 9 columns, got 10"),
-    ('"{}"', None),  # its own value quoted: a valid CSV field, read by the line-by-line parser
-])
+@pytest.mark.parametrize(
+    "bad, message",
+    [
+        ("5.12e5x", "E is not a number: '5.12e5x'"),
+        ("inf", "E is not finite: 'inf'"),
+        ("1,2", "expected 9 columns, got 10"),
+        ('"{}"', None),  # its own value quoted: a valid CSV field, read by the line-by-line parser
+    ],
+)
 def test_a_malformed_line_deep_in_a_big_file_is_named(tmp_path, bad, message):
     path = _gcp_csv(tmp_path / "g.csv", 100_000, bad=(87_654, bad))
     line = 2 + 87_654 + 1 + 2 * (87_654 // 1000 + 1)  # 2 lines of header, 2 per comment block above
@@ -176,15 +180,31 @@ def test_resect_of_3000_gcps_exits_cleanly(tmp_path):
     cam = ptx.read_camera(data / "sample_camera.yaml")
     eo = ptx.ExteriorOrientation(truth["position"], truth["angles_rad"])
     rng = np.random.default_rng(5)
-    g = np.column_stack([np.asarray(truth["position"][:2]) + rng.uniform(-150.0, 150.0, (3000, 2)),
-                         rng.uniform(30.0, 70.0, 3000)])
+    g = np.column_stack(
+        [np.asarray(truth["position"][:2]) + rng.uniform(-150.0, 150.0, (3000, 2)), rng.uniform(30.0, 70.0, 3000)]
+    )
     px = np.asarray(cam.image_to_pixel(ptx.project(g, eo, cam)))
     assert np.all((px > 0) & (px < [999, 749]))
     path = tmp_path / "gcps.csv"
-    path.write_text("E,N,h,col,row\n" + "".join(f"{a!r},{b!r},{c!r},{d!r},{e!r}\n"
-                                                for a, b, c, d, e in np.column_stack([g, px]).tolist()))
-    proc = subprocess.run([sys.executable, "-c", "import sys; from photax.cli import main; sys.exit(main())",
-                           "resect", str(path), "--camera", str(data / "sample_camera.yaml")],
-                          check=False, capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    path.write_text(
+        "E,N,h,col,row\n"
+        + "".join(f"{a!r},{b!r},{c!r},{d!r},{e!r}\n" for a, b, c, d, e in np.column_stack([g, px]).tolist())
+    )
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            "import sys; from photax.cli import main; sys.exit(main())",
+            "resect",
+            str(path),
+            "--camera",
+            str(data / "sample_camera.yaml"),
+        ],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=tmp_path,
+    )
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "1 of 1 image solved" in proc.stdout and "terminate" not in proc.stderr

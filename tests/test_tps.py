@@ -16,8 +16,7 @@ def _points(n=25, seed=0):
     rng = np.random.default_rng(seed)
     src = rng.uniform([500000, 4000000], [503000, 4002000], size=(n, 2))  # map metres: raw values are large
     u = (src - src.mean(0)) / 1000
-    dst = np.stack([800 + 310 * u[:, 0] + 20 * np.sin(u[:, 1] * 2),
-                    600 - 305 * u[:, 1] + 15 * u[:, 0] ** 2], 1)
+    dst = np.stack([800 + 310 * u[:, 0] + 20 * np.sin(u[:, 1] * 2), 600 - 305 * u[:, 1] + 15 * u[:, 0] ** 2], 1)
     return src, dst
 
 
@@ -52,8 +51,7 @@ def test_leave_one_out_residuals_are_refits_without_the_point():
     for i in (0, 5, 11):
         keep = np.arange(12) != i
         refit = fit_tps(src[keep], dst[keep])
-        np.testing.assert_allclose(np.asarray(model.loo_residuals[i]), np.asarray(refit(src[i])) - dst[i],
-                                   atol=1e-8)
+        np.testing.assert_allclose(np.asarray(model.loo_residuals[i]), np.asarray(refit(src[i])) - dst[i], atol=1e-8)
     assert np.all(np.isfinite(np.asarray(model.loo_residuals)))
 
 

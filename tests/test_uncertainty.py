@@ -56,8 +56,9 @@ def _monte_carlo(s, xy, cov, cov_c, dem_sigma, seed=7):
 
     def draw(th, dc, d):
         e = photax.ExteriorOrientation.from_vector(th, ext.convention)
-        c = eqx.tree_at(lambda m: (m.focal_length, m.principal_point), cam,
-                        (cam.focal_length + dc[0], cam.principal_point + dc[1:]))
+        c = eqx.tree_at(
+            lambda m: (m.focal_length, m.principal_point), cam, (cam.focal_length + dc[0], cam.principal_point + dc[1:])
+        )
         pix = c.image_to_pixel(photax.project(ground.at[:, 2].add(d), e, c))
         shifted = eqx.tree_at(lambda m: m.heights, dem, dem.heights + d)
         g = photax.image_to_ground(c.pixel_to_image(p0), e, c, dem=shifted, tol=1e-6)
@@ -72,10 +73,12 @@ def test_first_order_matches_monte_carlo(setup):
     s, grid, cov, cov_c = setup
     dem_sigma = 1.5
     # Exact on a lattice every 2 (coarse) pixels, interpolated (error < 2 (s / H)^2 = 2 %); and at every pixel.
-    u = ortho_uncertainty(s.exterior, cov, s.camera, s.dem, grid, camera_covariance=cov_c, dem_sigma=dem_sigma,
-                          coarsen=COARSEN, step=2)
-    exact = ortho_uncertainty(s.exterior, cov, s.camera, s.dem, grid, camera_covariance=cov_c,
-                              dem_sigma=dem_sigma, coarsen=COARSEN, step=1)
+    u = ortho_uncertainty(
+        s.exterior, cov, s.camera, s.dem, grid, camera_covariance=cov_c, dem_sigma=dem_sigma, coarsen=COARSEN, step=2
+    )
+    exact = ortho_uncertainty(
+        s.exterior, cov, s.camera, s.dem, grid, camera_covariance=cov_c, dem_sigma=dem_sigma, coarsen=COARSEN, step=1
+    )
     assert u.grid.transform.a == COARSEN * grid.transform.a and u.image_cov.shape == u.grid.shape + (2, 2)
     assert u.image_var.shape == (3, *u.grid.shape)
     mc_p, mc_g, p0, z0, g = _monte_carlo(s, u.grid.xy().reshape(-1, 2), cov, cov_c, dem_sigma)
@@ -103,16 +106,20 @@ def test_lattice_interpolation_error_bound(setup):
     flying height above the mean terrain), against the propagation at every
     pixel, for two spacings (the error grows with s^2: 4x for twice s)."""
     s, grid, cov, cov_c = setup
-    exact = ortho_uncertainty(s.exterior, cov, s.camera, s.dem, grid, camera_covariance=cov_c, dem_sigma=1.5,
-                              coarsen=COARSEN, step=1)
+    exact = ortho_uncertainty(
+        s.exterior, cov, s.camera, s.dem, grid, camera_covariance=cov_c, dem_sigma=1.5, coarsen=COARSEN, step=1
+    )
     height = float(s.exterior.position[2]) - float(np.nanmean(np.asarray(s.dem.heights)))
     errors = []
     for step in (2, 4):
-        u = ortho_uncertainty(s.exterior, cov, s.camera, s.dem, grid, camera_covariance=cov_c, dem_sigma=1.5,
-                              coarsen=COARSEN, step=step)
+        u = ortho_uncertainty(
+            s.exterior, cov, s.camera, s.dem, grid, camera_covariance=cov_c, dem_sigma=1.5, coarsen=COARSEN, step=step
+        )
         ok = np.isfinite(u.ground_sigma) & np.isfinite(exact.ground_sigma)
-        err = max(np.abs(v / e - 1)[:, ok].max() for v, e in ((u.image_std, exact.image_std),
-                                                              (u.ground_std, exact.ground_std)))
+        err = max(
+            np.abs(v / e - 1)[:, ok].max()
+            for v, e in ((u.image_std, exact.image_std), (u.ground_std, exact.ground_std))
+        )
         bound = 2 * (step * u.grid.transform.a / height) ** 2
         assert 0 < err <= bound, (step, err, bound)
         errors.append(err)
@@ -123,15 +130,20 @@ def test_results_stand_for_exterior_and_covariance(setup):
     s, grid, cov, _ = setup
     ref = ortho_uncertainty(s.exterior, cov, s.camera, s.dem, grid, coarsen=6)
     resection = types.SimpleNamespace(exterior=s.exterior, covariance=cov)  # the fields photax.resect returns
-    np.testing.assert_array_equal(ortho_uncertainty(resection, None, s.camera, s.dem, grid, coarsen=6).ground_cov,
-                                  ref.ground_cov)
+    np.testing.assert_array_equal(
+        ortho_uncertainty(resection, None, s.camera, s.dem, grid, coarsen=6).ground_cov, ref.ground_cov
+    )
     eo = s.exterior
     bundle = types.SimpleNamespace(
         exterior=photax.ExteriorOrientation(jnp.stack([eo.position] * 2), jnp.stack([eo.angles] * 2), eo.convention),
-        exterior_std=np.sqrt(np.stack([np.diag(cov)] * 2)))
+        exterior_std=np.sqrt(np.stack([np.diag(cov)] * 2)),
+    )
     diag = ortho_uncertainty(s.exterior, np.diag(np.diag(cov)), s.camera, s.dem, grid, coarsen=6)
-    np.testing.assert_allclose(ortho_uncertainty(bundle, None, s.camera, s.dem, grid, coarsen=6, image=1)
-                               .ground_cov, diag.ground_cov, rtol=1e-12)
+    np.testing.assert_allclose(
+        ortho_uncertainty(bundle, None, s.camera, s.dem, grid, coarsen=6, image=1).ground_cov,
+        diag.ground_cov,
+        rtol=1e-12,
+    )
     with pytest.raises(ValueError, match="covariance"):
         ortho_uncertainty(s.exterior, np.eye(5), s.camera, s.dem, grid)
     with pytest.raises(ValueError, match="covariance"):
@@ -151,8 +163,8 @@ def test_bundle_result_gives_each_image_its_covariance_block():
     ortho_uncertainty of the result uses that block, correlations included."""
     from rasterio import Affine
 
-    from photax.scene import synthetic_block
     from photax.rectification import Grid
+    from photax.scene import synthetic_block
 
     problem, _ = synthetic_block(0, strips=3, images_per_strip=5, n_tie=300)
     problem = problem.replace(free_intrinsics=("f", "x0", "y0", "k1"))
@@ -171,8 +183,11 @@ def test_bundle_result_gives_each_image_its_covariance_block():
         theta = x[: 6 * n_img].reshape(n_img, 6)
         intr = x[6 * n_img : 6 * n_img + 4]
         pts = jnp.asarray(xyz0).at[np.flatnonzero(free)].set(x[6 * n_img + 4 :].reshape(-1, 3))
-        c = eqx.tree_at(lambda m: (m.focal_length, m.principal_point, m.distortion), cam,
-                        (intr[0], intr[1:3], cam.distortion.at[0].set(intr[3])))
+        c = eqx.tree_at(
+            lambda m: (m.focal_length, m.principal_point, m.distortion),
+            cam,
+            (intr[0], intr[1:3], cam.distortion.at[0].set(intr[3])),
+        )
 
         def one(t, p):
             return photax.project(p[None], photax.ExteriorOrientation.from_vector(t, eo.convention), c)[0]
@@ -189,8 +204,9 @@ def test_bundle_result_gives_each_image_its_covariance_block():
         d = np.sqrt(np.diag(ref))  # compared as correlations (metres, radians and pixels mixed)
         np.testing.assert_allclose(got / np.outer(d, d), ref / np.outer(d, d), rtol=0, atol=1e-6)
         assert np.all(res.orientation_cov[i][10:] == 0)  # k2, k3, p1, p2 fixed
-    np.testing.assert_allclose(np.sqrt(np.diagonal(res.orientation_cov[:, :6, :6], 0, 1, 2)), res.exterior_std,
-                               rtol=1e-9)
+    np.testing.assert_allclose(
+        np.sqrt(np.diagonal(res.orientation_cov[:, :6, :6], 0, 1, 2)), res.exterior_std, rtol=1e-9
+    )
     # ortho_uncertainty of the result = of the image with that (14, 14) block.
     i = 7
     one = photax.ExteriorOrientation(theta0[i, :3], theta0[i, 3:], eo.convention)
@@ -225,8 +241,9 @@ def test_nodata_dem_and_rotated_grid_match_every_pixel(setup):
     c, r = (int(v) for v in s.dem.ground_to_pixel(cx, cy))
     heights[r - 40 : r + 40, c - 40 : c + 40] = np.nan  # a hole of ~5 x 5 coarse pixels in the middle
     holed = photax.DEM(heights, s.dem.transform, s.dem.crs)
-    turned = Grid(Affine.translation(cx, cy) * Affine.rotation(20) * Affine.translation(-cx, -cy) * g.transform,
-                  g.shape, g.crs)
+    turned = Grid(
+        Affine.translation(cx, cy) * Affine.rotation(20) * Affine.translation(-cx, -cy) * g.transform, g.shape, g.crs
+    )
     height = float(s.exterior.position[2]) - float(np.nanmean(np.asarray(s.dem.heights)))
     for dem, gr, coarsen in ((holed, grid, COARSEN), (s.dem, turned, 1)):
         kw = dict(camera_covariance=cov_c, dem_sigma=1.5, coarsen=coarsen)
@@ -244,8 +261,12 @@ def test_nodata_dem_and_rotated_grid_match_every_pixel(setup):
             # the smooth fields' one, but still far inside the 10 % asked.
             near = ndimage.binary_dilation(hole, iterations=2) & ok
             assert near.sum() >= 4
-        err = [max(np.abs(v / e - 1)[:, m].max(initial=0) for v, e in ((u.image_std, exact.image_std),
-                                                                       (u.ground_std, exact.ground_std)))
-               for m in (ok & ~near, near)]
+        err = [
+            max(
+                np.abs(v / e - 1)[:, m].max(initial=0)
+                for v, e in ((u.image_std, exact.image_std), (u.ground_std, exact.ground_std))
+            )
+            for m in (ok & ~near, near)
+        ]
         assert err[0] <= 2 * (2 * np.hypot(u.grid.transform.a, u.grid.transform.d) / height) ** 2, err
         assert err[1] < 0.05, err

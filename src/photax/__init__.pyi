@@ -1,82 +1,170 @@
 """photax's public names: the one list (read by photax._lazy at import time, and by type checkers)."""
 
-from . import fusion as fusion, measure as measure
+from . import fusion as fusion
+from . import measure as measure
 from .bundle import (
     BundleProblem as BundleProblem,
+)
+from .bundle import (
     BundleResult as BundleResult,
+)
+from .bundle import (
     bundle_adjust as bundle_adjust,
+)
+from .bundle import (
     initialize_block as initialize_block,
 )
 from .camera import FrameCamera as FrameCamera
 from .collinearity import (
     ExteriorOrientation as ExteriorOrientation,
+)
+from .collinearity import (
     depth as depth,
+)
+from .collinearity import (
     image_to_ground as image_to_ground,
+)
+from .collinearity import (
     look_at as look_at,
+)
+from .collinearity import (
     project as project,
 )
-from .compare import ModelComparison as ModelComparison, compare_models as compare_models
+from .compare import ModelComparison as ModelComparison
+from .compare import compare_models as compare_models
 from .dem import DEM as DEM
-from .errors import RESULTS as RESULTS, ConvergenceError as ConvergenceError
+from .errors import RESULTS as RESULTS
+from .errors import ConvergenceError as ConvergenceError
 from .fusion import pansharpen as pansharpen
 from .grid import Grid as Grid
 from .interior import (
     InteriorOrientation as InteriorOrientation,
+)
+from .interior import (
     ScannedCamera as ScannedCamera,
+)
+from .interior import (
     find_fiducials as find_fiducials,
+)
+from .interior import (
     interior_orientation as interior_orientation,
 )
 from .intersection import intersect as intersect
 from .io import (
     read_bal as read_bal,
+)
+from .io import (
     read_camera as read_camera,
+)
+from .io import (
     read_dem as read_dem,
+)
+from .io import (
     read_gcps as read_gcps,
+)
+from .io import (
     read_geotiff as read_geotiff,
+)
+from .io import (
     read_json as read_json,
+)
+from .io import (
     write_bal as write_bal,
+)
+from .io import (
     write_camera as write_camera,
+)
+from .io import (
     write_geotiff as write_geotiff,
+)
+from .io import (
     write_json as write_json,
 )
 from .io.lazy import to_raster as to_raster
 from .matching import (
     EpipolarPair as EpipolarPair,
+)
+from .matching import (
     Registration as Registration,
+)
+from .matching import (
     TiePoints as TiePoints,
+)
+from .matching import (
     Transfer as Transfer,
+)
+from .matching import (
     epipolar_pair as epipolar_pair,
+)
+from .matching import (
     match_ties as match_ties,
+)
+from .matching import (
     register_to_ortho as register_to_ortho,
+)
+from .matching import (
     transfer_points as transfer_points,
 )
 from .mosaicking import mosaic as mosaic
 from .polynomial import (
     PolynomialModel as PolynomialModel,
+)
+from .polynomial import (
     ProjectiveModel as ProjectiveModel,
+)
+from .polynomial import (
     TPSModel as TPSModel,
+)
+from .polynomial import (
     fit_polynomial as fit_polynomial,
+)
+from .polynomial import (
     fit_projective as fit_projective,
+)
+from .polynomial import (
     fit_tps as fit_tps,
 )
 from .rectification import (
     orthorectify as orthorectify,
+)
+from .rectification import (
     orthorectify_dask as orthorectify_dask,
+)
+from .rectification import (
     orthorectify_file as orthorectify_file,
+)
+from .rectification import (
     orthorectify_files as orthorectify_files,
+)
+from .rectification import (
     rectify as rectify,
+)
+from .rectification import (
     rectify_file as rectify_file,
 )
-from .resampling import Resampling as Resampling, resample as resample
-from .resection import ResectionResult as ResectionResult, resect as resect, resect_batch as resect_batch
+from .resampling import Resampling as Resampling
+from .resampling import resample as resample
+from .resection import ResectionResult as ResectionResult
+from .resection import resect as resect
+from .resection import resect_batch as resect_batch
 from .rotation import (
     angles_from_matrix as angles_from_matrix,
+)
+from .rotation import (
     axis_angle_to_matrix as axis_angle_to_matrix,
+)
+from .rotation import (
     convert_angles as convert_angles,
+)
+from .rotation import (
     matrix_to_axis_angle as matrix_to_axis_angle,
+)
+from .rotation import (
     rotation_matrix as rotation_matrix,
 )
-from .scene import Scene as Scene, relief_scene as relief_scene
-from .uncertainty import OrthoUncertainty as OrthoUncertainty, ortho_uncertainty as ortho_uncertainty
+from .scene import Scene as Scene
+from .scene import relief_scene as relief_scene
+from .uncertainty import OrthoUncertainty as OrthoUncertainty
+from .uncertainty import ortho_uncertainty as ortho_uncertainty
 
 __version__: str

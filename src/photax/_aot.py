@@ -75,8 +75,17 @@ def _environment() -> str:
     import jaxlib
 
     dev = jax.devices()[0]
-    return repr((jax.__version__, jaxlib.__version__, dev.platform, dev.device_kind, jax.config.jax_enable_x64,
-                 os.environ.get("XLA_FLAGS", ""), _source_digest()))
+    return repr(
+        (
+            jax.__version__,
+            jaxlib.__version__,
+            dev.platform,
+            dev.device_kind,
+            jax.config.jax_enable_x64,
+            os.environ.get("XLA_FLAGS", ""),
+            _source_digest(),
+        )
+    )
 
 
 _ENABLED = False
@@ -118,8 +127,16 @@ def disk_cached(fn, name: str, compiler_options: dict | None = None):
         dyn, static = eqx.partition(args, eqx.is_array)
         leaves, treedef = jax.tree_util.tree_flatten(dyn)
         static_leaves, static_def = jax.tree_util.tree_flatten(static)
-        description = repr((name, treedef, static_def, static_leaves, compiler_options,
-                            [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves]))
+        description = repr(
+            (
+                name,
+                treedef,
+                static_def,
+                static_leaves,
+                compiler_options,
+                [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves],
+            )
+        )
         if " at 0x" in description:  # an object's identity, not its value: no safe key
             return None
         key = hashlib.sha256((_environment() + description).encode()).hexdigest()

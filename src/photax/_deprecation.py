@@ -12,8 +12,11 @@ import warnings
 
 def warn_renamed(old: str, new: str, *, stacklevel: int = 3) -> None:
     """A :class:`DeprecationWarning`: ``old`` is now called ``new``."""
-    warnings.warn(f"{old} is deprecated: use {new} (the same value; docs/conventions.md)", DeprecationWarning,
-                  stacklevel=stacklevel)
+    warnings.warn(
+        f"{old} is deprecated: use {new} (the same value; docs/conventions.md)",
+        DeprecationWarning,
+        stacklevel=stacklevel,
+    )
 
 
 def alias(new: str) -> property:

@@ -49,8 +49,12 @@ def as_float64(value, name: str, *, resolution: float | None = None) -> np.ndarr
                 against = f"{resolution:.2g}" if resolution is not None else f"their spread of {spread:.3g}"
                 warnings.warn(
                     f"{name} is {a.dtype}: values of magnitude {float(big):.3g} are held to {step:.2g}"
-                    + (f" (column {k})" if a.ndim >= 2 else "") + f", coarse for {against}; photax computes "
+                    + (f" (column {k})" if a.ndim >= 2 else "")
+                    + f", coarse for {against}; photax computes "
                     "in float64 but cannot restore the lost digits: pass float64 (numpy's default; jax "
-                    "arrays made before `import photax` are float32)", PrecisionWarning, stacklevel=3)
+                    "arrays made before `import photax` are float32)",
+                    PrecisionWarning,
+                    stacklevel=3,
+                )
                 break
     return np.asarray(a, dtype=np.float64)

@@ -40,8 +40,9 @@ def stub_names(init_file) -> tuple[dict[str, str], set[str], bool]:
         if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == "__version__":
             version = True
             continue
-        if not (isinstance(node, ast.ImportFrom) and node.level == 1
-                and all(a.asname in (None, a.name) for a in node.names)):
+        if not (
+            isinstance(node, ast.ImportFrom) and node.level == 1 and all(a.asname in (None, a.name) for a in node.names)
+        ):
             raise ValueError(f"{stub}, line {node.lineno}: expected 'from .module import name as name'")
         for a in node.names:
             if node.module is None:

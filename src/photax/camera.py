@@ -157,9 +157,7 @@ class FrameCamera(eqx.Module):
         if self.principal_point.shape != (2,):
             raise ValueError(f"principal_point must be (x0, y0), got shape {self.principal_point.shape}")
         if self.distortion.shape != (5,):
-            raise ValueError(
-                f"distortion must be (k1, k2, k3, p1, p2), got shape {self.distortion.shape}"
-            )
+            raise ValueError(f"distortion must be (k1, k2, k3, p1, p2), got shape {self.distortion.shape}")
         if _concrete(self.focal_length) and not float(self.focal_length) > 0:
             raise ValueError(f"focal_length must be positive, got {float(self.focal_length)}")
 
@@ -170,7 +168,7 @@ class FrameCamera(eqx.Module):
         image_size: tuple[int, int],
         principal_point_px: tuple[float, float] | None = None,
         distortion=None,
-    ) -> "FrameCamera":
+    ) -> FrameCamera:
         """A camera whose image-plane unit is the pixel.
 
         Args:
@@ -325,4 +323,6 @@ def from_opencv_extrinsics(r_cv_from_world, t) -> tuple[np.ndarray, np.ndarray]:
     """
     r = np.asarray(r_cv_from_world, dtype=float)
     rt = np.swapaxes(r, -1, -2)
-    return rt @ OPENCV_FROM_PHOTAX, -np.einsum("...ij,...j->...i", rt, np.reshape(np.asarray(t, dtype=float), r.shape[:-1]))
+    return rt @ OPENCV_FROM_PHOTAX, -np.einsum(
+        "...ij,...j->...i", rt, np.reshape(np.asarray(t, dtype=float), r.shape[:-1])
+    )

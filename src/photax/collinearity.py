@@ -58,8 +58,7 @@ class ExteriorOrientation(eqx.Module):
         self.convention = check_convention(convention)
         if self.position.shape[-1:] != (3,) or self.angles.shape[-1:] != (3,):
             raise ValueError(
-                f"position and angles must have shape (..., 3), got {self.position.shape} "
-                f"and {self.angles.shape}"
+                f"position and angles must have shape (..., 3), got {self.position.shape} and {self.angles.shape}"
             )
 
     @classmethod
@@ -85,7 +84,7 @@ class ExteriorOrientation(eqx.Module):
     omega = property(lambda self: self._angle("omega"), doc="omega, radians.")
     kappa = property(lambda self: self._angle("kappa"), doc="kappa, radians.")
 
-    def to_convention(self, convention: Convention) -> "ExteriorOrientation":
+    def to_convention(self, convention: Convention) -> ExteriorOrientation:
         """The same orientation with angles in another convention.
 
         Raises where the target convention is in gimbal lock.
@@ -108,7 +107,6 @@ class ExteriorOrientation(eqx.Module):
         """``(n, 3)`` ground points -> camera frame (``R^T (X - Xs)``)."""
         d = jnp.asarray(ground_xyz, dtype=float) - self.position[..., None, :]
         return jnp.einsum("...ij,...ni->...nj", self.rotation, d)
-
 
 
 def stack_exteriors(exterior) -> ExteriorOrientation:
@@ -136,6 +134,7 @@ def stack_exteriors(exterior) -> ExteriorOrientation:
     if eo.position.ndim != 2:
         raise ValueError(f"exterior must hold one orientation per image, shape (n_images, 3); got {eo.position.shape}")
     return eo
+
 
 @jax.jit
 def project(ground_xyz: Array, exterior: ExteriorOrientation, camera: FrameCamera) -> Array:
@@ -248,8 +247,9 @@ def collinearity_rows(
     if axes is None:  # rotation increments about the camera's own axes: R^T (d x R e_k) = q x e_k
         dq_da = jnp.stack([jnp.cross(q, e[None, :]) for e in jnp.eye(3)], axis=-1)  # (n, 3, 3)
     else:
-        dq_da = jnp.stack([jnp.sum(jnp.cross(d, axes[:, k])[:, :, None] * rotation, axis=1)
-                           for k in range(3)], axis=-1)  # (n, 3, 3)
+        dq_da = jnp.stack(
+            [jnp.sum(jnp.cross(d, axes[:, k])[:, :, None] * rotation, axis=1) for k in range(3)], axis=-1
+        )  # (n, 3, 3)
     xn = -q[:, :2] / q[:, 2:3]
     # dxn/dq = -1/q_z [[1, 0, xn], [0, 1, yn]] (xn = -q_x / q_z), so with J = f D'(xn):
     # dx/dq = -1/q_z [J[:, 0], J[:, 1], J xn] (columns), written out element-wise.
@@ -268,9 +268,7 @@ def collinearity_rows(
     return xy, jnp.concatenate([-dx_dx, dx_da, dx_dx] if wrt_ground else [-dx_dx, dx_da], axis=-1), q
 
 
-def project_jacobian(
-    ground_xyz: Array, exterior: ExteriorOrientation, camera: FrameCamera
-) -> tuple[Array, Array]:
+def project_jacobian(ground_xyz: Array, exterior: ExteriorOrientation, camera: FrameCamera) -> tuple[Array, Array]:
     """:func:`project` and its closed-form Jacobian (:func:`collinearity_jacobian`).
 
     Returns ``xy`` ``(n, 2)`` and ``(n, 2, 9)`` derivatives with respect to

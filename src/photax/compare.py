@@ -31,7 +31,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -42,8 +43,8 @@ from ._deprecation import alias
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, project, project_jacobian
 from .dem import DEM
-from .polynomial import PolynomialModel, fit_polynomial, fit_projective, n_coefficients
 from .grid import Grid, ortho_grid
+from .polynomial import PolynomialModel, fit_polynomial, fit_projective, n_coefficients
 from .rectification import OrthoModel
 from .resampling import Resampling
 
@@ -179,21 +180,43 @@ class ModelComparison:
 
     def table(self, fmt: str = "markdown") -> str:
         """The comparison as a markdown (``fmt="markdown"``) or plain text table."""
-        head = ["model", "params", "redundancy", "condition", "GCP RMSE [px]", "check RMSE [px]",
-                "check RMSE [m]", "map RMSE [px]", "map max [px]"]
+        head = [
+            "model",
+            "params",
+            "redundancy",
+            "condition",
+            "GCP RMSE [px]",
+            "check RMSE [px]",
+            "check RMSE [m]",
+            "map RMSE [px]",
+            "map max [px]",
+        ]
         rows = []
         for m in self.models:
-            rows.append([m.name, str(m.n_params), str(m.redundancy), f"{m.condition:.3g}", f"{m.gcp_rmse:.3f}",
-                         f"{m.check_rmse:.3f}", f"{m.check_rmse * self.gsd:.3f}", f"{m.error_rmse:.2f}",
-                         f"{m.error_max:.2f}"])
+            rows.append(
+                [
+                    m.name,
+                    str(m.n_params),
+                    str(m.redundancy),
+                    f"{m.condition:.3g}",
+                    f"{m.gcp_rmse:.3f}",
+                    f"{m.check_rmse:.3f}",
+                    f"{m.check_rmse * self.gsd:.3f}",
+                    f"{m.error_rmse:.2f}",
+                    f"{m.error_max:.2f}",
+                ]
+            )
         notes = [f"{k}: {v}" for k, v in self.skipped.items()]
         if self.excluded is not None and self.excluded.any():
             idx = np.flatnonzero(self.excluded)
             which = [self.gcp_names[k] for k in idx] if self.gcp_names else [f"#{k} (0-based)" for k in idx]
-            notes.append(f"GCP {', '.join(which)} left out of every fit: rejected as a blunder by the "
-                         "resection's data snooping")
-        notes.append(f"{len(self.gcp_pixel)} GCPs, {len(self.check_pixel)} check points, "
-                     f"GSD {self.gsd:.3g} m; map = collinearity+DEM minus model over the output grid")
+            notes.append(
+                f"GCP {', '.join(which)} left out of every fit: rejected as a blunder by the resection's data snooping"
+            )
+        notes.append(
+            f"{len(self.gcp_pixel)} GCPs, {len(self.check_pixel)} check points, "
+            f"GSD {self.gsd:.3g} m; map = collinearity+DEM minus model over the output grid"
+        )
         if fmt == "markdown":
             lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
             lines += ["| " + " | ".join(r) + " |" for r in rows]
@@ -210,14 +233,23 @@ class ModelComparison:
             "n_gcp": int(len(self.gcp_pixel)),
             "n_check": int(len(self.check_pixel)),
             "grid": {"transform": list(tuple(self.grid.transform)[:6]), "shape": list(self.grid.shape)},
-            "exterior": {"position": np.asarray(self.exterior.position).tolist(),
-                         "angles_rad": np.asarray(self.exterior.angles).tolist(),
-                         "convention": self.exterior.convention},
+            "exterior": {
+                "position": np.asarray(self.exterior.position).tolist(),
+                "angles_rad": np.asarray(self.exterior.angles).tolist(),
+                "convention": self.exterior.convention,
+            },
             "models": [
-                {"name": m.name, "n_params": m.n_params, "redundancy": m.redundancy,
-                 "condition": num(m.condition), "gcp_rmse_px": num(m.gcp_rmse),
-                 "check_rmse_px": num(m.check_rmse), "check_rmse_m": num(m.check_rmse * self.gsd),
-                 "map_rmse_px": num(m.error_rmse), "map_max_px": num(m.error_max)}
+                {
+                    "name": m.name,
+                    "n_params": m.n_params,
+                    "redundancy": m.redundancy,
+                    "condition": num(m.condition),
+                    "gcp_rmse_px": num(m.gcp_rmse),
+                    "check_rmse_px": num(m.check_rmse),
+                    "check_rmse_m": num(m.check_rmse * self.gsd),
+                    "map_rmse_px": num(m.error_rmse),
+                    "map_max_px": num(m.error_max),
+                }
                 for m in self.models
             ],
             "skipped": dict(self.skipped),
@@ -226,8 +258,15 @@ class ModelComparison:
 
     # --- rectified images --------------------------------------------------
 
-    def rectify(self, image, names: Sequence[str] | None = None, *, grid: Grid | None = None,
-                resampling: Resampling | str = "bilinear", progress: bool | str = False) -> tuple[dict[str, np.ndarray], Grid]:
+    def rectify(
+        self,
+        image,
+        names: Sequence[str] | None = None,
+        *,
+        grid: Grid | None = None,
+        resampling: Resampling | str = "bilinear",
+        progress: bool | str = False,
+    ) -> tuple[dict[str, np.ndarray], Grid]:
         """Rectify ``image`` with each model onto one grid.
 
         Args:
@@ -243,8 +282,7 @@ class ModelComparison:
             the orthophoto (:func:`photax.orthorectify`).
         """
         from .progress import progress_bar
-        from .rectification import rectify
-        from .rectification import tile_windows
+        from .rectification import rectify, tile_windows
 
         grid = ortho_grid(self.exterior, self.camera, self.dem, self.gsd) if grid is None else grid
         names = self.names if names is None else list(names)
@@ -273,14 +311,31 @@ class ModelComparison:
 
         return comparison_rmse(self)
 
-    def plot_rectified(self, images: dict[str, np.ndarray], grid: Grid, *, reference: np.ndarray | None = None,
-                       reference_transform=None, ncols: int = 3, window=None, value_range=None):
+    def plot_rectified(
+        self,
+        images: dict[str, np.ndarray],
+        grid: Grid,
+        *,
+        reference: np.ndarray | None = None,
+        reference_transform=None,
+        ncols: int = 3,
+        window=None,
+        value_range=None,
+    ):
         """Rectified images side by side (from :meth:`rectify`), optionally
         with a reference orthophoto (:func:`photax.plot.comparison_rectified`)."""
         from .plot import comparison_rectified
 
-        return comparison_rectified(self, images, grid, reference=reference, reference_transform=reference_transform,
-                                    ncols=ncols, window=window, value_range=value_range)
+        return comparison_rectified(
+            self,
+            images,
+            grid,
+            reference=reference,
+            reference_transform=reference_transform,
+            ncols=ncols,
+            window=window,
+            value_range=value_range,
+        )
 
 
 _project_jacobian = jax.jit(project_jacobian)
@@ -415,8 +470,9 @@ def compare_models(
         on_grid, at_gcp, at_check = np.split(values, [size, size + n])
         vg, vc = at_gcp - gp, at_check - cp  # computed - observed
         err = ref - on_grid.reshape(ref.shape)
-        results.append(ModelResult(name, model, u, 2 * n_used - u, float(cond), vg, vc, _rmse(vg[used]), _rmse(vc),
-                                   err))
+        results.append(
+            ModelResult(name, model, u, 2 * n_used - u, float(cond), vg, vc, _rmse(vg[used]), _rmse(vc), err)
+        )
 
     # Collinearity with the DEM is the reference mapping of the error maps;
     # at GCPs and check points it uses their own surveyed Z, not the DEM's.
@@ -447,5 +503,4 @@ def compare_models(
     names = None if gcp_names is None else tuple(str(x) for x in gcp_names)
     if names is not None and len(names) != n:
         raise ValueError(f"gcp_names has {len(names)} names for {n} GCPs")
-    return ModelComparison(results, exterior, camera, dem, grid, gsd, gg, gp, cg, cp, resection, skipped, ~used,
-                           names)
+    return ModelComparison(results, exterior, camera, dem, grid, gsd, gg, gp, cg, cp, resection, skipped, ~used, names)

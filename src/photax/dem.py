@@ -48,7 +48,7 @@ class DEM(eqx.Module):
         self.crs = crs
 
     @classmethod
-    def flat(cls, height: float, bounds: tuple[float, float, float, float]) -> "DEM":
+    def flat(cls, height: float, bounds: tuple[float, float, float, float]) -> DEM:
         """A constant-height DEM over ``(xmin, ymin, xmax, ymax)``: its 2 x 2 pixel centres are
         those corners, so :meth:`height` is ``height`` everywhere inside them (it was NaN in all
         but the quadrant above and right of the centre)."""

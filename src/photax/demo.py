@@ -17,7 +17,7 @@ into the package or the repository.
 from __future__ import annotations
 
 import pathlib
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -28,11 +28,23 @@ from .io.gcp import GCPTable, read_gcps
 from .io.results import write_json
 from .scene import (  # the constants are re-exported: tests and data/make_sample.py read them here
     SAMPLE_BLUNDER as SAMPLE_BLUNDER,
+)
+from .scene import (
     SAMPLE_CHECK as SAMPLE_CHECK,
+)
+from .scene import (
     SAMPLE_CRS as SAMPLE_CRS,
+)
+from .scene import (
     SAMPLE_IMAGE as SAMPLE_IMAGE,
+)
+from .scene import (
     SAMPLE_NOISE_PX as SAMPLE_NOISE_PX,
+)
+from .scene import (
     SAMPLE_SEED as SAMPLE_SEED,
+)
+from .scene import (
     render_sample_image,
     sample_points,
 )
@@ -52,10 +64,23 @@ def sample_scene() -> dict:
     """
     p = sample_points()
     table = GCPTable(
-        names=p["names"], images=np.full(len(p["names"]), SAMPLE_IMAGE), ground=p["ground"], pixel=p["pixel"],
-        image_xy=None, sigma=p["sigma"], role=p["role"], crs=p["crs"])
-    return {"camera": p["camera"], "exterior": p["exterior"], "dem": p["dem"], "table": table,
-            "pixel_true": p["pixel_true"], "crs": table.crs}
+        names=p["names"],
+        images=np.full(len(p["names"]), SAMPLE_IMAGE),
+        ground=p["ground"],
+        pixel=p["pixel"],
+        image_xy=None,
+        sigma=p["sigma"],
+        role=p["role"],
+        crs=p["crs"],
+    )
+    return {
+        "camera": p["camera"],
+        "exterior": p["exterior"],
+        "dem": p["dem"],
+        "table": table,
+        "pixel_true": p["pixel_true"],
+        "crs": table.crs,
+    }
 
 
 def sample_image(scene: dict | None = None) -> np.ndarray:
@@ -78,29 +103,46 @@ def write_sample(out_dir) -> dict[str, pathlib.Path]:
     out = pathlib.Path(out_dir)
     s = sample_scene()
     t = s["table"]
-    paths = {"gcps": out / "sample_gcps.csv", "camera": out / "sample_camera.yaml", "truth": out / "sample_truth.json",
-             "image": out / "sample_image.tif", "dem": out / "sample_dem.tif"}
+    paths = {
+        "gcps": out / "sample_gcps.csv",
+        "camera": out / "sample_camera.yaml",
+        "truth": out / "sample_truth.json",
+        "image": out / "sample_image.tif",
+        "dem": out / "sample_dem.tif",
+    }
     with atomic_write(paths["gcps"], newline="") as fh:
         fh.write(f"# photax sample GCPs (synthetic, seed {SAMPLE_SEED}); pixels: integer = pixel centre, row down\n")
         fh.write(f"# crs: {t.crs}\n")
         fh.write("name,image,E,N,h,col,row,sigma,role\n")
         for k in range(len(t)):
-            fh.write(f"{t.names[k]},{t.images[k]},{t.ground[k, 0]:.3f},{t.ground[k, 1]:.3f},{t.ground[k, 2]:.3f},"
-                     f"{t.pixel[k, 0]:.3f},{t.pixel[k, 1]:.3f},{t.sigma[k]:g},{t.role[k]}\n")
+            fh.write(
+                f"{t.names[k]},{t.images[k]},{t.ground[k, 0]:.3f},{t.ground[k, 1]:.3f},{t.ground[k, 2]:.3f},"
+                f"{t.pixel[k, 0]:.3f},{t.pixel[k, 1]:.3f},{t.sigma[k]:g},{t.role[k]}\n"
+            )
     write_camera(s["camera"], paths["camera"], unit="mm")
     e = s["exterior"]
-    write_json({
-        "description": "true exterior orientation of the photax sample image (synthetic)",
-        "seed": SAMPLE_SEED, "image": SAMPLE_IMAGE, "crs": t.crs, "convention": e.convention,
-        "position": e.position, "angles_deg": np.degrees(np.asarray(e.angles)), "angles_rad": e.angles,
-        "noise_px": SAMPLE_NOISE_PX, "blunder": {"name": SAMPLE_BLUNDER[0], "pixel_error": SAMPLE_BLUNDER[1]},
-        "check_points": list(SAMPLE_CHECK),
-        "pixel_true": {str(n): p for n, p in zip(t.names, s["pixel_true"])},
-    }, paths["truth"])
+    write_json(
+        {
+            "description": "true exterior orientation of the photax sample image (synthetic)",
+            "seed": SAMPLE_SEED,
+            "image": SAMPLE_IMAGE,
+            "crs": t.crs,
+            "convention": e.convention,
+            "position": e.position,
+            "angles_deg": np.degrees(np.asarray(e.angles)),
+            "angles_rad": e.angles,
+            "noise_px": SAMPLE_NOISE_PX,
+            "blunder": {"name": SAMPLE_BLUNDER[0], "pixel_error": SAMPLE_BLUNDER[1]},
+            "check_points": list(SAMPLE_CHECK),
+            "pixel_true": {str(n): p for n, p in zip(t.names, s["pixel_true"])},
+        },
+        paths["truth"],
+    )
     write_geotiff(paths["image"], sample_image(s), None)
     dem = s["dem"]
-    write_geotiff(paths["dem"], np.asarray(dem.heights).astype(np.float32), tuple(np.asarray(dem.transform)),
-                  crs=SAMPLE_CRS)
+    write_geotiff(
+        paths["dem"], np.asarray(dem.heights).astype(np.float32), tuple(np.asarray(dem.transform)), crs=SAMPLE_CRS
+    )
     return paths
 
 
@@ -133,37 +175,64 @@ def resection_section(out: pathlib.Path) -> str:
     table = read_gcps(paths["gcps"])
     camera = read_camera(paths["camera"])
     truth = sample_scene()["exterior"]
-    res = resect(table.image_plane(camera), table.ground, camera, sigma=table.image_plane_sigma(camera),
-                 check=table.check, names=table.names)
+    res = resect(
+        table.image_plane(camera),
+        table.ground,
+        camera,
+        sigma=table.image_plane_sigma(camera),
+        check=table.check,
+        names=table.names,
+    )
     write_json(res, out / "resection.json")
 
     fig, ax = plt.subplots(figsize=(8, 6.4))
-    plot.residual_vectors(ax, table.pixel, _residual_pixels(res.residuals, camera), table.names,
-                          outliers=res.outliers, check=res.check, image_size=camera.image_size,
-                          title=f"{SAMPLE_IMAGE}: residuals after resection")
+    plot.residual_vectors(
+        ax,
+        table.pixel,
+        _residual_pixels(res.residuals, camera),
+        table.names,
+        outliers=res.outliers,
+        check=res.check,
+        image_size=camera.image_size,
+        title=f"{SAMPLE_IMAGE}: residuals after resection",
+    )
     _savefig(fig, out / "resection_residuals.png", dpi=110, bbox_inches="tight")
     plt.close(fig)
 
     rows = plot.precision_rows(res, truth)
-    md = ["## Space resection of the sample image", "",
-          f"{len(table)} points on `{SAMPLE_IMAGE}` ({int((~table.check).sum())} control, "
-          f"{int(table.check.sum())} check), read from `sample/sample_gcps.csv` with the camera "
-          f"`sample/sample_camera.yaml`. The measurements carry {SAMPLE_NOISE_PX} px noise and "
-          f"`{SAMPLE_BLUNDER[0]}` a deliberate {SAMPLE_BLUNDER[1][0]:g} px blunder.", "",
-          f"Result: {res.message}; sigma0 = {res.sigma0:.3f} (a-priori sigma {SAMPLE_NOISE_PX} px), "
-          f"control RMS = {res.rmse / float(camera.pixel_size[0]):.3f} px, "
-          f"check-point RMS = {res.check_rmse / float(camera.pixel_size[0]):.3f} px.", "",
-          "| parameter | estimate | std | truth | error | error/std |", "|---|---:|---:|---:|---:|---:|"]
+    md = [
+        "## Space resection of the sample image",
+        "",
+        f"{len(table)} points on `{SAMPLE_IMAGE}` ({int((~table.check).sum())} control, "
+        f"{int(table.check.sum())} check), read from `sample/sample_gcps.csv` with the camera "
+        f"`sample/sample_camera.yaml`. The measurements carry {SAMPLE_NOISE_PX} px noise and "
+        f"`{SAMPLE_BLUNDER[0]}` a deliberate {SAMPLE_BLUNDER[1][0]:g} px blunder.",
+        "",
+        f"Result: {res.message}; sigma0 = {res.sigma0:.3f} (a-priori sigma {SAMPLE_NOISE_PX} px), "
+        f"control RMS = {res.rmse / float(camera.pixel_size[0]):.3f} px, "
+        f"check-point RMS = {res.check_rmse / float(camera.pixel_size[0]):.3f} px.",
+        "",
+        "| parameter | estimate | std | truth | error | error/std |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
         f = "{:.3f}" if r["unit"] == "m" else "{:.5f}"
-        md.append(f"| {r['parameter']} [{r['unit']}] | {f.format(r['value'])} | {f.format(r['std'])} | "
-                  f"{f.format(r['true'])} | {f.format(r['error'])} | {r['ratio']:+.2f} |")
+        md.append(
+            f"| {r['parameter']} [{r['unit']}] | {f.format(r['value'])} | {f.format(r['std'])} | "
+            f"{f.format(r['true'])} | {f.format(r['error'])} | {r['ratio']:+.2f} |"
+        )
     flagged = [str(n) for n in np.asarray(res.names)[res.outliers]]
-    verdict = ("found" if flagged == [SAMPLE_BLUNDER[0]] else "NOT found cleanly")
-    md += ["", f"Blunders flagged by data snooping ({res.statistic} test, critical value {res.critical:.2f}): "
-           f"{', '.join(flagged) or 'none'} - the planted blunder on {SAMPLE_BLUNDER[0]} was {verdict}.", "",
-           "![residual vectors](resection_residuals.png)", "",
-           "Full result: `resection.json`.", ""]
+    verdict = "found" if flagged == [SAMPLE_BLUNDER[0]] else "NOT found cleanly"
+    md += [
+        "",
+        f"Blunders flagged by data snooping ({res.statistic} test, critical value {res.critical:.2f}): "
+        f"{', '.join(flagged) or 'none'} - the planted blunder on {SAMPLE_BLUNDER[0]} was {verdict}.",
+        "",
+        "![residual vectors](resection_residuals.png)",
+        "",
+        "Full result: `resection.json`.",
+        "",
+    ]
     return "\n".join(md)
 
 
@@ -189,15 +258,26 @@ def bundle_section(out: pathlib.Path) -> str:
     pos_err = np.linalg.norm(np.asarray(res.exterior.position) - np.asarray(truth.exterior.position), axis=1)
     tie = problem.roles == "tie"
     pt_err = np.abs(res.points - truth.points)[tie]
-    md = ["## Bundle adjustment of a synthetic block", "",
-          f"{problem!r}: 2 strips x 4 frames (f = 3000 px), {problem.obs_sigma[0, 0]:g} px image noise, "
-          "control points fixed, check points adjusted as tie points. Start values: truth + ~5 m / 0.6 deg.", "",
-          "```", res.report(), "```", "",
-          f"Projection centres vs truth: max error {pos_err.max():.3f} m (reported median std "
-          f"{np.median(np.linalg.norm(res.exterior_std[:, :3], axis=1)):.3f} m). "
-          f"Tie points vs truth: RMS X/Y/Z {np.sqrt(np.mean(pt_err**2, axis=0)).round(3).tolist()} m "
-          f"(reported median std {np.median(res.point_std[tie], axis=0).round(3).tolist()} m).", "",
-          "![convergence and residuals](bundle.png)", "", "Full result: `bundle.json`.", ""]
+    md = [
+        "## Bundle adjustment of a synthetic block",
+        "",
+        f"{problem!r}: 2 strips x 4 frames (f = 3000 px), {problem.obs_sigma[0, 0]:g} px image noise, "
+        "control points fixed, check points adjusted as tie points. Start values: truth + ~5 m / 0.6 deg.",
+        "",
+        "```",
+        res.report(),
+        "```",
+        "",
+        f"Projection centres vs truth: max error {pos_err.max():.3f} m (reported median std "
+        f"{np.median(np.linalg.norm(res.exterior_std[:, :3], axis=1)):.3f} m). "
+        f"Tie points vs truth: RMS X/Y/Z {np.sqrt(np.mean(pt_err**2, axis=0)).round(3).tolist()} m "
+        f"(reported median std {np.median(res.point_std[tie], axis=0).round(3).tolist()} m).",
+        "",
+        "![convergence and residuals](bundle.png)",
+        "",
+        "Full result: `bundle.json`.",
+        "",
+    ]
     return "\n".join(md)
 
 
@@ -212,33 +292,50 @@ def rectification_section(out: pathlib.Path) -> str:
     from .scene import relief_scene
 
     s = relief_scene(300.0, seed=0)
-    c = compare_models(s.gcp_ground, s.gcp_pixel, s.camera, s.dem,
-                       check_ground=s.check_ground, check_pixel=s.check_pixel)
+    c = compare_models(
+        s.gcp_ground, s.gcp_pixel, s.camera, s.dem, check_ground=s.check_ground, check_pixel=s.check_pixel
+    )
     write_json(c.to_dict(), out / "comparison.json")
     images, grid = c.rectify(s.image, ["collinearity", "polynomial 1", "polynomial 5"])
-    figures = {"comparison_error_maps.png": c.plot_error_maps(), "comparison_rmse.png": c.plot_rmse(),
-               "comparison_rectified.png": c.plot_rectified(images, grid, reference=s.ortho,
-                                                            reference_transform=s.ortho_transform, ncols=2)}
+    figures = {
+        "comparison_error_maps.png": c.plot_error_maps(),
+        "comparison_rmse.png": c.plot_rmse(),
+        "comparison_rectified.png": c.plot_rectified(
+            images, grid, reference=s.ortho, reference_transform=s.ortho_transform, ncols=2
+        ),
+    }
     for name, fig in figures.items():
         _savefig(fig, out / name, dpi=100)
         plt.close(fig)
     poly = [c[n] for n in c.names if n.startswith("polynomial")]
     best = min(poly, key=lambda m: m.check_rmse)
     d = np.linalg.norm(c.relief_displacement(), axis=-1)
-    md = ["## Rectification: collinearity + DEM against polynomials", "",
-          f"A synthetic {s.camera.image_size[0]} x {s.camera.image_size[1]} px near-vertical frame (2 deg tilt, "
-          f"f = 1000 px, {s.flying_height:.0f} m above the datum, GSD {c.gsd:.2f} m) over hills of "
-          f"{float(np.ptp(np.asarray(s.dem.heights))):.0f} m; {len(s.gcp_pixel)} GCPs and {len(s.check_pixel)} "
-          f"independent check points with {s.noise_px} px noise. All models are fitted to the same GCPs "
-          "(`photax.compare_models`); polynomials see only (X, Y), so they cannot undo the relief "
-          f"displacement d = r h / H, up to {np.nanmax(d):.0f} px here.", "",
-          c.table(), "",
-          f"Collinearity with the DEM fits the check points to {c['collinearity'].check_rmse:.2f} px "
-          f"(the noise); the best polynomial (order {best.name.split()[-1]}) leaves {best.check_rmse:.1f} px, "
-          f"and order 5 fits its GCPs to {c['polynomial 5'].gcp_rmse:.1f} px but misses the check points "
-          f"by {c['polynomial 5'].check_rmse:.1f} px (overfitting).", "",
-          "![error maps](comparison_error_maps.png)", "", "![RMSE per model](comparison_rmse.png)", "",
-          "![rectified images](comparison_rectified.png)", "", "Full table: `comparison.json`.", ""]
+    md = [
+        "## Rectification: collinearity + DEM against polynomials",
+        "",
+        f"A synthetic {s.camera.image_size[0]} x {s.camera.image_size[1]} px near-vertical frame (2 deg tilt, "
+        f"f = 1000 px, {s.flying_height:.0f} m above the datum, GSD {c.gsd:.2f} m) over hills of "
+        f"{float(np.ptp(np.asarray(s.dem.heights))):.0f} m; {len(s.gcp_pixel)} GCPs and {len(s.check_pixel)} "
+        f"independent check points with {s.noise_px} px noise. All models are fitted to the same GCPs "
+        "(`photax.compare_models`); polynomials see only (X, Y), so they cannot undo the relief "
+        f"displacement d = r h / H, up to {np.nanmax(d):.0f} px here.",
+        "",
+        c.table(),
+        "",
+        f"Collinearity with the DEM fits the check points to {c['collinearity'].check_rmse:.2f} px "
+        f"(the noise); the best polynomial (order {best.name.split()[-1]}) leaves {best.check_rmse:.1f} px, "
+        f"and order 5 fits its GCPs to {c['polynomial 5'].gcp_rmse:.1f} px but misses the check points "
+        f"by {c['polynomial 5'].check_rmse:.1f} px (overfitting).",
+        "",
+        "![error maps](comparison_error_maps.png)",
+        "",
+        "![RMSE per model](comparison_rmse.png)",
+        "",
+        "![rectified images](comparison_rectified.png)",
+        "",
+        "Full table: `comparison.json`.",
+        "",
+    ]
     return "\n".join(md)
 
 
@@ -273,8 +370,7 @@ def run_demo(out_dir="photax-demo", *, progress: bool | str | Callable[[str], No
             raise ValueError(f"out_dir {out} is inside {root}; choose a folder of your own")
     out.mkdir(parents=True, exist_ok=True)
     say = progress if callable(progress) else (lambda _line: None)
-    parts = ["# photax demo report", "",
-             "Generated by `photax demo` on synthetic data with known truth.", ""]
+    parts = ["# photax demo report", "", "Generated by `photax demo` on synthetic data with known truth.", ""]
     with progress_bar(None if callable(progress) else progress, len(SECTIONS), desc="demo", unit="section") as bar:
         for k, section in enumerate(SECTIONS, 1):
             name = section.__name__.replace("_section", "")

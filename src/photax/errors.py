@@ -76,4 +76,3 @@ def from_optimistix(result):
         if item is not None:
             code = jnp.where(result == item, ours, code)
     return code
-

@@ -55,7 +55,7 @@ class Grid:
         object.__setattr__(self, "shape", shape)
 
     @classmethod
-    def from_bounds(cls, bounds, resolution, crs=None) -> "Grid":
+    def from_bounds(cls, bounds, resolution, crs=None) -> Grid:
         """A north-up grid covering ``bounds``, snapped to the resolution.
 
         Args:
@@ -115,8 +115,10 @@ def _footprint(px: Array, exterior: ExteriorOrientation, camera: FrameCamera, de
     and on the plane at the DEM's mean height: one compiled call (kept on
     disk by photax._aot) instead of a dozen small eager operations."""
     img = camera.pixel_to_image(px)
-    return (image_to_ground(img, exterior, camera, dem=dem),
-            image_to_ground(img, exterior, camera, height=jnp.nanmean(dem.heights)))
+    return (
+        image_to_ground(img, exterior, camera, dem=dem),
+        image_to_ground(img, exterior, camera, height=jnp.nanmean(dem.heights)),
+    )
 
 
 _footprint_cached = disk_cached(_footprint, "ortho_footprint")
@@ -138,9 +140,11 @@ def check_resolution(resolution, gsd: float, bounds, what: str = "the image") ->
     side = min(bounds[2] - bounds[0], bounds[3] - bounds[1])
     lo, hi = gsd / GSD_FACTOR, min(GSD_FACTOR * gsd, side / MIN_PIXELS)
     if hi < lo:
-        raise ValueError(f"{what}'s footprint ({side:.4g} across) is too small for a {MIN_PIXELS} x "
-                         f"{MIN_PIXELS} pixel grid at {lo:.4g} (its ground sampling distance {gsd:.4g} / "
-                         f"{GSD_FACTOR:g})")
+        raise ValueError(
+            f"{what}'s footprint ({side:.4g} across) is too small for a {MIN_PIXELS} x "
+            f"{MIN_PIXELS} pixel grid at {lo:.4g} (its ground sampling distance {gsd:.4g} / "
+            f"{GSD_FACTOR:g})"
+        )
     res = np.asarray(resolution, dtype=float)
     ok = lo <= float(np.min(res)) and float(np.max(res)) <= GSD_FACTOR * gsd
     if ok:
@@ -148,9 +152,11 @@ def check_resolution(resolution, gsd: float, bounds, what: str = "the image") ->
         ok = min(shape) >= MIN_PIXELS
     if not ok:
         text = f"{float(res):g}" if res.ndim == 0 else str(tuple(res.tolist()))
-        raise ValueError(f"resolution {text} is outside what {what} supports: its ground sampling "
-                         f"distance is {gsd:.4g}; choose from {lo:.4g} to {hi:.4g} (at most {GSD_FACTOR:g} "
-                         f"times finer or coarser than the GSD, at least {MIN_PIXELS} x {MIN_PIXELS} pixels)")
+        raise ValueError(
+            f"resolution {text} is outside what {what} supports: its ground sampling "
+            f"distance is {gsd:.4g}; choose from {lo:.4g} to {hi:.4g} (at most {GSD_FACTOR:g} "
+            f"times finer or coarser than the GSD, at least {MIN_PIXELS} x {MIN_PIXELS} pixels)"
+        )
 
 
 def _footprint_outline(exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, per_side: int):
@@ -176,8 +182,9 @@ def _footprint_outline(exterior: ExteriorOrientation, camera: FrameCamera, dem: 
     return ground, px
 
 
-def ground_sampling_distance(exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM,
-                             *, per_side: int = 16) -> float:
+def ground_sampling_distance(
+    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, *, per_side: int = 16
+) -> float:
     """The image's mean ground sampling distance on ``dem``: ``sqrt(footprint area / image area in pixels)``
     (ground units per pixel)."""
     ground, px = _footprint_outline(exterior, camera, dem, per_side)
@@ -191,7 +198,12 @@ def gsd_hint(exterior, camera, dem, grid) -> str:
 
 
 def ortho_grid(
-    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, resolution=None, *, crs=None,
+    exterior: ExteriorOrientation,
+    camera: FrameCamera,
+    dem: DEM,
+    resolution=None,
+    *,
+    crs=None,
     per_side: int = 16,
 ) -> Grid:
     """The grid covering an image's footprint on a DEM.
@@ -223,8 +235,10 @@ def ortho_grid(
     if not (bounds[2] > bounds[0] and bounds[3] > bounds[1]):
         f = (ground[:, 0].min(), ground[:, 1].min(), ground[:, 0].max(), ground[:, 1].max())
         box = lambda b: f"E {b[0]:.1f}..{b[2]:.1f}, N {b[1]:.1f}..{b[3]:.1f}"  # noqa: E731
-        raise ValueError(f"the image footprint ({box(f)}) does not overlap the DEM ({box(dem.bounds)}, "
-                         f"{describe(dem.crs)}); are the orientation and the DEM in the same CRS?")
+        raise ValueError(
+            f"the image footprint ({box(f)}) does not overlap the DEM ({box(dem.bounds)}, "
+            f"{describe(dem.crs)}); are the orientation and the DEM in the same CRS?"
+        )
     if resolution is None:
         resolution = gsd
     else:

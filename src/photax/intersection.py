@@ -159,7 +159,9 @@ def _observations(image_xy, m: int, obs_image, obs_point, n_points):
             raise ValueError("give both obs_image and obs_point (list layout), or neither (table layout)")
         ii, jj = np.asarray(obs_image), np.asarray(obs_point)
         if xy.ndim != 2 or xy.shape[1] != 2 or ii.shape != (len(xy),) or jj.shape != (len(xy),):
-            raise ValueError(f"list layout: image_xy (k, 2), obs_image and obs_point (k,); got {xy.shape}, {ii.shape}, {jj.shape}")
+            raise ValueError(
+                f"list layout: image_xy (k, 2), obs_image and obs_point (k,); got {xy.shape}, {ii.shape}, {jj.shape}"
+            )
         if len(ii) and (ii.min() < 0 or ii.max() >= m or jj.min() < 0):
             raise ValueError(f"obs_image must be in [0, {m}) and obs_point >= 0")
         n = int(n_points if n_points is not None else (jj.max() + 1 if len(jj) else 0))

@@ -12,7 +12,7 @@ import enum
 import numpy as np
 
 
-class Resampling(str, enum.Enum):
+class Resampling(str, enum.Enum):  # noqa: UP042 -- str() of a member stays "Resampling.NAME"
     """The interpolation kernels, and what each needs: the one list of them.
 
     A member is its name (a ``str``: ``Resampling.cubic == "cubic"``), so
@@ -50,7 +50,7 @@ class Resampling(str, enum.Enum):
         return self.value
 
     @classmethod
-    def check(cls, value, argument: str = "resampling") -> "Resampling":
+    def check(cls, value, argument: str = "resampling") -> Resampling:
         """``value`` (a name or member) as a member; a ValueError naming
         ``argument`` otherwise."""
         try:
@@ -66,6 +66,7 @@ BSPLINE_PAD = 12  # scipy's npad for mode="nearest"
 def _cubic_weights(t, a: float) -> list:
     """Keys' cubic-convolution weights of the 4 taps at offsets -1, 0, 1, 2
     from ``floor(x)``; ``t = x - floor(x)`` in ``[0, 1)``."""
+
     def near(s):  # |s| <= 1
         return ((a + 2) * s - (a + 3)) * s * s + 1
 
@@ -78,8 +79,7 @@ def _cubic_weights(t, a: float) -> list:
 def _bspline_weights(t) -> list:
     """Cubic B-spline weights of the taps at -1, 0, 1, 2 from ``floor(x)``."""
     u = 1 - t
-    return [u * u * u / 6, (4 - 6 * t * t + 3 * t * t * t) / 6,
-            (4 - 6 * u * u + 3 * u * u * u) / 6, t * t * t / 6]
+    return [u * u * u / 6, (4 - 6 * t * t + 3 * t * t * t) / 6, (4 - 6 * u * u + 3 * u * u * u) / 6, t * t * t / 6]
 
 
 def _lanczos_weights(t, a: int = 3, xp=np) -> list:
@@ -130,8 +130,9 @@ def pad_width(method: str) -> int:
     return BSPLINE_PAD if kernel.prefilter else max(kernel.taps // 2, 1)
 
 
-def resample_grid(image, cols, rows, resampling: Resampling | str = "bilinear", *, nodata=None,
-                  a: float = -0.5) -> np.ndarray:
+def resample_grid(
+    image, cols, rows, resampling: Resampling | str = "bilinear", *, nodata=None, a: float = -0.5
+) -> np.ndarray:
     """:func:`photax.resample` on a separable lattice, in numpy: ``out[..., i, j]`` is ``image`` at
     ``(cols[j], rows[i])``.
 

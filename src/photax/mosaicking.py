@@ -157,8 +157,9 @@ def _open(o, k: int, chunks: int):
             raise ValueError(f"orthos[{k}]: no such raster file: {o}") from None
         o = rioxarray.open_rasterio(os.fspath(o), masked=True, chunks={"band": -1, "y": chunks, "x": chunks})
     if not hasattr(o, "rio"):
-        raise ValueError(f"orthos[{k}] must be a georeferenced xarray.DataArray or a raster path, "
-                         f"got {type(o).__name__}")
+        raise ValueError(
+            f"orthos[{k}] must be a georeferenced xarray.DataArray or a raster path, got {type(o).__name__}"
+        )
     if o.ndim == 2:
         o = o.expand_dims("band")
     if o.ndim != 3 or o.dims[1:] != ("y", "x"):
@@ -202,8 +203,9 @@ def _lazy(o, chunks: int, off=(0, 0)):
 
     v = o.data
     if not isinstance(v, da.Array):
-        v = da.from_array(np.asarray(v), chunks=(-1, _edges(off[0], v.shape[1], chunks),
-                                                 _edges(off[1], v.shape[2], chunks)))
+        v = da.from_array(
+            np.asarray(v), chunks=(-1, _edges(off[0], v.shape[1], chunks), _edges(off[1], v.shape[2], chunks))
+        )
     v = v.astype(float)
     nd = o.rio.nodata
     if nd is not None and not np.isnan(nd):
@@ -252,8 +254,9 @@ def _pair_moments(vi, vj, bi, bj):
     a, b = da.where(m, a, 0.0), da.where(m, b, 0.0)
     ax = (1, 2)
     count = da.broadcast_to(m.sum(dtype=float), (a.shape[0],))
-    return da.stack([count, a.sum(axis=ax), b.sum(axis=ax), (a * a).sum(axis=ax), (b * b).sum(axis=ax),
-                     (a * b).sum(axis=ax)])
+    return da.stack(
+        [count, a.sum(axis=ax), b.sum(axis=ax), (a * a).sum(axis=ax), (b * b).sum(axis=ax), (a * b).sum(axis=ax)]
+    )
 
 
 def _balance(n: int, moments: dict, names=None):
@@ -277,11 +280,16 @@ def _balance(n: int, moments: dict, names=None):
     for p, (cnt, sa, sb, saa, sbb, sab) in moments.items():
         if cnt > 0:
             ma, mb = sa / cnt, sb / cnt
-            stats[p] = (cnt / total, ma, mb, max(saa / cnt - ma * ma, 0.0), max(sbb / cnt - mb * mb, 0.0),
-                        sab / cnt - ma * mb)
+            stats[p] = (
+                cnt / total,
+                ma,
+                mb,
+                max(saa / cnt - ma * ma, 0.0),
+                max(sbb / cnt - mb * mb, 0.0),
+                sab / cnt - ma * mb,
+            )
     mu = sum(w * (ma + mb) / 2 for w, ma, mb, *_ in stats.values())
-    spread = sum(w * (vaa + vbb + (ma - mu) ** 2 + (mb - mu) ** 2) / 2
-                 for w, ma, mb, vaa, vbb, _ in stats.values())
+    spread = sum(w * (vaa + vbb + (ma - mu) ** 2 + (mb - mu) ** 2) / 2 for w, ma, mb, vaa, vbb, _ in stats.values())
     sd = math.sqrt(spread) if spread > 0 else 1.0
     N = np.zeros((2 * n, 2 * n))
     for (i, j), (w, ma, mb, vaa, vbb, vab) in stats.items():
@@ -289,8 +297,7 @@ def _balance(n: int, moments: dict, names=None):
         a, b = (ma - mu) / sd, (mb - mu) / sd
         eaa, ebb, eab = vaa / sd**2 + a * a, vbb / sd**2 + b * b, vab / sd**2 + a * b
         idx = [2 * i, 2 * i + 1, 2 * j, 2 * j + 1]
-        N[np.ix_(idx, idx)] += w * np.array([[eaa, a, -eab, -a], [a, 1, -b, -1], [-eab, -b, ebb, b],
-                                             [-a, -1, b, 1]])
+        N[np.ix_(idx, idx)] += w * np.array([[eaa, a, -eab, -a], [a, 1, -b, -1], [-eab, -b, ebb, b], [-a, -1, b, 1]])
     # Datum mean(g) = 1, mean(o) = 0; in these units the offsets o' = (o - mu (1 - g)) / sd: mean(o') = 0.
     C = np.zeros((2, 2 * n))
     C[0, 0::2], C[1, 1::2] = 1.0 / n, 1.0 / n
@@ -299,8 +306,9 @@ def _balance(n: int, moments: dict, names=None):
         gg, go, oo = N[2 * k, 2 * k], N[2 * k, 2 * k + 1], N[2 * k + 1, 2 * k + 1]
         if gg - go**2 / max(oo, 1e-300) <= 1e-12 * N.trace():  # its variance in the overlaps, ~0
             name = names[k] if names else f"ortho {k}"
-            raise ValueError(f"the overlaps do not determine the gain of {name}: it is constant in them; "
-                             "mosaic without balancing")
+            raise ValueError(
+                f"the overlaps do not determine the gain of {name}: it is constant in them; mosaic without balancing"
+            )
     sv = np.linalg.svd(K, compute_uv=False)
     if sv[-1] <= 1e-10 * sv[0]:
         raise ValueError("the overlaps do not determine every gain and offset: mosaic without balancing")
@@ -472,12 +480,14 @@ def _write_source_index(path, labels, s, grid, chunks, inputs):
     from .io.lazy import dataarray, to_raster
 
     if labels.max() >= np.iinfo(np.int16).max:
-        raise ValueError(f"a source index holds at most {np.iinfo(np.int16).max} orthos, "
-                         f"got {labels.max() + 1}")
+        raise ValueError(f"a source index holds at most {np.iinfo(np.int16).max} orthos, got {labels.max() + 1}")
     lab = da.from_array(labels.astype(np.int16), chunks=max(1, chunks // s))
     if s > 1:
-        lab = lab.map_blocks(lambda b: np.repeat(np.repeat(b, s, 0), s, 1), chunks=tuple(
-            tuple(c * s for c in cs) for cs in lab.chunks), dtype=np.int16)
+        lab = lab.map_blocks(
+            lambda b: np.repeat(np.repeat(b, s, 0), s, 1),
+            chunks=tuple(tuple(c * s for c in cs) for cs in lab.chunks),
+            dtype=np.int16,
+        )
     lab = lab[: grid.shape[0], : grid.shape[1]].rechunk(chunks)
     to_raster(dataarray(lab, grid, np.int16(-1), "source_index"), path, inputs=inputs)
 
@@ -494,16 +504,20 @@ def _write_seamlines(path, labels, transform, crs, names, inputs):
     from .io.atomic import atomic_write
 
     parts = {}
-    for geom, value in features.shapes(labels.astype(np.int32), mask=labels >= 0, connectivity=4,
-                                       transform=transform):
+    for geom, value in features.shapes(labels.astype(np.int32), mask=labels >= 0, connectivity=4, transform=transform):
         parts.setdefault(int(value), []).append(geom["coordinates"])
-    feats = [{"type": "Feature", "properties": {"index": k, "source": names[k]},
-              "geometry": {"type": "MultiPolygon", "coordinates": parts[k]}} for k in sorted(parts)]
+    feats = [
+        {
+            "type": "Feature",
+            "properties": {"index": k, "source": names[k]},
+            "geometry": {"type": "MultiPolygon", "coordinates": parts[k]},
+        }
+        for k in sorted(parts)
+    ]
     epsg = crs.to_epsg() if crs is not None else None
     doc = {"type": "FeatureCollection", "features": feats}
     if crs is not None:
-        doc["crs"] = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{epsg}" if epsg
-                                                      else crs.to_wkt()}}
+        doc["crs"] = {"type": "name", "properties": {"name": f"urn:ogc:def:crs:EPSG::{epsg}" if epsg else crs.to_wkt()}}
     with atomic_write(path, inputs=inputs) as fh:
         json.dump(doc, fh)
 
@@ -610,8 +624,7 @@ def mosaic(
     boxes = [(r, c, o.shape[-2], o.shape[-1]) for o, (r, c) in zip(orthos, offsets)]
     if seam_scale is None:
         meet = max((_meet(boxes[i], boxes[j]) for i in range(n) for j in range(i + 1, n)), default=0)
-        s = max(1, math.ceil(math.sqrt(shape[0] * shape[1] / _SEAM_PIXELS)),
-                math.ceil(math.sqrt(meet / _SEAM_OVERLAP)))
+        s = max(1, math.ceil(math.sqrt(shape[0] * shape[1] / _SEAM_PIXELS)), math.ceil(math.sqrt(meet / _SEAM_OVERLAP)))
     elif isinstance(seam_scale, bool) or not isinstance(seam_scale, (int, np.integer)) or seam_scale < 1:
         raise ValueError(f"seam_scale must be a positive number of pixels, got {seam_scale!r}")
     else:
@@ -646,21 +659,22 @@ def mosaic(
             raise ValueError(f"orthos[{k}]{_name(orthos[k], is_path[k])} has no valid pixel (all no-data)")
     for k in range(n):
         if n > 1 and not any(moments[p][0][0] > 0 for p in moments if k in p):
-            raise ValueError(f"orthos[{k}]{_name(orthos[k], is_path[k])} overlaps no other ortho: "
-                             "nothing to join it by")
+            raise ValueError(
+                f"orthos[{k}]{_name(orthos[k], is_path[k])} overlaps no other ortho: nothing to join it by"
+            )
     groups = _components(n, [p for p in moments if moments[p][0][0] > 0])
     if len(groups) > 1:
         sets = " and ".join("{" + ", ".join(f"orthos[{k}]" for k in g) + "}" for g in groups)
-        raise ValueError(f"the orthos do not all overlap: they fall into {sets}, "
-                         "with no overlap between the groups")
+        raise ValueError(f"the orthos do not all overlap: they fall into {sets}, with no overlap between the groups")
     tc = transform * Affine.scale(s)
     if nadirs is None:
         nadirs = []
         for k, (cell, (r, c)) in enumerate(zip(cells, (o for _, o in seam))):
             rr, cc = np.nonzero(np.all(np.isfinite(cell), axis=0))
             if rr.size == 0:
-                raise ValueError(f"orthos[{k}] covers no whole {s} x {s} px cell of the seam grid: "
-                                 "give a smaller seam_scale")
+                raise ValueError(
+                    f"orthos[{k}] covers no whole {s} x {s} px cell of the seam grid: give a smaller seam_scale"
+                )
             nadirs.append([(tc.c + tc.a * (cc + c + 0.5)).mean(), (tc.f + tc.e * (rr + r + 0.5)).mean()])
     nadirs = np.asarray(nadirs, dtype=float)
     if nadirs.shape != (n, 2):
@@ -672,26 +686,34 @@ def mosaic(
     canon = {}
     for (i, j), (cnt, sa, sb, saa, sbb, sab) in moments.items():
         canon[(pos[i], pos[j]) if pos[i] < pos[j] else (pos[j], pos[i])] = (
-            (cnt, sa, sb, saa, sbb, sab) if pos[i] < pos[j] else (cnt, sb, sa, sbb, saa, sab))
+            (cnt, sa, sb, saa, sbb, sab) if pos[i] < pos[j] else (cnt, sb, sa, sbb, saa, sab)
+        )
     gains, offs = np.ones((n, nb)), np.zeros((n, nb))  # (canonical image, band)
     if balance and n > 1:
         for b in range(nb):
-            gains[:, b], offs[:, b] = _balance(n, {p: tuple(x[b] for x in v) for p, v in canon.items()},
-                                               [f"orthos[{k}]{_name(orthos[k], is_path[k])}" for k in order])
+            gains[:, b], offs[:, b] = _balance(
+                n,
+                {p: tuple(x[b] for x in v) for p, v in canon.items()},
+                [f"orthos[{k}]{_name(orthos[k], is_path[k])}" for k in order],
+            )
         for k in range(n):
             if np.any(gains[pos[k]] <= 0):
-                raise ValueError(f"balancing gives orthos[{k}]{_name(orthos[k], is_path[k])} a gain of "
-                                 f"{np.min(gains[pos[k]]):.3g} (<= 0): its grey values do not match the "
-                                 "others' in the overlaps; mosaic without balancing")
+                raise ValueError(
+                    f"balancing gives orthos[{k}]{_name(orthos[k], is_path[k])} a gain of "
+                    f"{np.min(gains[pos[k]]):.3g} (<= 0): its grey values do not match the "
+                    "others' in the overlaps; mosaic without balancing"
+                )
     up = np.zeros(shape_c, dtype=bool)
     if raised_c is not None:
         # Keep the seams a blend's width off raised objects too: feathering must not mix a roof in.
         up = ndimage.binary_dilation(np.asarray(raised_c), iterations=-(-(feather + 1) // s))
     # One seam for all bands, cut on the mean of the balanced bands.
-    seam_cells = [np.mean(cells[k] * gains[c][:, None, None] + offs[c][:, None, None], axis=0)
-                  for c, k in enumerate(order)]
-    labels = _seamlines(seam_cells, [seam[k][1] for k in order], shape_c, np.ones(n), np.zeros(n), up,
-                        nadirs[order], tc, method)
+    seam_cells = [
+        np.mean(cells[k] * gains[c][:, None, None] + offs[c][:, None, None], axis=0) for c, k in enumerate(order)
+    ]
+    labels = _seamlines(
+        seam_cells, [seam[k][1] for k in order], shape_c, np.ones(n), np.zeros(n), up, nadirs[order], tc, method
+    )
     # The output graph: one task per chunk on the slices of the orthos it meets.
     grow = feather + 1
     blend = dask.delayed(_blend_chunk, pure=True)
@@ -714,8 +736,19 @@ def mosaic(
             wr0, wr1 = max(r0 - grow, 0), min(r0 + h + grow, shape[0])
             wc0, wc1 = max(c0 - grow, 0), min(c0 + w + grow, shape[1])
             lab = labels[wr0 // s : (wr1 - 1) // s + 1, wc0 // s : (wc1 - 1) // s + 1]
-            task = blend((r0, c0, h, w), parts, places, idx, gains[idx], offs[idx], lab, (wr0 // s, wc0 // s),
-                         ((wr0, wr1), (wc0, wc1)), s, feather if n > 1 else 0)
+            task = blend(
+                (r0, c0, h, w),
+                parts,
+                places,
+                idx,
+                gains[idx],
+                offs[idx],
+                lab,
+                (wr0 // s, wc0 // s),
+                ((wr0, wr1), (wc0, wc1)),
+                s,
+                feather if n > 1 else 0,
+            )
             row.append(da.from_delayed(task, (nb, h, w), dtype=float))
         rows.append(row)
     data = da.block(rows)
@@ -729,6 +762,5 @@ def mosaic(
         _write_seamlines(seamlines, given, tc, crs, names, inputs)
     if info is not None:
         g, o = (gains[pos, 0], offs[pos, 0]) if nb == 1 else (gains[pos], offs[pos])
-        info.update(gains=g, offsets=o, labels=given,
-                    order=order, seam_scale=s)
+        info.update(gains=g, offsets=o, labels=given, order=order, seam_scale=s)
     return arr

@@ -9,7 +9,7 @@ script and the headless demo (Agg backend).
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import matplotlib.patches
 import numpy as np
@@ -41,8 +41,9 @@ def raster_rgba(image, value_range=None) -> np.ndarray:
         grey = img.reshape(img.shape[-2:])
         rgb = np.repeat(grey[..., None], 3, axis=-1)
     else:
-        raise ValueError(f"image must be (rows, cols), (1, rows, cols), (3, rows, cols) or (4, rows, cols), "
-                         f"got {img.shape}")
+        raise ValueError(
+            f"image must be (rows, cols), (1, rows, cols), (3, rows, cols) or (4, rows, cols), got {img.shape}"
+        )
     lo, hi = (float(v) for v in value_range)
     if not hi > lo:
         raise ValueError(f"value_range must be (low, high) with high > low, got {value_range!r}")
@@ -51,8 +52,9 @@ def raster_rgba(image, value_range=None) -> np.ndarray:
     return np.concatenate([rgb, valid[..., None].astype(float)], axis=-1)
 
 
-def residual_vectors(ax, pixel_xy, residuals, names=None, *, outliers=None, check=None,
-                     scale=None, image_size=None, title=None):
+def residual_vectors(
+    ax, pixel_xy, residuals, names=None, *, outliers=None, check=None, scale=None, image_size=None, title=None
+):
     """Residual vectors drawn at the points on the image, exaggerated.
 
     Args:
@@ -93,17 +95,34 @@ def residual_vectors(ax, pixel_xy, residuals, names=None, *, outliers=None, chec
             continue
         face = "none" if label == "check" else colour
         ax.scatter(xy[sel, 0], xy[sel, 1], s=25, facecolors=face, edgecolors=colour, label=label, zorder=3)
-        arrows = ax.quiver(xy[sel, 0], xy[sel, 1], v[sel, 0] * scale, v[sel, 1] * scale, color=colour,
-                  angles="xy", scale_units="xy", scale=1.0, width=0.004, zorder=2)
+        arrows = ax.quiver(
+            xy[sel, 0],
+            xy[sel, 1],
+            v[sel, 0] * scale,
+            v[sel, 1] * scale,
+            color=colour,
+            angles="xy",
+            scale_units="xy",
+            scale=1.0,
+            width=0.004,
+            zorder=2,
+        )
     if names is not None:
         for (c, r), name, bad in zip(xy, names, outliers):
-            ax.annotate(str(name), (c, r), xytext=(4, 4), textcoords="offset points", fontsize=7,
-                        color="tab:red" if bad else "0.2")
+            ax.annotate(
+                str(name),
+                (c, r),
+                xytext=(4, 4),
+                textcoords="offset points",
+                fontsize=7,
+                color="tab:red" if bad else "0.2",
+            )
     # A key arrow: what a residual of "key" pixels looks like.
     key = float(f"{ref:.1g}")
     if arrows is not None:
-        ax.quiverkey(arrows, 0.72, 1.03, key * scale, f"{key:g} px residual", labelpos="E",
-                     coordinates="axes", color="black")
+        ax.quiverkey(
+            arrows, 0.72, 1.03, key * scale, f"{key:g} px residual", labelpos="E", coordinates="axes", color="black"
+        )
     if image_size is not None:
         w, h = image_size
         ax.add_patch(matplotlib.patches.Rectangle((-0.5, -0.5), w, h, fill=False, color="0.5", lw=1))
@@ -175,8 +194,15 @@ def correlation_matrix(ax, correlation, labels, *, title="parameter correlations
     ax.set_yticks(range(len(labels)), labels)
     for i in range(c.shape[0]):
         for j in range(c.shape[1]):
-            ax.text(j, i, f"{c[i, j]:.2f}", ha="center", va="center", fontsize=7,
-                    color="white" if abs(c[i, j]) > 0.6 else "black")
+            ax.text(
+                j,
+                i,
+                f"{c[i, j]:.2f}",
+                ha="center",
+                va="center",
+                fontsize=7,
+                color="white" if abs(c[i, j]) > 0.6 else "black",
+            )
     if title:
         ax.set_title(title)
     return im
@@ -211,8 +237,13 @@ def convergence(ax, result, *, initial_cost=None, title="bundle adjustment: conv
     ax.semilogy(it, cost, "o-", ms=4, label="cost (0: start values)" if initial_cost is not None else "cost")
     if (~ok).any():
         cand = np.array([np.nan if h["candidate_cost"] is None else h["candidate_cost"] for h in history])[~ok]
-        ax.semilogy(np.array([h["iteration"] for h in history])[~ok], cand, "x", color="tab:red",
-                    label="rejected step (its cost)")
+        ax.semilogy(
+            np.array([h["iteration"] for h in history])[~ok],
+            cand,
+            "x",
+            color="tab:red",
+            label="rejected step (its cost)",
+        )
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("iteration")
     ax.set_ylabel("cost  ½ Σ ρ(|r/σ|²)  (r in sigmas)")
@@ -243,8 +274,7 @@ def bundle_residuals(ax, result, *, title="image residuals by image"):
 # --- model comparison (photax.compare) ---------------------------------------
 
 
-def comparison_error_maps(comparison, names: Sequence[str] | None = None, *, vmax: float | None = None,
-                          ncols: int = 3):
+def comparison_error_maps(comparison, names: Sequence[str] | None = None, *, vmax: float | None = None, ncols: int = 3):
     """Error maps of a :class:`photax.ModelComparison` side by side on one
     colour scale; GCPs ``+``, check points ``o``.
 
@@ -270,8 +300,7 @@ def comparison_error_maps(comparison, names: Sequence[str] | None = None, *, vma
         vmax = vmax if vmax > 0 else 1.0
     ncols = min(ncols, len(names))
     nrows = -(-len(names) // ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.6 * nrows), squeeze=False,
-                             constrained_layout=True)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.6 * nrows), squeeze=False, constrained_layout=True)
     x0, y0, x1, y1 = comparison.grid.bounds
     extent = (0.0, (x1 - x0) / 1000, 0.0, (y1 - y0) / 1000)
     to_km = lambda g: ((g[:, 0] - x0) / 1000, (g[:, 1] - y0) / 1000)  # noqa: E731
@@ -281,16 +310,17 @@ def comparison_error_maps(comparison, names: Sequence[str] | None = None, *, vma
         if len(comparison.check_ground):
             ax.plot(*to_km(comparison.check_ground), "o", mfc="none", color="lime", ms=4, label="check point")
         m = comparison[name]
-        ax.set_title(f"{name}\ncheck RMSE {m.check_rmse:.2f} px, map RMSE {m.error_rmse:.1f} px, "
-                     f"max {m.error_max:.0f} px", fontsize=9)
+        ax.set_title(
+            f"{name}\ncheck RMSE {m.check_rmse:.2f} px, map RMSE {m.error_rmse:.1f} px, max {m.error_max:.0f} px",
+            fontsize=9,
+        )
         ax.set_xlabel(f"easting - {x0:.0f} m [km]")
         ax.set_ylabel(f"northing - {y0:.0f} m [km]")
-    for ax in axes.flat[len(names):]:
+    for ax in axes.flat[len(names) :]:
         ax.axis("off")
     axes.flat[0].legend(loc="lower left", fontsize=7)
     over = any(np.nanmax(m) > vmax for m in mags if np.isfinite(m).any())
-    fig.colorbar(im, ax=axes, shrink=0.8, extend="max" if over else "neither",
-                 label="|collinearity+DEM - model| [px]")
+    fig.colorbar(im, ax=axes, shrink=0.8, extend="max" if over else "neither", label="|collinearity+DEM - model| [px]")
     return fig
 
 
@@ -312,8 +342,17 @@ def comparison_rmse(comparison):
     return fig
 
 
-def comparison_rectified(comparison, images: dict[str, np.ndarray], grid, *, reference: np.ndarray | None = None,
-                         reference_transform=None, ncols: int = 3, window=None, value_range=None):
+def comparison_rectified(
+    comparison,
+    images: dict[str, np.ndarray],
+    grid,
+    *,
+    reference: np.ndarray | None = None,
+    reference_transform=None,
+    ncols: int = 3,
+    window=None,
+    value_range=None,
+):
     """Rectified images side by side (from :meth:`photax.ModelComparison.rectify`
     on the :class:`photax.Grid` ``grid``), optionally
     with a reference orthophoto; ``window=(xmin, ymin, xmax, ymax)`` zooms
@@ -338,8 +377,7 @@ def comparison_rectified(comparison, images: dict[str, np.ndarray], grid, *, ref
     window = grid.bounds if window is None else window  # the reference may cover more ground
     ncols = min(ncols, len(panels))
     nrows = -(-len(panels) // ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.8 * nrows), squeeze=False,
-                             constrained_layout=True)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(4.2 * ncols, 3.8 * nrows), squeeze=False, constrained_layout=True)
     for ax, (name, img), (xmin, ymin, xmax, ymax) in zip(axes.flat, panels, extents):
         ax.imshow(raster_rgba(img, value_range), extent=(xmin, xmax, ymin, ymax), interpolation="nearest")
         gcp, check = comparison.gcp_ground, comparison.check_ground
@@ -354,7 +392,7 @@ def comparison_rectified(comparison, images: dict[str, np.ndarray], grid, *, ref
         ax.tick_params(labelsize=6)
         ax.set_xlabel("easting [m]", fontsize=8)
         ax.set_ylabel("northing [m]", fontsize=8)
-    for ax in axes.flat[len(panels):]:
+    for ax in axes.flat[len(panels) :]:
         ax.axis("off")
     handles, labels = axes.flat[0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize=8)

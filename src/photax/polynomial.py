@@ -191,7 +191,7 @@ class PolynomialModel(eqx.Module):
             out.append(acc * self.dst_scale[axis] + self.dst_centre[axis])
         return out[0], out[1]
 
-    def padded(self, order: int) -> "PolynomialModel":
+    def padded(self, order: int) -> PolynomialModel:
         """The same mapping written as a polynomial of a higher ``order``
         (zero coefficients for the extra terms, which come last in
         :func:`exponents`).  Its values are this model's, bit for bit
@@ -204,7 +204,7 @@ class PolynomialModel(eqx.Module):
         extra = jnp.zeros((n_coefficients(order) - self.coef.shape[0], 2), self.coef.dtype)
         return dataclasses.replace(self, order=int(order), coef=jnp.concatenate([self.coef, extra]))
 
-    def inverse(self, method: str = "newton", *, order: int | None = None, samples: int = 50) -> "PolynomialInverse":
+    def inverse(self, method: str = "newton", *, order: int | None = None, samples: int = 50) -> PolynomialInverse:
         """The inverse mapping (destination -> source), with its error.
 
         The inverse of a polynomial is not a polynomial, so it is either
@@ -231,7 +231,9 @@ class PolynomialModel(eqx.Module):
         start = fit_polynomial(fwd, grid, order)
         inv = PolynomialInverse(self, start, 5 if method == "newton" else 0, jnp.nan, jnp.nan)
         err = np.linalg.norm(np.asarray(inv(fwd)) - grid, axis=1)
-        return PolynomialInverse(self, start, inv.newton_steps, jnp.asarray(err.max()), jnp.asarray(np.sqrt(np.mean(err**2))))
+        return PolynomialInverse(
+            self, start, inv.newton_steps, jnp.asarray(err.max()), jnp.asarray(np.sqrt(np.mean(err**2)))
+        )
 
 
 class PolynomialInverse(eqx.Module):
@@ -289,8 +291,10 @@ def _jacobian(model: PolynomialModel, p: Array):
     dx = jnp.stack([float(i) * xp[i - 1] * yp[j] if i else jnp.zeros_like(x) for i, j in exps], axis=-1) @ model.coef
     dy = jnp.stack([float(j) * xp[i] * yp[j - 1] if j else jnp.zeros_like(x) for i, j in exps], axis=-1) @ model.coef
     sx, sy = model.src_scale[0], model.src_scale[1]
-    return ((model.dst_scale[0] * dx[:, 0] / sx, model.dst_scale[0] * dy[:, 0] / sy),
-            (model.dst_scale[1] * dx[:, 1] / sx, model.dst_scale[1] * dy[:, 1] / sy))
+    return (
+        (model.dst_scale[0] * dx[:, 0] / sx, model.dst_scale[0] * dy[:, 0] / sy),
+        (model.dst_scale[1] * dx[:, 1] / sx, model.dst_scale[1] * dy[:, 1] / sy),
+    )
 
 
 def fit_polynomial(src_xy, dst_xy, order: int, *, weights=None) -> PolynomialModel:
@@ -349,10 +353,20 @@ def fit_polynomial(src_xy, dst_xy, order: int, *, weights=None) -> PolynomialMod
     rmse_dof = np.sqrt(np.sum(w[:, None] * v**2) / (2 * (n - u))) if n > u else np.nan
     f = jnp.asarray
     return PolynomialModel(
-        order=order, coef=f(coef), src_centre=f(sc), src_scale=f(ss), dst_centre=f(dc), dst_scale=f(ds),
-        residuals=f(v), rmse=f(np.sqrt(np.sum(v**2) / n)), rmse_dof=f(rmse_dof),
-        condition=f(sv[0] / sv[-1]), condition_raw=f(sraw[0] / sraw[-1] if sraw[-1] > 0 else np.inf),
-        loo_residuals=f(loo), src_xy=f(src), dst_xy=f(dst),
+        order=order,
+        coef=f(coef),
+        src_centre=f(sc),
+        src_scale=f(ss),
+        dst_centre=f(dc),
+        dst_scale=f(ds),
+        residuals=f(v),
+        rmse=f(np.sqrt(np.sum(v**2) / n)),
+        rmse_dof=f(rmse_dof),
+        condition=f(sv[0] / sv[-1]),
+        condition_raw=f(sraw[0] / sraw[-1] if sraw[-1] > 0 else np.inf),
+        loo_residuals=f(loo),
+        src_xy=f(src),
+        dst_xy=f(dst),
     )
 
 
@@ -371,7 +385,9 @@ def _apply_h(h: Array, p: Array) -> Array:
     """Homography ``h`` (3, 3) on ``(..., 2)`` points."""
     x, y = p[..., 0], p[..., 1]
     den = h[2, 0] * x + h[2, 1] * y + h[2, 2]
-    return jnp.stack([(h[0, 0] * x + h[0, 1] * y + h[0, 2]) / den, (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / den], axis=-1)
+    return jnp.stack(
+        [(h[0, 0] * x + h[0, 1] * y + h[0, 2]) / den, (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / den], axis=-1
+    )
 
 
 class ProjectiveModel(eqx.Module):
@@ -425,15 +441,21 @@ class ProjectiveModel(eqx.Module):
         q = _apply_h(self.h_normalised, _apply_h(self.src_norm, p))
         return _apply_h(jnp.linalg.inv(self.dst_norm), q)
 
-    def inverse(self) -> "ProjectiveModel":
+    def inverse(self) -> ProjectiveModel:
         """The exact inverse (destination -> source), by matrix inversion.
 
         The quality figures (``residuals``, ``rmse``, ...) are those of the
         forward fit, in destination units.
         """
         return ProjectiveModel(
-            jnp.linalg.inv(self.h_normalised), self.dst_norm, self.src_norm,
-            self.residuals, self.rmse, self.rmse_dof, self.condition, self.result,
+            jnp.linalg.inv(self.h_normalised),
+            self.dst_norm,
+            self.src_norm,
+            self.residuals,
+            self.rmse,
+            self.rmse_dof,
+            self.condition,
+            self.result,
         )
 
 
@@ -628,9 +650,19 @@ def fit_tps(src_xy, dst_xy, smoothing: float = 0.0) -> TPSModel:
     if np.linalg.matrix_rank(np.concatenate([np.ones((len(u), 1)), u], axis=1), tol=1e-10) < 3:
         raise ValueError("src_xy points all lie on one line: a thin-plate spline needs them spread in 2-D")
     w, a = _tps_solve(u, dst, float(smoothing))
-    model = TPSModel(jnp.asarray(u), jnp.asarray(w), jnp.asarray(a), jnp.asarray(centre), jnp.asarray(scale),
-                     float(smoothing), jnp.zeros_like(jnp.asarray(dst)), jnp.asarray(0.0),
-                     jnp.full(dst.shape, jnp.nan), jnp.asarray(src), jnp.asarray(dst))
+    model = TPSModel(
+        jnp.asarray(u),
+        jnp.asarray(w),
+        jnp.asarray(a),
+        jnp.asarray(centre),
+        jnp.asarray(scale),
+        float(smoothing),
+        jnp.zeros_like(jnp.asarray(dst)),
+        jnp.asarray(0.0),
+        jnp.full(dst.shape, jnp.nan),
+        jnp.asarray(src),
+        jnp.asarray(dst),
+    )
     v = np.asarray(model(src)) - dst
     loo = np.full(dst.shape, np.nan)
     for i in range(len(u)):
@@ -641,5 +673,4 @@ def fit_tps(src_xy, dst_xy, smoothing: float = 0.0) -> TPSModel:
         d2 = np.sum((u[i] - u[keep]) ** 2, axis=-1)
         loo[i] = ai[0] + u[i] @ ai[1:] + np.asarray(_tps_kernel(d2)) @ wi - dst[i]
     rmse = np.sqrt(np.sum(v**2) / len(v))
-    return dataclasses.replace(model, residuals=jnp.asarray(v), rmse=jnp.asarray(rmse),
-                               loo_residuals=jnp.asarray(loo))
+    return dataclasses.replace(model, residuals=jnp.asarray(v), rmse=jnp.asarray(rmse), loo_residuals=jnp.asarray(loo))

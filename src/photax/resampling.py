@@ -277,8 +277,9 @@ def _sample(flat, cols, rows, fill, start, *, shape, method, a, compute, out_dty
         at = jnp.minimum(i * chunk, size - chunk)
         x = jax.lax.dynamic_slice(cols, (start + at,), (chunk,))
         y = jax.lax.dynamic_slice(rows, (start + at,), (chunk,))
-        v = interpolate(flat, x, y, fill, lo, hi, off, shape=shape, method=method, a=a, compute=compute,
-                    out_dtype=out_dtype)
+        v = interpolate(
+            flat, x, y, fill, lo, hi, off, shape=shape, method=method, a=a, compute=compute, out_dtype=out_dtype
+        )
         return jax.lax.dynamic_update_slice(out, v, (0, at))
 
     out = jnp.empty((flat.shape[0], size), dtype=out_dtype)
@@ -358,8 +359,20 @@ def resample(
     if parts < 2 or any(isinstance(v, jax.core.Tracer) for v in (cols, rows, flat)):
         parts = 1
     size = -(-cols.size // parts)
-    run = partial(_sample, flat, cols, rows, fill, shape=(h, w), method=method, a=float(a), compute=compute,
-                  out_dtype=np.dtype(dtype), chunk=min(_CHUNK, size), size=size)
+    run = partial(
+        _sample,
+        flat,
+        cols,
+        rows,
+        fill,
+        shape=(h, w),
+        method=method,
+        a=float(a),
+        compute=compute,
+        out_dtype=np.dtype(dtype),
+        chunk=min(_CHUNK, size),
+        size=size,
+    )
     if parts == 1:
         out = run(0)[:, :n]
     else:
@@ -369,6 +382,5 @@ def resample(
         starts = [min(k * size, n - size) for k in range(parts)]
         with ThreadPoolExecutor(parts) as pool:
             pieces = list(pool.map(lambda s: jax.block_until_ready(run(s)), starts))
-        out = jnp.concatenate([p[:, k * size - s:] for k, (p, s) in enumerate(zip(pieces, starts))], axis=1)
+        out = jnp.concatenate([p[:, k * size - s :] for k, (p, s) in enumerate(zip(pieces, starts))], axis=1)
     return out.reshape(lead + shape)
-

@@ -45,8 +45,7 @@ def check_convention(convention: str) -> str:
     """Return ``convention`` or raise a ValueError naming the valid ones."""
     if convention not in CONVENTIONS:
         raise ValueError(
-            f"convention must be one of {CONVENTIONS}, got {convention!r}; "
-            "photax never guesses the angle order."
+            f"convention must be one of {CONVENTIONS}, got {convention!r}; photax never guesses the angle order."
         )
     return convention
 
@@ -97,9 +96,7 @@ def rotation_matrix(angles: Array, convention: Convention = "phi-omega-kappa") -
     )
 
 
-def angles_from_matrix_unchecked(
-    matrix: Array, convention: Convention = "phi-omega-kappa"
-) -> tuple[Array, Array]:
+def angles_from_matrix_unchecked(matrix: Array, convention: Convention = "phi-omega-kappa") -> tuple[Array, Array]:
     """Angles from a rotation matrix, plus ``|cos(middle angle)|``.
 
     No gimbal-lock check: the caller decides what to do where the second
@@ -204,10 +201,36 @@ def matrix_to_axis_angle(matrix: Array) -> Array:
     # leading diagonal term is the largest.
     cands = jnp.stack(
         [
-            jnp.stack([1 + trace, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
-            jnp.stack([m[..., 2, 1] - m[..., 1, 2], 1 + m00 - m11 - m22, m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
-            jnp.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0], 1 - m00 + m11 - m22, m[..., 1, 2] + m[..., 2, 1]], -1),
-            jnp.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 - m00 - m11 + m22], -1),
+            jnp.stack(
+                [1 + trace, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1
+            ),
+            jnp.stack(
+                [
+                    m[..., 2, 1] - m[..., 1, 2],
+                    1 + m00 - m11 - m22,
+                    m[..., 0, 1] + m[..., 1, 0],
+                    m[..., 0, 2] + m[..., 2, 0],
+                ],
+                -1,
+            ),
+            jnp.stack(
+                [
+                    m[..., 0, 2] - m[..., 2, 0],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    1 - m00 + m11 - m22,
+                    m[..., 1, 2] + m[..., 2, 1],
+                ],
+                -1,
+            ),
+            jnp.stack(
+                [
+                    m[..., 1, 0] - m[..., 0, 1],
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    1 - m00 - m11 + m22,
+                ],
+                -1,
+            ),
         ],
         axis=-2,
     )

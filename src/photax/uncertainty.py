@@ -176,8 +176,18 @@ def _node_fields(planes, sz):
         fields = (px, py, s0, s1, s2, t0, t1, t2, u0, u1, jz0, jz1)
     else:
         s2z = sz * sz
-        fields = (px, py, s0 + s2z * jz0 * jz0, s1 + s2z * jz0 * jz1, s2 + s2z * jz1 * jz1,
-                  t0 + s2z * u0 * u0, t1 + s2z * u0 * u1, t2 + s2z * u1 * u1, u0, u1)
+        fields = (
+            px,
+            py,
+            s0 + s2z * jz0 * jz0,
+            s1 + s2z * jz0 * jz1,
+            s2 + s2z * jz1 * jz1,
+            t0 + s2z * u0 * u0,
+            t1 + s2z * u0 * u1,
+            t2 + s2z * u1 * u1,
+            u0,
+            u1,
+        )
     return jnp.stack(fields).astype(jnp.float32)
 
 
@@ -199,7 +209,8 @@ def _lattice(exterior, camera, dem, transform, cov, sz, zfill, step, shape):
     n = _node_fields(_flat_terrain(_node_planes(exterior, camera, g, cov)), sz).reshape(-1, *xn.shape)
     f = jnp.arange(step, dtype=jnp.float32) / step
     return (n[:, :, :-1, None] + (n[:, :, 1:, None] - n[:, :, :-1, None]) * f[None, None, None, :]).reshape(
-        *n.shape[:2], shape[1])
+        *n.shape[:2], shape[1]
+    )
 
 
 def _between_rows(along, step):
@@ -242,8 +253,15 @@ def _slope_rows(heights, dem_transform, transform, r0, shape, window):
     dy = (dy[:, ci] * (1 - tc) + dy[:, ci + 1] * tc).astype(np.float32)
     nan = np.isnan(hw)
     blocked = (nan[:, ci] & (tc != 1)) | (nan[:, ci + 1] & (tc != 0)) if nan.any() else None
-    return (dx, dy, (ri - start).astype(np.int32), tr.astype(np.float32), (row >= 0) & (row <= nr - 1),
-            (col >= 0) & (col <= nc - 1), blocked)
+    return (
+        dx,
+        dy,
+        (ri - start).astype(np.int32),
+        tr.astype(np.float32),
+        (row >= 0) & (row <= nr - 1),
+        (col >= 0) & (col <= nc - 1),
+        blocked,
+    )
 
 
 def _separable_slope(rows):
@@ -314,8 +332,11 @@ def _strip(along, slope, sz, step, want):
     if "ground" in want:
         q0, q1 = t0 * h0 + t1 * h1, t1 * h0 + t2 * h1
         w = h0 * q0 + h1 * q1
-        planes += [t0 - 2 * u0 * q0 + w * u0 * u0, t1 - (u0 * q1 + q0 * u1) + w * u0 * u1,
-                   t2 - 2 * u1 * q1 + w * u1 * u1]
+        planes += [
+            t0 - 2 * u0 * q0 + w * u0 * u0,
+            t1 - (u0 * q1 + q0 * u1) + w * u0 * u1,
+            t2 - 2 * u1 * q1 + w * u1 * u1,
+        ]
     return tuple(planes)
 
 
@@ -400,9 +421,14 @@ class OrthoUncertainty:
 
         fill = np.asarray(np.nan)
         layers = {
-            "ground_sigma": self.ground_sigma, "sigma_x": self.ground_std[0], "sigma_y": self.ground_std[1],
-            "ground_major": self.ground_ellipse[0], "ground_minor": self.ground_ellipse[1],
-            "ground_angle": self.ground_ellipse[2], "sigma_col": self.image_std[0], "sigma_row": self.image_std[1],
+            "ground_sigma": self.ground_sigma,
+            "sigma_x": self.ground_std[0],
+            "sigma_y": self.ground_std[1],
+            "ground_major": self.ground_ellipse[0],
+            "ground_minor": self.ground_ellipse[1],
+            "ground_angle": self.ground_ellipse[2],
+            "sigma_col": self.image_std[0],
+            "sigma_row": self.image_std[1],
         }
         return xr.Dataset({k: dataarray(v, self.grid, fill, k) for k, v in layers.items()})
 
@@ -534,6 +560,7 @@ def ortho_uncertainty(
             out[:, s:e] = np.asarray(_propagate(*args, jnp.asarray(p), *covs, jnp.asarray(z)))[:, : e - s]
         out = out.reshape(6, rows, cols)
         return OrthoUncertainty(grid, out[:3], out[3:])
+
     # Strips of whole rows, of one padded shape (one compilation), about
     # _STRIP pixels each, copied out (measured cheaper than XLA filling a
     # fresh buffer for them to be written into in place).
@@ -546,20 +573,33 @@ def ortho_uncertainty(
     heights = np.asarray(dem.heights)
     zfill = jnp.asarray(float(np.nanmean(heights)) if np.isfinite(heights).any() else 0.0)
     transform = jnp.asarray(tuple(grid.transform)[:6])
-    along = np.asarray(_lattice(exterior, camera, dem, transform, *covs,
-                                jnp.asarray(sz[0, 0]) if scalar_sz else None, zfill, step, (rows_p, cols_p)))
+    along = np.asarray(
+        _lattice(
+            exterior,
+            camera,
+            dem,
+            transform,
+            *covs,
+            jnp.asarray(sz[0, 0]) if scalar_sz else None,
+            zfill,
+            step,
+            (rows_p, cols_p),
+        )
+    )
     window = _dem_window(grid, dem, th)
     dem_t = tuple(float(v) for v in np.asarray(dem.transform))
     z0 = jnp.asarray(np.float32(sz[0, 0]))
     out = np.empty((6, rows_p, cols_p), dtype=np.float32)
+
     def one(r0):
         z = z0
         if not scalar_sz:
             z = np.zeros((th, cols_p), dtype=np.float32)
             z[: min(th, rows - r0), :cols] = sz[r0 : r0 + th]
         a = jnp.asarray(along[:, r0 // step : (r0 + th) // step + 1])
-        srows = None if window is None else _slope_rows(heights, dem_t, tuple(grid.transform)[:6], r0,
-                                                         (th, cols_p), window)
+        srows = (
+            None if window is None else _slope_rows(heights, dem_t, tuple(grid.transform)[:6], r0, (th, cols_p), window)
+        )
         slope = _effective_slope(a, camera.image_size, dem, transform, np.asarray(float(r0)), step, srows)
         for k, plane in enumerate(_strip(a, slope, jnp.asarray(z), step, ("image", "ground"))):
             out[k, r0 : r0 + th] = plane
@@ -599,8 +639,11 @@ def _orientation(exterior, covariance, image: int):
         one = ExteriorOrientation(np.asarray(eo.position)[image], np.asarray(eo.angles)[image], eo.convention)
         if covariance is None:
             block = getattr(exterior, "orientation_cov", None)  # exterior + intrinsics, correlated
-            covariance = (np.asarray(block)[image] if block is not None
-                          else np.diag(np.asarray(exterior.exterior_std)[image] ** 2))
+            covariance = (
+                np.asarray(block)[image]
+                if block is not None
+                else np.diag(np.asarray(exterior.exterior_std)[image] ** 2)
+            )
         return one, covariance
     if hasattr(exterior, "covariance") and hasattr(exterior, "exterior"):  # a ResectionResult
         cov = exterior.covariance if covariance is None else covariance
@@ -608,5 +651,5 @@ def _orientation(exterior, covariance, image: int):
             raise ValueError("the resection result has no finite covariance (zero redundancy?)")
         return exterior.exterior, cov
     raise ValueError(
-        f"exterior must be an ExteriorOrientation, a ResectionResult or a BundleResult, got {type(exterior).__name__}")
-
+        f"exterior must be an ExteriorOrientation, a ResectionResult or a BundleResult, got {type(exterior).__name__}"
+    )

@@ -73,19 +73,32 @@ linearisation (only the damping changes).  References: Triggs et al.,
 adjustment in the large" (ECCV 2010); Ceres Solver's trust-region minimiser.
 """
 
-
 from ._problem import (
     EXTERIOR as EXTERIOR,
+)
+from ._problem import (
     INTRINSICS as INTRINSICS,
+)
+from ._problem import (
     ROLES as ROLES,
+)
+from ._problem import (
     BundleProblem as BundleProblem,
+)
+from ._problem import (
     Gauge as Gauge,
+)
+from ._problem import (
     Loss as Loss,
 )
 from ._result import BundleResult as BundleResult
 from ._solver import (
     POINT_STEPS as POINT_STEPS,
+)
+from ._solver import (
     StoppingRule as StoppingRule,
+)
+from ._solver import (
     bundle_adjust as bundle_adjust,
 )
 from ._start import initialize_block as initialize_block

@@ -14,7 +14,8 @@ from jax import Array
 from ..camera import distort, intrinsics_jacobian
 from ..collinearity import collinearity_rows
 from ..rotation import matrix_to_axis_angle
-from ._robust import _LOSS_CODE as _LOSS_CODE, _corrector, _rho
+from ._robust import _LOSS_CODE as _LOSS_CODE
+from ._robust import _corrector, _rho
 from ._structure import _State, _Structure
 
 
@@ -37,8 +38,7 @@ def _project_obs(state: _State, s: _Structure, jacobians: bool = False):
     if not jacobians:
         q = jnp.einsum("kji,kj->ki", rot, xyz - centre)
         return k[:, 1:3] + k[:, :1] * distort(-q[:, :2] / q[:, 2:3], k[:, 3:8])
-    proj, jac, q = collinearity_rows(xyz, centre, rot, None, k[:, 0], k[:, 1:3], k[:, 3:8],
-                                    dots=True)
+    proj, jac, q = collinearity_rows(xyz, centre, rot, None, k[:, 0], k[:, 1:3], k[:, 3:8], dots=True)
     j_intr = intrinsics_jacobian(-q[:, :2] / q[:, 2:3], k[:, 0], k[:, 3:8])
     jc = jnp.concatenate([jac[:, :, 3:6], jac[:, :, :3], j_intr[:, :, s.active]], axis=2)  # jac: (C, angles, X)
     return proj, jc, jac[:, :, 6:]
@@ -102,8 +102,7 @@ def _outer_sum(a: Array, b: Array) -> Array:
     """``(n, p, q)`` batched ``a @ b^T`` for ``a (n, p, L)``, ``b (n, q, L)``
     with small ``L``, written as ``L`` fused outer products: XLA on CPU runs
     this faster than a batched dot of tiny matrices."""
-    return sum(a[:, :, None, l] * b[:, None, :, l] for l in range(a.shape[2]))
-
+    return sum(a[:, :, None, i] * b[:, None, :, i] for i in range(a.shape[2]))
 
 
 class _Lin(NamedTuple):

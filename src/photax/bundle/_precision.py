@@ -15,6 +15,7 @@ from ._schur import _band_shape, _reduced_band, _reduced_system, _yt_of
 from ._sparse import band_cholesky, band_selected_inverse, band_take, flat_index
 from ._structure import _angle_jacobian, _Structure
 
+
 @functools.partial(jax.jit, static_argnames=("n_c",))
 def _covariances(lin: _Lin, s: _Structure, n_c: int):
     """Cofactor matrices (inverse normal matrix blocks) at ``lam = 0``:
@@ -34,7 +35,12 @@ def _covariances(lin: _Lin, s: _Structure, n_c: int):
     q_p = vinv + jax.ops.segment_sum(qd, s.obs_point, num_segments=n_pts)
     q_p = q_p + jax.ops.segment_sum(qo + jnp.swapaxes(qo, 1, 2), s.obs_point[s.pair_a], num_segments=n_pts)
     q_p = q_p * (s.mask_p[:, :, None] * s.mask_p[:, None, :])
-    return q_c[ext[:, :, None], ext[:, None, :]], jnp.diagonal(q_c)[6 * ext.shape[0] :], q_p, jnp.all(jnp.isfinite(chol[0]))
+    return (
+        q_c[ext[:, :, None], ext[:, None, :]],
+        jnp.diagonal(q_c)[6 * ext.shape[0] :],
+        q_p,
+        jnp.all(jnp.isfinite(chol[0])),
+    )
 
 
 @functools.partial(jax.jit, static_argnames=("n_c",))
@@ -78,7 +84,10 @@ def _covariances_band(lin: _Lin, s: _Structure, n_c: int):
         yta = _yt_of(take(vinv, pt), _wt_of(take(lin.jc, a), take(lin.jp, a)))  # (m, 3, w)
         ytb = _yt_of(take(vinv, pt), _wt_of(take(lin.jc, b), take(lin.jp, b)))  # same point
         ea, eb = ext[take(s.obs_image, a)], ext[take(s.obs_image, b)]
-        qo = jnp.einsum("pai,pij,pbj->pab", yta, q(ea[:, :, None], eb[:, None, :]), ytb) * jnp.repeat(wgt, a.shape[0] // piece)[:, None, None]
+        qo = (
+            jnp.einsum("pai,pij,pbj->pab", yta, q(ea[:, :, None], eb[:, None, :]), ytb)
+            * jnp.repeat(wgt, a.shape[0] // piece)[:, None, None]
+        )
         return acc.at[pt].add(qo + jnp.swapaxes(qo, 1, 2), mode="drop"), None  # in place
 
     q_p, _ = jax.lax.scan(add_pairs, vinv, (s.chunk_a, s.chunk_b, weights))

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Literal, Sequence
+from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
 
@@ -126,9 +127,7 @@ class BundleProblem:
         fixed = _fixed_exterior(fixed_exterior, n_img)
         _check_datum(op, role, pts, point_names)
         self.gnss_position, self.gnss_sigma = _camera_observations(gnss_position, gnss_sigma, n_img, "gnss")
-        self.attitude, self.attitude_sigma = _camera_observations(
-            attitude, attitude_sigma, n_img, "attitude"
-        )
+        self.attitude, self.attitude_sigma = _camera_observations(attitude, attitude_sigma, n_img, "attitude")
         self.lever_arm = _lever_arm(lever_arm, n_img, self.gnss_position)
         self.cameras: tuple[FrameCamera, ...] = cams
         self.exterior = eo
@@ -152,7 +151,7 @@ class BundleProblem:
     n_points = property(lambda self: len(self.points))
     n_observations = property(lambda self: len(self.obs_xy))
 
-    def replace(self, **changes) -> "BundleProblem":
+    def replace(self, **changes) -> BundleProblem:
         """A copy with some constructor arguments changed."""
         args = dict(
             cameras=self.cameras, exterior=self.exterior, points=self.points, obs_image=self.obs_image,
@@ -222,9 +221,7 @@ def _observations(obs_image, obs_point, obs_xy, n_img: int, n_pts: int):
     xy = as_float64(obs_xy, "obs_xy").copy()
     k = len(xy)
     if xy.shape != (k, 2) or oi.shape != (k,) or op.shape != (k,):
-        raise ValueError(
-            f"obs_xy must be (k, 2) and obs_image, obs_point (k,); got {xy.shape}, {oi.shape}, {op.shape}"
-        )
+        raise ValueError(f"obs_xy must be (k, 2) and obs_image, obs_point (k,); got {xy.shape}, {oi.shape}, {op.shape}")
     for name, idx, n in (("obs_image", oi, n_img), ("obs_point", op, n_pts)):
         if k and (not np.issubdtype(idx.dtype, np.integer) or idx.min() < 0 or idx.max() >= n):
             raise ValueError(f"{name} must be integers in [0, {n}), got range [{idx.min()}, {idx.max()}]")
@@ -292,16 +289,13 @@ def _camera_observations(values, sigma, n_img: int, name: str):
     if np.any(partial) or np.any(np.isinf(v)):
         row = int(np.argmax(partial | np.any(np.isinf(v), axis=1)))
         raise ValueError(
-            f"{label}: row {row} is partly missing or infinite (a row is all finite, or all NaN: "
-            "no observation)"
+            f"{label}: row {row} is partly missing or infinite (a row is all finite, or all NaN: no observation)"
         )
     if sigma is None:
         raise ValueError(f"{label} needs {name}_sigma (its standard deviation per axis)")
     sig = np.asarray(sigma, dtype=float)
     if sig.ndim > 2 or (sig.ndim >= 1 and sig.shape[0] != n_img) or (sig.ndim == 2 and sig.shape[1] != 3):
-        raise ValueError(
-            f"{name}_sigma must be a scalar, (n_images,) or (n_images, 3), got shape {sig.shape}"
-        )
+        raise ValueError(f"{name}_sigma must be a scalar, (n_images,) or (n_images, 3), got shape {sig.shape}")
     sig = _per_row(sig, n_img, 3)
     seen = np.all(np.isfinite(v), axis=1)
     bad = seen[:, None] & ~(np.isfinite(sig) & (sig > 0))

@@ -127,12 +127,14 @@ class BundleResult:
             f"{np.max(np.abs(self.residuals)):.4g}",
         ]
         if np.any(self.weights < 0.5):
-            lines.append(f"  {n_of(int(np.sum(self.weights < 0.5)), 'observation')} down-weighted below 0.5 by the robust loss")
+            lines.append(
+                f"  {n_of(int(np.sum(self.weights < 0.5)), 'observation')} down-weighted below 0.5 by the robust loss"
+            )
         if self.exterior_std is not None:
             s = np.median(self.exterior_std, axis=0)
             lines.append(
                 f"  median std of exterior: X {s[0]:.4g}, Y {s[1]:.4g}, Z {s[2]:.4g} {u}, angles "
-                f"{np.degrees(s[3]) * 3600:.3g}\" {np.degrees(s[4]) * 3600:.3g}\" {np.degrees(s[5]) * 3600:.3g}\""
+                f'{np.degrees(s[3]) * 3600:.3g}" {np.degrees(s[4]) * 3600:.3g}" {np.degrees(s[5]) * 3600:.3g}"'
             )
             ps = np.median(self.point_std[p.roles != "control"], axis=0) if np.any(p.roles != "control") else None
             if ps is not None:
@@ -142,7 +144,9 @@ class BundleResult:
         free = p.free_intrinsics
         for c, cam in enumerate(self.cameras):
             if free[c].any():
-                vals = np.concatenate([[float(cam.focal_length)], np.asarray(cam.principal_point), np.asarray(cam.distortion)])
+                vals = np.concatenate(
+                    [[float(cam.focal_length)], np.asarray(cam.principal_point), np.asarray(cam.distortion)]
+                )
                 parts = [
                     f"{n} {vals[j]:.6g}" + (f" +- {self.camera_std[c, j]:.2g}" if self.camera_std is not None else "")
                     for j, n in enumerate(INTRINSICS) if free[c, j]

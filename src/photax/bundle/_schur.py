@@ -16,7 +16,6 @@ from ._sparse import Band, band_add, band_cholesky, band_solve, flat_index
 from ._structure import _State, _Structure
 
 
-
 def _damped_vinv(lin: _Lin, s: _Structure, lam: Array):
     """``(n_pts, 3, 3)`` damped ``V^-1`` (fixed points: identity)."""
     v = lin.v + (lam * lin.d_p * s.mask_p + (1.0 - s.mask_p))[:, :, None] * jnp.eye(3)[None, :, :]
@@ -50,7 +49,9 @@ def _reduced_rhs(lin: _Lin, s: _Structure, vinv: Array, n_c: int):
     """The reduced right-hand side ``g_c - W V^-1 g_p`` (in unknown order);
     ``W_a V^-1 g_p = Jc^T (Jp V^-1 g_p)`` per observation (rank 2)."""
     n_img = lin.g_img.shape[0]
-    vg = sum(vinv[:, :, j] * lin.g_p[:, j, None] for j in range(3))[s.obs_point]  # V^-1 g_p per observation (unrolled: see _yt_of)
+    vg = sum(vinv[:, :, j] * lin.g_p[:, j, None] for j in range(3))[
+        s.obs_point
+    ]  # V^-1 g_p per observation (unrolled: see _yt_of)
     t = _jc_dot(lin.jp, vg)  # Jp V^-1 g_p, (k, 2)
     rhs_img = lin.g_img - jax.ops.segment_sum(_jt_dot(lin.jc, t), s.obs_image, num_segments=n_img)
     return jnp.zeros(n_c).at[s.image_ext.ravel()].add(rhs_img.ravel())
@@ -110,7 +111,9 @@ def _schur_blocks(lin: _Lin, s: _Structure, lam: Array, n_c: int, stream: bool |
 
         def products(idx):  # (piece, w, w): W_a V^-1 W_b^T summed over each chunk
             a, b = idx[0].ravel(), idx[1].ravel()
-            return _pair_products(take(h, a), take(lin.jc, a), take(lin.jp, b), take(lin.jc, b), (a == b).astype(float), piece)
+            return _pair_products(
+                take(h, a), take(lin.jc, a), take(lin.jp, b), take(lin.jc, b), (a == b).astype(float), piece
+            )
 
         prod = jax.lax.map(products, (s.chunk_a, s.chunk_b))
         prod = prod.reshape(n_pieces * piece, *prod.shape[2:])

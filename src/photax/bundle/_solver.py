@@ -98,20 +98,21 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._linalg import inv3
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..errors import RESULTS, ConvergenceError
 from ..rotation import angles_from_matrix_unchecked, rotation_matrix
-from .._linalg import inv3
 from ._linearise import LIN_WHOLE, _camera_prior, _linearise, _prior_residuals, _project_obs
-from ._robust import _LOSS_CODE, _corrector, _rho
 from ._precision import _covariances, _covariances_band, _orientation_covariances, _standard_deviations
 from ._problem import BundleProblem, Gauge, Loss
 from ._result import BundleResult, _image_parts, stop_message
+from ._robust import _LOSS_CODE, _corrector, _rho
 from ._schur import _trial
 from ._sparse import choose_solver
 from ._start import _needs_init, initialize_block
 from ._structure import _State
+
 
 def _datum_constraints(problem: BundleProblem, images=None) -> int:
     """Rough count of datum constraints (a network needs 7) of the whole
@@ -340,7 +341,12 @@ def _check_options(problem: BundleProblem, loss, loss_scale, method, gauge) -> N
 
 def _start_state(problem: BundleProblem, origin: np.ndarray) -> _State:
     """The problem's start values as solver state, ground coordinates relative to ``origin``."""
-    intr = np.stack([np.concatenate([[float(c.focal_length)], np.asarray(c.principal_point), np.asarray(c.distortion)]) for c in problem.cameras])
+    intr = np.stack(
+        [
+            np.concatenate([[float(c.focal_length)], np.asarray(c.principal_point), np.asarray(c.distortion)])
+            for c in problem.cameras
+        ]
+    )
     return _State(
         _rotation(problem.exterior.angles, convention=problem.exterior.convention),
         jnp.asarray(np.asarray(problem.exterior.position) - origin[None, :]),
@@ -554,8 +560,11 @@ def _with_intrinsics(camera: FrameCamera, k) -> FrameCamera:
     """``camera`` with the adjusted :data:`INTRINSICS` ``k`` (f, x0, y0, k1, k2, k3, p1, p2), its
     type and everything else kept: a :class:`photax.interior.ScannedCamera` keeps its film -> scan
     transformation (self-calibration adjusts the camera, not the scanner)."""
-    return eqx.tree_at(lambda c: (c.focal_length, c.principal_point, c.distortion), camera,
-                       (jnp.asarray(k[0]), jnp.asarray(k[1:3]), jnp.asarray(k[3:])))
+    return eqx.tree_at(
+        lambda c: (c.focal_length, c.principal_point, c.distortion),
+        camera,
+        (jnp.asarray(k[0]), jnp.asarray(k[1:3]), jnp.asarray(k[3:])),
+    )
 
 
 def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial_cost, history, code, message,
@@ -576,7 +585,10 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     n_cam_obs = 3 * int(problem.gnss_observed.sum() + problem.attitude_observed.sum())
     n_prior = int(np.sum(np.asarray(s.prior_w) > 0)) + n_cam_obs
     redundancy = 2 * problem.n_observations + n_prior - n_free + (7 if gauge == "damped" else 0)
-    wsq = float(np.sum(weight[:, None] * np.asarray(lin.r) ** 2) + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w)))
+    wsq = float(
+        np.sum(weight[:, None] * np.asarray(lin.r) ** 2)
+        + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w))
+    )
     wsq += float(np.sum(np.asarray(_camera_prior_jit(state, s)) ** 2))
     sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
     eo_std = cam_std = pt_std = pt_cov = eo_cov = None

@@ -209,7 +209,9 @@ def band_add(m: Band, idx: Array, values: Array) -> Band:
     (:func:`flat_index`; past the end: dropped), array by array: no
     concatenated copy of the matrix (at 10,000 images each of ``d`` and
     ``b`` is 0.66 GB)."""
-    return Band(*(a.ravel().at[i].add(values, mode="drop").reshape(a.shape) if a.size else a for a, i in _parts(m, idx)))
+    return Band(
+        *(a.ravel().at[i].add(values, mode="drop").reshape(a.shape) if a.size else a for a, i in _parts(m, idx))
+    )
 
 
 def band_take(m: Band, idx: Array) -> Array:
@@ -257,7 +259,9 @@ def band_solve(f: Band, rhs_chunks: Array, rhs_border: Array) -> tuple[Array, Ar
         return (y, l_next, acc + lb @ y), y
 
     cw = f.d.shape[1]
-    (_, _, acc), y = jax.lax.scan(fwd, (jnp.zeros(cw), jnp.zeros((cw, cw)), jnp.zeros(n_b)), (f.d, f.b, f.c, rhs_chunks))
+    (_, _, acc), y = jax.lax.scan(
+        fwd, (jnp.zeros(cw), jnp.zeros((cw, cw)), jnp.zeros(n_b)), (f.d, f.b, f.c, rhs_chunks)
+    )
     if n_b:
         yb = _tri(f.e, (rhs_border - acc)[:, None], left=True, lower=True)[:, 0]
         xb = _tri(f.e, yb[:, None], left=True, lower=True, transpose_a=True)[:, 0]

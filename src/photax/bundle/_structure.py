@@ -190,7 +190,19 @@ def _topology(problem) -> _Topology:
     # The per-observation and per-pair index arrays in int32 (bounds checked
     # below): they are read on every pass over the observations (the Schur
     # product gathers by chunk_a, chunk_b), half the bytes of int64.
-    idx32 = [problem.obs_image, problem.obs_point, cols, pa, pb, ca, cb, ck, ka, kb, *_image_chunks(problem.obs_image, n_img)]
+    idx32 = [
+        problem.obs_image,
+        problem.obs_point,
+        cols,
+        pa,
+        pb,
+        ca,
+        cb,
+        ck,
+        ka,
+        kb,
+        *_image_chunks(problem.obs_image, n_img),
+    ]
     if max((int(np.max(v, initial=0)) for v in idx32), default=0) >= 2**31 - 1:
         raise ValueError("the problem has more than 2^31 observations or pairs: too large")
     i32 = [jnp.asarray(v, dtype=jnp.int32) for v in idx32]

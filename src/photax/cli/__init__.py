@@ -20,8 +20,22 @@ import threading
 from ..io.atomic import interrupted
 
 # Subcommand modules, in the order ``photax --help`` lists them.
-SUBCOMMANDS = ["resect", "demo", "rectify", "ortho", "mosaic", "compare", "bundle", "measure", "fiducials", "epipolar",
-               "transfer", "ties", "register", "sharpen"]
+SUBCOMMANDS = [
+    "resect",
+    "demo",
+    "rectify",
+    "ortho",
+    "mosaic",
+    "compare",
+    "bundle",
+    "measure",
+    "fiducials",
+    "epipolar",
+    "transfer",
+    "ties",
+    "register",
+    "sharpen",
+]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -274,13 +288,17 @@ def _main(argv: list[str] | None) -> int:
         extra = _EXTRAS.get((getattr(exc, "name", None) or "").partition(".")[0])
         if isinstance(exc, ModuleNotFoundError) and extra:  # a usage error: say what to install
             module = exc.name.partition(".")[0]
-            print(f'{command[0]}: error: needs {module}, in the {extra} extra: pip install "photax[{extra}]"',
-                  file=sys.stderr)
+            print(
+                f'{command[0]}: error: needs {module}, in the {extra} extra: pip install "photax[{extra}]"',
+                file=sys.stderr,
+            )
             return 2
         if os.environ.get("PHOTAX_TRACEBACK"):
             raise
-        print(f"{command[0]}: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
-              "(PHOTAX_TRACEBACK=1 shows where)", file=sys.stderr)
+        print(
+            f"{command[0]}: error: unexpected {type(exc).__name__}: {_one_line(exc)} (PHOTAX_TRACEBACK=1 shows where)",
+            file=sys.stderr,
+        )
         return 2
     if interrupted.is_set():  # after its last output was written: say so
         print(f"\n{command[0]}: interrupted as it ended (what it wrote was written before)", file=sys.stderr)

@@ -12,9 +12,11 @@ CONVENTIONS = ("phi-omega-kappa", "omega-phi-kappa")
 RESAMPLING = ("nearest", "bilinear", "cubic", "lanczos", "lanczos4", "bspline")
 
 
-NODATA_HELP = ("value of output pixels without data, recorded as the file's nodata (default: the input's "
-               "nodata; else NaN for float images, and for integer images no value but an internal mask "
-               "band, so that no grey value, true black included, is lost)")
+NODATA_HELP = (
+    "value of output pixels without data, recorded as the file's nodata (default: the input's "
+    "nodata; else NaN for float images, and for integer images no value but an internal mask "
+    "band, so that no grey value, true black included, is lost)"
+)
 
 
 def nodata_value(text: str) -> float:
@@ -83,8 +85,14 @@ def add_oriented_images(p) -> None:
     """The arguments :func:`read_oriented_images` reads: IMAGES of one camera, their
     approximate orientations, the DEM, and the matching search radius."""
     p.add_argument("images", nargs="+", metavar="IMAGE", help="images of one camera (any GDAL raster)")
-    p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
-                   help="photax camera file or orthority interior YAML (--interior is an alias)")
+    p.add_argument(
+        "--camera",
+        "--interior",
+        dest="camera",
+        required=True,
+        metavar="CAMERA_FILE",
+        help="photax camera file or orthority interior YAML (--interior is an alias)",
+    )
     p.add_argument("--exterior", required=True, help="approximate orientations (resect -o or orthority CSV)")
     p.add_argument("--dem", required=True, help="DEM raster in the ground CRS")
     p.add_argument("--search", type=int, default=12, help="search radius around the prediction, px (default 12)")
@@ -95,9 +103,9 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     ``(files, camera, names, images, exteriors)`` from ``args.images``,
     ``args.camera``, ``args.exterior`` and ``args.dem`` plus the ``extra`` files,
     each checked as readable, and ``args.out`` checked against all of them."""
-    from ..io.atomic import check_output_path
     import types
 
+    from ..io.atomic import check_output_path
     from ..io.orientation import read_exteriors, read_interior
     from ..io.raster import open_raster, read_geotiff
 
@@ -112,8 +120,7 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     exterior = [table[f] for f in args.images]
     with open_raster(args.dem) as src:  # the DEM's CRS against the orientations' (the caller reads the heights)
         dem_crs = src.crs.to_wkt() if src.crs else None
-    check_crs(crs, f"the orientations ({args.exterior})", types.SimpleNamespace(crs=dem_crs),
-              f"the DEM ({args.dem})")
+    check_crs(crs, f"the orientations ({args.exterior})", types.SimpleNamespace(crs=dem_crs), f"the DEM ({args.dem})")
     return files, camera, names, images, exterior
 
 

@@ -37,8 +37,14 @@ def add_parser(sub) -> None:
     p.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="GNSS antenna offset from the projection centre in the camera frame (x right, y up, "
                    "z back; ground unit), with --position-sigma")  # fmt: skip
-    p.add_argument("--max-steps", "--max-iterations", dest="max_steps", type=int, default=50,
-                   help="LM iterations at most, accepted and rejected steps (--max-iterations is an alias)")
+    p.add_argument(
+        "--max-steps",
+        "--max-iterations",
+        dest="max_steps",
+        type=int,
+        default=50,
+        help="LM iterations at most, accepted and rejected steps (--max-iterations is an alias)",
+    )
     p.add_argument("--quiet", action="store_true", help="no per-iteration lines")
     p.add_argument("-o", "--out", metavar="OUT_JSON", help="also write the results as JSON")
     p.add_argument("--json", dest="out", help=argparse.SUPPRESS)  # the old name of --out
@@ -75,9 +81,11 @@ def run(args: argparse.Namespace) -> int:
     cameras_out = _camera_outputs(args.camera_out, fmt, path, problem, inputs) if args.camera_out else []
     gauge = {"auto": "damped" if fmt == "bal" else None, "none": None}.get(args.gauge, args.gauge)
     n_ctrl, n_chk = int((problem.roles == "control").sum()), int((problem.roles == "check").sum())
-    print(f"{path}: {plural(problem.n_images, 'image')}, {plural(problem.n_cameras, 'camera')}, "
-          f"{plural(problem.n_points, 'point')} ({n_ctrl} control, {n_chk} check), "
-          f"{plural(problem.n_observations, 'observation')}")
+    print(
+        f"{path}: {plural(problem.n_images, 'image')}, {plural(problem.n_cameras, 'camera')}, "
+        f"{plural(problem.n_points, 'point')} ({n_ctrl} control, {n_chk} check), "
+        f"{plural(problem.n_observations, 'observation')}"
+    )
     result = bundle_adjust(problem, loss=args.loss, loss_scale=args.loss_scale, gauge=gauge,
                            max_steps=args.max_steps, verbose=not args.quiet, throw=False,
                            progress=args.progress and args.command)  # fmt: skip
@@ -135,8 +143,8 @@ def _camera_outputs(out, fmt: str, folder: pathlib.Path, problem, inputs: list) 
     self-calibrated cameras, checked before the work (a BAL file, no free
     intrinsics, a camera name that is no file name, a path that is an input: ValueError).
     The camera files read are inputs already (recorded by the readers)."""
-    from ..io.files import load_json, read_text
     from ..io.atomic import check_output_path, output_name
+    from ..io.files import load_json, read_text
     from ..io.orientation import read_camera_unit
 
     if fmt != "block":

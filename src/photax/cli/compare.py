@@ -39,7 +39,9 @@ def add_parser(sub) -> None:
         epilog="example:\n  photax compare data/sample_gcps.csv --camera data/sample_camera.yaml "
         "--dem data/sample_dem.tif --image data/sample_image.tif --orders 1-5 -o compare\n",
     )
-    p.add_argument("gcps", metavar="GCP_FILE", help="GCP list with pixel positions (CSV with optional role column, or ODM)")
+    p.add_argument(
+        "gcps", metavar="GCP_FILE", help="GCP list with pixel positions (CSV with optional role column, or ODM)"
+    )
     p.add_argument("--camera", required=True, help="photax camera file, or orthority interior YAML")
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority file")
     p.add_argument("--dem", required=True, help="DEM raster in the GCPs' CRS and vertical datum")
@@ -48,8 +50,12 @@ def add_parser(sub) -> None:
     p.add_argument("--orders", type=parse_orders, default=(1, 2, 3, 4, 5), help="polynomial orders (default 1-5)")
     p.add_argument("-o", "--out-dir", metavar="DIR", help="folder for the table (md, json) and figures (png)")
     p.add_argument("--out", dest="out_dir", help=argparse.SUPPRESS)  # the old name of --out-dir
-    p.add_argument("--resolution", type=float, metavar="SIZE",
-                   help="ground pixel size of the rectified images in rectified.png (default: the GSD)")
+    p.add_argument(
+        "--resolution",
+        type=float,
+        metavar="SIZE",
+        help="ground pixel size of the rectified images in rectified.png (default: the GSD)",
+    )
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -103,10 +109,14 @@ def run(args: argparse.Namespace) -> int:
     check_crs(table.crs, f"the GCPs ({args.gcps})", dem, f"the DEM ({args.dem})")
     check = table.check
     comparison = compare_models(
-        table.ground[~check], pixel[~check], camera, dem,
+        table.ground[~check],
+        pixel[~check],
+        camera,
+        dem,
         check_ground=table.ground[check] if check.any() else None,
         check_pixel=pixel[check] if check.any() else None,
-        orders=args.orders, gcp_names=table.names[~check],
+        orders=args.orders,
+        gcp_names=table.names[~check],
     )
     print(comparison.table("text"))
     if args.out_dir is None:
@@ -145,4 +155,3 @@ def run(args: argparse.Namespace) -> int:
         raise
     print(f"wrote {', '.join(['comparison.md', 'comparison.json', *figures])} to {out}")
     return 0
-

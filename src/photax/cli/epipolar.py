@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import pathlib
 
-
 from ._common import RESAMPLING
 
 
@@ -27,32 +26,37 @@ def add_parser(sub) -> None:
         help="resample a stereo pair into epipolar images (corresponding points on the same row)",
         description="Resample two oriented images of one camera onto a common plane parallel to their "
         "baseline, so that corresponding points lie on the same row.",
-        epilog="example:\n  photax epipolar left.tif right.tif --camera cam.yaml --exterior oriented.json "
-        "-o pair\n",
+        epilog="example:\n  photax epipolar left.tif right.tif --camera cam.yaml --exterior oriented.json -o pair\n",
     )
     p.add_argument("left", metavar="LEFT", help="left image (any GDAL raster)")
     p.add_argument("right", metavar="RIGHT", help="right image")
-    p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
-                   help="photax camera file or orthority interior YAML")
+    p.add_argument(
+        "--camera",
+        "--interior",
+        dest="camera",
+        required=True,
+        metavar="CAMERA_FILE",
+        help="photax camera file or orthority interior YAML",
+    )
     p.add_argument("--exterior", help="orientation file holding both images (resect -o or orthority CSV)")
     p.add_argument("--exterior-left", metavar="FILE", help="the left image's orientation file")
     p.add_argument("--exterior-right", metavar="FILE", help="the right image's orientation file")
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
-    p.add_argument("--resampling", choices=RESAMPLING, default="cubic",
-                   help="interpolation of the grey values")
-    p.add_argument("-o", "--out", required=True, metavar="OUT",
-                   help="output prefix: OUT_left.tif, OUT_right.tif and OUT.json")
+    p.add_argument("--resampling", choices=RESAMPLING, default="cubic", help="interpolation of the grey values")
+    p.add_argument(
+        "-o", "--out", required=True, metavar="OUT", help="output prefix: OUT_left.tif, OUT_right.tif and OUT.json"
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     import numpy as np  # here, not at import: photax --help loads no numpy
 
-    from ..matching import epipolar_pair
     from ..io.atomic import check_output_path
     from ..io.orientation import read_exterior, read_interior
     from ..io.raster import read_geotiff, write_geotiff
     from ..io.results import write_json
+    from ..matching import epipolar_pair
     from ._common import input_file
 
     input_file(args.left, "left image")
@@ -67,8 +71,11 @@ def run(args: argparse.Namespace) -> int:
         input_file(f, "exterior file")
     inputs = [args.left, args.right, args.camera, *files]
     out = pathlib.Path(args.out)
-    outs = [out.with_name(out.name + "_left.tif"), out.with_name(out.name + "_right.tif"),
-            out.with_name(out.name + ".json")]
+    outs = [
+        out.with_name(out.name + "_left.tif"),
+        out.with_name(out.name + "_right.tif"),
+        out.with_name(out.name + ".json"),
+    ]
     for o in outs:
         check_output_path(o, inputs)
     camera = read_interior(args.camera, args.camera_name)
@@ -76,18 +83,29 @@ def run(args: argparse.Namespace) -> int:
     ext_r, _ = read_exterior(args.exterior or args.exterior_right, args.right)
     img_l, _ = read_geotiff(args.left)
     img_r, _ = read_geotiff(args.right)
-    pair = epipolar_pair(img_l.astype(np.float32), img_r.astype(np.float32), camera, ext_l, ext_r,
-                         resampling=args.resampling)
+    pair = epipolar_pair(
+        img_l.astype(np.float32), img_r.astype(np.float32), camera, ext_l, ext_r, resampling=args.resampling
+    )
     # A pixel "georeference" x = col, y = row (pixel centres on the integers): readers see the epipolar
     # pixel coordinates, and nothing warns about a raster without a transform.
     pixel = (1.0, 0.0, -0.5, 0.0, 1.0, -0.5)
     write_geotiff(outs[0], pair.left.astype(np.float32), pixel, nodata=np.nan, inputs=inputs)
     write_geotiff(outs[1], pair.right.astype(np.float32), pixel, nodata=np.nan, inputs=inputs)
-    write_json({"rotation_world_from_epipolar": pair.rotation, "focal_px": pair.focal_px,
-                "baseline": pair.baseline, "offsets": pair.offsets,
-                "shape_left": list(pair.left.shape[-2:]), "shape_right": list(pair.right.shape[-2:]),
-                "pixels": "col = x + offset[0], row = offset[1] - y (epipolar image plane, px, y up)"},
-               outs[2], inputs=inputs)
-    print(f"wrote {outs[0]} ({pair.left.shape[-1]} x {pair.left.shape[-2]}), {outs[1]} "
-          f"({pair.right.shape[-1]} x {pair.right.shape[-2]}) and {outs[2]}; baseline {pair.baseline:.4g}")
+    write_json(
+        {
+            "rotation_world_from_epipolar": pair.rotation,
+            "focal_px": pair.focal_px,
+            "baseline": pair.baseline,
+            "offsets": pair.offsets,
+            "shape_left": list(pair.left.shape[-2:]),
+            "shape_right": list(pair.right.shape[-2:]),
+            "pixels": "col = x + offset[0], row = offset[1] - y (epipolar image plane, px, y up)",
+        },
+        outs[2],
+        inputs=inputs,
+    )
+    print(
+        f"wrote {outs[0]} ({pair.left.shape[-1]} x {pair.left.shape[-2]}), {outs[1]} "
+        f"({pair.right.shape[-1]} x {pair.right.shape[-2]}) and {outs[2]}; baseline {pair.baseline:.4g}"
+    )
     return 0

@@ -26,7 +26,6 @@ import argparse
 import csv
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "fiducials",
@@ -40,24 +39,38 @@ def add_parser(sub) -> None:
     p.add_argument("--fiducials", required=True, metavar="CSV", help="calibrated marks: name,x,y in mm (y up)")
     p.add_argument("--pixel-size", type=float, metavar="MM", help="scan resolution in mm per pixel (without --approx)")
     p.add_argument("--approx", metavar="CSV", help="approximate mark positions: name,col,row")
-    p.add_argument("--model", choices=("similarity", "affine", "bilinear", "projective"), default="affine",
-                   help="film -> pixel transformation (similarity: 4 parameters, affine 6, bilinear 8, "
-                   "projective 8)")
+    p.add_argument(
+        "--model",
+        choices=("similarity", "affine", "bilinear", "projective"),
+        default="affine",
+        help="film -> pixel transformation (similarity: 4 parameters, affine 6, bilinear 8, projective 8)",
+    )
     p.add_argument("--mark", choices=("cross", "dot", "ring"), default="cross", help="the marks' shape")
-    p.add_argument("--mark-size", type=float, default=1.0, metavar="MM",
-                   help="half-length of a cross's bars, or a dot's / ring's radius, mm")
+    p.add_argument(
+        "--mark-size",
+        type=float,
+        default=1.0,
+        metavar="MM",
+        help="half-length of a cross's bars, or a dot's / ring's radius, mm",
+    )
     p.add_argument("--line-width", type=float, default=0.2, metavar="MM", help="bar or ring line width, mm")
     p.add_argument("--dark", action="store_true", help="the marks are darker than their surroundings")
     p.add_argument("--search", type=int, default=15, metavar="PX", help="search radius around the approximations")
     p.add_argument("--sigma", type=float, default=0.1, metavar="PX", help="a-priori precision of a mark, px")
     p.add_argument("-o", "--out", required=True, metavar="JSON", help="the interior orientation (JSON)")
     p.add_argument("--csv", metavar="CSV", help="the marks, one row each")
-    p.add_argument("--camera", metavar="CAMERA_FILE",
-                   help="the calibrated camera (photax camera file in mm: focal_length, principal_point, "
-                   "distortion), for --camera-out")
-    p.add_argument("--camera-out", metavar="YAML",
-                   help="write the scanned camera: --camera with the fitted film -> pixel transformation "
-                   "(a 'scan' block; photax resect / ortho / register read it)")
+    p.add_argument(
+        "--camera",
+        metavar="CAMERA_FILE",
+        help="the calibrated camera (photax camera file in mm: focal_length, principal_point, "
+        "distortion), for --camera-out",
+    )
+    p.add_argument(
+        "--camera-out",
+        metavar="YAML",
+        help="write the scanned camera: --camera with the fitted film -> pixel transformation "
+        "(a 'scan' block; photax resect / ortho / register read it)",
+    )
     p.set_defaults(func=run)
 
 
@@ -66,10 +79,10 @@ def run(args: argparse.Namespace) -> int:
 
     from ..interior import find_fiducials
     from ..io.atomic import atomic_write, check_output_path
-    from ..io.results import write_json
-    from ._common import input_file
     from ..io.points import read_named_points
     from ..io.raster import read_grey
+    from ..io.results import write_json
+    from ._common import input_file
 
     input_file(args.scan, "scan")
     input_file(args.fiducials, "fiducial file")
@@ -92,8 +105,10 @@ def run(args: argparse.Namespace) -> int:
 
         base_camera, unit = read_camera(args.camera), read_camera_unit(args.camera)
         if unit not in ("mm", "m"):
-            raise ValueError(f"{args.camera}: the calibrated camera must be in film units (unit: mm or m), "
-                             f"got {unit!r}: the fiducials are in them")
+            raise ValueError(
+                f"{args.camera}: the calibrated camera must be in film units (unit: mm or m), "
+                f"got {unit!r}: the fiducials are in them"
+            )
     names, fid = read_named_points(args.fiducials, ("x", "y"), "fiducial file")
     approx = None
     if args.approx:
@@ -106,27 +121,63 @@ def run(args: argparse.Namespace) -> int:
     elif args.pixel_size is None:
         raise ValueError("give --pixel-size (the scan resolution, mm per pixel) or --approx")
     scan = read_grey(args.scan)
-    res = find_fiducials(scan, fid, pixel_size=args.pixel_size, approx_xy=approx, mark=args.mark,
-                         mark_size=args.mark_size, line_width=args.line_width, bright=not args.dark,
-                         search=args.search, model=args.model, sigma=args.sigma)
+    res = find_fiducials(
+        scan,
+        fid,
+        pixel_size=args.pixel_size,
+        approx_xy=approx,
+        mark=args.mark,
+        mark_size=args.mark_size,
+        line_width=args.line_width,
+        bright=not args.dark,
+        search=args.search,
+        model=args.model,
+        sigma=args.sigma,
+    )
     io = res.orientation
-    marks = [{"name": n, "x": float(f[0]), "y": float(f[1]), "col": float(p[0]), "row": float(p[1]),
-              "residual_col": float(v[0]), "residual_row": float(v[1]), "statistic": float(s),
-              "used": not bool(fl), "status": m}
-             for n, f, p, v, s, fl, m in zip(names, fid, res.xy, io.residuals, io.statistic, res.flagged, res.messages)]
+    marks = [
+        {
+            "name": n,
+            "x": float(f[0]),
+            "y": float(f[1]),
+            "col": float(p[0]),
+            "row": float(p[1]),
+            "residual_col": float(v[0]),
+            "residual_row": float(v[1]),
+            "statistic": float(s),
+            "used": not bool(fl),
+            "status": m,
+        }
+        for n, f, p, v, s, fl, m in zip(names, fid, res.xy, io.residuals, io.statistic, res.flagged, res.messages)
+    ]
     t = io.transform
-    write_json({"model": io.model, "params": np.asarray(t.params), "film_centre_mm": np.asarray(t.film_centre),
-                "film_scale_mm": float(t.film_scale), "sigma0": io.sigma0, "rmse_px": io.rmse,
-                "covariance": io.covariance, "redundancy": io.redundancy, "critical": io.critical,
-                "pixel_size_mm": t.scale(), "image_size": [scan.shape[1], scan.shape[0]], "message": io.message,
-                "marks": marks}, args.out, inputs=inputs)
+    write_json(
+        {
+            "model": io.model,
+            "params": np.asarray(t.params),
+            "film_centre_mm": np.asarray(t.film_centre),
+            "film_scale_mm": float(t.film_scale),
+            "sigma0": io.sigma0,
+            "rmse_px": io.rmse,
+            "covariance": io.covariance,
+            "redundancy": io.redundancy,
+            "critical": io.critical,
+            "pixel_size_mm": t.scale(),
+            "image_size": [scan.shape[1], scan.shape[0]],
+            "message": io.message,
+            "marks": marks,
+        },
+        args.out,
+        inputs=inputs,
+    )
     if args.csv:
         with atomic_write(args.csv, "w", inputs=inputs, newline="") as fh:
             w = csv.writer(fh)
             w.writerow(["name", "x", "y", "col", "row", "residual_col", "residual_row", "status"])
             for m in marks:
-                nums = [f"{m[k]:.4f}" if np.isfinite(m[k]) else "" for k in ("col", "row", "residual_col",
-                                                                            "residual_row")]
+                nums = [
+                    f"{m[k]:.4f}" if np.isfinite(m[k]) else "" for k in ("col", "row", "residual_col", "residual_row")
+                ]
                 w.writerow([m["name"], m["x"], m["y"], *nums, m["status"]])
     if args.camera_out:
         from ..io.camera_file import write_camera

@@ -29,6 +29,7 @@ from __future__ import annotations
 import argparse
 import csv
 import math
+
 _METHODS = ("auto", "quartered", "ellipse", "wong-trinder", "centroid")
 
 
@@ -44,23 +45,38 @@ def add_parser(sub) -> None:
     )
     p.add_argument("image", metavar="IMAGE", help="image file (GeoTIFF, PNG, ... read with rasterio)")
     mode = p.add_mutually_exclusive_group(required=True)
-    mode.add_argument("--interest", choices=("foerstner", "harris", "moravec"), metavar="METHOD",
-                      help="interest points by METHOD: foerstner, harris or moravec")
-    mode.add_argument("--targets", metavar="POINTS", help="centres of circular targets near these approximate "
-                      "positions (GCP CSV or name,col,row CSV)")
+    mode.add_argument(
+        "--interest",
+        choices=("foerstner", "harris", "moravec"),
+        metavar="METHOD",
+        help="interest points by METHOD: foerstner, harris or moravec",
+    )
+    mode.add_argument(
+        "--targets",
+        metavar="POINTS",
+        help="centres of circular targets near these approximate positions (GCP CSV or name,col,row CSV)",
+    )
     mode.add_argument("--corners", metavar="POINTS", help="corners near these approximate positions")
     p.add_argument("-o", "--out", required=True, metavar="OUT_CSV", help="the measured points (CSV)")
     p.add_argument("--gcp-out", metavar="GCP_CSV", help="with a GCP input: the measured points as a GCP file")
     p.add_argument("--image-name", metavar="NAME", help="with a GCP input holding several images: this image's points")
-    p.add_argument("--band", type=int, metavar="N", help="band to measure (1-based); default the mean of the "
-                   "first three bands (or the only one)")
+    p.add_argument(
+        "--band",
+        type=int,
+        metavar="N",
+        help="band to measure (1-based); default the mean of the first three bands (or the only one)",
+    )
     p.add_argument("--count", type=int, default=500, help="interest points: at most this many, strongest first")
     p.add_argument("--min-distance", type=int, default=5, help="interest points: px between two points")
     p.add_argument("--radius", type=float, help="targets: image radius of a target in px (required)")
-    p.add_argument("--method", choices=_METHODS, default="auto",
-                   help="targets: centring method: quartered (black-and-white sectors: Förstner's crossing "
-                   "point), ellipse, wong-trinder or centroid (discs); auto (default) picks quartered or "
-                   "ellipse from the grey values around the approximate positions")
+    p.add_argument(
+        "--method",
+        choices=_METHODS,
+        default="auto",
+        help="targets: centring method: quartered (black-and-white sectors: Förstner's crossing "
+        "point), ellipse, wong-trinder or centroid (discs); auto (default) picks quartered or "
+        "ellipse from the grey values around the approximate positions",
+    )
     p.add_argument("--polarity", choices=("bright", "dark"), default="bright", help="targets: bright or dark")
     p.add_argument("--window", type=int, help="half-size of the measuring window in px (default per locator)")
     p.set_defaults(func=run)
@@ -80,8 +96,16 @@ def _write_csv(out, names, approx, res, strength, inputs) -> None:
         w = csv.writer(fh, lineterminator="\n")
         w.writerow(header + (["strength"] if strength is not None else []))
         for i, name in enumerate(names):
-            row = [name, fmt(approx[i, 0]), fmt(approx[i, 1]), fmt(xy[i, 0]), fmt(xy[i, 1]),
-                   fsig(sig[i, 0]), fsig(sig[i, 1]), Status(int(status[i])).name.lower()]
+            row = [
+                name,
+                fmt(approx[i, 0]),
+                fmt(approx[i, 1]),
+                fmt(xy[i, 0]),
+                fmt(xy[i, 1]),
+                fsig(sig[i, 0]),
+                fsig(sig[i, 1]),
+                Status(int(status[i])).name.lower(),
+            ]
             w.writerow(row + ([f"{strength[i]:.6g}"] if strength is not None else []))
 
 
@@ -130,8 +154,9 @@ def run(args: argparse.Namespace) -> int:
         res = measure.locate_corners(image, approx, **kw)
     if res is None:
         print(f"no interest points found in {args.image}")
-        empty = measure.LocateResult(np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0, np.int32), np.zeros(0),
-                                     np.zeros(0, np.int32))
+        empty = measure.LocateResult(
+            np.zeros((0, 2)), np.zeros((0, 2, 2)), np.zeros(0, np.int32), np.zeros(0), np.zeros(0, np.int32)
+        )
         _write_csv(args.out, names, approx, empty, strength, inputs)
         return 0
     _write_csv(args.out, names, approx, res, strength, inputs)
@@ -144,8 +169,7 @@ def run(args: argparse.Namespace) -> int:
             raise ValueError("--gcp-out needs a GCP file as input (with ground coordinates), not a name,col,row list")
         sig = np.asarray(res.sigma)
         sub = table.subset(valid)
-        sub = dataclasses.replace(sub, pixel=np.asarray(res.xy)[valid],
-                                  sigma=np.sqrt(np.mean(sig[valid] ** 2, axis=1)))
+        sub = dataclasses.replace(sub, pixel=np.asarray(res.xy)[valid], sigma=np.sqrt(np.mean(sig[valid] ** 2, axis=1)))
         write_gcps(args.gcp_out, sub, inputs=inputs)
         print(f"wrote {int(valid.sum())} measured GCPs to {args.gcp_out}")
     return 0 if valid.all() else 1

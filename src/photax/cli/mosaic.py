@@ -38,37 +38,64 @@ def add_parser(sub) -> None:
         epilog="examples:\n  photax mosaic A.tif B.tif -o mosaic.tif\n"
         "  photax mosaic --block bundle.json --images DIR --camera cam.yaml --dem dem.tif -o mosaic.tif\n",
     )
-    p.add_argument("orthos", nargs="*", metavar="ORTHO", help="orthophoto GeoTIFFs (one CRS, one pixel lattice, one number of bands: "
-                   "RGB orthos share one seam, each band gets its own gain)")
-    p.add_argument("-o", "--out", required=True,
-                   help="output mosaic (Cloud-Optimized GeoTIFF, in the orthos' data type: uint8 orthos "
-                   "give a uint8 mosaic, rounded, with their nodata)")
-    p.add_argument("--method", choices=("seamline", "voronoi"), default="seamline",
-                   help="seams of least difference (default) or nearest footprint centre")
-    p.add_argument("--dsm", help="surface model raster: seams avoid raised objects "
-                   "(with --dem, or heights above ground)")
+    p.add_argument(
+        "orthos",
+        nargs="*",
+        metavar="ORTHO",
+        help="orthophoto GeoTIFFs (one CRS, one pixel lattice, one number of bands: "
+        "RGB orthos share one seam, each band gets its own gain)",
+    )
+    p.add_argument(
+        "-o",
+        "--out",
+        required=True,
+        help="output mosaic (Cloud-Optimized GeoTIFF, in the orthos' data type: uint8 orthos "
+        "give a uint8 mosaic, rounded, with their nodata)",
+    )
+    p.add_argument(
+        "--method",
+        choices=("seamline", "voronoi"),
+        default="seamline",
+        help="seams of least difference (default) or nearest footprint centre",
+    )
+    p.add_argument(
+        "--dsm", help="surface model raster: seams avoid raised objects (with --dem, or heights above ground)"
+    )
     p.add_argument("--dem", help="terrain model raster: subtracted from --dsm; the DEM of --block's orthos")
-    p.add_argument("--raised", type=float, default=2.0, metavar="METRES",
-                   help="height above ground of a raised object (default 2)")
+    p.add_argument(
+        "--raised", type=float, default=2.0, metavar="METRES", help="height above ground of a raised object (default 2)"
+    )
     p.add_argument("--no-balance", dest="balance", action="store_false", help="no gain/offset balancing")
     p.add_argument("--feather", type=int, default=8, metavar="PX", help="blend half-width across seams (default 8)")
-    p.add_argument("--seamlines", metavar="PATH",
-                   help="also write the seamlines as GeoJSON: one polygon per ortho, the area it is the "
-                   "source of")
-    p.add_argument("--source-index", metavar="PATH",
-                   help="also write a GeoTIFF of the index (0-based, in the order given; -1 none) of the "
-                   "ortho each pixel comes from")
+    p.add_argument(
+        "--seamlines",
+        metavar="PATH",
+        help="also write the seamlines as GeoJSON: one polygon per ortho, the area it is the source of",
+    )
+    p.add_argument(
+        "--source-index",
+        metavar="PATH",
+        help="also write a GeoTIFF of the index (0-based, in the order given; -1 none) of the "
+        "ortho each pixel comes from",
+    )
     p.add_argument("--chunks", type=int, default=1024, metavar="PX", help="chunk edge (memory ~ chunks^2)")
     b = p.add_argument_group("block workflow (instead of ORTHOs)")
-    b.add_argument("--block", metavar="ORIENTATIONS",
-                   help="photax bundle -o or photax resect -o result (JSON), or orthority exterior CSV")
+    b.add_argument(
+        "--block",
+        metavar="ORIENTATIONS",
+        help="photax bundle -o or photax resect -o result (JSON), or orthority exterior CSV",
+    )
     b.add_argument("--images", metavar="DIR", help="folder of the block's images (matched by file stem)")
-    b.add_argument("--camera", "--interior", dest="camera", metavar="CAMERA_FILE",
-                   help="photax camera file or orthority interior YAML")
+    b.add_argument(
+        "--camera",
+        "--interior",
+        dest="camera",
+        metavar="CAMERA_FILE",
+        help="photax camera file or orthority interior YAML",
+    )
     b.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
     b.add_argument("--resolution", type=float, help="ground pixel size (default: the median ground sampling distance)")
-    b.add_argument("--resampling", choices=RESAMPLING, default="bilinear",
-                   help="interpolation of the grey values")
+    b.add_argument("--resampling", choices=RESAMPLING, default="bilinear", help="interpolation of the grey values")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -129,8 +156,11 @@ def run(args) -> int:
         for opt in ("images", "camera", "dem"):
             if not getattr(args, opt):
                 raise ValueError(f"--block needs --{opt}")
-        inputs = [str(input_file(args.block, "block orientation file")), str(input_file(args.camera, "camera file")),
-                  str(input_file(args.dem, "DEM"))]
+        inputs = [
+            str(input_file(args.block, "block orientation file")),
+            str(input_file(args.camera, "camera file")),
+            str(input_file(args.dem, "DEM")),
+        ]
         input_folder(args.images, "image folder")
     else:
         if not args.orthos:
@@ -155,13 +185,24 @@ def run(args) -> int:
         check_crs(crs, f"the block's orientations ({args.block})", dem, f"the DEM ({args.dem})")
     out_dir = pathlib.Path(args.out).resolve().parent
     # One bar, "mosaic": the block's images, then every Dask task of the mosaic and of its writing.
-    with tempfile.TemporaryDirectory(dir=out_dir, prefix=".photax-mosaic-") as tmp, progress_bar(
-            args.progress and args.command, None, desc="mosaic", unit="step") as bar:
+    with (
+        tempfile.TemporaryDirectory(dir=out_dir, prefix=".photax-mosaic-") as tmp,
+        progress_bar(args.progress and args.command, None, desc="mosaic", unit="step") as bar,
+    ):
         if args.block:
             bar.total = (bar.total or 0) + len(images)
-            paths = orthorectify_block(images, exteriors, camera, dem, tmp, resolution=args.resolution,
-                                       crs=crs, resampling=args.resampling, tile=args.chunks,
-                                       callback=lambda k: bar.update())
+            paths = orthorectify_block(
+                images,
+                exteriors,
+                camera,
+                dem,
+                tmp,
+                resolution=args.resolution,
+                crs=crs,
+                resampling=args.resampling,
+                tile=args.chunks,
+                callback=lambda k: bar.update(),
+            )
         else:
             paths = list(args.orthos)
         dsm = dem_on_grid = None
@@ -171,13 +212,25 @@ def run(args) -> int:
             dem_on_grid = heights_on_grid(args.dem, grid) if args.dem else None
         info = {}
         with _dask_progress(bar):
-            out = mosaic([str(p) for p in paths], method=args.method, dsm=dsm, dem=dem_on_grid,
-                         raised=args.raised, balance=args.balance, feather=args.feather, chunks=args.chunks,
-                         info=info, seamlines=args.seamlines, source_index=args.source_index)
+            out = mosaic(
+                [str(p) for p in paths],
+                method=args.method,
+                dsm=dsm,
+                dem=dem_on_grid,
+                raised=args.raised,
+                balance=args.balance,
+                feather=args.feather,
+                chunks=args.chunks,
+                info=info,
+                seamlines=args.seamlines,
+                source_index=args.source_index,
+            )
             to_raster(_in_dtype(out, paths[0]), args.out, cog=True, inputs=inputs)
     gains = ", ".join("/".join(f"{x:.3f}" for x in np.atleast_1d(g)) for g in info["gains"])  # per band: a/b/c
-    print(f"photax mosaic: {plural(len(paths), 'ortho')} -> {args.out} ({out.shape[-1]} x {out.shape[-2]} px"
-          f"{f', {out.shape[0]} bands' if out.ndim == 3 else ''}; gains {gains})")
+    print(
+        f"photax mosaic: {plural(len(paths), 'ortho')} -> {args.out} ({out.shape[-1]} x {out.shape[-2]} px"
+        f"{f', {out.shape[0]} bands' if out.ndim == 3 else ''}; gains {gains})"
+    )
     for what, path in (("seamlines", args.seamlines), ("source index", args.source_index)):
         if path:
             print(f"photax mosaic: {what} -> {path}")

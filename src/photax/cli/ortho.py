@@ -40,9 +40,12 @@ def add_parser(sub) -> None:
     p.add_argument("image", metavar="IMAGE", nargs="+", help="the image(s) (any GDAL raster)")
     ground = p.add_mutually_exclusive_group(required=True)
     ground.add_argument("--dem", help="DEM raster in the ground CRS of the orientation")
-    ground.add_argument("--height", type=float, metavar="H",
-                        help="flat ground at height H instead of a DEM (a constant-height DEM under "
-                        "the image)")
+    ground.add_argument(
+        "--height",
+        type=float,
+        metavar="H",
+        help="flat ground at height H instead of a DEM (a constant-height DEM under the image)",
+    )
     p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
                    help="photax camera file (see photax resect --help), orthority interior YAML or "
                    "OpenSfM/ODM reconstruction.json (--interior is an alias)")  # fmt: skip
@@ -55,9 +58,12 @@ def add_parser(sub) -> None:
     out.add_argument("-o", "--out", metavar="OUT_TIF", help="output GeoTIFF (one IMAGE)")
     out.add_argument("--out-dir", metavar="DIR", help="output folder: DIR/STEM_ortho.tif for each IMAGE")
     p.add_argument("--resolution", type=float, help="ground pixel size (default: the mean ground sampling distance)")
-    p.add_argument("--resampling", choices=RESAMPLING, default=None,
-                   help="resampling kernel (default: bilinear; nearest for a palette image, which takes "
-                   "no other)")
+    p.add_argument(
+        "--resampling",
+        choices=RESAMPLING,
+        default=None,
+        help="resampling kernel (default: bilinear; nearest for a palette image, which takes no other)",
+    )
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
@@ -75,10 +81,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_one(args: argparse.Namespace) -> int:
+    from ..grid import ortho_grid
     from ..io.atomic import check_output_path
     from ..io.orientation import read_exterior, read_interior
     from ..io.raster import read_dem
-    from ..grid import ortho_grid
     from ..rectification import orthorectify_file
     from ._common import check_crs, ground_unit, input_file
 
@@ -102,12 +108,18 @@ def _run_one(args: argparse.Namespace) -> int:
         check_crs(crs, f"the orientation ({args.exterior})", dem, f"the DEM ({args.dem})")
     grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
     orthorectify_file(
-        image, args.out, exterior, camera, dem, grid, resampling=args.resampling, nodata=args.nodata,
+        image,
+        args.out,
+        exterior,
+        camera,
+        dem,
+        grid,
+        resampling=args.resampling,
+        nodata=args.nodata,
         tile=args.tile,
         progress=args.progress and args.command,  # one bar, labelled "ortho"
     )
-    print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} "
-          f"{ground_unit(grid.crs)}")
+    print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} {ground_unit(grid.crs)}")
     return 0
 
 
@@ -167,23 +179,37 @@ def _run_block(args: argparse.Namespace) -> int:
         check_crs(crs, f"the orientations ({args.exterior})", dem, f"the DEM ({args.dem})")
     else:
         dem = _flat_dem(args.height, exteriors) if exteriors else None
-    results = orthorectify_files(
-        [args.image[k] for k in todo], [outputs[k] for k in todo], exteriors, camera, dem,
-        resolution=args.resolution, crs=crs, resampling=args.resampling, tile=args.tile,
-        progress=args.progress and args.command,
-    ) if todo else []
+    results = (
+        orthorectify_files(
+            [args.image[k] for k in todo],
+            [outputs[k] for k in todo],
+            exteriors,
+            camera,
+            dem,
+            resolution=args.resolution,
+            crs=crs,
+            resampling=args.resampling,
+            tile=args.tile,
+            progress=args.progress and args.command,
+        )
+        if todo
+        else []
+    )
     for k, grid in zip(todo, results):
         if isinstance(grid, Exception):
             failed[args.image[k]] = grid
         else:
-            print(f"wrote {outputs[k]}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} "
-                  f"{ground_unit(grid.crs)}")
+            print(
+                f"wrote {outputs[k]}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} "
+                f"{ground_unit(grid.crs)}"
+            )
     for image in args.image:
         if image in failed:
             print(f"{args.command}: {image} failed: {failed[image]}", file=sys.stderr)
     if failed:
-        print(f"{args.command}: {len(failed)} of {len(args.image)} images failed; the others are written",
-              file=sys.stderr)
+        print(
+            f"{args.command}: {len(failed)} of {len(args.image)} images failed; the others are written", file=sys.stderr
+        )
         return 1
     return 0
 

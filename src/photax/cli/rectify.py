@@ -18,17 +18,19 @@ def add_parser(sub) -> None:
         "rectify",
         help="polynomial rectification of an image from GCPs",
         description="Fit a polynomial map -> pixel to the GCPs and resample IMAGE onto a map grid covering them.",
-        epilog="example:\n  photax rectify data/sample_image.tif --gcps data/sample_gcps.csv --order 3 "
-        "-o rect.tif\n",
+        epilog="example:\n  photax rectify data/sample_image.tif --gcps data/sample_gcps.csv --order 3 -o rect.tif\n",
     )
     p.add_argument("image", metavar="IMAGE", help="the image (any GDAL raster)")
     p.add_argument("--gcps", required=True, metavar="GCP_FILE", help="GCP list with pixel positions (CSV or ODM)")
     p.add_argument("--order", type=int, default=1, help="polynomial order 1-5 (default 1)")
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="map pixel size (default: the mean GCP scale)")
-    p.add_argument("--resampling", choices=RESAMPLING, default=None,
-                   help="resampling kernel (default: bilinear; nearest for a palette image, which takes "
-                   "no other)")
+    p.add_argument(
+        "--resampling",
+        choices=RESAMPLING,
+        default=None,
+        help="resampling kernel (default: bilinear; nearest for a palette image, which takes no other)",
+    )
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
@@ -41,10 +43,10 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from ..grid import Grid, check_resolution
     from ..io.atomic import check_output_path
     from ..io.gcp import read_gcps
     from ..polynomial import fit_polynomial
-    from ..grid import Grid, check_resolution
     from ..rectification import rectify_file
     from ._common import ground_unit, input_file, plural
 
@@ -74,8 +76,19 @@ def run(args: argparse.Namespace) -> int:
     if args.resolution is not None:
         check_resolution(resolution, gsd, bounds, "the GCPs' footprint")
     grid = Grid.from_bounds(bounds, resolution, crs=table.crs)
-    rectify_file(image, args.out, model, grid, resampling=args.resampling, nodata=args.nodata, tile=args.tile,
-                 progress=args.progress and args.command, inputs=[args.gcps])
-    print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {resolution:g} {ground_unit(table.crs, 'map units')}, "
-          f"order {args.order}, {plural(len(ground), 'GCP')}, rmse {float(model.rmse):.3g} px")
+    rectify_file(
+        image,
+        args.out,
+        model,
+        grid,
+        resampling=args.resampling,
+        nodata=args.nodata,
+        tile=args.tile,
+        progress=args.progress and args.command,
+        inputs=[args.gcps],
+    )
+    print(
+        f"wrote {args.out}: {grid.width} x {grid.height} pixels of {resolution:g} {ground_unit(table.crs, 'map units')}, "
+        f"order {args.order}, {plural(len(ground), 'GCP')}, rmse {float(model.rmse):.3g} px"
+    )
     return 0

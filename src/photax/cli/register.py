@@ -13,20 +13,33 @@ import argparse
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("register", help="refine an orientation by matching the image to a reference orthophoto",
-                       description="Gauss-Newton on the grey-value differences between the image and the "
-                       "reference orthophoto rendered into it, coarse to fine.",
-                       epilog="example:\n  photax register img.tif --camera cam.yaml --exterior approx.json "
-                       "--ortho reference.tif --dem dem.tif -o refined.json\n")
+    p = sub.add_parser(
+        "register",
+        help="refine an orientation by matching the image to a reference orthophoto",
+        description="Gauss-Newton on the grey-value differences between the image and the "
+        "reference orthophoto rendered into it, coarse to fine.",
+        epilog="example:\n  photax register img.tif --camera cam.yaml --exterior approx.json "
+        "--ortho reference.tif --dem dem.tif -o refined.json\n",
+    )
     p.add_argument("image", metavar="IMAGE", help="the image to orient (any GDAL raster)")
-    p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
-                   help="photax camera file or orthority interior YAML (--interior is an alias)")
+    p.add_argument(
+        "--camera",
+        "--interior",
+        dest="camera",
+        required=True,
+        metavar="CAMERA_FILE",
+        help="photax camera file or orthority interior YAML (--interior is an alias)",
+    )
     p.add_argument("--exterior", required=True, help="approximate orientation (resect -o or orthority CSV)")
     p.add_argument("--ortho", required=True, help="reference orthophoto (GeoTIFF, ground CRS)")
     p.add_argument("--dem", required=True, help="DEM raster in the ground CRS")
-    p.add_argument("--levels", default="8,4,2,1", metavar="L,...",
-                   help="coarse-to-fine levels, px of blur and sampling step (default 8,4,2,1; a start within a "
-                   "few px of the truth needs fewer, e.g. 4,2,1)")
+    p.add_argument(
+        "--levels",
+        default="8,4,2,1",
+        metavar="L,...",
+        help="coarse-to-fine levels, px of blur and sampling step (default 8,4,2,1; a start within a "
+        "few px of the truth needs fewer, e.g. 4,2,1)",
+    )
     p.add_argument("--max-steps", type=int, default=15, metavar="N", help="Gauss-Newton steps per level at most")
     p.add_argument("-o", "--out", required=True, help="output JSON with the refined orientation")
     p.set_defaults(func=run)
@@ -34,13 +47,12 @@ def add_parser(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
-    from ..io.orientation import read_exterior, read_interior
     from ..io.crs import require_same
+    from ..io.orientation import read_exterior, read_interior
     from ..io.raster import read_dem, read_geotiff
-    from ._common import check_crs
     from ..io.results import write_json
     from ..matching import register_to_ortho
-    from ._common import input_file
+    from ._common import check_crs, input_file
 
     files = [args.image, args.camera, args.exterior, args.ortho, args.dem]
     for f in files:
@@ -49,9 +61,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         levels = tuple(int(v) for v in args.levels.split(","))
     except ValueError:
-        raise ValueError(f"--levels must be whole numbers separated by commas, e.g. 4,2,1; got {args.levels!r}") from None
+        raise ValueError(
+            f"--levels must be whole numbers separated by commas, e.g. 4,2,1; got {args.levels!r}"
+        ) from None
     if not levels or min(levels) < 1 or args.max_steps < 1:
-        raise ValueError(f"--levels must be positive and --max-steps at least 1, got {args.levels!r} and {args.max_steps}")
+        raise ValueError(
+            f"--levels must be positive and --max-steps at least 1, got {args.levels!r} and {args.max_steps}"
+        )
     camera = read_interior(args.camera)
     exterior, crs = read_exterior(args.exterior, args.image)
     image = read_geotiff(args.image)[0][0].astype(float)
@@ -60,14 +76,32 @@ def run(args: argparse.Namespace) -> int:
     dem = read_dem(args.dem)
     check_crs(crs, f"the orientation ({args.exterior})", dem, f"the DEM ({args.dem})")
     require_same(dem.crs, f"the DEM ({args.dem})", profile.get("crs"), f"the ortho ({args.ortho})")
-    res = register_to_ortho(image, camera, exterior, ortho[0].astype(float), transform, dem,
-                            levels=levels, max_steps=args.max_steps, throw=False)
+    res = register_to_ortho(
+        image,
+        camera,
+        exterior,
+        ortho[0].astype(float),
+        transform,
+        dem,
+        levels=levels,
+        max_steps=args.max_steps,
+        throw=False,
+    )
     e = res.exterior
-    write_json({"exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention},
-                "status": "solved" if res.converged else "not converged", "converged": res.converged,
-                "result": res.result.name, "correlation": res.correlation, "steps": res.steps,
-                "rmse": res.rmse,
-                "history": res.history, "message": res.message},
-               args.out, inputs=files)
+    write_json(
+        {
+            "exterior": {"position": e.position, "angles_rad": e.angles, "convention": e.convention},
+            "status": "solved" if res.converged else "not converged",
+            "converged": res.converged,
+            "result": res.result.name,
+            "correlation": res.correlation,
+            "steps": res.steps,
+            "rmse": res.rmse,
+            "history": res.history,
+            "message": res.message,
+        },
+        args.out,
+        inputs=files,
+    )
     print(f"{'converged' if res.converged else 'NOT converged'}: {res.message}; wrote {args.out}")
     return 0 if res.converged else 1

@@ -11,7 +11,6 @@ import argparse
 
 from ._common import CONVENTIONS
 
-
 # Shown by ``photax resect --help`` and in the README (a test parses both with read_camera).
 CAMERA_FILE_HELP = """\
 camera file (YAML or JSON; photax.io.camera_file), in mm:
@@ -53,24 +52,36 @@ def add_parser(sub) -> None:
         help="space resection of images from ground control points",
         description="Estimate each image's exterior orientation from its GCPs and print parameters +- std, "
         "sigma0, per-point residuals, flagged blunders and check-point residuals.",
-        epilog=CAMERA_FILE_HELP
-        + "\nexample:\n  photax resect data/sample_gcps.csv --camera data/sample_camera.yaml "
+        epilog=CAMERA_FILE_HELP + "\nexample:\n  photax resect data/sample_gcps.csv --camera data/sample_camera.yaml "
         "-o resect.json\n",
     )
     p.add_argument("gcp_file", metavar="GCP_FILE", help="GCP list: CSV with header, or OpenDroneMap gcp_list.txt")
-    p.add_argument("--camera", required=True, metavar="CAMERA_FILE",
-                   help="camera file (YAML/JSON; format below), orthority interior YAML or OpenSfM/ODM "
-                   "reconstruction.json")
+    p.add_argument(
+        "--camera",
+        required=True,
+        metavar="CAMERA_FILE",
+        help="camera file (YAML/JSON; format below), orthority interior YAML or OpenSfM/ODM reconstruction.json",
+    )
     p.add_argument("--image", metavar="NAME", help="only this image (default: every image with enough points)")
     p.add_argument("-o", "--out", metavar="OUT_JSON", help="also write the results as JSON")
     p.add_argument("--json", dest="out", help=argparse.SUPPRESS)  # the old name of --out
-    p.add_argument("--convention", choices=CONVENTIONS, default="phi-omega-kappa", help="angle convention of the result")
-    p.add_argument("--no-robust", dest="robust", action="store_false",
-                   help="no robust start and no blunder detection (plain least squares)")
-    p.add_argument("--sigma", type=float, metavar="PX",
-                   help="a-priori sigma of an image coordinate, in the file's unit (pixels for pixel "
-                   "columns); overrides the file's sigma column. Without either, blunders are tested "
-                   "against the a-posteriori sigma0 (tau test)")
+    p.add_argument(
+        "--convention", choices=CONVENTIONS, default="phi-omega-kappa", help="angle convention of the result"
+    )
+    p.add_argument(
+        "--no-robust",
+        dest="robust",
+        action="store_false",
+        help="no robust start and no blunder detection (plain least squares)",
+    )
+    p.add_argument(
+        "--sigma",
+        type=float,
+        metavar="PX",
+        help="a-priori sigma of an image coordinate, in the file's unit (pixels for pixel "
+        "columns); overrides the file's sigma column. Without either, blunders are tested "
+        "against the a-posteriori sigma0 (tau test)",
+    )
     p.add_argument("--format", choices=("auto", "csv", "odm"), default="auto", help="GCP file format")
     p.set_defaults(func=run)
 
@@ -123,9 +134,17 @@ def run(args: argparse.Namespace) -> int:
         n_check = int(sub.check.sum())
         counts = f"{plural(len(sub), 'point')} ({len(sub) - n_check} control, {n_check} check)"
         try:
-            res = resect(sub.image_plane(camera), sub.ground, camera, sigma=_sigma(sub, camera, args.sigma),
-                         check=sub.check, names=sub.names, convention=args.convention,
-                         robust=args.robust, throw=False)
+            res = resect(
+                sub.image_plane(camera),
+                sub.ground,
+                camera,
+                sigma=_sigma(sub, camera, args.sigma),
+                check=sub.check,
+                names=sub.names,
+                convention=args.convention,
+                robust=args.robust,
+                throw=False,
+            )
         except ValueError as exc:
             print(f"== {label}: NOT SOLVED, skipped ({counts}): {exc}")
             for note in sub.duplicates():
@@ -148,7 +167,16 @@ def run(args: argparse.Namespace) -> int:
     solved = len(images) - failed
     print(f"{solved} of {plural(len(images), 'image')} solved" + (f", {failed} not" if failed else ""))
     if args.out:
-        write_json({"gcp_file": str(args.gcp_file), "camera_file": str(args.camera), "crs": table.crs,
-                    "convention": args.convention, "images": results}, args.out, inputs=inputs)
+        write_json(
+            {
+                "gcp_file": str(args.gcp_file),
+                "camera_file": str(args.camera),
+                "crs": table.crs,
+                "convention": args.convention,
+                "images": results,
+            },
+            args.out,
+            inputs=inputs,
+        )
         print(f"wrote {args.out}")
     return 1 if failed else 0

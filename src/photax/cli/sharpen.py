@@ -27,19 +27,31 @@ def add_parser(sub) -> None:
     p.add_argument("ms", metavar="MS", help="multispectral raster (larger pixels; any CRS and extent)")
     p.add_argument("-o", "--out", required=True, help="output GeoTIFF, on the PAN grid")
     p.add_argument("--method", choices=METHODS, default="gs", help="pan-sharpening method")
-    p.add_argument("--weights", type=float, nargs="+", metavar="W",
-                   help="band weights of the intensity (brovey, ihs, gs), one per MS band "
-                   "(default: estimated from the images)")
-    p.add_argument("--equal-weights", action="store_true",
-                   help="equal band weights (the textbook IHS, Brovey)")
-    p.add_argument("--resampling", choices=RESAMPLING, default="cubic",
-                   help="interpolation of the MS onto the PAN grid")
-    p.add_argument("--nyquist-gain", type=float, nargs="+", default=[0.3], metavar="G",
-                   help="MS sensor MTF at Nyquist, one value or one per band (gsa, mtf_glp, mtf_glp_hpm; "
-                   "default 0.3)")
+    p.add_argument(
+        "--weights",
+        type=float,
+        nargs="+",
+        metavar="W",
+        help="band weights of the intensity (brovey, ihs, gs), one per MS band (default: estimated from the images)",
+    )
+    p.add_argument("--equal-weights", action="store_true", help="equal band weights (the textbook IHS, Brovey)")
+    p.add_argument(
+        "--resampling", choices=RESAMPLING, default="cubic", help="interpolation of the MS onto the PAN grid"
+    )
+    p.add_argument(
+        "--nyquist-gain",
+        type=float,
+        nargs="+",
+        default=[0.3],
+        metavar="G",
+        help="MS sensor MTF at Nyquist, one value or one per band (gsa, mtf_glp, mtf_glp_hpm; default 0.3)",
+    )
     p.add_argument("--pan-band", type=int, default=1, help="band of PAN to use (1-based)")
-    p.add_argument("--assess", action="store_true",
-                   help="print the quality table: Wald's protocol (ERGAS, SAM, Q2n, UIQI, SCC) and QNR")
+    p.add_argument(
+        "--assess",
+        action="store_true",
+        help="print the quality table: Wald's protocol (ERGAS, SAM, Q2n, UIQI, SCC) and QNR",
+    )
     # Axis-aligned grids (the usual pair) run in numpy and scipy: no JAX to import, nothing to compile.
     p.set_defaults(func=run, compiles=False)
 
@@ -80,33 +92,44 @@ def run(args) -> int:
     weights = "equal" if args.equal_weights else args.weights
     ratio = pan.shape[0] / ms.shape[1]
     same_bounds = ratio == pan.shape[1] / ms.shape[2] == round(ratio) and (
-        pan_t is None or (pan_crs == ms_crs and (pan_t * pan_t.scale(ratio)).almost_equals(ms_t)))
+        pan_t is None or (pan_crs == ms_crs and (pan_t * pan_t.scale(ratio)).almost_equals(ms_t))
+    )
     if args.assess and not same_bounds:
-        raise ValueError("--assess needs PAN and MS covering the same bounds with an integer pixel-size "
-                         "ratio")
-    opts = {"weights": weights, "resampling": args.resampling, "nyquist_gain": gain,
-            "pan_nodata": pan_profile.get("nodata"), "ms_nodata": ms_profile.get("nodata")}
-    out = pansharpen(pan, ms, args.method, pan_transform=pan_t, ms_transform=ms_t, pan_crs=pan_crs,
-                     ms_crs=ms_crs, **opts)
+        raise ValueError("--assess needs PAN and MS covering the same bounds with an integer pixel-size ratio")
+    opts = {
+        "weights": weights,
+        "resampling": args.resampling,
+        "nyquist_gain": gain,
+        "pan_nodata": pan_profile.get("nodata"),
+        "ms_nodata": ms_profile.get("nodata"),
+    }
+    out = pansharpen(
+        pan, ms, args.method, pan_transform=pan_t, ms_transform=ms_t, pan_crs=pan_crs, ms_crs=ms_crs, **opts
+    )
     write_geotiff(args.out, out.image, out.transform, crs=pan_crs, nodata=out.nodata, inputs=inputs)
     rows, cols = out.image.shape[1:]
     note = f"; {out.clipped} values clipped to the {out.image.dtype} range" if out.clipped else ""
     w = "" if out.weights is None else ", weights " + "/".join(f"{x:.3f}" for x in out.weights)
     bands = plural(out.image.shape[0], "band")
-    print(f"photax sharpen: {args.method} -> {args.out} ({cols} x {rows} px, {bands}, "
-          f"ratio {out.ratio:.3g}{w}{note})")
+    print(f"photax sharpen: {args.method} -> {args.out} ({cols} x {rows} px, {bands}, ratio {out.ratio:.3g}{w}{note})")
     if args.assess:
         opts.pop("pan_nodata"), opts.pop("ms_nodata")
         r = round(ratio)
         wald = wald_protocol(pan, ms, args.method, **opts)
         full = qnr(out.image.astype(np.float64), ms.astype(np.float64), pan, r)
         exp = assess(wald["ms_low"].repeat(r, 1).repeat(r, 2), wald["reference"], r)  # no sharpening at all
-        print(f"quality of {args.method} (Wald's protocol at 1/{r} scale; "
-              "ideal: ERGAS 0, SAM 0, Q2n/UIQI/SCC 1):")
+        print(f"quality of {args.method} (Wald's protocol at 1/{r} scale; ideal: ERGAS 0, SAM 0, Q2n/UIQI/SCC 1):")
         print(f"  {'':10s} {'ERGAS':>8s} {'SAM(deg)':>8s} {'Q2n':>8s} {'UIQI':>8s} {'SCC':>8s}")
         for name, row in ((args.method, wald), ("nearest", exp)):
-            print(f"  {name:10s} " + " ".join(f"{row[k]:8.4f}" if np.isfinite(row[k]) else f"{'-':>8s}"
-                                              for k in ("ERGAS", "SAM", "Q2n", "UIQI", "SCC")))
-        print(f"without reference, at full scale (ideal 1, 0, 0): QNR {full['QNR']:.4f}, "
-              f"D_lambda {full['D_lambda']:.4f}, D_s {full['D_s']:.4f}")
+            print(
+                f"  {name:10s} "
+                + " ".join(
+                    f"{row[k]:8.4f}" if np.isfinite(row[k]) else f"{'-':>8s}"
+                    for k in ("ERGAS", "SAM", "Q2n", "UIQI", "SCC")
+                )
+            )
+        print(
+            f"without reference, at full scale (ideal 1, 0, 0): QNR {full['QNR']:.4f}, "
+            f"D_lambda {full['D_lambda']:.4f}, D_s {full['D_s']:.4f}"
+        )
     return 0

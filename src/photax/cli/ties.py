@@ -20,11 +20,14 @@ import argparse
 def add_parser(sub) -> None:
     from ._common import add_oriented_images
 
-    p = sub.add_parser("ties", help="match tie points between overlapping images into a bundle block",
-                       description="Interest points matched between overlapping images, guided by approximate "
-                       "orientations and a DEM (NCC, least-squares matching, two-way check).",
-                       epilog="example:\n  photax ties img*.tif --camera cam.yaml --exterior approx.json "
-                       "--dem dem.tif --gcps measured.csv -o block\n")
+    p = sub.add_parser(
+        "ties",
+        help="match tie points between overlapping images into a bundle block",
+        description="Interest points matched between overlapping images, guided by approximate "
+        "orientations and a DEM (NCC, least-squares matching, two-way check).",
+        epilog="example:\n  photax ties img*.tif --camera cam.yaml --exterior approx.json "
+        "--dem dem.tif --gcps measured.csv -o block\n",
+    )
     add_oriented_images(p)
     p.add_argument("--gcps", help="GCP measurements in pixels to join (CSV or ODM list)")
     p.add_argument("--points", type=int, default=150, help="interest points per image (default 150)")

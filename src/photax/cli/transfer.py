@@ -18,16 +18,23 @@ import argparse
 def add_parser(sub) -> None:
     from ._common import add_oriented_images
 
-    p = sub.add_parser("transfer", help="transfer GCPs into every image that sees them (NCC + least-squares matching)",
-                       description="Predict ground control points in every image with approximate orientations "
-                       "and the DEM, and measure them there by image matching.",
-                       epilog="example:\n  photax transfer img*.tif --camera cam.yaml --exterior approx.json "
-                       "--dem dem.tif --gcps gcps.csv --template target.tif -o measured.csv\n")
+    p = sub.add_parser(
+        "transfer",
+        help="transfer GCPs into every image that sees them (NCC + least-squares matching)",
+        description="Predict ground control points in every image with approximate orientations "
+        "and the DEM, and measure them there by image matching.",
+        epilog="example:\n  photax transfer img*.tif --camera cam.yaml --exterior approx.json "
+        "--dem dem.tif --gcps gcps.csv --template target.tif -o measured.csv\n",
+    )
     add_oriented_images(p)
     p.add_argument("--gcps", required=True, help="GCP file (CSV or ODM gcp_list.txt)")
     p.add_argument("--template", help="raster of the survey target, for points measured in no image")
-    p.add_argument("--format", choices=("csv", "odm"), default="csv",
-                   help="format of the output GCP list: photax CSV or OpenDroneMap gcp_list.txt")
+    p.add_argument(
+        "--format",
+        choices=("csv", "odm"),
+        default="csv",
+        help="format of the output GCP list: photax CSV or OpenDroneMap gcp_list.txt",
+    )
     p.add_argument("-o", "--out", required=True, help="output GCP list")
     p.set_defaults(func=run)
 
@@ -58,9 +65,21 @@ def run(args: argparse.Namespace) -> int:
         if k is not None and ref_i[p] < 0:
             ref_i[p], ref_xy[p] = k, table.pixel[r]
     template = read_geotiff(args.template)[0][0].astype(float) if args.template else None
-    res = transfer_points(images, camera, exterior, dem, ground, names=points, image_names=names,
-                          reference_image=ref_i, reference_xy=ref_xy, target_template=template, roles=roles,
-                          search=args.search, crs=table.crs or dem.crs)
+    res = transfer_points(
+        images,
+        camera,
+        exterior,
+        dem,
+        ground,
+        names=points,
+        image_names=names,
+        reference_image=ref_i,
+        reference_xy=ref_xy,
+        target_template=template,
+        roles=roles,
+        search=args.search,
+        crs=table.crs or dem.crs,
+    )
     for it in res.items:
         if it["status"] != "not in image":
             print(f"{it['name']:>10} {it['image']:>12}  {it['status']}")

@@ -37,8 +37,10 @@ def _pair(fused, reference):
     if f.ndim == 2:
         f, r = f[None], r[None] if r.ndim == 2 else r
     if f.shape != r.shape or f.ndim != 3:
-        raise ValueError(f"fused and reference must both be (bands, rows, cols) of one shape, got "
-                         f"{np.shape(fused)} and {np.shape(reference)}")
+        raise ValueError(
+            f"fused and reference must both be (bands, rows, cols) of one shape, got "
+            f"{np.shape(fused)} and {np.shape(reference)}"
+        )
     return f, r
 
 
@@ -81,8 +83,9 @@ def _q(x, y):
     num = 4 * sxy * mx * my
     den = (sxx + syy) * (mx * mx + my * my)
     flat = (sxx + syy) == 0
-    mean_term = np.where(mx * mx + my * my > 0, 2 * mx * my / np.where(mx * mx + my * my > 0,
-                                                                       mx * mx + my * my, 1), 1.0)
+    mean_term = np.where(
+        mx * mx + my * my > 0, 2 * mx * my / np.where(mx * mx + my * my > 0, mx * mx + my * my, 1), 1.0
+    )
     return np.where(flat, mean_term, num / np.where(den == 0, 1, den))
 
 
@@ -166,8 +169,14 @@ def qnr(fused, ms, pan, ratio: int, *, block: int = BLOCK, pan_low=None) -> dict
     ft, mt = _tiles(f, block), _tiles(m, lb)
     bands = f.shape[0]
     if bands > 1:
-        d_l = np.mean([abs(np.mean(_q(ft[k], ft[j])) - np.mean(_q(mt[k], mt[j])))
-                       for k in range(bands) for j in range(bands) if j != k])
+        d_l = np.mean(
+            [
+                abs(np.mean(_q(ft[k], ft[j])) - np.mean(_q(mt[k], mt[j])))
+                for k in range(bands)
+                for j in range(bands)
+                if j != k
+            ]
+        )
     else:
         d_l = 0.0
     pt, plt = _tiles(p, block), _tiles(pl, lb)
@@ -218,14 +227,23 @@ def wald_protocol(pan, ms, method: str = "gs", *, nyquist_gain=0.3, block: int =
     pan_low = degrade(pan[: h * ratio, : w * ratio][None], ratio, nyquist_gain)[0]
     ms_low = degrade(ref, ratio, nyquist_gain)
     fused = pansharpen(pan_low, ms_low, method, nyquist_gain=nyquist_gain, **kwargs).image
-    return assess(fused, ref, ratio, block=block) | {"fused": fused, "reference": ref, "pan_low": pan_low,
-                                                     "ms_low": ms_low}
+    return assess(fused, ref, ratio, block=block) | {
+        "fused": fused,
+        "reference": ref,
+        "pan_low": pan_low,
+        "ms_low": ms_low,
+    }
 
 
 def assess(fused, reference, ratio: float, *, block: int = BLOCK) -> dict:
     """ERGAS, SAM, Q2n, UIQI and SCC of ``fused`` against ``reference``, as a dict."""
-    out = {"ERGAS": ergas(fused, reference, ratio), "SAM": np.nan, "Q2n": q2n(fused, reference, block),
-           "UIQI": uiqi(fused, reference, block), "SCC": scc(fused, reference)}
+    out = {
+        "ERGAS": ergas(fused, reference, ratio),
+        "SAM": np.nan,
+        "Q2n": q2n(fused, reference, block),
+        "UIQI": uiqi(fused, reference, block),
+        "SCC": scc(fused, reference),
+    }
     if np.shape(reference)[0] > 1:
         out["SAM"] = sam(fused, reference)
     return out

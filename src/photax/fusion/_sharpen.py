@@ -182,12 +182,17 @@ def pansharpen(
             raise ValueError(f"{name} must have an integer or float dtype, got {a.dtype}")
     bands = ms.shape[0]
     if bands == 1 and method in _CS:
-        raise ValueError(f"the MS image has one band: {method!r} (component substitution) would return the "
-                         "PAN rescaled to it; use an MRA method (hpf, sfim, mtf_glp, mtf_glp_hpm)")
+        raise ValueError(
+            f"the MS image has one band: {method!r} (component substitution) would return the "
+            "PAN rescaled to it; use an MRA method (hpf, sfim, mtf_glp, mtf_glp_hpm)"
+        )
     if weights is not None and method not in _WEIGHTED:
         raise ValueError(f"weights apply to {_WEIGHTED}, not {method!r}")
-    gains_nyq = np.broadcast_to(np.asarray(nyquist_gain, dtype=np.float64), (bands,)).copy() \
-        if np.ndim(nyquist_gain) == 0 else np.asarray(nyquist_gain, dtype=np.float64)
+    gains_nyq = (
+        np.broadcast_to(np.asarray(nyquist_gain, dtype=np.float64), (bands,)).copy()
+        if np.ndim(nyquist_gain) == 0
+        else np.asarray(nyquist_gain, dtype=np.float64)
+    )
     if gains_nyq.shape != (bands,):
         raise ValueError(f"nyquist_gain must be one value or one per MS band ({bands})")
 
@@ -227,8 +232,10 @@ def pansharpen(
     lo = ms_ok & (count >= 0.5 * ratio**2) & (good == count)
     n = int(lo.sum())
     if n < max(16, 2 * bands + 2):
-        raise ValueError(f"too few MS pixels where both images are valid to estimate the statistics: {n} "
-                         f"(at least {max(16, 2 * bands + 2)} needed)")
+        raise ValueError(
+            f"too few MS pixels where both images are valid to estimate the statistics: {n} "
+            f"(at least {max(16, 2 * bands + 2)} needed)"
+        )
     stack = np.concatenate([p_avg[lo][None], m[:, lo]]).astype(np.float64)
     mean = stack.mean(axis=1)
     cov = np.cov(stack)
@@ -258,8 +265,7 @@ def pansharpen(
         else:
             if method == "gsa":
                 sig = float(np.mean([mtf_sigma(ratio, g) for g in gains_nyq]))
-                p_mtf = _at_ms(_gaussian(p, sig), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape,
-                               ms.shape)
+                p_mtf = _at_ms(_gaussian(p, sig), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape, ms.shape)
                 design = np.concatenate([m[:, lo].T, np.ones((n, 1), np.float32)], axis=1).astype(np.float64)
                 coef = np.linalg.lstsq(design, p_mtf[lo].astype(np.float64), rcond=None)[0]
                 wts, offset = coef[:-1], coef[-1]
@@ -302,8 +308,7 @@ def pansharpen(
             cache = {}
             for s in sigmas:
                 if s not in cache:
-                    dec = _at_ms(_gaussian(p, s), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape,
-                                 ms.shape)
+                    dec = _at_ms(_gaussian(p, s), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape, ms.shape)
                     cache[s] = _sample(dec[None], cols, rows, resampling)[0]
             lows = [cache[s] for s in sigmas]
         for k in range(bands):
@@ -316,8 +321,9 @@ def pansharpen(
     transform = None
     if pan_transform is not None:
         transform = _geometry._affine(pan_transform) * _geometry._affine((1, 0, c0, 0, 1, r0))
-    return Sharpened(image, valid, (int(r0), int(c0)), transform, nodata, method, w_out, np.asarray(gains),
-                     float(ratio), clipped)
+    return Sharpened(
+        image, valid, (int(r0), int(c0)), transform, nodata, method, w_out, np.asarray(gains), float(ratio), clipped
+    )
 
 
 def _sample(image, cols, rows, resampling):

@@ -42,8 +42,13 @@ adjustment and the per-mark test), ``_fiducials`` (mark templates and
 :func:`find_fiducials`).
 """
 
-from ._fiducials import Fiducials as Fiducials, find_fiducials as find_fiducials, mark_coverage as mark_coverage
+from ._fiducials import Fiducials as Fiducials
+from ._fiducials import find_fiducials as find_fiducials
+from ._fiducials import mark_coverage as mark_coverage
 from ._fiducials import mark_template as mark_template
-from ._fit import InteriorOrientation as InteriorOrientation, interior_orientation as interior_orientation
-from ._transform import N_PARAMS as N_PARAMS, Model as Model, PixelTransform as PixelTransform
+from ._fit import InteriorOrientation as InteriorOrientation
+from ._fit import interior_orientation as interior_orientation
+from ._transform import N_PARAMS as N_PARAMS
+from ._transform import Model as Model
+from ._transform import PixelTransform as PixelTransform
 from ._transform import ScannedCamera as ScannedCamera

@@ -9,6 +9,7 @@ import numpy as np
 from ._fit import InteriorOrientation, interior_orientation
 from ._transform import N_PARAMS, Model
 
+
 def mark_coverage(kind: str, dx, dy, size: float, width: float):
     """Whether film offsets ``(dx, dy)`` (mm from a mark's centre, any shape)
     lie on a fiducial mark: ``"cross"`` (two bars of half-length ``size`` and
@@ -27,8 +28,9 @@ def mark_coverage(kind: str, dx, dy, size: float, width: float):
     return on.astype(float)
 
 
-def mark_template(kind: str, size: float, width: float, pixel_size: float, *, bright: bool = True,
-                  supersample: int = 8) -> np.ndarray:
+def mark_template(
+    kind: str, size: float, width: float, pixel_size: float, *, bright: bool = True, supersample: int = 8
+) -> np.ndarray:
     """A ``(2 h + 1, 2 h + 1)`` template of a mark, ``h = ceil(size / pixel_size) + 6``
     (the mark, a margin of background, and the matcher's interpolation border),
     area-sampled on a ``supersample^2`` grid per pixel; the mark at the centre pixel."""
@@ -77,10 +79,23 @@ def _approx_scale(approx: np.ndarray, fid: np.ndarray) -> float:
     return float(np.sqrt(np.sum(f * f) / np.sum(a * a)))
 
 
-def find_fiducials(scan, fiducial_xy, *, pixel_size: float | None = None, approx_xy=None, mark="cross",
-                   mark_size: float = 1.0, line_width: float = 0.2, bright: bool = True, search: int = 15,
-                   template_blur: float = 0.7, model: Model = "affine", sigma: float | None = 0.1,
-                   alpha: float = 0.001, min_rho: float = 0.5) -> Fiducials:
+def find_fiducials(
+    scan,
+    fiducial_xy,
+    *,
+    pixel_size: float | None = None,
+    approx_xy=None,
+    mark="cross",
+    mark_size: float = 1.0,
+    line_width: float = 0.2,
+    bright: bool = True,
+    search: int = 15,
+    template_blur: float = 0.7,
+    model: Model = "affine",
+    sigma: float | None = 0.1,
+    alpha: float = 0.001,
+    min_rho: float = 0.5,
+) -> Fiducials:
     """Find the fiducial marks in a scan, sub-pixel, and check them against the calibrated pattern.
 
     1. Approximate positions: ``approx_xy`` (n, 2) px, or from the scan size
@@ -169,8 +184,10 @@ def find_fiducials(scan, fiducial_xy, *, pixel_size: float | None = None, approx
     n_needed = (N_PARAMS[model] + 1) // 2
     if valid.sum() < n_needed:
         why = [f"correlation {r:.2f} < {min_rho}" if wk else m for r, wk, m in zip(rho, weak, ncc.messages())]
-        raise ValueError(f"fiducial marks: only {int(valid.sum())} of {len(fid)} found, the {model} model needs "
-                         f"{n_needed}; per mark: {why}")
+        raise ValueError(
+            f"fiducial marks: only {int(valid.sum())} of {len(fid)} found, the {model} model needs "
+            f"{n_needed}; per mark: {why}"
+        )
     io = interior_orientation(xy, fid, model, sigma=sigma, alpha=alpha)
     flagged = io.outliers | ~valid
     ncc_msg = ncc.messages()
@@ -181,8 +198,10 @@ def find_fiducials(scan, fiducial_xy, *, pixel_size: float | None = None, approx
         elif not valid[i]:
             messages.append(f"not found: {ncc_msg[i]}")
         elif io.outliers[i]:
-            messages.append(f"disagrees with the calibrated pattern (statistic {io.statistic[i]:.1f} > "
-                            f"{io.critical:.2f}, residual {np.hypot(*io.residuals[i]):.2f} px)")
+            messages.append(
+                f"disagrees with the calibrated pattern (statistic {io.statistic[i]:.1f} > "
+                f"{io.critical:.2f}, residual {np.hypot(*io.residuals[i]):.2f} px)"
+            )
         else:
             messages.append("ok")
     return Fiducials(xy=xy, located=ncc, orientation=io, flagged=flagged, messages=messages)

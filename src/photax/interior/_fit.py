@@ -56,20 +56,21 @@ class InteriorOrientation:
         """``(n, 2)`` film mm -> pixel."""
         return np.asarray(self.transform.pixel_from_film(xy))
 
-    def camera(self, focal_length, principal_point=(0.0, 0.0), distortion=None, *,
-               image_size: tuple[int, int]) -> ScannedCamera:
+    def camera(
+        self, focal_length, principal_point=(0.0, 0.0), distortion=None, *, image_size: tuple[int, int]
+    ) -> ScannedCamera:
         """The calibrated camera (``focal_length`` and ``principal_point`` in the
         fiducials' unit, mm) seeing the scan's pixels through this transformation.
 
         Args:
             image_size: the scan's ``(width, height)`` in pixels.
         """
-        return ScannedCamera(focal_length, principal_point, distortion, transform=self.transform,
-                             image_size=image_size)
+        return ScannedCamera(focal_length, principal_point, distortion, transform=self.transform, image_size=image_size)
 
 
-def interior_orientation(pixel_xy, fiducial_xy, model: Model = "affine", *, sigma=None, alpha: float = 0.001,
-                         robust: bool = True) -> InteriorOrientation:
+def interior_orientation(
+    pixel_xy, fiducial_xy, model: Model = "affine", *, sigma=None, alpha: float = 0.001, robust: bool = True
+) -> InteriorOrientation:
     """Interior orientation of a scan from its measured fiducial marks.
 
     Args:
@@ -148,14 +149,24 @@ def interior_orientation(pixel_xy, fiducial_xy, model: Model = "affine", *, sigm
     if red <= 0:
         msg = f"{model}: {int(used.sum())} marks for {k} parameters: no redundancy, no blunder test"
     elif len(bad):
-        msg = (f"{model}: {len(bad)} of {n} marks excluded ({', '.join(str(i) for i in bad)}); "
-               f"sigma0 {out['sigma0']:.3g}")
+        msg = (
+            f"{model}: {len(bad)} of {n} marks excluded ({', '.join(str(i) for i in bad)}); sigma0 {out['sigma0']:.3g}"
+        )
     else:
         msg = f"{model}: all {n} marks pass the blunder test; sigma0 {out['sigma0']:.3g}"
     transform = PixelTransform(jnp.asarray(p), jnp.asarray(centre), jnp.asarray(scale), model)
-    return InteriorOrientation(model=model, transform=transform, residuals=resid, outliers=outliers,
-                               sigma0=float(out["sigma0"]), covariance=out["covariance"], statistic=final,
-                               critical=float(crit), redundancy=int(red), message=msg)
+    return InteriorOrientation(
+        model=model,
+        transform=transform,
+        residuals=resid,
+        outliers=outliers,
+        sigma0=float(out["sigma0"]),
+        covariance=out["covariance"],
+        statistic=final,
+        critical=float(crit),
+        redundancy=int(red),
+        message=msg,
+    )
 
 
 def _fit(model, u, v, px, wgt, used, sigma_known):
@@ -174,9 +185,9 @@ def _fit(model, u, v, px, wgt, used, sigma_known):
     n = len(u)
     t = np.full(n, np.nan)
     for i in np.flatnonzero(used):
-        ai = a[2 * i:2 * i + 2]
+        ai = a[2 * i : 2 * i + 2]
         qvv = np.eye(2) - ai @ q @ ai.T  # the mark's 2x2 block of the residuals' cofactor matrix
-        vi = vres[2 * i:2 * i + 2]
+        vi = vres[2 * i : 2 * i + 2]
         if np.linalg.det(qvv) > 1e-10:
             t[i] = vi @ np.linalg.solve(qvv, vi)
     cov = q if sigma_known else q * sigma0**2
@@ -202,5 +213,3 @@ def _critical2(alpha: float, sigma_known: bool, red: int) -> float:
 
 
 # --------------------------------------------------------------------------- finding the marks
-
-

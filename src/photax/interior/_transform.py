@@ -87,6 +87,7 @@ class PixelTransform(eqx.Module):
             u = ai[0, 0] * dc + ai[0, 1] * dr
             v = ai[1, 0] * dc + ai[1, 1] * dr
             if self.model == "bilinear":
+
                 def newton(_, uv):
                     u, v = uv
                     fc, fr = _cr("bilinear", p, u, v)
@@ -133,8 +134,16 @@ class ScannedCamera(FrameCamera):
 
     transform: PixelTransform
 
-    def __init__(self, focal_length, principal_point=(0.0, 0.0), distortion=None, *, transform: PixelTransform,
-                 image_size: tuple[int, int] | None = None, pixel_size=None):
+    def __init__(
+        self,
+        focal_length,
+        principal_point=(0.0, 0.0),
+        distortion=None,
+        *,
+        transform: PixelTransform,
+        image_size: tuple[int, int] | None = None,
+        pixel_size=None,
+    ):
         if pixel_size is None:
             pixel_size = transform.scale()
         super().__init__(focal_length, principal_point, distortion, pixel_size=pixel_size, image_size=image_size)
@@ -191,8 +200,12 @@ def _solve(model: str, u, v, obs, wgt):
     sc = np.sqrt(np.mean(np.sum((obs - mc) ** 2, 1)))
     c, r = ((obs - mc) / sc).T
     one, zero = np.ones_like(u), np.zeros_like(u)
-    rows = np.concatenate([np.stack([u, v, one, zero, zero, zero, -c * u, -c * v, -c], 1),
-                           np.stack([zero, zero, zero, u, v, one, -r * u, -r * v, -r], 1)])
+    rows = np.concatenate(
+        [
+            np.stack([u, v, one, zero, zero, zero, -c * u, -c * v, -c], 1),
+            np.stack([zero, zero, zero, u, v, one, -r * u, -r * v, -r], 1),
+        ]
+    )
     h = np.linalg.svd(rows)[2][-1].reshape(3, 3)
     h = np.array([[sc, 0, mc[0]], [0, sc, mc[1]], [0, 0, 1]]) @ h
     p = (h / h[2, 2]).ravel()[:8]

@@ -1,35 +1,71 @@
 """photax.io's public names: the one list (read by photax._lazy at import time, and by type checkers)."""
 
-from .atomic import atomic_path as atomic_path, atomic_write as atomic_write
+from .atomic import atomic_path as atomic_path
+from .atomic import atomic_write as atomic_write
 from .bal import (
     BALData as BALData,
+)
+from .bal import (
     read_bal as read_bal,
+)
+from .bal import (
     read_bal_arrays as read_bal_arrays,
+)
+from .bal import (
     write_bal as write_bal,
 )
-from .block import read_block as read_block, write_block as write_block
-from .camera_file import read_camera as read_camera, write_camera as write_camera
-from .gcp import GCPTable as GCPTable, read_gcps as read_gcps, write_gcps as write_gcps
+from .block import read_block as read_block
+from .block import write_block as write_block
+from .camera_file import read_camera as read_camera
+from .camera_file import write_camera as write_camera
+from .gcp import GCPTable as GCPTable
+from .gcp import read_gcps as read_gcps
+from .gcp import write_gcps as write_gcps
+from .opensfm import read_opensfm_cameras as read_opensfm_cameras
+from .opensfm import read_opensfm_shots as read_opensfm_shots
 from .orientation import (
     block_images as block_images,
+)
+from .orientation import (
     read_camera_unit as read_camera_unit,
+)
+from .orientation import (
     read_exterior as read_exterior,
+)
+from .orientation import (
     read_exteriors as read_exteriors,
+)
+from .orientation import (
     read_interior as read_interior,
 )
-from .opensfm import read_opensfm_cameras as read_opensfm_cameras, read_opensfm_shots as read_opensfm_shots
 from .orthority import (
     read_orthority_crs as read_orthority_crs,
+)
+from .orthority import (
     read_orthority_exterior as read_orthority_exterior,
+)
+from .orthority import (
     read_orthority_exterior_crs as read_orthority_exterior_crs,
+)
+from .orthority import (
     read_orthority_geojson as read_orthority_geojson,
+)
+from .orthority import (
     read_orthority_interior as read_orthority_interior,
 )
-from .points import read_named_points as read_named_points, read_pixel_points as read_pixel_points
+from .points import read_named_points as read_named_points
+from .points import read_pixel_points as read_pixel_points
 from .raster import (
     read_dem as read_dem,
+)
+from .raster import (
     read_geotiff as read_geotiff,
+)
+from .raster import (
     read_grey as read_grey,
+)
+from .raster import (
     write_geotiff as write_geotiff,
 )
-from .results import read_json as read_json, write_json as write_json
+from .results import read_json as read_json
+from .results import write_json as write_json

@@ -62,8 +62,10 @@ def ecef(lat_deg, lon_deg, h) -> np.ndarray:
     """``(..., 3)`` WGS84 geocentric coordinates of geodetic points (closed form)."""
     la, lo = np.radians(lat_deg), np.radians(lon_deg)
     n = _A / np.sqrt(1.0 - _E2 * np.sin(la) ** 2)
-    return np.stack([(n + h) * np.cos(la) * np.cos(lo), (n + h) * np.cos(la) * np.sin(lo),
-                     (n * (1.0 - _E2) + h) * np.sin(la)], axis=-1)
+    return np.stack(
+        [(n + h) * np.cos(la) * np.cos(lo), (n + h) * np.cos(la) * np.sin(lo), (n * (1.0 - _E2) + h) * np.sin(la)],
+        axis=-1,
+    )
 
 
 def geodetic_from_ecef(xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

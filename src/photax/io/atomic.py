@@ -17,8 +17,8 @@ import shutil
 import tempfile
 import threading
 import time
-from typing import IO, Iterable, Iterator
-
+from collections.abc import Iterable, Iterator
+from typing import IO
 
 # Temporaries being written by this process (absolute paths): what
 # cleanup_temporaries() removes.  A set, not guarded by a lock: add/discard
@@ -63,9 +63,22 @@ def sidecars(path) -> list[pathlib.Path]:
     """
     p = pathlib.Path(path)
     stem, name, ext = p.stem, p.name, p.suffix.lower().lstrip(".")
-    names = [f"{stem}.prj", f"{name}.prj", f"{name}.aux.xml", f"{stem}.aux", f"{name}.aux",
-             f"{name}.ovr", f"{stem}.ovr", f"{name}.msk", f"{stem}.msk", f"{stem}.wld", f"{name}.wld",
-             f"{stem}.imd", f"{stem}.rpb", f"{stem}_rpc.txt"]
+    names = [
+        f"{stem}.prj",
+        f"{name}.prj",
+        f"{name}.aux.xml",
+        f"{stem}.aux",
+        f"{name}.aux",
+        f"{name}.ovr",
+        f"{stem}.ovr",
+        f"{name}.msk",
+        f"{stem}.msk",
+        f"{stem}.wld",
+        f"{name}.wld",
+        f"{stem}.imd",
+        f"{stem}.rpb",
+        f"{stem}_rpc.txt",
+    ]
     if len(ext) >= 2:
         names += [f"{stem}.{ext[0]}{ext[-1]}w", f"{stem}.{ext}w"]
     return [p.with_name(n) for n in dict.fromkeys(names)]
@@ -110,8 +123,7 @@ def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
 
 
 @contextlib.contextmanager
-def atomic_path(out, inputs: Iterable = (), *, size: int | None = None,
-                folder: bool = False) -> Iterator[pathlib.Path]:
+def atomic_path(out, inputs: Iterable = (), *, size: int | None = None, folder: bool = False) -> Iterator[pathlib.Path]:
     """Yield a temporary path beside ``out``; rename it onto ``out`` on success.
 
     The temporary (``.NAME.XXXXXXXX.part``) is synced to disk (``fsync``)
@@ -171,8 +183,9 @@ def atomic_path(out, inputs: Iterable = (), *, size: int | None = None,
 
 
 @contextlib.contextmanager
-def atomic_write(out, mode: str = "w", inputs: Iterable = (), *, size: int | None = None,
-                 **open_kwargs) -> Iterator[IO]:
+def atomic_write(
+    out, mode: str = "w", inputs: Iterable = (), *, size: int | None = None, **open_kwargs
+) -> Iterator[IO]:
     """``open()`` for writing, atomically (see :func:`atomic_path`); a failing
     write or close raises (``OSError``) and leaves ``out`` as it was."""
     with atomic_path(out, inputs, size=size) as tmp, open(tmp, mode, **open_kwargs) as fh:
@@ -288,8 +301,9 @@ def check_space(out, size: int) -> None:
         raise not_written(out, errno.ENOSPC, f"{_human(size)} needed, {_human(free)} free")
     limit = _file_size_limit()
     if limit is not None and size > limit:
-        raise not_written(out, errno.EFBIG, f"{_human(size)} needed, the file size limit (ulimit -f) is "
-                                             f"{_human(limit)}")
+        raise not_written(
+            out, errno.EFBIG, f"{_human(size)} needed, the file size limit (ulimit -f) is {_human(limit)}"
+        )
 
 
 def not_written(out: pathlib.Path, no: int, detail: str) -> OSError:
@@ -367,8 +381,12 @@ def _fsync_folder(folder) -> None:
 
 # What a write failure says, by errno: the disk or the quota is full, or the
 # file is over the file size limit; EIO is any other failure of the device.
-_FULL = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded",
-         errno.EFBIG: "file too large", errno.EIO: "input/output error"}
+_FULL = {
+    errno.ENOSPC: "no space left on device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EFBIG: "file too large",
+    errno.EIO: "input/output error",
+}
 
 
 def _failed_errno(exc: BaseException) -> int | None:
@@ -387,8 +405,7 @@ def _failed_errno(exc: BaseException) -> int | None:
     return None
 
 
-def _write_failure(out: pathlib.Path, tmp: pathlib.Path, exc: BaseException,
-                   size: int | None) -> OSError | None:
+def _write_failure(out: pathlib.Path, tmp: pathlib.Path, exc: BaseException, size: int | None) -> OSError | None:
     """``exc`` raised while writing ``tmp`` as an OSError naming ``out`` and the
     cause, or None when it is not a failure to write (a bug, an interrupt...).
 
@@ -434,10 +451,19 @@ def output_name(name, what: str = "name") -> str:
     from .files import excerpt
 
     text = str(name)
-    bad = (not text.strip() or text in (".", "..") or any(c in text for c in "/\\") or text != text.strip()
-           or any(ord(c) < 32 or ord(c) == 127 for c in text) or text.endswith(".")
-           or text.split(".")[0].strip().upper() in _RESERVED or len(text.encode("utf-8", "replace")) > 200)
+    bad = (
+        not text.strip()
+        or text in (".", "..")
+        or any(c in text for c in "/\\")
+        or text != text.strip()
+        or any(ord(c) < 32 or ord(c) == 127 for c in text)
+        or text.endswith(".")
+        or text.split(".")[0].strip().upper() in _RESERVED
+        or len(text.encode("utf-8", "replace")) > 200
+    )
     if bad:
-        raise ValueError(f"{what} {excerpt(text)} cannot be a file name (no '/', '\\', '..', control "
-                         "characters, device names such as CON or NUL, or empty names); rename it")
+        raise ValueError(
+            f"{what} {excerpt(text)} cannot be a file name (no '/', '\\', '..', control "
+            "characters, device names such as CON or NUL, or empty names); rename it"
+        )
     return text

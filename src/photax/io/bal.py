@@ -38,8 +38,8 @@ from ..bundle import BundleProblem, BundleResult
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..rotation import angles_from_matrix, axis_angle_to_matrix, matrix_to_axis_angle
-from .files import MAX_BYTES, excerpt, read_bytes, where
 from .atomic import atomic_write
+from .files import MAX_BYTES, excerpt, read_bytes, where
 
 
 @dataclasses.dataclass(frozen=True)
@@ -82,8 +82,9 @@ def _read_bytes(path: pathlib.Path) -> bytes:
                     raise EOFError("Compressed file ended before the end-of-stream marker was reached")
                 raw = unpack.unused_data
         except _TooLarge:
-            raise ValueError(f"{path}: decompresses to over {limit / 2**30:.3g} GiB, "
-                             "too large for a BAL file") from None
+            raise ValueError(
+                f"{path}: decompresses to over {limit / 2**30:.3g} GiB, too large for a BAL file"
+            ) from None
         except (OSError, ValueError, EOFError) as exc:
             raise ValueError(f"{path}: not a readable bzip2 file ({exc})") from None
         return b"".join(out)
@@ -159,7 +160,9 @@ def read_bal_arrays(path) -> BALData:
             f"{n} points ({need} values), the file has {len(tokens)}"
         )
     if len(tokens) > need:
-        raise ValueError(f"{where(path, lines[need])}: unexpected extra values after the last point ({need} values expected)")
+        raise ValueError(
+            f"{where(path, lines[need])}: unexpected extra values after the last point ({need} values expected)"
+        )
 
     # Observation lines hold exactly 4 fields each: 'camera point x y'.
     obs_lines = lines[3 : 3 + 4 * k]
@@ -265,7 +268,9 @@ def photax_to_bal(cameras, rotation, centres) -> np.ndarray:
     centres = np.asarray(centres, dtype=float).reshape(-1, 3)
     if len(cameras) != len(r_wc):
         raise ValueError(f"{len(cameras)} cameras for {len(r_wc)} images: BAL needs one camera per image")
-    intr = np.array([[float(c.focal_length), *np.asarray(c.principal_point), *np.asarray(c.distortion)] for c in cameras])
+    intr = np.array(
+        [[float(c.focal_length), *np.asarray(c.principal_point), *np.asarray(c.distortion)] for c in cameras]
+    )
     bad = np.any(intr[:, [1, 2, 5, 6, 7]] != 0, axis=1)
     if bad.any():
         i = int(np.argmax(bad))
@@ -292,7 +297,10 @@ def read_bal(path) -> BundleProblem:
         problem = bal_problem(data)
     except ValueError as exc:  # e.g. a point seen by one camera only
         raise ValueError(f"{path}: {exc}") from None
-    bad = ~(np.isfinite(np.asarray(problem.exterior.position)).all(1) & np.isfinite(np.asarray(problem.exterior.angles)).all(1))
+    bad = ~(
+        np.isfinite(np.asarray(problem.exterior.position)).all(1)
+        & np.isfinite(np.asarray(problem.exterior.angles)).all(1)
+    )
     if bad.any():
         raise ValueError(f"{path}: camera {int(np.argmax(bad))}: rotation or translation out of range")
     return problem
@@ -324,7 +332,9 @@ def write_bal(problem_or_result, path, inputs=()) -> pathlib.Path:
         prob = problem_or_result
         cams, rot, centres, points = prob.cameras, prob.exterior.rotation, prob.exterior.position, prob.points
     else:
-        raise ValueError(f"problem_or_result must be a BundleProblem or BundleResult, got {type(problem_or_result).__name__}")
+        raise ValueError(
+            f"problem_or_result must be a BundleProblem or BundleResult, got {type(problem_or_result).__name__}"
+        )
     if not np.array_equal(prob.image_camera, np.arange(prob.n_images)):
         raise ValueError("BAL needs one camera per image (image_camera = arange(n_images))")
     data = BALData(

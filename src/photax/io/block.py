@@ -71,7 +71,7 @@ def read_block(folder) -> BundleProblem:
     meta_path = folder / "block.json"
     meta = load_json(meta_path, read_text(meta_path, "block file"))
     if not isinstance(meta, dict):
-        raise ValueError(f"{meta_path}: expected an object {{\"cameras\": ..., \"images\": ...}}")
+        raise ValueError(f'{meta_path}: expected an object {{"cameras": ..., "images": ...}}')
     meta_file = _Meta(meta_path)
     conv = meta.get("convention", "omega-phi-kappa")
     try:
@@ -113,8 +113,9 @@ class _Meta:
     def vector(self, where_, value, n, what):
         v = as_numbers(value)
         if v is None or v.shape != ((n,) if n else ()) or not np.all(np.isfinite(v)):
-            raise self.bad(f"{where_}: {what} must be {n or 1} finite number{'s' if n > 1 else ''}, "
-                           f"got {excerpt(value)}")
+            raise self.bad(
+                f"{where_}: {what} must be {n or 1} finite number{'s' if n > 1 else ''}, got {excerpt(value)}"
+            )
         return v
 
 
@@ -135,8 +136,10 @@ def _read_cameras(meta: _Meta, cameras: dict) -> tuple[list[FrameCamera], np.nda
         f = float(meta.vector(at, c["focal_length_px"], 0, "focal_length_px"))
         size = meta.vector(at, c["image_size"], 2, "image_size")
         if not f > 0 or np.any(size < 1) or np.any(size != np.round(size)) or np.any(size > 2**31 - 1):
-            raise meta.bad(f"{at}: focal_length_px must be positive and image_size whole pixels >= 1, "
-                           f"got {excerpt(c['focal_length_px'])} and {excerpt(c['image_size'])}")
+            raise meta.bad(
+                f"{at}: focal_length_px must be positive and image_size whole pixels >= 1, "
+                f"got {excerpt(c['focal_length_px'])} and {excerpt(c['image_size'])}"
+            )
         pp = c.get("principal_point_px")
         pp = None if pp is None else tuple(meta.vector(at, pp, 2, "principal_point_px"))
         dist = c.get("distortion")
@@ -165,8 +168,7 @@ def _camera_file(meta: _Meta, at: str, c: dict) -> FrameCamera:
 
     unknown = sorted(set(c) - {"file", "free"})
     if unknown:
-        raise meta.bad(f"{at}: unknown key {excerpt(unknown[0])} "
-                       "(a camera given by file has only file and free)")
+        raise meta.bad(f"{at}: unknown key {excerpt(unknown[0])} (a camera given by file has only file and free)")
     if not isinstance(c["file"], str) or not c["file"].strip():
         raise meta.bad(f"{at}: file must be the path of a camera file, got {excerpt(c['file'])}")
     cam = read_camera(meta.path.parent / c["file"])
@@ -211,8 +213,10 @@ def _rows(path: pathlib.Path, required, optional=()):
         if missing or unknown or len(set(header)) != len(header):
             # a header naming none of the columns: some other file, none of it quoted
             got = f"got {excerpt(header, 80)}" if set(header) & set(required) else "got none of them"
-            raise ValueError(f"{where(path, 1)}: the header must name the columns {list(required)} "
-                             f"(and optionally {list(optional)}) once each, {got}")
+            raise ValueError(
+                f"{where(path, 1)}: the header must name the columns {list(required)} "
+                f"(and optionally {list(optional)}) once each, {got}"
+            )
         for row in reader:
             line = reader.line_num
             if not row or not "".join(row).strip():
@@ -235,8 +239,7 @@ def _read_points(ppath: pathlib.Path):
         if not name:
             raise ValueError(f"{where(ppath, line)}: empty point name")
         if name in plines:
-            raise ValueError(f"{where(ppath, line)}: point {excerpt(name)} again "
-                             f"(first on line {plines[name]})")
+            raise ValueError(f"{where(ppath, line)}: point {excerpt(name)} again (first on line {plines[name]})")
         plines[name] = line
         given = [row[k] != "" for k in "XYZ"]
         if any(given) and not all(given) or (row["role"] == "control" and not all(given)):
@@ -246,8 +249,9 @@ def _read_points(ppath: pathlib.Path):
         roles.append(row["role"])
         s = number(ppath, line, row["sigma"], "sigma") if row.get("sigma") else 0.0
         if s < 0:
-            raise ValueError(f"{where(ppath, line)}: sigma must be >= 0 (0 fixes the point), "
-                             f"got {excerpt(row['sigma'])}")
+            raise ValueError(
+                f"{where(ppath, line)}: sigma must be >= 0 (0 fixes the point), got {excerpt(row['sigma'])}"
+            )
         psig.append(s)
     if not pnames:
         raise ValueError(f"{ppath}: no points")
@@ -262,21 +266,23 @@ def _read_observations(opath: pathlib.Path, names: list[str], pnames: list[str])
     seen: dict[tuple[str, str], int] = {}
     for line, row in _rows(opath, ("image", "point", "col", "row"), ("sigma_px",)):
         if row["image"] not in iidx or row["point"] not in pidx:
-            raise ValueError(f"{where(opath, line)}: unknown image {excerpt(row['image'])} "
-                             f"or point {excerpt(row['point'])}")
+            raise ValueError(
+                f"{where(opath, line)}: unknown image {excerpt(row['image'])} or point {excerpt(row['point'])}"
+            )
         pair = (row["image"], row["point"])
         if pair in seen:
-            raise ValueError(f"{where(opath, line)}: point {excerpt(pair[1])} measured again "
-                             f"in image {excerpt(pair[0])} "
-                             f"(first on line {seen[pair]})")
+            raise ValueError(
+                f"{where(opath, line)}: point {excerpt(pair[1])} measured again "
+                f"in image {excerpt(pair[0])} "
+                f"(first on line {seen[pair]})"
+            )
         seen[pair] = line
         oi.append(iidx[row["image"]])
         op.append(pidx[row["point"]])
         px.append([number(opath, line, row["col"], "col"), number(opath, line, row["row"], "row")])
         s = number(opath, line, row["sigma_px"], "sigma_px") if row.get("sigma_px") else 1.0
         if not s > 0:
-            raise ValueError(f"{where(opath, line)}: sigma_px must be positive, "
-                             f"got {excerpt(row['sigma_px'])}")
+            raise ValueError(f"{where(opath, line)}: sigma_px must be positive, got {excerpt(row['sigma_px'])}")
         osig.append(s)
     if not oi:
         raise ValueError(f"{opath}: no observations")
@@ -342,8 +348,9 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
         raise ValueError("the block format has one sigma per point: per-axis point sigmas differ")
     fixed = p.fixed_exterior.all(axis=1)
     if np.any(p.fixed_exterior.any(axis=1) & ~fixed):
-        raise ValueError("the block format fixes whole images: some exterior parameters of an image are fixed, "
-                         "others not")
+        raise ValueError(
+            "the block format fixes whole images: some exterior parameters of an image are fixed, others not"
+        )
     n_cam = len(p.cameras)
     units = [units] * n_cam if units is None or isinstance(units, str) else list(units)
     cam_names = ["cam"] if n_cam == 1 else [f"cam{j + 1}" for j in range(n_cam)]
@@ -356,20 +363,29 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
             free = [n for n, f in zip(INTRINSICS, p.free_intrinsics[j]) if f]
             cameras[name] = {"file": f"cameras/{name}.yaml", **({"free": free} if free else {})}
         eo = p.exterior
-        images = [{"name": n, "camera": cam_names[c], "position": np.asarray(eo.position[i]).tolist(),
-                   "angles": np.asarray(eo.angles[i]).tolist(), **({"fixed": True} if fixed[i] else {})}
-                  for i, (n, c) in enumerate(zip(p.image_names, p.image_camera))]
+        images = [
+            {
+                "name": n,
+                "camera": cam_names[c],
+                "position": np.asarray(eo.position[i]).tolist(),
+                "angles": np.asarray(eo.angles[i]).tolist(),
+                **({"fixed": True} if fixed[i] else {}),
+            }
+            for i, (n, c) in enumerate(zip(p.image_names, p.image_camera))
+        ]
         meta = {"convention": eo.convention, "angle_unit": "radians", "cameras": cameras, "images": images}
         (tmp / "block.json").write_text(json.dumps(meta, indent=1) + "\n")
         g = lambda v: "" if np.isnan(v) else repr(float(v))  # noqa: E731 - repr: 17 digits, exact round trip
         rows = ["name,X,Y,Z,role,sigma"] + [
             ",".join([_csv_name(n), *map(g, xyz), r, repr(float(s))])
-            for n, xyz, r, s in zip(p.point_names, p.points, p.roles, p.point_sigma[:, 0])]
+            for n, xyz, r, s in zip(p.point_names, p.points, p.roles, p.point_sigma[:, 0])
+        ]
         (tmp / "points.csv").write_text("\n".join(rows) + "\n")
         px, spx = _image_to_pixels(np.asarray(p.obs_xy), p.obs_sigma[:, 0], p.cameras, p.image_camera[p.obs_image])
         rows = ["image,point,col,row,sigma_px"] + [
             f"{_csv_name(p.image_names[i])},{_csv_name(p.point_names[k])},{c!r},{r!r},{s!r}"
-            for i, k, (c, r), s in zip(p.obs_image.tolist(), p.obs_point.tolist(), px.tolist(), spx.tolist())]
+            for i, k, (c, r), s in zip(p.obs_image.tolist(), p.obs_point.tolist(), px.tolist(), spx.tolist())
+        ]
         (tmp / "observations.csv").write_text("\n".join(rows) + "\n")
     return folder
 

@@ -64,11 +64,22 @@ import numpy as np
 import yaml
 
 from ..camera import FrameCamera
-from .files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, where
 from .atomic import atomic_write
+from .files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, where
 
-_KEYS = {"focal_length", "unit", "principal_point", "principal_point_px", "pixel_size",
-         "image_size", "distortion", "focal_length_px", "name", "description", "scan"}
+_KEYS = {
+    "focal_length",
+    "unit",
+    "principal_point",
+    "principal_point_px",
+    "pixel_size",
+    "image_size",
+    "distortion",
+    "focal_length_px",
+    "name",
+    "description",
+    "scan",
+}
 _SCAN_KEYS = ("model", "film_centre", "film_scale", "params")
 _DIST = ("k1", "k2", "k3", "p1", "p2")
 _UNITS = ("mm", "m", "px")
@@ -79,12 +90,17 @@ def _load(path: pathlib.Path) -> dict:
     data = load_json(path, text) if path.suffix.lower() == ".json" else load_yaml(path, text)
     if not isinstance(data, dict):
         got = "nothing" if data is None else f"a {type(data).__name__}"
-        raise file_error(path, None, f"not a photax camera file (YAML mapping expected: focal_length: ..., "
-                                     f"unit: ...), got {got}")
+        raise file_error(
+            path, None, f"not a photax camera file (YAML mapping expected: focal_length: ..., unit: ...), got {got}"
+        )
     if data and not set(data) & _KEYS:
         # No key is a camera key: some other file (a key of it may be a secret): quote none of it.
-        raise file_error(path, None, "not a photax camera file (YAML mapping with focal_length or "
-                         f"focal_length_px expected; none of its {len(data)} keys is a camera key)")
+        raise file_error(
+            path,
+            None,
+            "not a photax camera file (YAML mapping with focal_length or "
+            f"focal_length_px expected; none of its {len(data)} keys is a camera key)",
+        )
     return data
 
 
@@ -100,8 +116,9 @@ def _vector(path, data, key, n, scalar_ok=False) -> np.ndarray:
         raise ValueError(f"{_at(path, data, key)}: {key} must be numbers, got {excerpt(value)}") from None
     shapes = ((n,), ()) if scalar_ok else ((n,),)
     if v.shape not in shapes or not np.all(np.isfinite(v)):
-        raise ValueError(f"{_at(path, data, key)}: {key} must be {n} finite number{'s' if n > 1 else ''}, "
-                         f"got {excerpt(value)}")
+        raise ValueError(
+            f"{_at(path, data, key)}: {key} must be {n} finite number{'s' if n > 1 else ''}, got {excerpt(value)}"
+        )
     return v
 
 
@@ -124,15 +141,21 @@ def _distortion(path, data) -> np.ndarray:
             raise ValueError(f"{_at(path, data, 'distortion')}: distortion as a list must be [k1, k2, k3, p1, p2]")
         return _vector(path, data, "distortion", 5)
     if not isinstance(value, dict):
-        raise ValueError(f"{_at(path, data, 'distortion')}: distortion must be a mapping {{k1: .., p1: ..}} or a list of 5")
+        raise ValueError(
+            f"{_at(path, data, 'distortion')}: distortion must be a mapping {{k1: .., p1: ..}} or a list of 5"
+        )
     convention = value.get("convention", "photax")
     unknown = sorted(set(value) - set(_DIST) - {"convention"}, key=str)
     if unknown:
-        raise ValueError(f"{_at(path, value, unknown[0])}: unknown key distortion.{unknown[0]}; "
-                         f"accepted: {', '.join(_DIST)}, convention")
+        raise ValueError(
+            f"{_at(path, value, unknown[0])}: unknown key distortion.{unknown[0]}; "
+            f"accepted: {', '.join(_DIST)}, convention"
+        )
     if convention not in ("photax", "opencv"):
-        raise ValueError(f"{_at(path, value, 'convention')}: distortion.convention must be 'photax' or 'opencv', "
-                         f"got {excerpt(convention)}")
+        raise ValueError(
+            f"{_at(path, value, 'convention')}: distortion.convention must be 'photax' or 'opencv', "
+            f"got {excerpt(convention)}"
+        )
     d = np.array([_scalar(path, value, k) if k in value else 0.0 for k in _DIST])
     if convention == "opencv":
         d[3] = -d[3]  # OpenCV's y is down, so its p1 is minus ours
@@ -150,21 +173,26 @@ def read_camera(path) -> FrameCamera:
     data = _load(path)
     unknown = sorted(set(data) - _KEYS, key=str)
     if unknown:
-        raise ValueError(f"{_at(path, data, unknown[0])}: unknown key {excerpt(unknown[0])}; "
-                         f"accepted: {', '.join(sorted(_KEYS))}")
+        raise ValueError(
+            f"{_at(path, data, unknown[0])}: unknown key {excerpt(unknown[0])}; accepted: {', '.join(sorted(_KEYS))}"
+        )
     distortion = _distortion(path, data)
     size = None
     if "image_size" in data:
         size = _vector(path, data, "image_size", 2)
         if np.any(size <= 0) or np.any(size != np.round(size)) or np.any(size > 2**31 - 1):
-            raise ValueError(f"{_at(path, data, 'image_size')}: image_size must be [width, height] in whole "
-                             f"pixels, got {excerpt(data['image_size'])}")
+            raise ValueError(
+                f"{_at(path, data, 'image_size')}: image_size must be [width, height] in whole "
+                f"pixels, got {excerpt(data['image_size'])}"
+            )
         size = (int(size[0]), int(size[1]))
     if "focal_length_px" in data:
         extra = sorted(set(data) & {"focal_length", "unit", "pixel_size", "principal_point", "scan"})
         if extra:
-            raise ValueError(f"{_at(path, data, extra[0])}: focal_length_px is the pixel shorthand; "
-                             f"do not combine it with {extra[0]}")
+            raise ValueError(
+                f"{_at(path, data, extra[0])}: focal_length_px is the pixel shorthand; "
+                f"do not combine it with {extra[0]}"
+            )
         if size is None:
             raise ValueError(f"{_at(path, data, 'focal_length_px')}: focal_length_px needs image_size")
         f = _positive(path, data, "focal_length_px", _scalar(path, data, "focal_length_px"))
@@ -175,27 +203,31 @@ def read_camera(path) -> FrameCamera:
         raise ValueError(f"{path}: missing key 'focal_length' (or the shorthand 'focal_length_px')")
     unit = data.get("unit")
     if not isinstance(unit, str) or unit not in _UNITS:
-        raise ValueError(f"{_at(path, data, 'unit') if 'unit' in data else path}: unit must be one of "
-                         f"{_UNITS}, got {excerpt(unit)}")
+        raise ValueError(
+            f"{_at(path, data, 'unit') if 'unit' in data else path}: unit must be one of {_UNITS}, got {excerpt(unit)}"
+        )
     f = _positive(path, data, "focal_length", _scalar(path, data, "focal_length"))
     pixel_size = None
     if "pixel_size" in data:
         pixel_size = _positive(path, data, "pixel_size", _vector(path, data, "pixel_size", 2, scalar_ok=True))
     if unit == "px":
         if pixel_size is not None and not np.all(pixel_size == 1):
-            raise ValueError(f"{_at(path, data, 'pixel_size')}: with unit px the pixel_size is 1, "
-                             f"got {excerpt(data['pixel_size'])}")
+            raise ValueError(
+                f"{_at(path, data, 'pixel_size')}: with unit px the pixel_size is 1, got {excerpt(data['pixel_size'])}"
+            )
         pixel_size = 1.0 if size is not None else None
     if "scan" in data:
         return _scanned(path, data, f, distortion, pixel_size, size, unit)
     if "principal_point" in data and "principal_point_px" in data:
-        raise ValueError(f"{_at(path, data, 'principal_point_px')}: give principal_point or "
-                         "principal_point_px, not both")
+        raise ValueError(
+            f"{_at(path, data, 'principal_point_px')}: give principal_point or principal_point_px, not both"
+        )
     pp = _vector(path, data, "principal_point", 2) if "principal_point" in data else np.zeros(2)
     if "principal_point_px" in data:
         if pixel_size is None or size is None:
-            raise ValueError(f"{_at(path, data, 'principal_point_px')}: principal_point_px needs "
-                             "pixel_size and image_size")
+            raise ValueError(
+                f"{_at(path, data, 'principal_point_px')}: principal_point_px needs pixel_size and image_size"
+            )
         c, r = _vector(path, data, "principal_point_px", 2)
         ps = np.broadcast_to(pixel_size, (2,))
         with np.errstate(over="ignore"):
@@ -211,8 +243,10 @@ def _scanned(path, data, f, distortion, pixel_size, size, unit):
 
     for key in ("principal_point_px",) + (("unit",) if unit == "px" else ()):
         if key in data:
-            raise ValueError(f"{_at(path, data, key)}: a scanned camera (scan:) is in film units (mm or m): "
-                             f"{key}{': px' if key == 'unit' else ''} does not go with it")
+            raise ValueError(
+                f"{_at(path, data, key)}: a scanned camera (scan:) is in film units (mm or m): "
+                f"{key}{': px' if key == 'unit' else ''} does not go with it"
+            )
     if size is None:
         raise ValueError(f"{_at(path, data, 'scan')}: a scanned camera needs image_size (the scan's width, height)")
     scan = data["scan"]
@@ -222,12 +256,15 @@ def _scanned(path, data, f, distortion, pixel_size, size, unit):
     missing = [k for k in _SCAN_KEYS if k not in scan]
     if unknown or missing:
         what = f"unknown key scan.{unknown[0]}" if unknown else f"missing key scan.{missing[0]}"
-        raise ValueError(f"{_at(path, scan, unknown[0]) if unknown else _at(path, data, 'scan')}: {what}; "
-                         f"a scan block has {', '.join(_SCAN_KEYS)}")
+        raise ValueError(
+            f"{_at(path, scan, unknown[0]) if unknown else _at(path, data, 'scan')}: {what}; "
+            f"a scan block has {', '.join(_SCAN_KEYS)}"
+        )
     model = scan["model"]
     if model not in N_PARAMS:
-        raise ValueError(f"{_at(path, scan, 'model')}: scan.model must be one of {sorted(N_PARAMS)}, "
-                         f"got {excerpt(model)}")
+        raise ValueError(
+            f"{_at(path, scan, 'model')}: scan.model must be one of {sorted(N_PARAMS)}, got {excerpt(model)}"
+        )
     params = _vector(path, scan, "params", N_PARAMS[model])
     centre = _vector(path, scan, "film_centre", 2)
     scale = _positive(path, scan, "film_scale", _scalar(path, scan, "film_scale"))
@@ -237,8 +274,9 @@ def _scanned(path, data, f, distortion, pixel_size, size, unit):
         mean_scale = transform.scale()
     if not (np.isfinite(mean_scale) and mean_scale > 0):
         raise ValueError(f"{_at(path, scan, 'params')}: scan.params is a singular transformation")
-    return ScannedCamera(f, pp, distortion, transform=transform, image_size=size,
-                         pixel_size=None if pixel_size is None else pixel_size)
+    return ScannedCamera(
+        f, pp, distortion, transform=transform, image_size=size, pixel_size=None if pixel_size is None else pixel_size
+    )
 
 
 def camera_to_dict(camera: FrameCamera, unit: str | None = None) -> dict:
@@ -257,16 +295,23 @@ def camera_to_dict(camera: FrameCamera, unit: str | None = None) -> dict:
     transform = getattr(camera, "transform", None)  # a photax.interior.ScannedCamera
     if transform is not None and unit == "px":
         raise ValueError("unit: a scanned camera is in film units, give 'mm' or 'm'")
-    out: dict = {"focal_length": float(camera.focal_length), "unit": unit,
-                 "principal_point": np.asarray(camera.principal_point).tolist()}
+    out: dict = {
+        "focal_length": float(camera.focal_length),
+        "unit": unit,
+        "principal_point": np.asarray(camera.principal_point).tolist(),
+    }
     if ps is not None and unit != "px" and not (transform is not None and ps == [transform.scale()] * 2):
         out["pixel_size"] = ps[0] if ps[0] == ps[1] else ps  # a scan's default (the transform's scale) is left out
     if camera.image_size is not None:
         out["image_size"] = list(camera.image_size)
     out["distortion"] = dict(zip(_DIST, np.asarray(camera.distortion).tolist()))
     if transform is not None:
-        out["scan"] = {"model": transform.model, "film_centre": np.asarray(transform.film_centre).tolist(),
-                       "film_scale": float(transform.film_scale), "params": np.asarray(transform.params).tolist()}
+        out["scan"] = {
+            "model": transform.model,
+            "film_centre": np.asarray(transform.film_centre).tolist(),
+            "film_scale": float(transform.film_scale),
+            "params": np.asarray(transform.params).tolist(),
+        }
     return out
 
 

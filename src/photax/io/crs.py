@@ -52,8 +52,10 @@ def require_projected(crs, what: str) -> None:
     """ValueError when ``crs`` (of ``what``, e.g. "the DEM") is geographic."""
     c = _parse(crs)
     if c is not None and c.is_geographic:
-        raise ValueError(f"{what} is in a geographic CRS ({describe(crs)}, degrees); photax needs ground "
-                         "coordinates in metres: reproject it to a projected CRS (e.g. its UTM zone)")
+        raise ValueError(
+            f"{what} is in a geographic CRS ({describe(crs)}, degrees); photax needs ground "
+            "coordinates in metres: reproject it to a projected CRS (e.g. its UTM zone)"
+        )
 
 
 def require_same(a, what_a: str, b, what_b: str) -> None:
@@ -61,8 +63,10 @@ def require_same(a, what_a: str, b, what_b: str) -> None:
     ca, cb = _parse(a), _parse(b)
     if ca is None or cb is None or ca == cb or _same_horizontal(ca, cb):
         return
-    raise ValueError(f"{what_a} is in {describe(a)} but {what_b} in {describe(b)}; photax does not reproject "
-                     f"between them (a DEM: gdalwarp -t_srs {describe(a)} dem.tif dem_reprojected.tif)")
+    raise ValueError(
+        f"{what_a} is in {describe(a)} but {what_b} in {describe(b)}; photax does not reproject "
+        f"between them (a DEM: gdalwarp -t_srs {describe(a)} dem.tif dem_reprojected.tif)"
+    )
 
 
 def _horizontal(crs):

@@ -40,8 +40,13 @@ def file_error(path, line: int | None, message: str) -> ValueError:
 #: (``docs/architecture.md``).  Small files are configuration (a camera, a CRS);
 #: tables (GCPs, orientations, blocks, results) may be large; BAL files larger.
 MiB, GiB = 1 << 20, 1 << 30
-MAX_BYTES = {"camera file": MiB, "orthority interior file": MiB, ".prj file": MiB, "fiducial file": MiB,
-             "BAL file": 4 * GiB}
+MAX_BYTES = {
+    "camera file": MiB,
+    "orthority interior file": MiB,
+    ".prj file": MiB,
+    "fiducial file": MiB,
+    "BAL file": 4 * GiB,
+}
 MAX_BYTES_DEFAULT = GiB
 
 _INPUTS: contextvars.ContextVar[set | None] = contextvars.ContextVar("photax_inputs", default=None)
@@ -73,8 +78,12 @@ def inputs_read() -> tuple[pathlib.Path, ...]:
 
 
 def _kind(mode: int) -> str:
-    for test, name in ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
-                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket")):
+    for test, name in (
+        (stat.S_ISFIFO, "a FIFO (named pipe)"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
         if test(mode):
             return name
     return "not a regular file"
@@ -106,8 +115,10 @@ def _too_large(path, what: str, size: int, limit: int, over: bool = False) -> Va
     def amount(n):
         return f"{n} bytes" if n < MiB else f"{n / MiB:.3g} MiB" if n < GiB else f"{n / GiB:.3g} GiB"
 
-    return ValueError(f"{path}: {'over ' * over}{amount(size)}, too large for a {what} "
-                      f"(at most {amount(limit)}); is this the right file?")
+    return ValueError(
+        f"{path}: {'over ' * over}{amount(size)}, too large for a {what} "
+        f"(at most {amount(limit)}); is this the right file?"
+    )
 
 
 def read_bytes(path, what: str = "file") -> bytes:

@@ -104,21 +104,27 @@ class GCPTable:
         """``(n,)`` bool, True for check points."""
         return self.role == "check"
 
-    def select(self, image: str) -> "GCPTable":
+    def select(self, image: str) -> GCPTable:
         """The measurements in one image."""
         keep = self.images == image
         if not keep.any():
-            raise ValueError(f"image {image!r} is not in {self.source or 'the GCP table'}; "
-                             f"it has {self.image_names}")
+            raise ValueError(f"image {image!r} is not in {self.source or 'the GCP table'}; it has {self.image_names}")
         return self.subset(keep)
 
-    def subset(self, keep) -> "GCPTable":
+    def subset(self, keep) -> GCPTable:
         """The rows where the boolean (or index) array ``keep`` selects."""
         take = lambda a: None if a is None else a[keep]  # noqa: E731
         return dataclasses.replace(
-            self, names=self.names[keep], images=self.images[keep], ground=self.ground[keep],
-            pixel=take(self.pixel), image_xy=take(self.image_xy), sigma=self.sigma[keep],
-            role=self.role[keep], lines=take(self.lines))
+            self,
+            names=self.names[keep],
+            images=self.images[keep],
+            ground=self.ground[keep],
+            pixel=take(self.pixel),
+            image_xy=take(self.image_xy),
+            sigma=self.sigma[keep],
+            role=self.role[keep],
+            lines=take(self.lines),
+        )
 
     def duplicates(self) -> list[str]:
         """Messages for points measured more than once in the same image."""
@@ -173,8 +179,10 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTab
     elif format == "odm":
         crs = numbered[0][1].strip()
         if _looks_like_measurement(crs):
-            raise ValueError(f"{path}, line {numbered[0][0]}: an ODM GCP list starts with its CRS "
-                             f"(e.g. EPSG:32633 or a PROJ string), got a measurement: {excerpt(crs)}")
+            raise ValueError(
+                f"{path}, line {numbered[0][0]}: an ODM GCP list starts with its CRS "
+                f"(e.g. EPSG:32633 or a PROJ string), got a measurement: {excerpt(crs)}"
+            )
         rows = _parse_odm(path, numbered[1:])
     else:
         raise ValueError(f"format must be 'auto', 'csv' or 'odm', got {format!r}")
@@ -183,9 +191,17 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTab
     _auto_names(rows)
     _check_points(path, rows)
     return GCPTable(
-        names=np.asarray(rows["names"], dtype=str), images=np.asarray(rows["images"], dtype=str),
-        ground=rows["ground"], pixel=rows["pixel"], image_xy=rows["image_xy"], sigma=rows["sigma"],
-        role=np.asarray(rows["role"], dtype=str), crs=crs, lines=rows["lines"], source=str(path))
+        names=np.asarray(rows["names"], dtype=str),
+        images=np.asarray(rows["images"], dtype=str),
+        ground=rows["ground"],
+        pixel=rows["pixel"],
+        image_xy=rows["image_xy"],
+        sigma=rows["sigma"],
+        role=np.asarray(rows["role"], dtype=str),
+        crs=crs,
+        lines=rows["lines"],
+        source=str(path),
+    )
 
 
 _number = number
@@ -203,10 +219,15 @@ def _check_points(path, rows) -> None:
     i = int(np.flatnonzero(bad)[0])
     j, name = int(j_of[i]), names[i]
     if np.any(ground[i] != ground[j]):
-        raise file_error(path, lines[i], f"point {excerpt(str(name))} has ground coordinates {ground[i].tolist()}, "
-                         f"but {ground[j].tolist()} on line {lines[j]}; one name, one point")
-    raise file_error(path, lines[i], f"point {excerpt(str(name))} is a {role[i]} point here "
-                     f"but a {role[j]} point on line {lines[j]}")
+        raise file_error(
+            path,
+            lines[i],
+            f"point {excerpt(str(name))} has ground coordinates {ground[i].tolist()}, "
+            f"but {ground[j].tolist()} on line {lines[j]}; one name, one point",
+        )
+    raise file_error(
+        path, lines[i], f"point {excerpt(str(name))} is a {role[i]} point here but a {role[j]} point on line {lines[j]}"
+    )
 
 
 def _empty_rows() -> dict[str, list]:
@@ -219,9 +240,16 @@ def _as_arrays(rows: dict[str, list]) -> dict:
     arr = lambda k, shape: np.asarray(rows[k], dtype=float).reshape(shape) if rows[k] else None  # noqa: E731
     names = np.empty(n, dtype=object)
     names[:] = rows["names"]
-    return dict(names=names, images=rows["images"], ground=arr("ground", (n, 3)), pixel=arr("pixel", (n, 2)),
-                image_xy=arr("image_xy", (n, 2)), sigma=np.asarray(rows["sigma"], dtype=float),
-                role=np.asarray(rows["role"], dtype=str), lines=np.asarray(rows["lines"], dtype=int))
+    return dict(
+        names=names,
+        images=rows["images"],
+        ground=arr("ground", (n, 3)),
+        pixel=arr("pixel", (n, 2)),
+        image_xy=arr("image_xy", (n, 2)),
+        sigma=np.asarray(rows["sigma"], dtype=float),
+        role=np.asarray(rows["role"], dtype=str),
+        lines=np.asarray(rows["lines"], dtype=int),
+    )
 
 
 def _auto_names(rows) -> None:
@@ -256,8 +284,19 @@ def _parse_odm(path, numbered) -> dict:
     split = [text.split() for _, text in numbered]
     if all(len(f) >= 6 for f in split):
         col = lambda k: [f[k] for f in split]  # noqa: E731
-        fast = _fast_rows(numbered, dict(e=col(0), n=col(1), h=col(2), u=col(3), v=col(4), image=col(5),
-                                         name=[f[6] if len(f) > 6 else "" for f in split]), pixel=True)
+        fast = _fast_rows(
+            numbered,
+            dict(
+                e=col(0),
+                n=col(1),
+                h=col(2),
+                u=col(3),
+                v=col(4),
+                image=col(5),
+                name=[f[6] if len(f) > 6 else "" for f in split],
+            ),
+            pixel=True,
+        )
         if fast is not None:
             return fast
     rows = _empty_rows()
@@ -265,13 +304,18 @@ def _parse_odm(path, numbered) -> dict:
         f = text.split()
         try:
             if len(f) < 6:
-                raise file_error(path, line, f"expected 'E N h col row image [name]', got {len(f)} columns: "
-                                 f"{excerpt(text.strip())}")
+                raise file_error(
+                    path, line, f"expected 'E N h col row image [name]', got {len(f)} columns: {excerpt(text.strip())}"
+                )
             values = [_number(path, line, f[k], w) for k, w in enumerate(("E", "N", "h", "col", "row"))]
         except ValueError as exc:
             if i == 0 and sum(_is_number(v) for v in f[:5]) < 3:  # some other file: none of it quoted
-                raise file_error(path, line, "not a GCP file (a CSV with a header, or an OpenDroneMap list: "
-                                 "a CRS line, then lines 'E N h col row image [name]', expected)") from None
+                raise file_error(
+                    path,
+                    line,
+                    "not a GCP file (a CSV with a header, or an OpenDroneMap list: "
+                    "a CRS line, then lines 'E N h col row image [name]', expected)",
+                ) from None
             raise ValueError(f"{exc} (columns are 'E N h col row image [name]')") from None
         rows["ground"].append(values[:3])
         rows["pixel"].append(values[3:])
@@ -299,7 +343,7 @@ def _csv_columns(path, header: list[str], hline: int = 1) -> dict[str, int]:
     named_en = bool({"easting", "e"} & set(low))
     for i, (r, lo) in enumerate(zip(raw, low)):
         if lo in ("x", "y"):
-            ground = (r.isupper() if both_case else not named_en)
+            ground = r.isupper() if both_case else not named_en
             key = ({"x": "e", "y": "n"}[lo]) if ground else lo
         elif lo in ("image_x", "image_y"):
             key = lo[-1]
@@ -308,22 +352,26 @@ def _csv_columns(path, header: list[str], hline: int = 1) -> dict[str, int]:
         else:
             key = next((k for k, names in _GROUND.items() if lo in names), lo if lo in _OTHER else None)
         if key is None and not known:  # no column photax knows: some other file, none of it quoted
-            raise file_error(path, hline, "not a GCP file (a CSV header naming E, N, h and col, row or x, y "
-                             "expected)")
+            raise file_error(path, hline, "not a GCP file (a CSV header naming E, N, h and col, row or x, y expected)")
         if key is None:
-            raise ValueError(f"{path}, line {hline}: unknown column {excerpt(r)}; accepted: name, image, "
-                             "E/easting/X, N/northing/Y, h/height/Z, col/column, row, x, y, sigma, role")
+            raise ValueError(
+                f"{path}, line {hline}: unknown column {excerpt(r)}; accepted: name, image, "
+                "E/easting/X, N/northing/Y, h/height/Z, col/column, row, x, y, sigma, role"
+            )
         if key in cols:
-            raise ValueError(f"{path}, line {hline}: two columns mean the same thing: "
-                             f"{excerpt(raw[cols[key]])} and {excerpt(r)}")
+            raise ValueError(
+                f"{path}, line {hline}: two columns mean the same thing: {excerpt(raw[cols[key]])} and {excerpt(r)}"
+            )
         cols[key] = i
     missing = [w for w, k in (("easting", "e"), ("northing", "n"), ("height", "h")) if k not in cols]
     if missing:
         raise ValueError(f"{path}, line {hline}: no {'/'.join(missing)} column in {excerpt(raw, 80)}")
     has_px, has_xy = {"col", "row"} <= cols.keys(), {"x", "y"} <= cols.keys()
     if has_px == has_xy:
-        raise ValueError(f"{path}, line {hline}: give pixel columns (col, row) or image-plane columns "
-                         f"(x, y), exactly one pair; header is {excerpt(raw, 80)}")
+        raise ValueError(
+            f"{path}, line {hline}: give pixel columns (col, row) or image-plane columns "
+            f"(x, y), exactly one pair; header is {excerpt(raw, 80)}"
+        )
     return cols
 
 
@@ -346,10 +394,22 @@ def _parse_csv(path, numbered) -> dict:
     # the whole body, as csv.reader would split each line.
     if not any(c in head or c in joined for c in '"\r') and all(t.count(",") == k - 1 for t in texts):
         flat = joined.replace("\n", ",").split(",")
-        col = lambda key: flat[cols[key]::k] if key in cols else [""] * len(texts)  # noqa: E731
-        fast = _fast_rows(body, dict(e=col("e"), n=col("n"), h=col("h"), u=col("col" if pix else "x"),
-                                     v=col("row" if pix else "y"), image=col("image"), name=col("name"),
-                                     sigma=col("sigma"), role=col("role")), pixel=pix)
+        col = lambda key: flat[cols[key] :: k] if key in cols else [""] * len(texts)  # noqa: E731
+        fast = _fast_rows(
+            body,
+            dict(
+                e=col("e"),
+                n=col("n"),
+                h=col("h"),
+                u=col("col" if pix else "x"),
+                v=col("row" if pix else "y"),
+                image=col("image"),
+                name=col("name"),
+                sigma=col("sigma"),
+                role=col("role"),
+            ),
+            pixel=pix,
+        )
         if fast is not None:
             return fast
     rows = _empty_rows()
@@ -396,16 +456,26 @@ def _fast_rows(body, fields: dict[str, list[str]], pixel: bool) -> dict | None:
     role_map = {t: t.strip().lower() or "control" for t in set(fields.get("role", [""]))}
     role = np.asarray([role_map[t] for t in fields["role"]] if "role" in fields else ["control"] * n, dtype=str)
     ground, coords = np.stack(num[:3], axis=1), np.stack(num[3:], axis=1)
-    if not (np.all(np.isfinite(ground)) and np.all(np.isfinite(coords)) and np.all(np.isin(role, _ROLES))
-            and np.all(np.isfinite(sigma[given]) & (sigma[given] > 0))):
+    if not (
+        np.all(np.isfinite(ground))
+        and np.all(np.isfinite(coords))
+        and np.all(np.isin(role, _ROLES))
+        and np.all(np.isfinite(sigma[given]) & (sigma[given] > 0))
+    ):
         return None
     names = np.empty(n, dtype=object)
     names[:] = [t.strip() or None for t in fields["name"]]
     image_map = {t: t.strip() for t in set(fields["image"])}
-    return dict(names=names, images=[image_map[t] for t in fields["image"]], ground=ground,
-                pixel=coords if pixel else None, image_xy=None if pixel else coords, sigma=sigma, role=role,
-                lines=np.fromiter((line for line, _ in body), int, n))
-
+    return dict(
+        names=names,
+        images=[image_map[t] for t in fields["image"]],
+        ground=ground,
+        pixel=coords if pixel else None,
+        image_xy=None if pixel else coords,
+        sigma=sigma,
+        role=role,
+        lines=np.fromiter((line for line, _ in body), int, n),
+    )
 
 
 def _fmt(v: float) -> str:
@@ -448,8 +518,9 @@ def write_gcps(path, table: GCPTable, *, inputs=()) -> pathlib.Path:
     for what, values in (("names", table.names), ("images", table.images)):
         for v in values.tolist():
             if v != v.strip() or "\n" in v or v.startswith("#") or (what == "names" and not v):
-                raise ValueError(f"table: {what[:-1]} {v!r} would not read back "
-                                 "(empty name, surrounding spaces, newline or '#')")
+                raise ValueError(
+                    f"table: {what[:-1]} {v!r} would not read back (empty name, surrounding spaces, newline or '#')"
+                )
     if table.crs is not None and "\n" in table.crs:
         raise ValueError(f"table: crs {table.crs!r} spans lines")
     header = ["name", "image", "E", "N", "h", *(("col", "row") if pix else ("x", "y")), "sigma", "role"]
@@ -459,6 +530,14 @@ def write_gcps(path, table: GCPTable, *, inputs=()) -> pathlib.Path:
         writer = csv.writer(fh, lineterminator="\n")
         writer.writerow(header)
         for i in range(len(table)):
-            writer.writerow([table.names[i], table.images[i], *map(_fmt, table.ground[i]), *map(_fmt, coords[i]),
-                             _fmt(sigma[i]), table.role[i]])
+            writer.writerow(
+                [
+                    table.names[i],
+                    table.images[i],
+                    *map(_fmt, table.ground[i]),
+                    *map(_fmt, coords[i]),
+                    _fmt(sigma[i]),
+                    table.role[i],
+                ]
+            )
     return pathlib.Path(path)

@@ -30,8 +30,8 @@ import uuid
 
 import numpy as np
 
-from .sizes import check_output_size
 from .atomic import atomic_path, temporary
+from .sizes import check_output_size
 
 
 def dataarray(data, grid, fill, name: str):
@@ -146,9 +146,16 @@ def _on_cluster() -> bool:
 def _profile(data, options) -> dict:
     """rasterio's creation profile for the DataArray ``data``."""
     shape = data.shape
-    profile = dict(driver="GTiff", width=shape[-1], height=shape[-2], count=shape[0] if data.ndim == 3 else 1,
-                   dtype=data.dtype, crs=data.rio.crs, transform=data.rio.transform(),
-                   nodata=data.rio.encoded_nodata if data.rio.encoded_nodata is not None else data.rio.nodata)
+    profile = dict(
+        driver="GTiff",
+        width=shape[-1],
+        height=shape[-2],
+        count=shape[0] if data.ndim == 3 else 1,
+        dtype=data.dtype,
+        crs=data.rio.crs,
+        transform=data.rio.transform(),
+        nodata=data.rio.encoded_nodata if data.rio.encoded_nodata is not None else data.rio.nodata,
+    )
     profile.update(options)
     return profile
 
@@ -185,14 +192,14 @@ def _write_local(data, path, options: dict, mask=None) -> None:
             sources.append(da.asarray(mask).rechunk(sources[0].chunks[-2:]))
             targets.append(writer.mask)
         try:
-            da.store(sources, targets, lock=False, scheduler="sync" if sync else "threads",
-                     num_workers=max(threads - 1, 1))
+            da.store(
+                sources, targets, lock=False, scheduler="sync" if sync else "threads", num_workers=max(threads - 1, 1)
+            )
         finally:
             writer.close()
 
 
-def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False, inputs=(), mask=None,
-              **kwargs):
+def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False, inputs=(), mask=None, **kwargs):
     """Write a (Dask-backed) georeferenced DataArray to a GeoTIFF, atomically.
 
     Chunk by chunk into a temporary file beside ``path``, renamed onto
@@ -231,16 +238,17 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
     import rioxarray  # noqa: F401
 
     if data.ndim not in (2, 3) or tuple(data.dims[-2:]) != (data.rio.y_dim, data.rio.x_dim):
-        raise ValueError(f"to_raster writes (band, y, x) or (y, x) arrays, got dims {data.dims}: "
-                         f"transpose it first (data.transpose(..., {data.rio.y_dim!r}, {data.rio.x_dim!r}))")
+        raise ValueError(
+            f"to_raster writes (band, y, x) or (y, x) arrays, got dims {data.dims}: "
+            f"transpose it first (data.transpose(..., {data.rio.y_dim!r}, {data.rio.x_dim!r}))"
+        )
     on_cluster = _on_cluster()
     if mask is not None:
         mask = getattr(mask, "data", mask)
         if tuple(mask.shape) != tuple(data.shape[-2:]):
             raise ValueError(f"mask must be (y, x) = {tuple(data.shape[-2:])}, got shape {tuple(mask.shape)}")
         if on_cluster:
-            raise ValueError("to_raster: mask= is written by the local schedulers only, "
-                             "not by a distributed client")
+            raise ValueError("to_raster: mask= is written by the local schedulers only, not by a distributed client")
     options = dict(driver="GTiff", tiled=True, BIGTIFF="IF_SAFER", blockxsize=256, blockysize=256)
     if hasattr(data.data, "chunks"):  # tiles dividing the chunks
         ys, xs = data.data.chunks[-2:]
@@ -249,8 +257,9 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
         options["compress"] = compress
     options.update(kwargs)
     bands = data.shape[0] if data.ndim == 3 else 1
-    check_output_size(data.shape[-2:], bands + (mask is not None), data.dtype, path=path,
-                      compressed=bool(compress or cog))
+    check_output_size(
+        data.shape[-2:], bands + (mask is not None), data.dtype, path=path, compressed=bool(compress or cog)
+    )
     if mask is not None:
         options["nodata"] = None  # the mask band, not a value, says where there is no data
     # GDAL's block cache bounded for the write (default: 5 % of the RAM): two
@@ -281,6 +290,5 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
             with temporary(tmp.with_name(tmp.name + ".gtiff")) as plain:
                 write(plain)
                 with gdal_errors():
-                    rasterio.shutil.copy(plain, tmp, driver="COG", compress=compress or "deflate",
-                                         overviews="AUTO")
+                    rasterio.shutil.copy(plain, tmp, driver="COG", compress=compress or "deflate", overviews="AUTO")
     return path

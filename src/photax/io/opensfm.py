@@ -51,12 +51,14 @@ import numpy as np
 from ..camera import FrameCamera, from_opencv_extrinsics
 from ..collinearity import ExteriorOrientation
 from ..rotation import angles_from_matrix, axis_angle_to_matrix
-from .files import as_numbers, excerpt, file_error, load_json, read_text
 from ._geo import project_lla, projected_crs, reproject, topocentric_to_projected, utm_crs
+from .files import as_numbers, excerpt, file_error, load_json, read_text
 
 _WHAT = "OpenSfM reconstruction"
-_KEYS = {"perspective": ("focal", "k1", "k2"),
-         "brown": ("focal_x", "focal_y", "c_x", "c_y", "k1", "k2", "k3", "p1", "p2")}
+_KEYS = {
+    "perspective": ("focal", "k1", "k2"),
+    "brown": ("focal_x", "focal_y", "c_x", "c_y", "k1", "k2", "k3", "p1", "p2"),
+}
 #: Keys of a camera entry that carry no geometry photax needs.
 _IGNORED = {"projection_type", "width", "height"}
 
@@ -70,11 +72,18 @@ def _load(path) -> list:
     path = pathlib.Path(path)
     data = load_json(path, read_text(path, _WHAT))
     if not is_reconstruction(data):
-        raise file_error(path, None, "not an OpenSfM reconstruction.json (a list of reconstructions, each "
-                         "with 'cameras', 'shots' and 'reference_lla', expected)")
+        raise file_error(
+            path,
+            None,
+            "not an OpenSfM reconstruction.json (a list of reconstructions, each "
+            "with 'cameras', 'shots' and 'reference_lla', expected)",
+        )
     for k, rec in enumerate(data):
-        if not isinstance(rec, dict) or not isinstance(rec.get("cameras"), dict) \
-                or not isinstance(rec.get("shots"), dict):
+        if (
+            not isinstance(rec, dict)
+            or not isinstance(rec.get("cameras"), dict)
+            or not isinstance(rec.get("shots"), dict)
+        ):
             raise file_error(path, None, f"reconstruction {k} has no 'cameras' and 'shots' objects")
     return data
 
@@ -88,14 +97,21 @@ def _camera(path, name, p) -> FrameCamera:
         raise file_error(path, None, f"camera {excerpt(name)} is not an object")
     kind = p.get("projection_type")
     if kind not in _KEYS:
-        raise file_error(path, None, f"camera {excerpt(name)} has projection_type {excerpt(kind)}: "
-                         "photax reads "
-                         "'perspective' and 'brown' cameras only (fisheye, fisheye_opencv, spherical and "
-                         "the other OpenSfM models have no photax camera)")
+        raise file_error(
+            path,
+            None,
+            f"camera {excerpt(name)} has projection_type {excerpt(kind)}: "
+            "photax reads "
+            "'perspective' and 'brown' cameras only (fisheye, fisheye_opencv, spherical and "
+            "the other OpenSfM models have no photax camera)",
+        )
     unknown = sorted(set(p) - _IGNORED - set(_KEYS[kind]))
     if unknown:
-        raise file_error(path, None, f"camera {excerpt(name)}: parameters {excerpt(unknown, 80)} are not "
-                         f"part of OpenSfM's {kind} model")
+        raise file_error(
+            path,
+            None,
+            f"camera {excerpt(name)}: parameters {excerpt(unknown, 80)} are not part of OpenSfM's {kind} model",
+        )
     size = as_numbers([p.get("width"), p.get("height")])
     if size is None or not np.all((size >= 1) & (size <= 2**31 - 1) & (size == np.round(size))):
         raise file_error(path, None, f"camera {excerpt(name)}: width and height must be whole pixels")
@@ -104,8 +120,9 @@ def _camera(path, name, p) -> FrameCamera:
         default = None if key.startswith("focal") else 0.0
         v = as_numbers(p.get(key, default))
         if v is None or v.shape != () or not np.isfinite(v):
-            raise file_error(path, None, f"camera {excerpt(name)}: {key} must be a finite number, "
-                             f"got {excerpt(p.get(key))}")
+            raise file_error(
+                path, None, f"camera {excerpt(name)}: {key} must be a finite number, got {excerpt(p.get(key))}"
+            )
         values[key] = float(v)
     if kind == "perspective":
         values.update(focal_x=values["focal"], focal_y=values["focal"])
@@ -138,8 +155,9 @@ def read_opensfm_cameras(path) -> dict[str, FrameCamera]:
     return out
 
 
-def read_opensfm_shots(path, crs=None, frame: str | None = None
-                       ) -> tuple[dict[str, ExteriorOrientation], str, dict[str, str]]:
+def read_opensfm_shots(
+    path, crs=None, frame: str | None = None
+) -> tuple[dict[str, ExteriorOrientation], str, dict[str, str]]:
     """The shots of a ``reconstruction.json`` in a projected CRS.
 
     Args:
@@ -166,12 +184,11 @@ def read_opensfm_shots(path, crs=None, frame: str | None = None
     target = None
     for k, rec in enumerate(data):
         ref = rec.get("reference_lla")
-        lla = as_numbers([ref.get(c) for c in ("latitude", "longitude", "altitude")]) \
-            if isinstance(ref, dict) else None
-        if lla is None or lla.shape != (3,) or not np.all(np.isfinite(lla)) \
-                or abs(lla[0]) > 90 or abs(lla[1]) > 360:
-            raise file_error(path, None, f"reconstruction {k}: 'reference_lla' must hold a latitude, "
-                             "longitude and altitude")
+        lla = as_numbers([ref.get(c) for c in ("latitude", "longitude", "altitude")]) if isinstance(ref, dict) else None
+        if lla is None or lla.shape != (3,) or not np.all(np.isfinite(lla)) or abs(lla[0]) > 90 or abs(lla[1]) > 360:
+            raise file_error(
+                path, None, f"reconstruction {k}: 'reference_lla' must hold a latitude, longitude and altitude"
+            )
         if target is None:
             target = projected_crs(crs, "crs") if crs is not None else utm_crs(lla[0], lla[1])
         names, rvecs, tvecs, gps = [], [], [], []
@@ -181,10 +198,16 @@ def read_opensfm_shots(path, crs=None, frame: str | None = None
                 raise file_error(path, None, f"shot {excerpt(name)}: an empty or repeated image name")
             r = as_numbers(shot.get("rotation")) if isinstance(shot, dict) else None
             t = as_numbers(shot.get("translation")) if isinstance(shot, dict) else None
-            if r is None or t is None or r.shape != (3,) or t.shape != (3,) \
-                    or not np.all(np.isfinite(r) & np.isfinite(t) & (np.abs(t) < 1e8)):
-                raise file_error(path, None, f"shot {excerpt(name)}: 'rotation' and 'translation' must be "
-                                 "3 finite numbers each")
+            if (
+                r is None
+                or t is None
+                or r.shape != (3,)
+                or t.shape != (3,)
+                or not np.all(np.isfinite(r) & np.isfinite(t) & (np.abs(t) < 1e8))
+            ):
+                raise file_error(
+                    path, None, f"shot {excerpt(name)}: 'rotation' and 'translation' must be 3 finite numbers each"
+                )
             g = as_numbers(shot.get("gps_position"))
             ok = g is not None and g.shape == (3,) and np.all(np.isfinite(g) & (np.abs(g) < 1e8))
             gps.append(g if ok else np.full(3, np.nan))
@@ -225,8 +248,10 @@ def _to_grid(centre, r_frame, gps, lla, crs, frame):
         elif spread < 1e-3:  # the two frames agree to a millimetre: either will do
             frame = "topocentric"
         else:
-            raise ValueError(f"no shot has a gps_position to tell OpenSfM's topocentric frame from ODM's "
-                             f"grid-aligned one (they differ by up to {spread:.3g} m here): name the frame")
+            raise ValueError(
+                f"no shot has a gps_position to tell OpenSfM's topocentric frame from ODM's "
+                f"grid-aligned one (they differ by up to {spread:.3g} m here): name the frame"
+            )
     if frame == "topocentric":
         xyz, rotation = xyz_t, grid_from_topo @ r_frame
     else:

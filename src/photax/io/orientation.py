@@ -25,9 +25,9 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from .files import MAX_BYTES, check_regular, excerpt, file_error, load_yaml, read_text
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
+from .files import MAX_BYTES, check_regular, excerpt, file_error, load_yaml, read_text
 from .opensfm import is_reconstruction, read_opensfm_cameras, read_opensfm_shots
 from .orthority import read_orthority_exterior_crs, read_orthority_geojson, read_orthority_interior
 from .results import read_json
@@ -90,7 +90,9 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
     if name is None and len(cameras) == 1:
         return next(iter(cameras.values()))
     if name not in cameras:
-        raise file_error(path, None, f"holds {len(cameras)} cameras: name one (--camera-name), one of {sorted(map(str, cameras))}")
+        raise file_error(
+            path, None, f"holds {len(cameras)} cameras: name one (--camera-name), one of {sorted(map(str, cameras))}"
+        )
     return cameras[name]
 
 
@@ -107,9 +109,11 @@ def _pick_image(path, images, image) -> dict:
         p = pathlib.Path(image)
         matches = [n for n in images if n in (p.name, p.stem) or pathlib.Path(n).stem == p.stem]
         if len(matches) != 1:
-            raise ValueError(f"{path}: holds {len(images)} images {excerpt(sorted(images), 80)}, "
-                             "none named like "
-                             f"{p.name!r}; rename the image or keep only its result")
+            raise ValueError(
+                f"{path}: holds {len(images)} images {excerpt(sorted(images), 80)}, "
+                "none named like "
+                f"{p.name!r}; rename the image or keep only its result"
+            )
         name, entry = matches[0], images[matches[0]]
     if not isinstance(entry, dict):
         raise ValueError(f"{path}: the result of image {excerpt(name)} is not an object")
@@ -274,7 +278,14 @@ def camera_in_pixels(camera: FrameCamera) -> FrameCamera:
         raise ValueError("the camera has no pixel grid (or is a scan): give a photax camera file with a unit")
     sx, sy = (float(v) for v in np.asarray(camera.pixel_size))
     if not np.isclose(sx, sy, rtol=1e-12, atol=0):
-        raise ValueError(f"the camera's pixels are not square ({sx:g} x {sy:g}): a block camera in pixels "
-                         "needs square pixels; give a photax camera file with unit mm or m")
-    return FrameCamera(camera.focal_length / sx, camera.principal_point / sx, camera.distortion,
-                       pixel_size=1.0, image_size=camera.image_size)
+        raise ValueError(
+            f"the camera's pixels are not square ({sx:g} x {sy:g}): a block camera in pixels "
+            "needs square pixels; give a photax camera file with unit mm or m"
+        )
+    return FrameCamera(
+        camera.focal_length / sx,
+        camera.principal_point / sx,
+        camera.distortion,
+        pixel_size=1.0,
+        image_size=camera.image_size,
+    )

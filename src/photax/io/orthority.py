@@ -50,9 +50,11 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
         values = {k: as_numbers(p[k]) for k in _OPENCV_EXTRA if k in p}
         extra = [k for k, v in values.items() if v is None or v.shape != () or float(v) != 0.0]
         if extra:
-            raise ValueError(f"{at(extra[0])}: camera {excerpt(name)}: the opencv parameters {extra} are not "
-                             "zero; photax's camera has k1, k2, k3, p1, p2 only (rational, thin-prism and "
-                             "tilt terms are not converted)")
+            raise ValueError(
+                f"{at(extra[0])}: camera {excerpt(name)}: the opencv parameters {extra} are not "
+                "zero; photax's camera has k1, k2, k3, p1, p2 only (rational, thin-prism and "
+                "tilt terms are not converted)"
+            )
 
     def numbers(key, n, default=None, scalar_ok=False):
         if key not in p:
@@ -63,24 +65,31 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
         v = as_numbers(value)
         ok_shapes = ((n,), ()) if scalar_ok else ((n,),)
         if v is None or v.shape not in ok_shapes or not np.all(np.isfinite(v)):
-            raise ValueError(f"{at(key)}: camera {excerpt(name)}: {key} must be {n} finite number"
-                             f"{'s' if n > 1 else ''}, got {excerpt(value)}")
+            raise ValueError(
+                f"{at(key)}: camera {excerpt(name)}: {key} must be {n} finite number"
+                f"{'s' if n > 1 else ''}, got {excerpt(value)}"
+            )
         return v
 
     im_size = numbers("im_size", 2)
     if np.any(im_size < 1) or np.any(im_size != np.round(im_size)) or np.any(im_size > 2**31 - 1):
-        raise ValueError(f"{at('im_size')}: camera {excerpt(name)}: im_size must be [width, height] "
-                         "in whole pixels, "
-                         f"got {excerpt(p['im_size'])}")
+        raise ValueError(
+            f"{at('im_size')}: camera {excerpt(name)}: im_size must be [width, height] "
+            "in whole pixels, "
+            f"got {excerpt(p['im_size'])}"
+        )
     w, h = (int(v) for v in im_size)
     focal = np.broadcast_to(numbers("focal_len", 2, scalar_ok=True), (2,))
     if not np.all(focal > 0):
-        raise ValueError(f"{at('focal_len')}: camera {excerpt(name)}: focal_len must be positive, "
-                         f"got {excerpt(p['focal_len'])}")
+        raise ValueError(
+            f"{at('focal_len')}: camera {excerpt(name)}: focal_len must be positive, got {excerpt(p['focal_len'])}"
+        )
     sensor = numbers("sensor_size", 2) if p.get("sensor_size") is not None else None
     if sensor is not None and not np.all(sensor > 0):
-        raise ValueError(f"{at('sensor_size')}: camera {excerpt(name)}: sensor_size must be positive, "
-                         f"got {excerpt(p['sensor_size'])}")
+        raise ValueError(
+            f"{at('sensor_size')}: camera {excerpt(name)}: sensor_size must be positive, "
+            f"got {excerpt(p['sensor_size'])}"
+        )
     cx, cy = float(numbers("cx", 1, 0.0, scalar_ok=True)), float(numbers("cy", 1, 0.0, scalar_ok=True))
     with np.errstate(over="ignore", under="ignore"):
         if sensor is None:
@@ -96,13 +105,21 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
             size = np.array([sw / w, sh / h * focal[0] / focal[1]])
         m = max(w, h)
         principal_point = np.array([cx * m * size[0], -cy * m * size[1]])  # y up in photax
-    if not (np.isfinite(f) and f > 0 and np.all(np.isfinite(size)) and np.all(size > 0)
-            and np.all(np.isfinite(principal_point))):
-        raise ValueError(f"{at('focal_len')}: camera {excerpt(name)}: "
-                         "focal_len, sensor_size, cx, cy give a camera "
-                         f"out of range (f = {f:g}, pixel size = {size.tolist()})")
-    dist = [float(numbers(k, 1, 0.0, scalar_ok=True)) if kind != "pinhole" else 0.0
-            for k in ("k1", "k2", "k3", "p1", "p2")]
+    if not (
+        np.isfinite(f)
+        and f > 0
+        and np.all(np.isfinite(size))
+        and np.all(size > 0)
+        and np.all(np.isfinite(principal_point))
+    ):
+        raise ValueError(
+            f"{at('focal_len')}: camera {excerpt(name)}: "
+            "focal_len, sensor_size, cx, cy give a camera "
+            f"out of range (f = {f:g}, pixel size = {size.tolist()})"
+        )
+    dist = [
+        float(numbers(k, 1, 0.0, scalar_ok=True)) if kind != "pinhole" else 0.0 for k in ("k1", "k2", "k3", "p1", "p2")
+    ]
     dist[3] = 0.0 - dist[3]  # OpenCV's p1 is for y down; photax's image plane has y up (photax.camera)
     return FrameCamera(f, principal_point, dist, pixel_size=size, image_size=(w, h))
 
@@ -175,8 +192,15 @@ def _read_csv(path: pathlib.Path, crs=None):
     rows = []
     for n, ln in lines:
         try:
-            rows.extend((n, [c.strip().strip("'") for c in row if c.strip()] if dialect.delimiter == " "
-                         else [c.strip().strip("'") for c in row]) for row in csv.reader([ln], dialect))
+            rows.extend(
+                (
+                    n,
+                    [c.strip().strip("'") for c in row if c.strip()]
+                    if dialect.delimiter == " "
+                    else [c.strip().strip("'") for c in row],
+                )
+                for row in csv.reader([ln], dialect)
+            )
         except csv.Error as exc:
             raise file_error(path, n, f"not a CSV line ({exc})") from None
     if not rows:
@@ -189,8 +213,10 @@ def _read_csv(path: pathlib.Path, crs=None):
             columns = _LLA_RPY
         missing = [c for c in columns if c not in header]
         if missing:
-            raise ValueError(f"{path}, line {lines[0][0]}: header lacks the columns {missing} (photax reads "
-                             "x, y, z, omega, phi, kappa or latitude, longitude, altitude, roll, pitch, yaw)")
+            raise ValueError(
+                f"{path}, line {lines[0][0]}: header lacks the columns {missing} (photax reads "
+                "x, y, z, omega, phi, kappa or latitude, longitude, altitude, roll, pitch, yaw)"
+            )
         index = [header.index(c) for c in columns]
     else:
         index = list(range(7))
@@ -201,8 +227,12 @@ def _read_csv(path: pathlib.Path, crs=None):
             vals = [float(v) for v in vals]
         except (IndexError, ValueError):
             if k == 0 and "filename" not in header:  # some other file: none of it quoted
-                raise file_error(path, n, "not an orthority exterior file (a CSV with a header filename, x, "
-                                 "y, z, omega, phi, kappa, or rows of those 7 values, expected)") from None
+                raise file_error(
+                    path,
+                    n,
+                    "not an orthority exterior file (a CSV with a header filename, x, "
+                    "y, z, omega, phi, kappa, or rows of those 7 values, expected)",
+                ) from None
             got = excerpt(row, 80)
             raise ValueError(f"{path}, line {n}: expected {', '.join(columns)}, got {got}") from None
         if not all(math.isfinite(v) for v in vals):
@@ -221,8 +251,9 @@ def _read_csv(path: pathlib.Path, crs=None):
         raise file_error(path, None, "no exterior orientations")
     values = np.asarray(values, dtype=float)
     if columns is _COLUMNS:
-        return {k: ExteriorOrientation(v[:3], np.radians(v[3:]), "omega-phi-kappa")
-                for k, v in zip(names, values)}, read_orthority_crs(path)
+        return {
+            k: ExteriorOrientation(v[:3], np.radians(v[3:]), "omega-phi-kappa") for k, v in zip(names, values)
+        }, read_orthority_crs(path)
     from ._geo import projected_crs, utm_crs
 
     lat, lon = values[:, 0], values[:, 1]
@@ -231,8 +262,7 @@ def _read_csv(path: pathlib.Path, crs=None):
         xyz, opk = lla_rpy_to_xyz_opk(values[:, :3], np.radians(values[:, 3:]), target)
     except ValueError as exc:
         raise file_error(path, None, str(exc)) from None
-    return {k: ExteriorOrientation(p, a, "omega-phi-kappa") for k, p, a in zip(names, xyz, opk)}, \
-        target.to_string()
+    return {k: ExteriorOrientation(p, a, "omega-phi-kappa") for k, p, a in zip(names, xyz, opk)}, target.to_string()
 
 
 #: Rotation from the camera frame (x right, y up, z back) to a drone's body frame
@@ -270,10 +300,17 @@ def read_orthority_geojson(path) -> tuple[dict[str, ExteriorOrientation], str]:
     omega-phi-kappa = photax's); the point geometry (lon, lat) is not used."""
     path = pathlib.Path(path)
     data = load_json(path, read_text(path, "orthority exterior file"))
-    if not isinstance(data, dict) or data.get("type") != "FeatureCollection" \
-            or not isinstance(data.get("features"), list):
-        raise file_error(path, None, "not an orthority exterior GeoJSON (a FeatureCollection with "
-                         "'world_crs' and features of filename, xyz, opk expected)")
+    if (
+        not isinstance(data, dict)
+        or data.get("type") != "FeatureCollection"
+        or not isinstance(data.get("features"), list)
+    ):
+        raise file_error(
+            path,
+            None,
+            "not an orthority exterior GeoJSON (a FeatureCollection with "
+            "'world_crs' and features of filename, xyz, opk expected)",
+        )
     crs = data.get("world_crs")
     if not isinstance(crs, str) or not crs.strip():
         raise file_error(path, None, "'world_crs' must be the CRS of the positions (WKT, EPSG or PROJ text)")
@@ -283,10 +320,17 @@ def read_orthority_geojson(path) -> tuple[dict[str, ExteriorOrientation], str]:
         name = props.get("filename") if isinstance(props, dict) else None
         xyz = as_numbers(props.get("xyz")) if isinstance(props, dict) else None
         opk = as_numbers(props.get("opk")) if isinstance(props, dict) else None
-        if not isinstance(name, str) or xyz is None or opk is None or xyz.shape != (3,) or opk.shape != (3,) \
-                or not np.all(np.isfinite(xyz) & np.isfinite(opk)):
-            raise file_error(path, None, f"feature {k}: properties need a filename, and xyz and opk of 3 "
-                             "finite numbers each")
+        if (
+            not isinstance(name, str)
+            or xyz is None
+            or opk is None
+            or xyz.shape != (3,)
+            or opk.shape != (3,)
+            or not np.all(np.isfinite(xyz) & np.isfinite(opk))
+        ):
+            raise file_error(
+                path, None, f"feature {k}: properties need a filename, and xyz and opk of 3 finite numbers each"
+            )
         key = pathlib.PurePath(name).stem
         if not key or key in out:
             raise file_error(path, None, f"feature {k}: an empty or repeated filename {excerpt(name)}")

@@ -48,7 +48,9 @@ def read_named_points(path, columns: tuple[str, str], what: str) -> tuple[list[s
             if not (math.isfinite(vals[-1][0]) and math.isfinite(vals[-1][1])):
                 raise ValueError
         except (ValueError, IndexError):
-            raise file_error(path, k, f"expected name,{columns[0]},{columns[1]} with finite numbers, got {','.join(r)}") from None
+            raise file_error(
+                path, k, f"expected name,{columns[0]},{columns[1]} with finite numbers, got {','.join(r)}"
+            ) from None
     if not names:
         raise file_error(path, None, f"no points in the {what}")
     if len(set(names)) != len(names):
@@ -60,8 +62,11 @@ def read_pixel_points(path, image_name: str | None = None):
     """``(names, approx (n, 2), table)`` from a GCP file or a ``name,col,row`` CSV
     (``table`` is the GCP table, or None for a plain list)."""
     path = pathlib.Path(path)
-    lines = [(i + 1, s) for i, s in enumerate(split_lines(read_text(path, "point file")))
-             if s.strip() and not s.lstrip().startswith("#")]
+    lines = [
+        (i + 1, s)
+        for i, s in enumerate(split_lines(read_text(path, "point file")))
+        if s.strip() and not s.lstrip().startswith("#")
+    ]
     if not lines:
         raise ValueError(f"{path}: no points")
     header = [h.strip().lower() for h in next(csv.reader([lines[0][1]]))]

@@ -82,9 +82,11 @@ def check_palette(path, src, resampling) -> dict | None:
     colour indices, which interpolation would turn into other colours (index 2 between 1 and 3)."""
     cmap = colormap(src)
     if cmap is not None and str(getattr(resampling, "value", resampling)) != "nearest":
-        raise ValueError(f"{path} is a palette image (its values index a colour map): only nearest-neighbour "
-                         f"resampling keeps them, got {str(getattr(resampling, 'value', resampling))!r}; "
-                         "use resampling='nearest' (--resampling nearest)")
+        raise ValueError(
+            f"{path} is a palette image (its values index a colour map): only nearest-neighbour "
+            f"resampling keeps them, got {str(getattr(resampling, 'value', resampling))!r}; "
+            "use resampling='nearest' (--resampling nearest)"
+        )
     return cmap
 
 
@@ -139,8 +141,9 @@ def read_dem(path, band: int = 1) -> DEM:
         raise ValueError(f"{path}: {exc}") from None
 
 
-def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(),
-                  compress: str | None = "deflate", mask=None) -> pathlib.Path:
+def write_geotiff(
+    path, array, transform, crs=None, nodata=None, *, inputs=(), compress: str | None = "deflate", mask=None
+) -> pathlib.Path:
     """Write a ``(bands, rows, cols)`` or ``(rows, cols)`` array as a GeoTIFF, atomically.
 
     Args:
@@ -166,8 +169,14 @@ def write_geotiff(path, array, transform, crs=None, nodata=None, *, inputs=(),
     if a.ndim != 3 or min(a.shape) < 1:
         raise ValueError(f"array must be (bands, rows, cols) or (rows, cols), got shape {np.shape(array)}")
     profile = dict(
-        driver="GTiff", width=a.shape[2], height=a.shape[1], count=a.shape[0], dtype=a.dtype,
-        crs=crs, nodata=nodata, BIGTIFF="IF_SAFER",
+        driver="GTiff",
+        width=a.shape[2],
+        height=a.shape[1],
+        count=a.shape[0],
+        dtype=a.dtype,
+        crs=crs,
+        nodata=nodata,
+        BIGTIFF="IF_SAFER",
     )
     if transform is not None:
         profile["transform"] = Affine(*tuple(transform)[:6])
@@ -262,8 +271,14 @@ def _gdal_failure(messages: list[str]) -> OSError:
     return OSError(no, f"GDAL: {text[:300]}")
 
 
-_UNIT_SYMBOLS = {"metre": "m", "meter": "m", "degree": "°", "foot": "ft", "US survey foot": "US survey ft",
-                 "kilometre": "km"}
+_UNIT_SYMBOLS = {
+    "metre": "m",
+    "meter": "m",
+    "degree": "°",
+    "foot": "ft",
+    "US survey foot": "US survey ft",
+    "kilometre": "km",
+}
 
 
 def crs_unit(crs) -> str | None:

@@ -9,8 +9,8 @@ import pathlib
 
 import numpy as np
 
-from .files import load_json, read_text
 from .atomic import atomic_write
+from .files import load_json, read_text
 
 
 def to_jsonable(obj):

@@ -45,21 +45,31 @@ def check_output_size(shape, bands: int, dtype, *, path=None, hint=None, compres
     pixels = rows * cols
     nbytes = pixels * int(bands) * np.dtype(dtype).itemsize
     if path is None:
-        room, where, fix = _available_memory(), "of memory available", (
-            "; a file output (rectify_file / orthorectify_file, streamed tile by tile) needs only disk space")
+        room, where, fix = (
+            _available_memory(),
+            "of memory available",
+            ("; a file output (rectify_file / orthorectify_file, streamed tile by tile) needs only disk space"),
+        )
     else:
         folder = pathlib.Path(path).resolve().parent
         room, fix = shutil.disk_usage(folder).free, ""
         where = f"free on the disk of {folder} (" + (
-            f"even at {BEST_RATIO}:1 compression)" if compressed else "uncompressed size)")
+            f"even at {BEST_RATIO}:1 compression)" if compressed else "uncompressed size)"
+        )
     if (nbytes / BEST_RATIO if path is not None and compressed else nbytes) > room:
         more = f"; {hint()}" if hint is not None else ""
         if path is not None:  # an OSError naming the output, as every failed write (photax.io.atomic)
             from .atomic import not_written
 
-            raise not_written(pathlib.Path(path), errno.ENOSPC, f"the output grid of {rows:,} x {cols:,} = "
-                              f"{pixels:,} pixels x {bands} band(s) needs {_human(nbytes)}, more than the "
-                              f"{_human(room)} {where}{more}")
-        raise ValueError(f"the output grid of {rows:,} x {cols:,} = {pixels:,} pixels x {bands} band(s) "
-                         f"needs "
-                         f"{_human(nbytes)}, more than the {_human(room)} {where}{fix}{more}")
+            raise not_written(
+                pathlib.Path(path),
+                errno.ENOSPC,
+                f"the output grid of {rows:,} x {cols:,} = "
+                f"{pixels:,} pixels x {bands} band(s) needs {_human(nbytes)}, more than the "
+                f"{_human(room)} {where}{more}",
+            )
+        raise ValueError(
+            f"the output grid of {rows:,} x {cols:,} = {pixels:,} pixels x {bands} band(s) "
+            f"needs "
+            f"{_human(nbytes)}, more than the {_human(room)} {where}{fix}{more}"
+        )

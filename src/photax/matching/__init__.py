@@ -15,8 +15,14 @@ measurement (:mod:`photax.measure`'s operators) and bundle adjustment.
   correspondences lie on rows, and points from x-parallax (:func:`epipolar_pair`).
 """
 
-from .epipolar import EpipolarPair as EpipolarPair, epipolar_pair as epipolar_pair
-from .registration import Registration as Registration, register_to_ortho as register_to_ortho
-from ._predict import monoplot_pixels as monoplot_pixels, project_pixels as project_pixels
-from .ties import TiePoints as TiePoints, bundle_problem as bundle_problem, match_ties as match_ties
-from .transfer import Transfer as Transfer, transfer_points as transfer_points
+from ._predict import monoplot_pixels as monoplot_pixels
+from ._predict import project_pixels as project_pixels
+from .epipolar import EpipolarPair as EpipolarPair
+from .epipolar import epipolar_pair as epipolar_pair
+from .registration import Registration as Registration
+from .registration import register_to_ortho as register_to_ortho
+from .ties import TiePoints as TiePoints
+from .ties import bundle_problem as bundle_problem
+from .ties import match_ties as match_ties
+from .transfer import Transfer as Transfer
+from .transfer import transfer_points as transfer_points

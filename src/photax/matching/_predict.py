@@ -73,8 +73,13 @@ def inside(px, size, margin: float) -> np.ndarray:
     w, h = size
     px = np.asarray(px)
     with np.errstate(invalid="ignore"):
-        return (np.all(np.isfinite(px), axis=-1) & (px[..., 0] >= margin) & (px[..., 0] <= w - 1 - margin)
-                & (px[..., 1] >= margin) & (px[..., 1] <= h - 1 - margin))
+        return (
+            np.all(np.isfinite(px), axis=-1)
+            & (px[..., 0] >= margin)
+            & (px[..., 0] <= w - 1 - margin)
+            & (px[..., 1] >= margin)
+            & (px[..., 1] <= h - 1 - margin)
+        )
 
 
 def check_block(images, camera: FrameCamera, exterior) -> tuple[np.ndarray, ExteriorOrientation]:
@@ -143,8 +148,9 @@ def match_chunks(stack, ti, si, txy, sxy, *, window: int, search: int, back: boo
     if pad:
         ti, si = np.concatenate([ti, np.repeat(ti[:1], pad)]), np.concatenate([si, np.repeat(si[:1], pad)])
         txy, sxy = (np.concatenate([a, np.repeat(a[:1], pad, 0)]) for a in (txy, sxy))
-    out: dict[str, list] = {k: [] for k in ("ncc_valid", "rho", "lsm_valid", "lsm_xy", "lsm_cov", "back_valid",
-                                             "back_xy")}
+    out: dict[str, list] = {
+        k: [] for k in ("ncc_valid", "rho", "lsm_valid", "lsm_xy", "lsm_cov", "back_valid", "back_xy")
+    }
     for a in range(0, len(ti), BATCH):
         b = slice(a, a + BATCH)
         T, S = jnp.asarray(stack[ti[b]]), jnp.asarray(stack[si[b]])
@@ -171,10 +177,10 @@ def chunks_of(groups: dict, fill_xy: np.ndarray) -> tuple[list, np.ndarray, np.n
     chunks, t_all, s_all = [], [], []
     for key, (idx, t, s) in groups.items():
         for a in range(0, len(idx), POINTS):
-            n = len(idx[a:a + POINTS])
+            n = len(idx[a : a + POINTS])
             tc, sc = np.broadcast_to(fill_xy, (POINTS, 2)).copy(), np.broadcast_to(fill_xy, (POINTS, 2)).copy()
-            tc[:n], sc[:n] = t[a:a + POINTS], s[a:a + POINTS]
-            chunks.append((key, idx[a:a + POINTS]))
+            tc[:n], sc[:n] = t[a : a + POINTS], s[a : a + POINTS]
+            chunks.append((key, idx[a : a + POINTS]))
             t_all.append(tc)
             s_all.append(sc)
     return chunks, np.array(t_all).reshape(-1, POINTS, 2), np.array(s_all).reshape(-1, POINTS, 2)

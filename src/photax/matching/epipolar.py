@@ -70,8 +70,15 @@ def _run(xy, rotation, r_epi, f_e, offset, camera, forward: bool) -> np.ndarray:
     m = max(256, 1 << max(n - 1, 1).bit_length())
     pad = np.zeros((m, 2))
     pad[:n] = xy
-    out = _map(jnp.asarray(pad), jnp.asarray(np.asarray(rotation, dtype=float)), jnp.asarray(r_epi), float(f_e),
-               jnp.asarray(np.asarray(offset, dtype=float)), camera, forward=forward)
+    out = _map(
+        jnp.asarray(pad),
+        jnp.asarray(np.asarray(rotation, dtype=float)),
+        jnp.asarray(r_epi),
+        float(f_e),
+        jnp.asarray(np.asarray(offset, dtype=float)),
+        camera,
+        forward=forward,
+    )
     return np.asarray(out)[:n]
 
 
@@ -162,8 +169,10 @@ def epipolar_frame(exterior_left: ExteriorOrientation, exterior_right: ExteriorO
     view /= np.linalg.norm(view)
     angle = np.degrees(np.arccos(min(1.0, abs(float(x @ view)))))
     if angle < _MIN_ANGLE:
-        raise ValueError(f"the baseline is {angle:.1f} degrees from the viewing direction (less than {_MIN_ANGLE}): "
-                         "the epipoles lie in or near the images, epipolar images would be absurdly scaled")
+        raise ValueError(
+            f"the baseline is {angle:.1f} degrees from the viewing direction (less than {_MIN_ANGLE}): "
+            "the epipoles lie in or near the images, epipolar images would be absurdly scaled"
+        )
     s = 1.0 if float(x @ (rl[:, 0] + rr[:, 0])) >= 0 else -1.0
     x = s * x
     z = -(view - (view @ x) * x)
@@ -172,9 +181,16 @@ def epipolar_frame(exterior_left: ExteriorOrientation, exterior_right: ExteriorO
     return np.column_stack([x, y, z]), s * length
 
 
-def epipolar_pair(image_left, image_right, camera: FrameCamera, exterior_left: ExteriorOrientation,
-                  exterior_right: ExteriorOrientation, *, resampling: Resampling | str = "cubic",
-                  nodata=None) -> EpipolarPair:
+def epipolar_pair(
+    image_left,
+    image_right,
+    camera: FrameCamera,
+    exterior_left: ExteriorOrientation,
+    exterior_right: ExteriorOrientation,
+    *,
+    resampling: Resampling | str = "cubic",
+    nodata=None,
+) -> EpipolarPair:
     """Resample two images of one camera into an epipolar (normalised) pair.
 
     Args:
@@ -205,8 +221,14 @@ def epipolar_pair(image_left, image_right, camera: FrameCamera, exterior_left: E
     f_e = float(np.asarray(camera.focal_length) / np.mean(np.asarray(camera.pixel_size)))
     # the outline of each original image, in epipolar image-plane pixels (origin at the principal point)
     t = np.linspace(0.0, 1.0, 33)
-    edge = np.concatenate([np.column_stack([t * (w - 1), 0 * t]), np.column_stack([t * (w - 1), 0 * t + h - 1]),
-                           np.column_stack([0 * t, t * (h - 1)]), np.column_stack([0 * t + w - 1, t * (h - 1)])])
+    edge = np.concatenate(
+        [
+            np.column_stack([t * (w - 1), 0 * t]),
+            np.column_stack([t * (w - 1), 0 * t + h - 1]),
+            np.column_stack([0 * t, t * (h - 1)]),
+            np.column_stack([0 * t + w - 1, t * (h - 1)]),
+        ]
+    )
     extent = {}
     for side, ext in (("left", exterior_left), ("right", exterior_right)):
         xy = _run(edge, ext.rotation, r_e, f_e, (0.0, 0.0), camera, True)
@@ -221,16 +243,26 @@ def epipolar_pair(image_left, image_right, camera: FrameCamera, exterior_left: E
         x_lo, x_hi = extent[side][:2]
         cols = int(np.ceil(x_hi - x_lo)) + 1
         if cols * rows > _MAX_AREA * w * h:
-            raise ValueError(f"the {side} epipolar image would be {cols} x {rows} px for a {w} x {h} image: "
-                             "the views are too oblique or convergent for epipolar resampling")
+            raise ValueError(
+                f"the {side} epipolar image would be {cols} x {rows} px for a {w} x {h} image: "
+                "the views are too oblique or convergent for epipolar resampling"
+            )
         offsets[side] = (float(-np.floor(x_lo)), float(np.ceil(y_hi)))
         cc, rr = np.meshgrid(np.arange(cols, dtype=float), np.arange(rows, dtype=float))
         ext = exterior_left if side == "left" else exterior_right
         n = rows * cols
         src = np.full((max(256, 1 << (n - 1).bit_length()), 2), np.nan)  # a power of two: few compilations
-        src[:n] = _run(np.column_stack([cc.ravel(), rr.ravel()]), ext.rotation, r_e, f_e, offsets[side], camera,
-                       False)
+        src[:n] = _run(np.column_stack([cc.ravel(), rr.ravel()]), ext.rotation, r_e, f_e, offsets[side], camera, False)
         out = np.asarray(resample(img, src[:, 0], src[:, 1], method, nodata=nodata))
         images[side] = out[..., :n].reshape(out.shape[:-1] + (rows, cols))
-    return EpipolarPair(left=images["left"], right=images["right"], rotation=r_e, focal_px=f_e, baseline=base,
-                        offsets=offsets, camera=camera, exterior_left=exterior_left, exterior_right=exterior_right)
+    return EpipolarPair(
+        left=images["left"],
+        right=images["right"],
+        rotation=r_e,
+        focal_px=f_e,
+        baseline=base,
+        offsets=offsets,
+        camera=camera,
+        exterior_left=exterior_left,
+        exterior_right=exterior_right,
+    )

@@ -86,6 +86,7 @@ def _residuals(p, base, image, ground, grey, camera, *, method):
 @jax.jit
 def _shift(p0, p1, base, ground, camera):
     """``(m,)`` px each ground point's image moves between the parameters ``p0`` and ``p1``."""
+
     def pix(p):
         ext = ExteriorOrientation(base[:3] + p[:3], base[3:6] + p[3:6])
         return camera.image_to_pixel(project(ground, ext, camera))
@@ -100,10 +101,22 @@ def _linearise(p, base, image, ground, grey, camera, *, method):
     return v, ok, jax.jacfwd(f)(p)
 
 
-def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation, reference_ortho, ortho_transform,
-                      dem: DEM, *, levels=(8, 4, 2, 1), max_steps: int = 15, tol: float = 1e-3,
-                      resampling: str = "bilinear", min_correlation: float = 0.8, throw: bool = True,
-                      method: str | None = None) -> Registration:
+def register_to_ortho(
+    image,
+    camera: FrameCamera,
+    exterior: ExteriorOrientation,
+    reference_ortho,
+    ortho_transform,
+    dem: DEM,
+    *,
+    levels=(8, 4, 2, 1),
+    max_steps: int = 15,
+    tol: float = 1e-3,
+    resampling: str = "bilinear",
+    min_correlation: float = 0.8,
+    throw: bool = True,
+    method: str | None = None,
+) -> Registration:
     """Refine ``exterior`` so that ``image`` matches ``reference_ortho`` (module docstring).
 
     Args:
@@ -173,8 +186,10 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
     m = max(256, 1 << (int(np.ceil(ref.shape[0] / finest) * np.ceil(ref.shape[1] / finest)) - 1).bit_length())
     for level in levels:
         img_l = gaussian_filter(img, 0.5 * level, mode="nearest") if level > 1 else img
-        ref_l = gaussian_filter(ref, 0.5 * level * _px_ratio(camera, ext0, a, dem), mode="nearest") if level > 1 else ref
-        rr, cc = np.mgrid[0:ref.shape[0]:level, 0:ref.shape[1]:level]
+        ref_l = (
+            gaussian_filter(ref, 0.5 * level * _px_ratio(camera, ext0, a, dem), mode="nearest") if level > 1 else ref
+        )
+        rr, cc = np.mgrid[0 : ref.shape[0] : level, 0 : ref.shape[1] : level]
         x = xoff + a * (cc + 0.5) + b * (rr + 0.5)
         y = yoff + d * (cc + 0.5) + e * (rr + 0.5)
         z = np.asarray(dem.height(jnp.asarray(x.ravel()), jnp.asarray(y.ravel())))
@@ -189,7 +204,7 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
         args = (base, jnp.asarray(img_l), jnp.asarray(ground), jnp.asarray(grey), camera)
         done = False
         k = 0
-        for k in range(1, max_steps + 1):
+        for k in range(1, max_steps + 1):  # noqa: B007 -- k, the steps taken, is kept after the loop
             v, ok, jac = (np.asarray(t) for t in _linearise(jnp.asarray(p), *args, method=method))
             w = (ok & live).astype(float)
             if w.sum() < 50:  # too few ground points inside the image to fit 8 parameters reliably
@@ -206,8 +221,13 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
                 break
             p = p + dp
             move = np.asarray(_shift(jnp.asarray(p - dp), jnp.asarray(p), base, jnp.asarray(ground), camera))
-            history.append({"level": level, "rmse": float(np.sqrt(np.sum(w * v * v) / w.sum())),
-                            "shift_px": float(np.max(move[w > 0]))})
+            history.append(
+                {
+                    "level": level,
+                    "rmse": float(np.sqrt(np.sum(w * v * v) / w.sum())),
+                    "shift_px": float(np.max(move[w > 0])),
+                }
+            )
             if np.max(move[w > 0]) < tol:  # the step moved no ground point's image by tol px
                 done = True
                 break
@@ -224,25 +244,40 @@ def register_to_ortho(image, camera: FrameCamera, exterior: ExteriorOrientation,
     out = ExteriorOrientation(np.asarray(base[:3]) + p[:3], np.asarray(base[3:]) + p[3:6], "phi-omega-kappa")
     out = out.to_convention(exterior.convention)
     if not overlap:
-        code, detail = RESULTS.implausible, (
-            f"only {int(sel.sum())} of the ortho's ground points fall inside the image at level {level}: "
-            "the orientation sees (almost) nothing of the reference orthophoto")
+        code, detail = (
+            RESULTS.implausible,
+            (
+                f"only {int(sel.sum())} of the ortho's ground points fall inside the image at level {level}: "
+                "the orientation sees (almost) nothing of the reference orthophoto"
+            ),
+        )
     elif not finite:
         code, detail = RESULTS.nonfinite, f"a Gauss-Newton step at level {level}"
     elif converged and not corr >= min_correlation:
-        code, detail = RESULTS.implausible, (
-            f"converged to a correlation of only {corr:.3f} (< {min_correlation}): a wrong match, "
-            "the start is too far off or the ortho does not show this image's ground")
+        code, detail = (
+            RESULTS.implausible,
+            (
+                f"converged to a correlation of only {corr:.3f} (< {min_correlation}): a wrong match, "
+                "the start is too far off or the ortho does not show this image's ground"
+            ),
+        )
     elif converged:
         code, detail = RESULTS.successful, f"correlation {corr:.4f}, grey rmse {rmss[-1]:.4g}"
     else:
-        code, detail = RESULTS.max_steps_reached, (
-            f"{max_steps} steps at the finest level (correlation {corr:.4f})")
+        code, detail = RESULTS.max_steps_reached, (f"{max_steps} steps at the finest level (correlation {corr:.4f})")
     msg = f"{code.text}: {detail}"
     if throw and code != RESULTS.successful:
         raise ConvergenceError(f"registration failed: {msg}")
-    return Registration(exterior=out, converged=code == RESULTS.successful, steps=steps, rmse=rmss,
-                        correlation=corr, message=msg, history=history, result=code)
+    return Registration(
+        exterior=out,
+        converged=code == RESULTS.successful,
+        steps=steps,
+        rmse=rmss,
+        correlation=corr,
+        message=msg,
+        history=history,
+        result=code,
+    )
 
 
 def _px_ratio(camera, ext, ortho_cell, dem) -> float:

@@ -112,9 +112,20 @@ def _pixel_size(camera: FrameCamera) -> float:
     return float(np.mean(np.asarray(camera._pixel_grid()[1])))
 
 
-def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: int = 150, window: int = 8,
-               search: int = 12, min_rho: float = 0.7, back_tol: float = 0.3, guide_tol: float = 1.0,
-               min_matches: int = 6) -> TiePoints:
+def match_ties(
+    images,
+    camera: FrameCamera,
+    exterior,
+    dem: DEM,
+    *,
+    max_points: int = 150,
+    window: int = 8,
+    search: int = 12,
+    min_rho: float = 0.7,
+    back_tol: float = 0.3,
+    guide_tol: float = 1.0,
+    min_matches: int = 6,
+) -> TiePoints:
     """Tie points between overlapping images, guided by approximate orientations and the DEM.
 
     Args:
@@ -155,7 +166,7 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
     n = max(max(len(p) for p in pts), 1)
     px = np.full((m, n, 2), np.nan)
     for k, p in enumerate(pts):
-        px[k, :len(p)] = p
+        px[k, : len(p)] = p
     ground = monoplot_pixels(px, eo, camera, dem)  # (m, n, 3)
     for k in range(m):
         if status[k] == "ok" and not np.any(np.all(np.isfinite(ground[k]), axis=1)):
@@ -174,8 +185,9 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
     for i, j in pairs:
         if status[i] != "ok" or status[j] != "ok":
             pair_status[i, j] = "textureless" if "textureless" in (status[i], status[j]) else "sees no DEM"
-    empty = TiePoints(np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 3)), {},
-                      pair_status, status)
+    empty = TiePoints(
+        np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 3)), {}, pair_status, status
+    )
     if not items:
         return empty
     it = np.array(items)
@@ -192,14 +204,20 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
     valid = np.zeros((nc, POINTS), bool)
     pid = np.zeros((nc, POINTS), int)
     for b, (_, sel) in enumerate(chunks):
-        valid[b, :len(sel)] = True
-        pid[b, :len(sel)] = sel
+        valid[b, : len(sel)] = True
+        pid[b, : len(sel)] = sel
     big = padded(stack, margin)
     mt = match_chunks(big, bi, bj, txy, sxy, window=window, search=search, back=True)
     txy, sxy = txy - margin, sxy - margin
     fxy = np.where(mt.lsm_valid[..., None], mt.lsm_xy - margin, sxy)
-    ok = (valid & mt.ncc_valid & (np.nan_to_num(mt.rho) >= min_rho) & mt.lsm_valid & mt.back_valid
-          & inside(fxy, size, window + 1))
+    ok = (
+        valid
+        & mt.ncc_valid
+        & (np.nan_to_num(mt.rho) >= min_rho)
+        & mt.lsm_valid
+        & mt.back_valid
+        & inside(fxy, size, window + 1)
+    )
     with np.errstate(invalid="ignore"):
         ok &= np.linalg.norm(mt.back_xy - margin - txy, axis=-1) <= back_tol
     sig = match_sigma(mt.lsm_cov) / np.sqrt(2.0)
@@ -233,12 +251,21 @@ def match_ties(images, camera: FrameCamera, exterior, dem: DEM, *, max_points: i
         gr.append(ground[i, p])
     if not oi:
         return dataclasses.replace(empty, pair_counts=counts)
-    return TiePoints(np.array(oi), np.array(op), np.array(oxy), np.array(osig), np.array(gr), counts, pair_status,
-                     status)
+    return TiePoints(
+        np.array(oi), np.array(op), np.array(oxy), np.array(osig), np.array(gr), counts, pair_status, status
+    )
 
 
-def bundle_problem(camera: FrameCamera, exterior, ties: TiePoints | None = None, gcps=None, *,
-                   image_names=None, point_sigma=0.0, sigma_floor: float = 0.0):
+def bundle_problem(
+    camera: FrameCamera,
+    exterior,
+    ties: TiePoints | None = None,
+    gcps=None,
+    *,
+    image_names=None,
+    point_sigma=0.0,
+    sigma_floor: float = 0.0,
+):
     """A :class:`photax.BundleProblem` from tie tracks and transferred GCPs.
 
     Args:
@@ -311,5 +338,16 @@ def bundle_problem(camera: FrameCamera, exterior, ties: TiePoints | None = None,
         pnames = [v for v, kk in zip(pnames, keep_pt) if kk]
     xy = np.asarray(camera.pixel_to_image(jnp.asarray(np.array(oxy, dtype=float))))
     sig = np.sqrt(np.array(osig) ** 2 + sigma_floor**2) * _pixel_size(camera)
-    return BundleProblem(camera, eo, np.array(pts, dtype=float), np.array(oi), np.array(op), xy, obs_sigma=sig,
-                         roles=roles, point_sigma=point_sigma, image_names=names, point_names=pnames)
+    return BundleProblem(
+        camera,
+        eo,
+        np.array(pts, dtype=float),
+        np.array(oi),
+        np.array(op),
+        xy,
+        obs_sigma=sig,
+        roles=roles,
+        point_sigma=point_sigma,
+        image_names=names,
+        point_names=pnames,
+    )

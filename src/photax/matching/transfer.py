@@ -27,8 +27,16 @@ from ._predict import check_block, chunks_of, inside, match_chunks, match_sigma,
 
 __all__ = ["Transfer", "transfer_points", "write_odm_gcps"]
 
-STATUSES = ("ok", "reference", "not in image", "behind camera", "low correlation", "not matched", "no reference",
-            "inconsistent")
+STATUSES = (
+    "ok",
+    "reference",
+    "not in image",
+    "behind camera",
+    "low correlation",
+    "not matched",
+    "no reference",
+    "inconsistent",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,10 +94,25 @@ def write_odm_gcps(path, table, *, crs: str | None = None) -> pathlib.Path:
     return pathlib.Path(path)
 
 
-def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, ground, *, names=None,
-                    image_names=None, reference_image=None, reference_xy=None, target_template=None, roles=None,
-                    window: int = 8, search: int = 12, min_rho: float = 0.7, min_rho_template: float = 0.6,
-                    crs: str | None = None) -> Transfer:
+def transfer_points(
+    images,
+    camera: FrameCamera,
+    exterior,
+    dem: DEM | None,
+    ground,
+    *,
+    names=None,
+    image_names=None,
+    reference_image=None,
+    reference_xy=None,
+    target_template=None,
+    roles=None,
+    window: int = 8,
+    search: int = 12,
+    min_rho: float = 0.7,
+    min_rho_template: float = 0.6,
+    crs: str | None = None,
+) -> Transfer:
     """Measure ground control points in every image that sees them.
 
     Args:
@@ -180,15 +203,18 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
         if np.any(np.array(tpl.shape) + 2 * margin > np.array(big.shape[1:])):
             raise ValueError(f"target_template: {tpl.shape} is too large for images of {size} px")
         canvas = np.zeros(big.shape[1:])
-        canvas[margin:margin + tpl.shape[0], margin:margin + tpl.shape[1]] = tpl
+        canvas[margin : margin + tpl.shape[0], margin : margin + tpl.shape[1]] = tpl
         tc = (np.array(tpl.shape[::-1]) - 1) / 2.0 + margin
         k_img = -2 - ref_i[cand]
-        groups = {k: (cand[k_img == k], np.broadcast_to(tc, (int(np.sum(k_img == k)), 2)),
-                      pred[k, cand[k_img == k]] + margin) for k in np.unique(k_img)}
+        groups = {
+            k: (cand[k_img == k], np.broadcast_to(tc, (int(np.sum(k_img == k)), 2)), pred[k, cand[k_img == k]] + margin)
+            for k in np.unique(k_img)
+        }
         chunks, txy, sxy = chunks_of(groups, tc)
         stack_t = np.concatenate([big, canvas[None]])
-        mt = match_chunks(stack_t, np.full(len(chunks), m), [k for k, _ in chunks], txy, sxy, window=window,
-                          search=search)
+        mt = match_chunks(
+            stack_t, np.full(len(chunks), m), [k for k, _ in chunks], txy, sxy, window=window, search=search
+        )
         lxy = mt.lsm_xy - margin
         for q, (k, pts) in enumerate(chunks):
             for slot, p in enumerate(pts):
@@ -219,8 +245,9 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
             groups.setdefault((int(ref_i[p]), k), []).append(p)
         groups = {(r, k): (np.array(ps), ref_xy[ps] + margin, pred[k, ps] + margin) for (r, k), ps in groups.items()}
         chunks, txy, sxy = chunks_of(groups, (np.asarray(size) - 1) / 2.0 + margin)
-        mt = match_chunks(big, [r for (r, _), _ in chunks], [k for (_, k), _ in chunks], txy, sxy, window=window,
-                          search=search)
+        mt = match_chunks(
+            big, [r for (r, _), _ in chunks], [k for (_, k), _ in chunks], txy, sxy, window=window, search=search
+        )
         lxy = mt.lsm_xy - margin
         sig = match_sigma(mt.lsm_cov)
         for q, ((_, k), pts) in enumerate(chunks):
@@ -248,9 +275,19 @@ def transfer_points(images, camera: FrameCamera, exterior, dem: DEM | None, grou
                     out_xy[k, p] = np.nan
 
     rows = [(k, p) for p in range(n) for k in range(m) if status[k, p] in ("ok", "reference")]
-    items_out = [dict(name=names[p], image=inames[k], status=str(status[k, p]), predicted=pred[k, p],
-                      xy=out_xy[k, p], sigma=out_sig[k, p], rho=out_rho[k, p])
-                 for p in range(n) for k in range(m)]
+    items_out = [
+        dict(
+            name=names[p],
+            image=inames[k],
+            status=str(status[k, p]),
+            predicted=pred[k, p],
+            xy=out_xy[k, p],
+            sigma=out_sig[k, p],
+            rho=out_rho[k, p],
+        )
+        for p in range(n)
+        for k in range(m)
+    ]
     take = lambda f: np.array([f(k, p) for k, p in rows]) if rows else None  # noqa: E731
     table = GCPTable(
         names=np.array([names[p] for _, p in rows], dtype=str),

@@ -9,7 +9,7 @@ same units).
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -30,7 +30,9 @@ def as_image(image, name: str = "image", *, min_size: int = 1, convert: bool = T
     if dtype is None:
         image = np.asarray(image)
         dtype = image.dtype
-    if not (jnp.issubdtype(dtype, jnp.integer) or jnp.issubdtype(dtype, jnp.floating) or dtype == bool):
+    if not (
+        jnp.issubdtype(dtype, jnp.integer) or jnp.issubdtype(dtype, jnp.floating) or np.issubdtype(dtype, np.bool_)
+    ):
         raise ValueError(f"{name}: expected an integer, boolean or float image, got dtype {dtype}")
     ndim = len(image.shape)
     if ndim not in (2, 3):

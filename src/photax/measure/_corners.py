@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import functools
 import math
+
 import jax
 import jax.numpy as jnp
 from jax import Array
@@ -118,11 +119,22 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
     ninv = jnp.array([[n[1, 1], -n[0, 1]], [-n[0, 1], n[0, 0]]]) / jnp.where(det > 0, det, 1.0)
     cov = s0sq * ninv
     status = jnp.select(
-        [~inside, ~finite, tr0 <= 1e-12 * (1.0 + jnp.max(jnp.abs(p)) ** 2), q < q_min,
-         ~(det > 1e-9 * tr**2) | (step > 1e-4),
-         jnp.max(jnp.abs(c - xy0)) > half],
-        [Status.OUTSIDE, Status.NOT_FINITE, Status.TEXTURELESS, Status.ILL_CONDITIONED, Status.NOT_CONVERGED,
-         Status.LEFT_WINDOW],
+        [
+            ~inside,
+            ~finite,
+            tr0 <= 1e-12 * (1.0 + jnp.max(jnp.abs(p)) ** 2),
+            q < q_min,
+            ~(det > 1e-9 * tr**2) | (step > 1e-4),
+            jnp.max(jnp.abs(c - xy0)) > half,
+        ],
+        [
+            Status.OUTSIDE,
+            Status.NOT_FINITE,
+            Status.TEXTURELESS,
+            Status.ILL_CONDITIONED,
+            Status.NOT_CONVERGED,
+            Status.LEFT_WINDOW,
+        ],
         Status.OK,
     )
     return c, cov, status, jnp.sqrt(s0sq), k
@@ -130,8 +142,9 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
 
 @functools.partial(jax.jit, static_argnames=("half", "exclude", "iterations", "q_min", "smooth", "d0"))
 def _corners(images, xy, *, half, exclude, iterations, q_min, smooth, d0):
-    one = functools.partial(_corner_one, half=half, exclude=exclude, iterations=iterations, q_min=q_min,
-                            smooth=smooth, d0=d0)
+    one = functools.partial(
+        _corner_one, half=half, exclude=exclude, iterations=iterations, q_min=q_min, smooth=smooth, d0=d0
+    )
     per_image = jax.vmap(one, in_axes=(None, 0))  # points
     c, cov, st, s0, k = jax.vmap(per_image)(images, xy)  # images
     return finish(c, cov, st, s0, k)
@@ -195,6 +208,14 @@ def locate_corners(
     images, batched = as_images(image)
     check_window(2 * (window + _margin(smooth)) + 1, images.shape[1:])
     xy = as_points(approx_xy, images.shape[0], batched)
-    res = _corners(images, xy, half=int(window), exclude=float(exclude), iterations=int(iterations), q_min=float(q_min),
-                   smooth=float(smooth), d0=float(d0))
+    res = _corners(
+        images,
+        xy,
+        half=int(window),
+        exclude=float(exclude),
+        iterations=int(iterations),
+        q_min=float(q_min),
+        smooth=float(smooth),
+        d0=float(d0),
+    )
     return res if batched else jax.tree_util.tree_map(lambda a: a[0], res)

@@ -103,8 +103,9 @@ def laplace(image, *, mode: Mode = "reflect"):
 def _log(img, sigma, mode, truncate):
     k0 = gaussian_kernel1d(sigma, 0, truncate)
     k2 = gaussian_kernel1d(sigma, 2, truncate)
-    return (correlate1d(correlate1d(img, k2, 0, mode), k0, 1, mode)
-            + correlate1d(correlate1d(img, k0, 0, mode), k2, 1, mode))
+    return correlate1d(correlate1d(img, k2, 0, mode), k0, 1, mode) + correlate1d(
+        correlate1d(img, k0, 0, mode), k2, 1, mode
+    )
 
 
 @jax.jit
@@ -163,9 +164,10 @@ def log(image, sigma: float = 2.0, *, threshold: float = 0.0, mode: Mode = "refl
 
 # ----------------------------------------------------------------- Canny
 
+
 def _shift(p, dr, dc, h, w):
     """``m[r + dr, c + dc]`` from ``p`` = ``m`` padded by one pixel."""
-    return p[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
+    return p[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
 
 
 def _nonmax_bilinear(isobel, jsobel, mag, low):
@@ -248,8 +250,9 @@ def _hysteresis_host(low_mask, high_mask):
     """Hysteresis by ``scipy.ndimage.label`` (union-find, one pass over the
     image) through ``jax.pure_callback``: still jittable and vmappable
     (sequentially over a batch)."""
-    return jax.pure_callback(_label_host, jax.ShapeDtypeStruct(low_mask.shape, jnp.bool_), low_mask, high_mask,
-                             vmap_method="sequential")
+    return jax.pure_callback(
+        _label_host, jax.ShapeDtypeStruct(low_mask.shape, jnp.bool_), low_mask, high_mask, vmap_method="sequential"
+    )
 
 
 @partial(jax.jit, static_argnames=("sigma", "mode", "cval", "hysteresis"))
@@ -260,8 +263,12 @@ def _canny(img, low, high, sigma, mode, cval, hysteresis="host"):
         # zero padding does not pull the border down ("bleed-over").
         if cval == 0.0:  # separable: the outer product of two 1-D profiles, no second 2-D pass
             k = gaussian_kernel1d(sigma)
-            prof = [np.convolve(np.ones(n), k, mode="same") if len(k) <= n else
-                    ndi.correlate1d(np.ones(n), k, mode="constant") for n in img.shape]
+            prof = [
+                np.convolve(np.ones(n), k, mode="same")
+                if len(k) <= n
+                else ndi.correlate1d(np.ones(n), k, mode="constant")
+                for n in img.shape
+            ]
             # broadcast in the graph, not an (h, w) constant XLA would fold and embed
             bleed = jnp.asarray(prof[0])[:, None] * jnp.asarray(prof[1])[None, :] + np.finfo(np.float64).eps
         else:
@@ -281,8 +288,16 @@ def _canny(img, low, high, sigma, mode, cval, hysteresis="host"):
     return _hysteresis_host(low_mask, high_mask)
 
 
-def canny(image, sigma: float = 1.0, low_threshold=None, high_threshold=None, *, mode: Mode = "constant",
-          cval: float = 0.0, hysteresis: Literal["host", "jax"] = "host"):
+def canny(
+    image,
+    sigma: float = 1.0,
+    low_threshold=None,
+    high_threshold=None,
+    *,
+    mode: Mode = "constant",
+    cval: float = 0.0,
+    hysteresis: Literal["host", "jax"] = "host",
+):
     """Canny edge detector: Gaussian smoothing, Sobel gradient magnitude and
     direction, non-maximum suppression along the gradient (interpolated
     between neighbours) and hysteresis (8-connected).

@@ -37,8 +37,9 @@ def pad(image: jax.Array, widths, mode: Mode = "reflect", cval: float = 0.0) -> 
     return jax.lax.optimization_barrier(jnp.pad(image, widths, mode=_NP_MODE[mode]))
 
 
-def correlate1d(image: jax.Array, weights, axis: int, mode: Mode | Literal["valid"] = "reflect", cval: float = 0.0,
-                origin: int = 0) -> jax.Array:
+def correlate1d(
+    image: jax.Array, weights, axis: int, mode: Mode | Literal["valid"] = "reflect", cval: float = 0.0, origin: int = 0
+) -> jax.Array:
     """``scipy.ndimage.correlate1d`` on a 2-D image: ``out[i] = sum_j w[j] in[i + j - c]``
     with ``c = len(w) // 2 + origin``.  ``weights`` are static (numpy).
 
@@ -81,7 +82,7 @@ def correlate2d(image: jax.Array, kernel, mode: Mode = "reflect", cval: float = 
         for j in range(kw):
             if kernel[i, j] == 0.0:
                 continue
-            term = p[i:i + h, j:j + w] * kernel[i, j]
+            term = p[i : i + h, j : j + w] * kernel[i, j]
             out = term if out is None else out + term
     return jnp.zeros_like(image) if out is None else out
 
@@ -111,8 +112,9 @@ def gaussian_kernel1d(sigma: float, order: int = 0, truncate: float = 4.0) -> np
     return (q(x) * phi)[::-1]  # gaussian_filter1d reverses the kernel before correlating
 
 
-def gaussian(image: jax.Array, sigma: float, mode: Mode = "reflect", cval: float = 0.0,
-             truncate: float = 4.0) -> jax.Array:
+def gaussian(
+    image: jax.Array, sigma: float, mode: Mode = "reflect", cval: float = 0.0, truncate: float = 4.0
+) -> jax.Array:
     """Separable Gaussian smoothing of a 2-D image (``scipy.ndimage.gaussian_filter``)."""
     k = gaussian_kernel1d(sigma, 0, truncate)
     return correlate1d(correlate1d(image, k, 0, mode, cval), k, 1, mode, cval)
@@ -131,7 +133,7 @@ def sobel_pair(image: jax.Array, mode: Mode = "reflect", cval: float = 0.0, smoo
     p = pad(image, [(1, 1), (1, 1)], mode, cval)
 
     def s(dr, dc):
-        return p[1 + dr:1 + dr + h, 1 + dc:1 + dc + w]
+        return p[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
 
     a, b, c = smooth
     d_rows = a * (s(1, -1) - s(-1, -1)) + b * (s(1, 0) - s(-1, 0)) + c * (s(1, 1) - s(-1, 1))
@@ -187,8 +189,13 @@ def _gradient2d(image, method, mode, sigma=1.0):
     return gx, gy
 
 
-def gradient(image, method: Literal["sobel", "prewitt", "central", "gaussian"] = "sobel", *,
-             sigma: float = 1.0, mode: Mode | Literal["valid"] = "reflect"):
+def gradient(
+    image,
+    method: Literal["sobel", "prewitt", "central", "gaussian"] = "sobel",
+    *,
+    sigma: float = 1.0,
+    mode: Mode | Literal["valid"] = "reflect",
+):
     """Image gradient ``(gx, gy)``: derivatives along columns (x, right) and
     rows (y, down), in grey values per pixel, at the pixel centres.
 
@@ -222,8 +229,9 @@ def max_filter(image: jax.Array, size: int) -> jax.Array:
     """Maximum over a ``size`` x ``size`` window centred on each pixel;
     outside the image counts as -inf."""
     r = size // 2
-    return jax.lax.reduce_window(image, -jnp.inf, jax.lax.max, (size, size), (1, 1),
-                                 [(r, size - 1 - r), (r, size - 1 - r)])
+    return jax.lax.reduce_window(
+        image, -jnp.inf, jax.lax.max, (size, size), (1, 1), [(r, size - 1 - r), (r, size - 1 - r)]
+    )
 
 
 def box_sum(image: jax.Array, size: int, mode: Mode = "constant") -> jax.Array:

@@ -110,8 +110,16 @@ def _same_line(t1, r1, t2, r2, dt, dr):
     return False
 
 
-def hough_lines(edges, *, theta_step: float = math.radians(0.5), rho_step: float = 1.0,
-                threshold: float = 0.5, max_lines: int = 10, min_distance: int = 5, refine: bool = True):
+def hough_lines(
+    edges,
+    *,
+    theta_step: float = math.radians(0.5),
+    rho_step: float = 1.0,
+    threshold: float = 0.5,
+    max_lines: int = 10,
+    min_distance: int = 5,
+    refine: bool = True,
+):
     """Straight lines by the Hough transform, refined below the bin size.
 
     Each edge pixel (x, y) with weight ``e[y, x]`` (a boolean map counts 1)
@@ -144,8 +152,9 @@ def hough_lines(edges, *, theta_step: float = math.radians(0.5), rho_step: float
     n_rho = 2 * int(math.ceil(dmax / rho_step)) + 3
     rho0 = -(n_rho // 2) * rho_step
     rhos = rho0 + np.arange(n_rho) * rho_step
-    acc = np.asarray(_line_accumulator(jnp.asarray(xy), jnp.asarray(wts), jnp.asarray(thetas),
-                                       rho0, float(rho_step), n_rho))
+    acc = np.asarray(
+        _line_accumulator(jnp.asarray(xy), jnp.asarray(wts), jnp.asarray(thetas), rho0, float(rho_step), n_rho)
+    )
     empty = HoughLines(np.zeros(0), np.zeros(0), np.zeros(0), acc, thetas, rhos)
     if len(xs) == 0 or acc.max() <= 0:
         return empty
@@ -156,8 +165,10 @@ def hough_lines(edges, *, theta_step: float = math.radians(0.5), rho_step: float
             break
         # theta = 0 and theta = pi are the same line with rho negated: a line
         # near theta = 0 may peak at both ends of the accumulator; keep one
-        if any(_same_line(thetas[i], rhos[j], t, r, min_distance * (math.pi / n_theta), min_distance * rho_step)
-               for t, r in zip(out_t, out_r)):
+        if any(
+            _same_line(thetas[i], rhos[j], t, r, min_distance * (math.pi / n_theta), min_distance * rho_step)
+            for t, r in zip(out_t, out_r)
+        ):
             continue
         z = acc[i, j]
         # neighbours in theta: across 0/pi the line is (theta -+ pi, -rho)
@@ -190,8 +201,9 @@ def _refine_line(xs, ys, ws, theta: float, rho: float, band: float) -> tuple[flo
         wsel = ws[sel]
         mx, my = np.average(xs[sel], weights=wsel), np.average(ys[sel], weights=wsel)
         dx, dy = xs[sel] - mx, ys[sel] - my
-        cov = np.array([[np.sum(wsel * dx * dx), np.sum(wsel * dx * dy)],
-                        [np.sum(wsel * dx * dy), np.sum(wsel * dy * dy)]])
+        cov = np.array(
+            [[np.sum(wsel * dx * dx), np.sum(wsel * dx * dy)], [np.sum(wsel * dx * dy), np.sum(wsel * dy * dy)]]
+        )
         _, evecs = np.linalg.eigh(cov)
         nrm = evecs[:, 0]  # normal = direction of least spread
         if nrm @ np.array([math.cos(theta), math.sin(theta)]) < 0:
@@ -218,8 +230,9 @@ def _circle_accumulator(xy, wts, radius, shape, n_phi):
     return acc[1:-1, 1:-1]
 
 
-def hough_circles(edges, radii, *, threshold: float = 0.3, max_circles: int = 10, min_distance: int = 3,
-                  refine: bool = True):
+def hough_circles(
+    edges, radii, *, threshold: float = 0.3, max_circles: int = 10, min_distance: int = 3, refine: bool = True
+):
     """Circles of known radii by the Hough transform.
 
     Each edge pixel votes, for each radius r, for the centres on the circle

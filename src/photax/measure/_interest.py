@@ -30,8 +30,8 @@ import numpy as np
 from ._common import as_image, batched, check_odd_window, inner_mask
 from ._filters import Mode, box_sum, gaussian, max_filter, sobel_pair
 
-
 # ----------------------------------------------------------------- Moravec
+
 
 @partial(jax.jit, static_argnames=("window",))
 def _moravec_seed(img, window):
@@ -40,7 +40,7 @@ def _moravec_seed(img, window):
     p = jnp.pad(img, k + 1)
 
     def s(dr, dc):
-        return p[k + 1 + dr:k + 1 + dr + h, k + 1 + dc:k + 1 + dc + w]
+        return p[k + 1 + dr : k + 1 + dr + h, k + 1 + dc : k + 1 + dc + w]
 
     vs = []
     for dr, dc in ((0, 1), (1, 1), (1, 0), (1, -1)):  # row, diagonal, column, anti-diagonal
@@ -64,7 +64,7 @@ def _moravec_shift(img, window):
         for bc in range(-k, k + 1):
             if br == 0 or bc == 0:  # scikit-image's loop keeps only shifts off both axes
                 continue
-            d = img - p[k + br:k + br + h, k + bc:k + bc + w]
+            d = img - p[k + br : k + br + h, k + bc : k + bc + w]
             best = jnp.minimum(best, box_sum(d * d, window))
     inside = inner_mask((h, w), 2 * k)
     return jnp.where(inside, best, 0.0)
@@ -108,6 +108,7 @@ def moravec(image, window: int = 5, *, method: Literal["seed", "shift"] = "seed"
 
 # ----------------------------------------------------- structure tensor
 
+
 def _structure_roberts_box(img, window):
     # Roberts gradients at the half-pixel points (i + 1/2, j + 1/2); the
     # window of pixel (r, c) holds those with i in r-k..r+k-1 (and j alike),
@@ -123,7 +124,7 @@ def _structure_roberts_box(img, window):
         c = jnp.cumsum(jnp.cumsum(p, 0), 1)
         c = jnp.pad(c, [(1, 0), (1, 0)])
         # sum over p[r .. r+2k-1, c .. c+2k-1] for r in 0..h-1
-        return c[2 * k:2 * k + h, 2 * k:2 * k + w] - c[:h, 2 * k:2 * k + w] - c[2 * k:2 * k + h, :w] + c[:h, :w]
+        return c[2 * k : 2 * k + h, 2 * k : 2 * k + w] - c[:h, 2 * k : 2 * k + w] - c[2 * k : 2 * k + h, :w] + c[:h, :w]
 
     return wsum(gu * gu), wsum(gu * gv), wsum(gv * gv)
 
@@ -132,8 +133,7 @@ def _structure_sobel_gauss(img, sigma, mode="constant"):
     # skimage.feature.structure_tensor: unnormalised Sobel (mode constant),
     # products smoothed by a Gaussian (mode constant, truncate 4)
     gr, gc = sobel_pair(img, mode)
-    return (gaussian(gr * gr, sigma, mode), gaussian(gr * gc, sigma, mode),
-            gaussian(gc * gc, sigma, mode))
+    return (gaussian(gr * gr, sigma, mode), gaussian(gr * gc, sigma, mode), gaussian(gc * gc, sigma, mode))
 
 
 def _safe_div(num, den):
@@ -200,8 +200,15 @@ def _harris(img, k, eps, sigma, method, mode):
     return 2.0 * det / (tr + eps)
 
 
-def harris(image, *, k: float = 0.05, sigma: float = 1.0, method: Literal["k", "eps"] = "k", eps: float = 1e-6,
-           mode: Mode = "constant"):
+def harris(
+    image,
+    *,
+    k: float = 0.05,
+    sigma: float = 1.0,
+    method: Literal["k", "eps"] = "k",
+    eps: float = 1e-6,
+    mode: Mode = "constant",
+):
     """Harris corner response (Harris & Stephens 1988).
 
     ``det A - k tr(A)^2`` (``method="k"``) or Noble's ``2 det A / (tr A +
@@ -228,6 +235,7 @@ def harris(image, *, k: float = 0.05, sigma: float = 1.0, method: Literal["k", "
 
 
 # ------------------------------------------------ non-maximum suppression
+
 
 @partial(jax.jit, static_argnames=("size",))
 def _nms(resp, threshold, size):
@@ -259,11 +267,21 @@ class InterestPoints(NamedTuple):
     strength: np.ndarray  #: (n,) the operator's value at each point
 
 
-def interest_points(image, method: Literal["foerstner", "harris", "moravec"] = "foerstner", *,
-                    window: int = 5, min_distance: int = 3, max_points: int | None = None,
-                    q_threshold: float = 0.75, w_factor: float = 1.0, w_reference: Literal["mean", "median"] = "mean",
-                    threshold: float | None = None, threshold_rel: float = 0.01, sigma: float = 1.0,
-                    k: float = 0.05) -> InterestPoints:
+def interest_points(
+    image,
+    method: Literal["foerstner", "harris", "moravec"] = "foerstner",
+    *,
+    window: int = 5,
+    min_distance: int = 3,
+    max_points: int | None = None,
+    q_threshold: float = 0.75,
+    w_factor: float = 1.0,
+    w_reference: Literal["mean", "median"] = "mean",
+    threshold: float | None = None,
+    threshold_rel: float = 0.01,
+    sigma: float = 1.0,
+    k: float = 0.05,
+) -> InterestPoints:
     """Interest points of one image: operator, thresholds, local maxima.
 
     * ``"foerstner"`` (seed 004): candidates with ``q > q_threshold`` and
@@ -295,7 +313,7 @@ def interest_points(image, method: Literal["foerstner", "harris", "moravec"] = "
         wv, qv = foerstner(img, window)
         wv_np = np.asarray(wv)
         kk = window // 2
-        inner = wv_np[kk:wv_np.shape[0] - kk, kk:wv_np.shape[1] - kk]
+        inner = wv_np[kk : wv_np.shape[0] - kk, kk : wv_np.shape[1] - kk]
         if inner.size == 0:
             return InterestPoints(np.zeros((0, 2)), np.zeros(0))
         ref = float(np.mean(inner) if w_reference == "mean" else np.median(inner))

@@ -129,8 +129,13 @@ def _ncc_one(timg, txy, simg, sxy, *, half, search):
     cov = sn2 * minv
     edge = (ix == 1) | (ix == m - 2) | (iy == 1) | (iy == m - 2)
     status = jnp.select(
-        [~(t_in & s_in), ~(t_fin & s_fin), tt <= 1e-12 * (1 + jnp.max(jnp.abs(t))) ** 2 * n, ~(r0 > 0) | (det <= 0),
-         edge],
+        [
+            ~(t_in & s_in),
+            ~(t_fin & s_fin),
+            tt <= 1e-12 * (1 + jnp.max(jnp.abs(t))) ** 2 * n,
+            ~(r0 > 0) | (det <= 0),
+            edge,
+        ],
         [Status.OUTSIDE, Status.NOT_FINITE, Status.TEXTURELESS, Status.ILL_CONDITIONED, Status.LEFT_WINDOW],
         Status.OK,
     )
@@ -144,8 +149,9 @@ def _ncc(timg, txy, simg, sxy, *, half, search):
     return finish(xy, cov, st, s0, k), jnp.where(st == Status.OK, rho, jnp.nan)
 
 
-def match_ncc(template_image, template_xy, search_image, approx_xy, *, window: int = 10, search: int = 5,
-              return_rho: bool = False):
+def match_ncc(
+    template_image, template_xy, search_image, approx_xy, *, window: int = 10, search: int = 5, return_rho: bool = False
+):
     """Match template windows into a search image by normalised cross-correlation.
 
     Args:
@@ -163,8 +169,15 @@ def match_ncc(template_image, template_xy, search_image, approx_xy, *, window: i
         noise level ``sigma_n`` in grey values; a peak on the border of the
         search range gets ``Status.LEFT_WINDOW``), and ``rho`` if asked.
     """
-    res, rho = _pair(template_image, template_xy, search_image, approx_xy, window, window + search + 1,
-                     lambda ti, tx, si, sx: _ncc(ti, tx, si, sx, half=int(window), search=int(search)))
+    res, rho = _pair(
+        template_image,
+        template_xy,
+        search_image,
+        approx_xy,
+        window,
+        window + search + 1,
+        lambda ti, tx, si, sx: _ncc(ti, tx, si, sx, half=int(window), search=int(search)),
+    )
     if search < 1:
         raise ValueError(f"search: must be >= 1 px, got {search}")
     return (res, rho) if return_rho else res
@@ -234,11 +247,22 @@ def _lsm_one(timg, txy, simg, sxy, *, half, margin, iterations, tol):
     xy = cf + jnp.array([p[0], p[3]])
     tflat = jnp.std(g1) <= 1e-9 * (1 + jnp.max(jnp.abs(g1)))
     status = jnp.select(
-        [~(t_in & s_in), ~(t_fin & s_fin), tflat, ~jnp.all(jnp.isfinite(p)) | ~(p[7] > 0) | ~jnp.all(jnp.isfinite(cov)),
-         jnp.max(jnp.abs(dp[idx])) > tol,
-         (jnp.max(jnp.abs(p[idx])) > margin - 3) | (jnp.max(jnp.abs(p[jnp.array([1, 2, 4, 5])])) > 0.5)],
-        [Status.OUTSIDE, Status.NOT_FINITE, Status.TEXTURELESS, Status.ILL_CONDITIONED, Status.NOT_CONVERGED,
-         Status.LEFT_WINDOW],
+        [
+            ~(t_in & s_in),
+            ~(t_fin & s_fin),
+            tflat,
+            ~jnp.all(jnp.isfinite(p)) | ~(p[7] > 0) | ~jnp.all(jnp.isfinite(cov)),
+            jnp.max(jnp.abs(dp[idx])) > tol,
+            (jnp.max(jnp.abs(p[idx])) > margin - 3) | (jnp.max(jnp.abs(p[jnp.array([1, 2, 4, 5])])) > 0.5),
+        ],
+        [
+            Status.OUTSIDE,
+            Status.NOT_FINITE,
+            Status.TEXTURELESS,
+            Status.ILL_CONDITIONED,
+            Status.NOT_CONVERGED,
+            Status.LEFT_WINDOW,
+        ],
         Status.OK,
     )
     return xy, cov, status, jnp.sqrt(s02), k, p
@@ -251,8 +275,18 @@ def _lsm(timg, txy, simg, sxy, *, half, margin, iterations, tol):
     return finish(xy, cov, st, s0, k), jnp.where((st == Status.OK)[..., None], p, jnp.nan)
 
 
-def match_lsm(template_image, template_xy, search_image, approx_xy, *, window: int = 10, margin: int | None = None,
-              iterations: int = 30, tol: float = 1e-3, return_params: bool = False):
+def match_lsm(
+    template_image,
+    template_xy,
+    search_image,
+    approx_xy,
+    *,
+    window: int = 10,
+    margin: int | None = None,
+    iterations: int = 30,
+    tol: float = 1e-3,
+    return_params: bool = False,
+):
     """Least-squares matching (Gruen 1985): 6 affine + 2 radiometric parameters.
 
     Args:
@@ -281,9 +315,17 @@ def match_lsm(template_image, template_xy, search_image, approx_xy, *, window: i
     margin = int(margin) if margin is not None else max(5, window // 2)
     if window < 2:
         raise ValueError(f"window: half-size must be >= 2 px, got {window}")
-    res, p = _pair(template_image, template_xy, search_image, approx_xy, window, window + margin + 2,
-                   lambda ti, tx, si, sx: _lsm(ti, tx, si, sx, half=int(window), margin=margin,
-                                               iterations=int(iterations), tol=float(tol)))
+    res, p = _pair(
+        template_image,
+        template_xy,
+        search_image,
+        approx_xy,
+        window,
+        window + margin + 2,
+        lambda ti, tx, si, sx: _lsm(
+            ti, tx, si, sx, half=int(window), margin=margin, iterations=int(iterations), tol=float(tol)
+        ),
+    )
     return (res, p) if return_params else res
 
 
@@ -291,8 +333,10 @@ def _pair(template_image, template_xy, search_image, approx_xy, half_t, half_s, 
     timg, tb = as_images(template_image, "template_image")
     simg, sb = as_images(search_image, "search_image")
     if tb != sb or timg.shape[0] != simg.shape[0]:
-        raise ValueError(f"template_image {timg.shape} and search_image {simg.shape}: give both as single images "
-                         "or both as batches of the same length")
+        raise ValueError(
+            f"template_image {timg.shape} and search_image {simg.shape}: give both as single images "
+            "or both as batches of the same length"
+        )
     check_window(2 * (half_t + 2) + 1, timg.shape[1:], "window")
     check_window(2 * half_s + 1, simg.shape[1:], "window")
     txy = as_points(template_xy, timg.shape[0], tb, "template_xy")

@@ -38,9 +38,9 @@ MESSAGES = {
     Status.NOT_CONVERGED: "did not converge",
     Status.LEFT_WINDOW: "moved out of the window",
     Status.ILL_CONDITIONED: "ill-conditioned (gradients in one direction only: an edge, not a point; "
-                            "or a match with no positive correlation)",
+    "or a match with no positive correlation)",
     Status.NO_TARGET: "no target found (no disc stands out of the background, no quartered pattern, "
-                      "or the disc touches the window border)",
+    "or the disc touches the window border)",
     Status.NOT_FINITE: "non-finite pixel values in the window",
 }
 
@@ -144,7 +144,9 @@ def as_points(approx_xy, batch: int, batched: bool, name: str = "approx_xy") -> 
 def check_window(size: int, shape, name: str = "window") -> None:
     """A window of ``size`` px (plus margin) must fit in the ``(h, w)`` image."""
     if size > min(shape):
-        raise ValueError(f"{name}: the measuring window ({size} px with its margin) is larger than the image {tuple(shape)}")
+        raise ValueError(
+            f"{name}: the measuring window ({size} px with its margin) is larger than the image {tuple(shape)}"
+        )
 
 
 def patch(img: Array, centre_int: Array, half: int) -> tuple[Array, Array]:

@@ -76,8 +76,9 @@ def _bilinear(p, x, y):
     x0 = jnp.clip(jnp.floor(x).astype(jnp.int32), 0, w - 2)
     y0 = jnp.clip(jnp.floor(y).astype(jnp.int32), 0, h - 2)
     fx, fy = x - x0.astype(jnp.float64), y - y0.astype(jnp.float64)
-    return ((1 - fy) * ((1 - fx) * p[y0, x0] + fx * p[y0, x0 + 1])
-            + fy * ((1 - fx) * p[y0 + 1, x0] + fx * p[y0 + 1, x0 + 1]))
+    return (1 - fy) * ((1 - fx) * p[y0, x0] + fx * p[y0, x0 + 1]) + fy * (
+        (1 - fx) * p[y0 + 1, x0] + fx * p[y0 + 1, x0 + 1]
+    )
 
 
 def _edge_points(p, centre, level, half):
@@ -148,8 +149,12 @@ def _target_one(img, xy0, *, half, radius, method, sign):
         pflip = jax.scipy.stats.norm.cdf((p - thr) / sn)
         var = pflip * (1 - pflip)
         dx, dy = px - c_wt[0], py - c_wt[1]
-        cov = jnp.array([[jnp.sum(var * dx * dx), jnp.sum(var * dx * dy)],
-                         [jnp.sum(var * dx * dy), jnp.sum(var * dy * dy)]]) / jnp.maximum(m00, 1.0) ** 2
+        cov = (
+            jnp.array(
+                [[jnp.sum(var * dx * dx), jnp.sum(var * dx * dy)], [jnp.sum(var * dx * dy), jnp.sum(var * dy * dy)]]
+            )
+            / jnp.maximum(m00, 1.0) ** 2
+        )
         c, s0, ok = c_wt, jnp.sqrt(jnp.mean(var)), m00 > 0
     else:
         w = jnp.maximum(p - (bg + 3.0 * sn), 0.0)
@@ -158,8 +163,13 @@ def _target_one(img, xy0, *, half, radius, method, sign):
         if method == "centroid":
             m = (w > 0).astype(jnp.float64)
             dx, dy = px - c_gc[0], py - c_gc[1]
-            cov = sn**2 * jnp.array([[jnp.sum(m * dx * dx), jnp.sum(m * dx * dy)],
-                                      [jnp.sum(m * dx * dy), jnp.sum(m * dy * dy)]]) / jnp.where(sw > 0, sw, 1.0) ** 2
+            cov = (
+                sn**2
+                * jnp.array(
+                    [[jnp.sum(m * dx * dx), jnp.sum(m * dx * dy)], [jnp.sum(m * dx * dy), jnp.sum(m * dy * dy)]]
+                )
+                / jnp.where(sw > 0, sw, 1.0) ** 2
+            )
             c, s0, ok = c_gc, sn, sw > 0
         else:  # ellipse
             rr = px**2 + py**2
@@ -227,8 +237,8 @@ def _quartered(image, approx_xy, radius, window):
     xy = res.xy if batched else res.xy[None]
     at = jnp.where((st == Status.OK)[..., None], xy, xy0)  # the ring test at the result, or at the start
     none = (_ring_scores(images, at, float(radius)) < _QUARTERED_SCORE) & (
-        (st == Status.OK) | (st == Status.ILL_CONDITIONED) | (st == Status.NOT_CONVERGED)
-        | (st == Status.LEFT_WINDOW))
+        (st == Status.OK) | (st == Status.ILL_CONDITIONED) | (st == Status.NOT_CONVERGED) | (st == Status.LEFT_WINDOW)
+    )
     status = jnp.where(none, Status.NO_TARGET, st)
     if not batched:
         status = status[0]
@@ -278,8 +288,9 @@ def locate_targets(
         NaN with ``valid = False``.
     """
     if method not in ("wong-trinder", "centroid", "ellipse", "quartered", "auto"):
-        raise ValueError("method: expected 'wong-trinder', 'centroid', 'ellipse', 'quartered' or 'auto', "
-                         f"got {method!r}")
+        raise ValueError(
+            f"method: expected 'wong-trinder', 'centroid', 'ellipse', 'quartered' or 'auto', got {method!r}"
+        )
     if polarity not in ("bright", "dark"):
         raise ValueError(f"polarity: expected 'bright' or 'dark', got {polarity!r}")
     if not radius > 0:
@@ -294,8 +305,9 @@ def locate_targets(
     images, batched = as_images(image)
     check_window(2 * half + 1, images.shape[1:])
     xy = as_points(approx_xy, images.shape[0], batched)
-    res = _targets(images, xy, half=half, radius=float(radius), method=method,
-                   sign=1.0 if polarity == "bright" else -1.0)
+    res = _targets(
+        images, xy, half=half, radius=float(radius), method=method, sign=1.0 if polarity == "bright" else -1.0
+    )
     return res if batched else jax.tree_util.tree_map(lambda a: a[0], res)
 
 

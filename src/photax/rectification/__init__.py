@@ -48,16 +48,25 @@ pixel coordinates; raster georeference at pixel corners).
 # ortho_grid) lives in photax.grid (re-exported here), the resampling kernels
 # in photax.resampling.
 
-from ..grid import Grid as Grid, ortho_grid as ortho_grid
+from ..grid import Grid as Grid
+from ..grid import check_resolution as check_resolution
+from ..grid import ground_sampling_distance as ground_sampling_distance
+from ..grid import ortho_grid as ortho_grid
 from ..resampling import Resampling as Resampling
 from ._dask import orthorectify_dask as orthorectify_dask
 from ._files import (
     orthorectify_block as orthorectify_block,
+)
+from ._files import (
     orthorectify_file as orthorectify_file,
+)
+from ._files import (
     orthorectify_files as orthorectify_files,
+)
+from ._files import (
     rectify_file as rectify_file,
 )
-from ..grid import check_resolution as check_resolution, ground_sampling_distance as ground_sampling_distance
 from ._indirect import rectify as rectify
-from ._ortho import OrthoModel as OrthoModel, orthorectify as orthorectify
+from ._ortho import OrthoModel as OrthoModel
+from ._ortho import orthorectify as orthorectify
 from ._tiling import tile_windows as tile_windows

@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+
 def _map_xy(transform: Array, r: Array, c: Array) -> Array:
     """``(len(r), len(c), 2)`` map coordinates of raster coordinates ``r`` x ``c``."""
     a, b, xoff, d, e, yoff = (transform[i] for i in range(6))

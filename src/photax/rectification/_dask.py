@@ -39,12 +39,12 @@ import numpy as np
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, depth, project
 from ..dem import DEM
+from ..grid import Grid
 from ..io.crs import check_dem
 from ..io.lazy import dataarray
-from ..grid import Grid
+from ..resampling import Resampling
 from ._ortho import OrthoModel, _check_image_size
 from ._tiling import _approx_arg, _check_approx, _check_resampling, _fill_value, _layout, tile_windows
-from ..resampling import Resampling
 
 _EDGE_POINTS = 9  # points per chunk edge projected to find its window
 _SLACK = 2  # extra input pixels around the window (lens distortion bends the chunk's edges)
@@ -93,13 +93,20 @@ def _windows(exterior, camera, dem, grid, tiles, size, margin):
     for r0, c0, h, w in tiles:  # outermost pixel centres of the chunk, in raster coordinates
         top, bottom, left, right = r0 + 0.5, r0 + h - 0.5, c0 + 0.5, c0 + w - 0.5
         cs, rs = left + t * (right - left), top + t * (bottom - top)
-        pts = np.concatenate([np.stack([cs, np.full_like(t, top)], -1), np.stack([cs, np.full_like(t, bottom)], -1),
-                              np.stack([np.full_like(t, left), rs], -1), np.stack([np.full_like(t, right), rs], -1)])
+        pts = np.concatenate(
+            [
+                np.stack([cs, np.full_like(t, top)], -1),
+                np.stack([cs, np.full_like(t, bottom)], -1),
+                np.stack([np.full_like(t, left), rs], -1),
+                np.stack([np.full_like(t, right), rs], -1),
+            ]
+        )
         outline.append(pts)
     a, b, xoff, d, e, yoff = tuple(grid.transform)[:6]
     outline = np.array(outline)
-    xy = np.stack([xoff + a * outline[..., 0] + b * outline[..., 1], yoff + d * outline[..., 0] + e * outline[..., 1]],
-                  axis=-1)
+    xy = np.stack(
+        [xoff + a * outline[..., 0] + b * outline[..., 1], yoff + d * outline[..., 0] + e * outline[..., 1]], axis=-1
+    )
     n = 1 << (len(tiles) - 1).bit_length()  # padded to a power of two: few compilations
     xy = np.concatenate([xy, np.repeat(xy[:1], n - len(tiles), axis=0)])
     zz = np.nan_to_num(np.concatenate([z, np.repeat(z[:1], n - len(tiles), axis=0)]))
@@ -173,13 +180,18 @@ def _sample_bounds(pos, origin, h, w, size):
         ok &= (p[0] >= -0.5) & (p[0] <= size[1] - 0.5) & (p[1] >= -0.5) & (p[1] <= size[0] - 0.5)
         if ok.any():
             c, r = p[0][ok], p[1][ok]
-            bounds = [min(bounds[0], c.min()), max(bounds[1], c.max()), min(bounds[2], r.min()),
-                      max(bounds[3], r.max())]
+            bounds = [
+                min(bounds[0], c.min()),
+                max(bounds[1], c.max()),
+                min(bounds[2], r.min()),
+                max(bounds[3], r.max()),
+            ]
     return None if bounds[0] == np.inf else tuple(bounds)
 
 
-def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, resampling, fill, prepared, bands,
-                 masked=False):
+def _ortho_chunk(
+    data, model, transform, tile, window, layout, approx, size, resampling, fill, prepared, bands, masked=False
+):
     """One output chunk ``(B, h, w)`` (``(h, w)`` unless ``bands``): positions,
     window check, resampling; ``data`` the input window, or a raster's path (``masked``: whose mask
     band's no-data pixels give ``fill``)."""
@@ -192,19 +204,25 @@ def _ortho_chunk(data, model, transform, tile, window, layout, approx, size, res
         data = _read_window(data, window)
     r0, c0, h, w = tile
     wr, wc, wh, ww = window
-    pos, origin, _, _ = _tile_positions(model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float), layout,
-                                        _approx_arg(approx), size)
+    pos, origin, _, _ = _tile_positions(
+        model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float), layout, _approx_arg(approx), size
+    )
     o = np.asarray(origin)
     bounds = _sample_bounds(np.asarray(pos), o, h, w, size)
     if bounds is not None:
         m = Resampling(resampling).margin - 1
         cmin, cmax, rmin, rmax = bounds
         # A neighbour beyond the image edge is replicated, so only the image's interior bounds matter.
-        if (math.floor(cmin) - m < wc and wc > 0) or (math.ceil(cmax) + m >= wc + ww and wc + ww < size[1]) or (
-            math.floor(rmin) - m < wr and wr > 0) or (math.ceil(rmax) + m >= wr + wh and wr + wh < size[0]):
+        if (
+            (math.floor(cmin) - m < wc and wc > 0)
+            or (math.ceil(cmax) + m >= wc + ww and wc + ww < size[1])
+            or (math.floor(rmin) - m < wr and wr > 0)
+            or (math.ceil(rmax) + m >= wr + wh and wr + wh < size[0])
+        ):
             raise RuntimeError(
                 f"photax: the input window {window} of output chunk {tile} misses some of its samples "
-                f"(columns {cmin:.1f}..{cmax:.1f}, rows {rmin:.1f}..{rmax:.1f}); please report this")
+                f"(columns {cmin:.1f}..{cmax:.1f}, rows {rmin:.1f}..{rmax:.1f}); please report this"
+            )
     dtype = np.dtype(fill.dtype)
     compute = compute_dtype(dtype)
     flat = jnp.asarray(data) if prepared else gather_source(np.asarray(data), resampling, compute)
@@ -226,8 +244,9 @@ def _valid_chunk(model, transform, tile, layout, approx, size, path=None, window
     from ._files import _valid
 
     r0, c0, h, w = tile
-    pos, origin, _, _ = _tile_positions(model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float),
-                                        layout, _approx_arg(approx), size)
+    pos, origin, _, _ = _tile_positions(
+        model, jnp.asarray(transform), jnp.array([r0, c0], dtype=float), layout, _approx_arg(approx), size
+    )
     src_mask = None if path is None else _read_window(path, window, mask=True)
     return _valid(np.asarray(pos)[:, :h, :w], np.asarray(origin), size, window, src_mask)
 
@@ -336,7 +355,8 @@ def orthorectify_dask(
 
         pad = BSPLINE_PAD
         coef = np.asarray(bspline_coefficients(image, compute_dtype(dtype))).reshape(
-            shape[0], size[0] + 2 * pad, size[1] + 2 * pad)
+            shape[0], size[0] + 2 * pad, size[1] + 2 * pad
+        )
 
     # One graph layer: per chunk a task (or a fill) holding its input window, and the model's key.
     # (A dask.delayed + from_delayed per chunk joined by da.block made 3 layers per chunk: storing
@@ -359,8 +379,22 @@ def orthorectify_dask(
             data = coef[:, wr : wr + wh + 2 * pad, wc : wc + ww + 2 * pad].reshape(shape[0], -1)
         else:
             data = image[:, wr : wr + wh, wc : wc + ww]
-        dsk[out] = (_ortho_chunk, data, f"{key}-model", transform, t, win, layout, approx, size, resampling, fill,
-                    prepared, bool(lead), masked)
+        dsk[out] = (
+            _ortho_chunk,
+            data,
+            f"{key}-model",
+            transform,
+            t,
+            win,
+            layout,
+            approx,
+            size,
+            resampling,
+            fill,
+            prepared,
+            bool(lead),
+            masked,
+        )
     heights = tuple(h for r0, c0, h, w in tiles if c0 == 0)
     widths = tuple(w for r0, c0, h, w in tiles if r0 == 0)
     graph = HighLevelGraph.from_collections(key, dsk, dependencies=())
@@ -373,9 +407,11 @@ def orthorectify_dask(
     for t, win in zip(tiles, windows):
         r0, c0, h, w = t
         out_key = (vkey, row_of[r0], col_of[c0])
-        vdsk[out_key] = ((np.zeros, (h, w), bool) if win is None else
-                         (_valid_chunk, f"{vkey}-model", transform, t, layout, approx, size,
-                          path if masked else None, win))
+        vdsk[out_key] = (
+            (np.zeros, (h, w), bool)
+            if win is None
+            else (_valid_chunk, f"{vkey}-model", transform, t, layout, approx, size, path if masked else None, win)
+        )
     vgraph = HighLevelGraph.from_collections(vkey, vdsk, dependencies=())
     valid = da.Array(vgraph, vkey, chunks=(heights, widths), dtype=bool)
     return out, dataarray(valid, grid, np.asarray(False), f"{name}_valid")

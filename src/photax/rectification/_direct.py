@@ -10,9 +10,10 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ._approx import _map_tile
 from ..grid import Grid
+from ._approx import _map_tile
 from ._tiling import _check_model, _progress, tile_windows
+
 
 @eqx.filter_jit
 def _forward_rows(inverse, offset: Array, shape: tuple[int, int]) -> Array:

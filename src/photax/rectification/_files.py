@@ -4,7 +4,7 @@ output tile only the input window it needs is read (rasterio windows)."""
 from __future__ import annotations
 
 import threading
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from jax import Array
@@ -13,11 +13,11 @@ from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
+from ..grid import Grid, gsd_hint, ortho_grid
 from ..io.crs import check_dem
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ._approx import _tile_positions
-from ..grid import Grid, gsd_hint, ortho_grid
 from ._indirect import _resample_tile
 from ._ortho import OrthoModel, _check_image_size
 from ._tiling import (
@@ -62,10 +62,18 @@ def _geotiff_profile(grid: Grid, count: int, dtype, fill: np.ndarray | None, com
     """The rasterio profile of the output: tiled 256 x 256, BigTIFF if needed; ``fill`` None: no nodata
     value (the output carries a mask band instead)."""
     profile = dict(
-        driver="GTiff", width=grid.width, height=grid.height, count=count, dtype=dtype,
-        transform=grid.transform, crs=grid.crs, nodata=None if fill is None else fill.item(), tiled=True,
+        driver="GTiff",
+        width=grid.width,
+        height=grid.height,
+        count=count,
+        dtype=dtype,
+        transform=grid.transform,
+        crs=grid.crs,
+        nodata=None if fill is None else fill.item(),
+        tiled=True,
         blockxsize=256,
-        blockysize=256, BIGTIFF="IF_SAFER",
+        blockysize=256,
+        BIGTIFF="IF_SAFER",
     )
     if compress:
         profile["compress"] = compress
@@ -145,8 +153,9 @@ def rectify_file(
         # No nodata value for an integer image: a mask band, so that no grey value is lost to it.
         masked = nodata is None and not np.issubdtype(np.dtype(src.dtypes[0]), np.floating)
         fill = _fill_value(src.dtypes[0], nodata)
-        check_output_size(grid.shape, src.count + masked, src.dtypes[0], path=dst_path, hint=hint,
-                          compressed=bool(compress))
+        check_output_size(
+            grid.shape, src.count + masked, src.dtypes[0], path=dst_path, hint=hint, compressed=bool(compress)
+        )
         profile = _geotiff_profile(grid, src.count, src.dtypes[0], None if masked else fill, compress)
         src_masked = any(MaskFlags.per_dataset in f or MaskFlags.alpha in f for f in src.mask_flag_enums)
         # numpy, not jnp, for the kernels' arguments: each eager jnp conversion is a
@@ -162,7 +171,8 @@ def rectify_file(
         def one(t):
             r0, c0, h, w = t
             pos, origin, err, n_exact = _tile_positions(
-                model, transform, np.array([r0, c0], dtype=float), layout, _approx_arg(approx), size)
+                model, transform, np.array([r0, c0], dtype=float), layout, _approx_arg(approx), size
+            )
             p, o = np.asarray(pos)[:, :h, :w], np.asarray(origin)
             # The window from the very positions resampled: none falls outside it.
             win = _source_window(p[0] + o[0], p[1] + o[1], src.width, src.height, Resampling(resampling).margin)
@@ -175,8 +185,18 @@ def rectify_file(
                 src_mask = src.read_masks(1, window=window) if src_masked else None
             offset = np.asarray(o - np.array([win[1], win[0]]), dtype=np.int32)
             # Full-size tiles (edge tiles cropped after): fewer compilations.
-            block = _resample_tile(gather_source(data, resampling, compute), pos, origin, offset, fill_j, size,
-                                   data.shape[-2:], resampling, compute, out_dtype)
+            block = _resample_tile(
+                gather_source(data, resampling, compute),
+                pos,
+                origin,
+                offset,
+                fill_j,
+                size,
+                data.shape[-2:],
+                resampling,
+                compute,
+                out_dtype,
+            )
             block = np.asarray(block)[:, :h, :w]
             valid = _valid(p, o, size, win, src_mask)
             if src_mask is not None:
@@ -254,8 +274,18 @@ def orthorectify_file(
         grid = ortho_grid(exterior, camera, dem, resolution)
     check_dem(dem, grid)
     return rectify_file(
-        src_path, dst_path, OrthoModel(exterior, camera, dem), grid, resampling=resampling, nodata=nodata,
-        tile=tile, progress=progress, compress=compress, inputs=inputs, approx=approx, info=info,
+        src_path,
+        dst_path,
+        OrthoModel(exterior, camera, dem),
+        grid,
+        resampling=resampling,
+        nodata=nodata,
+        tile=tile,
+        progress=progress,
+        compress=compress,
+        inputs=inputs,
+        approx=approx,
+        info=info,
         hint=lambda: gsd_hint(exterior, camera, dem, grid),
     )
 
@@ -345,8 +375,9 @@ def orthorectify_files(
 
     images, outputs, exteriors = list(images), list(outputs), list(exteriors)
     if not len(images) == len(outputs) == len(exteriors):
-        raise ValueError(f"{len(images)} images, {len(outputs)} outputs and {len(exteriors)} orientations: "
-                         "one of each per image")
+        raise ValueError(
+            f"{len(images)} images, {len(outputs)} outputs and {len(exteriors)} orientations: one of each per image"
+        )
     from ..io.raster import open_raster
 
     results: list = []
@@ -363,8 +394,18 @@ def orthorectify_files(
             if not isinstance(results[k], Grid):
                 continue
             try:
-                orthorectify_file(image, out, e, camera, dem, results[k], resampling=resampling, tile=tile,
-                                  progress=bar, compress=compress)
+                orthorectify_file(
+                    image,
+                    out,
+                    e,
+                    camera,
+                    dem,
+                    results[k],
+                    resampling=resampling,
+                    tile=tile,
+                    progress=bar,
+                    compress=compress,
+                )
             except (ValueError, OSError) as exc:  # this image's; KeyboardInterrupt and bugs stop the run
                 results[k] = exc
     return results

@@ -7,7 +7,8 @@ tiles on a thread pool (:func:`._tiling._run_tiles`).
 
 from __future__ import annotations
 
-from typing import Callable, Literal
+from collections.abc import Callable
+from typing import Literal
 
 import equinox as eqx
 import jax
@@ -15,11 +16,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ..grid import Grid
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ._approx import _bounds, _chunk_positions, _lattice_cells, _tile_plan
 from ._direct import _rectify_direct
-from ..grid import Grid
 from ._tiling import (
     _STEP,
     _approx_arg,
@@ -31,6 +32,7 @@ from ._tiling import (
     _run_tiles,
     tile_windows,
 )
+
 
 @eqx.filter_jit
 def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, method, compute, out_dtype):
@@ -53,8 +55,20 @@ def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, me
         def body(k, out):
             i, j = k // nc, k % nc
             pos = _chunk_positions(model, transform, offset, plan, i, j, layout, exact).reshape(2, -1)
-            v = interpolate(flat, pos[0], pos[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5,
-                        compute=compute, out_dtype=out_dtype)
+            v = interpolate(
+                flat,
+                pos[0],
+                pos[1],
+                fill,
+                lo,
+                hi,
+                origin,
+                shape=size,
+                method=method,
+                a=-0.5,
+                compute=compute,
+                out_dtype=out_dtype,
+            )
             return jax.lax.dynamic_update_slice(out, v.reshape(-1, s, cw), (0, i * s, j * cw))
 
         return jax.lax.fori_loop(0, (tr // s) * nc, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
@@ -65,8 +79,20 @@ def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, me
         # faster than any loop over strips: XLA:CPU's in-place
         # dynamic-update-slice of each strip's result is not vectorised.
         p = _lattice_cells(plan[0], s)
-        v = interpolate(flat, p[0], p[1], fill, lo, hi, origin, shape=size, method=method, a=-0.5, compute=compute,
-                    out_dtype=out_dtype)
+        v = interpolate(
+            flat,
+            p[0],
+            p[1],
+            fill,
+            lo,
+            hi,
+            origin,
+            shape=size,
+            method=method,
+            a=-0.5,
+            compute=compute,
+            out_dtype=out_dtype,
+        )
         return v.reshape(-1, tr, tc)
 
     if approx is None:
@@ -92,8 +118,20 @@ def _resample_tile(flat, pos, origin, offset, fill, size, window, method, comput
     # exact loop by float32 round-off: 1 grey value in 40,000 for cubic).
     def body(i, out):
         p = jax.lax.dynamic_slice(pos, (0, i * _STEP, 0), (2, _STEP, tc)).reshape(2, -1)
-        v = interpolate(flat, p[0], p[1], fill, lo, hi, offset, shape=window, method=method, a=-0.5,
-                    compute=compute, out_dtype=out_dtype)
+        v = interpolate(
+            flat,
+            p[0],
+            p[1],
+            fill,
+            lo,
+            hi,
+            offset,
+            shape=window,
+            method=method,
+            a=-0.5,
+            compute=compute,
+            out_dtype=out_dtype,
+        )
         return jax.lax.dynamic_update_slice(out, v.reshape(-1, _STEP, tc), (0, i * _STEP, 0))
 
     return jax.lax.fori_loop(0, tr // _STEP, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
@@ -214,8 +252,9 @@ def rectify(
 
     def one(t):
         offset = np.array(t[:2], dtype=float)  # numpy: see _approx_arg
-        return _rectify_tile(model, flat, transform, offset, fill_j, layout, approx_j, size, resampling, compute,
-                             out_dtype)
+        return _rectify_tile(
+            model, flat, transform, offset, fill_j, layout, approx_j, size, resampling, compute, out_dtype
+        )
 
     def sink(t, block):
         r0, c0, h, w = t

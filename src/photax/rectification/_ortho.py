@@ -11,11 +11,12 @@ from jax import Array
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation, depth, project
 from ..dem import DEM
+from ..grid import Grid, gsd_hint, ortho_grid
 from ..io.crs import check_dem
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
-from ..grid import Grid, gsd_hint, ortho_grid
 from ._indirect import rectify
+
 
 class OrthoModel(eqx.Module):
     """Ground ``(X, Y)`` -> image pixel ``(col, row)`` through a DEM.
@@ -106,8 +107,9 @@ def orthorectify(
     bands = int(np.prod(image.shape[:-2], dtype=np.int64))
     check_output_size(grid.shape, bands, image.dtype, hint=lambda: gsd_hint(exterior, camera, dem, grid))
     model = OrthoModel(exterior, camera, dem)
-    out = rectify(image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress,
-                  approx=approx, info=info)
+    out = rectify(
+        image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress, approx=approx, info=info
+    )
     return out, grid
 
 

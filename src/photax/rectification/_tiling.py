@@ -35,6 +35,7 @@ def tile_windows(shape: tuple[int, int], tile: int):
     on the tiling."""
     if int(tile) < 1:
         raise ValueError(f"tile must be a positive number of pixels, got {tile!r}")
+
     def up(a, b):  # ceil(a / b)
         return -(-a // b)
 

@@ -55,5 +55,6 @@ References: Kraus, *Photogrammetry* vol. 1 (2007) sec. 4.3; Wolf & DeWitt,
 *Photogrammetric Computer Vision* (2016) sec. 4.6.
 """
 
-from ._api import resect as resect, resect_batch as resect_batch
+from ._api import resect as resect
+from ._api import resect_batch as resect_batch
 from ._result import ResectionResult as ResectionResult

@@ -82,8 +82,9 @@ def evaluate(p, inp: Inputs, used, opt: Options):
     jxx = radial + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x
     jyy = radial + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x
     g = -cam.focal_length / q[2]
-    dx_dq = jnp.stack([jnp.stack([jxx, jxy, jxx * x + jxy * y]),
-                       jnp.stack([jxy, jyy, jxy * x + jyy * y])]) * g[None, None]  # (2, 3, m, B)
+    dx_dq = (
+        jnp.stack([jnp.stack([jxx, jxy, jxx * x + jxy * y]), jnp.stack([jxy, jyy, jxy * x + jyy * y])]) * g[None, None]
+    )  # (2, 3, m, B)
     dq_da = [_lanes.rt_times(rot, _lanes.cross(d, axes[k][:, None, :])) for k in range(3)]  # (3, m, B) each
     cols = [-sum(dx_dq[:, c] * rot[i, c][None, None] for c in range(3)) for i in range(3)]  # dq_c/dC_i = -R[i, c]
     cols += [sum(dx_dq[:, c] * dq_da[k][c][None] for c in range(3)) for k in range(3)]
@@ -141,11 +142,17 @@ def _iterate(start, inp: Inputs, used, opt: Options, active=None, steps0=None):
         ev, ne = jax.tree_util.tree_map(lambda x, y: _lanes.sel(keep, x, y), (ev_new, ne_new), (ev, ne))
         p = _lanes.sel(keep, p_new, p)
         stop = jnp.where(first, ~finite, small | (code_new != RESULTS.successful))
-        return (p, ev, ne, k + (run & ~first).astype(int), jnp.where(run, stop, done), jnp.where(run, code_new, code),
-                jnp.array(False))
+        return (
+            p,
+            ev,
+            ne,
+            k + (run & ~first).astype(int),
+            jnp.where(run, stop, done),
+            jnp.where(run, code_new, code),
+            jnp.array(False),
+        )
 
-    carry = (start, ev0, ne0, zeros if steps0 is None else steps0, done0, zeros + RESULTS.successful,
-             jnp.array(True))
+    carry = (start, ev0, ne0, zeros if steps0 is None else steps0, done0, zeros + RESULTS.successful, jnp.array(True))
     p, ev, ne, steps, done, code, _ = jax.lax.while_loop(cond, body, carry)
     code = jnp.where(done, code, RESULTS.max_steps_reached)
     return p, steps, code, (ev, ne)
@@ -188,8 +195,9 @@ def _iterate_fixed(start, inp: Inputs, used, opt: Options):
     ev0 = (jnp.zeros((2, m, b)), jnp.zeros((6, 2, m, b)), jnp.zeros((2, m, b)), jnp.zeros((m, b)))
     ne0 = (jnp.zeros((6, 6, b)), jnp.zeros((6, b)))
     zeros = jnp.zeros(b, int)
-    p, dp, ev, ne, first_small = jax.lax.fori_loop(0, FIXED_STEPS + 1, body,
-                                                   (start, jnp.zeros_like(start), ev0, ne0, zeros))
+    p, dp, ev, ne, first_small = jax.lax.fori_loop(
+        0, FIXED_STEPS + 1, body, (start, jnp.zeros_like(start), ev0, ne0, zeros)
+    )
     # converged: the last solved step is small, none was non-finite, the rule fired within max_steps
     done = (first_small > 0) & (first_small <= opt.max_steps) & jnp.all(jnp.isfinite(dp), axis=0)
     done &= _finite(*ne)
@@ -213,14 +221,14 @@ def _iterate_fixed(start, inp: Inputs, used, opt: Options):
         valid = idx < b
         take = jnp.minimum(idx, b - 1)
         sub = jax.tree_util.tree_map(lambda a: a[..., take], inp)
-        p_g, steps_g, code_g, (ev_g, ne_g) = _iterate(go_on_p[:, take], sub, used[:, take], opt, active=valid,
-                                                      steps0=go_on_k[take])
+        p_g, steps_g, code_g, (ev_g, ne_g) = _iterate(
+            go_on_p[:, take], sub, used[:, take], opt, active=valid, steps0=go_on_k[take]
+        )
         put = lambda full, part: full.at[..., idx].set(part, mode="drop")  # noqa: E731 (fill lanes dropped)
         ev, ne = jax.tree_util.tree_map(put, (ev, ne), (ev_g, ne_g))
         return put(p, p_g), put(steps, steps_g), put(code, code_g), ev, ne, put(done, valid)
 
-    p, steps, code, ev, ne, _ = jax.lax.while_loop(lambda c: ~jnp.all(c[5]), again,
-                                                   (p, steps, code, ev, ne, done))
+    p, steps, code, ev, ne, _ = jax.lax.while_loop(lambda c: ~jnp.all(c[5]), again, (p, steps, code, ev, ne, done))
     return p, steps, code, (ev, ne)
 
 
@@ -268,8 +276,9 @@ def precision(p, inp: Inputs, used, opt: Options, ev=None) -> dict:
     # of 36, no LAPACK call per image; a broadcast (6, 6, 2, m, B) product reduced over its leading axes
     # ran 15x slower on XLA:CPU).
     mf = _lanes.inverse_factor(n)
-    qxx = jnp.stack([jnp.stack([sum(mf[i, j] * mf[i, k] for i in range(max(j, k), 6)) for k in range(6)])
-                     for j in range(6)])
+    qxx = jnp.stack(
+        [jnp.stack([sum(mf[i, j] * mf[i, k] for i in range(max(j, k), 6)) for k in range(6)]) for j in range(6)]
+    )
     red = 2.0 * jnp.sum(used.astype(float), axis=0) - 6.0
     sigma0 = jnp.where(red > 0, jnp.sqrt(jnp.sum(v * v, axis=(0, 1)) / jnp.where(red > 0, red, 1.0)), jnp.nan)
     ma = [sum(mf[i, j][None, None] * a[j] for j in range(i + 1)) for i in range(6)]  # (2, m, B) each
@@ -281,8 +290,16 @@ def precision(p, inp: Inputs, used, opt: Options, ev=None) -> dict:
     w = jnp.where(ok, -v / jnp.sqrt(jnp.where(ok, r_i, 1.0)), jnp.nan)
     axis = -rotation(p, opt.pok)[:, 2]
     tr = functools.partial(jnp.transpose, axes=(1, 0, 2))  # (2, m, B) -> Output's (m, 2, B)
-    return dict(params=p, sigma0=sigma0, qxx=qxx, residuals=tr(pred - inp.xy), redundancy=tr(r_i), w=tr(w),
-                depth=depth, axis=axis)
+    return dict(
+        params=p,
+        sigma0=sigma0,
+        qxx=qxx,
+        residuals=tr(pred - inp.xy),
+        redundancy=tr(r_i),
+        w=tr(w),
+        depth=depth,
+        axis=axis,
+    )
 
 
 def adjust(start, inp: Inputs, used, opt: Options, active=None, fixed=False) -> dict:
@@ -375,5 +392,13 @@ def levenberg_marquardt(inp: Inputs, out: Output, opt: Options, max_steps: int) 
     sol = optx.least_squares(residuals, algo, out.start[:, 0], max_steps=max_steps, throw=False)
     code = jnp.where(jnp.all(jnp.isfinite(sol.value)), from_optimistix(sol.result), RESULTS.nonfinite)
     fields = precision(sol.value[:, None], inp, used, opt)
-    return Output(**fields, result=code[None], steps=sol.stats["num_steps"][None], start=out.start, used=used,
-                  stat_at=out.stat_at, critical=out.critical, retry=out.retry)
+    return Output(
+        **fields,
+        result=code[None],
+        steps=sol.stats["num_steps"][None],
+        start=out.start,
+        used=used,
+        stat_at=out.stat_at,
+        critical=out.critical,
+        retry=out.retry,
+    )

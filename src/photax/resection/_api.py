@@ -29,8 +29,21 @@ from ..collinearity import ExteriorOrientation
 from ..errors import RESULTS, ConvergenceError
 from ..rotation import Convention
 from . import _adjust, _robust
-from ._checks import (_MAX_TILT, _PLANAR, CAUSES, MIRROR, Prepared, _bucket, _critical_table, _frame,
-                      _pixel_size, _plausibility, _point_label, implausible, validate)
+from ._checks import (
+    _MAX_TILT,
+    _PLANAR,
+    CAUSES,
+    MIRROR,
+    Prepared,
+    _bucket,
+    _critical_table,
+    _frame,
+    _pixel_size,
+    _plausibility,
+    _point_label,
+    implausible,
+    validate,
+)
 from ._result import ResectionResult
 from ._types import Inputs, Options, Output, pack, unpack
 
@@ -51,20 +64,27 @@ _COMPILER_OPTIONS = {"xla_cpu_use_fusion_emitters": False}
 # resect_batch, 2,048 images, a quarter with a blunder) and that batch runs 1.2x longer warm (79 vs 65 ms);
 # a batch with a few per cent of such images loses ~1 %.
 _ROBUST_OPTIONS = dict(_COMPILER_OPTIONS, xla_backend_optimization_level=0)
-_solve_cheap = disk_cached(jax.jit(lambda inp, opt: pack(_adjust.solve_cheap(inp, opt)),
-                                   compiler_options=_COMPILER_OPTIONS), "resect_cheap", _COMPILER_OPTIONS)
+_solve_cheap = disk_cached(
+    jax.jit(lambda inp, opt: pack(_adjust.solve_cheap(inp, opt)), compiler_options=_COMPILER_OPTIONS),
+    "resect_cheap",
+    _COMPILER_OPTIONS,
+)
+
+
 def _robust_program(inp, opt):
     return pack(_robust.solve_robust(inp, opt, _robust.starts(inp, opt)))
 
 
-_solve_robust = disk_cached(jax.jit(_robust_program, compiler_options=_ROBUST_OPTIONS), "resect_robust",
-                            _ROBUST_OPTIONS)
+_solve_robust = disk_cached(
+    jax.jit(_robust_program, compiler_options=_ROBUST_OPTIONS), "resect_robust", _ROBUST_OPTIONS
+)
 # The robust chunks of a large resect_batch (_ROBUST_OPT_MIN images or more), compiled with optimisation:
 # measured on the 237 of 10,000 images whose test fails (Pope's tau at alpha = 0.001, no blunder), 10.8 vs
 # 20.9 ms at -O0, for about 2.7 s more CPU of first compilation, which a small batch would not win back.
 _ROBUST_OPT_MIN = 2048
-_solve_robust_batch = disk_cached(jax.jit(_robust_program, compiler_options=_COMPILER_OPTIONS),
-                                  "resect_robust_batch", _COMPILER_OPTIONS)
+_solve_robust_batch = disk_cached(
+    jax.jit(_robust_program, compiler_options=_COMPILER_OPTIONS), "resect_robust_batch", _COMPILER_OPTIONS
+)
 
 
 class _CameraInfo(NamedTuple):
@@ -102,24 +122,34 @@ def _options(prep: Prepared, camera: FrameCamera, convention, robust, alpha, max
     built once per camera and settings)."""
     info = _camera_info(camera)
     sigma_known, n_ctrl = prep.sigma_known, len(prep.ctrl_idx)
-    key = (convention, bool(robust), float(alpha), int(max_steps), m, sigma_known, prep.has_initial,
-           prep.ctrl_idx.tobytes())
+    key = (
+        convention,
+        bool(robust),
+        float(alpha),
+        int(max_steps),
+        m,
+        sigma_known,
+        prep.has_initial,
+        prep.ctrl_idx.tobytes(),
+    )
     opt = info.options.get(key)
     if opt is not None:
         return opt
-    opt = jax.device_put(Options(
-        critical=_critical_table(float(alpha), sigma_known, m),
-        snoop=np.bool_(robust),
-        scale_stat=np.bool_(not sigma_known),
-        exact=np.float64(1e-10 if sigma_known else 1e-10 * info.f),  # rounding level: no test
-        min_points=np.int64(3 if prep.has_initial else 4),
-        min_redundancy=np.float64(1.0 if sigma_known else 2.0),
-        dlt_ok=np.bool_(n_ctrl >= 6),
-        pok=np.bool_(convention == "phi-omega-kappa"),
-        subsets=prep.ctrl_idx[_robust.subsets(n_ctrl)],
-        camera=info.solver_camera,
-        max_steps=np.int64(max_steps),
-    ))
+    opt = jax.device_put(
+        Options(
+            critical=_critical_table(float(alpha), sigma_known, m),
+            snoop=np.bool_(robust),
+            scale_stat=np.bool_(not sigma_known),
+            exact=np.float64(1e-10 if sigma_known else 1e-10 * info.f),  # rounding level: no test
+            min_points=np.int64(3 if prep.has_initial else 4),
+            min_redundancy=np.float64(1.0 if sigma_known else 2.0),
+            dlt_ok=np.bool_(n_ctrl >= 6),
+            pok=np.bool_(convention == "phi-omega-kappa"),
+            subsets=prep.ctrl_idx[_robust.subsets(n_ctrl)],
+            camera=info.solver_camera,
+            max_steps=np.int64(max_steps),
+        )
+    )
     if len(info.options) >= 64:
         info.options.clear()
     info.options[key] = opt
@@ -137,8 +167,15 @@ def _inputs(prep: Prepared, m: int) -> Inputs:
 
     ctrl = np.zeros((m, b), bool)
     ctrl[:n] = ~prep.is_check.T
-    return Inputs(xy=lanes(prep.xy, 0.0), ground=lanes(prep.local, 0.0), weight=lanes(prep.weight, 1.0), ctrl=ctrl,
-                  basis=prep.basis.transpose(1, 2, 0), init=prep.init.T, use_init=np.full(b, prep.has_initial))
+    return Inputs(
+        xy=lanes(prep.xy, 0.0),
+        ground=lanes(prep.local, 0.0),
+        weight=lanes(prep.weight, 1.0),
+        ctrl=ctrl,
+        basis=prep.basis.transpose(1, 2, 0),
+        init=prep.init.T,
+        use_init=np.full(b, prep.has_initial),
+    )
 
 
 def _take(tree, idx):  # images idx of a batch-first (unpacked) tree
@@ -242,13 +279,11 @@ def _screen(prep: Prepared, out: Output, camera):
     with np.errstate(invalid="ignore", divide="ignore"):
         rms = np.sqrt(np.sum(d2 * used, axis=1) / used.sum(1))
     half, f = _camera_info(camera)[:2]
-    bad = implausible(prep.xy, ctrl, ctrl & ~used, p[:, :3], out.axis, prep.basis[:, :, 2], prep.planar, rms,
-                      half, f)
+    bad = implausible(prep.xy, ctrl, ctrl & ~used, p[:, :3], out.axis, prep.basis[:, :, 2], prep.planar, rms, half, f)
     return (adjustment == RESULTS.successful) & bad, p, rms, d2, adjustment
 
 
-def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver="gn", gn_failure=None,
-            screened=None):
+def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver="gn", gn_failure=None, screened=None):
     """Numbers and words of the result for every image (vectorised; words
     formatted only where something failed).  Shared by resect and resect_batch.
     ``screened``: :func:`_screen` of ``out`` if already computed."""
@@ -266,8 +301,9 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
     normal = prep.basis[:, :, 2]
     reasons = {}
     for i in np.flatnonzero((code == RESULTS.successful) & screen):
-        why = _plausibility(prep.xy[i], ctrl[i], outliers[i], p[i, :3], out.axis[i], normal[i],
-                            prep.planar[i], rms[i], half, f)
+        why = _plausibility(
+            prep.xy[i], ctrl[i], outliers[i], p[i, :3], out.axis[i], normal[i], prep.planar[i], rms[i], half, f
+        )
         if why is not None:
             reasons[i] = why
             code[i] = RESULTS.implausible
@@ -291,22 +327,43 @@ def _finish(prep: Prepared, out: Output, camera, convention, batch: bool, solver
     for i in np.flatnonzero((code != RESULTS.successful) | (red <= 0)):
         m = messages[i] if gn_failure is None else f"{gn_failure}; then {messages[i]}"
         if code[i] == RESULTS.behind_camera:
-            m = ("the solution puts control points behind the camera: "
-                 + ", ".join(_point_label(prep.names, k) for k in np.flatnonzero(behind[i])) + "; " + CAUSES)
+            m = (
+                "the solution puts control points behind the camera: "
+                + ", ".join(_point_label(prep.names, k) for k in np.flatnonzero(behind[i]))
+                + "; "
+                + CAUSES
+            )
         elif code[i] == RESULTS.implausible:
             m = f"{reasons[i]}; {CAUSES} (the adjustment itself: {m})"
         elif code[i] != RESULTS.successful:
             m += "; " + CAUSES
         if red[i] <= 0:
             m += "; zero redundancy: sigma0 and blunder tests undefined" + (
-                ", covariance from the a-priori sigma" if sigma_known else ", covariance unknown")
+                ", covariance from the a-priori sigma" if sigma_known else ", covariance unknown"
+            )
         messages[i] = m
     names = prep.names if prep.names is not None else [f"P{k}" for k in range(n)]
-    fields = dict(sigma0=out.sigma0, covariance=cov, std=std, correlation=corr, residuals=resid,
-                  outliers=outliers, check=prep.is_check, redundancy=out.redundancy[:, :n], normalised=stat,
-                  critical=out.critical, rmse=rms, check_rmse=check_rms, iterations=out.steps,
-                  converged=code == RESULTS.successful, message=messages, result=code)
-    common = dict(names=list(names), statistic="w" if sigma_known else "tau", pixel_size=_camera_info(camera).pixel_size)
+    fields = dict(
+        sigma0=out.sigma0,
+        covariance=cov,
+        std=std,
+        correlation=corr,
+        residuals=resid,
+        outliers=outliers,
+        check=prep.is_check,
+        redundancy=out.redundancy[:, :n],
+        normalised=stat,
+        critical=out.critical,
+        rmse=rms,
+        check_rmse=check_rms,
+        iterations=out.steps,
+        converged=code == RESULTS.successful,
+        message=messages,
+        result=code,
+    )
+    common = dict(
+        names=list(names), statistic="w" if sigma_known else "tau", pixel_size=_camera_info(camera).pixel_size
+    )
     if batch:
         ext = ExteriorOrientation(p[:, :3] + prep.origin, p[:, 3:], convention)
         return ResectionResult(exterior=ext, **fields, **common)
@@ -389,8 +446,17 @@ def resect(
         >>> print(f"sigma0 {res.sigma0:.1f}")  # the noise as given: about 1
         sigma0 1.0
     """
-    settings = dict(camera=camera, sigma=sigma, check=check, names=names, initial=initial, convention=convention,
-                    robust=robust, alpha=alpha, max_steps=max_steps)
+    settings = dict(
+        camera=camera,
+        sigma=sigma,
+        check=check,
+        names=names,
+        initial=initial,
+        convention=convention,
+        robust=robust,
+        alpha=alpha,
+        max_steps=max_steps,
+    )
     res = _resect_one(image_xy, ground_xyz, fallback=True, **settings)
     if res.converged:
         res = _mirror_test(res, np.asarray(image_xy, float), np.asarray(ground_xyz, float), settings)
@@ -403,8 +469,9 @@ def resect(
     return res
 
 
-def _resect_one(image_xy, ground_xyz, *, camera, sigma, check, names, initial, convention, robust, alpha, max_steps,
-                fallback) -> ResectionResult:
+def _resect_one(
+    image_xy, ground_xyz, *, camera, sigma, check, names, initial, convention, robust, alpha, max_steps, fallback
+) -> ResectionResult:
     """Validate, solve (then Levenberg-Marquardt if Gauss-Newton failed and ``fallback``), finish."""
     prep = validate(image_xy, ground_xyz, camera, sigma, check, names, initial, convention, alpha, batch=False)
     m = _bucket(prep.xy.shape[1])
@@ -441,14 +508,19 @@ def _mirror_test(res: ResectionResult, xy, ground, settings) -> ResectionResult:
         mirrored = _resect_one(xy * [-1.0, 1.0], ground, fallback=False, **{**settings, "initial": None})
     except (ValueError, ConvergenceError):
         return res
-    if not (mirrored.converged and mirrored.rmse < 0.5 * res.rmse
-            and mirrored.outliers.sum() <= res.outliers.sum()):
+    if not (mirrored.converged and mirrored.rmse < 0.5 * res.rmse and mirrored.outliers.sum() <= res.outliers.sum()):
         return res
     unit = (lambda r: f"{r / res.pixel_size:.3g} px") if res.pixel_size else (lambda r: f"{r:.3g}")
-    why = (f"{MIRROR}: the control points fit far better with the image x axis reversed (rmse "
-           f"{unit(mirrored.rmse)} against {unit(res.rmse)}): the image or the ground is mirrored")
-    return dataclasses.replace(res, converged=False, result=RESULTS.implausible,
-                               message=f"{why}; {CAUSES} (the adjustment itself: {res.message})")
+    why = (
+        f"{MIRROR}: the control points fit far better with the image x axis reversed (rmse "
+        f"{unit(mirrored.rmse)} against {unit(res.rmse)}): the image or the ground is mirrored"
+    )
+    return dataclasses.replace(
+        res,
+        converged=False,
+        result=RESULTS.implausible,
+        message=f"{why}; {CAUSES} (the adjustment itself: {res.message})",
+    )
 
 
 def _swap_hint(xy, ground, settings) -> str | None:
@@ -502,9 +574,10 @@ def _solver_errors():
     except (ValueError, TypeError, KeyboardInterrupt):
         raise  # input errors and Ctrl-C keep their type
     except Exception as exc:
-        raise ConvergenceError(f"the resection failed inside its solver ({type(exc).__name__}); "
-                               f"the orientation could not be computed from these points; {CAUSES}") from exc
-
+        raise ConvergenceError(
+            f"the resection failed inside its solver ({type(exc).__name__}); "
+            f"the orientation could not be computed from these points; {CAUSES}"
+        ) from exc
 
 
 def resect_batch(
@@ -572,6 +645,7 @@ def resect_batch(
     res = _finish(prep, out, camera, convention, batch=True, screened=screened)
     if throw and not np.all(res.converged):
         bad = np.flatnonzero(~res.converged)
-        raise ConvergenceError(f"{len(bad)} of {len(res.converged)} images failed, "
-                               f"e.g. image {bad[0]}: {res.message[bad[0]]}")
+        raise ConvergenceError(
+            f"{len(bad)} of {len(res.converged)} images failed, e.g. image {bad[0]}: {res.message[bad[0]]}"
+        )
     return res

@@ -27,8 +27,10 @@ from ..collinearity import ExteriorOrientation
 from ..rotation import check_convention
 
 _PLANAR = 0.1  # smallest / largest spread of the GCPs below this: "planar" for the 4-point minimum
-CAUSES = ("likely causes: swapped or mirrored axes (image column/row or x/y, ground E/N), wrong units "
-           "(image coordinates in another unit than the camera's), or control points measured on another image")
+CAUSES = (
+    "likely causes: swapped or mirrored axes (image column/row or x/y, ground E/N), wrong units "
+    "(image coordinates in another unit than the camera's), or control points measured on another image"
+)
 _MAX_EXCLUDED = 1.0 / 3.0  # more blunders than this share of the control points: the data do not fit
 _MAX_RMS = 0.02  # rms above this share of the frame diagonal (or of f): not a measurement error
 _FRAME_MARGIN = 1.5  # image points farther out than this times the half frame: not on this camera's image
@@ -44,12 +46,11 @@ _MAX_TILT = 60.0  # degrees
 MIRROR = "the solution is a mirror image"
 
 
-
 def _as_points(a, name: str, width: int, batch: bool) -> np.ndarray:
     a = as_float64(a, name)
     want = 3 if batch else 2
     if a.ndim != want or a.shape[-1] != width:
-        shape = "(b, n, %d)" % width if batch else "(n, %d)" % width
+        shape = f"(b, n, {width})" if batch else f"(n, {width})"
         raise ValueError(f"{name} must have shape {shape}, got {a.shape}")
     return a
 
@@ -90,23 +91,31 @@ def _check_geometry(ground: np.ndarray, xy: np.ndarray, ctrl: np.ndarray, names,
     rows = np.concatenate([g, x], axis=1)
     if _n_distinct(rows) < len(rows):
         dup = [k for k in idx if np.sum(np.all(rows == rows[np.searchsorted(idx, k)], axis=1)) > 1]
-        raise ValueError("duplicated control points (same ground and image coordinates): "
-                         + ", ".join(_point_label(names, k) for k in dup))
+        raise ValueError(
+            "duplicated control points (same ground and image coordinates): "
+            + ", ".join(_point_label(names, k) for k in dup)
+        )
     distinct = _n_distinct(g)
     if distinct < 3:
         raise ValueError(f"need at least 3 distinct control points, got {distinct}")
     _, s, vt = np.linalg.svd(g - g.mean(0), full_matrices=False)
     if s[0] == 0 or s[1] < 1e-6 * s[0]:
-        raise ValueError("the control points are (nearly) collinear: the orientation is not determined; "
-                         "points " + ", ".join(_point_label(names, k) for k in idx))
+        raise ValueError(
+            "the control points are (nearly) collinear: the orientation is not determined; "
+            "points " + ", ".join(_point_label(names, k) for k in idx)
+        )
     planar = distinct < 4 or s[2] < _PLANAR * s[0]
     if need_init:
         if planar and distinct < 4:
-            raise ValueError(f"the automatic start needs at least 4 distinct control points, got {distinct}; "
-                             "give initial= to resect from 3")
+            raise ValueError(
+                f"the automatic start needs at least 4 distinct control points, got {distinct}; "
+                "give initial= to resect from 3"
+            )
         if not planar and distinct < 6:
-            raise ValueError(f"the automatic start needs at least 6 control points for a non-planar GCP set "
-                             f"(relief {s[2] / s[0]:.2f} of the extent), got {distinct}; give initial= or more points")
+            raise ValueError(
+                f"the automatic start needs at least 6 control points for a non-planar GCP set "
+                f"(relief {s[2] / s[0]:.2f} of the extent), got {distinct}; give initial= or more points"
+            )
     return np.stack([vt[0], np.cross(vt[2], vt[0]), vt[2]], axis=1), planar
 
 
@@ -185,36 +194,53 @@ def _plausibility(xy, ctrl, outliers, centre, axis, normal, planar, rms, half, f
         out = np.abs(c) > _FRAME_MARGIN * half[None, :]
         if np.any(out):
             swapped = np.all(np.abs(c[:, ::-1]) <= _FRAME_MARGIN * half[None, :])
-            return (f"image coordinates of {int(np.any(out, axis=1).sum())} control points lie outside the camera's "
-                    f"frame (half size {half[0]:.4g} x {half[1]:.4g}): "
-                    + ("they would fit with x and y (column and row) swapped" if swapped else
-                       "wrong units (e.g. pixels or micrometres for a mm camera), or a camera file that does not "
-                       "belong to these measurements"))
+            return (
+                f"image coordinates of {int(np.any(out, axis=1).sum())} control points lie outside the camera's "
+                f"frame (half size {half[0]:.4g} x {half[1]:.4g}): "
+                + (
+                    "they would fit with x and y (column and row) swapped"
+                    if swapped
+                    else "wrong units (e.g. pixels or micrometres for a mm camera), or a camera file that does not "
+                    "belong to these measurements"
+                )
+            )
         if spread < _MIN_SPREAD * 2.0 * half.max():
-            return (f"the control points span only {spread:.3g} on the image plane, {spread / (2 * half.max()):.1e} of "
-                    "the frame: wrong units (e.g. metres for a mm camera)")
+            return (
+                f"the control points span only {spread:.3g} on the image plane, {spread / (2 * half.max()):.1e} of "
+                "the frame: wrong units (e.g. metres for a mm camera)"
+            )
     elif np.any(np.hypot(*c.T) > _MAX_FIELD * f):
-        return (f"image coordinates up to {np.hypot(*c.T).max():.4g} from the centre with a focal length of {f:.4g} "
-                f"(a field of view over {2 * np.degrees(np.arctan(_MAX_FIELD)):.0f} degrees): wrong units "
-                "(e.g. mm or pixels for a camera in metres)")
+        return (
+            f"image coordinates up to {np.hypot(*c.T).max():.4g} from the centre with a focal length of {f:.4g} "
+            f"(a field of view over {2 * np.degrees(np.arctan(_MAX_FIELD)):.0f} degrees): wrong units "
+            "(e.g. mm or pixels for a camera in metres)"
+        )
     elif spread < _MIN_SPREAD_F * f:
-        return (f"the control points span only {spread:.3g} on the image plane, {spread / f:.1e} of the focal length: "
-                "wrong units (e.g. metres for a mm camera)")
+        return (
+            f"the control points span only {spread:.3g} on the image plane, {spread / f:.1e} of the focal length: "
+            "wrong units (e.g. metres for a mm camera)"
+        )
     n_ctrl, n_out = int(ctrl.sum()), int(outliers.sum())
     if n_out > _MAX_EXCLUDED * n_ctrl:
-        return (f"{n_out} of {n_ctrl} control points had to be excluded as blunders (more than a third): "
-                "image and ground coordinates do not fit together")
+        return (
+            f"{n_out} of {n_ctrl} control points had to be excluded as blunders (more than a third): "
+            "image and ground coordinates do not fit together"
+        )
     size = 2.0 * np.hypot(*half) if half is not None else f
     if rms > _MAX_RMS * size:
-        return (f"the residuals (rms {rms:.4g}) are {rms / size:.1%} of the {'frame diagonal' if half is not None else 'focal length'}, "
-                "far beyond measurement error: image and ground coordinates do not fit together")
+        return (
+            f"the residuals (rms {rms:.4g}) are {rms / size:.1%} of the {'frame diagonal' if half is not None else 'focal length'}, "
+            "far beyond measurement error: image and ground coordinates do not fit together"
+        )
     n = normal if normal[2] >= 0 else -normal
     if planar and n[2] > np.cos(np.radians(_MAX_TILT)):
         if float(centre @ n) < 0 and float(axis @ n) > 0:
-            return (f"{MIRROR}: the camera is below the level, planar control points, looking up at "
-                    "them - a mirrored image or ground is fitted exactly by the camera reflected through "
-                    "their plane, and ground is seen from above (Z must be up; a swap of image column/row "
-                    "or x/y, or of ground E/N, mirrors the scene)")
+            return (
+                f"{MIRROR}: the camera is below the level, planar control points, looking up at "
+                "them - a mirrored image or ground is fitted exactly by the camera reflected through "
+                "their plane, and ground is seen from above (Z must be up; a swap of image column/row "
+                "or x/y, or of ground E/N, mirrors the scene)"
+            )
     return None
 
 
@@ -290,8 +316,10 @@ def validate(image_xy, ground_xyz, camera, sigma, check, names, initial, convent
         if batch:
             where = [f"image {i} point {k}" for i, k in zip(*np.nonzero(bad))][:10]
             raise ValueError("non-finite (NaN/inf) coordinates at " + ", ".join(where))
-        raise ValueError("non-finite (NaN/inf) coordinates at points "
-                         + ", ".join(_point_label(names, k) for k in np.flatnonzero(bad[0])))
+        raise ValueError(
+            "non-finite (NaN/inf) coordinates at points "
+            + ", ".join(_point_label(names, k) for k in np.flatnonzero(bad[0]))
+        )
     if not isinstance(camera, FrameCamera):
         raise ValueError(f"camera must be a photax.FrameCamera, got {type(camera).__name__}")
     weight = _sigma_weights(sigma, xy.shape if batch else xy.shape[1:])
@@ -316,15 +344,28 @@ def validate(image_xy, ground_xyz, camera, sigma, check, names, initial, convent
         if not isinstance(initial, ExteriorOrientation):
             raise ValueError("initial must be a photax.ExteriorOrientation")
         e0 = initial.to_convention(convention)
-        init = np.concatenate([np.asarray(e0.position) - (origin if batch else origin[0]), np.asarray(e0.angles)],
-                              axis=-1)
+        init = np.concatenate(
+            [np.asarray(e0.position) - (origin if batch else origin[0]), np.asarray(e0.angles)], axis=-1
+        )
         if not np.all(np.isfinite(init)):
             raise ValueError("initial has non-finite values")
         if init.shape != ((b, 6) if batch else (6,)):
             raise ValueError(f"initial must have batch shape ({b},), got {init.shape[:-1]}")
         init = init.reshape(b, 6)
-    return Prepared(xy, ground, weight, np.broadcast_to(is_check, (b, n)), origin, basis, planar, init,
-                    initial is not None, names, sigma is not None, np.flatnonzero(ctrl))
+    return Prepared(
+        xy,
+        ground,
+        weight,
+        np.broadcast_to(is_check, (b, n)),
+        origin,
+        basis,
+        planar,
+        init,
+        initial is not None,
+        names,
+        sigma is not None,
+        np.flatnonzero(ctrl),
+    )
 
 
 def _batch_geometry(ground: np.ndarray, origin: np.ndarray, need_init: bool) -> np.ndarray:
@@ -339,8 +380,10 @@ def _batch_geometry(ground: np.ndarray, origin: np.ndarray, need_init: bool) -> 
     flat = s[:, 2] < _PLANAR * s[:, 0]
     if need_init and n < 6:
         if not np.all(flat):
-            raise ValueError(f"images {np.flatnonzero(~flat)[:10].tolist()} have non-planar GCPs: "
-                             "the automatic start needs 6 points for them")
+            raise ValueError(
+                f"images {np.flatnonzero(~flat)[:10].tolist()} have non-planar GCPs: "
+                "the automatic start needs 6 points for them"
+            )
     return np.stack([vt[:, 0], np.cross(vt[:, 2], vt[:, 0]), vt[:, 2]], axis=2), flat
 
 
@@ -360,8 +403,10 @@ def _principal_axes(centred: np.ndarray, sweeps: int = 6) -> tuple[np.ndarray, n
     key = lambda i, j: (min(i, j), max(i, j))  # noqa: E731
     for sweep in range(sweeps):
         # converged everywhere (off-diagonal below rounding of the diagonal): further sweeps change nothing
-        if sweep and np.all(np.abs(a[0, 1]) + np.abs(a[0, 2]) + np.abs(a[1, 2])
-                            <= 1e-17 * (np.abs(a[0, 0]) + np.abs(a[1, 1]) + np.abs(a[2, 2]))):
+        if sweep and np.all(
+            np.abs(a[0, 1]) + np.abs(a[0, 2]) + np.abs(a[1, 2])
+            <= 1e-17 * (np.abs(a[0, 0]) + np.abs(a[1, 1]) + np.abs(a[2, 2]))
+        ):
             break
         for p, q, r in ((0, 1, 2), (0, 2, 1), (1, 2, 0)):
             apq, app, aqq = a[p, q], a[p, p], a[q, q]

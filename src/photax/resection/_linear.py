@@ -30,6 +30,7 @@ from ..camera import OPENCV_FROM_PHOTAX
 from ..rotation import angles_from_matrix_unchecked, rotation_matrix
 from . import _lanes
 
+
 def rotation(angles, pok):
     """world_from_camera; the convention is a traced flag (``pok``:
     phi-omega-kappa), so both conventions share one compilation."""
@@ -139,8 +140,10 @@ def candidates(uv, ground, ctrl, basis, subsets):
     plane = jnp.sum(rel[:, :, None] * basis[None, :, :2], axis=1)
 
     # All systems (homography, DLT; all points, then each subset) in one batched solve.
-    systems = [_normal_equations(_homography_rows(uvn, plane, wf, scale)),
-               _normal_equations(_dlt_rows(uvn, rel, wf, scale))]
+    systems = [
+        _normal_equations(_homography_rows(uvn, plane, wf, scale)),
+        _normal_equations(_dlt_rows(uvn, rel, wf, scale)),
+    ]
     k = subsets.shape[0]
     if k:
         w4 = jnp.ones(subsets.shape[1]).at[4:].set(0.0)  # homography on the first 4
@@ -222,10 +225,17 @@ def _dlt_layout(k: int):
 
     big = 3 * k - 1
     table = [[entry(r, c) for c in range(big)] for r in range(big)]
-    rhs = [(sym(1, i, k - 1), 1.0) for i in range(k)] + [(sym(2, i, k - 1), 1.0) for i in range(k)] + [
-        (sym(3, i, k - 1), -1.0) for i in range(k - 1)]
-    return (np.array([[e[0] for e in row] for row in table]), np.array([[e[1] for e in row] for row in table]),
-            np.array([e[0] for e in rhs]), np.array([e[1] for e in rhs]))
+    rhs = (
+        [(sym(1, i, k - 1), 1.0) for i in range(k)]
+        + [(sym(2, i, k - 1), 1.0) for i in range(k)]
+        + [(sym(3, i, k - 1), -1.0) for i in range(k - 1)]
+    )
+    return (
+        np.array([[e[0] for e in row] for row in table]),
+        np.array([[e[1] for e in row] for row in table]),
+        np.array([e[0] for e in rhs]),
+        np.array([e[1] for e in rhs]),
+    )
 
 
 def _sq_errors_lanes(r_cv, c, uv, rel, ctrl):
@@ -281,8 +291,12 @@ def linear_start_lanes(inp, opt):
 
     # calibrated DLT x ~ [M | m] X, Hartley & Zisserman 2003 sec. 7.1
     sol = _lanes.solve_spd(*_dlt_normal([rel[i] / scale[None] for i in range(3)] + [one], un, vn, wf))
-    pm = jnp.stack([sum(t_inv[i, k][None] * jnp.concatenate([sol, one[:1]]).reshape(3, 4, -1)[k] for k in range(3))
-                    for i in range(3)])  # (3, 4, B)
+    pm = jnp.stack(
+        [
+            sum(t_inv[i, k][None] * jnp.concatenate([sol, one[:1]]).reshape(3, 4, -1)[k] for k in range(3))
+            for i in range(3)
+        ]
+    )  # (3, 4, B)
     mm = pm[:, :3] / _lanes.lane(scale, 3)
     lam_d = jnp.mean(jnp.sqrt(jnp.sum(mm * mm, axis=1)), axis=0)
 
@@ -294,8 +308,9 @@ def linear_start_lanes(inp, opt):
     c_h = -_lanes.matmul3(jnp.swapaxes(r_h, 0, 1), hm[:, 2] * (scale / lam_h)[None])
     c_d = -_lanes.matmul3(jnp.swapaxes(r_d, 0, 1), pm[:, 3] / lam_d[None])
     two = lambda a: jnp.concatenate([a, a], axis=-1)  # noqa: E731
-    err = _sq_errors_lanes(jnp.concatenate([r_h, r_d], axis=-1), jnp.concatenate([c_h, c_d], axis=-1), two(uv),
-                           two(rel), two(inp.ctrl))
+    err = _sq_errors_lanes(
+        jnp.concatenate([r_h, r_d], axis=-1), jnp.concatenate([c_h, c_d], axis=-1), two(uv), two(rel), two(inp.ctrl)
+    )
     tot = jnp.sum(jnp.where(two(inp.ctrl), err, 0.0), axis=0)
     tot_h, tot_d = tot[:b_], tot[b_:]
     tot_h = jnp.where(jnp.isnan(tot_h), jnp.inf, tot_h)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -83,7 +84,7 @@ class ResectionResult:
             raise TypeError("a single-image ResectionResult has no len(); resect_batch results do")
         return len(self.converged)
 
-    def __getitem__(self, i: int) -> "ResectionResult":
+    def __getitem__(self, i: int) -> ResectionResult:
         """The ``i``-th image of a :func:`resect_batch` result."""
         len(self)  # a TypeError for single results
         take = lambda a: np.asarray(a)[i]  # noqa: E731
@@ -100,8 +101,7 @@ class ResectionResult:
         return ResectionResult(**fields)
 
     # -- reports -----------------------------------------------------------
-    def summary(self, *, ground_unit: str | None = None, crs: str | None = None,
-                camera_unit: str | None = None) -> str:
+    def summary(self, *, ground_unit: str | None = None, crs: str | None = None, camera_unit: str | None = None) -> str:
         """A readable report: parameters +- std, sigma0, residuals, blunders,
         every number with its unit.
 
@@ -119,8 +119,9 @@ class ResectionResult:
         and their std in arc-seconds.
         """
         if np.ndim(self.converged) != 0:
-            return "\n\n".join(self[i].summary(ground_unit=ground_unit, crs=crs, camera_unit=camera_unit)
-                                for i in range(len(self)))
+            return "\n\n".join(
+                self[i].summary(ground_unit=ground_unit, crs=crs, camera_unit=camera_unit) for i in range(len(self))
+            )
         gu = ground_unit or _crs_unit(crs)
         ps = self.pixel_size
         if ps is not None and ps == 1.0:
@@ -142,7 +143,7 @@ class ResectionResult:
             if k < 3:
                 lines.append(f"  {lab + ' [' + gu + ']':<16}{val:>18.4f}{sd:>13.4f} {gu}")
             else:
-                lines.append(f"  {lab + ' [deg]':<16}{np.degrees(val):>18.6f}{np.degrees(sd) * 3600.0:>13.2f} \"")
+                lines.append(f'  {lab + " [deg]":<16}{np.degrees(val):>18.6f}{np.degrees(sd) * 3600.0:>13.2f} "')
         n_ctrl = int(np.sum(~self.check))
         n_used = int(np.sum(~self.check & ~self.outliers))
         if self.statistic == "w":
@@ -158,8 +159,12 @@ class ResectionResult:
         rows = []
         # Python floats, not numpy scalars: formatting those was most of a 10^5-point report's time
         for name, check, outlier, (vx, vy), (wx, wy) in zip(
-                self.names, np.asarray(self.check, bool).tolist(), np.asarray(self.outliers, bool).tolist(),
-                np.asarray(self.residuals).tolist(), np.asarray(self.normalised).tolist()):
+            self.names,
+            np.asarray(self.check, bool).tolist(),
+            np.asarray(self.outliers, bool).tolist(),
+            np.asarray(self.residuals).tolist(),
+            np.asarray(self.normalised).tolist(),
+        ):
             role = "check" if check else ("OUTLIER" if outlier else "control")
             if ps is not None:
                 cols = [f"{vx / ps:.3f}", f"{vy / ps:.3f}"] + ([f"{vx:.4g}", f"{vy:.4g}"] if both else [])
@@ -168,8 +173,10 @@ class ResectionResult:
             rows.append([str(name), role, *cols, f"{wx:.2f}", f"{wy:.2f}"])
         lines += _table(["point", "role", *heads, self.statistic + "_x", self.statistic + "_y"], rows, left=2)
         for k in np.flatnonzero(self.outliers):
-            lines.append(f"  blunder: {self.names[k]} excluded (|{self.statistic}| = "
-                         f"{_blunder_stat(self, k):.2f} > {self.critical:.2f})")
+            lines.append(
+                f"  blunder: {self.names[k]} excluded (|{self.statistic}| = "
+                f"{_blunder_stat(self, k):.2f} > {self.critical:.2f})"
+            )
         if np.any(self.check):
             lines.append(f"  check points: rmse = {image_value(self.check_rmse)}")
         return "\n".join(lines)
@@ -201,12 +208,22 @@ class ResectionResult:
         json.dumps(out)  # fail here, not in the caller, if something is not serialisable
         # the points: built from lists of Python values (one tolist per array, not per point)
         out["points"] = [
-            {"name": str(name), "role": "check" if check else "control", "outlier": outlier, "residual": v,
-             "redundancy": r, "normalised": w}
+            {
+                "name": str(name),
+                "role": "check" if check else "control",
+                "outlier": outlier,
+                "residual": v,
+                "redundancy": r,
+                "normalised": w,
+            }
             for name, check, outlier, v, r, w in zip(
-                self.names, np.asarray(self.check, bool).tolist(), np.asarray(self.outliers, bool).tolist(),
-                np.asarray(self.residuals).tolist(), np.asarray(self.redundancy).tolist(),
-                np.asarray(self.normalised).tolist())
+                self.names,
+                np.asarray(self.check, bool).tolist(),
+                np.asarray(self.outliers, bool).tolist(),
+                np.asarray(self.residuals).tolist(),
+                np.asarray(self.redundancy).tolist(),
+                np.asarray(self.normalised).tolist(),
+            )
         ]
         return out
 
@@ -218,8 +235,10 @@ def _table(heads: list[str], rows: list[list[str]], left: int) -> list[str]:
     width = [max(len(c) for c in col) for col in zip(heads, *rows)]
 
     def line(cells):
-        return "  " + "  ".join(c.ljust(w) if j < left else c.rjust(w)
-                                for j, (c, w) in enumerate(zip(cells, width))).rstrip()
+        return (
+            "  "
+            + "  ".join(c.ljust(w) if j < left else c.rjust(w) for j, (c, w) in enumerate(zip(cells, width))).rstrip()
+        )
 
     return [line(heads)] + [line(r) for r in rows]
 
@@ -244,4 +263,3 @@ def _crs_unit(crs: str | None) -> str:
 
 def _blunder_stat(res: ResectionResult, k: int) -> float:
     return float(np.nanmax(np.abs(res.normalised[k])))
-

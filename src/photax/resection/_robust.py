@@ -61,8 +61,11 @@ def starts(inp: Inputs, opt: Options):
         uv = _linear.opencv_uv(i.xy, opt.camera)
         return lmeds_start(uv, i.ground, i.ctrl, i.basis, opt.subsets, opt.dlt_ok, opt.pok)
 
-    return jax.lax.cond(jnp.all(inp.use_init), lambda: inp.init,
-                        lambda: _lanes.sel(inp.use_init, inp.init, jax.vmap(lmeds)(inp.per_image()).T))
+    return jax.lax.cond(
+        jnp.all(inp.use_init),
+        lambda: inp.init,
+        lambda: _lanes.sel(inp.use_init, inp.init, jax.vmap(lmeds)(inp.per_image()).T),
+    )
 
 
 def solve_robust(inp: Inputs, opt: Options, start) -> Output:
@@ -77,12 +80,13 @@ def solve_robust(inp: Inputs, opt: Options, start) -> Output:
         exclude, worst, stat, c_new = _adjust.test(new, used, opt)
         out = jax.tree_util.tree_map(lambda x, y: _lanes.sel(go, x, y), new, out)
         hit = worst & (go & exclude)[None]  # (m, B): the points excluded now
-        return (out, used & ~hit, jnp.where(hit[:, None, :], stat, stat_at), go & exclude,
-                jnp.where(go, c_new, c))
+        return (out, used & ~hit, jnp.where(hit[:, None, :], stat, stat_at), go & exclude, jnp.where(go, c_new, c))
 
     blank = Output.blank(m)
-    first = {k: jnp.zeros(getattr(blank, k).shape + (b,), getattr(blank, k).dtype)
-             for k in ("params", "sigma0", "qxx", "residuals", "redundancy", "w", "depth", "axis", "result", "steps")}
+    first = {
+        k: jnp.zeros(getattr(blank, k).shape + (b,), getattr(blank, k).dtype)
+        for k in ("params", "sigma0", "qxx", "residuals", "redundancy", "w", "depth", "axis", "result", "steps")
+    }
     carry = (first, inp.ctrl, jnp.full((m, 2, b), jnp.nan), jnp.ones(b, bool), jnp.zeros(b))
     out, used, stat_at, _, c = jax.lax.while_loop(lambda s: jnp.any(s[3]), body, carry)
     return Output(**out, start=start, used=used, stat_at=stat_at, critical=c, retry=jnp.zeros(b, int))

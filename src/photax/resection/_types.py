@@ -37,14 +37,21 @@ class Inputs(eqx.Module):
     init: Array  # (6, B) the user's start (C - origin, angles), or zeros
     use_init: Array  # (B,) bool: start from ``init`` instead of the linear start
 
-    def per_image(self) -> "Inputs":
+    def per_image(self) -> Inputs:
         """The image axis first, each image in its natural layout (``xy`` ``(B, m, 2)``,
         ``basis`` ``(B, 3, 3)``, ...): for per-image code under ``vmap``."""
         t = functools.partial(jnp.transpose, axes=(2, 1, 0))
-        return Inputs(xy=t(self.xy), ground=t(self.ground), weight=t(self.weight), ctrl=self.ctrl.T,
-                      basis=jnp.transpose(self.basis, (2, 0, 1)), init=self.init.T, use_init=self.use_init)
+        return Inputs(
+            xy=t(self.xy),
+            ground=t(self.ground),
+            weight=t(self.weight),
+            ctrl=self.ctrl.T,
+            basis=jnp.transpose(self.basis, (2, 0, 1)),
+            init=self.init.T,
+            use_init=self.use_init,
+        )
 
-    def take(self, idx) -> "Inputs":
+    def take(self, idx) -> Inputs:
         """The lanes ``idx`` (numpy or JAX)."""
         return jax.tree_util.tree_map(lambda a: a[..., idx], self)
 
@@ -90,12 +97,26 @@ class Output(eqx.Module):
     retry: Array  # () int: the cheap path asks for the robust one: 0 no, 1 only the test failed, 2 everything
 
     @classmethod
-    def blank(cls, m: int) -> "Output":
+    def blank(cls, m: int) -> Output:
         """Zeros of every field's shape and dtype (a new field adds its line here)."""
         z = jnp.zeros
-        return cls(params=z(6), start=z(6), sigma0=z(()), qxx=z((6, 6)), residuals=z((m, 2)),
-                   redundancy=z((m, 2)), w=z((m, 2)), depth=z(m), axis=z(3), result=z((), int),
-                   steps=z((), int), used=z(m, bool), stat_at=z((m, 2)), critical=z(()), retry=z((), int))
+        return cls(
+            params=z(6),
+            start=z(6),
+            sigma0=z(()),
+            qxx=z((6, 6)),
+            residuals=z((m, 2)),
+            redundancy=z((m, 2)),
+            w=z((m, 2)),
+            depth=z(m),
+            axis=z(3),
+            result=z((), int),
+            steps=z((), int),
+            used=z(m, bool),
+            stat_at=z((m, 2)),
+            critical=z(()),
+            retry=z((), int),
+        )
 
 
 def pack(out: Output) -> Array:
@@ -152,5 +173,5 @@ def unpack(flat: np.ndarray, m: int) -> HostOutput:
     leaves = []
     for where, shape, dtype in _layout(m):
         v = flat[..., where].reshape(flat.shape[:-1] + shape)
-        leaves.append(v > 0.5 if dtype == bool else (v.astype(dtype) if dtype != v.dtype else v))
+        leaves.append(v > 0.5 if np.issubdtype(dtype, np.bool_) else (v.astype(dtype) if dtype != v.dtype else v))
     return HostOutput(*leaves)

@@ -20,24 +20,52 @@ Everything is seeded; ground coordinates are UTM-like so code that forgets to
 reduce them to a local origin shows it.  Frames and units: ``docs/conventions.md``.
 """
 
+from ._block import BlockScene as BlockScene
+from ._block import block_scene as block_scene
+from ._bundle import SyntheticBlock as SyntheticBlock
+from ._bundle import synthetic_block as synthetic_block
 from ._fiducials import fiducial_scan as fiducial_scan
+from ._relief import Scene as Scene
+from ._relief import relief_scene as relief_scene
 from ._render import render_image as render_image
-from ._block import BlockScene as BlockScene, block_scene as block_scene
-from ._bundle import SyntheticBlock as SyntheticBlock, synthetic_block as synthetic_block
-from ._relief import Scene as Scene, relief_scene as relief_scene
 from ._sample import (
     SAMPLE_BLUNDER as SAMPLE_BLUNDER,
+)
+from ._sample import (
     SAMPLE_CHECK as SAMPLE_CHECK,
+)
+from ._sample import (
     SAMPLE_CRS as SAMPLE_CRS,
+)
+from ._sample import (
     SAMPLE_DEM_CELL as SAMPLE_DEM_CELL,
+)
+from ._sample import (
     SAMPLE_DEM_HALF as SAMPLE_DEM_HALF,
+)
+from ._sample import (
     SAMPLE_IMAGE as SAMPLE_IMAGE,
+)
+from ._sample import (
     SAMPLE_NOISE_PX as SAMPLE_NOISE_PX,
+)
+from ._sample import (
     SAMPLE_ORIGIN as SAMPLE_ORIGIN,
+)
+from ._sample import (
     SAMPLE_SEED as SAMPLE_SEED,
+)
+from ._sample import (
     SAMPLE_TARGET_RADIUS as SAMPLE_TARGET_RADIUS,
+)
+from ._sample import (
     render_sample_image as render_sample_image,
+)
+from ._sample import (
     sample_dem as sample_dem,
+)
+from ._sample import (
     sample_points as sample_points,
 )
-from ._texture import detailed_texture as detailed_texture, texture as texture
+from ._texture import detailed_texture as detailed_texture
+from ._texture import texture as texture

@@ -176,13 +176,17 @@ def _visible(xyz, n_fixed, n_tie, col_x, row_y, reach, eo, cam, half_w, half_h):
 
     def pairs(first, last):
         p = xyz[first:last]
-        c0 = np.ceil((p[:, 0] - reach - col_x[0]) / step_x).astype(np.int64) if n_col > 1 else np.zeros(len(p), np.int64)
-        r0 = np.ceil((p[:, 1] - reach - row_y[0]) / step_y).astype(np.int64) if n_row > 1 else np.zeros(len(p), np.int64)
+        c0 = (
+            np.ceil((p[:, 0] - reach - col_x[0]) / step_x).astype(np.int64) if n_col > 1 else np.zeros(len(p), np.int64)
+        )
+        r0 = (
+            np.ceil((p[:, 1] - reach - row_y[0]) / step_y).astype(np.int64) if n_row > 1 else np.zeros(len(p), np.int64)
+        )
         c = c0[:, None, None] + np.arange(wx)[None, None, :]
         r = r0[:, None, None] + np.arange(wy)[None, :, None]
         ok = (c >= 0) & (c < n_col) & (r >= 0) & (r < n_row)
-        ok &= (np.abs(p[:, None, None, 0] - col_x[np.clip(c, 0, n_col - 1)]) <= reach)
-        ok &= (np.abs(p[:, None, None, 1] - row_y[np.clip(r, 0, n_row - 1)]) <= reach)
+        ok &= np.abs(p[:, None, None, 0] - col_x[np.clip(c, 0, n_col - 1)]) <= reach
+        ok &= np.abs(p[:, None, None, 1] - row_y[np.clip(r, 0, n_row - 1)]) <= reach
         pt, rr, cc = np.nonzero(ok)  # pt: first index, so ordered by point
         img = r[pt, rr, 0] * n_col + c[pt, 0, cc]
         pt = pt + first

@@ -8,10 +8,10 @@ import dataclasses
 
 import numpy as np
 
+from ..bundle import BundleProblem
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ._block import block_scene
-from ..bundle import BundleProblem
 
 
 @dataclasses.dataclass(frozen=True)

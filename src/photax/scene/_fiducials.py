@@ -27,15 +27,28 @@ def _invert(pixel_from_film, target: np.ndarray, start: np.ndarray, steps: int =
         jy = (pixel_from_film(x + [0.0, e]) - pixel_from_film(x - [0.0, e])) / (2 * e)
         r = target - f
         det = jx[:, 0] * jy[:, 1] - jy[:, 0] * jx[:, 1]
-        x = x + np.column_stack([(jy[:, 1] * r[:, 0] - jy[:, 0] * r[:, 1]) / det,
-                                 (jx[:, 0] * r[:, 1] - jx[:, 1] * r[:, 0]) / det])
+        x = x + np.column_stack(
+            [(jy[:, 1] * r[:, 0] - jy[:, 0] * r[:, 1]) / det, (jx[:, 0] * r[:, 1] - jx[:, 1] * r[:, 0]) / det]
+        )
     return x
 
 
-def fiducial_scan(fiducial_xy, pixel_from_film, size: tuple[int, int], *, mark: str = "cross",
-                  mark_size: float = 1.0, line_width: float = 0.2, background: float = 0.15,
-                  foreground: float = 0.85, blur: float = 0.7, noise: float = 0.01, seed: int = 0,
-                  displaced: dict | None = None, supersample: int = 6) -> tuple[np.ndarray, np.ndarray]:
+def fiducial_scan(
+    fiducial_xy,
+    pixel_from_film,
+    size: tuple[int, int],
+    *,
+    mark: str = "cross",
+    mark_size: float = 1.0,
+    line_width: float = 0.2,
+    background: float = 0.15,
+    foreground: float = 0.85,
+    blur: float = 0.7,
+    noise: float = 0.01,
+    seed: int = 0,
+    displaced: dict | None = None,
+    supersample: int = 6,
+) -> tuple[np.ndarray, np.ndarray]:
     """A scan of a film frame's fiducial marks with a known film -> pixel geometry.
 
     Args:
@@ -66,8 +79,12 @@ def fiducial_scan(fiducial_xy, pixel_from_film, size: tuple[int, int], *, mark: 
         shift = np.asarray((displaced or {}).get(i, (0.0, 0.0)), dtype=float)
         centre = p + shift
         # local scale: pixels per mm at the mark, for the window's extent
-        jac = np.column_stack([pixel_from_film(f[None] + [[1e-3, 0.0]])[0] - p,
-                               pixel_from_film(f[None] + [[0.0, 1e-3]])[0] - p]) / 1e-3
+        jac = (
+            np.column_stack(
+                [pixel_from_film(f[None] + [[1e-3, 0.0]])[0] - p, pixel_from_film(f[None] + [[0.0, 1e-3]])[0] - p]
+            )
+            / 1e-3
+        )
         ext = int(np.ceil(1.5 * (mark_size + line_width) * np.abs(jac).max())) + 2
         c0, r0 = int(round(centre[0])) - ext, int(round(centre[1])) - ext
         cc = c0 + np.arange(2 * ext + 1)
@@ -82,7 +99,7 @@ def fiducial_scan(fiducial_xy, pixel_from_film, size: tuple[int, int], *, mark: 
         film = _invert(pixel_from_film, target, start)
         on = mark_coverage(mark, film[:, 0] - f[0], film[:, 1] - f[1], mark_size, line_width)
         k = 2 * ext + 1
-        cover[rr[0]:rr[-1] + 1, cc[0]:cc[-1] + 1] = on.reshape(k, supersample, k, supersample).mean(axis=(1, 3))
+        cover[rr[0] : rr[-1] + 1, cc[0] : cc[-1] + 1] = on.reshape(k, supersample, k, supersample).mean(axis=(1, 3))
     img = background + (foreground - background) * cover
     if blur > 0:
         img = gaussian_filter(img, blur, mode="nearest")

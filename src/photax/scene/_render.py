@@ -39,9 +39,20 @@ def _grey(px, exterior, camera, dem, origin, centres, radius, detail):
     return jnp.nan_to_num(grey * (1.0 - alpha) + target * alpha, nan=0.0)
 
 
-def render_image(camera: FrameCamera, exterior: ExteriorOrientation, dem: DEM, *, origin, targets=None,
-                 target_radius: float = 6.0, detail: bool = True, supersample: int = 4, blur: float = 0.5,
-                 noise: float = 0.0, seed: int = 0) -> np.ndarray:
+def render_image(
+    camera: FrameCamera,
+    exterior: ExteriorOrientation,
+    dem: DEM,
+    *,
+    origin,
+    targets=None,
+    target_radius: float = 6.0,
+    detail: bool = True,
+    supersample: int = 4,
+    blur: float = 0.5,
+    noise: float = 0.0,
+    seed: int = 0,
+) -> np.ndarray:
     """Render the image a frame camera takes of a textured DEM.
 
     Args:
@@ -78,10 +89,20 @@ def render_image(camera: FrameCamera, exterior: ExteriorOrientation, dem: DEM, *
     origin = jnp.asarray(np.asarray(origin, dtype=float))
     out = np.empty(len(px))
     for a in range(0, len(px), _CHUNK):
-        chunk = px[a:a + _CHUNK]
+        chunk = px[a : a + _CHUNK]
         pad = np.pad(chunk, ((0, _CHUNK - len(chunk)), (0, 0)), mode="edge")
-        out[a:a + len(chunk)] = np.asarray(_grey(jnp.asarray(pad), exterior, camera, dem, origin,
-                                                 jnp.asarray(centres), float(target_radius), bool(detail)))[:len(chunk)]
+        out[a : a + len(chunk)] = np.asarray(
+            _grey(
+                jnp.asarray(pad),
+                exterior,
+                camera,
+                dem,
+                origin,
+                jnp.asarray(centres),
+                float(target_radius),
+                bool(detail),
+            )
+        )[: len(chunk)]
     img = out.reshape(h, s, w, s).mean(axis=(1, 3))
     if blur > 0:
         img = gaussian_filter(img, blur, mode="nearest")

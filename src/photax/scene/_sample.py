@@ -71,11 +71,13 @@ def sample_points() -> dict:
     """
     rng = np.random.default_rng(SAMPLE_SEED)
     width, height = 1000, 750
-    camera = FrameCamera(8.8, (0.011, -0.0066), (-0.02, 0.004, 0.0, 0.0, 0.0),
-                         pixel_size=0.0176, image_size=(width, height))
+    camera = FrameCamera(
+        8.8, (0.011, -0.0066), (-0.02, 0.004, 0.0, 0.0, 0.0), pixel_size=0.0176, image_size=(width, height)
+    )
     origin = np.array([*SAMPLE_ORIGIN, 0.0])
-    exterior = ExteriorOrientation(origin + np.array([8.0, -12.0, 450.0]),
-                                   np.radians([1.2, -0.8, 35.0]), "phi-omega-kappa")
+    exterior = ExteriorOrientation(
+        origin + np.array([8.0, -12.0, 450.0]), np.radians([1.2, -0.8, 35.0]), "phi-omega-kappa"
+    )
     dem = sample_dem()
     # Jittered 4 x 4 grid in the image, kept ~40 px from the border.
     u = np.linspace(0.0625, 0.9375, 4) * width
@@ -90,9 +92,18 @@ def sample_points() -> dict:
     names = np.array([f"P{k + 1:02d}" for k in range(16)])
     pixel[names == SAMPLE_BLUNDER[0]] += np.asarray(SAMPLE_BLUNDER[1])
     pixel = np.round(pixel, 3)
-    return {"camera": camera, "exterior": exterior, "dem": dem, "names": names, "ground": ground, "pixel": pixel,
-            "pixel_true": pixel_true, "sigma": np.full(16, SAMPLE_NOISE_PX),
-            "role": np.where(np.isin(names, SAMPLE_CHECK), "check", "control"), "crs": SAMPLE_CRS}
+    return {
+        "camera": camera,
+        "exterior": exterior,
+        "dem": dem,
+        "names": names,
+        "ground": ground,
+        "pixel": pixel,
+        "pixel_true": pixel_true,
+        "sigma": np.full(16, SAMPLE_NOISE_PX),
+        "role": np.where(np.isin(names, SAMPLE_CHECK), "check", "control"),
+        "crs": SAMPLE_CRS,
+    }
 
 
 def _targets(x, y, centres, radius=SAMPLE_TARGET_RADIUS):
@@ -132,5 +143,7 @@ def render_sample_image(camera: FrameCamera, exterior: ExteriorOrientation, dem:
     w, h = camera.image_size
     cc, rr = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
     px = jnp.asarray(np.column_stack([cc.ravel(), rr.ravel()]))
-    grey = np.asarray(_render(px, exterior, camera, dem, jnp.asarray(SAMPLE_ORIGIN), jnp.asarray(np.asarray(ground)[:, :2])))
+    grey = np.asarray(
+        _render(px, exterior, camera, dem, jnp.asarray(SAMPLE_ORIGIN), jnp.asarray(np.asarray(ground)[:, :2]))
+    )
     return np.clip(np.round(grey * 255.0), 0, 255).astype(np.uint8).reshape(h, w)

@@ -15,7 +15,7 @@ renderer is a test fixture, not part of the measuring pipeline.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 from scipy.ndimage import gaussian_filter
@@ -98,9 +98,19 @@ def render(
     return _finish(out, blur, noise, low, high, rng)
 
 
-def texture(shape, *, blobs: int | None = None, sigma=(1.0, 3.0), shift=(0.0, 0.0), seed: int = 0,
-            blur: float = 0.0, noise: float = 0.0, low: float = 0.0, high: float = 1.0,
-            rng: np.random.Generator | None = None) -> np.ndarray:
+def texture(
+    shape,
+    *,
+    blobs: int | None = None,
+    sigma=(1.0, 3.0),
+    shift=(0.0, 0.0),
+    seed: int = 0,
+    blur: float = 0.0,
+    noise: float = 0.0,
+    low: float = 0.0,
+    high: float = 1.0,
+    rng: np.random.Generator | None = None,
+) -> np.ndarray:
     """A random texture of Gaussian blobs, integrated exactly over each pixel.
 
     The blobs (positive and negative, standard deviation drawn from
