@@ -123,10 +123,11 @@ def commands(d, out):
             str(out / "cmp"),
         ],
         "bundle": ["bundle", str(ROOT / "data" / "block"), "--quiet", "--max-iterations", "3"],
+        "resect": ["resect", files["gcps"], "--camera", files["camera"]],
     }
 
 
-@pytest.mark.parametrize("command", ["rectify", "ortho", "compare", "bundle"])
+@pytest.mark.parametrize("command", ["rectify", "ortho", "compare", "bundle", "resect"])
 def test_one_bar_per_command_named_after_it(scene, tmp_path, capsys, command):
     args = commands(scene, tmp_path)[command]
     assert main(args) in (0, 1)  # bundle stopped after 3 iterations: 1, not converged
@@ -137,7 +138,10 @@ def test_one_bar_per_command_named_after_it(scene, tmp_path, capsys, command):
         # iterations and cost, no total: max_iterations is a limit, so a percentage or an ETA would lie
         last = captured.err.split("\n")[0].split("\r")[-1]
         assert re.match(r"bundle: 3it \[[\d:]+, .*cost=", last) and "%" not in captured.err, last
-    if command in ("rectify", "bundle"):  # the cheap ones
+    if command == "resect":  # a bar over the images (issue 27: a 10^6-point file takes seconds), then the report
+        assert "resect:" not in captured.out and "1 of 1 image solved" in captured.out
+        assert "1/1" in captured.err
+    if command in ("rectify", "bundle", "resect"):  # the cheap ones
         assert main([*args, "--no-progress"]) in (0, 1)
         assert bars(capsys.readouterr().err) == []
 

@@ -80,6 +80,20 @@ def run(args: argparse.Namespace) -> int:
     return _run_one(args)
 
 
+def _check_inputs(args: argparse.Namespace) -> None:
+    """The shared inputs exist and the numbers make sense: before any work."""
+    from ._common import input_file
+
+    if args.dem is not None:
+        input_file(args.dem, "DEM")
+    elif not math.isfinite(args.height):
+        raise ValueError(f"--height must be a finite number, got {args.height}")
+    input_file(args.camera, "camera file")
+    input_file(args.exterior, "exterior file")
+    if args.resolution is not None and not args.resolution > 0:
+        raise ValueError(f"--resolution must be positive, got {args.resolution}")
+
+
 def _run_one(args: argparse.Namespace) -> int:
     from ..grid import ortho_grid
     from ..io.atomic import check_output_path
@@ -89,16 +103,9 @@ def _run_one(args: argparse.Namespace) -> int:
     from ._common import check_crs, ground_unit, input_file
 
     image = input_file(args.image, "image")
-    if args.dem is not None:
-        input_file(args.dem, "DEM")
-    elif not math.isfinite(args.height):
-        raise ValueError(f"--height must be a finite number, got {args.height}")
-    input_file(args.camera, "camera file")
-    input_file(args.exterior, "exterior file")
+    _check_inputs(args)
     inputs = [p for p in (args.image, args.dem, args.camera, args.exterior) if p is not None]
     check_output_path(args.out, inputs)  # fail before the work, not after
-    if args.resolution is not None and not args.resolution > 0:
-        raise ValueError(f"--resolution must be positive, got {args.resolution}")
     camera = read_interior(args.camera, args.camera_name)
     dem = read_dem(args.dem) if args.dem is not None else None
     # positions given in latitude/longitude or a topocentric frame go into the DEM's CRS
@@ -134,14 +141,7 @@ def _run_block(args: argparse.Namespace) -> int:
     from ..rectification import orthorectify_files
     from ._common import check_crs, ground_unit, input_file
 
-    if args.dem is not None:
-        input_file(args.dem, "DEM")
-    elif not math.isfinite(args.height):
-        raise ValueError(f"--height must be a finite number, got {args.height}")
-    input_file(args.camera, "camera file")
-    input_file(args.exterior, "exterior file")
-    if args.resolution is not None and not args.resolution > 0:
-        raise ValueError(f"--resolution must be positive, got {args.resolution}")
+    _check_inputs(args)
     folder = pathlib.Path(args.out_dir)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"--out-dir {folder}: is a file, expected a folder")

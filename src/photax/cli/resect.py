@@ -83,6 +83,7 @@ def add_parser(sub) -> None:
         "against the a-posteriori sigma0 (tau test)",
     )
     p.add_argument("--format", choices=("auto", "csv", "odm"), default="auto", help="GCP file format")
+    p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
 
@@ -109,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.gcp import read_gcps
     from ..io.orientation import read_camera_unit, read_interior
     from ..io.results import write_json
+    from ..progress import progress_bar
     from ..resection import resect
     from ._common import input_file, plural
 
@@ -119,6 +121,13 @@ def run(args: argparse.Namespace) -> int:
         check_output_path(args.out, inputs)  # fail before the work, not after
     if args.sigma is not None and not args.sigma > 0:
         raise ValueError(f"--sigma must be positive, got {args.sigma}")
+    # One bar over the images (10^5 points take seconds to solve); the report is printed once the bar
+    # is closed, so that the two do not interleave on a terminal.
+    report = []
+
+    def say(*parts):
+        report.append(" ".join(str(p) for p in parts))
+
     table = read_gcps(gcp_path, format=args.format)
     require_projected(table.crs, f"the GCPs ({args.gcp_file})")  # degrees are not metres
     camera = read_interior(camera_path)  # a photax camera file, an orthority interior, a reconstruction.json
@@ -127,43 +136,48 @@ def run(args: argparse.Namespace) -> int:
     if args.image is not None:
         table.select(args.image)  # an unknown name is a usage error (exit 2), before any work
     images = [args.image] if args.image is not None else table.image_names
-    results, failed = {}, 0
-    for name in images:
-        sub = table.select(name)
-        label = name or "(single image)"
-        n_check = int(sub.check.sum())
-        counts = f"{plural(len(sub), 'point')} ({len(sub) - n_check} control, {n_check} check)"
-        try:
-            res = resect(
-                sub.image_plane(camera),
-                sub.ground,
-                camera,
-                sigma=_sigma(sub, camera, args.sigma),
-                check=sub.check,
-                names=sub.names,
-                convention=args.convention,
-                robust=args.robust,
-                throw=False,
-            )
-        except ValueError as exc:
-            print(f"== {label}: NOT SOLVED, skipped ({counts}): {exc}")
-            for note in sub.duplicates():
-                print(f"  note: {note}")
-            print()
-            results[name] = {"status": "skipped", "message": str(exc)}
-            failed += 1
-            continue
-        print(f"== {label}: {counts} ==")
-        for note in sub.duplicates():  # only the notes about this image, under its header
-            print(f"  note: {note}")
-        print(res.summary(crs=table.crs, camera_unit=read_camera_unit(camera_path)))  # units on every number
-        converged = bool(np.all(np.asarray(res.converged)))
-        if not converged:
-            print(f"  {label}: NOT SOLVED - {res.message}")
-        print()
-        failed += not converged
-        if args.out:  # the per-point dicts cost seconds for 10^5 points: only when written
-            results[name] = {"status": "solved" if converged else "not converged", **res.to_dict()}
+    with progress_bar(args.progress and args.command, len(images), desc="resect", unit="image") as bar:
+        results, failed = {}, 0
+        for name in images:
+            sub = table.select(name)
+            bar.set_postfix_str(f"{name or 'image'}: {plural(len(sub), 'point')}")
+            label = name or "(single image)"
+            n_check = int(sub.check.sum())
+            counts = f"{plural(len(sub), 'point')} ({len(sub) - n_check} control, {n_check} check)"
+            try:
+                res = resect(
+                    sub.image_plane(camera),
+                    sub.ground,
+                    camera,
+                    sigma=_sigma(sub, camera, args.sigma),
+                    check=sub.check,
+                    names=sub.names,
+                    convention=args.convention,
+                    robust=args.robust,
+                    throw=False,
+                )
+            except ValueError as exc:
+                say(f"== {label}: NOT SOLVED, skipped ({counts}): {exc}")
+                for note in sub.duplicates():
+                    say(f"  note: {note}")
+                say()
+                results[name] = {"status": "skipped", "message": str(exc)}
+                failed += 1
+                bar.update()
+                continue
+            say(f"== {label}: {counts} ==")
+            for note in sub.duplicates():  # only the notes about this image, under its header
+                say(f"  note: {note}")
+            say(res.summary(crs=table.crs, camera_unit=read_camera_unit(camera_path)))  # units on every number
+            converged = bool(np.all(np.asarray(res.converged)))
+            if not converged:
+                say(f"  {label}: NOT SOLVED - {res.message}")
+            say()
+            failed += not converged
+            bar.update()
+            if args.out:  # the per-point dicts cost seconds for 10^5 points: only when written
+                results[name] = {"status": "solved" if converged else "not converged", **res.to_dict()}
+    print("\n".join(report))
     solved = len(images) - failed
     print(f"{solved} of {plural(len(images), 'image')} solved" + (f", {failed} not" if failed else ""))
     if args.out:
