@@ -125,7 +125,7 @@ def test_an_oserror_deep_inside_is_one_line(tmp_path, capsys, monkeypatch):
         raise IsADirectoryError(21, "Is a directory", "/x/y")
 
     monkeypatch.setattr(photax.resection, "resect", boom)
-    assert main(["resect", str(GCPS), "--camera", str(CAMERA)]) == 2
+    assert main(["resect", str(GCPS), "--camera", str(CAMERA), "--no-progress"]) == 2  # the message, not a bar
     assert "/x/y: Is a directory" in _one_line_error(capsys, "resect")
 
 
@@ -153,7 +153,7 @@ def test_ctrl_c_exits_130_without_output(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setattr(photax.resection, "resect", interrupted)
     out = tmp_path / "r.json"
-    assert main(["resect", str(GCPS), "--camera", str(CAMERA), "--json", str(out)]) == 130
+    assert main(["resect", str(GCPS), "--camera", str(CAMERA), "-o", str(out), "--no-progress"]) == 130
     err = capsys.readouterr().err
     assert "interrupted" in err and "Traceback" not in err and err.strip().count("\n") == 0
     assert list(tmp_path.iterdir()) == []
