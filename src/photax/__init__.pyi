@@ -162,6 +162,10 @@ from .rotation import (
 from .rotation import (
     rotation_matrix as rotation_matrix,
 )
+from .rpc import RPCCamera as RPCCamera
+from .rpc import RPCRefinement as RPCRefinement
+from .rpc import read_rpc as read_rpc
+from .rpc import refine_rpc as refine_rpc
 from .scene import Scene as Scene
 from .scene import relief_scene as relief_scene
 from .uncertainty import OrthoUncertainty as OrthoUncertainty

@@ -1,0 +1,357 @@
+"""Rational polynomial (RPC) sensor model of satellite images, and its refinement on GCPs.
+
+Forward model (RPC00B; NITF STDI-0002 / GDAL / orthority)::
+
+    L = (lon - LONG_OFF) / LONG_SCALE,  P = (lat - LAT_OFF) / LAT_SCALE,  H = (h - HEIGHT_OFF) / HEIGHT_SCALE
+    column = SAMP_OFF + SAMP_SCALE * num_s(L, P, H) / den_s(L, P, H)
+    row    = LINE_OFF + LINE_SCALE * num_l(L, P, H) / den_l(L, P, H)
+
+each polynomial a cubic with its 20 terms in the RPC00B order::
+
+    1, L, P, H, L P, L H, P H, L^2, P^2, H^2, P L H, L^3, L P^2, L H^2, L^2 P, P^3, P H^2, L^2 H, P^2 H, H^3
+
+lon, lat in degrees (WGS84), h ellipsoidal height in metres (a DEM on a geoid must be converted
+first), pixel coordinates (column, row) with the centre of the top-left pixel at (0, 0), photax's
+convention everywhere -- GDAL's RPC transformer counts from the pixel's corner (0.5 more).
+
+Inverse (:meth:`RPCCamera.to_ground`): Newton's method on (lon, lat) at a given height, the 2 x 2
+Jacobian by ``jax.jacfwd``.
+
+Refinement (:func:`refine_rpc`, Grodecki & Dial 2003; Hanley & Fraser 2004): an image-space
+correction added to the RPC's pixel position, of increasing order::
+
+    shift:        dc = a0,                 dr = b0
+    shift-drift:  dc = a0 + a2 r,          dr = b0 + b2 r        (drift along the line time)
+    affine:       dc = a0 + a1 c + a2 r,   dr = b0 + b1 c + b2 r
+
+(c, r the RPC's own pixel position), adjusted by linear least squares on GCPs, with sigma0,
+covariance and leave-one-out residuals.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ._float64 import as_float64
+
+# Coefficient rows of RPCCamera.coefficients, and the keys GDAL / rasterio / orthority give them.
+COEFFICIENT_KEYS = ("line_num_coeff", "line_den_coeff", "samp_num_coeff", "samp_den_coeff")
+# Entries of RPCCamera.offsets / .scales, and their keys.
+OFFSET_KEYS = ("long_off", "lat_off", "height_off", "samp_off", "line_off")
+SCALE_KEYS = ("long_scale", "lat_scale", "height_scale", "samp_scale", "line_scale")
+
+Refinement = Literal["shift", "shift-drift", "affine"]
+# Which of (a0, a1, a2) -- constant, column, row -- each refinement adjusts, per axis.
+_REFINE_TERMS = {"shift": (0,), "shift-drift": (0, 2), "affine": (0, 1, 2)}
+
+
+def _monomials(lph: Array) -> Array:
+    """``(..., 20)`` RPC00B terms of normalised ``(..., 3)`` (L, P, H)."""
+    L, P, H = lph[..., 0], lph[..., 1], lph[..., 2]
+    one = jnp.ones_like(L)
+    return jnp.stack(
+        [one, L, P, H, L * P, L * H, P * H, L * L, P * P, H * H,
+         P * L * H, L**3, L * P * P, L * H * H, L * L * P, P**3, P * H * H, L * L * H, P * P * H, H**3],
+        axis=-1,
+    )  # fmt: skip
+
+
+class RPCCamera(eqx.Module):
+    """An RPC sensor model (module docstring: the equations and conventions).
+
+    Attributes:
+        coefficients: ``(4, 20)`` rows line numerator, line denominator, sample numerator,
+            sample denominator (:data:`COEFFICIENT_KEYS`), terms in the RPC00B order
+            (module docstring).
+        offsets: ``(5,)`` lon (deg), lat (deg), height (m), sample (px), line (px) (:data:`OFFSET_KEYS`).
+        scales: ``(5,)`` the same five scales (:data:`SCALE_KEYS`).
+        correction: ``(2, 3)`` image-space correction ``[[a0, a1, a2], [b0, b1, b2]]`` added to the
+            RPC's (column, row): ``dc = a0 + a1 c + a2 r``, ``dr = b0 + b1 c + b2 r`` (zero unless refined,
+            :func:`refine_rpc`).
+        image_size: ``(width, height)`` in pixels, or None when unknown.
+    """
+
+    coefficients: Array
+    offsets: Array
+    scales: Array
+    correction: Array
+    image_size: tuple[int, int] | None = eqx.field(static=True, default=None)
+
+    def __init__(self, coefficients, offsets, scales, correction=None, image_size=None):
+        c = as_float64(coefficients, "coefficients")
+        o = as_float64(offsets, "offsets")
+        s = as_float64(scales, "scales")
+        if c.shape != (4, 20):
+            raise ValueError(f"coefficients: expected shape (4, 20), got {c.shape}")
+        for name, a in (("offsets", o), ("scales", s)):
+            if a.shape != (5,):
+                raise ValueError(f"{name}: expected shape (5,), got {a.shape}")
+        bad = [f"{COEFFICIENT_KEYS[i]}[{j}]" for i, j in zip(*np.nonzero(~np.isfinite(c)), strict=True)]
+        bad += [OFFSET_KEYS[i] for i in np.flatnonzero(~np.isfinite(o))]
+        bad += [SCALE_KEYS[i] for i in np.flatnonzero(~np.isfinite(s))]
+        if bad:
+            raise ValueError(f"RPC: non-finite values in {', '.join(bad)}")
+        if np.any(s == 0):
+            raise ValueError(f"RPC: zero scale in {', '.join(SCALE_KEYS[i] for i in np.flatnonzero(s == 0))}")
+        k = np.zeros((2, 3)) if correction is None else as_float64(correction, "correction")
+        if k.shape != (2, 3):
+            raise ValueError(f"correction: expected shape (2, 3), got {k.shape}")
+        self.coefficients = jnp.asarray(c)
+        self.offsets = jnp.asarray(o)
+        self.scales = jnp.asarray(s)
+        self.correction = jnp.asarray(k)
+        self.image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
+
+    # --- construction ---------------------------------------------------------------------------
+
+    @classmethod
+    def from_dict(cls, rpc: dict, image_size=None) -> RPCCamera:
+        """From a mapping with GDAL's / rasterio's / orthority's lower-case keys
+        (``line_num_coeff``, ..., ``long_off``, ..., ``samp_scale``); missing keys are named."""
+        keys = (*COEFFICIENT_KEYS, *OFFSET_KEYS, *SCALE_KEYS)
+        missing = [k for k in keys if rpc.get(k) is None]
+        if missing:
+            raise ValueError(f"RPC: missing {', '.join(missing)}")
+        coeffs = []
+        for k in COEFFICIENT_KEYS:
+            row = np.asarray(rpc[k], dtype=float).ravel()
+            if row.shape != (20,):
+                raise ValueError(f"RPC: {k} has {row.size} coefficients, expected 20")
+            coeffs.append(row)
+        return cls(
+            np.stack(coeffs),
+            [float(rpc[k]) for k in OFFSET_KEYS],
+            [float(rpc[k]) for k in SCALE_KEYS],
+            image_size=image_size,
+        )
+
+    @classmethod
+    def from_rasterio(cls, rpcs, image_size=None) -> RPCCamera:
+        """From a :class:`rasterio.rpc.RPC` (``src.rpcs`` of an opened image)."""
+        return cls.from_dict(rpcs.to_dict(), image_size)
+
+    def to_dict(self) -> dict:
+        """The RPC with GDAL's lower-case keys, as :class:`rasterio.rpc.RPC` takes them
+        (the refinement's ``correction`` is not part of an RPC and is left out)."""
+        d = {k: np.asarray(row).tolist() for k, row in zip(COEFFICIENT_KEYS, self.coefficients, strict=True)}
+        d.update({k: float(v) for k, v in zip(OFFSET_KEYS, self.offsets, strict=True)})
+        d.update({k: float(v) for k, v in zip(SCALE_KEYS, self.scales, strict=True)})
+        return d
+
+    # --- projection -----------------------------------------------------------------------------
+
+    def uncorrected(self, ground: Array) -> Array:
+        """``(..., 3)`` lon, lat, h -> ``(..., 2)`` column, row of the RPC alone (no correction)."""
+        ground = jnp.asarray(ground, dtype=jnp.float64)
+        lead = (1,) * (ground.ndim - 1)  # explicit broadcasting (rank promotion is an error in the tests)
+        lph = (ground - self.offsets[:3].reshape(*lead, 3)) / self.scales[:3].reshape(*lead, 3)
+        m = _monomials(lph)
+        p = jnp.einsum("...t,kt->...k", m, self.coefficients)
+        row_n, col_n = p[..., 0] / p[..., 1], p[..., 2] / p[..., 3]
+        return jnp.stack([col_n, row_n], axis=-1) * self.scales[3:].reshape(*lead, 2) + self.offsets[3:].reshape(
+            *lead, 2
+        )
+
+    def __call__(self, ground: Array) -> Array:
+        """``(..., 3)`` lon (deg), lat (deg), ellipsoidal h (m) -> ``(..., 2)`` column, row (px)."""
+        cr = self.uncorrected(ground)
+        return cr + cr @ self.correction[:, 1:].T + self.correction[:, 0].reshape(*(1,) * (cr.ndim - 1), 2)
+
+    project = __call__
+
+    def to_ground(self, pixel: Array, height, *, max_steps: int = 20, tol: float = 1e-12):
+        """``(..., 2)`` column, row and ellipsoidal height(s) ``(...)`` -> ``(..., 2)`` lon, lat (deg).
+
+        Newton's method on (lon, lat) from the scene centre, the Jacobian by ``jax.jacfwd``;
+        stops after the step is below ``tol`` degrees (1e-12 deg ~ 0.1 um) or ``max_steps``.
+        Points that did not converge come back NaN (:meth:`to_ground_status` gives the flags).
+        """
+        lonlat, ok = self.to_ground_status(pixel, height, max_steps=max_steps, tol=tol)
+        return jnp.where(ok[..., None], lonlat, jnp.nan)
+
+    def to_ground_status(self, pixel: Array, height, *, max_steps: int = 20, tol: float = 1e-12):
+        """As :meth:`to_ground`, returning ``(lonlat, converged)`` with the unconverged values kept."""
+        pixel = jnp.asarray(as_float64(pixel, "pixel"))
+        if pixel.shape[-1:] != (2,):
+            raise ValueError(f"pixel: expected shape (..., 2), got {pixel.shape}")
+        h = jnp.broadcast_to(jnp.asarray(as_float64(height, "height")), pixel.shape[:-1])
+        flat_p, flat_h = pixel.reshape(-1, 2), h.reshape(-1)
+        lonlat, ok = _to_ground(self, flat_p, flat_h, max_steps, tol)
+        return lonlat.reshape(pixel.shape), ok.reshape(pixel.shape[:-1])
+
+
+@eqx.filter_jit
+def _to_ground(camera: RPCCamera, pixel: Array, h: Array, max_steps: int, tol: float):
+    def f(ll, hh):
+        return camera(jnp.concatenate([ll, hh[None]]))
+
+    jac = jax.jacfwd(f)
+
+    def one(p, hh):
+        def body(state):
+            ll, step, i = state
+            d = jnp.linalg.solve(jac(ll, hh), p - f(ll, hh))
+            return ll + d, jnp.max(jnp.abs(d)), i + 1
+
+        def cond(state):
+            _, step, i = state
+            return (step > tol) & (i < max_steps) & jnp.isfinite(step)
+
+        ll, step, _ = jax.lax.while_loop(
+            cond, body, (camera.offsets[:2], jnp.asarray(1.0), 0)
+        )  # 1 deg: > tol, so it starts
+        return ll, step <= tol
+
+    return jax.vmap(one)(pixel, h)
+
+
+# --- readers ------------------------------------------------------------------------------------
+
+
+def read_rpc(path, image: str | None = None) -> RPCCamera:
+    """An :class:`RPCCamera` from a file: orthority's ``rpc_param.yaml`` (``.yaml``/``.yml``; ``image``
+    names the entry when it holds several) or an image with RPC metadata GDAL reads (GeoTIFF RPC tags,
+    ``.RPB`` / ``_RPC.TXT`` beside it), through rasterio."""
+    path = pathlib.Path(path)
+    if path.suffix.lower() in (".yaml", ".yml"):
+        import yaml
+
+        with open(path) as f:
+            doc = yaml.safe_load(f)
+        if not isinstance(doc, dict) or not doc:
+            raise ValueError(f"{path}: not an orthority RPC file (expected a mapping of image names)")
+        if image is None:
+            if len(doc) > 1:
+                raise ValueError(f"{path}: holds {len(doc)} images ({', '.join(doc)}): pass image=")
+            image = next(iter(doc))
+        if image not in doc:
+            raise ValueError(f"{path}: no entry {image!r} (it has {', '.join(doc)})")
+        entry = doc[image]
+        if not isinstance(entry, dict) or not isinstance(entry.get("rpc"), dict):
+            raise ValueError(f"{path}: entry {image!r} has no 'rpc' mapping")
+        try:
+            return RPCCamera.from_dict(entry["rpc"], entry.get("im_size"))
+        except ValueError as e:
+            raise ValueError(f"{path} [{image}]: {e}") from None
+    import rasterio
+
+    with rasterio.open(path) as src:
+        if src.rpcs is None:
+            raise ValueError(f"{path}: has no RPC metadata")
+        try:
+            return RPCCamera.from_rasterio(src.rpcs, (src.width, src.height))
+        except ValueError as e:
+            raise ValueError(f"{path}: {e}") from None
+
+
+# --- refinement ---------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class RPCRefinement:
+    """Outcome of :func:`refine_rpc`.
+
+    Attributes:
+        camera: the refined :class:`RPCCamera` (its ``correction`` set).
+        model: the refinement (``"shift"``, ``"shift-drift"``, ``"affine"``).
+        correction: ``(2, 3)`` the adjusted ``[[a0, a1, a2], [b0, b1, b2]]`` (px, px/px).
+        covariance: ``(u, u)`` covariance of the adjusted parameters, column axis first (sigma0^2 Q).
+        residuals: ``(n, 2)`` observed minus refined pixel position of each GCP (px).
+        raw_residuals: ``(n, 2)`` the same for the unrefined RPC (px).
+        loo_residuals: ``(n, 2)`` each GCP's residual from a refinement without it (leave-one-out;
+            NaN where the others are too few).
+        sigma0: a posteriori standard deviation of unit weight (px), ``sqrt(v'v / (2n - u))``; NaN when
+            there is no redundancy.
+        redundancy: ``2n - u``.
+    """
+
+    camera: RPCCamera
+    model: str
+    correction: np.ndarray
+    covariance: np.ndarray
+    residuals: np.ndarray
+    raw_residuals: np.ndarray
+    loo_residuals: np.ndarray
+    sigma0: float
+    redundancy: int
+
+    @property
+    def rmse(self) -> float:
+        """Root mean square of the residuals' lengths (px)."""
+        return float(np.sqrt(np.mean(np.sum(self.residuals**2, axis=1))))
+
+    @property
+    def raw_rmse(self) -> float:
+        """The same for the unrefined RPC (px)."""
+        return float(np.sqrt(np.mean(np.sum(self.raw_residuals**2, axis=1))))
+
+    @property
+    def loo_rmse(self) -> float:
+        """The same for the leave-one-out residuals (px)."""
+        return float(np.sqrt(np.nanmean(np.sum(self.loo_residuals**2, axis=1))))
+
+
+def _fit_correction(cr: np.ndarray, obs: np.ndarray, terms: tuple[int, ...]):
+    """Least-squares ``(2, 3)`` correction (zeros outside ``terms``) and the cofactor per axis."""
+    design = np.column_stack([np.ones(len(cr)), cr])[:, terms]
+    k = np.zeros((2, 3))
+    for axis in range(2):
+        k[axis, list(terms)] = np.linalg.lstsq(design, obs[:, axis] - cr[:, axis], rcond=None)[0]
+    return k, design
+
+
+def _apply(k: np.ndarray, cr: np.ndarray) -> np.ndarray:
+    return cr + cr @ k[:, 1:].T + k[:, 0]
+
+
+def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") -> RPCRefinement:
+    """Refine ``camera`` on GCPs by an image-space correction (module docstring; Grodecki & Dial 2003).
+
+    Args:
+        camera: the RPC to refine (an existing ``correction`` is replaced, not added to).
+        ground: ``(n, 3)`` lon (deg), lat (deg), ellipsoidal height (m) of the GCPs.
+        pixel: ``(n, 2)`` their measured column, row (px).
+        model: ``"shift"`` (1 GCP at least), ``"shift-drift"`` (2), ``"affine"`` (3).
+
+    Equal weights; the normal equations of the two axes are separate (the correction of each axis
+    is linear in its own parameters), so each is an ordinary least-squares fit of the RPC's misfit.
+    """
+    if model not in _REFINE_TERMS:
+        raise ValueError(f"model: expected one of {', '.join(_REFINE_TERMS)}, got {model!r}")
+    ground = as_float64(ground, "ground")
+    pixel = as_float64(pixel, "pixel")
+    if ground.ndim != 2 or ground.shape[1] != 3:
+        raise ValueError(f"ground: expected shape (n, 3) lon, lat, h, got {ground.shape}")
+    if pixel.shape != (len(ground), 2):
+        raise ValueError(f"pixel: expected shape ({len(ground)}, 2) to match ground, got {pixel.shape}")
+    if not (np.all(np.isfinite(ground)) and np.all(np.isfinite(pixel))):
+        raise ValueError("ground / pixel: non-finite GCP coordinates")
+    terms = _REFINE_TERMS[model]
+    n, u = len(ground), 2 * len(terms)
+    if n < len(terms):
+        raise ValueError(f"refine_rpc: {model!r} needs at least {len(terms)} GCPs, got {n}")
+    raw = RPCCamera(camera.coefficients, camera.offsets, camera.scales, image_size=camera.image_size)
+    cr = np.asarray(raw(ground))
+    k, design = _fit_correction(cr, pixel, terms)
+    residuals = pixel - _apply(k, cr)
+    r = 2 * n - u
+    sigma0 = float(np.sqrt(np.sum(residuals**2) / r)) if r > 0 else math.nan
+    q = np.linalg.pinv(design.T @ design)
+    cov = np.kron(np.eye(2), q) * (sigma0**2 if r > 0 else math.nan)
+    loo = np.full((n, 2), np.nan)
+    if n > len(terms):
+        for i in range(n):
+            keep = np.arange(n) != i
+            ki, _ = _fit_correction(cr[keep], pixel[keep], terms)
+            loo[i] = pixel[i] - _apply(ki, cr[i : i + 1])[0]
+    refined = RPCCamera(camera.coefficients, camera.offsets, camera.scales, k, camera.image_size)
+    return RPCRefinement(refined, model, k, cov, residuals, pixel - cr, loo, sigma0, r)
