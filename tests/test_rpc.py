@@ -141,3 +141,40 @@ def test_bad_input_named(qb, tmp_path):
     bad.write_text("a.tif:\n  im_size: [1, 1]\n  rpc: {long_off: 1.0}\n")
     with pytest.raises(ValueError, match="a.tif.*missing line_num_coeff"):
         read_rpc(bad)
+
+
+def test_inverse_batch_shape_refined_and_unconverged(qb):
+    cam, _, ground = qb
+    refined = RPCCamera(cam.coefficients, cam.offsets, cam.scales, [[3.0, 1e-3, 2e-3], [-2.0, 0, -1e-3]])
+    grid = ground.reshape(9, 9, 5, 3)
+    pixel = np.asarray(refined(grid))
+    assert pixel.shape == (9, 9, 5, 2)
+    lonlat = np.asarray(refined.to_ground(pixel, grid[..., 2]))
+    np.testing.assert_allclose(lonlat, grid[..., :2], rtol=0, atol=1e-9)
+    # one Newton step from the scene centre is not enough: flagged and NaN, never a wrong answer
+    # (except at the scene centre's lon, lat, where the first step is nil)
+    _, ok = refined.to_ground_status(pixel, grid[..., 2], max_steps=1)
+    centre = np.all(grid[..., :2] == np.asarray(cam.offsets)[:2], axis=-1)
+    np.testing.assert_array_equal(np.asarray(ok), centre)
+    once = np.asarray(refined.to_ground(pixel, grid[..., 2], max_steps=1))
+    assert np.all(np.isnan(once[~centre]))
+
+
+def test_geotiff_rpc_round_trip(qb, tmp_path):
+    """RPCs written into a GeoTIFF by GDAL (rasterio) read back through read_rpc."""
+    cam, _, ground = qb
+    path = tmp_path / "rpc.tif"
+    rpc = rasterio.rpc.RPC(**cam.to_dict())
+    with rasterio.open(path, "w", driver="GTiff", width=8, height=6, count=1, dtype="uint8", rpcs=rpc) as dst:
+        dst.write(np.zeros((1, 6, 8), np.uint8))
+    back = read_rpc(path)
+    assert back.image_size == (8, 6)
+    np.testing.assert_allclose(np.asarray(back(ground)), np.asarray(cam(ground)), rtol=0, atol=1e-6)
+    plain = tmp_path / "plain.tif"
+    with (
+        pytest.warns(rasterio.errors.NotGeoreferencedWarning),
+        rasterio.open(plain, "w", driver="GTiff", width=8, height=6, count=1, dtype="uint8") as dst,
+    ):
+        dst.write(np.zeros((1, 6, 8), np.uint8))
+    with pytest.raises(ValueError, match="no RPC metadata"):
+        read_rpc(plain)

@@ -242,9 +242,15 @@ def read_rpc(path, image: str | None = None) -> RPCCamera:
             return RPCCamera.from_dict(entry["rpc"], entry.get("im_size"))
         except ValueError as e:
             raise ValueError(f"{path} [{image}]: {e}") from None
-    import rasterio
+    import warnings
 
-    with rasterio.open(path) as src:
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    with warnings.catch_warnings():  # an image without RPCs is an error below, not a warning here
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        src = rasterio.open(path)
+    with src:
         if src.rpcs is None:
             raise ValueError(f"{path}: has no RPC metadata")
         try:
