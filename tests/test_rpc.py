@@ -122,6 +122,26 @@ def test_refine_recovers_synthetic_correction(qb, model):
     assert np.all(np.abs(est - tru) < 4 * np.sqrt(np.diag(res.covariance)))
 
 
+def test_refine_snooping_finds_a_blunder(qb):
+    """A 4 px blunder on one of 15 GCPs with 0.3 px noise: the largest standardized residual is its,
+    and the leave-one-out residual there shows the blunder's size."""
+    cam, _, ground = qb
+    rng = np.random.default_rng(5)
+    sub = ground[rng.choice(len(ground), 15, replace=False)]
+    truth = [[3.2, 1e-3, 2e-3], [-1.7, -2e-3, -1e-3]]
+    biased = RPCCamera(cam.coefficients, cam.offsets, cam.scales, truth)
+    pixel = np.asarray(biased(sub)) + rng.normal(0, 0.3, (15, 2))
+    pixel[6] += [4.0, 0.0]
+    res = refine_rpc(cam, sub, pixel, "affine")
+    worst = np.unravel_index(np.nanargmax(np.abs(res.standardized)), res.standardized.shape)
+    assert worst == (6, 0)
+    assert np.abs(res.standardized[6, 0]) > 3
+    assert 3.0 < res.loo_residuals[6, 0] < 5.0
+    # the leave-one-out residual is that of a refinement without the GCP
+    clean = refine_rpc(cam, np.delete(sub, 6, 0), np.delete(pixel, 6, 0), "affine")
+    np.testing.assert_allclose(clean.camera(sub[6]), pixel[6] - res.loo_residuals[6], atol=1e-9)
+
+
 def test_bad_input_named(qb, tmp_path):
     cam, _, ground = qb
     d = cam.to_dict()

@@ -278,6 +278,10 @@ class RPCRefinement:
         sigma0: a posteriori standard deviation of unit weight (px), ``sqrt(v'v / (2n - u))``; NaN when
             there is no redundancy.
         redundancy: ``2n - u``.
+        standardized: ``(n, 2)`` residuals over their own a posteriori standard deviation,
+            ``v_i / (sigma0 sqrt(1 - h_ii))`` with ``h_ii`` the GCP's leverage (Pope's tau statistic);
+            the largest beyond about 3 marks a blunder (data snooping, Baarda 1968). NaN without
+            redundancy or where a GCP alone determines a parameter (``h_ii = 1``).
     """
 
     camera: RPCCamera
@@ -289,6 +293,7 @@ class RPCRefinement:
     loo_residuals: np.ndarray
     sigma0: float
     redundancy: int
+    standardized: np.ndarray
 
     @property
     def rmse(self) -> float:
@@ -352,6 +357,10 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") ->
     r = 2 * n - u
     sigma0 = float(np.sqrt(np.sum(residuals**2) / r)) if r > 0 else math.nan
     q = np.linalg.pinv(design.T @ design)
+    leverage = np.einsum("ij,jk,ik->i", design, q, design)  # the same design on both axes
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spread = sigma0 * np.sqrt(np.where(leverage < 1 - 1e-12, 1 - leverage, np.nan))
+        standardized = residuals / spread[:, None]
     cov = np.kron(np.eye(2), q) * (sigma0**2 if r > 0 else math.nan)
     loo = np.full((n, 2), np.nan)
     if n > len(terms):
@@ -360,4 +369,4 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") ->
             ki, _ = _fit_correction(cr[keep], pixel[keep], terms)
             loo[i] = pixel[i] - _apply(ki, cr[i : i + 1])[0]
     refined = RPCCamera(camera.coefficients, camera.offsets, camera.scales, k, camera.image_size)
-    return RPCRefinement(refined, model, k, cov, residuals, pixel - cr, loo, sigma0, r)
+    return RPCRefinement(refined, model, k, cov, residuals, pixel - cr, loo, sigma0, r, standardized)
