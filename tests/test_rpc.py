@@ -198,3 +198,26 @@ def test_geotiff_rpc_round_trip(qb, tmp_path):
         dst.write(np.zeros((1, 6, 8), np.uint8))
     with pytest.raises(ValueError, match="no RPC metadata"):
         read_rpc(plain)
+
+
+@pytest.mark.parametrize("option, side", [("RPB", ".RPB"), ("RPCTXT", "_RPC.TXT")])
+def test_side_files_written_by_gdal(qb, tmp_path, option, side):
+    """.RPB and _RPC.TXT files written by GDAL beside an image read as the RPC GDAL reads."""
+    cam, _, ground = qb
+    rpc = rasterio.rpc.RPC(**cam.to_dict())
+    profile = dict(driver="GTiff", width=8, height=6, count=1, dtype="uint8", rpcs=rpc)
+    with rasterio.open(tmp_path / "im.tif", "w", **profile, **{option: "YES"}) as dst:
+        dst.write(np.zeros((1, 6, 8), np.uint8))
+    side_file = tmp_path / f"im{side}"
+    assert side_file.is_file()
+    np.testing.assert_allclose(np.asarray(read_rpc(side_file)(ground)), np.asarray(cam(ground)), atol=1e-6)
+    text = side_file.read_text()
+    broken = tmp_path / f"broken{side}"
+    if option == "RPB":
+        broken.write_text(text.replace("latScale", "latScaleX"))
+        with pytest.raises(ValueError, match="missing lat_scale"):
+            read_rpc(broken)
+    else:
+        broken.write_text("\n".join(ln for ln in text.splitlines() if not ln.startswith("SAMP_DEN_COEFF_8:")))
+        with pytest.raises(ValueError, match=r"samp_den_coeff\[7\]"):
+            read_rpc(broken)

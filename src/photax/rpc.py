@@ -157,9 +157,8 @@ class RPCCamera(eqx.Module):
         m = _monomials(lph)
         p = jnp.einsum("...t,kt->...k", m, self.coefficients)
         row_n, col_n = p[..., 0] / p[..., 1], p[..., 2] / p[..., 3]
-        return jnp.stack([col_n, row_n], axis=-1) * self.scales[3:].reshape(*lead, 2) + self.offsets[3:].reshape(
-            *lead, 2
-        )
+        scale, offset = self.scales[3:].reshape(*lead, 2), self.offsets[3:].reshape(*lead, 2)
+        return jnp.stack([col_n, row_n], axis=-1) * scale + offset
 
     def __call__(self, ground: Array) -> Array:
         """``(..., 3)`` lon (deg), lat (deg), ellipsoidal h (m) -> ``(..., 2)`` column, row (px)."""
@@ -219,29 +218,18 @@ def _to_ground(camera: RPCCamera, pixel: Array, h: Array, max_steps: int, tol: f
 
 def read_rpc(path, image: str | None = None) -> RPCCamera:
     """An :class:`RPCCamera` from a file: orthority's ``rpc_param.yaml`` (``.yaml``/``.yml``; ``image``
-    names the entry when it holds several) or an image with RPC metadata GDAL reads (GeoTIFF RPC tags,
-    ``.RPB`` / ``_RPC.TXT`` beside it), through rasterio."""
+    names the entry when it holds several), a DigitalGlobe ``.RPB`` or a ``_RPC.TXT`` file (as GDAL
+    writes and reads them beside an image), or an image with RPC metadata GDAL reads (GeoTIFF RPC tags,
+    or those side files), through rasterio."""
     path = pathlib.Path(path)
-    if path.suffix.lower() in (".yaml", ".yml"):
-        import yaml
-
-        with open(path) as f:
-            doc = yaml.safe_load(f)
-        if not isinstance(doc, dict) or not doc:
-            raise ValueError(f"{path}: not an orthority RPC file (expected a mapping of image names)")
-        if image is None:
-            if len(doc) > 1:
-                raise ValueError(f"{path}: holds {len(doc)} images ({', '.join(doc)}): pass image=")
-            image = next(iter(doc))
-        if image not in doc:
-            raise ValueError(f"{path}: no entry {image!r} (it has {', '.join(doc)})")
-        entry = doc[image]
-        if not isinstance(entry, dict) or not isinstance(entry.get("rpc"), dict):
-            raise ValueError(f"{path}: entry {image!r} has no 'rpc' mapping")
+    suffix = path.suffix.lower()
+    if suffix in (".yaml", ".yml"):
+        return _read_orthority_yaml(path, image)
+    if suffix == ".rpb" or path.name.upper().endswith("_RPC.TXT"):
         try:
-            return RPCCamera.from_dict(entry["rpc"], entry.get("im_size"))
+            return RPCCamera.from_dict(_parse_rpb(path) if suffix == ".rpb" else _parse_rpc_txt(path))
         except ValueError as e:
-            raise ValueError(f"{path} [{image}]: {e}") from None
+            raise ValueError(f"{path}: {e}") from None
     import warnings
 
     import rasterio
@@ -257,6 +245,78 @@ def read_rpc(path, image: str | None = None) -> RPCCamera:
             return RPCCamera.from_rasterio(src.rpcs, (src.width, src.height))
         except ValueError as e:
             raise ValueError(f"{path}: {e}") from None
+
+
+def _read_orthority_yaml(path: pathlib.Path, image: str | None) -> RPCCamera:
+    import yaml
+
+    with open(path) as f:
+        doc = yaml.safe_load(f)
+    if not isinstance(doc, dict) or not doc:
+        raise ValueError(f"{path}: not an orthority RPC file (expected a mapping of image names)")
+    if image is None:
+        if len(doc) > 1:
+            raise ValueError(f"{path}: holds {len(doc)} images ({', '.join(doc)}): pass image=")
+        image = next(iter(doc))
+    if image not in doc:
+        raise ValueError(f"{path}: no entry {image!r} (it has {', '.join(doc)})")
+    entry = doc[image]
+    if not isinstance(entry, dict) or not isinstance(entry.get("rpc"), dict):
+        raise ValueError(f"{path}: entry {image!r} has no 'rpc' mapping")
+    try:
+        return RPCCamera.from_dict(entry["rpc"], entry.get("im_size"))
+    except ValueError as e:
+        raise ValueError(f"{path} [{image}]: {e}") from None
+
+
+# .RPB keys (DigitalGlobe, ``key = value;``, coefficients as ``( c1, ..., c20);``) -> GDAL's keys.
+_RPB_KEYS = {
+    "lineOffset": "line_off", "sampOffset": "samp_off", "latOffset": "lat_off", "longOffset": "long_off",
+    "heightOffset": "height_off", "lineScale": "line_scale", "sampScale": "samp_scale",
+    "latScale": "lat_scale", "longScale": "long_scale", "heightScale": "height_scale",
+    "lineNumCoef": "line_num_coeff", "lineDenCoef": "line_den_coeff",
+    "sampNumCoef": "samp_num_coeff", "sampDenCoef": "samp_den_coeff",
+}  # fmt: skip
+
+
+def _number(text: str, key: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"{key}: not a number: {text!r}") from None
+
+
+def _parse_rpb(path: pathlib.Path) -> dict:
+    """The RPC of a ``.RPB`` file, with GDAL's keys (missing ones are left for ``from_dict`` to name)."""
+    out = {}
+    for statement in path.read_text().split(";"):
+        key, sep, value = statement.partition("=")
+        key = key.strip()
+        if not sep or key not in _RPB_KEYS:
+            continue
+        value = value.strip()
+        if value.startswith("("):
+            out[_RPB_KEYS[key]] = [_number(v, key) for v in value.strip("()").split(",") if v.strip()]
+        else:
+            out[_RPB_KEYS[key]] = _number(value, key)
+    return out
+
+
+def _parse_rpc_txt(path: pathlib.Path) -> dict:
+    """The RPC of a ``_RPC.TXT`` file (``LINE_OFF: 399.45``, ``LINE_NUM_COEFF_1: ...`` to ``_20``)."""
+    fields = {}
+    for line in path.read_text().splitlines():
+        key, sep, value = line.partition(":")
+        if sep:
+            fields[key.strip().upper()] = value.strip().split()[0] if value.strip() else ""
+    scalars = [k for k in (*OFFSET_KEYS, *SCALE_KEYS) if k.upper() in fields]
+    out = {k: _number(fields[k.upper()], k.upper()) for k in scalars}
+    for k in COEFFICIENT_KEYS:
+        names = [f"{k.upper()}_{i}" for i in range(1, 21)]
+        present = [n for n in names if n in fields]
+        if present:
+            out[k] = [_number(fields[n], n) if n in fields else float("nan") for n in names]
+    return out
 
 
 # --- refinement ---------------------------------------------------------------------------------
