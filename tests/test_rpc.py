@@ -221,3 +221,41 @@ def test_side_files_written_by_gdal(qb, tmp_path, option, side):
         broken.write_text("\n".join(ln for ln in text.splitlines() if not ln.startswith("SAMP_DEN_COEFF_8:")))
         with pytest.raises(ValueError, match=r"samp_den_coeff\[7\]"):
             read_rpc(broken)
+
+
+def test_to_ground_dem_equals_gdal_rpc_dem(qb, tmp_path):
+    """Onto a synthetic DEM (a tilted plane with a bump, ellipsoidal, lon/lat grid) as GDAL's RPC_DEM."""
+    from rasterio.transform import RPCTransformer, from_origin
+
+    from photax import read_dem
+
+    cam, tif, _ = qb
+    o, s = np.asarray(cam.offsets), np.asarray(cam.scales)
+    n, step = 200, 2 * s[0] / 200
+    lon = o[0] - s[0] + step * (np.arange(n) + 0.5)
+    lat = o[1] + s[1] - step * (np.arange(n) + 0.5)
+    L, P = np.meshgrid((lon - o[0]) / s[0], (lat - o[1]) / s[1])
+    heights = o[2] + 150 * L - 100 * P + 200 * np.exp(-4 * (L**2 + P**2))
+    path = tmp_path / "dem.tif"
+    profile = dict(driver="GTiff", width=n, height=n, count=1, dtype="float64", crs="EPSG:4326")
+    with rasterio.open(
+        path, "w", **profile, transform=from_origin(lon[0] - step / 2, lat[0] + step / 2, step, step)
+    ) as d:
+        d.write(heights[None])
+    dem = read_dem(path)
+    w, h = cam.image_size
+    cols, rows = np.meshgrid(np.linspace(0, w - 1, 7), np.linspace(0, h - 1, 9))
+    pixel = np.column_stack([cols.ravel(), rows.ravel()])
+    ground = cam.to_ground_dem(pixel, dem)
+    assert np.all(np.isfinite(ground))
+    np.testing.assert_allclose(np.asarray(cam(ground)), pixel, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(dem.height(ground[:, 0], ground[:, 1])), ground[:, 2], atol=1e-5)
+    with rasterio.open(tif) as src:
+        opts = dict(RPC_DEM=str(path), RPC_PIXEL_ERROR_THRESHOLD=1e-9)
+        with RPCTransformer(src.rpcs, **opts) as t:
+            xs, ys = t.xy(pixel[:, 1] + 0.5, pixel[:, 0] + 0.5, offset="ul")
+    gdal = np.column_stack([xs, ys])
+    print("photax - GDAL RPC_DEM, max |deg|:", np.max(np.abs(ground[:, :2] - gdal)))
+    np.testing.assert_allclose(ground[:, :2], gdal, rtol=0, atol=1e-9)
+    # a pixel whose ground point leaves the DEM: NaN, never a height from elsewhere
+    assert np.all(np.isnan(cam.to_ground_dem([[-5000.0, -5000.0]], dem)))

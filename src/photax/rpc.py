@@ -187,6 +187,41 @@ class RPCCamera(eqx.Module):
         lonlat, ok = _to_ground(self, flat_p, flat_h, max_steps, tol)
         return lonlat.reshape(pixel.shape), ok.reshape(pixel.shape[:-1])
 
+    def to_ground_dem(self, pixel, dem, *, max_steps: int = 50, tol: float = 1e-6) -> np.ndarray:
+        """``(..., 2)`` column, row -> ``(..., 3)`` lon, lat, h on a :class:`photax.DEM` (GDAL's ``RPC_DEM``).
+
+        Fixed-point iteration: the ground point at height ``h`` (:meth:`to_ground`), then ``h`` from
+        the DEM there, from the RPC's height offset until ``h`` moves less than ``tol`` metres.  The
+        DEM's heights must be ellipsoidal (WGS84), as the RPC's; a DEM on a geoid must be converted
+        first.  Its CRS (None: lon, lat) is reached through pyproj.  NaN where the ground point leaves
+        the DEM or the iteration does not settle in ``max_steps`` (it converges while the terrain's slope
+        times the view's tangent stays below 1).
+        """
+        import pyproj
+
+        pixel = as_float64(pixel, "pixel")
+        if pixel.shape[-1:] != (2,):
+            raise ValueError(f"pixel: expected shape (..., 2), got {pixel.shape}")
+        flat = pixel.reshape(-1, 2)
+        to_dem = None
+        if dem.crs is not None:
+            to_dem = pyproj.Transformer.from_crs("EPSG:4326", dem.crs, always_xy=True)
+        h = np.full(len(flat), float(self.offsets[2]))
+        done = np.zeros(len(flat), bool)
+        lonlat = np.full((len(flat), 2), np.nan)
+        for _ in range(max_steps):
+            lonlat = np.asarray(self.to_ground(flat, h))
+            x, y = to_dem.transform(lonlat[:, 0], lonlat[:, 1]) if to_dem else lonlat.T
+            new = np.asarray(dem.height(jnp.asarray(x, dtype=jnp.float64), jnp.asarray(y, dtype=jnp.float64)))
+            done = np.abs(new - h) < tol
+            h = np.where(np.isfinite(new), new, np.nan)
+            if np.all(done | ~np.isfinite(h)):
+                break
+        lonlat = np.asarray(self.to_ground(flat, h))  # on the last height
+        out = np.column_stack([lonlat, h])
+        out[~done] = np.nan
+        return out.reshape(*pixel.shape[:-1], 3)
+
 
 @eqx.filter_jit
 def _to_ground(camera: RPCCamera, pixel: Array, h: Array, max_steps: int, tol: float):
