@@ -240,9 +240,8 @@ def _to_ground(camera: RPCCamera, pixel: Array, h: Array, max_steps: int, tol: f
             _, step, i = state
             return (step > tol) & (i < max_steps) & jnp.isfinite(step)
 
-        ll, step, _ = jax.lax.while_loop(
-            cond, body, (camera.offsets[:2], jnp.asarray(1.0), 0)
-        )  # 1 deg: > tol, so it starts
+        start = (camera.offsets[:2], jnp.asarray(1.0), 0)  # a first "step" of 1 deg (> tol): it starts
+        ll, step, _ = jax.lax.while_loop(cond, body, start)
         return ll, step <= tol
 
     return jax.vmap(one)(pixel, h)
