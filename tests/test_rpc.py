@@ -26,6 +26,21 @@ def qb():
     return cam, tif, ground
 
 
+@pytest.fixture(scope="module")
+def synthetic():
+    """A made-up RPC (near-affine, small random higher-order terms; no files needed), a grid over its
+    validity volume, in the same form as ``qb``."""
+    rng = np.random.default_rng(0)
+    coeffs = rng.normal(0, 1e-4, (4, 20))
+    coeffs[0, :4] += [0.0, 0.03, -1.04, 0.01]  # line: mostly -latitude, some height
+    coeffs[2, :4] += [0.0, 1.02, 0.0, 0.013]  # sample: mostly longitude
+    coeffs[[1, 3], 0] = 1.0
+    cam = RPCCamera(coeffs, [24.4, -33.7, 700.0, 640.0, 400.0], [0.1, 0.07, 500.0, 1400.0, 1200.0])
+    o, s = np.asarray(cam.offsets), np.asarray(cam.scales)
+    axes = np.meshgrid(np.linspace(-1, 1, 9), np.linspace(-1, 1, 9), np.linspace(-1, 1, 5), indexing="ij")
+    return cam, None, np.stack(axes, -1).reshape(-1, 3) * s[:3] + o[:3]
+
+
 def test_readers_agree(qb):
     cam, tif, _ = qb
     from_tif = read_rpc(tif)
@@ -98,8 +113,8 @@ def test_refine_real_gcps_match_orthority(qb):
 
 
 @pytest.mark.parametrize("model", ["shift", "shift-drift", "affine"])
-def test_refine_recovers_synthetic_correction(qb, model):
-    cam, _, ground = qb
+def test_refine_recovers_synthetic_correction(synthetic, model):
+    cam, _, ground = synthetic
     rng = np.random.default_rng(23)
     truth = {
         "shift": [[3.2, 0, 0], [-1.7, 0, 0]],
@@ -122,10 +137,10 @@ def test_refine_recovers_synthetic_correction(qb, model):
     assert np.all(np.abs(est - tru) < 4 * np.sqrt(np.diag(res.covariance)))
 
 
-def test_refine_snooping_finds_a_blunder(qb):
+def test_refine_snooping_finds_a_blunder(synthetic):
     """A 4 px blunder on one of 15 GCPs with 0.3 px noise: the largest standardized residual is its,
     and the leave-one-out residual there shows the blunder's size."""
-    cam, _, ground = qb
+    cam, _, ground = synthetic
     rng = np.random.default_rng(5)
     sub = ground[rng.choice(len(ground), 15, replace=False)]
     truth = [[3.2, 1e-3, 2e-3], [-1.7, -2e-3, -1e-3]]
@@ -142,8 +157,8 @@ def test_refine_snooping_finds_a_blunder(qb):
     np.testing.assert_allclose(clean.camera(sub[6]), pixel[6] - res.loo_residuals[6], atol=1e-9)
 
 
-def test_bad_input_named(qb, tmp_path):
-    cam, _, ground = qb
+def test_bad_input_named(synthetic, tmp_path):
+    cam, _, ground = synthetic
     d = cam.to_dict()
     d["samp_den_coeff"][7] = float("nan")
     with pytest.raises(ValueError, match=r"samp_den_coeff\[7\]"):
@@ -163,8 +178,8 @@ def test_bad_input_named(qb, tmp_path):
         read_rpc(bad)
 
 
-def test_inverse_batch_shape_refined_and_unconverged(qb):
-    cam, _, ground = qb
+def test_inverse_batch_shape_refined_and_unconverged(synthetic):
+    cam, _, ground = synthetic
     refined = RPCCamera(cam.coefficients, cam.offsets, cam.scales, [[3.0, 1e-3, 2e-3], [-2.0, 0, -1e-3]])
     grid = ground.reshape(9, 9, 5, 3)
     pixel = np.asarray(refined(grid))
