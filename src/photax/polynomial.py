@@ -611,6 +611,14 @@ class TPSModel(eqx.Module):
         out = self(jnp.stack([jnp.asarray(x, dtype=float), jnp.asarray(y, dtype=float)], axis=-1))
         return out[..., 0], out[..., 1]
 
+    @property
+    def condition(self) -> float:
+        """2-norm condition number of the spline's system ``[[K + lambda I, P], [P^T, 0]]`` (normalised)."""
+        u = np.asarray(self.centres)
+        k = np.asarray(_tps_kernel(np.sum((u[:, None] - u[None]) ** 2, axis=-1))) + self.smoothing * np.eye(len(u))
+        p = np.concatenate([np.ones((len(u), 1)), u], axis=1)
+        return float(np.linalg.cond(np.block([[k, p], [p.T, np.zeros((3, 3))]])))
+
 
 def _tps_kernel(d2):
     """``U = r^2 log r = d2 log(d2) / 2`` of squared distances, 0 at 0 (double-where: finite gradients)."""
@@ -734,6 +742,13 @@ class PiecewiseAffineModel(eqx.Module):
         """Separate-coordinate form ``X, Y = model.transform(x, y)``."""
         out = self(jnp.stack([jnp.asarray(x, dtype=float), jnp.asarray(y, dtype=float)], axis=-1))
         return out[..., 0], out[..., 1]
+
+    @property
+    def condition(self) -> float:
+        """Largest 2-norm condition number of the triangles' ``[1, u, v]`` systems (normalised): a sliver
+        triangle carries an ill-determined affine."""
+        c = np.asarray(self.corners)
+        return float(np.linalg.cond(np.concatenate([np.ones(c.shape[:2] + (1,)), c], axis=-1)).max())
 
 
 def _pwa_eval(corners, affine, u, xp=jnp):
