@@ -205,7 +205,8 @@ def test_figures(hills, hills_cmp):
 
     c = hills_cmp
     fig = c.plot_error_maps()
-    assert len(fig.axes) == 7  # six maps and one shared colour bar
+    panels = [ax.get_title().split("\n")[0] for ax in fig.axes if ax.images and ax.get_title()]
+    assert panels == [n for n in c.names if n != "collinearity"]  # eight maps (and one shared colour bar)
     plt.close(fig)
     plt.close(c.plot_rmse())
     images, grid = c.rectify(hills.image, ["collinearity", "polynomial 1"])
@@ -217,12 +218,40 @@ def test_figures(hills, hills_cmp):
     plt.close(c.plot_rectified(images, grid, reference=hills.ortho, reference_transform=hills.ortho_transform))
 
 
+def test_thin_plate_spline_and_piecewise_affine_beside_the_polynomials(hills_cmp):
+    """Their rows in the table, and their check-point errors equal to peers' fits on the same GCPs:
+    scipy's thin-plate RBF (degree 1) and scikit-image's PiecewiseAffineTransform."""
+    from scipy.interpolate import RBFInterpolator
+    from scipy.spatial import Delaunay
+
+    c = hills_cmp
+    assert c.names[-2:] == ["thin-plate spline", "piecewise affine"]
+    used = ~c.excluded
+    gg, gp = c.gcp_ground[used, :2], c.gcp_pixel[used]
+    origin = gg.mean(0)
+    cg, cp = c.check_ground[:, :2] - origin, c.check_pixel
+    tps = RBFInterpolator(gg - origin, gp, kernel="thin_plate_spline", degree=1)(cg) - cp
+    np.testing.assert_allclose(c["thin-plate spline"].check_residuals, tps, atol=1e-6)
+    assert c["thin-plate spline"].check_rmse == pytest.approx(np.sqrt(np.mean(np.sum(tps**2, 1))), abs=1e-6)
+    skt = pytest.importorskip("skimage.transform")
+    pwa = skt.PiecewiseAffineTransform.from_estimate(gg - origin, gp)
+    inside = Delaunay(gg - origin).find_simplex(cg) >= 0  # outside the hull scikit-image gives no value
+    assert inside.sum() >= 0.5 * len(cg)
+    got = c["piecewise affine"].check_residuals[inside]
+    np.testing.assert_allclose(got, pwa(cg[inside]) - cp[inside], atol=1e-9)
+    for name in ("thin-plate spline", "piecewise affine"):
+        m = c[name]
+        assert m.gcp_rmse < 1e-6 and m.redundancy == 0 and m.n_params == 2 * used.sum()
+        assert f"| {name} | {m.n_params} | 0 |" in c.table() and f"{m.check_rmse:.3f}" in c.table()
+        assert name in [d["name"] for d in c.to_dict()["models"]]
+
+
 def test_skips_orders_without_enough_gcps(hills):
     s = hills
     c = compare_models(
         s.gcp_ground[:12], s.gcp_pixel[:12], s.camera, s.dem, exterior=s.exterior, orders=(1, 4, 5), projective=False
     )
-    assert c.names == ["collinearity", "polynomial 1"]
+    assert c.names == ["collinearity", "polynomial 1", "thin-plate spline", "piecewise affine"]
     assert "needs at least 15 GCPs, have 12" in c.skipped["polynomial 4"]
     assert "polynomial 5" in c.table()
 

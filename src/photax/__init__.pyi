@@ -107,6 +107,9 @@ from .matching import (
 )
 from .mosaicking import mosaic as mosaic
 from .polynomial import (
+    PiecewiseAffineModel as PiecewiseAffineModel,
+)
+from .polynomial import (
     PolynomialModel as PolynomialModel,
 )
 from .polynomial import (
@@ -114,6 +117,9 @@ from .polynomial import (
 )
 from .polynomial import (
     TPSModel as TPSModel,
+)
+from .polynomial import (
+    fit_piecewise_affine as fit_piecewise_affine,
 )
 from .polynomial import (
     fit_polynomial as fit_polynomial,

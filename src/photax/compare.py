@@ -7,7 +7,11 @@ input pixels ``(column, row)``, the direction indirect rectification needs:
   from the GCPs (:func:`photax.resection.resect`), or given; a ground point
   ``(X, Y)`` is projected with ``Z = DEM(X, Y)``.  6 parameters.
 * **polynomials** of order 1..5 (:func:`photax.polynomial.fit_polynomial`),
-  ``(n+1)(n+2)`` parameters, and the **projective** transform (8).  They see
+  ``(n+1)(n+2)`` parameters, the **projective** transform (8), the
+  **thin-plate spline** (:func:`photax.polynomial.fit_tps`) and the
+  **piecewise affine** map (:func:`photax.polynomial.fit_piecewise_affine`);
+  the last two interpolate the GCPs (``2 n`` parameters, no redundancy, GCP
+  RMSE 0: only the check points judge them).  They see
   only ``(X, Y)``: they cannot know the height, so they cannot remove
   relief displacement.  For a vertical image a point at height ``h`` above
   the datum, imaged at radial distance ``r`` from the nadir, is displaced
@@ -44,7 +48,14 @@ from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, project, project_jacobian
 from .dem import DEM
 from .grid import Grid, ortho_grid
-from .polynomial import PolynomialModel, fit_polynomial, fit_projective, n_coefficients
+from .polynomial import (
+    PolynomialModel,
+    fit_piecewise_affine,
+    fit_polynomial,
+    fit_projective,
+    fit_tps,
+    n_coefficients,
+)
 from .rectification import OrthoModel
 from .resampling import Resampling
 
@@ -54,16 +65,19 @@ class ModelResult:
     """One model of a :class:`ModelComparison`.
 
     Attributes:
-        name: ``"collinearity"``, ``"polynomial 1"`` .. ``"polynomial 5"``
-            or ``"projective"``.
+        name: ``"collinearity"``, ``"polynomial 1"`` .. ``"polynomial 5"``,
+            ``"projective"``, ``"thin-plate spline"`` or ``"piecewise affine"``.
         model: callable ``(..., 2)`` ground ``(X, Y)`` -> ``(..., 2)`` pixel
             ``(column, row)`` (for collinearity an
             :class:`photax.rectification.OrthoModel`, which takes Z from the DEM).
-        n_params: estimated parameters (0 for a given exterior orientation).
+        n_params: estimated parameters (0 for a given exterior orientation;
+            ``2 n`` for the interpolating thin-plate spline and piecewise affine).
         redundancy: ``2 n_gcp - n_params``.
         condition: 2-norm condition number of the normalised design matrix
-            (polynomial, projective) or of the column-equilibrated Jacobian
-            of the collinearity equations at the solution.
+            (polynomial, projective), of the normalised spline system (TPS),
+            of the worst triangle's affine system (piecewise affine) or of the
+            column-equilibrated Jacobian of the collinearity equations at the
+            solution.
         gcp_residuals, check_residuals: ``(n, 2)`` model - observed (computed - observed,
             docs/conventions.md), pixels.
         gcp_rmse, check_rmse: ``sqrt(mean |v|^2)``, pixels (NaN without points).
@@ -393,6 +407,8 @@ def compare_models(
     check_pixel=None,
     orders: Sequence[int] = (1, 2, 3, 4, 5),
     projective: bool = True,
+    tps: bool = True,
+    piecewise_affine: bool = True,
     grid: Grid | None = None,
     exterior: ExteriorOrientation | None = None,
     gcp_names: Sequence[str] | None = None,
@@ -409,6 +425,10 @@ def compare_models(
         orders: polynomial orders (1..5); an order needing more GCPs than
             given is skipped and listed in ``skipped``.
         projective: also fit the 8-parameter projective transform.
+        tps: also fit the interpolating thin-plate spline (3+ GCPs).
+        piecewise_affine: also fit the piecewise-affine (Delaunay) map (3+ GCPs;
+            outside the GCPs' hull it extrapolates, see
+            :class:`photax.polynomial.PiecewiseAffineModel`).
         grid: grid of the error maps; default the image footprint on the
             DEM at 4 x the mean GSD.
         exterior: use this exterior orientation instead of resecting.
@@ -433,7 +453,7 @@ def compare_models(
         >>> c = ptx.compare_models(scene.gcp_ground, scene.gcp_pixel, scene.camera, scene.dem, orders=(1, 3),
         ...                        check_ground=scene.check_ground, check_pixel=scene.check_pixel)
         >>> c.names
-        ['collinearity', 'polynomial 1', 'polynomial 3', 'projective']
+        ['collinearity', 'polynomial 1', 'polynomial 3', 'projective', 'thin-plate spline', 'piecewise affine']
         >>> min(c.models, key=lambda m: m.check_rmse).name
         'collinearity'
         >>> bool(c["collinearity"].check_rmse < 3 * scene.noise_px < c["polynomial 3"].check_rmse)
@@ -500,6 +520,17 @@ def compare_models(
         else:
             model = fit_projective(gg[used, :2], gp[used])
             add("projective", model, 8, model.condition, np.asarray(_apply(model, flat_xy)))
+    for name, wanted, fit in (
+        ("thin-plate spline", tps, fit_tps),
+        ("piecewise affine", piecewise_affine, fit_piecewise_affine),
+    ):
+        if not wanted:
+            continue
+        if n_used < 3:
+            skipped[name] = f"needs at least 3 GCPs, have {n_used}"
+            continue
+        model = fit(gg[used, :2], gp[used])
+        add(name, model, 2 * n_used, model.condition, np.asarray(_apply(model, flat_xy)))
     names = None if gcp_names is None else tuple(str(x) for x in gcp_names)
     if names is not None and len(names) != n:
         raise ValueError(f"gcp_names has {len(names)} names for {n} GCPs")

@@ -336,6 +336,11 @@ def comparison_rmse(comparison):
     ax.bar(x + 0.2, [comparison[n].check_rmse for n in names], 0.4, label="check points")
     ax.set_xticks(x, [n.replace("polynomial ", "poly ") for n in names], rotation=20)
     ax.set_yscale("log")
+    # interpolating models (thin-plate spline, piecewise affine) fit the GCPs to rounding: keep the axis on
+    # the other bars, not on 1e-13 px
+    values = [v for n in names for v in (comparison[n].gcp_rmse, comparison[n].check_rmse) if v > 1e-6]
+    if values:
+        ax.set_ylim(bottom=0.5 * min(values))
     ax.set_ylabel("RMSE [px]")
     ax.legend()
     ax.grid(axis="y", alpha=0.3)

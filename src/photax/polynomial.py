@@ -1,5 +1,6 @@
 """Plane-to-plane models fitted to control points: polynomials of order 1-5,
-the 8-parameter projective transform and the thin-plate spline (``fit_tps``).
+the 8-parameter projective transform, the thin-plate spline (``fit_tps``) and the
+piecewise-affine (Delaunay) map (``fit_piecewise_affine``).
 
 Polynomial of order ``n`` (docs/maths.md, "Polynomial rectification")::
 
@@ -610,6 +611,14 @@ class TPSModel(eqx.Module):
         out = self(jnp.stack([jnp.asarray(x, dtype=float), jnp.asarray(y, dtype=float)], axis=-1))
         return out[..., 0], out[..., 1]
 
+    @property
+    def condition(self) -> float:
+        """2-norm condition number of the spline's system ``[[K + lambda I, P], [P^T, 0]]`` (normalised)."""
+        u = np.asarray(self.centres)
+        k = np.asarray(_tps_kernel(np.sum((u[:, None] - u[None]) ** 2, axis=-1))) + self.smoothing * np.eye(len(u))
+        p = np.concatenate([np.ones((len(u), 1)), u], axis=1)
+        return float(np.linalg.cond(np.block([[k, p], [p.T, np.zeros((3, 3))]])))
+
 
 def _tps_kernel(d2):
     """``U = r^2 log r = d2 log(d2) / 2`` of squared distances, 0 at 0 (double-where: finite gradients)."""
@@ -674,3 +683,151 @@ def fit_tps(src_xy, dst_xy, smoothing: float = 0.0) -> TPSModel:
         loo[i] = ai[0] + u[i] @ ai[1:] + np.asarray(_tps_kernel(d2)) @ wi - dst[i]
     rmse = np.sqrt(np.sum(v**2) / len(v))
     return dataclasses.replace(model, residuals=jnp.asarray(v), rmse=jnp.asarray(rmse), loo_residuals=jnp.asarray(loo))
+
+
+class PiecewiseAffineModel(eqx.Module):
+    """A piecewise-affine map ``dst = f(src)`` fitted by :func:`fit_piecewise_affine`.
+
+    The control points are triangulated (Delaunay, on source points centred and scaled by one factor, which
+    leaves the triangulation unchanged) and each triangle carries the affine map through its three corners'
+    ``dst``: continuous inside the convex hull, exact at the control points.  Outside the hull the map
+    *extrapolates* with the affine of the nearest triangle (Euclidean distance in the source plane): every
+    output pixel of a rectification gets a position, but the extrapolated map jumps where the nearest
+    triangle changes (e.g. on the bisector at a hull vertex), and it is only as good as a one-triangle
+    affine far from the points.  :meth:`inside` tells the two apart.  ``model(xy)``: ``(..., 2)`` source
+    -> ``(..., 2)`` destination points, jax-traceable (a :func:`photax.rectify` model); its cost grows with
+    the number of triangles per evaluated point.
+
+    Attributes:
+        corners: ``(t, 3, 2)`` normalised triangle corners.
+        affine: ``(t, 3, 2)`` per triangle ``dst = a_0 + u a_1 + v a_2`` in normalised ``(u, v)``.
+        src_centre: ``(2,)``; src_scale: ``()`` the normalisation.
+        simplices: ``(t, 3)`` indices of the corners into ``src_xy``.
+        residuals: ``(n, 2)`` ``model(src) - dst`` (0 to rounding).
+        rmse: radial RMS of ``residuals``.
+        loo_residuals: ``(n, 2)`` leave-one-out residuals: the model rebuilt (triangulation included)
+            without point ``i``, evaluated at it, minus ``dst_i`` (extrapolated for a hull vertex; NaN where
+            the other points cannot be triangulated).
+        src_xy, dst_xy: the control points.
+    """
+
+    corners: Array
+    affine: Array
+    src_centre: Array
+    src_scale: Array
+    simplices: Array
+    residuals: Array
+    rmse: Array
+    loo_residuals: Array
+    src_xy: Array
+    dst_xy: Array
+
+    def _normalised(self, xy) -> Array:
+        p = jnp.asarray(xy, dtype=float)
+        if p.shape[-1:] != (2,):
+            raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
+        one = (1,) * (p.ndim - 1)
+        return (p - self.src_centre.reshape(one + (2,))) / self.src_scale.reshape(one + (1,))
+
+    def __call__(self, xy) -> Array:
+        """``(..., 2)`` source points -> ``(..., 2)`` destination points."""
+        return _pwa_eval(self.corners, self.affine, self._normalised(xy))[0]
+
+    def inside(self, xy) -> Array:
+        """``(...)`` True where ``xy`` lies in the convex hull of the control points (interpolated, not
+        extrapolated)."""
+        return _pwa_eval(self.corners, self.affine, self._normalised(xy))[1] <= 1e-12
+
+    def transform(self, x, y) -> tuple[Array, Array]:
+        """Separate-coordinate form ``X, Y = model.transform(x, y)``."""
+        out = self(jnp.stack([jnp.asarray(x, dtype=float), jnp.asarray(y, dtype=float)], axis=-1))
+        return out[..., 0], out[..., 1]
+
+    @property
+    def condition(self) -> float:
+        """Largest 2-norm condition number of the triangles' ``[1, u, v]`` systems (normalised): a sliver
+        triangle carries an ill-determined affine."""
+        c = np.asarray(self.corners)
+        return float(np.linalg.cond(np.concatenate([np.ones(c.shape[:2] + (1,)), c], axis=-1)).max())
+
+
+def _pwa_eval(corners, affine, u, xp=jnp):
+    """Values ``(..., 2)`` and distance ``(...)`` to the nearest of the triangles ``corners`` ``(t, 3, 2)``
+    at normalised points ``u`` ``(..., 2)``, with that triangle's affine ``(t, 3, 2)``; ``xp``: jax.numpy
+    (traceable) or numpy (the fit's leave-one-out loop: no dispatch per operation)."""
+    corners, affine, u = xp.asarray(corners), xp.asarray(affine), xp.asarray(u)
+    q = u[..., None, :]  # (..., 1, 2) against (t, 2) per corner
+    one = (1,) * (u.ndim - 1)
+    c = corners.reshape(one + corners.shape)
+    a, b, d = c[..., 0, :], c[..., 1, :], c[..., 2, :]
+
+    def cross(e, f):
+        return e[..., 0] * f[..., 1] - e[..., 1] * f[..., 0]
+
+    area = cross(b - a, d - a)  # signed twice the area
+    bary = xp.stack([cross(b - q, d - q), cross(d - q, a - q), cross(a - q, b - q)], axis=-1) / area[..., None]
+    inside = xp.min(bary, axis=-1) >= -1e-12
+
+    def seg2(p0, p1):  # squared distance of q to the segment p0-p1
+        e = p1 - p0
+        t = xp.clip(xp.sum((q - p0) * e, axis=-1) / xp.sum(e * e, axis=-1), 0.0, 1.0)
+        return xp.sum((q - p0 - t[..., None] * e) ** 2, axis=-1)
+
+    dist2 = xp.where(inside, 0.0, xp.minimum(xp.minimum(seg2(a, b), seg2(b, d)), seg2(d, a)))  # (..., t)
+    k = xp.argmin(dist2, axis=-1)
+    coef = affine[k]  # (..., 3, 2)
+    value = coef[..., 0, :] + u[..., :1] * coef[..., 1, :] + u[..., 1:] * coef[..., 2, :]
+    return value, xp.sqrt(xp.take_along_axis(dist2, k[..., None], axis=-1)[..., 0])
+
+
+def _pwa_build(u: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Delaunay triangles ``(t, 3)`` of ``u``, their corners ``(t, 3, 2)`` and affines ``(t, 3, 2)``."""
+    from scipy.spatial import Delaunay, QhullError
+
+    try:
+        tri = Delaunay(u)
+    except QhullError as e:
+        raise ValueError("src_xy points cannot be triangulated (all on one line?)") from e
+    simplices = np.asarray(tri.simplices)
+    corners = u[simplices]
+    design = np.concatenate([np.ones(simplices.shape + (1,)), corners], axis=-1)  # (t, 3, 3)
+    affine = np.linalg.solve(design, dst[simplices])
+    return simplices, corners, affine
+
+
+def fit_piecewise_affine(src_xy, dst_xy) -> PiecewiseAffineModel:
+    """Piecewise-affine map ``dst = f(src)``: one affine per Delaunay triangle of the control points (as
+    scikit-image's ``PiecewiseAffineTransform``); outside their convex hull it extrapolates with the
+    nearest triangle's affine (:class:`PiecewiseAffineModel`).  Fit ``fit_piecewise_affine(map_xy,
+    pixel_xy)`` for indirect rectification, as for :func:`fit_polynomial`.
+
+    Raises:
+        ValueError: wrong shapes, NaN/inf, duplicated or fewer than 3 points, points all on one line.
+    """
+    src, dst, _ = _check_pairs(src_xy, dst_xy, None, 3, "a piecewise-affine map")
+    centre = src.mean(axis=0)
+    scale = float(np.sqrt(np.sum((src - centre) ** 2, axis=1)).max())
+    u = (src - centre) / scale
+    if np.linalg.matrix_rank(np.concatenate([np.ones((len(u), 1)), u], axis=1), tol=1e-10) < 3:
+        raise ValueError("src_xy points all lie on one line: a piecewise-affine map needs them spread in 2-D")
+    simplices, corners, affine = _pwa_build(u, dst)
+    v = _pwa_eval(corners, affine, u, np)[0] - dst
+    loo = np.full(dst.shape, np.nan)
+    for i in range(len(u)):
+        keep = np.arange(len(u)) != i
+        if keep.sum() < 3 or np.linalg.matrix_rank(np.c_[np.ones(keep.sum()), u[keep]], tol=1e-10) < 3:
+            continue
+        _, ci, ai = _pwa_build(u[keep], dst[keep])
+        loo[i] = _pwa_eval(ci, ai, u[i], np)[0] - dst[i]
+    return PiecewiseAffineModel(
+        jnp.asarray(corners),
+        jnp.asarray(affine),
+        jnp.asarray(centre),
+        jnp.asarray(scale),
+        jnp.asarray(simplices),
+        jnp.asarray(v),
+        jnp.asarray(np.sqrt(np.sum(v**2) / len(v))),
+        jnp.asarray(loo),
+        jnp.asarray(src),
+        jnp.asarray(dst),
+    )

@@ -1,7 +1,8 @@
-"""``photax rectify``: polynomial rectification of an image from GCPs.
+"""``photax rectify``: plane-to-plane rectification of an image from GCPs.
 
-A polynomial of order N (map -> pixel, docs/maths.md) is fitted to the GCPs'
-ground (X, Y) and pixel positions, and the image is resampled onto a north-up
+A polynomial of order N (map -> pixel, docs/maths.md), a thin-plate spline
+(``--model tps``) or a piecewise-affine map (``--model piecewise-affine``) is
+fitted to the GCPs' ground (X, Y) and pixel positions, and the image is resampled onto a north-up
 grid covering the GCPs' footprint (indirect mapping, tile by tile, written
 atomically).  Exit codes: 0 done, 2 bad input.
 """
@@ -12,17 +13,28 @@ import argparse
 
 from ._common import NODATA_HELP, RESAMPLING, nodata_value
 
+MODELS = ("polynomial", "tps", "piecewise-affine")
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "rectify",
-        help="polynomial rectification of an image from GCPs",
-        description="Fit a polynomial map -> pixel to the GCPs and resample IMAGE onto a map grid covering them.",
-        epilog="example:\n  photax rectify data/sample_image.tif --gcps data/sample_gcps.csv --order 3 -o rect.tif\n",
+        help="polynomial, thin-plate-spline or piecewise-affine rectification of an image from GCPs",
+        description="Fit a map -> pixel model to the GCPs and resample IMAGE onto a map grid covering them.",
+        epilog="examples:\n  photax rectify data/sample_image.tif --gcps data/sample_gcps.csv --order 3 -o rect.tif\n"
+        "  photax rectify data/sample_image.tif --gcps data/sample_gcps.csv --model tps -o rect_tps.tif\n",
     )
     p.add_argument("image", metavar="IMAGE", help="the image (any GDAL raster)")
     p.add_argument("--gcps", required=True, metavar="GCP_FILE", help="GCP list with pixel positions (CSV or ODM)")
-    p.add_argument("--order", type=int, default=1, help="polynomial order 1-5 (default 1)")
+    p.add_argument(
+        "--model",
+        choices=MODELS,
+        default="polynomial",
+        help="polynomial (of --order; default); tps: thin-plate spline through the GCPs (GDAL's -tps); "
+        "piecewise-affine: one affine per Delaunay triangle of the GCPs, extrapolated outside their hull "
+        "by the nearest triangle's",
+    )
+    p.add_argument("--order", type=int, default=None, help="polynomial order 1-5 (default 1); --model polynomial only")
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="map pixel size (default: the mean GCP scale)")
     p.add_argument(
@@ -46,10 +58,13 @@ def run(args: argparse.Namespace) -> int:
     from ..grid import Grid, check_resolution
     from ..io.atomic import check_output_path
     from ..io.gcp import read_gcps
-    from ..polynomial import fit_polynomial
+    from ..polynomial import fit_piecewise_affine, fit_polynomial, fit_tps
     from ..rectification import rectify_file
     from ._common import ground_unit, input_file, plural
 
+    if args.order is not None and args.model != "polynomial":
+        raise ValueError(f"--order is for --model polynomial, not --model {args.model}")
+    order = 1 if args.order is None else args.order
     image = input_file(args.image, "image")
     gcp_path = input_file(args.gcps, "GCP file")
     check_output_path(args.out, [image, gcp_path])  # fail before the work, not after
@@ -65,7 +80,15 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.gcps}: rectify needs pixel positions (col, row), not image-plane x, y")
     control = ~table.check
     ground, pixel = table.ground[control, :2], table.pixel[control]
-    model = fit_polynomial(ground, pixel, args.order)
+    if args.model == "polynomial":
+        model, what = fit_polynomial(ground, pixel, order), f"order {order}"
+    elif args.model == "tps":
+        model, what = fit_tps(ground, pixel), "thin-plate spline"
+    else:
+        model, what = fit_piecewise_affine(ground, pixel), "piecewise affine"
+    # the interpolating models fit the GCPs exactly: their leave-one-out residuals are the honest figure
+    v2 = np.sum(np.asarray(model.loo_residuals) ** 2, axis=1)
+    loo = float(np.sqrt(np.nanmean(v2))) if np.isfinite(v2).any() else float("nan")
     # Map units per pixel from the GCP spread (square root of the area ratio): the image's sampling distance.
     span = np.ptp(ground, axis=0).prod() / max(np.ptp(pixel, axis=0).prod(), 1e-12)
     gsd = float(np.sqrt(span))
@@ -89,6 +112,6 @@ def run(args: argparse.Namespace) -> int:
     )
     print(
         f"wrote {args.out}: {grid.width} x {grid.height} pixels of {resolution:g} {ground_unit(table.crs, 'map units')}, "
-        f"order {args.order}, {plural(len(ground), 'GCP')}, rmse {float(model.rmse):.3g} px"
+        f"{what}, {plural(len(ground), 'GCP')}, rmse {float(model.rmse):.3g} px, leave-one-out rmse {loo:.3g} px"
     )
     return 0
