@@ -21,7 +21,12 @@ def add_parser(sub) -> None:
         epilog="example:\n  photax rectify data/sample_image.tif --gcps data/sample_gcps.csv --order 3 -o rect.tif\n",
     )
     p.add_argument("image", metavar="IMAGE", help="the image (any GDAL raster)")
-    p.add_argument("--gcps", required=True, metavar="GCP_FILE", help="GCP list with pixel positions (CSV or ODM)")
+    p.add_argument(
+        "--gcps",
+        required=True,
+        metavar="GCP_FILE",
+        help="GCP list with pixel positions (CSV, ODM, QGIS .points or GeoJSON)",
+    )
     p.add_argument("--order", type=int, default=1, help="polynomial order 1-5 (default 1)")
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
     p.add_argument("--resolution", type=float, help="map pixel size (default: the mean GCP scale)")

@@ -82,7 +82,12 @@ def add_parser(sub) -> None:
         "columns); overrides the file's sigma column. Without either, blunders are tested "
         "against the a-posteriori sigma0 (tau test)",
     )
-    p.add_argument("--format", choices=("auto", "csv", "odm"), default="auto", help="GCP file format")
+    p.add_argument(
+        "--format",
+        choices=("auto", "csv", "odm", "qgis", "geojson"),
+        default="auto",
+        help="GCP file format (qgis: Georeferencer .points; geojson: orthority's GCPs)",
+    )
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -130,6 +135,10 @@ def run(args: argparse.Namespace) -> int:
 
     table = read_gcps(gcp_path, format=args.format)
     require_projected(table.crs, f"the GCPs ({args.gcp_file})")  # degrees are not metres
+    if not np.all(np.isfinite(table.ground[:, 2])):
+        raise ValueError(
+            f"{args.gcp_file}: the GCPs have no heights (a QGIS .points file is 2-D); resect needs E, N, h"
+        )
     camera = read_interior(camera_path)  # a photax camera file, an orthority interior, a reconstruction.json
     if table.pixel is not None and (camera.pixel_size is None or camera.image_size is None):
         raise ValueError(f"{args.camera}: the GCPs are in pixels, so the camera needs pixel_size and image_size")
