@@ -234,3 +234,36 @@ def test_resect_refuses_2d_points(tmp_path, capsys):
     camera = ROOT / "data" / "sample_camera.yaml"
     assert main(["resect", str(points), "--camera", str(camera), "--no-progress"]) == 2
     assert "no heights" in capsys.readouterr().err
+
+
+def _rectify(tmp_path, gcps, *extra):
+    from photax.cli import main
+
+    out = tmp_path / f"{gcps.stem}_{len(extra)}.tif"
+    image = ROOT / "data" / "sample_image.tif"
+    args = ["rectify", str(image), "--gcps", str(gcps), "--order", "1", "-o", str(out), "--no-progress", *extra]
+    assert main(args) == 0
+    with rasterio.open(out) as ds:
+        return ds.transform, ds.crs.to_epsg()
+
+
+def test_rectify_geographic_gcps_and_crs(tmp_path):
+    table = read_gcps(SAMPLE)
+    lon, lat = pyproj.Transformer.from_crs("EPSG:32633", "EPSG:4326", always_xy=True).transform(
+        table.ground[:, 0], table.ground[:, 1]
+    )
+    geo = tmp_path / "geo.csv"
+    rows = zip(table.names, lon.tolist(), lat.tolist(), table.ground[:, 2].tolist(), table.pixel.tolist(), table.role)
+    geo.write_text(
+        "# crs: EPSG:4326\nname,E,N,h,col,row,role\n"
+        + "".join(f"{n},{a!r},{b!r},{h!r},{c!r},{r!r},{role}\n" for n, a, b, h, (c, r), role in rows)
+    )
+    (t0, crs0), (t1, crs1) = _rectify(tmp_path, SAMPLE), _rectify(tmp_path, geo)
+    assert crs0 == crs1 == 32633  # the UTM zone of the points
+    np.testing.assert_allclose(np.array(t1)[:6], np.array(t0)[:6], rtol=0, atol=1e-3)
+    t2, crs2 = _rectify(tmp_path, geo, "--crs", "EPSG:32634")
+    x, y = pyproj.Transformer.from_crs("EPSG:32633", "EPSG:32634", always_xy=True).transform(
+        table.ground[~table.check, 0], table.ground[~table.check, 1]
+    )
+    assert crs2 == 32634  # the grid covers pyproj's conversion of the control points, to a pixel (snapped)
+    assert x.min() - t2.a <= t2.c <= x.min() and y.max() <= t2.f <= y.max() + t2.a

@@ -37,6 +37,12 @@ def add_parser(sub) -> None:
         help="resampling kernel (default: bilinear; nearest for a palette image, which takes no other)",
     )
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
+    p.add_argument(
+        "--crs",
+        metavar="CRS",
+        help="projected CRS of the output, the GCPs reprojected to it (default: the GCPs' own; "
+        "longitude/latitude GCPs go to the UTM zone of the points)",
+    )
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
@@ -58,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     image = input_file(args.image, "image")
     gcp_path = input_file(args.gcps, "GCP file")
     check_output_path(args.out, [image, gcp_path])  # fail before the work, not after
-    table = read_gcps(gcp_path)
+    table = read_gcps(gcp_path, crs=args.crs)
     names = table.image_names
     if args.image_name is not None or len(names) > 1:
         stem = pathlib.Path(args.image).name
