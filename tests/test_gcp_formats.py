@@ -227,12 +227,16 @@ def test_format_detection_and_choice(tmp_path):
         read_gcps(SAMPLE, format="kml")
 
 
-def test_resect_refuses_2d_points(tmp_path, capsys):
+def test_commands_needing_heights_refuse_2d_points(tmp_path, capsys):
     from photax.cli import main
 
     points = write_gcps(tmp_path / "s.points", read_gcps(SAMPLE))
-    camera = ROOT / "data" / "sample_camera.yaml"
+    data = ROOT / "data"
+    camera, image, dem = data / "sample_camera.yaml", data / "sample_image.tif", data / "sample_dem.tif"
     assert main(["resect", str(points), "--camera", str(camera), "--no-progress"]) == 2
+    assert "no heights" in capsys.readouterr().err
+    args = ["compare", str(points), "--image", str(image), "--camera", str(camera), "--dem", str(dem)]
+    assert main([*args, "-o", str(tmp_path / "cmp"), "--no-progress"]) == 2
     assert "no heights" in capsys.readouterr().err
 
 

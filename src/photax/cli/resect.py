@@ -112,12 +112,11 @@ def run(args: argparse.Namespace) -> int:
 
     from ..io.atomic import check_output_path
     from ..io.crs import require_projected
-    from ..io.gcp import read_gcps
     from ..io.orientation import read_camera_unit, read_interior
     from ..io.results import write_json
     from ..progress import progress_bar
     from ..resection import resect
-    from ._common import input_file, plural
+    from ._common import input_file, plural, read_gcps_3d
 
     gcp_path = input_file(args.gcp_file, "GCP file")
     camera_path = input_file(args.camera, "camera file")
@@ -133,12 +132,8 @@ def run(args: argparse.Namespace) -> int:
     def say(*parts):
         report.append(" ".join(str(p) for p in parts))
 
-    table = read_gcps(gcp_path, format=args.format)
+    table = read_gcps_3d(gcp_path, format=args.format)
     require_projected(table.crs, f"the GCPs ({args.gcp_file})")  # degrees are not metres
-    if not np.all(np.isfinite(table.ground[:, 2])):
-        raise ValueError(
-            f"{args.gcp_file}: the GCPs have no heights (a QGIS .points file is 2-D); resect needs E, N, h"
-        )
     camera = read_interior(camera_path)  # a photax camera file, an orthority interior, a reconstruction.json
     if table.pixel is not None and (camera.pixel_size is None or camera.image_size is None):
         raise ValueError(f"{args.camera}: the GCPs are in pixels, so the camera needs pixel_size and image_size")
