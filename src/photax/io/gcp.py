@@ -1,6 +1,6 @@
-"""Ground control point files: a CSV with a header, or OpenDroneMap's ``gcp_list.txt``.
+"""Ground control point files: a CSV with a header, OpenDroneMap's ``gcp_list.txt``, QGIS ``.points``, GeoJSON.
 
-Both give, per measurement, a point name, the image it is measured in, its
+Each gives, per measurement, a point name, the image it is measured in, its
 ground coordinates and its image coordinates.  They are read into a
 :class:`GCPTable`; ``table.select(image).image_plane(camera)`` gives what
 :func:`photax.resect` wants.
@@ -90,7 +90,8 @@ class GCPTable:
     Attributes:
         names: ``(n,)`` point names.
         images: ``(n,)`` image names (``""`` when the file has no image column).
-        ground: ``(n, 3)`` ground ``(X, Y, Z)`` (easting, northing, height), float64.
+        ground: ``(n, 3)`` ground ``(X, Y, Z)`` (easting, northing, height), float64;
+            heights NaN for a 2-D file (QGIS ``.points``).
         pixel: ``(n, 2)`` pixel ``(column, row)``, integer = pixel centre,
             row down; or ``None`` when the file gives image-plane coordinates.
         image_xy: ``(n, 2)`` image-plane ``(x, y)`` (y up, camera units), or
