@@ -120,7 +120,8 @@ def test_footprint_outside_the_dem_says_where_both_are():
 
 
 def test_metres_labelled_geographic_are_refused_by_resect(tmp_path, capsys):
-    # Geographic GCPs are projected to their UTM zone (tests/test_gcp_formats.py); metres labelled degrees are refused.
+    # Geographic GCPs are projected to their UTM zone (tests/test_gcp_formats.py);
+    # metres labelled degrees are refused.
     gcps = tmp_path / "g.csv"
     gcps.write_text((DATA / "sample_gcps.csv").read_text().replace("# crs: EPSG:32633", "# crs: EPSG:4326"))
     assert main(["resect", str(gcps), "--camera", str(CAMERA), "--no-progress"]) == 2

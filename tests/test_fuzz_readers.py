@@ -235,7 +235,8 @@ GCP_QGIS = [
 GCP_GEOJSON = [
     b'{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"ji": [821.3, 62.3], '
     b'"filename": "a.tif", "id": "p1", "info": "p1"}, "geometry": {"type": "Point", "coordinates": '
-    b'[24.419, -33.654, 214.7]}}, {"type": "Feature", "properties": {"ji": [-185.1, 11.3], "filename": "a.tif", '
+    b'[24.419, -33.654, 214.7]}}, {"type": "Feature", '
+    b'"properties": {"ji": [-185.1, 11.3], "filename": "a.tif", '
     b'"id": 7}, "geometry": {"type": "Point", "coordinates": [24.347, -33.649, 463.6]}}], '
     b'"crs": {"type": "name", "properties": {"name": "EPSG:4326"}}}\n',
     *_shared_seed("orthority/rpc/gcps.geojson"),
@@ -675,7 +676,8 @@ def test_seeds_are_valid(work, bal_seed, tif_seeds):
     exercise the error paths)."""
     from photax.io.raster import read_dem
 
-    cases = [(read_gcps, "s.csv", GCP_CSV + GCP_ODM, _sane_gcps), (read_gcps, "s.points", GCP_QGIS, _sane_2d_gcps),
+    cases = [(read_gcps, "s.csv", GCP_CSV + GCP_ODM, _sane_gcps),
+             (read_gcps, "s.points", GCP_QGIS, _sane_2d_gcps),
              (read_gcps, "s.geojson", GCP_GEOJSON, _sane_gcps), (read_camera, "s.yaml", CAMERA, _sane_camera),
              (read_camera, "s.json", CAMERA_JSON, _sane_camera),
              (read_orthority_interior, "s_int.yaml", ORTHO_INT, lambda c: [_sane_camera(v) for v in c.values()]),

@@ -105,7 +105,8 @@ def _points_text(table, crs_line=True) -> str:
 
 def test_qgis_points_pixel_convention(tmp_path):
     path = tmp_path / "a.points"
-    path.write_text("mapX,mapY,sourceX,sourceY,enable,dX,dY,residual\n10,20,0.5,-0.5,1,0,0,0\n30,40,100,-50,0,0,0,0\n")
+    head = "mapX,mapY,sourceX,sourceY,enable,dX,dY,residual\n"
+    path.write_text(head + "10,20,0.5,-0.5,1,0,0,0\n30,40,100,-50,0,0,0,0\n")
     t = read_gcps(path)
     np.testing.assert_array_equal(t.pixel, [[0.0, 0.0], [99.5, 49.5]])  # first pixel's centre -> (0, 0)
     np.testing.assert_array_equal(t.ground[:, :2], [[10, 20], [30, 40]])
@@ -154,7 +155,8 @@ def test_qgis_points_and_csv_give_the_same_rectification(tmp_path):
     outs = []
     for gcps in (SAMPLE, points):
         out = tmp_path / f"{gcps.stem}.tif"
-        assert main(["rectify", str(image), "--gcps", str(gcps), "--order", "2", "-o", str(out), "--no-progress"]) == 0
+        args = ["rectify", str(image), "--gcps", str(gcps), "--order", "2", "-o", str(out), "--no-progress"]
+        assert main(args) == 0
         with rasterio.open(out) as ds:
             outs.append((ds.transform, ds.crs, ds.read()))
     assert outs[0][0] == outs[1][0] and outs[0][1] == outs[1][1]
@@ -245,7 +247,8 @@ def _rectify(tmp_path, gcps, *extra):
 
     out = tmp_path / f"{gcps.stem}_{len(extra)}.tif"
     image = ROOT / "data" / "sample_image.tif"
-    args = ["rectify", str(image), "--gcps", str(gcps), "--order", "1", "-o", str(out), "--no-progress", *extra]
+    args = ["rectify", str(image), "--gcps", str(gcps), "--order", "1", "-o", str(out), "--no-progress"]
+    args += extra
     assert main(args) == 0
     with rasterio.open(out) as ds:
         return ds.transform, ds.crs.to_epsg()
@@ -257,7 +260,8 @@ def test_rectify_geographic_gcps_and_crs(tmp_path):
         table.ground[:, 0], table.ground[:, 1]
     )
     geo = tmp_path / "geo.csv"
-    rows = zip(table.names, lon.tolist(), lat.tolist(), table.ground[:, 2].tolist(), table.pixel.tolist(), table.role)
+    h, pixel = table.ground[:, 2].tolist(), table.pixel.tolist()
+    rows = zip(table.names, lon.tolist(), lat.tolist(), h, pixel, table.role)
     geo.write_text(
         "# crs: EPSG:4326\nname,E,N,h,col,row,role\n"
         + "".join(f"{n},{a!r},{b!r},{h!r},{c!r},{r!r},{role}\n" for n, a, b, h, (c, r), role in rows)

@@ -70,7 +70,8 @@ def input_folder(path, what: str) -> pathlib.Path:
 
 
 def read_gcps_3d(path, format: str = "auto"):
-    """:func:`photax.io.read_gcps` for a command that needs heights: a 2-D file (QGIS ``.points``) is refused."""
+    """:func:`photax.io.read_gcps` for a command that needs heights: a 2-D file (QGIS ``.points``)
+    is refused."""
     import numpy as np
 
     from ..io.gcp import read_gcps

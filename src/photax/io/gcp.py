@@ -1,4 +1,5 @@
-"""Ground control point files: a CSV with a header, OpenDroneMap's ``gcp_list.txt``, QGIS ``.points``, GeoJSON.
+"""Ground control point files: a CSV with a header, OpenDroneMap's ``gcp_list.txt``,
+QGIS ``.points``, GeoJSON.
 
 Each gives, per measurement, a point name, the image it is measured in, its
 ground coordinates and its image coordinates.  They are read into a
@@ -235,7 +236,8 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm", "qgis", "geojson"] 
     try:
         _check_points(path, rows)
     except ValueError as exc:  # GeoJSON has features, not lines
-        raise ValueError(str(exc).replace(", line ", ", feature ") if format == "geojson" else str(exc)) from None
+        message = str(exc).replace(", line ", ", feature ") if format == "geojson" else str(exc)
+        raise ValueError(message) from None
     if format == "qgis":  # 2-D points: no height (zero until the checks, which compare positions)
         rows["ground"][:, 2] = math.nan
     unit = "feature" if format == "geojson" else "line"
@@ -288,8 +290,8 @@ def _projected(path, ground, source_text, target_text, lines, unit="line") -> tu
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise ValueError(
-                f"{path}, {unit} {lines[i]}: the CRS {source.name!r} is geographic, but x {lon[i]:g}, y {lat[i]:g} "
-                "is not a longitude, latitude in degrees"
+                f"{path}, {unit} {lines[i]}: the CRS {source.name!r} is geographic, "
+                f"but x {lon[i]:g}, y {lat[i]:g} is not a longitude, latitude in degrees"
             )
         if target is None:
             target = utm_crs(float(np.mean(lat)), float(np.mean(lon)))
@@ -300,7 +302,8 @@ def _projected(path, ground, source_text, target_text, lines, unit="line") -> tu
     out = np.column_stack([x, y, ground[:, 2]]).astype(float)
     bad = ~np.all(np.isfinite(out[:, :2]), axis=1)
     if bad.any():
-        raise ValueError(f"{path}, {unit} {lines[int(np.flatnonzero(bad)[0])]}: outside the area of {target.name!r}")
+        where = lines[int(np.flatnonzero(bad)[0])]
+        raise ValueError(f"{path}, {unit} {where}: outside the area of {target.name!r}")
     epsg = target.to_epsg()
     return out, (f"EPSG:{epsg}" if epsg is not None else target.to_wkt())
 
