@@ -21,6 +21,7 @@ the raster readers, whose examples are dearer: 150).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import pathlib
 import re
@@ -223,6 +224,22 @@ GCP_ODM = [
     b"EPSG:32633\n500000 4000000 100 10 20 a.jpg P1\n500010 4000010 101 30 40 a.jpg P2\n"
     b"500010 4000010 101 31 41 b.jpg P2 extra\n",
     *_shared_seed("gcp_list_floatxy_raw.txt"),
+    b"WGS84\n-48.4 -25.6 890.6 2460.6 233.9 IMG_5349.JPG HV01\n-48.401 -25.601 890.1 1855.8 602.3 IMG_5352.JPG HV02\n",
+    b"+proj=longlat +datum=WGS84 +no_defs\n15 40 10 1 2 a.jpg A\n15.001 40.001 12 3 4 a.jpg B\n",
+]
+GCP_QGIS = [
+    b"#CRS: EPSG:32633\nmapX,mapY,sourceX,sourceY,enable,dX,dY,residual\n"
+    b"511890.627,4103806.525,81.612,-45.133,1,0,0,0\n512075.985,4103928.086,355.56,-45.455,0,0.1,-0.2,0.3\n",
+    b"mapX,mapY,sourceX,sourceY,enable\n15.0,40.0,10.5,-20.5,1\n",
+]
+GCP_GEOJSON = [
+    b'{"type": "FeatureCollection", "features": [{"type": "Feature", "properties": {"ji": [821.3, 62.3], '
+    b'"filename": "a.tif", "id": "p1", "info": "p1"}, "geometry": {"type": "Point", "coordinates": '
+    b'[24.419, -33.654, 214.7]}}, {"type": "Feature", '
+    b'"properties": {"ji": [-185.1, 11.3], "filename": "a.tif", '
+    b'"id": 7}, "geometry": {"type": "Point", "coordinates": [24.347, -33.649, 463.6]}}], '
+    b'"crs": {"type": "name", "properties": {"name": "EPSG:4326"}}}\n',
+    *_shared_seed("orthority/rpc/gcps.geojson"),
 ]
 
 
@@ -243,6 +260,29 @@ def test_fuzz_read_gcps(work, data):
     path = work / "gcps.csv"
     path.write_bytes(data)
     _expect_valueerror_or_sane(read_gcps, path, _sane_gcps, r": (empty GCP file|no GCP measurements)$", lines=True)
+
+
+def _sane_2d_gcps(t) -> None:
+    """A QGIS table: heights NaN (2-D points), the rest as any GCP table."""
+    assert np.all(np.isnan(t.ground[:, 2]))
+    _sane_gcps(dataclasses.replace(t, ground=np.nan_to_num(t.ground, nan=0.0)))
+
+
+@FUZZ
+@given(data=mutated(GCP_QGIS))
+def test_fuzz_read_gcps_qgis(work, data):
+    path = work / "gcps.points"
+    path.write_bytes(data)
+    whole = r": (empty GCP file|no GCP measurements)$"
+    _expect_valueerror_or_sane(lambda p: read_gcps(p, format="qgis"), path, _sane_2d_gcps, whole, lines=True)
+
+
+@FUZZ
+@given(data=mutated(GCP_GEOJSON))
+def test_fuzz_read_gcps_geojson(work, data):
+    path = work / "gcps.geojson"
+    path.write_bytes(data)
+    _expect_valueerror_or_sane(lambda p: read_gcps(p, format="geojson"), path, _sane_gcps)
 
 
 # --- camera files ------------------------------------------------------------------
@@ -636,7 +676,9 @@ def test_seeds_are_valid(work, bal_seed, tif_seeds):
     exercise the error paths)."""
     from photax.io.raster import read_dem
 
-    cases = [(read_gcps, "s.csv", GCP_CSV + GCP_ODM, _sane_gcps), (read_camera, "s.yaml", CAMERA, _sane_camera),
+    cases = [(read_gcps, "s.csv", GCP_CSV + GCP_ODM, _sane_gcps),
+             (read_gcps, "s.points", GCP_QGIS, _sane_2d_gcps),
+             (read_gcps, "s.geojson", GCP_GEOJSON, _sane_gcps), (read_camera, "s.yaml", CAMERA, _sane_camera),
              (read_camera, "s.json", CAMERA_JSON, _sane_camera),
              (read_orthority_interior, "s_int.yaml", ORTHO_INT, lambda c: [_sane_camera(v) for v in c.values()]),
              (read_orthority_exterior, "s_ext.csv", ORTHO_EXT, lambda e: len(e) >= 2 or None),

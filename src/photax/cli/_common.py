@@ -69,6 +69,19 @@ def input_folder(path, what: str) -> pathlib.Path:
     return p
 
 
+def read_gcps_3d(path, format: str = "auto"):
+    """:func:`photax.io.read_gcps` for a command that needs heights: a 2-D file (QGIS ``.points``)
+    is refused."""
+    import numpy as np
+
+    from ..io.gcp import read_gcps
+
+    table = read_gcps(path, format=format)
+    if not np.all(np.isfinite(table.ground[:, 2])):
+        raise ValueError(f"{path}: the GCPs have no heights (a QGIS .points file is 2-D); this command needs E, N, h")
+    return table
+
+
 def plural(n: int, word: str, words: str | None = None) -> str:
     """``"1 camera"``, ``"2 cameras"``, ``"0 cameras"``."""
     return f"{n} {word if n == 1 else (words or word + 's')}"

@@ -80,11 +80,10 @@ def run(args: argparse.Namespace) -> int:
 
     from ..compare import compare_models
     from ..io.atomic import atomic_path, atomic_write, check_output_path
-    from ..io.gcp import read_gcps
     from ..io.orientation import read_interior
     from ..io.raster import read_dem, read_geotiff
     from ..io.results import write_json
-    from ._common import check_crs, input_file
+    from ._common import check_crs, input_file, read_gcps_3d
 
     gcp_path = input_file(args.gcps, "GCP file")
     input_file(args.camera, "camera file")
@@ -100,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
             check_output_path(out / name, inputs)  # fail before the work, not after
     if args.resolution is not None and not args.resolution > 0:
         raise ValueError(f"--resolution must be positive, got {args.resolution}")
-    table = _select_image(read_gcps(gcp_path), args)
+    table = _select_image(read_gcps_3d(gcp_path), args)
     camera = read_interior(args.camera, args.camera_name)
     if camera.image_size is None:
         raise ValueError(f"{args.camera}: the camera needs image_size (and a pixel size)")

@@ -25,7 +25,12 @@ def add_parser(sub) -> None:
         "  photax rectify data/sample_image.tif --gcps data/sample_gcps.csv --model tps -o rect_tps.tif\n",
     )
     p.add_argument("image", metavar="IMAGE", help="the image (any GDAL raster)")
-    p.add_argument("--gcps", required=True, metavar="GCP_FILE", help="GCP list with pixel positions (CSV or ODM)")
+    p.add_argument(
+        "--gcps",
+        required=True,
+        metavar="GCP_FILE",
+        help="GCP list with pixel positions (CSV, ODM, QGIS .points or GeoJSON)",
+    )
     p.add_argument(
         "--model",
         choices=MODELS,
@@ -44,6 +49,12 @@ def add_parser(sub) -> None:
         help="resampling kernel (default: bilinear; nearest for a palette image, which takes no other)",
     )
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
+    p.add_argument(
+        "--crs",
+        metavar="CRS",
+        help="projected CRS of the output, the GCPs reprojected to it (default: the GCPs' own; "
+        "longitude/latitude GCPs go to the UTM zone of the points)",
+    )
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
@@ -68,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
     image = input_file(args.image, "image")
     gcp_path = input_file(args.gcps, "GCP file")
     check_output_path(args.out, [image, gcp_path])  # fail before the work, not after
-    table = read_gcps(gcp_path)
+    table = read_gcps(gcp_path, crs=args.crs)
     names = table.image_names
     if args.image_name is not None or len(names) > 1:
         stem = pathlib.Path(args.image).name

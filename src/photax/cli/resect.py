@@ -82,7 +82,12 @@ def add_parser(sub) -> None:
         "columns); overrides the file's sigma column. Without either, blunders are tested "
         "against the a-posteriori sigma0 (tau test)",
     )
-    p.add_argument("--format", choices=("auto", "csv", "odm"), default="auto", help="GCP file format")
+    p.add_argument(
+        "--format",
+        choices=("auto", "csv", "odm", "qgis", "geojson"),
+        default="auto",
+        help="GCP file format (qgis: Georeferencer .points; geojson: orthority's GCPs)",
+    )
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -107,12 +112,11 @@ def run(args: argparse.Namespace) -> int:
 
     from ..io.atomic import check_output_path
     from ..io.crs import require_projected
-    from ..io.gcp import read_gcps
     from ..io.orientation import read_camera_unit, read_interior
     from ..io.results import write_json
     from ..progress import progress_bar
     from ..resection import resect
-    from ._common import input_file, plural
+    from ._common import input_file, plural, read_gcps_3d
 
     gcp_path = input_file(args.gcp_file, "GCP file")
     camera_path = input_file(args.camera, "camera file")
@@ -128,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
     def say(*parts):
         report.append(" ".join(str(p) for p in parts))
 
-    table = read_gcps(gcp_path, format=args.format)
+    table = read_gcps_3d(gcp_path, format=args.format)
     require_projected(table.crs, f"the GCPs ({args.gcp_file})")  # degrees are not metres
     camera = read_interior(camera_path)  # a photax camera file, an orthority interior, a reconstruction.json
     if table.pixel is not None and (camera.pixel_size is None or camera.image_size is None):

@@ -43,13 +43,13 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np  # here, not at import: photax --help loads no numpy
 
-    from ..io import read_camera_unit, read_gcps, write_bal, write_block
+    from ..io import read_camera_unit, write_bal, write_block
     from ..io.atomic import check_output_path
     from ..io.block import check_block_output
     from ..io.orientation import camera_in_pixels
     from ..io.raster import read_dem
     from ..matching import bundle_problem, match_ties
-    from ._common import read_oriented_images
+    from ._common import read_gcps_3d, read_oriented_images
 
     files, camera, names, images, exterior = read_oriented_images(args, [args.gcps])
     bal = args.out.lower().endswith((".txt", ".txt.bz2", ".bal"))
@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{names[i]} - {names[j]}: {ties.pair_counts.get((i, j), 0)} matches, {s}")
     gcps = None
     if args.gcps:
-        gcps = read_gcps(args.gcps)
+        gcps = read_gcps_3d(args.gcps)
         gcps = gcps.subset(np.array([pathlib.Path(str(s)).stem in names for s in gcps.images], dtype=bool))
         gcps = dataclasses.replace(gcps, images=np.array([pathlib.Path(str(s)).stem for s in gcps.images], dtype=str))
     problem = bundle_problem(camera, exterior, ties, gcps, image_names=names)

@@ -44,14 +44,13 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np  # here, not at import: photax --help loads no numpy
 
-    from ..io import read_gcps
     from ..io.raster import read_dem, read_geotiff
     from ..matching import transfer_points
-    from ._common import read_oriented_images
+    from ._common import read_gcps_3d, read_oriented_images
 
     files, camera, names, images, exterior = read_oriented_images(args, [args.gcps, args.template])
     dem = read_dem(args.dem)
-    table = read_gcps(args.gcps)
+    table = read_gcps_3d(args.gcps)
     if table.pixel is None:
         raise ValueError(f"{args.gcps}: give pixel (col, row) measurements")
     points = list(dict.fromkeys(table.names.tolist()))

@@ -1,6 +1,7 @@
-"""Ground control point files: a CSV with a header, or OpenDroneMap's ``gcp_list.txt``.
+"""Ground control point files: a CSV with a header, OpenDroneMap's ``gcp_list.txt``,
+QGIS ``.points``, GeoJSON.
 
-Both give, per measurement, a point name, the image it is measured in, its
+Each gives, per measurement, a point name, the image it is measured in, its
 ground coordinates and its image coordinates.  They are read into a
 :class:`GCPTable`; ``table.select(image).image_plane(camera)`` gives what
 :func:`photax.resect` wants.
@@ -38,6 +39,29 @@ they are.  Extra columns after the name are ignored, as ODM does.
 
 Malformed lines (wrong number of columns, non-numeric or non-finite values,
 an unknown role) raise ``ValueError`` naming the file and the line number.
+**QGIS Georeferencer** ``.points``: an optional ``#CRS: <WKT>`` line (QGIS 3.26+),
+then the header ``mapX,mapY,sourceX,sourceY,enable[,dX,dY,residual]``.  QGIS gives
+a pixel position of an ungeoreferenced raster as ``(column, -row)`` with the
+origin at the *corner* of the first pixel (GDAL's pixel/line convention), so
+``col = sourceX - 0.5`` and ``row = -sourceY - 0.5`` in photax's centre
+convention; a positive ``sourceY`` (a georeferenced source raster, map units) is
+refused.  The points are 2-D: heights are NaN (enough for ``photax rectify``,
+not for a resection).  ``enable = 0`` (a point left out of QGIS's fit) reads as
+a check point; there are no names (``gcp1, gcp2, ...``) and one image (``""``).
+
+**GeoJSON** as orthority writes it: a ``FeatureCollection`` of ``Point``
+features, ``coordinates`` = longitude, latitude, height (WGS84, RFC 7946),
+``properties``: ``ji`` = pixel ``[column, row]`` (orthority's pixels are
+photax's: integer = centre), ``id`` (the name), ``filename`` (the image).
+
+**Geographic coordinates** (an ODM list whose first line is ``WGS84``,
+``EPSG:4326`` or ``+proj=longlat ...``, a CSV ``# crs:`` of a geographic CRS, a
+GeoJSON file): ``x`` is the longitude, ``y`` the latitude; the points are
+projected through pyproj to ``crs=`` or, by default, to the WGS84 UTM zone of
+their mean position, as ODM does.  Degrees are never taken for metres.  Heights
+are kept as the file gives them (no vertical datum is converted).  Given
+``crs=``, a file in another projected CRS is reprojected to it too.
+
 A name is one point: the same name with other ground coordinates or another
 role is an error naming both lines.  A point measured twice in one image is kept (real lists have such slips: the
 ODM sample measures HV11 twice in IMG_5352) and reported by
@@ -48,13 +72,14 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import json
 import math
 import pathlib
 from typing import Literal
 
 import numpy as np
 
-from .files import excerpt, file_error, number, read_text, split_lines
+from .files import as_numbers, excerpt, file_error, number, read_text, split_lines
 
 _ROLES = ("control", "check")
 
@@ -66,7 +91,8 @@ class GCPTable:
     Attributes:
         names: ``(n,)`` point names.
         images: ``(n,)`` image names (``""`` when the file has no image column).
-        ground: ``(n, 3)`` ground ``(X, Y, Z)`` (easting, northing, height), float64.
+        ground: ``(n, 3)`` ground ``(X, Y, Z)`` (easting, northing, height), float64;
+            heights NaN for a 2-D file (QGIS ``.points``).
         pixel: ``(n, 2)`` pixel ``(column, row)``, integer = pixel centre,
             row down; or ``None`` when the file gives image-plane coordinates.
         image_xy: ``(n, 2)`` image-plane ``(x, y)`` (y up, camera units), or
@@ -151,13 +177,22 @@ class GCPTable:
         return self.sigma * float(np.mean(np.asarray(camera._pixel_grid()[1])))
 
 
-def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTable:
-    """Read a GCP file (CSV with header, or OpenDroneMap ``gcp_list.txt``).
+_FORMATS = ("auto", "csv", "odm", "qgis", "geojson")
+
+
+def read_gcps(path, *, format: Literal["auto", "csv", "odm", "qgis", "geojson"] = "auto", crs=None) -> GCPTable:
+    """Read a GCP file (CSV with header, OpenDroneMap ``gcp_list.txt``, QGIS
+    Georeferencer ``.points``, or orthority's GeoJSON).
 
     Args:
         path: the file.
-        format: ``"csv"``, ``"odm"``, or ``"auto"``: CSV when the first
-            non-blank line contains a comma, else ODM.
+        format: ``"csv"``, ``"odm"``, ``"qgis"``, ``"geojson"``, or ``"auto"``:
+            GeoJSON when the file starts with ``{``, QGIS when its header is
+            ``mapX,mapY,...``, CSV when the first non-blank line contains a
+            comma, else ODM.
+        crs: the projected CRS to give the ground coordinates in (EPSG code,
+            PROJ string, WKT); by default geographic coordinates go to the UTM
+            zone of the points and projected ones stay as they are.
 
     Returns:
         a :class:`GCPTable`.
@@ -166,42 +201,197 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm"] = "auto") -> GCPTab
         ValueError: naming the file and line of the first malformed line.
     """
     path = pathlib.Path(path)
-    lines = split_lines(read_text(path, "GCP file"))
+    text = read_text(path, "GCP file")
+    lines = split_lines(text)
     numbered = [(i + 1, s) for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")]
-    if not numbered:
+    if format not in _FORMATS:
+        raise ValueError(f"format must be one of {', '.join(map(repr, _FORMATS))}, got {format!r}")
+    if format == "auto" and text.lstrip().startswith("{"):
+        format = "geojson"
+    if format == "geojson":
+        rows, source_crs = _parse_geojson(path, text)
+    elif not numbered:
         raise ValueError(f"{path}: empty GCP file")
-    if format == "auto":
-        format = "csv" if "," in numbered[0][1] else "odm"
-    if format == "csv":
-        rows = _parse_csv(path, numbered)
-        tags = [ln.lstrip()[1:].strip() for ln in lines if ln.lstrip().startswith("#")]
-        crs = next((t.split(":", 1)[1].strip() for t in tags if t.lower().startswith("crs:")), None)
-    elif format == "odm":
-        crs = numbered[0][1].strip()
-        if _looks_like_measurement(crs):
-            raise ValueError(
-                f"{path}, line {numbered[0][0]}: an ODM GCP list starts with its CRS "
-                f"(e.g. EPSG:32633 or a PROJ string), got a measurement: {excerpt(crs)}"
-            )
-        rows = _parse_odm(path, numbered[1:])
     else:
-        raise ValueError(f"format must be 'auto', 'csv' or 'odm', got {format!r}")
+        if format == "auto":
+            first = numbered[0][1].replace(" ", "").lower()
+            format = "qgis" if first.startswith("mapx,") else "csv" if "," in first else "odm"
+        if format == "csv":
+            rows = _parse_csv(path, numbered)
+            tags = [ln.lstrip()[1:].strip() for ln in lines if ln.lstrip().startswith("#")]
+            source_crs = next((t.split(":", 1)[1].strip() for t in tags if t.lower().startswith("crs:")), None)
+        elif format == "qgis":
+            rows, source_crs = _parse_qgis(path, lines, numbered)
+        else:
+            source_crs = numbered[0][1].strip()
+            if _looks_like_measurement(source_crs):
+                raise ValueError(
+                    f"{path}, line {numbered[0][0]}: an ODM GCP list starts with its CRS "
+                    f"(e.g. EPSG:32633 or a PROJ string), got a measurement: {excerpt(source_crs)}"
+                )
+            rows = _parse_odm(path, numbered[1:])
     if not len(rows["names"]):
         raise ValueError(f"{path}: no GCP measurements")
     _auto_names(rows)
-    _check_points(path, rows)
+    try:
+        _check_points(path, rows)
+    except ValueError as exc:  # GeoJSON has features, not lines
+        message = str(exc).replace(", line ", ", feature ") if format == "geojson" else str(exc)
+        raise ValueError(message) from None
+    if format == "qgis":  # 2-D points: no height (zero until the checks, which compare positions)
+        rows["ground"][:, 2] = math.nan
+    unit = "feature" if format == "geojson" else "line"
+    ground, out_crs = _projected(path, rows["ground"], source_crs, crs, rows["lines"], unit)
     return GCPTable(
         names=np.asarray(rows["names"], dtype=str),
         images=np.asarray(rows["images"], dtype=str),
-        ground=rows["ground"],
+        ground=ground,
         pixel=rows["pixel"],
         image_xy=rows["image_xy"],
         sigma=rows["sigma"],
         role=np.asarray(rows["role"], dtype=str),
-        crs=crs,
+        crs=out_crs,
         lines=rows["lines"],
         source=str(path),
     )
+
+
+def _parse_crs(text):
+    """A ``pyproj.CRS`` (its horizontal part) from the file's CRS text, or None when pyproj cannot read it."""
+    import pyproj
+
+    try:
+        crs = pyproj.CRS.from_user_input(text)
+    except Exception:  # noqa: BLE001 - pyproj raises CRSError, and others on odd text: not a CRS either way
+        return None
+    return crs.sub_crs_list[0] if crs.is_compound else crs
+
+
+def _projected(path, ground, source_text, target_text, lines, unit="line") -> tuple[np.ndarray, str | None]:
+    """``ground`` in ``target_text`` (or, for geographic coordinates, the UTM zone of
+    their mean position) and the CRS text; heights unchanged."""
+    import pyproj
+
+    from ._geo import projected_crs, utm_crs
+
+    target = None if target_text is None else projected_crs(target_text, "crs")
+    source = None if source_text is None else _parse_crs(source_text)
+    if source is None:
+        if source_text is not None and target is not None:
+            raise ValueError(f"{path}: its CRS {excerpt(source_text)} is not one pyproj reads; cannot reproject it")
+        if source_text is None and target is not None:  # the caller says what the coordinates are
+            return ground, str(target_text)
+        return ground, source_text
+    if not (source.is_geographic or source.is_projected):
+        raise ValueError(f"{path}: CRS {source.name!r} is neither geographic nor projected")
+    if source.is_geographic:
+        lon, lat = ground[:, 0], ground[:, 1]
+        bad = ~((np.abs(lat) <= 90) & (np.abs(lon) <= 360))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(
+                f"{path}, {unit} {lines[i]}: the CRS {source.name!r} is geographic, "
+                f"but x {lon[i]:g}, y {lat[i]:g} is not a longitude, latitude in degrees"
+            )
+        if target is None:
+            target = utm_crs(float(np.mean(lat)), float(np.mean(lon)))
+    elif target is None or target == source:
+        return ground, source_text
+    t = pyproj.Transformer.from_crs(source, target, always_xy=True)
+    x, y = t.transform(ground[:, 0], ground[:, 1])
+    out = np.column_stack([x, y, ground[:, 2]]).astype(float)
+    bad = ~np.all(np.isfinite(out[:, :2]), axis=1)
+    if bad.any():
+        where = lines[int(np.flatnonzero(bad)[0])]
+        raise ValueError(f"{path}, {unit} {where}: outside the area of {target.name!r}")
+    epsg = target.to_epsg()
+    return out, (f"EPSG:{epsg}" if epsg is not None else target.to_wkt())
+
+
+_QGIS_HEADER = ["mapx", "mapy", "sourcex", "sourcey", "enable"]
+
+
+def _parse_qgis(path, lines, numbered) -> tuple[dict, str | None]:
+    crs = None
+    for ln in lines:
+        s = ln.strip()
+        if s.upper().replace(" ", "").startswith("#CRS:"):
+            crs = s.split(":", 1)[1].strip() or None
+            break
+        if s and not s.startswith("#"):
+            break
+    parsed = None if crs is None else _parse_crs(crs)
+    if parsed is not None and parsed.to_epsg(min_confidence=100) is not None:  # QGIS's WKT as its EPSG code
+        crs = f"EPSG:{parsed.to_epsg(min_confidence=100)}"
+    (hline, head), body = numbered[0], numbered[1:]
+    header = [h.strip().lower() for h in _split_csv(path, hline, head)]
+    if header[:5] != _QGIS_HEADER or len(header) > 8:
+        raise file_error(path, hline, "not a QGIS .points file (header mapX,mapY,sourceX,sourceY,enable,... expected)")
+    rows = _empty_rows()
+    for line, text in body:
+        f = [s.strip() for s in _split_csv(path, line, text)]
+        if len(f) != len(header):
+            raise file_error(path, line, f"expected {len(header)} columns, got {len(f)}")
+        x, y, sx, sy = (_number(path, line, f[k], w) for k, w in enumerate(("mapX", "mapY", "sourceX", "sourceY")))
+        if f[4] not in ("0", "1"):
+            raise file_error(path, line, f"enable must be 0 or 1, got {excerpt(f[4])}")
+        if sy > 0:
+            raise file_error(
+                path,
+                line,
+                f"sourceY {sy:g} is positive: QGIS writes pixel rows as -row, so the source raster was "
+                "georeferenced (map units, not pixels); georeference the raw image in QGIS",
+            )
+        rows["ground"].append([x, y, 0.0])
+        rows["pixel"].append([sx - 0.5, -sy - 0.5])
+        rows["images"].append("")
+        rows["names"].append(None)
+        rows["sigma"].append(math.nan)
+        rows["role"].append("control" if f[4] == "1" else "check")
+        rows["lines"].append(line)
+    return _as_arrays(rows), crs
+
+
+def _parse_geojson(path, text) -> tuple[dict, str]:
+    try:
+        doc = json.loads(text)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError, too many digits, too deep
+        where = f", line {exc.lineno}" if isinstance(exc, json.JSONDecodeError) else ""
+        raise ValueError(f"{path}{where}: not JSON ({getattr(exc, 'msg', type(exc).__name__)})") from None
+    if not (isinstance(doc, dict) and doc.get("type") == "FeatureCollection" and isinstance(doc.get("features"), list)):
+        raise ValueError(f"{path}: a GeoJSON GCP file is a FeatureCollection of Point features")
+    crs = "EPSG:4326"  # RFC 7946; the old "crs" member when a file names one
+    named = doc.get("crs")
+    if named is not None:
+        name = named.get("properties", {}).get("name") if isinstance(named, dict) else None
+        if not isinstance(name, str) or not isinstance(named.get("properties"), dict):
+            raise ValueError(f"{path}: the 'crs' member has no properties.name")
+        crs = name
+    rows = _empty_rows()
+    for k, feat in enumerate(doc["features"], start=1):
+        geom = feat.get("geometry") if isinstance(feat, dict) else None
+        props = feat.get("properties") if isinstance(feat, dict) else None
+        if not (isinstance(geom, dict) and geom.get("type") == "Point" and isinstance(props, dict)):
+            raise ValueError(f"{path}, feature {k}: expected a Point feature with properties")
+        xyz, ji = as_numbers(geom.get("coordinates")), as_numbers(props.get("ji"))
+        if xyz is None or xyz.shape != (3,) or not np.all(np.isfinite(xyz)):
+            raise ValueError(f"{path}, feature {k}: coordinates must be 3 finite numbers (longitude, latitude, height)")
+        if ji is None or ji.shape != (2,) or not np.all(np.isfinite(ji)):
+            raise ValueError(f"{path}, feature {k}: properties.ji must be 2 finite numbers (pixel column, row)")
+        name, image = props.get("id"), props.get("filename", "")
+        if name is not None and not isinstance(name, (str, int)) or isinstance(name, bool):
+            raise ValueError(f"{path}, feature {k}: properties.id must be a text, got {excerpt(name)}")
+        if not isinstance(image, str):
+            raise ValueError(f"{path}, feature {k}: properties.filename must be a text, got {excerpt(image)}")
+        name = None if name is None else str(name).strip() or None
+        rows["ground"].append(xyz.tolist())
+        rows["pixel"].append(ji.tolist())
+        rows["images"].append(image.strip())
+        rows["names"].append(name)
+        rows["sigma"].append(math.nan)
+        rows["role"].append("control")
+        rows["lines"].append(k)
+    return _as_arrays(rows), crs
 
 
 _number = number
@@ -483,16 +673,29 @@ def _fmt(v: float) -> str:
     return "" if math.isnan(v) else repr(float(v))
 
 
-def write_gcps(path, table: GCPTable, *, inputs=()) -> pathlib.Path:
-    """Write ``table`` as a GCP CSV that :func:`read_gcps` reads back unchanged.
+def write_gcps(path, table: GCPTable, *, format: str = "auto", inputs=()) -> pathlib.Path:
+    """Write ``table`` as a GCP file that :func:`read_gcps` reads back.
 
-    Columns ``name,image,E,N,h,col,row`` (or ``x,y`` for image-plane
+    ``format``: ``"csv"``, ``"qgis"`` (QGIS Georeferencer ``.points``),
+    ``"geojson"`` (orthority's GCP file), or ``"auto"``: by the suffix
+    (``.points``, ``.geojson``/``.json``), else CSV.
+
+    **CSV**: columns ``name,image,E,N,h,col,row`` (or ``x,y`` for image-plane
     coordinates), ``sigma`` (empty where NaN) and ``role``, after a
     ``# crs: ...`` comment when the table has a CRS.  Numbers are written with
     ``repr`` (the shortest decimal that converts back to the same float64), so
     ``read_gcps(write_gcps(p, t))`` has the same names, images, coordinates,
-    sigmas, roles and CRS as ``t``.  The file is written atomically
-    (:mod:`photax.io.atomic`) and may not be one of ``inputs``.
+    sigmas, roles and CRS as ``t``.
+
+    **QGIS** ``.points``: one image, pixels; names, heights and sigmas are not
+    kept (the format has none), check points are written disabled
+    (``enable = 0``), residual columns as 0, the CRS as a ``#CRS:`` WKT line.
+
+    **GeoJSON**: pixels and heights needed, the table's CRS converted to WGS84
+    longitude, latitude (heights as they are); roles and sigmas not kept.
+
+    The file is written atomically (:mod:`photax.io.atomic`) and may not be one
+    of ``inputs``.
 
     Measured points (``photax.measure``) become GCPs with ``pixel = r.xy`` and
     ``sigma`` one number per point in pixels, e.g. ``sqrt((s_col^2 + s_row^2) / 2)``
@@ -502,16 +705,28 @@ def write_gcps(path, table: GCPTable, *, inputs=()) -> pathlib.Path:
     """
     from .atomic import atomic_write
 
+    if format == "auto":
+        suffix = pathlib.Path(path).suffix.lower()
+        format = {".points": "qgis", ".geojson": "geojson", ".json": "geojson"}.get(suffix, "csv")
+    if format not in ("csv", "qgis", "geojson"):
+        raise ValueError(f"format must be 'auto', 'csv', 'qgis' or 'geojson', got {format!r}")
     if not isinstance(table, GCPTable):
         raise ValueError(f"table: expected a GCPTable, got {type(table).__name__}")
     pix = table.pixel is not None
     coords = table.pixel if pix else table.image_xy
     if coords is None:
         raise ValueError("table: has neither pixel nor image-plane coordinates")
-    for what, arr in (("ground", table.ground), ("pixel" if pix else "image_xy", coords)):
+    if format != "csv" and not pix:
+        raise ValueError(f"table: a {format} GCP file gives pixels; this table has image-plane coordinates")
+    ground = table.ground[:, :2] if format == "qgis" else table.ground
+    for what, arr in (("ground", ground), ("pixel" if pix else "image_xy", coords)):
         if not np.all(np.isfinite(arr)):
             bad = table.names[~np.all(np.isfinite(arr), axis=1)][:5]
             raise ValueError(f"table: non-finite {what} coordinates for {', '.join(bad)}; drop the failed points first")
+    if format == "qgis":
+        return _write_qgis(path, table, inputs)
+    if format == "geojson":
+        return _write_geojson(path, table, inputs)
     sigma = np.asarray(table.sigma, dtype=float)
     if np.any(~np.isnan(sigma) & ~(sigma > 0)):
         raise ValueError("table: sigma must be positive (or NaN for none)")
@@ -540,4 +755,52 @@ def write_gcps(path, table: GCPTable, *, inputs=()) -> pathlib.Path:
                     table.role[i],
                 ]
             )
+    return pathlib.Path(path)
+
+
+def _write_qgis(path, table: GCPTable, inputs) -> pathlib.Path:
+    from .atomic import atomic_write
+
+    if len(table.image_names) > 1:
+        raise ValueError(f"table: a QGIS .points file is one image's; select one of {table.image_names}")
+    wkt = None
+    if table.crs is not None:
+        crs = _parse_crs(table.crs)
+        if crs is None:
+            raise ValueError(f"table: crs {excerpt(table.crs)} is not one pyproj reads (QGIS needs its WKT)")
+        wkt = crs.to_wkt()
+    with atomic_write(path, inputs=inputs, newline="") as fh:
+        if wkt is not None:
+            fh.write(f"#CRS: {wkt}\n")
+        fh.write("mapX,mapY,sourceX,sourceY,enable,dX,dY,residual\n")
+        for (x, y, _), (col, row), role in zip(table.ground, table.pixel, table.role.tolist()):
+            enable = "0" if role == "check" else "1"
+            fh.write(f"{_fmt(x)},{_fmt(y)},{_fmt(col + 0.5)},{_fmt(-(row + 0.5))},{enable},0,0,0\n")
+    return pathlib.Path(path)
+
+
+def _write_geojson(path, table: GCPTable, inputs) -> pathlib.Path:
+    import pyproj
+
+    from .atomic import atomic_write
+
+    crs = None if table.crs is None else _parse_crs(table.crs)
+    if crs is None:
+        raise ValueError("table: a GeoJSON GCP file is in WGS84; the table needs a CRS pyproj reads to convert it")
+    lon, lat = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(
+        table.ground[:, 0], table.ground[:, 1]
+    )
+    features = [
+        {
+            "type": "Feature",
+            "properties": {"ji": [float(c), float(r)], "filename": str(image), "id": str(name), "info": str(name)},
+            "geometry": {"type": "Point", "coordinates": [float(a), float(b), float(h)]},
+        }
+        for (c, r), image, name, a, b, h in zip(
+            table.pixel, table.images, table.names, np.atleast_1d(lon), np.atleast_1d(lat), table.ground[:, 2]
+        )
+    ]
+    with atomic_write(path, inputs=inputs) as fh:
+        json.dump({"type": "FeatureCollection", "features": features}, fh, indent=1)
+        fh.write("\n")
     return pathlib.Path(path)
