@@ -27,7 +27,7 @@ import tempfile
 
 sys.path.insert(0, os.path.dirname(__file__))
 from _common import record, start
-from bench_startup import BIN, REPO, interleaved, load, show
+from bench_startup import BIN, REPO, interleaved, load, oty_frame, show
 
 NAMES = [
     "3324c_2015_1004_05_0182_RGB",
@@ -71,33 +71,6 @@ def photax_cmd(names, out_dir="photax"):
         "--resampling",
         "bilinear",
         "--no-progress",
-    ]
-
-
-def oty_cmd(names):
-    return [
-        BIN / "oty",
-        "frame",
-        *(f"{n}.tif" for n in names),
-        "--dem",
-        "dem.tif",
-        "--int-param",
-        "ngi_int_param.yaml",
-        "--ext-param",
-        "ngi_xyz_opk.csv",
-        "--res",
-        "5",
-        "--interp",
-        "bilinear",
-        "--dem-interp",
-        "bilinear",
-        "--compress",
-        "deflate",
-        "--no-write-mask",
-        "--no-build-ovw",
-        "--out-dir",
-        "oty",
-        "--overwrite",
     ]
 
 
@@ -158,9 +131,9 @@ def main():
         subprocess.run([sys.executable, "-c", f"import {modules}"], env=env, check=True)  # byte-code for both
         cmds = {
             "photax 4": photax_cmd(NAMES),
-            "oty 4": oty_cmd(NAMES),
+            "oty 4": oty_frame(NAMES),
             "photax 1": photax_cmd(NAMES[:1]),
-            "oty 1": oty_cmd(NAMES[:1]),
+            "oty 1": oty_frame(NAMES[:1]),
             "photax 4 single processes": singles_cmd(NAMES),
         }
         for k, c in cmds.items():

@@ -162,6 +162,35 @@ def ngi_files(data: pathlib.Path, tmp: pathlib.Path) -> bool:
     return True
 
 
+def oty_frame(names, out_dir="oty"):
+    """``oty frame`` on the NGI images ``names`` at 5 m, as photax's ortho runs (bilinear, deflate, no mask, no
+    overviews); also bench_ortho_block's peer."""
+    return [
+        BIN / "oty",
+        "frame",
+        *(f"{n}.tif" for n in names),
+        "--dem",
+        "dem.tif",
+        "--int-param",
+        "ngi_int_param.yaml",
+        "--ext-param",
+        "ngi_xyz_opk.csv",
+        "--res",
+        "5",
+        "--interp",
+        "bilinear",
+        "--dem-interp",
+        "bilinear",
+        "--compress",
+        "deflate",
+        "--no-write-mask",
+        "--no-build-ovw",
+        "--out-dir",
+        out_dir,
+        "--overwrite",
+    ]
+
+
 def ortho_cmds(tmp: pathlib.Path):
     photax = [
         BIN / "photax",
@@ -181,30 +210,7 @@ def ortho_cmds(tmp: pathlib.Path):
         "bilinear",
         "--no-progress",
     ]
-    oty = [
-        BIN / "oty",
-        "frame",
-        f"{NAME}.tif",
-        "--dem",
-        "dem.tif",
-        "--int-param",
-        "ngi_int_param.yaml",
-        "--ext-param",
-        "ngi_xyz_opk.csv",
-        "--res",
-        "5",
-        "--interp",
-        "bilinear",
-        "--dem-interp",
-        "bilinear",
-        "--compress",
-        "deflate",
-        "--no-write-mask",
-        "--no-build-ovw",
-        "--out-dir",
-        "oty",
-        "--overwrite",
-    ]
+    oty = oty_frame([NAME])
     return photax, oty
 
 

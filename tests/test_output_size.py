@@ -147,7 +147,7 @@ def test_to_raster_refused_when_the_disk_is_short(tmp_path, monkeypatch):
     need = 2 * 200 * 300 * 2
     usage = collections.namedtuple("usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda p: usage(need * 10, need * 9, need - 1))
-    with pytest.raises(OSError, match=r"60,000 pixels x 2 band\(s\) needs 240 KB"):
+    with pytest.raises(OSError, match=r"60,000 pixels x 2 band\(s\) needs 240 kB"):
         to_raster(arr, tmp_path / "x.tif", compress=None)
     assert list(tmp_path.iterdir()) == []
 

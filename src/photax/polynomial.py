@@ -114,6 +114,14 @@ def _hat_diag(a_weighted: np.ndarray) -> np.ndarray:
     return np.sum(q * q, axis=1)
 
 
+def _query(xy) -> Array:
+    """``xy`` as a float ``(..., 2)`` array of points (the models' argument)."""
+    p = jnp.asarray(xy, dtype=float)
+    if p.shape[-1:] != (2,):
+        raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
+    return p
+
+
 class PolynomialModel(eqx.Module):
     """A 2-D polynomial mapping fitted by :func:`fit_polynomial`.
 
@@ -160,9 +168,7 @@ class PolynomialModel(eqx.Module):
 
     def __call__(self, xy) -> Array:
         """``(..., 2)`` source points -> ``(..., 2)`` destination points."""
-        p = jnp.asarray(xy, dtype=float)
-        if p.shape[-1:] != (2,):
-            raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
+        p = _query(xy)
         return jnp.stack(self.transform(p[..., 0], p[..., 1]), axis=-1)
 
     @jax.jit
@@ -436,9 +442,7 @@ class ProjectiveModel(eqx.Module):
 
     def __call__(self, xy) -> Array:
         """``(..., 2)`` source points -> ``(..., 2)`` destination points."""
-        p = jnp.asarray(xy, dtype=float)
-        if p.shape[-1:] != (2,):
-            raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
+        p = _query(xy)
         q = _apply_h(self.h_normalised, _apply_h(self.src_norm, p))
         return _apply_h(jnp.linalg.inv(self.dst_norm), q)
 
@@ -597,9 +601,7 @@ class TPSModel(eqx.Module):
 
     def __call__(self, xy) -> Array:
         """``(..., 2)`` source points -> ``(..., 2)`` destination points."""
-        p = jnp.asarray(xy, dtype=float)
-        if p.shape[-1:] != (2,):
-            raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
+        p = _query(xy)
         one = (1,) * (p.ndim - 1)  # explicit broadcasting (photax runs with rank promotion as an error)
         u = (p - self.src_centre.reshape(one + (2,))) / self.src_scale.reshape(one + (1,))
         centres = self.centres.reshape(one + self.centres.shape)
@@ -723,9 +725,7 @@ class PiecewiseAffineModel(eqx.Module):
     dst_xy: Array
 
     def _normalised(self, xy) -> Array:
-        p = jnp.asarray(xy, dtype=float)
-        if p.shape[-1:] != (2,):
-            raise ValueError(f"xy must have shape (..., 2), got {p.shape}")
+        p = _query(xy)
         one = (1,) * (p.ndim - 1)
         return (p - self.src_centre.reshape(one + (2,))) / self.src_scale.reshape(one + (1,))
 

@@ -116,7 +116,6 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     ``(files, camera, names, images, exteriors)`` from ``args.images``,
     ``args.camera``, ``args.exterior`` and ``args.dem`` plus the ``extra`` files,
     each checked as readable, and ``args.out`` checked against all of them."""
-    import types
 
     from ..io.atomic import check_output_path
     from ..io.orientation import read_exteriors, read_interior
@@ -133,14 +132,14 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     exterior = [table[f] for f in args.images]
     with open_raster(args.dem) as src:  # the DEM's CRS against the orientations' (the caller reads the heights)
         dem_crs = src.crs.to_wkt() if src.crs else None
-    check_crs(crs, f"the orientations ({args.exterior})", types.SimpleNamespace(crs=dem_crs), f"the DEM ({args.dem})")
+    check_crs(crs, f"the orientations ({args.exterior})", dem_crs, f"the DEM ({args.dem})")
     return files, camera, names, images, exterior
 
 
-def check_crs(orientation_crs, what_orientation: str, dem, what_dem: str) -> None:
+def check_crs(orientation_crs, what_orientation: str, dem_crs, what_dem: str) -> None:
     """Where an orientation meets a DEM: neither geographic, both in one CRS (:mod:`photax.io.crs`)."""
     from ..io.crs import require_projected, require_same
 
     require_projected(orientation_crs, what_orientation)
-    require_projected(dem.crs, what_dem)
-    require_same(orientation_crs, what_orientation, dem.crs, what_dem)
+    require_projected(dem_crs, what_dem)
+    require_same(orientation_crs, what_orientation, dem_crs, what_dem)

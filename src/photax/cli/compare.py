@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.camera}: the camera needs image_size (and a pixel size)")
     pixel = table.pixel if table.pixel is not None else np.asarray(camera.image_to_pixel(table.image_xy))
     dem = read_dem(args.dem)
-    check_crs(table.crs, f"the GCPs ({args.gcps})", dem, f"the DEM ({args.dem})")
+    check_crs(table.crs, f"the GCPs ({args.gcps})", dem.crs, f"the DEM ({args.dem})")
     check = table.check
     comparison = compare_models(
         table.ground[~check],

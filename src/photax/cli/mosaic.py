@@ -182,7 +182,7 @@ def run(args) -> int:
         inputs += [str(p) for p in images]
         for o in outs:
             check_output_path(o, inputs)
-        check_crs(crs, f"the block's orientations ({args.block})", dem, f"the DEM ({args.dem})")
+        check_crs(crs, f"the block's orientations ({args.block})", dem.crs, f"the DEM ({args.dem})")
     out_dir = pathlib.Path(args.out).resolve().parent
     # One bar, "mosaic": the block's images, then every Dask task of the mosaic and of its writing.
     with (

@@ -112,7 +112,7 @@ def _run_one(args: argparse.Namespace) -> int:
     exterior, crs = read_exterior(args.exterior, args.image, crs=dem.crs if dem is not None else None)
     dem = dem if dem is not None else _flat_dem(args.height, exterior)
     if args.dem is not None:
-        check_crs(crs, f"the orientation ({args.exterior})", dem, f"the DEM ({args.dem})")
+        check_crs(crs, f"the orientation ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
     grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
     orthorectify_file(
         image,
@@ -176,7 +176,7 @@ def _run_block(args: argparse.Namespace) -> int:
     todo = [k for k, image in enumerate(args.image) if image not in failed]
     exteriors = [table[args.image[k]] for k in todo]
     if dem is not None:
-        check_crs(crs, f"the orientations ({args.exterior})", dem, f"the DEM ({args.dem})")
+        check_crs(crs, f"the orientations ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
     else:
         dem = _flat_dem(args.height, exteriors) if exteriors else None
     results = (

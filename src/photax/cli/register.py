@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     ortho, profile = read_geotiff(args.ortho)
     transform = tuple(profile["transform"])[:6]
     dem = read_dem(args.dem)
-    check_crs(crs, f"the orientation ({args.exterior})", dem, f"the DEM ({args.dem})")
+    check_crs(crs, f"the orientation ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
     require_same(dem.crs, f"the DEM ({args.dem})", profile.get("crs"), f"the ortho ({args.ortho})")
     res = register_to_ortho(
         image,

@@ -298,11 +298,11 @@ def check_space(out, size: int) -> None:
     out = pathlib.Path(out)
     free = _free(out.parent)
     if free is not None and size > free:
-        raise not_written(out, errno.ENOSPC, f"{_human(size)} needed, {_human(free)} free")
+        raise not_written(out, errno.ENOSPC, f"{human_bytes(size)} needed, {human_bytes(free)} free")
     limit = _file_size_limit()
     if limit is not None and size > limit:
         raise not_written(
-            out, errno.EFBIG, f"{_human(size)} needed, the file size limit (ulimit -f) is {_human(limit)}"
+            out, errno.EFBIG, f"{human_bytes(size)} needed, the file size limit (ulimit -f) is {human_bytes(limit)}"
         )
 
 
@@ -312,8 +312,9 @@ def not_written(out: pathlib.Path, no: int, detail: str) -> OSError:
     return OSError(no, f"not written{kept}: {_FULL[no]}: {detail}", str(out))
 
 
-def _human(n: int) -> str:
+def human_bytes(n: float) -> str:
     """Bytes for a reader: ``"812 kB"``, ``"2.1 MB"``, ``"3.4 GB"`` (powers of 1000)."""
+    n = int(n)
     for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
         if n >= scale:
             return f"{n / scale:.3g} {unit}" if n < 100 * scale else f"{n / scale:.0f} {unit}"
@@ -425,13 +426,13 @@ def _write_failure(out: pathlib.Path, tmp: pathlib.Path, exc: BaseException, siz
     if no is None:
         return None
     _remove(tmp)
-    needed = _human(size) if size else f"more than {_human(written)}"
+    needed = human_bytes(size) if size else f"more than {human_bytes(written)}"
     limit, free = _file_size_limit(), _free(out.parent)
     if no == errno.EFBIG and limit is not None:
-        return not_written(out, no, f"{needed} needed, the file size limit (ulimit -f) is {_human(limit)}")
+        return not_written(out, no, f"{needed} needed, the file size limit (ulimit -f) is {human_bytes(limit)}")
     if no == errno.EIO:
         return not_written(out, no, " ".join(str(exc).split())[:200])
-    return not_written(out, no, f"{needed} needed, {_human(free) if free is not None else 'unknown'} free")
+    return not_written(out, no, f"{needed} needed, {human_bytes(free) if free is not None else 'unknown'} free")
 
 
 # Windows device names: a file called so (with any extension) is the device there.

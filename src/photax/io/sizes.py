@@ -10,13 +10,8 @@ import shutil
 
 import numpy as np
 
-
-def _human(nbytes: float) -> str:
-    for unit in ("B", "KB", "MB", "GB", "TB", "PB"):
-        if nbytes < 1000 or unit == "PB":
-            return f"{nbytes:.3g} {unit}"
-        nbytes /= 1000
-    return ""  # unreachable
+from .atomic import human_bytes as _human
+from .atomic import not_written
 
 
 def _available_memory() -> int:
@@ -59,8 +54,6 @@ def check_output_size(shape, bands: int, dtype, *, path=None, hint=None, compres
     if (nbytes / BEST_RATIO if path is not None and compressed else nbytes) > room:
         more = f"; {hint()}" if hint is not None else ""
         if path is not None:  # an OSError naming the output, as every failed write (photax.io.atomic)
-            from .atomic import not_written
-
             raise not_written(
                 pathlib.Path(path),
                 errno.ENOSPC,
