@@ -33,6 +33,10 @@ from .collinearity import (
 from .compare import ModelComparison as ModelComparison
 from .compare import compare_models as compare_models
 from .dem import DEM as DEM
+from .earth import ImageCorrections as ImageCorrections
+from .earth import LocalFrame as LocalFrame
+from .earth import correct_image as correct_image
+from .earth import refraction_coefficient as refraction_coefficient
 from .errors import RESULTS as RESULTS
 from .errors import ConvergenceError as ConvergenceError
 from .fusion import pansharpen as pansharpen
@@ -130,6 +134,11 @@ from .polynomial import (
 from .polynomial import (
     fit_tps as fit_tps,
 )
+from .pushbroom import PushbroomCamera as PushbroomCamera
+from .pushbroom import PushbroomResection as PushbroomResection
+from .pushbroom import RPCFit as RPCFit
+from .pushbroom import fit_rpc as fit_rpc
+from .pushbroom import resect_pushbroom as resect_pushbroom
 from .rectification import (
     orthorectify as orthorectify,
 )
@@ -172,7 +181,9 @@ from .rpc import RPCCamera as RPCCamera
 from .rpc import RPCRefinement as RPCRefinement
 from .rpc import read_rpc as read_rpc
 from .rpc import refine_rpc as refine_rpc
+from .scene import PushbroomScene as PushbroomScene
 from .scene import Scene as Scene
+from .scene import pushbroom_scene as pushbroom_scene
 from .scene import relief_scene as relief_scene
 from .uncertainty import OrthoUncertainty as OrthoUncertainty
 from .uncertainty import ortho_uncertainty as ortho_uncertainty

@@ -464,3 +464,9 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") ->
             loo[i] = pixel[i] - _apply(ki, cr[i : i + 1])[0]
     refined = RPCCamera(camera.coefficients, camera.offsets, camera.scales, k, camera.image_size)
     return RPCRefinement(refined, model, k, cov, residuals, pixel - cr, loo, sigma0, r, standardized)
+
+
+def rpc_terms(lph) -> Array:
+    """``(..., 20)`` the RPC00B terms of normalised ``(..., 3)`` (L, P, H), in the module docstring's order:
+    the design matrix of an RPC fit (:func:`photax.fit_rpc`)."""
+    return _monomials(jnp.asarray(lph, dtype=jnp.float64))

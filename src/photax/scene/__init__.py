@@ -14,7 +14,10 @@
 * :func:`render_image` (:mod:`._render`): the image a frame camera takes of a
   textured DEM with survey targets, area-sampled, blurred and noised;
 * :func:`fiducial_scan` (:mod:`._fiducials`): a scanned film frame's fiducial
-  marks under a known film -> pixel geometry (interior-orientation tests).
+  marks under a known film -> pixel geometry (interior-orientation tests);
+* :func:`pushbroom_scene` (:mod:`._pushbroom`): a push-broom satellite image
+  from orbit (off nadir, along-track views), its GCPs and the orbit and
+  attitude errors of its start.
 
 Everything is seeded; ground coordinates are UTM-like so code that forgets to
 reduce them to a local origin shows it.  Frames and units: ``docs/conventions.md``.
@@ -25,6 +28,8 @@ from ._block import block_scene as block_scene
 from ._bundle import SyntheticBlock as SyntheticBlock
 from ._bundle import synthetic_block as synthetic_block
 from ._fiducials import fiducial_scan as fiducial_scan
+from ._pushbroom import PushbroomScene as PushbroomScene
+from ._pushbroom import pushbroom_scene as pushbroom_scene
 from ._relief import Scene as Scene
 from ._relief import relief_scene as relief_scene
 from ._render import render_image as render_image
