@@ -34,7 +34,8 @@ ray, which keeps its azimuth; with ``alpha`` the ray's nadir angle:
 
   whose first term is the textbook's ``dr = H r^3 / (2 R f^2)`` (``H = Zs - h``; Kraus 2007, sec. 4.5).  ``R`` is the radius of curvature of the ellipsoid in the ray's
   azimuth (Euler: ``1/R = cos^2 az / M + sin^2 az / N``) when the latitude is given, else a fixed
-  radius.  The map distance is taken as the distance on the ellipsoid, which an azimuthal equidistant
+  radius; a raised point's ray also turns in azimuth by ``h sin az cos az (1/N - 1/M)``, as the
+  ellipsoid's normals tilt unequally north and east.  The map distance is taken as the distance on the ellipsoid, which an azimuthal equidistant
   projection about the nadir keeps exactly and a transverse Mercator with scale 1 on a central meridian
   through the scene to ``1 + S^2 / (6 R^2)`` (4 mm at 10 km).
 
@@ -287,7 +288,14 @@ def _rotate_rays(d: Array, k: Array, zs: Array, h: Array, m_radius: Array, n_rad
     # the vertical component scaled so that rho / -d_z = tan(a_map); at the nadir nothing changes
     t_new = jnp.tan(a_map)
     scale = jnp.where(rho > 0, tan_a / jnp.where(t_new > 0, t_new, 1.0), 1.0)
-    return jnp.stack([d[:, 0], d[:, 1], d[:, 2] * scale], -1)
+    # An ellipsoid's normals tilt by S sin(az) / N eastwards and S cos(az) / M northwards: a point raised h
+    # along its own normal lies h S sin cos (1/N - 1/M) to the side of its vertical plane, which turns its
+    # ray's azimuth by delta = h sin(az) cos(az) (1/N - 1/M) (whatever S); the map has it in the plane.
+    sin_az = d[:, 0] / jnp.where(rho > 0, rho, 1.0)
+    cos_az = d[:, 1] / jnp.where(rho > 0, rho, 1.0)
+    delta = jnp.where(curvature, h * sin_az * cos_az * (1.0 / n_radius - 1.0 / m_radius), 0.0)
+    cd, sd = jnp.cos(delta), jnp.sin(delta)
+    return jnp.stack([d[:, 0] * cd - d[:, 1] * sd, d[:, 1] * cd + d[:, 0] * sd, d[:, 2] * scale], -1)
 
 
 def correct_image(image_xy, exterior, camera, ground_height, corrections: ImageCorrections) -> np.ndarray:

@@ -391,6 +391,7 @@ def resect(
     alpha: float = 0.001,
     max_steps: int = 50,
     throw: bool = True,
+    corrections=None,
 ) -> ResectionResult:
     """Space resection of one image from ground control points.
 
@@ -418,6 +419,14 @@ def resect(
             ``message`` and its :class:`photax.RESULTS` code in ``result``.
             Failure includes an implausible solution (package docstring,
             step 5).
+        corrections: a :class:`photax.ImageCorrections` (earth curvature,
+            atmospheric refraction) for ground in a map projection; None (the
+            default) or nothing active: none.  The image coordinates are
+            corrected with the orientation of a plain least-squares resection
+            (:func:`photax.correct_image`, which needs it), resected again
+            until the corrections change by less than 1e-9 of the focal
+            length (at most 5 rounds), then resected as asked; the result
+            names them.
 
     Returns:
         :class:`ResectionResult` (finite values also when it failed).
@@ -457,6 +466,8 @@ def resect(
         alpha=alpha,
         max_steps=max_steps,
     )
+    if corrections is not None and corrections.active:
+        return _resect_corrected(image_xy, ground_xyz, corrections, throw, settings)
     res = _resect_one(image_xy, ground_xyz, fallback=True, **settings)
     if res.converged:
         res = _mirror_test(res, np.asarray(image_xy, float), np.asarray(ground_xyz, float), settings)
@@ -649,3 +660,32 @@ def resect_batch(
             f"{len(bad)} of {len(res.converged)} images failed, e.g. image {bad[0]}: {res.message[bad[0]]}"
         )
     return res
+
+
+def _resect_corrected(image_xy, ground_xyz, corrections, throw, settings) -> ResectionResult:
+    """:func:`resect` with image-space corrections: resect, correct with that orientation, resect again."""
+    from ..earth import correct_image
+
+    observed = np.asarray(image_xy, float)
+    ground = np.asarray(ground_xyz, float)
+    if ground.ndim != 2 or ground.shape[1] != 3:
+        raise ValueError(f"ground_xyz: expected shape (n, 3), got {ground.shape}")
+    camera = settings["camera"]
+    # The orientation for the corrections: plain least squares (the uncorrected residuals, pixels of
+    # curvature and refraction, would fail a blunder test), corrected and solved again until the
+    # corrections settle; then the resection as asked, on the corrected coordinates.
+    quick = dict(settings, robust=False)
+    xy = observed
+    for _ in range(5):
+        res = resect(xy, ground, throw=False, **quick)
+        if not res.converged:
+            break
+        new = correct_image(observed, res.exterior, camera, ground[:, 2], corrections)
+        if not np.all(np.isfinite(new)):
+            raise ValueError("corrections: a ray of the image misses the earth (NaN correction)")
+        settled = float(np.max(np.abs(new - xy))) < 1e-9 * float(camera.focal_length)
+        xy = new
+        if settled:
+            break
+    res = resect(xy, ground, throw=throw, **settings)
+    return dataclasses.replace(res, corrections=corrections, image_corrections=xy - observed)

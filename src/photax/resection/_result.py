@@ -51,6 +51,11 @@ class ResectionResult:
         pixel_size: the camera's mean pixel size in image-plane units
             (1.0 for a camera in pixels), or None without a pixel grid:
             :meth:`summary` reports residuals in pixels with it.
+        corrections: the :class:`photax.ImageCorrections` applied (earth
+            curvature, refraction), or None; ``residuals`` are then those of
+            the corrected image coordinates.
+        image_corrections: ``(n, 2)`` corrected minus observed image
+            coordinates (image-plane units), or None.
     """
 
     exterior: ExteriorOrientation
@@ -73,6 +78,8 @@ class ResectionResult:
     statistic: str = "w"
     pixel_size: float | None = None
     result: Any = RESULTS.successful
+    corrections: Any = None
+    image_corrections: np.ndarray | None = None
 
     rms = alias("rmse")
     check_rms = alias("check_rmse")
@@ -91,7 +98,7 @@ class ResectionResult:
         ext = ExteriorOrientation(self.exterior.position[i], self.exterior.angles[i], self.exterior.convention)
         fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         for k, v in fields.items():
-            if k in ("exterior", "names", "statistic", "pixel_size"):
+            if k in ("exterior", "names", "statistic", "pixel_size", "corrections", "image_corrections"):
                 continue
             fields[k] = v[i] if isinstance(v, (list, tuple)) else take(v)
             if isinstance(fields[k], np.generic):
@@ -152,6 +159,10 @@ class ResectionResult:
             s0 = f"sigma0 = {image_value(self.sigma0)}"
         lines.append(f"  {s0}   rmse = {image_value(self.rmse)}")
         lines.append(f"  control points used = {n_used} of {n_ctrl}   iterations = {self.iterations}")
+        if self.corrections is not None:
+            largest = float(np.max(np.hypot(*np.asarray(self.image_corrections).T)))
+            names = ", ".join(self.corrections.names)
+            lines.append(f"  image corrected for {names} (largest shift {image_value(largest)})")
         if ps is not None:
             heads = ["vx [px]", "vy [px]"] + ([f"vx [{cu}]", f"vy [{cu}]"] if both else [])
         else:
@@ -204,6 +215,7 @@ class ResectionResult:
             "result": RESULTS(int(self.result)).name,
             "statistic": self.statistic,
             "critical": float(self.critical),
+            "corrections": list(self.corrections.names) if self.corrections is not None else [],
         }
         json.dumps(out)  # fail here, not in the caller, if something is not serialisable
         # the points: built from lists of Python values (one tolist per array, not per point)
