@@ -152,3 +152,40 @@ def test_resection_in_a_map_projection_equals_one_in_enu():
     lon_p, lat_p = pyproj.Transformer.from_crs(tm, "EPSG:4326", always_xy=True).transform(xp, yp)
     assert np.max(np.abs(FRAME.from_geographic(lon_p, lat_p, zp) - np.asarray(a.exterior.position))) > 1.0
     assert plain.rmse > 3 * b.rmse
+
+
+def test_cli_resect_with_corrections_matches_the_api(tmp_path, capsys):
+    """``photax resect --earth-curvature --refraction icao`` on GCPs in UTM: the report names the
+    corrections and the JSON holds the API's result with the latitude taken from the GCPs' CRS."""
+    import json
+
+    from photax.cli import main
+
+    rng = np.random.default_rng(5)
+    lon, lat = _aeqd_to_geographic(rng.uniform(-8e3, 8e3, 12), rng.uniform(-8e3, 8e3, 12))
+    h = rng.uniform(0.0, 500.0, 12)
+    x, y = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True).transform(lon, lat)
+    xs, ys = pyproj.Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True).transform(LON0, LAT0)
+    ground = np.column_stack([x, y, h])
+    truth = ExteriorOrientation([xs, ys, H], [0.02, 0.01, 0.2])
+    pix = np.asarray(CAMERA.image_to_pixel(project(ground, truth, CAMERA))) + rng.normal(0, 0.3, (12, 2))
+    rows = [f"P{i},img,{e:.4f},{n:.4f},{z:.4f},{c:.4f},{r:.4f}" for i, (e, n, z, c, r) in
+            enumerate(np.column_stack([ground, pix]))]  # fmt: skip
+    gcps = tmp_path / "gcps.csv"
+    gcps.write_text("# crs: EPSG:32632\nname,image,E,N,h,col,row\n" + "\n".join(rows) + "\n")
+    cam = tmp_path / "camera.yaml"
+    cam.write_text(f"focal_length_px: {F_PX}\nimage_size: [20001, 20001]\n")
+    out = tmp_path / "r.json"
+    args = ["resect", str(gcps), "--camera", str(cam), "--earth-curvature", "--refraction", "icao", "-o", str(out)]
+    assert main([*args, "--no-progress"]) == 0
+    assert "image corrected for earth curvature, refraction (icao)" in capsys.readouterr().out
+    got = json.loads(out.read_text())["images"]["img"]
+    assert got["corrections"] == ["earth curvature", "refraction (icao)"]
+    latitude = pyproj.Transformer.from_crs("EPSG:32632", "EPSG:4326", always_xy=True).transform(*ground[:, :2].mean(0))[
+        1
+    ]
+    want = resect(np.asarray(CAMERA.pixel_to_image(pix)), ground, CAMERA,
+                  corrections=ImageCorrections(earth_curvature=True, refraction="icao", latitude=latitude))  # fmt: skip
+    np.testing.assert_allclose(got["position"], np.asarray(want.exterior.position), atol=1e-6)
+    plain = resect(np.asarray(CAMERA.pixel_to_image(pix)), ground, CAMERA)
+    assert np.max(np.abs(np.asarray(plain.exterior.position) - got["position"])) > 0.5  # the option did something

@@ -53,7 +53,7 @@ def add_parser(sub) -> None:
         description="Estimate each image's exterior orientation from its GCPs and print parameters +- std, "
         "sigma0, per-point residuals, flagged blunders and check-point residuals.",
         epilog=CAMERA_FILE_HELP + "\nexample:\n  photax resect data/sample_gcps.csv --camera data/sample_camera.yaml "
-        "-o resect.json\n",
+        "-o resect.json\n  photax resect gcps.csv --camera camera.yaml --earth-curvature --refraction icao\n",
     )
     p.add_argument("gcp_file", metavar="GCP_FILE", help="GCP list: CSV with header, or OpenDroneMap gcp_list.txt")
     p.add_argument(
@@ -88,6 +88,18 @@ def add_parser(sub) -> None:
         default="auto",
         help="GCP file format (qgis: Georeferencer .points; geojson: orthority's GCPs)",
     )
+    p.add_argument(
+        "--earth-curvature",
+        action="store_true",
+        help="correct the image coordinates for the earth's curvature (GCPs in a map projection, heights "
+        "ellipsoidal; radius of curvature at the GCPs' latitude, from their CRS)",
+    )
+    p.add_argument(
+        "--refraction",
+        choices=("bertram", "icao"),
+        help="correct the image coordinates for atmospheric refraction: Bertram's formula or the ICAO standard "
+        "atmosphere (heights above sea level)",
+    )
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -105,6 +117,26 @@ def _sigma(table, camera, sigma_px):
         missing = ", ".join(table.names[~given][:5])
         raise ValueError(f"{table.source}: the sigma column is empty for {missing}; fill it or use --sigma")
     return table.image_plane_sigma(camera)
+
+
+def _corrections(args, table):
+    """The :class:`photax.ImageCorrections` the options ask for, or None; the latitude from the GCPs' CRS."""
+    import numpy as np
+
+    from ..earth import ImageCorrections
+
+    if not (args.earth_curvature or args.refraction):
+        return None
+    latitude = None
+    if args.earth_curvature:
+        if table.crs is None:
+            raise ValueError("--earth-curvature needs the GCPs' CRS (for their latitude); the GCP file names none")
+        import pyproj
+
+        x, y = np.mean(table.ground[:, :2], axis=0)
+        to_geographic = pyproj.Transformer.from_crs(table.crs, "EPSG:4326", always_xy=True)
+        latitude = float(to_geographic.transform(x, y)[1])
+    return ImageCorrections(earth_curvature=args.earth_curvature, refraction=args.refraction, latitude=latitude)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -139,6 +171,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.camera}: the GCPs are in pixels, so the camera needs pixel_size and image_size")
     if args.image is not None:
         table.select(args.image)  # an unknown name is a usage error (exit 2), before any work
+    corrections = _corrections(args, table)
     images = [args.image] if args.image is not None else table.image_names
     with progress_bar(args.progress and args.command, len(images), desc="resect", unit="image") as bar:
         results, failed = {}, 0
@@ -159,6 +192,7 @@ def run(args: argparse.Namespace) -> int:
                     convention=args.convention,
                     robust=args.robust,
                     throw=False,
+                    corrections=corrections,
                 )
             except ValueError as exc:
                 say(f"== {label}: NOT SOLVED, skipped ({counts}): {exc}")
