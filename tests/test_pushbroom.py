@@ -167,3 +167,12 @@ def test_fitted_rpc_reproduces_the_rigorous_model(scene):
 def test_fit_rpc_bad_input(scene):
     with pytest.raises(ValueError, match="h_max > h_min"):
         fit_rpc(scene.camera, (100.0, 100.0))
+
+
+def test_resection_failure_is_not_a_result(scene):
+    from photax.errors import ConvergenceError
+
+    with pytest.raises(ConvergenceError, match="did not converge"):
+        resect_pushbroom(scene.start, scene.gcp_ground, scene.gcp_pixel, max_steps=1)
+    res = resect_pushbroom(scene.start, scene.gcp_ground, scene.gcp_pixel, max_steps=1, throw=False)
+    assert not res.converged and "did not converge" in res.message

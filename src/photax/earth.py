@@ -318,6 +318,10 @@ def correct_image(image_xy, exterior, camera, ground_height, corrections: ImageC
     if not corrections.active:
         return xy.copy()
     h = np.broadcast_to(np.asarray(ground_height, float), (len(xy),))
+    if np.shape(exterior.position) != (3,):
+        raise ValueError(
+            f"exterior: one image's orientation expected, got positions of shape {np.shape(exterior.position)}"
+        )
     zs = float(np.asarray(exterior.position)[2])
     if np.any(zs <= h):
         raise ValueError("correct_image: the camera is not above every ground height")

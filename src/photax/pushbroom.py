@@ -52,6 +52,7 @@ from jax import Array
 
 from ._float64 import as_float64
 from .earth import ecef_to_geodetic, geodetic_to_ecef
+from .errors import ConvergenceError
 from .rotation import Convention, check_convention, rotation_matrix
 from .rpc import RPCCamera, rpc_terms
 
@@ -332,7 +333,7 @@ def resect_pushbroom(
     pixel,
     *,
     attitude_order: int | None = 1,
-    position_order: int | None = 0,
+    position_order: int | None = None,
     attitude_sigma: float | None = None,
     position_sigma: float | None = None,
     sigma=None,
@@ -341,6 +342,7 @@ def resect_pushbroom(
     robust: bool = True,
     alpha: float = 0.001,
     max_steps: int = 20,
+    throw: bool = True,
 ) -> PushbroomResection:
     """Adjust the orbit and attitude of a push-broom image on GCPs.
 
@@ -353,7 +355,11 @@ def resect_pushbroom(
         camera: the start (e.g. from the image's metadata).
         ground: ``(n, 3)`` lon (deg), lat (deg), ellipsoidal height (m).
         pixel: ``(n, 2)`` measured column, row (px).
-        attitude_order, position_order: highest adjusted order (0 bias, 1 drift), or None.
+        attitude_order, position_order: highest adjusted order (0 bias, 1 drift), or None (held); by
+            default the attitude's bias and drift with the ephemeris held, the usual bias compensation.
+            Freeing the position too wants ``position_sigma``: without it along-track position and
+            pitch (and across-track position and roll) are nearly one unknown, and their standard
+            deviations say so.
         attitude_sigma, position_sigma: a-priori standard deviations (rad, m) of the start's
             coefficients: pseudo-observations ``delta = 0`` with those weights; None: free.
         sigma: a-priori standard deviation of the pixel coordinates (px); given, blunders are tested with
@@ -364,6 +370,8 @@ def resect_pushbroom(
             value and the redundancy allows.
         alpha: significance level of each test.
         max_steps: Gauss-Newton steps per adjustment (it stops when the largest scaled step is below 1e-10).
+        throw: raise :class:`photax.ConvergenceError` when the adjustment fails; otherwise return the result
+            with ``converged=False`` and the reason in ``message``.
 
     Raises:
         ValueError: bad shapes, non-finite values, GCPs outside the image or where the model cannot
@@ -435,7 +443,8 @@ def resect_pushbroom(
         used = used.copy()
         used[worst] = False
     res = info["residuals"]
-    cov = info["qxx"] * (1.0 if sigma_known else info["sigma0"] ** 2)
+    # as resect: the a-posteriori sigma0 scales the cofactors; without redundancy the a-priori one (if given)
+    cov = info["qxx"] * (info["sigma0"] ** 2 if r_total > 0 else (1.0 if sigma_known else math.nan))
     std = np.sqrt(np.abs(np.diag(cov)))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(std, std)
@@ -449,6 +458,8 @@ def resect_pushbroom(
                else f"Gauss-Newton did not converge in {info['steps']} steps (or a GCP left the image's lines)")  # fmt: skip
     if r_total <= 0:
         message += "; zero redundancy: sigma0 and blunder tests undefined"
+    if throw and not converged:
+        raise ConvergenceError(message)
     return PushbroomResection(
         camera=_with(camera, slots, jnp.asarray(delta)),
         parameters=tuple(s[3] for s in slots),
@@ -620,7 +631,7 @@ def fit_rpc(
             den = 1.0 + m[:, 1:] @ x[20:]
             wts = 1.0 / np.abs(den)
             iterations = max(iterations, it)
-            if prev is not None and np.max(np.abs(x - prev)) < 1e-14:
+            if prev is not None and np.max(np.abs(x - prev)) < 1e-12:  # normalised coefficients, ~1
                 break
             prev = x
         coeffs[num_row] = x[:20]
