@@ -151,6 +151,8 @@ def test_resection_bad_input(scene):
 def test_fitted_rpc_reproduces_the_rigorous_model(scene):
     fit = fit_rpc(scene.camera, scene.height_range)
     assert fit.check_max_error <= 0.01 and fit.max_error <= 0.01
+    assert fit.check_residuals.shape == (fit.check_points, 2)
+    np.testing.assert_allclose(np.asarray(scene.camera(jnp.asarray(fit.check_ground))), fit.check_pixel, atol=1e-6)
     # independently: random pixels at random heights over the scene and its height range
     rng = np.random.default_rng(2)
     w, lines = scene.camera.image_size

@@ -549,6 +549,8 @@ class RPCFit:
         points, check_points: how many of each.
         iterations: reweighting iterations (Tao & Hu's ``W = 1 / den^2``).
         regularisation: the ridge factor used.
+        check_ground: ``(m, 3)`` the check points' lon, lat, h; ``check_pixel`` ``(m, 2)`` their rigorous
+            column, row; ``check_residuals`` ``(m, 2)`` RPC minus rigorous (px), for maps of the error.
     """
 
     camera: RPCCamera
@@ -560,6 +562,9 @@ class RPCFit:
     check_points: int
     iterations: int
     regularisation: float
+    check_ground: np.ndarray
+    check_pixel: np.ndarray
+    check_residuals: np.ndarray
 
 
 def _grid_points(model, heights, cols, rows):
@@ -646,7 +651,8 @@ def fit_rpc(
     c_ground, c_pix = _grid_points(
         model, np.linspace(h0 + dh / 2, h1 - dh / 2, layers - 1), cols[:-1] + half_c, rows[:-1] + half_r
     )
-    c_err = np.linalg.norm(np.asarray(rpc(jnp.asarray(c_ground))) - c_pix, axis=1)
+    c_res = np.asarray(rpc(jnp.asarray(c_ground))) - c_pix
+    c_err = np.linalg.norm(c_res, axis=1)
     return RPCFit(
         camera=rpc,
         rmse=float(np.sqrt(np.mean(err**2))),
@@ -657,4 +663,7 @@ def fit_rpc(
         check_points=len(c_ground),
         iterations=iterations,
         regularisation=regularisation,
+        check_ground=c_ground,
+        check_pixel=c_pix,
+        check_residuals=c_res,
     )
