@@ -19,11 +19,11 @@ vacuum.  Both displace an image point radially from the nadir point, along the v
 ray, which keeps its azimuth; with ``alpha`` the ray's nadir angle:
 
 * *atmospheric refraction* bends the ray towards the vertical: the point appears farther out,
-  ``d alpha = K tan alpha``, i.e. ``dr = K (r + r^3 / f^2)`` in a vertical image (Wolf & DeWitt 2014,
-  ch. 4; Kraus 2007, sec. 4.5), with ``K = (1/(H - h)) int_h^H (n(z) - n(H)) dz`` the mean
-  refractivity of the air between ground height ``h`` and camera height ``H`` above that at the camera
-  (derived from Snell's law in flat layers, to first order in ``n - 1``).  :func:`refraction_coefficient`
-  gives it for Bertram's formula (the ARDC model atmosphere, 1966, as in Wolf & DeWitt) or integrates
+  ``d alpha = K tan alpha``, i.e. ``dr = K (r + r^3 / f^2)`` in a vertical image (Wolf & DeWitt,
+  *Elements of Photogrammetry*; Kraus, *Photogrammetry*), with
+  ``K = (1/(H - h)) int_h^H (n(z) - n(H)) dz``, the mean refractivity of the air between ground
+  height ``h`` and camera height ``H`` above that at the camera (from Snell's law in flat layers, to
+  first order in ``n - 1``).  :func:`refraction_coefficient` gives it for Bertram's formula (the ARDC model atmosphere, 1966, as in Wolf & DeWitt) or integrates
   the ICAO standard atmosphere (ISO 2533; dry air, ``n - 1 = 77.6e-6 P / T``, P in hPa, T in K);
 * *earth curvature*: a map puts a point at ground distance ``S`` from the nadir, at its height, as if
   on a plane; on the sphere of radius ``R`` it lies ``theta = S / R`` around the earth, below the
@@ -32,10 +32,11 @@ ray, which keeps its azimuth; with ``alpha`` the ray's nadir angle:
 
       theta = asin((R + Zs) / (R + h) sin alpha) - alpha,     tan alpha_map = R theta / (Zs - h)
 
-  whose first term is the textbook's ``dr = H r^3 / (2 R f^2)`` (``H = Zs - h``; Kraus 2007, sec. 4.5).  ``R`` is the radius of curvature of the ellipsoid in the ray's
-  azimuth (Euler: ``1/R = cos^2 az / M + sin^2 az / N``) when the latitude is given, else a fixed
-  radius; a raised point's ray also turns in azimuth by ``h sin az cos az (1/N - 1/M)``, as the
-  ellipsoid's normals tilt unequally north and east.  The map distance is taken as the distance on the ellipsoid, which an azimuthal equidistant
+  whose first term is the textbook's ``dr = H r^3 / (2 R f^2)`` (``H = Zs - h``).  ``R`` is the
+  radius of curvature of the ellipsoid in the ray's azimuth (Euler: ``1/R = cos^2 az / M +
+  sin^2 az / N``) when the latitude is given, else a fixed radius; a raised point's ray also turns in
+  azimuth by ``h sin az cos az (1/N - 1/M)``, as the ellipsoid's normals tilt unequally north and
+  east.  The map distance is taken as the distance on the ellipsoid, which an azimuthal equidistant
   projection about the nadir keeps exactly and a transverse Mercator with scale 1 on a central meridian
   through the scene to ``1 + S^2 / (6 R^2)`` (4 mm at 10 km).
 
@@ -212,7 +213,7 @@ def refraction_coefficient(camera_height, ground_height, model: Refraction = "be
         camera_height, ground_height: metres above sea level (broadcast together); the camera above
             the ground.
         model: ``"bertram"``: ``K = 2410 H / (H^2 - 6 H + 250) - 2410 h^2 / ((h^2 - 6 h + 250) H)``
-            micro-radians with H, h in km (Bertram 1966, as in Wolf & DeWitt 2014, ch. 4), valid to
+            micro-radians with H, h in km (Bertram 1966, as Wolf & DeWitt give it), valid to
             about 9 km; ``"icao"``: the mean refractivity of the ICAO standard atmosphere between the two
             heights above its value at the camera, integrated in closed form (to 20 km).
     """
