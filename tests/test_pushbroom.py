@@ -178,3 +178,18 @@ def test_resection_failure_is_not_a_result(scene):
         resect_pushbroom(scene.start, scene.gcp_ground, scene.gcp_pixel, max_steps=1)
     res = resect_pushbroom(scene.start, scene.gcp_ground, scene.gcp_pixel, max_steps=1, throw=False)
     assert not res.converged and "did not converge" in res.message
+
+
+@pytest.mark.parametrize("name", ["resect_pushbroom", "fit_rpc"])
+def test_examples_run(name):
+    """The docstring Examples run (as tests/test_doctests.py does for the older entry points)."""
+    import doctest
+
+    import photax
+
+    tests = doctest.DocTestFinder(recurse=False).find(getattr(photax, name), name, globs={})
+    assert sum(len(t.examples) for t in tests) >= 3
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS)
+    for t in tests:
+        runner.run(t)
+    assert runner.failures == 0
