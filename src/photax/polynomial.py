@@ -692,13 +692,12 @@ class PiecewiseAffineModel(eqx.Module):
 
     The control points are triangulated (Delaunay, on source points centred and scaled by one factor, which
     leaves the triangulation unchanged) and each triangle carries the affine map through its three corners'
-    ``dst``: continuous inside the convex hull, exact at the control points.  Outside the hull the map
-    *extrapolates* with the affine of the nearest triangle (Euclidean distance in the source plane): every
-    output pixel of a rectification gets a position, but the extrapolated map jumps where the nearest
-    triangle changes (e.g. on the bisector at a hull vertex), and it is only as good as a one-triangle
-    affine far from the points.  :meth:`inside` tells the two apart.  ``model(xy)``: ``(..., 2)`` source
-    -> ``(..., 2)`` destination points, jax-traceable (a :func:`photax.rectify` model); its cost grows with
-    the number of triangles per evaluated point.
+    ``dst``: continuous inside the convex hull, exact at the control points.  Outside the hull it is NaN
+    (as scikit-image's ``PiecewiseAffineTransform``): the nearest triangle's affine would jump where the
+    nearest triangle changes and is only as good as a one-triangle affine far from the points, so a
+    rectification leaves those pixels no-data rather than guess.  :meth:`inside` tells the two apart.
+    ``model(xy)``: ``(..., 2)`` source -> ``(..., 2)`` destination points, jax-traceable (a
+    :func:`photax.rectify` model); its cost grows with the number of triangles per evaluated point.
 
     Attributes:
         corners: ``(t, 3, 2)`` normalised triangle corners.
@@ -708,8 +707,8 @@ class PiecewiseAffineModel(eqx.Module):
         residuals: ``(n, 2)`` ``model(src) - dst`` (0 to rounding).
         rmse: radial RMS of ``residuals``.
         loo_residuals: ``(n, 2)`` leave-one-out residuals: the model rebuilt (triangulation included)
-            without point ``i``, evaluated at it, minus ``dst_i`` (extrapolated for a hull vertex; NaN where
-            the other points cannot be triangulated).
+            without point ``i``, evaluated at it, minus ``dst_i`` (NaN for a hull vertex, which lies outside
+            the others' hull, and where the other points cannot be triangulated).
         src_xy, dst_xy: the control points.
     """
 
@@ -730,8 +729,10 @@ class PiecewiseAffineModel(eqx.Module):
         return (p - self.src_centre.reshape(one + (2,))) / self.src_scale.reshape(one + (1,))
 
     def __call__(self, xy) -> Array:
-        """``(..., 2)`` source points -> ``(..., 2)`` destination points."""
-        return _pwa_eval(self.corners, self.affine, self._normalised(xy))[0]
+        """``(..., 2)`` source points -> ``(..., 2)`` destination points; NaN outside the control points'
+        convex hull."""
+        value, dist = _pwa_eval(self.corners, self.affine, self._normalised(xy))
+        return jnp.where((dist <= 1e-12)[..., None], value, jnp.nan)
 
     def inside(self, xy) -> Array:
         """``(...)`` True where ``xy`` lies in the convex hull of the control points (interpolated, not
@@ -797,8 +798,7 @@ def _pwa_build(u: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 def fit_piecewise_affine(src_xy, dst_xy) -> PiecewiseAffineModel:
     """Piecewise-affine map ``dst = f(src)``: one affine per Delaunay triangle of the control points (as
-    scikit-image's ``PiecewiseAffineTransform``); outside their convex hull it extrapolates with the
-    nearest triangle's affine (:class:`PiecewiseAffineModel`).  Fit ``fit_piecewise_affine(map_xy,
+    scikit-image's ``PiecewiseAffineTransform``); NaN outside their convex hull (:class:`PiecewiseAffineModel`).  Fit ``fit_piecewise_affine(map_xy,
     pixel_xy)`` for indirect rectification, as for :func:`fit_polynomial`.
 
     Raises:
@@ -818,7 +818,8 @@ def fit_piecewise_affine(src_xy, dst_xy) -> PiecewiseAffineModel:
         if keep.sum() < 3 or np.linalg.matrix_rank(np.c_[np.ones(keep.sum()), u[keep]], tol=1e-10) < 3:
             continue
         _, ci, ai = _pwa_build(u[keep], dst[keep])
-        loo[i] = _pwa_eval(ci, ai, u[i], np)[0] - dst[i]
+        value, dist = _pwa_eval(ci, ai, u[i], np)
+        loo[i] = value - dst[i] if dist <= 1e-12 else np.nan  # a hull vertex: outside the others' hull
     return PiecewiseAffineModel(
         jnp.asarray(corners),
         jnp.asarray(affine),
