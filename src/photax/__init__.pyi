@@ -81,6 +81,7 @@ from .io import (
     write_json as write_json,
 )
 from .io.lazy import to_raster as to_raster
+from .matching import CoRegistration as CoRegistration
 from .matching import (
     EpipolarPair as EpipolarPair,
 )
@@ -93,12 +94,14 @@ from .matching import (
 from .matching import (
     Transfer as Transfer,
 )
+from .matching import coregister as coregister
 from .matching import (
     epipolar_pair as epipolar_pair,
 )
 from .matching import (
     match_ties as match_ties,
 )
+from .matching import phase_correlation as phase_correlation
 from .matching import (
     register_to_ortho as register_to_ortho,
 )

@@ -617,15 +617,16 @@ class TPSModel(eqx.Module):
     def condition(self) -> float:
         """2-norm condition number of the spline's system ``[[K + lambda I, P], [P^T, 0]]`` (normalised)."""
         u = np.asarray(self.centres)
-        k = np.asarray(_tps_kernel(np.sum((u[:, None] - u[None]) ** 2, axis=-1))) + self.smoothing * np.eye(len(u))
+        k = _tps_kernel(np.sum((u[:, None] - u[None]) ** 2, axis=-1), np) + self.smoothing * np.eye(len(u))
         p = np.concatenate([np.ones((len(u), 1)), u], axis=1)
         return float(np.linalg.cond(np.block([[k, p], [p.T, np.zeros((3, 3))]])))
 
 
-def _tps_kernel(d2):
-    """``U = r^2 log r = d2 log(d2) / 2`` of squared distances, 0 at 0 (double-where: finite gradients)."""
-    safe = jnp.where(d2 > 0, d2, 1.0)
-    return jnp.where(d2 > 0, 0.5 * safe * jnp.log(safe), 0.0)
+def _tps_kernel(d2, xp=jnp):
+    """``U = r^2 log r = d2 log(d2) / 2`` of squared distances, 0 at 0 (double-where: finite gradients);
+    ``xp``: jax.numpy (traceable) or numpy (the fit: no compilation per point count)."""
+    safe = xp.where(d2 > 0, d2, 1.0)
+    return xp.where(d2 > 0, 0.5 * safe * xp.log(safe), 0.0)
 
 
 def _tps_solve(u: np.ndarray, v: np.ndarray, smoothing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -633,7 +634,7 @@ def _tps_solve(u: np.ndarray, v: np.ndarray, smoothing: float) -> tuple[np.ndarr
     ``[[K + lambda I, P], [P^T, 0]] [w; a] = [v; 0]``, ``P = [1, x, y]``."""
     n = u.shape[0]
     d2 = np.sum((u[:, None] - u[None]) ** 2, axis=-1)
-    k = np.asarray(_tps_kernel(d2)) + smoothing * np.eye(n)
+    k = _tps_kernel(d2, np) + smoothing * np.eye(n)
     p = np.concatenate([np.ones((n, 1)), u], axis=1)
     m = np.block([[k, p], [p.T, np.zeros((3, 3))]])
     sol = np.linalg.solve(m, np.concatenate([v, np.zeros((3, 2))]))
@@ -682,7 +683,7 @@ def fit_tps(src_xy, dst_xy, smoothing: float = 0.0) -> TPSModel:
             continue
         wi, ai = _tps_solve(u[keep], dst[keep], float(smoothing))
         d2 = np.sum((u[i] - u[keep]) ** 2, axis=-1)
-        loo[i] = ai[0] + u[i] @ ai[1:] + np.asarray(_tps_kernel(d2)) @ wi - dst[i]
+        loo[i] = ai[0] + u[i] @ ai[1:] + _tps_kernel(d2, np) @ wi - dst[i]
     rmse = np.sqrt(np.sum(v**2) / len(v))
     return dataclasses.replace(model, residuals=jnp.asarray(v), rmse=jnp.asarray(rmse), loo_residuals=jnp.asarray(loo))
 
