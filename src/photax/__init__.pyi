@@ -108,6 +108,9 @@ from .matching import (
 from .matching import (
     transfer_points as transfer_points,
 )
+from .morphing import morph as morph
+from .morphing import morph_sequence as morph_sequence
+from .morphing import write_sequence as write_sequence
 from .mosaicking import mosaic as mosaic
 from .polynomial import (
     PiecewiseAffineModel as PiecewiseAffineModel,
