@@ -53,11 +53,15 @@ def _hann(h: int, w: int) -> np.ndarray:
 def _upsampled_dft(spec: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """``(b, len(rows), len(cols))`` inverse DFT of ``spec`` ``(b, H, W)`` at fractional positions (the
     matrix-multiply DFT of Guizar-Sicairos et al. 2008)."""
+    from threadpoolctl import threadpool_limits
+
     h, w = spec.shape[-2:]
     fr, fc = np.fft.fftfreq(h), np.fft.fftfreq(w)
     er = np.exp(2j * np.pi * rows[..., :, None] * fr[None, :])  # (b, m, H)
     ec = np.exp(2j * np.pi * fc[:, None] * cols[..., None, :])  # (b, W, m)
-    return np.real(er @ spec @ ec) / (h * w)
+    # small batched products: one BLAS thread (OpenBLAS' pool was 12x slower on a busy machine)
+    with threadpool_limits(1, user_api="blas"):
+        return np.real(er @ spec @ ec) / (h * w)
 
 
 def _parabola(vm, v0, vp) -> np.ndarray:
