@@ -452,8 +452,10 @@ def coregister(
         if live.any():
             s, pr = phase_correlation(a[live], b[live], upsample=20)
             ratio[live] = pr
-            if method == "lsm":
-                s = _lsm(ref, warped, centres[live], s, window)
+            if method == "lsm":  # every window, one point count: one compilation for all passes
+                start_all = np.zeros((n, 2))
+                start_all[live] = s
+                s = _lsm(ref, warped, centres, start_all, window)[live]
             resid[live] = s
         weak = live & ((ratio < min_peak_ratio) | ~np.all(np.abs(resid) <= window / 4, axis=1))
         status[weak] = "weak peak"
