@@ -162,7 +162,7 @@ print(f"reliable windows' shifts against the truth: rms {np.sqrt(np.mean(np.sum(
 
 corrected = reg.resample(target, ref.shape)
 after = ptx.coregister(ref_n, np.nan_to_num(corrected, nan=float(np.nanmean(corrected))), model="affine")
-colours = {"ok": "tab:green", "outside": "0.6", "textureless": "tab:blue", "weak peak": "tab:red",
+colours = {"ok": "tab:green", "no data": "0.6", "textureless": "tab:blue", "weak peak": "tab:red",
            "dissimilar": "tab:orange", "outlier": "tab:purple"}
 fig, axes = plt.subplots(1, 2, figsize=(13, 6.2))
 for ax, r, title in ((axes[0], reg, "before: target against reference"),

@@ -120,8 +120,8 @@ def test_smooth_local_field_changed_and_textureless_windows(field_pair):
     flat = np.array([c in fl for c in cells])
     assert changed.sum() == 11 and flat.sum() == 2
     assert not ok[changed].any() and not ok[flat].any()
-    assert set(reg.status[changed]) <= {"weak peak", "dissimilar", "outlier", "outside"}
-    assert reg.counts["textureless"] >= 1 and set(reg.status[flat]) <= {"textureless", "outside"}
+    assert set(reg.status[changed]) <= {"weak peak", "dissimilar", "outlier", "no data"}
+    assert reg.counts["textureless"] >= 1 and set(reg.status[flat]) <= {"textureless", "no data"}
     # the model between the windows: the shift field at the reliable centres and in the hull
     np.testing.assert_allclose(reg.shift_at(reg.centres[ok]), truth(reg.centres[ok]), atol=0.1)
 
@@ -191,3 +191,25 @@ def test_bad_input():
         ptx.coregister(ref, tgt, reference_transform=(1, 0, 0, 0, -1, 0), target_transform=far)
     with pytest.raises(ValueError, match="finite"):
         phase_correlation(np.full((16, 16), np.nan), np.zeros((16, 16)))
+
+
+def test_no_data_heavy_windows_are_counted_and_left_out():
+    """A strip of no data (NaN) in the target: the windows it covers by more than 5 % are "no data", the
+    rest still fit the shift."""
+    ref, tgt, truth, _, _ = _pair(256, 64, (1.3, 0.8))
+    tgt = tgt.copy()
+    tgt[:, 100:140] = np.nan  # the second column of windows (64-127) is 56 % no data, the third 20 %
+    reg = ptx.coregister(ref, tgt, window=64)
+    cells = np.array(_cells(reg, 64))
+    assert set(reg.status[cells[:, 1] == 1]) == {"no data"} and set(reg.status[cells[:, 1] == 2]) == {"no data"}
+    assert reg.counts["no data"] == 8 and reg.counts["ok"] == 8
+    ok = reg.reliable
+    np.testing.assert_allclose(reg.shifts[ok], truth(reg.centres[ok]), atol=0.03)
+
+
+def test_a_window_without_any_data_is_no_data_not_a_warning():
+    ref, tgt, _, _, _ = _pair(256, 64, (1.3, 0.8))
+    tgt = tgt.copy()
+    tgt[:70, :70] = np.nan
+    reg = ptx.coregister(ref, tgt, window=64)  # warnings are errors in the tests
+    assert reg.status[0] == "no data" and reg.counts["ok"] >= 10

@@ -10,7 +10,7 @@ target image (another date, another sensor) onto a reference image.
    refitted and the windows measured again until the model moves by less than ``tol`` px.
 3. **Reliability** per window, each reason counted (:attr:`CoRegistration.counts`):
 
-   * ``"outside"``: the window is not (95 %) inside both images;
+   * ``"no data"``: over 5 % of the window is outside either image or no data (NaN) in it;
    * ``"textureless"``: the standard deviation of either window is below ``min_texture`` x the image's;
    * ``"weak peak"``: the correlation peak is less than ``min_peak_ratio`` x the highest value outside
      its 3-px neighbourhood (no unique match), or the match lies over a quarter window away;
@@ -38,7 +38,7 @@ import dataclasses
 import equinox as eqx
 import numpy as np
 
-STATUSES = ("ok", "outside", "textureless", "weak peak", "dissimilar", "outlier")
+STATUSES = ("ok", "no data", "textureless", "weak peak", "dissimilar", "outlier")
 MODELS = ("affine", "polynomial", "tps")
 
 
@@ -439,10 +439,8 @@ def coregister(
         tgt_w = take(warped)
         status = np.full(n, "ok", dtype=object)
         nan_frac = np.maximum(np.mean(~np.isfinite(ref_w), axis=(1, 2)), np.mean(~np.isfinite(tgt_w), axis=(1, 2)))
-        status[nan_frac > 0.05] = "outside"
-        a = np.where(np.isfinite(ref_w), ref_w, np.nanmean(ref_w, axis=(1, 2), keepdims=True))
-        b = np.where(np.isfinite(tgt_w), tgt_w, np.nanmean(tgt_w, axis=(1, 2), keepdims=True))
-        a, b = np.nan_to_num(a), np.nan_to_num(b)
+        status[nan_frac > 0.05] = "no data"
+        a, b = _filled(ref_w), _filled(tgt_w)
         tgt_std = float(np.nanstd(warped))
         flat = (a.std(axis=(1, 2)) < min_texture * ref_std) | (b.std(axis=(1, 2)) < min_texture * tgt_std)
         status[(status == "ok") & flat] = "textureless"
@@ -497,6 +495,15 @@ def coregister(
         iterations=it,
         start=start,
     )
+
+
+def _filled(windows: np.ndarray) -> np.ndarray:
+    """``(n, h, w)`` windows with their no-data (NaN) pixels set to the window's mean (0 for none valid)."""
+    ok = np.isfinite(windows)
+    mean = np.where(ok, windows, 0.0).sum(axis=(1, 2), keepdims=True) / np.maximum(
+        ok.sum(axis=(1, 2), keepdims=True), 1
+    )
+    return np.where(ok, windows, mean)
 
 
 def _shift_window(b: np.ndarray, d: np.ndarray) -> np.ndarray:
