@@ -85,6 +85,7 @@ from .io import (
     write_json as write_json,
 )
 from .io.lazy import to_raster as to_raster
+from .matching import CoRegistration as CoRegistration
 from .matching import (
     EpipolarPair as EpipolarPair,
 )
@@ -97,18 +98,23 @@ from .matching import (
 from .matching import (
     Transfer as Transfer,
 )
+from .matching import coregister as coregister
 from .matching import (
     epipolar_pair as epipolar_pair,
 )
 from .matching import (
     match_ties as match_ties,
 )
+from .matching import phase_correlation as phase_correlation
 from .matching import (
     register_to_ortho as register_to_ortho,
 )
 from .matching import (
     transfer_points as transfer_points,
 )
+from .morphing import morph as morph
+from .morphing import morph_sequence as morph_sequence
+from .morphing import write_sequence as write_sequence
 from .mosaicking import mosaic as mosaic
 from .polynomial import (
     PiecewiseAffineModel as PiecewiseAffineModel,

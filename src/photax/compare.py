@@ -80,7 +80,8 @@ class ModelResult:
             solution.
         gcp_residuals, check_residuals: ``(n, 2)`` model - observed (computed - observed,
             docs/conventions.md), pixels.
-        gcp_rmse, check_rmse: ``sqrt(mean |v|^2)``, pixels (NaN without points).
+        gcp_rmse, check_rmse: ``sqrt(mean |v|^2)`` over the points where the model has a
+            value (the piecewise affine has none outside the GCPs' hull), pixels (NaN without points).
         error: ``(rows, cols, 2)`` collinearity+DEM minus this model on the
             comparison grid, pixels; NaN off the image (zeros for
             collinearity itself).
@@ -118,7 +119,9 @@ class ModelResult:
 
 
 def _rmse(v: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.sum(v**2, axis=1)))) if len(v) else math.nan
+    v2 = np.sum(v**2, axis=1)
+    v2 = v2[np.isfinite(v2)]  # the piecewise affine has no value outside the GCPs' hull
+    return float(np.sqrt(np.mean(v2))) if len(v2) else math.nan
 
 
 @eqx.filter_jit
@@ -427,8 +430,8 @@ def compare_models(
         projective: also fit the 8-parameter projective transform.
         tps: also fit the interpolating thin-plate spline (3+ GCPs).
         piecewise_affine: also fit the piecewise-affine (Delaunay) map (3+ GCPs;
-            outside the GCPs' hull it extrapolates, see
-            :class:`photax.polynomial.PiecewiseAffineModel`).
+            NaN outside the GCPs' hull, so its check rmse is over the check points
+            inside it, see :class:`photax.polynomial.PiecewiseAffineModel`).
         grid: grid of the error maps; default the image footprint on the
             DEM at 4 x the mean GSD.
         exterior: use this exterior orientation instead of resecting.

@@ -617,15 +617,16 @@ class TPSModel(eqx.Module):
     def condition(self) -> float:
         """2-norm condition number of the spline's system ``[[K + lambda I, P], [P^T, 0]]`` (normalised)."""
         u = np.asarray(self.centres)
-        k = np.asarray(_tps_kernel(np.sum((u[:, None] - u[None]) ** 2, axis=-1))) + self.smoothing * np.eye(len(u))
+        k = _tps_kernel(np.sum((u[:, None] - u[None]) ** 2, axis=-1), np) + self.smoothing * np.eye(len(u))
         p = np.concatenate([np.ones((len(u), 1)), u], axis=1)
         return float(np.linalg.cond(np.block([[k, p], [p.T, np.zeros((3, 3))]])))
 
 
-def _tps_kernel(d2):
-    """``U = r^2 log r = d2 log(d2) / 2`` of squared distances, 0 at 0 (double-where: finite gradients)."""
-    safe = jnp.where(d2 > 0, d2, 1.0)
-    return jnp.where(d2 > 0, 0.5 * safe * jnp.log(safe), 0.0)
+def _tps_kernel(d2, xp=jnp):
+    """``U = r^2 log r = d2 log(d2) / 2`` of squared distances, 0 at 0 (double-where: finite gradients);
+    ``xp``: jax.numpy (traceable) or numpy (the fit: no compilation per point count)."""
+    safe = xp.where(d2 > 0, d2, 1.0)
+    return xp.where(d2 > 0, 0.5 * safe * xp.log(safe), 0.0)
 
 
 def _tps_solve(u: np.ndarray, v: np.ndarray, smoothing: float) -> tuple[np.ndarray, np.ndarray]:
@@ -633,7 +634,7 @@ def _tps_solve(u: np.ndarray, v: np.ndarray, smoothing: float) -> tuple[np.ndarr
     ``[[K + lambda I, P], [P^T, 0]] [w; a] = [v; 0]``, ``P = [1, x, y]``."""
     n = u.shape[0]
     d2 = np.sum((u[:, None] - u[None]) ** 2, axis=-1)
-    k = np.asarray(_tps_kernel(d2)) + smoothing * np.eye(n)
+    k = _tps_kernel(d2, np) + smoothing * np.eye(n)
     p = np.concatenate([np.ones((n, 1)), u], axis=1)
     m = np.block([[k, p], [p.T, np.zeros((3, 3))]])
     sol = np.linalg.solve(m, np.concatenate([v, np.zeros((3, 2))]))
@@ -682,7 +683,7 @@ def fit_tps(src_xy, dst_xy, smoothing: float = 0.0) -> TPSModel:
             continue
         wi, ai = _tps_solve(u[keep], dst[keep], float(smoothing))
         d2 = np.sum((u[i] - u[keep]) ** 2, axis=-1)
-        loo[i] = ai[0] + u[i] @ ai[1:] + np.asarray(_tps_kernel(d2)) @ wi - dst[i]
+        loo[i] = ai[0] + u[i] @ ai[1:] + _tps_kernel(d2, np) @ wi - dst[i]
     rmse = np.sqrt(np.sum(v**2) / len(v))
     return dataclasses.replace(model, residuals=jnp.asarray(v), rmse=jnp.asarray(rmse), loo_residuals=jnp.asarray(loo))
 
@@ -692,13 +693,12 @@ class PiecewiseAffineModel(eqx.Module):
 
     The control points are triangulated (Delaunay, on source points centred and scaled by one factor, which
     leaves the triangulation unchanged) and each triangle carries the affine map through its three corners'
-    ``dst``: continuous inside the convex hull, exact at the control points.  Outside the hull the map
-    *extrapolates* with the affine of the nearest triangle (Euclidean distance in the source plane): every
-    output pixel of a rectification gets a position, but the extrapolated map jumps where the nearest
-    triangle changes (e.g. on the bisector at a hull vertex), and it is only as good as a one-triangle
-    affine far from the points.  :meth:`inside` tells the two apart.  ``model(xy)``: ``(..., 2)`` source
-    -> ``(..., 2)`` destination points, jax-traceable (a :func:`photax.rectify` model); its cost grows with
-    the number of triangles per evaluated point.
+    ``dst``: continuous inside the convex hull, exact at the control points.  Outside the hull it is NaN
+    (as scikit-image's ``PiecewiseAffineTransform``): the nearest triangle's affine would jump where the
+    nearest triangle changes and is only as good as a one-triangle affine far from the points, so a
+    rectification leaves those pixels no-data rather than guess.  :meth:`inside` tells the two apart.
+    ``model(xy)``: ``(..., 2)`` source -> ``(..., 2)`` destination points, jax-traceable (a
+    :func:`photax.rectify` model); its cost grows with the number of triangles per evaluated point.
 
     Attributes:
         corners: ``(t, 3, 2)`` normalised triangle corners.
@@ -708,8 +708,8 @@ class PiecewiseAffineModel(eqx.Module):
         residuals: ``(n, 2)`` ``model(src) - dst`` (0 to rounding).
         rmse: radial RMS of ``residuals``.
         loo_residuals: ``(n, 2)`` leave-one-out residuals: the model rebuilt (triangulation included)
-            without point ``i``, evaluated at it, minus ``dst_i`` (extrapolated for a hull vertex; NaN where
-            the other points cannot be triangulated).
+            without point ``i``, evaluated at it, minus ``dst_i`` (NaN for a hull vertex, which lies outside
+            the others' hull, and where the other points cannot be triangulated).
         src_xy, dst_xy: the control points.
     """
 
@@ -730,8 +730,10 @@ class PiecewiseAffineModel(eqx.Module):
         return (p - self.src_centre.reshape(one + (2,))) / self.src_scale.reshape(one + (1,))
 
     def __call__(self, xy) -> Array:
-        """``(..., 2)`` source points -> ``(..., 2)`` destination points."""
-        return _pwa_eval(self.corners, self.affine, self._normalised(xy))[0]
+        """``(..., 2)`` source points -> ``(..., 2)`` destination points; NaN outside the control points'
+        convex hull."""
+        value, dist = _pwa_eval(self.corners, self.affine, self._normalised(xy))
+        return jnp.where((dist <= 1e-12)[..., None], value, jnp.nan)
 
     def inside(self, xy) -> Array:
         """``(...)`` True where ``xy`` lies in the convex hull of the control points (interpolated, not
@@ -797,8 +799,7 @@ def _pwa_build(u: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 def fit_piecewise_affine(src_xy, dst_xy) -> PiecewiseAffineModel:
     """Piecewise-affine map ``dst = f(src)``: one affine per Delaunay triangle of the control points (as
-    scikit-image's ``PiecewiseAffineTransform``); outside their convex hull it extrapolates with the
-    nearest triangle's affine (:class:`PiecewiseAffineModel`).  Fit ``fit_piecewise_affine(map_xy,
+    scikit-image's ``PiecewiseAffineTransform``); NaN outside their convex hull (:class:`PiecewiseAffineModel`).  Fit ``fit_piecewise_affine(map_xy,
     pixel_xy)`` for indirect rectification, as for :func:`fit_polynomial`.
 
     Raises:
@@ -818,7 +819,8 @@ def fit_piecewise_affine(src_xy, dst_xy) -> PiecewiseAffineModel:
         if keep.sum() < 3 or np.linalg.matrix_rank(np.c_[np.ones(keep.sum()), u[keep]], tol=1e-10) < 3:
             continue
         _, ci, ai = _pwa_build(u[keep], dst[keep])
-        loo[i] = _pwa_eval(ci, ai, u[i], np)[0] - dst[i]
+        value, dist = _pwa_eval(ci, ai, u[i], np)
+        loo[i] = value - dst[i] if dist <= 1e-12 else np.nan  # a hull vertex: outside the others' hull
     return PiecewiseAffineModel(
         jnp.asarray(corners),
         jnp.asarray(affine),

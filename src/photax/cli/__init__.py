@@ -35,6 +35,7 @@ SUBCOMMANDS = [
     "ties",
     "register",
     "sharpen",
+    "coregister",
 ]
 
 

@@ -36,8 +36,7 @@ def add_parser(sub) -> None:
         choices=MODELS,
         default="polynomial",
         help="polynomial (of --order; default); tps: thin-plate spline through the GCPs (GDAL's -tps); "
-        "piecewise-affine: one affine per Delaunay triangle of the GCPs, extrapolated outside their hull "
-        "by the nearest triangle's",
+        "piecewise-affine: one affine per Delaunay triangle of the GCPs, no-data outside their convex hull",
     )
     p.add_argument("--order", type=int, default=None, help="polynomial order 1-5 (default 1); --model polynomial only")
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")

@@ -12,11 +12,16 @@ measurement (:mod:`photax.measure`'s operators) and bundle adjustment.
 * :mod:`.registration` -- an image matched to a reference orthophoto refines
   its exterior orientation (:func:`register_to_ortho`);
 * :mod:`.epipolar` -- epipolar (normalised) image pairs, where stereo
-  correspondences lie on rows, and points from x-parallax (:func:`epipolar_pair`).
+  correspondences lie on rows, and points from x-parallax (:func:`epipolar_pair`);
+* :mod:`.coregister` -- image-to-image registration: global and local shifts by phase correlation,
+  reliability tests, an affine / polynomial / TPS model (:func:`coregister`).
 """
 
 from ._predict import monoplot_pixels as monoplot_pixels
 from ._predict import project_pixels as project_pixels
+from .coregister import CoRegistration as CoRegistration
+from .coregister import coregister as coregister
+from .coregister import phase_correlation as phase_correlation
 from .epipolar import EpipolarPair as EpipolarPair
 from .epipolar import epipolar_pair as epipolar_pair
 from .registration import Registration as Registration
