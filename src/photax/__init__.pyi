@@ -178,7 +178,7 @@ from .uncertainty import OrthoUncertainty as OrthoUncertainty
 from .uncertainty import ortho_uncertainty as ortho_uncertainty
 
 __version__: str
-from .bundle import Georeferenced as Georeferenced
-from .bundle import Similarity as Similarity
-from .bundle import georeference as georeference
-from .bundle import similarity_transform as similarity_transform
+from .georeferencing import Georeferenced as Georeferenced
+from .georeferencing import Similarity as Similarity
+from .georeferencing import georeference as georeference
+from .georeferencing import similarity_transform as similarity_transform

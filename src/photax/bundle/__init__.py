@@ -73,10 +73,6 @@ linearisation (only the damping changes).  References: Triggs et al.,
 adjustment in the large" (ECCV 2010); Ceres Solver's trust-region minimiser.
 """
 
-from ._georeference import Georeferenced as Georeferenced
-from ._georeference import Similarity as Similarity
-from ._georeference import georeference as georeference
-from ._georeference import similarity_transform as similarity_transform
 from ._problem import (
     EXTERIOR as EXTERIOR,
 )

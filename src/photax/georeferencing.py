@@ -25,12 +25,11 @@ import pathlib
 
 import numpy as np
 
-from ..camera import FrameCamera
-from ..collinearity import ExteriorOrientation
-from ..intersection import intersect
-from ..rotation import angles_from_matrix
-from ._problem import BundleProblem
-from ._result import BundleResult
+from .bundle import BundleProblem, BundleResult, bundle_adjust
+from .camera import FrameCamera
+from .collinearity import ExteriorOrientation
+from .intersection import intersect
+from .rotation import angles_from_matrix
 
 
 @dataclasses.dataclass(frozen=True)
@@ -212,8 +211,6 @@ def georeference(
             point, GNSS positions without ``gnss_sigma``, an unknown image
             for every GCP row.
     """
-    from ._solver import bundle_adjust
-
     if gcps is None and not gnss:
         raise ValueError("georeference needs GCPs (gcps=) or GNSS positions of the images (gnss=)")
     find = _image_index(problem.image_names)
