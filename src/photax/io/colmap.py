@@ -56,6 +56,7 @@ from __future__ import annotations
 import dataclasses
 import pathlib
 import struct
+import warnings
 
 import numpy as np
 
@@ -702,6 +703,14 @@ def colmap_problem(model: ColmapModel, *, free_intrinsics=(), source=None):
     exterior = ExteriorOrientation(centres, angles, "omega-phi-kappa")
     image_camera = np.array([cam_ids.index(im.camera_id) for im in ims], dtype=np.int64)
     point_ids = sorted(model.points)
+    single = [i for i in point_ids if len(set(model.points[i].image_ids.tolist())) < 2]
+    if single:  # COLMAP's own models have none; a model written from a block with single-ray GCPs has
+        warnings.warn(
+            f"{at}{len(single)} 3-D point(s) seen in fewer than 2 images left out (a tie point needs 2), "
+            f"e.g. point {single[0]}",
+            stacklevel=3,
+        )
+        point_ids = sorted(set(point_ids) - set(single))
     oi, op, px = [], [], []
     for k, pid in enumerate(point_ids):
         p = model.points[pid]
@@ -732,7 +741,10 @@ def read_colmap(folder, *, free_intrinsics=()):
     One photax camera per COLMAP camera (in pixels), one image per
     registered image (named by COLMAP's NAME, in image-id order), one tie
     point per 3-D point (named by its POINT3D_ID), one observation per track
-    element (sigma 1 pixel).  Keypoints without a 3-D point are not kept.
+    element (sigma 1 pixel).  Keypoints without a 3-D point are not kept;
+    3-D points seen in fewer than two images (COLMAP leaves none; a model
+    written from a block with single-ray control points has them) are left
+    out with a warning.
     The model has no datum of its own: georeference it (:func:`georeference`)
     or adjust with ``gauge="damped"``.
 

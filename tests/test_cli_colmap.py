@@ -1,0 +1,49 @@
+"""``photax bundle`` on a COLMAP model, georeferenced with ``--gcps`` (synthetic truth of test_georeference)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from test_georeference import _model_and_gcps
+
+from photax.cli import main
+from photax.io import read_colmap, read_exteriors, write_colmap, write_gcps
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("colmap_cli")
+    model, gcps, truth, _ = _model_and_gcps(noise_px=0.0)
+    write_colmap(model, folder / "sparse", binary=True)
+    write_gcps(folder / "gcps.csv", gcps)
+    return folder, truth
+
+
+def test_bundle_georeferences_a_colmap_model(files, capsys):
+    folder, truth = files
+    out, model_out = folder / "out.json", folder / "georef"
+    args = ["bundle", str(folder / "sparse"), "--gcps", str(folder / "gcps.csv"), "--quiet", "--no-progress"]
+    assert main([*args, "-o", str(out), "--colmap-out", str(model_out)]) == 0
+    text = capsys.readouterr().out
+    assert "similarity model -> ground" in text and "check points (4)" in text
+    data = json.loads(out.read_text())
+    assert len(data["check_points"]) == 4 and data["similarity"]["scale"] == pytest.approx(1 / 0.013)
+    assert max(abs(v) for c in data["check_points"] for v in c["residual"]) < 1e-4
+    # the result reads as exteriors (ortho --exterior out.json) and the written model as COLMAP, in ground units
+    table, _ = read_exteriors(out)
+    assert np.allclose([table[k].position for k in table], truth.exterior.position, atol=1e-4)
+    with pytest.warns(UserWarning, match=r"point\(s\) seen in fewer than 2 images left out"):
+        back = read_colmap(model_out)  # the control point seen in one image
+    np.testing.assert_allclose(back.exterior.position, truth.exterior.position, rtol=0, atol=1e-4)
+
+
+def test_bundle_colmap_usage_errors(files, capsys):
+    folder, _ = files
+    sparse = str(folder / "sparse")
+    assert main(["bundle", sparse, "--gcp-sigma", "0.1", "--no-progress"]) == 2
+    assert "--gcp-sigma needs --gcps" in capsys.readouterr().err
+    assert main(["bundle", sparse, "--gcps", str(folder / "gcps.csv"), "--gcp-sigma", "-1", "--no-progress"]) == 2
+    assert main(["bundle", sparse, "--colmap-out", sparse, "--no-progress"]) == 2
+    assert "not an empty folder" in capsys.readouterr().err
