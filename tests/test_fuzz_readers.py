@@ -837,3 +837,52 @@ def test_fuzz_read_colmap(tmp_path_factory, name):
         _finite(problem.points, problem.obs_xy, problem.exterior.position, problem.exterior.angles)
 
     run()
+
+
+# --- Metashape calibration XML, Metashape / Pix4D omega-phi-kappa exports ---------------
+
+METASHAPE_XML = [
+    b'<?xml version="1.0" encoding="UTF-8"?>\n<calibration>\n  <projection>frame</projection>\n  <width>5472</width>\n'
+    b"  <height>3648</height>\n  <f>3664.2</f>\n  <cx>-12.7</cx>\n  <cy>21.3</cy>\n  <b1>-1.9</b1>\n  <k1>-0.0123</k1>\n"
+    b"  <k2>0.0081</k2>\n  <p1>0.00031</p1>\n  <p2>-0.00054</p2>\n</calibration>\n",
+    b'<document><chunk><sensors><sensor id="0" label="cam" type="frame"><calibration type="frame" class="adjusted">'
+    b'<resolution width="640" height="480"/><f>500</f><k1>0.01</k1></calibration></sensor></sensors></chunk></document>',
+]
+OPK_EXPORTS = [
+    b"# Cameras (1)\n# PhotoID, X, Y, Z, Omega, Phi, Kappa, r11, r12, r13, r21, r22, r23, r31, r32, r33\n"
+    b"a.JPG\t1.0\t2.0\t3.0\t0.000000\t0.000000\t0.000000\t1\t0\t0\t0\t-1\t0\t0\t0\t-1\n"
+    b"b.JPG\t4.0\t5.0\t6.0\t0.0\t0.0\t0.0\n",
+    b"imageName X Y Z Omega Phi Kappa\nIMG_1.JPG 12.5 -3.25 101.0 0.5 -1.25 92.0\nIMG_2.JPG 2.5 -3 10 0 0 0\n",
+]
+
+
+@FUZZ
+@given(data=mutated(METASHAPE_XML))
+def test_fuzz_read_metashape_calibration(work, data):
+    from photax.io.metashape import read_metashape_calibration
+
+    path = work / "calib.xml"
+    path.write_bytes(data)
+
+    def sane(cams):
+        assert cams
+        for cam in cams.values():
+            _sane_camera(cam)
+
+    _expect_valueerror_or_sane(read_metashape_calibration, path, sane)
+
+
+@FUZZ
+@given(data=mutated(OPK_EXPORTS))
+def test_fuzz_read_opk_export(work, data):
+    from photax.io.metashape import read_opk_export
+
+    path = work / "opk.txt"
+    path.write_bytes(data)
+
+    def sane(table):
+        assert table
+        for eo in table.values():
+            _finite(eo.position, eo.angles)
+
+    _expect_valueerror_or_sane(read_opk_export, path, sane, r": no camera orientations$", lines=True)

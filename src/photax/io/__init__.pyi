@@ -26,6 +26,8 @@ from .colmap import write_colmap_model as write_colmap_model
 from .gcp import GCPTable as GCPTable
 from .gcp import read_gcps as read_gcps
 from .gcp import write_gcps as write_gcps
+from .metashape import read_metashape_calibration as read_metashape_calibration
+from .metashape import read_opk_export as read_opk_export
 from .opensfm import read_opensfm_cameras as read_opensfm_cameras
 from .opensfm import read_opensfm_shots as read_opensfm_shots
 from .orientation import (
