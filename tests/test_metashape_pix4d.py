@@ -149,3 +149,32 @@ def test_pix4d_external_parameters(tmp_path):
     path.write_text("imageName X Y Z Omega Phi Kappa\nIMG_0001.JPG 12.5 -3.25 101.0 0.5 -1.25\n")
     with pytest.raises(ValueError, match=r"line 2: expected 7 values"):
         read_opk_export(path)
+
+
+def test_resect_with_a_metashape_camera_equals_the_photax_camera(tmp_path, capsys):
+    """The sample camera written as a Metashape calibration (pixels, cx/cy from the centre, y down,
+    P1/P2 swapped) resects the sample image to the same orientation as the photax camera file."""
+    import json
+    import pathlib
+
+    from photax.cli import main
+
+    data = pathlib.Path(__file__).resolve().parents[1] / "data"
+    cam = ptx.io.read_camera(data / "sample_camera.yaml")
+    ps = float(np.asarray(cam.pixel_size)[0])
+    (x0, y0), (k1, k2, k3, p1, p2) = np.asarray(cam.principal_point).tolist(), np.asarray(cam.distortion).tolist()
+    xml = tmp_path / "sample_camera.xml"
+    xml.write_text(
+        f"<calibration><projection>frame</projection><width>{cam.image_size[0]}</width>"
+        f"<height>{cam.image_size[1]}</height><f>{float(cam.focal_length) / ps!r}</f><cx>{x0 / ps!r}</cx>"
+        f"<cy>{-y0 / ps!r}</cy><k1>{k1!r}</k1><k2>{k2!r}</k2><k3>{k3!r}</k3><p1>{p2!r}</p1><p2>{-p1!r}</p2>"
+        "</calibration>\n"
+    )
+    results = []
+    for camera in (data / "sample_camera.yaml", xml):
+        out = tmp_path / f"{camera.stem}{camera.suffix}.json"
+        assert main(["resect", str(data / "sample_gcps.csv"), "--camera", str(camera), "-o", str(out)]) == 0
+        results.append(json.loads(out.read_text())["images"]["IMG_0001"])
+    capsys.readouterr()
+    np.testing.assert_allclose(results[1]["position"], results[0]["position"], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(results[1]["angles_rad"], results[0]["angles_rad"], rtol=0, atol=1e-9)
