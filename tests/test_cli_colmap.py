@@ -47,3 +47,26 @@ def test_bundle_colmap_usage_errors(files, capsys):
     assert main(["bundle", sparse, "--gcps", str(folder / "gcps.csv"), "--gcp-sigma", "-1", "--no-progress"]) == 2
     assert main(["bundle", sparse, "--colmap-out", sparse, "--no-progress"]) == 2
     assert "not an empty folder" in capsys.readouterr().err
+
+
+def test_bundle_georeferences_with_gnss_positions(files, capsys):
+    """GNSS centres from an orthority CSV (x y z omega phi kappa: the angles are not used)."""
+    folder, truth = files
+    gnss = folder / "gnss.csv"
+    rows = [f"{n},{x!r},{y!r},{z!r},0,0,0" for n, (x, y, z) in
+            zip([f"{n}.jpg" for n in truth_names()], np.asarray(truth.exterior.position).tolist())]  # fmt: skip
+    gnss.write_text("filename,x,y,z,omega,phi,kappa\n" + "\n".join(rows) + "\n")
+    out = folder / "gnss.json"
+    args = ["bundle", str(folder / "sparse"), "--gnss", str(gnss), "--position-sigma", "0.05", "--quiet"]
+    assert main([*args, "--no-progress", "-o", str(out)]) == 0
+    assert "GNSS positions (8)" in capsys.readouterr().out
+    table, _ = read_exteriors(out)
+    assert np.allclose([table[k].position for k in table], truth.exterior.position, atol=1e-4)
+    assert main([*args[:4], "--no-progress"]) == 2  # --gnss without --position-sigma
+    assert "--gnss needs --position-sigma" in capsys.readouterr().err
+
+
+def truth_names():
+    from photax.scene import synthetic_block
+
+    return synthetic_block(0, noise_px=0.0)[0].image_names

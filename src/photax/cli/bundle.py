@@ -1,6 +1,6 @@
 """``photax bundle``: bundle adjustment of a BAL file, a block folder or a COLMAP model.
 
-With ``--gcps`` a COLMAP model (or a block in its own frame) is georeferenced
+With ``--gcps`` and/or ``--gnss`` a COLMAP model (or a block in its own frame) is georeferenced
 first (:func:`photax.georeference`: a 7-parameter similarity, then the
 bundle with the control points, reporting the check points).
 
@@ -60,6 +60,11 @@ def add_parser(sub) -> None:
     p.add_argument("--gcp-sigma", type=float, default=0.0, metavar="SIGMA",
                    help="with --gcps: standard deviation of the control points' coordinates (ground unit); "
                    "0 (default) holds them fixed")  # fmt: skip
+    p.add_argument("--gnss", metavar="FILE",
+                   help="COLMAP model or block: georeference it with these GNSS positions of the images (any "
+                   "exterior file photax reads: orthority CSV x y z or lat lon alt, Metashape / Pix4D OPK, "
+                   "reconstruction.json, a photax result), of standard deviation --position-sigma; with or "
+                   "without --gcps")  # fmt: skip
     p.add_argument("--colmap-out", metavar="DIR",
                    help="also write the adjusted block as a COLMAP text model in DIR (new or empty), e.g. the "
                    "georeferenced model; written only when the adjustment converged")  # fmt: skip
@@ -100,7 +105,21 @@ def run(args: argparse.Namespace) -> int:
         problem = read_colmap(path)
     else:
         problem = read_block(path) if fmt == "block" else read_bal(path)
-    problem = _with_camera_observations(problem, args)
+    georef = bool(args.gcps or args.gnss)
+    if georef and args.attitude_sigma is not None:
+        raise ValueError("--attitude-sigma does not go with --gcps / --gnss: the start angles are in the model's frame")
+    if args.gnss and args.position_sigma is None:
+        raise ValueError("--gnss needs --position-sigma (the GNSS positions' standard deviation, ground unit)")
+    problem = _with_camera_observations(problem, args, start_positions=not args.gnss)
+    gnss, gnss_crs = None, None
+    if args.gnss:
+        if fmt == "bal":
+            raise ValueError("--gnss needs a COLMAP model or a block folder")
+        from ..io.orientation import read_exteriors
+
+        table, gnss_crs = read_exteriors(input_file(args.gnss, "GNSS file"))
+        gnss = {name: eo.position for name, eo in table.items()}
+        inputs.append(pathlib.Path(args.gnss))
     gcps = None
     if args.gcps:
         if fmt == "bal":
@@ -127,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     if args.out:
         check_output_path(args.out, inputs)
     cameras_out = _camera_outputs(args.camera_out, fmt, path, problem, inputs) if args.camera_out else []
-    free = fmt in ("bal", "colmap") and gcps is None and args.position_sigma is None
+    free = fmt in ("bal", "colmap") and not georef and args.position_sigma is None
     gauge = {"auto": "damped" if free else None, "none": None}.get(args.gauge, args.gauge)
     n_ctrl, n_chk = int((problem.roles == "control").sum()), int((problem.roles == "check").sum())
     print(
@@ -137,10 +156,11 @@ def run(args: argparse.Namespace) -> int:
     )
     options = dict(loss=args.loss, loss_scale=args.loss_scale, gauge=gauge, max_steps=args.max_steps,
                    verbose=not args.quiet, throw=False, progress=args.progress and args.command)  # fmt: skip
-    if gcps is not None:
+    if georef:
         from ..georeferencing import georeference
 
-        geo = georeference(problem, gcps, gcp_sigma=args.gcp_sigma, **options)
+        geo = georeference(problem, gcps, gnss=gnss, gnss_sigma=args.position_sigma if gnss else None,
+                           gcp_sigma=args.gcp_sigma, **options)  # fmt: skip
         result = geo.result
         print(geo.report())
     else:
@@ -148,12 +168,13 @@ def run(args: argparse.Namespace) -> int:
         print(result.report())
     if args.out:
         data = result.to_dict()
-        if gcps is not None:
+        if georef:
             s = geo.similarity
             data["similarity"] = {"scale": s.scale, "rotation": s.rotation.tolist(),
                                   "translation": s.translation.tolist(), "rms": s.rms}  # fmt: skip
-            if gcps.crs:
-                data["crs"] = gcps.crs
+            crs = (gcps.crs if gcps is not None else None) or gnss_crs
+            if crs:
+                data["crs"] = crs
         write_json(data, args.out, inputs=inputs)
         print(f"wrote {args.out}")
     if args.colmap_out and not result.converged:
@@ -182,7 +203,7 @@ def _detect(path: pathlib.Path) -> str:
     return "colmap" if any((path / f"cameras{e}").is_file() for e in (".txt", ".bin")) else "block"
 
 
-def _with_camera_observations(problem, args):
+def _with_camera_observations(problem, args, start_positions: bool = True):
     """The problem with its start positions / angles as GNSS / INS
     observations (``--position-sigma``, ``--attitude-sigma``,
     ``--lever-arm``); ValueError for a sigma that is not positive, or no
@@ -196,7 +217,7 @@ def _with_camera_observations(problem, args):
         ("--position-sigma", args.position_sigma, problem.exterior.position, "gnss"),
         ("--attitude-sigma", args.attitude_sigma, problem.exterior.angles, "attitude"),
     ):
-        if sigma is None:
+        if sigma is None or (key == "gnss" and not start_positions):  # --gnss: positions from its file
             continue
         if not (math.isfinite(sigma) and sigma > 0):
             raise ValueError(f"{flag} must be a positive number, got {sigma:g}")
@@ -209,6 +230,10 @@ def _with_camera_observations(problem, args):
         else:
             changes.update(attitude=values, attitude_sigma=math.radians(sigma))
     if args.lever_arm is not None:
+        if not start_positions:
+            raise ValueError(
+                "--lever-arm does not go with --gnss (photax.georeference takes the antenna at the centre)"
+            )
         if args.position_sigma is None:
             raise ValueError("--lever-arm needs --position-sigma (it offsets the GNSS antenna)")
         changes["lever_arm"] = args.lever_arm
