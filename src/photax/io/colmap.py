@@ -48,7 +48,7 @@ Conventions, and how they map onto photax (``docs/conventions.md``):
 :func:`read_colmap` gives a :class:`photax.BundleProblem` (one image per
 registered COLMAP image, every 3-D point a tie point, observations from the
 tracks); :func:`write_colmap` writes a problem or an adjusted result back.
-:func:`georeference` (below) puts a model into a ground CRS.
+:func:`photax.georeference` puts a model into a ground CRS.
 """
 
 from __future__ import annotations
@@ -745,7 +745,7 @@ def read_colmap(folder, *, free_intrinsics=()):
     3-D points seen in fewer than two images (COLMAP leaves none; a model
     written from a block with single-ray control points has them) are left
     out with a warning.
-    The model has no datum of its own: georeference it (:func:`georeference`)
+    The model has no datum of its own: georeference it (:func:`photax.georeference`)
     or adjust with ``gauge="damped"``.
 
     Args:
