@@ -9,7 +9,7 @@ import pytest
 from test_georeference import _model_and_gcps
 
 from photax.cli import main
-from photax.io import read_colmap, read_exteriors, write_colmap, write_gcps
+from photax.io import read_colmap, read_exterior, read_exteriors, read_interior, write_colmap, write_gcps
 
 
 @pytest.fixture(scope="module")
@@ -37,6 +37,14 @@ def test_bundle_georeferences_a_colmap_model(files, capsys):
     with pytest.warns(UserWarning, match=r"point\(s\) seen in fewer than 2 images left out"):
         back = read_colmap(model_out)  # the control point seen in one image
     np.testing.assert_allclose(back.exterior.position, truth.exterior.position, rtol=0, atol=1e-4)
+    # its files as --camera and --exterior (ortho, resect ...), found by content
+    cam = read_interior(model_out / "cameras.txt")
+    assert float(cam.focal_length) == pytest.approx(float(truth.camera.focal_length), rel=1e-12)
+    eo, crs = read_exterior(model_out / "images.txt", "S1_3.tif")
+    assert crs is None
+    assert np.allclose(eo.rotation, np.asarray(truth.exterior.rotation)[2], atol=1e-9)
+    np.testing.assert_allclose(eo.position, truth.exterior.position[2], atol=1e-4)
+    assert pycolmap_images(model_out) == 8
 
 
 def test_bundle_colmap_usage_errors(files, capsys):
@@ -70,3 +78,8 @@ def truth_names():
     from photax.scene import synthetic_block
 
     return synthetic_block(0, noise_px=0.0)[0].image_names
+
+
+def pycolmap_images(folder) -> int:
+    pycolmap = pytest.importorskip("pycolmap")
+    return pycolmap.Reconstruction(str(folder)).num_reg_images()

@@ -800,7 +800,13 @@ def _sane_colmap(model) -> None:
 @pytest.mark.parametrize("name", [*COLMAP_TEXT, "cameras.bin", "images.bin", "points3D.bin"])
 def test_fuzz_read_colmap(tmp_path_factory, name):
     """Text files: 100 examples each, errors naming the file and line; binary: 60 each, naming the file."""
-    from photax.io.colmap import read_colmap, read_colmap_model, write_colmap_model
+    from photax.io.colmap import (
+        read_colmap,
+        read_colmap_cameras,
+        read_colmap_exteriors,
+        read_colmap_model,
+        write_colmap_model,
+    )
 
     folder = tmp_path_factory.mktemp("colmap")
     for f, raw in COLMAP_TEXT.items():
@@ -835,6 +841,17 @@ def test_fuzz_read_colmap(tmp_path_factory, name):
             _check_message(str(exc), folder, None, None)
             return
         _finite(problem.points, problem.obs_xy, problem.exterior.position, problem.exterior.angles)
+        # the one-file readers of --camera / --exterior
+        ext = ".bin" if name.endswith(".bin") else ".txt"
+        try:
+            cams, eos = read_colmap_cameras(folder / f"cameras{ext}"), read_colmap_exteriors(folder / f"images{ext}")
+        except ValueError as exc:
+            _check_message(str(exc), folder, None, None)
+            return
+        for cam in cams.values():
+            _sane_camera(cam)
+        for eo in eos.values():
+            _finite(eo.position, eo.angles)
 
     run()
 

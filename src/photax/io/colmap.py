@@ -815,3 +815,78 @@ def write_colmap(problem_or_result, folder, *, binary: bool = False, inputs=()) 
     """Write a :class:`photax.BundleProblem` or :class:`photax.BundleResult` as a COLMAP model folder
     (:func:`colmap_model_from_problem`, :func:`write_colmap_model`)."""
     return write_colmap_model(colmap_model_from_problem(problem_or_result), folder, binary=binary, inputs=inputs)
+
+
+# --------------------------------------------------------------------------
+# One file of a model, for --camera / --exterior
+# --------------------------------------------------------------------------
+
+
+def is_colmap_file(path, kind: str) -> bool:
+    """Whether ``path`` is a COLMAP ``cameras`` or ``images`` file (``kind``): ``cameras.bin`` /
+    ``images.bin`` by name, a ``.txt`` by its first data line (``1 PINHOLE 640 480 ...``,
+    ``1 QW QX QY QZ TX TY TZ 1 NAME``)."""
+    path = pathlib.Path(path)
+    if path.name == f"{kind}.bin":
+        return path.is_file()
+    if path.suffix.lower() != ".txt" or not path.is_file():
+        return False
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(4096).decode("utf-8", "replace")
+    except OSError:
+        return False
+    first = next((ln.split() for ln in head.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), [])
+    if kind == "cameras":
+        return len(first) >= 4 and first[0].isdigit() and first[1] in MODELS and first[2].isdigit()
+    try:
+        return len(first) >= 10 and first[0].isdigit() and first[8].isdigit() and bool([float(v) for v in first[1:8]])
+    except ValueError:
+        return False
+
+
+def read_colmap_cameras(path) -> dict[str, FrameCamera]:
+    """The cameras of a COLMAP ``cameras.txt`` / ``cameras.bin``: ``{camera id as text: FrameCamera}``
+    in pixels; a model photax cannot represent is refused by name (naming the file)."""
+    path = pathlib.Path(path)
+    cams = _read_cameras_bin(path) if path.suffix == ".bin" else _read_cameras_text(path)
+    out = {}
+    for cid, c in cams.items():
+        try:
+            out[str(cid)] = colmap_camera_to_photax(c)
+        except ValueError as exc:
+            raise file_error(path, None, f"camera {cid}: {exc}") from None
+    return out
+
+
+def read_colmap_exteriors(path) -> dict:
+    """The poses of a COLMAP ``images.txt`` / ``images.bin`` (the cameras file of the same kind
+    beside it is read to check the camera ids): ``{image stem: ExteriorOrientation
+    ("omega-phi-kappa")}`` in the model's frame -- a ground CRS only for a georeferenced model
+    (``photax bundle --colmap-out``)."""
+    from ..camera import from_opencv_extrinsics
+    from ..collinearity import ExteriorOrientation
+    from ..rotation import angles_from_matrix
+
+    path = pathlib.Path(path)
+    cam_path = path.with_name("cameras" + path.suffix)
+    if not cam_path.is_file():
+        raise file_error(path, None, f"no {cam_path.name} beside it (COLMAP's images need their cameras file)")
+    if path.suffix == ".bin":
+        images = _read_images_bin(path, _read_cameras_bin(cam_path))
+    else:
+        images = _read_images_text(path, _read_cameras_text(cam_path))
+    if not images:
+        raise file_error(path, None, "no images")
+    ims = list(images.values())
+    r_wc, centres = from_opencv_extrinsics(
+        quaternion_to_matrix(np.array([im.qvec for im in ims])), np.array([im.tvec for im in ims])
+    )
+    angles = np.asarray(angles_from_matrix(r_wc, "omega-phi-kappa"))
+    out = {}
+    for im, c, a in zip(ims, centres, angles):
+        stem = pathlib.PurePath(im.name).stem
+        if stem in out:
+            raise file_error(path, None, f"two images named {excerpt(stem)} (in different folders): rename one")
+        out[stem] = ExteriorOrientation(c, a, "omega-phi-kappa")
+    return out
