@@ -20,6 +20,7 @@ constrains.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import pathlib
 
@@ -169,7 +170,8 @@ def _image_index(names: tuple[str, ...]):
 
 
 def _unique(table: dict, keys: list) -> dict:
-    return {k: v for k, v in table.items() if keys.count(k) == 1}
+    counts = collections.Counter(keys)
+    return {k: v for k, v in table.items() if counts[k] == 1}
 
 
 def georeference(

@@ -192,7 +192,7 @@ def matrix_to_quaternion(r) -> np.ndarray:
                     r[..., 0, 2] + r[..., 2, 0],
                 ],
                 -1,
-            ),  # fmt: skip
+            ),
             np.stack(
                 [
                     r[..., 0, 2] - r[..., 2, 0],
@@ -201,7 +201,7 @@ def matrix_to_quaternion(r) -> np.ndarray:
                     r[..., 1, 2] + r[..., 2, 1],
                 ],
                 -1,
-            ),  # fmt: skip
+            ),
             np.stack(
                 [
                     r[..., 1, 0] - r[..., 0, 1],
@@ -210,7 +210,7 @@ def matrix_to_quaternion(r) -> np.ndarray:
                     1 + 2 * r[..., 2, 2] - tr,
                 ],
                 -1,
-            ),  # fmt: skip
+            ),
         ],
         axis=-2,
     )
@@ -794,19 +794,21 @@ def colmap_model_from_problem(problem_or_result) -> ColmapModel:
     pids = ids if len(set(ids)) == len(names) else list(range(1, len(names) + 1))
     images = {}
     oi, op = prob.obs_image, prob.obs_point
+    pid_of_obs = np.asarray(pids, dtype=np.int64)[op]
+    by_image = np.argsort(oi, kind="stable")  # each image's observations, in order: its keypoints
+    starts = np.searchsorted(oi[by_image], np.arange(prob.n_images + 1))
     keypoint = np.empty(len(oi), dtype=np.int64)
+    keypoint[by_image] = np.arange(len(oi)) - np.repeat(starts[:-1], np.diff(starts))
     for i in range(prob.n_images):
-        sel = np.flatnonzero(oi == i)
-        keypoint[sel] = np.arange(len(sel))
+        sel = by_image[starts[i] : starts[i + 1]]
         cam = cams[prob.image_camera[i]]
         xy = _plane_to_pixels(np.asarray(prob.obs_xy[sel]), cam) + 0.5
-        images[i + 1] = ColmapImage(
-            q[i], t[i], int(prob.image_camera[i]) + 1, prob.image_names[i], xy,
-            np.array([pids[k] for k in op[sel]], dtype=np.int64),
-        )  # fmt: skip
+        images[i + 1] = ColmapImage(q[i], t[i], int(prob.image_camera[i]) + 1, prob.image_names[i], xy, pid_of_obs[sel])
+    by_point = np.argsort(op, kind="stable")
+    pstarts = np.searchsorted(op[by_point], np.arange(len(pids) + 1))
     pts = {}
     for k, pid in enumerate(pids):
-        sel = np.flatnonzero(op == k)
+        sel = by_point[pstarts[k] : pstarts[k + 1]]
         pts[pid] = ColmapPoint(points[k], np.full(3, 128, dtype=np.uint8), -1.0, oi[sel] + 1, keypoint[sel])
     return ColmapModel(cameras, images, pts)
 
