@@ -28,6 +28,8 @@ from .gcp import read_gcps as read_gcps
 from .gcp import write_gcps as write_gcps
 from .metashape import read_metashape_calibration as read_metashape_calibration
 from .metashape import read_opk_export as read_opk_export
+from .metashape import write_metashape_calibration as write_metashape_calibration
+from .metashape import write_opk_export as write_opk_export
 from .opensfm import read_opensfm_cameras as read_opensfm_cameras
 from .opensfm import read_opensfm_shots as read_opensfm_shots
 from .orientation import (

@@ -31,7 +31,7 @@ camera.  The angles are degrees in the photogrammetric omega-phi-kappa
 (photax's ``"omega-phi-kappa"``, as orthority and Pix4D's PATB); the matrix is
 the world -> camera rotation in Metashape's camera frame (y down, z forward),
 ``r = diag(1, -1, -1) R^T`` with ``R`` photax's world_from_camera.  Each line's
-matrix is checked against its angles (to 1e-5), so a file of another
+matrix is checked against its angles (to 1e-4), so a file of another
 convention is refused, not misread.  Positions are in the chunk's CRS, which
 the file does not name.
 
@@ -233,7 +233,7 @@ def read_opk_export(path) -> dict[str, ExteriorOrientation]:
         if len(v) == 15:
             r = v[6:].reshape(3, 3)
             expected = _F @ np.asarray(eo.rotation).T
-            if not np.allclose(r, expected, rtol=0, atol=1e-5):
+            if not np.allclose(r, expected, rtol=0, atol=1e-4):  # the file rounds both (6 decimals usual)
                 raise file_error(
                     path, n, "the rotation matrix r11..r33 does not match omega, phi, kappa in Metashape's "
                     "convention (photogrammetric omega-phi-kappa; r = world -> camera with y down): "
@@ -243,3 +243,69 @@ def read_opk_export(path) -> dict[str, ExteriorOrientation]:
     if not out:
         raise file_error(path, None, "no camera orientations")
     return out
+
+
+# --------------------------------------------------------------------------
+# Writers
+# --------------------------------------------------------------------------
+
+
+def write_metashape_calibration(camera: FrameCamera, path, *, inputs=()) -> pathlib.Path:
+    """Write ``camera`` as a Metashape calibration XML (``<calibration>``, frame), atomically,
+    in pixels: ``f = f_y``, ``b1 = f_x - f_y``, ``cx, cy`` from the image centre (y down),
+    ``k1-k3``, ``P1 = p2``, ``P2 = -p1`` (photax's y-up p1); :func:`read_metashape_calibration`
+    reads it back to the same projection.
+
+    Raises:
+        ValueError: a camera without a pixel grid (``pixel_size``, ``image_size``) or a scan.
+    """
+    from .atomic import atomic_write
+
+    if type(camera) is not FrameCamera or camera.pixel_size is None or camera.image_size is None:
+        raise ValueError("a Metashape calibration needs a FrameCamera with pixel_size and image_size (not a scan)")
+    sx, sy = (float(v) for v in np.asarray(camera.pixel_size))
+    f = float(camera.focal_length)
+    x0, y0 = (float(v) for v in np.asarray(camera.principal_point))
+    k1, k2, k3, p1, p2 = (float(v) for v in np.asarray(camera.distortion))
+    fx, fy = f / sx, f / sy
+    terms = {"f": fy, "cx": x0 / sx, "cy": -y0 / sy, "b1": fx - fy, "k1": k1, "k2": k2, "k3": k3,
+             "p1": p2, "p2": 0.0 - p1}  # fmt: skip
+    w, h = camera.image_size
+    body = "".join(f"  <{k}>{v!r}</{k}>\n" for k, v in terms.items())
+    with atomic_write(path, inputs=inputs) as fh:
+        fh.write(
+            '<?xml version="1.0" encoding="UTF-8"?>\n<calibration>\n  <projection>frame</projection>\n'
+            f"  <width>{w}</width>\n  <height>{h}</height>\n{body}</calibration>\n"
+        )
+    return pathlib.Path(path)
+
+
+def write_opk_export(table: dict, path, *, format: str = "metashape", inputs=()) -> pathlib.Path:
+    """Write ``{image name: ExteriorOrientation}`` as a Metashape "Omega Phi Kappa" export
+    (``format="metashape"``: tab-separated, with r11..r33) or a Pix4D external parameters file
+    (``"pix4d"``), atomically; angles in degrees, omega-phi-kappa, 17 significant digits.
+    :func:`read_opk_export` reads either back."""
+    from .atomic import atomic_write
+
+    if format not in ("metashape", "pix4d"):
+        raise ValueError(f"format must be 'metashape' or 'pix4d', got {format!r}")
+    if not table:
+        raise ValueError("no orientations to write")
+    lines = []
+    for name, eo in table.items():
+        name = str(name)
+        if not name or any(c.isspace() for c in name):
+            raise ValueError(f"image name {name!r}: an OPK file's names have no spaces")
+        e = eo.to_convention("omega-phi-kappa")
+        values = [*np.asarray(e.position, dtype=float).tolist(), *np.degrees(np.asarray(e.angles)).tolist()]
+        if format == "metashape":
+            values += (_F @ np.asarray(e.rotation).T).ravel().tolist()
+        lines.append(("\t" if format == "metashape" else " ").join([name, *(repr(float(v)) for v in values)]))
+    if format == "metashape":
+        head = [f"# Cameras ({len(lines)})", "# PhotoID, X, Y, Z, Omega, Phi, Kappa, r11, r12, r13, r21, r22, r23, "
+                "r31, r32, r33"]  # fmt: skip
+    else:
+        head = ["imageName X Y Z Omega Phi Kappa"]
+    with atomic_write(path, inputs=inputs) as fh:
+        fh.write("\n".join(head + lines) + "\n")
+    return pathlib.Path(path)
