@@ -83,3 +83,22 @@ def truth_names():
 def pycolmap_images(folder) -> int:
     pycolmap = pytest.importorskip("pycolmap")
     return pycolmap.Reconstruction(str(folder)).num_reg_images()
+
+
+def test_gcps_and_gnss_in_two_crss_are_refused(files, capsys):
+    import dataclasses
+
+    from photax.io import read_gcps
+
+    folder, truth = files
+    gcps = dataclasses.replace(read_gcps(folder / "gcps.csv"), crs="EPSG:32633")
+    write_gcps(folder / "gcps33.csv", gcps)
+    gnss = folder / "gnss34.csv"
+    rows = [f"{n}.jpg,{x!r},{y!r},{z!r},0,0,0" for n, (x, y, z) in
+            zip(truth_names(), np.asarray(truth.exterior.position).tolist())]  # fmt: skip
+    gnss.write_text("filename,x,y,z,omega,phi,kappa\n" + "\n".join(rows) + "\n")
+    gnss.with_suffix(".prj").write_text("EPSG:32634\n")
+    args = ["bundle", str(folder / "sparse"), "--gcps", str(folder / "gcps33.csv"), "--gnss", str(gnss),
+            "--position-sigma", "0.05", "--no-progress"]  # fmt: skip
+    assert main(args) == 2
+    assert "give both in one CRS" in capsys.readouterr().err

@@ -106,32 +106,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         problem = read_block(path) if fmt == "block" else read_bal(path)
     georef = bool(args.gcps or args.gnss)
+    if georef and fmt == "bal":
+        raise ValueError("--gcps / --gnss need a COLMAP model or a block folder (a BAL camera has no pixel grid)")
     if georef and args.attitude_sigma is not None:
         raise ValueError("--attitude-sigma does not go with --gcps / --gnss: the start angles are in the model's frame")
     if args.gnss and args.position_sigma is None:
         raise ValueError("--gnss needs --position-sigma (the GNSS positions' standard deviation, ground unit)")
     problem = _with_camera_observations(problem, args, start_positions=not args.gnss)
-    gnss, gnss_crs = None, None
-    if args.gnss:
-        if fmt == "bal":
-            raise ValueError("--gnss needs a COLMAP model or a block folder")
-        from ..io.orientation import read_exteriors
-
-        table, gnss_crs = read_exteriors(input_file(args.gnss, "GNSS file"))
-        gnss = {name: eo.position for name, eo in table.items()}
-        inputs.append(pathlib.Path(args.gnss))
-    gcps = None
-    if args.gcps:
-        if fmt == "bal":
-            raise ValueError("--gcps needs a COLMAP model or a block folder (a BAL camera has no pixel grid)")
-        if not (math.isfinite(args.gcp_sigma) and args.gcp_sigma >= 0):
-            raise ValueError(f"--gcp-sigma must be >= 0, got {args.gcp_sigma:g}")
-        from ..io.gcp import read_gcps
-
-        gcps = read_gcps(input_file(args.gcps, "GCP file"))
-        inputs.append(pathlib.Path(args.gcps))
-    elif args.gcp_sigma != 0.0:
-        raise ValueError("--gcp-sigma needs --gcps")
+    gcps, gnss, crs = _georeference_inputs(args, inputs)
     if args.colmap_out:
         from ..io.atomic import check_output_path as _check
         from ..io.colmap import photax_camera_to_colmap
@@ -172,7 +154,6 @@ def run(args: argparse.Namespace) -> int:
             s = geo.similarity
             data["similarity"] = {"scale": s.scale, "rotation": s.rotation.tolist(),
                                   "translation": s.translation.tolist(), "rms": s.rms}  # fmt: skip
-            crs = (gcps.crs if gcps is not None else None) or gnss_crs
             if crs:
                 data["crs"] = crs
         write_json(data, args.out, inputs=inputs)
@@ -194,6 +175,43 @@ def run(args: argparse.Namespace) -> int:
             write_camera(result.cameras[j], out, unit=unit, inputs=inputs)
             print(f"wrote {out}")
     return 0 if result.converged else 1
+
+
+def _georeference_inputs(args, inputs: list):
+    """``(GCP table or None, {image: GNSS position} or None, ground CRS or None)`` of ``--gcps`` and
+    ``--gnss``: a geographic GNSS file goes into the GCPs' CRS; two different CRSs are refused."""
+    from ._common import input_file
+
+    gcps = gnss = crs = None
+    if args.gcps:
+        if not (math.isfinite(args.gcp_sigma) and args.gcp_sigma >= 0):
+            raise ValueError(f"--gcp-sigma must be >= 0, got {args.gcp_sigma:g}")
+        from ..io.gcp import read_gcps
+
+        gcps = read_gcps(input_file(args.gcps, "GCP file"))
+        inputs.append(pathlib.Path(args.gcps))
+        crs = gcps.crs
+    elif args.gcp_sigma != 0.0:
+        raise ValueError("--gcp-sigma needs --gcps")
+    if args.gnss:
+        from ..io.orientation import read_exteriors
+
+        table, gnss_crs = read_exteriors(input_file(args.gnss, "GNSS file"), crs=crs)
+        gnss = {name: eo.position for name, eo in table.items()}
+        inputs.append(pathlib.Path(args.gnss))
+        if crs is not None and gnss_crs is not None and not _same_crs(crs, gnss_crs):
+            raise ValueError(f"--gnss {args.gnss} is in {gnss_crs}, the GCPs in {crs}: give both in one CRS")
+        crs = crs or gnss_crs
+    return gcps, gnss, crs
+
+
+def _same_crs(a: str, b: str) -> bool:
+    import pyproj
+
+    try:
+        return pyproj.CRS.from_user_input(a).equals(pyproj.CRS.from_user_input(b), ignore_axis_order=True)
+    except pyproj.exceptions.CRSError:
+        return a == b
 
 
 def _detect(path: pathlib.Path) -> str:
