@@ -235,3 +235,7 @@ def test_quaternions_round_trip():
     for k in range(3):
         theirs = pycolmap.Rotation3d(np.r_[q[k, 1:], q[k, 0]]).matrix()
         np.testing.assert_allclose(r[k], theirs, atol=1e-15)
+
+
+def test_point_ids_kept_and_new_points_numbered_after_them():
+    assert C._point_ids(["10", "3", "CON1", "07", "7", "x"]) == [10, 3, 11, 7, 12, 13]

@@ -764,9 +764,10 @@ def read_colmap(folder, *, free_intrinsics=()):
 def colmap_model_from_problem(problem_or_result) -> ColmapModel:
     """A :class:`photax.BundleProblem` or adjusted :class:`photax.BundleResult` as a :class:`ColmapModel`.
 
-    Cameras, images and points are numbered from 1 in the problem's order
-    (a point whose name is a positive whole number keeps it as its id when
-    all do); each image's keypoints are its observations, each point's
+    Cameras and images are numbered from 1 in the problem's order; a point
+    whose name is a positive whole number keeps it as its id (a model read by
+    :func:`read_colmap` keeps its ids), the others are numbered after the
+    largest; each image's keypoints are its observations, each point's
     track their image and index.  Colours are grey 128 and errors -1
     (unknown).
     """
@@ -789,9 +790,7 @@ def colmap_model_from_problem(problem_or_result) -> ColmapModel:
     points = np.asarray(points, dtype=float)
     if not np.all(np.isfinite(points)):
         raise ValueError("every point needs finite coordinates to be written to COLMAP")
-    names = list(prob.point_names)
-    ids = [int(n) for n in names] if all(n.isdigit() and int(n) > 0 for n in names) else []
-    pids = ids if len(set(ids)) == len(names) else list(range(1, len(names) + 1))
+    pids = _point_ids(prob.point_names)
     images = {}
     oi, op = prob.obs_image, prob.obs_point
     pid_of_obs = np.asarray(pids, dtype=np.int64)[op]
@@ -811,6 +810,25 @@ def colmap_model_from_problem(problem_or_result) -> ColmapModel:
         sel = by_point[pstarts[k] : pstarts[k + 1]]
         pts[pid] = ColmapPoint(points[k], np.full(3, 128, dtype=np.uint8), -1.0, oi[sel] + 1, keypoint[sel])
     return ColmapModel(cameras, images, pts)
+
+
+def _point_ids(names) -> list[int]:
+    """COLMAP ids for points: a name that is a positive whole number (``read_colmap``'s) keeps it,
+    the others (e.g. GCPs) are numbered after the largest."""
+    kept = [int(n) if n.isascii() and n.isdigit() and 0 < int(n) < 2**63 else None for n in map(str, names)]
+    seen: set[int] = set()
+    for k, v in enumerate(kept):
+        if v in seen:
+            kept[k] = None  # "7" and "07": one keeps 7
+        elif v is not None:
+            seen.add(v)
+    nxt = max(seen, default=0) + 1
+    out = []
+    for v in kept:
+        if v is None:
+            v, nxt = nxt, nxt + 1
+        out.append(v)
+    return out
 
 
 def write_colmap(problem_or_result, folder, *, binary: bool = False, inputs=()) -> pathlib.Path:
