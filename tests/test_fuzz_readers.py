@@ -26,6 +26,7 @@ import json
 import pathlib
 import re
 import shutil
+import warnings
 
 import numpy as np
 import pytest
@@ -768,3 +769,137 @@ def test_fuzz_read_named_points(work, data):
         r": (empty fiducial file|no points in the fiducial file|duplicated mark names)$",
         lines=True,
     )
+
+
+# --- COLMAP sparse models -------------------------------------------------------------
+
+COLMAP_TEXT = {
+    "cameras.txt": b"# Camera list\n1 OPENCV 640 480 500 510 320 240 -0.1 0.01 0.001 -0.002\n2 SIMPLE_PINHOLE 64 48 50 32 24\n",
+    "images.txt": b"# Image list\n1 1 0 0 0 0 0 5 1 im 0.jpg\n10 20 1 11 20 2 5 5 -1\n"
+    b"2 0.99995 0 0 0.01 0.1 0 5 2 b.jpg\n11 21 1 12 21 2\n",
+    "points3D.txt": b"# 3D points\n1 0.1 -0.1 0.6 1 2 3 -1 1 0 2 0\n2 0.2 0.3 0.4 255 0 9 0.5 1 1 2 1\n",
+}
+
+
+def _sane_colmap(model) -> None:
+    assert model.cameras
+    for c in model.cameras.values():
+        _finite(c.params)
+        assert c.width >= 1 and c.height >= 1
+    names = [im.name for im in model.images.values()]
+    assert len(set(names)) == len(names) and all(names)
+    for im in model.images.values():
+        _finite(im.qvec, im.tvec, im.xy)
+        assert abs(np.linalg.norm(im.qvec) - 1) < 1e-12 and im.camera_id in model.cameras
+    for p in model.points.values():
+        _finite(p.xyz, p.error)
+        for i, j in zip(p.image_ids.tolist(), p.point2d_idx.tolist()):
+            assert model.images[i].point3d_ids[j] >= 0
+
+
+@pytest.mark.parametrize("name", [*COLMAP_TEXT, "cameras.bin", "images.bin", "points3D.bin"])
+def test_fuzz_read_colmap(tmp_path_factory, name):
+    """Text files: 100 examples each, errors naming the file and line; binary: 60 each, naming the file."""
+    from photax.io.colmap import (
+        read_colmap,
+        read_colmap_cameras,
+        read_colmap_exteriors,
+        read_colmap_model,
+        write_colmap_model,
+    )
+
+    folder = tmp_path_factory.mktemp("colmap")
+    for f, raw in COLMAP_TEXT.items():
+        (folder / f).write_bytes(raw)
+    if name.endswith(".bin"):
+        model = read_colmap_model(folder)
+        for f in COLMAP_TEXT:
+            (folder / f).unlink()
+        write_colmap_model(model, folder / "bin", binary=True)
+        folder = folder / "bin"
+    seed = (folder / name).read_bytes()
+
+    @settings(FUZZ, max_examples=60 if name.endswith(".bin") else 100)
+    @given(raw=mutated([seed]))
+    def run(raw):
+        (folder / name).write_bytes(raw)
+        try:
+            model = read_colmap_model(folder)
+        except ValueError as exc:
+            msg = str(exc)
+            if name.endswith(".bin") or not msg.startswith(str(folder / name)):
+                _check_message(msg, folder, None, None)
+            else:
+                _check_message(msg, folder / name, raw.count(b"\n") + 1, r": no cameras$")
+            return
+        _sane_colmap(model)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", UserWarning)  # points seen in one image, left out
+                problem = read_colmap(folder)
+        except ValueError as exc:
+            _check_message(str(exc), folder, None, None)
+            return
+        _finite(problem.points, problem.obs_xy, problem.exterior.position, problem.exterior.angles)
+        # the one-file readers of --camera / --exterior
+        ext = ".bin" if name.endswith(".bin") else ".txt"
+        try:
+            cams, eos = read_colmap_cameras(folder / f"cameras{ext}"), read_colmap_exteriors(folder / f"images{ext}")
+        except ValueError as exc:
+            _check_message(str(exc), folder, None, None)
+            return
+        for cam in cams.values():
+            _sane_camera(cam)
+        for eo in eos.values():
+            _finite(eo.position, eo.angles)
+
+    run()
+
+
+# --- Metashape calibration XML, Metashape / Pix4D omega-phi-kappa exports ---------------
+
+METASHAPE_XML = [
+    b'<?xml version="1.0" encoding="UTF-8"?>\n<calibration>\n  <projection>frame</projection>\n  <width>5472</width>\n'
+    b"  <height>3648</height>\n  <f>3664.2</f>\n  <cx>-12.7</cx>\n  <cy>21.3</cy>\n  <b1>-1.9</b1>\n  <k1>-0.0123</k1>\n"
+    b"  <k2>0.0081</k2>\n  <p1>0.00031</p1>\n  <p2>-0.00054</p2>\n</calibration>\n",
+    b'<document><chunk><sensors><sensor id="0" label="cam" type="frame"><calibration type="frame" class="adjusted">'
+    b'<resolution width="640" height="480"/><f>500</f><k1>0.01</k1></calibration></sensor></sensors></chunk></document>',
+]
+OPK_EXPORTS = [
+    b"# Cameras (1)\n# PhotoID, X, Y, Z, Omega, Phi, Kappa, r11, r12, r13, r21, r22, r23, r31, r32, r33\n"
+    b"a.JPG\t1.0\t2.0\t3.0\t0.000000\t0.000000\t0.000000\t1\t0\t0\t0\t-1\t0\t0\t0\t-1\n"
+    b"b.JPG\t4.0\t5.0\t6.0\t0.0\t0.0\t0.0\n",
+    b"imageName X Y Z Omega Phi Kappa\nIMG_1.JPG 12.5 -3.25 101.0 0.5 -1.25 92.0\nIMG_2.JPG 2.5 -3 10 0 0 0\n",
+]
+
+
+@FUZZ
+@given(data=mutated(METASHAPE_XML))
+def test_fuzz_read_metashape_calibration(work, data):
+    from photax.io.metashape import read_metashape_calibration
+
+    path = work / "calib.xml"
+    path.write_bytes(data)
+
+    def sane(cams):
+        assert cams
+        for cam in cams.values():
+            _sane_camera(cam)
+
+    _expect_valueerror_or_sane(read_metashape_calibration, path, sane)
+
+
+@FUZZ
+@given(data=mutated(OPK_EXPORTS))
+def test_fuzz_read_opk_export(work, data):
+    from photax.io.metashape import read_opk_export
+
+    path = work / "opk.txt"
+    path.write_bytes(data)
+
+    def sane(table):
+        assert table
+        for eo in table.values():
+            _finite(eo.position, eo.angles)
+
+    _expect_valueerror_or_sane(read_opk_export, path, sane, r": no camera orientations$", lines=True)

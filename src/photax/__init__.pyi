@@ -195,3 +195,7 @@ from .uncertainty import OrthoUncertainty as OrthoUncertainty
 from .uncertainty import ortho_uncertainty as ortho_uncertainty
 
 __version__: str
+from .georeferencing import Georeferenced as Georeferenced
+from .georeferencing import Similarity as Similarity
+from .georeferencing import georeference as georeference
+from .georeferencing import similarity_transform as similarity_transform

@@ -1,4 +1,8 @@
-"""``photax bundle``: bundle adjustment of a BAL file or a block folder.
+"""``photax bundle``: bundle adjustment of a BAL file, a block folder or a COLMAP model.
+
+With ``--gcps`` and/or ``--gnss`` a COLMAP model (or a block in its own frame) is georeferenced
+first (:func:`photax.georeference`: a 7-parameter similarity, then the
+bundle with the control points, reporting the check points).
 
 Prints one line per iteration and a final report.  Exit codes: 0 converged,
 1 not converged, 2 bad input (a one-line message on stderr).
@@ -7,6 +11,7 @@ Prints one line per iteration and a final report.  Exit codes: 0 converged,
 from __future__ import annotations
 
 import argparse
+import math
 import pathlib
 
 
@@ -18,12 +23,15 @@ def add_parser(sub) -> None:
         "by Levenberg-Marquardt with a Schur complement; print progress and a report.",
         epilog="examples:\n  photax bundle data/block --loss huber -o block.json\n"
         "  photax bundle problem-49-7776-pre.txt --gauge damped\n"
-        "  photax bundle data/block --position-sigma 3 --attitude-sigma 0.1   # GNSS/INS-aided, no control\n",
+        "  photax bundle data/block --position-sigma 3 --attitude-sigma 0.1   # GNSS/INS-aided, no control\n"
+        "  photax bundle colmap/sparse/0 --gcps gcp_list.txt --colmap-out georef   # georeference a COLMAP model\n",
     )
-    p.add_argument("file", metavar="FILE", help="a BAL file (.txt or .txt.bz2) or a block folder (block.json, "
-                   "observations.csv, points.csv; see photax.io.block)")  # fmt: skip
-    p.add_argument("--format", choices=("auto", "bal", "block"), default="auto",
-                   help="input format (auto: a folder is a block, a file is BAL)")  # fmt: skip
+    p.add_argument("file", metavar="FILE", help="a BAL file (.txt or .txt.bz2), a block folder (block.json, "
+                   "observations.csv, points.csv; see photax.io.block) or a COLMAP model folder (cameras, images, "
+                   "points3D, .txt or .bin)")  # fmt: skip
+    p.add_argument("--format", choices=("auto", "bal", "block", "colmap"), default="auto",
+                   help="input format (auto: a folder with cameras.txt or cameras.bin is COLMAP, another folder a "
+                   "block, a file BAL)")  # fmt: skip
     p.add_argument("--loss", choices=("none", "huber", "cauchy"), default="none", help="robust loss")
     p.add_argument("--loss-scale", type=float, default=1.0, metavar="D", help="loss scale in sigmas (default 1)")
     p.add_argument("--gauge", choices=("auto", "none", "fix_first_camera", "damped"), default="auto",
@@ -45,6 +53,21 @@ def add_parser(sub) -> None:
         default=50,
         help="LM iterations at most, accepted and rejected steps (--max-iterations is an alias)",
     )
+    p.add_argument("--gcps", metavar="GCPS",
+                   help="COLMAP model or block: georeference it with these control and check points (any GCP file "
+                   "photax reads; pixels of the images, matched by name, file name or stem): a 7-parameter "
+                   "similarity, then the bundle with the control points; check points reported with their std")  # fmt: skip
+    p.add_argument("--gcp-sigma", type=float, default=0.0, metavar="SIGMA",
+                   help="with --gcps: standard deviation of the control points' coordinates (ground unit); "
+                   "0 (default) holds them fixed")  # fmt: skip
+    p.add_argument("--gnss", metavar="FILE",
+                   help="COLMAP model or block: georeference it with these GNSS positions of the images (any "
+                   "exterior file photax reads: orthority CSV x y z or lat lon alt, Metashape / Pix4D OPK, "
+                   "reconstruction.json, a photax result), of standard deviation --position-sigma; with or "
+                   "without --gcps")  # fmt: skip
+    p.add_argument("--colmap-out", metavar="DIR",
+                   help="also write the adjusted block as a COLMAP text model in DIR (new or empty), e.g. the "
+                   "georeferenced model; written only when the adjustment converged")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no per-iteration lines")
     p.add_argument("-o", "--out", metavar="OUT_JSON", help="also write the results as JSON")
     p.add_argument("--json", dest="out", help=argparse.SUPPRESS)  # the old name of --out
@@ -67,32 +90,81 @@ def run(args: argparse.Namespace) -> int:
     path = pathlib.Path(args.file)
     if not path.exists():
         raise ValueError(f"{path}: no such file or folder")
-    fmt = args.format if args.format != "auto" else ("block" if path.is_dir() else "bal")
+    fmt = args.format if args.format != "auto" else _detect(path)
     if fmt == "block":
         input_folder(path, "block folder")
         inputs = [path, *(input_file(path / n, "block file") for n in ("block.json", "points.csv", "observations.csv"))]
+    elif fmt == "colmap":
+        input_folder(path, "COLMAP model folder")
+        inputs = [path, *path.iterdir()]
     else:
         inputs = [input_file(path, "BAL file")]
-    problem = read_block(path) if fmt == "block" else read_bal(path)
-    problem = _with_camera_observations(problem, args)
+    if fmt == "colmap":
+        from ..io.colmap import read_colmap
+
+        problem = read_colmap(path)
+    else:
+        problem = read_block(path) if fmt == "block" else read_bal(path)
+    georef = bool(args.gcps or args.gnss)
+    if georef and fmt == "bal":
+        raise ValueError("--gcps / --gnss need a COLMAP model or a block folder (a BAL camera has no pixel grid)")
+    if georef and args.attitude_sigma is not None:
+        raise ValueError("--attitude-sigma does not go with --gcps / --gnss: the start angles are in the model's frame")
+    if args.gnss and args.position_sigma is None:
+        raise ValueError("--gnss needs --position-sigma (the GNSS positions' standard deviation, ground unit)")
+    problem = _with_camera_observations(problem, args, start_positions=not args.gnss)
+    gcps, gnss, crs = _georeference_inputs(args, inputs)
+    if args.colmap_out:
+        from ..io.atomic import check_output_path as _check
+        from ..io.colmap import photax_camera_to_colmap
+
+        out_dir = pathlib.Path(args.colmap_out)
+        if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+            raise ValueError(f"--colmap-out {out_dir}: exists and is not an empty folder")
+        _check(out_dir / "cameras.txt", inputs)
+        for cam in problem.cameras:
+            photax_camera_to_colmap(cam)  # a camera COLMAP cannot hold: refused before the work
     # After reading (the inputs now include the camera files block.json names), before the work:
     if args.out:
         check_output_path(args.out, inputs)
     cameras_out = _camera_outputs(args.camera_out, fmt, path, problem, inputs) if args.camera_out else []
-    gauge = {"auto": "damped" if fmt == "bal" else None, "none": None}.get(args.gauge, args.gauge)
+    free = fmt in ("bal", "colmap") and not georef and args.position_sigma is None
+    gauge = {"auto": "damped" if free else None, "none": None}.get(args.gauge, args.gauge)
     n_ctrl, n_chk = int((problem.roles == "control").sum()), int((problem.roles == "check").sum())
     print(
         f"{path}: {plural(problem.n_images, 'image')}, {plural(problem.n_cameras, 'camera')}, "
         f"{plural(problem.n_points, 'point')} ({n_ctrl} control, {n_chk} check), "
         f"{plural(problem.n_observations, 'observation')}"
     )
-    result = bundle_adjust(problem, loss=args.loss, loss_scale=args.loss_scale, gauge=gauge,
-                           max_steps=args.max_steps, verbose=not args.quiet, throw=False,
-                           progress=args.progress and args.command)  # fmt: skip
-    print(result.report())
+    options = dict(loss=args.loss, loss_scale=args.loss_scale, gauge=gauge, max_steps=args.max_steps,
+                   verbose=not args.quiet, throw=False, progress=args.progress and args.command)  # fmt: skip
+    if georef:
+        from ..georeferencing import georeference
+
+        geo = georeference(problem, gcps, gnss=gnss, gnss_sigma=args.position_sigma if gnss else None,
+                           gcp_sigma=args.gcp_sigma, **options)  # fmt: skip
+        result = geo.result
+        print(geo.report())
+    else:
+        result = bundle_adjust(problem, **options)
+        print(result.report())
     if args.out:
-        write_json(result.to_dict(), args.out, inputs=inputs)
+        data = result.to_dict()
+        if georef:
+            s = geo.similarity
+            data["similarity"] = {"scale": s.scale, "rotation": s.rotation.tolist(),
+                                  "translation": s.translation.tolist(), "rms": s.rms}  # fmt: skip
+            if crs:
+                data["crs"] = crs
+        write_json(data, args.out, inputs=inputs)
         print(f"wrote {args.out}")
+    if args.colmap_out and not result.converged:
+        print(f"COLMAP model not written: the adjustment did not converge ({result.message})")
+    elif args.colmap_out:
+        from ..io.colmap import write_colmap
+
+        write_colmap(result, args.colmap_out, inputs=inputs)
+        print(f"wrote {args.colmap_out}")
     if cameras_out and not result.converged:
         print(f"camera files not written: the adjustment did not converge ({result.message})")
     elif cameras_out:
@@ -105,7 +177,51 @@ def run(args: argparse.Namespace) -> int:
     return 0 if result.converged else 1
 
 
-def _with_camera_observations(problem, args):
+def _georeference_inputs(args, inputs: list):
+    """``(GCP table or None, {image: GNSS position} or None, ground CRS or None)`` of ``--gcps`` and
+    ``--gnss``: a geographic GNSS file goes into the GCPs' CRS; two different CRSs are refused."""
+    from ._common import input_file
+
+    gcps = gnss = crs = None
+    if args.gcps:
+        if not (math.isfinite(args.gcp_sigma) and args.gcp_sigma >= 0):
+            raise ValueError(f"--gcp-sigma must be >= 0, got {args.gcp_sigma:g}")
+        from ..io.gcp import read_gcps
+
+        gcps = read_gcps(input_file(args.gcps, "GCP file"))
+        inputs.append(pathlib.Path(args.gcps))
+        crs = gcps.crs
+    elif args.gcp_sigma != 0.0:
+        raise ValueError("--gcp-sigma needs --gcps")
+    if args.gnss:
+        from ..io.orientation import read_exteriors
+
+        table, gnss_crs = read_exteriors(input_file(args.gnss, "GNSS file"), crs=crs)
+        gnss = {name: eo.position for name, eo in table.items()}
+        inputs.append(pathlib.Path(args.gnss))
+        if crs is not None and gnss_crs is not None and not _same_crs(crs, gnss_crs):
+            raise ValueError(f"--gnss {args.gnss} is in {gnss_crs}, the GCPs in {crs}: give both in one CRS")
+        crs = crs or gnss_crs
+    return gcps, gnss, crs
+
+
+def _same_crs(a: str, b: str) -> bool:
+    import pyproj
+
+    try:
+        return pyproj.CRS.from_user_input(a).equals(pyproj.CRS.from_user_input(b), ignore_axis_order=True)
+    except pyproj.exceptions.CRSError:
+        return a == b
+
+
+def _detect(path: pathlib.Path) -> str:
+    """The input format of ``--format auto``."""
+    if not path.is_dir():
+        return "bal"
+    return "colmap" if any((path / f"cameras{e}").is_file() for e in (".txt", ".bin")) else "block"
+
+
+def _with_camera_observations(problem, args, start_positions: bool = True):
     """The problem with its start positions / angles as GNSS / INS
     observations (``--position-sigma``, ``--attitude-sigma``,
     ``--lever-arm``); ValueError for a sigma that is not positive, or no
@@ -119,7 +235,7 @@ def _with_camera_observations(problem, args):
         ("--position-sigma", args.position_sigma, problem.exterior.position, "gnss"),
         ("--attitude-sigma", args.attitude_sigma, problem.exterior.angles, "attitude"),
     ):
-        if sigma is None:
+        if sigma is None or (key == "gnss" and not start_positions):  # --gnss: positions from its file
             continue
         if not (math.isfinite(sigma) and sigma > 0):
             raise ValueError(f"{flag} must be a positive number, got {sigma:g}")
@@ -132,6 +248,10 @@ def _with_camera_observations(problem, args):
         else:
             changes.update(attitude=values, attitude_sigma=math.radians(sigma))
     if args.lever_arm is not None:
+        if not start_positions:
+            raise ValueError(
+                "--lever-arm does not go with --gnss (photax.georeference takes the antenna at the centre)"
+            )
         if args.position_sigma is None:
             raise ValueError("--lever-arm needs --position-sigma (it offsets the GNSS antenna)")
         changes["lever_arm"] = args.lever_arm

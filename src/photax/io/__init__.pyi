@@ -18,9 +18,18 @@ from .block import read_block as read_block
 from .block import write_block as write_block
 from .camera_file import read_camera as read_camera
 from .camera_file import write_camera as write_camera
+from .colmap import ColmapModel as ColmapModel
+from .colmap import read_colmap as read_colmap
+from .colmap import read_colmap_model as read_colmap_model
+from .colmap import write_colmap as write_colmap
+from .colmap import write_colmap_model as write_colmap_model
 from .gcp import GCPTable as GCPTable
 from .gcp import read_gcps as read_gcps
 from .gcp import write_gcps as write_gcps
+from .metashape import read_metashape_calibration as read_metashape_calibration
+from .metashape import read_opk_export as read_opk_export
+from .metashape import write_metashape_calibration as write_metashape_calibration
+from .metashape import write_opk_export as write_opk_export
 from .opensfm import read_opensfm_cameras as read_opensfm_cameras
 from .opensfm import read_opensfm_shots as read_opensfm_shots
 from .orientation import (

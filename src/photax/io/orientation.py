@@ -44,6 +44,14 @@ def _table(path: pathlib.Path, data=None, crs=None) -> tuple[dict[str, ExteriorO
         return table, crs
     if path.suffix.lower() == ".geojson":
         return read_orthority_geojson(path)
+    from .metashape import is_opk_export, read_opk_export
+
+    if is_opk_export(path):  # Metashape's Omega Phi Kappa export, Pix4D's external parameters: no CRS named
+        return read_opk_export(path), None
+    from .colmap import is_colmap_file, read_colmap_exteriors
+
+    if is_colmap_file(path, "images"):  # a (georeferenced) COLMAP model's poses: no CRS named
+        return read_colmap_exteriors(path), None
     return read_orthority_exterior_crs(path, crs)
 
 
@@ -81,7 +89,14 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
             missing or unknown for a multi-camera file (listing the names).
     """
     path = pathlib.Path(path)
-    if _is_reconstruction_file(path):
+    from .colmap import is_colmap_file, read_colmap_cameras
+    from .metashape import is_metashape_xml, read_metashape_calibration
+
+    if is_metashape_xml(path):
+        cameras = read_metashape_calibration(path)
+    elif is_colmap_file(path, "cameras"):
+        cameras = read_colmap_cameras(path)
+    elif _is_reconstruction_file(path):
         cameras = read_opensfm_cameras(path)
     elif not _is_orthority_interior(path):
         return read_camera(path)
@@ -257,7 +272,10 @@ def read_camera_unit(path) -> str | None:
     for an orthority interior file (its focal length and sensor size share a
     unit it does not name: :func:`camera_in_pixels`)."""
     path = pathlib.Path(path)
-    if _is_reconstruction_file(path):
+    from .colmap import is_colmap_file
+    from .metashape import is_metashape_xml
+
+    if _is_reconstruction_file(path) or is_metashape_xml(path) or is_colmap_file(path, "cameras"):
         return "px"
     if _is_orthority_interior(path):
         return None
