@@ -23,6 +23,7 @@ from photax.camera import (
     intrinsics_jacobian,
     undistort,
 )
+from photax.grid import ortho_grid
 from photax.scene import synthetic_block
 
 W, H = 1200, 900
@@ -219,3 +220,68 @@ def test_bundle_refuses_mixed_models():
         problem.replace(cameras=cams, image_camera=np.arange(problem.n_images) % 2)
     with pytest.raises(ValueError, match="free_intrinsics must be names from"):
         problem.replace(free_intrinsics=("f", "s1"))  # a brown camera has no thin prism
+
+
+@pytest.fixture(scope="module")
+def fisheye_view():
+    """A relief scene's pinhole image re-rendered through a fisheye camera of the same
+    orientation: the fisheye pixel's ray (undistortion) sampled in the pinhole image."""
+    from scipy.ndimage import map_coordinates
+
+    s = ptx.relief_scene(150.0, seed=2, image_size=(400, 300), focal_px=400.0, noise_px=0.0)
+    fish = ptx.FrameCamera.from_pixels(480.0, (400, 300), distortion=(0.05, -0.02, 0.004, -0.001), model="fisheye")
+    cols, rows = np.meshgrid(np.arange(400.0), np.arange(300.0))
+    pix = np.c_[cols.ravel(), rows.ravel()]
+    xn = np.asarray(fish.normalised(fish.pixel_to_image(pix)))
+    src = np.asarray(s.camera.image_to_pixel(np.asarray(s.camera.principal_point) + float(s.camera.focal_length) * xn))
+    image = map_coordinates(s.image, [src[:, 1], src[:, 0]], order=3, mode="nearest").reshape(300, 400)
+    assert src.min() > -1 and src[:, 0].max() < 400 and src[:, 1].max() < 300  # inside the pinhole image
+    return s, fish, image
+
+
+def test_fisheye_ortho_equals_the_pinhole_ortho(fisheye_view):
+    """orthorectify with the fisheye camera (forward projection; its footprint through the
+    undistortion) gives the pinhole ortho of the same ground, and the Dask ortho is it bit
+    for bit (exact mapping) although the chunks' edges bend in the fisheye image."""
+    s, fish, image = fisheye_view
+    grid = ptx.Grid(s.ortho_transform, s.ortho.shape)
+    ref, _ = ptx.orthorectify(s.image, s.exterior, s.camera, s.dem, grid)
+    ours, _ = ptx.orthorectify(image, s.exterior, fish, s.dem, grid, approx=None)
+    both = np.isfinite(ref) & np.isfinite(ours)
+    assert both.mean() > 0.3
+    d = ours[both] - ref[both]
+    assert np.abs(d).mean() < 0.02 * np.ptp(ref[both]) and abs(d.mean()) < 0.005 * np.ptp(ref[both])
+    assert np.corrcoef(ours[both], ref[both])[0, 1] > 0.99
+    own_grid = ortho_grid(s.exterior, fish, s.dem, 15.0)  # the footprint: undistorted image corners
+    assert np.all(np.isfinite(own_grid.transform))
+    lazy = ptx.orthorectify_dask(image, s.exterior, fish, s.dem, grid, chunks=64, approx=None).compute()
+    np.testing.assert_array_equal(np.asarray(lazy), ours)
+
+
+def test_uncertainty_propagates_fisheye_coefficients(fisheye_view):
+    """ortho_uncertainty with a fisheye camera's intrinsics covariance: the image variance
+    is J S J^T with J the jacfwd of the projection w.r.t. (f, x0, y0, k1 ... k4)."""
+    s, fish, _ = fisheye_view
+    grid = ptx.Grid(s.ortho_transform, s.ortho.shape)
+    cam_cov = np.diag([4.0, 1.0, 1.0, 1e-4, 1e-5, 1e-6, 1e-7])
+    u = ptx.ortho_uncertainty(s.exterior, np.zeros((6, 6)), fish, s.dem, grid, camera_covariance=cam_cov, step=1)
+    r, c = np.argwhere(np.isfinite(u.image_var[0]))[[0, -1, 500]].T
+    x, y = (
+        s.ortho_transform[2] + (c + 0.5) * s.ortho_transform[0],
+        s.ortho_transform[5] + (r + 0.5) * s.ortho_transform[4],
+    )
+    ground = np.c_[x, y, np.asarray(s.dem.height(x, y))]
+
+    def pixels(k):
+        cam = ptx.FrameCamera(
+            k[0], k[1:3], k[3:], pixel_size=fish.pixel_size, image_size=fish.image_size, model="fisheye"
+        )
+        return cam.image_to_pixel(ptx.project(ground, s.exterior, cam))
+
+    k = np.r_[float(fish.focal_length), np.asarray(fish.principal_point), np.asarray(fish.distortion)]
+    j = np.asarray(jax.jacfwd(pixels)(k))  # (n, 2, 7)
+    var = np.einsum("nij,jk,nlk->nil", j, cam_cov, j)
+    np.testing.assert_allclose(u.image_var[0][r, c], var[:, 0, 0], rtol=1e-9)
+    np.testing.assert_allclose(u.image_var[2][r, c], var[:, 1, 1], rtol=1e-9)
+    with pytest.raises(ValueError, match=r"camera_covariance must be \(7, 7\)"):
+        ptx.ortho_uncertainty(s.exterior, np.zeros((6, 6)), fish, s.dem, grid, camera_covariance=np.eye(8))
