@@ -93,29 +93,30 @@ def _coefficients(distortion: Array, n: int) -> list[Array]:
 
 
 def _rational(x: Array, y: Array, distortion: Array):
-    """The radial factor ``rho = N/M`` of ``r^2``, its slope ``d rho / d r^2``, the
-    numerator and denominator (``M = 1`` for ``"brown"``), and the 12 coefficients
-    (zeros past the 5 of ``"brown"``)."""
+    """``r^2``, the radial factor ``rho = N/M`` of ``r^2``, its slope ``d rho / d
+    r^2``, the denominator ``M``, ``(p1, p2)`` and the thin prism ``(s1, s2, s3,
+    s4)``; for ``"brown"`` ``M = 1`` and no prism (None): its terms are not
+    computed at all (bundle adjustment's hot path)."""
     n = distortion.shape[-1]
-    c = _coefficients(distortion, n)
-    if n == 5:
-        zero = jnp.zeros_like(c[0])
-        c = c + [zero] * 7
-    k1, k2, k3, p1, p2, k4, k5, k6, s1, s2, s3, s4 = c
+    k1, k2, k3, p1, p2, *rest = _coefficients(distortion, n)
     r2 = x * x + y * y
     num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
     num_slope = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
     if n == 5:
-        return r2, num, num_slope, 1.0, c
+        return r2, num, num_slope, 1.0, (p1, p2), None
+    k4, k5, k6, *prism = rest
     den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
     den_slope = k4 + r2 * (2.0 * k5 + 3.0 * k6 * r2)
-    return r2, num / den, (num_slope * den - num * den_slope) / (den * den), den, c
+    return r2, num / den, (num_slope * den - num * den_slope) / (den * den), den, (p1, p2), prism
 
 
 def _distort_rational(x, y, distortion):
-    r2, rho, _, _, (_, _, _, p1, p2, _, _, _, s1, s2, s3, s4) = _rational(x, y, distortion)
-    xd = x * rho + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) + r2 * (s1 + s2 * r2)
-    yd = y * rho + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y + r2 * (s3 + s4 * r2)
+    r2, rho, _, _, (p1, p2), prism = _rational(x, y, distortion)
+    xd = x * rho + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * rho + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+    if prism is not None:
+        s1, s2, s3, s4 = prism
+        xd, yd = xd + r2 * (s1 + s2 * r2), yd + r2 * (s3 + s4 * r2)
     return xd, yd
 
 
@@ -127,12 +128,15 @@ def _jacobian_rational(x, y, distortion):
     dyd/dx = 2 x y rho' + 2 p1 x + 2 p2 y + 2 x (s3 + 2 s4 r^2)
     dyd/dy = rho + 2 y^2 rho' + 6 p1 y + 2 p2 x + 2 y (s3 + 2 s4 r^2)
     """
-    r2, rho, slope, _, (_, _, _, p1, p2, _, _, _, s1, s2, s3, s4) = _rational(x, y, distortion)
+    r2, rho, slope, _, (p1, p2), prism = _rational(x, y, distortion)
     cross = 2.0 * x * y * slope + 2.0 * p1 * x + 2.0 * p2 * y
+    xx = rho + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x
+    yy = rho + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x
+    if prism is None:
+        return xx, cross, cross, yy
+    s1, s2, s3, s4 = prism
     px, py = 2.0 * (s1 + 2.0 * s2 * r2), 2.0 * (s3 + 2.0 * s4 * r2)
-    xx = rho + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x + x * px
-    yy = rho + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x + y * py
-    return xx, cross + y * px, cross + x * py, yy
+    return xx + x * px, cross + y * px, cross + x * py, yy + y * py
 
 
 def _coefficient_jacobian_rational(x, y, distortion):
@@ -143,12 +147,12 @@ def _coefficient_jacobian_rational(x, y, distortion):
     d/dk_(j+3) = -(xn, yn) rho r^(2j) / M             (j = 1, 2, 3)
     d/ds1 = (r^2, 0), d/ds2 = (r^4, 0), d/ds3 = (0, r^2), d/ds4 = (0, r^4)
     """
-    r2, rho, _, den, _ = _rational(x, y, distortion)
+    r2, rho, _, den, _, prism = _rational(x, y, distortion)
     zero = jnp.zeros_like(x)
     powers = (r2, r2 * r2, r2 * r2 * r2)
     cols = [(x * r / den, y * r / den) for r in powers]
     cols += [(2.0 * x * y, r2 + 2.0 * y * y), (r2 + 2.0 * x * x, 2.0 * x * y)]
-    if distortion.shape[-1] == 12:
+    if prism is not None:
         cols += [(-x * rho * r / den, -y * rho * r / den) for r in powers]
         cols += [(r2, zero), (r2 * r2, zero), (zero, r2), (zero, r2 * r2)]
     return cols

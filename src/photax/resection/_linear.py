@@ -45,8 +45,11 @@ def angles(matrix, pok):
 
 
 def opencv_uv(xy, camera):
-    """Image-plane ``(m, 2)`` -> undistorted normalised coordinates, y down (OpenCV's frame)."""
+    """Image-plane ``(m, 2)`` -> undistorted normalised coordinates, y down (OpenCV's frame);
+    where the undistortion fails (past a fold) the distorted point, as in :func:`linear_start_lanes`."""
+    xd = (xy - camera.principal_point[None]) / camera.focal_length
     xn = camera.normalised(xy)
+    xn = jnp.where(jnp.isfinite(xn), xn, xd)
     return jnp.stack([xn[:, 0], -xn[:, 1]], axis=1)
 
 
