@@ -285,3 +285,27 @@ def test_uncertainty_propagates_fisheye_coefficients(fisheye_view):
     np.testing.assert_allclose(u.image_var[2][r, c], var[:, 1, 1], rtol=1e-9)
     with pytest.raises(ValueError, match=r"camera_covariance must be \(7, 7\)"):
         ptx.ortho_uncertainty(s.exterior, np.zeros((6, 6)), fish, s.dem, grid, camera_covariance=np.eye(8))
+
+
+def test_ortho_leaves_out_ground_past_the_fold_of_the_distortion():
+    """A strong barrel (k1 = -0.5: r_d = r (1 - r^2 / 2) folds at r = 0.816) maps ground far
+    outside the field of view (r = 1.2 -> r_d = 0.34) back into the image: the ortho has no
+    data there, and everywhere inside the fold it is the forward model's pixel."""
+    s = ptx.relief_scene(0.0, seed=4, image_size=(400, 300), focal_px=400.0, tilt_deg=0.0, noise_px=0.0)
+    barrel = ptx.FrameCamera.from_pixels(400.0, (400, 300), distortion=(-0.5, 0.0, 0.0, 0.0, 0.0))
+    big = ptx.Grid.from_bounds(
+        tuple(np.r_[np.asarray(s.exterior.position[:2]) - 3000.0, np.asarray(s.exterior.position[:2]) + 3000.0]),
+        20.0,
+    )
+    ortho, _ = ptx.orthorectify(s.image, s.exterior, barrel, s.dem, big, approx=None)
+    xy = big.xy()
+    ground = np.c_[xy.reshape(-1, 2), np.zeros(xy.shape[0] * xy.shape[1])]
+    q = np.asarray(s.exterior.points_in_camera(ground))
+    r = np.hypot(q[:, 0], q[:, 1]) / -q[:, 2]
+    pix = np.asarray(barrel.image_to_pixel(ptx.project(ground, s.exterior, barrel)))
+    inside = (pix[:, 0] > 1) & (pix[:, 0] < 398) & (pix[:, 1] > 1) & (pix[:, 1] < 298)
+    inside &= np.isfinite(np.asarray(s.dem.height(ground[:, 0], ground[:, 1])))  # on the DEM
+    seen = np.isfinite(ortho.ravel())
+    ghost = inside & (r > 0.8165)
+    assert ghost.sum() > 100 and not seen[ghost].any()
+    assert seen[inside & (r < 0.81)].all()
