@@ -11,7 +11,7 @@ Jacobian that bundle adjustment uses, :func:`photax.collinearity.collinearity_ja
 and :func:`photax.camera.intrinsics_jacobian`; equal to ``jax.jacfwd`` of
 :func:`photax.project` to 1e-12)
 
-    J_t = dp/dtheta (2x6),  J_c = dp/dc (2x8),  J_z = dp/dZ (2x1),
+    J_t = dp/dtheta (2x6),  J_c = dp/dc (2x8; 2 x (3 + n) for a model of n coefficients),  J_z = dp/dZ (2x1),
     A   = dp/d(X, Y) (2x2, the total derivative through the DEM's slope),
 
 the error of the image position read for the pixel is, to first order
