@@ -188,3 +188,18 @@ def test_photax_camera_file_keeps_the_model(tmp_path, model):
     (tmp_path / "bad.yaml").write_text(yaml.safe_dump(text))
     with pytest.raises(ValueError, match=f"unknown key distortion.s9 for the {model} model"):
         read_camera(tmp_path / "bad.yaml")
+
+
+def test_block_folder_keeps_a_fisheye_camera_and_its_free_coefficients(tmp_path):
+    """write_block / read_block: the camera file names the model, ``free`` its coefficients."""
+    from photax.io import read_block, write_block
+    from photax.scene import synthetic_block
+
+    problem, _ = synthetic_block(0, n_tie=15)
+    fish = photax.FrameCamera.from_pixels(3000.0, (4000, 3000), distortion=(0.03, -0.01, 0.0, 0.002), model="fisheye")
+    problem = problem.replace(cameras=[fish], free_intrinsics=("f", "k1", "k4"))
+    write_block(problem, tmp_path / "block")
+    back = read_block(tmp_path / "block")
+    assert back.cameras[0].model == "fisheye" and back.intrinsic_names == ("f", "x0", "y0", "k1", "k2", "k3", "k4")
+    np.testing.assert_array_equal(np.asarray(back.cameras[0].distortion), np.asarray(fish.distortion))
+    np.testing.assert_array_equal(back.free_intrinsics, problem.free_intrinsics)
