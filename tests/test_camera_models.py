@@ -170,7 +170,7 @@ def test_resection_with_the_new_models(model):
     cam = camera(model, MODELS[model])
     ground, eo, _, _ = scene(n=12, max_angle_deg=50.0 if model == "fisheye" else 35.0, seed=3)
     xy = np.asarray(ptx.project(ground, eo, cam))
-    res = ptx.resect(xy, ground, cam, convention="omega-phi-kappa")
+    res = ptx.resect(xy, ground, cam, convention="omega-phi-kappa", robust=False)  # compiles less
     np.testing.assert_allclose(np.asarray(res.exterior.position), np.asarray(eo.position), rtol=0, atol=1e-6)
     np.testing.assert_allclose(np.asarray(res.exterior.rotation), np.asarray(eo.rotation), rtol=0, atol=1e-9)
 
