@@ -41,6 +41,7 @@ are minus ours (the others are the same).
 from __future__ import annotations
 
 import functools
+import types
 
 import equinox as eqx
 import jax
@@ -64,12 +65,14 @@ def _concrete(x) -> bool:
 
 
 #: Distortion models: name -> the names of its coefficients, in the order of
-#: :attr:`FrameCamera.distortion` (module docstring).
-DISTORTION_MODELS = {
-    "brown": ("k1", "k2", "k3", "p1", "p2"),
-    "opencv": ("k1", "k2", "k3", "p1", "p2", "k4", "k5", "k6", "s1", "s2", "s3", "s4"),
-    "fisheye": ("k1", "k2", "k3", "k4"),
-}
+#: :attr:`FrameCamera.distortion` (module docstring).  Read-only.
+DISTORTION_MODELS = types.MappingProxyType(
+    {
+        "brown": ("k1", "k2", "k3", "p1", "p2"),
+        "opencv": ("k1", "k2", "k3", "p1", "p2", "k4", "k5", "k6", "s1", "s2", "s3", "s4"),
+        "fisheye": ("k1", "k2", "k3", "k4"),
+    }
+)
 _MODEL_OF_SIZE = {len(v): k for k, v in DISTORTION_MODELS.items()}
 #: Below this radius the fisheye's ``t/r`` and its slope are their Taylor series
 #: (the closed forms cancel digits); the series' error there is below 1e-12.
