@@ -160,10 +160,10 @@ def test_opensfm_shots_put_ground_points_on_their_pixels(synthetic, frame, tol):
 
 def test_opensfm_refusals(tmp_path, synthetic):
     rec = json.loads(synthetic["path"].read_text())
-    rec[0]["cameras"]["v2 cam"] = {"projection_type": "fisheye_opencv", "width": 10, "height": 10, "focal": 1}
+    rec[0]["cameras"]["v2 cam"] = {"projection_type": "spherical", "width": 10, "height": 10}
     bad = tmp_path / "fish.json"
     bad.write_text(json.dumps(rec))
-    with pytest.raises(ValueError, match="fisheye_opencv.*'perspective' and 'brown'"):
+    with pytest.raises(ValueError, match="'spherical'.*'perspective'.*'brown'.*no photax camera"):
         read_interior(bad)
     del rec[0]["cameras"]
     bad.write_text(json.dumps(rec))
@@ -348,8 +348,8 @@ def test_orthority_brown_and_opencv_interiors_project_as_orthority(tmp_path, kin
     np.testing.assert_allclose(ours, ref_cam.world_to_pixel(ground.T).T, rtol=0, atol=1e-8)
     assert np.ptp(ours[:, 0]) > 300
     if kind == "opencv":
-        path.write_text(text + "  k4: 0.01\n")
-        with pytest.raises(ValueError, match=r"opencv parameters \['k4'\] are not zero"):
+        path.write_text(text + "  tx: 0.01\n")  # the tilt: no photax model (k4 ... s4 are read)
+        with pytest.raises(ValueError, match=r"opencv parameters \['tx'\] are not zero"):
             read_orthority_interior(path)
 
 

@@ -83,7 +83,7 @@ def test_orthority_reader_errors(tmp_path):
     with pytest.raises(ValueError, match="line 2"):
         read_orthority_exterior(bad)
     cam = tmp_path / "int.yaml"
-    cam.write_text("c:\n  type: fisheye\n  im_size: [10, 10]\n  focal_len: 1.0\n")
+    cam.write_text("c:\n  type: rpc\n  im_size: [10, 10]\n  focal_len: 1.0\n")  # fisheye is read (issue 22)
     with pytest.raises(ValueError, match="pinhole"):
         read_orthority_interior(cam)
 

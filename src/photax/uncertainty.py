@@ -11,7 +11,7 @@ Jacobian that bundle adjustment uses, :func:`photax.collinearity.collinearity_ja
 and :func:`photax.camera.intrinsics_jacobian`; equal to ``jax.jacfwd`` of
 :func:`photax.project` to 1e-12)
 
-    J_t = dp/dtheta (2x6),  J_c = dp/dc (2x8),  J_z = dp/dZ (2x1),
+    J_t = dp/dtheta (2x6),  J_c = dp/dc (2x8; 2 x (3 + n) for a model of n coefficients),  J_z = dp/dZ (2x1),
     A   = dp/d(X, Y) (2x2, the total derivative through the DEM's slope),
 
 the error of the image position read for the pixel is, to first order
@@ -70,25 +70,24 @@ from .io.crs import check_dem
 
 _BLOCK = 1 << 14  # points per jitted call (padded): one compilation, bounded memory
 _STRIP = 1 << 19  # pixels per strip at most: its intermediates stay small
-_N_INTRINSICS = 8
-_N = 6 + _N_INTRINSICS  # exterior then intrinsics: the joint covariance's size
 
 
 def _node_planes(exterior, camera, g, cov):
     """At ground points ``g`` ``(n, 3)``: ``(11, n)`` planes, the pixel (2),
     ``S_p = J S J^T`` of the exterior and intrinsics (xx, xy, yy) and
     ``dp/d(X, Y, Z)`` (6, row-major 2 x 3), all in pixels; NaN behind the
-    camera.  ``J = dp/d(theta, c)`` ``(2, 14)`` in closed form: the
+    camera.  ``J = dp/d(theta, c)`` ``(2, 6 + n_c)`` (``(2, 14)`` for a
+    ``"brown"`` camera) in closed form: the
     collinearity Jacobian (:func:`photax.collinearity.collinearity_jacobian`,
     the one bundle adjustment uses) and :func:`photax.camera.intrinsics_jacobian`,
-    scaled to pixels (column right, row down); ``cov`` ``(14, 14)``."""
+    scaled to pixels (column right, row down); ``cov`` ``(6 + n_c, 6 + n_c)``."""
     axes = angle_axes(exterior.angles, exterior.convention)
     xy, jac, q = collinearity_jacobian(g, exterior.position, exterior.rotation, axes, camera)
     ji = intrinsics_jacobian(-q[:, :2] / q[:, 2:3], camera.focal_length, camera.distortion)
     s = jnp.stack([1.0 / camera.pixel_size[0], -1.0 / camera.pixel_size[1]])[None, :, None]
     j = jnp.concatenate([jac[:, :, :6], ji], axis=-1) * s  # (n, 2, 14)
     jg = jac[:, :, 6:] * s
-    jc = (j.reshape(-1, _N) @ cov).reshape(j.shape)  # one (2n, 14) x (14, 14) product
+    jc = (j.reshape(-1, j.shape[-1]) @ cov).reshape(j.shape)  # one (2n, 14) x (14, 14) product (brown)
     sp = [jnp.sum(jc[:, a] * j[:, b], axis=-1) for a, b in ((0, 0), (0, 1), (1, 1))]
     planes = jnp.concatenate([camera.image_to_pixel(xy).T, jnp.stack(sp), jg.reshape(-1, 6).T])
     return jnp.where((q[:, 2] < 0)[None], planes, jnp.nan)
@@ -471,14 +470,17 @@ def ortho_uncertainty(
         covariance: ``(6, 6)`` covariance of ``(X0, Y0, Z0, a1, a2, a3)``
             (metres, radians; angles in the exterior's convention order), or
             ``(14, 14)`` of those and the intrinsics ``(f, x0, y0, k1, k2,
-            k3, p1, p2)`` jointly (:attr:`photax.BundleResult.orientation_cov`),
+            k3, p1, p2)`` jointly (:attr:`photax.BundleResult.orientation_cov`;
+            ``6 + n`` square with the ``n`` intrinsics of another distortion
+            model, :attr:`photax.FrameCamera.intrinsic_names`),
             or None when ``exterior`` is a result.
         camera: the interior orientation (pixel grid required).
         dem: the DEM the ortho was made with.
         grid: the ortho's grid.
         camera_covariance: ``(8, 8)`` covariance of ``(f, x0, y0, k1, k2,
             k3, p1, p2)`` (or ``(3, 3)`` of ``f, x0, y0``), image-plane units;
-            default none (fixed intrinsics).
+            another distortion model's: ``n x n`` of the camera's
+            ``intrinsic_names``; default none (fixed intrinsics).
         dem_sigma: std of the DEM heights, metres: a scalar or an array of
             the (coarsened) grid's shape.
         coarsen: compute on a grid ``coarsen`` times coarser (pixel size x
@@ -517,18 +519,22 @@ def ortho_uncertainty(
     check_dem(dem, grid)
     exterior, covariance = _orientation(exterior, covariance, image)
     cov = np.asarray(covariance, dtype=float)
-    if cov.shape not in ((6, 6), (_N, _N)) or not np.all(np.isfinite(cov)):
-        raise ValueError(f"covariance must be a finite (6, 6) or (14, 14) matrix, got shape {cov.shape}")
+    n_intr = len(camera.intrinsic_names)
+    n_all = 6 + n_intr  # exterior then intrinsics: the joint covariance's size
+    if cov.shape not in ((6, 6), (n_all, n_all)) or not np.all(np.isfinite(cov)):
+        raise ValueError(f"covariance must be a finite (6, 6) or ({n_all}, {n_all}) matrix, got shape {cov.shape}")
     if np.min(np.linalg.eigvalsh(0.5 * (cov + cov.T))) < -1e-12 * max(np.abs(cov).max(), 1e-300):
         raise ValueError("covariance must be symmetric positive semi-definite")
-    joint = np.zeros((_N, _N))
+    joint = np.zeros((n_all, n_all))
     joint[: cov.shape[0], : cov.shape[0]] = cov
     if camera_covariance is not None:
         c = np.asarray(camera_covariance, dtype=float)
-        if c.ndim != 2 or c.shape[0] != c.shape[1] or c.shape[0] not in (3, _N_INTRINSICS):
-            raise ValueError(f"camera_covariance must be (8, 8) or (3, 3), got shape {c.shape}")
-        if cov.shape == (_N, _N):
-            raise ValueError("camera_covariance must be None when covariance is (14, 14) (it holds the intrinsics)")
+        if c.ndim != 2 or c.shape[0] != c.shape[1] or c.shape[0] not in (3, n_intr):
+            raise ValueError(f"camera_covariance must be ({n_intr}, {n_intr}) or (3, 3), got shape {c.shape}")
+        if cov.shape == (n_all, n_all):
+            raise ValueError(
+                f"camera_covariance must be None when covariance is ({n_all}, {n_all}) (it holds the intrinsics)"
+            )
         joint[6 : 6 + c.shape[0], 6 : 6 + c.shape[0]] = c
     if camera.image_size is None or camera.pixel_size is None:
         raise ValueError("camera must have a pixel grid (pixel_size and image_size)")

@@ -37,9 +37,9 @@ def _project_obs(state: _State, s: _Structure, jacobians: bool = False):
     xyz, centre = state.xyz[s.obs_point], state.centre[s.obs_image]
     if not jacobians:
         q = jnp.einsum("kji,kj->ki", rot, xyz - centre)
-        return k[:, 1:3] + k[:, :1] * distort(-q[:, :2] / q[:, 2:3], k[:, 3:8])
-    proj, jac, q = collinearity_rows(xyz, centre, rot, None, k[:, 0], k[:, 1:3], k[:, 3:8], dots=True)
-    j_intr = intrinsics_jacobian(-q[:, :2] / q[:, 2:3], k[:, 0], k[:, 3:8])
+        return k[:, 1:3] + k[:, :1] * distort(-q[:, :2] / q[:, 2:3], k[:, 3:])
+    proj, jac, q = collinearity_rows(xyz, centre, rot, None, k[:, 0], k[:, 1:3], k[:, 3:], dots=True)
+    j_intr = intrinsics_jacobian(-q[:, :2] / q[:, 2:3], k[:, 0], k[:, 3:])
     jc = jnp.concatenate([jac[:, :, 3:6], jac[:, :, :3], j_intr[:, :, s.active]], axis=2)  # jac: (C, angles, X)
     return proj, jc, jac[:, :, 6:]
 

@@ -95,12 +95,14 @@ def _covariances_band(lin: _Lin, s: _Structure, n_c: int):
     return q_img, q_cam, q_p, ok
 
 
-def _standard_deviations(q_img, q_cam, q_p, var0: float, rot: Array, convention: str, active: Array, n_cameras: int):
+def _standard_deviations(
+    q_img, q_cam, q_p, var0: float, rot: Array, convention: str, active: Array, n_cameras: int, n_intr: int = 8
+):
     """Standard deviations from the cofactors of :func:`_covariances` (each
     image's block ``q_img``, the intrinsics' diagonal ``q_cam``, the point
     blocks ``q_p``) and the variance of unit weight ``var0``: exterior
     ``(n_img, 6)`` (``X, Y, Z``, then the convention's angles, radians),
-    intrinsics ``(n_cam, 8)`` (0 where fixed), points ``(n_pts, 3)``, and the
+    intrinsics ``(n_cam, n_intr)`` (0 where fixed), points ``(n_pts, 3)``, and the
     point covariances ``(n_pts, 3, 3)``."""
     q_p = np.asarray(q_p)
     blocks = np.asarray(q_img)[:, :6, :6]
@@ -110,7 +112,7 @@ def _standard_deviations(q_img, q_cam, q_p, var0: float, rot: Array, convention:
     ang = np.einsum("nij,njk,nlk->nil", jac, blocks[:, :3, :3], jac)
     eo_std = np.sqrt(var0 * np.concatenate([np.diagonal(cen, 0, 1, 2), np.diagonal(ang, 0, 1, 2)], axis=1))
     a = np.asarray(active)
-    cam_std = np.zeros((n_cameras, 8))
+    cam_std = np.zeros((n_cameras, n_intr))
     dq = np.asarray(q_cam).reshape(n_cameras, len(a))
     cam_std[:, a] = np.sqrt(var0 * np.maximum(dq, 0.0))
     pt_cov = var0 * q_p
@@ -118,17 +120,20 @@ def _standard_deviations(q_img, q_cam, q_p, var0: float, rot: Array, convention:
     return eo_std, cam_std, pt_std, pt_cov
 
 
-def _orientation_covariances(q_img, var0: float, rot: Array, convention: str, active: Array) -> np.ndarray:
-    """``(n_img, 14, 14)`` covariance of each image's ``(X, Y, Z, a1, a2, a3,
+def _orientation_covariances(
+    q_img, var0: float, rot: Array, convention: str, active: Array, n_intr: int = 8
+) -> np.ndarray:
+    """``(n_img, 6 + n_intr, 6 + n_intr)`` covariance of each image's ``(X, Y, Z, a1, a2, a3,
     f, x0, y0, k1, k2, k3, p1, p2)`` (centre, the convention's angles in
-    radians, :data:`INTRINSICS` of its camera; rows and columns of fixed
+    radians, the intrinsics of its camera, :data:`INTRINSICS` for
+    ``"brown"``; rows and columns of fixed
     intrinsics 0) from its cofactor block ``q_img`` ``(n_img, w, w)`` (order
     rotation increment, centre, active intrinsics), as ``var0 T Q T^T`` with
     ``T`` the map to that order (angles through :func:`_angle_jacobian`)."""
     q = np.asarray(q_img)
     n, w = q.shape[:2]
     a = np.asarray(active)
-    t = np.zeros((n, 14, w))
+    t = np.zeros((n, 6 + n_intr, w))
     t[:, 0:3, 3:6] = np.eye(3)
     t[:, 3:6, 0:3] = np.asarray(_angle_jacobian(rot, convention))
     t[:, 6 + a, 6 + np.arange(len(a))] = 1.0

@@ -13,7 +13,8 @@ from ..collinearity import stack_exteriors
 from ._structure import Analysis, _analyse, _gauge_mask, _origin, _same_topology, _Topology, _topology
 
 ROLES = ("tie", "control", "check")
-#: Interior-orientation parameters of a camera, in this order.
+#: Interior-orientation parameters of a ``"brown"`` camera, in this order
+#: (another distortion model's: :attr:`BundleProblem.intrinsic_names`).
 INTRINSICS = ("f", "x0", "y0", "k1", "k2", "k3", "p1", "p2")
 #: Exterior parameters of an image: the projection centre and the rotation
 #: increments about the camera's own x, y, z axes.
@@ -56,9 +57,12 @@ class BundleProblem:
         point_sigma: scalar, ``(n_points,)`` or ``(n_points, 3)`` ground
             standard deviation of control points (ignored for the others);
             0 fixes the point.  Default 0 (fixed control).
-        free_intrinsics: names from :data:`INTRINSICS` estimated for every
-            camera (e.g. ``("f", "k1", "k2")``), or an ``(n_cameras, 8)`` bool
-            mask.  Default: interior orientation fixed.
+        free_intrinsics: names from :attr:`intrinsic_names` (for ``"brown"``
+            cameras :data:`INTRINSICS`) estimated for every camera (e.g.
+            ``("f", "k1", "k2")``), or an ``(n_cameras, n_intrinsics)`` bool
+            mask.  Default: interior orientation fixed.  All cameras of a
+            problem share one distortion model
+            (:data:`photax.camera.DISTORTION_MODELS`).
         fixed_exterior: ``(n_images,)`` or ``(n_images, 6)`` bool, parameters
             of :data:`EXTERIOR` held at their given values.  Default none.
         image_names, point_names: optional labels used in reports.
@@ -123,7 +127,11 @@ class BundleProblem:
         psig = _per_row(point_sigma, n_pts, 3)
         if np.any(psig < 0) or np.any(np.isnan(psig)):
             raise ValueError("point_sigma must be >= 0 (0 fixes a control point)")
-        free = _free_intrinsics(free_intrinsics, n_cam)
+        models = sorted({c.model for c in cams})
+        if len(models) > 1:
+            raise ValueError(f"the cameras of a bundle problem must share one distortion model, got {models}")
+        self.intrinsic_names: tuple[str, ...] = cams[0].intrinsic_names
+        free = _free_intrinsics(free_intrinsics, n_cam, self.intrinsic_names)
         fixed = _fixed_exterior(fixed_exterior, n_img)
         _check_datum(op, role, pts, point_names)
         self.gnss_position, self.gnss_sigma = _camera_observations(gnss_position, gnss_sigma, n_img, "gnss")
@@ -252,15 +260,18 @@ def _image_camera(image_camera, n_cam: int, n_img: int) -> np.ndarray:
     return ic
 
 
-def _free_intrinsics(free_intrinsics, n_cam: int) -> np.ndarray:
-    """``(n_cam, 8)`` bool mask from a mask or names of :data:`INTRINSICS`."""
+def _free_intrinsics(free_intrinsics, n_cam: int, names: tuple[str, ...] = INTRINSICS) -> np.ndarray:
+    """``(n_cam, len(names))`` bool mask from a mask or names of the cameras'
+    intrinsics ``names``."""
     if isinstance(free_intrinsics, np.ndarray) and free_intrinsics.dtype == bool:
-        return np.broadcast_to(free_intrinsics, (n_cam, 8)).copy()
-    unknown = set(free_intrinsics) - set(INTRINSICS)
+        if free_intrinsics.shape[-1:] != (len(names),):
+            raise ValueError(f"free_intrinsics as a mask must have one column per parameter of {names}")
+        return np.broadcast_to(free_intrinsics, (n_cam, len(names))).copy()
+    unknown = set(free_intrinsics) - set(names)
     if unknown or isinstance(free_intrinsics, str):
-        raise ValueError(f"free_intrinsics must be names from {INTRINSICS}, got {free_intrinsics!r}")
-    free = np.zeros((n_cam, 8), dtype=bool)
-    free[:, [INTRINSICS.index(n) for n in free_intrinsics]] = True
+        raise ValueError(f"free_intrinsics must be names from {names}, got {free_intrinsics!r}")
+    free = np.zeros((n_cam, len(names)), dtype=bool)
+    free[:, [names.index(n) for n in free_intrinsics]] = True
     return free
 
 

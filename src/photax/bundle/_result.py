@@ -10,7 +10,7 @@ import numpy as np
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..errors import RESULTS
-from ._problem import INTRINSICS, BundleProblem
+from ._problem import BundleProblem
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -42,14 +42,16 @@ class BundleResult:
         exterior_std: ``(n_images, 6)`` standard deviations of ``X, Y, Z``
             and the three angles (radians, the convention's order), or None
             when the datum is not defined (``gauge="damped"``).
-        camera_std: ``(n_cameras, 8)`` std of :data:`INTRINSICS` (0 = fixed).
+        camera_std: ``(n_cameras, n_intrinsics)`` std of the problem's
+            ``intrinsic_names`` (:data:`INTRINSICS` for ``"brown"``; 0 = fixed).
         point_std: ``(n_points, 3)`` std of ``X, Y, Z``.
         point_cov: ``(n_points, 3, 3)`` covariances.
         check_residuals: ``(n_check, 3)`` adjusted minus surveyed check points.
         problem: the adjusted problem (for :meth:`to_problem`).
-        orientation_cov: ``(n_images, 14, 14)`` covariance of each image's
-            ``X, Y, Z``, angles (radians, the convention's order) and its
-            camera's :data:`INTRINSICS` (rows and columns of fixed ones 0):
+        orientation_cov: ``(n_images, 6 + n_intrinsics, 6 + n_intrinsics)``
+            covariance of each image's ``X, Y, Z``, angles (radians, the
+            convention's order) and its camera's intrinsics (14 x 14 with
+            :data:`INTRINSICS` for ``"brown"``; rows and columns of fixed ones 0):
             the per-image block of the inverse normal matrix times sigma0^2,
             with the exterior-intrinsics correlations; None like
             ``exterior_std``.  :func:`photax.ortho_uncertainty` uses it.
@@ -149,7 +151,7 @@ class BundleResult:
                 )
                 parts = [
                     f"{n} {vals[j]:.6g}" + (f" +- {self.camera_std[c, j]:.2g}" if self.camera_std is not None else "")
-                    for j, n in enumerate(INTRINSICS) if free[c, j]
+                    for j, n in enumerate(p.intrinsic_names) if free[c, j]
                 ]  # fmt: skip
                 lines.append(f"  camera {c}: " + ", ".join(parts))
                 if c >= 5 and len(self.cameras) > 6:

@@ -557,7 +557,7 @@ _angles = jax.jit(angles_from_matrix_unchecked, static_argnames="convention")
 
 
 def _with_intrinsics(camera: FrameCamera, k) -> FrameCamera:
-    """``camera`` with the adjusted :data:`INTRINSICS` ``k`` (f, x0, y0, k1, k2, k3, p1, p2), its
+    """``camera`` with the adjusted intrinsics ``k`` (f, x0, y0, coefficients: its ``intrinsic_names``), its
     type and everything else kept: a :class:`photax.interior.ScannedCamera` keeps its film -> scan
     transformation (self-calibration adjusts the camera, not the scanner)."""
     return eqx.tree_at(
@@ -576,6 +576,7 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     angles, _ = _angles(state.rot, convention=conv)
     eo = ExteriorOrientation(np.asarray(state.centre) + origin[None, :], np.asarray(angles), conv)
     intr = np.asarray(state.intr)
+    n_intr = intr.shape[1]
     cams = tuple(_with_intrinsics(c, k) for k, c in zip(intr, problem.cameras))
     pts = np.asarray(state.xyz) + origin[None, :]
     weight = np.asarray(lin.weight)
@@ -601,9 +602,9 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
         else:
             var0 = sigma0**2 if redundancy > 0 else 1.0
             eo_std, cam_std, pt_std, pt_cov = _standard_deviations(
-                q_img, q_cam, q_p, var0, state.rot, conv, s.active, problem.n_cameras
+                q_img, q_cam, q_p, var0, state.rot, conv, s.active, problem.n_cameras, n_intr
             )
-            eo_cov = _orientation_covariances(q_img, var0, state.rot, conv, s.active)
+            eo_cov = _orientation_covariances(q_img, var0, state.rot, conv, s.active, n_intr)
     check = problem.roles == "check"
     result = BundleResult(
         exterior=eo, rotation=rot, cameras=cams, points=pts, cost=float(cost), initial_cost=float(initial_cost),

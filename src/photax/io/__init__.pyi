@@ -47,6 +47,7 @@ from .orientation import (
 from .orientation import (
     read_interior as read_interior,
 )
+from .orthority import camera_to_orthority as camera_to_orthority
 from .orthority import (
     read_orthority_crs as read_orthority_crs,
 )

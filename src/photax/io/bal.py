@@ -268,6 +268,11 @@ def photax_to_bal(cameras, rotation, centres) -> np.ndarray:
     centres = np.asarray(centres, dtype=float).reshape(-1, 3)
     if len(cameras) != len(r_wc):
         raise ValueError(f"{len(cameras)} cameras for {len(r_wc)} images: BAL needs one camera per image")
+    other = [i for i, c in enumerate(cameras) if c.model != "brown"]
+    if other:
+        raise ValueError(
+            f"cameras[{other[0]}]: BAL holds the Brown model's f, k1, k2, not a {cameras[other[0]].model} camera"
+        )
     intr = np.array(
         [[float(c.focal_length), *np.asarray(c.principal_point), *np.asarray(c.distortion)] for c in cameras]
     )

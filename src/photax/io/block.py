@@ -120,13 +120,14 @@ class _Meta:
 
 
 def _read_cameras(meta: _Meta, cameras: dict) -> tuple[list[FrameCamera], np.ndarray]:
-    """``block.json``'s cameras and their free intrinsics ``(n_cameras, 8)``."""
-    cams, free = [], np.zeros((len(cameras), 8), dtype=bool)
-    for j, name in enumerate(cameras):
+    """``block.json``'s cameras and their free intrinsics ``(n_cameras, n_intrinsics)``
+    (the cameras' ``intrinsic_names``; all of one model, else the problem says so)."""
+    cams, free = [], []
+    for name in cameras:
         c, at = cameras[name], f"camera {excerpt(name)}"
         if isinstance(c, dict) and "file" in c:
             cams.append(_camera_file(meta, at, c))
-            free[j] = _free(meta, at, c)
+            free.append(_free(meta, at, c, cams[-1].intrinsic_names))
             continue
         if not isinstance(c, dict) or "focal_length_px" not in c or "image_size" not in c:
             raise meta.bad(f"{at}: needs focal_length_px and image_size")
@@ -145,20 +146,22 @@ def _read_cameras(meta: _Meta, cameras: dict) -> tuple[list[FrameCamera], np.nda
         dist = c.get("distortion")
         dist = None if dist is None else meta.vector(at, dist, 5, "distortion")
         cams.append(FrameCamera.from_pixels(f, (int(size[0]), int(size[1])), pp, dist))
-        free[j] = _free(meta, at, c)
-    return cams, free
+        free.append(_free(meta, at, c, INTRINSICS))
+    if len({len(f) for f in free}) > 1:
+        raise meta.bad(f"the cameras must share one distortion model, got {sorted({c.model for c in cams})}")
+    return cams, np.array(free, dtype=bool).reshape(len(cameras), -1)
 
 
-def _free(meta: _Meta, at: str, c: dict) -> np.ndarray:
-    """``(8,)`` the camera entry's free intrinsics."""
+def _free(meta: _Meta, at: str, c: dict, names: tuple[str, ...]) -> np.ndarray:
+    """``(len(names),)`` the camera entry's free intrinsics, of its ``names``."""
     names_free = c.get("free", [])
     if not isinstance(names_free, list) or not all(isinstance(n, str) for n in names_free):
-        raise meta.bad(f"{at}: free must be a list of names from {INTRINSICS}, got {excerpt(names_free)}")
-    unknown = set(names_free) - set(INTRINSICS)
+        raise meta.bad(f"{at}: free must be a list of names from {names}, got {excerpt(names_free)}")
+    unknown = set(names_free) - set(names)
     if unknown:
-        raise meta.bad(f"{at}: unknown free parameters {sorted(unknown)}; use {INTRINSICS}")
-    out = np.zeros(len(INTRINSICS), dtype=bool)
-    out[[INTRINSICS.index(n) for n in names_free]] = True
+        raise meta.bad(f"{at}: unknown free parameters {sorted(unknown)}; use {names}")
+    out = np.zeros(len(names), dtype=bool)
+    out[[names.index(n) for n in names_free]] = True
     return out
 
 
@@ -336,7 +339,6 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
     """
     import json
 
-    from ..bundle import INTRINSICS
     from .atomic import atomic_path
     from .camera_file import write_camera
 
@@ -360,7 +362,7 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
             if cam.image_size is None:
                 raise ValueError(f"camera {j}: the block format observes pixels, the camera needs image_size")
             write_camera(cam, tmp / "cameras" / f"{name}.yaml", unit=units[j])
-            free = [n for n, f in zip(INTRINSICS, p.free_intrinsics[j]) if f]
+            free = [n for n, f in zip(p.intrinsic_names, p.free_intrinsics[j]) if f]
             cameras[name] = {"file": f"cameras/{name}.yaml", **({"free": free} if free else {})}
         eo = p.exterior
         images = [

@@ -47,7 +47,13 @@ a2 v``, ``r = a3 + a4 u + a5 v`` (the other models: :mod:`photax.interior`).
 ``focal_length_px``, ``principal_point_px`` and ``unit: px`` do not go with a scan.
 
 Missing distortion coefficients are zero; ``distortion`` may also be a list
-``[k1, k2, k3, p1, p2]``.  ``name`` and ``description`` are free text.  Any
+``[k1, k2, k3, p1, p2]``.  Another distortion model
+(:data:`photax.camera.DISTORTION_MODELS`) is named in the mapping, with its
+coefficients (``convention: opencv`` negates ``p1``, ``s3`` and ``s4``)::
+
+    distortion: {model: opencv, k1: -0.2, k4: 0.1, s1: 0.002}   # k1-k6, p1 p2, s1-s4
+    distortion: {model: fisheye, k1: 0.04, k2: -0.01}         # Kannala-Brandt k1-k4
+  ``name`` and ``description`` are free text.  Any
 other key, a key given twice, a value that is not a finite number, and a
 focal length, pixel size or image size that is not positive are a
 ``ValueError`` naming the file and (YAML) the line.  Frames and the distortion
@@ -63,7 +69,7 @@ import jax.numpy as jnp
 import numpy as np
 import yaml
 
-from ..camera import FrameCamera
+from ..camera import DISTORTION_MODELS, FrameCamera
 from .atomic import atomic_write
 from .files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, where
 
@@ -82,6 +88,7 @@ _KEYS = {
 }
 _SCAN_KEYS = ("model", "film_centre", "film_scale", "params")
 _DIST = ("k1", "k2", "k3", "p1", "p2")
+_Y_DOWN = ("p1", "s3", "s4")  # OpenCV's y is down: these are minus photax's (photax.camera)
 _UNITS = ("mm", "m", "px")
 
 
@@ -132,34 +139,42 @@ def _scalar(path, data, key) -> float:
     return float(_vector(path, data, key, 1, scalar_ok=True).reshape(-1)[0])
 
 
-def _distortion(path, data) -> np.ndarray:
+def _distortion(path, data) -> tuple[np.ndarray, str]:
+    """The coefficients and the model name of ``data``'s ``distortion``."""
     value = data.get("distortion")
     if value is None:
-        return np.zeros(5)
+        return np.zeros(5), "brown"
     if isinstance(value, (list, tuple)):
         if len(value) != 5:
             raise ValueError(f"{_at(path, data, 'distortion')}: distortion as a list must be [k1, k2, k3, p1, p2]")
-        return _vector(path, data, "distortion", 5)
+        return _vector(path, data, "distortion", 5), "brown"
     if not isinstance(value, dict):
         raise ValueError(
             f"{_at(path, data, 'distortion')}: distortion must be a mapping {{k1: .., p1: ..}} or a list of 5"
         )
     convention = value.get("convention", "photax")
-    unknown = sorted(set(value) - set(_DIST) - {"convention"}, key=str)
+    model = value.get("model", "brown")
+    if not isinstance(model, str) or model not in DISTORTION_MODELS:
+        raise ValueError(
+            f"{_at(path, value, 'model')}: distortion.model must be one of {', '.join(DISTORTION_MODELS)}, "
+            f"got {excerpt(model)}"
+        )
+    names = DISTORTION_MODELS[model]
+    unknown = sorted(set(value) - set(names) - {"convention", "model"}, key=str)
     if unknown:
         raise ValueError(
-            f"{_at(path, value, unknown[0])}: unknown key distortion.{unknown[0]}; "
-            f"accepted: {', '.join(_DIST)}, convention"
+            f"{_at(path, value, unknown[0])}: unknown key distortion.{unknown[0]} for the {model} model; "
+            f"accepted: {', '.join(names)}, model, convention"
         )
     if convention not in ("photax", "opencv"):
         raise ValueError(
             f"{_at(path, value, 'convention')}: distortion.convention must be 'photax' or 'opencv', "
             f"got {excerpt(convention)}"
         )
-    d = np.array([_scalar(path, value, k) if k in value else 0.0 for k in _DIST])
-    if convention == "opencv":
-        d[3] = -d[3]  # OpenCV's y is down, so its p1 is minus ours
-    return d
+    d = np.array([_scalar(path, value, k) if k in value else 0.0 for k in names])
+    if convention == "opencv":  # OpenCV's y is down, so its p1 (s3, s4) is minus ours
+        d[[names.index(k) for k in _Y_DOWN if k in names]] *= -1.0
+    return d, model
 
 
 def read_camera(path) -> FrameCamera:
@@ -176,7 +191,7 @@ def read_camera(path) -> FrameCamera:
         raise ValueError(
             f"{_at(path, data, unknown[0])}: unknown key {excerpt(unknown[0])}; accepted: {', '.join(sorted(_KEYS))}"
         )
-    distortion = _distortion(path, data)
+    distortion, model = _distortion(path, data)
     size = None
     if "image_size" in data:
         size = _vector(path, data, "image_size", 2)
@@ -198,7 +213,7 @@ def read_camera(path) -> FrameCamera:
         f = _positive(path, data, "focal_length_px", _scalar(path, data, "focal_length_px"))
         pp = data.get("principal_point_px")
         pp = None if pp is None else tuple(_vector(path, data, "principal_point_px", 2))
-        return FrameCamera.from_pixels(f, size, pp, distortion)
+        return FrameCamera.from_pixels(f, size, pp, distortion, model=model)
     if "focal_length" not in data:
         raise ValueError(f"{path}: missing key 'focal_length' (or the shorthand 'focal_length_px')")
     unit = data.get("unit")
@@ -217,6 +232,8 @@ def read_camera(path) -> FrameCamera:
             )
         pixel_size = 1.0 if size is not None else None
     if "scan" in data:
+        if model != "brown":
+            raise ValueError(f"{_at(path, data, 'scan')}: a scanned camera has the brown distortion model")
         return _scanned(path, data, f, distortion, pixel_size, size, unit)
     if "principal_point" in data and "principal_point_px" in data:
         raise ValueError(
@@ -234,7 +251,7 @@ def read_camera(path) -> FrameCamera:
             pp = np.array([(c - (size[0] - 1) / 2) * ps[0], -(r - (size[1] - 1) / 2) * ps[1]])
         if not np.all(np.isfinite(pp)):
             raise ValueError(f"{_at(path, data, 'principal_point_px')}: principal_point_px is out of range")
-    return FrameCamera(f, pp, distortion, pixel_size=pixel_size, image_size=size)
+    return FrameCamera(f, pp, distortion, pixel_size=pixel_size, image_size=size, model=model)
 
 
 def _scanned(path, data, f, distortion, pixel_size, size, unit):
@@ -304,7 +321,10 @@ def camera_to_dict(camera: FrameCamera, unit: str | None = None) -> dict:
         out["pixel_size"] = ps[0] if ps[0] == ps[1] else ps  # a scan's default (the transform's scale) is left out
     if camera.image_size is not None:
         out["image_size"] = list(camera.image_size)
-    out["distortion"] = dict(zip(_DIST, np.asarray(camera.distortion).tolist()))
+    names = DISTORTION_MODELS[camera.model]
+    out["distortion"] = ({} if camera.model == "brown" else {"model": camera.model}) | dict(
+        zip(names, np.asarray(camera.distortion).tolist())
+    )
     if transform is not None:
         out["scan"] = {
             "model": transform.model,

@@ -3,16 +3,20 @@
 The conventions, from OpenSfM's ``types.py``/``geo.py`` and checked against
 orthority 0.7's reader of the same file:
 
-* **Cameras** (``projection_type``): ``perspective`` (``focal``, ``k1``,
-  ``k2``) and ``brown`` (``focal_x``, ``focal_y``, ``c_x``, ``c_y``, ``k1``,
-  ``k2``, ``k3``, ``p1``, ``p2``) read; lengths are normalised by
-  ``max(width, height)`` and ``c_x, c_y`` are the principal point's offset
-  from the image centre (``c_y`` down).  Distortion is OpenCV's on normalised
-  coordinates, so ``p1`` changes sign for photax's y-up image plane
-  (:mod:`photax.camera`).  The photax camera is in pixels (``unit: px``).
-  ``fisheye``, ``fisheye_opencv``, ``fisheye62``, ``spherical``, ``dual``,
-  ``radial``, ``simple_radial`` ... are refused by name: photax's
-  :class:`~photax.FrameCamera` has no model for them.
+* **Cameras** (``projection_type``, OpenSfM's ``camera_from_json``):
+  ``perspective`` (``focal``, ``k1``, ``k2``), ``simple_radial`` and
+  ``radial`` (``focal_x``, ``focal_y``, ``c_x``, ``c_y``, ``k1`` [, ``k2``])
+  and ``brown`` (those and ``k3``, ``p1``, ``p2``) are photax's ``"brown"``
+  model; ``fisheye`` (``focal``, ``k1``, ``k2``) and ``fisheye_opencv``
+  (``focal_x``, ``focal_y``, ``c_x``, ``c_y``, ``k1`` ... ``k4``) its
+  ``"fisheye"`` (Kannala-Brandt, ``k3 = k4 = 0`` for ``fisheye``).  Lengths
+  are normalised by ``max(width, height)`` and ``c_x, c_y`` are the principal
+  point's offset from the image centre (``c_y`` down).  Distortion is
+  OpenCV's on normalised coordinates, so ``p1`` changes sign for photax's
+  y-up image plane (:mod:`photax.camera`).  The photax camera is in pixels
+  (``unit: px``).  ``spherical``/``equirectangular``, ``dual``,
+  ``fisheye62``, ``fisheye624`` are refused by name: photax has no model for
+  them.
 * **Shots**: ``rotation`` is the angle-axis (Rodrigues) vector of the
   world -> camera rotation in OpenCV's camera frame (x right, y down, z
   forward) and ``x_cam = R X + translation``, so the projection centre is
@@ -57,7 +61,11 @@ from .files import as_numbers, excerpt, file_error, load_json, read_text
 _WHAT = "OpenSfM reconstruction"
 _KEYS = {
     "perspective": ("focal", "k1", "k2"),
+    "simple_radial": ("focal_x", "focal_y", "c_x", "c_y", "k1"),
+    "radial": ("focal_x", "focal_y", "c_x", "c_y", "k1", "k2"),
     "brown": ("focal_x", "focal_y", "c_x", "c_y", "k1", "k2", "k3", "p1", "p2"),
+    "fisheye": ("focal", "k1", "k2"),
+    "fisheye_opencv": ("focal_x", "focal_y", "c_x", "c_y", "k1", "k2", "k3", "k4"),
 }
 #: Keys of a camera entry that carry no geometry photax needs.
 _IGNORED = {"projection_type", "width", "height"}
@@ -101,9 +109,8 @@ def _camera(path, name, p) -> FrameCamera:
             path,
             None,
             f"camera {excerpt(name)} has projection_type {excerpt(kind)}: "
-            "photax reads "
-            "'perspective' and 'brown' cameras only (fisheye, fisheye_opencv, spherical and "
-            "the other OpenSfM models have no photax camera)",
+            f"photax reads {', '.join(repr(k) for k in _KEYS)} cameras only "
+            "(spherical, dual, fisheye62 and fisheye624 have no photax camera)",
         )
     unknown = sorted(set(p) - _IGNORED - set(_KEYS[kind]))
     if unknown:
@@ -124,7 +131,7 @@ def _camera(path, name, p) -> FrameCamera:
                 path, None, f"camera {excerpt(name)}: {key} must be a finite number, got {excerpt(p.get(key))}"
             )
         values[key] = float(v)
-    if kind == "perspective":
+    if "focal" in values:
         values.update(focal_x=values["focal"], focal_y=values["focal"])
     w, h = (int(v) for v in size)
     m = max(w, h)
@@ -133,8 +140,12 @@ def _camera(path, name, p) -> FrameCamera:
         raise file_error(path, None, f"camera {excerpt(name)}: the focal length must be positive")
     aspect = fx / fy  # photax: one principal distance, the pixel height carries fx / fy
     pp = (values.get("c_x", 0.0) * m, -values.get("c_y", 0.0) * m * aspect)
-    k1, k2, k3, p1, p2 = (values.get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2"))
-    return FrameCamera(fx, pp, (k1, k2, k3, 0.0 - p1, p2), pixel_size=(1.0, aspect), image_size=(w, h))
+    if kind.startswith("fisheye"):
+        dist, model = [values.get(k, 0.0) for k in ("k1", "k2", "k3", "k4")], "fisheye"
+    else:
+        k1, k2, k3, p1, p2 = (values.get(k, 0.0) for k in ("k1", "k2", "k3", "p1", "p2"))
+        dist, model = [k1, k2, k3, 0.0 - p1, p2], "brown"
+    return FrameCamera(fx, pp, dist, pixel_size=(1.0, aspect), image_size=(w, h), model=model)
 
 
 def read_opensfm_cameras(path) -> dict[str, FrameCamera]:

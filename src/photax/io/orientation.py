@@ -306,4 +306,5 @@ def camera_in_pixels(camera: FrameCamera) -> FrameCamera:
         camera.distortion,
         pixel_size=1.0,
         image_size=camera.image_size,
+        model=camera.model,
     )

@@ -28,11 +28,15 @@ import pathlib
 
 import numpy as np
 
-from ..camera import FrameCamera
+from ..camera import DISTORTION_MODELS, FrameCamera
 from ..collinearity import ExteriorOrientation
 from .files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, split_lines, where
 
-_OPENCV_EXTRA = ("k4", "k5", "k6", "s1", "s2", "s3", "s4", "tx", "ty")
+#: orthority's camera types -> photax's distortion model and its coefficients read from the file
+#: (photax.camera.DISTORTION_MODELS; pinhole: none, brown).
+_TYPES = {"pinhole": "brown", "brown": "brown", "opencv": "opencv", "fisheye": "fisheye"}
+_Y_DOWN = ("p1", "s3", "s4")  # OpenCV's y is down: these are minus photax's (photax.camera)
+_TILT = ("tx", "ty")  # OpenCV's tilted sensor: not in photax's models
 
 
 def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCamera:
@@ -40,20 +44,19 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
     at = lambda key: where(path, p.line(key) if isinstance(p, Mapping) and key in p else line)  # noqa: E731
     kind = p.get("type")
     kind = kind.lower() if isinstance(kind, str) else kind
-    if kind not in ("pinhole", "brown", "opencv"):
+    if kind not in _TYPES:
         raise ValueError(
             f"{at('type')}: camera {excerpt(name)} has type {excerpt(kind)}; "
-            "photax reads orthority 'pinhole', 'brown' and 'opencv' "
-            "cameras only (the fisheye model has no photax camera)"
+            "photax reads orthority 'pinhole', 'brown', 'opencv' and 'fisheye' cameras"
         )
-    if kind == "opencv":  # photax's distortion is OpenCV's 5-term model: the others must be zero
-        values = {k: as_numbers(p[k]) for k in _OPENCV_EXTRA if k in p}
+    if kind == "opencv":  # the tilt of OpenCV's 14-term model has no photax camera
+        values = {k: as_numbers(p[k]) for k in _TILT if k in p}
         extra = [k for k, v in values.items() if v is None or v.shape != () or float(v) != 0.0]
         if extra:
             raise ValueError(
                 f"{at(extra[0])}: camera {excerpt(name)}: the opencv parameters {extra} are not "
-                "zero; photax's camera has k1, k2, k3, p1, p2 only (rational, thin-prism and "
-                "tilt terms are not converted)"
+                "zero; photax's opencv model has k1-k6, p1, p2, s1-s4 (the tilted sensor's tx, ty "
+                "is not converted)"
             )
 
     def numbers(key, n, default=None, scalar_ok=False):
@@ -117,19 +120,54 @@ def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCa
             "focal_len, sensor_size, cx, cy give a camera "
             f"out of range (f = {f:g}, pixel size = {size.tolist()})"
         )
+    model = _TYPES[kind]
     dist = [
-        float(numbers(k, 1, 0.0, scalar_ok=True)) if kind != "pinhole" else 0.0 for k in ("k1", "k2", "k3", "p1", "p2")
-    ]
-    dist[3] = 0.0 - dist[3]  # OpenCV's p1 is for y down; photax's image plane has y up (photax.camera)
-    return FrameCamera(f, principal_point, dist, pixel_size=size, image_size=(w, h))
+        (-1.0 if k in _Y_DOWN else 1.0) * float(numbers(k, 1, 0.0, scalar_ok=True)) if kind != "pinhole" else 0.0
+        for k in DISTORTION_MODELS[model]
+    ]  # OpenCV's p1, s3, s4 are for y down; photax's image plane has y up (photax.camera)
+    return FrameCamera(f, principal_point, dist, pixel_size=size, image_size=(w, h), model=model)
+
+
+def camera_to_orthority(camera: FrameCamera) -> dict:
+    """The orthority interior parameters of ``camera`` (the inverse of
+    :func:`read_orthority_interior` for one camera): ``type`` (``brown``,
+    ``opencv`` or ``fisheye`` after the camera's model), ``im_size``,
+    ``focal_len`` and ``sensor_size`` in the camera's unit, ``cx``, ``cy``
+    (module docstring) and the distortion coefficients in OpenCV's sense.
+
+    Raises:
+        ValueError: a camera without a pixel grid, or a scanned one (its
+            pixels go through a fitted transformation orthority has no
+            place for).
+    """
+    if camera.pixel_size is None or camera.image_size is None or getattr(camera, "transform", None) is not None:
+        raise ValueError("an orthority camera needs a pixel grid (pixel_size and image_size) and no scan transform")
+    (w, h), (sx, sy) = camera.image_size, (float(v) for v in np.asarray(camera.pixel_size))
+    x0, y0 = (float(v) for v in np.asarray(camera.principal_point))
+    m = max(w, h)
+    names = DISTORTION_MODELS[camera.model]
+    dist = {k: (-v if k in _Y_DOWN else v) + 0.0 for k, v in zip(names, np.asarray(camera.distortion).tolist())}
+    return {
+        "type": camera.model,
+        "im_size": [w, h],
+        "focal_len": float(camera.focal_length),
+        "sensor_size": [sx * w, sy * h],
+        "cx": x0 / (m * sx),
+        "cy": -y0 / (m * sy),
+        **dist,
+    }
 
 
 def read_orthority_interior(path) -> dict[str, FrameCamera]:
     """Read orthority's interior-parameter YAML: ``{camera name: FrameCamera}``.
 
-    Each entry has ``type: pinhole``, ``im_size: [w, h]``, ``focal_len``
-    (scalar or ``[fx, fy]``), ``sensor_size: [w, h]`` in the focal length's
-    unit, and ``cx``, ``cy`` (see the module docstring).  The photax camera
+    Each entry has ``type`` (``pinhole``, ``brown``, ``opencv`` or
+    ``fisheye``), ``im_size: [w, h]``, ``focal_len`` (scalar or ``[fx,
+    fy]``), ``sensor_size: [w, h]`` in the focal length's unit, ``cx``, ``cy``
+    (see the module docstring) and the type's distortion coefficients:
+    ``brown`` k1, k2, k3, p1, p2 (photax's ``"brown"``), ``opencv`` those and
+    k4, k5, k6, s1 ... s4 (``"opencv"``; a tilt ``tx``, ``ty`` other than 0
+    is refused), ``fisheye`` k1 ... k4 (``"fisheye"``).  The photax camera
     works in the focal length's unit (e.g. mm).
     """
     path = pathlib.Path(path)

@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..camera import FrameCamera
-from ..collinearity import ExteriorOrientation, depth, project
+from ..camera import FrameCamera, distort, distortion_jacobian
+from ..collinearity import ExteriorOrientation
 from ..dem import DEM
 from ..grid import Grid, gsd_hint, ortho_grid
 from ..io.crs import check_dem
@@ -22,8 +22,12 @@ class OrthoModel(eqx.Module):
     """Ground ``(X, Y)`` -> image pixel ``(col, row)`` through a DEM.
 
     ``Z = dem.height(X, Y)`` (bilinear), then the collinearity equations and
-    ``camera.image_to_pixel``.  NaN where the DEM has no height or the
-    ground point is behind the camera.  No occlusion test.
+    ``camera.image_to_pixel``.  NaN where the DEM has no height, the
+    ground point is behind the camera, or its ray lies past the fold of the
+    lens distortion (the distortion's Jacobian determinant is not positive:
+    a strong barrel or rational model bends rays from outside the field of
+    view back into the image, and their grey values would be another
+    place's).  No occlusion test.
     """
 
     exterior: ExteriorOrientation
@@ -35,8 +39,14 @@ class OrthoModel(eqx.Module):
         flat = xy.reshape(-1, 2)
         z = self.dem.height(flat[:, 0], flat[:, 1])
         ground = jnp.concatenate([flat, z[:, None]], axis=-1)
-        pix = self.camera.image_to_pixel(project(ground, self.exterior, self.camera))
-        ok = jnp.isfinite(z) & (depth(ground, self.exterior) > 0)
+        q = self.exterior.points_in_camera(ground)
+        xn = -q[:, :2] / q[:, 2:3]
+        pix = self.camera.image_to_pixel(
+            self.camera.principal_point[None] + self.camera.focal_length * distort(xn, self.camera.distortion)
+        )
+        j = distortion_jacobian(xn, self.camera.distortion)
+        unfolded = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0] > 0
+        ok = jnp.isfinite(z) & (q[:, 2] < 0) & unfolded
         return jnp.where(ok[:, None], pix, jnp.nan).reshape(xy.shape)
 
 
@@ -61,8 +71,8 @@ def orthorectify(
     ``Z = DEM(X, Y)`` (bilinear), ``(x, y) = project((X, Y, Z))`` by the
     collinearity equations, ``(col, row) = camera.image_to_pixel(x, y)``, and
     the grey value is resampled there.  Output pixels are ``nodata`` where
-    the point falls outside the image, where the DEM is nodata or absent, and
-    behind the camera.
+    the point falls outside the image, where the DEM is nodata or absent,
+    behind the camera, and past the fold of the lens distortion (:class:`OrthoModel`).
 
     Occlusion is NOT handled: ground hidden from the camera by relief gets
     the grey value of the surface that hides it (double mapping).

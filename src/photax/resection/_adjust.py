@@ -34,6 +34,7 @@ import functools
 import jax
 import jax.numpy as jnp
 
+from ..camera import distort, distortion_jacobian
 from ..collinearity import angle_axes_of
 from ..errors import RESULTS, from_optimistix
 from . import _lanes, _linear
@@ -72,18 +73,13 @@ def evaluate(p, inp: Inputs, used, opt: Options):
     d = inp.ground - p[:3, None, :]  # (3, m, B)
     q = _lanes.rt_times(rot, d)
     x, y = -q[0] / q[2], -q[1] / q[2]
-    k1, k2, k3, p1, p2 = (cam.distortion[i] for i in range(5))
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    slope = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d radial / d r^2
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    jxy = 2.0 * x * y * slope + 2.0 * p1 * x + 2.0 * p2 * y  # D' (camera.distortion_jacobian)
-    jxx = radial + 2.0 * x * x * slope + 2.0 * p1 * y + 6.0 * p2 * x
-    jyy = radial + 2.0 * y * y * slope + 6.0 * p1 * y + 2.0 * p2 * x
+    xn = jnp.stack([x, y], axis=-1)  # (m, B, 2)
+    xd, yd = jnp.moveaxis(distort(xn, cam.distortion), -1, 0)
+    jd = distortion_jacobian(xn, cam.distortion)  # D' (m, B, 2, 2)
+    jxx, jxy, jyx, jyy = jd[..., 0, 0], jd[..., 0, 1], jd[..., 1, 0], jd[..., 1, 1]
     g = -cam.focal_length / q[2]
     dx_dq = (
-        jnp.stack([jnp.stack([jxx, jxy, jxx * x + jxy * y]), jnp.stack([jxy, jyy, jxy * x + jyy * y])]) * g[None, None]
+        jnp.stack([jnp.stack([jxx, jxy, jxx * x + jxy * y]), jnp.stack([jyx, jyy, jyx * x + jyy * y])]) * g[None, None]
     )  # (2, 3, m, B)
     dq_da = [_lanes.rt_times(rot, _lanes.cross(d, axes[k][:, None, :])) for k in range(3)]  # (3, m, B) each
     cols = [-sum(dx_dq[:, c] * rot[i, c][None, None] for c in range(3)) for i in range(3)]  # dq_c/dC_i = -R[i, c]

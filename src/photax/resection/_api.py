@@ -111,7 +111,9 @@ def _camera_info(camera: FrameCamera) -> _CameraInfo:
     half, f = _frame(camera)
     # The solvers need no pixel grid; without it (static fields of FrameCamera) every camera shares
     # one compilation (the grid is only read by the numpy-side checks, from the caller's camera).
-    solver_camera = jax.device_put(FrameCamera(camera.focal_length, camera.principal_point, camera.distortion))
+    solver_camera = jax.device_put(
+        FrameCamera(camera.focal_length, camera.principal_point, camera.distortion, model=camera.model)
+    )
     info = _CameraInfo(half, f, _pixel_size(camera), solver_camera, {})
     _LAST_CAMERA = (camera, info)
     return info

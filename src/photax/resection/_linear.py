@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._linalg import cho_solve, inv3, nearest_rotation
-from ..camera import OPENCV_FROM_PHOTAX
+from ..camera import OPENCV_FROM_PHOTAX, undistort
 from ..rotation import angles_from_matrix_unchecked, rotation_matrix
 from . import _lanes
 
@@ -45,8 +45,11 @@ def angles(matrix, pok):
 
 
 def opencv_uv(xy, camera):
-    """Image-plane ``(m, 2)`` -> undistorted normalised coordinates, y down (OpenCV's frame)."""
+    """Image-plane ``(m, 2)`` -> undistorted normalised coordinates, y down (OpenCV's frame);
+    where the undistortion fails (past a fold) the distorted point, as in :func:`linear_start_lanes`."""
+    xd = (xy - camera.principal_point[None]) / camera.focal_length
     xn = camera.normalised(xy)
+    xn = jnp.where(jnp.isfinite(xn), xn, xd)
     return jnp.stack([xn[:, 0], -xn[:, 1]], axis=1)
 
 
@@ -253,20 +256,15 @@ def linear_start_lanes(inp, opt):
     :class:`._types.Inputs`; the same formulas as :func:`candidates` with
     no subsets, written per lane): ``(6, B)`` and ``(B,)``."""
     cam = opt.camera
-    k1, k2, k3, p1, p2 = (cam.distortion[i] for i in range(5))
-    xd = (inp.xy[0] - cam.principal_point[0]) / cam.focal_length
-    yd = (inp.xy[1] - cam.principal_point[1]) / cam.focal_length
+    xd = (inp.xy - cam.principal_point[:, None, None]) / cam.focal_length
+    xd = jnp.moveaxis(xd, 0, -1)  # (m, B, 2)
 
-    def undistort(_, xn):  # camera.undistort_normalised's fixed point, 20 iterations
-        x, y = xn
-        r2 = x * x + y * y
-        radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - x
-        dy = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - y
-        return xd - dx, yd - dy
+    def undistorted():  # camera.undistort_normalised; where it fails (past a fold) the distorted point
+        xn = undistort(xd, cam.distortion)  # serves as a start: the adjustment uses the forward model
+        return jnp.where(jnp.isfinite(xn), xn, xd)
 
-    # No distortion (the common case of a calibrated, undistorted camera): the fixed point is the start.
-    x, y = jax.lax.fori_loop(0, jnp.where(jnp.any(cam.distortion != 0.0), 20, 0), undistort, (xd, yd))
+    # No distortion (the common case of a calibrated, undistorted camera): the points are the start.
+    x, y = jnp.moveaxis(jax.lax.cond(jnp.any(cam.distortion != 0.0), undistorted, lambda: xd), -1, 0)
     uv = jnp.stack([x, -y])  # OpenCV's frame: y down
     wf = inp.ctrl.astype(float)
     n_ctrl = jnp.sum(wf, axis=0)
