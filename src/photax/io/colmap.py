@@ -33,12 +33,13 @@ Conventions, and how they map onto photax (``docs/conventions.md``):
   ``pixel_size = (1, fx / fy)``, as for OpenSfM): ``SIMPLE_PINHOLE`` (f, cx,
   cy), ``PINHOLE`` (fx, fy, cx, cy), ``SIMPLE_RADIAL`` (f, cx, cy, k),
   ``RADIAL`` (f, cx, cy, k1, k2), ``OPENCV`` (fx, fy, cx, cy, k1, k2, p1, p2)
-  and ``FULL_OPENCV`` with ``k4 = k5 = k6 = 0`` (its k3 is photax's).  The
-  distortion is OpenCV's on normalised coordinates with y down, so ``p1``
-  changes sign (:mod:`photax.camera`).  The principal point
+  (photax's ``brown`` model), ``FULL_OPENCV`` (k1, k2, p1, p2, k3, k4, k5,
+  k6: photax's ``opencv`` model, or ``brown`` when k4 = k5 = k6 = 0) and
+  ``OPENCV_FISHEYE`` (k1-k4: photax's ``fisheye``).  The distortion is
+  OpenCV's on normalised coordinates with y down, so ``p1`` changes sign
+  (:mod:`photax.camera`).  The principal point
   ``(x0, y0) = (cx - w/2, (h/2 - cy) fx/fy)`` from the image centre, y up.
-  Every other model (``OPENCV_FISHEYE``, ``FULL_OPENCV`` with rational terms,
-  ``FOV``, ``THIN_PRISM_FISHEYE``, the radial fisheyes, the division models,
+  Every other model (``FOV``, ``THIN_PRISM_FISHEYE``, the radial fisheyes, the division models,
   ``EUCM``, ``EQUIRECTANGULAR``, ...) is read into :class:`ColmapModel` and
   written back unchanged, but refused by name when converted to photax
   cameras.
@@ -90,15 +91,15 @@ MODELS: dict[str, tuple[int, tuple[str, ...]]] = {
 }
 _BY_ID = {mid: name for name, (mid, _) in MODELS.items()}
 
-#: The models photax converts, and the parameters that must be zero for it
-#: (FULL_OPENCV's rational terms; connect them when photax.camera has them).
+#: The models photax converts, and the photax distortion model each becomes.
 PHOTAX_MODELS = {
-    "SIMPLE_PINHOLE": (),
-    "PINHOLE": (),
-    "SIMPLE_RADIAL": (),
-    "RADIAL": (),
-    "OPENCV": (),
-    "FULL_OPENCV": ("k4", "k5", "k6"),
+    "SIMPLE_PINHOLE": "brown",
+    "PINHOLE": "brown",
+    "SIMPLE_RADIAL": "brown",
+    "RADIAL": "brown",
+    "OPENCV": "brown",
+    "FULL_OPENCV": "opencv",
+    "OPENCV_FISHEYE": "fisheye",
 }
 _NO_ID = 2**64 - 1  # COLMAP's kInvalidPoint3DId, written as -1 in text
 
@@ -611,50 +612,57 @@ def colmap_camera_to_photax(camera: ColmapCamera) -> FrameCamera:
 
     Raises:
         ValueError: a model photax has no camera for, named (with the ones
-            it reads), or a ``FULL_OPENCV`` camera whose k4, k5, k6 are not zero.
+            it reads).
     """
     model = camera.model
     if model not in PHOTAX_MODELS:
-        raise ValueError(
-            f"COLMAP camera model {model} has no photax camera (photax reads {', '.join(PHOTAX_MODELS)}; "
-            "FULL_OPENCV with k4 = k5 = k6 = 0)"
-        )
+        raise ValueError(f"COLMAP camera model {model} has no photax camera (photax reads {', '.join(PHOTAX_MODELS)})")
     p = dict(zip(MODELS[model][1], np.asarray(camera.params, dtype=float).tolist()))
-    extra = [k for k in PHOTAX_MODELS[model] if p[k] != 0.0]
-    if extra:
-        raise ValueError(
-            f"COLMAP camera model {model} with {', '.join(f'{k} = {p[k]:g}' for k in extra)}: photax's camera "
-            "has k1, k2, k3, p1, p2 only (the rational terms are not converted)"
-        )
     fx = p.get("fx", p.get("f"))
     fy = p.get("fy", fx)
     k1, k2, k3 = p.get("k1", p.get("k", 0.0)), p.get("k2", 0.0), p.get("k3", 0.0)
     p1, p2 = p.get("p1", 0.0), p.get("p2", 0.0)
+    k4, k5, k6 = p.get("k4", 0.0), p.get("k5", 0.0), p.get("k6", 0.0)
     w, h = camera.width, camera.height
     aspect = fx / fy
     pp = (p["cx"] - w / 2.0, (h / 2.0 - p["cy"]) * aspect)
-    return FrameCamera(fx, pp, (k1, k2, k3, 0.0 - p1, p2), pixel_size=(1.0, aspect), image_size=(w, h))
+    kind = PHOTAX_MODELS[model]
+    if kind == "fisheye":
+        distortion = (k1, k2, k3, k4)
+    elif kind == "opencv" and (k4 != 0 or k5 != 0 or k6 != 0):
+        distortion = (k1, k2, k3, 0.0 - p1, p2, k4, k5, k6, 0.0, 0.0, 0.0, 0.0)
+    else:
+        kind, distortion = "brown", (k1, k2, k3, 0.0 - p1, p2)
+    return FrameCamera(fx, pp, distortion, pixel_size=(1.0, aspect), image_size=(w, h), model=kind)
 
 
 def photax_camera_to_colmap(camera: FrameCamera) -> ColmapCamera:
     """A :class:`photax.FrameCamera` (with a pixel grid) as the simplest COLMAP camera that holds it exactly.
 
     Raises:
-        ValueError: no pixel grid, or a camera that is not a plain frame camera (a scan).
+        ValueError: no pixel grid, a camera that is not a plain frame camera
+            (a scan), or an ``opencv`` camera with thin-prism terms (COLMAP's
+            FULL_OPENCV has none).
     """
     if type(camera) is not FrameCamera or camera.pixel_size is None or camera.image_size is None:
         raise ValueError("a COLMAP camera needs a FrameCamera with pixel_size and image_size (not a scan)")
     sx, sy = (float(v) for v in np.asarray(camera.pixel_size))
     f = float(camera.focal_length)
     x0, y0 = (float(v) for v in np.asarray(camera.principal_point))
-    k1, k2, k3, p1, p2 = (float(v) for v in np.asarray(camera.distortion))
-    p1 = 0.0 - p1  # OpenCV's sense (y down)
     w, h = camera.image_size
     fx, fy = f / sx, f / sy
     cx, cy = w / 2.0 + x0 / sx, h / 2.0 - y0 / sy
+    d = [float(v) for v in np.asarray(camera.distortion)]
+    if camera.model == "fisheye":
+        return ColmapCamera("OPENCV_FISHEYE", w, h, np.array([fx, fy, cx, cy, *d]))
+    k1, k2, k3, p1, p2 = d[:5]
+    p1 = 0.0 - p1  # OpenCV's sense (y down)
+    k4, k5, k6 = d[5:8] if camera.model == "opencv" else (0.0, 0.0, 0.0)
+    if camera.model == "opencv" and any(v != 0 for v in d[8:]):
+        raise ValueError("COLMAP has no camera model with thin-prism terms (s1-s4) besides a fisheye: not written")
     square = fx == fy
-    if k3 != 0:
-        return ColmapCamera("FULL_OPENCV", w, h, np.array([fx, fy, cx, cy, k1, k2, p1, p2, k3, 0.0, 0.0, 0.0]))
+    if k3 != 0 or k4 != 0 or k5 != 0 or k6 != 0:
+        return ColmapCamera("FULL_OPENCV", w, h, np.array([fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6]))
     if p1 != 0 or p2 != 0 or (not square and (k1 != 0 or k2 != 0)):
         return ColmapCamera("OPENCV", w, h, np.array([fx, fy, cx, cy, k1, k2, p1, p2]))
     if not square:
