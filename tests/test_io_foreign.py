@@ -20,7 +20,6 @@ import cv2
 import numpy as np
 import pyproj
 import pytest
-import rasterio
 from conftest import shared_file
 
 import photax
@@ -236,84 +235,8 @@ def test_odm_gps_positions_are_topocentric():
         assert abs(ours[2] - truth[2]) < 0.006
 
 
-def test_cli_ortho_of_odm_images_matches_oty_odm(tmp_path):
-    """``photax ortho IMAGE --camera reconstruction.json --exterior reconstruction.json
-    --dem dsm.tif`` as written, for the four images, against ``oty odm`` (bilinear,
-    lossless output): mean absolute difference <= 0.3 grey levels, no offset."""
-    from photax.cli import main
-
-    odm = shared_file("orthority/odm/opensfm/reconstruction.json").parents[1]
-    oty = shutil.which("oty", path=str(pathlib.Path(sys.executable).parent)) or shutil.which("oty")
-    if oty is None:
-        pytest.skip("orthority's oty command is not installed")
-    out = tmp_path / "oty"
-    out.mkdir()
-    subprocess.run(
-        [
-            oty,
-            "odm",
-            "-dd",
-            str(odm),
-            "-od",
-            str(out),
-            "-r",
-            "0.4",
-            "-ap",
-            "-i",
-            "bilinear",
-            "-di",
-            "bilinear",
-            "-cm",
-            "deflate",
-            "-nwm",
-            "-o",
-        ],
-        check=True,
-        capture_output=True,
-    )
-    rec = odm / "opensfm" / "reconstruction.json"
-    for image in sorted((odm / "images").glob("*.tif")):
-        ours = tmp_path / f"{image.stem}.tif"
-        assert (
-            main(
-                [
-                    "ortho",
-                    str(image),
-                    "--camera",
-                    str(rec),
-                    "--exterior",
-                    str(rec),
-                    "--dem",
-                    str(odm / "odm_dem" / "dsm.tif"),
-                    "--resolution",
-                    "0.4",
-                    "--no-progress",
-                    "-o",
-                    str(ours),
-                ]
-            )
-            == 0
-        )
-        with rasterio.open(ours) as a, rasterio.open(out / f"{image.stem}_ORTHO.tif") as b:
-            assert a.crs == b.crs
-            win_a, win_b = _common_windows(a, b)
-            x, y = a.read(window=win_a).astype(float), b.read(window=win_b).astype(float)
-        both = (x != 0).any(0) & (y != 0).any(0)
-        assert both.sum() > 0.8 * min((x != 0).any(0).sum(), (y != 0).any(0).sum())
-        d = (x - y)[:, both]
-        assert np.abs(d).mean() <= 0.3, (image.stem, np.abs(d).mean())
-        assert abs(d.mean()) < 0.05
-
-
-def _common_windows(a, b):
-    from rasterio.windows import from_bounds
-
-    left, top = max(a.bounds.left, b.bounds.left), min(a.bounds.top, b.bounds.top)
-    right, bottom = min(a.bounds.right, b.bounds.right), max(a.bounds.bottom, b.bounds.bottom)
-    wa = from_bounds(left, bottom, right, top, a.transform).round_offsets().round_lengths()
-    wb = from_bounds(left, bottom, right, top, b.transform).round_offsets().round_lengths()
-    assert (wa.height, wa.width) == (wb.height, wb.width)  # both grids on multiples of the resolution
-    return wa, wb
+# photax's orthos of the four images against ``oty odm`` (grey levels and geometric offset):
+# tests/test_real_block.py::test_drone_orthos_match_oty_odm.
 
 
 @pytest.mark.parametrize("kind", ["brown", "opencv"])

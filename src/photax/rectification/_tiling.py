@@ -18,11 +18,26 @@ _STEP = 16  # lattice spacing in output pixels (cost of the lattice: ~2/256 of e
 _CHUNK_COLS = 1024  # columns per chunk at most: 16 x 1024 samples (measured 25 % faster than 16 x 256)
 
 
+_BUCKET = 128  # kernel tile sides above this are rounded up to its multiples
+
+
+def _bucket(n: int) -> int:
+    """``n`` rounded up to the kernel side it runs at: a power of two from _STEP to _BUCKET, then a
+    multiple of _BUCKET (at most 1/8 more pixels from about 1000 up)."""
+    if n <= _BUCKET:
+        return max(_STEP, 1 << (int(n) - 1).bit_length())
+    return -(-n // _BUCKET) * _BUCKET
+
+
 def _layout(rows: int, cols: int) -> tuple[tuple[int, int], int, int]:
-    """Kernel tile shape (multiples of _STEP), step and chunk width for a
-    ``rows x cols`` tile (edge tiles are computed at this shape and cropped)."""
+    """Kernel tile shape, step and chunk width for a ``rows x cols`` tile (edge tiles are computed
+    at this shape and cropped).  The shape is bucketed (:func:`_bucket`), so images of different
+    sizes share a few compiled programs: each new shape costs a process its lowering and the read
+    of the executable from the compilation cache, about 0.2-0.7 s CPU for the ortho kernels
+    (measured on the NGI block, 4 images of 3 different tile shapes), more than computing the
+    extra pixels."""
     s = _STEP
-    tr, tc = -(-rows // s) * s, -(-cols // s) * s
+    tr, tc = _bucket(rows), _bucket(cols)
     q = max(d for d in range(1, _CHUNK_COLS // s + 1) if (tc // s) % d == 0)
     return (tr, tc), s, q * s
 

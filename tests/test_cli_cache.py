@@ -1,0 +1,50 @@
+"""The command line's on-disk caches (JAX's persistent compilation cache and photax._aot's exported
+programs in one folder) shared by processes that run at the same time (issue 21 item 4: many
+``photax ortho`` runs, e.g. one per core or per job of a cluster, start on one empty cache).
+
+Reference: the same command run alone with no cache at all (``JAX_COMPILATION_CACHE_DIR`` pointing
+to an empty folder that is never read back): every output must be identical byte for byte, and a
+third process must then find every program in the cache (JAX logs a cache hit for each and none
+is compiled again).
+"""
+
+import filecmp
+import os
+import subprocess
+import sys
+
+from conftest import ROOT
+
+DATA = ROOT / "data"
+
+
+def _ortho(out, cache, log=False):
+    env = dict(os.environ, JAX_COMPILATION_CACHE_DIR=str(cache), PYTHONPATH=str(ROOT / "src"))
+    env.pop("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", None)  # the CLI's own setting: cache everything
+    if log:
+        env["JAX_LOG_COMPILES"] = "1"
+    cmd = [sys.executable, "-m", "photax.cli", "ortho", str(DATA / "sample_image.tif"), "--dem"]
+    cmd += [str(DATA / "sample_dem.tif"), "--camera", str(DATA / "sample_camera.yaml"), "--exterior"]
+    cmd += [str(DATA / "sample_truth.json"), "--resolution", "2", "--no-progress", "-o", str(out)]
+    return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def test_processes_sharing_one_empty_cache_agree_and_fill_it(tmp_path):
+    shared = tmp_path / "cache"
+    runs = [_ortho(tmp_path / f"ortho{k}.tif", shared) for k in range(2)]  # at the same time
+    runs.append(_ortho(tmp_path / "alone.tif", tmp_path / "own-cache"))
+    for p in runs:
+        out, err = p.communicate(timeout=600)
+        assert p.returncode == 0, err
+    assert filecmp.cmp(tmp_path / "ortho0.tif", tmp_path / "alone.tif", shallow=False)
+    assert filecmp.cmp(tmp_path / "ortho1.tif", tmp_path / "alone.tif", shallow=False)
+    assert list((shared / "photax-aot").glob("*.bin"))  # exported programs kept
+    assert not [p for p in shared.rglob("*") if p.name.startswith("tmp")]  # no half-written entry left
+
+    third = _ortho(tmp_path / "third.tif", shared, log=True)
+    _, err = third.communicate(timeout=600)
+    assert third.returncode == 0, err
+    assert filecmp.cmp(tmp_path / "third.tif", tmp_path / "alone.tif", shallow=False)
+    compiled = err.count("Finished XLA compilation")
+    hits = err.count("Persistent compilation cache hit")
+    assert compiled > 0 and hits == compiled, err[-3000:]
