@@ -67,6 +67,12 @@ def add_parser(sub) -> None:
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
+    p.add_argument(
+        "--export-params",
+        metavar="DIR",
+        help="also write the interior and exterior orientations used as orthority files: DIR/int_param.yaml, "
+        "DIR/ext_param.csv (+ .prj) and, with a CRS, DIR/ext_param.geojson (oty ortho reads them)",
+    )
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -95,6 +101,8 @@ def _check_inputs(args: argparse.Namespace) -> None:
 
 
 def _run_one(args: argparse.Namespace) -> int:
+    import pathlib
+
     from ..grid import ortho_grid
     from ..io.atomic import check_output_path
     from ..io.orientation import read_exterior, read_interior
@@ -114,6 +122,7 @@ def _run_one(args: argparse.Namespace) -> int:
     if args.dem is not None:
         check_crs(crs, f"the orientation ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
     grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
+    _export_params(args, camera, {pathlib.Path(args.image).name: exterior}, crs)
     orthorectify_file(
         image,
         args.out,
@@ -179,6 +188,8 @@ def _run_block(args: argparse.Namespace) -> int:
         check_crs(crs, f"the orientations ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
     else:
         dem = _flat_dem(args.height, exteriors) if exteriors else None
+    if exteriors:
+        _export_params(args, camera, {pathlib.Path(args.image[k]).name: table[args.image[k]] for k in todo}, crs)
     results = (
         orthorectify_files(
             [args.image[k] for k in todo],
@@ -212,6 +223,27 @@ def _run_block(args: argparse.Namespace) -> int:
         )
         return 1
     return 0
+
+
+def _export_params(args: argparse.Namespace, camera, exteriors: dict, crs) -> None:
+    """``--export-params DIR``: the orientations used, as orthority's files (before the orthos)."""
+    import pathlib
+
+    from ..io.orthority import write_orthority_exterior, write_orthority_geojson, write_orthority_interior
+
+    if args.export_params is None:
+        return
+    folder = pathlib.Path(args.export_params)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"--export-params {folder}: is a file, expected a folder")
+    inputs = [*(args.image if isinstance(args.image, list) else [args.image]), args.camera, args.exterior]
+    inputs += [args.dem] if args.dem is not None else []
+    name = args.camera_name or "photax_camera"
+    write_orthority_interior(folder / "int_param.yaml", {name: camera}, inputs=inputs)
+    write_orthority_exterior(folder / "ext_param.csv", exteriors, crs, inputs=inputs)
+    if crs is not None:
+        write_orthority_geojson(folder / "ext_param.geojson", exteriors, crs, camera=name, inputs=inputs)
+    print(f"wrote {folder}/int_param.yaml, ext_param.csv{' and ext_param.geojson' if crs is not None else ''}")
 
 
 def _flat_dem(height: float, exterior):

@@ -53,6 +53,9 @@ from .orthority import (
 from .orthority import (
     read_orthority_interior as read_orthority_interior,
 )
+from .orthority import write_orthority_exterior as write_orthority_exterior
+from .orthority import write_orthority_geojson as write_orthority_geojson
+from .orthority import write_orthority_interior as write_orthority_interior
 from .points import read_named_points as read_named_points
 from .points import read_pixel_points as read_pixel_points
 from .raster import (
