@@ -35,7 +35,9 @@ def add_parser(sub) -> None:
         "  photax ortho ngi/*.tif --dem dem.tif --camera cam.yaml --exterior ext.csv --out-dir orthos  "
         "# a block, one process\n"
         "  photax ortho IMAGE.tif --height 120 --camera cam.yaml --exterior resect.json -o ortho.tif  "
-        "# flat ground at Z = 120\n",
+        "# flat ground at Z = 120\n"
+        "  photax ortho DJI_0001.JPG --dem dsm.tif --camera cam.yaml --exterior exif -o ortho.tif  "
+        "# position and gimbal angles from the image's EXIF/XMP\n",
     )
     p.add_argument("image", metavar="IMAGE", nargs="+", help="the image(s) (any GDAL raster)")
     ground = p.add_mutually_exclusive_group(required=True)
@@ -53,7 +55,8 @@ def add_parser(sub) -> None:
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
                    "several), "
                    "orthority exterior CSV (x y z omega phi kappa, or latitude longitude altitude roll pitch "
-                   "yaw) or GeoJSON, or OpenSfM/ODM reconstruction.json")  # fmt: skip
+                   "yaw) or GeoJSON, OpenSfM/ODM reconstruction.json, or exif: each image's GPS and DJI "
+                   "gimbal angles (exif:flight: the airframe's, for a camera fixed to it looking down)")  # fmt: skip
     out = p.add_mutually_exclusive_group(required=True)
     out.add_argument("-o", "--out", metavar="OUT_TIF", help="output GeoTIFF (one IMAGE)")
     out.add_argument("--out-dir", metavar="DIR", help="output folder: DIR/STEM_ortho.tif for each IMAGE")
@@ -94,8 +97,11 @@ def _check_inputs(args: argparse.Namespace) -> None:
         input_file(args.dem, "DEM")
     elif not math.isfinite(args.height):
         raise ValueError(f"--height must be a finite number, got {args.height}")
+    from ..io.orientation import exif_attitude
+
     input_file(args.camera, "camera file")
-    input_file(args.exterior, "exterior file")
+    if exif_attitude(args.exterior) is None:
+        input_file(args.exterior, "exterior file")
     if args.resolution is not None and not args.resolution > 0:
         raise ValueError(f"--resolution must be positive, got {args.resolution}")
 

@@ -18,6 +18,10 @@ from .block import read_block as read_block
 from .block import write_block as write_block
 from .camera_file import read_camera as read_camera
 from .camera_file import write_camera as write_camera
+from .exif import DroneTags as DroneTags
+from .exif import exterior_from_tags as exterior_from_tags
+from .exif import read_drone_tags as read_drone_tags
+from .exif import read_exif_exteriors as read_exif_exteriors
 from .gcp import GCPTable as GCPTable
 from .gcp import read_gcps as read_gcps
 from .gcp import write_gcps as write_gcps

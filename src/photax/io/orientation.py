@@ -8,7 +8,8 @@
 * :func:`read_exterior`: a ``photax resect --json`` result (``.json``), a
   ``reconstruction.json``, an orthority GeoJSON (``.geojson``) or an orthority
   exterior CSV (+ ``.prj`` beside it; or latitude, longitude, altitude, roll,
-  pitch, yaw); :func:`read_exteriors` reads
+  pitch, yaw), or the word ``exif`` (``exif:gimbal``, ``exif:flight``: each image's
+  own GPS and attitude tags, :mod:`photax.io.exif`); :func:`read_exteriors` reads
   many images' orientations from one such file, parsing it once, and
   :func:`block_images` pairs them with the image files of a folder;
 * :func:`read_camera_unit`: the length unit a photax camera file is written in.
@@ -27,6 +28,7 @@ from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
+from .exif import read_exif_exteriors
 from .files import MAX_BYTES, check_regular, excerpt, file_error, load_yaml, read_text
 from .opensfm import is_reconstruction, read_opensfm_cameras, read_opensfm_shots
 from .orthority import read_orthority_exterior_crs, read_orthority_geojson, read_orthority_interior
@@ -148,6 +150,9 @@ def read_exterior(path, image, crs=None) -> tuple[ExteriorOrientation, str | Non
         ValueError: naming the file: malformed, no (solved) orientation for
             ``image``, or several candidates.
     """
+    if exif_attitude(path) is not None:  # the image's own GPS and attitude tags
+        table, crs = read_exif_exteriors(image, exif_attitude(path), crs)
+        return next(iter(table.values())), crs
     path = pathlib.Path(path)
     data = read_json(path) if path.suffix.lower() == ".json" else None
     if data is not None and not is_reconstruction(data):
@@ -175,6 +180,11 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
         ValueError: naming the file: malformed, no images, or no (solved)
             orientation for one of ``names``.
     """
+    if exif_attitude(path) is not None:  # each image's own tags, into one CRS
+        if names is None:
+            raise ValueError("--exterior exif reads the images' own tags: name the images")
+        table, crs = read_exif_exteriors(names, exif_attitude(path), crs)
+        return dict(zip(names, table.values())), crs
     path = pathlib.Path(path)
     data = read_json(path) if path.suffix.lower() == ".json" else None
     if data is not None and not is_reconstruction(data):
@@ -204,6 +214,14 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
             raise ValueError(f"{path}: no orientation for image {stem!r}")
         table[n] = rows[stem]
     return table, crs
+
+
+def exif_attitude(path) -> str | None:
+    """``"gimbal"`` or ``"flight"`` when ``path`` is the word ``exif`` (the camera's own,
+    gimbal, angles), ``exif:gimbal`` or ``exif:flight``: the orientation is read from each
+    image's tags (:mod:`photax.io.exif`); None for a file (``./exif`` for a file of that name)."""
+    text = str(path) if isinstance(path, str) else None
+    return {"exif": "gimbal", "exif:gimbal": "gimbal", "exif:flight": "flight"}.get(text)
 
 
 def block_images(path, folder, crs=None) -> tuple[list[pathlib.Path], list[ExteriorOrientation], str | None]:
