@@ -25,6 +25,8 @@ from .exif import read_exif_exteriors as read_exif_exteriors
 from .gcp import GCPTable as GCPTable
 from .gcp import read_gcps as read_gcps
 from .gcp import write_gcps as write_gcps
+from .odm import read_odm_cameras as read_odm_cameras
+from .odm import read_odm_geo as read_odm_geo
 from .opensfm import read_opensfm_cameras as read_opensfm_cameras
 from .opensfm import read_opensfm_shots as read_opensfm_shots
 from .orientation import (

@@ -4,7 +4,7 @@
   an orthority interior YAML (:mod:`photax.io.orthority`) -- an orthority
   file has a ``type`` key, or maps camera names to mappings that each have one --
   or an OpenSfM/ODM ``reconstruction.json`` (:mod:`photax.io.opensfm`: a JSON list
-  of objects with ``shots``);
+  of objects with ``shots``), or ODM's ``cameras.json`` (:mod:`photax.io.odm`);
 * :func:`read_exterior`: a ``photax resect --json`` result (``.json``), a
   ``reconstruction.json``, an orthority GeoJSON (``.geojson``) or an orthority
   exterior CSV (+ ``.prj`` beside it; or latitude, longitude, altitude, roll,
@@ -29,7 +29,8 @@ from ..collinearity import ExteriorOrientation
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
 from .exif import read_exif_exteriors
-from .files import MAX_BYTES, check_regular, excerpt, file_error, load_yaml, read_text
+from .files import MAX_BYTES, check_regular, excerpt, file_error, load_json, load_yaml, read_text
+from .odm import is_odm_cameras, read_odm_cameras
 from .opensfm import is_reconstruction, read_opensfm_cameras, read_opensfm_shots
 from .orthority import read_orthority_exterior_crs, read_orthority_geojson, read_orthority_interior
 from .results import read_json
@@ -70,6 +71,17 @@ def _is_reconstruction_file(path: pathlib.Path) -> bool:
     return is_reconstruction(read_json(path))
 
 
+def _is_odm_cameras_file(path: pathlib.Path) -> bool:
+    """ODM's ``cameras.json``: camera ids mapped to OpenSfM camera parameters."""
+    if path.suffix.lower() != ".json":
+        return False
+    try:
+        data = load_json(path, read_text(path, "camera file"))
+    except ValueError:  # let read_camera report what is wrong
+        return False
+    return is_odm_cameras(data)
+
+
 def read_interior(path, name: str | None = None) -> FrameCamera:
     """A :class:`photax.FrameCamera` from a photax camera file or an orthority interior YAML.
 
@@ -85,6 +97,8 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
     path = pathlib.Path(path)
     if _is_reconstruction_file(path):
         cameras = read_opensfm_cameras(path)
+    elif _is_odm_cameras_file(path):
+        cameras = read_odm_cameras(path)
     elif not _is_orthority_interior(path):
         return read_camera(path)
     else:
@@ -275,7 +289,7 @@ def read_camera_unit(path) -> str | None:
     for an orthority interior file (its focal length and sensor size share a
     unit it does not name: :func:`camera_in_pixels`)."""
     path = pathlib.Path(path)
-    if _is_reconstruction_file(path):
+    if _is_reconstruction_file(path) or _is_odm_cameras_file(path):
         return "px"
     if _is_orthority_interior(path):
         return None
