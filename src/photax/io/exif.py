@@ -32,8 +32,9 @@ the images by default), with the meridian convergence
 (:func:`photax.io.orthority.lla_rpy_to_xyz_opk`).  Heights are taken as tagged
 (``AbsoluteAltitude``, else EXIF ``GPSAltitude``): EXIF defines the latter
 above sea level, DJI does not document the former's datum; neither is the
-ellipsoidal height a GNSS solution gives, so expect metres of vertical offset
-against a DEM in ellipsoidal heights (``photax.io.crs.ellipsoid_to_geoid``).
+ellipsoidal height a GNSS solution gives, so they are not moved into a DEM's
+vertical datum (:func:`photax.io.crs.heights_from_ellipsoid` does that for
+ellipsoidal heights): check them against the DEM.
 """
 
 from __future__ import annotations

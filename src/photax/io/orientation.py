@@ -43,11 +43,38 @@ def _table(path: pathlib.Path, data=None, crs=None) -> tuple[dict[str, ExteriorO
     projected CRS wanted of the formats whose positions are geographic or
     topocentric (reconstruction, latitude/longitude CSV), default their UTM zone."""
     if data is not None:  # JSON already parsed: a reconstruction
-        table, crs, _ = read_opensfm_shots(path, crs)
-        return table, crs
+        table, out, _ = read_opensfm_shots(path, crs)
+        return _into_vertical_datum(table, out, crs)
     if path.suffix.lower() == ".geojson":
         return read_orthority_geojson(path)
-    return read_orthority_exterior_crs(path, crs)
+    table, out = read_orthority_exterior_crs(path, crs)
+    return _into_vertical_datum(table, out, crs) if _is_lla_csv(path) else (table, out)
+
+
+def _is_lla_csv(path: pathlib.Path) -> bool:
+    """An orthority CSV of latitude, longitude, altitude (ellipsoidal heights)."""
+    for line in read_text(path, "orthority exterior file").splitlines():
+        if line.strip() and not line.startswith("#"):
+            return "latitude" in line.lower()
+    return False
+
+
+def _into_vertical_datum(table, table_crs, crs):
+    """Positions whose heights are WGS84 ellipsoidal (GNSS, OpenSfM, drone tags), now in
+    the horizontal ``table_crs``, with their heights moved into the vertical datum of
+    ``crs`` when it has one (a DEM in ``EPSG:32735+5773``: :mod:`photax.io.crs`)."""
+    from .crs import heights_from_ellipsoid, vertical_crs
+
+    if crs is None or vertical_crs(crs) is None or not table:
+        return table, table_crs
+    import pyproj
+
+    names = list(table)
+    xyz = np.stack([np.asarray(table[n].position, dtype=float) for n in names])
+    lon, lat = pyproj.Transformer.from_crs(table_crs, "EPSG:4326", always_xy=True).transform(xyz[:, 0], xyz[:, 1])
+    xyz[:, 2] = heights_from_ellipsoid(lat, lon, xyz[:, 2], crs)
+    out = {n: ExteriorOrientation(p, table[n].angles, table[n].convention) for n, p in zip(names, xyz)}
+    return out, table_crs
 
 
 def _is_orthority_interior(path: pathlib.Path) -> bool:
@@ -165,8 +192,9 @@ def read_exterior(path, image, crs=None) -> tuple[ExteriorOrientation, str | Non
             ``image``, or several candidates.
     """
     if exif_attitude(path) is not None:  # the image's own GPS and attitude tags
-        table, crs = read_exif_exteriors(image, exif_attitude(path), crs)
-        return next(iter(table.values())), crs
+        # heights as tagged: not moved into a vertical datum (their own datum is not known)
+        table, out = read_exif_exteriors(image, exif_attitude(path), crs)
+        return next(iter(table.values())), out
     path = pathlib.Path(path)
     data = read_json(path) if path.suffix.lower() == ".json" else None
     if data is not None and not is_reconstruction(data):
@@ -197,8 +225,8 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
     if exif_attitude(path) is not None:  # each image's own tags, into one CRS
         if names is None:
             raise ValueError("--exterior exif reads the images' own tags: name the images")
-        table, crs = read_exif_exteriors(names, exif_attitude(path), crs)
-        return dict(zip(names, table.values())), crs
+        table, out = read_exif_exteriors(names, exif_attitude(path), crs)  # heights as tagged
+        return dict(zip(names, table.values())), out
     path = pathlib.Path(path)
     data = read_json(path) if path.suffix.lower() == ".json" else None
     if data is not None and not is_reconstruction(data):
