@@ -228,3 +228,66 @@ def test_fuzz_read_drone_tags(tmp_path):
         assert np.all(np.isfinite(np.asarray(table[path.stem].position)))
 
     check()
+
+
+def test_camera_from_tags_as_orthority_builds_it():
+    """DJI DewarpData -> a brown camera, against orthority's ExifReader camera: the same
+    pixels for the same ground points (1e-6 px)."""
+    from orthority.camera import create_camera
+    from orthority.param_io import ExifReader
+
+    from photax.io.exif import camera_from_tags
+
+    image = _odm_images()[0]
+    camera = camera_from_tags(read_drone_tags(image))
+    (_, params), *_ = ExifReader([image]).read_int_param().items()
+    xyz, opk = (10.0, 20.0, 150.0), tuple(np.radians([5.0, -8.0, 30.0]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = create_camera(**params, xyz=xyz, opk=opk)
+    ground = np.c_[np.random.default_rng(1).uniform(-60, 80, (100, 2)), np.zeros(100)]
+    eo = photax.ExteriorOrientation(xyz, opk, "omega-phi-kappa")
+    ours = np.asarray(camera.image_to_pixel(photax.project(ground, eo, camera)))
+    np.testing.assert_allclose(ours, ref.world_to_pixel(ground.T).T, rtol=0, atol=1e-6)
+    assert np.ptp(ours[:, 0]) > 300
+    with pytest.raises(ValueError, match="no DJI DewarpData"):
+        camera_from_tags(DroneTags(pathlib.Path("x.jpg"), (10, 10)))
+
+
+def test_cli_ortho_camera_and_exterior_exif_match_oty_exif(tmp_path):
+    """``photax ortho IMG --camera exif --exterior exif --dem dsm.tif``: the ortho from the
+    image alone, against ``oty exif`` on the same image (bilinear, lossless): mean
+    absolute difference <= 0.3 grey levels, no offset."""
+    import shutil
+    import subprocess
+    import sys
+
+    from photax.cli import main
+
+    oty = shutil.which("oty", path=str(pathlib.Path(sys.executable).parent)) or shutil.which("oty")
+    if oty is None:
+        pytest.skip("orthority's oty command is not installed")
+    image = _odm_images()[0]
+    dem = shared_file("orthority/odm/odm_dem/dsm.tif")
+    out = tmp_path / "oty"
+    out.mkdir()
+    args = ["-d", str(dem), "-od", str(out), "-r", "0.4", "-ap", "-i", "bilinear", "-di", "bilinear"]
+    subprocess.run([oty, "exif", *args, "-cm", "deflate", "-nwm", "-o", str(image)], check=True, capture_output=True)
+    ours = tmp_path / "ours.tif"
+    argv = ["ortho", str(image), "--camera", "exif", "--exterior", "exif", "--dem", str(dem)]
+    assert main([*argv, "--resolution", "0.4", "--no-progress", "-o", str(ours)]) == 0
+    with rasterio.open(ours) as a, rasterio.open(out / f"{image.stem}_ORTHO.tif") as b:
+        assert a.crs == b.crs
+        from rasterio.windows import from_bounds
+
+        left, top = max(a.bounds.left, b.bounds.left), min(a.bounds.top, b.bounds.top)
+        right, bottom = min(a.bounds.right, b.bounds.right), max(a.bounds.bottom, b.bounds.bottom)
+        wa = from_bounds(left, bottom, right, top, a.transform).round_offsets().round_lengths()
+        wb = from_bounds(left, bottom, right, top, b.transform).round_offsets().round_lengths()
+        x, y = a.read(window=wa).astype(float), b.read(window=wb).astype(float)
+    both = (x != 0).any(0) & (y != 0).any(0)
+    assert both.sum() > 0.8 * min((x != 0).any(0).sum(), (y != 0).any(0).sum())
+    d = (x - y)[:, both]
+    print(f"mean |d| {np.abs(d).mean():.3f}, mean d {d.mean():+.3f}")
+    assert np.abs(d).mean() <= 0.3, np.abs(d).mean()
+    assert abs(d.mean()) < 0.05

@@ -49,8 +49,10 @@ def add_parser(sub) -> None:
         help="flat ground at height H instead of a DEM (a constant-height DEM under the image)",
     )
     p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
-                   help="photax camera file (see photax resect --help), orthority interior YAML or "
-                   "OpenSfM/ODM reconstruction.json (--interior is an alias)")  # fmt: skip
+                   help="photax camera file (see photax resect --help), orthority interior YAML, "
+                   "OpenSfM/ODM reconstruction.json or ODM cameras.json, or exif: the camera the image's "
+                   "tags describe (DJI DewarpData, else EXIF focal length), as orthority reads it "
+                   "(--interior is an alias)")  # fmt: skip
     p.add_argument("--exterior", required=True,
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
                    "several), "
@@ -99,7 +101,8 @@ def _check_inputs(args: argparse.Namespace) -> None:
         raise ValueError(f"--height must be a finite number, got {args.height}")
     from ..io.orientation import exif_attitude
 
-    input_file(args.camera, "camera file")
+    if args.camera != "exif":
+        input_file(args.camera, "camera file")
     if exif_attitude(args.exterior) is None:
         input_file(args.exterior, "exterior file")
     if args.resolution is not None and not args.resolution > 0:
@@ -111,7 +114,7 @@ def _run_one(args: argparse.Namespace) -> int:
 
     from ..grid import ortho_grid
     from ..io.atomic import check_output_path
-    from ..io.orientation import read_exterior, read_interior
+    from ..io.orientation import read_exterior
     from ..io.raster import read_dem
     from ..rectification import orthorectify_file
     from ._common import check_crs, ground_unit, input_file
@@ -120,7 +123,7 @@ def _run_one(args: argparse.Namespace) -> int:
     _check_inputs(args)
     inputs = [p for p in (args.image, args.dem, args.camera, args.exterior) if p is not None]
     check_output_path(args.out, inputs)  # fail before the work, not after
-    camera = read_interior(args.camera, args.camera_name)
+    camera = _read_camera(args, [args.image])
     dem = read_dem(args.dem) if args.dem is not None else None
     # positions given in latitude/longitude or a topocentric frame go into the DEM's CRS
     exterior, crs = read_exterior(args.exterior, args.image, crs=dem.crs if dem is not None else None)
@@ -151,7 +154,7 @@ def _run_block(args: argparse.Namespace) -> int:
     import sys
 
     from ..io.atomic import check_output_path, output_name
-    from ..io.orientation import read_exterior, read_exteriors, read_interior
+    from ..io.orientation import read_exterior, read_exteriors
     from ..io.raster import read_dem
     from ..rectification import orthorectify_files
     from ._common import check_crs, ground_unit, input_file
@@ -169,7 +172,7 @@ def _run_block(args: argparse.Namespace) -> int:
     inputs = [*args.image, *(p for p in (args.dem, args.camera, args.exterior) if p is not None)]
     for out in outputs:
         check_output_path(out, inputs)  # fail before the work, not after
-    camera = read_interior(args.camera, args.camera_name)
+    camera = _read_camera(args, args.image)
     dem = read_dem(args.dem) if args.dem is not None else None
     dem_crs = dem.crs if dem is not None else None  # positions in latitude/longitude go into the DEM's CRS
     failed = {}
@@ -229,6 +232,29 @@ def _run_block(args: argparse.Namespace) -> int:
         )
         return 1
     return 0
+
+
+def _read_camera(args: argparse.Namespace, images: list):
+    """``--camera``: a file, or ``exif``: the camera the images' tags describe (DJI
+    DewarpData, else EXIF focal length; :func:`photax.io.exif.camera_from_tags`), the
+    same for every image."""
+    import numpy as np
+
+    from ..io.orientation import read_interior
+
+    if args.camera != "exif":
+        return read_interior(args.camera, args.camera_name)
+    from ..io.exif import camera_from_tags, read_drone_tags
+
+    cameras = [camera_from_tags(read_drone_tags(image)) for image in images]
+    fields = ("focal_length", "principal_point", "distortion", "pixel_size")
+    for image, cam in zip(images[1:], cameras[1:]):
+        same = cam.image_size == cameras[0].image_size and all(
+            np.array_equal(np.asarray(getattr(cam, f)), np.asarray(getattr(cameras[0], f))) for f in fields
+        )
+        if not same:
+            raise ValueError(f"--camera exif: {image} has another camera than {images[0]}: orthorectify them apart")
+    return cameras[0]
 
 
 def _export_params(args: argparse.Namespace, camera, exteriors: dict, crs) -> None:

@@ -19,6 +19,7 @@ from .block import write_block as write_block
 from .camera_file import read_camera as read_camera
 from .camera_file import write_camera as write_camera
 from .exif import DroneTags as DroneTags
+from .exif import camera_from_tags as camera_from_tags
 from .exif import exterior_from_tags as exterior_from_tags
 from .exif import read_drone_tags as read_drone_tags
 from .exif import read_exif_exteriors as read_exif_exteriors

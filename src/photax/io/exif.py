@@ -78,6 +78,11 @@ class DroneTags:
             equivalent.
         calibrated_focal_px, calibrated_centre_px: DJI's
             ``CalibratedFocalLength`` and ``CalibratedOpticalCenterX/Y``, pixels.
+        dewarp: DJI's ``DewarpData`` (fx, fy, cx, cy offsets from the centre, in
+            pixels of the tagged size, then k1, k2, p1, p2, k3).
+        tag_image_size: EXIF ``PixelXDimension``, ``PixelYDimension`` (the size
+            the camera wrote; the raster may be a reduced copy).
+        sensor_size_mm: from EXIF ``FocalPlaneX/YResolution`` and its unit.
     """
 
     path: pathlib.Path
@@ -96,6 +101,9 @@ class DroneTags:
     focal_length_35mm: float | None = None
     calibrated_focal_px: float | None = None
     calibrated_centre_px: tuple[float, float] | None = None
+    dewarp: tuple[float, ...] | None = None
+    tag_image_size: tuple[int, int] | None = None
+    sensor_size_mm: tuple[float, float] | None = None
 
 
 def _numbers(text) -> list[float] | None:
@@ -190,6 +198,9 @@ def read_drone_tags(path) -> DroneTags:
     std = [one(xmp.get(f"RtkStd{k}"), f"RtkStd{k}", 0, 1e6) for k in ("Lon", "Lat", "Hgt")]
     centre = [one(xmp.get(f"CalibratedOpticalCenter{k}"), k, -1e6, 1e6) for k in "XY"]
     rtk = one(xmp.get("RtkFlag"), "RtkFlag", 0, 1e6)
+    tw = one(exif.get("EXIF_PixelXDimension"), "PixelXDimension", 1, 2**31 - 1)
+    th = one(exif.get("EXIF_PixelYDimension"), "PixelYDimension", 1, 2**31 - 1)
+    tag_size = (int(tw), int(th)) if tw is not None and th is not None else None
     return DroneTags(
         path=path,
         image_size=size,
@@ -207,7 +218,28 @@ def read_drone_tags(path) -> DroneTags:
         focal_length_35mm=one(exif.get("EXIF_FocalLengthIn35mmFilm"), "FocalLengthIn35mmFilm", 0, 1e5),
         calibrated_focal_px=one(xmp.get("CalibratedFocalLength"), "CalibratedFocalLength", 0, 1e7),
         calibrated_centre_px=tuple(centre) if None not in centre else None,
+        dewarp=_dewarp(xmp.get("DewarpData")),
+        tag_image_size=tag_size,
+        sensor_size_mm=_sensor_size(exif, tag_size),
     )
+
+
+def _dewarp(text) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    values = _numbers(str(text).split(";")[-1])
+    if values is None or len(values) != 9 or not any(values) or not (values[0] > 0 and values[1] > 0):
+        return None  # as orthority: uninterpretable dewarp data is not used
+    return tuple(values)
+
+
+def _sensor_size(exif, tag_size) -> tuple[float, float] | None:
+    unit = _numbers(exif.get("EXIF_FocalPlaneResolutionUnit"))
+    mm = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}.get(int(unit[0]) if unit and abs(unit[0]) < 10 else 0)
+    res = [_numbers(exif.get(f"EXIF_FocalPlane{a}Resolution")) for a in "XY"]
+    if mm is None or tag_size is None or None in res or not all(len(r) == 1 and r[0] > 0 for r in res):
+        return None
+    return (mm * tag_size[0] / res[0][0], mm * tag_size[1] / res[1][0])
 
 
 def _exif_degrees(path, exif, what, refs, limit) -> float | None:
@@ -282,3 +314,38 @@ def read_exif_exteriors(images, attitude: str = "gimbal", crs=None) -> tuple[dic
     """:func:`exterior_from_tags` of the images' own tags (:func:`read_drone_tags`)."""
     images = [images] if isinstance(images, (str, pathlib.PurePath)) else list(images)
     return exterior_from_tags([read_drone_tags(p) for p in images], attitude, crs)
+
+
+def camera_from_tags(tags: DroneTags):
+    """A :class:`photax.FrameCamera` from an image's tags, as orthority builds it: DJI's
+    ``DewarpData`` as a ``brown`` camera (focal lengths and principal point offsets in
+    pixels of the tagged size, scaled to the raster's), else a ``pinhole`` from EXIF
+    ``FocalLength`` and the sensor size, else from the 35 mm equivalent (36 mm across
+    the larger side).  In the focal length's unit (pixels of the tagged size for
+    DewarpData).  A first camera to look with: a calibration does better.
+
+    Raises:
+        ValueError: naming the image: none of these tags, or values that make no camera.
+    """
+    from .orthority import _camera_from_params
+
+    w, h = tags.image_size
+    if tags.dewarp is not None and tags.tag_image_size is not None:
+        d, (tw, th) = tags.dewarp, tags.tag_image_size
+        p = dict(type="brown", im_size=[w, h], focal_len=list(d[:2]), sensor_size=[float(tw), float(th)])
+        p.update(cx=d[2] / max(tw, th), cy=d[3] / max(tw, th), k1=d[4], k2=d[5], p1=d[6], p2=d[7], k3=d[8])
+    elif tags.focal_length_mm and tags.sensor_size_mm:
+        p = dict(type="pinhole", im_size=[w, h], focal_len=tags.focal_length_mm, sensor_size=list(tags.sensor_size_mm))
+    elif tags.focal_length_35mm:
+        p = dict(type="pinhole", im_size=[w, h], focal_len=tags.focal_length_35mm / 36.0)
+        if tags.sensor_size_mm:
+            p.update(focal_len=max(tags.sensor_size_mm) * tags.focal_length_35mm / 36.0)
+            p.update(sensor_size=list(tags.sensor_size_mm))
+    else:
+        raise ValueError(
+            f"{tags.path}: no DJI DewarpData, EXIF focal length and sensor size, or 35 mm equivalent focal length"
+        )
+    try:
+        return _camera_from_params(tags.path, None, p)
+    except ValueError as exc:
+        raise ValueError(f"{tags.path}: the tags make no camera ({exc})") from None
