@@ -291,3 +291,23 @@ def test_cli_ortho_camera_and_exterior_exif_match_oty_exif(tmp_path):
     print(f"mean |d| {np.abs(d).mean():.3f}, mean d {d.mean():+.3f}")
     assert np.abs(d).mean() <= 0.3, np.abs(d).mean()
     assert abs(d.mean()) < 0.05
+
+
+def test_multi_image_commands_take_exterior_exif(tmp_path):
+    """``photax ties`` / ``transfer`` ``--exterior exif`` (cli._common.read_oriented_images):
+    the images' tags, in the DEM's CRS, as read_exif_exteriors gives them."""
+    import argparse
+
+    from photax.cli._common import read_oriented_images
+
+    images = [str(p) for p in _odm_images()[:2]]
+    rec = shared_file("orthority/odm/opensfm/reconstruction.json")
+    dem = shared_file("orthority/odm/odm_dem/dsm.tif")
+    args = argparse.Namespace(images=images, camera=str(rec), exterior="exif", dem=str(dem), out=str(tmp_path / "b"))
+    files, _, names, _, exterior = read_oriented_images(args, [])
+    assert "exif" not in files
+    with rasterio.open(dem) as src:
+        table, _ = read_exif_exteriors(images, "gimbal", src.crs.to_wkt())
+    for name, eo in zip(names, exterior):
+        np.testing.assert_array_equal(np.asarray(eo.position), np.asarray(table[name].position))
+        np.testing.assert_array_equal(_rotation(eo), _rotation(table[name]))
