@@ -173,3 +173,24 @@ def test_cli_ortho_export_params(tmp_path):
     assert (tmp_path / "o.tif").is_file()
     (tmp_path / "file").write_text("x")
     assert main([*argv, "-o", str(tmp_path / "o2.tif"), "--export-params", str(tmp_path / "file")]) == 2
+
+
+def test_real_orthority_files_round_trip(tmp_path):
+    """orthority's own test files (NGI) read, written, read again: the same cameras and
+    orientations, the same CRS."""
+    from conftest import shared_file
+
+    interior = read_orthority_interior(shared_file("orthority/io/ngi_int_param.yaml"))
+    back = read_orthority_interior(write_orthority_interior(tmp_path / "int.yaml", interior))
+    for name, cam in interior.items():
+        _assert_same_camera(back[name], cam)
+    for src in ("orthority/io/ngi_xyz_opk.csv", "orthority/io/ngi_ext_param.geojson"):
+        path = shared_file(src)
+        table, crs = read_orthority_geojson(path) if path.suffix == ".geojson" else read_orthority_exterior_crs(path)
+        csv, csv_crs = read_orthority_exterior_crs(write_orthority_exterior(tmp_path / "e.csv", table, crs))
+        gj, gj_crs = read_orthority_geojson(write_orthority_geojson(tmp_path / "e.geojson", table, crs))
+        assert pyproj.CRS(csv_crs) == pyproj.CRS(crs) == pyproj.CRS(gj_crs)
+        for name, eo in table.items():
+            for got in (csv[name], gj[name]):
+                np.testing.assert_allclose(np.asarray(got.position), np.asarray(eo.position), rtol=0, atol=1e-9)
+                np.testing.assert_allclose(_rotation(got), _rotation(eo), rtol=0, atol=1e-12)
