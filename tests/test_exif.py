@@ -10,6 +10,7 @@ a nadir frame: roll 180 at pitch -90 is yaw + 180).
 
 from __future__ import annotations
 
+import dataclasses
 import pathlib
 import warnings
 
@@ -311,3 +312,30 @@ def test_multi_image_commands_take_exterior_exif(tmp_path):
     for name, eo in zip(names, exterior):
         np.testing.assert_array_equal(np.asarray(eo.position), np.asarray(table[name].position))
         np.testing.assert_array_equal(_rotation(eo), _rotation(table[name]))
+
+
+def test_dji_jpeg(tmp_path):
+    """A JPEG as a DJI drone writes it: EXIF in its APP1 segment (GDAL's JPEG driver
+    writes the ODM image's), the DJI XMP packet in another APP1 (inserted here): the
+    same tags as the TIFF's, and orthority's ExifReader reads the same orientation."""
+    from orthority.param_io import ExifReader
+    from rasterio.shutil import copy
+
+    tif = _odm_images()[0]
+    jpg = tmp_path / "DJI_0001.JPG"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+        copy(tif, jpg, driver="JPEG")
+        with rasterio.open(tif) as src:
+            packet = src.tags(ns="xml:XMP")["xml:XMP"].encode()
+    pathlib.Path(str(jpg) + ".aux.xml").unlink(missing_ok=True)  # the tags must come from the JPEG itself
+    data = jpg.read_bytes()
+    body = b"http://ns.adobe.com/xap/1.0/\x00" + packet
+    jpg.write_bytes(data[:2] + b"\xff\xe1" + (len(body) + 2).to_bytes(2, "big") + body + data[2:])
+    a, b = read_drone_tags(jpg), read_drone_tags(tif)
+    assert dataclasses.replace(a, path=b.path) == b
+    table, _ = read_exif_exteriors([jpg])
+    for name, e in ExifReader([jpg]).read_ext_param().items():
+        eo = table[pathlib.Path(name).stem]
+        np.testing.assert_allclose(np.asarray(eo.position), e["xyz"], rtol=0, atol=1e-6)
+        np.testing.assert_allclose(_opk_deg(eo), np.degrees(e["opk"]), rtol=0, atol=1e-6)
