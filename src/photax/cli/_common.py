@@ -106,7 +106,8 @@ def add_oriented_images(p) -> None:
         metavar="CAMERA_FILE",
         help="photax camera file or orthority interior YAML (--interior is an alias)",
     )
-    p.add_argument("--exterior", required=True, help="approximate orientations (resect -o or orthority CSV)")
+    p.add_argument("--exterior", required=True, help="approximate orientations (resect -o, orthority CSV, "
+                   "reconstruction.json, or exif: each image's GPS and DJI gimbal tags)")  # fmt: skip
     p.add_argument("--dem", required=True, help="DEM raster in the ground CRS")
     p.add_argument("--search", type=int, default=12, help="search radius around the prediction, px (default 12)")
 
@@ -118,20 +119,22 @@ def read_oriented_images(args, extra: list) -> tuple[list, object, list[str], li
     each checked as readable, and ``args.out`` checked against all of them."""
 
     from ..io.atomic import check_output_path
-    from ..io.orientation import read_exteriors, read_interior
+    from ..io.orientation import exif_attitude, read_exteriors, read_interior
     from ..io.raster import open_raster, read_geotiff
 
-    files = [*args.images, args.camera, args.exterior, args.dem, *[f for f in extra if f]]
+    exif = exif_attitude(args.exterior) is not None  # --exterior exif: the images' own tags
+    files = [*args.images, args.camera, *([] if exif else [args.exterior]), args.dem, *[f for f in extra if f]]
     for f in files:
         input_file(f, "input file")
     check_output_path(args.out, files)
     camera = read_interior(args.camera)
     names = [pathlib.Path(f).stem for f in args.images]
     images = [read_geotiff(f)[0][0].astype(float) for f in args.images]
-    table, crs = read_exteriors(args.exterior, args.images)  # the file parsed once
-    exterior = [table[f] for f in args.images]
     with open_raster(args.dem) as src:  # the DEM's CRS against the orientations' (the caller reads the heights)
         dem_crs = src.crs.to_wkt() if src.crs else None
+    # the file parsed once; latitudes/longitudes (a drone's CSV, its tags) go into the DEM's CRS
+    table, crs = read_exteriors(args.exterior, args.images, crs=dem_crs)
+    exterior = [table[f] for f in args.images]
     check_crs(crs, f"the orientations ({args.exterior})", dem_crs, f"the DEM ({args.dem})")
     return files, camera, names, images, exterior
 

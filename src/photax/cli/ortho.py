@@ -35,7 +35,9 @@ def add_parser(sub) -> None:
         "  photax ortho ngi/*.tif --dem dem.tif --camera cam.yaml --exterior ext.csv --out-dir orthos  "
         "# a block, one process\n"
         "  photax ortho IMAGE.tif --height 120 --camera cam.yaml --exterior resect.json -o ortho.tif  "
-        "# flat ground at Z = 120\n",
+        "# flat ground at Z = 120\n"
+        "  photax ortho DJI_0001.JPG --dem dsm.tif --camera cam.yaml --exterior exif -o ortho.tif  "
+        "# position and gimbal angles from the image's EXIF/XMP\n",
     )
     p.add_argument("image", metavar="IMAGE", nargs="+", help="the image(s) (any GDAL raster)")
     ground = p.add_mutually_exclusive_group(required=True)
@@ -47,13 +49,16 @@ def add_parser(sub) -> None:
         help="flat ground at height H instead of a DEM (a constant-height DEM under the image)",
     )
     p.add_argument("--camera", "--interior", dest="camera", required=True, metavar="CAMERA_FILE",
-                   help="photax camera file (see photax resect --help), orthority interior YAML or "
-                   "OpenSfM/ODM reconstruction.json (--interior is an alias)")  # fmt: skip
+                   help="photax camera file (see photax resect --help), orthority interior YAML, "
+                   "OpenSfM/ODM reconstruction.json or ODM cameras.json, or exif: the camera the image's "
+                   "tags describe (DJI DewarpData, else EXIF focal length), as orthority reads it "
+                   "(--interior is an alias)")  # fmt: skip
     p.add_argument("--exterior", required=True,
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
                    "several), "
                    "orthority exterior CSV (x y z omega phi kappa, or latitude longitude altitude roll pitch "
-                   "yaw) or GeoJSON, or OpenSfM/ODM reconstruction.json")  # fmt: skip
+                   "yaw) or GeoJSON, OpenSfM/ODM reconstruction.json, or exif: each image's GPS and DJI "
+                   "gimbal angles (exif:flight: the airframe's, for a camera fixed to it looking down)")  # fmt: skip
     out = p.add_mutually_exclusive_group(required=True)
     out.add_argument("-o", "--out", metavar="OUT_TIF", help="output GeoTIFF (one IMAGE)")
     out.add_argument("--out-dir", metavar="DIR", help="output folder: DIR/STEM_ortho.tif for each IMAGE")
@@ -67,6 +72,12 @@ def add_parser(sub) -> None:
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
+    p.add_argument(
+        "--export-params",
+        metavar="DIR",
+        help="also write the interior and exterior orientations used as orthority files: DIR/int_param.yaml, "
+        "DIR/ext_param.csv (+ .prj) and, with a CRS, DIR/ext_param.geojson (oty ortho reads them)",
+    )
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -88,16 +99,22 @@ def _check_inputs(args: argparse.Namespace) -> None:
         input_file(args.dem, "DEM")
     elif not math.isfinite(args.height):
         raise ValueError(f"--height must be a finite number, got {args.height}")
-    input_file(args.camera, "camera file")
-    input_file(args.exterior, "exterior file")
+    from ..io.orientation import exif_attitude
+
+    if args.camera != "exif":
+        input_file(args.camera, "camera file")
+    if exif_attitude(args.exterior) is None:
+        input_file(args.exterior, "exterior file")
     if args.resolution is not None and not args.resolution > 0:
         raise ValueError(f"--resolution must be positive, got {args.resolution}")
 
 
 def _run_one(args: argparse.Namespace) -> int:
+    import pathlib
+
     from ..grid import ortho_grid
     from ..io.atomic import check_output_path
-    from ..io.orientation import read_exterior, read_interior
+    from ..io.orientation import read_exterior
     from ..io.raster import read_dem
     from ..rectification import orthorectify_file
     from ._common import check_crs, ground_unit, input_file
@@ -106,7 +123,7 @@ def _run_one(args: argparse.Namespace) -> int:
     _check_inputs(args)
     inputs = [p for p in (args.image, args.dem, args.camera, args.exterior) if p is not None]
     check_output_path(args.out, inputs)  # fail before the work, not after
-    camera = read_interior(args.camera, args.camera_name)
+    camera = _read_camera(args, [args.image])
     dem = read_dem(args.dem) if args.dem is not None else None
     # positions given in latitude/longitude or a topocentric frame go into the DEM's CRS
     exterior, crs = read_exterior(args.exterior, args.image, crs=dem.crs if dem is not None else None)
@@ -114,6 +131,7 @@ def _run_one(args: argparse.Namespace) -> int:
     if args.dem is not None:
         check_crs(crs, f"the orientation ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
     grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
+    _export_params(args, camera, {pathlib.Path(args.image).name: exterior}, crs)
     orthorectify_file(
         image,
         args.out,
@@ -136,7 +154,7 @@ def _run_block(args: argparse.Namespace) -> int:
     import sys
 
     from ..io.atomic import check_output_path, output_name
-    from ..io.orientation import read_exterior, read_exteriors, read_interior
+    from ..io.orientation import read_exterior, read_exteriors
     from ..io.raster import read_dem
     from ..rectification import orthorectify_files
     from ._common import check_crs, ground_unit, input_file
@@ -154,7 +172,7 @@ def _run_block(args: argparse.Namespace) -> int:
     inputs = [*args.image, *(p for p in (args.dem, args.camera, args.exterior) if p is not None)]
     for out in outputs:
         check_output_path(out, inputs)  # fail before the work, not after
-    camera = read_interior(args.camera, args.camera_name)
+    camera = _read_camera(args, args.image)
     dem = read_dem(args.dem) if args.dem is not None else None
     dem_crs = dem.crs if dem is not None else None  # positions in latitude/longitude go into the DEM's CRS
     failed = {}
@@ -179,6 +197,8 @@ def _run_block(args: argparse.Namespace) -> int:
         check_crs(crs, f"the orientations ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
     else:
         dem = _flat_dem(args.height, exteriors) if exteriors else None
+    if exteriors:
+        _export_params(args, camera, {pathlib.Path(args.image[k]).name: table[args.image[k]] for k in todo}, crs)
     results = (
         orthorectify_files(
             [args.image[k] for k in todo],
@@ -212,6 +232,50 @@ def _run_block(args: argparse.Namespace) -> int:
         )
         return 1
     return 0
+
+
+def _read_camera(args: argparse.Namespace, images: list):
+    """``--camera``: a file, or ``exif``: the camera the images' tags describe (DJI
+    DewarpData, else EXIF focal length; :func:`photax.io.exif.camera_from_tags`), the
+    same for every image."""
+    import numpy as np
+
+    from ..io.orientation import read_interior
+
+    if args.camera != "exif":
+        return read_interior(args.camera, args.camera_name)
+    from ..io.exif import camera_from_tags, read_drone_tags
+
+    cameras = [camera_from_tags(read_drone_tags(image)) for image in images]
+    fields = ("focal_length", "principal_point", "distortion", "pixel_size")
+    for image, cam in zip(images[1:], cameras[1:]):
+        same = cam.image_size == cameras[0].image_size and all(
+            np.array_equal(np.asarray(getattr(cam, f)), np.asarray(getattr(cameras[0], f))) for f in fields
+        )
+        if not same:
+            raise ValueError(f"--camera exif: {image} has another camera than {images[0]}: orthorectify them apart")
+    return cameras[0]
+
+
+def _export_params(args: argparse.Namespace, camera, exteriors: dict, crs) -> None:
+    """``--export-params DIR``: the orientations used, as orthority's files (before the orthos)."""
+    import pathlib
+
+    from ..io.orthority import write_orthority_exterior, write_orthority_geojson, write_orthority_interior
+
+    if args.export_params is None:
+        return
+    folder = pathlib.Path(args.export_params)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"--export-params {folder}: is a file, expected a folder")
+    inputs = [*(args.image if isinstance(args.image, list) else [args.image]), args.camera, args.exterior]
+    inputs += [args.dem] if args.dem is not None else []
+    name = args.camera_name or "photax_camera"
+    write_orthority_interior(folder / "int_param.yaml", {name: camera}, inputs=inputs)
+    write_orthority_exterior(folder / "ext_param.csv", exteriors, crs, inputs=inputs)
+    if crs is not None:
+        write_orthority_geojson(folder / "ext_param.geojson", exteriors, crs, camera=name, inputs=inputs)
+    print(f"wrote {folder}/int_param.yaml, ext_param.csv{' and ext_param.geojson' if crs is not None else ''}")
 
 
 def _flat_dem(height: float, exterior):

@@ -23,6 +23,11 @@ from .colmap import read_colmap as read_colmap
 from .colmap import read_colmap_model as read_colmap_model
 from .colmap import write_colmap as write_colmap
 from .colmap import write_colmap_model as write_colmap_model
+from .exif import DroneTags as DroneTags
+from .exif import camera_from_tags as camera_from_tags
+from .exif import exterior_from_tags as exterior_from_tags
+from .exif import read_drone_tags as read_drone_tags
+from .exif import read_exif_exteriors as read_exif_exteriors
 from .gcp import GCPTable as GCPTable
 from .gcp import read_gcps as read_gcps
 from .gcp import write_gcps as write_gcps
@@ -30,6 +35,8 @@ from .metashape import read_metashape_calibration as read_metashape_calibration
 from .metashape import read_opk_export as read_opk_export
 from .metashape import write_metashape_calibration as write_metashape_calibration
 from .metashape import write_opk_export as write_opk_export
+from .odm import read_odm_cameras as read_odm_cameras
+from .odm import read_odm_geo as read_odm_geo
 from .opensfm import read_opensfm_cameras as read_opensfm_cameras
 from .opensfm import read_opensfm_shots as read_opensfm_shots
 from .orientation import (
@@ -63,6 +70,9 @@ from .orthority import (
 from .orthority import (
     read_orthority_interior as read_orthority_interior,
 )
+from .orthority import write_orthority_exterior as write_orthority_exterior
+from .orthority import write_orthority_geojson as write_orthority_geojson
+from .orthority import write_orthority_interior as write_orthority_interior
 from .points import read_named_points as read_named_points
 from .points import read_pixel_points as read_pixel_points
 from .raster import (

@@ -4,11 +4,12 @@
   an orthority interior YAML (:mod:`photax.io.orthority`) -- an orthority
   file has a ``type`` key, or maps camera names to mappings that each have one --
   or an OpenSfM/ODM ``reconstruction.json`` (:mod:`photax.io.opensfm`: a JSON list
-  of objects with ``shots``);
+  of objects with ``shots``), or ODM's ``cameras.json`` (:mod:`photax.io.odm`);
 * :func:`read_exterior`: a ``photax resect --json`` result (``.json``), a
   ``reconstruction.json``, an orthority GeoJSON (``.geojson``) or an orthority
   exterior CSV (+ ``.prj`` beside it; or latitude, longitude, altitude, roll,
-  pitch, yaw); :func:`read_exteriors` reads
+  pitch, yaw), or the word ``exif`` (``exif:gimbal``, ``exif:flight``: each image's
+  own GPS and attitude tags, :mod:`photax.io.exif`); :func:`read_exteriors` reads
   many images' orientations from one such file, parsing it once, and
   :func:`block_images` pairs them with the image files of a folder;
 * :func:`read_camera_unit`: the length unit a photax camera file is written in.
@@ -27,7 +28,9 @@ from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
-from .files import MAX_BYTES, check_regular, excerpt, file_error, load_yaml, read_text
+from .exif import read_exif_exteriors
+from .files import MAX_BYTES, check_regular, excerpt, file_error, load_json, load_yaml, read_text
+from .odm import is_odm_cameras, read_odm_cameras
 from .opensfm import is_reconstruction, read_opensfm_cameras, read_opensfm_shots
 from .orthority import read_orthority_exterior_crs, read_orthority_geojson, read_orthority_interior
 from .results import read_json
@@ -40,8 +43,8 @@ def _table(path: pathlib.Path, data=None, crs=None) -> tuple[dict[str, ExteriorO
     projected CRS wanted of the formats whose positions are geographic or
     topocentric (reconstruction, latitude/longitude CSV), default their UTM zone."""
     if data is not None:  # JSON already parsed: a reconstruction
-        table, crs, _ = read_opensfm_shots(path, crs)
-        return table, crs
+        table, out, _ = read_opensfm_shots(path, crs)
+        return _into_vertical_datum(table, out, crs)
     if path.suffix.lower() == ".geojson":
         return read_orthority_geojson(path)
     from .metashape import is_opk_export, read_opk_export
@@ -52,7 +55,34 @@ def _table(path: pathlib.Path, data=None, crs=None) -> tuple[dict[str, ExteriorO
 
     if is_colmap_file(path, "images"):  # a (georeferenced) COLMAP model's poses: no CRS named
         return read_colmap_exteriors(path), None
-    return read_orthority_exterior_crs(path, crs)
+    table, out = read_orthority_exterior_crs(path, crs)
+    return _into_vertical_datum(table, out, crs) if _is_lla_csv(path) else (table, out)
+
+
+def _is_lla_csv(path: pathlib.Path) -> bool:
+    """An orthority CSV of latitude, longitude, altitude (ellipsoidal heights)."""
+    for line in read_text(path, "orthority exterior file").splitlines():
+        if line.strip() and not line.startswith("#"):
+            return "latitude" in line.lower()
+    return False
+
+
+def _into_vertical_datum(table, table_crs, crs):
+    """Positions whose heights are WGS84 ellipsoidal (GNSS, OpenSfM, drone tags), now in
+    the horizontal ``table_crs``, with their heights moved into the vertical datum of
+    ``crs`` when it has one (a DEM in ``EPSG:32735+5773``: :mod:`photax.io.crs`)."""
+    from .crs import heights_from_ellipsoid, vertical_crs
+
+    if crs is None or vertical_crs(crs) is None or not table:
+        return table, table_crs
+    import pyproj
+
+    names = list(table)
+    xyz = np.stack([np.asarray(table[n].position, dtype=float) for n in names])
+    lon, lat = pyproj.Transformer.from_crs(table_crs, "EPSG:4326", always_xy=True).transform(xyz[:, 0], xyz[:, 1])
+    xyz[:, 2] = heights_from_ellipsoid(lat, lon, xyz[:, 2], crs)
+    out = {n: ExteriorOrientation(p, table[n].angles, table[n].convention) for n, p in zip(names, xyz)}
+    return out, table_crs
 
 
 def _is_orthority_interior(path: pathlib.Path) -> bool:
@@ -74,6 +104,17 @@ def _is_reconstruction_file(path: pathlib.Path) -> bool:
     if check_regular(path, "camera file").st_size > MAX_BYTES["camera file"]:
         return True
     return is_reconstruction(read_json(path))
+
+
+def _is_odm_cameras_file(path: pathlib.Path) -> bool:
+    """ODM's ``cameras.json``: camera ids mapped to OpenSfM camera parameters."""
+    if path.suffix.lower() != ".json":
+        return False
+    try:
+        data = load_json(path, read_text(path, "camera file"))
+    except ValueError:  # let read_camera report what is wrong
+        return False
+    return is_odm_cameras(data)
 
 
 def read_interior(path, name: str | None = None) -> FrameCamera:
@@ -98,6 +139,8 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
         cameras = read_colmap_cameras(path)
     elif _is_reconstruction_file(path):
         cameras = read_opensfm_cameras(path)
+    elif _is_odm_cameras_file(path):
+        cameras = read_odm_cameras(path)
     elif not _is_orthority_interior(path):
         return read_camera(path)
     else:
@@ -163,6 +206,10 @@ def read_exterior(path, image, crs=None) -> tuple[ExteriorOrientation, str | Non
         ValueError: naming the file: malformed, no (solved) orientation for
             ``image``, or several candidates.
     """
+    if exif_attitude(path) is not None:  # the image's own GPS and attitude tags
+        # heights as tagged: not moved into a vertical datum (their own datum is not known)
+        table, out = read_exif_exteriors(image, exif_attitude(path), crs)
+        return next(iter(table.values())), out
     path = pathlib.Path(path)
     data = read_json(path) if path.suffix.lower() == ".json" else None
     if data is not None and not is_reconstruction(data):
@@ -190,6 +237,11 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
         ValueError: naming the file: malformed, no images, or no (solved)
             orientation for one of ``names``.
     """
+    if exif_attitude(path) is not None:  # each image's own tags, into one CRS
+        if names is None:
+            raise ValueError("--exterior exif reads the images' own tags: name the images")
+        table, out = read_exif_exteriors(names, exif_attitude(path), crs)  # heights as tagged
+        return dict(zip(names, table.values())), out
     path = pathlib.Path(path)
     data = read_json(path) if path.suffix.lower() == ".json" else None
     if data is not None and not is_reconstruction(data):
@@ -219,6 +271,14 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
             raise ValueError(f"{path}: no orientation for image {stem!r}")
         table[n] = rows[stem]
     return table, crs
+
+
+def exif_attitude(path) -> str | None:
+    """``"gimbal"`` or ``"flight"`` when ``path`` is the word ``exif`` (the camera's own,
+    gimbal, angles), ``exif:gimbal`` or ``exif:flight``: the orientation is read from each
+    image's tags (:mod:`photax.io.exif`); None for a file (``./exif`` for a file of that name)."""
+    text = str(path) if isinstance(path, str) else None
+    return {"exif": "gimbal", "exif:gimbal": "gimbal", "exif:flight": "flight"}.get(text)
 
 
 def block_images(path, folder, crs=None) -> tuple[list[pathlib.Path], list[ExteriorOrientation], str | None]:
@@ -275,7 +335,12 @@ def read_camera_unit(path) -> str | None:
     from .colmap import is_colmap_file
     from .metashape import is_metashape_xml
 
-    if _is_reconstruction_file(path) or is_metashape_xml(path) or is_colmap_file(path, "cameras"):
+    if (
+        _is_reconstruction_file(path)
+        or _is_odm_cameras_file(path)
+        or is_metashape_xml(path)
+        or is_colmap_file(path, "cameras")
+    ):
         return "px"
     if _is_orthority_interior(path):
         return None

@@ -387,3 +387,138 @@ def read_orthority_crs(csv_path, prj=None) -> str | None:
     if not text:
         raise ValueError(f"{prj}: empty CRS file")
     return text
+
+
+# --- writers (photax ortho --export-params) -------------------------------------------------
+
+
+def _interior_params(name, camera: FrameCamera) -> dict:
+    """orthority's parameters of ``camera`` (the inverse of :func:`_camera_from_params`)."""
+    distortion = np.asarray(camera.distortion, dtype=float)
+    if (
+        getattr(camera, "transform", None) is not None
+        or camera.pixel_size is None
+        or camera.image_size is None
+        or distortion.shape != (5,)
+    ):
+        raise ValueError(
+            f"camera {excerpt(name)}: orthority's interior file holds a digital frame camera with a pixel "
+            "grid and the k1, k2, k3, p1, p2 distortion (not a scanned film camera, nor other models)"
+        )
+    w, h = camera.image_size
+    f = float(camera.focal_length)
+    sx, sy = (float(v) for v in np.asarray(camera.pixel_size, dtype=float))
+    x0, y0 = (float(v) for v in np.asarray(camera.principal_point, dtype=float))
+    m = max(w, h)
+    p = {"type": "brown" if np.any(distortion != 0) else "pinhole", "im_size": [int(w), int(h)]}
+    # one focal length, the pixel height carrying any difference of fx and fy (as the reader)
+    p.update(focal_len=f, sensor_size=[sx * w, sy * h], cx=x0 / (m * sx), cy=-y0 / (m * sy))
+    if p["type"] == "brown":
+        k1, k2, k3, p1, p2 = (float(v) for v in distortion)
+        p.update(k1=k1, k2=k2, p1=0.0 - p1, p2=p2, k3=k3)  # OpenCV's p1 (y down) is minus photax's
+    return p
+
+
+def write_orthority_interior(path, cameras, *, inputs=()) -> pathlib.Path:
+    """Write ``cameras`` (``{name: FrameCamera}``, or one camera, named ``"photax_camera"``)
+    as orthority's interior YAML: ``pinhole`` without distortion, else ``brown``
+    (k1, k2, p1, p2, k3: photax's five terms); ``focal_len`` and ``sensor_size``
+    in the camera's length unit, ``cx``, ``cy`` normalised (module docstring).
+    :func:`read_orthority_interior` reads back the same cameras (to rounding).
+    Written atomically; ``inputs`` may not be overwritten.
+
+    Raises:
+        ValueError: a camera without a pixel grid, a scanned camera, another
+            distortion model than photax's five terms, or a camera named
+            ``camera`` (orthority's legacy key).
+    """
+    import yaml
+
+    from .atomic import atomic_write
+
+    if isinstance(cameras, FrameCamera):
+        cameras = {"photax_camera": cameras}
+    if not cameras:
+        raise ValueError("no cameras to write")
+    if "camera" in map(str, cameras):
+        raise ValueError(
+            "a camera named 'camera': orthority reads a top-level 'camera' key as its legacy "
+            "config.yaml, not as a camera name; name it otherwise"
+        )
+    data = {str(name): _interior_params(name, cam) for name, cam in cameras.items()}
+    with atomic_write(path, inputs=inputs) as fh:
+        yaml.safe_dump(data, fh, sort_keys=False, default_flow_style=None)
+    return pathlib.Path(path)
+
+
+def _opk_degrees(name, eo: ExteriorOrientation) -> list[float]:
+    from ..rotation import convert_angles
+
+    pos, ang = np.asarray(eo.position, dtype=float), np.asarray(eo.angles, dtype=float)
+    if pos.shape != (3,) or ang.shape != (3,) or not (np.all(np.isfinite(pos)) and np.all(np.isfinite(ang))):
+        raise ValueError(f"image {excerpt(name)}: the orientation must be one finite position and attitude")
+    return np.degrees(np.asarray(convert_angles(ang, eo.convention, "omega-phi-kappa"), dtype=float)).tolist()
+
+
+def write_orthority_exterior(path, table, crs=None, *, inputs=()) -> pathlib.Path:
+    """Write ``table`` (``{image name: ExteriorOrientation}``, any angle convention)
+    as orthority's exterior CSV: a header ``filename x y z omega phi kappa``,
+    angles in degrees (orthority's omega-phi-kappa = photax's), full precision;
+    with ``crs``, its WKT in the ``.prj`` beside the file (both written
+    atomically).  :func:`read_orthority_exterior_crs` reads back the same."""
+    import pyproj
+
+    from .atomic import atomic_write
+
+    path = pathlib.Path(path)
+    if not table:
+        raise ValueError("no orientations to write")
+    rows = []
+    for name, eo in table.items():
+        key = pathlib.PurePath(str(name)).stem
+        if not key or any(c in key for c in ",\n\r\"'") or key != key.strip():
+            raise ValueError(f"image name {excerpt(name)} cannot be written in a CSV column")
+        rows.append([key, *np.asarray(eo.position, dtype=float).tolist(), *_opk_degrees(name, eo)])
+    wkt = pyproj.CRS.from_user_input(crs).to_wkt() if crs is not None else None
+    with atomic_write(path, inputs=inputs, newline="") as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(_COLUMNS)
+        writer.writerows([r[0], *(repr(float(v)) for v in r[1:])] for r in rows)
+    if wkt is not None:
+        with atomic_write(path.with_suffix(".prj"), inputs=inputs) as fh:
+            fh.write(wkt + "\n")
+    return path
+
+
+def write_orthority_geojson(path, table, crs, camera=None, *, inputs=()) -> pathlib.Path:
+    """Write ``table`` (``{image name: ExteriorOrientation}``) as orthority's exterior
+    GeoJSON (what ``oty ... --export-params`` writes): ``world_crs`` (``crs``, a
+    projected CRS), each feature's ``filename``, ``camera`` (the camera name in the
+    interior file, or null), ``xyz`` and ``opk`` (radians) and a WGS84 point
+    (lon, lat, h).  :func:`read_orthority_geojson` reads back the same."""
+    import json
+
+    import pyproj
+
+    from ._geo import projected_crs
+    from .atomic import atomic_write
+
+    if not table:
+        raise ValueError("no orientations to write")
+    target = projected_crs(crs, "the exterior GeoJSON's CRS")
+    code = target.to_epsg()
+    world = f"EPSG:{code}" if code is not None else target.to_wkt()
+    to_lla = pyproj.Transformer.from_crs(target, "EPSG:4979", always_xy=True)
+    features = []
+    for name, eo in table.items():
+        opk = np.radians(_opk_degrees(name, eo)).tolist()
+        xyz = np.asarray(eo.position, dtype=float).tolist()
+        lon, lat, h = to_lla.transform(*xyz)
+        props = {"filename": str(name), "camera": camera, "xyz": xyz, "opk": opk}
+        geometry = {"type": "Point", "coordinates": [float(lon), float(lat), float(h)]}
+        features.append({"type": "Feature", "properties": props, "geometry": geometry})
+    data = {"type": "FeatureCollection", "world_crs": world, "features": features}
+    with atomic_write(path, inputs=inputs) as fh:
+        json.dump(data, fh, indent=2, allow_nan=False)
+        fh.write("\n")
+    return pathlib.Path(path)

@@ -1,0 +1,151 @@
+"""OpenDroneMap's own small files: ``cameras.json`` and the image geolocation file ``geo.txt``.
+
+* ``cameras.json`` (ODM's ``--cameras``, and written by every run into the
+  project folder) maps camera ids (``"dji fc6310r 5472 3648 brown 0.6666"``)
+  to OpenSfM camera parameters: the ``cameras`` object of a
+  ``reconstruction.json``, read by the same code
+  (:func:`photax.io.opensfm.read_opensfm_cameras`' conventions: pixels,
+  ``p1`` sign turned for photax's y-up image plane).
+* ``geo.txt`` (ODM's ``--geo``; docs.opendronemap.org, "Image Geolocation
+  Files"): a first line naming the CRS (``EPSG:4326``, a PROJ string, or
+  ``WGS84 UTM <zone>[N|S]``), then ``image_name geo_x geo_y [geo_z] [yaw]
+  [pitch] [roll] [horz_accuracy] [vert_accuracy] [extras...]``; for a
+  geographic CRS ``geo_x`` is the longitude.  Positions are read (projected to
+  the UTM zone of their mean, or ``crs=``; heights as given), with the
+  accuracies where given; the angles are not: ODM uses them only for
+  radiometric calibration and does not define their frame, so they do not
+  make an exterior orientation.
+"""
+
+from __future__ import annotations
+
+import math
+import pathlib
+import re
+
+import numpy as np
+
+from ..camera import FrameCamera
+from .files import excerpt, file_error, load_json, read_text, split_lines
+
+
+def read_odm_cameras(path) -> dict[str, FrameCamera]:
+    """ODM's ``cameras.json``: ``{camera id: FrameCamera}`` in pixels.
+
+    Raises:
+        ValueError: naming the file: not a mapping of camera ids to OpenSfM
+            camera parameters, or a camera model photax cannot represent.
+    """
+    from .opensfm import _camera
+
+    path = pathlib.Path(path)
+    data = load_json(path, read_text(path, "camera file"))
+    if not is_odm_cameras(data):
+        raise file_error(
+            path, None, "not an ODM cameras.json (an object of camera ids to objects with 'projection_type' expected)"
+        )
+    return {str(name): _camera(path, name, p) for name, p in data.items()}
+
+
+def is_odm_cameras(data) -> bool:
+    """Whether parsed JSON looks like ODM's ``cameras.json``."""
+    return (
+        isinstance(data, dict)
+        and bool(data)
+        and all(isinstance(v, dict) and "projection_type" in v for v in data.values())
+    )
+
+
+_UTM = re.compile(r"^\s*WGS\s*84\s+UTM\s+(\d{1,2})\s*([NS])\s*$", re.IGNORECASE)
+
+
+def odm_crs_text(text: str) -> str:
+    """ODM's CRS line as pyproj reads it: ``WGS84 UTM 16N`` -> ``EPSG:32616``; other text as it is."""
+    m = _UTM.match(text)
+    if m is None:
+        return text.strip()
+    zone = int(m.group(1))
+    if not 1 <= zone <= 60:
+        raise ValueError(f"UTM zone {zone} is not 1 to 60")
+    return f"EPSG:{(32600 if m.group(2).upper() == 'N' else 32700) + zone}"
+
+
+def read_odm_geo(path, crs=None) -> tuple[dict[str, np.ndarray], str | None, dict[str, tuple[float, float]]]:
+    """ODM's ``geo.txt``: ``({image stem: (x, y, z)}, crs, {image stem: (horizontal,
+    vertical accuracy)})``.
+
+    Geographic coordinates (longitude, latitude) go to ``crs`` (a projected CRS)
+    or, by default, the WGS84 UTM zone of their mean; projected ones stay in
+    their CRS (moved to ``crs`` when given).  A missing ``geo_z`` is NaN (the
+    position is 2-D: not for a GNSS-aided adjustment); accuracies are listed
+    only for images that give both.  The positions can stand for the start
+    positions and GNSS observations of ``photax bundle --position-sigma``.
+
+    Raises:
+        ValueError: naming the file and line: no CRS line, a CRS pyproj does not
+            read, a line without a name and two numbers, a latitude out of
+            range, a repeated image.
+    """
+    from .gcp import _projected
+
+    path = pathlib.Path(path)
+    numbered = [(i + 1, t) for i, t in enumerate(split_lines(read_text(path, "ODM geo file")))]
+    numbered = [(n, t) for n, t in numbered if t.strip() and not t.lstrip().startswith("#")]
+    if not numbered:
+        raise file_error(path, None, "empty: a CRS line, then 'image_name geo_x geo_y [geo_z] ...' lines expected")
+    line0, crs_line = numbered[0]
+    try:
+        source = odm_crs_text(crs_line)
+    except ValueError as exc:
+        raise file_error(path, line0, str(exc)) from None
+    names, xyz, lines, accuracy = [], [], [], {}
+    for n, text in numbered[1:]:
+        f = text.split()
+        try:
+            values = [float(v) for v in f[1:9]]
+        except ValueError:
+            bad = next(v for v in f[1:9] if not _is_float(v))
+            if len(names) == 0 and len(f) < 3:
+                raise file_error(path, n, "not an ODM geo.txt ('image_name geo_x geo_y [geo_z] ...' lines)") from None
+            raise file_error(
+                path, n, f"{excerpt(bad)} is not a number (columns: image_name geo_x geo_y [geo_z] ...)"
+            ) from None
+        if len(f) < 3:
+            raise file_error(path, n, f"expected 'image_name geo_x geo_y [geo_z] ...', got {len(f)} column(s)")
+        if not all(math.isfinite(v) for v in values):
+            raise file_error(path, n, "a value is not finite")
+        stem = pathlib.PurePath(f[0]).stem
+        if not stem or stem in names:
+            raise file_error(path, n, f"image {excerpt(f[0])} is empty or repeated")
+        names.append(stem)
+        xyz.append(values[:3] if len(values) >= 3 else [*values[:2], math.nan])
+        lines.append(n)
+        if len(values) >= 8:
+            h, v = values[6], values[7]
+            if not (h > 0 and v > 0):
+                raise file_error(path, n, f"accuracies must be positive, got {h:g} and {v:g}")
+            accuracy[stem] = (h, v)
+    if not names:
+        raise file_error(path, None, "no image positions after the CRS line")
+    ground = np.asarray(xyz, dtype=float)
+    try:
+        out, crs_text = _projected(path, ground, source, crs, lines)
+    except ValueError as exc:
+        raise ValueError(str(exc) if str(path) in str(exc) else f"{path}: {exc}") from None
+    if crs_text is not None and crs is None and _is_unreadable(crs_text):
+        raise file_error(path, line0, f"{excerpt(crs_line)} is not a CRS (EPSG:4326, a PROJ string, WGS84 UTM 16N)")
+    return dict(zip(names, out)), crs_text, accuracy
+
+
+def _is_float(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _is_unreadable(text: str) -> bool:
+    from .gcp import _parse_crs
+
+    return _parse_crs(text) is None
