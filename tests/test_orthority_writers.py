@@ -38,6 +38,17 @@ CAMERAS = {
     "brown_tall": photax.FrameCamera(
         120.0, (0.3, -0.2), (0.01, -0.002, 0.0003, 1e-4, -2e-4), pixel_size=(0.144, 0.1446), image_size=(640, 1152)
     ),
+    # photax's full OpenCV and fisheye models (orthority's opencv and fisheye types)
+    "opencv_px": photax.FrameCamera.from_pixels(
+        3666.7,
+        (5472, 3648),
+        (2740.3, 1818.9),
+        (-0.267, 0.112, -0.0332, 0.00092, -0.000088, 0.01, -0.002, 0.0005, 1e-4, -2e-5, 3e-5, -1e-5),
+        model="opencv",
+    ),
+    "fisheye_px": photax.FrameCamera.from_pixels(
+        2400.0, (4000, 3000), (2010.0, 1490.0), (0.05, -0.01, 0.003, -0.0004), model="fisheye"
+    ),
 }
 
 

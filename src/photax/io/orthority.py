@@ -393,43 +393,28 @@ def read_orthority_crs(csv_path, prj=None) -> str | None:
 
 
 def _interior_params(name, camera: FrameCamera) -> dict:
-    """orthority's parameters of ``camera`` (the inverse of :func:`_camera_from_params`)."""
-    distortion = np.asarray(camera.distortion, dtype=float)
-    if (
-        getattr(camera, "transform", None) is not None
-        or camera.pixel_size is None
-        or camera.image_size is None
-        or distortion.shape != (5,)
-    ):
-        raise ValueError(
-            f"camera {excerpt(name)}: orthority's interior file holds a digital frame camera with a pixel "
-            "grid and the k1, k2, k3, p1, p2 distortion (not a scanned film camera, nor other models)"
-        )
-    w, h = camera.image_size
-    f = float(camera.focal_length)
-    sx, sy = (float(v) for v in np.asarray(camera.pixel_size, dtype=float))
-    x0, y0 = (float(v) for v in np.asarray(camera.principal_point, dtype=float))
-    m = max(w, h)
-    p = {"type": "brown" if np.any(distortion != 0) else "pinhole", "im_size": [int(w), int(h)]}
-    # one focal length, the pixel height carrying any difference of fx and fy (as the reader)
-    p.update(focal_len=f, sensor_size=[sx * w, sy * h], cx=x0 / (m * sx), cy=-y0 / (m * sy))
-    if p["type"] == "brown":
-        k1, k2, k3, p1, p2 = (float(v) for v in distortion)
-        p.update(k1=k1, k2=k2, p1=0.0 - p1, p2=p2, k3=k3)  # OpenCV's p1 (y down) is minus photax's
+    """orthority's parameters of ``camera`` (:func:`camera_to_orthority`), ``pinhole`` when
+    it has no distortion; the camera named in the error."""
+    try:
+        p = camera_to_orthority(camera)
+    except ValueError as exc:
+        raise ValueError(f"camera {excerpt(name)}: {exc}") from None
+    if not np.any(np.asarray(camera.distortion) != 0):
+        p = {k: v for k, v in p.items() if k in ("im_size", "focal_len", "sensor_size", "cx", "cy")}
+        p = {"type": "pinhole", **p}
     return p
 
 
 def write_orthority_interior(path, cameras, *, inputs=()) -> pathlib.Path:
     """Write ``cameras`` (``{name: FrameCamera}``, or one camera, named ``"photax_camera"``)
-    as orthority's interior YAML: ``pinhole`` without distortion, else ``brown``
-    (k1, k2, p1, p2, k3: photax's five terms); ``focal_len`` and ``sensor_size``
+    as orthority's interior YAML: ``pinhole`` without distortion, else the
+    camera's model (``brown``, ``opencv`` or ``fisheye``); ``focal_len`` and ``sensor_size``
     in the camera's length unit, ``cx``, ``cy`` normalised (module docstring).
     :func:`read_orthority_interior` reads back the same cameras (to rounding).
     Written atomically; ``inputs`` may not be overwritten.
 
     Raises:
-        ValueError: a camera without a pixel grid, a scanned camera, another
-            distortion model than photax's five terms, or a camera named
+        ValueError: a camera without a pixel grid, a scanned camera, or a camera named
             ``camera`` (orthority's legacy key).
     """
     import yaml
