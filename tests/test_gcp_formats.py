@@ -72,6 +72,22 @@ def test_odm_geographic_list_into_a_given_crs(tmp_path):
     assert read_gcps(ODM_LIST).crs == original.crs
 
 
+@needs_odm
+def test_odm_utm_zone_line_is_read_as_its_epsg_code(tmp_path):
+    """ODM writes ``WGS84 UTM 22S``: the same CRS as the sample's own PROJ string (EPSG:32722)."""
+    lines = ODM_LIST.read_text().splitlines()
+    path = tmp_path / "gcp_list.txt"
+    path.write_text("\n".join(["WGS84 UTM 22S", *lines[1:]]) + "\n")
+    table = read_gcps(path)
+    assert pyproj.CRS(table.crs) == pyproj.CRS(32722)
+    np.testing.assert_array_equal(table.ground, read_gcps(ODM_LIST).ground)
+    moved = read_gcps(path, crs="EPSG:32723")  # a known CRS, so it can be reprojected
+    np.testing.assert_allclose(moved.ground, read_gcps(ODM_LIST, crs="EPSG:32723").ground, rtol=0, atol=1e-9)
+    path.write_text("\n".join(["WGS84 UTM 61N", *lines[1:]]) + "\n")
+    with pytest.raises(ValueError, match=r"line 1: UTM zone 61"):
+        read_gcps(path)
+
+
 def test_geographic_crs_with_metres_is_refused(tmp_path):
     path = tmp_path / "gcp_list.txt"
     path.write_text("WGS84\n658528.361 7167002.098 890.6 10 20 a.jpg P1\n")

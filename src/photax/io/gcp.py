@@ -230,6 +230,12 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm", "qgis", "geojson"] 
                     f"(e.g. EPSG:32633 or a PROJ string), got a measurement: {excerpt(source_crs)}"
                 )
             rows = _parse_odm(path, numbered[1:])
+            from .odm import odm_crs_text
+
+            try:  # ODM's own "WGS84 UTM 16N" as an EPSG code; anything else as written
+                source_crs = odm_crs_text(source_crs)
+            except ValueError as exc:
+                raise ValueError(f"{path}, line {numbered[0][0]}: {exc}") from None
     if not len(rows["names"]):
         raise ValueError(f"{path}: no GCP measurements")
     _auto_names(rows)
