@@ -75,6 +75,7 @@ import dataclasses
 import json
 import math
 import pathlib
+import re
 from typing import Literal
 
 import numpy as np
@@ -177,6 +178,20 @@ class GCPTable:
         return self.sigma * float(np.mean(np.asarray(camera._pixel_grid()[1])))
 
 
+_UTM = re.compile(r"^\s*WGS\s*84\s+UTM\s+(\d{1,2})\s*([NS])\s*$", re.IGNORECASE)
+
+
+def odm_crs_text(text: str) -> str:
+    """ODM's CRS line as pyproj reads it: ``WGS84 UTM 16N`` -> ``EPSG:32616``; other text as it is."""
+    m = _UTM.match(text)
+    if m is None:
+        return text.strip()
+    zone = int(m.group(1))
+    if not 1 <= zone <= 60:
+        raise ValueError(f"UTM zone {zone} is not 1 to 60")
+    return f"EPSG:{(32600 if m.group(2).upper() == 'N' else 32700) + zone}"
+
+
 _FORMATS = ("auto", "csv", "odm", "qgis", "geojson")
 
 
@@ -230,8 +245,6 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm", "qgis", "geojson"] 
                     f"(e.g. EPSG:32633 or a PROJ string), got a measurement: {excerpt(source_crs)}"
                 )
             rows = _parse_odm(path, numbered[1:])
-            from .odm import odm_crs_text
-
             try:  # ODM's own "WGS84 UTM 16N" as an EPSG code; anything else as written
                 source_crs = odm_crs_text(source_crs)
             except ValueError as exc:

@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import math
 import pathlib
-import re
 
 import numpy as np
 
 from ..camera import FrameCamera
 from .files import excerpt, file_error, load_json, read_text, split_lines
+from .gcp import odm_crs_text
 
 
 def read_odm_cameras(path) -> dict[str, FrameCamera]:
@@ -54,20 +54,6 @@ def is_odm_cameras(data) -> bool:
         and bool(data)
         and all(isinstance(v, dict) and "projection_type" in v for v in data.values())
     )
-
-
-_UTM = re.compile(r"^\s*WGS\s*84\s+UTM\s+(\d{1,2})\s*([NS])\s*$", re.IGNORECASE)
-
-
-def odm_crs_text(text: str) -> str:
-    """ODM's CRS line as pyproj reads it: ``WGS84 UTM 16N`` -> ``EPSG:32616``; other text as it is."""
-    m = _UTM.match(text)
-    if m is None:
-        return text.strip()
-    zone = int(m.group(1))
-    if not 1 <= zone <= 60:
-        raise ValueError(f"UTM zone {zone} is not 1 to 60")
-    return f"EPSG:{(32600 if m.group(2).upper() == 'N' else 32700) + zone}"
 
 
 def read_odm_geo(path, crs=None) -> tuple[dict[str, np.ndarray], str | None, dict[str, tuple[float, float]]]:
