@@ -1,0 +1,236 @@
+"""RPC orthorectification (issue 23, item 3): the sensor protocol's map-CRS -> lon, lat transformation
+against pyproj, the ortho's positions against GDAL's RPC transformer with RPC_DEM, the ortho against
+GDAL's warper and orthority's (raw and shift-refined) on the QuickBird scene, and the bad inputs."""
+
+import warnings
+
+import jax
+import numpy as np
+import pytest
+from conftest import shared_file
+
+from photax.dem import DEM
+from photax.grid import Grid
+from photax.rectification import OrthoModel, ortho_grid, orthorectify
+from photax.rpc import RPCCamera, read_rpc, refine_rpc
+from photax.sensor import RPCSensor, utm_crs
+
+rasterio = pytest.importorskip("rasterio")
+pyproj = pytest.importorskip("pyproj")
+
+
+def _synthetic_rpc():
+    """The made-up near-affine RPC of test_rpc.py (no files needed), 1400 x 1200 pixels."""
+    rng = np.random.default_rng(0)
+    coeffs = rng.normal(0, 1e-4, (4, 20))
+    coeffs[0, :4] += [0.0, 0.03, -1.04, 0.01]
+    coeffs[2, :4] += [0.0, 1.02, 0.0, 0.013]
+    coeffs[[1, 3], 0] = 1.0
+    return RPCCamera(
+        coeffs, [24.4, -33.7, 700.0, 640.0, 400.0], [0.1, 0.07, 500.0, 1400.0, 1200.0], image_size=(1280, 800)
+    )
+
+
+def _lonlat_to(crs, lon, lat):
+    return pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True).transform(lon, lat)
+
+
+def test_sensor_lonlat_matches_pyproj_and_differentiates():
+    rpc = _synthetic_rpc()
+    sensor = RPCSensor(rpc, "EPSG:32735")
+    rng = np.random.default_rng(1)
+    lon = 24.4 + rng.uniform(-0.1, 0.1, 200)
+    lat = -33.7 + rng.uniform(-0.07, 0.07, 200)
+    x, y = _lonlat_to("EPSG:32735", lon, lat)
+    xy = np.column_stack([x, y])
+    ll = np.asarray(sensor.to_lonlat(xy))
+    print("lon, lat error of the local transformation (deg):", np.abs(ll - np.column_stack([lon, lat])).max())
+    np.testing.assert_allclose(ll, np.column_stack([lon, lat]), rtol=0, atol=1e-10)  # 10 um
+    # The ground -> pixel map of a point: pyproj then the RPC.
+    h = rng.uniform(300, 1100, 200)
+    expected = np.asarray(rpc(np.column_stack([lon, lat, h])))
+    got = np.asarray(sensor(np.column_stack([xy, h])))
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-6)
+    # jacfwd through it against central differences of the reference (pyproj + RPC), 1 m steps
+    jac = np.asarray(jax.jacfwd(lambda g: sensor(g))(np.array([x[0], y[0], h[0]])))
+
+    def ref(g):
+        lo, la = pyproj.Transformer.from_crs("EPSG:32735", "EPSG:4326", always_xy=True).transform(g[0], g[1])
+        return np.asarray(rpc(np.array([lo, la, g[2]])))
+
+    g0 = np.array([x[0], y[0], h[0]])
+    fd = np.column_stack([(ref(g0 + e) - ref(g0 - e)) / 2 for e in np.eye(3)])
+    np.testing.assert_allclose(jac, fd, rtol=1e-6, atol=1e-8)
+
+
+def test_rpc_outside_validity_is_nan_and_crs_invariant():
+    rpc = _synthetic_rpc()
+    utm, lo25 = "EPSG:32735", "+proj=tmerc +lon_0=25 +datum=WGS84 +units=m"
+    far = _lonlat_to(utm, 24.4 + 0.5, -33.7)  # 5 lon scales away: folded by the polynomial, refused
+    assert np.all(np.isnan(np.asarray(RPCSensor(rpc, utm)(np.array([*far, 700.0])))))
+    # The same ground point seen from two map CRSs images on the same pixel.
+    lon, lat = np.array([24.35, 24.42, 24.48]), np.array([-33.66, -33.71, -33.75])
+    a = np.column_stack([*_lonlat_to(utm, lon, lat), [400.0, 700.0, 1000.0]])
+    b = np.column_stack([*_lonlat_to(lo25, lon, lat), [400.0, 700.0, 1000.0]])
+    np.testing.assert_allclose(np.asarray(RPCSensor(rpc, utm)(a)), np.asarray(RPCSensor(rpc, lo25)(b)), atol=1e-6)
+
+
+def test_rpc_ortho_of_synthetic_image_reads_the_rpc_position():
+    """An image whose grey value is its own column: the ortho at a ground point holds the RPC's column
+    of (lon, lat, DEM height) there (bilinear resampling of a linear ramp is exact)."""
+    rpc = _synthetic_rpc()
+    w, h = rpc.image_size
+    image = np.tile(np.arange(w, dtype=np.float64), (h, 1))
+    crs = utm_crs(24.4, -33.7)
+    assert crs == "EPSG:32735"
+    x0, y0 = _lonlat_to(crs, 24.4, -33.7)
+    dem = DEM.flat(650.0, (x0 - 12000, y0 - 12000, x0 + 12000, y0 + 12000))
+    dem = DEM(np.asarray(dem.heights), np.asarray(dem.transform), crs=crs)
+    grid = ortho_grid(None, rpc, dem, 100.0)
+    assert grid.crs == crs
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the flat DEM's CRS names no ellipsoidal heights
+        ortho, _ = orthorectify(image, None, rpc, dem, grid, approx=None)
+    xy = grid.xy().reshape(-1, 2)
+    lon, lat = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(xy[:, 0], xy[:, 1])
+    col = np.asarray(rpc(np.column_stack([lon, lat, np.full(len(lon), 650.0)])))[:, 0].reshape(grid.shape)
+    seen = np.isfinite(ortho)
+    assert seen.mean() > 0.5
+    seen &= (col >= 0) & (col <= w - 1)  # in the outer half pixel the edge column is replicated
+    np.testing.assert_allclose(ortho[seen], col[seen], rtol=0, atol=1e-6)
+
+
+def test_rpc_bad_inputs():
+    rpc = _synthetic_rpc()
+    crs = "EPSG:32735"
+    x0, y0 = _lonlat_to(crs, 24.4, -33.7)
+    bounds = (x0 - 5000, y0 - 5000, x0 + 5000, y0 + 5000)
+    image = np.zeros(rpc.image_size[::-1])
+    grid = Grid.from_bounds(bounds, 200.0, crs)
+    with pytest.raises(ValueError, match="exterior=None"):
+        OrthoModel(object(), rpc, DEM.flat(700.0, bounds), crs)
+    with pytest.raises(ValueError, match="needs the output grid's CRS"):
+        OrthoModel(None, rpc, DEM.flat(700.0, bounds))
+    flat = DEM.flat(3000.0, bounds)  # feet, say: above the RPC's 200 .. 1200 m
+    flat = DEM(np.asarray(flat.heights), np.asarray(flat.transform), crs=crs)
+    with pytest.raises(ValueError, match="outside the RPC's validity range 200.0 .. 1200.0"):
+        orthorectify(image, None, rpc, flat, grid)
+    with pytest.warns(UserWarning, match="ellipsoidal"):
+        ok = DEM(np.asarray(flat.heights) * 0 + 700.0, np.asarray(flat.transform), crs=crs)
+        orthorectify(image, None, rpc, ok, grid)
+
+
+# --- the QuickBird scene (shared data) -------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def qb():
+    tif = shared_file("orthority/rpc/qb2_basic1b.tif")
+    dem_path = shared_file("orthority/ngi/dem.tif")
+    from photax.io.raster import read_dem
+
+    with rasterio.open(tif) as src:
+        image = src.read(1)
+    return read_rpc(tif), image, read_dem(str(dem_path)), tif, dem_path
+
+
+def test_qb_positions_equal_gdal_rpc_dem(qb):
+    """OrthoModel's image positions of ground points in UTM 35S (DEM in its own Lo25 CRS) against
+    GDAL's RPC transformer with RPC_DEM (bilinear, no vertical datum shift): within 0.1 px (the target)."""
+    from rasterio.transform import RPCTransformer
+
+    rpc, _, dem, tif, dem_path = qb
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        grid = ortho_grid(None, rpc, dem, 50.0, crs="EPSG:32735")
+    xy = grid.xy().reshape(-1, 2)
+    ours = np.asarray(OrthoModel(None, rpc, dem, grid.crs)(xy))
+    lon, lat = pyproj.Transformer.from_crs(grid.crs, "EPSG:4326", always_xy=True).transform(xy[:, 0], xy[:, 1])
+    with rasterio.open(tif) as src:
+        opts = {"RPC_DEM": str(dem_path), "RPC_DEMINTERPOLATION": "bilinear", "RPC_DEM_APPLY_VDATUM_SHIFT": False}
+        with RPCTransformer(src.rpcs, **opts) as t:
+            rows, cols = t.rowcol(lon, lat, op=lambda v: v)
+    gdal = np.column_stack([cols, rows]) - 0.5  # GDAL counts from the pixel's corner
+    inside = np.all(np.isfinite(ours), axis=1) & (ours[:, 0] > 0) & (ours[:, 0] < rpc.image_size[0] - 1)
+    inside &= (ours[:, 1] > 0) & (ours[:, 1] < rpc.image_size[1] - 1)
+    assert inside.sum() > 2000
+    err = np.abs(ours[inside] - gdal[inside]).max()
+    print(f"photax - GDAL RPC_DEM positions, max |px|: {err:.2e} over {inside.sum()} points")
+    assert err < 0.1
+
+
+def _offset_and_mad(a, b):
+    """Sub-pixel shift between two uint8 orthos on their common pixels (phase correlation to 1/100
+    px) and their mean absolute difference there."""
+    from skimage.registration import phase_cross_correlation
+
+    both = (a > 0) & (b > 0)
+    shift, _, _ = phase_cross_correlation(
+        np.where(both, b, 0).astype(float), np.where(both, a, 0).astype(float), upsample_factor=100
+    )
+    return float(np.hypot(*shift)), float(np.abs(a[both].astype(float) - b[both]).mean()), int(both.sum())
+
+
+def _orthority(tif, dem_path, rpc_dict, out, res):
+    from orthority import Ortho
+    from orthority.camera import RpcCamera
+
+    with rasterio.open(tif) as src:
+        size = (src.width, src.height)
+    cam = RpcCamera(size, rpc_dict, crs="EPSG:32735")
+    Ortho(str(tif), str(dem_path), cam, crs="EPSG:32735").process(
+        out, (res, res), interp="bilinear", dem_interp="bilinear", compress="deflate", build_ovw=False
+    )
+    with rasterio.open(out) as src:
+        return src.read(1), Grid(src.transform, src.shape, "EPSG:32735")
+
+
+@pytest.mark.parametrize("refine", [None, "shift"])
+def test_qb_ortho_matches_orthority(qb, refine, tmp_path):
+    """The targets: within 0.2 px and 1 grey level of orthority's ortho (raw and shift-refined on the
+    5 GCPs) on its own grid; at 20 m to stay fast (the benchmark runs the 5 m one)."""
+    from test_rpc import _gcps
+
+    rpc, image, dem, tif, dem_path = qb
+    rpc_dict = rpc.to_dict()
+    if refine:
+        from orthority.enums import RpcRefine
+        from orthority.fit import refine_rpc as oty_refine
+
+        ground, pixel = _gcps()
+        rpc = refine_rpc(rpc, ground, pixel, refine).camera
+        gcps = [{"ji": p, "xyz": g} for p, g in zip(pixel, ground, strict=True)]
+        rpc_dict = oty_refine(rpc_dict, gcps, RpcRefine.shift)
+    ref, grid = _orthority(tif, dem_path, rpc_dict, tmp_path / "oty.tif", 20.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ours, _ = orthorectify(image, None, rpc, dem, grid, nodata=0)
+    shift, mad, n = _offset_and_mad(ours, ref)
+    print(f"vs orthority ({refine or 'raw'}): offset {shift:.3f} px, MAD {mad:.3f} grey levels on {n} pixels")
+    assert n > 0.9 * (ref > 0).sum()
+    assert shift <= 0.2 and mad <= 1.0
+
+
+def test_qb_ortho_matches_gdal_warper(qb):
+    """Against GDAL's warper with rpcs= and RPC_DEM on a 256 x 256 window at 5 m (about the image's
+    GSD: coarser, GDAL's warper widens its bilinear kernel and the grey values part, not the geometry)."""
+    from rasterio.enums import Resampling
+    from rasterio.transform import Affine
+    from rasterio.warp import reproject
+
+    rpc, image, dem, tif, dem_path = qb
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        full = ortho_grid(None, rpc, dem, 5.0, crs="EPSG:32735")
+        r0, c0 = full.shape[0] // 2 - 128, full.shape[1] // 2 - 128
+        grid = Grid(full.transform * Affine.translation(c0, r0), (256, 256), full.crs)
+        ours, _ = orthorectify(image, None, rpc, dem, grid, nodata=0)
+    gdal = np.zeros(grid.shape, np.uint8)
+    with rasterio.open(tif) as src:
+        reproject(image, gdal, rpcs=src.rpcs, src_crs="EPSG:4326", dst_crs=grid.crs, dst_transform=grid.transform,
+                  resampling=Resampling.bilinear, src_nodata=0, dst_nodata=0, RPC_DEM=str(dem_path),
+                  RPC_DEM_APPLY_VDATUM_SHIFT=False, RPC_DEMINTERPOLATION="bilinear")  # fmt: skip
+    shift, mad, n = _offset_and_mad(ours, gdal)
+    print(f"vs GDAL: offset {shift:.3f} px, MAD {mad:.4f} grey levels on {n} pixels")
+    assert n > 0.99 * grid.shape[0] * grid.shape[1]
+    assert shift <= 0.1 and mad <= 1.0
