@@ -198,7 +198,8 @@ def test_qb_ortho_matches_orthority(qb, refine, tmp_path):
         from orthority.fit import refine_rpc as oty_refine
 
         ground, pixel = _gcps()
-        rpc = refine_rpc(rpc, ground, pixel, refine).camera
+        with pytest.warns(UserWarning, match="outside the 850 x 1450 pixel image"):
+            rpc = refine_rpc(rpc, ground, pixel, refine).camera
         gcps = [{"ji": p, "xyz": g} for p, g in zip(pixel, ground, strict=True)]
         rpc_dict = oty_refine(rpc_dict, gcps, RpcRefine.shift)
     ref, grid = _orthority(tif, dem_path, rpc_dict, tmp_path / "oty.tif", 20.0)
@@ -234,3 +235,66 @@ def test_qb_ortho_matches_gdal_warper(qb):
     print(f"vs GDAL: offset {shift:.3f} px, MAD {mad:.4f} grey levels on {n} pixels")
     assert n > 0.99 * grid.shape[0] * grid.shape[1]
     assert shift <= 0.1 and mad <= 1.0
+
+
+# --- photax ortho with an RPC camera --------------------------------------------------------------
+
+
+def test_cli_rpc_ortho_and_refinement(qb, tmp_path, capsys):
+    """``photax ortho IMAGE --camera rpc``: the library's ortho on the command's grid, the same from the
+    orthority yaml, UTM 35S by default; ``--gcps --refine shift`` prints orthority's 0.104 px fit."""
+    from photax.cli import main
+
+    rpc, image, dem, tif, dem_path = qb
+    yaml_path = shared_file("orthority/rpc/rpc_param.yaml")
+    gcps = shared_file("orthority/rpc/gcps.geojson")
+    common = [str(tif), "--dem", str(dem_path), "--resolution", "25", "--no-progress"]
+    a, b, c = (str(tmp_path / f"{k}.tif") for k in "abc")
+    assert main(["ortho", *common, "--camera", "rpc", "--crs", "EPSG:32735", "-o", a]) == 0
+    assert main(["ortho", *common, "--camera", str(yaml_path), "-o", b]) == 0  # default CRS: the UTM zone
+    assert main(["ortho", *common, "--camera", "rpc", "--gcps", str(gcps), "--refine", "shift", "-o", c]) == 0
+    out = capsys.readouterr()
+    assert "RPC refinement (shift) on 5 GCPs" in out.out and "0.104 px refined" in out.out
+    assert "ellipsoidal" in out.err  # the geoid DEM is named
+    with rasterio.open(a) as fa, rasterio.open(b) as fb, rasterio.open(c) as fc:
+        assert fa.crs == fb.crs == fc.crs == rasterio.crs.CRS.from_epsg(32735)
+        got, grid = fa.read(1), Grid(fa.transform, fa.shape, "EPSG:32735")
+        np.testing.assert_array_equal(got, fb.read(1))
+        refined = fc.read(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ours, _ = orthorectify(image, None, rpc, dem, grid, nodata=0)
+    assert np.abs(ours.astype(float) - got).max() <= 1  # float32 positions of the tiles
+    assert (refined != got).mean() > 0.1  # the 3.6 px shift moved it
+
+
+def test_cli_rpc_usage_errors(qb, tmp_path, capsys):
+    import json
+
+    from photax.cli import main
+
+    rpc, image, dem, tif, dem_path = qb
+    base = [
+        "ortho",
+        str(tif),
+        "--dem",
+        str(dem_path),
+        "--camera",
+        "rpc",
+        "--no-progress",
+        "-o",
+        str(tmp_path / "o.tif"),
+    ]
+    two = json.loads(shared_file("orthority/rpc/gcps.geojson").read_text())
+    two["features"] = two["features"][:2]
+    (tmp_path / "two.geojson").write_text(json.dumps(two))
+    cases = [
+        (["--refine", "shift"], "--refine needs --gcps"),
+        (["--exterior", str(tif)], "carries its own orientation"),
+        (["--gcps", str(tmp_path / "two.geojson"), "--refine", "affine"], "'affine' needs at least 3 GCPs, got 2"),
+    ]
+    for extra, message in cases:
+        assert main([*base, *extra]) == 2
+        err = capsys.readouterr().err
+        assert message in err and err.count("\n") == 1, err
+    assert not (tmp_path / "o.tif").exists()

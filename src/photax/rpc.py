@@ -388,6 +388,27 @@ class RPCRefinement:
     sigma0: float
     redundancy: int
     standardized: np.ndarray
+    names: tuple[str, ...] | None = None
+
+    def report(self) -> str:
+        """A text report: the fit's figures, the correction and each GCP's residuals (px)."""
+        a, b = self.correction
+        lines = [
+            f"RPC refinement ({self.model}) on {len(self.residuals)} GCPs: RMSE {self.raw_rmse:.3f} px unrefined, "
+            f"{self.rmse:.3f} px refined, {self.loo_rmse:.3f} px leave-one-out; sigma0 {self.sigma0:.3f} px, "
+            f"redundancy {self.redundancy}",
+            f"  column += {a[0]:+.3f} {a[1]:+.3e} c {a[2]:+.3e} r;  row += {b[0]:+.3f} {b[1]:+.3e} c {b[2]:+.3e} r",
+            f"  {'GCP':<24} {'raw dc':>8} {'raw dr':>8} {'dc':>8} {'dr':>8} {'loo dc':>8} {'loo dr':>8} {'|w|':>6}",
+        ]
+        names = self.names or tuple(str(i + 1) for i in range(len(self.residuals)))
+        w = np.max(np.abs(self.standardized), axis=1)
+        for k, name in enumerate(names):
+            r, v, lo = self.raw_residuals[k], self.residuals[k], self.loo_residuals[k]
+            lines.append(
+                f"  {name[:24]:<24} {r[0]:8.3f} {r[1]:8.3f} {v[0]:8.3f} {v[1]:8.3f} {lo[0]:8.3f} {lo[1]:8.3f} "
+                f"{w[k]:6.2f}" + ("  <- blunder?" if w[k] > 3 else "")
+            )
+        return "\n".join(lines)
 
     @property
     def rmse(self) -> float:
@@ -418,7 +439,7 @@ def _apply(k: np.ndarray, cr: np.ndarray) -> np.ndarray:
     return cr + cr @ k[:, 1:].T + k[:, 0]
 
 
-def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") -> RPCRefinement:
+def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *, names=None) -> RPCRefinement:
     """Refine ``camera`` on GCPs by an image-space correction (module docstring; Grodecki & Dial 2003).
 
     Args:
@@ -426,6 +447,11 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") ->
         ground: ``(n, 3)`` lon (deg), lat (deg), ellipsoidal height (m) of the GCPs.
         pixel: ``(n, 2)`` their measured column, row (px).
         model: ``"shift"`` (1 GCP at least), ``"shift-drift"`` (2), ``"affine"`` (3).
+        names: the GCPs' names, for the messages and :meth:`RPCRefinement.report`.
+
+    GCPs far outside the RPC's image (line and sample offsets +- 1.5 scales) are refused, naming them;
+    outside ``camera.image_size`` but inside the RPC's image (a file cut from the scene the GCPs were
+    measured on: orthority's QuickBird sample has two) they are used, with a warning naming them.
 
     Equal weights; the normal equations of the two axes are separate (the correction of each axis
     is linear in its own parameters), so each is an ordinary least-squares fit of the RPC's misfit.
@@ -440,6 +466,30 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") ->
         raise ValueError(f"pixel: expected shape ({len(ground)}, 2) to match ground, got {pixel.shape}")
     if not (np.all(np.isfinite(ground)) and np.all(np.isfinite(pixel))):
         raise ValueError("ground / pixel: non-finite GCP coordinates")
+    names = None if names is None else tuple(str(v) for v in names)
+    if names is not None and len(names) != len(ground):
+        raise ValueError(f"names: {len(names)} for {len(ground)} GCPs")
+    label = (lambda i: names[i]) if names else (lambda i: f"GCP {i}")
+    off, scale = np.asarray(camera.offsets[3:]), 1.5 * np.asarray(camera.scales[3:])
+    out = np.flatnonzero(np.any(np.abs(pixel - off) > scale, axis=1))
+    if out.size:  # not an image of this RPC: a blunder or another image's measurement
+        which = ", ".join(f"{label(i)} at ({pixel[i, 0]:.1f}, {pixel[i, 1]:.1f})" for i in out)
+        raise ValueError(
+            f"refine_rpc: {out.size} GCP(s) outside the RPC's image (columns {off[0] - scale[0]:.0f} .. "
+            f"{off[0] + scale[0]:.0f}, rows {off[1] - scale[1]:.0f} .. {off[1] + scale[1]:.0f}): {which}"
+        )
+    if camera.image_size is not None:
+        w, h = camera.image_size
+        out = np.flatnonzero((pixel < -0.5).any(axis=1) | (pixel[:, 0] > w - 0.5) | (pixel[:, 1] > h - 0.5))
+        if out.size:  # inside the RPC's image: measured on the full scene this file is cut from
+            import warnings
+
+            which = ", ".join(f"{label(i)} at ({pixel[i, 0]:.1f}, {pixel[i, 1]:.1f})" for i in out)
+            warnings.warn(
+                f"{out.size} GCP(s) outside the {w} x {h} pixel image, inside the RPC's: {which}; used "
+                "(measured on the full scene?)",
+                stacklevel=2,
+            )
     terms = _REFINE_TERMS[model]
     n, u = len(ground), 2 * len(terms)
     if n < len(terms):
@@ -463,4 +513,4 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") ->
             ki, _ = _fit_correction(cr[keep], pixel[keep], terms)
             loo[i] = pixel[i] - _apply(ki, cr[i : i + 1])[0]
     refined = RPCCamera(camera.coefficients, camera.offsets, camera.scales, k, camera.image_size)
-    return RPCRefinement(refined, model, k, cov, residuals, pixel - cr, loo, sigma0, r, standardized)
+    return RPCRefinement(refined, model, k, cov, residuals, pixel - cr, loo, sigma0, r, standardized, names)
