@@ -298,3 +298,20 @@ def test_cli_rpc_usage_errors(qb, tmp_path, capsys):
         err = capsys.readouterr().err
         assert message in err and err.count("\n") == 1, err
     assert not (tmp_path / "o.tif").exists()
+
+
+@pytest.mark.skipif(not all(__import__("importlib").util.find_spec(m) for m in ("dask", "xarray")), reason="dask extra")
+def test_rpc_ortho_dask_equals_whole_image(qb):
+    """orthorectify_dask with an RPC (the DEM in its own CRS, the grid in UTM 35S): bit for bit the
+    whole-image function with the exact mapping, chunks of 64 over a 25 m grid."""
+    from photax.rectification import orthorectify_dask
+
+    rpc, image, dem, _, _ = qb
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        grid = ortho_grid(None, rpc, dem, 25.0, crs="EPSG:32735")
+        whole, _ = orthorectify(image, None, rpc, dem, grid, nodata=0, approx=None)
+        lazy = orthorectify_dask(image, None, rpc, dem, grid, chunks=64, nodata=0, approx=None)
+        chunked = lazy.compute().values
+    assert (whole > 0).mean() > 0.5
+    np.testing.assert_array_equal(chunked, whole)
