@@ -315,3 +315,66 @@ def test_rpc_ortho_dask_equals_whole_image(qb):
         chunked = lazy.compute().values
     assert (whole > 0).mean() > 0.5
     np.testing.assert_array_equal(chunked, whole)
+
+
+def test_rpc_ortho_uncertainty_against_the_rpc_inverse():
+    """ortho_uncertainty with an RPC on flat ground, against finite differences of the RPC's own
+    inverse (Newton, photax.rpc) and pyproj: a shift's covariance s^2 I gives image stds (s, s) and
+    the ground covariance B s^2 B^T (B = d ground / d pixel); a DEM error s_z moves the ground point a
+    pixel shows by s_z |d ground / d h| (the view's tangent)."""
+    from photax.uncertainty import ortho_uncertainty
+
+    rpc = _synthetic_rpc()
+    crs = "EPSG:32735"
+    x0, y0 = _lonlat_to(crs, 24.4, -33.7)
+    dem = DEM.flat(650.0, (x0 - 15000, y0 - 15000, x0 + 15000, y0 + 15000))
+    dem = DEM(np.asarray(dem.heights), np.asarray(dem.transform), crs=crs)
+    grid = Grid.from_bounds((x0 - 4000, y0 - 4000, x0 + 4000, y0 + 4000), 1000.0, crs)
+    cov = np.zeros((6, 6))
+    cov[0, 0] = cov[3, 3] = 0.5**2
+    u = ortho_uncertainty(None, cov, rpc, dem, grid, step=1)
+    zu = ortho_uncertainty(None, np.zeros((6, 6)), rpc, dem, grid, dem_sigma=2.0, step=1)
+    to_map = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    xy = grid.xy().reshape(-1, 2)
+    lon, lat = pyproj.Transformer.from_crs(crs, "EPSG:4326", always_xy=True).transform(xy[:, 0], xy[:, 1])
+    pix = np.asarray(rpc(np.column_stack([lon, lat, np.full(len(lon), 650.0)])))
+
+    def ground(p, h):
+        ll = np.asarray(rpc.to_ground(p, np.full(len(p), h)))
+        return np.column_stack(to_map.transform(ll[:, 0], ll[:, 1]))
+
+    d = 0.5
+    b = np.stack(
+        [(ground(pix + [d, 0], 650.0) - ground(pix - [d, 0], 650.0)) / (2 * d),
+         (ground(pix + [0, d], 650.0) - ground(pix - [0, d], 650.0)) / (2 * d)], axis=-1
+    )  # fmt: skip
+    ref = 0.25 * np.einsum("nij,nkj->nik", b, b)
+    seen = np.isfinite(u.image_std[0]).reshape(-1)  # NaN off the image
+    assert seen.sum() > 20
+    np.testing.assert_allclose(u.image_std.reshape(2, -1)[:, seen], 0.5, rtol=1e-6)
+    np.testing.assert_allclose(u.ground_cov.reshape(-1, 2, 2)[seen], ref[seen], rtol=1e-4, atol=1e-6)
+    tilt = (ground(pix, 651.0) - ground(pix, 649.0)) / 2.0
+    np.testing.assert_allclose(zu.ground_sigma.reshape(-1)[seen], 2.0 * np.hypot(*tilt[seen].T), rtol=1e-4)
+
+
+def test_rpc_uncertainty_from_a_refinement(qb):
+    """An RPCRefinement gives its camera and covariance: the shift's sigma0^2 Q in both axes, the same
+    at every pixel (a shift moves the whole image)."""
+    from test_rpc import _gcps
+
+    from photax.uncertainty import ortho_uncertainty
+
+    rpc, _, dem, _, _ = qb
+    ground, pixel = _gcps()
+    with pytest.warns(UserWarning, match="outside the 850 x 1450"):
+        res = refine_rpc(rpc, ground, pixel, "shift")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        grid = ortho_grid(None, res.camera, dem, 100.0, crs=dem.crs)  # the DEM's own CRS
+    u = ortho_uncertainty(res, None, None, dem, grid)
+    seen = np.isfinite(u.image_std[0])
+    assert seen.mean() > 0.5
+    np.testing.assert_allclose(u.image_std[0][seen], np.sqrt(res.covariance[0, 0]), rtol=1e-5)
+    np.testing.assert_allclose(u.image_std[1][seen], np.sqrt(res.covariance[1, 1]), rtol=1e-5)
+    with pytest.raises(ValueError, match="a0, a1, a2, b0, b1, b2"):
+        ortho_uncertainty(None, np.eye(2), rpc, dem, grid)
