@@ -378,3 +378,37 @@ def test_rpc_uncertainty_from_a_refinement(qb):
     np.testing.assert_allclose(u.image_std[1][seen], np.sqrt(res.covariance[1, 1]), rtol=1e-5)
     with pytest.raises(ValueError, match="a0, a1, a2, b0, b1, b2"):
         ortho_uncertainty(None, np.eye(2), rpc, dem, grid)
+
+
+def test_compare_models_with_the_rpc(qb):
+    """compare_models with an RPC on the 5 QuickBird GCPs (in the DEM's Lo25 CRS): the refined RPC's
+    GCP residuals are refine_rpc's (orthority's 0.104 px), the raw RPC's its raw ones; the raw RPC's
+    error map is the refinement's shift at every pixel (closed form); the affine polynomial on the
+    same GCPs fits them worse than the refined RPC and strays far over the scene."""
+    from test_rpc import _gcps
+
+    from photax.compare import compare_models
+
+    rpc, _, dem, _, _ = qb
+    ground, pixel = _gcps()
+    x, y = _lonlat_to(dem.crs, ground[:, 0], ground[:, 1])
+    local = np.column_stack([x, y, ground[:, 2]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # 2 GCPs beyond the image file (inside the RPC's image)
+        res = refine_rpc(rpc, ground, pixel, "shift")
+        c = compare_models(local, pixel, rpc, dem, orders=(1, 2), projective=False, tps=False, piecewise_affine=False)
+    assert c.names == ["RPC + shift", "RPC", "polynomial 1"]
+    assert c.skipped == {"polynomial 2": "needs at least 6 GCPs, have 5"}
+    np.testing.assert_allclose(-c["RPC + shift"].gcp_residuals, res.residuals, atol=1e-6)  # computed - observed
+    np.testing.assert_allclose(-c["RPC"].gcp_residuals, res.raw_residuals, atol=1e-6)
+    assert abs(c["RPC + shift"].gcp_rmse - 0.1037) < 5e-4
+    err = c["RPC"].error.reshape(-1, 2)
+    err = err[np.isfinite(err).all(axis=1)]
+    assert len(err) > 100
+    np.testing.assert_allclose(err, np.broadcast_to(res.correction[:, 0], err.shape), atol=1e-6)
+    poly = c["polynomial 1"]
+    print(
+        f"affine polynomial: GCP RMSE {poly.gcp_rmse:.2f} px, map RMSE {poly.error_rmse:.1f} px, max {poly.error_max:.1f} px"
+    )
+    assert poly.gcp_rmse > c["RPC + shift"].gcp_rmse and poly.error_max > 10
+    assert "RPC + shift" in c.table() and c.to_dict()["exterior"] is None
