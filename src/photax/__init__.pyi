@@ -174,6 +174,9 @@ from .rpc import read_rpc as read_rpc
 from .rpc import refine_rpc as refine_rpc
 from .scene import Scene as Scene
 from .scene import relief_scene as relief_scene
+from .sensor import FrameSensor as FrameSensor
+from .sensor import RPCSensor as RPCSensor
+from .sensor import utm_crs as utm_crs
 from .uncertainty import OrthoUncertainty as OrthoUncertainty
 from .uncertainty import ortho_uncertainty as ortho_uncertainty
 
