@@ -227,7 +227,7 @@ class ModelComparison:
             )
         notes.append(
             f"{len(self.gcp_pixel)} GCPs, {len(self.check_pixel)} check points, "
-            f"GSD {self.gsd:.3g} m; map = collinearity+DEM minus model over the output grid"
+            f"GSD {self.gsd:.3g} m; map = {self.models[0].name}+DEM minus model over the output grid"
         )
         if fmt == "markdown":
             lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
