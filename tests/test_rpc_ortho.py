@@ -412,3 +412,19 @@ def test_compare_models_with_the_rpc(qb):
     )
     assert poly.gcp_rmse > c["RPC + shift"].gcp_rmse and poly.error_max > 10
     assert "RPC + shift" in c.table() and c.to_dict()["exterior"] is None
+
+
+def test_to_ground_dem_status_says_why():
+    """Per point: converged (its forward projection is the pixel), off the DEM, no convergence."""
+    rpc = _synthetic_rpc()
+    crs = "EPSG:32735"
+    x0, y0 = _lonlat_to(crs, 24.4, -33.7)
+    dem = DEM.flat(650.0, (x0 - 3000, y0 - 3000, x0 + 3000, y0 + 3000))  # covers the image's centre only
+    dem = DEM(np.asarray(dem.heights), np.asarray(dem.transform), crs=crs)
+    centre = np.asarray(rpc(np.array([[24.4, -33.7, 650.0]])))[0]
+    pixel = np.array([centre, centre + 5.0, [0.0, 0.0], [1e9, -1e9]])
+    llh, status = rpc.to_ground_dem_status(pixel, dem)
+    assert status.tolist()[:3] == [0, 0, 1] and status[3] in (1, 2)
+    np.testing.assert_allclose(np.asarray(rpc(llh[:2])), pixel[:2], atol=1e-8)
+    np.testing.assert_allclose(llh[:2, 2], 650.0)
+    assert np.isnan(llh[2:]).all()

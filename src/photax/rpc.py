@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ._aot import disk_cached
 from ._float64 import as_float64
 
 # Coefficient rows of RPCCamera.coefficients, and the keys GDAL / rasterio / orthority give them.
@@ -195,32 +196,46 @@ class RPCCamera(eqx.Module):
         DEM's heights must be ellipsoidal (WGS84), as the RPC's; a DEM on a geoid must be converted
         first.  Its CRS (None: lon, lat) is reached through pyproj.  NaN where the ground point leaves
         the DEM or the iteration does not settle in ``max_steps`` (it converges while the terrain's slope
-        times the view's tangent stays below 1).
+        times the view's tangent stays below 1); :meth:`to_ground_dem_status` says which.
         """
+        return self.to_ground_dem_status(pixel, dem, max_steps=max_steps, tol=tol)[0]
+
+    def to_ground_dem_status(self, pixel, dem, *, max_steps: int = 50, tol: float = 1e-6):
+        """As :meth:`to_ground_dem`, returning ``(lon_lat_h, status)``: ``status`` ``(...)`` per point,
+        one of :data:`GROUND_STATUS` (0 converged, 1 off the DEM, 2 Newton's inverse did not converge,
+        3 the height iteration did not settle)."""
         import pyproj
 
         pixel = as_float64(pixel, "pixel")
         if pixel.shape[-1:] != (2,):
             raise ValueError(f"pixel: expected shape (..., 2), got {pixel.shape}")
-        flat = pixel.reshape(-1, 2)
+        flat = jnp.asarray(pixel.reshape(-1, 2))
         to_dem = None
         if dem.crs is not None:
             to_dem = pyproj.Transformer.from_crs("EPSG:4326", dem.crs, always_xy=True)
         h = np.full(len(flat), float(self.offsets[2]))
         done = np.zeros(len(flat), bool)
-        lonlat = np.full((len(flat), 2), np.nan)
+        failed = np.zeros(len(flat), bool)  # Newton's inverse did not converge at some height
         for _ in range(max_steps):
-            lonlat = np.asarray(self.to_ground(flat, h))
+            lonlat, ok = (np.asarray(v) for v in _to_ground_cached(self, flat, jnp.asarray(h), 20, 1e-12))
+            failed |= ~ok & np.isfinite(h)
             x, y = to_dem.transform(lonlat[:, 0], lonlat[:, 1]) if to_dem else lonlat.T
             new = np.asarray(dem.height(jnp.asarray(x, dtype=jnp.float64), jnp.asarray(y, dtype=jnp.float64)))
+            new = np.where(ok, new, np.nan)
             done = np.abs(new - h) < tol
-            h = np.where(np.isfinite(new), new, np.nan)
+            h = new
             if np.all(done | ~np.isfinite(h)):
                 break
-        lonlat = np.asarray(self.to_ground(flat, h))  # on the last height
+        lonlat, ok = (np.asarray(v) for v in _to_ground_cached(self, flat, jnp.asarray(h), 20, 1e-12))  # last height
+        failed |= ~ok & np.isfinite(h)
+        status = np.where(failed, 2, np.where(~np.isfinite(h), 1, np.where(done & ok, 0, 3)))
         out = np.column_stack([lonlat, h])
-        out[~done] = np.nan
-        return out.reshape(*pixel.shape[:-1], 3)
+        out[status != 0] = np.nan
+        return out.reshape(*pixel.shape[:-1], 3), status.reshape(pixel.shape[:-1])
+
+
+# The status codes of RPCCamera.to_ground_dem_status.
+GROUND_STATUS = ("converged", "off the DEM", "no convergence (inverse)", "no convergence (height)")
 
 
 @eqx.filter_jit
@@ -245,6 +260,9 @@ def _to_ground(camera: RPCCamera, pixel: Array, h: Array, max_steps: int, tol: f
         return ll, step <= tol
 
     return jax.vmap(one)(pixel, h)
+
+
+_to_ground_cached = disk_cached(_to_ground, "rpc_to_ground")  # traced once per machine, not per process
 
 
 # --- readers ------------------------------------------------------------------------------------
