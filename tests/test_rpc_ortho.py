@@ -428,3 +428,15 @@ def test_to_ground_dem_status_says_why():
     np.testing.assert_allclose(np.asarray(rpc(llh[:2])), pixel[:2], atol=1e-8)
     np.testing.assert_allclose(llh[:2, 2], 650.0)
     assert np.isnan(llh[2:]).all()
+
+
+def test_local_transform_refuses_what_a_polynomial_cannot_follow():
+    """Over a QuickBird-sized box the polynomial is pyproj to 1e-9 of the extent; over a continent in one
+    UTM zone it is not, and says so rather than bending the ortho."""
+    from photax.sensor import LocalTransform
+
+    x0, y0 = _lonlat_to("EPSG:32735", 24.4, -33.7)
+    small = LocalTransform.fit("EPSG:32735", "EPSG:4326", (x0 - 10e3, y0 - 10e3, x0 + 10e3, y0 + 10e3))
+    assert small.error < 1e-10
+    with pytest.raises(ValueError, match="not smooth enough"):
+        LocalTransform.fit("EPSG:4326", "EPSG:32735", (0.0, -60.0, 60.0, 0.0))
