@@ -9,8 +9,8 @@ overviews.
 
 Accuracy (the issue's targets), photax's library on orthority's own output grid:
 
-* the ortho against ``oty rpc`` and ``oty rpc --gcp-refine`` (shift): the geometric offset (phase
-  correlation to 1/100 px, on the common pixels) <= 0.2 px and the mean absolute grey difference
+* the ortho against ``oty rpc`` and ``oty rpc --gcp-refine`` (shift): the geometric offset (least
+  squares on the image gradients, on the common pixels: :func:`offset_and_mad`) <= 0.2 px and the mean absolute grey difference
   <= 1 grey level;
 * against GDAL's warper (``rasterio.warp.reproject`` with ``rpcs=``, ``RPC_DEM``, no vertical datum
   shift) and, exactly, the image positions of the grid's points against GDAL's RPC transformer
@@ -66,17 +66,29 @@ def oty_cmd(data, out_dir, refine=False):
     return cmd + [data / "rpc" / "qb2_basic1b.tif"]
 
 
-def offset_and_mad(a, b):
-    """Sub-pixel shift between two uint8 orthos on their common pixels and their mean absolute
-    difference there: ``(shift px, MAD, common pixels)``."""
+def offset_and_mad(a, b, iterations=6):
+    """Geometric offset between two uint8 orthos on the same grid and their mean absolute grey
+    difference on the common pixels: ``(|d| px, MAD, common pixels)``. ``d`` is the shift that moves
+    ``a`` onto ``b``, by least squares on the image gradients (Lucas-Kanade, iterated), away from
+    the footprint's edge; measured on an ortho shifted by (0.3, -0.2) px it finds (0.28, -0.18)
+    (phase correlation found 0.15 px in all: too blunt for a 0.2 px target)."""
     import numpy as np
-    from skimage.registration import phase_cross_correlation
+    from scipy.ndimage import shift as nd_shift
 
     both = (a > 0) & (b > 0)
-    shift, _, _ = phase_cross_correlation(
-        np.where(both, b, 0).astype(float), np.where(both, a, 0).astype(float), upsample_factor=100
-    )
-    return float(np.hypot(*shift)), float(np.abs(a[both].astype(float) - b[both]).mean()), int(both.sum())
+    af, bf = a.astype(float), b.astype(float)
+    d = np.zeros(2)
+    for _ in range(iterations):
+        moved = nd_shift(af, d, order=3, mode="nearest")
+        gy, gx = np.gradient(moved)
+        m = both & (nd_shift(both.astype(float), d, order=0) > 0)
+        m[:3], m[-3:], m[:, :3], m[:, -3:] = False, False, False, False
+        m &= np.abs(gy) + np.abs(gx) < 60  # not across the footprint's edge
+        step = np.linalg.lstsq(np.column_stack([gy[m], gx[m]]), (bf - moved)[m], rcond=None)[0]
+        d -= step
+        if np.abs(step).max() < 1e-4:
+            break
+    return float(np.hypot(*d)), float(np.abs(af[both] - bf[both]).mean()), int(both.sum())
 
 
 def accuracy(data: pathlib.Path, tmp: pathlib.Path) -> None:

@@ -185,7 +185,7 @@ class RPCCamera(eqx.Module):
             raise ValueError(f"pixel: expected shape (..., 2), got {pixel.shape}")
         h = jnp.broadcast_to(jnp.asarray(as_float64(height, "height")), pixel.shape[:-1])
         flat_p, flat_h = pixel.reshape(-1, 2), h.reshape(-1)
-        lonlat, ok = _to_ground(self, flat_p, flat_h, max_steps, tol)
+        lonlat, ok = newton_inverse(self, flat_p, flat_h, max_steps, tol)
         return lonlat.reshape(pixel.shape), ok.reshape(pixel.shape[:-1])
 
     def to_ground_dem(self, pixel, dem, *, max_steps: int = 50, tol: float = 1e-6) -> np.ndarray:
@@ -239,7 +239,10 @@ GROUND_STATUS = ("converged", "off the DEM", "no convergence (inverse)", "no con
 
 
 @eqx.filter_jit
-def _to_ground(camera: RPCCamera, pixel: Array, h: Array, max_steps: int, tol: float):
+def newton_inverse(camera: RPCCamera, pixel: Array, h: Array, max_steps: int = 20, tol: float = 1e-12):
+    """``(n, 2)`` pixels at ``(n,)`` heights -> ``((n, 2)`` lon, lat, ``(n,)`` converged): Newton's method
+    from the scene centre, jittable (:meth:`RPCCamera.to_ground_status` is its checked entry point)."""
+
     def f(ll, hh):
         return camera(jnp.concatenate([ll, hh[None]]))
 
@@ -262,7 +265,10 @@ def _to_ground(camera: RPCCamera, pixel: Array, h: Array, max_steps: int, tol: f
     return jax.vmap(one)(pixel, h)
 
 
-_to_ground_cached = disk_cached(_to_ground, "rpc_to_ground")  # traced once per machine, not per process
+_to_ground_cached = disk_cached(newton_inverse, "rpc_to_ground")  # traced once per machine, not per process
+
+
+_forward = disk_cached(eqx.filter_jit(RPCCamera.__call__), "rpc_forward")  # one program, not op by op
 
 
 # --- readers ------------------------------------------------------------------------------------
@@ -513,7 +519,7 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *,
     if n < len(terms):
         raise ValueError(f"refine_rpc: {model!r} needs at least {len(terms)} GCPs, got {n}")
     raw = RPCCamera(camera.coefficients, camera.offsets, camera.scales, image_size=camera.image_size)
-    cr = np.asarray(raw(ground))
+    cr = np.asarray(_forward(raw, jnp.asarray(ground)))
     k, design = _fit_correction(cr, pixel, terms)
     residuals = pixel - _apply(k, cr)
     r = 2 * n - u

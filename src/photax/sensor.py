@@ -29,6 +29,7 @@ from __future__ import annotations
 import warnings
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -37,7 +38,7 @@ from ._aot import disk_cached
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, depth, image_to_ground, project
 from .dem import DEM
-from .rpc import RPCCamera
+from .rpc import RPCCamera, newton_inverse
 
 WGS84 = "EPSG:4326"
 # An RPC is evaluated within its validity volume (offsets +- scales) widened by this factor; beyond,
@@ -205,12 +206,18 @@ class RPCSensor(eqx.Module):
         return jnp.where(ok[..., None], self.camera(llh), jnp.nan)
 
     def footprint(self, pixel, dem: DEM) -> np.ndarray:
-        """Pixels -> map ``(X, Y)`` on the DEM (:meth:`RPCCamera.to_ground_dem_status`, to 1 mm: the
-        outline only bounds the grid), at the DEM's mean height where that fails (off the DEM, or no
+        """Pixels -> map ``(X, Y)`` on the DEM: :meth:`RPCCamera.to_ground_dem`'s fixed-point iteration
+        in one compiled loop (the DEM's CRS reached by a :class:`LocalTransform`), to 1 mm (the
+        outline only bounds the grid); at the DEM's mean height where it fails (off the DEM, or no
         convergence: counted in a warning)."""
         pixel = np.asarray(pixel, dtype=float)
-        llh, status = self.camera.to_ground_dem_status(pixel, dem, tol=1e-3)
-        failed = np.isin(status, (2, 3))
+        to_dem = None
+        if dem.crs is not None and not _same(dem.crs, WGS84):
+            (lon, lat), (dl, dp) = np.asarray(self.camera.offsets[:2]), 1.2 * np.asarray(self.camera.scales[:2])
+            to_dem = LocalTransform.fit(WGS84, _crs_text(dem.crs), (lon - dl, lat - dp, lon + dl, lat + dp))
+        h0 = jnp.full(len(pixel), float(self.camera.offsets[2]))
+        llh, status = (np.asarray(v) for v in _on_dem_cached(self.camera, to_dem, dem, jnp.asarray(pixel), h0))
+        failed = status >= 2
         if failed.any():
             warnings.warn(
                 f"the RPC's inverse onto the DEM did not converge at {failed.sum()} of {len(pixel)} points of the "
@@ -225,6 +232,47 @@ class RPCSensor(eqx.Module):
         if not np.isfinite(llh[:, :2]).all():
             raise ValueError("the RPC's inverse does not converge on the image outline: is the RPC valid?")
         return _pyproj(llh[:, :2], WGS84, self.crs)
+
+
+def _same(a, b) -> bool:
+    from .io.crs import same_crs
+
+    return same_crs(a, b)
+
+
+@eqx.filter_jit
+def _on_dem(camera: RPCCamera, to_dem, dem: DEM, pixel: Array, h: Array, max_steps: int = 50, tol: float = 1e-3):
+    """``(n, 3)`` lon, lat, h on the DEM of ``(n, 2)`` pixels and ``(n,)`` status (0 converged, 1 off
+    the DEM, 2 inverse not converged, 3 height not settled): the iteration of
+    :meth:`RPCCamera.to_ground_dem_status`, compiled."""
+
+    def step(h):
+        ll, ok = newton_inverse(camera, pixel, h)
+        xy = ll if to_dem is None else to_dem(ll)
+        new = dem.height(xy[:, 0], xy[:, 1])
+        return ll, ok, new
+
+    def body(state):
+        h, done, failed, i = state
+        _, ok, new = step(h)
+        failed = failed | (~ok & jnp.isfinite(h))
+        new = jnp.where(ok, new, jnp.nan)
+        return new, jnp.abs(new - h) < tol, failed, i + 1
+
+    def cond(state):
+        h, done, _, i = state
+        return (i < max_steps) & ~jnp.all(done | ~jnp.isfinite(h))
+
+    n = pixel.shape[0]
+    h, done, failed, _ = jax.lax.while_loop(cond, body, (h, jnp.zeros(n, bool), jnp.zeros(n, bool), 0))
+    ll, ok, _ = step(h)
+    failed = failed | (~ok & jnp.isfinite(h))
+    status = jnp.where(failed, 2, jnp.where(~jnp.isfinite(h), 1, jnp.where(done & ok, 0, 3)))
+    out = jnp.concatenate([ll, h[:, None]], axis=-1)
+    return jnp.where((status == 0)[:, None], out, jnp.nan), status
+
+
+_on_dem_cached = disk_cached(_on_dem, "rpc_outline_on_dem")
 
 
 def sensor_of(exterior, camera, crs=None):
