@@ -100,7 +100,8 @@ def test_refine_real_gcps_match_orthority(qb):
     cam, _, _ = qb
     ground, pixel = _gcps()
     gcps = [{"ji": p, "xyz": g} for p, g in zip(pixel, ground, strict=True)]
-    res = refine_rpc(cam, ground, pixel, "shift")
+    with pytest.warns(UserWarning, match="2 GCP.s. outside the 850 x 1450 pixel image"):  # cut from the scene
+        res = refine_rpc(cam, ground, pixel, "shift")
     assert 3.0 < res.raw_rmse < 4.5  # SOURCES.md: ~3.64 px raw
     oty = RPCCamera.from_dict(oty_refine(cam.to_dict(), gcps, RpcRefine.shift))
     np.testing.assert_allclose(np.asarray(res.camera(ground)), np.asarray(oty(ground)), rtol=0, atol=1e-6)
@@ -172,6 +173,10 @@ def test_bad_input_named(synthetic, tmp_path):
         RPCCamera.from_dict(d)
     with pytest.raises(ValueError, match="needs at least 3 GCPs, got 2"):
         refine_rpc(cam, ground[:2], np.asarray(cam(ground[:2])), "affine")
+    far = np.array(cam(ground[:4]))
+    far[2] += [5000.0, 0.0]  # a blunder of 5000 px (another image's measurement?)
+    with pytest.raises(ValueError, match=r"1 GCP\(s\) outside the RPC's image .*: b at \("):
+        refine_rpc(cam, ground[:4], far, "shift", names=["a", "c", "b", "d"])
     bad = tmp_path / "rpc.yaml"
     bad.write_text("a.tif:\n  im_size: [1, 1]\n  rpc: {long_off: 1.0}\n")
     with pytest.raises(ValueError, match="a.tif.*missing line_num_coeff"):

@@ -45,7 +45,7 @@ import numpy as np
 
 from ._deprecation import alias
 from .camera import FrameCamera
-from .collinearity import ExteriorOrientation, project, project_jacobian
+from .collinearity import ExteriorOrientation, project_jacobian
 from .dem import DEM
 from .grid import Grid, ortho_grid
 from .polynomial import (
@@ -58,6 +58,8 @@ from .polynomial import (
 )
 from .rectification import OrthoModel
 from .resampling import Resampling
+from .rpc import RPCCamera, refine_rpc
+from .sensor import RPCSensor
 
 
 @dataclasses.dataclass(frozen=True)
@@ -129,25 +131,20 @@ def _apply(model, xy):
     return model(xy)
 
 
-@eqx.filter_jit
-def _project_px(ground, exterior, camera):
-    """``(n, 3)`` ground -> ``(n, 2)`` pixels by the collinearity equations."""
-    return camera.image_to_pixel(project(ground, exterior, camera))
-
-
 @dataclasses.dataclass(frozen=True)
 class ModelComparison:
     """Result of :func:`compare_models`.
 
     Attributes:
-        models: the :class:`ModelResult` s, collinearity first.
-        exterior, camera, dem: the collinearity model.
+        models: the :class:`ModelResult` s, collinearity (or the refined RPC) first.
+        exterior, camera, dem: the collinearity model (an RPC: ``exterior`` None, ``camera`` the RPC
+            as given).
         grid: the :class:`photax.Grid` of the error maps.
         gsd: mean ground sampling distance (ground units per pixel), used to
             express pixel RMSEs in ground units.
         gcp_ground, gcp_pixel, check_ground, check_pixel: the points.
         resection: the :class:`photax.resection.ResectionResult` (``None``
-            when the exterior orientation was given).
+            when the exterior orientation was given; an RPC's :class:`photax.rpc.RPCRefinement`).
         skipped: ``{name: reason}`` for models that could not be fitted
             (e.g. too few GCPs for an order).
         excluded: ``(n,)`` True for GCPs the resection rejected as blunders
@@ -158,8 +155,8 @@ class ModelComparison:
     """
 
     models: list[ModelResult]
-    exterior: ExteriorOrientation
-    camera: FrameCamera
+    exterior: ExteriorOrientation | None
+    camera: FrameCamera | RPCCamera
     dem: DEM
     grid: Grid
     gsd: float
@@ -186,14 +183,15 @@ class ModelComparison:
         """``(rows, cols, 2)`` pixel shift caused by the terrain on the grid.
 
         ``pixel(X, Y, DEM(X, Y)) - pixel(X, Y, datum)`` by the collinearity
-        equations: the displacement a flat-terrain model ignores.  For a
+        equations (by the refined RPC for an RPC camera): the displacement a flat-terrain model ignores.  For a
         vertical image its length is ``r h / H`` (module docstring).
         """
         xy = self.grid.xy()
         z = jnp.full(xy.shape[:2] + (1,), float(datum))
         ground = jnp.concatenate([jnp.asarray(xy), z], axis=-1).reshape(-1, 3)
-        flat = _project_px(ground, self.exterior, self.camera).reshape(xy.shape)
-        return np.asarray(_apply(self["collinearity"].model, jnp.asarray(xy))) - np.asarray(flat)
+        reference = self.models[0].model  # collinearity, or the refined RPC: an OrthoModel
+        flat = _apply(reference.sensor, ground).reshape(xy.shape)
+        return np.asarray(_apply(reference, jnp.asarray(xy))) - np.asarray(flat)
 
     def table(self, fmt: str = "markdown") -> str:
         """The comparison as a markdown (``fmt="markdown"``) or plain text table."""
@@ -232,7 +230,7 @@ class ModelComparison:
             )
         notes.append(
             f"{len(self.gcp_pixel)} GCPs, {len(self.check_pixel)} check points, "
-            f"GSD {self.gsd:.3g} m; map = collinearity+DEM minus model over the output grid"
+            f"GSD {self.gsd:.3g} m; map = {self.models[0].name}+DEM minus model over the output grid"
         )
         if fmt == "markdown":
             lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -250,7 +248,9 @@ class ModelComparison:
             "n_gcp": int(len(self.gcp_pixel)),
             "n_check": int(len(self.check_pixel)),
             "grid": {"transform": list(tuple(self.grid.transform)[:6]), "shape": list(self.grid.shape)},
-            "exterior": {
+            "exterior": None
+            if self.exterior is None
+            else {
                 "position": np.asarray(self.exterior.position).tolist(),
                 "angles_rad": np.asarray(self.exterior.angles).tolist(),
                 "convention": self.exterior.convention,
@@ -301,7 +301,9 @@ class ModelComparison:
         from .progress import progress_bar
         from .rectification import rectify, tile_windows
 
-        grid = ortho_grid(self.exterior, self.camera, self.dem, self.gsd) if grid is None else grid
+        if grid is None:
+            camera = self.camera if self.exterior is not None else self.models[0].model.sensor.camera
+            grid = ortho_grid(self.exterior, camera, self.dem, self.gsd, crs=self.grid.crs)
         names = self.names if names is None else list(names)
         tiles = len(list(tile_windows(grid.shape, 1024)))  # rectify's default tile
         models = {n: self[n].model for n in names}
@@ -371,6 +373,14 @@ def _collinearity_condition(exterior: ExteriorOrientation, camera: FrameCamera, 
     return float(s[0] / s[-1])
 
 
+def _refine_condition(refinement, pixel: np.ndarray) -> float:
+    """Condition of an RPC refinement's column-equilibrated design ``[1, c, r]`` (its terms) at the
+    RPC's own positions of the GCPs (``pixel`` minus the raw residuals)."""
+    terms = {"shift": [0], "shift-drift": [0, 2], "affine": [0, 1, 2]}[refinement.model]
+    design = np.column_stack([np.ones(len(pixel)), pixel - refinement.raw_residuals])[:, terms]
+    return float(np.linalg.cond(design / np.linalg.norm(design, axis=0)))
+
+
 def _points(name: str, a, width: int) -> np.ndarray:
     p = np.asarray(a, dtype=float)
     if p.ndim != 2 or p.shape[1] != width:
@@ -392,7 +402,7 @@ def _check_inputs(gcp_ground, gcp_pixel, check_ground, check_pixel, camera: Fram
     cp = np.zeros((0, 2)) if check_pixel is None else _points("check_pixel", check_pixel, 2)
     if len(cg) != len(cp):
         raise ValueError(f"check_ground has {len(cg)} points but check_pixel has {len(cp)}")
-    if camera.image_size is None or camera.pixel_size is None:
+    if camera.image_size is None or (isinstance(camera, FrameCamera) and camera.pixel_size is None):
         raise ValueError("camera needs pixel_size and image_size (pixels are compared)")
     for k in orders:
         if not isinstance(k, (int, np.integer)) or not 1 <= k <= 5:
@@ -415,6 +425,7 @@ def compare_models(
     grid: Grid | None = None,
     exterior: ExteriorOrientation | None = None,
     gcp_names: Sequence[str] | None = None,
+    refine: str = "shift",
 ) -> ModelComparison:
     """Fit collinearity and plane-to-plane models to the same GCPs and compare.
 
@@ -436,6 +447,14 @@ def compare_models(
             DEM at 4 x the mean GSD.
         exterior: use this exterior orientation instead of resecting.
         gcp_names: ``(n,)`` names of the GCPs, for the reports.
+        refine: with an RPC camera, its refinement on the GCPs (:func:`photax.rpc.refine_rpc`).
+
+    A satellite image: ``camera`` an :class:`photax.rpc.RPCCamera`, the ground points and the DEM
+    in the DEM's (projected) CRS, heights ellipsoidal. The sensor models are then ``"RPC + shift"``
+    (the RPC refined on the GCPs: the reference of the error maps, in collinearity's place; its
+    refinement in ``resection``) and ``"RPC"`` (as delivered, 0 parameters), beside the same
+    polynomials and maps: the course's "polynomial correction of satellite images" against the
+    sensor model.
 
     GCPs that the resection rejects as blunders (its data snooping) are left
     out of every model's fit (:attr:`ModelComparison.excluded`).
@@ -471,14 +490,27 @@ def compare_models(
 
     resection = None
     used = np.ones(n, bool)
-    if exterior is None:
-        resection = resect(camera.pixel_to_image(gp), gg, camera)
-        exterior = resection.exterior
-        used = ~np.asarray(resection.outliers, bool)  # every model fits the same, blunder-free points
+    rpc = isinstance(camera, RPCCamera)
+    if rpc:  # the refined RPC plays collinearity's part
+        if exterior is not None:
+            raise ValueError("exterior: an RPC camera carries its own orientation; leave it out")
+        if dem.crs is None:
+            raise ValueError("dem: an RPC camera needs the DEM's CRS (the ground points' map CRS)")
+        sensor = RPCSensor(camera, dem.crs)
+        llh = lambda g: np.column_stack([np.asarray(sensor.to_lonlat(g[:, :2])), g[:, 2]])  # noqa: E731
+        resection = refine_rpc(camera, llh(gg), gp, refine, names=gcp_names)
+        reference_camera = resection.camera
+    else:
+        if exterior is None:
+            resection = resect(camera.pixel_to_image(gp), gg, camera)
+            exterior = resection.exterior
+            used = ~np.asarray(resection.outliers, bool)  # every model fits the same, blunder-free points
+        reference_camera = camera
     n_used = int(used.sum())
-    footprint = ortho_grid(exterior, camera, dem)
+    crs = dem.crs if rpc else None
+    footprint = ortho_grid(exterior, reference_camera, dem, crs=crs)
     gsd = abs(float(footprint.transform.a))
-    grid = ortho_grid(exterior, camera, dem, 4 * gsd) if grid is None else grid
+    grid = ortho_grid(exterior, reference_camera, dem, 4 * gsd, crs=crs) if grid is None else grid
     if not isinstance(grid, Grid):
         raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
     xy = jnp.asarray(grid.xy())
@@ -497,16 +529,24 @@ def compare_models(
             ModelResult(name, model, u, 2 * n_used - u, float(cond), vg, vc, _rmse(vg[used]), _rmse(vc), err)
         )
 
-    # Collinearity with the DEM is the reference mapping of the error maps;
+    # Collinearity (the refined RPC) with the DEM is the reference mapping of the error maps;
     # at GCPs and check points it uses their own surveyed Z, not the DEM's.
-    ortho = OrthoModel(exterior, camera, dem)
+    ortho = OrthoModel(exterior, reference_camera, dem, crs)
     values = np.array(_apply(ortho, flat_xy))
     ref = values[:size].reshape(xy.shape)
     inside = (ref[..., 0] >= -0.5) & (ref[..., 0] <= w - 0.5) & (ref[..., 1] >= -0.5) & (ref[..., 1] <= h - 0.5)
     ref = np.where(inside[..., None], ref, np.nan)
-    values[size:] = np.asarray(_project_px(jnp.asarray(np.concatenate([gg, cg])), exterior, camera))
-    cond = math.nan if resection is None else _collinearity_condition(exterior, camera, gg[used])
-    add("collinearity", ortho, 0 if resection is None else 6, cond, values)
+    points = jnp.asarray(np.concatenate([gg, cg]))
+    values[size:] = np.asarray(_apply(ortho.sensor, points))
+    if rpc:
+        add(f"RPC + {refine}", ortho, resection.covariance.shape[0], _refine_condition(resection, gp), values)
+        raw = OrthoModel(None, camera, dem, crs)
+        values = np.array(_apply(raw, flat_xy))
+        values[size:] = np.asarray(_apply(raw.sensor, points))
+        add("RPC", raw, 0, math.nan, values)
+    else:
+        cond = math.nan if resection is None else _collinearity_condition(exterior, camera, gg[used])
+        add("collinearity", ortho, 0 if resection is None else 6, cond, values)
 
     skipped = {}
     for k in orders:

@@ -12,17 +12,14 @@ import dataclasses
 import math
 from typing import Any
 
-import equinox as eqx
-import jax.numpy as jnp
 import numpy as np
-from jax import Array
 from rasterio import Affine
 
-from ._aot import disk_cached
 from .camera import FrameCamera
-from .collinearity import ExteriorOrientation, image_to_ground
+from .collinearity import ExteriorOrientation
 from .dem import DEM
 from .io.crs import check_dem, describe, require_same
+from .sensor import FrameSensor, RPCSensor, sensor_of, utm_crs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,21 +106,6 @@ class Grid:
         return np.stack([x, y], axis=-1)
 
 
-@eqx.filter_jit
-def _footprint(px: Array, exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM) -> tuple[Array, Array]:
-    """``(n, 3)`` ground points of the ``(n, 2)`` pixels ``px`` on the DEM,
-    and on the plane at the DEM's mean height: one compiled call (kept on
-    disk by photax._aot) instead of a dozen small eager operations."""
-    img = camera.pixel_to_image(px)
-    return (
-        image_to_ground(img, exterior, camera, dem=dem),
-        image_to_ground(img, exterior, camera, height=jnp.nanmean(dem.heights)),
-    )
-
-
-_footprint_cached = disk_cached(_footprint, "ortho_footprint")
-
-
 def _shoelace(p: np.ndarray) -> float:
     return 0.5 * abs(float(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(np.roll(p[:, 0], -1), p[:, 1])))
 
@@ -159,12 +141,14 @@ def check_resolution(resolution, gsd: float, bounds, what: str = "the image") ->
         )
 
 
-def _footprint_outline(exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, per_side: int):
-    """``(ground (4 per_side, 2), pixel outline (4 per_side, 2))`` of the image's outer pixel edges."""
-    if camera.image_size is None:
+def _footprint_outline(sensor, dem: DEM, per_side: int):
+    """``(ground (4 per_side, 2), pixel outline (4 per_side, 2))`` of the image's outer pixel edges
+    (``sensor``: :mod:`photax.sensor`; ground in its map CRS)."""
+    if sensor.image_size is None:
         raise ValueError("camera must have an image_size to find the image footprint")
-    check_dem(dem)  # a geographic DEM's degrees are not the orientation's metres
-    w, h = camera.image_size
+    if isinstance(sensor, FrameSensor):
+        check_dem(dem)  # a geographic DEM's degrees are not the orientation's metres
+    w, h = sensor.image_size
     t = np.linspace(0.0, 1.0, per_side, endpoint=False)
     x0, x1, y0, y1 = -0.5, w - 0.5, -0.5, h - 0.5
     px = np.concatenate(
@@ -175,31 +159,41 @@ def _footprint_outline(exterior: ExteriorOrientation, camera: FrameCamera, dem: 
             np.stack([np.full_like(t, x0), y1 - t * (y1 - y0)], -1),
         ]
     )
-    ground, flat = (np.asarray(g) for g in _footprint_cached(px, exterior, camera, dem))
-    ground = np.where(np.isfinite(ground), ground, flat)[:, :2]
+    ground = sensor.footprint(px, dem)
     if not np.all(np.isfinite(ground)):
         raise ValueError("the image outline does not reach the ground (camera looks above the horizon)")
     return ground, px
 
 
-def ground_sampling_distance(
-    exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM, *, per_side: int = 16
-) -> float:
+def _sensor(exterior, camera, dem: DEM, crs):
+    """The sensor (:func:`photax.sensor.sensor_of`) and the grid's CRS: for a frame the DEM's (or
+    ``crs``), for an RPC ``crs`` or else the UTM zone of the scene's centre."""
+    if isinstance(camera, RPCSensor):
+        return camera, camera.crs
+    if exterior is None and crs is None and not isinstance(camera, FrameCamera):
+        crs = utm_crs(*np.asarray(camera.offsets[:2]))
+    sensor = sensor_of(exterior, camera, crs)
+    return sensor, (crs if crs is not None else dem.crs)
+
+
+def ground_sampling_distance(exterior, camera, dem: DEM, *, per_side: int = 16, crs=None) -> float:
     """The image's mean ground sampling distance on ``dem``: ``sqrt(footprint area / image area in pixels)``
-    (ground units per pixel)."""
-    ground, px = _footprint_outline(exterior, camera, dem, per_side)
+    (ground units per pixel; ``exterior=None`` and an :class:`photax.rpc.RPCCamera`: in ``crs``, as in
+    :func:`ortho_grid`)."""
+    sensor, _ = _sensor(exterior, camera, dem, crs)
+    ground, px = _footprint_outline(sensor, dem, per_side)
     return math.sqrt(_shoelace(ground) / _shoelace(px))
 
 
 def gsd_hint(exterior, camera, dem, grid) -> str:
     """The resolution the image supports, for an output that does not fit."""
-    gsd = ground_sampling_distance(exterior, camera, dem)
+    gsd = ground_sampling_distance(exterior, camera, dem, crs=grid.crs)
     return f"the image's ground sampling distance is {gsd:.4g} (this grid: {abs(grid.transform.a):.4g})"
 
 
 def ortho_grid(
-    exterior: ExteriorOrientation,
-    camera: FrameCamera,
+    exterior: ExteriorOrientation | None,
+    camera,
     dem: DEM,
     resolution=None,
     *,
@@ -222,10 +216,20 @@ def ortho_grid(
         crs: the grid's CRS (e.g. the one an orientation file names) where the DEM has none;
             default the DEM's.  Coordinates are not transformed: a DEM labelled with another
             CRS is refused (:func:`photax.io.crs.check_dem`), never relabelled.
+
+    An RPC camera (``exterior=None``, ``camera`` an :class:`photax.rpc.RPCCamera`): the outline is
+    cut with the DEM by :meth:`~photax.rpc.RPCCamera.to_ground_dem`, in any ``crs`` (default the
+    UTM zone of the scene's centre); the DEM may be in another CRS (its bounds are transformed).
     """
-    ground, px = _footprint_outline(exterior, camera, dem, per_side)
+    sensor, crs = _sensor(exterior, camera, dem, crs)
+    ground, px = _footprint_outline(sensor, dem, per_side)
     gsd = math.sqrt(_shoelace(ground) / _shoelace(px))
     dxmin, dymin, dxmax, dymax = dem.bounds
+    rpc = exterior is None
+    if rpc and dem.crs is not None:
+        from rasterio.warp import transform_bounds
+
+        dxmin, dymin, dxmax, dymax = transform_bounds(dem.crs, crs, *dem.bounds, densify_pts=21)
     bounds = (
         max(ground[:, 0].min(), dxmin),
         max(ground[:, 1].min(), dymin),
@@ -236,12 +240,13 @@ def ortho_grid(
         f = (ground[:, 0].min(), ground[:, 1].min(), ground[:, 0].max(), ground[:, 1].max())
         box = lambda b: f"E {b[0]:.1f}..{b[2]:.1f}, N {b[1]:.1f}..{b[3]:.1f}"  # noqa: E731
         raise ValueError(
-            f"the image footprint ({box(f)}) does not overlap the DEM ({box(dem.bounds)}, "
+            f"the image footprint ({box(f)}) does not overlap the DEM ({box((dxmin, dymin, dxmax, dymax))}, "
             f"{describe(dem.crs)}); are the orientation and the DEM in the same CRS?"
         )
     if resolution is None:
         resolution = gsd
     else:
         check_resolution(resolution, gsd, bounds)
-    require_same(dem.crs, "the DEM", crs, "the grid's crs=")  # names a CRS where the DEM has none
+    if not rpc:
+        require_same(dem.crs, "the DEM", crs, "the grid's crs=")  # names a CRS where the DEM has none
     return Grid.from_bounds(bounds, resolution, crs=dem.crs if crs is None else crs)

@@ -41,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ._aot import disk_cached
 from ._float64 import as_float64
 
 # Coefficient rows of RPCCamera.coefficients, and the keys GDAL / rasterio / orthority give them.
@@ -184,7 +185,7 @@ class RPCCamera(eqx.Module):
             raise ValueError(f"pixel: expected shape (..., 2), got {pixel.shape}")
         h = jnp.broadcast_to(jnp.asarray(as_float64(height, "height")), pixel.shape[:-1])
         flat_p, flat_h = pixel.reshape(-1, 2), h.reshape(-1)
-        lonlat, ok = _to_ground(self, flat_p, flat_h, max_steps, tol)
+        lonlat, ok = newton_inverse(self, flat_p, flat_h, max_steps, tol)
         return lonlat.reshape(pixel.shape), ok.reshape(pixel.shape[:-1])
 
     def to_ground_dem(self, pixel, dem, *, max_steps: int = 50, tol: float = 1e-6) -> np.ndarray:
@@ -195,36 +196,53 @@ class RPCCamera(eqx.Module):
         DEM's heights must be ellipsoidal (WGS84), as the RPC's; a DEM on a geoid must be converted
         first.  Its CRS (None: lon, lat) is reached through pyproj.  NaN where the ground point leaves
         the DEM or the iteration does not settle in ``max_steps`` (it converges while the terrain's slope
-        times the view's tangent stays below 1).
+        times the view's tangent stays below 1); :meth:`to_ground_dem_status` says which.
         """
+        return self.to_ground_dem_status(pixel, dem, max_steps=max_steps, tol=tol)[0]
+
+    def to_ground_dem_status(self, pixel, dem, *, max_steps: int = 50, tol: float = 1e-6):
+        """As :meth:`to_ground_dem`, returning ``(lon_lat_h, status)``: ``status`` ``(...)`` per point,
+        one of :data:`GROUND_STATUS` (0 converged, 1 off the DEM, 2 Newton's inverse did not converge,
+        3 the height iteration did not settle)."""
         import pyproj
 
         pixel = as_float64(pixel, "pixel")
         if pixel.shape[-1:] != (2,):
             raise ValueError(f"pixel: expected shape (..., 2), got {pixel.shape}")
-        flat = pixel.reshape(-1, 2)
+        flat = jnp.asarray(pixel.reshape(-1, 2))
         to_dem = None
         if dem.crs is not None:
             to_dem = pyproj.Transformer.from_crs("EPSG:4326", dem.crs, always_xy=True)
         h = np.full(len(flat), float(self.offsets[2]))
         done = np.zeros(len(flat), bool)
-        lonlat = np.full((len(flat), 2), np.nan)
+        failed = np.zeros(len(flat), bool)  # Newton's inverse did not converge at some height
         for _ in range(max_steps):
-            lonlat = np.asarray(self.to_ground(flat, h))
+            lonlat, ok = (np.asarray(v) for v in _to_ground_cached(self, flat, jnp.asarray(h), 20, 1e-12))
+            failed |= ~ok & np.isfinite(h)
             x, y = to_dem.transform(lonlat[:, 0], lonlat[:, 1]) if to_dem else lonlat.T
             new = np.asarray(dem.height(jnp.asarray(x, dtype=jnp.float64), jnp.asarray(y, dtype=jnp.float64)))
+            new = np.where(ok, new, np.nan)
             done = np.abs(new - h) < tol
-            h = np.where(np.isfinite(new), new, np.nan)
+            h = new
             if np.all(done | ~np.isfinite(h)):
                 break
-        lonlat = np.asarray(self.to_ground(flat, h))  # on the last height
+        lonlat, ok = (np.asarray(v) for v in _to_ground_cached(self, flat, jnp.asarray(h), 20, 1e-12))  # last height
+        failed |= ~ok & np.isfinite(h)
+        status = np.where(failed, 2, np.where(~np.isfinite(h), 1, np.where(done & ok, 0, 3)))
         out = np.column_stack([lonlat, h])
-        out[~done] = np.nan
-        return out.reshape(*pixel.shape[:-1], 3)
+        out[status != 0] = np.nan
+        return out.reshape(*pixel.shape[:-1], 3), status.reshape(pixel.shape[:-1])
+
+
+# The status codes of RPCCamera.to_ground_dem_status.
+GROUND_STATUS = ("converged", "off the DEM", "no convergence (inverse)", "no convergence (height)")
 
 
 @eqx.filter_jit
-def _to_ground(camera: RPCCamera, pixel: Array, h: Array, max_steps: int, tol: float):
+def newton_inverse(camera: RPCCamera, pixel: Array, h: Array, max_steps: int = 20, tol: float = 1e-12):
+    """``(n, 2)`` pixels at ``(n,)`` heights -> ``((n, 2)`` lon, lat, ``(n,)`` converged): Newton's method
+    from the scene centre, jittable (:meth:`RPCCamera.to_ground_status` is its checked entry point)."""
+
     def f(ll, hh):
         return camera(jnp.concatenate([ll, hh[None]]))
 
@@ -245,6 +263,12 @@ def _to_ground(camera: RPCCamera, pixel: Array, h: Array, max_steps: int, tol: f
         return ll, step <= tol
 
     return jax.vmap(one)(pixel, h)
+
+
+_to_ground_cached = disk_cached(newton_inverse, "rpc_to_ground")  # traced once per machine, not per process
+
+
+_forward = disk_cached(eqx.filter_jit(RPCCamera.__call__), "rpc_forward")  # one program, not op by op
 
 
 # --- readers ------------------------------------------------------------------------------------
@@ -388,6 +412,27 @@ class RPCRefinement:
     sigma0: float
     redundancy: int
     standardized: np.ndarray
+    names: tuple[str, ...] | None = None
+
+    def report(self) -> str:
+        """A text report: the fit's figures, the correction and each GCP's residuals (px)."""
+        a, b = self.correction
+        lines = [
+            f"RPC refinement ({self.model}) on {len(self.residuals)} GCPs: RMSE {self.raw_rmse:.3f} px unrefined, "
+            f"{self.rmse:.3f} px refined, {self.loo_rmse:.3f} px leave-one-out; sigma0 {self.sigma0:.3f} px, "
+            f"redundancy {self.redundancy}",
+            f"  column += {a[0]:+.3f} {a[1]:+.3e} c {a[2]:+.3e} r;  row += {b[0]:+.3f} {b[1]:+.3e} c {b[2]:+.3e} r",
+            f"  {'GCP':<24} {'raw dc':>8} {'raw dr':>8} {'dc':>8} {'dr':>8} {'loo dc':>8} {'loo dr':>8} {'|w|':>6}",
+        ]
+        names = self.names or tuple(str(i + 1) for i in range(len(self.residuals)))
+        w = np.max(np.abs(self.standardized), axis=1)
+        for k, name in enumerate(names):
+            r, v, lo = self.raw_residuals[k], self.residuals[k], self.loo_residuals[k]
+            lines.append(
+                f"  {name[:24]:<24} {r[0]:8.3f} {r[1]:8.3f} {v[0]:8.3f} {v[1]:8.3f} {lo[0]:8.3f} {lo[1]:8.3f} "
+                f"{w[k]:6.2f}" + ("  <- blunder?" if w[k] > 3 else "")
+            )
+        return "\n".join(lines)
 
     @property
     def rmse(self) -> float:
@@ -418,7 +463,7 @@ def _apply(k: np.ndarray, cr: np.ndarray) -> np.ndarray:
     return cr + cr @ k[:, 1:].T + k[:, 0]
 
 
-def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") -> RPCRefinement:
+def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *, names=None) -> RPCRefinement:
     """Refine ``camera`` on GCPs by an image-space correction (module docstring; Grodecki & Dial 2003).
 
     Args:
@@ -426,6 +471,11 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") ->
         ground: ``(n, 3)`` lon (deg), lat (deg), ellipsoidal height (m) of the GCPs.
         pixel: ``(n, 2)`` their measured column, row (px).
         model: ``"shift"`` (1 GCP at least), ``"shift-drift"`` (2), ``"affine"`` (3).
+        names: the GCPs' names, for the messages and :meth:`RPCRefinement.report`.
+
+    GCPs far outside the RPC's image (line and sample offsets +- 1.5 scales) are refused, naming them;
+    outside ``camera.image_size`` but inside the RPC's image (a file cut from the scene the GCPs were
+    measured on: orthority's QuickBird sample has two) they are used, with a warning naming them.
 
     Equal weights; the normal equations of the two axes are separate (the correction of each axis
     is linear in its own parameters), so each is an ordinary least-squares fit of the RPC's misfit.
@@ -440,12 +490,36 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") ->
         raise ValueError(f"pixel: expected shape ({len(ground)}, 2) to match ground, got {pixel.shape}")
     if not (np.all(np.isfinite(ground)) and np.all(np.isfinite(pixel))):
         raise ValueError("ground / pixel: non-finite GCP coordinates")
+    names = None if names is None else tuple(str(v) for v in names)
+    if names is not None and len(names) != len(ground):
+        raise ValueError(f"names: {len(names)} for {len(ground)} GCPs")
+    label = (lambda i: names[i]) if names else (lambda i: f"GCP {i}")
+    off, scale = np.asarray(camera.offsets[3:]), 1.5 * np.asarray(camera.scales[3:])
+    out = np.flatnonzero(np.any(np.abs(pixel - off) > scale, axis=1))
+    if out.size:  # not an image of this RPC: a blunder or another image's measurement
+        which = ", ".join(f"{label(i)} at ({pixel[i, 0]:.1f}, {pixel[i, 1]:.1f})" for i in out)
+        raise ValueError(
+            f"refine_rpc: {out.size} GCP(s) outside the RPC's image (columns {off[0] - scale[0]:.0f} .. "
+            f"{off[0] + scale[0]:.0f}, rows {off[1] - scale[1]:.0f} .. {off[1] + scale[1]:.0f}): {which}"
+        )
+    if camera.image_size is not None:
+        w, h = camera.image_size
+        out = np.flatnonzero((pixel < -0.5).any(axis=1) | (pixel[:, 0] > w - 0.5) | (pixel[:, 1] > h - 0.5))
+        if out.size:  # inside the RPC's image: measured on the full scene this file is cut from
+            import warnings
+
+            which = ", ".join(f"{label(i)} at ({pixel[i, 0]:.1f}, {pixel[i, 1]:.1f})" for i in out)
+            warnings.warn(
+                f"{out.size} GCP(s) outside the {w} x {h} pixel image, inside the RPC's: {which}; used "
+                "(measured on the full scene?)",
+                stacklevel=2,
+            )
     terms = _REFINE_TERMS[model]
     n, u = len(ground), 2 * len(terms)
     if n < len(terms):
         raise ValueError(f"refine_rpc: {model!r} needs at least {len(terms)} GCPs, got {n}")
     raw = RPCCamera(camera.coefficients, camera.offsets, camera.scales, image_size=camera.image_size)
-    cr = np.asarray(raw(ground))
+    cr = np.asarray(_forward(raw, jnp.asarray(ground)))
     k, design = _fit_correction(cr, pixel, terms)
     residuals = pixel - _apply(k, cr)
     r = 2 * n - u
@@ -463,7 +537,7 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift") ->
             ki, _ = _fit_correction(cr[keep], pixel[keep], terms)
             loo[i] = pixel[i] - _apply(ki, cr[i : i + 1])[0]
     refined = RPCCamera(camera.coefficients, camera.offsets, camera.scales, k, camera.image_size)
-    return RPCRefinement(refined, model, k, cov, residuals, pixel - cr, loo, sigma0, r, standardized)
+    return RPCRefinement(refined, model, k, cov, residuals, pixel - cr, loo, sigma0, r, standardized, names)
 
 
 def rpc_terms(lph) -> Array:

@@ -67,12 +67,44 @@ from .collinearity import ExteriorOrientation, angle_axes, collinearity_jacobian
 from .dem import DEM
 from .grid import Grid
 from .io.crs import check_dem
+from .rpc import RPCCamera, RPCRefinement
+from .sensor import FrameSensor, RPCSensor
 
 _BLOCK = 1 << 14  # points per jitted call (padded): one compilation, bounded memory
 _STRIP = 1 << 19  # pixels per strip at most: its intermediates stay small
 
 
-def _node_planes(exterior, camera, g, cov):
+def _node_planes(sensor, g, cov):
+    """The planes of :func:`_frame_planes` or :func:`_rpc_planes`, by the sensor's kind."""
+    if isinstance(sensor, RPCSensor):
+        return _rpc_planes(sensor, g, cov)
+    return _frame_planes(sensor.exterior, sensor.camera, g, cov)
+
+
+def _rpc_planes(sensor, g, cov):
+    """As :func:`_frame_planes` for an RPC (:class:`photax.sensor.RPCSensor`): ``J = dp/dk`` ``(2, 6)``
+    of its image-space correction ``k = (a0, a1, a2, b0, b1, b2)`` (``dc = a0 + a1 c + a2 r``, ``dr =
+    b0 + b1 c + b2 r`` at the RPC's own pixel ``(c, r)``: :func:`photax.rpc.refine_rpc`), ``cov``
+    ``(6, 6)``; ``dp/d(X, Y, Z)`` by ``jax.jacfwd`` through the map CRS -> lon, lat transformation."""
+    rpc = sensor.camera
+    llh = jnp.concatenate([sensor.to_lonlat(g[:, :2]), g[:, 2:3]], axis=-1)
+    cr = rpc.uncorrected(llh)  # (n, 2)
+    one, zero = jnp.ones(len(g)), jnp.zeros(len(g))
+    j = jnp.stack(
+        [
+            jnp.stack([one, cr[:, 0], cr[:, 1], zero, zero, zero], -1),
+            jnp.stack([zero, zero, zero, one, cr[:, 0], cr[:, 1]], -1),
+        ],
+        axis=1,
+    )  # (n, 2, 6)
+    jc = (j.reshape(-1, 6) @ cov).reshape(j.shape)
+    sp = [jnp.sum(jc[:, a] * j[:, b], axis=-1) for a, b in ((0, 0), (0, 1), (1, 1))]
+    pix = sensor(g)
+    jg = jax.vmap(jax.jacfwd(sensor))(g)  # (n, 2, 3)
+    return jnp.concatenate([pix.T, jnp.stack(sp), jg.reshape(-1, 6).T])
+
+
+def _frame_planes(exterior, camera, g, cov):
     """At ground points ``g`` ``(n, 3)``: ``(11, n)`` planes, the pixel (2),
     ``S_p = J S J^T`` of the exterior and intrinsics (xx, xy, yy) and
     ``dp/d(X, Y, Z)`` (6, row-major 2 x 3), all in pixels; NaN behind the
@@ -93,7 +125,7 @@ def _node_planes(exterior, camera, g, cov):
     return jnp.where((q[:, 2] < 0)[None], planes, jnp.nan)
 
 
-def _finish(pix, sp, jg, sz, grad, z, camera):
+def _finish(pix, sp, jg, sz, grad, z, image_size):
     """Planes ``(6, ...)``: ``S_p`` (xx, xy, yy) then ``S_g`` (xx, xy, yy), from the
     planes of the pixel ``(2, ...)``, the exterior/intrinsics ``S_p`` ``(3, ...)``,
     ``dp/d(X, Y, Z)`` ``(6, ...)`` (row-major 2 x 3), the DEM sigma, gradient
@@ -111,7 +143,7 @@ def _finish(pix, sp, jg, sz, grad, z, camera):
     gxx = i00 * i00 * sxx + 2 * i00 * i01 * sxy + i01 * i01 * syy
     gxy = i00 * i10 * sxx + (i00 * i11 + i01 * i10) * sxy + i01 * i11 * syy
     gyy = i10 * i10 * sxx + 2 * i10 * i11 * sxy + i11 * i11 * syy
-    w, h = camera.image_size
+    w, h = image_size
     ok = jnp.isfinite(z) & (pix[0] >= -0.5) & (pix[0] <= w - 0.5) & (pix[1] >= -0.5) & (pix[1] <= h - 0.5)
     return jnp.where(ok[None], jnp.stack([sxx, sxy, syy, gxx, gxy, gyy]), jnp.nan)
 
@@ -138,13 +170,13 @@ def _dem_slope(dem, x, y):
 
 
 @eqx.filter_jit
-def _propagate(exterior, camera, dem, xy, cov, sigma_z):
+def _propagate(sensor, dem, xy, cov, sigma_z):
     """Every point exactly: ``(n, 2)`` ground points -> ``(6, n)`` planes
     (see :func:`_finish`), NaN off the DEM, behind the camera or off the image."""
     z, grad = _dem_slope(dem, xy[:, 0], xy[:, 1])
     g = jnp.concatenate([xy, jnp.where(jnp.isfinite(z), z, 0.0)[:, None]], axis=-1)
-    pl = _node_planes(exterior, camera, g, cov)
-    return _finish(pl[:2], pl[2:5], pl[5:], sigma_z, grad, z, camera)
+    pl = _node_planes(sensor, g, cov)
+    return _finish(pl[:2], pl[2:5], pl[5:], sigma_z, grad, z, sensor.image_size)
 
 
 def _flat_terrain(planes):
@@ -191,7 +223,7 @@ def _node_fields(planes, sz):
 
 
 @eqx.filter_jit
-def _lattice(exterior, camera, dem, transform, cov, sz, zfill, step, shape):
+def _lattice(sensor, dem, transform, cov, sz, zfill, step, shape):
     """The exact propagation (float64) on the nodes every ``step`` pixels of
     a grid padded to ``shape`` (multiples of ``step``), node ``(i, j)`` at
     pixel centre ``(step i, step j)``, then its fields (:func:`_node_fields`,
@@ -205,7 +237,7 @@ def _lattice(exterior, camera, dem, transform, cov, sz, zfill, step, shape):
     xn, yn = xoff + a * c[None, :] + b * r[:, None], yoff + d * c[None, :] + e * r[:, None]
     zn = dem.height(xn, yn)
     g = jnp.stack([xn, yn, jnp.where(jnp.isfinite(zn), zn, zfill)], axis=-1).reshape(-1, 3)
-    n = _node_fields(_flat_terrain(_node_planes(exterior, camera, g, cov)), sz).reshape(-1, *xn.shape)
+    n = _node_fields(_flat_terrain(_node_planes(sensor, g, cov)), sz).reshape(-1, *xn.shape)
     f = jnp.arange(step, dtype=jnp.float32) / step
     return (n[:, :, :-1, None] + (n[:, :, 1:, None] - n[:, :, :-1, None]) * f[None, None, None, :]).reshape(
         *n.shape[:2], shape[1]
@@ -444,7 +476,7 @@ def _coarse(grid: Grid, factor: int) -> Grid:
 def ortho_uncertainty(
     exterior,
     covariance,
-    camera: FrameCamera,
+    camera,
     dem: DEM,
     grid: Grid,
     *,
@@ -493,6 +525,12 @@ def ortho_uncertainty(
             every pixel (~20x slower).
         image: which image of a bundle result.
 
+    An RPC (a satellite image): ``exterior`` None and ``camera`` an :class:`photax.rpc.RPCCamera`
+    with ``covariance`` the ``(6, 6)`` covariance of its image-space correction ``(a0, a1, a2, b0, b1,
+    b2)`` (pixels; zeros for an unrefined RPC, whose bias is unknown), or ``exterior`` a
+    :class:`photax.rpc.RPCRefinement` (its camera and covariance; ``camera`` None). The grid may be
+    in any projected CRS, the DEM in the grid's.
+
     Returns:
         :class:`OrthoUncertainty`, float32 rasters (float64 with ``step=1``).
 
@@ -517,27 +555,12 @@ def ortho_uncertainty(
     """
     # Over 80 lines because the docstring documents every argument; the body is ~55 lines.
     check_dem(dem, grid)
-    exterior, covariance = _orientation(exterior, covariance, image)
-    cov = np.asarray(covariance, dtype=float)
-    n_intr = len(camera.intrinsic_names)
-    n_all = 6 + n_intr  # exterior then intrinsics: the joint covariance's size
-    if cov.shape not in ((6, 6), (n_all, n_all)) or not np.all(np.isfinite(cov)):
-        raise ValueError(f"covariance must be a finite (6, 6) or ({n_all}, {n_all}) matrix, got shape {cov.shape}")
-    if np.min(np.linalg.eigvalsh(0.5 * (cov + cov.T))) < -1e-12 * max(np.abs(cov).max(), 1e-300):
-        raise ValueError("covariance must be symmetric positive semi-definite")
-    joint = np.zeros((n_all, n_all))
-    joint[: cov.shape[0], : cov.shape[0]] = cov
-    if camera_covariance is not None:
-        c = np.asarray(camera_covariance, dtype=float)
-        if c.ndim != 2 or c.shape[0] != c.shape[1] or c.shape[0] not in (3, n_intr):
-            raise ValueError(f"camera_covariance must be ({n_intr}, {n_intr}) or (3, 3), got shape {c.shape}")
-        if cov.shape == (n_all, n_all):
-            raise ValueError(
-                f"camera_covariance must be None when covariance is ({n_all}, {n_all}) (it holds the intrinsics)"
-            )
-        joint[6 : 6 + c.shape[0], 6 : 6 + c.shape[0]] = c
-    if camera.image_size is None or camera.pixel_size is None:
-        raise ValueError("camera must have a pixel grid (pixel_size and image_size)")
+    if isinstance(exterior, RPCRefinement) or isinstance(camera, RPCCamera):
+        sensor, joint = _rpc(exterior, covariance, camera, grid)
+        if camera_covariance is not None:
+            raise ValueError("camera_covariance: an RPC has no intrinsics (its covariance is the correction's)")
+    else:
+        sensor, joint = _frame(exterior, covariance, camera, camera_covariance, image)
     if not isinstance(grid, Grid):
         raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
     if int(coarsen) < 1:
@@ -552,7 +575,7 @@ def ortho_uncertainty(
     scalar_sz = sz.shape == ()
     sz = np.broadcast_to(sz, grid.shape)
     rows, cols = grid.shape
-    args = (exterior, camera, dem)
+    args = (sensor, dem)
     covs = (jnp.asarray(joint),)
     if step == 1:  # every pixel exactly, in blocks of one shape
         xy, sz = grid.xy().reshape(-1, 2), sz.reshape(-1)
@@ -581,8 +604,7 @@ def ortho_uncertainty(
     transform = jnp.asarray(tuple(grid.transform)[:6])
     along = np.asarray(
         _lattice(
-            exterior,
-            camera,
+            sensor,
             dem,
             transform,
             *covs,
@@ -606,7 +628,7 @@ def ortho_uncertainty(
         srows = (
             None if window is None else _slope_rows(heights, dem_t, tuple(grid.transform)[:6], r0, (th, cols_p), window)
         )
-        slope = _effective_slope(a, camera.image_size, dem, transform, np.asarray(float(r0)), step, srows)
+        slope = _effective_slope(a, sensor.image_size, dem, transform, np.asarray(float(r0)), step, srows)
         for k, plane in enumerate(_strip(a, slope, jnp.asarray(z), step, ("image", "ground"))):
             out[k, r0 : r0 + th] = plane
 
@@ -629,6 +651,63 @@ def _dem_window(grid: Grid, dem: DEM, rows: int) -> int | None:
     if b != 0 or d != 0 or db != 0 or dd != 0:
         return None
     return int(min(dem.heights.shape[0], np.ceil(rows * abs(e / de)) + 3))
+
+
+def _frame(exterior, covariance, camera, camera_covariance, image):
+    """A frame's sensor and ``(6 + n, 6 + n)`` joint covariance of its exterior and ``n`` intrinsics."""
+    exterior, covariance = _orientation(exterior, covariance, image)
+    if not isinstance(camera, FrameCamera) or camera.image_size is None or camera.pixel_size is None:
+        raise ValueError("camera must have a pixel grid (pixel_size and image_size)")
+    cov = np.asarray(covariance, dtype=float)
+    n_intr = len(camera.intrinsic_names)
+    n_all = 6 + n_intr  # exterior then intrinsics: the joint covariance's size
+    if cov.shape not in ((6, 6), (n_all, n_all)) or not np.all(np.isfinite(cov)):
+        raise ValueError(f"covariance must be a finite (6, 6) or ({n_all}, {n_all}) matrix, got shape {cov.shape}")
+    if np.min(np.linalg.eigvalsh(0.5 * (cov + cov.T))) < -1e-12 * max(np.abs(cov).max(), 1e-300):
+        raise ValueError("covariance must be symmetric positive semi-definite")
+    joint = np.zeros((n_all, n_all))
+    joint[: cov.shape[0], : cov.shape[0]] = cov
+    if camera_covariance is not None:
+        c = np.asarray(camera_covariance, dtype=float)
+        if c.ndim != 2 or c.shape[0] != c.shape[1] or c.shape[0] not in (3, n_intr):
+            raise ValueError(f"camera_covariance must be ({n_intr}, {n_intr}) or (3, 3), got shape {c.shape}")
+        if cov.shape == (n_all, n_all):
+            raise ValueError(
+                f"camera_covariance must be None when covariance is ({n_all}, {n_all}) (it holds the intrinsics)"
+            )
+        joint[6 : 6 + c.shape[0], 6 : 6 + c.shape[0]] = c
+    return FrameSensor(exterior, camera), joint
+
+
+def _rpc(refinement, covariance, camera, grid):
+    """An RPC's sensor (in the grid's CRS) and the ``(6, 6)`` covariance of its correction."""
+    if isinstance(refinement, RPCRefinement):
+        if camera is not None and camera is not refinement.camera:
+            raise ValueError("camera: give None with an RPCRefinement (its refined camera is used)")
+        camera = refinement.camera
+        terms = {"shift": [0], "shift-drift": [0, 2], "affine": [0, 1, 2]}[refinement.model]
+        index = terms + [3 + t for t in terms]
+        cov = np.zeros((6, 6))
+        if covariance is None:
+            if not np.all(np.isfinite(refinement.covariance)):
+                raise ValueError("the refinement has no finite covariance (no redundancy)")
+            cov[np.ix_(index, index)] = refinement.covariance
+        else:
+            cov = np.asarray(covariance, dtype=float)
+    elif refinement is not None:
+        raise ValueError("exterior: None or an RPCRefinement with an RPC camera (it carries its own orientation)")
+    else:
+        cov = np.asarray(covariance, dtype=float) if covariance is not None else None
+    if cov is None or cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
+        got = None if cov is None else cov.shape
+        raise ValueError(
+            f"covariance: an RPC's is the finite (6, 6) one of its correction (a0, a1, a2, b0, b1, b2), got {got}"
+        )
+    if np.min(np.linalg.eigvalsh(0.5 * (cov + cov.T))) < -1e-12 * max(np.abs(cov).max(), 1e-300):
+        raise ValueError("covariance must be symmetric positive semi-definite")
+    if camera.image_size is None:
+        raise ValueError("the RPC camera must have an image_size")
+    return RPCSensor(camera, grid.crs), cov
 
 
 def _orientation(exterior, covariance, image: int):

@@ -12,6 +12,12 @@ may not be an input or an input's sidecar.  Several images (``--out-dir DIR``) r
 under one progress bar (:func:`photax.orthorectify_files`): each ortho is ``DIR/STEM_ortho.tif``,
 bit for bit what the command writes for that image alone; the orientation file is parsed once.
 Exit codes: 0 done, 1 some image failed (named on stderr; the others are written), 2 bad input.
+
+A satellite image with an RPC (``--camera rpc``: the RPC in IMAGE's metadata or side files, as GDAL
+reads them; or ``--camera`` an orthority ``rpc_param.yaml``, a ``.RPB`` or a ``_RPC.TXT``) needs no
+``--exterior``: the ortho is made in ``--crs`` (default the UTM zone of the scene), optionally after
+refining the RPC on ``--gcps`` (``--refine``, :func:`photax.rpc.refine_rpc`, whose report is
+printed). The DEM's heights must be ellipsoidal (a warning says when its CRS does not say so).
 """
 
 from __future__ import annotations
@@ -37,7 +43,9 @@ def add_parser(sub) -> None:
         "  photax ortho IMAGE.tif --height 120 --camera cam.yaml --exterior resect.json -o ortho.tif  "
         "# flat ground at Z = 120\n"
         "  photax ortho DJI_0001.JPG --dem dsm.tif --camera cam.yaml --exterior exif -o ortho.tif  "
-        "# position and gimbal angles from the image's EXIF/XMP\n",
+        "# position and gimbal angles from the image's EXIF/XMP\n"
+        "  photax ortho qb2_basic1b.tif --camera rpc --dem dem.tif --crs EPSG:32735 --resolution 5 "
+        "--gcps gcps.geojson --refine shift -o o.tif  # a satellite image's own RPC, refined on GCPs\n",
     )
     p.add_argument("image", metavar="IMAGE", nargs="+", help="the image(s) (any GDAL raster)")
     ground = p.add_mutually_exclusive_group(required=True)
@@ -52,13 +60,15 @@ def add_parser(sub) -> None:
                    help="photax camera file (see photax resect --help), orthority interior YAML, "
                    "OpenSfM/ODM reconstruction.json or ODM cameras.json, or exif: the camera the image's "
                    "tags describe (DJI DewarpData, else EXIF focal length), as orthority reads it "
-                   "(--interior is an alias)")  # fmt: skip
-    p.add_argument("--exterior", required=True,
+                   "(--interior is an alias); or an RPC: 'rpc' (the one in IMAGE's metadata), an orthority "
+                   "rpc_param.yaml, a .RPB or a _RPC.TXT file")  # fmt: skip
+    p.add_argument("--exterior",
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
                    "several), "
                    "orthority exterior CSV (x y z omega phi kappa, or latitude longitude altitude roll pitch "
                    "yaw) or GeoJSON, OpenSfM/ODM reconstruction.json, or exif: each image's GPS and DJI "
-                   "gimbal angles (exif:flight: the airframe's, for a camera fixed to it looking down)")  # fmt: skip
+                   "gimbal angles (exif:flight: the airframe's, for a camera fixed to it looking down); "
+                   "required, except with an RPC")  # fmt: skip
     out = p.add_mutually_exclusive_group(required=True)
     out.add_argument("-o", "--out", metavar="OUT_TIF", help="output GeoTIFF (one IMAGE)")
     out.add_argument("--out-dir", metavar="DIR", help="output folder: DIR/STEM_ortho.tif for each IMAGE")
@@ -78,11 +88,24 @@ def add_parser(sub) -> None:
         help="also write the interior and exterior orientations used as orthority files: DIR/int_param.yaml, "
         "DIR/ext_param.csv (+ .prj) and, with a CRS, DIR/ext_param.geojson (oty ortho reads them)",
     )
+    p.add_argument("--crs", help="RPC camera only: the output CRS (EPSG code, PROJ or WKT; default the "
+                   "WGS84 UTM zone of the scene)")  # fmt: skip
+    p.add_argument("--gcps", metavar="GCP_FILE", help="RPC camera only: GCPs to refine the RPC with (any "
+                   "format photax reads: orthority GeoJSON, CSV, ODM; those of IMAGE, or without an image name)")  # fmt: skip
+    p.add_argument("--refine", choices=("shift", "shift-drift", "affine"), default=None,
+                   help="with --gcps: the image-space correction refined (default: shift; at least 1, 2, 3 GCPs)")  # fmt: skip
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    if _is_rpc(args.camera):
+        return _run_rpc(args)
+    rpc_only = [o for o, v in (("--crs", args.crs), ("--gcps", args.gcps), ("--refine", args.refine)) if v is not None]
+    if rpc_only:
+        raise ValueError(f"{', '.join(rpc_only)}: for an RPC camera only (a frame's CRS is its orientation's)")
+    if args.exterior is None:
+        raise ValueError("--exterior is required with a frame camera (only an RPC camera carries its orientation)")
     if args.out_dir is not None:
         return _run_block(args)
     if len(args.image) > 1:
@@ -293,3 +316,132 @@ def _flat_dem(height: float, exterior):
         boxes.append((x - r, y - r, x + r, y + r))
     b = np.array(boxes)
     return DEM.flat(height, (*b[:, :2].min(axis=0), *b[:, 2:].max(axis=0)))
+
+
+def _is_rpc(camera: str) -> bool:
+    """``--camera rpc``, a ``.RPB`` / ``_RPC.TXT`` file, or a YAML file of orthority's RPC format."""
+    import pathlib
+
+    path = pathlib.Path(camera)
+    if camera == "rpc" or path.suffix.lower() == ".rpb" or path.name.upper().endswith("_RPC.TXT"):
+        return True
+    if path.suffix.lower() not in (".yaml", ".yml") or not path.is_file():
+        return False
+    import yaml
+
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return False  # the frame readers say what is wrong with it
+    return isinstance(doc, dict) and any(isinstance(v, dict) and "rpc" in v for v in doc.values())
+
+
+def _run_rpc(args: argparse.Namespace) -> int:
+    """One satellite image with its RPC (refined on --gcps when given) into --out."""
+    import pathlib
+    import sys
+    import warnings
+
+    from ..io.atomic import check_output_path
+    from ..io.raster import open_raster
+    from ..rpc import read_rpc
+    from ._common import ground_unit, input_file
+
+    if args.out_dir is not None or len(args.image) > 1:
+        raise ValueError("an RPC camera orthorectifies one IMAGE into -o/--out (each image has its own RPC)")
+    if args.exterior is not None:
+        raise ValueError("--exterior: an RPC camera carries its own orientation; leave --exterior out")
+    if args.refine is not None and args.gcps is None:
+        raise ValueError("--refine needs --gcps (the GCPs to refine the RPC on)")
+    image = input_file(args.image[0], "image")
+    if args.dem is not None:
+        input_file(args.dem, "DEM")
+    elif not math.isfinite(args.height):
+        raise ValueError(f"--height must be a finite number, got {args.height}")
+    if args.resolution is not None and not args.resolution > 0:
+        raise ValueError(f"--resolution must be positive, got {args.resolution}")
+    source = image if args.camera == "rpc" else input_file(args.camera, "RPC file")
+    inputs = [p for p in (image, args.dem, source, args.gcps) if p is not None]
+    check_output_path(args.out, inputs)  # fail before the work, not after
+    yaml_entry = image.name if pathlib.Path(source).suffix.lower() in (".yaml", ".yml") else None
+    try:
+        camera = read_rpc(source, yaml_entry)
+    except ValueError as exc:
+        if yaml_entry is None or "no entry" not in str(exc):
+            raise
+        camera = read_rpc(source)  # a file of one entry named otherwise
+    with open_raster(image) as src:
+        size = (src.width, src.height)
+    if camera.image_size is None:
+        camera = type(camera)(camera.coefficients, camera.offsets, camera.scales, camera.correction, size)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if args.gcps is not None:
+            camera = _refine(camera, args.gcps, image.name, args.refine or "shift")
+        grid, dem = _rpc_ortho(args, image, camera)
+    for w in dict.fromkeys(str(w.message) for w in caught):
+        print(f"{args.command}: warning: {w}", file=sys.stderr)
+    print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} {ground_unit(grid.crs)}")
+    return 0
+
+
+def _rpc_ortho(args, image, camera):
+    """The RPC ortho into args.out: (grid, dem)."""
+    from ..dem import DEM
+    from ..grid import ortho_grid
+    from ..io.raster import read_dem
+    from ..rectification import orthorectify_file
+    from ..sensor import RPCSensor, utm_crs
+
+    crs = args.crs if args.crs is not None else utm_crs(*(float(v) for v in camera.offsets[:2]))
+    if args.dem is not None:
+        dem = read_dem(args.dem)
+    else:  # flat ground over the RPC's validity box, in the output CRS
+        dem = DEM.flat(args.height, RPCSensor(camera, crs).box())
+        dem = DEM(dem.heights, dem.transform, crs=crs)
+    grid = ortho_grid(None, camera, dem, args.resolution, crs=crs)
+    orthorectify_file(
+        image,
+        args.out,
+        None,
+        camera,
+        dem,
+        grid,
+        resampling=args.resampling,
+        nodata=args.nodata,
+        tile=args.tile,
+        progress=args.progress and args.command,
+    )
+    return grid, dem
+
+
+def _refine(camera, gcp_path, image_name: str, model: str):
+    """The RPC refined on the control points of ``gcp_path`` measured in ``image_name`` (or without an
+    image name); its report printed; check points, when the file marks some, reported apart."""
+    import numpy as np
+    import pyproj
+
+    from ..io.gcp import read_gcps
+    from ..rpc import refine_rpc
+    from ._common import input_file
+
+    table = read_gcps(input_file(gcp_path, "GCP file"))
+    if table.pixel is None:
+        raise ValueError(f"{gcp_path}: gives image-plane coordinates; an RPC needs pixel positions")
+    mine = np.isin(table.images, [image_name, ""])
+    if not mine.any():
+        raise ValueError(f"{gcp_path}: no GCP measured in {image_name} (it names {', '.join(table.image_names)})")
+    ground = table.ground[mine].copy()
+    if not np.all(np.isfinite(ground)):
+        raise ValueError(f"{gcp_path}: GCPs without a height; the RPC needs lon, lat and height")
+    if table.crs is not None:  # the reader projects lon, lat to a map CRS: back to lon, lat
+        t = pyproj.Transformer.from_crs(table.crs, "EPSG:4326", always_xy=True)
+        ground[:, 0], ground[:, 1] = t.transform(ground[:, 0], ground[:, 1])
+    names, pixel, check = table.names[mine], table.pixel[mine], table.check[mine]
+    res = refine_rpc(camera, ground[~check], pixel[~check], model, names=names[~check])
+    print(res.report())
+    if check.any():
+        v = pixel[check] - np.asarray(res.camera(ground[check]))
+        rmse = float(np.sqrt(np.mean(np.sum(v**2, axis=1))))
+        print(f"check points: {int(check.sum())}, RMSE {rmse:.3f} px")
+    return res.camera

@@ -101,6 +101,13 @@ def check_dem(dem, grid=None) -> None:
         require_same(dem.crs, "the DEM", grid.crs, "the output grid")
 
 
+def same_crs(a, b) -> bool:
+    """Whether two CRSs are the same (rasterio equality, or the same horizontal part); an unknown one
+    (None, unreadable) is the same as anything, as in :func:`require_same`."""
+    ca, cb = _parse(a), _parse(b)
+    return ca is None or cb is None or ca == cb or _same_horizontal(ca, cb)
+
+
 # --- vertical datums -------------------------------------------------------------------------
 
 #: The geoid's undulation over the globe (EGM2008: -106.9 m to +85.8 m): the error of a

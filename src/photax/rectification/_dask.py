@@ -13,7 +13,8 @@ outline (its outermost pixel centres, 9 points per edge) is projected into
 the image at the lowest and the highest DEM height under the chunk.  The
 ray of a ground point ``(X, Y, Z)`` with ``Z`` between those heights images
 on the segment between the two projections (a straight line maps to a
-straight line through a pinhole), so the box around them plus the kernel's
+straight line through a pinhole; an RPC is near affine in the height over a
+chunk), so the box around them plus the kernel's
 margin (:class:`photax.Resampling`) and 2 pixels for lens distortion covers
 every sample; each task checks it against the positions it computed and
 fails loudly if not.
@@ -36,14 +37,12 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..camera import FrameCamera
-from ..collinearity import ExteriorOrientation, depth, project
+from ..collinearity import ExteriorOrientation
 from ..dem import DEM
 from ..grid import Grid
-from ..io.crs import check_dem
 from ..io.lazy import dataarray
 from ..resampling import Resampling
-from ._ortho import OrthoModel, _check_image_size
+from ._ortho import _check_image_size, check_ortho_inputs
 from ._tiling import _approx_arg, _check_approx, _check_resampling, _fill_value, _layout, tile_windows
 
 _EDGE_POINTS = 9  # points per chunk edge projected to find its window
@@ -51,21 +50,23 @@ _SLACK = 2  # extra input pixels around the window (lens distortion bends the ch
 
 
 @eqx.filter_jit
-def _project_heights(exterior, camera, xy, heights):
+def _project_heights(sensor, xy, heights):
     """``(n, k, 2)`` ground ``xy`` at ``(n, 2)`` heights (low, high) ->
-    ``(n, 2, k, 2)`` pixels and ``(n, 2, k)`` depths."""
+    ``(n, 2, k, 2)`` pixels, NaN where the sensor cannot image the point (:mod:`photax.sensor`)."""
     n, k = xy.shape[:2]
     g = jnp.concatenate(
         [jnp.broadcast_to(xy[:, None], (n, 2, k, 2)), jnp.broadcast_to(heights[:, :, None, None], (n, 2, k, 1))],
         axis=-1,
     ).reshape(-1, 3)
-    pix = camera.image_to_pixel(project(g, exterior, camera)).reshape(n, 2, k, 2)
-    return pix, depth(g, exterior).reshape(n, 2, k)
+    return sensor(g).reshape(n, 2, k, 2)
 
 
-def _chunk_heights(dem: DEM, grid: Grid, tiles) -> np.ndarray:
+def _chunk_heights(dem: DEM, grid: Grid, tiles, to_dem=None) -> np.ndarray:
     """``(n, 2)`` lowest and highest DEM height under each chunk (one DEM
-    cell of margin), NaN where the chunk sees no DEM height."""
+    cell of margin), NaN where the chunk sees no DEM height; ``to_dem``: grid
+    -> DEM coordinates where their CRSs differ (an RPC's
+    :class:`photax.sensor.LocalTransform`; the chunk's box is then that of
+    its transformed corners and edge midpoints)."""
     heights = np.asarray(dem.heights)
     rows, cols = heights.shape
     from rasterio import Affine
@@ -73,7 +74,9 @@ def _chunk_heights(dem: DEM, grid: Grid, tiles) -> np.ndarray:
     inv = ~Affine(*np.asarray(dem.transform).tolist())
     out = np.full((len(tiles), 2), np.nan)
     for k, (r0, c0, h, w) in enumerate(tiles):
-        corners = [grid.transform * (c, r) for c in (c0, c0 + w) for r in (r0, r0 + h)]
+        corners = [grid.transform * (c, r) for c in (c0, c0 + w / 2, c0 + w) for r in (r0, r0 + h / 2, r0 + h)]
+        if to_dem is not None:
+            corners = [tuple(v) for v in np.asarray(to_dem(np.array(corners)))]
         cr = np.array([inv * xy for xy in corners])
         c_lo, c_hi = int(math.floor(cr[:, 0].min())) - 1, int(math.ceil(cr[:, 0].max())) + 1
         r_lo, r_hi = int(math.floor(cr[:, 1].min())) - 1, int(math.ceil(cr[:, 1].max())) + 1
@@ -83,11 +86,11 @@ def _chunk_heights(dem: DEM, grid: Grid, tiles) -> np.ndarray:
     return out
 
 
-def _windows(exterior, camera, dem, grid, tiles, size, margin):
+def _windows(model, grid, tiles, size, margin):
     """Per chunk its input window ``(r0, c0, h, w)``, all of one shape, or
-    None when the chunk sees no DEM or no image."""
+    None when the chunk sees no DEM or no image (``model`` an :class:`OrthoModel`)."""
     H, W = size
-    z = _chunk_heights(dem, grid, tiles)
+    z = _chunk_heights(model.dem, grid, tiles, model.to_dem)
     t = np.linspace(0.0, 1.0, _EDGE_POINTS)
     outline = []
     for r0, c0, h, w in tiles:  # outermost pixel centres of the chunk, in raster coordinates
@@ -110,15 +113,14 @@ def _windows(exterior, camera, dem, grid, tiles, size, margin):
     n = 1 << (len(tiles) - 1).bit_length()  # padded to a power of two: few compilations
     xy = np.concatenate([xy, np.repeat(xy[:1], n - len(tiles), axis=0)])
     zz = np.nan_to_num(np.concatenate([z, np.repeat(z[:1], n - len(tiles), axis=0)]))
-    projected = _project_heights(exterior, camera, jnp.asarray(xy), jnp.asarray(zz))
-    pix, dep = (np.asarray(v)[: len(tiles)] for v in projected)
+    pix = np.asarray(_project_heights(model.sensor, jnp.asarray(xy), jnp.asarray(zz)))[: len(tiles)]
     boxes = []
     pad = margin + _SLACK
     for k in range(len(tiles)):
         if not np.isfinite(z[k]).all():
             boxes.append(None)
             continue
-        if not (dep[k] > 0).all() or not np.isfinite(pix[k]).all():  # the chunk reaches behind the camera
+        if not np.isfinite(pix[k]).all():  # the chunk reaches behind the camera, or out of the RPC's volume
             boxes.append((0, H, 0, W))
             continue
         p = pix[k].reshape(-1, 2)
@@ -253,8 +255,8 @@ def _valid_chunk(model, transform, tile, layout, approx, size, path=None, window
 
 def orthorectify_dask(
     image,
-    exterior: ExteriorOrientation,
-    camera: FrameCamera,
+    exterior: ExteriorOrientation | None,
+    camera,
     dem: DEM,
     grid: Grid,
     chunks: int = 1024,
@@ -287,7 +289,8 @@ def orthorectify_dask(
     Args:
         image: ``(H, W)`` or ``(bands, H, W)`` array, or the path of a
             raster file (all bands; read window by window by the workers).
-        exterior, camera, dem: as in :func:`photax.orthorectify`.
+        exterior, camera, dem: as in :func:`photax.orthorectify` (``None`` and an
+            :class:`photax.rpc.RPCCamera` for a satellite image).
         grid: the output :class:`photax.Grid` (its CRS becomes the array's).
         chunks: output chunk edge in pixels (the tiles of
             :func:`photax.orthorectify` for ``tile=chunks``).
@@ -311,7 +314,6 @@ def orthorectify_dask(
     import dask.array as da
     from dask.highlevelgraph import HighLevelGraph
 
-    check_dem(dem, grid)
     resampling = _check_resampling(resampling)
     approx = _check_approx(approx)
     if not isinstance(grid, Grid):
@@ -341,13 +343,13 @@ def orthorectify_dask(
         image = image.reshape((-1,) + image.shape[-2:])
         shape = image.shape
     _check_image_size(shape, camera)
+    model = check_ortho_inputs(exterior, camera, dem, grid)
     fill = _fill_value(dtype, nodata)
     size = tuple(shape[-2:])
     tiles = list(tile_windows(grid.shape, int(chunks)))
     layout = _layout(*tiles[0][2:])
     kernel = Resampling(resampling)
-    windows, _ = _windows(exterior, camera, dem, grid, tiles, size, kernel.margin)
-    model = OrthoModel(exterior, camera, dem)
+    windows, _ = _windows(model, grid, tiles, size, kernel.margin)
     transform = tuple(grid.transform)[:6]
     prepared = path is None and kernel.prefilter
     if prepared:  # the whole image's B-spline coefficients, sliced per window: exact

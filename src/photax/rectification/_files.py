@@ -14,12 +14,11 @@ from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
 from ..grid import Grid, gsd_hint, ortho_grid
-from ..io.crs import check_dem
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ._approx import _tile_positions
 from ._indirect import _resample_tile
-from ._ortho import OrthoModel, _check_image_size
+from ._ortho import _check_image_size, check_ortho_inputs
 from ._tiling import (
     _approx_arg,
     _check_approx,
@@ -236,8 +235,8 @@ def _valid(pos, origin, size, win, src_mask) -> np.ndarray:
 def orthorectify_file(
     src_path,
     dst_path,
-    exterior: ExteriorOrientation,
-    camera: FrameCamera,
+    exterior: ExteriorOrientation | None,
+    camera,
     dem,
     grid: Grid | None = None,
     *,
@@ -255,7 +254,8 @@ def orthorectify_file(
     ``dem`` is a :class:`photax.DEM` or the path of a DEM raster (read with
     :func:`photax.io.read_dem`, which may not be overwritten either).  The
     output CRS is ``grid.crs`` (default the DEM's).  See
-    :func:`rectify_file` for the streaming and atomic writing.
+    :func:`rectify_file` for the streaming and atomic writing.  ``exterior=None`` and an
+    :class:`photax.rpc.RPCCamera`: as in :func:`orthorectify` (default grid CRS the scene's UTM zone).
 
     Returns:
         the output grid.
@@ -272,11 +272,11 @@ def orthorectify_file(
         _check_image_size((src.height, src.width), camera)
     if grid is None:
         grid = ortho_grid(exterior, camera, dem, resolution)
-    check_dem(dem, grid)
+    model = check_ortho_inputs(exterior, camera, dem, grid)
     return rectify_file(
         src_path,
         dst_path,
-        OrthoModel(exterior, camera, dem),
+        model,
         grid,
         resampling=resampling,
         nodata=nodata,

@@ -8,52 +8,54 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..camera import FrameCamera, distort, distortion_jacobian
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
 from ..grid import Grid, gsd_hint, ortho_grid
-from ..io.crs import check_dem
+from ..io.crs import check_dem, same_crs
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
+from ..sensor import FrameSensor, LocalTransform, RPCSensor, check_rpc_dem, sensor_of
 from ._indirect import rectify
 
 
 class OrthoModel(eqx.Module):
     """Ground ``(X, Y)`` -> image pixel ``(col, row)`` through a DEM.
 
-    ``Z = dem.height(X, Y)`` (bilinear), then the collinearity equations and
-    ``camera.image_to_pixel``.  NaN where the DEM has no height, the
-    ground point is behind the camera, or its ray lies past the fold of the
-    lens distortion (the distortion's Jacobian determinant is not positive:
-    a strong barrel or rational model bends rays from outside the field of
-    view back into the image, and their grey values would be another
-    place's).  No occlusion test.
+    ``Z = dem.height(X, Y)`` (bilinear), then the sensor (:mod:`photax.sensor`): for a frame camera
+    the collinearity equations and ``camera.image_to_pixel``; for an RPC camera (``exterior=None``)
+    the RPC at the point's lon, lat (from the grid's ``crs``, default the DEM's) and height ``Z``.
+    NaN where the DEM has no height or the sensor cannot image the point (behind a frame camera or
+    past the fold of its lens distortion,
+    outside an RPC's validity volume).  No occlusion test.
+
+    For an RPC the DEM may be in another CRS than ``crs``: it is sampled at the point transformed
+    into its CRS (pyproj), never resampled.
     """
 
-    exterior: ExteriorOrientation
-    camera: FrameCamera
+    sensor: FrameSensor | RPCSensor
     dem: DEM
+    to_dem: LocalTransform | None  # grid CRS -> the DEM's, where they differ (an RPC only)
+
+    def __init__(self, exterior, camera, dem: DEM, crs=None):
+        self.sensor = sensor_of(exterior, camera, dem.crs if crs is None else crs)
+        self.dem = dem
+        self.to_dem = None
+        if isinstance(self.sensor, RPCSensor) and dem.crs is not None and not same_crs(dem.crs, self.sensor.crs):
+            self.to_dem = LocalTransform.fit(self.sensor.crs, dem.crs, self.sensor.box())
 
     def __call__(self, xy: Array) -> Array:
         xy = jnp.asarray(xy, dtype=float)
         flat = xy.reshape(-1, 2)
-        z = self.dem.height(flat[:, 0], flat[:, 1])
-        ground = jnp.concatenate([flat, z[:, None]], axis=-1)
-        q = self.exterior.points_in_camera(ground)
-        xn = -q[:, :2] / q[:, 2:3]
-        pix = self.camera.image_to_pixel(
-            self.camera.principal_point[None] + self.camera.focal_length * distort(xn, self.camera.distortion)
-        )
-        j = distortion_jacobian(xn, self.camera.distortion)
-        unfolded = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0] > 0
-        ok = jnp.isfinite(z) & (q[:, 2] < 0) & unfolded
-        return jnp.where(ok[:, None], pix, jnp.nan).reshape(xy.shape)
+        at = flat if self.to_dem is None else self.to_dem(flat)
+        z = self.dem.height(at[:, 0], at[:, 1])
+        pix = self.sensor(jnp.concatenate([flat, z[:, None]], axis=-1))
+        return jnp.where(jnp.isfinite(z)[:, None], pix, jnp.nan).reshape(xy.shape)
 
 
 def orthorectify(
     image,
-    exterior: ExteriorOrientation,
-    camera: FrameCamera,
+    exterior: ExteriorOrientation | None,
+    camera,
     dem: DEM,
     grid: Grid | None = None,
     *,
@@ -65,7 +67,7 @@ def orthorectify(
     approx: float | None = 0.125,
     info: dict | None = None,
 ) -> tuple[np.ndarray, Grid]:
-    """Orthorectify a frame image with its orientation and a DEM.
+    """Orthorectify a frame image with its orientation and a DEM, or a satellite image with its RPC.
 
     For every ground pixel centre ``(X, Y)`` of the output grid:
     ``Z = DEM(X, Y)`` (bilinear), ``(x, y) = project((X, Y, Z))`` by the
@@ -79,8 +81,11 @@ def orthorectify(
 
     Args:
         image: ``(..., H, W)`` with ``(W, H) == camera.image_size``.
-        exterior, camera: the image's orientation (``docs/conventions.md``).
-        dem: heights in the same ground CRS and vertical datum as ``exterior``.
+        exterior, camera: the image's orientation (``docs/conventions.md``); or ``None`` and an
+            :class:`photax.rpc.RPCCamera` (refined or not), any grid CRS (:class:`OrthoModel`).
+        dem: heights in the same ground CRS and vertical datum as ``exterior``; for an RPC
+            ellipsoidal heights in any CRS (a warning when its CRS does not say ellipsoidal; an
+            error when its heights under the grid all lie outside the RPC's height range).
         grid: output grid; default the image footprint on the DEM
             (:func:`ortho_grid`) at ``resolution``.
         resolution: ground pixel size when ``grid`` is not given; default
@@ -113,17 +118,27 @@ def orthorectify(
     _check_image_size(image.shape, camera)
     if grid is None:
         grid = ortho_grid(exterior, camera, dem, resolution)
-    check_dem(dem, grid)
+    model = check_ortho_inputs(exterior, camera, dem, grid)
     bands = int(np.prod(image.shape[:-2], dtype=np.int64))
     check_output_size(grid.shape, bands, image.dtype, hint=lambda: gsd_hint(exterior, camera, dem, grid))
-    model = OrthoModel(exterior, camera, dem)
     out = rectify(
         image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress, approx=approx, info=info
     )
     return out, grid
 
 
-def _check_image_size(shape, camera: FrameCamera):
+def check_ortho_inputs(exterior, camera, dem: DEM, grid: Grid) -> OrthoModel:
+    """The model of an ortho after the DEM's checks: a frame's DEM projected and in the grid's CRS
+    (:func:`photax.io.crs.check_dem`), an RPC's heights in its range (:func:`photax.sensor.check_rpc_dem`)."""
+    model = OrthoModel(exterior, camera, dem, grid.crs)
+    if isinstance(model.sensor, RPCSensor):
+        check_rpc_dem(model.sensor, dem, grid)
+    else:
+        check_dem(dem, grid)
+    return model
+
+
+def _check_image_size(shape, camera):
     if camera.image_size is not None and tuple(shape[-2:][::-1]) != tuple(camera.image_size):
         raise ValueError(
             f"image is {shape[-1]} x {shape[-2]} pixels but the camera's image_size is "

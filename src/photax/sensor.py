@@ -1,0 +1,377 @@
+"""Sensors: ground point of a map CRS -> image pixel, the one thing orthorectification asks of a camera.
+
+A *sensor* is an :class:`equinox.Module` with
+
+* ``sensor(ground)``: ``(..., 3)`` ground ``(X, Y, Z)`` in the output grid's CRS -> ``(..., 2)``
+  pixel ``(column, row)``, NaN where the point cannot be imaged (behind a frame camera, outside an
+  RPC's validity volume); JAX, jittable and differentiable;
+* ``image_size``: ``(width, height)`` in pixels;
+* ``footprint(pixel, dem)``: ``(n, 2)`` pixels -> ``(n, 2)`` ground ``(X, Y)`` on the DEM (on a
+  plane at its mean height where the ray misses it), for the default output grid.
+
+Two kinds (:func:`sensor_of` picks one from what the user holds):
+
+* :class:`FrameSensor`: an exterior orientation and a :class:`photax.FrameCamera`, the collinearity
+  equations in the orientation's (projected) CRS, which is the grid's and the DEM's.
+* :class:`RPCSensor`: a :class:`photax.rpc.RPCCamera` (refined or not) and the grid's CRS. The RPC
+  works in lon, lat (WGS84 degrees) and ellipsoidal height; the grid's ``(X, Y)`` are transformed to
+  lon, lat by pyproj (through a :class:`LocalTransform`: a degree-5 polynomial fitted over the
+  RPC's validity box and checked to 1e-9 of its extent), ``Z`` is passed on as the ellipsoidal
+  height. A DEM on a geoid (EGM96, EGM2008: most national DEMs, SRTM) must be converted first: taken
+  as ellipsoidal, a height error ``dN`` (the geoid undulation, up to +-100 m) moves the imaged point
+  by ``dN tan(off-nadir angle)`` on the ground. The DEM may be in another CRS than the grid: it is
+  sampled (bilinearly) at the grid point transformed into its CRS, as GDAL's ``RPC_DEM`` samples it
+  at the lon, lat.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ._aot import disk_cached
+from .camera import FrameCamera, distort, distortion_jacobian
+from .collinearity import ExteriorOrientation, image_to_ground
+from .dem import DEM
+from .rpc import RPCCamera, newton_inverse
+
+WGS84 = "EPSG:4326"
+# An RPC is evaluated within its validity volume (offsets +- scales) widened by this factor; beyond,
+# a rational polynomial can fold far-away ground back into the image, so those points are NaN.
+RPC_MARGIN = 1.1
+
+
+def _pyproj(xy: np.ndarray, src: str, dst: str) -> np.ndarray:
+    """``(..., 2)`` points of ``src`` -> ``dst`` by pyproj (``always_xy``), NaN where it fails."""
+    import pyproj
+
+    xy = np.asarray(xy, dtype=np.float64)
+    x, y = pyproj.Transformer.from_crs(src, dst, always_xy=True).transform(xy[..., 0], xy[..., 1], errcheck=False)
+    out = np.stack([np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)], axis=-1)
+    return np.where(np.isfinite(out), out, np.nan)
+
+
+_DEGREE = 5  # of the local transformation's polynomial: 21 terms per axis
+_FIT_TOL = 1e-9  # its largest error allowed, relative to the box's extent in the target CRS
+
+
+def _terms(u: Array, xp=jnp) -> Array:
+    """``(..., 21)`` monomials ``u^i v^j``, ``i + j <= 5``, of ``(..., 2)`` normalised points (``xp``:
+    jax.numpy, or numpy where no JAX is wanted: the fit, eagerly, is 10 x faster in numpy)."""
+    x, y = u[..., 0], u[..., 1]
+    return xp.stack([x**i * y ** (d - i) for d in range(_DEGREE + 1) for i in range(d + 1)], axis=-1)
+
+
+class LocalTransform(eqx.Module):
+    """A CRS transformation (pyproj) over a box, as a polynomial of degree 5 in JAX: jittable,
+    differentiable, cached with the compiled code (a pyproj call inside it would be a host callback,
+    which JAX neither caches on disk nor runs safely on its threads).
+
+    Map projections are smooth on the scale of the earth's radius ``R``: over a box of side ``d`` the
+    polynomial's error is about ``d (d / R)^6``, 1e-6 m for ``d`` = 60 km. :meth:`fit` checks it on
+    points between its fitting points and refuses a box where it exceeds 1e-9 of the box's extent
+    (0.1 mm over 100 km). Outside the box it is extrapolated (callers stay inside).
+    """
+
+    center: Array  # (2,) of the box, source CRS
+    half: Array  # (2,) half-sides of the box
+    origin: Array  # (2,) the target of the centre
+    coefficients: Array  # (21, 2)
+    error: float = eqx.field(static=True)  # the largest error found by the check, target units
+
+    @classmethod
+    def fit(cls, src: str, dst: str, bounds, n: int = 25) -> LocalTransform:
+        """Fit over ``bounds`` ``(xmin, ymin, xmax, ymax)`` of ``src`` on an ``n x n`` lattice."""
+        x0, y0, x1, y1 = (float(v) for v in bounds)
+        center, half = np.array([(x0 + x1) / 2, (y0 + y1) / 2]), np.array([(x1 - x0) / 2, (y1 - y0) / 2])
+        if not (np.all(np.isfinite(center)) and np.all(half > 0)):
+            raise ValueError(f"LocalTransform: bad bounds {bounds}")
+        t = np.cos(np.linspace(np.pi, 0.0, n))  # Chebyshev points: no Runge oscillation at the edges
+        u = np.stack(np.meshgrid(t, t), -1).reshape(-1, 2)
+        target = _pyproj(center + u * half, src, dst)
+        if not np.all(np.isfinite(target)):
+            raise ValueError(f"the box {bounds} does not transform from {_short(src)} to {_short(dst)}")
+        origin = _pyproj(center, src, dst)
+        design = _terms(u, np)
+        coef = np.linalg.lstsq(design, target - origin, rcond=None)[0]
+        tm = 0.5 * (t[1:] + t[:-1])  # the check: halfway between the fitting points
+        uc = np.concatenate([np.stack(np.meshgrid(tm, tm), -1).reshape(-1, 2), u])
+        truth = _pyproj(center + uc * half, src, dst)
+        err = float(np.max(np.abs(_terms(uc, np) @ coef + origin - truth)))
+        extent = float(np.max(np.ptp(target, axis=0)))
+        if not err <= _FIT_TOL * extent:
+            raise ValueError(
+                f"the transformation from {_short(src)} to {_short(dst)} is not smooth enough over "
+                f"{bounds} (a degree-{_DEGREE} polynomial is off by {err:.3g}, {err / extent:.2g} of the "
+                "extent): is the area too large, or does it cross a zone edge or a pole?"
+            )
+        return cls(jnp.asarray(center), jnp.asarray(half), jnp.asarray(origin), jnp.asarray(coef), err)
+
+    def __call__(self, xy: Array) -> Array:
+        xy = jnp.asarray(xy, dtype=jnp.float64)
+        lead = (1,) * (xy.ndim - 1)
+        u = (xy - self.center.reshape(*lead, 2)) / self.half.reshape(*lead, 2)
+        return _terms(u) @ self.coefficients + self.origin.reshape(*lead, 2)
+
+
+def _short(crs) -> str:
+    from .io.crs import describe
+
+    return describe(crs)
+
+
+def _crs_text(crs) -> str:
+    """A CRS as WKT text (static, hashable: part of the compiled function's key)."""
+    from rasterio.crs import CRS
+
+    return CRS.from_user_input(crs).to_wkt()
+
+
+@eqx.filter_jit
+def _footprint(px: Array, exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM) -> tuple[Array, Array]:
+    """``(n, 3)`` ground points of the ``(n, 2)`` pixels ``px`` on the DEM,
+    and on the plane at the DEM's mean height: one compiled call (kept on
+    disk by photax._aot) instead of a dozen small eager operations."""
+    img = camera.pixel_to_image(px)
+    return (
+        image_to_ground(img, exterior, camera, dem=dem),
+        image_to_ground(img, exterior, camera, height=jnp.nanmean(dem.heights)),
+    )
+
+
+_footprint_cached = disk_cached(_footprint, "ortho_footprint")
+
+
+class FrameSensor(eqx.Module):
+    """A frame camera: the collinearity equations (``docs/conventions.md``); NaN behind the camera and
+    past the fold of its lens distortion."""
+
+    exterior: ExteriorOrientation
+    camera: FrameCamera
+
+    @property
+    def image_size(self):
+        return self.camera.image_size
+
+    def __call__(self, ground: Array) -> Array:
+        ground = jnp.asarray(ground, dtype=jnp.float64)
+        flat = ground.reshape(-1, 3)
+        q = self.exterior.points_in_camera(flat)
+        xn = -q[:, :2] / q[:, 2:3]
+        pix = self.camera.image_to_pixel(
+            self.camera.principal_point[None] + self.camera.focal_length * distort(xn, self.camera.distortion)
+        )
+        # Past the fold of the lens distortion (its Jacobian determinant not positive) a strong barrel or
+        # rational model bends rays from outside the field of view back into the image: another place's grey.
+        j = distortion_jacobian(xn, self.camera.distortion)
+        unfolded = j[:, 0, 0] * j[:, 1, 1] - j[:, 0, 1] * j[:, 1, 0] > 0
+        ok = (q[:, 2] < 0) & unfolded
+        return jnp.where(ok[:, None], pix, jnp.nan).reshape(*ground.shape[:-1], 2)
+
+    def footprint(self, pixel, dem: DEM) -> np.ndarray:
+        ground, flat = (np.asarray(g) for g in _footprint_cached(jnp.asarray(pixel), self.exterior, self.camera, dem))
+        return np.where(np.isfinite(ground), ground, flat)[:, :2]
+
+
+class RPCSensor(eqx.Module):
+    """An RPC camera seen from a map CRS (module docstring): ground ``(X, Y)`` of ``crs`` -> lon, lat
+    (a :class:`LocalTransform` fitted over the RPC's validity box), ``Z`` the ellipsoidal height; NaN
+    outside the RPC's lon, lat validity range widened by :data:`RPC_MARGIN` (heights beyond theirs are
+    extrapolated: :func:`check_rpc_dem` warns)."""
+
+    camera: RPCCamera
+    to_lonlat: LocalTransform
+    crs: str = eqx.field(static=True)
+
+    def __init__(self, camera: RPCCamera, crs):
+        if crs is None:
+            raise ValueError("an RPC camera needs the output grid's CRS (its ground is lon, lat)")
+        self.camera = camera
+        self.crs = _crs_text(crs)
+        self.to_lonlat = LocalTransform.fit(self.crs, WGS84, self.box())
+
+    def box(self, margin: float = 1.2):
+        """The RPC's lon, lat validity box (offsets +- ``margin`` scales) as bounds of ``crs``."""
+        from rasterio.warp import transform_bounds
+
+        (lon, lat), (dl, dp) = np.asarray(self.camera.offsets[:2]), margin * np.asarray(self.camera.scales[:2])
+        return transform_bounds(WGS84, self.crs, lon - dl, lat - dp, lon + dl, lat + dp, densify_pts=21)
+
+    @property
+    def image_size(self):
+        return self.camera.image_size
+
+    def __call__(self, ground: Array) -> Array:
+        ground = jnp.asarray(ground, dtype=jnp.float64)
+        llh = jnp.concatenate([self.to_lonlat(ground[..., :2]), ground[..., 2:3]], axis=-1)
+        lead = (1,) * (ground.ndim - 1)
+        norm = (llh - self.camera.offsets[:3].reshape(*lead, 3)) / self.camera.scales[:3].reshape(*lead, 3)
+        ok = jnp.all(jnp.abs(norm[..., :2]) <= RPC_MARGIN, axis=-1)  # heights beyond: extrapolated
+        return jnp.where(ok[..., None], self.camera(llh), jnp.nan)
+
+    def footprint(self, pixel, dem: DEM) -> np.ndarray:
+        """Pixels -> map ``(X, Y)`` on the DEM: :meth:`RPCCamera.to_ground_dem`'s fixed-point iteration
+        in one compiled loop (the DEM's CRS reached by a :class:`LocalTransform`), to 1 mm (the
+        outline only bounds the grid); at the DEM's mean height where it fails (off the DEM, or no
+        convergence: counted in a warning)."""
+        pixel = np.asarray(pixel, dtype=float)
+        to_dem = None
+        if dem.crs is not None and not _same(dem.crs, WGS84):
+            (lon, lat), (dl, dp) = np.asarray(self.camera.offsets[:2]), 1.2 * np.asarray(self.camera.scales[:2])
+            to_dem = LocalTransform.fit(WGS84, _crs_text(dem.crs), (lon - dl, lat - dp, lon + dl, lat + dp))
+        h0 = jnp.full(len(pixel), float(self.camera.offsets[2]))
+        llh, status = (np.asarray(v) for v in _on_dem_cached(self.camera, to_dem, dem, jnp.asarray(pixel), h0))
+        failed = status >= 2
+        if failed.any():
+            warnings.warn(
+                f"the RPC's inverse onto the DEM did not converge at {failed.sum()} of {len(pixel)} points of the "
+                "image outline (taken at the DEM's mean height for the output grid)",
+                stacklevel=4,
+            )
+        miss = status != 0
+        if miss.any():
+            h = np.asarray(dem.heights)
+            mean = float(np.nanmean(h)) if np.isfinite(h).any() else float(self.camera.offsets[2])
+            llh[miss, :2] = np.asarray(self.camera.to_ground(pixel[miss], mean))
+        if not np.isfinite(llh[:, :2]).all():
+            raise ValueError("the RPC's inverse does not converge on the image outline: is the RPC valid?")
+        return _pyproj(llh[:, :2], WGS84, self.crs)
+
+
+def _same(a, b) -> bool:
+    from .io.crs import same_crs
+
+    return same_crs(a, b)
+
+
+@eqx.filter_jit
+def _on_dem(camera: RPCCamera, to_dem, dem: DEM, pixel: Array, h: Array, max_steps: int = 50, tol: float = 1e-3):
+    """``(n, 3)`` lon, lat, h on the DEM of ``(n, 2)`` pixels and ``(n,)`` status (0 converged, 1 off
+    the DEM, 2 inverse not converged, 3 height not settled): the iteration of
+    :meth:`RPCCamera.to_ground_dem_status`, compiled."""
+
+    def step(h):
+        ll, ok = newton_inverse(camera, pixel, h)
+        xy = ll if to_dem is None else to_dem(ll)
+        new = dem.height(xy[:, 0], xy[:, 1])
+        return ll, ok, new
+
+    def body(state):
+        h, done, failed, i = state
+        _, ok, new = step(h)
+        failed = failed | (~ok & jnp.isfinite(h))
+        new = jnp.where(ok, new, jnp.nan)
+        return new, jnp.abs(new - h) < tol, failed, i + 1
+
+    def cond(state):
+        h, done, _, i = state
+        return (i < max_steps) & ~jnp.all(done | ~jnp.isfinite(h))
+
+    n = pixel.shape[0]
+    h, done, failed, _ = jax.lax.while_loop(cond, body, (h, jnp.zeros(n, bool), jnp.zeros(n, bool), 0))
+    ll, ok, _ = step(h)
+    failed = failed | (~ok & jnp.isfinite(h))
+    status = jnp.where(failed, 2, jnp.where(~jnp.isfinite(h), 1, jnp.where(done & ok, 0, 3)))
+    out = jnp.concatenate([ll, h[:, None]], axis=-1)
+    return jnp.where((status == 0)[:, None], out, jnp.nan), status
+
+
+_on_dem_cached = disk_cached(_on_dem, "rpc_outline_on_dem")
+
+
+def sensor_of(exterior, camera, crs=None):
+    """The sensor of an image: ``(exterior, FrameCamera)``, or ``(None, RPCCamera)`` with ``crs`` the
+    map CRS of the ground points (the output grid's)."""
+    if isinstance(camera, (FrameSensor, RPCSensor)):
+        return camera
+    if isinstance(camera, RPCCamera):
+        if exterior is not None:
+            raise ValueError("an RPC camera carries its own orientation: pass exterior=None")
+        return RPCSensor(camera, crs)
+    if not isinstance(camera, FrameCamera):
+        raise ValueError(f"camera must be a FrameCamera or an RPCCamera, got {type(camera).__name__}")
+    if exterior is None:
+        raise ValueError("a frame camera needs its exterior orientation")
+    return FrameSensor(exterior, camera)
+
+
+def check_rpc_dem(sensor, dem: DEM, grid) -> None:
+    """For an :class:`RPCSensor`: the DEM's heights under the grid against the RPC's height range
+    (offset +- scale). All outside: ValueError; some: a warning with how many (extrapolated). A DEM whose CRS has no ellipsoidal height: a warning."""
+    if not isinstance(sensor, RPCSensor):
+        return
+    rpc = sensor.camera
+    off, scale = float(rpc.offsets[2]), float(rpc.scales[2])
+    lo, hi = off - scale, off + scale
+    z = _heights_under(dem, grid, sensor.crs)
+    z = z[np.isfinite(z)]
+    if z.size == 0:
+        raise ValueError("the DEM has no height under the output grid")
+    out = (z < lo) | (z > hi)
+    if out.all():
+        raise ValueError(
+            f"the DEM's heights under the output grid ({z.min():.1f} .. {z.max():.1f} m) lie outside the "
+            f"RPC's validity range {lo:.1f} .. {hi:.1f} m (height offset +- scale): wrong DEM or wrong units?"
+        )
+    if out.any():
+        warnings.warn(
+            f"{out.mean():.1%} of the DEM's heights under the output grid ({z.min():.1f} .. {z.max():.1f} m) "
+            f"lie outside the RPC's validity range {lo:.1f} .. {hi:.1f} m: the RPC is extrapolated there",
+            stacklevel=3,
+        )
+    if not _ellipsoidal(dem.crs):
+        warnings.warn(
+            "the RPC needs ellipsoidal (WGS84) heights; the DEM's heights are used as they are "
+            f"({_vertical_name(dem.crs)}): a geoid undulation N shifts the ortho by N tan(off-nadir angle)",
+            stacklevel=3,
+        )
+
+
+def _heights_under(dem: DEM, grid, crs: str, n: int = 64) -> np.ndarray:
+    rows = np.linspace(0, grid.shape[0] - 1, min(n, grid.shape[0]))
+    cols = np.linspace(0, grid.shape[1] - 1, min(n, grid.shape[1]))
+    a, b, xoff, d, e, yoff = tuple(grid.transform)[:6]
+    c, r = np.meshgrid(cols + 0.5, rows + 0.5)
+    xy = np.stack([xoff + a * c + b * r, yoff + d * c + e * r], -1).reshape(-1, 2)
+    if dem.crs is not None:
+        xy = _pyproj(xy, crs, _crs_text(dem.crs))
+    return np.asarray(dem.height(jnp.asarray(xy[:, 0]), jnp.asarray(xy[:, 1])))
+
+
+def _vertical(crs):
+    import pyproj
+
+    if crs is None:
+        return None
+    c = pyproj.CRS.from_user_input(crs)
+    if c.is_compound:
+        return c.sub_crs_list[-1]
+    return c if c.is_vertical else None
+
+
+def _ellipsoidal(crs) -> bool:
+    """Whether ``crs`` says its heights are ellipsoidal (a geographic 3-D CRS such as EPSG:4979)."""
+    import pyproj
+
+    if crs is None:
+        return False
+    c = pyproj.CRS.from_user_input(crs)
+    return not c.is_compound and c.is_geographic and len(c.axis_info) == 3
+
+
+def _vertical_name(crs) -> str:
+    v = _vertical(crs)
+    return f"{v.name}" if v is not None else "the DEM's CRS names no vertical datum"
+
+
+def utm_crs(lon: float, lat: float) -> str:
+    """The WGS84 UTM zone of a point (lon, lat in degrees), as ``EPSG:326zz`` (north) or ``EPSG:327zz``."""
+    if not (-180 <= lon <= 180 and -80 <= lat <= 84):
+        raise ValueError(f"no UTM zone at lon {lon}, lat {lat}")
+    zone = min(int((lon + 180) // 6) + 1, 60)
+    return f"EPSG:{(32600 if lat >= 0 else 32700) + zone}"
