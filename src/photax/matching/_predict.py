@@ -1,7 +1,10 @@
 """What tie matching and GCP transfer share: predicting where a ground point
 images with the approximate orientations (and where an image point meets the
 DEM), and matching fixed-size chunks of points between image pairs (NCC, then
-LSM, optionally back) so that both stages share one compilation.
+LSM, optionally back) so that both stages share one compilation; and, for tie
+matching, the local affine map between two views predicted from the DEM
+(:func:`offsets`, :func:`local_affine`) and matching with templates warped by
+it (:func:`match_warped`).
 
 Used by :mod:`.ties` and :mod:`.transfer`; :func:`project_pixels` and
 :func:`monoplot_pixels` are re-exported by :mod:`photax.matching`.
@@ -212,16 +215,33 @@ def local_affine(pred, n: int, step: float = STEP) -> np.ndarray:
 
 
 WARP_BATCH = 128  # candidates per compiled call of match_warped: one shape, one compilation
+# LSM from the NCC peak converges in a few steps; under vmap a batch runs as long as its slowest
+# point, so a point still moving after 10 steps (it is rejected) must not hold 127 others for 30
+LSM_ITERATIONS, LSM_TOL = 10, 1e-2
 
 
-def _sample(tall, rows_per_image, img, xy, grid):
-    """Cubic samples of image ``img`` of a padded stack flattened to ``tall`` ``(m H, W)`` at ``xy + grid``
-    (``img (c,)``, ``xy (c, 2)``, ``grid (c, k, k, 2)``): one :func:`photax.resample` call for every image."""
-    from ..resampling import resample
+def _keys(t):
+    """Keys' cubic convolution weights (a = -0.5), as :func:`photax.resample`'s ``"cubic"``."""
+    t = jnp.abs(t)
+    near = (1.5 * t - 2.5) * t * t + 1
+    far = ((-0.5 * t + 2.5) * t - 4.0) * t + 2.0
+    return jnp.where(t <= 1, near, jnp.where(t < 2, far, 0.0))
 
-    cols = xy[:, None, None, 0] + grid[..., 0]
-    rows = xy[:, None, None, 1] + grid[..., 1] + (img * rows_per_image)[:, None, None]
-    return np.asarray(resample(tall, jnp.asarray(cols), jnp.asarray(rows), "cubic"))
+
+@jax.jit
+def _sample(big, img, xy, grid):
+    """Cubic samples ``(c, k, k)`` of ``big[img]`` at ``xy + grid`` (``img (c,)``, ``xy (c, 2)``,
+    ``grid (c, k, k, 2)``), read straight from the padded stack (the points stay 2 px inside it)."""
+    x = xy[:, None, None, 0] + grid[..., 0]
+    y = xy[:, None, None, 1] + grid[..., 1]
+    x0, y0 = jnp.floor(x), jnp.floor(y)
+    k = jnp.arange(-1, 3, dtype=jnp.int32).reshape(1, 1, 1, 4)
+    kf = k.astype(x.dtype)
+    wx, wy = _keys(x[..., None] - x0[..., None] - kf), _keys(y[..., None] - y0[..., None] - kf)
+    ix = jnp.clip(x0.astype(jnp.int32)[..., None] + k, 0, big.shape[2] - 1)
+    iy = jnp.clip(y0.astype(jnp.int32)[..., None] + k, 0, big.shape[1] - 1)
+    vals = big[jnp.asarray(img).reshape(-1, 1, 1, 1, 1), iy[..., :, None], ix[..., None, :]]
+    return jnp.einsum("...i,...ij,...j->...", wy, vals, wx)
 
 
 def _crop(big, img, xy, half: int):
@@ -254,8 +274,7 @@ def match_warped(
 
     ti, si = np.asarray(ti, dtype=int), np.asarray(si, dtype=int)
     txy, sxy, affine = (np.asarray(a, dtype=float) for a in (txy, sxy, affine))
-    m, rows_per_image, w = big.shape
-    tall = jnp.asarray(big.reshape(m * rows_per_image, w))
+    dev = jnp.asarray(big)
     ht = window + 2  # the template window and the 2 px that match_ncc / match_lsm read around it
     g = np.arange(-ht, ht + 1, dtype=float)
     grid = np.stack(np.meshgrid(g, g), axis=-1)  # (k, k, 2): (u, v) offsets, [row, col]
@@ -272,12 +291,12 @@ def match_warped(
     cen = np.broadcast_to(centre, (WARP_BATCH, 1, 2))
     for a in range(0, len(ti), WARP_BATCH):
         b = slice(a, a + WARP_BATCH)
-        tw = _sample(tall, rows_per_image, ti[b], txy[b], grid @ np.swapaxes(inv[b], 1, 2)[:, None])
+        tw = _sample(dev, ti[b], txy[b], grid @ np.swapaxes(inv[b], 1, 2)[:, None])
         sc, s0 = _crop(big, si[b], sxy[b], fwd_half)
         T, S = jnp.asarray(tw), jnp.asarray(sc)
         ncc, rho = match_ncc(T, cen, S, (sxy[b] - s0)[:, None], window=window, search=search, return_rho=True)
         nxy = np.where(np.asarray(ncc.valid)[..., None], np.asarray(ncc.xy), (sxy[b] - s0)[:, None])
-        fwd = match_lsm(T, cen, S, nxy, window=window, margin=margin)
+        fwd = match_lsm(T, cen, S, nxy, window=window, margin=margin, iterations=LSM_ITERATIONS, tol=LSM_TOL)
         fxy = np.asarray(fwd.xy) + s0[:, None]
         out["ncc_valid"].append(np.asarray(ncc.valid))
         out["rho"].append(np.asarray(rho))
@@ -286,9 +305,18 @@ def match_warped(
         out["lsm_cov"].append(np.asarray(fwd.covariance))
         if back:
             start = np.where(np.asarray(fwd.valid)[:, 0, None], fxy[:, 0], sxy[b])
-            bw = _sample(tall, rows_per_image, si[b], start, grid @ np.swapaxes(affine[b], 1, 2)[:, None])
+            bw = _sample(dev, si[b], start, grid @ np.swapaxes(affine[b], 1, 2)[:, None])
             tc, t0 = _crop(big, ti[b], txy[b], back_half)
-            bk = match_lsm(jnp.asarray(bw), cen, jnp.asarray(tc), (txy[b] - t0)[:, None], window=window, margin=margin)
+            bk = match_lsm(
+                jnp.asarray(bw),
+                cen,
+                jnp.asarray(tc),
+                (txy[b] - t0)[:, None],
+                window=window,
+                margin=margin,
+                iterations=LSM_ITERATIONS,
+                tol=LSM_TOL,
+            )
             out["back_valid"].append(np.asarray(bk.valid))
             out["back_xy"].append(np.asarray(bk.xy) + t0[:, None])
     cat = {k: np.concatenate(v)[:c] if v else None for k, v in out.items()}
