@@ -152,7 +152,7 @@ def _spread(xy: np.ndarray, size, n: int) -> np.ndarray:
     return xy[np.sort(order)]
 
 
-def _seen_by(xy: list, eo, camera: FrameCamera, dem: DEM, size) -> list:
+def _seen_by(xy: list, eo, camera: FrameCamera, dem: DEM, size) -> tuple[list, np.ndarray]:
     """For each image's points ``xy[k] (n_k, 2)``, ``(n_k, m)``: whether image ``j`` sees its ground point
     (False for all ``j`` where the ray misses the DEM), and whether any ray of the image meets the DEM."""
     m = len(xy)
