@@ -242,3 +242,30 @@ def test_cli_transfer_and_ties(block, tmp_path):
     assert ctrl == set(out.names.tolist()), (ctrl, out.names)
     cam = prob.cameras[0]
     assert cam.focal_length == CAM.focal_length and cam.image_size == CAM.image_size
+
+
+def test_ties_between_a_frame_and_one_turned_by_180_degrees(block):
+    """Image 4 turned by 180 deg in the plane (kappa + pi: the same view, pixel (c, r) at
+    (W - 1 - c, H - 1 - r)) still ties to image 3, at the pixels of the unturned pair: the templates
+    are warped by the predicted affine map."""
+    dem, truth, start, images, _, _, _ = block
+    e = start[4]
+    turned = photax.ExteriorOrientation(e.position, np.asarray(e.angles) + [0.0, 0.0, np.pi], e.convention)
+    g = monoplot_pixels(np.array([[[40.0, 30.0], [250.0, 170.0]]]), stack_exteriors([truth[4]]), CAM, dem)[0]
+    xy = project_pixels(g, stack_exteriors([e, turned]), CAM)
+    np.testing.assert_allclose(xy[1], [W - 1, H - 1] - xy[0], atol=1e-9)  # kappa + pi is the 180 deg turn
+    flipped = images[4][::-1, ::-1]
+    plain = match_ties([images[3], images[4]], CAM, [start[3], e], dem, search=SEARCH)
+    ties = match_ties([images[3], flipped], CAM, [start[3], turned], dem, search=SEARCH)
+    assert ties.pair_ties[0, 1] >= 0.9 * plain.pair_ties[0, 1] >= 20, (ties.pair_ties, plain.pair_ties)
+    # the turned image's observations, turned back, are the unturned pair's where both hold a track
+    a = {tuple(np.round(plain.obs_xy[k], 6)): plain.obs_point[k] for k in np.flatnonzero(plain.obs_image == 0)}
+    pairs = []
+    for k in np.flatnonzero(ties.obs_image == 0):
+        q = a.get(tuple(np.round(ties.obs_xy[k], 6)))
+        if q is not None:
+            mine = ties.obs_xy[(ties.obs_point == ties.obs_point[k]) & (ties.obs_image == 1)][0]
+            theirs = plain.obs_xy[(plain.obs_point == q) & (plain.obs_image == 1)][0]
+            pairs.append([W - 1, H - 1] - mine - theirs)
+    d = np.array(pairs)
+    assert len(d) >= 0.8 * plain.pair_ties[0, 1] and np.max(np.abs(d)) <= 0.05, (len(d), np.abs(d).max())

@@ -31,6 +31,9 @@ def add_parser(sub) -> None:
     add_oriented_images(p)
     p.add_argument("--gcps", help="GCP measurements in pixels to join (CSV or ODM list)")
     p.add_argument("--points", type=int, default=150, help="interest points per image (default 150)")
+    p.add_argument("--min-rho", type=float, default=0.7,
+                   help="smallest accepted correlation peak (default 0.7; 0.6 suits strips flown years or "
+                   "hours apart and oblique views, whose windows correlate less)")  # fmt: skip
     p.add_argument("-o", "--out", required=True,
                    help="output block folder (new or empty; GCPs stay control/check points), or a BAL file when "
                    "OUT ends in .txt, .txt.bz2 or .bal")  # fmt: skip
@@ -64,13 +67,20 @@ def run(args: argparse.Namespace) -> int:
                 raise ValueError(f"{args.camera}: {exc}") from None
     else:
         check_output_path(out, files)
-    ties = match_ties(images, camera, exterior, read_dem(args.dem), max_points=args.points, search=args.search)
+    if not 0.0 < args.min_rho < 1.0:
+        raise ValueError(f"--min-rho: must lie between 0 and 1, got {args.min_rho}")
+    ties = match_ties(
+        images, camera, exterior, read_dem(args.dem), max_points=args.points, search=args.search, min_rho=args.min_rho
+    )
     for k, s in enumerate(ties.image_status):
         if s != "ok":
             print(f"{names[k]}: {s}")
     for (i, j), s in ties.pair_status.items():
-        if s != "no overlap":
-            print(f"{names[i]} - {names[j]}: {ties.pair_counts.get((i, j), 0)} matches, {s}")
+        if s != "no overlap":  # the predicted overlap says whether too few matches is the data or the start values
+            print(
+                f"{names[i]} - {names[j]}: {ties.pair_ties[i, j]} ties, predicted overlap "
+                f"{100 * ties.pair_overlap[i, j]:.0f} %, {s}"
+            )
     gcps = None
     if args.gcps:
         gcps = read_gcps_3d(args.gcps)

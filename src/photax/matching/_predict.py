@@ -1,7 +1,10 @@
 """What tie matching and GCP transfer share: predicting where a ground point
 images with the approximate orientations (and where an image point meets the
 DEM), and matching fixed-size chunks of points between image pairs (NCC, then
-LSM, optionally back) so that both stages share one compilation.
+LSM, optionally back) so that both stages share one compilation; and, for tie
+matching, the local affine map between two views predicted from the DEM
+(:func:`offsets`, :func:`local_affine`) and matching with templates warped by
+it (:func:`match_warped`).
 
 Used by :mod:`.ties` and :mod:`.transfer`; :func:`project_pixels` and
 :func:`monoplot_pixels` are re-exported by :mod:`photax.matching`.
@@ -184,3 +187,137 @@ def chunks_of(groups: dict, fill_xy: np.ndarray) -> tuple[list, np.ndarray, np.n
             t_all.append(tc)
             s_all.append(sc)
     return chunks, np.array(t_all).reshape(-1, POINTS, 2), np.array(s_all).reshape(-1, POINTS, 2)
+
+
+# --------------------------------------------------------------------------- warped matching
+
+STEP = 4.0  # px: half the baseline of the finite differences of the local affine map
+
+
+def offsets(px, step: float = STEP) -> np.ndarray:
+    """``(m, n, 2)`` pixels and their four neighbours ``+-step`` along column and row: ``(m, 5 n, 2)``
+    (the points first), to monoplot and project in one call; :func:`local_affine` reads them back."""
+    px = np.asarray(px, dtype=float)
+    d = np.array([[step, 0.0], [-step, 0.0], [0.0, step], [0.0, -step]])
+    return np.concatenate([px] + [px + e for e in d], axis=1)
+
+
+def local_affine(pred, n: int, step: float = STEP) -> np.ndarray:
+    """The local affine map (Jacobian) from an image's pixel offsets to another's, ``(..., n, 2, 2)``.
+
+    ``pred (..., 5 n, 2)`` are the projections of the points of :func:`offsets` (monoplotted on the
+    DEM from the first image, projected into the second): ``A[:, k] = (p(+step e_k) - p(-step e_k)) /
+    (2 step)``, so ``offset in the second image ~ A @ offset in the first``; it holds the rotation
+    (kappa), scale and shear between the two views and the terrain's slope.  NaN where a neighbour
+    misses the DEM or falls behind the camera."""
+    p = [pred[..., k * n : (k + 1) * n, :] for k in range(1, 5)]
+    return np.stack([(p[0] - p[1]) / (2 * step), (p[2] - p[3]) / (2 * step)], axis=-1)
+
+
+WARP_BATCH = 128  # candidates per compiled call of match_warped: one shape, one compilation
+# LSM from the NCC peak converges in a few steps; under vmap a batch runs as long as its slowest
+# point, so a point still moving after 10 steps (it is rejected) must not hold 127 others for 30
+LSM_ITERATIONS, LSM_TOL = 10, 1e-2
+
+
+def _keys(t):
+    """Keys' cubic convolution weights (a = -0.5), as :func:`photax.resample`'s ``"cubic"``."""
+    t = jnp.abs(t)
+    near = (1.5 * t - 2.5) * t * t + 1
+    far = ((-0.5 * t + 2.5) * t - 4.0) * t + 2.0
+    return jnp.where(t <= 1, near, jnp.where(t < 2, far, 0.0))
+
+
+@jax.jit
+def _sample(big, img, xy, grid):
+    """Cubic samples ``(c, k, k)`` of ``big[img]`` at ``xy + grid`` (``img (c,)``, ``xy (c, 2)``,
+    ``grid (c, k, k, 2)``), read straight from the padded stack (the points stay 2 px inside it)."""
+    x = xy[:, None, None, 0] + grid[..., 0]
+    y = xy[:, None, None, 1] + grid[..., 1]
+    x0, y0 = jnp.floor(x), jnp.floor(y)
+    k = jnp.arange(-1, 3, dtype=jnp.int32).reshape(1, 1, 1, 4)
+    kf = k.astype(x.dtype)
+    wx, wy = _keys(x[..., None] - x0[..., None] - kf), _keys(y[..., None] - y0[..., None] - kf)
+    ix = jnp.clip(x0.astype(jnp.int32)[..., None] + k, 0, big.shape[2] - 1)
+    iy = jnp.clip(y0.astype(jnp.int32)[..., None] + k, 0, big.shape[1] - 1)
+    vals = big[jnp.asarray(img).reshape(-1, 1, 1, 1, 1), iy[..., :, None], ix[..., None, :]]
+    return jnp.einsum("...i,...ij,...j->...", wy, vals, wx)
+
+
+def _crop(big, img, xy, half: int):
+    """Integer crops ``(c, 2 half + 1, 2 half + 1)`` of ``big[img]`` around ``round(xy)`` and their origins."""
+    c0 = np.round(xy).astype(int) - half
+    k = np.arange(2 * half + 1)
+    rows = c0[:, 1, None, None] + k[None, :, None]
+    cols = c0[:, 0, None, None] + k[None, None, :]
+    return big[img[:, None, None], rows, cols], c0.astype(float)
+
+
+def match_warped(
+    big, ti, txy, si, sxy, affine, *, window: int, search: int, back: bool, margin: int = 5
+) -> ChunkMatches:
+    """NCC then LSM (and LSM back) of templates warped by the predicted affine map, one point per row.
+
+    ``big`` is a padded stack (:func:`padded`); row ``k`` matches the window of ``big[ti[k]]`` around
+    ``txy[k]`` into ``big[si[k]]`` around ``sxy[k]``, where ``affine[k]`` ``(2, 2)`` maps offsets in the
+    first image to offsets in the second.  The template is resampled (cubic) in the search image's
+    geometry, ``T(u) = I_t(txy + affine^-1 u)``, so NCC and LSM work on the search image's own
+    pixels, whatever the rotation, scale or shear between the views; LSM's affine and radiometric
+    parameters then take up what the prediction missed.  The back match resamples the matched
+    window of the search image in the first image's geometry, ``I_s(xy + affine u)``, and matches it
+    into the first image.  Results are ``(c, 1, ...)`` arrays in ``big``'s pixels, as
+    :class:`ChunkMatches`; rows are matched in calls of :data:`WARP_BATCH` (padded), so every call
+    with one ``window`` / ``search`` shares one compilation of :func:`photax.measure.match_ncc` and
+    :func:`photax.measure.match_lsm`.
+    """
+    from ..measure import match_lsm, match_ncc
+
+    ti, si = np.asarray(ti, dtype=int), np.asarray(si, dtype=int)
+    txy, sxy, affine = (np.asarray(a, dtype=float) for a in (txy, sxy, affine))
+    dev = jnp.asarray(big)
+    ht = window + 2  # the template window and the 2 px that match_ncc / match_lsm read around it
+    g = np.arange(-ht, ht + 1, dtype=float)
+    grid = np.stack(np.meshgrid(g, g), axis=-1)  # (k, k, 2): (u, v) offsets, [row, col]
+    fwd_half = window + search + margin + 3  # search crop: NCC's reach, then LSM's patch around its peak
+    back_half = window + margin + 3
+    centre = np.full((1, 2), float(ht))
+    c = len(ti)
+    pad = -c % WARP_BATCH
+    rep = lambda a: np.concatenate([a, np.repeat(a[:1], pad, 0)]) if pad else a  # noqa: E731
+    ti, si, txy, sxy, affine = (rep(a) for a in (ti, si, txy, sxy, affine))
+    inv = np.linalg.inv(affine)
+    keys = ("ncc_valid", "rho", "lsm_valid", "lsm_xy", "lsm_cov", "back_valid", "back_xy")
+    out: dict[str, list] = {k: [] for k in keys}
+    cen = np.broadcast_to(centre, (WARP_BATCH, 1, 2))
+    for a in range(0, len(ti), WARP_BATCH):
+        b = slice(a, a + WARP_BATCH)
+        tw = _sample(dev, ti[b], txy[b], grid @ np.swapaxes(inv[b], 1, 2)[:, None])
+        sc, s0 = _crop(big, si[b], sxy[b], fwd_half)
+        T, S = jnp.asarray(tw), jnp.asarray(sc)
+        ncc, rho = match_ncc(T, cen, S, (sxy[b] - s0)[:, None], window=window, search=search, return_rho=True)
+        nxy = np.where(np.asarray(ncc.valid)[..., None], np.asarray(ncc.xy), (sxy[b] - s0)[:, None])
+        fwd = match_lsm(T, cen, S, nxy, window=window, margin=margin, iterations=LSM_ITERATIONS, tol=LSM_TOL)
+        fxy = np.asarray(fwd.xy) + s0[:, None]
+        out["ncc_valid"].append(np.asarray(ncc.valid))
+        out["rho"].append(np.asarray(rho))
+        out["lsm_valid"].append(np.asarray(fwd.valid))
+        out["lsm_xy"].append(fxy)
+        out["lsm_cov"].append(np.asarray(fwd.covariance))
+        if back:
+            start = np.where(np.asarray(fwd.valid)[:, 0, None], fxy[:, 0], sxy[b])
+            bw = _sample(dev, si[b], start, grid @ np.swapaxes(affine[b], 1, 2)[:, None])
+            tc, t0 = _crop(big, ti[b], txy[b], back_half)
+            bk = match_lsm(
+                jnp.asarray(bw),
+                cen,
+                jnp.asarray(tc),
+                (txy[b] - t0)[:, None],
+                window=window,
+                margin=margin,
+                iterations=LSM_ITERATIONS,
+                tol=LSM_TOL,
+            )
+            out["back_valid"].append(np.asarray(bk.valid))
+            out["back_xy"].append(np.asarray(bk.xy) + t0[:, None])
+    cat = {k: np.concatenate(v)[:c] if v else None for k, v in out.items()}
+    return ChunkMatches(**cat)

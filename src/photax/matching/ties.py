@@ -3,21 +3,35 @@
 :func:`match_ties` gives the observations of a :class:`photax.BundleProblem`
 without hand measurement (seed 004, image matching):
 
-1. interest points (Förstner) in every image, away from its border;
+1. interest points (Förstner) in every image, away from its border, spread
+   over the part of the image that a later image sees;
 2. each point is monoplotted onto the DEM with its image's approximate
    orientation (:func:`photax.image_to_ground`) and projected into every other
    image: the predicted position, i.e. the point of the epipolar line where the
-   ray meets the terrain.  A ground point is *owned* by the first image that
-   sees it (so a point is one track, not one per image);
-3. normalised cross-correlation within ``search`` px of the prediction (the
-   prediction's error is the orientations' error, a few px), then
-   least-squares matching (Gruen 1985) from the NCC peak;
-4. two-way consistency: the matched window is matched back into the first
-   image by LSM and must land within ``back_tol`` px of the interest point;
+   ray meets the terrain.  Four neighbours of the point (``window`` px away)
+   go the same way: their projections give the *local affine map* from the
+   image to the other (``A = d x_j / d x_i``: the rotation, scale and shear
+   between the views and the terrain's slope);
+3. the template is resampled by that map into the other image's geometry
+   (``T(u) = I_i(x_i + A^-1 u)``), so that strips flown the opposite way,
+   crossing strips and rotated or oblique images correlate like parallel
+   ones; normalised cross-correlation within ``search`` px of the prediction
+   (the prediction's error is the orientations' error, a few px), then
+   least-squares matching (Gruen 1985; its affine and gain/offset parameters
+   take up what the prediction missed and the radiometric differences);
+4. two-way consistency: the matched window, resampled in the first image's
+   geometry, is matched back into the first image by LSM and must land
+   within ``back_tol`` px of the interest point;
 5. guided outlier test: in each pair, ``matched - predicted`` is a smooth
    function of position (the orientation errors), an affine one to first
    order; matches further than ``max(3 MAD, guide_tol)`` from a robust affine
-   fit of it are rejected.
+   fit of it are rejected;
+6. chained matches: an image that sees a track's ground point but is not in
+   it yet is matched from the track's image that overlaps it most (steps
+   3-5; the affine maps compose), so a diagonal pair of a block is tied
+   through its crossing neighbours' matches.  A track that meets an earlier
+   track (an observation within 1 px of one of its observations) is the same
+   ground point and is dropped.
 
 Each accepted match gives the track an observation; its sigma is the LSM
 shift's ``sqrt(trace(Cov) / 2) / sqrt(2)``: LSM's ``sigma0`` holds the noise
@@ -39,13 +53,13 @@ from ..camera import FrameCamera
 from ..collinearity import stack_exteriors
 from ..dem import DEM
 from ._predict import (
-    POINTS,
     check_block,
-    chunks_of,
     inside,
-    match_chunks,
+    local_affine,
     match_sigma,
+    match_warped,
     monoplot_pixels,
+    offsets,
     padded,
     project_pixels,
 )
@@ -82,11 +96,18 @@ class TiePoints:
         obs_sigma: ``(k,)`` standard deviation of a pixel coordinate.
         ground: ``(n_tracks, 3)`` approximate ground points (monoplotted with the
             first image's approximate orientation).
-        pair_counts: ``{(i, j): accepted matches}`` for every pair with candidates.
-        pair_status: ``{(i, j): "ok" | "no overlap" | "too few matches" | "textureless"}``
-            for every pair ``i < j``.
+        pair_counts: ``{(i, j): accepted matches}`` for every pair with candidates
+            (points of ``i`` matched into ``j``; a point seen by an earlier image
+            is that image's, see the owner rule).
+        pair_status: ``{(i, j): "ok" | "no overlap" | "too few matches" | "textureless"
+            | "sees no DEM"}`` for every pair ``i < j``: ``"ok"`` when at least
+            ``min_matches`` tracks tie the two images (:attr:`pair_ties`).
         image_status: ``(m,)`` ``"ok"``, ``"textureless"`` (no interest points)
             or ``"sees no DEM"`` (no point monoplots onto the DEM).
+        pair_overlap: ``{(i, j): predicted overlap}``, 0..1: the share of each
+            image's area whose ground point (on the DEM, approximate
+            orientations) images inside the other, the mean of both ways.
+        pair_ties: ``{(i, j): tracks seen in both images}`` for every pair ``i < j``.
     """
 
     obs_image: np.ndarray
@@ -97,6 +118,8 @@ class TiePoints:
     pair_counts: dict
     pair_status: dict
     image_status: list
+    pair_overlap: dict = dataclasses.field(default_factory=dict)
+    pair_ties: dict = dataclasses.field(default_factory=dict)
 
     @property
     def n_tracks(self) -> int:
@@ -112,6 +135,45 @@ def _pixel_size(camera: FrameCamera) -> float:
     return float(np.mean(np.asarray(camera._pixel_grid()[1])))
 
 
+def _spread(xy: np.ndarray, size, n: int) -> np.ndarray:
+    """At most ``n`` of ``xy`` (strongest first) spread over the image: the strongest of each cell of a
+    grid of about ``n`` cells first, then the strongest of the rest (so every overlap gets points)."""
+    if len(xy) <= n:
+        return xy
+    w, h = size
+    gx = max(int(round(np.sqrt(n * w / h))), 1)
+    gy = max(int(round(n / gx)), 1)
+    cell = np.minimum((xy[:, 0] * gx / w).astype(int), gx - 1) + gx * np.minimum(
+        (xy[:, 1] * gy / h).astype(int), gy - 1
+    )
+    _, first = np.unique(cell, return_index=True)  # the strongest point of each occupied cell
+    rest = np.setdiff1d(np.arange(len(xy)), first)
+    order = np.concatenate([np.sort(first), rest])[:n]
+    return xy[np.sort(order)]
+
+
+def _seen_by(xy: list, eo, camera: FrameCamera, dem: DEM, size) -> tuple[list, np.ndarray]:
+    """For each image's points ``xy[k] (n_k, 2)``, ``(n_k, m)``: whether image ``j`` sees its ground point
+    (False for all ``j`` where the ray misses the DEM), and whether any ray of the image meets the DEM."""
+    m = len(xy)
+    n = max(max(len(p) for p in xy), 1)
+    px = np.full((m, n, 2), np.nan)
+    for k, p in enumerate(xy):
+        px[k, : len(p)] = p
+    ground = monoplot_pixels(px, eo, camera, dem)
+    pred = project_pixels(ground.reshape(-1, 3), eo, camera).reshape(m, m, n, 2)
+    seen = inside(pred, size, 0.0)  # [j, i, p]
+    hits = np.all(np.isfinite(ground), axis=2).any(axis=1)
+    return [seen[:, k, : len(p)].T for k, p in enumerate(xy)], hits
+
+
+def _overlap(pred_grid: np.ndarray, size) -> np.ndarray:
+    """``(m, m)`` predicted overlap: the share of image ``i``'s grid points whose ground point images
+    inside ``j`` (``pred_grid[j, i]``), averaged with the reverse share."""
+    share = inside(pred_grid, size, 0.0).mean(axis=-1).T  # [i, j]
+    return (share + share.T) / 2
+
+
 def match_ties(
     images,
     camera: FrameCamera,
@@ -125,6 +187,7 @@ def match_ties(
     back_tol: float = 0.3,
     guide_tol: float = 1.0,
     min_matches: int = 6,
+    warp: bool = True,
 ) -> TiePoints:
     """Tie points between overlapping images, guided by approximate orientations and the DEM.
 
@@ -132,16 +195,22 @@ def match_ties(
         images: ``m`` grey images ``(h, w)`` of one camera.
         camera: their camera (``image_size`` required).
         exterior: ``m`` approximate orientations (a list or a batched one).
-        dem: terrain the rays are cut with (predictions, overlap).
-        max_points: interest points per image (strongest Förstner points).
+        dem: terrain the rays are cut with (predictions, overlap, local affine maps).
+        max_points: interest points per image (strongest Förstner points,
+            spread over the part of the image a later image sees).
         window: half-size of the matching window (``2 window + 1`` px square).
         search: NCC search radius around the prediction, px; must cover the
             prediction error of the approximate orientations.
         min_rho: smallest accepted NCC peak.
         back_tol: two-way consistency, px.
         guide_tol: smallest outlier threshold of the guided test, px.
-        min_matches: pairs with fewer accepted matches are dropped (status
-            ``"too few matches"``).
+        min_matches: a pair's matches of one pass (direct or chained) are
+            dropped when fewer than this many pass the guided test.
+        warp: resample each template by the local affine map predicted from
+            the orientations and the DEM (rotation, scale, shear between the
+            views), so that opposite or crossing strips and rotated or oblique
+            images match like parallel ones; False correlates unrotated
+            windows (the views must then be nearly parallel).
 
     Returns:
         :class:`TiePoints` (tracks seen in >= 2 images).
@@ -149,111 +218,140 @@ def match_ties(
     Raises:
         ValueError: images / camera / orientations that do not fit together.
     """
-    # Over 80 lines: one pipeline (interest points, owner rule, candidate pairs, batched
-    # NCC/LSM, two-way check, guided outlier test) whose arrays flow from step to step.
+    # Over 80 lines: one pipeline (interest points, predictions, candidate pairs, batched
+    # warped NCC/LSM, two-way check, guided outlier test, chained matches) whose arrays flow
+    # from step to step.
     from ..measure import interest_points
 
     stack, eo = check_block(images, camera, exterior)
     m = len(stack)
     size = camera.image_size
-    margin = window + search + 4
-    pts, status = [], []
+    # candidate interest points, monoplotted: an image keeps those a later image sees, spread over that area
+    cand_xy = []
     for k in range(m):
-        ip = interest_points(stack[k], "foerstner", window=5, min_distance=window // 2 + 2, max_points=4 * max_points)
-        xy = ip.xy[inside(ip.xy, size, window + 4)][:max_points]
-        pts.append(xy)
-        status.append("ok" if len(xy) else "textureless")
+        ip = interest_points(stack[k], "foerstner", window=5, min_distance=window // 2 + 2, max_points=20 * max_points)
+        cand_xy.append(ip.xy[inside(ip.xy, size, window + 4)])
+    seen_by, hits = _seen_by(cand_xy, eo, camera, dem, size)
+    pts = [_spread(cand_xy[k][seen_by[k][:, k + 1 :].any(axis=1)], size, max_points) for k in range(m)]
+    status = ["textureless" if not len(cand_xy[k]) else "ok" if hits[k] else "sees no DEM" for k in range(m)]
     n = max(max(len(p) for p in pts), 1)
     px = np.full((m, n, 2), np.nan)
     for k, p in enumerate(pts):
         px[k, : len(p)] = p
-    ground = monoplot_pixels(px, eo, camera, dem)  # (m, n, 3)
-    for k in range(m):
-        if status[k] == "ok" and not np.any(np.all(np.isfinite(ground[k]), axis=1)):
-            status[k] = "sees no DEM"
-    flat = ground.reshape(-1, 3)
-    pred = project_pixels(flat, eo, camera).reshape(m, m, n, 2)  # [j, i, p]: point p of image i in image j
-    seen = inside(pred, size, 0.0)
-    # owner rule: point p of image i is kept when no earlier image sees it
-    earlier = np.tril(np.ones((m, m), bool), -1).T  # earlier[j, i] = j < i
-    owned = ~np.any(seen & earlier[:, :, None], axis=0)  # (i, p)
-    # candidate matches (i < j)
-    cand = inside(pred, size, window + 3) & owned[None] & earlier.T[:, :, None]  # [j, i]: j > i
+    # the points, their neighbours (local affine maps) and a grid (overlap) monoplotted and projected at once
+    w, h = size
+    gx, gy = np.meshgrid(np.linspace(0, w - 1, 16), np.linspace(0, h - 1, 16))
+    grid = np.broadcast_to(np.stack([gx.ravel(), gy.ravel()], axis=1), (m, 256, 2))
+    ground_all = monoplot_pixels(np.concatenate([offsets(px, window), grid], axis=1), eo, camera, dem)
+    ground = ground_all[:, :n]  # (m, n, 3)
+    proj = project_pixels(ground_all.reshape(-1, 3), eo, camera).reshape(m, m, -1, 2)  # [j, i, p]: of i in j
+    pred = proj[:, :, :n]
+    overlap = _overlap(proj[:, :, 5 * n :], size)
+    affine = local_affine(proj[:, :, : 5 * n], n, window) if warp else np.broadcast_to(np.eye(2), (m, m, n, 2, 2))
+    with np.errstate(invalid="ignore"):
+        # beyond a scale of 2 between the views the template would need an image pyramid
+        sv = np.linalg.svd(np.nan_to_num(affine, nan=1e9), compute_uv=False)
+        usable = np.all(np.isfinite(affine), axis=(-2, -1)) & (sv[..., 0] <= 2.0) & (sv[..., 1] >= 0.5)
+    reach = int(np.ceil(np.sqrt(2) * (window + 2)))
+    ok_img = np.array([s == "ok" for s in status])
+    cand = inside(pred, size, reach + 1) & usable & ok_img[:, None, None] & ok_img[None, :, None]  # [j, i, p]
     pairs = [(i, j) for i in range(m) for j in range(i + 1, m)]
-    pair_status = {pr: "no overlap" for pr in pairs}
-    items = [(i, j, p) for (i, j) in pairs if status[i] == status[j] == "ok" for p in np.flatnonzero(cand[j, i])]
+    pair_overlap = {pr: float(overlap[pr]) for pr in pairs}
+    pair_status = {pr: "no overlap" if overlap[pr] == 0 else "too few matches" for pr in pairs}
     for i, j in pairs:
         if status[i] != "ok" or status[j] != "ok":
             pair_status[i, j] = "textureless" if "textureless" in (status[i], status[j]) else "sees no DEM"
-    empty = TiePoints(
-        np.zeros(0, int), np.zeros(0, int), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 3)), {}, pair_status, status
-    )
-    if not items:
-        return empty
-    it = np.array(items)
-    # chunks of up to 16 points of one pair, matched BATCH pairs per compiled call (match_chunks)
-    centre = (np.asarray(size) - 1) / 2.0 + margin
-    groups = {}
-    for i, j in sorted({(i, j) for i, j, _ in items}):
-        sel = it[(it[:, 0] == i) & (it[:, 1] == j), 2]
-        groups[i, j] = (sel, px[i, sel] + margin, pred[j, i, sel] + margin)
-    chunks, txy, sxy = chunks_of(groups, centre)
-    nc = len(chunks)
-    bi = np.array([i for (i, _), _ in chunks])
-    bj = np.array([j for (_, j), _ in chunks])
-    valid = np.zeros((nc, POINTS), bool)
-    pid = np.zeros((nc, POINTS), int)
-    for b, (_, sel) in enumerate(chunks):
-        valid[b, : len(sel)] = True
-        pid[b, : len(sel)] = sel
-    big = padded(stack, margin)
-    mt = match_chunks(big, bi, bj, txy, sxy, window=window, search=search, back=True)
-    txy, sxy = txy - margin, sxy - margin
-    fxy = np.where(mt.lsm_valid[..., None], mt.lsm_xy - margin, sxy)
-    ok = (
-        valid
-        & mt.ncc_valid
-        & (np.nan_to_num(mt.rho) >= min_rho)
-        & mt.lsm_valid
-        & mt.back_valid
-        & inside(fxy, size, window + 1)
-    )
-    with np.errstate(invalid="ignore"):
-        ok &= np.linalg.norm(mt.back_xy - margin - txy, axis=-1) <= back_tol
-    sig = match_sigma(mt.lsm_cov) / np.sqrt(2.0)
-    obs = {}  # (i, p) -> list of (j, xy, sigma)
+    pad = 2 * (window + search) + 8  # the search crops and the warped templates stay inside the frame
+    big = padded(stack, pad)
     counts = {}
-    for i, j in sorted({(i, j) for i, j, _ in items}):
-        mine = np.flatnonzero((bi == i) & (bj == j) & valid.any(axis=1))
-        bq = [(b, q) for b in mine for q in np.flatnonzero(ok[b])]
-        if bq:
-            bb, qq = np.array(bq).T
-            good = _robust_affine(txy[bb, qq], fxy[bb, qq] - sxy[bb, qq], guide_tol)
-            bq = [x for x, g in zip(bq, good) if g]
-        counts[i, j] = len(bq)
-        if len(bq) < min_matches:
-            pair_status[i, j] = "too few matches"
-            continue
-        pair_status[i, j] = "ok"
-        for b, q in bq:
-            obs.setdefault((i, int(pid[b, q])), []).append((j, fxy[b, q], sig[b, q]))
+
+    def accepted(bk, bj, txy, sxy, aff):
+        """Rows matched and accepted (NCC, LSM, two-way, guided test per pair), their xy and sigma."""
+        mt = match_warped(big, bk, txy + pad, bj, sxy + pad, aff, window=window, search=search, back=True)
+        fxy = np.where(mt.lsm_valid[:, 0, None], mt.lsm_xy[:, 0] - pad, sxy)
+        ok = (
+            mt.ncc_valid[:, 0]
+            & (np.nan_to_num(mt.rho[:, 0]) >= min_rho)
+            & mt.lsm_valid[:, 0]
+            & mt.back_valid[:, 0]
+            & inside(fxy, size, window + 1)
+        )
+        with np.errstate(invalid="ignore"):
+            ok &= np.linalg.norm(mt.back_xy[:, 0] - pad - txy, axis=-1) <= back_tol
+        keep = []
+        for k, j in sorted(set(zip(bk.tolist(), bj.tolist()))):
+            rows = np.flatnonzero((bk == k) & (bj == j) & ok)
+            if len(rows):
+                rows = rows[_robust_affine(txy[rows], fxy[rows] - sxy[rows], guide_tol)]
+            if len(rows) >= min_matches:
+                keep.extend(rows.tolist())
+                counts[min(k, j), max(k, j)] = counts.get((min(k, j), max(k, j)), 0) + len(rows)
+        keep = np.array(sorted(keep), dtype=int)
+        return keep, fxy[keep], match_sigma(mt.lsm_cov[keep, 0]) / np.sqrt(2.0)
+
+    # direct matches: the points of each image into every later image that sees them
+    it = np.array([(i, j, p) for i, j in pairs for p in np.flatnonzero(cand[j, i])]).reshape(-1, 3)
+    if not len(it):
+        return _assemble({}, px, ground, m, counts, pair_status, status, pair_overlap, min_matches)
+    bi, bj, pid = it.T
+    obs = {}  # (i, p) -> {j: (xy, sigma)}: the track of point p of image i
+    rows, fxy, sig = accepted(bi, bj, px[bi, pid], pred[bj, bi, pid], affine[bj, bi, pid])
+    for r, xy, sg in zip(rows, fxy, sig):
+        obs.setdefault((int(bi[r]), int(pid[r])), {})[int(bj[r])] = (xy, sg)
+    # chained matches: an image that sees a track's ground point but is not in it (an earlier image,
+    # or a later one whose match failed) is matched from the track's image that overlaps it most
+    # (a crossing pair often matches where a diagonal one does not); the affine maps compose,
+    # A_jk = A_ji A_ki^-1, with A_ii = I
+    chain = []
+    for (i, p), ms in obs.items():
+        for j in np.flatnonzero(cand[:, i, p]):
+            if j != i and j not in ms:
+                src = [k for k in ms if k != j] + ([i] if j < i else [])
+                chain.append((max(src, key=lambda k: overlap[k, j]), j, i, p))
+    if chain:
+        ck, cj, ci, cp = np.array(chain).T
+        xy_k = np.array([px[i, p] if k == i else obs[i, p][k][0] for k, _, i, p in chain])
+        a_k = np.where((ck == ci)[:, None, None], np.eye(2), affine[ck, ci, cp])
+        rows, fxy, sig = accepted(ck, cj, xy_k, pred[cj, ci, cp], affine[cj, ci, cp] @ np.linalg.inv(a_k))
+        for r, xy, sg in zip(rows, fxy, sig):
+            obs[int(ci[r]), int(cp[r])][int(cj[r])] = (xy, sg)
+    return _assemble(obs, px, ground, m, counts, pair_status, status, pair_overlap, min_matches)
+
+
+def _assemble(obs, px, ground, m, counts, pair_status, status, pair_overlap, min_matches) -> TiePoints:
+    """:class:`TiePoints` from the tracks ``{(i, p): {j: (xy, sigma)}}`` of point ``p`` of image ``i``.
+
+    A track with an observation within 1 px of an earlier track's observation in the same image
+    is dropped: the two are one ground point (a point of image 1 that image 0's track reached)."""
     oi, op, oxy, osig, gr = [], [], [], [], []
-    for t, ((i, p), ms) in enumerate(sorted(obs.items())):
-        oi.append(i)
-        op.append(t)
-        oxy.append(px[i, p])
-        osig.append(float(np.mean([s for _, _, s in ms])))
-        for j, xy, s in ms:
+    taken = [[] for _ in range(m)]
+    for (i, p), ms in sorted(obs.items()):
+        track = {i: (px[i, p], float(np.mean([s for _, s in ms.values()])))} | ms
+        if any(
+            taken[j] and np.min(np.linalg.norm(np.array(taken[j]) - xy, axis=1)) < 1.0 for j, (xy, _) in track.items()
+        ):
+            continue
+        t = len(gr)
+        for j, (xy, s) in sorted(track.items()):
+            taken[j].append(xy)
             oi.append(j)
             op.append(t)
             oxy.append(xy)
             osig.append(float(s))
         gr.append(ground[i, p])
-    if not oi:
-        return dataclasses.replace(empty, pair_counts=counts)
+    # ties per pair: tracks seen in both images
+    seen_in = np.zeros((len(gr), m), bool)
+    seen_in[np.array(op, dtype=int), np.array(oi, dtype=int)] = True
+    ties = {pr: int(np.sum(seen_in[:, pr[0]] & seen_in[:, pr[1]])) for pr in pair_status}
+    pair_status = dict(pair_status)
+    for pr in pair_status:
+        if pair_status[pr] == "too few matches" and ties[pr] >= min_matches:
+            pair_status[pr] = "ok"
     return TiePoints(
-        np.array(oi), np.array(op), np.array(oxy), np.array(osig), np.array(gr), counts, pair_status, status
-    )
+        np.array(oi, dtype=int), np.array(op, dtype=int), np.array(oxy, dtype=float).reshape(-1, 2),
+        np.array(osig, dtype=float), np.array(gr, dtype=float).reshape(-1, 3), counts, pair_status, status,
+        pair_overlap, ties,
+    )  # fmt: skip
 
 
 def bundle_problem(
