@@ -73,6 +73,8 @@ def test_block_recovers_the_truth(cameras, model):
     assert adjusted.sum() == 3 * 2 * (1 if model == "shift" else 2)
     z = (res.corrections - truth)[adjusted] / res.correction_sigmas[adjusted]
     assert np.all(np.abs(z) < 3.0), z
+    for i in range(3):  # the per-image covariance ortho_uncertainty takes, in (a0, a1, a2, b0, b1, b2) order
+        np.testing.assert_allclose(np.sqrt(np.diag(res.correction_covariance(i))), res.correction_sigmas[i].ravel())
     zt = _enu(tie_ground[res.tie_ids], res.tie_ground) / res.tie_sigmas
     assert np.mean(np.abs(zt) < 2.0) > 0.9 and np.all(np.abs(zt) < 4.0)  # ~95 % within 2 sigma
     assert np.all(res.tie_sigmas < 3.0)  # m: a few tenths of a 2 m pixel, heights from the parallax

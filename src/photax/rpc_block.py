@@ -128,6 +128,18 @@ class RPCBlock:
         """Root mean square length of the image residuals (px)."""
         return float(np.sqrt(np.mean(np.sum(self.residuals**2, axis=1))))
 
+    def correction_covariance(self, image: int) -> np.ndarray:
+        """``(6, 6)`` covariance of image ``image``'s correction ``(a0, a1, a2, b0, b1, b2)`` (zero rows for
+        the terms the model leaves out), as :func:`photax.ortho_uncertainty` takes it beside
+        ``cameras[image]``."""
+        terms = _TERMS[self.model]
+        nt = len(terms)
+        idx = [(image * 2 + axis) * nt + k for axis in range(2) for k in range(nt)]
+        at = [axis * 3 + t for axis in range(2) for t in terms]
+        out = np.zeros((6, 6))
+        out[np.ix_(at, at)] = self.covariance[np.ix_(idx, idx)]
+        return out
+
     @property
     def check_rmse(self) -> float:
         """The same for the check observations (px; NaN without check points)."""
