@@ -86,6 +86,29 @@ def test_block_recovers_the_truth(cameras, model):
     assert np.abs(diff).max() < 5 * NOISE / np.sqrt(3)
 
 
+def test_weighted_gcps(cameras):
+    """GCPs as weighted observations: nearly fixed ones give the fixed GCPs' adjustment; loose ones
+    move within their sigma and the corrections stay on the truth."""
+    rng = np.random.default_rng(7)
+    truth = _truth("shift")
+    tie_ground = _points(cameras, rng, 12)
+    ties = _observe(cameras, truth, tie_ground, rng)
+    g = _points(cameras, rng, 4)
+    gcps = (g, _observe(cameras, truth, g, rng))
+    fixed = adjust_rpc_block(cameras, ties, gcps, pixel_sigma=NOISE)
+    tight = adjust_rpc_block(cameras, ties, gcps, pixel_sigma=NOISE, gcp_sigma=1e-5)
+    np.testing.assert_allclose(tight.corrections, fixed.corrections, atol=1e-4)
+    assert tight.redundancy == fixed.redundancy  # 3 unknowns and 3 observations more per GCP
+    assert np.all(fixed.gcp_residuals == 0.0)
+    loose = adjust_rpc_block(cameras, ties, gcps, pixel_sigma=NOISE, gcp_sigma=[1.0, 1.0, 2.0])
+    assert np.all(np.isfinite(loose.gcp_residuals)) and np.abs(loose.gcp_residuals).max() < 3 * 2.0
+    adjusted = loose.correction_sigmas > 0
+    q_loose, q_fixed = loose.correction_sigmas / loose.sigma0, fixed.correction_sigmas / fixed.sigma0
+    assert np.all(q_loose[adjusted] > q_fixed[adjusted])  # less control: larger cofactors
+    z = (loose.corrections - truth)[adjusted] / loose.correction_sigmas[adjusted]
+    assert np.all(np.abs(z) < 3.0), z
+
+
 def test_without_ties_each_image_equals_refine_rpc(cameras):
     """Fixed GCPs, no ties: the block falls apart into refine_rpc's separate least-squares fits."""
     rng = np.random.default_rng(3)

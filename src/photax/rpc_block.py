@@ -7,7 +7,8 @@ of every tie point (lon, lat, ellipsoidal h, adjusted as east, north, up metres 
 The observations are the measured image positions of tie points and GCPs (standard deviation
 ``pixel_sigma``), the GCPs' ground coordinates (fixed, or weighted with ``gcp_sigma`` metres, when they
 are unknowns too) and, when given, a prior ``correction_sigma`` on the corrections (centred on zero).
-Gauss-Newton on the dense normal equations, the Jacobians of the RPC by ``jax.jacfwd``; reported like
+Gauss-Newton on the dense normal equations (a few hundred tie points; no reduction of the points
+yet), the Jacobians of the RPC by ``jax.jacfwd``; reported like
 :func:`photax.refine_rpc`: sigma0, the corrections' covariance, residuals, standardized residuals for
 data snooping, and check points (GCPs marked ``check``, left out of the adjustment).
 
@@ -152,8 +153,7 @@ def _start_ground(cameras, obs) -> np.ndarray:
     """Lon, lat, h of one point from its rays: each ray's ground point at its RPC's height offset,
     averaged (the adjustment then finds the height)."""
     h = float(np.mean([float(cameras[int(i)].offsets[2]) for i in obs[:, 1]]))
-    ll = [np.asarray(cameras[int(i)].to_ground(jnp.asarray(o[2:]), h)) for o in obs for i in [o[1]]]
-    ll = np.asarray(ll)
+    ll = np.asarray([np.asarray(cameras[int(o[1])].to_ground(jnp.asarray(o[2:]), h)) for o in obs])
     ll = ll[np.all(np.isfinite(ll), 1)]
     if len(ll) == 0:
         raise ValueError(f"point {int(obs[0, 0])}: no ray reaches the ground (is it inside the images?)")
