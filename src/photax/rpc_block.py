@@ -149,15 +149,25 @@ class RPCBlock:
         return float(np.sqrt(np.mean(np.sum(self.check_residuals**2, axis=1))))
 
 
-def _start_ground(cameras, obs) -> np.ndarray:
-    """Lon, lat, h of one point from its rays: each ray's ground point at its RPC's height offset,
-    averaged (the adjustment then finds the height)."""
-    h = float(np.mean([float(cameras[int(i)].offsets[2]) for i in obs[:, 1]]))
-    ll = np.asarray([np.asarray(cameras[int(o[1])].to_ground(jnp.asarray(o[2:]), h)) for o in obs])
-    ll = ll[np.all(np.isfinite(ll), 1)]
-    if len(ll) == 0:
-        raise ValueError(f"point {int(obs[0, 0])}: no ray reaches the ground (is it inside the images?)")
-    return np.array([*ll.mean(0), h])
+def _start_ground(cameras, obs, ids) -> np.ndarray:
+    """``(len(ids), 3)`` lon, lat, h of points ``ids`` from their rays in ``obs`` (rows point, image,
+    column, row): each ray's ground point at the RPCs' mean height offset, averaged per point (the
+    adjustment then finds the height)."""
+    h = float(np.mean([float(c.offsets[2]) for c in cameras]))
+    ll = np.full((len(obs), 2), np.nan)
+    for i, cam in enumerate(cameras):
+        sel = obs[:, 1] == i
+        if np.any(sel):
+            ll[sel] = np.asarray(cam.to_ground(jnp.asarray(obs[sel, 2:]), h))
+    row = np.searchsorted(ids, obs[:, 0].astype(int))
+    ok = np.all(np.isfinite(ll), 1)
+    total, count = np.zeros((len(ids), 2)), np.zeros(len(ids))
+    np.add.at(total, row[ok], ll[ok])
+    np.add.at(count, row[ok], 1)
+    if np.any(count == 0):
+        bad = ids[count == 0].tolist()
+        raise ValueError(f"points {bad}: no ray reaches the ground (are they inside the images?)")
+    return np.column_stack([total / count[:, None], np.full(len(ids), h)])
 
 
 def _intersect(cameras, obs, start, steps: int = 10) -> np.ndarray:
@@ -261,7 +271,7 @@ def adjust_rpc_block(
     pt_index = {("t", int(p)): k for k, p in enumerate(tie_ids)}
     pt_index.update({("g", int(p)): n_tie + k for k, p in enumerate(free_gcp)})
     ground = np.concatenate(
-        [np.asarray([_start_ground(raw_cams, ties[ties[:, 0] == p]) for p in tie_ids]).reshape(-1, 3),
+        [_start_ground(raw_cams, ties, tie_ids),
          g_ground[free_gcp].reshape(-1, 3)]
     )  # fmt: skip
     obs = np.concatenate([ties, control])
@@ -329,8 +339,8 @@ def adjust_rpc_block(
         rhs = w * a.T @ v - prior_w * x
         d = np.sqrt(np.maximum(np.diag(normal), 1e-300))
         scaled = normal / np.outer(d, d)
-        ev = np.linalg.eigvalsh(scaled)
-        if ev[0] < 1e-12 * ev[-1]:
+        ev = np.linalg.eigvalsh(scaled) if iterations == 1 else None  # the rank is the block's structure
+        if ev is not None and ev[0] < 1e-12 * ev[-1]:
             raise ValueError(
                 "adjust_rpc_block: the normal equations are singular -- the GCPs and ties do not determine "
                 f"every image's {model!r} correction and every tie point (add GCPs or ties, a lower model, "
@@ -356,7 +366,7 @@ def adjust_rpc_block(
     vpv = w * np.sum(v**2) + np.sum(prior_w * x**2)
     sigma0 = float(np.sqrt(vpv / r)) if r > 0 else math.nan
     cov = q * (sigma0**2 if r > 0 else math.nan)
-    qvv = 1.0 / w - np.einsum("ij,jk,ik->i", a, q, a)
+    qvv = 1.0 / w - np.sum((a @ q) * a, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
         standardized = v / (sigma0 * np.sqrt(np.where(qvv > 1e-12 / w, qvv, np.nan))).reshape(-1, 2)
     sig = np.sqrt(np.diag(cov))
@@ -379,7 +389,7 @@ def adjust_rpc_block(
     for p in np.unique(chk_obs[:, 0]).astype(int) if len(chk_obs) else []:
         po = chk_obs[chk_obs[:, 0] == p]
         if len(np.unique(po[:, 1])) >= 2:
-            xi = _intersect(cams, po, _start_ground(cams, po))
+            xi = _intersect(cams, po, _start_ground(cams, po, np.array([p]))[0])
             chk_ground[p] = (g_ground[p] - xi) * _metres_per_degree(np.array([g_ground[p, 1]]))[0]
 
     point_ids = np.concatenate([ties[:, 0], control[:, 0]]).astype(int)
