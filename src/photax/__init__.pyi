@@ -202,3 +202,5 @@ from .georeferencing import Georeferenced as Georeferenced
 from .georeferencing import Similarity as Similarity
 from .georeferencing import georeference as georeference
 from .georeferencing import similarity_transform as similarity_transform
+from .rpc_block import RPCBlock as RPCBlock
+from .rpc_block import adjust_rpc_block as adjust_rpc_block
