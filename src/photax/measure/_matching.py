@@ -1,8 +1,9 @@
 """Image matching: normalised cross-correlation and least-squares matching (Gruen 1985).
 
 Both take a template window of ``(2 window + 1)^2`` px centred on
-``template_xy`` in ``template_image`` (sampled by cubic-spline interpolation
-when ``template_xy`` is not integer) and return where its centre lies in
+``template_xy`` in ``template_image`` (NCC samples it by cubic-spline
+interpolation when ``template_xy`` is not integer; LSM keeps the window on its
+integer pixels and carries the sub-pixel centre through the fitted affine map) and return where its centre lies in
 ``search_image``, for many points in one vectorised call.
 
 * :func:`match_ncc`: the correlation coefficient
@@ -225,7 +226,11 @@ def match_ncc(
 
 
 def _lsm_one(timg, txy, simg, sxy, *, half, margin, iterations, tol):
-    g1, t_in, t_fin = _template(timg, txy, half)
+    # The template on its integer pixels (never resampled: its noise stays white, and no
+    # interpolation error enters); the sub-pixel centre ``ft`` goes through the fitted affine map.
+    tc = round_centre(txy)
+    ft = jnp.where(jnp.all(jnp.isfinite(txy)), txy - tc.astype(jnp.float64), 0.0)
+    g1, t_in, t_fin = _template(timg, jnp.where(jnp.all(jnp.isfinite(txy)), tc.astype(jnp.float64), txy), half)
     g1 = jnp.where(t_fin, g1, 0.0)
     ci = round_centre(sxy)
     cf = ci.astype(jnp.float64)
@@ -243,7 +248,7 @@ def _lsm_one(timg, txy, simg, sxy, *, half, margin, iterations, tol):
     y = jnp.broadcast_to(off[:, None], g1.shape).ravel()
     xn, yn = x / half, y / half  # scaled for the conditioning of the normal equations
     g1 = g1.ravel()
-    frac = jnp.where(jnp.all(jnp.isfinite(sxy)), sxy - cf, 0.0)
+    frac = jnp.where(jnp.all(jnp.isfinite(sxy)), sxy - cf, 0.0) - ft  # where the integer centre lies
     p0 = jnp.array([frac[0], 0.0, 0.0, frac[1], 0.0, 0.0, 0.0, 1.0])
     # initial radiometry from the window means / spreads
     s0win = _spline_sample(sg, x + frac[0] + big, y + frac[1] + big)[:, 0]
@@ -284,9 +289,12 @@ def _lsm_one(timg, txy, simg, sxy, *, half, margin, iterations, tol):
     s02 = jnp.sum(v * v) / dof
     q = jnp.linalg.inv(n)
     idx = jnp.array([0, 3])
-    cov = s02 * q[idx[:, None], idx[None, :]]
+    # the template centre's position and its covariance: J q J^T with J = d(xy)/d(scaled parameters)
+    fx, fy = ft[0] / half, ft[1] / half
+    jac = jnp.array([[1.0, fx, fy, 0, 0, 0, 0, 0], [0, 0, 0, 1.0, fx, fy, 0, 0]])
+    cov = s02 * (jac @ q @ jac.T)
     cov = cov * _correlation_factor(v.reshape(2 * half + 1, 2 * half + 1))
-    xy = cf + jnp.array([p[0], p[3]])
+    xy = cf + jnp.array([p[0] + p[1] * ft[0] + p[2] * ft[1], p[3] + p[4] * ft[0] + p[5] * ft[1]]) + ft
     tflat = jnp.std(g1) <= 1e-9 * (1 + jnp.max(jnp.abs(g1)))
     status = jnp.select(
         [
