@@ -45,6 +45,51 @@ def machine() -> dict:
     )
 
 
+def cpu_times() -> list[int]:
+    """The machine's ``/proc/stat`` CPU counters (user nice system idle iowait irq softirq steal), all CPUs."""
+    try:
+        with open("/proc/stat") as fh:
+            return [int(v) for v in fh.readline().split()[1:9]]
+    except (OSError, ValueError):
+        return [0] * 8
+
+
+def steal_between(a: list[int], b: list[int]) -> float:
+    """Fraction of CPU time stolen by the hypervisor between two :func:`cpu_times` samples."""
+    d = [y - x for x, y in zip(a, b)]
+    return d[7] / sum(d) if sum(d) > 0 else 0.0
+
+
+def load_now(sample_s: float = 0.5) -> dict:
+    """Load averages, and the steal and busy fractions of the CPUs over ``sample_s`` seconds."""
+    a = cpu_times()
+    time.sleep(sample_s)
+    b = cpu_times()
+    d = [y - x for x, y in zip(a, b)]
+    busy = 1 - (d[3] + d[4]) / sum(d) if sum(d) > 0 else 0.0
+    return dict(load_average=[round(v, 2) for v in os.getloadavg()], steal=round(steal_between(a, b), 3),
+                busy=round(busy, 3))  # fmt: skip
+
+
+class busy_threads:
+    """``with busy_threads(n):`` ``n`` processes spinning on a CPU each, a controlled extra load
+    (a benchmark's ``--busy``), ended on exit."""
+
+    def __init__(self, n: int):
+        self.n, self.procs = int(n), []
+
+    def __enter__(self):
+        self.procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(self.n)]
+        if self.n:
+            time.sleep(0.2)
+        return self
+
+    def __exit__(self, *exc):
+        for p in self.procs:
+            p.kill()
+            p.wait()
+
+
 def start(name: str) -> dict:
     """Begin a benchmark run: print how to reproduce it and the machine's
     load; at exit write the recorded figures to ``results/<name>.json``."""
@@ -58,8 +103,14 @@ def start(name: str) -> dict:
         figures={},
     )
     m = _RUN["machine"]
+    now = load_now()
+    m["steal"], m["busy"] = now["steal"], now["busy"]
+    _RUN["cpu_times_start"] = cpu_times()
     print(f"reproduce with: {command}")
-    print(f"{m['cpus']} x {m['cpu_model']}, load average {m['load_average']} (1, 5, 15 min) at the start")
+    print(
+        f"{m['cpus']} x {m['cpu_model']}, load average {m['load_average']} (1, 5, 15 min), "
+        f"CPU steal {100 * now['steal']:.0f} %, CPUs busy {100 * now['busy']:.0f} % at the start"
+    )
     atexit.register(_write)
     return _RUN
 
@@ -74,10 +125,14 @@ def _write() -> None:
     if not _RUN or not _RUN["figures"]:
         return
     _RUN["load_average_end"] = [round(v, 2) for v in os.getloadavg()]
+    _RUN["steal_during"] = round(steal_between(_RUN.pop("cpu_times_start", cpu_times()), cpu_times()), 3)
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"{_RUN['benchmark']}.json"
     path.write_text(json.dumps(_RUN, indent=1) + "\n")
-    print(f"figures written to {os.path.relpath(path)} (load average at the end {_RUN['load_average_end']})")
+    print(
+        f"figures written to {os.path.relpath(path)} (load average at the end {_RUN['load_average_end']}, "
+        f"CPU steal during the run {100 * _RUN['steal_during']:.0f} %)"
+    )
 
 
 def median_times(fns: dict[str, Callable[[], object]], repeat: int = 5, warmup: int = 1) -> dict[str, float]:

@@ -1,6 +1,12 @@
 """The README's benchmark table, regenerated from ``benchmarks/results/*.json``.
 
     python benchmarks/report.py [results/bench_rectify.json ...]
+    python benchmarks/report.py --run [--times 2] [--only remap measure ...]
+
+``--run`` first runs the command of every README row (:data:`ROWS`; ``--only``
+picks some by key) ``--times`` times each, printing the machine's load and CPU
+steal before each run, then prints each figure of the runs: its value where
+the runs agree within 30 %, else the range ``min-max``.
 
 Each JSON is one benchmark run (``_common.start``): its command, date,
 machine and load average, and its figures.  Prints a Markdown table per run
@@ -9,9 +15,13 @@ with the ratio photax / peer and, where issue 8 set one, the target.
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import pathlib
+import subprocess
 import sys
+import time
 
 HERE = pathlib.Path(__file__).resolve().parent
 # figure name (or its start) -> largest acceptable ratio photax / peer, and the
@@ -95,8 +105,81 @@ def table(run: dict) -> str:
     return "\n".join(lines)
 
 
-def main(paths) -> None:
-    paths = [pathlib.Path(p) for p in paths] or sorted((HERE / "results").glob("*.json"))
+# key -> the command (in benchmarks/) of the README's rows; see benchmarks/README.md
+ROWS = {
+    "remap": "bench_remap.py --calls 7 --processes 3 --busy 0 1 2",
+    "rectify": "bench_rectify.py --only poly",
+    "startup": "bench_startup.py --repeat 5 --cold 3",
+    "ortho-block": "bench_ortho_block.py --repeat 3",
+    "resection": "bench_resection.py --images 10000",
+    "resection-1000": "bench_resection.py --images 1000",
+    "measure": "bench_measure.py --points 1000",
+    "bundle": "bench_bundle.py --no-scipy",
+    "bundle-blocks": "bench_bundle.py --grid 10 20 30 --ceres-up-to 30 --no-scipy",
+    "scale": "bench_scale.py --size 20000 --chunks 1024 512 2048",
+    "uncertainty": "bench_uncertainty.py --repeat 9",
+}
+
+
+def _numbers(run: dict) -> dict:
+    """``{(figure, key): value}`` of a run's numeric figures."""
+    return {
+        (name, k): v
+        for name, f in run["figures"].items()
+        for k, v in f.items()
+        if isinstance(v, (int, float)) and not isinstance(v, bool)
+    }
+
+
+def spread(runs: list[dict]) -> str:
+    """Markdown lines: each figure of repeated runs, a range where they differ by more than 30 %."""
+    vals: dict = {}
+    for run in runs:
+        for key, v in _numbers(run).items():
+            vals.setdefault(key, []).append(v)
+    lines = ["| figure | value | runs |", "|---|---|---|"]
+    for (name, k), v in vals.items():
+        lo, hi = min(v), max(v)
+        text = f"{lo:.3g}" if (lo == hi or (lo > 0 and hi / lo <= 1.3)) else f"{lo:.3g}-{hi:.3g} (range)"
+        lines.append(f"| {name} {k} | {text} | {len(v)} |")
+    loads = ", ".join(f"load {r['machine']['load_average'][0]}, steal {r['machine'].get('steal', '?')}" for r in runs)
+    return f"{loads}\n\n" + "\n".join(lines)
+
+
+def run_rows(keys, times: int) -> None:
+    sys.path.insert(0, str(HERE))
+    from _common import load_now
+
+    env = dict(os.environ, PYTHONPATH=str(HERE.parent / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    for key in keys:
+        runs: dict = {}
+        for i in range(times):
+            now = load_now()
+            print(f"## {key}, run {i + 1} of {times}: python benchmarks/{ROWS[key]}")
+            print(
+                f"load average {now['load_average']}, CPU steal {100 * now['steal']:.0f} %, busy {100 * now['busy']:.0f} %"
+            )
+            t0 = time.time()
+            subprocess.run([sys.executable, str(HERE / ROWS[key].split()[0]), *ROWS[key].split()[1:]], env=env)
+            for p in (HERE / "results").glob("*.json"):
+                if p.stat().st_mtime >= t0:
+                    runs.setdefault(p.stem, []).append(json.loads(p.read_text()))
+        for stem, rs in runs.items():
+            if all("figures" in r for r in rs):
+                print(f"### {stem}, {len(rs)} run(s)\n\n{spread(rs)}\n")
+
+
+def main(argv) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("paths", nargs="*", help="result files to tabulate (default: all)")
+    ap.add_argument("--run", action="store_true", help="run the README rows' commands first")
+    ap.add_argument("--times", type=int, default=2, help="runs of each command with --run")
+    ap.add_argument("--only", nargs="+", choices=sorted(ROWS), help="with --run: only these rows")
+    args = ap.parse_args(argv)
+    if args.run:
+        run_rows(args.only or list(ROWS), args.times)
+        return
+    paths = [pathlib.Path(p) for p in args.paths] or sorted((HERE / "results").glob("*.json"))
     for p in paths:
         run = json.loads(p.read_text())
         if "figures" not in run:  # a per-block detail file of bench_bundle --grid, in its run's table
