@@ -63,7 +63,7 @@ def correlate1d(
     for j, wj in enumerate(weights):
         if wj == 0.0:
             continue
-        term = jax.lax.slice_in_dim(p, j, j + size, axis=axis) * wj
+        term = jax.lax.slice_in_dim(p, j, j + size, axis=axis) * float(wj)  # a Python float keeps the image's dtype
         out = term if out is None else out + term
     if out is None:
         return jnp.zeros_like(jax.lax.slice_in_dim(p, 0, size, axis=axis))
@@ -82,7 +82,7 @@ def correlate2d(image: jax.Array, kernel, mode: Mode = "reflect", cval: float = 
         for j in range(kw):
             if kernel[i, j] == 0.0:
                 continue
-            term = p[i : i + h, j : j + w] * kernel[i, j]
+            term = p[i : i + h, j : j + w] * float(kernel[i, j])
             out = term if out is None else out + term
     return jnp.zeros_like(image) if out is None else out
 
@@ -184,9 +184,10 @@ def _gradient2d(image, method, mode, sigma=1.0):
         if mode == "valid":  # the other axis loses its margin too, so gx and gy share a shape
             return (correlate1d(image[1:-1, :], diff, 1, mode), correlate1d(image[:, 1:-1], diff, 0, mode))
         return correlate1d(image, diff, 1, mode), correlate1d(image, diff, 0, mode)
-    gx = correlate1d(correlate1d(image, diff, 1, mode), smooth, 0, mode)
-    gy = correlate1d(correlate1d(image, diff, 0, mode), smooth, 1, mode)
-    return gx, gy
+    # Materialise the first pass (padding does it in the other modes): fused, XLA
+    # would recompute it for every tap of the second, len(smooth) x the work.
+    first = jax.lax.optimization_barrier((correlate1d(image, diff, 1, mode), correlate1d(image, diff, 0, mode)))
+    return correlate1d(first[0], smooth, 0, mode), correlate1d(first[1], smooth, 1, mode)
 
 
 def gradient(
