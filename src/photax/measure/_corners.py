@@ -84,9 +84,9 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
     py = off[:, None]
     disk = (off[None, :] ** 2 + off[:, None] ** 2) <= (half + 0.5) ** 2  # circular window: no preferred direction
     gxx, gxy, gyy = gx * gx, gx * gy, gy * gy
-    # The sums of the normal equations as one product: the terms do not depend on
-    # the estimate, only the weights do, so each iteration is one pass over the window.
-    terms = jnp.stack([gxx, gxy, gyy, gxx * px + gxy * py, gxy * px + gyy * py]).reshape(5, -1)
+    # The structure tensor is all an iteration reads: the weights and the right-hand
+    # side's positions are recomputed in the same pass (cheaper than reading them).
+    g3 = jnp.stack([gxx, gxy, gyy])
 
     def solve(c):  # c from cf
         d2 = (px - c[0]) ** 2 + (py - c[1]) ** 2
@@ -94,9 +94,9 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
         lever = 1.0 if math.isinf(d0) else (exclude**2 + d0**2) / (jnp.maximum(d2, exclude**2) + d0**2)
         ramp = jnp.clip(jnp.sqrt(d2) - exclude + 1.0, 0.0, 1.0) * lever
         w = jnp.where(disk, ramp, 0.0) if exclude > 0 else disk.astype(_F)
-        s = jnp.sum(terms * w.reshape(1, -1), axis=1)
+        s = jnp.sum(g3 * w[None], axis=(1, 2))
         n = jnp.array([[s[0], s[1]], [s[1], s[2]]])
-        b = s[3:]
+        b = jnp.sum(jnp.stack([g3[0] * px + g3[1] * py, g3[1] * px + g3[2] * py]) * w[None], axis=(1, 2))
         det = n[0, 0] * n[1, 1] - n[0, 1] ** 2
         tr = n[0, 0] + n[1, 1]
         safe = det > 1e-9 * tr**2
