@@ -208,6 +208,8 @@ def locate_corners(
         ``covariance = sigma0^2 N^-1`` (px^2), ``status`` and ``sigma0``
         (grey value x px).  Failed points (window outside the image, flat
         window, an edge only, no convergence) are NaN with ``valid = False``.
+        The windows are computed in float32 with positions relative to the
+        window's centre pixel (rounding ~1e-6 px); results are float64.
 
     Source: Förstner & Gülch (1987), "A fast operator for detection and
     precise location of distinct points, corners and centres of circular
