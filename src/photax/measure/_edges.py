@@ -32,12 +32,12 @@ def _edge_magnitude(image, edge, smooth, mode):
 
 @partial(jax.jit, static_argnames=("mode",))
 def _sobel(img, mode):
-    return _edge_magnitude(img.astype(jnp.float64), [-1.0, 0.0, 1.0], [0.25, 0.5, 0.25], mode)
+    return _edge_magnitude(img, [-1.0, 0.0, 1.0], [0.25, 0.5, 0.25], mode)
 
 
 @partial(jax.jit, static_argnames=("mode",))
 def _prewitt(img, mode):
-    return _edge_magnitude(img.astype(jnp.float64), [-1.0, 0.0, 1.0], [1 / 3, 1 / 3, 1 / 3], mode)
+    return _edge_magnitude(img, [-1.0, 0.0, 1.0], [1 / 3, 1 / 3, 1 / 3], mode)
 
 
 def sobel(image, *, mode: Mode = "reflect"):

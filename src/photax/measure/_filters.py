@@ -130,7 +130,11 @@ def sobel_pair(image: jax.Array, mode: Mode = "reflect", cval: float = 0.0, smoo
     """``(d_rows, d_cols)``: ``[-1 0 1]`` along the axis times ``smooth``
     across it, from one padded copy so XLA fuses both into a single pass."""
     h, w = image.shape
-    p = pad(image, [(1, 1), (1, 1)], mode, cval)
+    # an integer image is padded as it is (a quarter of the float64 copy's bytes) and
+    # converted inside the fused stencil
+    if mode == "constant" and cval != 0.0:
+        image = image.astype(jnp.float64)  # cval is not an integer grey value
+    p = pad(image, [(1, 1), (1, 1)], mode, cval).astype(jnp.float64)
 
     def s(dr, dc):
         return p[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
