@@ -55,10 +55,14 @@ def correlate1d(
             raise ValueError(f"image: {image.shape[axis]} px along axis {axis} is less than the kernel's {n}")
     else:
         c = n // 2 + origin
+        if mode == "constant" and cval != 0.0:
+            image = image.astype(jnp.float64)  # cval need not be an integer grey value
         widths = [(0, 0), (0, 0)]
         widths[axis] = (c, n - 1 - c)
         p = pad(image, widths, mode, cval)
         size = image.shape[axis]
+    if not jnp.issubdtype(p.dtype, jnp.floating):  # an integer image is padded as it is, converted here (fused)
+        p = p.astype(jnp.float64)
     out = None
     for j, wj in enumerate(weights):
         if wj == 0.0:
