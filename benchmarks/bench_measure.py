@@ -40,6 +40,7 @@ faster), peak memory above the start, and the RMSE against the known truth.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -55,9 +56,11 @@ from _common import median_time, mib, peak_memory, ratio_line, record, start  # 
 
 import photax as ptx  # noqa: E402
 from photax.measure import locate_corners, match_lsm, match_ncc  # noqa: E402
+from photax.measure._filters import gaussian_kernel1d  # noqa: E402
 from photax.scene import patterns as R  # noqa: E402
 
 TILE, C, KINDS = 45, 22, 100
+CANVAS = 2048  # px: the corners' image is at least 2048 x 2048 (4 MPix)
 
 
 def test_image(n: int) -> np.ndarray:
@@ -71,6 +74,24 @@ def test_image(n: int) -> np.ndarray:
         img[y0 : y0 + n // 12, x0 : x0 + n // 15] -= 50.0
     img -= img.min()
     return np.clip(img / img.max() * 255.0, 0, 255).astype(np.uint8)
+
+
+def _cpu_counters():
+    with open("/proc/stat") as fh:
+        return [int(v) for v in fh.readline().split()[1:9]]
+
+
+def load_line(sample_s: float = 1.0) -> str:
+    """Load averages and the CPUs' steal and busy fractions over ``sample_s`` s (from /proc/stat)."""
+    try:
+        a = _cpu_counters()
+        time.sleep(sample_s)
+        d = [y - x for x, y in zip(a, _cpu_counters())]
+    except (OSError, ValueError):
+        return "load: unknown"
+    tot = max(sum(d), 1)
+    load = ", ".join(f"{v:.1f}" for v in os.getloadavg())
+    return f"load {load}; steal {d[7] / tot:.0%}, busy {1 - (d[3] + d[4]) / tot:.0%}"
 
 
 def wall_and_cpu(fn, repeat):
@@ -119,7 +140,7 @@ def timed(name, fn, repeat):
     return out, warm
 
 
-def locators(n: int, repeat: int) -> None:
+def locators(n: int, repeat: int, matching: bool = True) -> None:
     """Corner locator vs cornerSubPix, LSM / NCC vs matchTemplate + parabola, on ``n`` points."""
     print(f"--- locators on {n} points")
     rng = np.random.default_rng(0)
@@ -139,6 +160,8 @@ def locators(n: int, repeat: int) -> None:
         )
         truths.append(t)
     img, origin = tiled(kinds, n)
+    side = max(CANVAS, *img.shape)  # the tiles in the corner of a 4-MPix image, as a frame would hold them
+    img = np.pad(img, [(0, side - img.shape[0]), (0, side - img.shape[1])])
     truth = origin + np.array(truths)[np.arange(n) % KINDS]
     approx = truth + rng.uniform(-1, 1, truth.shape)
     img32 = img.astype(np.float32)
@@ -150,9 +173,12 @@ def locators(n: int, repeat: int) -> None:
     def theirs():
         return cv2.cornerSubPix(img32, approx[:, None].astype(np.float32).copy(), (14, 14), (-1, -1), crit)[:, 0]
 
+    print(load_line())
     xy, t_ours = timed("locate_corners", ours, repeat)
     cxy, t_cv = timed("cv2.cornerSubPix", theirs, repeat)
-    print(ratio_line(f"corners x{n} (warm)", t_ours, t_cv))
+    print(ratio_line(f"corners x{n} in {img.shape[1]} x {img.shape[0]} (warm)", t_ours, t_cv))
+    (w_o, c_o), (w_c, c_c) = wall_and_cpu(ours, repeat), wall_and_cpu(theirs, repeat)
+    print(f"  again, interleaved: wall ratio {w_o / w_c:.2f}, CPU-time ratio {c_o / c_c:.2f}; {load_line()}")
     print(f"corners rmse: photax {rmse(xy - truth):.4f} px, cornerSubPix {rmse(cxy - truth):.4f} px")
     record(
         "corners",
@@ -164,6 +190,8 @@ def locators(n: int, repeat: int) -> None:
         rmse_opencv_px=rmse(cxy - truth),
     )
 
+    if not matching:
+        return
     # --- matching: 21 x 21 templates, gain 0.9, offset 0.05, noise 1 %
     shifts = rng.uniform(-2, 2, (KINDS, 2))
     tk = [R.texture((TILE, TILE), seed=i, noise=0.01, rng=rng) for i in range(KINDS)]
@@ -229,7 +257,8 @@ def locators(n: int, repeat: int) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=4096)
-    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--only", choices=["operators", "corners", "locators"], help="run one part (corners: no matching)")
     ap.add_argument("--points", type=int, default=10_000)
     args = ap.parse_args(argv)
     n, rep = args.size, args.repeat
@@ -237,8 +266,11 @@ def main(argv=None) -> int:
     start("bench_measure")
     print(f"{n} x {n} uint8, median of {rep} warm runs; jax {jax.__version__}, OpenCV {cv2.__version__}")
     record("setup", size=n, repeat=rep, points=args.points)
-    operators(n, rep)  # its images are freed on return, before the locators' run
-    locators(args.points, rep)
+    print(load_line())
+    if args.only in (None, "operators"):
+        operators(n, rep)  # its images are freed on return, before the locators' run
+    if args.only in (None, "corners", "locators"):
+        locators(args.points, rep, matching=args.only != "corners")
     return 0
 
 
@@ -286,6 +318,38 @@ def operators(n: int, rep: int) -> None:
         cpu_skimage_s=c_sk,
         cpu_opencv_s=c_cv,
     )
+
+    # ---- Prewitt magnitude and Laplacian of Gaussian: photax against OpenCV's filters
+    prewitt_x = np.array([[-1.0, 0.0, 1.0]] * 3)
+
+    def cv_prewitt():
+        gx = cv2.filter2D(img, cv2.CV_64F, prewitt_x, borderType=cv2.BORDER_REFLECT)
+        gy = cv2.filter2D(img, cv2.CV_64F, prewitt_x.T, borderType=cv2.BORDER_REFLECT)
+        return cv2.magnitude(gx, gy)
+
+    k0, k2 = gaussian_kernel1d(2.0, 0), gaussian_kernel1d(2.0, 2)
+
+    def cv_log():  # scipy.ndimage.gaussian_laplace's kernels, separable, as photax.measure.log
+        return cv2.sepFilter2D(f_img, cv2.CV_64F, k0, k2, borderType=cv2.BORDER_REFLECT) + cv2.sepFilter2D(
+            f_img, cv2.CV_64F, k2, k0, borderType=cv2.BORDER_REFLECT
+        )
+
+    for name, ours, theirs in [
+        ("Prewitt", lambda: jax.block_until_ready(ptx.measure.prewitt(jimg)), cv_prewitt),
+        (
+            "LoG sigma 2 (photax: response + zero crossings)",
+            lambda: jax.block_until_ready(ptx.measure.log(jimg, 2.0)),
+            cv_log,
+        ),
+    ]:
+        first = timed_first(ours)
+        t_ours, c_ours = wall_and_cpu(ours, rep)
+        t_cv, c_cv = wall_and_cpu(theirs, rep)
+        print(f"{name}  first call {first:.2f} s")
+        print("  " + ratio_line("vs OpenCV      ", t_ours, t_cv), f"| CPU-time ratio {c_ours / c_cv:.2f}")
+        record(
+            name.split()[0].lower(), photax_first_s=first, photax_s=t_ours, opencv_s=t_cv, ratio_opencv=t_ours / t_cv
+        )
 
     # ---- Canny
     def ours_canny():

@@ -56,6 +56,8 @@ from jax import Array
 from ._filters import _gradient2d, gradient_margin
 from ._result import LocateResult, Status, as_images, as_points, check_window, finish, patch, round_centre
 
+_F = jnp.float32  # arithmetic on the windows, positions relative to the window's centre pixel
+
 
 def _gradient(p: Array, sigma: float) -> tuple[Array, Array]:
     """Gradient of a patch on its interior (``_margin(sigma)`` px smaller on
@@ -71,23 +73,30 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
     ci = round_centre(xy0)
     cf = ci.astype(jnp.float64)
     p, inside = patch(img, ci, half + _margin(smooth))
+    p = p.astype(_F)  # the image keeps its dtype: only the windows are converted
     finite = jnp.all(jnp.isfinite(p))
     p = jnp.where(finite, p, 0.0)
     gx, gy = _gradient(p, smooth)
-    off = jnp.arange(-half, half + 1, dtype=jnp.float64)
-    px = cf[0] + off[None, :]
-    py = cf[1] + off[:, None]
+    off = jnp.arange(-half, half + 1, dtype=_F)
+    # pixel positions from the window's centre pixel cf: small numbers, no
+    # cancellation of large image coordinates in the sums
+    px = off[None, :]
+    py = off[:, None]
     disk = (off[None, :] ** 2 + off[:, None] ** 2) <= (half + 0.5) ** 2  # circular window: no preferred direction
     gxx, gxy, gyy = gx * gx, gx * gy, gy * gy
+    # The structure tensor is all an iteration reads: the weights and the right-hand
+    # side's positions are recomputed in the same pass (cheaper than reading them).
+    g3 = jnp.stack([gxx, gxy, gyy])
 
-    def solve(c):
+    def solve(c):  # c from cf
         d2 = (px - c[0]) ** 2 + (py - c[1]) ** 2
         # Gauss-Markov weight 1 / (d^2 + d0^2) of an equation with a position and a direction error
         lever = 1.0 if math.isinf(d0) else (exclude**2 + d0**2) / (jnp.maximum(d2, exclude**2) + d0**2)
         ramp = jnp.clip(jnp.sqrt(d2) - exclude + 1.0, 0.0, 1.0) * lever
-        w = jnp.where(disk, ramp, 0.0) if exclude > 0 else disk.astype(jnp.float64)
-        n = jnp.array([[jnp.sum(w * gxx), jnp.sum(w * gxy)], [jnp.sum(w * gxy), jnp.sum(w * gyy)]])
-        b = jnp.array([jnp.sum(w * (gxx * px + gxy * py)), jnp.sum(w * (gxy * px + gyy * py))])
+        w = jnp.where(disk, ramp, 0.0) if exclude > 0 else disk.astype(_F)
+        s = jnp.sum(g3 * w[None], axis=(1, 2))
+        n = jnp.array([[s[0], s[1]], [s[1], s[2]]])
+        b = jnp.sum(jnp.stack([g3[0] * px + g3[1] * py, g3[1] * px + g3[2] * py]) * w[None], axis=(1, 2))
         det = n[0, 0] * n[1, 1] - n[0, 1] ** 2
         tr = n[0, 0] + n[1, 1]
         safe = det > 1e-9 * tr**2
@@ -105,16 +114,16 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
         _, step, k, ok = state
         return (k < iterations) & (step > 1e-4) & ok
 
-    c0 = xy0 if exclude > 0 else cf
+    c0 = (xy0 - cf).astype(_F) if exclude > 0 else jnp.zeros(2, _F)
     c, step, k, _ = jax.lax.while_loop(cond, body, (jnp.where(jnp.isfinite(c0), c0, 0.0), jnp.inf, 0, True))
     _, n, det, tr, w = solve(c)
     # is there a point at all? Förstner's roundness of the plain window's structure matrix
-    ww = disk.astype(jnp.float64)
+    ww = disk.astype(_F)
     n0 = jnp.array([jnp.sum(ww * gxx), jnp.sum(ww * gxy), jnp.sum(ww * gyy)])
     tr0 = n0[0] + n0[2]
     q = 4.0 * (n0[0] * n0[2] - n0[1] ** 2) / jnp.where(tr0 > 0, tr0**2, 1.0)
     r = gx * (c[0] - px) + gy * (c[1] - py)
-    dof = jnp.maximum(jnp.sum(w > 1e-3) - 2, 1).astype(jnp.float64)
+    dof = jnp.maximum(jnp.sum(w > 1e-3) - 2, 1).astype(_F)
     s0sq = jnp.sum(w * r * r) / dof
     ninv = jnp.array([[n[1, 1], -n[0, 1]], [-n[0, 1], n[0, 0]]]) / jnp.where(det > 0, det, 1.0)
     cov = s0sq * ninv
@@ -125,7 +134,7 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
             tr0 <= 1e-12 * (1.0 + jnp.max(jnp.abs(p)) ** 2),
             q < q_min,
             ~(det > 1e-9 * tr**2) | (step > 1e-4),
-            jnp.max(jnp.abs(c - xy0)) > half,
+            jnp.max(jnp.abs(c.astype(jnp.float64) + cf - xy0)) > half,
         ],
         [
             Status.OUTSIDE,
@@ -137,10 +146,15 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
         ],
         Status.OK,
     )
-    return c, cov, status, jnp.sqrt(s0sq), k
+    f64 = jnp.float64
+    return c.astype(f64) + cf, cov.astype(f64), status, jnp.sqrt(s0sq).astype(f64), k
 
 
-@functools.partial(jax.jit, static_argnames=("half", "exclude", "iterations", "q_min", "smooth", "d0"))
+@functools.partial(
+    jax.jit,
+    static_argnames=("half", "exclude", "iterations", "q_min", "smooth", "d0"),
+    compiler_options={"xla_cpu_experimental_ynn_fusion_type": ""},
+)
 def _corners(images, xy, *, half, exclude, iterations, q_min, smooth, d0):
     one = functools.partial(
         _corner_one, half=half, exclude=exclude, iterations=iterations, q_min=q_min, smooth=smooth, d0=d0
@@ -194,6 +208,8 @@ def locate_corners(
         ``covariance = sigma0^2 N^-1`` (px^2), ``status`` and ``sigma0``
         (grey value x px).  Failed points (window outside the image, flat
         window, an edge only, no convergence) are NaN with ``valid = False``.
+        The windows are computed in float32 with positions relative to the
+        window's centre pixel (rounding ~1e-6 px); results are float64.
 
     Source: Förstner & Gülch (1987), "A fast operator for detection and
     precise location of distinct points, corners and centres of circular
@@ -205,7 +221,7 @@ def locate_corners(
         raise ValueError(f"exclude: must be >= 0, got {exclude}")
     if not d0 >= 0:
         raise ValueError(f"d0: must be >= 0, got {d0}")
-    images, batched = as_images(image)
+    images, batched = as_images(image, convert=False)
     check_window(2 * (window + _margin(smooth)) + 1, images.shape[1:])
     xy = as_points(approx_xy, images.shape[0], batched)
     res = _corners(

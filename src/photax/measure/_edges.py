@@ -32,12 +32,12 @@ def _edge_magnitude(image, edge, smooth, mode):
 
 @partial(jax.jit, static_argnames=("mode",))
 def _sobel(img, mode):
-    return _edge_magnitude(img.astype(jnp.float64), [-1.0, 0.0, 1.0], [0.25, 0.5, 0.25], mode)
+    return _edge_magnitude(img, [-1.0, 0.0, 1.0], [0.25, 0.5, 0.25], mode)
 
 
 @partial(jax.jit, static_argnames=("mode",))
 def _prewitt(img, mode):
-    return _edge_magnitude(img.astype(jnp.float64), [-1.0, 0.0, 1.0], [1 / 3, 1 / 3, 1 / 3], mode)
+    return _edge_magnitude(img, [-1.0, 0.0, 1.0], [1 / 3, 1 / 3, 1 / 3], mode)
 
 
 def sobel(image, *, mode: Mode = "reflect"):
@@ -101,6 +101,8 @@ def laplace(image, *, mode: Mode = "reflect"):
 
 @partial(jax.jit, static_argnames=("sigma", "mode", "truncate"))
 def _log(img, sigma, mode, truncate):
+    if not jnp.issubdtype(img.dtype, jnp.integer):  # integers are padded as they are, converted by the first pass
+        img = img.astype(jnp.float64)
     k0 = gaussian_kernel1d(sigma, 0, truncate)
     k2 = gaussian_kernel1d(sigma, 2, truncate)
     return correlate1d(correlate1d(img, k2, 0, mode), k0, 1, mode) + correlate1d(
@@ -149,7 +151,7 @@ def log(image, sigma: float = 2.0, *, threshold: float = 0.0, mode: Mode = "refl
         is closer to zero), both of the shape of ``image``.  A constant
         image gives a zero response and no edge.
     """
-    img, b = as_image(image)
+    img, b = as_image(image, convert=False)
     sigma = float(sigma)
     if not sigma > 0:
         raise ValueError(f"sigma: expected a positive number, got {sigma!r}")

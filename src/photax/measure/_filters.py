@@ -55,15 +55,19 @@ def correlate1d(
             raise ValueError(f"image: {image.shape[axis]} px along axis {axis} is less than the kernel's {n}")
     else:
         c = n // 2 + origin
+        if mode == "constant" and cval != 0.0:
+            image = image.astype(jnp.float64)  # cval need not be an integer grey value
         widths = [(0, 0), (0, 0)]
         widths[axis] = (c, n - 1 - c)
         p = pad(image, widths, mode, cval)
         size = image.shape[axis]
+    if not jnp.issubdtype(p.dtype, jnp.floating):  # an integer image is padded as it is, converted here (fused)
+        p = p.astype(jnp.float64)
     out = None
     for j, wj in enumerate(weights):
         if wj == 0.0:
             continue
-        term = jax.lax.slice_in_dim(p, j, j + size, axis=axis) * wj
+        term = jax.lax.slice_in_dim(p, j, j + size, axis=axis) * float(wj)  # a Python float keeps the image's dtype
         out = term if out is None else out + term
     if out is None:
         return jnp.zeros_like(jax.lax.slice_in_dim(p, 0, size, axis=axis))
@@ -82,7 +86,7 @@ def correlate2d(image: jax.Array, kernel, mode: Mode = "reflect", cval: float = 
         for j in range(kw):
             if kernel[i, j] == 0.0:
                 continue
-            term = p[i : i + h, j : j + w] * kernel[i, j]
+            term = p[i : i + h, j : j + w] * float(kernel[i, j])
             out = term if out is None else out + term
     return jnp.zeros_like(image) if out is None else out
 
@@ -130,7 +134,11 @@ def sobel_pair(image: jax.Array, mode: Mode = "reflect", cval: float = 0.0, smoo
     """``(d_rows, d_cols)``: ``[-1 0 1]`` along the axis times ``smooth``
     across it, from one padded copy so XLA fuses both into a single pass."""
     h, w = image.shape
-    p = pad(image, [(1, 1), (1, 1)], mode, cval)
+    # an integer image is padded as it is (a quarter of the float64 copy's bytes) and
+    # converted inside the fused stencil
+    if mode == "constant" and cval != 0.0:
+        image = image.astype(jnp.float64)  # cval is not an integer grey value
+    p = pad(image, [(1, 1), (1, 1)], mode, cval).astype(jnp.float64)
 
     def s(dr, dc):
         return p[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
@@ -184,9 +192,10 @@ def _gradient2d(image, method, mode, sigma=1.0):
         if mode == "valid":  # the other axis loses its margin too, so gx and gy share a shape
             return (correlate1d(image[1:-1, :], diff, 1, mode), correlate1d(image[:, 1:-1], diff, 0, mode))
         return correlate1d(image, diff, 1, mode), correlate1d(image, diff, 0, mode)
-    gx = correlate1d(correlate1d(image, diff, 1, mode), smooth, 0, mode)
-    gy = correlate1d(correlate1d(image, diff, 0, mode), smooth, 1, mode)
-    return gx, gy
+    # Materialise the first pass (padding does it in the other modes): fused, XLA
+    # would recompute it for every tap of the second, len(smooth) x the work.
+    first = jax.lax.optimization_barrier((correlate1d(image, diff, 1, mode), correlate1d(image, diff, 0, mode)))
+    return correlate1d(first[0], smooth, 0, mode), correlate1d(first[1], smooth, 1, mode)
 
 
 def gradient(

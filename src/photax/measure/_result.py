@@ -116,14 +116,18 @@ def finish(xy, cov, status, sigma0, iterations) -> LocateResult:
 # --------------------------------------------------------------------------- input handling shared by the locators
 
 
-def as_images(image, name: str = "image") -> tuple[Array, bool]:
+def as_images(image, name: str = "image", *, convert: bool = True) -> tuple[Array, bool]:
     """``image`` ``(h, w)`` or ``(b, h, w)``, any int/float dtype -> float64 ``(b, h, w)``
-    and whether it was batched."""
+    and whether it was batched.  ``convert=False`` keeps the dtype (and a numpy
+    image on the host) for callers that convert only the windows they read: a
+    float64 copy of a 4-MPix image costs more than 1,000 corner windows."""
     arr = np.asarray(image) if not isinstance(image, jnp.ndarray) else image
     if arr.dtype == bool or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         raise ValueError(f"{name}: expected an integer or float image, got dtype {arr.dtype}")
     if arr.ndim not in (2, 3):
         raise ValueError(f"{name}: expected shape (h, w) or a batch (b, h, w), got {arr.shape}")
+    if not convert:
+        return (arr if arr.ndim == 3 else arr[None]), arr.ndim == 3
     img = jnp.asarray(arr, dtype=jnp.float64)
     return (img if arr.ndim == 3 else img[None]), arr.ndim == 3
 
