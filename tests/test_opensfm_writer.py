@@ -197,3 +197,22 @@ def test_real_odm_reconstruction_round_trip(tmp_path):
     for name, eo in shots.items():
         np.testing.assert_allclose(np.asarray(shots2[name].position), np.asarray(eo.position), rtol=0, atol=1e-6)
         np.testing.assert_allclose(np.asarray(shots2[name].angles), np.asarray(eo.angles), rtol=0, atol=1e-9)
+
+
+def test_real_odm_shots_through_the_topocentric_frame(tmp_path):
+    """ODM's shots (grid frame) written in OpenSfM's topocentric frame: read back the
+    same, and photax's orientation reader (what ``photax ortho --exterior`` uses)
+    finds them in the written file."""
+    from conftest import shared_file
+
+    from photax.io import read_exteriors
+
+    src = shared_file("orthority/odm/opensfm/reconstruction.json")
+    cameras = read_opensfm_cameras(src)
+    shots, crs, image_cameras = read_opensfm_shots(src)
+    path = write_opensfm_reconstruction(tmp_path / "r.json", cameras, shots, crs, None, "topocentric", image_cameras)
+    back, back_crs = read_exteriors(path, list(shots), crs=crs)
+    assert back_crs == crs
+    for name, eo in shots.items():
+        np.testing.assert_allclose(np.asarray(back[name].position), np.asarray(eo.position), rtol=0, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(back[name].rotation), np.asarray(eo.rotation), rtol=0, atol=1e-9)
