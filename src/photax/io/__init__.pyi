@@ -37,8 +37,11 @@ from .metashape import write_metashape_calibration as write_metashape_calibratio
 from .metashape import write_opk_export as write_opk_export
 from .odm import read_odm_cameras as read_odm_cameras
 from .odm import read_odm_geo as read_odm_geo
+from .odm import write_odm_cameras as write_odm_cameras
+from .opensfm import camera_to_opensfm as camera_to_opensfm
 from .opensfm import read_opensfm_cameras as read_opensfm_cameras
 from .opensfm import read_opensfm_shots as read_opensfm_shots
+from .opensfm import write_opensfm_reconstruction as write_opensfm_reconstruction
 from .orientation import (
     block_images as block_images,
 )

@@ -140,3 +140,18 @@ def reproject(xyz, source, target) -> tuple[np.ndarray, np.ndarray]:
     out = project_lla(lat, lon, h, target)
     turn = grid_from_enu(lat, lon, target) @ np.swapaxes(grid_from_enu(lat, lon, source), -1, -2)
     return out, turn
+
+
+def projected_to_topocentric(xyz, reference_lla, crs) -> np.ndarray:
+    """``(..., 3)`` positions in the projected ``crs`` -> the topocentric (east-north-up)
+    frame at ``reference_lla`` = ``(lat, lon, h)``, exactly (through geodetic and
+    geocentric coordinates): the inverse of :func:`topocentric_to_projected`'s positions."""
+    import pyproj
+
+    lat0, lon0, h0 = _check_lla(*reference_lla, "reference_lla")
+    xyz = np.asarray(xyz, dtype=float)
+    t = pyproj.Transformer.from_crs(crs, "EPSG:4979", always_xy=True)
+    lon, lat, h = (np.asarray(v) for v in t.transform(xyz[..., 0], xyz[..., 1], xyz[..., 2]))
+    if not (np.all(np.isfinite(lat)) and np.all(np.isfinite(lon)) and np.all(np.isfinite(h))):
+        raise ValueError(f"positions outside the area of {crs.name!r}")
+    return (ecef(lat, lon, h) - ecef(lat0, lon0, h0)) @ ecef_from_enu(lat0, lon0)

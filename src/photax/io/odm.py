@@ -47,6 +47,26 @@ def read_odm_cameras(path) -> dict[str, FrameCamera]:
     return {str(name): _camera(path, name, p) for name, p in data.items()}
 
 
+def write_odm_cameras(path, cameras, *, inputs=()) -> pathlib.Path:
+    """Write ``cameras`` (``{camera id: FrameCamera}``, or one camera, named
+    ``"photax_camera"``) as ODM's ``cameras.json`` (``--cameras``);
+    :func:`photax.io.read_odm_cameras` reads back the same cameras (in pixels).
+    Written atomically; ``inputs`` may not be overwritten.
+
+    Raises:
+        ValueError: a camera OpenSfM cannot hold (:func:`photax.io.opensfm.camera_to_opensfm`).
+    """
+    import json
+
+    from .atomic import atomic_write
+    from .opensfm import _opensfm_cameras
+
+    data = _opensfm_cameras(cameras)
+    with atomic_write(path, inputs=inputs) as fh:
+        json.dump(data, fh, indent=4)
+    return pathlib.Path(path)
+
+
 def is_odm_cameras(data) -> bool:
     """Whether parsed JSON looks like ODM's ``cameras.json``."""
     return (

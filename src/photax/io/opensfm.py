@@ -44,6 +44,15 @@ orthority 0.7's reader of the same file:
 
   The grid's scale factor (1 +- 4e-4 within a UTM zone) is not applied to
   the camera.
+* **Writing** (:func:`write_opensfm_reconstruction`, ODM's ``cameras.json``:
+  :func:`photax.io.odm.write_odm_cameras`) is the inverse: a ``brown`` (or ``opencv``
+  without its extra terms) camera as ``brown``, a ``fisheye`` one as OpenSfM's
+  ``fisheye`` where it has one focal length, a centred principal point and
+  ``k3 = k4 = 0`` (the one fisheye orthority reads), else ``fisheye_opencv``;
+  shots in the frame named (``"topocentric"`` or ``"grid"``), each with a
+  ``gps_position``: the camera's own position in the topocentric frame (what
+  ODM's hold), so that a reader deciding the frame by it (photax's) finds the
+  frame written.  ``points`` is empty.
 """
 
 from __future__ import annotations
@@ -52,10 +61,17 @@ import pathlib
 
 import numpy as np
 
-from ..camera import FrameCamera, from_opencv_extrinsics
+from ..camera import DISTORTION_MODELS, FrameCamera, from_opencv_extrinsics, opencv_extrinsics
 from ..collinearity import ExteriorOrientation
-from ..rotation import angles_from_matrix, axis_angle_to_matrix
-from ._geo import project_lla, projected_crs, reproject, topocentric_to_projected, utm_crs
+from ..rotation import angles_from_matrix, axis_angle_to_matrix, matrix_to_axis_angle
+from ._geo import (
+    project_lla,
+    projected_crs,
+    projected_to_topocentric,
+    reproject,
+    topocentric_to_projected,
+    utm_crs,
+)
 from .files import as_numbers, excerpt, file_error, load_json, read_text
 
 _WHAT = "OpenSfM reconstruction"
@@ -271,3 +287,164 @@ def _to_grid(centre, r_frame, gps, lla, crs, frame):
         return xyz, rotation
     xyz, turn = reproject(xyz, utm, crs)
     return xyz, turn @ rotation
+
+
+def camera_to_opensfm(camera: FrameCamera) -> dict:
+    """The OpenSfM camera entry of ``camera`` (the inverse of the reader's, module
+    docstring): normalised focal lengths and principal point, OpenCV's ``p1``.
+
+    Raises:
+        ValueError: a camera without a pixel grid, a scanned one, or an
+            ``opencv`` camera with terms beyond OpenSfM's ``brown`` (k4-k6, s1-s4).
+    """
+    if camera.pixel_size is None or camera.image_size is None or getattr(camera, "transform", None) is not None:
+        raise ValueError("an OpenSfM camera needs a pixel grid (pixel_size and image_size) and no scan transform")
+    (w, h), (sx, sy) = camera.image_size, (float(v) for v in np.asarray(camera.pixel_size))
+    x0, y0 = (float(v) for v in np.asarray(camera.principal_point))
+    f, m = float(camera.focal_length), max(w, h)
+    dist = dict(zip(DISTORTION_MODELS[camera.model], np.asarray(camera.distortion, dtype=float).tolist()))
+    if camera.model == "opencv" and any(dist[k] != 0 for k in ("k4", "k5", "k6", "s1", "s2", "s3", "s4")):
+        raise ValueError(
+            "OpenSfM has no camera for OpenCV's k4-k6 and s1-s4 terms: this camera has them "
+            "(an 'opencv' camera without them is written as 'brown')"
+        )
+    out = {"projection_type": "brown", "width": int(w), "height": int(h)}
+    focal = {"focal_x": f / sx / m, "focal_y": f / sy / m}
+    centre = {"c_x": x0 / (sx * m), "c_y": -y0 / (sy * m)}
+    if camera.model == "fisheye":
+        if sx == sy and x0 == 0 and y0 == 0 and dist["k3"] == 0 and dist["k4"] == 0:
+            return {**out, "projection_type": "fisheye", "focal": focal["focal_x"], "k1": dist["k1"], "k2": dist["k2"]}
+        return {
+            **out,
+            "projection_type": "fisheye_opencv",
+            **focal,
+            **centre,
+            **{f"k{i}": dist[f"k{i}"] for i in range(1, 5)},
+        }
+    brown = {k: dist[k] for k in ("k1", "k2", "k3", "p2")}
+    return {**out, **focal, **centre, **brown, "p1": 0.0 - dist["p1"]}
+
+
+def _opensfm_cameras(cameras) -> dict[str, dict]:
+    if isinstance(cameras, FrameCamera):
+        cameras = {"photax_camera": cameras}
+    if not cameras:
+        raise ValueError("no cameras to write")
+    out = {}
+    for name, cam in cameras.items():
+        try:
+            out[str(name)] = camera_to_opensfm(cam)
+        except ValueError as exc:
+            raise ValueError(f"camera {excerpt(name)}: {exc}") from None
+    return out
+
+
+def write_opensfm_reconstruction(
+    path,
+    cameras,
+    exteriors,
+    crs,
+    reference_lla=None,
+    frame: str = "topocentric",
+    image_cameras=None,
+    *,
+    inputs=(),
+) -> pathlib.Path:
+    """Write cameras and orientations as an OpenSfM/ODM ``reconstruction.json``: a
+    list of one reconstruction with ``cameras``, ``shots``, ``reference_lla`` and
+    no ``points`` (module docstring).  :func:`read_opensfm_cameras` and
+    :func:`read_opensfm_shots` read back the same cameras (in pixels) and
+    orientations; orthority reads it too (``frame="grid"`` is the frame it assumes).
+
+    Args:
+        path: the file (written atomically; ``inputs`` may not be overwritten).
+        cameras: ``{camera name: FrameCamera}``, or one camera (named ``"photax_camera"``).
+        exteriors: ``{image name: ExteriorOrientation}`` (any convention) in ``crs``.
+        crs: the projected CRS of the positions.
+        reference_lla: ``(latitude, longitude, altitude)`` (WGS84, degrees, ellipsoidal
+            metres) of the reconstruction's origin; default the geodetic position of
+            the cameras' mean.
+        frame: ``"topocentric"`` (OpenSfM's) or ``"grid"`` (ODM's and orthority's:
+            the UTM grid of ``reference_lla``, offsets from it).
+        image_cameras: ``{image name: camera name}``; may be left out with one camera.
+
+    Raises:
+        ValueError: no orientations, a camera OpenSfM cannot hold, an image without a
+            camera, two images of one name, a CRS that is not projected, a bad frame.
+    """
+    import json
+
+    from .atomic import atomic_write
+
+    if frame not in ("topocentric", "grid"):
+        raise ValueError(f"frame must be 'topocentric' or 'grid', got {frame!r}")
+    osfm_cameras = _opensfm_cameras(cameras)
+    if not exteriors:
+        raise ValueError("no orientations to write")
+    names = [str(n) for n in exteriors]
+    stems = [pathlib.PurePath(n).stem for n in names]
+    if len(set(stems)) != len(stems) or not all(stems):
+        raise ValueError("image names must be non-empty and differ without their extensions (read back by stem)")
+    if image_cameras is None:
+        if len(osfm_cameras) != 1:
+            raise ValueError(f"{len(osfm_cameras)} cameras: image_cameras must say which image uses which")
+        image_cameras = dict.fromkeys(names, next(iter(osfm_cameras)))
+    shot_cameras = {}
+    for name in exteriors:
+        cam = image_cameras.get(name)
+        if cam is None or str(cam) not in osfm_cameras:
+            raise ValueError(f"image {excerpt(name)}: camera {excerpt(cam)} is not among the cameras written")
+        shot_cameras[str(name)] = str(cam)
+    target = projected_crs(crs, "crs")
+    xyz = np.asarray([np.asarray(eo.position, dtype=float) for eo in exteriors.values()])
+    rotation = np.asarray([np.asarray(eo.rotation, dtype=float) for eo in exteriors.values()])
+    if xyz.shape != (len(names), 3) or not (np.all(np.isfinite(xyz)) and np.all(np.isfinite(rotation))):
+        raise ValueError("every orientation must be one finite position and attitude")
+    if reference_lla is None:
+        lon, lat, h = _to_lla(xyz.mean(axis=0), target)
+        reference_lla = (lat, lon, h)
+    lla = np.asarray(reference_lla, dtype=float)
+    if lla.shape != (3,) or not np.all(np.isfinite(lla)) or abs(lla[0]) > 90 or abs(lla[1]) > 180:
+        raise ValueError(f"reference_lla must be a latitude, longitude and altitude, got {reference_lla!r}")
+    centre, r_frame, gps = _from_grid(xyz, rotation, lla, target, frame)
+    r_cv, t = opencv_extrinsics(r_frame, centre)
+    rvec = np.asarray(matrix_to_axis_angle(r_cv), dtype=float)
+    shots = {
+        name: {
+            "rotation": rvec[j].tolist(),
+            "translation": t[j].tolist(),
+            "camera": shot_cameras[name],
+            "gps_position": gps[j].tolist(),
+        }
+        for j, name in enumerate(names)
+    }
+    ref = dict(zip(("latitude", "longitude", "altitude"), lla.tolist()))
+    data = [{"cameras": osfm_cameras, "shots": shots, "reference_lla": ref, "points": {}}]
+    with atomic_write(path, inputs=inputs) as fh:
+        json.dump(data, fh, indent=4)
+    return pathlib.Path(path)
+
+
+def _to_lla(xyz, crs) -> tuple[float, float, float]:
+    import pyproj
+
+    t = pyproj.Transformer.from_crs(crs, "EPSG:4979", always_xy=True)
+    lon, lat, h = (float(v) for v in t.transform(*xyz))
+    if not all(np.isfinite((lon, lat, h))):
+        raise ValueError(f"positions outside the area of {crs.name!r}")
+    return lon, lat, h
+
+
+def _from_grid(xyz, rotation, lla, crs, frame):
+    """Projected positions and world_from_camera rotations in ``crs`` -> shot centres,
+    rotations and topocentric GNSS positions in the reconstruction's ``frame``: the
+    inverse of :func:`_to_grid`."""
+    utm = utm_crs(lla[0], lla[1])
+    if crs != utm:
+        xyz, turn = reproject(xyz, crs, utm)
+        rotation = turn @ rotation
+    topo = projected_to_topocentric(xyz, lla, utm)
+    if frame == "grid":
+        return xyz - project_lla(*lla, utm), rotation, topo
+    grid_from_topo = topocentric_to_projected(topo, lla, utm)[1]
+    return topo, np.swapaxes(grid_from_topo, -1, -2) @ rotation, topo
