@@ -171,7 +171,7 @@ def _sensor(exterior, camera, dem: DEM, crs):
     if isinstance(camera, RPCSensor):
         return camera, camera.crs
     if exterior is None and crs is None and not isinstance(camera, FrameCamera):
-        crs = utm_crs(*np.asarray(camera.offsets[:2]))
+        crs = utm_crs(*camera.ground_box()[0])
     sensor = sensor_of(exterior, camera, crs)
     return sensor, (crs if crs is not None else dem.crs)
 
