@@ -117,3 +117,13 @@ def test_pushbroom_ortho_dask_equals_whole(setup):
     got = np.asarray(lazy.compute())
     np.testing.assert_array_equal(np.isfinite(got), np.isfinite(whole))
     np.testing.assert_allclose(got, whole, rtol=0, atol=1e-9)
+
+
+def test_pushbroom_ortho_defaults_and_bad_input(setup):
+    """The default grid CRS is the scene's UTM zone; an exterior orientation or a missing CRS is refused."""
+    scene, _, dem, crs, _, _ = setup
+    assert ortho_grid(None, scene.camera, dem, 20.0).crs == crs
+    with pytest.raises(ValueError, match="carries its own orientation"):
+        sensor_of(object(), scene.camera, crs)
+    with pytest.raises(ValueError, match="needs the output grid's CRS"):
+        sensor_of(None, scene.camera, None)
