@@ -192,6 +192,7 @@ from .scene import Scene as Scene
 from .scene import pushbroom_scene as pushbroom_scene
 from .scene import relief_scene as relief_scene
 from .sensor import FrameSensor as FrameSensor
+from .sensor import GroundCamera as GroundCamera
 from .sensor import RPCSensor as RPCSensor
 from .sensor import utm_crs as utm_crs
 from .uncertainty import OrthoUncertainty as OrthoUncertainty

@@ -171,7 +171,7 @@ def _sensor(exterior, camera, dem: DEM, crs):
     if isinstance(camera, RPCSensor):
         return camera, camera.crs
     if exterior is None and crs is None and not isinstance(camera, FrameCamera):
-        crs = utm_crs(*np.asarray(camera.offsets[:2]))
+        crs = utm_crs(*camera.ground_box()[0])
     sensor = sensor_of(exterior, camera, crs)
     return sensor, (crs if crs is not None else dem.crs)
 
@@ -220,6 +220,7 @@ def ortho_grid(
     An RPC camera (``exterior=None``, ``camera`` an :class:`photax.rpc.RPCCamera`): the outline is
     cut with the DEM by :meth:`~photax.rpc.RPCCamera.to_ground_dem`, in any ``crs`` (default the
     UTM zone of the scene's centre); the DEM may be in another CRS (its bounds are transformed).
+    Likewise a :class:`photax.PushbroomCamera` (any :class:`photax.sensor.GroundCamera`).
     """
     sensor, crs = _sensor(exterior, camera, dem, crs)
     ground, px = _footprint_outline(sensor, dem, per_side)

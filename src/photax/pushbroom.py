@@ -174,6 +174,34 @@ class PushbroomCamera(eqx.Module):
 
     project = __call__
 
+    # the ground-camera protocol of photax.sensor (shared with photax.RPCCamera)
+
+    #: Heights (m) whose footprints bound :meth:`ground_box`: the earth's surface lies between them.
+    BOX_HEIGHTS = (-500.0, 9000.0)
+
+    def ground_box(self):
+        """``((lon, lat), (dlon, dlat))``: centre and half-sides (deg) of the box holding the image's
+        outline on the ground at every height of :attr:`BOX_HEIGHTS` (the area an ortho can reach)."""
+        w, lines = self.image_size
+        t = np.linspace(0.0, 1.0, 9)
+        x1, y1 = w - 0.5, lines - 0.5
+        edge = np.concatenate(
+            [np.stack([t * (x1 + 0.5) - 0.5, np.full_like(t, v)], -1) for v in (-0.5, y1)]
+            + [np.stack([np.full_like(t, v), t * (y1 + 0.5) - 0.5], -1) for v in (-0.5, x1)]
+        )
+        ll = np.concatenate([np.asarray(self.to_ground(jnp.asarray(edge), h)) for h in self.BOX_HEIGHTS])
+        if not np.all(np.isfinite(ll)):
+            raise ValueError("the push-broom image's outline does not reach the ground (looks above the horizon)")
+        lo, hi = ll.min(0), ll.max(0)
+        return (lo + hi) / 2, (hi - lo) / 2
+
+    height_range = None  # a rigorous model serves any height
+
+    def invert(self, pixel: Array, h: Array):
+        """``(n, 2)`` pixels at ``(n,)`` heights -> ``((n, 2)`` lon, lat, ``(n,)`` converged); jittable."""
+        ll = _to_ground(self, pixel, h)
+        return ll, jnp.all(jnp.isfinite(ll), axis=-1)
+
     def ray(self, pixel: Array) -> tuple[Array, Array]:
         """``(..., 2)`` column, row -> projection centres ``(..., 3)`` and unit ray directions ``(..., 3)`` (ECEF)."""
         pixel = jnp.asarray(pixel, dtype=jnp.float64)

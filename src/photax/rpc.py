@@ -168,6 +168,22 @@ class RPCCamera(eqx.Module):
 
     project = __call__
 
+    # the ground-camera protocol of photax.sensor (shared with photax.PushbroomCamera)
+
+    def ground_box(self):
+        """``((lon, lat), (dlon, dlat))``: the validity box's centre and half-sides (deg): offsets +- scales."""
+        return np.asarray(self.offsets[:2]), np.asarray(self.scales[:2])
+
+    @property
+    def height_range(self) -> tuple[float, float]:
+        """The heights the RPC was fitted for (m): height offset +- scale."""
+        off, scale = float(self.offsets[2]), float(self.scales[2])
+        return off - scale, off + scale
+
+    def invert(self, pixel: Array, h: Array):
+        """``(n, 2)`` pixels at ``(n,)`` heights -> ``((n, 2)`` lon, lat, ``(n,)`` converged); jittable."""
+        return newton_inverse(self, pixel, h)
+
     def to_ground(self, pixel: Array, height, *, max_steps: int = 20, tol: float = 1e-12):
         """``(..., 2)`` column, row and ellipsoidal height(s) ``(...)`` -> ``(..., 2)`` lon, lat (deg).
 

@@ -13,10 +13,14 @@ Two kinds (:func:`sensor_of` picks one from what the user holds):
 
 * :class:`FrameSensor`: an exterior orientation and a :class:`photax.FrameCamera`, the collinearity
   equations in the orientation's (projected) CRS, which is the grid's and the DEM's.
-* :class:`RPCSensor`: a :class:`photax.rpc.RPCCamera` (refined or not) and the grid's CRS. The RPC
-  works in lon, lat (WGS84 degrees) and ellipsoidal height; the grid's ``(X, Y)`` are transformed to
+* :class:`RPCSensor`: a *ground camera* and the grid's CRS. A ground camera works in lon, lat (WGS84
+  degrees) and ellipsoidal height: a :class:`photax.rpc.RPCCamera` (refined or not) or a
+  :class:`photax.PushbroomCamera`; it has ``__call__(lon_lat_h) -> (column, row)``, ``image_size``,
+  ``ground_box()`` (its validity box: centre and half-sides in degrees), ``height_range`` (its
+  heights, or None for any), ``invert(pixel, h) -> (lon_lat, converged)`` (jittable) and
+  ``to_ground(pixel, h)`` (:class:`GroundCamera`). The grid's ``(X, Y)`` are transformed to
   lon, lat by pyproj (through a :class:`LocalTransform`: a degree-5 polynomial fitted over the
-  RPC's validity box and checked to 1e-9 of its extent), ``Z`` is passed on as the ellipsoidal
+  camera's validity box and checked to 1e-9 of its extent), ``Z`` is passed on as the ellipsoidal
   height. A DEM on a geoid (EGM96, EGM2008: most national DEMs, SRTM) must be converted first: taken
   as ellipsoidal, a height error ``dN`` (the geoid undulation, up to +-100 m) moves the imaged point
   by ``dN tan(off-nadir angle)`` on the ground. The DEM may be in another CRS than the grid: it is
@@ -27,6 +31,7 @@ Two kinds (:func:`sensor_of` picks one from what the user holds):
 from __future__ import annotations
 
 import warnings
+from typing import Protocol, runtime_checkable
 
 import equinox as eqx
 import jax
@@ -38,7 +43,6 @@ from ._aot import disk_cached
 from .camera import FrameCamera, distort, distortion_jacobian
 from .collinearity import ExteriorOrientation, image_to_ground
 from .dem import DEM
-from .rpc import RPCCamera, newton_inverse
 
 WGS84 = "EPSG:4326"
 # An RPC is evaluated within its validity volume (offsets +- scales) widened by this factor; beyond,
@@ -178,28 +182,47 @@ class FrameSensor(eqx.Module):
         return np.where(np.isfinite(ground), ground, flat)[:, :2]
 
 
-class RPCSensor(eqx.Module):
-    """An RPC camera seen from a map CRS (module docstring): ground ``(X, Y)`` of ``crs`` -> lon, lat
-    (a :class:`LocalTransform` fitted over the RPC's validity box), ``Z`` the ellipsoidal height; NaN
-    outside the RPC's lon, lat validity range widened by :data:`RPC_MARGIN` (heights beyond theirs are
-    extrapolated: :func:`check_rpc_dem` warns)."""
+@runtime_checkable
+class GroundCamera(Protocol):
+    """What :class:`RPCSensor` asks of a camera whose ground is lon, lat (deg) and ellipsoidal height
+    (m): :class:`photax.rpc.RPCCamera`, :class:`photax.PushbroomCamera`."""
 
-    camera: RPCCamera
+    image_size: tuple[int, int] | None
+
+    def __call__(self, ground: Array) -> Array: ...  # (..., 3) lon, lat, h -> (..., 2) column, row
+
+    def ground_box(self) -> tuple[np.ndarray, np.ndarray]: ...  # (lon, lat) centre, half-sides (deg)
+
+    def invert(self, pixel: Array, h: Array) -> tuple[Array, Array]: ...  # jittable, (n, 2), (n,)
+
+    def to_ground(self, pixel: Array, height) -> Array: ...  # (..., 2) -> (..., 2) lon, lat, NaN if not found
+
+
+class RPCSensor(eqx.Module):
+    """A ground camera (:class:`GroundCamera`: an RPC, a push-broom model) seen from a map CRS (module
+    docstring): ground ``(X, Y)`` of ``crs`` -> lon, lat (a :class:`LocalTransform` fitted over the
+    camera's validity box), ``Z`` the ellipsoidal height; NaN outside the lon, lat validity box widened
+    by :data:`RPC_MARGIN` (an RPC's heights beyond its range are extrapolated: :func:`check_rpc_dem` warns)."""
+
+    camera: GroundCamera
     to_lonlat: LocalTransform
+    centre: Array  # (2,) lon, lat of the camera's validity box (GroundCamera.ground_box)
+    half: Array  # (2,) its half-sides (deg)
     crs: str = eqx.field(static=True)
 
-    def __init__(self, camera: RPCCamera, crs):
+    def __init__(self, camera: GroundCamera, crs):
         if crs is None:
-            raise ValueError("an RPC camera needs the output grid's CRS (its ground is lon, lat)")
+            raise ValueError(f"an {type(camera).__name__} needs the output grid's CRS (its ground is lon, lat)")
         self.camera = camera
         self.crs = _crs_text(crs)
+        self.centre, self.half = (jnp.asarray(v, dtype=jnp.float64) for v in camera.ground_box())
         self.to_lonlat = LocalTransform.fit(self.crs, WGS84, self.box())
 
     def box(self, margin: float = 1.2):
-        """The RPC's lon, lat validity box (offsets +- ``margin`` scales) as bounds of ``crs``."""
+        """The camera's lon, lat validity box (an RPC's offsets +- ``margin`` scales) as bounds of ``crs``."""
         from rasterio.warp import transform_bounds
 
-        (lon, lat), (dl, dp) = np.asarray(self.camera.offsets[:2]), margin * np.asarray(self.camera.scales[:2])
+        (lon, lat), (dl, dp) = np.asarray(self.centre), margin * np.asarray(self.half)
         return transform_bounds(WGS84, self.crs, lon - dl, lat - dp, lon + dl, lat + dp, densify_pts=21)
 
     @property
@@ -210,21 +233,21 @@ class RPCSensor(eqx.Module):
         ground = jnp.asarray(ground, dtype=jnp.float64)
         llh = jnp.concatenate([self.to_lonlat(ground[..., :2]), ground[..., 2:3]], axis=-1)
         lead = (1,) * (ground.ndim - 1)
-        norm = (llh - self.camera.offsets[:3].reshape(*lead, 3)) / self.camera.scales[:3].reshape(*lead, 3)
-        ok = jnp.all(jnp.abs(norm[..., :2]) <= RPC_MARGIN, axis=-1)  # heights beyond: extrapolated
+        off = jnp.abs(llh[..., :2] - self.centre.reshape(*lead, 2)) / self.half.reshape(*lead, 2)
+        ok = jnp.all(off <= RPC_MARGIN, axis=-1)  # heights beyond: extrapolated
         return jnp.where(ok[..., None], self.camera(llh), jnp.nan)
 
     def footprint(self, pixel, dem: DEM) -> np.ndarray:
         """Pixels -> map ``(X, Y)`` on the DEM: :meth:`RPCCamera.to_ground_dem`'s fixed-point iteration
-        in one compiled loop (the DEM's CRS reached by a :class:`LocalTransform`), to 1 mm (the
+        (with the camera's ``invert``) in one compiled loop (the DEM's CRS reached by a :class:`LocalTransform`), to 1 mm (the
         outline only bounds the grid); at the DEM's mean height where it fails (off the DEM, or no
         convergence: counted in a warning)."""
         pixel = np.asarray(pixel, dtype=float)
         to_dem = None
         if dem.crs is not None and not _same(dem.crs, WGS84):
-            (lon, lat), (dl, dp) = np.asarray(self.camera.offsets[:2]), 1.2 * np.asarray(self.camera.scales[:2])
+            (lon, lat), (dl, dp) = np.asarray(self.centre), 1.2 * np.asarray(self.half)
             to_dem = LocalTransform.fit(WGS84, _crs_text(dem.crs), (lon - dl, lat - dp, lon + dl, lat + dp))
-        h0 = jnp.full(len(pixel), float(self.camera.offsets[2]))
+        h0 = jnp.full(len(pixel), _start_height(self.camera, dem))
         llh, status = (np.asarray(v) for v in _on_dem_cached(self.camera, to_dem, dem, jnp.asarray(pixel), h0))
         failed = status >= 2
         if failed.any():
@@ -236,11 +259,19 @@ class RPCSensor(eqx.Module):
         miss = status != 0
         if miss.any():
             h = np.asarray(dem.heights)
-            mean = float(np.nanmean(h)) if np.isfinite(h).any() else float(self.camera.offsets[2])
+            mean = float(np.nanmean(h)) if np.isfinite(h).any() else _start_height(self.camera, dem)
             llh[miss, :2] = np.asarray(self.camera.to_ground(pixel[miss], mean))
         if not np.isfinite(llh[:, :2]).all():
             raise ValueError("the RPC's inverse does not converge on the image outline: is the RPC valid?")
         return _pyproj(llh[:, :2], WGS84, self.crs)
+
+
+def _start_height(camera: GroundCamera, dem: DEM) -> float:
+    """Where the height iteration starts: the middle of the camera's height range, else the DEM's mean (or 0)."""
+    if getattr(camera, "height_range", None) is not None:
+        return float(np.mean(camera.height_range))
+    h = np.asarray(dem.heights)
+    return float(np.nanmean(h)) if np.isfinite(h).any() else 0.0
 
 
 def _same(a, b) -> bool:
@@ -250,13 +281,13 @@ def _same(a, b) -> bool:
 
 
 @eqx.filter_jit
-def _on_dem(camera: RPCCamera, to_dem, dem: DEM, pixel: Array, h: Array, max_steps: int = 50, tol: float = 1e-3):
+def _on_dem(camera: GroundCamera, to_dem, dem: DEM, pixel: Array, h: Array, max_steps: int = 50, tol: float = 1e-3):
     """``(n, 3)`` lon, lat, h on the DEM of ``(n, 2)`` pixels and ``(n,)`` status (0 converged, 1 off
     the DEM, 2 inverse not converged, 3 height not settled): the iteration of
     :meth:`RPCCamera.to_ground_dem_status`, compiled."""
 
     def step(h):
-        ll, ok = newton_inverse(camera, pixel, h)
+        ll, ok = camera.invert(pixel, h)
         xy = ll if to_dem is None else to_dem(ll)
         new = dem.height(xy[:, 0], xy[:, 1])
         return ll, ok, new
@@ -285,16 +316,19 @@ _on_dem_cached = disk_cached(_on_dem, "rpc_outline_on_dem")
 
 
 def sensor_of(exterior, camera, crs=None):
-    """The sensor of an image: ``(exterior, FrameCamera)``, or ``(None, RPCCamera)`` with ``crs`` the
-    map CRS of the ground points (the output grid's)."""
+    """The sensor of an image: ``(exterior, FrameCamera)``, or ``(None, ground camera)`` (an
+    ``RPCCamera``, a ``PushbroomCamera``: :class:`GroundCamera`) with ``crs`` the map CRS of the
+    ground points (the output grid's)."""
     if isinstance(camera, (FrameSensor, RPCSensor)):
         return camera
-    if isinstance(camera, RPCCamera):
+    if not isinstance(camera, FrameCamera) and isinstance(camera, GroundCamera):
         if exterior is not None:
-            raise ValueError("an RPC camera carries its own orientation: pass exterior=None")
+            raise ValueError(f"an {type(camera).__name__} carries its own orientation: pass exterior=None")
         return RPCSensor(camera, crs)
     if not isinstance(camera, FrameCamera):
-        raise ValueError(f"camera must be a FrameCamera or an RPCCamera, got {type(camera).__name__}")
+        raise ValueError(
+            f"camera must be a FrameCamera, an RPCCamera or a PushbroomCamera, got {type(camera).__name__}"
+        )
     if exterior is None:
         raise ValueError("a frame camera needs its exterior orientation")
     return FrameSensor(exterior, camera)
@@ -305,9 +339,10 @@ def check_rpc_dem(sensor, dem: DEM, grid) -> None:
     (offset +- scale). All outside: ValueError; some: a warning with how many (extrapolated). A DEM whose CRS has no ellipsoidal height: a warning."""
     if not isinstance(sensor, RPCSensor):
         return
-    rpc = sensor.camera
-    off, scale = float(rpc.offsets[2]), float(rpc.scales[2])
-    lo, hi = off - scale, off + scale
+    if sensor.camera.height_range is None:  # a rigorous model (push-broom): any height, ellipsoidal
+        _check_ellipsoidal(dem)
+        return
+    lo, hi = sensor.camera.height_range
     z = _heights_under(dem, grid, sensor.crs)
     z = z[np.isfinite(z)]
     if z.size == 0:
@@ -324,11 +359,15 @@ def check_rpc_dem(sensor, dem: DEM, grid) -> None:
             f"lie outside the RPC's validity range {lo:.1f} .. {hi:.1f} m: the RPC is extrapolated there",
             stacklevel=3,
         )
+    _check_ellipsoidal(dem)
+
+
+def _check_ellipsoidal(dem: DEM) -> None:
     if not _ellipsoidal(dem.crs):
         warnings.warn(
-            "the RPC needs ellipsoidal (WGS84) heights; the DEM's heights are used as they are "
+            "the camera (RPC, push-broom) needs ellipsoidal (WGS84) heights; the DEM's heights are used as they are "
             f"({_vertical_name(dem.crs)}): a geoid undulation N shifts the ortho by N tan(off-nadir angle)",
-            stacklevel=3,
+            stacklevel=4,
         )
 
 

@@ -554,6 +554,11 @@ def ortho_uncertainty(
         True
     """
     # Over 80 lines because the docstring documents every argument; the body is ~55 lines.
+    if not isinstance(exterior, RPCRefinement) and not isinstance(camera, (FrameCamera, RPCCamera)):
+        raise ValueError(
+            f"ortho_uncertainty: a frame camera or an RPC, not a {type(camera).__name__} "
+            "(for a push-broom image, the RPC fitted to it: photax.fit_rpc)"
+        )
     check_dem(dem, grid)
     if isinstance(exterior, RPCRefinement) or isinstance(camera, RPCCamera):
         sensor, joint = _rpc(exterior, covariance, camera, grid)

@@ -290,7 +290,7 @@ def orthorectify_dask(
         image: ``(H, W)`` or ``(bands, H, W)`` array, or the path of a
             raster file (all bands; read window by window by the workers).
         exterior, camera, dem: as in :func:`photax.orthorectify` (``None`` and an
-            :class:`photax.rpc.RPCCamera` for a satellite image).
+            :class:`photax.rpc.RPCCamera` or :class:`photax.PushbroomCamera` for a satellite image).
         grid: the output :class:`photax.Grid` (its CRS becomes the array's).
         chunks: output chunk edge in pixels (the tiles of
             :func:`photax.orthorectify` for ``tile=chunks``).

@@ -82,7 +82,8 @@ def orthorectify(
     Args:
         image: ``(..., H, W)`` with ``(W, H) == camera.image_size``.
         exterior, camera: the image's orientation (``docs/conventions.md``); or ``None`` and an
-            :class:`photax.rpc.RPCCamera` (refined or not), any grid CRS (:class:`OrthoModel`).
+            :class:`photax.rpc.RPCCamera` (refined or not) or a :class:`photax.PushbroomCamera` (any
+            :class:`photax.sensor.GroundCamera`), any grid CRS (:class:`OrthoModel`).
         dem: heights in the same ground CRS and vertical datum as ``exterior``; for an RPC
             ellipsoidal heights in any CRS (a warning when its CRS does not say ellipsoidal; an
             error when its heights under the grid all lie outside the RPC's height range).
