@@ -548,10 +548,10 @@ def fuse(plan: Plan, st: Statistics, block, window, tile):
     cols, rows = plan.positions(tile)
     p, pan_ok = _filled(plan, block, st.fill)
     pc = _inner(p, window, tile)
-    m_up = _sample(st.m, cols, rows, plan.resampling)
+    m_up = _sample_near(st.m, cols, rows, plan.resampling)
     valid = _geometry.inside(cols, rows, plan.ms_shape[1:]) & _inner(pan_ok, window, tile)
     if not st.ms_ok.all():  # a PAN pixel is valid where the four nearest MS pixels are
-        valid &= _sample(st.ms_ok.astype(np.float32)[None], cols, rows, "bilinear")[0] > 1 - 1e-6
+        valid &= _sample_near(st.ms_ok.astype(np.float32)[None], cols, rows, "bilinear")[0] > 1 - 1e-6
 
     def matched(x, mu, s):  # the PAN (or its low-pass) with the mean and std of a target
         return ((x - st.mu_p) * np.float32(s / st.s_p) + np.float32(mu)).astype(np.float32)
@@ -575,7 +575,7 @@ def fuse(plan: Plan, st: Statistics, block, window, tile):
         if method in ("hpf", "sfim"):
             lows = [_inner(ndimage.uniform_filter(p, plan.box, mode="nearest"), window, tile)] * bands
         else:
-            cache = {s: _sample(st.decimated[s][None], cols, rows, plan.resampling)[0] for s in plan.sigmas}
+            cache = {s: _sample_near(st.decimated[s][None], cols, rows, plan.resampling)[0] for s in plan.sigmas}
             lows = [cache[mtf_sigma(plan.ratio, g)] for g in plan.nyquist]
         for k in range(bands):
             if method in ("hpf", "mtf_glp"):
@@ -599,6 +599,25 @@ def _sample(image, cols, rows, resampling):
     )
 
     return np.asarray(resample(image, cols, rows, resampling))
+
+
+def _sample_near(image, cols, rows, resampling):
+    """:func:`_sample` on the part of ``image`` the kernel reads at ``(cols, rows)``, the same values (the
+    positions shifted by whole pixels, which is exact in float64): a block of the PAN grid samples its own
+    neighbourhood of the MS, not a copy of all of it.  A B-spline's prefilter spans the whole image."""
+    from ..kernels import Resampling
+
+    kernel = Resampling(resampling)
+    ok = np.isfinite(cols) & np.isfinite(rows)
+    if kernel.prefilter or not ok.any():
+        return _sample(image, cols, rows, resampling)
+    h, w = image.shape[-2:]
+    m = kernel.taps + 1
+    c0 = int(np.clip(np.floor(cols[ok].min()) - m, 0, w - 1))
+    c1 = int(np.clip(np.ceil(cols[ok].max()) + m + 1, c0 + 1, w))
+    r0 = int(np.clip(np.floor(rows[ok].min()) - m, 0, h - 1))
+    r1 = int(np.clip(np.ceil(rows[ok].max()) + m + 1, r0 + 1, h))
+    return _sample(image[..., r0:r1, c0:c1], cols - c0, rows - r0, resampling)
 
 
 def _valid(a, nodata):
