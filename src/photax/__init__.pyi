@@ -36,6 +36,7 @@ from .dem import DEM as DEM
 from .errors import RESULTS as RESULTS
 from .errors import ConvergenceError as ConvergenceError
 from .fusion import pansharpen as pansharpen
+from .fusion import pansharpen_dask as pansharpen_dask
 from .grid import Grid as Grid
 from .interior import (
     InteriorOrientation as InteriorOrientation,

@@ -85,7 +85,15 @@ def _as_pan(pan, band, chunks):
             shape, dtype, nodata = (src.height, src.width), np.dtype(src.dtypes[band - 1]), src.nodata
             transform, crs = _georef(src)
         reader = _BandReader(path, band, shape, dtype)
-        return (lambda: da.from_array(reader, chunks=chunks, name=False)), shape, dtype, nodata, transform, crs
+        meta = np.empty((0, 0), dtype)  # else from_array reads an empty window to find it
+        return (
+            (lambda: da.from_array(reader, chunks=chunks, name=False, meta=meta)),
+            shape,
+            dtype,
+            nodata,
+            transform,
+            crs,
+        )
     if isinstance(pan, xr.DataArray):
         import rioxarray  # noqa: F401  (the .rio accessor)
 
