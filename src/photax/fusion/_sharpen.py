@@ -543,8 +543,6 @@ def fuse(plan: Plan, st: Statistics, block, window, tile):
     """The fused ``(bands, h, w)`` float32 pixels of the output ``tile`` ``(r0, c0, h, w)`` (PAN pixels,
     inside :attr:`Plan.window`) and where they are valid, from the PAN ``block`` over ``window`` (``tile``
     plus :attr:`Plan.halo`, clipped to the PAN)."""
-    from scipy import ndimage
-
     cols, rows = plan.positions(tile)
     p, pan_ok = _filled(plan, block, st.fill)
     pc = _inner(p, window, tile)
@@ -573,6 +571,8 @@ def fuse(plan: Plan, st: Statistics, block, window, tile):
     else:
         fused = np.empty_like(m_up)
         if method in ("hpf", "sfim"):
+            from scipy import ndimage  # 0.5 s to import: only when needed
+
             lows = [_inner(ndimage.uniform_filter(p, plan.box, mode="nearest"), window, tile)] * bands
         else:
             cache = {s: _sample_near(st.decimated[s][None], cols, rows, plan.resampling)[0] for s in plan.sigmas}
