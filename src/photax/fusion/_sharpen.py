@@ -348,8 +348,9 @@ def _inner(block, origin, window):
 
 def pan_sums(plan: Plan, block, window):
     """The statistics pass over one PAN block ``window`` ``(r0, c0, h, w)`` (``block`` its pixels): the sum
-    and count of its valid pixels, and over the MS pixels its pixels fall in, from ``first`` on: how many
-    of them, how many valid, and their sum (the PAN averaged over each MS pixel, once added up)."""
+    and count of its valid pixels, and over the box of MS pixels its pixels fall in (its top-left MS pixel
+    ``(row, col)``, then per MS pixel): how many of them, how many valid, and their sum (the PAN averaged
+    over each MS pixel, once added up)."""
     block = np.asarray(block)
     ok = _valid(block, plan.pan_nodata)
     total, n = float(block[ok].sum(dtype=np.float64)), int(ok.sum())
@@ -361,27 +362,18 @@ def pan_sums(plan: Plan, block, window):
     part = (a0, b0, a1 - a0, b1 - b0)
     cols, rows = plan.positions(part)
     covered = _geometry.inside(cols, rows, plan.ms_shape[1:])
-    h, w = plan.ms_shape[1:]
-    ci = np.floor(cols + 0.5).astype(np.int64)
-    ri = np.floor(rows + 0.5).astype(np.int64)
-    flat = (np.clip(ri, 0, h - 1) * w + np.clip(ci, 0, w - 1))[covered]
-    if not flat.size:
+    if not covered.any():
         return total, n, None
-    first = int(flat.min())
-    flat -= first
-    size = int(flat.max()) + 1
+    h, w = plan.ms_shape[1:]
+    ci = np.clip(np.floor(cols[covered] + 0.5).astype(np.int64), 0, w - 1)
+    ri = np.clip(np.floor(rows[covered] + 0.5).astype(np.int64), 0, h - 1)
+    top, left = int(ri.min()), int(ci.min())
+    bh, bw = int(ri.max()) + 1 - top, int(ci.max()) + 1 - left
+    flat = (ri - top) * bw + (ci - left)
     okc = _inner(ok, window, part)[covered]
     vals = np.where(okc, _inner(block, window, part)[covered].astype(np.float32), np.float32(0))
-    return (
-        total,
-        n,
-        (
-            first,
-            np.bincount(flat, minlength=size),
-            np.bincount(flat, weights=okc, minlength=size),
-            np.bincount(flat, weights=vals, minlength=size),
-        ),
-    )
+    sums = [np.bincount(flat, weights=x, minlength=bh * bw).reshape(bh, bw) for x in (None, okc, vals)]
+    return total, n, (top, left, *sums)
 
 
 def pan_fill(sums) -> np.float32:
@@ -479,14 +471,14 @@ def statistics(plan: Plan, ms, fill, sums, lows) -> Statistics:
     m = ms.astype(np.float32)
     for b in m:
         b[~ms_ok] = b[ms_ok].mean(dtype=np.float64)
-    count, good, p_sum = np.zeros(h * w), np.zeros(h * w), np.zeros(h * w)
+    count, good, p_sum = np.zeros((h, w)), np.zeros((h, w)), np.zeros((h, w))
     for s in sums:
         if s[2] is not None:
-            first, c, g, v = s[2]
-            count[first : first + c.size] += c
-            good[first : first + c.size] += g
-            p_sum[first : first + c.size] += v
-    count, good, p_sum = count.reshape(h, w), good.reshape(h, w), p_sum.reshape(h, w)
+            top, left, c, g, v = s[2]
+            box = np.s_[top : top + c.shape[0], left : left + c.shape[1]]
+            count[box] += c
+            good[box] += g
+            p_sum[box] += v
     p_avg = p_sum / np.maximum(count, 1)
     lo = ms_ok & (count >= 0.5 * plan.ratio**2) & (good == count)
     n = int(lo.sum())
