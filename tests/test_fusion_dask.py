@@ -132,3 +132,26 @@ def test_photax_sharpen_with_chunks_writes_what_the_in_memory_command_writes(tmp
         assert a.transform == b.transform and a.crs == b.crs and a.shape == b.shape and a.dtypes == b.dtypes
         diff = np.abs(a.read().astype(int) - b.read().astype(int))
     assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
+
+
+def test_an_ms_in_another_crs_gives_the_in_memory_result():
+    """The MS on a UTM grid, the PAN on a Web Mercator one: the positions are no separable lattice (the JAX
+    resampler, per chunk) and the MS pixel centres fall in the PAN's blocks along curved lines."""
+    from rasterio.warp import transform_bounds
+
+    left, bottom, right, top = transform_bounds("EPSG:32633", "EPSG:3857", 500000, 4000000, 500256, 4000256)
+    pan_t = Affine(2.0, 0, left, 0, -2.0, top)
+    shape = (int((top - bottom) / 2), int((right - left) / 2))
+    pan = (100 + 20 * _texture(shape, 1) + 10 * _texture(shape, 2, 1.0)).astype(np.float32)
+    ms = np.stack([100 + 20 * _texture((32, 32), k) for k in range(3)]).astype(np.float32)
+    georef = dict(
+        pan_transform=pan_t,
+        ms_transform=Affine(8.0, 0, 500000.0, 0, -8.0, 4000256.0),
+        pan_crs="EPSG:3857",
+        ms_crs="EPSG:32633",
+        weights="equal",
+    )
+    ref = pansharpen(pan, ms, "gs", **georef).image
+    got = pansharpen_dask(pan, ms, "gs", chunks=70, **georef).compute(scheduler="threads").values
+    assert np.array_equal(np.isnan(got), np.isnan(ref))
+    np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-3)
