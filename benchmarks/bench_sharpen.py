@@ -10,6 +10,9 @@ interleaved so that the machine's load hits both alike; the load average is prin
 Both write a deflate GeoTIFF without overviews or mask (oty: ``-cm deflate -nbo -nwm``); photax runs with
 its compile cache warm (a first run fills it, as any second use of the command would find it).  Python
 byte-code of both is compiled by that first run too.  Issue 24's target: photax within 1x oty's time.
+Then the Dask row: the pair tiled ``--tiles`` x ``--tiles`` times (real content; 4: a 5472 x 3648 PAN,
+20 Mpx) sharpened by ``photax sharpen`` in memory and with ``--chunks 1024`` (pansharpen_dask, written chunk
+by chunk): the median wall time and peak memory of each, fresh processes, interleaved.
 Writes ``benchmarks/results/bench_sharpen.json``.
 """
 
@@ -33,6 +36,7 @@ BIN = pathlib.Path(sys.executable).parent
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5, help="fresh processes per program (median; >= 3)")
+    parser.add_argument("--tiles", type=int, default=4, help="the pair tiled N x N times for the Dask row (0: none)")
     args = parser.parse_args()
     if not (PAIR / "pan.tif").is_file():
         sys.exit(f"{PAIR}: not present")
@@ -92,6 +96,8 @@ def main() -> None:
                 times[k].append(dt)
                 peaks[k].append(peak)
         cold = run_process(cmds["photax"], env=cold_env)[0]
+        if args.tiles:
+            dask_row(tmp, env, args.tiles, max(3, args.repeat))
         print(f"load average after:  {[round(v, 2) for v in os.getloadavg()]}")
     med = {k: statistics.median(v) for k, v in times.items()}
     mem = {k: statistics.median(v) for k, v in peaks.items()}
@@ -117,6 +123,48 @@ def main() -> None:
         photax_cold_s=cold,
         photax_bytes=mem["photax"],
         peer_bytes=mem["oty"],
+        load=[round(v, 2) for v in os.getloadavg()],
+    )
+
+
+def dask_row(tmp, env, tiles, repeat) -> None:
+    """In memory vs ``--chunks 1024`` on the pair tiled ``tiles`` x ``tiles`` times: wall time, peak memory."""
+    import numpy as np
+
+    sys.path.insert(0, str(ROOT / "src"))
+    from photax.io.raster import read_geotiff, write_geotiff
+
+    paths = {}
+    for name in ("pan", "ms"):
+        image = read_geotiff(PAIR / f"{name}.tif")[0]
+        paths[name] = str(tmp / f"{name}_x{tiles}.tif")
+        write_geotiff(paths[name], np.tile(image, (1, tiles, tiles)), None)
+    base = [sys.executable, "-m", "photax.cli", "sharpen", paths["pan"], paths["ms"], "--method", "gs"]
+    cmds = {
+        "in memory": [*base, "-o", str(tmp / "memory.tif")],
+        "dask, chunks 1024": [*base, "-o", str(tmp / "dask.tif"), "--chunks", "1024"],
+    }
+    times = {k: [] for k in cmds}
+    peaks = {k: [] for k in cmds}
+    print(f"Dask row: the pair tiled {tiles} x {tiles}; load average {[round(v, 2) for v in os.getloadavg()]}")
+    for _ in range(repeat):
+        for k, cmd in cmds.items():
+            dt, peak = run_process(cmd, env=env)
+            times[k].append(dt)
+            peaks[k].append(peak)
+    med = {k: statistics.median(v) for k, v in times.items()}
+    mem = {k: statistics.median(v) for k, v in peaks.items()}
+    for k in cmds:
+        print(f"  {k:18s} median {med[k]:.2f} s of {[round(t, 2) for t in times[k]]}, peak {mem[k] / 2**20:.0f} MiB")
+    a, b = cmds
+    print(f"  ratio dask / in memory: wall {med[b] / med[a]:.2f}, peak memory {mem[b] / mem[a]:.2f}")
+    record(
+        f"GS pan-sharpening of the pair tiled {tiles} x {tiles}: Dask (chunks 1024) vs in memory, whole process",
+        dask_s=med[b],
+        memory_s=med[a],
+        dask_bytes=mem[b],
+        memory_bytes=mem[a],
+        peak_ratio=mem[b] / mem[a],
         load=[round(v, 2) for v in os.getloadavg()],
     )
 

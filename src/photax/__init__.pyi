@@ -40,6 +40,7 @@ from .earth import refraction_coefficient as refraction_coefficient
 from .errors import RESULTS as RESULTS
 from .errors import ConvergenceError as ConvergenceError
 from .fusion import pansharpen as pansharpen
+from .fusion import pansharpen_dask as pansharpen_dask
 from .grid import Grid as Grid
 from .interior import (
     InteriorOrientation as InteriorOrientation,

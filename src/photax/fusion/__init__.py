@@ -1,6 +1,7 @@
 """Data fusion: pan-sharpening (component substitution and multiresolution analysis) and its quality
 indices (Wald's protocol: ERGAS, SAM, Q2n, UIQI, SCC; without reference: QNR)."""
 
+from ._dask import pansharpen_dask as pansharpen_dask
 from ._quality import (
     assess as assess,
 )

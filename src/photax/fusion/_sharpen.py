@@ -157,79 +157,330 @@ def pansharpen(
         pan_nodata, ms_nodata: values marking invalid pixels (NaN is always invalid in float images).
 
     Returns:
-        :class:`Sharpened`.  The arithmetic is float32 pixels and float64 statistics.
+        :class:`Sharpened`.  The arithmetic is float32 pixels and float64 statistics.  For scenes larger
+        than memory: :func:`pansharpen_dask`, the same code block by block.
 
     Raises:
         ValueError: the images do not overlap, the MS has one band with a component-substitution method
             (it would return the PAN rescaled), its pixels are not larger than the PAN's, too few pixels
             are valid in both to estimate the statistics, or a bad argument.
     """
-    from ..kernels import Resampling
-
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    resampling = Resampling.check(resampling).value
     pan = np.asarray(pan)
     if pan.ndim == 3 and pan.shape[0] == 1:
         pan = pan[0]
     ms = np.asarray(ms)
-    if pan.ndim != 2:
-        raise ValueError(f"pan must be (rows, cols) or (1, rows, cols), got shape {pan.shape}")
-    if ms.ndim != 3:
-        raise ValueError(f"ms must be (bands, rows, cols), got shape {ms.shape}")
-    for name, a in (("pan", pan), ("ms", ms)):
-        if not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)) or a.dtype == bool:
-            raise ValueError(f"{name} must have an integer or float dtype, got {a.dtype}")
-    bands = ms.shape[0]
+    plan = make_plan(
+        pan.shape,
+        pan.dtype,
+        ms.shape,
+        ms.dtype,
+        method,
+        pan_transform=pan_transform,
+        ms_transform=ms_transform,
+        pan_crs=pan_crs,
+        ms_crs=ms_crs,
+        weights=weights,
+        resampling=resampling,
+        nyquist_gain=nyquist_gain,
+        pan_nodata=pan_nodata,
+        ms_nodata=ms_nodata,
+    )
+    # The three passes of pansharpen_dask, each over one block: the whole PAN.
+    whole = (0, 0, *pan.shape)
+    sums = [pan_sums(plan, pan, whole)]
+    fill = pan_fill(sums)
+    lows = [lowpass_at_ms(plan, fill, pan, whole, whole, *ms_points(plan))] if plan.sigmas else []
+    stats = statistics(plan, ms, fill, sums, lows)
+    r0, r1, c0, c1 = plan.window
+    fused, valid = fuse(plan, stats, pan, whole, (r0, c0, r1 - r0, c1 - c0))
+    image, nodata, clipped = _to_dtype(fused, valid, ms.dtype, ms_nodata)
+    return Sharpened(
+        image,
+        valid,
+        (r0, c0),
+        plan.out_transform,
+        nodata,
+        method,
+        stats.weights,
+        np.asarray(stats.gains),
+        plan.ratio,
+        clipped,
+    )
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Plan:
+    """What pan-sharpening a pair does, known before any pixel is read: the geometry (the PAN window the
+    MS covers, the pixel-size ratio), the options checked, and the filters' footprints."""
+
+    method: str
+    pan_shape: tuple[int, int]
+    ms_shape: tuple[int, int, int]
+    ms_dtype: np.dtype
+    pan_transform: object
+    ms_transform: object
+    pan_crs: object
+    ms_crs: object
+    window: tuple[int, int, int, int]  # (r0, r1, c0, c1) of the PAN pixels the MS covers
+    ratio: float
+    resampling: str
+    weights: object
+    nyquist: np.ndarray
+    pan_nodata: object
+    ms_nodata: object
+
+    def positions(self, window):
+        """MS ``(cols, rows)`` of the PAN pixels of ``window`` ``(r0, c0, h, w)``."""
+        return _geometry.positions(
+            self.pan_shape,
+            self.pan_transform,
+            self.pan_crs,
+            self.ms_shape[1:],
+            self.ms_transform,
+            self.ms_crs,
+            window,
+        )
+
+    @property
+    def sigmas(self) -> tuple[float, ...]:
+        """The MTF-matched Gaussians' standard deviations (PAN pixels) the method low-passes the PAN by."""
+        if self.method == "gsa":
+            return (float(np.mean([mtf_sigma(self.ratio, g) for g in self.nyquist])),)
+        if self.method in ("mtf_glp", "mtf_glp_hpm"):
+            return tuple(dict.fromkeys(mtf_sigma(self.ratio, g) for g in self.nyquist))
+        return ()
+
+    @property
+    def box(self) -> int:
+        """The box filter's odd size (HPF, SFIM)."""
+        return 2 * int(np.floor(self.ratio / 2)) + 1
+
+    @property
+    def halo(self) -> int:
+        """PAN pixels around an output block its fusion reads (the box filter's radius)."""
+        return self.box // 2 if self.method in ("hpf", "sfim") else 0
+
+    @property
+    def lowpass_halo(self) -> int:
+        """PAN pixels around a block its Gaussians (truncated at 4 sigma) and their bilinear sampling read."""
+        return int(4.0 * max(self.sigmas) + 0.5) + 2 if self.sigmas else 0
+
+    @property
+    def out_transform(self):
+        if self.pan_transform is None:
+            return None
+        r0, _, c0, _ = self.window
+        return _geometry._affine(self.pan_transform) * _geometry._affine((1, 0, c0, 0, 1, r0))
+
+
+def make_plan(pan_shape, pan_dtype, ms_shape, ms_dtype, method, **options) -> Plan:
+    """Check a pan-sharpening's arguments (those of :func:`pansharpen`) and find its geometry."""
+    from ..kernels import Resampling
+
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    resampling = Resampling.check(options["resampling"]).value
+    if len(pan_shape) != 2:
+        raise ValueError(f"pan must be (rows, cols) or (1, rows, cols), got shape {tuple(pan_shape)}")
+    if len(ms_shape) != 3:
+        raise ValueError(f"ms must be (bands, rows, cols), got shape {tuple(ms_shape)}")
+    for name, dt in (("pan", np.dtype(pan_dtype)), ("ms", np.dtype(ms_dtype))):
+        if not (np.issubdtype(dt, np.integer) or np.issubdtype(dt, np.floating)) or dt == np.bool_:
+            raise ValueError(f"{name} must have an integer or float dtype, got {dt}")
+    bands = ms_shape[0]
     if bands == 1 and method in _CS:
         raise ValueError(
             f"the MS image has one band: {method!r} (component substitution) would return the "
             "PAN rescaled to it; use an MRA method (hpf, sfim, mtf_glp, mtf_glp_hpm)"
         )
+    weights = options["weights"]
     if weights is not None and method not in _WEIGHTED:
         raise ValueError(f"weights apply to {_WEIGHTED}, not {method!r}")
-    gains_nyq = (
-        np.broadcast_to(np.asarray(nyquist_gain, dtype=np.float64), (bands,)).copy()
-        if np.ndim(nyquist_gain) == 0
-        else np.asarray(nyquist_gain, dtype=np.float64)
-    )
-    if gains_nyq.shape != (bands,):
+    if isinstance(weights, str):
+        if weights != "equal":
+            raise ValueError(f"weights must be values, 'equal' or None, got {weights!r}")
+        weights = np.full(bands, 1.0 / bands)
+    elif weights is not None:
+        weights = _check_weights(weights, bands)
+    gain = options["nyquist_gain"]
+    nyquist = np.asarray(gain, dtype=np.float64)
+    nyquist = np.broadcast_to(nyquist, (bands,)).copy() if nyquist.ndim == 0 else nyquist
+    if nyquist.shape != (bands,):
         raise ValueError(f"nyquist_gain must be one value or one per MS band ({bands})")
-
-    # --- geometry: the MS position of every PAN pixel, the PAN position of every MS pixel
-    cols, rows = _geometry.positions(pan.shape, pan_transform, pan_crs, ms.shape[1:], ms_transform, ms_crs)
-    covered = _geometry.inside(cols, rows, ms.shape[1:])
-    if not covered.any():
+    georef = {k: options[k] for k in ("pan_transform", "ms_transform", "pan_crs", "ms_crs")}
+    window, ratio = _geometry.footprint(
+        tuple(pan_shape),
+        georef["pan_transform"],
+        georef["pan_crs"],
+        tuple(ms_shape[1:]),
+        georef["ms_transform"],
+        georef["ms_crs"],
+    )
+    if window is None:
         raise ValueError("the PAN and MS images do not overlap")
-    rr, cc = np.nonzero(covered.any(axis=1))[0], np.nonzero(covered.any(axis=0))[0]
-    r0, r1, c0, c1 = rr[0], rr[-1] + 1, cc[0], cc[-1] + 1
-    cols, rows, covered = cols[r0:r1, c0:c1], rows[r0:r1, c0:c1], covered[r0:r1, c0:c1]
-    ratio = _geometry.pixel_ratio(cols, rows) if min(cols.shape) > 1 else np.nan
     if not ratio > 1.0 + 1e-9:
         raise ValueError(f"the MS pixels must be larger than the PAN's (size ratio {ratio:.3g})")
+    plan = Plan(
+        method,
+        tuple(pan_shape),
+        tuple(ms_shape),
+        np.dtype(ms_dtype),
+        window=window,
+        ratio=ratio,
+        resampling=resampling,
+        weights=weights,
+        nyquist=nyquist,
+        pan_nodata=options["pan_nodata"],
+        ms_nodata=options["ms_nodata"],
+        **georef,
+    )
+    plan.sigmas  # noqa: B018  (nyquist_gain checked: mtf_sigma raises outside (0, 1))
+    return plan
 
-    # --- validity, and the invalid values filled so that they do not smear through the kernels
-    pan_ok = _valid(pan, pan_nodata)
-    ms_ok = np.all([_valid(b, ms_nodata) for b in ms], axis=0)
-    if not ms_ok.any() or not pan_ok.any():
-        raise ValueError(f"the {'MS' if not ms_ok.any() else 'PAN'} image has no valid pixel")
-    p = pan.astype(np.float32)
-    p[~pan_ok] = p[pan_ok].mean()
+
+def _inner(block, origin, window):
+    """The part of ``block`` (whose top-left pixel is ``origin`` ``(r, c, ...)``) under ``window``
+    ``(r0, c0, h, w)``."""
+    r, c = origin[:2]
+    r0, c0, h, w = window
+    return block[..., r0 - r : r0 - r + h, c0 - c : c0 - c + w]
+
+
+def pan_sums(plan: Plan, block, window):
+    """The statistics pass over one PAN block ``window`` ``(r0, c0, h, w)`` (``block`` its pixels): the sum
+    and count of its valid pixels, and over the box of MS pixels its pixels fall in (its top-left MS pixel
+    ``(row, col)``, then per MS pixel): how many of them, how many valid, and their sum (the PAN averaged
+    over each MS pixel, once added up)."""
+    block = np.asarray(block)
+    ok = _valid(block, plan.pan_nodata)
+    total, n = float(block[ok].sum(dtype=np.float64)), int(ok.sum())
+    r0, r1, c0, c1 = plan.window
+    br, bc, bh, bw = window
+    a0, a1, b0, b1 = max(br, r0), min(br + bh, r1), max(bc, c0), min(bc + bw, c1)
+    if a1 <= a0 or b1 <= b0:
+        return total, n, None
+    part = (a0, b0, a1 - a0, b1 - b0)
+    cols, rows = plan.positions(part)
+    covered = _geometry.inside(cols, rows, plan.ms_shape[1:])
+    if not covered.any():
+        return total, n, None
+    h, w = plan.ms_shape[1:]
+    ci = np.clip(np.floor(cols[covered] + 0.5).astype(np.int64), 0, w - 1)
+    ri = np.clip(np.floor(rows[covered] + 0.5).astype(np.int64), 0, h - 1)
+    top, left = int(ri.min()), int(ci.min())
+    bh, bw = int(ri.max()) + 1 - top, int(ci.max()) + 1 - left
+    flat = (ri - top) * bw + (ci - left)
+    okc = _inner(ok, window, part)[covered]
+    vals = np.where(okc, _inner(block, window, part)[covered].astype(np.float32), np.float32(0))
+    sums = [np.bincount(flat, weights=x, minlength=bh * bw).reshape(bh, bw) for x in (None, okc, vals)]
+    return total, n, (top, left, *sums)
+
+
+def pan_fill(sums) -> np.float32:
+    """The value invalid PAN pixels are filled with (so that they do not smear through the kernels): the
+    mean of the valid ones."""
+    total, n = sum(s[0] for s in sums), sum(s[1] for s in sums)
+    if n == 0:
+        raise ValueError("the PAN image has no valid pixel")
+    return np.float32(total / n)
+
+
+def _filled(plan: Plan, block, fill):
+    block = np.asarray(block)
+    ok = _valid(block, plan.pan_nodata)
+    p = block.astype(np.float32)
+    p[~ok] = fill
+    return p, ok
+
+
+def ms_points(plan: Plan):
+    """The PAN ``(cols, rows)`` of every MS pixel centre (MS-resolution arrays)."""
+    return _geometry.positions(
+        plan.ms_shape[1:], plan.ms_transform, plan.ms_crs, plan.pan_shape, plan.pan_transform, plan.pan_crs
+    )
+
+
+def lowpass_at_ms(plan: Plan, fill, block, window, core, cols, rows, index=None):
+    """The low-pass pass over one PAN block: ``block`` the pixels of ``window`` ``(r0, c0, h, w)``, ``core``
+    the part it answers for (``window`` is ``core`` plus :attr:`Plan.lowpass_halo`, clipped to the PAN).
+    Per Gaussian of :attr:`Plan.sigmas`: the sum of the filtered PAN over ``core`` (its mean, once added
+    up) and its bilinear samples at the PAN positions ``(cols, rows)`` of the MS pixels ``index`` (flat;
+    None: all) whose centres fall in ``core`` (NaN outside the PAN)."""
+    p, _ = _filled(plan, block, fill)
+    out = []
+    for s in plan.sigmas:
+        g = _gaussian(p, s)
+        out.append(
+            (float(_inner(g, window, core).sum(dtype=np.float64)), _bilinear(g, window, plan.pan_shape, cols, rows))
+        )
+    return index, out
+
+
+def _bilinear(block, window, shape, cols, rows):
+    """``block`` (the pixels of ``window`` of an image of ``shape``) at the image's positions ``(cols,
+    rows)``: :func:`photax.kernels.resample_grid`'s bilinear kernel (edges replicated, NaN outside the
+    image's footprint), at scattered points; the block holds every tap of the points inside the image."""
+    r, c, h, w = window
+    cols, rows = np.asarray(cols, np.float64), np.asarray(rows, np.float64)
+    ok = _geometry.inside(cols, rows, shape)
+    x0, y0 = np.floor(np.where(ok, cols, 0)), np.floor(np.where(ok, rows, 0))
+    wx, wy = (np.where(ok, cols, 0) - x0).astype(np.float32), (np.where(ok, rows, 0) - y0).astype(np.float32)
+    xa = np.clip(x0.astype(np.int64), 0, shape[1] - 1) - c
+    xb = np.clip(x0.astype(np.int64) + 1, 0, shape[1] - 1) - c
+    ya = np.clip(y0.astype(np.int64), 0, shape[0] - 1) - r
+    yb = np.clip(y0.astype(np.int64) + 1, 0, shape[0] - 1) - r
+    if ok.any() and (
+        min(xa[ok].min(), ya[ok].min()) < 0 or xb[ok].max() >= w or yb[ok].max() >= h
+    ):  # pragma: no cover  (the halo covers every tap)
+        raise RuntimeError("photax: a low-pass block misses the taps of its MS pixels; please report this")
+    xa, xb, ya, yb = (np.where(ok, v, 0) for v in (xa, xb, ya, yb))
+    top = block[ya, xa] * (1 - wx) + block[ya, xb] * wx
+    bottom = block[yb, xa] * (1 - wx) + block[yb, xb] * wx
+    return np.where(ok, top * (1 - wy) + bottom * wy, np.float32(np.nan)).astype(np.float32)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Statistics:
+    """The global statistics of a pan-sharpening (at MS resolution, float64), and the MS-resolution
+    arrays every block samples: the MS with its invalid pixels filled, and the decimated low-passes."""
+
+    fill: np.float32  # the PAN's invalid pixels
+    m: np.ndarray  # (bands, h, w) float32 MS, invalid pixels filled with the band's valid mean
+    ms_ok: np.ndarray  # (h, w) bool
+    mu_p: float
+    s_p: float
+    mu_m: np.ndarray
+    s_m: np.ndarray
+    weights: np.ndarray | None  # intensity weights (CS), the first eigenvector (PCA)
+    offset: float
+    gains: np.ndarray
+    mu_i: float  # the intensity's mean and std the PAN is matched to (CS)
+    s_i: float
+    decimated: dict  # sigma -> (h, w) float32 low-passed PAN at the MS pixel centres (GSA, MTF-GLP)
+
+
+def statistics(plan: Plan, ms, fill, sums, lows) -> Statistics:
+    """The statistics of the pair from the passes' results (:func:`pan_sums` per PAN block, and
+    :func:`lowpass_at_ms` per block for the methods that low-pass the PAN by a Gaussian): whatever the
+    blocks, the same sums as over the whole image at once."""
+    ms = np.asarray(ms)
+    bands, h, w = ms.shape
+    ms_ok = np.all([_valid(b, plan.ms_nodata) for b in ms], axis=0)
+    if not ms_ok.any():
+        raise ValueError("the MS image has no valid pixel")
     m = ms.astype(np.float32)
     for b in m:
-        b[~ms_ok] = b[ms_ok].mean()
-
-    # --- the PAN averaged over each MS pixel (statistics at MS resolution)
-    ci = np.floor(cols + 0.5).astype(np.int64)
-    ri = np.floor(rows + 0.5).astype(np.int64)
-    h, w = ms.shape[1:]
-    flat = (np.clip(ri, 0, h - 1) * w + np.clip(ci, 0, w - 1))[covered]
-    pan_c = pan_ok[r0:r1, c0:c1][covered]
-    count = np.bincount(flat, minlength=h * w).reshape(h, w)
-    good = np.bincount(flat, weights=pan_c, minlength=h * w).reshape(h, w)
-    p_avg = np.bincount(flat, weights=p[r0:r1, c0:c1][covered], minlength=h * w).reshape(h, w)
-    p_avg = p_avg / np.maximum(count, 1)
-    lo = ms_ok & (count >= 0.5 * ratio**2) & (good == count)
+        b[~ms_ok] = b[ms_ok].mean(dtype=np.float64)
+    count, good, p_sum = np.zeros((h, w)), np.zeros((h, w)), np.zeros((h, w))
+    for s in sums:
+        if s[2] is not None:
+            top, left, c, g, v = s[2]
+            box = np.s_[top : top + c.shape[0], left : left + c.shape[1]]
+            count[box] += c
+            good[box] += g
+            p_sum[box] += v
+    p_avg = p_sum / np.maximum(count, 1)
+    lo = ms_ok & (count >= 0.5 * plan.ratio**2) & (good == count)
     n = int(lo.sum())
     if n < max(16, 2 * bands + 2):
         raise ValueError(
@@ -242,88 +493,89 @@ def pansharpen(
     mu_p, s_p, mu_m, c_mm = mean[0], np.sqrt(cov[0, 0]), mean[1:], cov[1:, 1:]
     if not s_p > 0:
         raise ValueError("the PAN is constant where both images are valid: no detail to inject")
+    decimated = {}
+    if plan.sigmas:
+        total = {s: 0.0 for s in plan.sigmas}
+        dec = {s: np.full(h * w, np.nan, np.float32) for s in plan.sigmas}
+        for index, per_sigma in lows:
+            for s, (sub, samples) in zip(plan.sigmas, per_sigma):
+                total[s] += sub
+                if index is None:
+                    dec[s][:] = samples.ravel()
+                else:
+                    dec[s][index] = samples
+        npix = plan.pan_shape[0] * plan.pan_shape[1]
+        for s in plan.sigmas:  # outside the PAN: the low-pass's mean
+            d = dec[s].reshape(h, w)
+            decimated[s] = np.where(np.isfinite(d), d, np.float32(total[s] / npix))
+    method, wts, offset, mu_i, s_i = plan.method, None, 0.0, np.nan, np.nan
+    if method == "pca":
+        vals, vecs = np.linalg.eigh(c_mm)
+        wts = vecs[:, -1] * np.sign(vecs[:, -1].sum() or 1.0)
+        gains, s_i = wts, float(np.sqrt(vals[-1]))
+    elif method in _CS:
+        if method == "gsa":
+            design = np.concatenate([m[:, lo].T, np.ones((n, 1), np.float32)], axis=1).astype(np.float64)
+            coef = np.linalg.lstsq(design, decimated[plan.sigmas[0]][lo].astype(np.float64), rcond=None)[0]
+            wts, offset = coef[:-1], float(coef[-1])
+        else:
+            wts = _nnls_weights(c_mm, cov[0, 1:]) if plan.weights is None else plan.weights
+        mu_i, s_i = float(wts @ mu_m + offset), float(np.sqrt(wts @ c_mm @ wts))
+        if not s_i > 0:
+            raise ValueError("the weighted MS intensity is constant: nothing to match the PAN to")
+        gains = np.ones(bands) if method in ("brovey", "ihs") else (c_mm @ wts) / s_i**2  # gs, gsa
+    else:
+        gains = np.sqrt(np.diag(c_mm)) / s_p
+    return Statistics(
+        fill, m, ms_ok, mu_p, s_p, mu_m, np.sqrt(np.diag(c_mm)), wts, offset, np.asarray(gains), mu_i, s_i, decimated
+    )
 
-    # --- the MS on the PAN grid with photax's kernel
-    m_up = _sample(m, cols, rows, resampling)
-    valid = covered & pan_ok[r0:r1, c0:c1]
-    if not ms_ok.all():  # a PAN pixel is valid where the four nearest MS pixels are
-        valid &= _sample(ms_ok.astype(np.float32)[None], cols, rows, "bilinear")[0] > 1 - 1e-6
-    pc = p[r0:r1, c0:c1]
+
+def fuse(plan: Plan, st: Statistics, block, window, tile):
+    """The fused ``(bands, h, w)`` float32 pixels of the output ``tile`` ``(r0, c0, h, w)`` (PAN pixels,
+    inside :attr:`Plan.window`) and where they are valid, from the PAN ``block`` over ``window`` (``tile``
+    plus :attr:`Plan.halo`, clipped to the PAN)."""
+    cols, rows = plan.positions(tile)
+    p, pan_ok = _filled(plan, block, st.fill)
+    pc = _inner(p, window, tile)
+    m_up = _sample_near(st.m, cols, rows, plan.resampling)
+    valid = _geometry.inside(cols, rows, plan.ms_shape[1:]) & _inner(pan_ok, window, tile)
+    if not st.ms_ok.all():  # a PAN pixel is valid where the four nearest MS pixels are
+        valid &= _sample_near(st.ms_ok.astype(np.float32)[None], cols, rows, "bilinear")[0] > 1 - 1e-6
 
     def matched(x, mu, s):  # the PAN (or its low-pass) with the mean and std of a target
-        return ((x - mu_p) * np.float32(s / s_p) + np.float32(mu)).astype(np.float32)
+        return ((x - st.mu_p) * np.float32(s / st.s_p) + np.float32(mu)).astype(np.float32)
 
-    w_out = None
-    if method in _CS:
-        if method == "pca":
-            vals, vecs = np.linalg.eigh(c_mm)
-            v = vecs[:, -1] * np.sign(vecs[:, -1].sum() or 1.0)
-            inten = np.tensordot(v.astype(np.float32), m_up - mu_m[:, None, None].astype(np.float32), 1)
-            gains, w_out = v, v
-            p_pc = matched(pc, 0.0, np.sqrt(vals[-1]))  # the PAN matched to the first component
-            fused = m_up + gains[:, None, None].astype(np.float32) * (p_pc - inten)
-        else:
-            if method == "gsa":
-                sig = float(np.mean([mtf_sigma(ratio, g) for g in gains_nyq]))
-                p_mtf = _at_ms(_gaussian(p, sig), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape, ms.shape)
-                design = np.concatenate([m[:, lo].T, np.ones((n, 1), np.float32)], axis=1).astype(np.float64)
-                coef = np.linalg.lstsq(design, p_mtf[lo].astype(np.float64), rcond=None)[0]
-                wts, offset = coef[:-1], coef[-1]
-            else:
-                if isinstance(weights, str):
-                    if weights != "equal":
-                        raise ValueError(f"weights must be values, 'equal' or None, got {weights!r}")
-                    wts = np.full(bands, 1.0 / bands)
-                elif weights is None:
-                    wts = _nnls_weights(c_mm, cov[0, 1:])
-                else:
-                    wts = _check_weights(weights, bands)
-                offset = 0.0
-            w_out = wts
-            mu_i, s_i = float(wts @ mu_m + offset), float(np.sqrt(wts @ c_mm @ wts))
-            if not s_i > 0:
-                raise ValueError("the weighted MS intensity is constant: nothing to match the PAN to")
-            inten = np.tensordot(wts.astype(np.float32), m_up, 1) + np.float32(offset)
-            p_i = matched(pc, mu_i, s_i)
-            if method == "brovey":
-                gains = np.ones(bands)
-                fused = m_up * _ratio_or_one(p_i, inten, 1e-3 * abs(mu_i))[None]
-            elif method == "ihs":
-                gains = np.ones(bands)
-                fused = m_up + (p_i - inten)[None]
-            else:  # gs, gsa: g_k = cov(M_k, I) / var(I)
-                gains = (c_mm @ wts) / s_i**2
-                fused = m_up + gains[:, None, None].astype(np.float32) * (p_i - inten)[None]
+    method, bands, gains = plan.method, plan.ms_shape[0], st.gains
+    if method == "pca":
+        v = st.weights
+        inten = np.tensordot(v.astype(np.float32), m_up - st.mu_m[:, None, None].astype(np.float32), 1)
+        fused = m_up + gains[:, None, None].astype(np.float32) * (matched(pc, 0.0, st.s_i) - inten)
+    elif method in _CS:
+        inten = np.tensordot(st.weights.astype(np.float32), m_up, 1) + np.float32(st.offset)
+        p_i = matched(pc, st.mu_i, st.s_i)
+        if method == "brovey":
+            fused = m_up * _ratio_or_one(p_i, inten, 1e-3 * abs(st.mu_i))[None]
+        elif method == "ihs":
+            fused = m_up + (p_i - inten)[None]
+        else:  # gs, gsa: g_k = cov(M_k, I) / var(I)
+            fused = m_up + gains[:, None, None].astype(np.float32) * (p_i - inten)[None]
     else:
-        s_m = np.sqrt(np.diag(c_mm))
-        gains = s_m / s_p
         fused = np.empty_like(m_up)
         if method in ("hpf", "sfim"):
-            from scipy import ndimage
+            from scipy import ndimage  # 0.5 s to import: only when needed
 
-            size = 2 * int(np.floor(ratio / 2)) + 1
-            lows = [ndimage.uniform_filter(p, size, mode="nearest")[r0:r1, c0:c1]] * bands
+            lows = [_inner(ndimage.uniform_filter(p, plan.box, mode="nearest"), window, tile)] * bands
         else:
-            sigmas = [mtf_sigma(ratio, g) for g in gains_nyq]
-            cache = {}
-            for s in sigmas:
-                if s not in cache:
-                    dec = _at_ms(_gaussian(p, s), pan_transform, pan_crs, ms_transform, ms_crs, pan.shape, ms.shape)
-                    cache[s] = _sample(dec[None], cols, rows, resampling)[0]
-            lows = [cache[s] for s in sigmas]
+            cache = {s: _sample_near(st.decimated[s][None], cols, rows, plan.resampling)[0] for s in plan.sigmas}
+            lows = [cache[mtf_sigma(plan.ratio, g)] for g in plan.nyquist]
         for k in range(bands):
             if method in ("hpf", "mtf_glp"):
                 fused[k] = m_up[k] + np.float32(gains[k]) * (pc - lows[k])
             else:
-                num, den = matched(pc, mu_m[k], s_m[k]), matched(lows[k], mu_m[k], s_m[k])
-                fused[k] = m_up[k] * _ratio_or_one(num, den, 1e-3 * abs(mu_m[k]))
-    image, nodata, clipped = _to_dtype(fused, valid, ms.dtype, ms_nodata)
-    transform = None
-    if pan_transform is not None:
-        transform = _geometry._affine(pan_transform) * _geometry._affine((1, 0, c0, 0, 1, r0))
-    return Sharpened(
-        image, valid, (int(r0), int(c0)), transform, nodata, method, w_out, np.asarray(gains), float(ratio), clipped
-    )
+                num, den = matched(pc, st.mu_m[k], st.s_m[k]), matched(lows[k], st.mu_m[k], st.s_m[k])
+                fused[k] = m_up[k] * _ratio_or_one(num, den, 1e-3 * abs(st.mu_m[k]))
+    return fused, valid
 
 
 def _sample(image, cols, rows, resampling):
@@ -341,18 +593,30 @@ def _sample(image, cols, rows, resampling):
     return np.asarray(resample(image, cols, rows, resampling))
 
 
+def _sample_near(image, cols, rows, resampling):
+    """:func:`_sample` on the part of ``image`` the kernel reads at ``(cols, rows)``, the same values (the
+    positions shifted by whole pixels, which is exact in float64): a block of the PAN grid samples its own
+    neighbourhood of the MS, not a copy of all of it.  A B-spline's prefilter spans the whole image."""
+    from ..kernels import Resampling
+
+    kernel = Resampling(resampling)
+    ok = np.isfinite(cols) & np.isfinite(rows)
+    if kernel.prefilter or not ok.any():
+        return _sample(image, cols, rows, resampling)
+    h, w = image.shape[-2:]
+    m = kernel.taps + 1
+    c0 = int(np.clip(np.floor(cols[ok].min()) - m, 0, w - 1))
+    c1 = int(np.clip(np.ceil(cols[ok].max()) + m + 1, c0 + 1, w))
+    r0 = int(np.clip(np.floor(rows[ok].min()) - m, 0, h - 1))
+    r1 = int(np.clip(np.ceil(rows[ok].max()) + m + 1, r0 + 1, h))
+    return _sample(image[..., r0:r1, c0:c1], cols - c0, rows - r0, resampling)
+
+
 def _valid(a, nodata):
     ok = np.isfinite(a) if np.issubdtype(a.dtype, np.floating) else np.ones(a.shape, bool)
     if nodata is not None and not np.isnan(nodata):
         ok &= a != nodata
     return ok
-
-
-def _at_ms(image, pan_transform, pan_crs, ms_transform, ms_crs, pan_shape, ms_shape):
-    """A PAN-grid ``image`` sampled (bilinear) at the MS pixel centres; outside the PAN: its mean."""
-    cols, rows = _geometry.positions(ms_shape[1:], ms_transform, ms_crs, pan_shape, pan_transform, pan_crs)
-    out = _sample(image.astype(np.float32)[None], cols, rows, "bilinear")[0]
-    return np.where(np.isfinite(out), out, np.float32(image.mean()))
 
 
 def _to_dtype(fused, valid, dtype, nodata):
