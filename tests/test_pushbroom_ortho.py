@@ -13,7 +13,7 @@ from photax.dem import DEM
 from photax.pushbroom import fit_rpc
 from photax.rectification import OrthoModel, ortho_grid, orthorectify
 from photax.scene import pushbroom_scene
-from photax.sensor import RPCSensor, sensor_of, utm_crs
+from photax.sensor import GroundSensor, sensor_of, utm_crs
 
 pyproj = pytest.importorskip("pyproj")
 
@@ -54,7 +54,7 @@ def setup():
 def test_pushbroom_ortho_reproduces_the_ground_and_its_rpc(setup):
     scene, image, dem, crs, centre, spot = setup
     cam = scene.camera
-    assert isinstance(sensor_of(None, cam, crs), RPCSensor)
+    assert isinstance(sensor_of(None, cam, crs), GroundSensor)
     grid = ortho_grid(None, cam, dem, 5.0, crs=crs)
     ortho, grid = orthorectify(image, None, cam, dem, grid, approx=None)  # exact mapping: errors are the models'
     fit = fit_rpc(cam, scene.height_range)

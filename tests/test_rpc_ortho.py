@@ -13,7 +13,7 @@ from photax.dem import DEM
 from photax.grid import Grid
 from photax.rectification import OrthoModel, ortho_grid, orthorectify
 from photax.rpc import RPCCamera, read_rpc, refine_rpc
-from photax.sensor import RPCSensor, utm_crs
+from photax.sensor import GroundSensor, utm_crs
 
 rasterio = pytest.importorskip("rasterio")
 pyproj = pytest.importorskip("pyproj")
@@ -37,7 +37,7 @@ def _lonlat_to(crs, lon, lat):
 
 def test_sensor_lonlat_matches_pyproj_and_differentiates():
     rpc = _synthetic_rpc()
-    sensor = RPCSensor(rpc, "EPSG:32735")
+    sensor = GroundSensor(rpc, "EPSG:32735")
     rng = np.random.default_rng(1)
     lon = 24.4 + rng.uniform(-0.1, 0.1, 200)
     lat = -33.7 + rng.uniform(-0.07, 0.07, 200)
@@ -67,12 +67,12 @@ def test_rpc_outside_validity_is_nan_and_crs_invariant():
     rpc = _synthetic_rpc()
     utm, lo25 = "EPSG:32735", "+proj=tmerc +lon_0=25 +datum=WGS84 +units=m"
     far = _lonlat_to(utm, 24.4 + 0.5, -33.7)  # 5 lon scales away: folded by the polynomial, refused
-    assert np.all(np.isnan(np.asarray(RPCSensor(rpc, utm)(np.array([*far, 700.0])))))
+    assert np.all(np.isnan(np.asarray(GroundSensor(rpc, utm)(np.array([*far, 700.0])))))
     # The same ground point seen from two map CRSs images on the same pixel.
     lon, lat = np.array([24.35, 24.42, 24.48]), np.array([-33.66, -33.71, -33.75])
     a = np.column_stack([*_lonlat_to(utm, lon, lat), [400.0, 700.0, 1000.0]])
     b = np.column_stack([*_lonlat_to(lo25, lon, lat), [400.0, 700.0, 1000.0]])
-    np.testing.assert_allclose(np.asarray(RPCSensor(rpc, utm)(a)), np.asarray(RPCSensor(rpc, lo25)(b)), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(GroundSensor(rpc, utm)(a)), np.asarray(GroundSensor(rpc, lo25)(b)), atol=1e-6)
 
 
 def test_rpc_ortho_of_synthetic_image_reads_the_rpc_position():

@@ -194,7 +194,7 @@ from .scene import pushbroom_scene as pushbroom_scene
 from .scene import relief_scene as relief_scene
 from .sensor import FrameSensor as FrameSensor
 from .sensor import GroundCamera as GroundCamera
-from .sensor import RPCSensor as RPCSensor
+from .sensor import GroundSensor as GroundSensor
 from .sensor import utm_crs as utm_crs
 from .uncertainty import OrthoUncertainty as OrthoUncertainty
 from .uncertainty import ortho_uncertainty as ortho_uncertainty

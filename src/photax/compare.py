@@ -59,7 +59,7 @@ from .polynomial import (
 from .rectification import OrthoModel
 from .resampling import Resampling
 from .rpc import RPCCamera, refine_rpc
-from .sensor import RPCSensor
+from .sensor import GroundSensor
 
 
 @dataclasses.dataclass(frozen=True)
@@ -496,7 +496,7 @@ def compare_models(
             raise ValueError("exterior: an RPC camera carries its own orientation; leave it out")
         if dem.crs is None:
             raise ValueError("dem: an RPC camera needs the DEM's CRS (the ground points' map CRS)")
-        sensor = RPCSensor(camera, dem.crs)
+        sensor = GroundSensor(camera, dem.crs)
         llh = lambda g: np.column_stack([np.asarray(sensor.to_lonlat(g[:, :2])), g[:, 2]])  # noqa: E731
         resection = refine_rpc(camera, llh(gg), gp, refine, names=gcp_names)
         reference_camera = resection.camera

@@ -19,7 +19,7 @@ from .camera import FrameCamera
 from .collinearity import ExteriorOrientation
 from .dem import DEM
 from .io.crs import check_dem, describe, require_same
-from .sensor import FrameSensor, RPCSensor, sensor_of, utm_crs
+from .sensor import FrameSensor, GroundSensor, sensor_of, utm_crs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,7 +168,7 @@ def _footprint_outline(sensor, dem: DEM, per_side: int):
 def _sensor(exterior, camera, dem: DEM, crs):
     """The sensor (:func:`photax.sensor.sensor_of`) and the grid's CRS: for a frame the DEM's (or
     ``crs``), for an RPC ``crs`` or else the UTM zone of the scene's centre."""
-    if isinstance(camera, RPCSensor):
+    if isinstance(camera, GroundSensor):
         return camera, camera.crs
     if exterior is None and crs is None and not isinstance(camera, FrameCamera):
         crs = utm_crs(*camera.ground_box()[0])

@@ -13,7 +13,7 @@ Two kinds (:func:`sensor_of` picks one from what the user holds):
 
 * :class:`FrameSensor`: an exterior orientation and a :class:`photax.FrameCamera`, the collinearity
   equations in the orientation's (projected) CRS, which is the grid's and the DEM's.
-* :class:`RPCSensor`: a *ground camera* and the grid's CRS. A ground camera works in lon, lat (WGS84
+* :class:`GroundSensor`: a *ground camera* and the grid's CRS. A ground camera works in lon, lat (WGS84
   degrees) and ellipsoidal height: a :class:`photax.rpc.RPCCamera` (refined or not) or a
   :class:`photax.PushbroomCamera`; it has ``__call__(lon_lat_h) -> (column, row)``, ``image_size``,
   ``ground_box()`` (its validity box: centre and half-sides in degrees), ``height_range`` (its
@@ -184,7 +184,7 @@ class FrameSensor(eqx.Module):
 
 @runtime_checkable
 class GroundCamera(Protocol):
-    """What :class:`RPCSensor` asks of a camera whose ground is lon, lat (deg) and ellipsoidal height
+    """What :class:`GroundSensor` asks of a camera whose ground is lon, lat (deg) and ellipsoidal height
     (m): :class:`photax.rpc.RPCCamera`, :class:`photax.PushbroomCamera`."""
 
     image_size: tuple[int, int] | None
@@ -198,7 +198,7 @@ class GroundCamera(Protocol):
     def to_ground(self, pixel: Array, height) -> Array: ...  # (..., 2) -> (..., 2) lon, lat, NaN if not found
 
 
-class RPCSensor(eqx.Module):
+class GroundSensor(eqx.Module):
     """A ground camera (:class:`GroundCamera`: an RPC, a push-broom model) seen from a map CRS (module
     docstring): ground ``(X, Y)`` of ``crs`` -> lon, lat (a :class:`LocalTransform` fitted over the
     camera's validity box), ``Z`` the ellipsoidal height; NaN outside the lon, lat validity box widened
@@ -319,12 +319,12 @@ def sensor_of(exterior, camera, crs=None):
     """The sensor of an image: ``(exterior, FrameCamera)``, or ``(None, ground camera)`` (an
     ``RPCCamera``, a ``PushbroomCamera``: :class:`GroundCamera`) with ``crs`` the map CRS of the
     ground points (the output grid's)."""
-    if isinstance(camera, (FrameSensor, RPCSensor)):
+    if isinstance(camera, (FrameSensor, GroundSensor)):
         return camera
     if not isinstance(camera, FrameCamera) and isinstance(camera, GroundCamera):
         if exterior is not None:
             raise ValueError(f"an {type(camera).__name__} carries its own orientation: pass exterior=None")
-        return RPCSensor(camera, crs)
+        return GroundSensor(camera, crs)
     if not isinstance(camera, FrameCamera):
         raise ValueError(
             f"camera must be a FrameCamera, an RPCCamera or a PushbroomCamera, got {type(camera).__name__}"
@@ -335,9 +335,9 @@ def sensor_of(exterior, camera, crs=None):
 
 
 def check_rpc_dem(sensor, dem: DEM, grid) -> None:
-    """For an :class:`RPCSensor`: the DEM's heights under the grid against the RPC's height range
+    """For an :class:`GroundSensor`: the DEM's heights under the grid against the RPC's height range
     (offset +- scale). All outside: ValueError; some: a warning with how many (extrapolated). A DEM whose CRS has no ellipsoidal height: a warning."""
-    if not isinstance(sensor, RPCSensor):
+    if not isinstance(sensor, GroundSensor):
         return
     if sensor.camera.height_range is None:  # a rigorous model (push-broom): any height, ellipsoidal
         _check_ellipsoidal(dem)

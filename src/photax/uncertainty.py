@@ -68,7 +68,7 @@ from .dem import DEM
 from .grid import Grid
 from .io.crs import check_dem
 from .rpc import RPCCamera, RPCRefinement
-from .sensor import FrameSensor, RPCSensor
+from .sensor import FrameSensor, GroundSensor
 
 _BLOCK = 1 << 14  # points per jitted call (padded): one compilation, bounded memory
 _STRIP = 1 << 19  # pixels per strip at most: its intermediates stay small
@@ -76,13 +76,13 @@ _STRIP = 1 << 19  # pixels per strip at most: its intermediates stay small
 
 def _node_planes(sensor, g, cov):
     """The planes of :func:`_frame_planes` or :func:`_rpc_planes`, by the sensor's kind."""
-    if isinstance(sensor, RPCSensor):
+    if isinstance(sensor, GroundSensor):
         return _rpc_planes(sensor, g, cov)
     return _frame_planes(sensor.exterior, sensor.camera, g, cov)
 
 
 def _rpc_planes(sensor, g, cov):
-    """As :func:`_frame_planes` for an RPC (:class:`photax.sensor.RPCSensor`): ``J = dp/dk`` ``(2, 6)``
+    """As :func:`_frame_planes` for an RPC (:class:`photax.sensor.GroundSensor`): ``J = dp/dk`` ``(2, 6)``
     of its image-space correction ``k = (a0, a1, a2, b0, b1, b2)`` (``dc = a0 + a1 c + a2 r``, ``dr =
     b0 + b1 c + b2 r`` at the RPC's own pixel ``(c, r)``: :func:`photax.rpc.refine_rpc`), ``cov``
     ``(6, 6)``; ``dp/d(X, Y, Z)`` by ``jax.jacfwd`` through the map CRS -> lon, lat transformation."""
@@ -712,7 +712,7 @@ def _rpc(refinement, covariance, camera, grid):
         raise ValueError("covariance must be symmetric positive semi-definite")
     if camera.image_size is None:
         raise ValueError("the RPC camera must have an image_size")
-    return RPCSensor(camera, grid.crs), cov
+    return GroundSensor(camera, grid.crs), cov
 
 
 def _orientation(exterior, covariance, image: int):

@@ -391,13 +391,13 @@ def _rpc_ortho(args, image, camera):
     from ..grid import ortho_grid
     from ..io.raster import read_dem
     from ..rectification import orthorectify_file
-    from ..sensor import RPCSensor, utm_crs
+    from ..sensor import GroundSensor, utm_crs
 
     crs = args.crs if args.crs is not None else utm_crs(*(float(v) for v in camera.offsets[:2]))
     if args.dem is not None:
         dem = read_dem(args.dem)
     else:  # flat ground over the RPC's validity box, in the output CRS
-        dem = DEM.flat(args.height, RPCSensor(camera, crs).box())
+        dem = DEM.flat(args.height, GroundSensor(camera, crs).box())
         dem = DEM(dem.heights, dem.transform, crs=crs)
     grid = ortho_grid(None, camera, dem, args.resolution, crs=crs)
     orthorectify_file(

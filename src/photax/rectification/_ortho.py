@@ -14,7 +14,7 @@ from ..grid import Grid, gsd_hint, ortho_grid
 from ..io.crs import check_dem, same_crs
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
-from ..sensor import FrameSensor, LocalTransform, RPCSensor, check_rpc_dem, sensor_of
+from ..sensor import FrameSensor, GroundSensor, LocalTransform, check_rpc_dem, sensor_of
 from ._indirect import rectify
 
 
@@ -32,7 +32,7 @@ class OrthoModel(eqx.Module):
     into its CRS (pyproj), never resampled.
     """
 
-    sensor: FrameSensor | RPCSensor
+    sensor: FrameSensor | GroundSensor
     dem: DEM
     to_dem: LocalTransform | None  # grid CRS -> the DEM's, where they differ (an RPC only)
 
@@ -40,7 +40,7 @@ class OrthoModel(eqx.Module):
         self.sensor = sensor_of(exterior, camera, dem.crs if crs is None else crs)
         self.dem = dem
         self.to_dem = None
-        if isinstance(self.sensor, RPCSensor) and dem.crs is not None and not same_crs(dem.crs, self.sensor.crs):
+        if isinstance(self.sensor, GroundSensor) and dem.crs is not None and not same_crs(dem.crs, self.sensor.crs):
             self.to_dem = LocalTransform.fit(self.sensor.crs, dem.crs, self.sensor.box())
 
     def __call__(self, xy: Array) -> Array:
@@ -132,7 +132,7 @@ def check_ortho_inputs(exterior, camera, dem: DEM, grid: Grid) -> OrthoModel:
     """The model of an ortho after the DEM's checks: a frame's DEM projected and in the grid's CRS
     (:func:`photax.io.crs.check_dem`), an RPC's heights in its range (:func:`photax.sensor.check_rpc_dem`)."""
     model = OrthoModel(exterior, camera, dem, grid.crs)
-    if isinstance(model.sensor, RPCSensor):
+    if isinstance(model.sensor, GroundSensor):
         check_rpc_dem(model.sensor, dem, grid)
     else:
         check_dem(dem, grid)
