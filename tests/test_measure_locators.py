@@ -296,3 +296,29 @@ def test_matching_bad_input():
         match_lsm(tmpl[:2], txy[:2], s, pts[:1], window=10)
     with pytest.raises(ValueError, match="approx_xy"):
         match_lsm(t, pts, s, pts[:1], window=10)
+
+
+def test_windows_cut_to_the_size_before_the_spline_prefilter_still_match():
+    """Templates and search windows cut with only the 2 px margin the matchers used to read (callers
+    such as tie matching and fiducials cut them so) give the matches of the whole images, in the
+    search window's own pixels."""
+    from scipy.ndimage import gaussian_filter, shift
+
+    rng = np.random.default_rng(5)
+    img = gaussian_filter(rng.normal(0.0, 1.0, (160, 160)), 2.0)
+    half, search, margin = 6, 4, 5
+    c = 80
+    true = np.array([[c + 1.3, c - 0.7]])  # where the template's centre lies in the search image
+    shifted = shift(img, (-0.7, 1.3), order=3, mode="nearest")  # the content moved by (1.3, -0.7) px
+    ht = half + 2
+    tmpl = img[c - ht : c + ht + 1, c - ht : c + ht + 1]
+    hs = half + margin + 2  # the search window LSM read before
+    srch = shifted[c - hs : c + hs + 1, c - hs : c + hs + 1]
+    approx = np.array([[c + 1.0, c - 1.0]])
+    whole = match_lsm(img, [[c, c]], shifted, approx, window=half, margin=margin)
+    cut = match_lsm(tmpl, [[ht, ht]], srch, approx - (c - hs), window=half, margin=margin)
+    np.testing.assert_allclose(np.asarray(cut.xy) + (c - hs), np.asarray(whole.xy), atol=0.02)
+    np.testing.assert_allclose(np.asarray(whole.xy), true, atol=0.05)
+    n_whole = match_ncc(img, [[c, c]], shifted, approx, window=half, search=search)
+    n_cut = match_ncc(tmpl, [[ht, ht]], shifted, approx, window=half, search=search)
+    np.testing.assert_allclose(np.asarray(n_cut.xy), np.asarray(n_whole.xy), atol=1e-9)

@@ -30,6 +30,7 @@ matching technique", S. Afr. J. Photogramm. 14(3); seed 004 / docs/maths.md.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
 import jax
@@ -380,6 +381,17 @@ def match_lsm(
     return (res, p) if return_params else res
 
 
+def _mirror_small(img, xy, size):
+    """``img`` and ``xy`` as they are when a ``size`` px window fits, else (a window cut to the size
+    the interpolation needed before its spline prefilter: ``PAD`` px less on each side) mirrored by
+    ``PAD`` px, the points moved with it: the spline reproduces the samples at whole pixels
+    whatever its boundary, so windows cut for the old size still match."""
+    if min(img.shape[1:]) >= size:
+        return img, xy
+    check_window(size - 2 * PAD, img.shape[1:], "window")
+    return jnp.pad(jnp.asarray(img), ((0, 0), (PAD, PAD), (PAD, PAD)), mode="reflect"), xy + PAD
+
+
 def _pair(template_image, template_xy, search_image, approx_xy, half_t, half_s, run):
     timg, tb = as_images(template_image, "template_image")
     simg, sb = as_images(search_image, "search_image")
@@ -388,13 +400,16 @@ def _pair(template_image, template_xy, search_image, approx_xy, half_t, half_s, 
             f"template_image {timg.shape} and search_image {simg.shape}: give both as single images "
             "or both as batches of the same length"
         )
-    check_window(2 * (half_t + 2 + PAD) + 1, timg.shape[1:], "window")
-    check_window(2 * half_s + 1, simg.shape[1:], "window")
     txy = as_points(template_xy, timg.shape[0], tb, "template_xy")
     sxy = as_points(approx_xy, simg.shape[0], sb, "approx_xy")
+    timg, txy = _mirror_small(timg, txy, 2 * (half_t + 2 + PAD) + 1)
+    mirrored = min(simg.shape[1:]) < 2 * half_s + 1
+    simg, sxy = _mirror_small(simg, sxy, 2 * half_s + 1)
     if txy.shape != sxy.shape:
         raise ValueError(f"template_xy {txy.shape} and approx_xy {sxy.shape}: one approximation per template point")
     res, extra = run(timg, txy, simg, sxy)
+    if mirrored:  # back to the search image's own pixels
+        res = dataclasses.replace(res, xy=res.xy - PAD)
     if tb:
         return res, extra
     return jax.tree_util.tree_map(lambda a: a[0], res), extra[0]
