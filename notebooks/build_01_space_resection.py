@@ -4,7 +4,7 @@ Run: ``python notebooks/build_01_space_resection.py``.  The notebook is
 committed without outputs; tests/test_notebooks.py executes it.
 """
 
-from _build import write_notebook
+from _build import FIND_SHARED, write_notebook
 
 CELLS = [
     (
@@ -31,14 +31,9 @@ import photax as ptx
 from photax import plot
 
 
-def find_shared(name):
-    \"\"\"../../shared/data/<name> relative to this notebook (or the current folder).\"\"\"
-    here = pathlib.Path.cwd()
-    for base in (here / "../../shared/data", here / "../shared/data", here / "shared/data"):
-        if (base / name).is_file():
-            return (base / name).resolve()
-    return None
-
+"""
+        + FIND_SHARED
+        + """
 
 odm = find_shared("gcp_list_floatxy_raw.txt")
 if odm is not None:

@@ -4,7 +4,7 @@ Run: ``python notebooks/build_02_rectification.py``.  The notebook is
 committed without outputs; tests/test_notebooks.py executes it.
 """
 
-from _build import write_notebook
+from _build import FIND_SHARED, write_notebook
 
 CELLS = [
     (
@@ -36,14 +36,9 @@ import photax as ptx
 from photax.io import read_dem, read_geotiff, read_orthority_exterior, read_orthority_interior
 
 
-def find_shared(name):
-    \"\"\"../../shared/data/<name> relative to this notebook (or the current folder).\"\"\"
-    here = pathlib.Path.cwd()
-    for base in (here / "../../shared/data", here / "../shared/data", here / "shared/data"):
-        if (base / name).is_file():
-            return (base / name).resolve()
-    return None
-
+"""
+        + FIND_SHARED
+        + """
 
 NGI_IMAGE = "3324c_2015_1004_05_0182_RGB"
 ngi_files = {k: find_shared(f) for k, f in [("image", NGI_IMAGE + ".tif"), ("dem", "dem.tif"),

@@ -4,7 +4,7 @@ Run: ``python notebooks/build_04_image_measurement.py``.  The notebook is
 committed without outputs; tests/test_notebooks.py executes it.
 """
 
-from _build import write_notebook
+from _build import FIND_SHARED, write_notebook
 
 CELLS = [
     (
@@ -37,14 +37,9 @@ from photax.io import read_geotiff
 from photax.scene import patterns
 
 
-def find_shared(name):
-    \"\"\"../../shared/data/<name> relative to this notebook (or the current folder).\"\"\"
-    here = pathlib.Path.cwd()
-    for base in (here / "../../shared/data", here / "../shared/data", here / "shared/data"):
-        if (base / name).is_file():
-            return (base / name).resolve()
-    return None
-
+"""
+        + FIND_SHARED
+        + """
 
 rng = np.random.default_rng(4)
 ngi = find_shared("3324c_2015_1004_05_0182_RGB.tif")

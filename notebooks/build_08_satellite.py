@@ -5,7 +5,7 @@ tests/test_notebooks.py executes it.  (The push-broom -> RPC fit part belongs to
 model's own change.)
 """
 
-from _build import write_notebook
+from _build import FIND_SHARED, write_notebook
 
 CELLS = [
     (
@@ -45,14 +45,9 @@ from photax.io import read_dem, read_gcps, read_geotiff
 from photax.rectification import ortho_grid, orthorectify
 
 
-def find_shared(name):
-    \"\"\"../../shared/data/<name> relative to this notebook (or the current folder).\"\"\"
-    here = pathlib.Path.cwd()
-    for base in (here / "../../shared/data", here / "../shared/data", here / "shared/data"):
-        if (base / name).is_file():
-            return (base / name).resolve()
-    return None
-
+"""
+        + FIND_SHARED
+        + """
 
 files = {k: find_shared(f) for k, f in [("image", "orthority/rpc/qb2_basic1b.tif"), ("dem", "orthority/ngi/dem.tif"),
                                         ("gcps", "orthority/rpc/gcps.geojson")]}

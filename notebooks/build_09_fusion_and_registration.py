@@ -4,7 +4,7 @@ Run: ``python notebooks/build_09_fusion_and_registration.py``.  The notebook is
 committed without outputs; tests/test_notebooks.py executes it.
 """
 
-from _build import write_notebook
+from _build import FIND_SHARED, write_notebook
 
 CELLS = [
     (
@@ -37,14 +37,9 @@ import photax as ptx
 from photax import fusion
 
 
-def find_shared(name):
-    \"\"\"../../shared/data/<name> relative to this notebook (or the current folder).\"\"\"
-    here = pathlib.Path.cwd()
-    for base in (here / "../../shared/data", here / "../shared/data", here / "shared/data"):
-        if (base / name).is_file():
-            return (base / name).resolve()
-    return None
-
+"""
+        + FIND_SHARED
+        + """
 
 pan_path, ms_path = find_shared("orthority/pan_sharp/pan.tif"), find_shared("orthority/pan_sharp/ms.tif")
 if pan_path and ms_path:
