@@ -39,6 +39,9 @@ sys.path.insert(0, os.path.dirname(__file__))
 from _common import median_times, record, start
 from bench_startup import BIN, REPO, interleaved, load, show
 
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
+from test_rpc_ortho import offset_and_mad  # noqa: E402 -- the tests' own offset measure (tested on a known shift)
+
 CRS = "EPSG:32735"
 
 
@@ -64,31 +67,6 @@ def oty_cmd(data, out_dir, refine=False):
            "-di", "bilinear", "-cm", "deflate", "-nbo", "-nwm", "-o", "--out-dir", out_dir]  # fmt: skip
     cmd += ["-gr", data / "rpc" / "gcps.geojson"] if refine else []
     return cmd + [data / "rpc" / "qb2_basic1b.tif"]
-
-
-def offset_and_mad(a, b, iterations=6):
-    """Geometric offset between two uint8 orthos on the same grid and their mean absolute grey
-    difference on the common pixels: ``(|d| px, MAD, common pixels)``. ``d`` is the shift that moves
-    ``a`` onto ``b``, by least squares on the image gradients (Lucas-Kanade, iterated), away from
-    the footprint's edge; measured on an ortho shifted by (0.3, -0.2) px it finds (0.28, -0.18)
-    (phase correlation found 0.15 px in all: too blunt for a 0.2 px target)."""
-    import numpy as np
-    from scipy.ndimage import shift as nd_shift
-
-    both = (a > 0) & (b > 0)
-    af, bf = a.astype(float), b.astype(float)
-    d = np.zeros(2)
-    for _ in range(iterations):
-        moved = nd_shift(af, d, order=3, mode="nearest")
-        gy, gx = np.gradient(moved)
-        m = both & (nd_shift(both.astype(float), d, order=0) > 0)
-        m[:3], m[-3:], m[:, :3], m[:, -3:] = False, False, False, False
-        m &= np.abs(gy) + np.abs(gx) < 60  # not across the footprint's edge
-        step = np.linalg.lstsq(np.column_stack([gy[m], gx[m]]), (bf - moved)[m], rcond=None)[0]
-        d -= step
-        if np.abs(step).max() < 1e-4:
-            break
-    return float(np.hypot(*d)), float(np.abs(af[both] - bf[both]).mean()), int(both.sum())
 
 
 def accuracy(data: pathlib.Path, tmp: pathlib.Path) -> None:

@@ -159,7 +159,7 @@ def test_qb_positions_equal_gdal_rpc_dem(qb):
     assert err < 0.1
 
 
-def _offset_and_mad(a, b, iterations=6):
+def offset_and_mad(a, b, iterations=6):
     """Geometric offset between two uint8 orthos on the same grid and their mean absolute grey
     difference on the common pixels: ``(|d| px, MAD, common pixels)``. ``d`` is the shift that moves
     ``a`` onto ``b``, by least squares on the image gradients (Lucas-Kanade, iterated), away from
@@ -219,7 +219,7 @@ def test_qb_ortho_matches_orthority(qb, refine, tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         ours, _ = orthorectify(image, None, rpc, dem, grid, nodata=0)
-    shift, mad, n = _offset_and_mad(ours, ref)
+    shift, mad, n = offset_and_mad(ours, ref)
     print(f"vs orthority ({refine or 'raw'}): offset {shift:.3f} px, MAD {mad:.3f} grey levels on {n} pixels")
     assert n > 0.9 * (ref > 0).sum()
     assert shift <= 0.2 and mad <= 1.0
@@ -227,7 +227,7 @@ def test_qb_ortho_matches_orthority(qb, refine, tmp_path):
         from scipy.ndimage import shift as nd_shift
 
         moved = np.where(ref > 0, np.clip(nd_shift(ref.astype(float), (0.3, -0.2), order=1), 0, 255), 0)
-        assert _offset_and_mad(ref, moved.astype(np.uint8))[0] > 0.3
+        assert offset_and_mad(ref, moved.astype(np.uint8))[0] > 0.3
 
 
 def test_qb_ortho_matches_gdal_warper(qb):
@@ -249,7 +249,7 @@ def test_qb_ortho_matches_gdal_warper(qb):
         reproject(image, gdal, rpcs=src.rpcs, src_crs="EPSG:4326", dst_crs=grid.crs, dst_transform=grid.transform,
                   resampling=Resampling.bilinear, src_nodata=0, dst_nodata=0, RPC_DEM=str(dem_path),
                   RPC_DEM_APPLY_VDATUM_SHIFT=False, RPC_DEMINTERPOLATION="bilinear")  # fmt: skip
-    shift, mad, n = _offset_and_mad(ours, gdal)
+    shift, mad, n = offset_and_mad(ours, gdal)
     print(f"vs GDAL: offset {shift:.3f} px, MAD {mad:.4f} grey levels on {n} pixels")
     assert n > 0.99 * grid.shape[0] * grid.shape[1]
     assert shift <= 0.1 and mad <= 1.0
