@@ -903,3 +903,22 @@ def test_fuzz_read_opk_export(work, data):
             _finite(eo.position, eo.angles)
 
     _expect_valueerror_or_sane(read_opk_export, path, sane, r": no camera orientations$", lines=True)
+
+
+PIX4D_CAMS = [
+    b"Pix4D camera calibration file 0\n#Focal Length mm assuming a sensor width of 17.49998592x13.12498944mm\n"
+    b"F 15.01175404934517487732\n#Principal Point mm\nPx 8.48210511970419922534\nPy 6.33434629978042273990\n"
+    b"#Symmetrical Lens Distortion Coeffs\nK1 0.0383\nK2 -0.0175\nK3 0.0205\n#Tangential Lens Distortion Coeffs\n"
+    b"T1 0.0024\nT2 0.0029\n",
+]
+
+
+@FUZZ
+@given(data=mutated(PIX4D_CAMS))
+def test_fuzz_read_pix4d_cam(work, data):
+    from photax.io.pix4d import read_pix4d_cam
+
+    path = work / "p_pix4d_calibrated_internal_camera_parameters.cam"
+    path.write_bytes(data)
+    whole = r": (no .*|not a Pix4D camera file .*|F \(focal length, mm\) must be positive.*|Px or Py .* out of range)$"
+    _expect_valueerror_or_sane(lambda p: read_pix4d_cam(p, (4608, 3456)), path, _sane_camera, whole, lines=True)

@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 import pyproj
 import pytest
-from conftest import shared_file
+from conftest import SHARED_DATA, shared_file
 
 import photax
 from photax.io import read_exteriors, read_interior
@@ -160,3 +160,55 @@ def test_fuzz_read_odm_geo_and_cameras(tmp_path):
             assert str(path) in str(exc)
 
     check()
+
+
+def test_geo_txt_writer_round_trips(tmp_path):
+    """geo.txt written from the positions of orthority's io/odm_lla_rpy.csv (the drone's
+    longitude, latitude, altitude, when the shared data is there; else synthetic ones)
+    reads back: geographic -> the UTM positions pyproj gives, projected -> the same numbers."""
+    from photax.io.odm import write_odm_geo
+
+    lla_csv = SHARED_DATA / "orthority/io/odm_lla_rpy.csv"
+    if lla_csv.is_file():
+        rows = [ln.split() for ln in lla_csv.read_text().splitlines()[1:] if ln.strip()]
+        lla = {r[0]: (float(r[2]), float(r[1]), float(r[3])) for r in rows}
+    else:
+        rng = np.random.default_rng(5)
+        lla = {
+            f"IMG_{k:04d}.JPG": (120.9 + rng.uniform(0, 0.01), 24.6 + rng.uniform(0, 0.01), 180 + k) for k in range(5)
+        }
+    path = write_odm_geo(tmp_path / "geo.txt", lla, "EPSG:4326")
+    assert path.read_text().splitlines()[0] == "EPSG:4326"
+    table, crs, acc = read_odm_geo(path)
+    t = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    assert acc == {}
+    for name, (lon, lat, h) in lla.items():
+        stem = name.rsplit(".", 1)[0]
+        np.testing.assert_allclose(table[stem][:2], t.transform(lon, lat), rtol=0, atol=1e-9)
+        assert table[stem][2] == h
+    # projected: the numbers come back as written, 2-D positions stay 2-D
+    utm = {f"{k}.JPG": v for k, v in table.items()}
+    utm[next(iter(utm))] = np.array([*next(iter(table.values()))[:2], np.nan])
+    back, crs2, _ = read_odm_geo(write_odm_geo(tmp_path / "utm.txt", utm, crs))
+    assert crs2 == crs
+    for name, v in utm.items():
+        np.testing.assert_array_equal(back[name.rsplit(".", 1)[0]], v)
+
+
+@pytest.mark.parametrize(
+    "positions, crs, match",
+    [
+        ({}, "EPSG:4326", "no positions"),
+        ({"a.jpg": (1.0, np.nan, 2.0)}, "EPSG:32633", "must be finite"),
+        ({"a.jpg": (1.0, 2.0, np.inf)}, "EPSG:32633", "must be finite"),
+        ({"a b.jpg": (1.0, 2.0, 3.0)}, "EPSG:32633", "with spaces"),
+        ({"a.jpg": (1.0, 2.0), "a.JPG": (1.0, 2.0)}, "EPSG:32633", "repeated stem"),
+        ({"a.jpg": (1.0, 2.0)}, "not a crs", "not a CRS pyproj reads"),
+    ],
+)
+def test_geo_txt_writer_refusals(tmp_path, positions, crs, match):
+    from photax.io.odm import write_odm_geo
+
+    with pytest.raises(ValueError, match=match):
+        write_odm_geo(tmp_path / "geo.txt", positions, crs)
+    assert not (tmp_path / "geo.txt").exists()

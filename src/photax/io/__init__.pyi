@@ -38,6 +38,7 @@ from .metashape import write_opk_export as write_opk_export
 from .odm import read_odm_cameras as read_odm_cameras
 from .odm import read_odm_geo as read_odm_geo
 from .odm import write_odm_cameras as write_odm_cameras
+from .odm import write_odm_geo as write_odm_geo
 from .opensfm import camera_to_opensfm as camera_to_opensfm
 from .opensfm import read_opensfm_cameras as read_opensfm_cameras
 from .opensfm import read_opensfm_shots as read_opensfm_shots
@@ -76,6 +77,8 @@ from .orthority import (
 from .orthority import write_orthority_exterior as write_orthority_exterior
 from .orthority import write_orthority_geojson as write_orthority_geojson
 from .orthority import write_orthority_interior as write_orthority_interior
+from .pix4d import read_pix4d_cam as read_pix4d_cam
+from .pix4d import write_pix4d_cam as write_pix4d_cam
 from .points import read_named_points as read_named_points
 from .points import read_pixel_points as read_pixel_points
 from .raster import (

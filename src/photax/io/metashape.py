@@ -40,8 +40,7 @@ the file does not name.
 angles in degrees, PATB omega-phi-kappa (Pix4D, "How are the Internal and
 External Camera Parameters defined"): photax's ``"omega-phi-kappa"``
 unchanged.  Positions in the project's output CRS (not named in the file).
-Pix4D's ``.cam`` internal parameters are not read: the sources found do not
-settle the origin of its principal point's ``Py`` and the frame of ``T1 T2``.
+Pix4D's ``.cam`` internal parameters: :mod:`photax.io.pix4d`.
 """
 
 from __future__ import annotations

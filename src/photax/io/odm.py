@@ -14,13 +14,15 @@
   the UTM zone of their mean, or ``crs=``; heights as given), with the
   accuracies where given; the angles are not: ODM uses them only for
   radiometric calibration and does not define their frame, so they do not
-  make an exterior orientation.
+  make an exterior orientation.  :func:`write_odm_geo` writes positions back
+  (names, x, y and the height where there is one).
 """
 
 from __future__ import annotations
 
 import math
 import pathlib
+import warnings
 
 import numpy as np
 
@@ -155,3 +157,49 @@ def _is_unreadable(text: str) -> bool:
     from .gcp import _parse_crs
 
     return _parse_crs(text) is None
+
+
+def write_odm_geo(path, positions, crs, *, inputs=()) -> pathlib.Path:
+    """Write ``positions`` (``{image name: (x, y[, z])}``, in ``crs``) as ODM's ``geo.txt``
+    (``--geo``), atomically: the CRS line (``EPSG:<code>``, or the PROJ string of a CRS
+    without one), then ``image_name geo_x geo_y [geo_z]``, 17 significant digits; for a
+    geographic CRS ``x`` is the longitude.  A NaN height (a 2-D position, as
+    :func:`read_odm_geo` reads one) is left out; angles and accuracies are not written
+    (photax has no attitude of ODM's meaning, and no accuracy is invented).
+    :func:`read_odm_geo` reads back the same positions (keyed by the names' stems;
+    geographic ones projected to the UTM zone, or its ``crs=``).
+
+    Raises:
+        ValueError: no positions; a name that is empty, has spaces or repeats a
+            stem; an x or y that is not finite, a height that is infinite; a CRS
+            pyproj does not read, or one with neither an EPSG code nor a PROJ string.
+    """
+    from .atomic import atomic_write
+    from .gcp import _parse_crs
+
+    if not positions:
+        raise ValueError("no positions to write")
+    parsed = _parse_crs(str(crs)) if crs is not None else None
+    if parsed is None:
+        raise ValueError(f"crs {excerpt(crs)}: not a CRS pyproj reads (geo.txt's first line names it)")
+    epsg = parsed.to_epsg()
+    with warnings.catch_warnings():  # pyproj warns that PROJ strings lose some of a CRS: the line is all there is
+        warnings.simplefilter("ignore")
+        crs_line = f"EPSG:{epsg}" if epsg is not None else parsed.to_proj4()
+    if not crs_line or "\n" in crs_line:
+        raise ValueError(f"crs {excerpt(crs)}: has no EPSG code nor PROJ string for geo.txt's one line")
+    lines, stems = [crs_line], set()
+    for name, xyz in positions.items():
+        name = str(name)
+        stem = pathlib.PurePath(name).stem
+        if not stem or any(c.isspace() for c in name) or name.startswith("#") or stem in stems:
+            raise ValueError(f"image name {name!r}: empty, with spaces, starting with '#' or a repeated stem")
+        stems.add(stem)
+        v = np.asarray(xyz, dtype=float).ravel()
+        if v.shape not in ((2,), (3,)) or not np.all(np.isfinite(v[:2])) or (len(v) == 3 and np.isinf(v[2])):
+            raise ValueError(f"image {name!r}: position must be finite (x, y[, z]), got {v.tolist()}")
+        keep = v[:2] if len(v) == 2 or np.isnan(v[2]) else v
+        lines.append(" ".join([name, *(repr(float(c)) for c in keep)]))
+    with atomic_write(path, inputs=inputs) as fh:
+        fh.write("\n".join(lines) + "\n")
+    return pathlib.Path(path)

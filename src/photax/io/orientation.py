@@ -4,7 +4,9 @@
   an orthority interior YAML (:mod:`photax.io.orthority`) -- an orthority
   file has a ``type`` key, or maps camera names to mappings that each have one --
   or an OpenSfM/ODM ``reconstruction.json`` (:mod:`photax.io.opensfm`: a JSON list
-  of objects with ``shots``), or ODM's ``cameras.json`` (:mod:`photax.io.odm`);
+  of objects with ``shots``), or ODM's ``cameras.json`` (:mod:`photax.io.odm`), or
+  Pix4D's ``.cam`` (:mod:`photax.io.pix4d`: its pixel count from the
+  ``calibrated_camera_parameters.txt`` beside it);
 * :func:`read_exterior`: a ``photax resect --json`` result (``.json``), a
   ``reconstruction.json``, an orthority GeoJSON (``.geojson``) or an orthority
   exterior CSV (+ ``.prj`` beside it; or latitude, longitude, altitude, roll,
@@ -132,9 +134,19 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
     path = pathlib.Path(path)
     from .colmap import is_colmap_file, read_colmap_cameras
     from .metashape import is_metashape_xml, read_metashape_calibration
+    from .pix4d import image_size_beside, is_pix4d_cam, read_pix4d_cam
 
     if is_metashape_xml(path):
         cameras = read_metashape_calibration(path)
+    elif is_pix4d_cam(path):
+        size = image_size_beside(path)
+        if size is None:
+            raise file_error(
+                path, None, "a Pix4D .cam does not give the image's size in pixels: keep the same run's "
+                "<project>_calibrated_camera_parameters.txt beside it, or read it with "
+                "photax.io.read_pix4d_cam(path, image_size)"
+            )  # fmt: skip
+        return read_pix4d_cam(path, size)
     elif is_colmap_file(path, "cameras"):
         cameras = read_colmap_cameras(path)
     elif _is_reconstruction_file(path):
