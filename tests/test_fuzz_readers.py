@@ -867,7 +867,7 @@ METASHAPE_XML = [
 ]
 OPK_EXPORTS = [
     b"# Cameras (1)\n# PhotoID, X, Y, Z, Omega, Phi, Kappa, r11, r12, r13, r21, r22, r23, r31, r32, r33\n"
-    b"a.JPG\t1.0\t2.0\t3.0\t0.000000\t0.000000\t0.000000\t1\t0\t0\t0\t-1\t0\t0\t0\t-1\n"
+    b"a.JPG\t1.0\t2.0\t3.0\t0.000000\t0.000000\t0.000000\t1\t0\t0\t0\t1\t0\t0\t0\t1\n"
     b"b.JPG\t4.0\t5.0\t6.0\t0.0\t0.0\t0.0\n",
     b"imageName X Y Z Omega Phi Kappa\nIMG_1.JPG 12.5 -3.25 101.0 0.5 -1.25 92.0\nIMG_2.JPG 2.5 -3 10 0 0 0\n",
 ]

@@ -105,9 +105,20 @@ def test_other_projections_and_bad_xml_are_refused(tmp_path):
         read_metashape_calibration(path)
 
 
+def _collinearity_matrix(omega, phi, kappa):
+    """The classical photogrammetric rotation matrix M of omega, phi, kappa (world -> camera,
+    camera x right, y up, z back; as in Wolf & Dewitt, Elements of Photogrammetry), typed
+    element by element: the layout of Metashape's r11..r33 (photax.io.metashape's docstring)."""
+    so, co, sp, cp, sk, ck = np.sin(omega), np.cos(omega), np.sin(phi), np.cos(phi), np.sin(kappa), np.cos(kappa)
+    return np.array([
+        [cp * ck, so * sp * ck + co * sk, -co * sp * ck + so * sk],
+        [-cp * sk, -so * sp * sk + co * ck, co * sp * sk + so * ck],
+        [sp, -so * cp, co * cp],
+    ])  # fmt: skip
+
+
 def _metashape_opk_line(name, xyz, opk_deg):
-    r_wc = np.asarray(ptx.ExteriorOrientation(xyz, np.radians(opk_deg), "omega-phi-kappa").rotation)
-    r = np.diag([1.0, -1.0, -1.0]) @ r_wc.T  # world -> camera, y down (the documented meaning of r11..r33)
+    r = _collinearity_matrix(*np.radians(opk_deg))
     return "\t".join(
         [name, *(f"{v:.6f}" for v in xyz), *(f"{v:.6f}" for v in opk_deg), *(f"{v:.6f}" for v in r.ravel())]
     )
@@ -127,14 +138,19 @@ def test_metashape_opk_export(tmp_path):
     # read_exterior (what --exterior uses) finds it by content
     eo, crs = ptx.io.read_exterior(path, "images/DJI_0001.JPG")
     assert crs is None and np.allclose(eo.position, rows[0][1])
-    # a matrix of another convention (here the transpose) is refused, naming the line
-    bad = path.read_text().splitlines()
-    fields = bad[3].split("\t")
-    r = np.array(fields[7:], dtype=float).reshape(3, 3).T
-    bad[3] = "\t".join(fields[:7] + [f"{v:.6f}" for v in r.ravel()])
-    path.write_text("\n".join(bad) + "\n")
-    with pytest.raises(ValueError, match=r"cameras_opk.txt, line 4: the rotation matrix r11..r33 does not match"):
-        read_opk_export(path)
+    # the camera the file means: its axes in world coordinates are the rows of M (y up, z back)
+    m = _collinearity_matrix(*np.radians(rows[0][2]))
+    np.testing.assert_allclose(np.asarray(table["DJI_0001"].rotation), m.T, rtol=0, atol=1e-12)
+    # a matrix of another convention (the transpose; the same in a y-down camera frame: the
+    # camera looking up) is refused, naming the line
+    for change in (lambda r: r.T, lambda r: np.diag([1.0, -1.0, -1.0]) @ r):
+        bad = path.read_text().splitlines()
+        fields = bad[3].split("\t")
+        r = change(np.array(fields[7:], dtype=float).reshape(3, 3))
+        bad[3] = "\t".join(fields[:7] + [f"{v:.6f}" for v in r.ravel()])
+        (tmp_path / "bad.txt").write_text("\n".join(bad) + "\n")
+        with pytest.raises(ValueError, match=r"bad.txt, line 4: the rotation matrix r11..r33 does not match"):
+            read_opk_export(tmp_path / "bad.txt")
 
 
 def test_pix4d_external_parameters(tmp_path):

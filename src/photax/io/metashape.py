@@ -28,12 +28,23 @@ older layout (``fx``, ``fy``).
 (*.txt)"): ``# Cameras (n)``, ``# PhotoID, X, Y, Z, Omega, Phi, Kappa, r11,
 r12, r13, r21, r22, r23, r31, r32, r33``, then one tab-separated line per
 camera.  The angles are degrees in the photogrammetric omega-phi-kappa
-(photax's ``"omega-phi-kappa"``, as orthority and Pix4D's PATB); the matrix is
-the world -> camera rotation in Metashape's camera frame (y down, z forward),
-``r = diag(1, -1, -1) R^T`` with ``R`` photax's world_from_camera.  Each line's
-matrix is checked against its angles (to 1e-4), so a file of another
-convention is refused, not misread.  Positions are in the chunk's CRS, which
-the file does not name.
+(photax's ``"omega-phi-kappa"``, as orthority and Pix4D's PATB); the matrix,
+row by row, is the world -> camera rotation of the same angles in the
+photogrammetric camera frame (x right, y up, z back): ``r = R^T`` with ``R =
+Rx(omega) Ry(phi) Rz(kappa)`` photax's world_from_camera, i.e. the classical
+collinearity matrix ``M`` (``m11 = cos(phi) cos(kappa)``, ``m31 = sin(phi)``,
+``m33 = cos(omega) cos(phi)``).  Metashape's manual does not define
+``r11..r33`` (none found); this layout is the one two independent programs
+that use real Metashape exports read: the Camera Projection Painter add-on
+(its ``MS_PIDXYZOPK`` reader and writer: camera-to-world ``= r^T`` in
+Blender's y-up, z-back camera frame, while its Metashape XML reader flips
+that XML's y-down frame) and a photomontage tool's ``readOPKFile`` +
+``colinearite`` (``r (X - S)``, then ``u = w/2 + cx - f x``, ``v = h/2 + cy +
+f y``: a y-up, z-back frame).  Each line's matrix is checked against its
+angles (to 1e-4), so a file whose angles mean another rotation -- or whose
+matrix is in Metashape's own y-down camera frame, ``diag(1, -1, -1) R^T``,
+the same camera looking up -- is refused, not misread.  Positions are in
+the chunk's CRS, which the file does not name.
 
 **Pix4D** ``*_calibrated_external_camera_parameters.txt``: a header
 ``imageName X Y Z Omega Phi Kappa`` then one space-separated line per image;
@@ -57,7 +68,6 @@ from .files import excerpt, file_error, read_text, split_lines
 
 _TERMS = ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2", "p3", "p4")
 _NOT_CONVERTED = ("k4", "p3", "p4", "b2")
-_F = np.diag([1.0, -1.0, -1.0])
 
 
 def _parse_xml(path: pathlib.Path) -> ET.Element:
@@ -231,11 +241,11 @@ def read_opk_export(path) -> dict[str, ExteriorOrientation]:
         eo = ExteriorOrientation(v[:3], np.radians(v[3:6]), "omega-phi-kappa")
         if len(v) == 15:
             r = v[6:].reshape(3, 3)
-            expected = _F @ np.asarray(eo.rotation).T
+            expected = np.asarray(eo.rotation).T
             if not np.allclose(r, expected, rtol=0, atol=1e-4):  # the file rounds both (6 decimals usual)
                 raise file_error(
                     path, n, "the rotation matrix r11..r33 does not match omega, phi, kappa in Metashape's "
-                    "convention (photogrammetric omega-phi-kappa; r = world -> camera with y down): "
+                    "convention (photogrammetric omega-phi-kappa; r = world -> camera, camera y up, z back): "
                     "not a Metashape export?"
                 )  # fmt: skip
         out[stem] = eo
@@ -298,7 +308,7 @@ def write_opk_export(table: dict, path, *, format: str = "metashape", inputs=())
         e = eo.to_convention("omega-phi-kappa")
         values = [*np.asarray(e.position, dtype=float).tolist(), *np.degrees(np.asarray(e.angles)).tolist()]
         if format == "metashape":
-            values += (_F @ np.asarray(e.rotation).T).ravel().tolist()
+            values += np.asarray(e.rotation).T.ravel().tolist()
         lines.append(("\t" if format == "metashape" else " ").join([name, *(repr(float(v)) for v in values)]))
     if format == "metashape":
         head = [f"# Cameras ({len(lines)})", "# PhotoID, X, Y, Z, Omega, Phi, Kappa, r11, r12, r13, r21, r22, r23, "
