@@ -548,6 +548,12 @@ def write_colmap_model(model: ColmapModel, folder, *, binary: bool = False, inpu
     for im in model.images.values():
         if not im.name or any(c in im.name for c in "\n\r\x00") or im.name != im.name.strip():
             raise ValueError(f"image {im.name!r}: a COLMAP image name must be one line without surrounding spaces")
+    numbers = [*((f"camera {k}", c.params) for k, c in model.cameras.items()),
+               *((f"image {im.name!r}", np.concatenate([im.qvec, im.tvec, np.ravel(im.xy)])) for im in model.images.values()),
+               *((f"point {k}", np.append(p.xyz, p.error)) for k, p in model.points.items())]  # fmt: skip
+    for what, values in numbers:
+        if not np.all(np.isfinite(np.asarray(values, dtype=float))):
+            raise ValueError(f"{what}: a value is not finite (nan or inf): not written")
     with atomic_path(folder.resolve(), folder=True) as tmp:
         if binary:
             _write_bin(model, tmp)

@@ -279,6 +279,9 @@ def write_metashape_calibration(camera: FrameCamera, path, *, inputs=()) -> path
     fx, fy = f / sx, f / sy
     terms = {"f": fy, "cx": x0 / sx, "cy": -y0 / sy, "b1": fx - fy, "k1": k1, "k2": k2, "k3": k3,
              "p1": p2, "p2": 0.0 - p1}  # fmt: skip
+    bad = [k for k, v in terms.items() if not math.isfinite(v)]
+    if bad:
+        raise ValueError(f"the camera's {', '.join(bad)} is not finite (nan or inf): not written")
     w, h = camera.image_size
     body = "".join(f"  <{k}>{v!r}</{k}>\n" for k, v in terms.items())
     with atomic_write(path, inputs=inputs) as fh:
@@ -307,6 +310,8 @@ def write_opk_export(table: dict, path, *, format: str = "metashape", inputs=())
             raise ValueError(f"image name {name!r}: an OPK file's names have no spaces")
         e = eo.to_convention("omega-phi-kappa")
         values = [*np.asarray(e.position, dtype=float).tolist(), *np.degrees(np.asarray(e.angles)).tolist()]
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError(f"image {name!r}: a position or angle is not finite (nan or inf): not written")
         if format == "metashape":
             values += np.asarray(e.rotation).T.ravel().tolist()
         lines.append(("\t" if format == "metashape" else " ").join([name, *(repr(float(v)) for v in values)]))

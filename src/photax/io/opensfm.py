@@ -29,8 +29,11 @@ orthority 0.7's reader of the same file:
   parallel to the UTM grid (their ``gps_position`` entries, true topocentric,
   sit ~2 m from the shots, turned by the meridian convergence).  ``frame=``
   names it; by default it is decided by the shots' ``gps_position``: the frame
-  under which the shots land nearer their GNSS positions (an error when no
-  shot has one and the two frames differ).
+  under which the shots land nearer their GNSS positions, when one fits at
+  least twice as well (or by over a millimetre); else, where the frames'
+  headings differ (the meridian convergence: a one-shot or compact
+  reconstruction lands both ways on its GNSS positions, yet one way is turned
+  by up to a degree or so), an error asking for the frame, never a guess.
 
   - ``"topocentric"``: positions exactly, through geocentric coordinates;
     each rotation turned into the grid frame at the camera (its own
@@ -57,6 +60,7 @@ orthority 0.7's reader of the same file:
 
 from __future__ import annotations
 
+import math
 import pathlib
 
 import numpy as np
@@ -267,17 +271,26 @@ def _to_grid(centre, r_frame, gps, lla, crs, frame):
     if frame is None:
         has = np.all(np.isfinite(gps), axis=-1)
         spread = float(np.max(np.linalg.norm(xyz_t - xyz_g, axis=-1)))
+        # the frames' headings differ by the meridian convergence: same positions are not same rotations
+        turn = float(np.max(np.arccos(np.clip((np.trace(grid_from_topo, axis1=-2, axis2=-1) - 1) / 2, -1, 1))))
         if has.any():
             truth = topocentric_to_projected(gps[has], lla, utm)[0]
-            err_t = np.linalg.norm(xyz_t[has] - truth, axis=-1).mean()
-            err_g = np.linalg.norm(xyz_g[has] - truth, axis=-1).mean()
-            frame = "topocentric" if err_t <= err_g else "grid"
-        elif spread < 1e-3:  # the two frames agree to a millimetre: either will do
+            err_t = float(np.linalg.norm(xyz_t[has] - truth, axis=-1).mean())
+            err_g = float(np.linalg.norm(xyz_g[has] - truth, axis=-1).mean())
+            if abs(err_t - err_g) > max(min(err_t, err_g), 1e-3):  # one fits twice as well (or by a mm)
+                frame = "topocentric" if err_t < err_g else "grid"
+        if frame is None and turn < 1e-9:  # the two frames are one here: either will do
             frame = "topocentric"
-        else:
+        if frame is None:
+            why = (
+                f"the shots' gps_position fit OpenSfM's topocentric frame ({err_t:.3g} m) and ODM's grid-aligned one "
+                f"({err_g:.3g} m) about as well"
+                if has.any()
+                else "no shot has a gps_position"
+            )
             raise ValueError(
-                f"no shot has a gps_position to tell OpenSfM's topocentric frame from ODM's "
-                f"grid-aligned one (they differ by up to {spread:.3g} m here): name the frame"
+                f"{why}: cannot tell the frames apart, whose positions differ by up to {spread:.3g} m and headings "
+                f"by {np.degrees(turn):.3g} degrees here: name the frame"
             )
     if frame == "topocentric":
         xyz, rotation = xyz_t, grid_from_topo @ r_frame
@@ -336,6 +349,9 @@ def _opensfm_cameras(cameras) -> dict[str, dict]:
             out[str(name)] = camera_to_opensfm(cam)
         except ValueError as exc:
             raise ValueError(f"camera {excerpt(name)}: {exc}") from None
+        bad = [k for k, v in out[str(name)].items() if not isinstance(v, str) and not math.isfinite(v)]
+        if bad:
+            raise ValueError(f"camera {excerpt(name)}: {', '.join(bad)} is not finite (nan or inf): not written")
     return out
 
 

@@ -399,6 +399,9 @@ def _interior_params(name, camera: FrameCamera) -> dict:
         p = camera_to_orthority(camera)
     except ValueError as exc:
         raise ValueError(f"camera {excerpt(name)}: {exc}") from None
+    bad = [k for k, v in p.items() if not isinstance(v, str) and not np.all(np.isfinite(np.asarray(v, dtype=float)))]
+    if bad:
+        raise ValueError(f"camera {excerpt(name)}: {', '.join(bad)} is not finite (nan or inf): not written")
     if not np.any(np.asarray(camera.distortion) != 0):
         p = {k: v for k, v in p.items() if k in ("im_size", "focal_len", "sensor_size", "cx", "cy")}
         p = {"type": "pinhole", **p}
