@@ -102,3 +102,34 @@ def test_gcps_and_gnss_in_two_crss_are_refused(files, capsys):
             "--position-sigma", "0.05", "--no-progress"]  # fmt: skip
     assert main(args) == 2
     assert "give both in one CRS" in capsys.readouterr().err
+
+
+def test_bundle_takes_odm_geo_txt_as_gnss(files, capsys):
+    """ODM's geo.txt (written by photax.io.write_odm_geo) is a --gnss file as it is; 2-D positions
+    are refused, and as an --exterior it is refused by name (positions, no attitude)."""
+    from photax.io import write_odm_geo
+
+    folder, truth = files
+    names = [f"{n}.jpg" for n in truth_names()]
+    positions = dict(zip(names, np.asarray(truth.exterior.position)))
+    geo = write_odm_geo(folder / "geo.txt", positions, "EPSG:32633")
+    out = folder / "geo.json"
+    args = [
+        "bundle",
+        str(folder / "sparse"),
+        "--gnss",
+        str(geo),
+        "--position-sigma",
+        "0.05",
+        "--quiet",
+        "--no-progress",
+    ]
+    assert main([*args, "-o", str(out)]) == 0
+    assert "GNSS positions (8)" in capsys.readouterr().out
+    table, crs = read_exteriors(out)
+    assert np.allclose([table[k].position for k in table], truth.exterior.position, atol=1e-4)
+    flat = write_odm_geo(folder / "geo2d.txt", {k: v[:2] for k, v in positions.items()}, "EPSG:32633")
+    assert main([*args[:3], str(flat), *args[4:]]) == 2
+    assert "no height (geo_z)" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="holds positions, no attitude"):
+        read_exteriors(geo)

@@ -922,3 +922,28 @@ def test_fuzz_read_pix4d_cam(work, data):
     path.write_bytes(data)
     whole = r": (no .*|not a Pix4D camera file .*|F \(focal length, mm\) must be positive.*|Px or Py .* out of range)$"
     _expect_valueerror_or_sane(lambda p: read_pix4d_cam(p, (4608, 3456)), path, _sane_camera, whole, lines=True)
+
+
+PIX4D_CCP = [
+    b"fileName imageWidth imageHeight\ncamera matrix K [3x3]\nradial distortion [3x1]\ntangential distortion [2x1]\n"
+    b"camera position t [3x1]\ncamera rotation R [3x3]\ncamera model m = K [R|-Rt] X\n\nDJI_0954.JPG 4608 3456\n"
+    b"3952.8 0 2233.4\n0 3952.8 1667.9\n0 0 1\n0.038 -0.017 0.020\n0.0024 0.0029\n21.5 -29.5 30.8\n"
+    b"0.78 -0.62 -0.019\n-0.62 -0.78 -0.033\n0.0058 0.038 -0.99\nDJI_0955.JPG 4608 3456\n",
+]
+
+
+@FUZZ
+@given(data=mutated(PIX4D_CCP))
+def test_fuzz_pix4d_image_size_beside(work, data):
+    from photax.io.pix4d import image_size_beside
+
+    cam = work / "q_pix4d_calibrated_internal_camera_parameters.cam"
+    cam.write_bytes(PIX4D_CAMS[0])
+    path = work / "q_calibrated_camera_parameters.txt"
+    path.write_bytes(data)
+
+    def sane(size):
+        assert size is None or (len(size) == 2 and min(size) >= 1)
+
+    whole = r": (no 'fileName imageWidth imageHeight' line.*|images of \d+ sizes.*)$"
+    _expect_valueerror_or_sane(lambda p: image_size_beside(cam), path, sane, whole, lines=True)

@@ -142,3 +142,29 @@ def test_malformed_cam_names_the_line(tmp_path, old, new, match):
     with pytest.raises(ValueError, match=match) as err:
         read_pix4d_cam(path, MAIZE_SIZE)
     assert str(err.value).startswith(str(path))
+
+
+def test_resect_with_a_pix4d_cam_equals_the_photax_camera(tmp_path, capsys):
+    """The sample camera written as a Pix4D .cam (with the run's calibrated_camera_parameters.txt
+    beside it for the pixel count) resects the sample image as the photax camera file does."""
+    import json
+    import pathlib
+
+    from photax.cli import main
+
+    data = pathlib.Path(__file__).resolve().parents[1] / "data"
+    cam = ptx.io.read_camera(data / "sample_camera.yaml")
+    path = write_pix4d_cam(cam, tmp_path / "s_pix4d_calibrated_internal_camera_parameters.cam")
+    w, h = cam.image_size
+    (tmp_path / "s_calibrated_camera_parameters.txt").write_text(
+        f"fileName imageWidth imageHeight\nIMG_0001.tif {w} {h}\n"
+    )
+    assert ptx.io.read_camera_unit(path) == "mm"
+    results = []
+    for camera in (data / "sample_camera.yaml", path):
+        out = tmp_path / f"{camera.stem}.json"
+        assert main(["resect", str(data / "sample_gcps.csv"), "--camera", str(camera), "-o", str(out)]) == 0
+        results.append(json.loads(out.read_text())["images"]["IMG_0001"])
+    capsys.readouterr()
+    np.testing.assert_allclose(results[1]["position"], results[0]["position"], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(results[1]["angles_rad"], results[0]["angles_rad"], rtol=0, atol=1e-9)

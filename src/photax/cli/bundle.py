@@ -63,8 +63,8 @@ def add_parser(sub) -> None:
     p.add_argument("--gnss", metavar="FILE",
                    help="COLMAP model or block: georeference it with these GNSS positions of the images (any "
                    "exterior file photax reads: orthority CSV x y z or lat lon alt, Metashape / Pix4D OPK, "
-                   "reconstruction.json, a photax result), of standard deviation --position-sigma; with or "
-                   "without --gcps")  # fmt: skip
+                   "reconstruction.json, a photax result; or ODM's geo.txt), of standard deviation "
+                   "--position-sigma; with or without --gcps")  # fmt: skip
     p.add_argument("--colmap-out", metavar="DIR",
                    help="also write the adjusted block as a COLMAP text model in DIR (new or empty), e.g. the "
                    "georeferenced model; written only when the adjustment converged")  # fmt: skip
@@ -194,10 +194,18 @@ def _georeference_inputs(args, inputs: list):
     elif args.gcp_sigma != 0.0:
         raise ValueError("--gcp-sigma needs --gcps")
     if args.gnss:
+        from ..io.odm import is_odm_geo, read_odm_geo
         from ..io.orientation import read_exteriors
 
-        table, gnss_crs = read_exteriors(input_file(args.gnss, "GNSS file"), crs=crs)
-        gnss = {name: eo.position for name, eo in table.items()}
+        path = input_file(args.gnss, "GNSS file")
+        if is_odm_geo(path):  # ODM's geo.txt: positions only
+            gnss, gnss_crs, _ = read_odm_geo(path, crs=crs)
+            flat = [name for name, v in gnss.items() if not all(math.isfinite(float(c)) for c in v)]
+            if flat:
+                raise ValueError(f"--gnss {args.gnss}: no height (geo_z) for {', '.join(flat[:3])}: GNSS needs x, y, z")
+        else:
+            table, gnss_crs = read_exteriors(path, crs=crs)
+            gnss = {name: eo.position for name, eo in table.items()}
         inputs.append(pathlib.Path(args.gnss))
         if crs is not None and gnss_crs is not None and not _same_crs(crs, gnss_crs):
             raise ValueError(f"--gnss {args.gnss} is in {gnss_crs}, the GCPs in {crs}: give both in one CRS")

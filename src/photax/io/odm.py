@@ -203,3 +203,23 @@ def write_odm_geo(path, positions, crs, *, inputs=()) -> pathlib.Path:
     with atomic_write(path, inputs=inputs) as fh:
         fh.write("\n".join(lines) + "\n")
     return pathlib.Path(path)
+
+
+def is_odm_geo(path) -> bool:
+    """Whether ``path`` starts like ODM's ``geo.txt``: a CRS line, then ``image_name geo_x geo_y ...``
+    (a name, not a number, first: ODM's ``gcp_list.txt`` starts its lines with coordinates)."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        return False
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(4096).decode("utf-8", "replace").lstrip("\ufeff")
+    except OSError:
+        return False
+    lines = [t for t in head.splitlines() if t.strip() and not t.lstrip().startswith("#")][:2]
+    if len(lines) < 2:
+        return False
+    first, second = lines[0].strip(), lines[1].split()
+    if not (first.upper().startswith(("EPSG:", "WGS84", "+PROJ")) and len(second) >= 3):
+        return False
+    return not _is_float(second[0]) and _is_float(second[1]) and _is_float(second[2])

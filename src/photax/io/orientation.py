@@ -53,6 +53,13 @@ def _table(path: pathlib.Path, data=None, crs=None) -> tuple[dict[str, ExteriorO
 
     if is_opk_export(path):  # Metashape's Omega Phi Kappa export, Pix4D's external parameters: no CRS named
         return read_opk_export(path), None
+    from .odm import is_odm_geo
+
+    if is_odm_geo(path):
+        raise file_error(
+            path, None, "an ODM geo.txt holds positions, no attitude: not an exterior orientation "
+            "(photax bundle --gnss takes it; photax.io.read_odm_geo reads it)"
+        )  # fmt: skip
     from .colmap import is_colmap_file, read_colmap_exteriors
 
     if is_colmap_file(path, "images"):  # a (georeferenced) COLMAP model's poses: no CRS named
@@ -342,11 +349,14 @@ def read_camera_unit(path) -> str | None:
     ``"px"``), ``"px"`` for the ``focal_length_px`` shorthand and for an
     OpenSfM/ODM ``reconstruction.json`` (read in pixels); None if not given, as
     for an orthority interior file (its focal length and sensor size share a
-    unit it does not name: :func:`camera_in_pixels`)."""
+    unit it does not name: :func:`camera_in_pixels`); ``"mm"`` for a Pix4D ``.cam``."""
     path = pathlib.Path(path)
     from .colmap import is_colmap_file
     from .metashape import is_metashape_xml
+    from .pix4d import is_pix4d_cam
 
+    if is_pix4d_cam(path):  # F, Px, Py in mm
+        return "mm"
     if (
         _is_reconstruction_file(path)
         or _is_odm_cameras_file(path)
