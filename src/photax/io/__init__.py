@@ -8,7 +8,10 @@ folder, a FIFO or device, a file over its size limit or an unreadable file is
 a ``ValueError`` naming the path, a missing file a ``FileNotFoundError``; no
 content of a file that is not of the reader's format is quoted.  The shared pieces (opening, decoding, strict
 YAML/JSON with key lines) are in :mod:`photax.io.files`;
-``tests/test_fuzz_readers.py`` holds every reader to the contract.
+``tests/test_fuzz_readers.py`` holds every reader to the contract.  Every
+writer writes atomically what its reader reads back equal, and refuses a
+value that is not finite (a ``ValueError`` naming it; never a file holding
+``nan``): ``tests/test_writer_fuzz.py``.
 """
 
 # Public names: the one list is __init__.pyi, each imported on first use (PEP 562,
