@@ -193,7 +193,7 @@ def test_reconstruction_writer_round_trips(tmp_path):
         shots, crs, _ = read_opensfm_shots(path, CRS, None if len(table) > 1 else frame)
         _same_orientations(table, shots, pos_atol=1e-6, rot_atol=1e-9)  # through geodetic frames
         if len(table) == 1:
-            with pytest.raises(ValueError, match="cannot tell the frames apart.*name the frame"):
+            with pytest.raises(ValueError, match="do not tell OpenSfM.s topocentric frame.*name the frame"):
                 read_opensfm_shots(path, CRS)
 
     _round_trip(tmp_path, "opensfm", make, write, lambda p: p, check, cases=6)
@@ -378,3 +378,43 @@ def test_gcp_and_colmap_writers_refuse_non_finite(tmp_path):
             tmp_path, f"colmap_{binary}", _colmap_model, lambda m, p, b=binary: C.write_colmap_model(m, p, binary=b),
             [poison_colmap("camera"), poison_colmap("image"), poison_colmap("point")],
         )  # fmt: skip
+
+
+def test_reconstruction_frame_told_by_noisy_gnss_or_refused(tmp_path):
+    """A grid-frame reconstruction whose gps_position carry GNSS noise (sigma 0.5 m): over a wide
+    block (3 km: the frames up to ~6 m apart) the reader still finds the grid frame (headings to
+    1e-9); over a compact one (20 m: frames centimetres apart, within the noise) it asks for the
+    frame, whose headings differ by the meridian convergence, instead of guessing."""
+    import json
+
+    rng = np.random.default_rng(7)
+    cam = _camera(rng)
+    for extent, decided in ((3000.0, True), (20.0, False)):
+        table = {
+            f"IMG_{k}.JPG": ptx.ExteriorOrientation(
+                [5.3e5 + rng.uniform(0, extent), 4.05e6 + rng.uniform(0, extent), 120.0],
+                rng.uniform(-0.1, 0.1, 3),
+                "omega-phi-kappa",
+            )
+            for k in range(12)
+        }
+        path = write_opensfm_reconstruction(tmp_path / f"r{extent}.json", cam, table, CRS, frame="grid")
+        data = json.loads(path.read_text())
+        for shot in data[0]["shots"].values():
+            shot["gps_position"] = (np.asarray(shot["gps_position"]) + rng.normal(0, 0.5, 3)).tolist()
+        path.write_text(json.dumps(data))
+        if decided:
+            _same_orientations(table, read_opensfm_shots(path, CRS)[0], pos_atol=1e-6, rot_atol=1e-9)
+        else:
+            with pytest.raises(ValueError, match=r"do not tell .* headings by 0\.\d+ degrees here: name the frame"):
+                read_opensfm_shots(path, CRS)
+            _same_orientations(table, read_opensfm_shots(path, CRS, "grid")[0], pos_atol=1e-6, rot_atol=1e-9)
+            # from the command line: --exterior grid:FILE (checked as FILE, read in that frame)
+            from photax.cli._common import input_file
+            from photax.io.orientation import read_exteriors
+
+            assert input_file(f"grid:{path}", "exterior file") == path
+            _same_orientations(table, read_exteriors(f"grid:{path}", crs=CRS)[0], pos_atol=1e-6, rot_atol=1e-9)
+            with pytest.raises(ValueError, match="names the frame of a reconstruction.json"):
+                write_orthority_exterior(tmp_path / "x.csv", table, CRS)
+                read_exteriors(f"grid:{tmp_path / 'x.csv'}")

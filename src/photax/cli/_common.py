@@ -36,7 +36,9 @@ def input_file(path, what: str) -> pathlib.Path:
         ValueError: one line naming ``what`` (e.g. "GCP file") and the path:
             missing, a folder where a file is expected, or not readable.
     """
-    p = pathlib.Path(path)
+    from ..io.orientation import opensfm_frame
+
+    p = pathlib.Path(opensfm_frame(path)[1])  # grid:FILE, topocentric:FILE (a reconstruction.json's frame)
     if not p.exists():
         raise ValueError(f"{what} {p}: no such file")
     if p.is_dir():

@@ -29,11 +29,13 @@ orthority 0.7's reader of the same file:
   parallel to the UTM grid (their ``gps_position`` entries, true topocentric,
   sit ~2 m from the shots, turned by the meridian convergence).  ``frame=``
   names it; by default it is decided by the shots' ``gps_position``: the frame
-  under which the shots land nearer their GNSS positions, when one fits at
-  least twice as well (or by over a millimetre); else, where the frames'
-  headings differ (the meridian convergence: a one-shot or compact
-  reconstruction lands both ways on its GNSS positions, yet one way is turned
-  by up to a degree or so), an error asking for the frame, never a guess.
+  under which the shots land on their GNSS positions, when the residuals
+  tell it (the fit of the residuals to the two frames' difference lies near
+  one frame, with a standard error under 1/6 of the way between them); else,
+  where the frames' headings differ (the meridian convergence: a one-shot or
+  compact reconstruction lands both ways on its GNSS positions, yet one way
+  is turned by up to a degree or so), an error asking for the frame, never a
+  guess.
 
   - ``"topocentric"``: positions exactly, through geocentric coordinates;
     each rotation turned into the grid frame at the camera (its own
@@ -274,23 +276,35 @@ def _to_grid(centre, r_frame, gps, lla, crs, frame):
         # the frames' headings differ by the meridian convergence: same positions are not same rotations
         turn = float(np.max(np.arccos(np.clip((np.trace(grid_from_topo, axis1=-2, axis2=-1) - 1) / 2, -1, 1))))
         if has.any():
+            # the GNSS residuals under the grid frame, e, against the frames' difference, d: e = alpha d + noise,
+            # alpha 0 for the grid frame, 1 for the topocentric one; decided when alpha is near one of them
+            # and its standard error (from the residuals of that fit) is under 1/6 of their distance
             truth = topocentric_to_projected(gps[has], lla, utm)[0]
-            err_t = float(np.linalg.norm(xyz_t[has] - truth, axis=-1).mean())
-            err_g = float(np.linalg.norm(xyz_g[has] - truth, axis=-1).mean())
-            if abs(err_t - err_g) > max(min(err_t, err_g), 1e-3):  # one fits twice as well (or by a mm)
-                frame = "topocentric" if err_t < err_g else "grid"
+            e, d = truth - xyz_g[has], (xyz_t - xyz_g)[has]
+            dd = float(np.sum(d * d))
+            alpha = float(np.sum(e * d)) / dd if dd > 1e-6 else math.nan
+            near = 1.0 if alpha > 0.5 else 0.0
+            sigma = math.sqrt(float(np.sum((e - near * d) ** 2)) / max(e.size - 1, 1))
+            if dd > 1e-6 and abs(alpha - near) < 0.25 and sigma < math.sqrt(dd) / 6:  # frames a mm apart or more
+                frame = "topocentric" if near else "grid"
         if frame is None and turn < 1e-9:  # the two frames are one here: either will do
             frame = "topocentric"
         if frame is None:
-            why = (
-                f"the shots' gps_position fit OpenSfM's topocentric frame ({err_t:.3g} m) and ODM's grid-aligned one "
-                f"({err_g:.3g} m) about as well"
-                if has.any()
-                else "no shot has a gps_position"
-            )
+            if not has.any():
+                why = "no shot has a gps_position"
+            else:
+                fit = (
+                    f"fit {alpha:.2f} of the way from grid to topocentric"
+                    if dd > 1e-6
+                    else "both frames put them there"
+                )
+                why = (
+                    f"the shots' gps_position (residual {sigma:.3g} m) do not tell OpenSfM's topocentric frame "
+                    f"from ODM's grid-aligned one ({fit})"
+                )
             raise ValueError(
-                f"{why}: cannot tell the frames apart, whose positions differ by up to {spread:.3g} m and headings "
-                f"by {np.degrees(turn):.3g} degrees here: name the frame"
+                f"{why}: the frames' positions differ by up to {spread:.3g} m and headings "
+                f"by {np.degrees(turn):.3g} degrees here: name the frame (--exterior grid:FILE or topocentric:FILE; frame=)"
             )
     if frame == "topocentric":
         xyz, rotation = xyz_t, grid_from_topo @ r_frame

@@ -11,7 +11,8 @@
   ``reconstruction.json``, an orthority GeoJSON (``.geojson``) or an orthority
   exterior CSV (+ ``.prj`` beside it; or latitude, longitude, altitude, roll,
   pitch, yaw), or the word ``exif`` (``exif:gimbal``, ``exif:flight``: each image's
-  own GPS and attitude tags, :mod:`photax.io.exif`); :func:`read_exteriors` reads
+  own GPS and attitude tags, :mod:`photax.io.exif`), or ``grid:`` / ``topocentric:``
+  before a ``reconstruction.json`` to name its frame (:func:`opensfm_frame`); :func:`read_exteriors` reads
   many images' orientations from one such file, parsing it once, and
   :func:`block_images` pairs them with the image files of a folder;
 * :func:`read_camera_unit`: the length unit a photax camera file is written in.
@@ -38,15 +39,17 @@ from .orthority import read_orthority_exterior_crs, read_orthority_geojson, read
 from .results import read_json
 
 
-def _table(path: pathlib.Path, data=None, crs=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
+def _table(path: pathlib.Path, data=None, crs=None, frame=None) -> tuple[dict[str, ExteriorOrientation], str | None]:
     """``({stem: orientation}, crs)`` of a file holding a table of orientations: an
     OpenSfM/ODM ``reconstruction.json`` (its parsed JSON ``data``), an orthority
     GeoJSON or an orthority exterior CSV (any column layout); ``crs``: the
     projected CRS wanted of the formats whose positions are geographic or
     topocentric (reconstruction, latitude/longitude CSV), default their UTM zone."""
     if data is not None:  # JSON already parsed: a reconstruction
-        table, out, _ = read_opensfm_shots(path, crs)
+        table, out, _ = read_opensfm_shots(path, crs, frame)
         return _into_vertical_datum(table, out, crs)
+    if frame is not None:
+        raise ValueError(f"{frame}:{path}: '{frame}:' names the frame of a reconstruction.json, not of this file")
     if path.suffix.lower() == ".geojson":
         return read_orthority_geojson(path)
     from .metashape import is_opk_export, read_opk_export
@@ -229,11 +232,14 @@ def read_exterior(path, image, crs=None) -> tuple[ExteriorOrientation, str | Non
         # heights as tagged: not moved into a vertical datum (their own datum is not known)
         table, out = read_exif_exteriors(image, exif_attitude(path), crs)
         return next(iter(table.values())), out
+    frame, path = opensfm_frame(path)
     path = pathlib.Path(path)
     data = read_json(path) if path.suffix.lower() == ".json" else None
     if data is not None and not is_reconstruction(data):
+        if frame is not None:
+            raise ValueError(f"{frame}:{path}: '{frame}:' names the frame of a reconstruction.json, not of a result")
         return exterior_from_result(path, data, image)
-    table, crs = _table(path, data, crs)
+    table, crs = _table(path, data, crs, frame)
     stem = pathlib.Path(image).stem
     if stem not in table:
         raise ValueError(f"{path}: no orientation for image {stem!r}")
@@ -261,9 +267,12 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
             raise ValueError("--exterior exif reads the images' own tags: name the images")
         table, out = read_exif_exteriors(names, exif_attitude(path), crs)  # heights as tagged
         return dict(zip(names, table.values())), out
+    frame, path = opensfm_frame(path)
     path = pathlib.Path(path)
     data = read_json(path) if path.suffix.lower() == ".json" else None
     if data is not None and not is_reconstruction(data):
+        if frame is not None:
+            raise ValueError(f"{frame}:{path}: '{frame}:' names the frame of a reconstruction.json, not of a result")
         if names is None:
             images = data.get("images") if isinstance(data, dict) else None
             if not isinstance(images, (list, dict)) or not images:
@@ -278,7 +287,7 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
         else:
             table = {n: exterior_from_result(path, data, n)[0] for n in names}
         return table, data.get("crs") if isinstance(data, dict) else None
-    rows, crs = _table(path, data, crs)
+    rows, crs = _table(path, data, crs, frame)
     if names is None:
         if not rows:
             raise ValueError(f"{path}: no image orientations")
@@ -290,6 +299,20 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
             raise ValueError(f"{path}: no orientation for image {stem!r}")
         table[n] = rows[stem]
     return table, crs
+
+
+def opensfm_frame(path) -> tuple[str | None, object]:
+    """``(frame, file)`` of ``grid:FILE`` or ``topocentric:FILE`` (a ``reconstruction.json``
+    whose frame its ``gps_position`` do not tell: :func:`photax.io.read_opensfm_shots`),
+    ``(None, path)`` for anything else (a file of that very name included)."""
+    import os
+
+    text = path if isinstance(path, str) else None
+    if text is not None and not os.path.exists(text):
+        for frame in ("grid", "topocentric"):
+            if text.startswith(frame + ":") and os.path.isfile(text[len(frame) + 1 :]):
+                return frame, text[len(frame) + 1 :]
+    return None, path
 
 
 def exif_attitude(path) -> str | None:
