@@ -424,7 +424,7 @@ def test_fuzz_read_orthority_geojson(work, data):
     _expect_valueerror_or_sane(read_orthority_geojson, path, sane)
 
 
-OPENSFM = [
+OPENSFM = [  # gps_position: the shots' centres (-R^T t) to a mm, so the frame is told (topocentric)
     json.dumps(
         [
             {
@@ -449,13 +449,13 @@ OPENSFM = [
                         "rotation": [2.6, 0.05, -0.01],
                         "translation": [-74.0, -17.7, 222.6],
                         "camera": "v2 cam",
-                        "gps_position": [80.0, -119.0, 186.4],
+                        "gps_position": [78.338, -126.974, 181.882],
                     },
                     "b.JPG": {
                         "rotation": [1.9, -2.0, 0.55],
                         "translation": [-71.8, 195.5, 100.9],
                         "camera": "v2 cam",
-                        "gps_position": [115.3, -73.8, 186.6],
+                        "gps_position": [117.125, -73.682, 185.497],
                     },
                 },
                 "reference_lla": {"latitude": 24.68, "longitude": 120.95, "altitude": 0.0},
@@ -480,7 +480,7 @@ OPENSFM = [
                         "rotation": [3.1, 0.0, 0.0],
                         "translation": [0.0, 0.0, 50.0],
                         "camera": "c",
-                        "gps_position": [0.1, 0.2, 49.9],
+                        "gps_position": [0.0, -2.079, 49.957],
                     }
                 },
                 "reference_lla": {"latitude": -33.6, "longitude": 24.4, "altitude": 10.0},
