@@ -18,6 +18,9 @@ reads them; or ``--camera`` an orthority ``rpc_param.yaml``, a ``.RPB`` or a ``_
 ``--exterior``: the ortho is made in ``--crs`` (default the UTM zone of the scene), optionally after
 refining the RPC on ``--gcps`` (``--refine``, :func:`photax.rpc.refine_rpc`, whose report is
 printed). The DEM's heights must be ellipsoidal (a warning says when its CRS does not say so).
+A push-broom image (``--camera`` a photax push-broom camera file, :mod:`photax.io.pushbroom_file`) is
+made like an RPC one (no ``--gcps``: its orbit and attitude are adjusted by
+:func:`photax.resect_pushbroom`); ``photax rpc`` fits and writes an RPC to it.
 Several satellite images (``--out-dir``) run like a frame block, through the same code, each with its
 own RPC (``--camera rpc``: each image's; a ``rpc_param.yaml``: each image's entry by file name; one
 ``.RPB`` for several images is refused); with ``--gcps`` each image is refined on the GCPs the file
@@ -68,7 +71,8 @@ def add_parser(sub) -> None:
                    "OpenSfM/ODM reconstruction.json or ODM cameras.json, or exif: the camera the image's "
                    "tags describe (DJI DewarpData, else EXIF focal length), as orthority reads it "
                    "(--interior is an alias); or an RPC: 'rpc' (the one in IMAGE's metadata), an orthority "
-                   "rpc_param.yaml, a .RPB or a _RPC.TXT file")  # fmt: skip
+                   "rpc_param.yaml, a .RPB or a _RPC.TXT file; or a photax push-broom camera file (type: "
+                   "pushbroom)")  # fmt: skip
     p.add_argument("--exterior",
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
                    "several), "
@@ -107,7 +111,7 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if _is_rpc(args.camera):
+    if _is_ground(args.camera):
         return _run_ground(args)
     rpc_only = [o for o, v in (("--crs", args.crs), ("--gcps", args.gcps), ("--refine", args.refine)) if v is not None]
     if rpc_only:
@@ -346,12 +350,17 @@ def _flat_dem(height: float, exterior):
     return DEM.flat(height, (*b[:, :2].min(axis=0), *b[:, 2:].max(axis=0)))
 
 
-def _is_rpc(camera: str) -> bool:
-    """``--camera rpc``, a ``.RPB`` / ``_RPC.TXT`` file, or a YAML file of orthority's RPC format."""
+def _is_ground(camera: str) -> bool:
+    """``--camera rpc``, a ``.RPB`` / ``_RPC.TXT`` file, a YAML file of orthority's RPC format, or a
+    photax push-broom camera file: a camera that carries its own orientation."""
     import pathlib
+
+    from ..io.pushbroom_file import is_pushbroom_file
 
     path = pathlib.Path(camera)
     if camera == "rpc" or path.suffix.lower() == ".rpb" or path.name.upper().endswith("_RPC.TXT"):
+        return True
+    if is_pushbroom_file(path):
         return True
     if path.suffix.lower() not in (".yaml", ".yml") or not path.is_file():
         return False
@@ -372,12 +381,13 @@ def _run_ground(args: argparse.Namespace) -> int:
     import warnings
 
     from ..io.atomic import check_output_path
+    from ..io.pushbroom_file import is_pushbroom_file
     from ..io.raster import read_dem
     from ..rectification import orthorectify_files
     from ._common import ground_unit, input_file
 
     if args.exterior is not None:
-        raise ValueError("--exterior: an RPC camera carries its own orientation; leave --exterior out")
+        raise ValueError("--exterior: an RPC or push-broom camera carries its own orientation; leave --exterior out")
     if args.refine is not None and args.gcps is None:
         raise ValueError("--refine needs --gcps (the GCPs to refine the RPC on)")
     if args.out_dir is None and len(args.image) > 1:
@@ -388,11 +398,18 @@ def _run_ground(args: argparse.Namespace) -> int:
         raise ValueError(f"--height must be a finite number, got {args.height}")
     if args.resolution is not None and not args.resolution > 0:
         raise ValueError(f"--resolution must be positive, got {args.resolution}")
-    source = None if args.camera == "rpc" else input_file(args.camera, "RPC file")
-    if source is not None and len(args.image) > 1 and source.suffix.lower() not in (".yaml", ".yml"):
+    source = None if args.camera == "rpc" else input_file(args.camera, "camera file")
+    pushbroom = source is not None and is_pushbroom_file(source)
+    if pushbroom and args.gcps is not None:
         raise ValueError(
-            f"--camera {source}: one RPC for {len(args.image)} images; give each image its own (--camera rpc: "
-            "the RPC in each image or in the .RPB / _RPC.TXT beside it; or a rpc_param.yaml naming every image)"
+            "--gcps: refines an RPC; a push-broom model's orbit and attitude are adjusted on GCPs by "
+            "photax.resect_pushbroom (Python), whose camera write_pushbroom writes for --camera"
+        )
+    if source is not None and len(args.image) > 1 and (pushbroom or source.suffix.lower() not in (".yaml", ".yml")):
+        raise ValueError(
+            f"--camera {source}: one {'push-broom camera' if pushbroom else 'RPC'} for {len(args.image)} images; "
+            "give each image its own (--camera rpc: the RPC in each image or in the .RPB / _RPC.TXT beside it; "
+            "or a rpc_param.yaml naming every image)"
         )
     inputs = [args.dem, source, args.gcps]
     if args.out_dir is not None:
@@ -404,7 +421,7 @@ def _run_ground(args: argparse.Namespace) -> int:
     failed, cameras = {}, {}
     for image in args.image:  # each image's own RPC; in a block a bad one fails that image only
         try:
-            cameras[image] = _image_rpc(source, input_file(image, "image"), several=len(args.image) > 1)
+            cameras[image] = _image_camera(source, input_file(image, "image"), len(args.image) > 1, pushbroom)
         except (ValueError, OSError) as exc:
             if single:
                 raise
@@ -444,13 +461,17 @@ def _run_ground(args: argparse.Namespace) -> int:
     return 0
 
 
-def _image_rpc(source, image, several: bool):
-    """IMAGE's RPC: from the image (``source`` None: its metadata or the side files GDAL reads), its
-    entry of an orthority ``rpc_param.yaml`` (by file name; a one-entry file named otherwise for a lone
-    image), or a ``.RPB`` / ``_RPC.TXT`` file; its image size the image's where the file has none."""
+def _image_camera(source, image, several: bool, pushbroom: bool):
+    """IMAGE's camera: a push-broom camera file (``pushbroom``); or its RPC: from the image (``source``
+    None: its metadata or the side files GDAL reads), its entry of an orthority ``rpc_param.yaml`` (by
+    file name; a one-entry file named otherwise for a lone image), or a ``.RPB`` / ``_RPC.TXT`` file;
+    its image size the image's where the file has none."""
+    from ..io.pushbroom_file import read_pushbroom
     from ..io.raster import open_raster
     from ..rpc import read_rpc
 
+    if pushbroom:
+        return read_pushbroom(source)
     if source is None:
         camera = read_rpc(image)
     elif source.suffix.lower() in (".yaml", ".yml"):
