@@ -538,7 +538,7 @@ def _refine(camera, gcp_path, image, model: str, several: bool = False):
         print(f"{image_name}:")
     print(res.report())
     if check.any():
-        v = pixel[check] - np.asarray(res.camera(ground[check]))
+        v = np.asarray(res.camera(ground[check])) - pixel[check]  # computed - observed
         rmse = float(np.sqrt(np.mean(np.sum(v**2, axis=1))))
         print(f"check points: {int(check.sum())}, RMSE {rmse:.3f} px")
     return res.camera
