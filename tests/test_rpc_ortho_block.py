@@ -103,3 +103,12 @@ def test_rpc_block_usage_errors_exit_2(scene, tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"{b}: " in err and "no GCP measured in b.tif" in err
     assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+def test_orthorectify_files_takes_one_camera_and_dem_per_image_or_one_shared(tmp_path):
+    from photax.rectification import orthorectify_files
+
+    with pytest.raises(ValueError, match="2 cameras for 3 images: give one shared, or one per image"):
+        orthorectify_files(["a", "b", "c"], ["x", "y", "z"], None, [object(), object()], object())
+    with pytest.raises(ValueError, match="1 DEMs for 2 images"):
+        orthorectify_files(["a", "b"], ["x", "y"], None, object(), [object()])

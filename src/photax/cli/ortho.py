@@ -374,8 +374,8 @@ def _is_ground(camera: str) -> bool:
 
 
 def _run_ground(args: argparse.Namespace) -> int:
-    """Satellite images, each with its own RPC (refined on --gcps when given): one into -o/--out, or
-    several into --out-dir, by the frame block's code (:func:`photax.orthorectify_files`, one bar, a
+    """Satellite images, each with its own RPC (refined on --gcps when given) or push-broom camera: one
+    into -o/--out, or several into --out-dir, by the frame block's code (:func:`photax.orthorectify_files`, one bar, a
     failed image named and the others written, exit 1)."""
     import sys
     import warnings
