@@ -114,7 +114,7 @@ With 5 GCPs the shift is what they support; the affine model has 4 redundant obs
               (2000.0, [("refined (shift)", res.residuals, "tab:blue"), ("leave-one-out", res.loo_residuals, "tab:green")])]
     for ax, (scale, arrows) in zip(axes, panels):
         for label, v, colour in arrows:
-            ax.quiver(*pixel.T, *v.T, angles="xy", scale_units="xy", scale=1 / scale, color=colour, label=label, width=0.006)
+            ax.quiver(*pixel.T, *(-v).T, angles="xy", scale_units="xy", scale=1 / scale, color=colour, label=label, width=0.006)
         ax.plot([0, 850, 850, 0, 0], [0, 0, 1450, 1450, 0], "k-", lw=0.8, label="image")
         ax.plot(*pixel.T, "k.")
         for n, (c, r) in zip(names, pixel):
@@ -123,7 +123,7 @@ With 5 GCPs the shift is what they support; the affine model has 4 redundant obs
         ax.set_ylim(1600, -450)
         ax.set_aspect("equal")
         ax.legend(loc="lower right", fontsize=8)
-        ax.set_title(f"GCP residuals (observed - model), drawn {scale:.0f} x")
+        ax.set_title(f"GCP residuals (arrow: model -> observed), drawn {scale:.0f} x")
     fig.tight_layout()""",
     ),
     (

@@ -127,8 +127,3 @@ def test_pushbroom_ortho_defaults_and_bad_input(setup):
         sensor_of(object(), scene.camera, crs)
     with pytest.raises(ValueError, match="needs the output grid's CRS"):
         sensor_of(None, scene.camera, None)
-    from photax.uncertainty import ortho_uncertainty
-
-    grid = ortho_grid(None, scene.camera, dem, 20.0)
-    with pytest.raises(ValueError, match="not a PushbroomCamera"):  # not yet: its covariance has no home
-        ortho_uncertainty(None, None, scene.camera, dem, grid)

@@ -111,6 +111,9 @@ def test_refine_real_gcps_match_orthority(qb):
     assert res.loo_rmse <= 0.15
     assert res.redundancy == 2 * len(ground) - 2
     np.testing.assert_allclose(res.sigma0**2 * res.redundancy, np.sum(res.residuals**2))
+    # computed - observed (docs/conventions.md), against orthority's refined RPC and the raw one
+    np.testing.assert_allclose(res.residuals, np.asarray(oty(ground)) - pixel, atol=1e-6)
+    np.testing.assert_allclose(res.raw_residuals, np.asarray(cam(ground)) - pixel, atol=1e-9)
 
 
 @pytest.mark.parametrize("model", ["shift", "shift-drift", "affine"])
@@ -152,10 +155,10 @@ def test_refine_snooping_finds_a_blunder(synthetic):
     worst = np.unravel_index(np.nanargmax(np.abs(res.standardized)), res.standardized.shape)
     assert worst == (6, 0)
     assert np.abs(res.standardized[6, 0]) > 3
-    assert 3.0 < res.loo_residuals[6, 0] < 5.0
+    assert -5.0 < res.loo_residuals[6, 0] < -3.0  # computed - observed: the +4 px blunder's own sign reversed
     # the leave-one-out residual is that of a refinement without the GCP
     clean = refine_rpc(cam, np.delete(sub, 6, 0), np.delete(pixel, 6, 0), "affine")
-    np.testing.assert_allclose(clean.camera(sub[6]), pixel[6] - res.loo_residuals[6], atol=1e-9)
+    np.testing.assert_allclose(clean.camera(sub[6]), pixel[6] + res.loo_residuals[6], atol=1e-9)
 
 
 def test_bad_input_named(synthetic, tmp_path):

@@ -152,7 +152,7 @@ def test_ties_carry_the_datum_to_images_without_gcps(cameras):
         refine_rpc(cameras[1], control[1:], obs1[:, 2:]).camera,
         cameras[2],
     ]
-    single_res = np.array([o[2:] - np.asarray(single[int(o[1])](jnp.asarray(ground[int(o[0])]))) for o in check_obs])
+    single_res = np.array([np.asarray(single[int(o[1])](jnp.asarray(ground[int(o[0])]))) - o[2:] for o in check_obs])
     single_rmse = np.sqrt(np.mean(np.sum(single_res**2, 1)))
     assert res.check_rmse < 0.5 * single_rmse
     # two single-ray GCPs are a weak datum: the check residuals are the corrections' own uncertainty

@@ -417,8 +417,8 @@ def test_compare_models_with_the_rpc(qb):
         c = compare_models(local, pixel, rpc, dem, orders=(1, 2), projective=False, tps=False, piecewise_affine=False)
     assert c.names == ["RPC + shift", "RPC", "polynomial 1"]
     assert c.skipped == {"polynomial 2": "needs at least 6 GCPs, have 5"}
-    np.testing.assert_allclose(-c["RPC + shift"].gcp_residuals, res.residuals, atol=1e-6)  # computed - observed
-    np.testing.assert_allclose(-c["RPC"].gcp_residuals, res.raw_residuals, atol=1e-6)
+    np.testing.assert_allclose(c["RPC + shift"].gcp_residuals, res.residuals, atol=1e-6)  # both computed - observed
+    np.testing.assert_allclose(c["RPC"].gcp_residuals, res.raw_residuals, atol=1e-6)
     assert abs(c["RPC + shift"].gcp_rmse - 0.1037) < 5e-4
     err = c["RPC"].error.reshape(-1, 2)
     err = err[np.isfinite(err).all(axis=1)]

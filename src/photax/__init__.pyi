@@ -204,5 +204,7 @@ from .georeferencing import Georeferenced as Georeferenced
 from .georeferencing import Similarity as Similarity
 from .georeferencing import georeference as georeference
 from .georeferencing import similarity_transform as similarity_transform
+from .io import read_pushbroom as read_pushbroom
+from .io import write_pushbroom as write_pushbroom
 from .rpc_block import RPCBlock as RPCBlock
 from .rpc_block import adjust_rpc_block as adjust_rpc_block

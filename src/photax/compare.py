@@ -375,9 +375,9 @@ def _collinearity_condition(exterior: ExteriorOrientation, camera: FrameCamera, 
 
 def _refine_condition(refinement, pixel: np.ndarray) -> float:
     """Condition of an RPC refinement's column-equilibrated design ``[1, c, r]`` (its terms) at the
-    RPC's own positions of the GCPs (``pixel`` minus the raw residuals)."""
+    RPC's own positions of the GCPs (``pixel`` plus the raw residuals, computed - observed)."""
     terms = {"shift": [0], "shift-drift": [0, 2], "affine": [0, 1, 2]}[refinement.model]
-    design = np.column_stack([np.ones(len(pixel)), pixel - refinement.raw_residuals])[:, terms]
+    design = np.column_stack([np.ones(len(pixel)), pixel + refinement.raw_residuals])[:, terms]
     return float(np.linalg.cond(design / np.linalg.norm(design, axis=0)))
 
 

@@ -140,6 +140,33 @@ class PushbroomCamera(eqx.Module):
         """``(3, 3)`` ``world_from_camera`` at the scalar line time ``tau``."""
         return self.reference @ rotation_matrix(_poly(self.angles, tau), self.convention)
 
+    # --- the orbit and attitude as one parameter vector (uncertainty, resection) ------------------
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        """Names of :meth:`parameters`: ``"position[k].X"`` (``Y``, ``Z``) for every coefficient of the
+        position polynomial, then ``"angles[k].omega"`` (the convention's axes) of the attitude's, as
+        :class:`PushbroomResection` names its adjusted ones."""
+        axes = {"position": ("X", "Y", "Z"), "angles": tuple(self.convention.split("-"))}
+        return tuple(
+            f"{field}[{k}].{label}"
+            for field in ("position", "angles")
+            for k in range(getattr(self, field).shape[0])
+            for label in axes[field]
+        )
+
+    def parameters(self) -> Array:
+        """The position's then the angles' polynomial coefficients, row by row: ``(3 (kp + ka + 2),)``
+        (m, rad), the order of :attr:`parameter_names`."""
+        return jnp.concatenate([self.position.ravel(), self.angles.ravel()])
+
+    def with_parameters(self, theta: Array) -> PushbroomCamera:
+        """This camera with :meth:`parameters` replaced by ``theta`` (jittable, differentiable)."""
+        n = self.position.size
+        pos = jnp.reshape(theta[:n], self.position.shape)
+        ang = jnp.reshape(theta[n:], self.angles.shape)
+        return eqx.tree_at(lambda c: (c.position, c.angles), self, (pos, ang))
+
     # --- projection -----------------------------------------------------------------------------
 
     def _in_camera(self, xyz: Array, tau) -> Array:

@@ -405,7 +405,8 @@ class RPCRefinement:
         model: the refinement (``"shift"``, ``"shift-drift"``, ``"affine"``).
         correction: ``(2, 3)`` the adjusted ``[[a0, a1, a2], [b0, b1, b2]]`` (px, px/px).
         covariance: ``(u, u)`` covariance of the adjusted parameters, column axis first (sigma0^2 Q).
-        residuals: ``(n, 2)`` observed minus refined pixel position of each GCP (px).
+        residuals: ``(n, 2)`` refined minus observed pixel position of each GCP (px; computed -
+            observed, ``docs/conventions.md``).
         raw_residuals: ``(n, 2)`` the same for the unrefined RPC (px).
         loo_residuals: ``(n, 2)`` each GCP's residual from a refinement without it (leave-one-out;
             NaN where the others are too few).
@@ -438,7 +439,8 @@ class RPCRefinement:
             f"{self.rmse:.3f} px refined, {self.loo_rmse:.3f} px leave-one-out; sigma0 {self.sigma0:.3f} px, "
             f"redundancy {self.redundancy}",
             f"  column += {a[0]:+.3f} {a[1]:+.3e} c {a[2]:+.3e} r;  row += {b[0]:+.3f} {b[1]:+.3e} c {b[2]:+.3e} r",
-            f"  {'GCP':<24} {'raw dc':>8} {'raw dr':>8} {'dc':>8} {'dr':>8} {'loo dc':>8} {'loo dr':>8} {'|w|':>6}",
+            f"  {'GCP':<24} {'raw dc':>8} {'raw dr':>8} {'dc':>8} {'dr':>8} {'loo dc':>8} {'loo dr':>8} {'|w|':>6}"
+            "   (residuals: computed - observed, px)",
         ]
         names = self.names or tuple(str(i + 1) for i in range(len(self.residuals)))
         w = np.max(np.abs(self.standardized), axis=1)
@@ -537,7 +539,7 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *,
     raw = RPCCamera(camera.coefficients, camera.offsets, camera.scales, image_size=camera.image_size)
     cr = np.asarray(_forward(raw, jnp.asarray(ground)))
     k, design = _fit_correction(cr, pixel, terms)
-    residuals = pixel - _apply(k, cr)
+    residuals = _apply(k, cr) - pixel  # computed - observed
     r = 2 * n - u
     sigma0 = float(np.sqrt(np.sum(residuals**2) / r)) if r > 0 else math.nan
     q = np.linalg.pinv(design.T @ design)
@@ -551,9 +553,9 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *,
         for i in range(n):
             keep = np.arange(n) != i
             ki, _ = _fit_correction(cr[keep], pixel[keep], terms)
-            loo[i] = pixel[i] - _apply(ki, cr[i : i + 1])[0]
+            loo[i] = _apply(ki, cr[i : i + 1])[0] - pixel[i]
     refined = RPCCamera(camera.coefficients, camera.offsets, camera.scales, k, camera.image_size)
-    return RPCRefinement(refined, model, k, cov, residuals, pixel - cr, loo, sigma0, r, standardized, names)
+    return RPCRefinement(refined, model, k, cov, residuals, cr - pixel, loo, sigma0, r, standardized, names)
 
 
 def rpc_terms(lph) -> Array:

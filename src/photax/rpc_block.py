@@ -87,15 +87,16 @@ class RPCBlock:
             tie_sigmas ``(t, 3)`` their standard deviations east, north, up (m).
         point, image: ``(k,)`` the point id and image of each image observation (ties, then GCPs);
             is_gcp ``(k,)`` which are GCP observations.
-        residuals: ``(k, 2)`` observed minus adjusted image position (px).
+        residuals: ``(k, 2)`` adjusted minus observed image position (px; computed - observed,
+            ``docs/conventions.md``).
         standardized: ``(k, 2)`` residuals over their a posteriori standard deviation
             ``v / (sigma0 sqrt(q_vv))`` (Pope's tau); the largest beyond about 3 or 4 marks a blunder
             (data snooping). NaN without redundancy.
-        gcp_residuals: ``(g, 3)`` given minus adjusted east, north, up of the GCPs (m; 0 when fixed,
+        gcp_residuals: ``(g, 3)`` adjusted minus given east, north, up of the GCPs (m; 0 when fixed,
             NaN for check points).
-        check_residuals: ``(c, 2)`` observed minus refined projection of the check points' known ground
+        check_residuals: ``(c, 2)`` refined projection of the check points' known ground minus observed
             (px), one row per check observation (``check_point``, ``check_image`` say which).
-        check_ground_residuals: ``(g, 3)`` known minus intersected east, north, up of the check points
+        check_ground_residuals: ``(g, 3)`` intersected minus known east, north, up of the check points
             seen in at least two images with the refined cameras (m; NaN elsewhere).
         sigma0: a posteriori standard deviation of unit weight (NaN without redundancy).
         redundancy: observations (including priors and weighted GCPs) minus unknowns.
@@ -377,20 +378,20 @@ def adjust_rpc_block(
     gcp_res = np.full((len(g_ground), 3), np.nan)
     gcp_res[control_ids] = 0.0
     if len(free_gcp):
-        gcp_res[free_gcp] = -x_pts[n_tie:]
+        gcp_res[free_gcp] = x_pts[n_tie:]
     cams = current_cameras()
 
     # check points: image residuals of their known ground, and their intersection when seen twice
     chk_obs = g_obs[check[g_obs[:, 0].astype(int)]] if len(g_obs) else g_obs
     chk_res = np.zeros((len(chk_obs), 2))
     for k, o in enumerate(chk_obs):
-        chk_res[k] = o[2:] - np.asarray(cams[int(o[1])](jnp.asarray(g_ground[int(o[0])])))
+        chk_res[k] = np.asarray(cams[int(o[1])](jnp.asarray(g_ground[int(o[0])]))) - o[2:]
     chk_ground = np.full((len(g_ground), 3), np.nan)
     for p in np.unique(chk_obs[:, 0]).astype(int) if len(chk_obs) else []:
         po = chk_obs[chk_obs[:, 0] == p]
         if len(np.unique(po[:, 1])) >= 2:
             xi = _intersect(cams, po, _start_ground(cams, po, np.array([p]))[0])
-            chk_ground[p] = (g_ground[p] - xi) * _metres_per_degree(np.array([g_ground[p, 1]]))[0]
+            chk_ground[p] = (xi - g_ground[p]) * _metres_per_degree(np.array([g_ground[p, 1]]))[0]
 
     point_ids = np.concatenate([ties[:, 0], control[:, 0]]).astype(int)
     return RPCBlock(
@@ -405,8 +406,8 @@ def adjust_rpc_block(
         point=point_ids,
         image=img,
         is_gcp=kind == "g",
-        residuals=v,
-        standardized=standardized,
+        residuals=-v,  # computed - observed (v above is the solver's observed - computed)
+        standardized=-standardized,
         gcp_residuals=gcp_res,
         check_point=chk_obs[:, 0].astype(int),
         check_image=chk_obs[:, 1].astype(int),

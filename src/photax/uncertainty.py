@@ -67,6 +67,7 @@ from .collinearity import ExteriorOrientation, angle_axes, collinearity_jacobian
 from .dem import DEM
 from .grid import Grid
 from .io.crs import check_dem
+from .pushbroom import PushbroomCamera, PushbroomResection
 from .rpc import RPCCamera, RPCRefinement
 from .sensor import FrameSensor, GroundSensor
 
@@ -75,10 +76,31 @@ _STRIP = 1 << 19  # pixels per strip at most: its intermediates stay small
 
 
 def _node_planes(sensor, g, cov):
-    """The planes of :func:`_frame_planes` or :func:`_rpc_planes`, by the sensor's kind."""
+    """The planes of :func:`_frame_planes`, :func:`_rpc_planes` or :func:`_pushbroom_planes`, by the
+    sensor's kind."""
     if isinstance(sensor, GroundSensor):
+        if isinstance(sensor.camera, PushbroomCamera):
+            return _pushbroom_planes(sensor, g, cov)
         return _rpc_planes(sensor, g, cov)
     return _frame_planes(sensor.exterior, sensor.camera, g, cov)
+
+
+def _pushbroom_planes(sensor, g, cov):
+    """As :func:`_frame_planes` for a push-broom model (:class:`photax.sensor.GroundSensor`): ``J = dp/d
+    theta`` ``(2, P)`` of all its orbit and attitude coefficients (:meth:`photax.PushbroomCamera.parameters`)
+    and ``dp/d(X, Y, Z)``, both by ``jax.jacfwd`` through the line search and the map CRS -> lon, lat
+    transformation; ``cov`` ``(P, P)``."""
+    cam = sensor.camera
+
+    def project(theta, gi):
+        return eqx.tree_at(lambda s: s.camera, sensor, cam.with_parameters(theta))(gi)
+
+    j = jax.vmap(jax.jacfwd(project), in_axes=(None, 0))(cam.parameters(), g)  # (n, 2, P)
+    jc = (j.reshape(-1, j.shape[-1]) @ cov).reshape(j.shape)
+    sp = [jnp.sum(jc[:, a] * j[:, b], axis=-1) for a, b in ((0, 0), (0, 1), (1, 1))]
+    pix = sensor(g)
+    jg = jax.vmap(jax.jacfwd(sensor))(g)  # (n, 2, 3)
+    return jnp.concatenate([pix.T, jnp.stack(sp), jg.reshape(-1, 6).T])
 
 
 def _rpc_planes(sensor, g, cov):
@@ -529,7 +551,11 @@ def ortho_uncertainty(
     with ``covariance`` the ``(6, 6)`` covariance of its image-space correction ``(a0, a1, a2, b0, b1,
     b2)`` (pixels; zeros for an unrefined RPC, whose bias is unknown), or ``exterior`` a
     :class:`photax.rpc.RPCRefinement` (its camera and covariance; ``camera`` None). The grid may be
-    in any projected CRS, the DEM in the grid's.
+    in any projected CRS, the DEM in the grid's. A push-broom image: ``exterior`` None and ``camera`` a
+    :class:`photax.PushbroomCamera` with ``covariance`` the ``(P, P)`` one of all its orbit and
+    attitude coefficients (:attr:`~photax.PushbroomCamera.parameter_names`, m and rad), or ``exterior``
+    a :class:`photax.PushbroomResection` (its adjusted camera; its covariance of the parameters it
+    adjusted, the others held exact; ``camera`` None); the Jacobians by ``jax.jacfwd``.
 
     Returns:
         :class:`OrthoUncertainty`, float32 rasters (float64 with ``step=1``).
@@ -554,13 +580,17 @@ def ortho_uncertainty(
         True
     """
     # Over 80 lines because the docstring documents every argument; the body is ~55 lines.
-    if not isinstance(exterior, RPCRefinement) and not isinstance(camera, (FrameCamera, RPCCamera)):
+    ground_kinds = (RPCRefinement, PushbroomResection)
+    if not isinstance(exterior, ground_kinds) and not isinstance(camera, (FrameCamera, RPCCamera, PushbroomCamera)):
         raise ValueError(
-            f"ortho_uncertainty: a frame camera or an RPC, not a {type(camera).__name__} "
-            "(for a push-broom image, the RPC fitted to it: photax.fit_rpc)"
+            f"ortho_uncertainty: a frame camera, an RPC or a push-broom model, not a {type(camera).__name__}"
         )
     check_dem(dem, grid)
-    if isinstance(exterior, RPCRefinement) or isinstance(camera, RPCCamera):
+    if isinstance(exterior, PushbroomResection) or isinstance(camera, PushbroomCamera):
+        sensor, joint = _pushbroom(exterior, covariance, camera, grid)
+        if camera_covariance is not None:
+            raise ValueError("camera_covariance: give a push-broom model's in covariance (over its parameters)")
+    elif isinstance(exterior, RPCRefinement) or isinstance(camera, RPCCamera):
         sensor, joint = _rpc(exterior, covariance, camera, grid)
         if camera_covariance is not None:
             raise ValueError("camera_covariance: an RPC has no intrinsics (its covariance is the correction's)")
@@ -712,6 +742,39 @@ def _rpc(refinement, covariance, camera, grid):
         raise ValueError("covariance must be symmetric positive semi-definite")
     if camera.image_size is None:
         raise ValueError("the RPC camera must have an image_size")
+    return GroundSensor(camera, grid.crs), cov
+
+
+def _pushbroom(resection, covariance, camera, grid):
+    """A push-broom model's sensor (in the grid's CRS) and the ``(P, P)`` covariance of all its
+    parameters (:attr:`photax.PushbroomCamera.parameter_names`): a resection's covariance of those it
+    adjusted, zeros for those it held."""
+    if isinstance(resection, PushbroomResection):
+        if camera is not None and camera is not resection.camera:
+            raise ValueError("camera: give None with a PushbroomResection (its adjusted camera is used)")
+        camera = resection.camera
+        names = camera.parameter_names
+        index = [names.index(p) for p in resection.parameters]
+        cov = np.zeros((len(names), len(names)))
+        if covariance is None:
+            if not np.all(np.isfinite(resection.covariance)):
+                raise ValueError("the resection has no finite covariance (no redundancy, no a-priori sigma)")
+            cov[np.ix_(index, index)] = resection.covariance
+        else:
+            cov = np.asarray(covariance, dtype=float)
+    elif resection is not None:
+        raise ValueError("exterior: None or a PushbroomResection with a push-broom camera (it carries its orientation)")
+    else:
+        cov = np.asarray(covariance, dtype=float) if covariance is not None else None
+    p = len(camera.parameter_names)
+    if cov is None or cov.shape != (p, p) or not np.all(np.isfinite(cov)):
+        got = None if cov is None else cov.shape
+        raise ValueError(
+            f"covariance: a push-broom model's is the finite ({p}, {p}) one of its parameters "
+            f"({', '.join(camera.parameter_names)}), got {got}"
+        )
+    if np.min(np.linalg.eigvalsh(0.5 * (cov + cov.T))) < -1e-12 * max(np.abs(cov).max(), 1e-300):
+        raise ValueError("covariance must be symmetric positive semi-definite")
     return GroundSensor(camera, grid.crs), cov
 
 

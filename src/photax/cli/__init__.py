@@ -36,6 +36,7 @@ SUBCOMMANDS = [
     "register",
     "sharpen",
     "coregister",
+    "rpc",
 ]
 
 

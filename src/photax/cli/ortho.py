@@ -18,6 +18,14 @@ reads them; or ``--camera`` an orthority ``rpc_param.yaml``, a ``.RPB`` or a ``_
 ``--exterior``: the ortho is made in ``--crs`` (default the UTM zone of the scene), optionally after
 refining the RPC on ``--gcps`` (``--refine``, :func:`photax.rpc.refine_rpc`, whose report is
 printed). The DEM's heights must be ellipsoidal (a warning says when its CRS does not say so).
+A push-broom image (``--camera`` a photax push-broom camera file, :mod:`photax.io.pushbroom_file`) is
+made like an RPC one (no ``--gcps``: its orbit and attitude are adjusted by
+:func:`photax.resect_pushbroom`); ``photax rpc`` fits and writes an RPC to it.
+Several satellite images (``--out-dir``) run like a frame block, through the same code, each with its
+own RPC (``--camera rpc``: each image's; a ``rpc_param.yaml``: each image's entry by file name; one
+``.RPB`` for several images is refused); with ``--gcps`` each image is refined on the GCPs the file
+says were measured in it (GCPs naming no image are refused: a pixel position belongs to one image),
+all before any ortho, so that a GCP problem is a usage error (exit 2) naming the image.
 """
 
 from __future__ import annotations
@@ -45,7 +53,9 @@ def add_parser(sub) -> None:
         "  photax ortho DJI_0001.JPG --dem dsm.tif --camera cam.yaml --exterior exif -o ortho.tif  "
         "# position and gimbal angles from the image's EXIF/XMP\n"
         "  photax ortho qb2_basic1b.tif --camera rpc --dem dem.tif --crs EPSG:32735 --resolution 5 "
-        "--gcps gcps.geojson --refine shift -o o.tif  # a satellite image's own RPC, refined on GCPs\n",
+        "--gcps gcps.geojson --refine shift -o o.tif  # a satellite image's own RPC, refined on GCPs\n"
+        "  photax ortho a.tif b.tif --camera rpc --dem dem.tif --crs EPSG:32735 --out-dir orthos  "
+        "# several satellite images, each with its own RPC\n",
     )
     p.add_argument("image", metavar="IMAGE", nargs="+", help="the image(s) (any GDAL raster)")
     ground = p.add_mutually_exclusive_group(required=True)
@@ -61,7 +71,8 @@ def add_parser(sub) -> None:
                    "OpenSfM/ODM reconstruction.json or ODM cameras.json, or exif: the camera the image's "
                    "tags describe (DJI DewarpData, else EXIF focal length), as orthority reads it "
                    "(--interior is an alias); or an RPC: 'rpc' (the one in IMAGE's metadata), an orthority "
-                   "rpc_param.yaml, a .RPB or a _RPC.TXT file")  # fmt: skip
+                   "rpc_param.yaml, a .RPB or a _RPC.TXT file; or a photax push-broom camera file (type: "
+                   "pushbroom)")  # fmt: skip
     p.add_argument("--exterior",
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
                    "several), "
@@ -91,7 +102,8 @@ def add_parser(sub) -> None:
     p.add_argument("--crs", help="RPC camera only: the output CRS (EPSG code, PROJ or WKT; default the "
                    "WGS84 UTM zone of the scene)")  # fmt: skip
     p.add_argument("--gcps", metavar="GCP_FILE", help="RPC camera only: GCPs to refine the RPC with (any "
-                   "format photax reads: orthority GeoJSON, CSV, ODM; those of IMAGE, or without an image name)")  # fmt: skip
+                   "format photax reads: orthority GeoJSON, CSV, ODM; those of IMAGE, or without an image name for one "
+                   "IMAGE; with several, each refined on its own)")  # fmt: skip
     p.add_argument("--refine", choices=("shift", "shift-drift", "affine"), default=None,
                    help="with --gcps: the image-space correction refined (default: shift; at least 1, 2, 3 GCPs)")  # fmt: skip
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
@@ -99,8 +111,8 @@ def add_parser(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if _is_rpc(args.camera):
-        return _run_rpc(args)
+    if _is_ground(args.camera):
+        return _run_ground(args)
     rpc_only = [o for o, v in (("--crs", args.crs), ("--gcps", args.gcps), ("--refine", args.refine)) if v is not None]
     if rpc_only:
         raise ValueError(f"{', '.join(rpc_only)}: for an RPC camera only (a frame's CRS is its orientation's)")
@@ -174,27 +186,14 @@ def _run_one(args: argparse.Namespace) -> int:
 def _run_block(args: argparse.Namespace) -> int:
     """Every IMAGE into --out-dir, in one process: a failed image is named, the others written (exit 1)."""
     import pathlib
-    import sys
 
-    from ..io.atomic import check_output_path, output_name
     from ..io.orientation import read_exterior, read_exteriors
     from ..io.raster import read_dem
     from ..rectification import orthorectify_files
-    from ._common import check_crs, ground_unit, input_file
+    from ._common import check_crs, input_file
 
     _check_inputs(args)
-    folder = pathlib.Path(args.out_dir)
-    if folder.exists() and not folder.is_dir():
-        raise ValueError(f"--out-dir {folder}: is a file, expected a folder")
-    outputs = [folder / f"{output_name(pathlib.Path(i).stem, 'image name')}_ortho.tif" for i in args.image]
-    seen = {}
-    for image, out in zip(args.image, outputs):
-        if out in seen:
-            raise ValueError(f"images {seen[out]} and {image} would both be written to {out}: same name")
-        seen[out] = image
-    inputs = [*args.image, *(p for p in (args.dem, args.camera, args.exterior) if p is not None)]
-    for out in outputs:
-        check_output_path(out, inputs)  # fail before the work, not after
+    outputs = _block_outputs(args, [args.dem, args.camera, args.exterior])
     camera = _read_camera(args, args.image)
     dem = read_dem(args.dem) if args.dem is not None else None
     dem_crs = dem.crs if dem is not None else None  # positions in latitude/longitude go into the DEM's CRS
@@ -232,12 +231,45 @@ def _run_block(args: argparse.Namespace) -> int:
             resolution=args.resolution,
             crs=crs,
             resampling=args.resampling,
+            nodata=args.nodata,
             tile=args.tile,
             progress=args.progress and args.command,
         )
         if todo
         else []
     )
+    return _block_report(args, outputs, todo, results, failed)
+
+
+def _block_outputs(args: argparse.Namespace, inputs: list) -> list:
+    """``DIR/STEM_ortho.tif`` of every IMAGE, checked before any work: two images of one name, or an
+    output that would overwrite an image or one of ``inputs``, are refused."""
+    import pathlib
+
+    from ..io.atomic import check_output_path, output_name
+
+    folder = pathlib.Path(args.out_dir)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"--out-dir {folder}: is a file, expected a folder")
+    outputs = [folder / f"{output_name(pathlib.Path(i).stem, 'image name')}_ortho.tif" for i in args.image]
+    seen = {}
+    for image, out in zip(args.image, outputs):
+        if out in seen:
+            raise ValueError(f"images {seen[out]} and {image} would both be written to {out}: same name")
+        seen[out] = image
+    inputs = [*args.image, *(p for p in inputs if p is not None)]
+    for out in outputs:
+        check_output_path(out, inputs)  # fail before the work, not after
+    return outputs
+
+
+def _block_report(args: argparse.Namespace, outputs: list, todo: list, results: list, failed: dict) -> int:
+    """Each ortho written (``results`` of the images ``todo``: a grid or an exception) and each image
+    failed, named on stderr: exit 1 if any failed (the others are written), else 0."""
+    import sys
+
+    from ._common import ground_unit
+
     for k, grid in zip(todo, results):
         if isinstance(grid, Exception):
             failed[args.image[k]] = grid
@@ -318,12 +350,17 @@ def _flat_dem(height: float, exterior):
     return DEM.flat(height, (*b[:, :2].min(axis=0), *b[:, 2:].max(axis=0)))
 
 
-def _is_rpc(camera: str) -> bool:
-    """``--camera rpc``, a ``.RPB`` / ``_RPC.TXT`` file, or a YAML file of orthority's RPC format."""
+def _is_ground(camera: str) -> bool:
+    """``--camera rpc``, a ``.RPB`` / ``_RPC.TXT`` file, a YAML file of orthority's RPC format, or a
+    photax push-broom camera file: a camera that carries its own orientation."""
     import pathlib
+
+    from ..io.pushbroom_file import is_pushbroom_file
 
     path = pathlib.Path(camera)
     if camera == "rpc" or path.suffix.lower() == ".rpb" or path.name.upper().endswith("_RPC.TXT"):
+        return True
+    if is_pushbroom_file(path):
         return True
     if path.suffix.lower() not in (".yaml", ".yml") or not path.is_file():
         return False
@@ -336,88 +373,140 @@ def _is_rpc(camera: str) -> bool:
     return isinstance(doc, dict) and any(isinstance(v, dict) and "rpc" in v for v in doc.values())
 
 
-def _run_rpc(args: argparse.Namespace) -> int:
-    """One satellite image with its RPC (refined on --gcps when given) into --out."""
-    import pathlib
+def _run_ground(args: argparse.Namespace) -> int:
+    """Satellite images, each with its own RPC (refined on --gcps when given) or push-broom camera: one
+    into -o/--out, or several into --out-dir, by the frame block's code (:func:`photax.orthorectify_files`, one bar, a
+    failed image named and the others written, exit 1)."""
     import sys
     import warnings
 
     from ..io.atomic import check_output_path
-    from ..io.raster import open_raster
-    from ..rpc import read_rpc
+    from ..io.pushbroom_file import is_pushbroom_file
+    from ..io.raster import read_dem
+    from ..rectification import orthorectify_files
     from ._common import ground_unit, input_file
 
-    if args.out_dir is not None or len(args.image) > 1:
-        raise ValueError("an RPC camera orthorectifies one IMAGE into -o/--out (each image has its own RPC)")
     if args.exterior is not None:
-        raise ValueError("--exterior: an RPC camera carries its own orientation; leave --exterior out")
+        raise ValueError("--exterior: an RPC or push-broom camera carries its own orientation; leave --exterior out")
     if args.refine is not None and args.gcps is None:
         raise ValueError("--refine needs --gcps (the GCPs to refine the RPC on)")
-    image = input_file(args.image[0], "image")
+    if args.out_dir is None and len(args.image) > 1:
+        raise ValueError(f"-o/--out names one output for {len(args.image)} images: give --out-dir DIR")
     if args.dem is not None:
         input_file(args.dem, "DEM")
     elif not math.isfinite(args.height):
         raise ValueError(f"--height must be a finite number, got {args.height}")
     if args.resolution is not None and not args.resolution > 0:
         raise ValueError(f"--resolution must be positive, got {args.resolution}")
-    source = image if args.camera == "rpc" else input_file(args.camera, "RPC file")
-    inputs = [p for p in (image, args.dem, source, args.gcps) if p is not None]
-    check_output_path(args.out, inputs)  # fail before the work, not after
-    yaml_entry = image.name if pathlib.Path(source).suffix.lower() in (".yaml", ".yml") else None
-    try:
-        camera = read_rpc(source, yaml_entry)
-    except ValueError as exc:
-        if yaml_entry is None or "no entry" not in str(exc):
-            raise
-        camera = read_rpc(source)  # a file of one entry named otherwise
-    with open_raster(image) as src:
-        size = (src.width, src.height)
-    if camera.image_size is None:
-        camera = type(camera)(camera.coefficients, camera.offsets, camera.scales, camera.correction, size)
+    source = None if args.camera == "rpc" else input_file(args.camera, "camera file")
+    pushbroom = source is not None and is_pushbroom_file(source)
+    if pushbroom and args.gcps is not None:
+        raise ValueError(
+            "--gcps: refines an RPC; a push-broom model's orbit and attitude are adjusted on GCPs by "
+            "photax.resect_pushbroom (Python), whose camera write_pushbroom writes for --camera"
+        )
+    if source is not None and len(args.image) > 1 and (pushbroom or source.suffix.lower() not in (".yaml", ".yml")):
+        raise ValueError(
+            f"--camera {source}: one {'push-broom camera' if pushbroom else 'RPC'} for {len(args.image)} images; "
+            "give each image its own (--camera rpc: the RPC in each image or in the .RPB / _RPC.TXT beside it; "
+            "or a rpc_param.yaml naming every image)"
+        )
+    inputs = [args.dem, source, args.gcps]
+    if args.out_dir is not None:
+        outputs = _block_outputs(args, inputs)
+    else:
+        outputs = [args.out]
+        check_output_path(args.out, [*args.image, *(p for p in inputs if p is not None)])
+    single = args.out_dir is None
+    failed, cameras = {}, {}
+    for image in args.image:  # each image's own RPC; in a block a bad one fails that image only
+        try:
+            cameras[image] = _image_camera(source, input_file(image, "image"), len(args.image) > 1, pushbroom)
+        except (ValueError, OSError) as exc:
+            if single:
+                raise
+            failed[image] = exc
+    todo = [k for k, image in enumerate(args.image) if image in cameras]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        if args.gcps is not None:
-            camera = _refine(camera, args.gcps, image.name, args.refine or "shift")
-        grid, dem = _rpc_ortho(args, image, camera)
+        if args.gcps is not None:  # every refinement before any ortho: a bad GCP file is a usage error
+            for image in cameras:
+                try:
+                    cameras[image] = _refine(cameras[image], args.gcps, image, args.refine or "shift", not single)
+                except ValueError as exc:
+                    raise ValueError(str(exc) if single else f"{image}: {exc}") from None
+        cams = [cameras[args.image[k]] for k in todo]
+        dem = read_dem(args.dem) if args.dem is not None else [_flat_ground(args.height, c, args.crs) for c in cams]
+        results = orthorectify_files(
+            [args.image[k] for k in todo],
+            [outputs[k] for k in todo],
+            None,
+            cams,
+            dem,
+            resolution=args.resolution,
+            crs=args.crs,
+            resampling=args.resampling,
+            nodata=args.nodata,
+            tile=args.tile,
+            progress=args.progress and args.command,
+        )
     for w in dict.fromkeys(str(w.message) for w in caught):
         print(f"{args.command}: warning: {w}", file=sys.stderr)
+    if not single:
+        return _block_report(args, outputs, todo, results, failed)
+    grid = results[0]
+    if isinstance(grid, Exception):
+        raise grid
     print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} {ground_unit(grid.crs)}")
     return 0
 
 
-def _rpc_ortho(args, image, camera):
-    """The RPC ortho into args.out: (grid, dem)."""
+def _image_camera(source, image, several: bool, pushbroom: bool):
+    """IMAGE's camera: a push-broom camera file (``pushbroom``); or its RPC: from the image (``source``
+    None: its metadata or the side files GDAL reads), its entry of an orthority ``rpc_param.yaml`` (by
+    file name; a one-entry file named otherwise for a lone image), or a ``.RPB`` / ``_RPC.TXT`` file;
+    its image size the image's where the file has none."""
+    from ..io.pushbroom_file import read_pushbroom
+    from ..io.raster import open_raster
+    from ..rpc import read_rpc
+
+    if pushbroom:
+        return read_pushbroom(source)
+    if source is None:
+        camera = read_rpc(image)
+    elif source.suffix.lower() in (".yaml", ".yml"):
+        try:
+            camera = read_rpc(source, image.name)
+        except ValueError as exc:
+            if several or "no entry" not in str(exc):
+                raise
+            camera = read_rpc(source)  # a file of one entry named otherwise
+    else:
+        camera = read_rpc(source)
+    if camera.image_size is None:
+        with open_raster(image) as src:
+            size = (src.width, src.height)
+        camera = type(camera)(camera.coefficients, camera.offsets, camera.scales, camera.correction, size)
+    return camera
+
+
+def _flat_ground(height: float, camera, crs):
+    """``--height`` under a ground camera: flat ground over its validity box, in the output CRS
+    (``crs``, default the UTM zone of its scene, as :func:`photax.ortho_grid` takes it)."""
     from ..dem import DEM
-    from ..grid import ortho_grid
-    from ..io.raster import read_dem
-    from ..rectification import orthorectify_file
     from ..sensor import GroundSensor, utm_crs
 
-    crs = args.crs if args.crs is not None else utm_crs(*(float(v) for v in camera.offsets[:2]))
-    if args.dem is not None:
-        dem = read_dem(args.dem)
-    else:  # flat ground over the RPC's validity box, in the output CRS
-        dem = DEM.flat(args.height, GroundSensor(camera, crs).box())
-        dem = DEM(dem.heights, dem.transform, crs=crs)
-    grid = ortho_grid(None, camera, dem, args.resolution, crs=crs)
-    orthorectify_file(
-        image,
-        args.out,
-        None,
-        camera,
-        dem,
-        grid,
-        resampling=args.resampling,
-        nodata=args.nodata,
-        tile=args.tile,
-        progress=args.progress and args.command,
-    )
-    return grid, dem
+    crs = crs if crs is not None else utm_crs(*(float(v) for v in camera.ground_box()[0]))
+    dem = DEM.flat(height, GroundSensor(camera, crs).box())
+    return DEM(dem.heights, dem.transform, crs=crs)
 
 
-def _refine(camera, gcp_path, image_name: str, model: str):
-    """The RPC refined on the control points of ``gcp_path`` measured in ``image_name`` (or without an
-    image name); its report printed; check points, when the file marks some, reported apart."""
+def _refine(camera, gcp_path, image, model: str, several: bool = False):
+    """The RPC refined on the control points of ``gcp_path`` measured in ``image`` (by file name; for a
+    lone image also those without an image name: several images cannot share pixel positions); its
+    report printed; check points, when the file marks some, reported apart."""
+    import pathlib
+
     import numpy as np
     import pyproj
 
@@ -425,7 +514,13 @@ def _refine(camera, gcp_path, image_name: str, model: str):
     from ..rpc import refine_rpc
     from ._common import input_file
 
+    image_name = pathlib.Path(image).name
     table = read_gcps(input_file(gcp_path, "GCP file"))
+    if several and (table.images == "").any():
+        raise ValueError(
+            f"{gcp_path}: {int((table.images == '').sum())} GCPs name no image; with several images each GCP's "
+            "pixel position must say which image it was measured in"
+        )
     if table.pixel is None:
         raise ValueError(f"{gcp_path}: gives image-plane coordinates; an RPC needs pixel positions")
     mine = np.isin(table.images, [image_name, ""])
@@ -439,9 +534,11 @@ def _refine(camera, gcp_path, image_name: str, model: str):
         ground[:, 0], ground[:, 1] = t.transform(ground[:, 0], ground[:, 1])
     names, pixel, check = table.names[mine], table.pixel[mine], table.check[mine]
     res = refine_rpc(camera, ground[~check], pixel[~check], model, names=names[~check])
+    if several:
+        print(f"{image_name}:")
     print(res.report())
     if check.any():
-        v = pixel[check] - np.asarray(res.camera(ground[check]))
+        v = np.asarray(res.camera(ground[check])) - pixel[check]  # computed - observed
         rmse = float(np.sqrt(np.mean(np.sum(v**2, axis=1))))
         print(f"check points: {int(check.sum())}, RMSE {rmse:.3f} px")
     return res.camera

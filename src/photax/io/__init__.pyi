@@ -77,10 +77,13 @@ from .orthority import (
 from .orthority import write_orthority_exterior as write_orthority_exterior
 from .orthority import write_orthority_geojson as write_orthority_geojson
 from .orthority import write_orthority_interior as write_orthority_interior
+from .orthority import write_orthority_rpc as write_orthority_rpc
 from .pix4d import read_pix4d_cam as read_pix4d_cam
 from .pix4d import write_pix4d_cam as write_pix4d_cam
 from .points import read_named_points as read_named_points
 from .points import read_pixel_points as read_pixel_points
+from .pushbroom_file import read_pushbroom as read_pushbroom
+from .pushbroom_file import write_pushbroom as write_pushbroom
 from .raster import (
     read_dem as read_dem,
 )

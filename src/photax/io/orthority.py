@@ -510,3 +510,25 @@ def write_orthority_geojson(path, table, crs, camera=None, *, inputs=()) -> path
         json.dump(data, fh, indent=2, allow_nan=False)
         fh.write("\n")
     return pathlib.Path(path)
+
+
+def write_orthority_rpc(path, cameras, *, inputs=()) -> pathlib.Path:
+    """Write RPCs (:class:`photax.rpc.RPCCamera`, ``{image file name: camera}``) as orthority's
+    ``rpc_param.yaml`` (each entry ``im_size`` and ``rpc`` with GDAL's keys), atomically:
+    ``oty rpc --rpc-file`` and :func:`photax.rpc.read_rpc` read it back (a refined RPC's image-space
+    correction is not part of the format: refused)."""
+    import yaml
+
+    from .atomic import atomic_write
+
+    if not cameras:
+        raise ValueError("no RPCs to write")
+    doc = {}
+    for name, camera in cameras.items():
+        if np.any(np.asarray(camera.correction) != 0):
+            raise ValueError(f"{name}: a refined RPC's correction has no place in rpc_param.yaml")
+        entry = {} if camera.image_size is None else {"im_size": [int(v) for v in camera.image_size]}
+        doc[str(name)] = {**entry, "rpc": camera.to_dict()}
+    with atomic_write(path, inputs=inputs) as fh:
+        yaml.safe_dump(doc, fh, sort_keys=False, default_flow_style=None)
+    return pathlib.Path(path)

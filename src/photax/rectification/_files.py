@@ -343,12 +343,13 @@ def orthorectify_files(
     images,
     outputs,
     exteriors,
-    camera: FrameCamera,
-    dem: DEM,
+    camera,
+    dem,
     *,
     resolution=None,
     crs=None,
     resampling: Resampling | str = "bilinear",
+    nodata=None,
     tile: int = 1024,
     compress: str | None = "deflate",
     progress: bool | str = False,
@@ -363,17 +364,24 @@ def orthorectify_files(
     Args:
         images: the image files.
         outputs: one output GeoTIFF per image (each written atomically).
-        exteriors: one :class:`photax.ExteriorOrientation` per image.
-        camera, dem: shared by all.
+        exteriors: one :class:`photax.ExteriorOrientation` per image; None (or None entries) for
+            images with a ground camera (an :class:`photax.rpc.RPCCamera`, a
+            :class:`photax.PushbroomCamera`), which carries its own orientation.
+        camera, dem: shared by all, or one per image (a list): satellite images each have their own
+            RPC.
         resolution: ground pixel size; default each image's mean ground sampling distance.
-        crs: the grids' CRS (the orientation file's); default the DEM's.
+        crs: the grids' CRS (the orientation file's); default the DEM's (a ground camera: the UTM
+            zone of its scene).
+        nodata: as in :func:`rectify_file`.
 
     Returns:
         per image, its output :class:`photax.Grid`, or the exception that stopped it.
     """
     from ..progress import progress_bar
 
-    images, outputs, exteriors = list(images), list(outputs), list(exteriors)
+    images, outputs = list(images), list(outputs)
+    exteriors = [None] * len(images) if exteriors is None else list(exteriors)
+    cameras, dems = (_per_image(v, len(images), what) for v, what in ((camera, "cameras"), (dem, "DEMs")))
     if not len(images) == len(outputs) == len(exteriors):
         raise ValueError(
             f"{len(images)} images, {len(outputs)} outputs and {len(exteriors)} orientations: one of each per image"
@@ -381,16 +389,16 @@ def orthorectify_files(
     from ..io.raster import open_raster
 
     results: list = []
-    for image, e in zip(images, exteriors):  # the grids first: the bar's total is every image's tiles
+    for image, e, cam, d in zip(images, exteriors, cameras, dems):  # the grids first: the bar counts all tiles
         try:
             with open_raster(image) as src:
-                _check_image_size((src.height, src.width), camera)
-            results.append(ortho_grid(e, camera, dem, resolution, crs=crs))
+                _check_image_size((src.height, src.width), cam)
+            results.append(ortho_grid(e, cam, d, resolution, crs=crs))
         except (ValueError, OSError) as exc:
             results.append(exc)
     total = sum(len(list(tile_windows(g.shape, tile))) for g in results if isinstance(g, Grid))
     with progress_bar(progress, total, desc="ortho", unit="tile") as bar:
-        for k, (image, out, e) in enumerate(zip(images, outputs, exteriors)):
+        for k, (image, out, e, cam, d) in enumerate(zip(images, outputs, exteriors, cameras, dems)):
             if not isinstance(results[k], Grid):
                 continue
             try:
@@ -398,10 +406,11 @@ def orthorectify_files(
                     image,
                     out,
                     e,
-                    camera,
-                    dem,
+                    cam,
+                    d,
                     results[k],
                     resampling=resampling,
+                    nodata=nodata,
                     tile=tile,
                     progress=bar,
                     compress=compress,
@@ -409,3 +418,12 @@ def orthorectify_files(
             except (ValueError, OSError) as exc:  # this image's; KeyboardInterrupt and bugs stop the run
                 results[k] = exc
     return results
+
+
+def _per_image(value, n: int, what: str) -> list:
+    """``value`` shared by ``n`` images, or its list of one per image."""
+    if not isinstance(value, (list, tuple)):
+        return [value] * n
+    if len(value) != n:
+        raise ValueError(f"{len(value)} {what} for {n} images: give one shared, or one per image")
+    return list(value)
