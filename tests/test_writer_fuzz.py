@@ -35,6 +35,7 @@ from photax.io.orthority import (
     write_orthority_exterior,
     write_orthority_geojson,
     write_orthority_interior,
+    write_orthority_rpc,
 )
 from photax.io.pix4d import read_pix4d_cam, write_pix4d_cam
 
@@ -213,6 +214,30 @@ def test_geo_txt_writer_round_trips(tmp_path):
             np.testing.assert_array_equal(table[k.split(".")[0]], v)
 
     _round_trip(tmp_path, "geo", make, lambda t, p: write_odm_geo(p.with_suffix(".txt"), t, CRS), read_odm_geo, check)
+
+
+def test_rpc_writer_round_trips(tmp_path):
+    """orthority's rpc_param.yaml: every coefficient, offset and scale read back exactly (repr floats)."""
+
+    def make(rng):
+        coef = rng.normal(0, 1, (4, 20)) * np.logspace(0, -6, 20)
+        coef[[1, 3], 0] = 1.0  # the denominators' constant term
+        offsets = [rng.uniform(-180, 180), rng.uniform(-80, 80), rng.uniform(0, 2000), 3000.0, 4000.0]
+        scales = [rng.uniform(0.01, 0.2), rng.uniform(0.01, 0.2), rng.uniform(200, 900), 3000.0, 4000.0]
+        size = (int(rng.integers(100, 30000)), int(rng.integers(100, 30000)))
+        return {f"scene_{k}.tif": ptx.RPCCamera(coef * (k + 1), offsets, scales, image_size=size) for k in range(2)}
+
+    def check(cams, path):
+        for name, cam in cams.items():
+            back = ptx.read_rpc(path, image=name)
+            for field in ("coefficients", "offsets", "scales"):
+                np.testing.assert_array_equal(np.asarray(getattr(back, field)), np.asarray(getattr(cam, field)))
+            assert back.image_size == cam.image_size
+
+    def write(cams, p):
+        return write_orthority_rpc(p.with_suffix(".yaml"), cams)
+
+    _round_trip(tmp_path, "rpc", make, write, lambda p: p, check)
 
 
 def test_gcp_writers_round_trip(tmp_path):
