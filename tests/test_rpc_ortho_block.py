@@ -112,3 +112,23 @@ def test_orthorectify_files_takes_one_camera_and_dem_per_image_or_one_shared(tmp
         orthorectify_files(["a", "b", "c"], ["x", "y", "z"], None, [object(), object()], object())
     with pytest.raises(ValueError, match="1 DEMs for 2 images"):
         orthorectify_files(["a", "b"], ["x", "y"], None, object(), [object()])
+
+
+def test_export_params_writes_each_images_rpc_for_orthority(scene, tmp_path, capsys):
+    """``--export-params DIR`` with RPC images: their RPCs as orthority's rpc_param.yaml, each entry read
+    back equal to the RPC in its image (b's moved 3 lines); a refined RPC (--gcps) is refused by name."""
+    from photax.rpc import read_rpc
+
+    a, b, dem, gcps = scene
+    raw = _common(dem, gcps)[:-4]
+    params = tmp_path / "params"
+    assert main(["ortho", str(a), str(b), *raw, "--out-dir", str(tmp_path / "o"), "--export-params", str(params)]) == 0
+    for image in (a, b):
+        back, truth = read_rpc(params / "rpc_param.yaml", image.name), read_rpc(image)
+        for field in ("coefficients", "offsets", "scales"):
+            np.testing.assert_array_equal(np.asarray(getattr(back, field)), np.asarray(getattr(truth, field)))
+    assert float(read_rpc(params / "rpc_param.yaml", "b.tif").offsets[4]) == float(read_rpc(a).offsets[4]) + 3.0
+    capsys.readouterr()
+    refined = [*_common(dem, gcps), "--out-dir", str(tmp_path / "o2"), "--export-params", str(tmp_path / "p2")]
+    assert main(["ortho", str(a), str(b), *refined]) == 2
+    assert "--export-params" in capsys.readouterr().err and not (tmp_path / "p2").exists()

@@ -97,7 +97,8 @@ def add_parser(sub) -> None:
         "--export-params",
         metavar="DIR",
         help="also write the interior and exterior orientations used as orthority files: DIR/int_param.yaml, "
-        "DIR/ext_param.csv (+ .prj) and, with a CRS, DIR/ext_param.geojson (oty ortho reads them)",
+        "DIR/ext_param.csv (+ .prj) and, with a CRS, DIR/ext_param.geojson (oty ortho reads them); RPC images: "
+        "their raw RPCs as DIR/rpc_param.yaml (oty rpc --rpc-file)",
     )
     p.add_argument("--crs", help="RPC camera only: the output CRS (EPSG code, PROJ or WKT; default the "
                    "WGS84 UTM zone of the scene)")  # fmt: skip
@@ -333,6 +334,22 @@ def _export_params(args: argparse.Namespace, camera, exteriors: dict, crs) -> No
     print(f"wrote {folder}/int_param.yaml, ext_param.csv{' and ext_param.geojson' if crs is not None else ''}")
 
 
+def _export_rpcs(args: argparse.Namespace, cameras: dict, inputs: list) -> None:
+    """``--export-params DIR`` for RPC images: their RPCs as orthority's ``rpc_param.yaml`` (``oty rpc
+    --rpc-file``), before the orthos."""
+    import pathlib
+
+    from ..io.orthority import write_orthority_rpc
+
+    folder = pathlib.Path(args.export_params)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"--export-params {folder}: is a file, expected a folder")
+    if cameras:
+        named = {pathlib.Path(image).name: camera for image, camera in cameras.items()}
+        written = write_orthority_rpc(folder / "rpc_param.yaml", named, inputs=[*args.image, *inputs])
+        print(f"wrote {written}")
+
+
 def _flat_dem(height: float, exterior):
     """``--height``: a constant-height DEM under the camera (a list: under every camera), valid
     within 1000 flying heights of its nadir (a ray reaching the ground farther out is within
@@ -400,6 +417,11 @@ def _run_ground(args: argparse.Namespace) -> int:
         raise ValueError(f"--resolution must be positive, got {args.resolution}")
     source = None if args.camera == "rpc" else input_file(args.camera, "camera file")
     pushbroom = source is not None and is_pushbroom_file(source)
+    if args.export_params is not None and (pushbroom or args.gcps is not None):
+        raise ValueError(
+            "--export-params: orthority's rpc_param.yaml holds a raw RPC, not a "
+            + ("push-broom camera (photax rpc fits and writes one)" if pushbroom else "refined one (--gcps)")
+        )
     if pushbroom and args.gcps is not None:
         raise ValueError(
             "--gcps: refines an RPC; a push-broom model's orbit and attitude are adjusted on GCPs by "
@@ -427,6 +449,8 @@ def _run_ground(args: argparse.Namespace) -> int:
                 raise
             failed[image] = exc
     todo = [k for k, image in enumerate(args.image) if image in cameras]
+    if args.export_params is not None:
+        _export_rpcs(args, cameras, inputs)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         if args.gcps is not None:  # every refinement before any ortho: a bad GCP file is a usage error
