@@ -358,3 +358,18 @@ def test_canny_in_float32_on_8_and_16_bit_images_is_scikit_images_map():
         for mode in ("reflect", "nearest"):
             ref = feature.canny(im.astype(np.float64), 1.4, lo, hi, mode=mode)
             np.testing.assert_array_equal(np.asarray(M.canny(im, 1.4, lo, hi, mode=mode)), ref)
+
+
+@pytest.mark.parametrize("mode", ["reflect", "mirror", "nearest", "wrap", "constant"])
+def test_log_matches_scipy_in_every_border_mode_and_below_the_kernel_size(mode):
+    """The LoG pads once for its four passes: scipy.ndimage.gaussian_laplace's response in every
+    border mode, for float and uint8 images, down to images smaller than the kernel's radius."""
+    rng = np.random.default_rng(3)
+    for shape in [(40, 33), (3, 2)]:
+        x = ndi.gaussian_filter(rng.random(shape), 1.5) * 100
+        np.testing.assert_allclose(
+            np.asarray(M.log(x, 2.0, mode=mode)[0]), ndi.gaussian_laplace(x, 2.0, mode=mode), atol=1e-10
+        )
+        u = (x * 2).astype(np.uint8)
+        want = ndi.gaussian_laplace(u.astype(np.float64), 1.3, mode=mode)
+        np.testing.assert_allclose(np.asarray(M.log(u, 1.3, mode=mode)[0]), want, atol=1e-10)

@@ -92,11 +92,22 @@ def correlate1d(
         size = image.shape[axis]
     if not jnp.issubdtype(p.dtype, jnp.floating):  # an integer image is padded as it is, converted here (fused)
         p = p.astype(dtype)
+
+    def tap(j):
+        return jax.lax.slice_in_dim(p, j, j + size, axis=axis)
+
+    # A symmetric (antisymmetric) kernel: the two taps that share a weight are added
+    # (subtracted) first: half the multiplies.
+    sign = 1.0 if np.array_equal(weights, weights[::-1]) else -1.0 if np.array_equal(weights, -weights[::-1]) else 0.0
     out = None
     for j, wj in enumerate(weights):
-        if wj == 0.0:
+        if wj == 0.0 or (sign and j > (n - 1) // 2):
             continue
-        term = jax.lax.slice_in_dim(p, j, j + size, axis=axis) * float(wj)  # a Python float keeps the image's dtype
+        if sign and j < n - 1 - j:
+            pair = tap(j) + tap(n - 1 - j) if sign > 0 else tap(j) - tap(n - 1 - j)
+            term = pair * float(wj)
+        else:
+            term = tap(j) * float(wj)  # a Python float keeps the image's dtype
         out = term if out is None else out + term
     if out is None:
         return jnp.zeros_like(jax.lax.slice_in_dim(p, 0, size, axis=axis))
