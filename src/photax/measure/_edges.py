@@ -19,7 +19,7 @@ import numpy as np
 import scipy.ndimage as ndi
 
 from ._common import as_image, batched, inner_mask
-from ._filters import Mode, convolve2d, correlate1d, gaussian, gaussian_kernel1d, sobel_pair
+from ._filters import Mode, convolve2d, correlate1d, gaussian, gaussian_kernel1d, pad, sobel_pair
 
 _SQRT2 = float(np.sqrt(2.0))
 
@@ -172,14 +172,16 @@ def _shift(p, dr, dc, h, w):
     return p[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
 
 
-def _nonmax_bilinear(isobel, jsobel, mag, low):
+def _nonmax_bilinear(isobel, jsobel, mag_p, low):
     """Non-maximum suppression along the gradient with linear interpolation
     between the two neighbours it points between (scikit-image's
-    ``_nonmaximum_suppression_bilinear``, vectorised).  Returns the kept
+    ``_nonmaximum_suppression_bilinear``, vectorised).  ``mag_p``: the
+    magnitude with a one-pixel frame around the image (whatever its values:
+    they only reach the outer border, never an edge).  Returns the kept
     pixels (magnitude >= low, local maximum, not on the outer border)."""
-    h, w = mag.shape
-    p = jnp.pad(mag, 1)
-    s = partial(_shift, p, h=h, w=w)
+    h, w = isobel.shape
+    s = partial(_shift, mag_p, h=h, w=w)
+    mag = s(0, 0)
     ai, aj = jnp.abs(isobel), jnp.abs(jsobel)
     cond1 = (isobel > 0) == (jsobel > 0)  # both components of the same sign
 
@@ -310,14 +312,21 @@ def _canny(img, low, high, sigma, mode, cval, hysteresis="host"):
                 smoothed = _scale_border(smoothed, 1.0 / (prof + np.finfo(np.float64).eps), axis, r)
         else:
             smoothed = smoothed / (gaussian(jnp.ones(img.shape, dt), sigma, mode, cval, dtype=dt) + np.finfo(dt).eps)
-    isobel, jsobel = sobel_pair(smoothed, dtype=dt)
-    mag = jnp.sqrt(isobel * isobel + jsobel * jsobel)
+    # The magnitude on the image plus a one-pixel frame, straight from a two-pixel
+    # padded copy (NMS reads the neighbours' magnitudes: no padded copy of it), the
+    # gradient's components recomputed where NMS needs them (cheaper than storing them).
+    h, w = smoothed.shape
+    p = pad(smoothed, [(2, 2), (2, 2)], "reflect")  # one pixel of it is scipy.ndimage.sobel's border
+    i_p, j_p = sobel_pair(p, "valid")
+    mag_p = jax.lax.optimization_barrier(jnp.sqrt(i_p * i_p + j_p * j_p))
+    isobel, jsobel = sobel_pair(p[1:-1, 1:-1], "valid")
+    mag = mag_p[1:-1, 1:-1]
     # Nothing on a flat image: rounding noise of the smoothing (~1e-16 of the
     # grey level in float64, 1e-7 in float32) must not pass a zero threshold
     # (scikit-image floors at 1e-14).
     floor = 1e-12 if dt == jnp.float64 else 1e-5
     low = jnp.maximum(low.astype(dt), floor * jnp.max(jnp.abs(img.astype(dt))) + np.finfo(dt).tiny)
-    low_mask = _nonmax_bilinear(isobel, jsobel, mag, low)
+    low_mask = _nonmax_bilinear(isobel, jsobel, mag_p, low)
     high_mask = low_mask & (mag >= high.astype(dt))
     if hysteresis == "jax":
         return _hysteresis(low_mask, high_mask)
