@@ -316,7 +316,8 @@ def _canny(img, low, high, sigma, mode, cval, hysteresis="host"):
     # padded copy (NMS reads the neighbours' magnitudes: no padded copy of it), the
     # gradient's components recomputed where NMS needs them (cheaper than storing them).
     h, w = smoothed.shape
-    p = pad(smoothed, [(2, 2), (2, 2)], "reflect")  # one pixel of it is scipy.ndimage.sobel's border
+    # its inner pixel is scipy.ndimage.sobel's (reflect) border; the outer one only reaches the frame
+    p = pad(smoothed, [(2, 2), (2, 2)], "nearest")
     i_p, j_p = sobel_pair(p, "valid")
     mag_p = jax.lax.optimization_barrier(jnp.sqrt(i_p * i_p + j_p * j_p))
     isobel, jsobel = sobel_pair(p[1:-1, 1:-1], "valid")

@@ -29,13 +29,19 @@ def pad(image: jax.Array, widths, mode: Mode = "reflect", cval: float = 0.0) -> 
         raise ValueError(f"mode: expected one of {sorted(_NP_MODE)}, got {mode!r}")
     if mode == "constant":
         return jnp.pad(image, widths, mode="constant", constant_values=cval)
-    # A constant pad with the border strips written into it: jnp.pad's own "edge" /
-    # "symmetric" / "reflect" / "wrap" padding is a concatenate of broadcasts that
-    # XLA:CPU runs 5-10x slower than the constant pad (measured, 2048 x 2048 float32:
-    # 10-20 ms instead of 1.8).  The padded image is image[rows][:, cols] with numpy's
-    # own index maps (np.pad of the indices, so any width, even wider than the image,
-    # pads as numpy does); each strip is gathered from the image, not from the padded
-    # copy, so the writes are in place (reading the copy made XLA copy it per strip).
+    if mode == "reflect" and max(max(w) for w in widths) <= 1:
+        mode = "nearest"  # one pixel of symmetric padding repeats the edge pixel
+    if mode != "nearest":
+        # Materialise the padded copy: fused into the stencil that reads it, XLA's
+        # CPU backend recomputes the non-constant padding per tap (measured 3-8x
+        # slower for a 3 x 3 Sobel on 1024 x 1024).
+        return jax.lax.optimization_barrier(jnp.pad(image, widths, mode=_NP_MODE[mode]))
+    # jnp.pad's "edge" mode is a concatenate of broadcasts that XLA:CPU runs 5-10x
+    # slower than a constant pad (2048 x 2048 float32: 10-20 ms instead of 1.8,
+    # measured; its "symmetric" mode, reversed slices, is not slow): a constant pad
+    # with the border strips written into it.  The padded image is image[rows][:, cols]
+    # with numpy's own index maps; each strip is taken from the image, not from the
+    # padded copy, so the writes are in place (reading the copy made XLA copy it).
     rows, cols = (np.pad(np.arange(n), w, mode=_NP_MODE[mode]) for n, w in zip(image.shape, widths))
     (a, b), (c, d) = widths
     h, w = image.shape
@@ -48,11 +54,19 @@ def pad(image: jax.Array, widths, mode: Mode = "reflect", cval: float = 0.0) -> 
     ]
     for r0, c0, ri, ci in strips:
         if len(ri) and len(ci):
-            p = jax.lax.dynamic_update_slice(p, image[np.ix_(ri, ci)], (r0, c0))
-    # Materialise the padded copy: fused into the stencil that reads it, XLA's
-    # CPU backend recomputes the non-constant padding per tap (measured 3-8x
-    # slower for a 3 x 3 Sobel on 1024 x 1024).
+            p = jax.lax.dynamic_update_slice(p, _take(_take(image, ri, 0), ci, 1), (r0, c0))
     return jax.lax.optimization_barrier(p)
+
+
+def _take(x, idx: np.ndarray, axis: int):
+    """``x`` at the static indices ``idx`` along ``axis``: a slice (reversed or
+    not) where they run by one, which XLA fuses, a gather otherwise."""
+    step = np.diff(idx)
+    if np.all(step == 1):
+        return jax.lax.slice_in_dim(x, int(idx[0]), int(idx[-1]) + 1, axis=axis)
+    if np.all(step == -1):
+        return jax.lax.rev(jax.lax.slice_in_dim(x, int(idx[-1]), int(idx[0]) + 1, axis=axis), (axis,))
+    return jnp.take(x, jnp.asarray(idx), axis=axis)
 
 
 def correlate1d(
@@ -89,21 +103,11 @@ def correlate1d(
     if not jnp.issubdtype(p.dtype, jnp.floating):  # an integer image is padded as it is, converted here (fused)
         p = p.astype(dtype)
 
-    def tap(j):
-        return jax.lax.slice_in_dim(p, j, j + size, axis=axis)
-
-    # A symmetric (antisymmetric) kernel: the two taps that share a weight are added
-    # (subtracted) first: half the multiplies.
-    sign = 1.0 if np.array_equal(weights, weights[::-1]) else -1.0 if np.array_equal(weights, -weights[::-1]) else 0.0
     out = None
     for j, wj in enumerate(weights):
-        if wj == 0.0 or (sign and j > (n - 1) // 2):
+        if wj == 0.0:
             continue
-        if sign and j < n - 1 - j:
-            pair = tap(j) + tap(n - 1 - j) if sign > 0 else tap(j) - tap(n - 1 - j)
-            term = pair * float(wj)
-        else:
-            term = tap(j) * float(wj)  # a Python float keeps the image's dtype
+        term = jax.lax.slice_in_dim(p, j, j + size, axis=axis) * float(wj)  # a Python float keeps the image's dtype
         out = term if out is None else out + term
     if out is None:
         return jnp.zeros_like(jax.lax.slice_in_dim(p, 0, size, axis=axis))
