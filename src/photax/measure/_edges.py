@@ -352,7 +352,9 @@ def canny(
     mode ``"constant"`` with bleed-over correction, the outer one-pixel
     frame never an edge); the magnitude is that of the unnormalised Sobel
     kernels (8 x the gradient in grey values per pixel), as in scikit-image
-    and OpenCV.
+    and OpenCV.  8- and 16-bit (and float16 / float32) images are smoothed
+    and differentiated in float32, which holds their grey values exactly,
+    float64 images in float64.
 
     Args:
         image: ``(h, w)`` or ``(b, h, w)``, any integer or float dtype, grey
