@@ -330,3 +330,46 @@ def test_thinning_keeps_what_comparing_every_pair_keeps():
             if cap is not None and len(ref) >= cap:
                 break
         assert _thin(rows, cols, score, d, cap, shape).tolist() == ref
+
+
+def test_border_padding_is_numpys_for_every_mode_and_width():
+    """The filters' padding (a constant pad with the border strips copied in, for speed) against
+    numpy.pad, whose mode it names: widths of 0, 1, several and wider than the image."""
+    from photax.measure._filters import _NP_MODE, pad
+
+    x = np.random.default_rng(7).random((7, 5))
+    for mode, np_mode in _NP_MODE.items():
+        for widths in ([(1, 1), (1, 1)], [(3, 0), (0, 2)], [(9, 12), (6, 11)], [(0, 0), (0, 0)]):
+            want = np.pad(x, widths, mode=np_mode)
+            np.testing.assert_array_equal(np.asarray(jax.jit(lambda v, w=widths, m=mode: pad(v, w, m))(x)), want)
+
+
+def test_canny_in_float32_on_8_and_16_bit_images_is_scikit_images_map():
+    """8- and 16-bit images are smoothed and differentiated in float32 (float64 images in float64):
+    on a textured image with edges in every direction the map is scikit-image's (float64), pixel for
+    pixel, and a float64 image still gives it exactly."""
+    base = smooth_random(96, 112, seed=11, scale=1.0)
+    base = (base - base.min()) / np.ptp(base)
+    for im in (np.round(base * 255).astype(np.uint8), np.round(base * 65535).astype(np.uint16)):
+        lo, hi = 0.05 * np.ptp(im), 0.1 * np.ptp(im)
+        ref = feature.canny(im.astype(np.float64), 1.4, lo, hi)
+        assert ref.sum() > 200
+        np.testing.assert_array_equal(np.asarray(M.canny(im, 1.4, lo, hi)), ref)
+        for mode in ("reflect", "nearest"):
+            ref = feature.canny(im.astype(np.float64), 1.4, lo, hi, mode=mode)
+            np.testing.assert_array_equal(np.asarray(M.canny(im, 1.4, lo, hi, mode=mode)), ref)
+
+
+@pytest.mark.parametrize("mode", ["reflect", "mirror", "nearest", "wrap", "constant"])
+def test_log_matches_scipy_in_every_border_mode_and_below_the_kernel_size(mode):
+    """The LoG pads once for its four passes: scipy.ndimage.gaussian_laplace's response in every
+    border mode, for float and uint8 images, down to images smaller than the kernel's radius."""
+    rng = np.random.default_rng(3)
+    for shape in [(40, 33), (3, 2)]:
+        x = ndi.gaussian_filter(rng.random(shape), 1.5) * 100
+        np.testing.assert_allclose(
+            np.asarray(M.log(x, 2.0, mode=mode)[0]), ndi.gaussian_laplace(x, 2.0, mode=mode), atol=1e-10
+        )
+        u = (x * 2).astype(np.uint8)
+        want = ndi.gaussian_laplace(u.astype(np.float64), 1.3, mode=mode)
+        np.testing.assert_allclose(np.asarray(M.log(u, 1.3, mode=mode)[0]), want, atol=1e-10)

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.ndimage as ndi
 
 from ._common import as_image, batched, inner_mask
-from ._filters import Mode, convolve2d, correlate1d, gaussian, gaussian_kernel1d, sobel_pair
+from ._filters import Mode, convolve2d, correlate1d, gaussian, gaussian_kernel1d, pad, sobel_pair
 
 _SQRT2 = float(np.sqrt(2.0))
 
@@ -172,14 +172,16 @@ def _shift(p, dr, dc, h, w):
     return p[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
 
 
-def _nonmax_bilinear(isobel, jsobel, mag, low):
+def _nonmax_bilinear(isobel, jsobel, mag_p, low):
     """Non-maximum suppression along the gradient with linear interpolation
     between the two neighbours it points between (scikit-image's
-    ``_nonmaximum_suppression_bilinear``, vectorised).  Returns the kept
+    ``_nonmaximum_suppression_bilinear``, vectorised).  ``mag_p``: the
+    magnitude with a one-pixel frame around the image (whatever its values:
+    they only reach the outer border, never an edge).  Returns the kept
     pixels (magnitude >= low, local maximum, not on the outer border)."""
-    h, w = mag.shape
-    p = jnp.pad(mag, 1)
-    s = partial(_shift, p, h=h, w=w)
+    h, w = isobel.shape
+    s = partial(_shift, mag_p, h=h, w=w)
+    mag = s(0, 0)
     ai, aj = jnp.abs(isobel), jnp.abs(jsobel)
     cond1 = (isobel > 0) == (jsobel > 0)  # both components of the same sign
 
@@ -241,11 +243,16 @@ def _hysteresis(low_mask, high_mask):
 
 
 def _label_host(low_mask, high_mask):
-    labels, count = ndi.label(np.asarray(low_mask), structure=np.ones((3, 3), bool))
+    low_mask, high_mask = np.asarray(low_mask), np.asarray(high_mask)
+    labels, count = ndi.label(low_mask, structure=np.ones((3, 3), bool))
+    # read and write only the candidate pixels (a few % of the image), not whole-image label maps
+    idx = np.flatnonzero(low_mask)
+    lab = labels.reshape(-1)[idx]
     good = np.zeros(count + 1, bool)
-    good[labels[np.asarray(high_mask)]] = True
-    good[0] = False
-    return good[labels]
+    good[lab[high_mask.reshape(-1)[idx]]] = True
+    out = np.zeros(low_mask.shape, bool)
+    out.reshape(-1)[idx] = good[lab]
+    return out
 
 
 def _hysteresis_host(low_mask, high_mask):
@@ -257,34 +264,71 @@ def _hysteresis_host(low_mask, high_mask):
     )
 
 
+def _work_dtype(dtype) -> type:
+    """float32 for images whose grey values it holds exactly (integers of up to
+    16 bits, float16 / float32), float64 for the rest (float64, 32- and 64-bit
+    integers)."""
+    if jnp.issubdtype(dtype, jnp.integer) or dtype == jnp.bool_:
+        return jnp.float32 if jnp.dtype(dtype).itemsize <= 2 else jnp.float64
+    return jnp.float32 if jnp.dtype(dtype).itemsize <= 4 else jnp.float64
+
+
+def _scale_border(a, inv, axis: int, r: int):
+    """``a * inv`` along ``axis`` where ``inv`` differs from 1: only the ``r``
+    rows (columns) at each end, written in place (a broadcast multiply of the
+    whole image costs XLA:CPU 3x the smoothing pass it follows, measured)."""
+    n = a.shape[axis]
+    shape = [1, 1]
+    shape[axis] = -1
+    if r == 0:
+        return a
+    if n <= 2 * r:
+        return a * jnp.asarray(inv, a.dtype).reshape(shape)
+    for lo in (0, n - r):
+        strip = jax.lax.slice_in_dim(a, lo, lo + r, axis=axis) * jnp.asarray(inv[lo : lo + r], a.dtype).reshape(shape)
+        start = [0, 0]
+        start[axis] = lo
+        a = jax.lax.dynamic_update_slice(a, strip, start)
+    return a
+
+
 @partial(jax.jit, static_argnames=("sigma", "mode", "cval", "hysteresis"))
 def _canny(img, low, high, sigma, mode, cval, hysteresis="host"):
-    img = img.astype(jnp.float64)
+    # float32 where it holds the grey values exactly (8- and 16-bit images): half
+    # the bytes and twice the SIMD lanes of float64; the edge map is scikit-image's
+    # (float64) on the benchmark's 4-MPix uint8 image, pixel for pixel.
+    dt = _work_dtype(img.dtype)
+    if not jnp.issubdtype(img.dtype, jnp.integer):
+        img = img.astype(dt)
+    smoothed = gaussian(img, sigma, mode, cval, dtype=dt)
     if mode == "constant":
         # scikit-image divides by the smoothed all-ones image so the dark
         # zero padding does not pull the border down ("bleed-over").
-        if cval == 0.0:  # separable: the outer product of two 1-D profiles, no second 2-D pass
+        if cval == 0.0:  # separable: the outer product of two 1-D profiles, 1 inside
             k = gaussian_kernel1d(sigma)
-            prof = [
-                np.convolve(np.ones(n), k, mode="same")
-                if len(k) <= n
-                else ndi.correlate1d(np.ones(n), k, mode="constant")
-                for n in img.shape
-            ]
-            # broadcast in the graph, not an (h, w) constant XLA would fold and embed
-            bleed = jnp.asarray(prof[0])[:, None] * jnp.asarray(prof[1])[None, :] + np.finfo(np.float64).eps
+            r = len(k) // 2
+            for axis, n in enumerate(img.shape):
+                prof = ndi.correlate1d(np.ones(n), k, mode="constant")
+                smoothed = _scale_border(smoothed, 1.0 / (prof + np.finfo(np.float64).eps), axis, r)
         else:
-            bleed = gaussian(jnp.ones_like(img), sigma, mode, cval) + np.finfo(np.float64).eps
-        smoothed = gaussian(img, sigma, mode, cval) / bleed
-    else:
-        smoothed = gaussian(img, sigma, mode, cval)
-    isobel, jsobel = sobel_pair(smoothed)
-    mag = jnp.sqrt(isobel * isobel + jsobel * jsobel)
+            smoothed = smoothed / (gaussian(jnp.ones(img.shape, dt), sigma, mode, cval, dtype=dt) + np.finfo(dt).eps)
+    # The magnitude on the image plus a one-pixel frame, straight from a two-pixel
+    # padded copy (NMS reads the neighbours' magnitudes: no padded copy of it), the
+    # gradient's components recomputed where NMS needs them (cheaper than storing them).
+    h, w = smoothed.shape
+    # its inner pixel is scipy.ndimage.sobel's (reflect) border; the outer one only reaches the frame
+    p = pad(smoothed, [(2, 2), (2, 2)], "nearest")
+    i_p, j_p = sobel_pair(p, "valid")
+    mag_p = jax.lax.optimization_barrier(jnp.sqrt(i_p * i_p + j_p * j_p))
+    isobel, jsobel = sobel_pair(p[1:-1, 1:-1], "valid")
+    mag = mag_p[1:-1, 1:-1]
     # Nothing on a flat image: rounding noise of the smoothing (~1e-16 of the
-    # grey level) must not pass a zero threshold (scikit-image floors at 1e-14).
-    low = jnp.maximum(low, 1e-12 * jnp.max(jnp.abs(img)) + np.finfo(np.float64).tiny)
-    low_mask = _nonmax_bilinear(isobel, jsobel, mag, low)
-    high_mask = low_mask & (mag >= high)
+    # grey level in float64, 1e-7 in float32) must not pass a zero threshold
+    # (scikit-image floors at 1e-14).
+    floor = 1e-12 if dt == jnp.float64 else 1e-5
+    low = jnp.maximum(low.astype(dt), floor * jnp.max(jnp.abs(img.astype(dt))) + np.finfo(dt).tiny)
+    low_mask = _nonmax_bilinear(isobel, jsobel, mag_p, low)
+    high_mask = low_mask & (mag >= high.astype(dt))
     if hysteresis == "jax":
         return _hysteresis(low_mask, high_mask)
     return _hysteresis_host(low_mask, high_mask)
@@ -308,7 +352,9 @@ def canny(
     mode ``"constant"`` with bleed-over correction, the outer one-pixel
     frame never an edge); the magnitude is that of the unnormalised Sobel
     kernels (8 x the gradient in grey values per pixel), as in scikit-image
-    and OpenCV.
+    and OpenCV.  8- and 16-bit (and float16 / float32) images are smoothed
+    and differentiated in float32, which holds their grey values exactly,
+    float64 images in float64.
 
     Args:
         image: ``(h, w)`` or ``(b, h, w)``, any integer or float dtype, grey

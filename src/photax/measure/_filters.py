@@ -31,14 +31,52 @@ def pad(image: jax.Array, widths, mode: Mode = "reflect", cval: float = 0.0) -> 
         return jnp.pad(image, widths, mode="constant", constant_values=cval)
     if mode == "reflect" and max(max(w) for w in widths) <= 1:
         mode = "nearest"  # one pixel of symmetric padding repeats the edge pixel
-    # Materialise the padded copy: fused into the stencil that reads it, XLA's
-    # CPU backend recomputes the non-constant padding per tap (measured 3-8x
-    # slower for a 3 x 3 Sobel on 1024 x 1024).
-    return jax.lax.optimization_barrier(jnp.pad(image, widths, mode=_NP_MODE[mode]))
+    if mode != "nearest":
+        # Materialise the padded copy: fused into the stencil that reads it, XLA's
+        # CPU backend recomputes the non-constant padding per tap (measured 3-8x
+        # slower for a 3 x 3 Sobel on 1024 x 1024).
+        return jax.lax.optimization_barrier(jnp.pad(image, widths, mode=_NP_MODE[mode]))
+    # jnp.pad's "edge" mode is a concatenate of broadcasts that XLA:CPU runs 5-10x
+    # slower than a constant pad (2048 x 2048 float32: 10-20 ms instead of 1.8,
+    # measured; its "symmetric" mode, reversed slices, is not slow): a constant pad
+    # with the border strips written into it.  The padded image is image[rows][:, cols]
+    # with numpy's own index maps; each strip is taken from the image, not from the
+    # padded copy, so the writes are in place (reading the copy made XLA copy it).
+    rows, cols = (np.pad(np.arange(n), w, mode=_NP_MODE[mode]) for n, w in zip(image.shape, widths))
+    (a, b), (c, d) = widths
+    h, w = image.shape
+    p = jnp.pad(image, widths)
+    strips = [
+        (0, 0, rows[:a], cols),
+        (a + h, 0, rows[a + h :], cols),
+        (a, 0, rows[a : a + h], cols[:c]),
+        (a, c + w, rows[a : a + h], cols[c + w :]),
+    ]
+    for r0, c0, ri, ci in strips:
+        if len(ri) and len(ci):
+            p = jax.lax.dynamic_update_slice(p, _take(_take(image, ri, 0), ci, 1), (r0, c0))
+    return jax.lax.optimization_barrier(p)
+
+
+def _take(x, idx: np.ndarray, axis: int):
+    """``x`` at the static indices ``idx`` along ``axis``: a slice (reversed or
+    not) where they run by one, which XLA fuses, a gather otherwise."""
+    step = np.diff(idx)
+    if np.all(step == 1):
+        return jax.lax.slice_in_dim(x, int(idx[0]), int(idx[-1]) + 1, axis=axis)
+    if np.all(step == -1):
+        return jax.lax.rev(jax.lax.slice_in_dim(x, int(idx[-1]), int(idx[0]) + 1, axis=axis), (axis,))
+    return jnp.take(x, jnp.asarray(idx), axis=axis)
 
 
 def correlate1d(
-    image: jax.Array, weights, axis: int, mode: Mode | Literal["valid"] = "reflect", cval: float = 0.0, origin: int = 0
+    image: jax.Array,
+    weights,
+    axis: int,
+    mode: Mode | Literal["valid"] = "reflect",
+    cval: float = 0.0,
+    origin: int = 0,
+    dtype=jnp.float64,
 ) -> jax.Array:
     """``scipy.ndimage.correlate1d`` on a 2-D image: ``out[i] = sum_j w[j] in[i + j - c]``
     with ``c = len(w) // 2 + origin``.  ``weights`` are static (numpy).
@@ -46,7 +84,8 @@ def correlate1d(
     ``mode="valid"`` pads nothing and returns only the positions whose taps
     all lie inside the image (``len(w) - 1`` fewer along ``axis``), as
     ``numpy.correlate(..., "valid")``: what the locators need on a patch that
-    already carries its margin."""
+    already carries its margin.  ``dtype``: what an integer image is
+    converted to (a float image keeps its own)."""
     weights = np.asarray(weights, dtype=np.float64)
     n = len(weights)
     if mode == "valid":
@@ -56,13 +95,14 @@ def correlate1d(
     else:
         c = n // 2 + origin
         if mode == "constant" and cval != 0.0:
-            image = image.astype(jnp.float64)  # cval need not be an integer grey value
+            image = image.astype(jnp.promote_types(image.dtype, dtype))  # cval need not be an integer grey value
         widths = [(0, 0), (0, 0)]
         widths[axis] = (c, n - 1 - c)
         p = pad(image, widths, mode, cval)
         size = image.shape[axis]
     if not jnp.issubdtype(p.dtype, jnp.floating):  # an integer image is padded as it is, converted here (fused)
-        p = p.astype(jnp.float64)
+        p = p.astype(dtype)
+
     out = None
     for j, wj in enumerate(weights):
         if wj == 0.0:
@@ -117,11 +157,12 @@ def gaussian_kernel1d(sigma: float, order: int = 0, truncate: float = 4.0) -> np
 
 
 def gaussian(
-    image: jax.Array, sigma: float, mode: Mode = "reflect", cval: float = 0.0, truncate: float = 4.0
+    image: jax.Array, sigma: float, mode: Mode = "reflect", cval: float = 0.0, truncate: float = 4.0, dtype=jnp.float64
 ) -> jax.Array:
-    """Separable Gaussian smoothing of a 2-D image (``scipy.ndimage.gaussian_filter``)."""
+    """Separable Gaussian smoothing of a 2-D image (``scipy.ndimage.gaussian_filter``);
+    ``dtype`` as :func:`correlate1d`."""
     k = gaussian_kernel1d(sigma, 0, truncate)
-    return correlate1d(correlate1d(image, k, 0, mode, cval), k, 1, mode, cval)
+    return correlate1d(correlate1d(image, k, 0, mode, cval, dtype=dtype), k, 1, mode, cval, dtype=dtype)
 
 
 def sobel_raw(image: jax.Array, axis: int, mode: Mode = "reflect", cval: float = 0.0) -> jax.Array:
@@ -130,16 +171,29 @@ def sobel_raw(image: jax.Array, axis: int, mode: Mode = "reflect", cval: float =
     return sobel_pair(image, mode, cval, smooth=(1.0, 2.0, 1.0))[axis]
 
 
-def sobel_pair(image: jax.Array, mode: Mode = "reflect", cval: float = 0.0, smooth=(1.0, 2.0, 1.0)):
+def sobel_pair(
+    image: jax.Array, mode: Mode | Literal["valid"] = "reflect", cval: float = 0.0, smooth=(1.0, 2.0, 1.0), dtype=None
+):
     """``(d_rows, d_cols)``: ``[-1 0 1]`` along the axis times ``smooth``
-    across it, from one padded copy so XLA fuses both into a single pass."""
+    across it, from one padded copy so XLA fuses both into a single pass;
+    computed in ``dtype`` (None: float64, or the image's own float type for
+    ``mode="valid"``, which pads nothing and returns the ``(h - 2, w - 2)``
+    inner pixels)."""
+    if mode == "valid":
+        h, w = image.shape[0] - 2, image.shape[1] - 2
+        p = image if dtype is None and jnp.issubdtype(image.dtype, jnp.floating) else image.astype(dtype or jnp.float64)
+        return _sobel_taps(p, h, w, smooth)
+    dtype = dtype or jnp.float64
     h, w = image.shape
     # an integer image is padded as it is (a quarter of the float64 copy's bytes) and
     # converted inside the fused stencil
     if mode == "constant" and cval != 0.0:
-        image = image.astype(jnp.float64)  # cval is not an integer grey value
-    p = pad(image, [(1, 1), (1, 1)], mode, cval).astype(jnp.float64)
+        image = image.astype(jnp.promote_types(image.dtype, dtype))  # cval is not an integer grey value
+    p = pad(image, [(1, 1), (1, 1)], mode, cval).astype(dtype)
+    return _sobel_taps(p, h, w, smooth)
 
+
+def _sobel_taps(p, h, w, smooth):
     def s(dr, dc):
         return p[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
 
