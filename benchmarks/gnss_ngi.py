@@ -26,17 +26,17 @@ seeds 0-2 within 0.058, 0.039, 0.076 deg: no better.  SIFT ties (seeds 0-2): wit
 deg, sigma 0.042-0.056 deg.
 
 What the block can determine: 4 camera positions with 2 m noise let a rigid block (perfect ties) turn
-about its centroid by sigma = 2 m / sqrt(sum of the cameras' squared distances from the axis) = 0.028,
-0.044, 0.023 deg about E, N, up (omega, phi, kappa here).  photax's ties reach that floor to 5-11 % (900
-points: 1-7 %), so no denser or better-spread tie set can lower the angle sigma further; the recovered
-angles' common error is the turn a rigid fit of each seed's GNSS noise gives (phi -0.023, -0.001, 0.047,
--0.025, -0.106, 0.051 deg for seeds 0-5; the recovered phi errors' means: -0.025, -0.004, 0.044, -0.027,
--0.109, 0.050 deg).  With the positions held at ``camera_pos_ori.txt`` the ties alone fix the angles to
-sigma 0.008, 0.006, 0.0055 deg and agree with the survey within 0.017-0.019 deg (SIFT's ties: sigma
-0.035, 0.024, 0.019, within 0.070 deg).  So 0.05 deg on all 12 angles is ~1.1 sigma of phi's GNSS floor,
-less the ~0.02 deg the ties and the survey differ by: it holds for some seeds (2 of 6 here) whatever the
-ties; holding it reliably (3 sigma) needs GNSS noise <= ~0.5 m, attitude observations (INS), more images
-or ground control.
+about its centroid by sigma = 2 m sqrt(diag((sum |c|^2 I - c c^T)^-1)) (c: the cameras from their
+centroid) = 0.028, 0.044, 0.023 deg about E, N, up (omega, phi, kappa here).  photax's ties reach that
+floor to 5-11 % (900 points: 1-7 %), so no denser or better-spread tie set can lower the angle sigma
+further; the recovered angles' common error is the turn a rigid fit of each seed's GNSS noise gives (phi
+-0.023, -0.001, 0.047, -0.025, -0.106, 0.051 deg for seeds 0-5; the recovered phi errors' means: -0.025,
+-0.004, 0.044, -0.027, -0.109, 0.050 deg).  With the positions held at ``camera_pos_ori.txt`` the ties
+alone fix the angles to sigma 0.008, 0.006, 0.0055 deg and agree with the survey within 0.017-0.019 deg
+(SIFT's ties: sigma 0.035, 0.024, 0.019, within 0.070 deg).  So 0.05 deg on all 12 angles is ~1.1 sigma of
+phi's GNSS floor, less the ~0.02 deg the ties and the survey differ by: it holds for some seeds (2 of 6
+here) whatever the ties; holding it reliably (3 sigma) needs GNSS noise <= ~0.5 m, attitude observations
+(INS), more images or ground control.
 """
 
 from __future__ import annotations
@@ -187,10 +187,11 @@ def main() -> None:
         f"angles {np.max(np.abs(dang) / sa):.2f} (target 3)"
     )
     # What the GNSS alone lets the block determine: a rigid block (perfect ties) still turns about its
-    # centroid as the 2 m GNSS noise allows, sigma = 2 m / sqrt(sum of the cameras' squared distances
-    # from each rotation axis); omega, phi, kappa turn about E, N, up at these near-nadir attitudes.
+    # centroid as the 2 m GNSS noise allows, sigma^2 = 2 m^2 (sum |c|^2 I - c c^T)^-1 (c: the cameras from
+    # their centroid; the least-squares rotation of a rigid fit); omega, phi, kappa turn about E, N, up at
+    # these near-nadir attitudes.
     c = pos - pos.mean(axis=0)
-    floor = [np.degrees(2.0 / np.sqrt(np.sum(np.delete(c, a, axis=1) ** 2))) for a in range(3)]
+    floor = np.degrees(2.0 * np.sqrt(np.diag(np.linalg.inv(np.sum(c**2) * np.eye(3) - c.T @ c))))
     print(f"rigid-block floor of the angle sigma (GNSS 2 m, perfect ties): {np.round(floor, 4)} deg")
     # ... and the turn this seed's GNSS noise alone gives a rigid block: the small rotation w (about E, N,
     # up) and shift t that fit the noise, noise_i ~ t + w x c_i, by least squares.
