@@ -269,3 +269,30 @@ def test_ties_between_a_frame_and_one_turned_by_180_degrees(block):
             pairs.append([W - 1, H - 1] - mine - theirs)
     d = np.array(pairs)
     assert len(d) >= 0.8 * plain.pair_ties[0, 1] and np.max(np.abs(d)) <= 0.05, (len(d), np.abs(d).max())
+
+
+def test_transfer_into_a_frame_turned_by_180_degrees(block):
+    """GCPs measured in image 3 (their true pixels) transferred into image 4 turned by 180 deg in the plane
+    (kappa + pi: pixel (c, r) at (W - 1 - c, H - 1 - r)) from the start orientations: the reference
+    window is warped by the predicted affine map (here a half turn), so every GCP that images 3 and
+    4 see is measured at its true pixel (the truth turned with the image) to the 0.15 px of the
+    unturned transfers above, with the DEM or without one. (The drawn targets look alike after a
+    half turn, so an unwarped match would find them too: the real-data test, test_transfer_real, has
+    no such luck.)"""
+    dem, truth, start, images, gcp, _, _ = block
+    turn = lambda e: photax.ExteriorOrientation(e.position, np.asarray(e.angles) + [0.0, 0.0, np.pi], e.convention)  # noqa: E731
+    true_px = project_pixels(gcp, stack_exteriors([truth[3], turn(truth[4])]), CAM)
+    seen = np.flatnonzero(np.all((true_px > 12) & (true_px < [W - 13, H - 13]), axis=(0, 2)))
+    assert len(seen) >= 2
+    args = dict(reference_image=np.zeros(len(seen), int), reference_xy=true_px[0, seen], search=SEARCH)
+    flipped = images[4][::-1, ::-1]
+    tr = transfer_points([images[3], flipped], CAM, [start[3], turn(start[4])], dem, gcp[seen], **args)
+    assert [it["status"] for it in tr.items] == ["reference", "ok"] * len(seen), tr.items
+    got = np.array([it["xy"] for it in tr.items if it["image"] == "1"])
+    err = np.linalg.norm(got - true_px[1, seen], axis=1)
+    assert err.max() <= 0.15, err  # px: as the unturned transfers above
+    # without a DEM (the heights given) the affine maps come from a level plane through the points
+    flat = transfer_points([images[3], flipped], CAM, [start[3], turn(start[4])], None, gcp[seen], **args)
+    assert [it["status"] for it in flat.items] == ["reference", "ok"] * len(seen), flat.items
+    got = np.array([it["xy"] for it in flat.items if it["image"] == "1"])
+    assert np.linalg.norm(got - true_px[1, seen], axis=1).max() <= 0.15

@@ -1,10 +1,10 @@
 """What tie matching and GCP transfer share: predicting where a ground point
 images with the approximate orientations (and where an image point meets the
-DEM), and matching fixed-size chunks of points between image pairs (NCC, then
-LSM, optionally back) so that both stages share one compilation; and, for tie
-matching, the local affine map between two views predicted from the DEM
-(:func:`offsets`, :func:`local_affine`) and matching with templates warped by
-it (:func:`match_warped`).
+DEM), the local affine map between two views predicted from the DEM
+(:func:`views`: :func:`offsets`, :func:`local_affine`, :func:`warpable`), and
+matching with templates warped by it (:func:`match_warped`: NCC, then LSM with
+gain and offset, optionally back), so that opposite strips and rotated images
+match like parallel ones and both callers share one compilation.
 
 Used by :mod:`.ties` and :mod:`.transfer`; :func:`project_pixels` and
 :func:`monoplot_pixels` are re-exported by :mod:`photax.matching`.
@@ -114,13 +114,9 @@ def match_sigma(cov) -> np.ndarray:
     return np.sqrt((cov[..., 0, 0] + cov[..., 1, 1]) / 2)
 
 
-BATCH = 8  # image pairs per compiled matching call: one shape for transfer_points and match_ties
-POINTS = 16  # points per image pair in a call
-
-
 @dataclasses.dataclass(frozen=True)
-class ChunkMatches:
-    """:func:`match_chunks`' output, ``(c, POINTS, ...)`` numpy arrays (``xy`` in the stack's pixels)."""
+class WarpMatches:
+    """:func:`match_warped`'s output, ``(c, 1, ...)`` numpy arrays (``xy`` in the padded stack's pixels)."""
 
     ncc_valid: np.ndarray
     rho: np.ndarray
@@ -129,64 +125,6 @@ class ChunkMatches:
     lsm_cov: np.ndarray
     back_valid: np.ndarray | None
     back_xy: np.ndarray | None
-
-
-def match_chunks(stack, ti, si, txy, sxy, *, window: int, search: int, back: bool = False) -> ChunkMatches:
-    """NCC within ``search`` px, then LSM from its peak (and LSM back, with ``back``) of ``c`` chunks.
-
-    Chunk ``k`` matches the points ``txy[k]`` ``(POINTS, 2)`` of ``stack[ti[k]]`` into
-    ``stack[si[k]]`` around ``sxy[k]``.  The chunks go in calls of :data:`BATCH`
-    (padded with copies of the first), so every caller with images of one shape
-    (``stack`` ``(k, h, w)``) and one ``window`` / ``search`` shares one compilation
-    of :func:`photax.measure.match_ncc` and :func:`photax.measure.match_lsm`.
-    Where NCC fails, LSM starts at ``sxy``; where forward LSM fails, the back
-    match starts at ``sxy``.
-    """
-    from ..measure import match_lsm, match_ncc
-
-    ti, si = np.asarray(ti, dtype=int), np.asarray(si, dtype=int)
-    txy, sxy = np.asarray(txy, dtype=float), np.asarray(sxy, dtype=float)
-    c = len(ti)
-    pad = -c % BATCH
-    if pad:
-        ti, si = np.concatenate([ti, np.repeat(ti[:1], pad)]), np.concatenate([si, np.repeat(si[:1], pad)])
-        txy, sxy = (np.concatenate([a, np.repeat(a[:1], pad, 0)]) for a in (txy, sxy))
-    out: dict[str, list] = {
-        k: [] for k in ("ncc_valid", "rho", "lsm_valid", "lsm_xy", "lsm_cov", "back_valid", "back_xy")
-    }
-    for a in range(0, len(ti), BATCH):
-        b = slice(a, a + BATCH)
-        T, S = jnp.asarray(stack[ti[b]]), jnp.asarray(stack[si[b]])
-        ncc, rho = match_ncc(T, txy[b], S, sxy[b], window=window, search=search, return_rho=True)
-        nxy = np.where(np.asarray(ncc.valid)[..., None], np.asarray(ncc.xy), sxy[b])
-        fwd = match_lsm(T, txy[b], S, nxy, window=window)
-        out["ncc_valid"].append(np.asarray(ncc.valid))
-        out["rho"].append(np.asarray(rho))
-        out["lsm_valid"].append(np.asarray(fwd.valid))
-        out["lsm_xy"].append(np.asarray(fwd.xy))
-        out["lsm_cov"].append(np.asarray(fwd.covariance))
-        if back:
-            fxy = np.where(np.asarray(fwd.valid)[..., None], np.asarray(fwd.xy), sxy[b])
-            bk = match_lsm(S, fxy, T, txy[b], window=window)
-            out["back_valid"].append(np.asarray(bk.valid))
-            out["back_xy"].append(np.asarray(bk.xy))
-    cat = {k: np.concatenate(v)[:c] if v else None for k, v in out.items()}
-    return ChunkMatches(**cat)
-
-
-def chunks_of(groups: dict, fill_xy: np.ndarray) -> tuple[list, np.ndarray, np.ndarray]:
-    """Split ``{key: (idx (n,), txy (n, 2), sxy (n, 2))}`` into chunks of up to :data:`POINTS`:
-    ``(chunk list of (key, idx), txy (c, POINTS, 2), sxy (c, POINTS, 2))``, unused slots at ``fill_xy``."""
-    chunks, t_all, s_all = [], [], []
-    for key, (idx, t, s) in groups.items():
-        for a in range(0, len(idx), POINTS):
-            n = len(idx[a : a + POINTS])
-            tc, sc = np.broadcast_to(fill_xy, (POINTS, 2)).copy(), np.broadcast_to(fill_xy, (POINTS, 2)).copy()
-            tc[:n], sc[:n] = t[a : a + POINTS], s[a : a + POINTS]
-            chunks.append((key, idx[a : a + POINTS]))
-            t_all.append(tc)
-            s_all.append(sc)
-    return chunks, np.array(t_all).reshape(-1, POINTS, 2), np.array(s_all).reshape(-1, POINTS, 2)
 
 
 # --------------------------------------------------------------------------- warped matching
@@ -212,6 +150,38 @@ def local_affine(pred, n: int, step: float = STEP) -> np.ndarray:
     misses the DEM or falls behind the camera."""
     p = [pred[..., k * n : (k + 1) * n, :] for k in range(1, 5)]
     return np.stack([(p[0] - p[1]) / (2 * step), (p[2] - p[3]) / (2 * step)], axis=-1)
+
+
+def views(px, eo: ExteriorOrientation, camera: FrameCamera, dem: DEM, *, step: float = STEP, extra=None):
+    """Where the points ``px (m, n, 2)`` of each image meet the DEM, where they image in every image,
+    and the local affine maps between the views, in one monoplot and one projection call.
+
+    Returns ``ground (m, n, 3)``, ``pred (m, m, n, 2)`` (``[j, i, p]``: point ``p`` of image ``i``
+    in image ``j``), ``affine (m, m, n, 2, 2)`` (``[j, i, p]`` maps pixel offsets in ``i`` to
+    offsets in ``j``, :func:`local_affine` with neighbours ``step`` px away) and the projections
+    ``(m, m, q, 2)`` of ``extra (m, q, 2)`` pixels monoplotted alike (None without ``extra``).
+    NaN points (unused slots) stay NaN."""
+    px = np.asarray(px, dtype=float)
+    n = px.shape[1]
+    allpx = offsets(px, step) if extra is None else np.concatenate([offsets(px, step), extra], axis=1)
+    ground = monoplot_pixels(allpx, eo, camera, dem)
+    proj = project_pixels(ground.reshape(-1, 3), eo, camera).reshape(len(px), len(px), -1, 2)
+    affine = local_affine(proj[:, :, : 5 * n], n, step)
+    return ground[:, :n], proj[:, :, :n], affine, None if extra is None else proj[:, :, 5 * n :]
+
+
+def warpable(affine, max_scale: float = 2.0) -> np.ndarray:
+    """Whether each affine map ``(..., 2, 2)`` is finite and scales by at most ``max_scale`` either
+    way (beyond, the warped template would need an image pyramid)."""
+    with np.errstate(invalid="ignore"):
+        sv = np.linalg.svd(np.nan_to_num(affine, nan=1e9), compute_uv=False)
+        return np.all(np.isfinite(affine), axis=(-2, -1)) & (sv[..., 0] <= max_scale) & (sv[..., 1] >= 1 / max_scale)
+
+
+def frame_pad(window: int, search: int) -> int:
+    """The frame of zeros (:func:`padded`) that :func:`match_warped` needs around images whose points
+    and predictions lie inside them: its search crops and warped templates stay in the array."""
+    return 2 * (window + search) + 8
 
 
 WARP_BATCH = 128  # candidates per compiled call of match_warped: one shape, one compilation
@@ -255,7 +225,7 @@ def _crop(big, img, xy, half: int):
 
 def match_warped(
     big, ti, txy, si, sxy, affine, *, window: int, search: int, back: bool, margin: int = 5
-) -> ChunkMatches:
+) -> WarpMatches:
     """NCC then LSM (and LSM back) of templates warped by the predicted affine map, one point per row.
 
     ``big`` is a padded stack (:func:`padded`); row ``k`` matches the window of ``big[ti[k]]`` around
@@ -266,7 +236,7 @@ def match_warped(
     parameters then take up what the prediction missed.  The back match resamples the matched
     window of the search image in the first image's geometry, ``I_s(xy + affine u)``, and matches it
     into the first image.  Results are ``(c, 1, ...)`` arrays in ``big``'s pixels, as
-    :class:`ChunkMatches`; rows are matched in calls of :data:`WARP_BATCH` (padded), so every call
+    :class:`WarpMatches`; rows are matched in calls of :data:`WARP_BATCH` (padded), so every call
     with one ``window`` / ``search`` shares one compilation of :func:`photax.measure.match_ncc` and
     :func:`photax.measure.match_lsm`.
     """
@@ -320,4 +290,4 @@ def match_warped(
             out["back_valid"].append(np.asarray(bk.valid))
             out["back_xy"].append(np.asarray(bk.xy) + t0[:, None])
     cat = {k: np.concatenate(v)[:c] if v else None for k, v in out.items()}
-    return ChunkMatches(**cat)
+    return WarpMatches(**cat)

@@ -54,14 +54,15 @@ from ..collinearity import stack_exteriors
 from ..dem import DEM
 from ._predict import (
     check_block,
+    frame_pad,
     inside,
-    local_affine,
     match_sigma,
     match_warped,
     monoplot_pixels,
-    offsets,
     padded,
     project_pixels,
+    views,
+    warpable,
 )
 
 __all__ = ["TiePoints", "match_ties", "bundle_problem"]
@@ -242,16 +243,10 @@ def match_ties(
     w, h = size
     gx, gy = np.meshgrid(np.linspace(0, w - 1, 16), np.linspace(0, h - 1, 16))
     grid = np.broadcast_to(np.stack([gx.ravel(), gy.ravel()], axis=1), (m, 256, 2))
-    ground_all = monoplot_pixels(np.concatenate([offsets(px, window), grid], axis=1), eo, camera, dem)
-    ground = ground_all[:, :n]  # (m, n, 3)
-    proj = project_pixels(ground_all.reshape(-1, 3), eo, camera).reshape(m, m, -1, 2)  # [j, i, p]: of i in j
-    pred = proj[:, :, :n]
-    overlap = _overlap(proj[:, :, 5 * n :], size)
-    affine = local_affine(proj[:, :, : 5 * n], n, window) if warp else np.broadcast_to(np.eye(2), (m, m, n, 2, 2))
-    with np.errstate(invalid="ignore"):
-        # beyond a scale of 2 between the views the template would need an image pyramid
-        sv = np.linalg.svd(np.nan_to_num(affine, nan=1e9), compute_uv=False)
-        usable = np.all(np.isfinite(affine), axis=(-2, -1)) & (sv[..., 0] <= 2.0) & (sv[..., 1] >= 0.5)
+    ground, pred, affine, pred_grid = views(px, eo, camera, dem, step=window, extra=grid)  # pred [j, i, p]: i in j
+    overlap = _overlap(pred_grid, size)
+    affine = affine if warp else np.broadcast_to(np.eye(2), (m, m, n, 2, 2))
+    usable = warpable(affine)
     reach = int(np.ceil(np.sqrt(2) * (window + 2)))
     ok_img = np.array([s == "ok" for s in status])
     cand = inside(pred, size, reach + 1) & usable & ok_img[:, None, None] & ok_img[None, :, None]  # [j, i, p]
@@ -261,7 +256,7 @@ def match_ties(
     for i, j in pairs:
         if status[i] != "ok" or status[j] != "ok":
             pair_status[i, j] = "textureless" if "textureless" in (status[i], status[j]) else "sees no DEM"
-    pad = 2 * (window + search) + 8  # the search crops and the warped templates stay inside the frame
+    pad = frame_pad(window, search)
     big = padded(stack, pad)
     counts = {}
 

@@ -4,9 +4,12 @@
 ground (then found by matching a target template), is predicted in every
 other image with the approximate orientations (collinearity, the point's
 ground coordinates; a missing height is read from the DEM), then measured
-there by normalised cross-correlation within ``search`` px of the prediction
-and least-squares matching (Gruen 1985) of the reference image's window.
-Each measurement gets the LSM shift's sigma ``sqrt(trace(Cov) / 2)`` (for a
+there as tie points are (:mod:`photax.matching.ties`): the reference image's
+window is resampled by the local affine map between the two views, predicted
+from the orientations and the DEM (rotation, scale, shear: strips flown the
+opposite way, rotated drone frames), then normalised cross-correlation within
+``search`` px of the prediction and least-squares matching (Gruen 1985, with
+gain and offset for the radiometric differences).  Each measurement gets the LSM shift's sigma ``sqrt(trace(Cov) / 2)`` (for a
 transferred one combined in quadrature with its reference's, whose error it
 inherits) and
 each (point, image) item a status, so a GCP list can be written for
@@ -23,7 +26,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..dem import DEM
-from ._predict import check_block, chunks_of, inside, match_chunks, match_sigma, padded, project_pixels
+from ._predict import check_block, frame_pad, inside, match_sigma, match_warped, padded, project_pixels, views, warpable
 
 __all__ = ["Transfer", "transfer_points", "write_odm_gcps"]
 
@@ -31,11 +34,15 @@ STATUSES = (
     "ok",
     "reference",
     "not in image",
+    "at image border",
     "behind camera",
+    "outside DEM",
+    "scale differs",
     "low correlation",
     "not matched",
     "no reference",
     "inconsistent",
+    "not two-way",
 )
 
 
@@ -111,6 +118,7 @@ def transfer_points(
     search: int = 12,
     min_rho: float = 0.7,
     min_rho_template: float = 0.6,
+    back_tol: float = 0.3,
     crs: str | None = None,
 ) -> Transfer:
     """Measure ground control points in every image that sees them.
@@ -119,7 +127,9 @@ def transfer_points(
         images: ``m`` grey images ``(h, w)`` of one camera.
         camera: their camera (``image_size`` required).
         exterior: ``m`` approximate orientations.
-        dem: terrain for heights given as NaN (None: all heights given).
+        dem: terrain for heights given as NaN and for the local affine maps
+            between the views (None: all heights given; the maps are then
+            predicted on a level plane through the points' mean height).
         ground: ``(n, 3)`` ground coordinates (E, N, h) of the points.
         names: ``n`` point names (default ``gcp1 ...``).
         image_names: ``m`` image names (default ``"0" ...``).
@@ -136,14 +146,23 @@ def transfer_points(
         min_rho: smallest accepted NCC peak between images.
         min_rho_template: the same for the target template (a drawn target
             never matches a photographed one as well as two photographs do).
+        back_tol: two-way consistency of a transfer, px: the matched window,
+            resampled in the reference image's geometry, is matched back
+            into the reference image and must land within this of the
+            reference measurement.
         crs: CRS text stored in the table.
 
     Returns:
         :class:`Transfer`.  Statuses: ``"reference"`` (the given or
         template-found measurement), ``"ok"``, ``"not in image"``
-        (prediction outside the image or too near its border), ``"behind
-        camera"``, ``"low correlation"`` (NCC peak below ``min_rho`` or on
-        the search border), ``"not matched"`` (LSM failed), ``"no reference"``
+        (prediction outside the image: the views do not overlap there),
+        ``"at image border"`` (inside, but the matching window would leave
+        the image), ``"behind camera"``, ``"outside DEM"`` (a height to read
+        off the DEM, or the reference window's rays, miss it),
+        ``"scale differs"`` (the views' scales differ by more than 2x),
+        ``"low correlation"`` (NCC peak below ``min_rho`` or on
+        the search border), ``"not matched"`` (LSM failed), ``"not two-way"``
+        (the match back missed the reference by more than ``back_tol``), ``"no reference"``
         (no measurement to match from), ``"inconsistent"`` (matched more than
         ``search`` px from where the point's other measurements put it).
     """
@@ -173,16 +192,30 @@ def transfer_points(
         raise ValueError(f"reference_image / reference_xy: expected (n,) indices in -1..{m - 1} and (n, 2) pixels")
     if np.any((ref_i >= 0) & ~np.all(np.isfinite(ref_xy), axis=1)):
         raise ValueError("reference_xy: a point with a reference image needs a finite pixel")
+    outside = np.flatnonzero((ref_i >= 0) & ~inside(ref_xy, camera.image_size, 0.0))
+    if len(outside):
+        raise ValueError(f"reference_xy: points {outside.tolist()} lie outside their reference images")
     size = camera.image_size
-    margin = window + search + 4
+    pad = frame_pad(window, search)
     pred = project_pixels(g, eo, camera)  # (m, n, 2)
     usable = inside(pred, size, window + 3)
-    big = padded(stack, margin)
-    status = np.full((m, n), "not in image", dtype=object)
+    big = padded(stack, pad)
+    status = np.full((m, n), "at image border", dtype=object)
+    status[~inside(pred, size, 0.0)] = "not in image"
     status[~np.all(np.isfinite(pred), axis=2)] = "behind camera"
+    status[:, np.isnan(g[:, 2])] = "outside DEM"  # no height: the point lies off the DEM
     out_xy = np.full((m, n, 2), np.nan)
     out_sig = np.full((m, n), np.nan)
     out_rho = np.full((m, n), np.nan)
+
+    def measured(k, p, ncc_ok, rho, lsm_ok, xy, low):
+        """The status of a match of point ``p`` in image ``k`` (its NCC peak kept)."""
+        out_rho[k, p] = rho
+        if not (ncc_ok and rho >= low):
+            return "low correlation"
+        if not (lsm_ok and inside(xy, size, window + 1)):
+            return "not matched"
+        return "ok"
 
     # 1. references of ground-only points: the template in the most central image that sees them
     centre = (np.asarray(size) - 1) / 2.0
@@ -199,70 +232,67 @@ def transfer_points(
         tpl = np.asarray(target_template, dtype=float)
         if tpl.ndim != 2:
             raise ValueError(f"target_template: expected a 2-D image, got shape {tpl.shape}")
-        # the template drawn on a canvas of the images' (padded) shape: one compiled matcher for everything
-        if np.any(np.array(tpl.shape) + 2 * margin > np.array(big.shape[1:])):
+        # the template drawn on a canvas of the images' (padded) shape, matched unwarped (a survey
+        # target's drawing has no orientation to predict), by the one compiled matcher
+        if np.any(np.array(tpl.shape) > np.array(stack.shape[1:])):
             raise ValueError(f"target_template: {tpl.shape} is too large for images of {size} px")
         canvas = np.zeros(big.shape[1:])
-        canvas[margin : margin + tpl.shape[0], margin : margin + tpl.shape[1]] = tpl
-        tc = (np.array(tpl.shape[::-1]) - 1) / 2.0 + margin
+        canvas[pad : pad + tpl.shape[0], pad : pad + tpl.shape[1]] = tpl
+        tc = np.broadcast_to((np.array(tpl.shape[::-1]) - 1) / 2.0 + pad, (len(cand), 2))
         k_img = -2 - ref_i[cand]
-        groups = {
-            k: (cand[k_img == k], np.broadcast_to(tc, (int(np.sum(k_img == k)), 2)), pred[k, cand[k_img == k]] + margin)
-            for k in np.unique(k_img)
-        }
-        chunks, txy, sxy = chunks_of(groups, tc)
-        stack_t = np.concatenate([big, canvas[None]])
-        mt = match_chunks(
-            stack_t, np.full(len(chunks), m), [k for k, _ in chunks], txy, sxy, window=window, search=search
-        )
-        lxy = mt.lsm_xy - margin
-        for q, (k, pts) in enumerate(chunks):
-            for slot, p in enumerate(pts):
-                r = float(mt.rho[q, slot])
-                out_rho[k, p] = r
-                if not (bool(mt.ncc_valid[q, slot]) and r >= min_rho_template):
-                    status[usable[:, p], p] = "no reference"
-                    status[k, p] = "low correlation"
-                    ref_i[p] = -1
-                elif not (bool(mt.lsm_valid[q, slot]) and inside(lxy[q, slot], size, window + 1)):
-                    status[usable[:, p], p] = "no reference"
-                    status[k, p] = "not matched"
-                    ref_i[p] = -1
-                else:
-                    ref_i[p] = k
-                    ref_xy[p] = lxy[q, slot]
-                    out_sig[k, p] = float(match_sigma(mt.lsm_cov[q, slot]))
+        ident = np.broadcast_to(np.eye(2), (len(cand), 2, 2))
+        mt = match_warped(
+            np.concatenate([big, canvas[None]]), np.full(len(cand), m), tc, k_img, pred[k_img, cand] + pad, ident,
+            window=window, search=search, back=False,
+        )  # fmt: skip
+        lxy = mt.lsm_xy[:, 0] - pad
+        sig = match_sigma(mt.lsm_cov[:, 0])
+        for q, (k, p) in enumerate(zip(k_img, cand)):
+            got = measured(
+                k, p, bool(mt.ncc_valid[q, 0]), float(mt.rho[q, 0]), bool(mt.lsm_valid[q, 0]), lxy[q], min_rho_template
+            )
+            if got == "ok":
+                ref_i[p], ref_xy[p], out_sig[k, p] = k, lxy[q], sig[q]
+            else:
+                status[usable[:, p], p] = "no reference"
+                status[k, p] = got
+                ref_i[p] = -1
     for p in np.flatnonzero(ref_i >= 0):
         k = ref_i[p]
         status[k, p] = "reference"
         out_xy[k, p] = ref_xy[p]  # a given measurement keeps sigma NaN: its precision is the user's
 
-    # 2. transfer from the reference image into the others, searched around their predictions
-    items = [(k, p) for p in np.flatnonzero(ref_i >= 0) for k in range(m) if k != ref_i[p] and usable[k, p]]
-    if items:
-        groups = {}
-        for k, p in items:
-            groups.setdefault((int(ref_i[p]), k), []).append(p)
-        groups = {(r, k): (np.array(ps), ref_xy[ps] + margin, pred[k, ps] + margin) for (r, k), ps in groups.items()}
-        chunks, txy, sxy = chunks_of(groups, (np.asarray(size) - 1) / 2.0 + margin)
-        mt = match_chunks(
-            big, [r for (r, _), _ in chunks], [k for (_, k), _ in chunks], txy, sxy, window=window, search=search
+    # 2. transfer from the reference image into the others: the reference window warped by the local
+    # affine map between the two views (predicted on the DEM, or on a level plane through the points),
+    # then NCC within `search` px of the prediction and LSM, as tie matching does
+    ki, pi = np.nonzero(usable & (ref_i[None] >= 0) & (np.arange(m)[:, None] != ref_i[None]))
+    if len(ki):
+        ri = ref_i[pi]
+        px = np.full((m, n, 2), np.nan)
+        px[ri, pi] = ref_xy[pi]
+        _, _, affine, _ = views(px, eo, camera, dem if dem is not None else _level(g, eo), step=window)
+        aff = affine[ki, ri, pi]
+        ok = warpable(aff)
+        status[ki[~ok], pi[~ok]] = np.where(np.all(np.isfinite(aff[~ok]), axis=(1, 2)), "scale differs", "outside DEM")
+        ki, pi, ri, aff = ki[ok], pi[ok], ri[ok], aff[ok]
+    if len(ki):
+        mt = match_warped(
+            big, ri, ref_xy[pi] + pad, ki, pred[ki, pi] + pad, aff, window=window, search=search, back=True
         )
-        lxy = mt.lsm_xy - margin
-        sig = match_sigma(mt.lsm_cov)
-        for q, ((_, k), pts) in enumerate(chunks):
-            for slot, p in enumerate(pts):
-                r = float(mt.rho[q, slot])
-                out_rho[k, p] = r
-                if not (bool(mt.ncc_valid[q, slot]) and r >= min_rho):
-                    status[k, p] = "low correlation"
-                elif not (bool(mt.lsm_valid[q, slot]) and inside(lxy[q, slot], size, window + 1)):
-                    status[k, p] = "not matched"
-                else:
-                    status[k, p] = "ok"
-                    out_xy[k, p] = lxy[q, slot]
-                    # the reference's own error is in every transferred measurement of the point
-                    out_sig[k, p] = float(np.hypot(sig[q, slot], np.nan_to_num(out_sig[ref_i[p], p])))
+        with np.errstate(invalid="ignore"):
+            two_way = mt.back_valid[:, 0] & (np.linalg.norm(mt.back_xy[:, 0] - pad - ref_xy[pi], axis=1) <= back_tol)
+        lxy = mt.lsm_xy[:, 0] - pad
+        sig = match_sigma(mt.lsm_cov[:, 0])
+        for q, (k, p) in enumerate(zip(ki, pi)):
+            status[k, p] = measured(
+                k, p, bool(mt.ncc_valid[q, 0]), float(mt.rho[q, 0]), bool(mt.lsm_valid[q, 0]), lxy[q], min_rho
+            )
+            if status[k, p] == "ok" and not two_way[q]:
+                status[k, p] = "not two-way"
+            if status[k, p] == "ok":
+                out_xy[k, p] = lxy[q]
+                # the reference's own error is in every transferred measurement of the point
+                out_sig[k, p] = float(np.hypot(sig[q], np.nan_to_num(out_sig[ref_i[p], p])))
     # 3. consistency: offsets measured - predicted of one image are its orientation error, alike for its points
     for k in range(m):
         got = np.flatnonzero(np.isin(status[k], ("ok", "reference")))
@@ -301,3 +331,12 @@ def transfer_points(
         lines=np.zeros(len(rows), dtype=int),
     )
     return Transfer(table, items_out)
+
+
+def _level(ground: np.ndarray, eo) -> DEM:
+    """A level plane through the points' mean height, reaching as far from them as the cameras are:
+    the surface the local affine maps are predicted on when no DEM is given."""
+    pos = np.asarray(eo.position)
+    reach = float(np.max(np.linalg.norm(pos[:, None] - ground[None], axis=-1)))
+    lo, hi = ground[:, :2].min(axis=0) - reach, ground[:, :2].max(axis=0) + reach
+    return DEM.flat(float(np.mean(ground[:, 2])), (lo[0], lo[1], hi[0], hi[1]))
