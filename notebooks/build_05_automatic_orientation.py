@@ -119,7 +119,9 @@ moved by 5 m and turned by 1° in random directions — as from a GNSS/IMU, or a
 * `transfer_points`: the GCPs are known only on the ground. Each is predicted in the image
   that sees it most centrally, found there by matching a drawn target template, then
   transferred into every other image (predicted with the approximate orientations and the
-  DEM, measured by normalised cross-correlation and least-squares matching).
+  DEM, measured by normalised cross-correlation and least-squares matching on a template warped
+  by the local affine map between the two views, as for tie points, so that opposite strips and
+  rotated frames match; checked back from the other image).
 * `match_ties`: Förstner interest points in each image, predicted in the overlapping images
   through the DEM, matched by NCC then LSM, checked back and against the pair's smooth
   prediction error.""",
