@@ -29,7 +29,12 @@ wall and process CPU time), ratios photax / peer, photax's peak memory.
    (the same method, one call for all corners);
 2. least-squares matching (``match_lsm``, 21 x 21 templates) and
    ``match_ncc`` vs a Python loop of ``cv2.matchTemplate``
-   (TM_CCOEFF_NORMED) + parabola peak fit on the same points.
+   (TM_CCOEFF_NORMED) + parabola peak fit on the same points, and LSM
+   against ``match_ncc`` on the same windows.
+
+Like with like: both libraries read the same float32 images (what OpenCV
+takes); matchTemplate correlates the same (2 search + 3)^2 shifts match_ncc
+does (the peak within ``search`` px, the parabola through its neighbours).
 
 The images tile 100 rendered patterns (corners / shifted textures with gain
 0.9, offset 0.05) so that N points need no N renders.  Reported: first call
