@@ -36,7 +36,12 @@ wall and process CPU time), ratios photax / peer, photax's peak memory.
    (the same method, one call for all corners);
 2. least-squares matching (``match_lsm``, 21 x 21 templates) and
    ``match_ncc`` vs a Python loop of ``cv2.matchTemplate``
-   (TM_CCOEFF_NORMED) + parabola peak fit on the same points.
+   (TM_CCOEFF_NORMED) + parabola peak fit on the same points, and LSM
+   against ``match_ncc`` on the same windows.
+
+Like with like: both libraries read the same float32 images (what OpenCV
+takes); matchTemplate correlates the same (2 search + 3)^2 shifts match_ncc
+does (the peak within ``search`` px, the parabola through its neighbours).
 
 The images tile 100 rendered patterns (corners / shifted textures with gain
 0.9, offset 0.05) so that N points need no N renders.  Reported: first call
@@ -171,11 +176,11 @@ def locators(n: int, repeat: int, matching: bool = True) -> None:
     img = np.pad(img, [(0, side - img.shape[0]), (0, side - img.shape[1])])
     truth = origin + np.array(truths)[np.arange(n) % KINDS]
     approx = truth + rng.uniform(-1, 1, truth.shape)
-    img32 = img.astype(np.float32)
+    img32 = img.astype(np.float32)  # cornerSubPix takes float32 (or uint8): both get this same image
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-4)
 
     def ours():
-        return np.asarray(jax.block_until_ready(locate_corners(img, approx).xy))
+        return np.asarray(jax.block_until_ready(locate_corners(img32, approx).xy))
 
     def theirs():
         return cv2.cornerSubPix(img32, approx[:, None].astype(np.float32).copy(), (14, 14), (-1, -1), crit)[:, 0]
@@ -193,6 +198,7 @@ def locators(n: int, repeat: int, matching: bool = True) -> None:
         photax_s=t_ours,
         opencv_s=t_cv,
         ratio_opencv=t_ours / t_cv,
+        cpu_ratio_opencv=c_o / c_c,
         rmse_photax_px=rmse(xy - truth),
         rmse_opencv_px=rmse(cxy - truth),
     )
@@ -211,31 +217,34 @@ def locators(n: int, repeat: int, matching: bool = True) -> None:
     truth = txy + shifts[np.arange(n) % KINDS]
     approx = np.round(truth) + rng.integers(-1, 2, truth.shape)
     w, s = 10, 4
+    # both libraries read the same float32 images (matchTemplate takes float32 or uint8)
     t32, s32 = timg.astype(np.float32), simg.astype(np.float32)
 
     def lsm():
-        return np.asarray(jax.block_until_ready(match_lsm(timg, txy, simg, approx, window=w).xy))
+        return np.asarray(jax.block_until_ready(match_lsm(t32, txy, s32, approx, window=w).xy))
 
     def ncc():
-        return np.asarray(jax.block_until_ready(match_ncc(timg, txy, simg, approx, window=w, search=s).xy))
+        return np.asarray(jax.block_until_ready(match_ncc(t32, txy, s32, approx, window=w, search=s).xy))
 
     def cv_ncc():
+        # match_ncc's search: the peak among shifts up to s px, the parabola through it and its
+        # neighbours, so correlations out to s + 1 px (a (2 s + 3)^2 surface, as in
+        # tests/test_measure_locators.py::test_ncc_equals_matchtemplate_plus_parabola)
         out = np.empty((n, 2))
         ti = txy.astype(int)
         ai = approx.astype(int)
+        r = w + s + 1
         for i in range(n):
             tpl = t32[ti[i, 1] - w : ti[i, 1] + w + 1, ti[i, 0] - w : ti[i, 0] + w + 1]
-            big = s32[ai[i, 1] - w - s : ai[i, 1] + w + s + 1, ai[i, 0] - w - s : ai[i, 0] + w + s + 1]
+            big = s32[ai[i, 1] - r : ai[i, 1] + r + 1, ai[i, 0] - r : ai[i, 0] + r + 1]
             cc = cv2.matchTemplate(big, tpl, cv2.TM_CCOEFF_NORMED)
-            _, _, _, (x, y) = cv2.minMaxLoc(cc)
-            dx = dy = 0.0
-            if 0 < x < cc.shape[1] - 1:
-                a, b, c = cc[y, x - 1], cc[y, x], cc[y, x + 1]
-                dx = 0.5 * (a - c) / (a - 2 * b + c)
-            if 0 < y < cc.shape[0] - 1:
-                a, b, c = cc[y - 1, x], cc[y, x], cc[y + 1, x]
-                dy = 0.5 * (a - c) / (a - 2 * b + c)
-            out[i] = ai[i] + (x - s + dx, y - s + dy)
+            _, _, _, (x, y) = cv2.minMaxLoc(cc[1:-1, 1:-1])
+            x, y = x + 1, y + 1
+            a, b, c = cc[y, x - 1], cc[y, x], cc[y, x + 1]
+            dx = 0.5 * (a - c) / (a - 2 * b + c)
+            a, b, c = cc[y - 1, x], cc[y, x], cc[y + 1, x]
+            dy = 0.5 * (a - c) / (a - 2 * b + c)
+            out[i] = ai[i] + (x - s - 1 + dx, y - s - 1 + dy)
         return out
 
     lxy, t_lsm = timed("match_lsm", lsm, repeat)
@@ -243,6 +252,13 @@ def locators(n: int, repeat: int, matching: bool = True) -> None:
     cxy, t_cv = timed("cv2.matchTemplate + parabola (Python loop)", cv_ncc, repeat)
     print(ratio_line(f"LSM x{n} vs matchTemplate+parabola (warm)", t_lsm, t_cv))
     print(ratio_line(f"NCC x{n} vs matchTemplate+parabola (warm)", t_ncc, t_cv))
+    print(ratio_line(f"LSM x{n} vs photax NCC, same windows (warm)", t_lsm, t_ncc))
+    (w_n, c_n), (w_c, c_c) = wall_and_cpu(ncc, repeat), wall_and_cpu(cv_ncc, repeat)
+    w_l, c_l = wall_and_cpu(lsm, max(3, repeat // 2))
+    print(
+        f"  again, interleaved: NCC/OpenCV wall {w_n / w_c:.2f}, CPU time {c_n / c_c:.2f}; "
+        f"LSM/NCC wall {w_l / w_n:.2f}, CPU time {c_l / c_n:.2f}; {load_line()}"
+    )
     print(
         f"matching rmse: LSM {rmse(lxy - truth):.4f} px, photax NCC {rmse(nxy - truth):.4f} px, "
         f"matchTemplate+parabola {rmse(cxy - truth):.4f} px"
@@ -255,6 +271,9 @@ def locators(n: int, repeat: int, matching: bool = True) -> None:
         opencv_s=t_cv,
         ratio_lsm_opencv=t_lsm / t_cv,
         ratio_ncc_opencv=t_ncc / t_cv,
+        ratio_lsm_ncc=t_lsm / t_ncc,
+        cpu_ratio_ncc_opencv=c_n / c_c,
+        cpu_ratio_lsm_ncc=c_l / c_n,
         rmse_lsm_px=rmse(lxy - truth),
         rmse_ncc_px=rmse(nxy - truth),
         rmse_opencv_px=rmse(cxy - truth),

@@ -58,9 +58,10 @@ def _prefilter_matrix(m: int) -> np.ndarray:
 
 
 def _spline(p):
-    """Cubic B-spline coefficients of a square patch ``p`` (m, m, k), channels last."""
-    q = jnp.asarray(_prefilter_matrix(p.shape[0]))
-    return jnp.einsum("ij,jlc,kl->ikc", q, p, q)
+    """Cubic B-spline coefficients of a square patch ``p`` (m, m, k), channels last, in
+    float32 (what :func:`_spline_sample` reads; half the time of float64)."""
+    q = jnp.asarray(_prefilter_matrix(p.shape[0]), jnp.float32)
+    return jnp.einsum("ij,jlc,kl->ikc", q, p.astype(jnp.float32), q)
 
 
 def _correlation_factor(v):
@@ -88,38 +89,78 @@ def _spline_sample(c, x, y):
     and image processing") rather than Keys' cubic convolution: on the textures
     of the tests Keys' phase error moved LSM's shift by 0.011 px rms, the
     spline's by 0.0007 px."""
-    h, w = c.shape[:2]
+    h, w, k = c.shape
     x0, y0 = jnp.floor(x), jnp.floor(y)
-    k = jnp.arange(-1, 3, dtype=jnp.int32).reshape((1,) * x.ndim + (4,))
-    ix = jnp.clip(x0.astype(jnp.int32)[..., None] + k, 0, w - 1)
-    iy = jnp.clip(y0.astype(jnp.int32)[..., None] + k, 0, h - 1)
-    vals = c[iy[..., :, None], ix[..., None, :]]  # (..., 4, 4, k) [row tap, col tap]
-    wx = jnp.stack(kernel_weights("bspline", x - x0, xp=jnp), axis=-1)
-    wy = jnp.stack(kernel_weights("bspline", y - y0, xp=jnp), axis=-1)
-    return jnp.einsum("...i,...ijc,...j->...c", wy, vals, wx)
+    # the taps in float32 (the sums of 16 weighted taps lose ~1e-7 of the grey values, far
+    # below the spline's own error), one 4 x 4 block per sample, and the weights applied one
+    # axis at a time as two contractions: 0.65x the time of a gather per tap and an einsum
+    # over their outer product, float64
+    f32 = jnp.float32
+    c = c.astype(f32)
+    wx = jnp.stack(kernel_weights("bspline", x - x0, xp=jnp), axis=-1).astype(f32)
+    wy = jnp.stack(kernel_weights("bspline", y - y0, xp=jnp), axis=-1).astype(f32)
+    ix = jnp.clip(x0.astype(jnp.int32) - 1, 0, w - 4)
+    iy = jnp.clip(y0.astype(jnp.int32) - 1, 0, h - 4)
+
+    def block(r, col):
+        return jax.lax.dynamic_slice(c, (r, col, jnp.int32(0)), (4, 4, k))
+
+    for _ in range(x.ndim):
+        block = jax.vmap(block)
+    vals = block(iy, ix)  # (..., 4, 4, k) [row tap, col tap]
+    rows = jnp.einsum("...ijc,...j->...ic", vals, wx)
+    return jnp.einsum("...i,...ic->...c", wy, rows).astype(jnp.float64)
 
 
-def _template(img, xy, half):
-    """Template window around ``xy`` (cubic spline when sub-pixel), whether it is inside."""
+def _sample_rows(f, half, size):
+    """``(2 half + 1, size)`` matrix taking ``size`` samples to the cubic spline (mirror
+    boundary, :func:`_prefilter_matrix`) at ``centre + off + f``, ``off = -half .. half``,
+    ``centre = size // 2``, ``-0.5 <= f <= 0.5``: the B-spline weights applied to rows of the
+    prefilter.  A window shifted by one fraction is separable, ``My p Mx^T``: two small
+    matrix products instead of a 4 x 4 gather per pixel."""
+    q = jnp.asarray(_prefilter_matrix(size))
+    fl = jnp.floor(f)
+    w = kernel_weights("bspline", f - fl, xp=jnp)  # taps at floor(x) - 1 .. floor(x) + 2
+    first = size // 2 - half - 1 + fl.astype(jnp.int32)
+    return sum(wk * jax.lax.dynamic_slice_in_dim(q, first + k, 2 * half + 1) for k, wk in enumerate(w))
+
+
+def _template(img, xy, half, interpolate=True):
+    """Template window around ``xy`` (cubic spline when sub-pixel, the pixels themselves
+    when not), whether it is inside and finite.  ``interpolate=False`` takes the pixels
+    around the rounded ``xy`` (for callers that know every centre is integer)."""
     ci = round_centre(xy)
     cf = ci.astype(jnp.float64)
     big = half + 2 + PAD
     p, inside = patch(img, ci, big)
-    frac = jnp.where(jnp.all(jnp.isfinite(xy)), xy - cf, 0.0)
-    off = jnp.arange(-half, half + 1, dtype=jnp.float64) + big
-    shape = (2 * half + 1, 2 * half + 1)
+    p = p.astype(jnp.float64)
     fin = jnp.all(jnp.isfinite(p))
-    c = _spline(jnp.where(fin, p, 0.0)[..., None])
-    x = jnp.broadcast_to(off[None, :], shape) + frac[0]
-    t = _spline_sample(c, x, jnp.broadcast_to(off[:, None], shape) + frac[1])[..., 0]
+    p = jnp.where(fin, p, 0.0)
+    t = p[big - half : big + half + 1, big - half : big + half + 1]
+    if interpolate:
+        frac = jnp.where(jnp.all(jnp.isfinite(xy)), xy - cf, 0.0)
+        size = 2 * big + 1
+        spline = _sample_rows(frac[1], half, size) @ p @ _sample_rows(frac[0], half, size).T
+        t = jnp.where(jnp.all(frac == 0), t, spline)
     return t, inside, fin
+
+
+def _templates(img, xy, half):
+    """:func:`_template` for every point of a batch ``(b, n, 2)``; the interpolation is
+    skipped (one branch for the whole batch) when every centre is integer, the usual case."""
+
+    def run(interpolate):
+        one = functools.partial(_template, half=half, interpolate=interpolate)
+        return jax.vmap(jax.vmap(one, in_axes=(None, 0)))(img, xy)
+
+    integer = jnp.all(~jnp.isfinite(xy) | (xy == jnp.round(xy)))
+    return jax.lax.cond(integer, lambda: run(False), lambda: run(True))
 
 
 # --------------------------------------------------------------------------- NCC
 
 
-def _ncc_one(timg, txy, simg, sxy, *, half, search):
-    t, t_in, t_fin = _template(timg, txy, half)
+def _ncc_one(t, t_in, t_fin, simg, sxy, *, half, search):
     t = jnp.where(t_fin, t, 0.0)
     n = (2 * half + 1) ** 2
     t0 = t - jnp.mean(t)
@@ -128,24 +169,29 @@ def _ncc_one(timg, txy, simg, sxy, *, half, search):
     cf = ci.astype(jnp.float64)
     big = half + search + 1
     s, s_in = patch(simg, ci, big)
+    s = s.astype(jnp.float64)
     s_fin = jnp.all(jnp.isfinite(s))
     s = jnp.where(s_fin, s, 0.0)
     k = 2 * half + 1
     m = 2 * (search + 1) + 1  # shifts -(search+1) .. search+1
     # cross products at every shift by FFT (exact here: the window never
     # wraps, dy + i < m + k - 1 = patch size); correlate2d under vmap became
-    # a grouped convolution that XLA:CPU ran ~1000x slower
+    # a grouped convolution that XLA:CPU ran ~1000x slower.  In float32, of the
+    # search window less its mean (OpenCV's matchTemplate computes in float32 too):
+    # half the time of float64, ~1e-6 in rho.
     size = s.shape
-    tpad = jnp.zeros(size).at[:k, :k].set(t0)
-    cross = jnp.fft.irfft2(jnp.fft.rfft2(s) * jnp.conj(jnp.fft.rfft2(tpad)), s=size)[:m, :m]  # [dy, dx]
-    # window sums of s and s^2 from an integral image
-    ii = jnp.pad(jnp.cumsum(jnp.cumsum(s, 0), 1), ((1, 0), (1, 0)))
-    i2 = jnp.pad(jnp.cumsum(jnp.cumsum(s * s, 0), 1), ((1, 0), (1, 0)))
+    f32 = jnp.float32
+    tpad = jnp.pad(t0.astype(f32), ((0, size[0] - k), (0, size[1] - k)))
+    sc = (s - jnp.mean(s)).astype(f32)
+    cross = jnp.fft.irfft2(jnp.fft.rfft2(sc) * jnp.conj(jnp.fft.rfft2(tpad)), s=size)[:m, :m].astype(jnp.float64)
 
+    # window sums of s and s^2 as sums of shifted slices, rows then columns (XLA fuses
+    # them; the integral image's cumsum was 20x slower)
     def box(a):
-        return a[k:, k:] - a[:-k, k:] - a[k:, :-k] + a[:-k, :-k]
+        r = sum(a[:, j : j + m] for j in range(k))
+        return sum(r[i : i + m] for i in range(k))
 
-    ss = box(i2) - box(ii) ** 2 / n
+    ss = box(s * s) - box(s) ** 2 / n
     rho = cross / jnp.sqrt(jnp.where((ss > 0) & (tt > 0), ss * tt, 1.0))
     rho = jnp.where(ss > 1e-12 * (1 + jnp.max(jnp.abs(s))) ** 2 * n, rho, -1.0)
     inner = rho[1:-1, 1:-1]
@@ -184,8 +230,9 @@ def _ncc_one(timg, txy, simg, sxy, *, half, search):
 
 @functools.partial(jax.jit, static_argnames=("half", "search"))
 def _ncc(timg, txy, simg, sxy, *, half, search):
+    t, t_in, t_fin = _templates(timg, txy, half)
     one = functools.partial(_ncc_one, half=half, search=search)
-    xy, cov, st, s0, k, rho = jax.vmap(jax.vmap(one, in_axes=(None, 0, None, 0)))(timg, txy, simg, sxy)
+    xy, cov, st, s0, k, rho = jax.vmap(jax.vmap(one, in_axes=(0, 0, 0, None, 0)))(t, t_in, t_fin, simg, sxy)
     return finish(xy, cov, st, s0, k), jnp.where(st == Status.OK, rho, jnp.nan)
 
 
@@ -231,18 +278,26 @@ def _lsm_one(timg, txy, simg, sxy, *, half, margin, iterations, tol):
     # interpolation error enters); the sub-pixel centre ``ft`` goes through the fitted affine map.
     tc = round_centre(txy)
     ft = jnp.where(jnp.all(jnp.isfinite(txy)), txy - tc.astype(jnp.float64), 0.0)
-    g1, t_in, t_fin = _template(timg, jnp.where(jnp.all(jnp.isfinite(txy)), tc.astype(jnp.float64), txy), half)
+    g1, t_in, t_fin = _template(timg, txy, half, interpolate=False)
     g1 = jnp.where(t_fin, g1, 0.0)
     ci = round_centre(sxy)
     cf = ci.astype(jnp.float64)
     big = half + margin
     s, s_in = patch(simg, ci, big + PAD)
+    s = s.astype(jnp.float64)
     s_fin = jnp.all(jnp.isfinite(s))
     s = jnp.where(s_fin, s, 0.0)
     # value and gradient in one gather per iteration; central differences, not the
     # spline's own derivative, which amplifies the noise (LSM's error grew 1.4-1.9x with it)
     gxs, gys = _gradient2d(s, "central", "nearest")
-    sg = _spline(jnp.stack([s, gxs, gys], axis=-1))
+    # the spline in float32 (_spline) of the window less its mean, added back to the samples
+    # (the spline reproduces constants): rounding relative to the window's contrast, not its level
+    level = jnp.array([jnp.mean(s), 0.0, 0.0])
+    sg = _spline(jnp.stack([s - level[0], gxs, gys], axis=-1))
+
+    def sample(xs, ys):
+        return _spline_sample(sg, xs, ys) + level[None, :]
+
     big = big + PAD  # patch coordinates of the approximation
     off = jnp.arange(-half, half + 1, dtype=jnp.float64)
     x = jnp.broadcast_to(off[None, :], g1.shape).ravel()
@@ -252,7 +307,7 @@ def _lsm_one(timg, txy, simg, sxy, *, half, margin, iterations, tol):
     frac = jnp.where(jnp.all(jnp.isfinite(sxy)), sxy - cf, 0.0) - ft  # where the integer centre lies
     p0 = jnp.array([frac[0], 0.0, 0.0, frac[1], 0.0, 0.0, 0.0, 1.0])
     # initial radiometry from the window means / spreads
-    s0win = _spline_sample(sg, x + frac[0] + big, y + frac[1] + big)[:, 0]
+    s0win = sample(x + frac[0] + big, y + frac[1] + big)[:, 0]
     r1 = jnp.std(g1) / jnp.where(jnp.std(s0win) > 0, jnp.std(s0win), 1.0)
     p0 = p0.at[7].set(jnp.where(r1 > 0, r1, 1.0))
     p0 = p0.at[6].set(jnp.mean(g1) - p0[7] * jnp.mean(s0win))
@@ -260,7 +315,7 @@ def _lsm_one(timg, txy, simg, sxy, *, half, margin, iterations, tol):
     def design(p):
         xs = p[0] + (1 + p[1]) * x + p[2] * y + big
         ys = p[3] + p[4] * x + (1 + p[5]) * y + big
-        val = _spline_sample(sg, xs, ys)
+        val = sample(xs, ys)
         g2, gx, gy = val[:, 0], val[:, 1] * p[7], val[:, 2] * p[7]
         a = jnp.stack([gx, gx * xn, gx * yn, gy, gy * xn, gy * yn, jnp.ones_like(g2), g2], axis=1)
         v = g1 - (p[6] + p[7] * g2)
@@ -393,8 +448,10 @@ def _mirror_small(img, xy, size):
 
 
 def _pair(template_image, template_xy, search_image, approx_xy, half_t, half_s, run):
-    timg, tb = as_images(template_image, "template_image")
-    simg, sb = as_images(search_image, "search_image")
+    # the images keep their dtype (and a numpy image stays on the host until the call):
+    # only the windows are converted to float64
+    timg, tb = as_images(template_image, "template_image", convert=False)
+    simg, sb = as_images(search_image, "search_image", convert=False)
     if tb != sb or timg.shape[0] != simg.shape[0]:
         raise ValueError(
             f"template_image {timg.shape} and search_image {simg.shape}: give both as single images "

@@ -126,10 +126,10 @@ def as_images(image, name: str = "image", *, convert: bool = True) -> tuple[Arra
         raise ValueError(f"{name}: expected an integer or float image, got dtype {arr.dtype}")
     if arr.ndim not in (2, 3):
         raise ValueError(f"{name}: expected shape (h, w) or a batch (b, h, w), got {arr.shape}")
-    if not convert:
-        return (arr if arr.ndim == 3 else arr[None]), arr.ndim == 3
-    img = jnp.asarray(arr, dtype=jnp.float64)
-    return (img if arr.ndim == 3 else img[None]), arr.ndim == 3
+    # the batch axis is added before the transfer: on a numpy image a view, where on a
+    # device array ``[None]`` copies the whole image (10 ms for 16 MiB)
+    batch = arr if arr.ndim == 3 else arr[None]
+    return (batch if not convert else jnp.asarray(batch, dtype=jnp.float64)), arr.ndim == 3
 
 
 def as_points(approx_xy, batch: int, batched: bool, name: str = "approx_xy") -> Array:
