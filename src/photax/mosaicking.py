@@ -197,8 +197,9 @@ def _align(o, off, chunks: int):
     return o.chunk({o.dims[0]: -1, "y": ys, "x": xs})
 
 
-def _lazy(o, chunks: int, off=(0, 0)):
-    """The ortho's values as a ``(bands, h, w)`` float64 Dask array, NaN for no data."""
+def _values(o, chunks: int, off=(0, 0)):
+    """The ortho's values as a ``(bands, h, w)`` Dask array in its own dtype (a NumPy one in chunks on
+    the union grid's)."""
     import dask.array as da
 
     v = o.data
@@ -206,29 +207,98 @@ def _lazy(o, chunks: int, off=(0, 0)):
         v = da.from_array(
             np.asarray(v), chunks=(-1, _edges(off[0], v.shape[1], chunks), _edges(off[1], v.shape[2], chunks))
         )
-    v = v.astype(float)
-    nd = o.rio.nodata
-    if nd is not None and not np.isnan(nd):
-        v = da.where(v == nd, np.nan, v)
     return v
 
 
-def _seam_grid(v, box, s: int, chunks: int):
-    """Ortho ``v`` ``(bands, h, w)`` on the seam grid: ``s x s`` cell means
-    over the union grid's cells (NaN unless every pixel of the cell has
-    data); returns the lazy array and its ``(row, col)`` offset on the seam
-    grid."""
-    import dask.array as da
+def _grey(v, nodata):
+    """Ortho values ``v`` ``(bands, h, w)`` as float32 (a copy), 0 in every band of a pixel with no
+    data (NaN or ``nodata``) in any band, and where there is data ``(h, w)``."""
+    v = np.asarray(v)
+    f = v.astype(np.float32)
+    valid = np.isfinite(f).all(axis=0) if v.dtype.kind == "f" else np.ones(v.shape[1:], bool)
+    if nodata is not None and not np.isnan(nodata):
+        valid &= (v != nodata).all(axis=0)
+    np.copyto(f, 0.0, where=~valid)
+    return f, valid
 
-    r, c, h, w = box
-    if s == 1:
-        return v, (r, c)
-    pt, pl = r % s, c % s
-    pb, pr = -(r + h) % s, -(c + w) % s
-    if pt or pl or pb or pr:
-        v = da.pad(v, ((0, 0), (pt, pb), (pl, pr)), constant_values=np.nan)
-    step = max(s, chunks // s * s)
-    return da.coarsen(np.mean, v.rechunk((-1, step, step)), {1: s, 2: s}), (r // s, c // s)
+
+def _cell_sums(x, place, s: int):
+    """Sums of ``x`` ``(..., h, w)`` (at ``place`` ``(row, col)`` in a tile whose origin is a seam cell's)
+    over the ``s x s`` seam cells it meets (0 outside it), and the first cell's ``(row, col)`` in the tile."""
+    (pr, pc), (hh, ww) = place, x.shape[-2:]
+    cr, cc = pr // s, pc // s
+    rows, cols = -(-(pr + hh) // s) - cr, -(-(pc + ww) // s) - cc
+    pad = np.zeros((*x.shape[:-2], rows * s, cols * s), np.float32)
+    pad[..., pr - cr * s : pr - cr * s + hh, pc - cc * s : pc - cc * s + ww] = x
+    pad = pad.reshape(*x.shape[:-2], rows, s, cols * s).sum(axis=-2, dtype=np.float64)
+    return pad.reshape(*x.shape[:-2], rows, cols, s).sum(axis=-1), (cr, cc)
+
+
+def _tile_stats(tile, parts, places, idx, nodata, s):
+    """Pass 1 on one tile ``(r0, c0, h, w)`` of the union grid (``r0``, ``c0`` multiples of ``s``):
+    for the orthos ``idx`` meeting it (``parts`` at ``places`` in the tile, their ``nodata``), each
+    one's valid pixel count, its ``s x s`` cell means on the seam grid (NaN unless every pixel of the
+    cell has data; with the cells' ``(row, col)`` in the tile) and every pair's overlap moments
+    ``(6, bands)``, ``[count, sum a, sum b, sum a^2, sum b^2, sum ab]`` (summed in float64) over the
+    pixels where both have data, keyed ``(i, j)`` in the order of ``idx`` (ascending).
+
+    On zero-filled grey values and 0/1 validity: no gathers, only products and sums over the overlap
+    boxes (``a vb`` is ``a`` where both have data, 0 elsewhere)."""
+    grey = [_grey(v, nd) for v, nd in zip(parts, nodata)]
+    counts, cells = {}, {}
+    for k, place, (f, valid) in zip(idx, places, grey):
+        counts[k] = int(valid.sum())
+        if s == 1:
+            cells[k] = (place, np.where(valid, f, np.nan))
+            continue
+        total, at = _cell_sums(f, place, s)
+        full = _cell_sums(valid.astype(np.float32), place, s)[0] == s * s
+        cells[k] = (at, np.where(full, total / (s * s), np.nan))
+    moments = {}
+    ax = (1, 2)
+    for (i, (ri, ci), (fi, vi)), (j, (rj, cj), (fj, vj)) in itertools.combinations(zip(idx, places, grey), 2):
+        r0, c0 = max(ri, rj), max(ci, cj)
+        r1, c1 = min(ri + fi.shape[1], rj + fj.shape[1]), min(ci + fi.shape[2], cj + fj.shape[2])
+        if r1 <= r0 or c1 <= c0:
+            continue
+        a, b = fi[:, r0 - ri : r1 - ri, c0 - ci : c1 - ci], fj[:, r0 - rj : r1 - rj, c0 - cj : c1 - cj]
+        va = vi[r0 - ri : r1 - ri, c0 - ci : c1 - ci].astype(np.float32)
+        vb = vj[r0 - rj : r1 - rj, c0 - cj : c1 - cj].astype(np.float32)
+        am, bm = a * vb, b * va
+        cnt = np.full(a.shape[0], (va * vb).sum(dtype=np.float64))
+        moments[i, j] = np.stack(
+            [
+                cnt,
+                am.sum(ax, dtype=np.float64),
+                bm.sum(ax, dtype=np.float64),
+                (am * a).sum(ax, dtype=np.float64),
+                (bm * b).sum(ax, dtype=np.float64),
+                (am * b).sum(ax, dtype=np.float64),
+            ]
+        )
+    return counts, cells, moments
+
+
+def _tiles(shape, step: int):
+    """The tiles ``(r0, c0, h, w)`` of edge ``step`` covering a grid of ``shape``, row by row."""
+    for r0 in range(0, shape[0], step):
+        for c0 in range(0, shape[1], step):
+            yield r0, c0, min(step, shape[0] - r0), min(step, shape[1] - c0)
+
+
+def _meeting(vals, boxes, tile, ks):
+    """The orthos among ``ks`` meeting ``tile`` ``(r0, c0, h, w)``: their slices of ``vals`` (each at its
+    box of ``boxes`` on the union grid), places ``(row, col)`` in the tile, and indices."""
+    r0, c0, h, w = tile
+    parts, places, idx = [], [], []
+    for k in ks:
+        br, bc, bh, bw = boxes[k]
+        a0, a1, b0, b1 = max(r0, br), min(r0 + h, br + bh), max(c0, bc), min(c0 + w, bc + bw)
+        if a1 > a0 and b1 > b0:
+            parts.append(vals[k][:, a0 - br : a1 - br, b0 - bc : b1 - bc])
+            places.append((a0 - r0, b0 - c0))
+            idx.append(k)
+    return parts, places, idx
 
 
 def _meet(a, b) -> int:
@@ -236,27 +306,6 @@ def _meet(a, b) -> int:
     h = min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0])
     w = min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1])
     return max(h, 0) * max(w, 0)
-
-
-def _pair_moments(vi, vj, bi, bj):
-    """Lazy ``(6, bands)``: ``[count, sum a, sum b, sum a^2, sum b^2, sum ab]``
-    per band over the pixels where both orthos have data in every band
-    (``a`` of ``vi``, ``b`` of ``vj``), or None when their boxes do not meet."""
-    import dask.array as da
-
-    r0, c0 = max(bi[0], bj[0]), max(bi[1], bj[1])
-    r1, c1 = min(bi[0] + bi[2], bj[0] + bj[2]), min(bi[1] + bi[3], bj[1] + bj[3])
-    if r1 <= r0 or c1 <= c0:
-        return None
-    a = vi[:, r0 - bi[0] : r1 - bi[0], c0 - bi[1] : c1 - bi[1]]
-    b = vj[:, r0 - bj[0] : r1 - bj[0], c0 - bj[1] : c1 - bj[1]]
-    m = da.all(da.isfinite(a) & da.isfinite(b), axis=0)
-    a, b = da.where(m, a, 0.0), da.where(m, b, 0.0)
-    ax = (1, 2)
-    count = da.broadcast_to(m.sum(dtype=float), (a.shape[0],))
-    return da.stack(
-        [count, a.sum(axis=ax), b.sum(axis=ax), (a * a).sum(axis=ax), (b * b).sum(axis=ax), (a * b).sum(axis=ax)]
-    )
 
 
 def _balance(n: int, moments: dict, names=None):
@@ -425,49 +474,56 @@ def _seamlines(cells, offs, shape, gains, offsets, raised, nadirs, transform, me
     return labels
 
 
-def _blend_chunk(tile, parts, places, idx, gains, offsets, lab, lab_origin, window, s, feather):
-    """One output chunk ``(bands, h, w)``: the intersecting orthos ``parts``
-    (canonical indices ``idx``, at ``places`` in the chunk), balanced (gains
-    and offsets ``(m, bands)``) and feathered across the labels (seam grid
-    ``lab`` at ``lab_origin``, cells of ``s`` px), the same weights in every band.
+def _blend_chunk(tile, parts, places, idx, nodata, gains, offsets, lab, lab_origin, window, s, feather):
+    """One output chunk ``(bands, h, w)``, float32: the intersecting orthos ``parts`` (canonical indices
+    ``idx``, at ``places`` in the chunk, their ``nodata``), balanced (gains and offsets ``(m, bands)``)
+    and feathered across the labels (seam grid ``lab`` at ``lab_origin``, cells of ``s`` px), the same
+    weights in every band.
 
     Each ortho is handled on its own box in the chunk (no ``(m, bands, h, w)`` stack): its weight is
     the share of its label in the ``(2 feather + 1)^2`` box round the pixel, which falls linearly from
     1 (``feather`` px inside its label) to 0 (``feather`` px outside) across a straight seam; 0 where
-    it has no data."""
+    it has no data.  An ortho whose label fills the box has weight 1, one whose label is absent
+    (and no unlabelled pixel in its box) is skipped: only the pixels near a seam are filtered."""
     from scipy import ndimage
 
     r0, c0, h, w = tile
     (wr0, wr1), (wc0, wc1) = window
     nb = gains.shape[1]
-    full = lab[(np.arange(wr0, wr1) // s - lab_origin[0])[:, None], (np.arange(wc0, wc1) // s - lab_origin[1])[None]]
+    rows = np.arange(wr0, wr1) // s - lab_origin[0]
+    full = lab.astype(np.int16)[rows][:, np.arange(wc0, wc1) // s - lab_origin[1]]
     dr, dc = r0 - wr0, c0 - wc0
     inner = full[dr : dr + h, dc : dc + w]
     # In float32 (the orthos' grey values need no more; half the memory traffic of float64).
     num, total = np.zeros((nb, h, w), np.float32), np.zeros((h, w), np.float32)
     unlabelled = inner < 0  # in no labelled cell (a seam cell only partly covered): the mean of what is there
-    for (pr, pc), v, k, g, o in zip(places, parts, idx, gains, offsets):
-        bal = np.multiply(v, g.astype(np.float32)[:, None, None], dtype=np.float32)
+    for (pr, pc), v, k, nd, g, o in zip(places, parts, idx, nodata, gains, offsets):
+        hh, ww = v.shape[1:]
+        box = (slice(pr, pr + hh), slice(pc, pc + ww))
+        f = feather
+        a0, a1 = max(dr + pr - f, 0), min(dr + pr + hh + f, full.shape[0])
+        b0, b1 = max(dc + pc - f, 0), min(dc + pc + ww + f, full.shape[1])
+        own = full[a0:a1, b0:b1] == k
+        loose = unlabelled[box]
+        if not own.any() and not loose.any():
+            continue  # none of its label within reach: weight 0 everywhere
+        bal, valid = _grey(v, nd)
+        bal *= g.astype(np.float32)[:, None, None]
         bal += o.astype(np.float32)[:, None, None]
-        valid = np.isfinite(bal).all(axis=0)
-        box = (slice(pr, pr + bal.shape[1]), slice(pc, pc + bal.shape[2]))
-        if feather > 0:
-            f = feather
-            a0, a1 = max(dr + pr - f, 0), min(dr + pr + bal.shape[1] + f, full.shape[0])
-            b0, b1 = max(dc + pc - f, 0), min(dc + pc + bal.shape[2] + f, full.shape[1])
-            own = (full[a0:a1, b0:b1] == k).astype(np.float32)
-            wt = ndimage.uniform_filter(own, 2 * f + 1, mode="nearest") if not own.all() else own
-            r, c = dr + pr - a0, dc + pc - b0
-            wt = wt[r : r + bal.shape[1], c : c + bal.shape[2]].copy()
+        if own.all():
+            wt = valid.astype(np.float32)
         else:
-            wt = (inner[box] == k).astype(np.float32)
-        wt[unlabelled[box]] = 1.0
-        wt[~valid] = 0.0
-        bal[:, ~valid] = 0.0  # NaN * 0 would be NaN
-        bal *= wt
+            wt = own.astype(np.float32)
+            if f > 0:
+                wt = ndimage.uniform_filter(wt, 2 * f + 1, mode="nearest")
+            r, c = dr + pr - a0, dc + pc - b0
+            wt = wt[r : r + hh, c : c + ww]
+            wt[loose] = 1.0
+            wt[~valid] = 0.0
+        bal *= wt  # 0 where no data (the offset too)
         num[:, box[0], box[1]] += bal
         total[box] += wt
-    out = np.full((nb, h, w), np.nan)
+    out = np.full((nb, h, w), np.nan, np.float32)
     np.divide(num, total, out=out, where=total > 0)
     return out
 
@@ -577,7 +633,7 @@ def mosaic(
             pixel blends it with its neighbour), -1 for none.
 
     Returns:
-        Lazy ``xarray.DataArray`` (float64, Dask chunks of ``chunks``) on the
+        Lazy ``xarray.DataArray`` (float32, Dask chunks of ``chunks``) on the
         union grid, ``(y, x)`` for single-band orthos, else ``(band, y,
         x)``; CRS and transform on the rioxarray conventions,
         NaN for no data.
@@ -630,14 +686,8 @@ def mosaic(
     else:
         s = int(seam_scale)
     shape_c = (-(-shape[0] // s), -(-shape[1] // s))
-    vals = [_lazy(o, chunks, off) for o, off in zip(orthos, offsets)]
-    seam = [_seam_grid(v, b, s, chunks) for v, b in zip(vals, boxes)]
-    pairs = {}
-    for i in range(n):
-        for j in range(i + 1, n):
-            mom = _pair_moments(vals[i], vals[j], boxes[i], boxes[j])
-            if mom is not None:
-                pairs[(i, j)] = mom
+    vals = [_values(o, chunks, off) for o, off in zip(orthos, offsets)]
+    nodata = [o.rio.nodata for o in orthos]
     raised_c = None
     if dsm is not None:
         h = da.asarray(dsm.data if hasattr(dsm, "dims") else dsm).astype(float)
@@ -650,10 +700,31 @@ def mosaic(
             up = da.pad(up, ((0, shape_c[0] * s - shape[0]), (0, shape_c[1] * s - shape[1])), constant_values=False)
             up = da.coarsen(np.any, up.rechunk(max(s, chunks // s * s)), {0: s, 1: s})
         raised_c = up
-    # One pass over the inputs: the seam grid, the overlap moments and the raised cells.
-    counts = [da.all(da.isfinite(v), axis=0).sum() for v in vals]
-    cells, moments, raised_c, counts = dask.compute([c for c, _ in seam], pairs, raised_c, counts)
-    cells = [np.asarray(c, dtype=float) for c in cells]
+    # One pass over the inputs, a task per tile (whole seam cells): the seam grid, the overlap
+    # moments, the valid pixel counts; and the raised cells.
+    step = max(s, chunks // s * s)
+    stats = dask.delayed(_tile_stats, pure=True)
+    tiles, tasks = [], []
+    for tile in _tiles(shape, step):
+        parts, places, idx = _meeting(vals, boxes, tile, range(n))
+        if idx:
+            tiles.append(tile)
+            tasks.append(stats(tile, parts, places, idx, [nodata[k] for k in idx], s))
+    results, raised_c = dask.compute(tasks, raised_c)
+    seam_off = [(b[0] // s, b[1] // s) for b in boxes]
+    cells = [
+        np.full((nb, -(-(b[0] + b[2]) // s) - r, -(-(b[1] + b[3]) // s) - c), np.nan)
+        for b, (r, c) in zip(boxes, seam_off)
+    ]
+    counts, moments = np.zeros(n, dtype=np.int64), {}
+    for tile, (cnt, cel, mom) in zip(tiles, results):
+        for k, v in cnt.items():
+            counts[k] += v
+        for k, ((cr, cc), cell) in cel.items():
+            r, c = tile[0] // s + cr - seam_off[k][0], tile[1] // s + cc - seam_off[k][1]
+            cells[k][:, r : r + cell.shape[1], c : c + cell.shape[2]] = cell
+        for p, v in mom.items():
+            moments[p] = moments[p] + v if p in moments else v
     for k in range(n):
         if counts[k] == 0:
             raise ValueError(f"orthos[{k}]{_name(orthos[k], is_path[k])} has no valid pixel (all no-data)")
@@ -669,7 +740,7 @@ def mosaic(
     tc = transform * Affine.scale(s)
     if nadirs is None:
         nadirs = []
-        for k, (cell, (r, c)) in enumerate(zip(cells, (o for _, o in seam))):
+        for k, (cell, (r, c)) in enumerate(zip(cells, seam_off)):
             rr, cc = np.nonzero(np.all(np.isfinite(cell), axis=0))
             if rr.size == 0:
                 raise ValueError(
@@ -712,46 +783,38 @@ def mosaic(
         np.mean(cells[k] * gains[c][:, None, None] + offs[c][:, None, None], axis=0) for c, k in enumerate(order)
     ]
     labels = _seamlines(
-        seam_cells, [seam[k][1] for k in order], shape_c, np.ones(n), np.zeros(n), up, nadirs[order], tc, method
+        seam_cells, [seam_off[k] for k in order], shape_c, np.ones(n), np.zeros(n), up, nadirs[order], tc, method
     )
     # The output graph: one task per chunk on the slices of the orthos it meets.
     grow = feather + 1
     blend = dask.delayed(_blend_chunk, pure=True)
-    rows = []
-    for r0 in range(0, shape[0], chunks):
-        row = []
-        for c0 in range(0, shape[1], chunks):
-            h, w = min(chunks, shape[0] - r0), min(chunks, shape[1] - c0)
-            parts, places, idx = [], [], []
-            for p, k in enumerate(order):
-                br, bc, bh, bw = boxes[k]
-                a0, a1, b0, b1 = max(r0, br), min(r0 + h, br + bh), max(c0, bc), min(c0 + w, bc + bw)
-                if a1 > a0 and b1 > b0:
-                    parts.append(vals[k][:, a0 - br : a1 - br, b0 - bc : b1 - bc])
-                    places.append((a0 - r0, b0 - c0))
-                    idx.append(p)
-            if not idx:
-                row.append(da.full((nb, h, w), np.nan, chunks=(nb, h, w)))
-                continue
-            wr0, wr1 = max(r0 - grow, 0), min(r0 + h + grow, shape[0])
-            wc0, wc1 = max(c0 - grow, 0), min(c0 + w + grow, shape[1])
-            lab = labels[wr0 // s : (wr1 - 1) // s + 1, wc0 // s : (wc1 - 1) // s + 1]
-            task = blend(
-                (r0, c0, h, w),
-                parts,
-                places,
-                idx,
-                gains[idx],
-                offs[idx],
-                lab,
-                (wr0 // s, wc0 // s),
-                ((wr0, wr1), (wc0, wc1)),
-                s,
-                feather if n > 1 else 0,
-            )
-            row.append(da.from_delayed(task, (nb, h, w), dtype=float))
-        rows.append(row)
-    data = da.block(rows)
+    rows = {}
+    for tile in _tiles(shape, chunks):
+        r0, c0, h, w = tile
+        parts, places, idx = _meeting(vals, boxes, tile, order)
+        if not idx:
+            rows.setdefault(r0, []).append(da.full((nb, h, w), np.nan, dtype=np.float32, chunks=(nb, h, w)))
+            continue
+        wr0, wr1 = max(r0 - grow, 0), min(r0 + h + grow, shape[0])
+        wc0, wc1 = max(c0 - grow, 0), min(c0 + w + grow, shape[1])
+        lab = labels[wr0 // s : (wr1 - 1) // s + 1, wc0 // s : (wc1 - 1) // s + 1]
+        p = pos[idx]  # canonical
+        task = blend(
+            tile,
+            parts,
+            places,
+            p,
+            [nodata[k] for k in idx],
+            gains[p],
+            offs[p],
+            lab,
+            (wr0 // s, wc0 // s),
+            ((wr0, wr1), (wc0, wc1)),
+            s,
+            feather if n > 1 else 0,
+        )
+        rows.setdefault(r0, []).append(da.from_delayed(task, (nb, h, w), dtype=np.float32))
+    data = da.block(list(rows.values()))
     arr = dataarray(data[0] if nb == 1 else data, Grid(transform, shape, crs), np.asarray(np.nan), "mosaic")
     given = np.where(labels >= 0, np.asarray(order)[labels], -1)
     names = [orthos[k].encoding.get("source") if is_path[k] else None for k in range(n)]
