@@ -50,9 +50,13 @@ labels) is in memory; the full-resolution orthos are only ever read chunk
 by chunk, twice: once for the overlap moments and the seam grid, once for
 the output.  Lazy orthos (raster paths, or Dask-backed DataArrays, e.g.
 from :func:`photax.orthorectify_dask`, whose chunks cost a kernel call each)
-are instead read or computed once and kept (``dask.persist``, chunk by chunk,
-in their own dtype) when they hold at most ``_PERSIST_BYTES`` (1 GiB) in all;
-larger ones are read twice.  Write the result with :func:`photax.to_raster`
+are instead read or computed once and kept when they hold at most
+``_PERSIST_BYTES`` (1 GiB) in all: a file in one read, in its own dtype
+(float32 with NaN where a mask band, not a nodata value, marks no data), a
+Dask array by ``dask.persist``, chunk by chunk; larger ones are read twice.
+Both passes are one task per tile (NumPy on the tile's slices of the
+orthos): the first sums the overlap moments and the seam grid, the second
+blends the output chunk.  Write the result with :func:`photax.to_raster`
 (``cog=True``: a tiled, compressed Cloud-Optimized GeoTIFF with overviews).
 """
 
@@ -60,6 +64,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -68,7 +73,7 @@ _SEAM_PIXELS = 1 << 22  # default seam grid: at most 4 Mpx (s = 1 up to that) ..
 # ... and at most this many cells in the bounding box of any two orthos' overlap: scipy's maximum flow
 # grows faster than linearly (NGI, 5 m: 0.03 s for 8k cells, 0.2 s for 34k, 6 s for 139k).
 _SEAM_OVERLAP = 1 << 13
-_PERSIST_BYTES = 1 << 30  # lazy orthos given as DataArrays, up to this in all, are computed once and kept
+_PERSIST_BYTES = 1 << 30  # raster files and lazy orthos, up to this in all, are read (computed) once and kept
 
 
 def _lattice(orthos):
@@ -76,15 +81,15 @@ def _lattice(orthos):
     ``(row, col)`` offset in it; ValueError on different CRSs or lattices."""
     from rasterio import Affine
 
-    crs = orthos[0].rio.crs
-    t0 = orthos[0].rio.transform()
+    crs = orthos[0].crs
+    t0 = orthos[0].transform
     if t0.b != 0 or t0.d != 0:
         raise ValueError("orthos must be north-up (no rotation in the transform)")
     boxes = []
     for k, o in enumerate(orthos):
-        if o.rio.crs != crs:
-            raise ValueError(f"orthos[{k}] is in {o.rio.crs}, orthos[0] in {crs}: reproject them to one CRS first")
-        t = o.rio.transform()
+        if o.crs != crs:
+            raise ValueError(f"orthos[{k}] is in {o.crs}, orthos[0] in {crs}: reproject them to one CRS first")
+        t = o.transform
         if not (math.isclose(t.a, t0.a, rel_tol=1e-9) and math.isclose(t.e, t0.e, rel_tol=1e-9) and t.b == t.d == 0):
             raise ValueError(f"orthos[{k}] has pixel size {(t.a, t.e)}, orthos[0] {(t0.a, t0.e)}: one resolution only")
         c, r = (t.c - t0.c) / t0.a, (t.f - t0.f) / t0.e
@@ -111,7 +116,7 @@ def mosaic_grid(orthos):
     """
     from .grid import Grid
 
-    orthos = [_open(o, k, 1024) for k, o in enumerate(orthos)]
+    orthos = [_open(o, k) for k, o in enumerate(orthos)]
     if not orthos:
         raise ValueError("orthos must hold at least one ortho")
     transform, shape, crs, _ = _lattice(orthos)
@@ -140,22 +145,46 @@ def heights_on_grid(path, grid) -> np.ndarray:
     return arr.squeeze("band", drop=True).rio.reproject_match(template).values
 
 
-def _open(o, k: int, chunks: int):
-    """Ortho ``k`` as a ``(band, y, x)`` DataArray (one band for a 2-D one; a
-    raster path is opened lazily, in chunks)."""
+class _Ortho(NamedTuple):
+    """An input of :func:`mosaic`: ``data`` ``(bands, h, w)``, NumPy or Dask (None: a raster file not
+    read yet), its ``shape``, ``dtype`` and georeference, ``nodata`` (a value, NaN or None), ``source``
+    (its file, or None) and whether the file's no-data is its ``nodata`` value alone (else a mask band)."""
+
+    data: Any
+    shape: tuple
+    dtype: Any
+    transform: Any
+    crs: Any
+    nodata: Any
+    source: str | None = None
+    by_value: bool = True
+
+
+def _open(o, k: int) -> _Ortho:
+    """Ortho ``k``: a DataArray (``(y, x)`` or ``(band, y, x)``) as it is, a raster path by its
+    metadata only (read by :func:`_load`)."""
     import os
 
     if isinstance(o, (str, bytes)) or hasattr(o, "__fspath__"):
-        import rioxarray
+        from rasterio.enums import MaskFlags
 
         from .io.raster import open_raster
 
         try:
-            with open_raster(o):  # a clear error for a missing or unreadable file
-                pass
+            with open_raster(o) as ds:  # a clear error for a missing or unreadable file
+                flags = {f for band in ds.mask_flag_enums for f in band}
+                return _Ortho(
+                    None,
+                    (ds.count, ds.height, ds.width),
+                    np.dtype(ds.dtypes[0]),
+                    ds.transform,
+                    ds.crs,
+                    ds.nodata,
+                    os.fspath(o),
+                    flags <= {MaskFlags.all_valid, MaskFlags.nodata},
+                )
         except FileNotFoundError:
             raise ValueError(f"orthos[{k}]: no such raster file: {o}") from None
-        o = rioxarray.open_rasterio(os.fspath(o), masked=True, chunks={"band": -1, "y": chunks, "x": chunks})
     if not hasattr(o, "rio"):
         raise ValueError(
             f"orthos[{k}] must be a georeferenced xarray.DataArray or a raster path, got {type(o).__name__}"
@@ -164,13 +193,36 @@ def _open(o, k: int, chunks: int):
         o = o.expand_dims("band")
     if o.ndim != 3 or o.dims[1:] != ("y", "x"):
         raise ValueError(f"orthos[{k}] must be (y, x) or (band, y, x), got dims {o.dims}")
-    return o
+    return _Ortho(o.data, o.shape, o.dtype, o.rio.transform(), o.rio.crs, o.rio.nodata)
 
 
-def _name(o, is_path: bool) -> str:
+def _load(o: _Ortho, keep: bool, off, chunks: int) -> _Ortho:
+    """A raster file's ortho with its data: read whole when ``keep`` (in its own dtype where its
+    no-data is a value; else float32, NaN where its mask says), else opened lazily in chunks on
+    the union grid's (float32, NaN for no data)."""
+    if not keep:
+        import rioxarray
+
+        ys, xs = _edges(off[0], o.shape[1], chunks), _edges(off[1], o.shape[2], chunks)
+        arr = rioxarray.open_rasterio(o.source, masked=True, chunks={"band": -1, "y": ys, "x": xs})
+        return o._replace(data=arr.data, dtype=arr.dtype, nodata=np.nan)
+    from .io.raster import open_raster
+
+    with open_raster(o.source) as ds:
+        if o.by_value:
+            return o._replace(data=ds.read())
+        data = np.ma.filled(ds.read(masked=True).astype(np.float32), np.nan)
+    return o._replace(data=data, dtype=data.dtype, nodata=np.nan)
+
+
+def _nbytes(o: _Ortho) -> int:
+    """Bytes of the ortho's values in memory (as :func:`_load` keeps them)."""
+    return math.prod(o.shape) * (o.dtype.itemsize if o.by_value else 4)
+
+
+def _name(o: _Ortho) -> str:
     """`` (PATH)`` for an ortho opened from a raster file, else ''."""
-    src = o.encoding.get("source") if is_path else None
-    return f" ({src})" if src else ""
+    return f" ({o.source})" if o.source else ""
 
 
 def _components(n: int, edges) -> list[list[int]]:
@@ -191,18 +243,20 @@ def _edges(off: int, size: int, chunks: int) -> tuple:
     return tuple(b - a for a, b in itertools.pairwise(cuts) if b > a)
 
 
-def _align(o, off, chunks: int):
-    """Dask-backed ortho ``o`` at ``off`` rechunked on the union grid's ``chunks``."""
-    ys, xs = _edges(off[0], o.shape[1], chunks), _edges(off[1], o.shape[2], chunks)
-    return o.chunk({o.dims[0]: -1, "y": ys, "x": xs})
+def _align(v, off, chunks: int):
+    """Dask array ``v`` ``(bands, h, w)`` at ``off`` rechunked on the union grid's ``chunks``."""
+    import dask
+
+    ys, xs = _edges(off[0], v.shape[1], chunks), _edges(off[1], v.shape[2], chunks)
+    with dask.config.set({"array.rechunk.method": "tasks"}):  # dask would import distributed (0.3 s) to choose
+        return v.rechunk((-1, ys, xs))
 
 
-def _values(o, chunks: int, off=(0, 0)):
-    """The ortho's values as a ``(bands, h, w)`` Dask array in its own dtype (a NumPy one in chunks on
-    the union grid's)."""
+def _values(v, chunks: int, off=(0, 0)):
+    """The ortho's values ``v`` as a ``(bands, h, w)`` Dask array in their own dtype (a NumPy one in
+    chunks on the union grid's)."""
     import dask.array as da
 
-    v = o.data
     if not isinstance(v, da.Array):
         v = da.from_array(
             np.asarray(v), chunks=(-1, _edges(off[0], v.shape[1], chunks), _edges(off[1], v.shape[2], chunks))
@@ -663,19 +717,23 @@ def mosaic(
         raise ValueError(f"chunks must be a positive number of pixels, got {chunks!r}")
     if isinstance(feather, bool) or not isinstance(feather, (int, np.integer)) or feather < 0:
         raise ValueError(f"feather must be a number of pixels >= 0, got {feather!r}")
-    is_path = [isinstance(o, (str, bytes)) or hasattr(o, "__fspath__") for o in orthos]
-    orthos = [_open(o, k, chunks) for k, o in enumerate(orthos)]
+    orthos = [_open(o, k) for k, o in enumerate(orthos)]
     nb = orthos[0].shape[0]
     for k, o in enumerate(orthos):
         if o.shape[0] != nb:
             raise ValueError(f"orthos[{k}] has {o.shape[0]} bands, orthos[0] {nb}: one number of bands only")
     transform, shape, crs, offsets = _lattice(orthos)
-    lazy = [k for k, o in enumerate(orthos) if isinstance(o.data, da.Array)]
-    if lazy and sum(orthos[k].nbytes for k in lazy) <= _PERSIST_BYTES:
-        # Computed (or read) once here, chunk by chunk, and read from memory by both passes below; in
-        # chunks on the output's (a chunk of the output then reads whole input chunks, no concatenation).
-        for k, o in zip(lazy, dask.persist(*(_align(orthos[k], offsets[k], chunks) for k in lazy))):
-            orthos[k] = o
+    # Raster files and lazy DataArrays, up to _PERSIST_BYTES in all, are read (computed) once here and
+    # kept for both passes below (Dask ones chunk by chunk, in chunks on the output's: a chunk of the
+    # output then reads whole input chunks, no concatenation); larger ones are read twice.
+    lazy = [k for k, o in enumerate(orthos) if o.data is None or isinstance(o.data, da.Array)]
+    keep = sum(_nbytes(orthos[k]) for k in lazy) <= _PERSIST_BYTES
+    for k in lazy:
+        if orthos[k].data is None:
+            orthos[k] = _load(orthos[k], keep, offsets[k], chunks)
+    computed = [k for k in lazy if keep and isinstance(orthos[k].data, da.Array)]
+    for k, v in zip(computed, dask.persist(*(_align(orthos[k].data, offsets[k], chunks) for k in computed))):
+        orthos[k] = orthos[k]._replace(data=v)
     n = len(orthos)
     boxes = [(r, c, o.shape[-2], o.shape[-1]) for o, (r, c) in zip(orthos, offsets)]
     if seam_scale is None:
@@ -686,8 +744,8 @@ def mosaic(
     else:
         s = int(seam_scale)
     shape_c = (-(-shape[0] // s), -(-shape[1] // s))
-    vals = [_values(o, chunks, off) for o, off in zip(orthos, offsets)]
-    nodata = [o.rio.nodata for o in orthos]
+    vals = [_values(o.data, chunks, off) for o, off in zip(orthos, offsets)]
+    nodata = [o.nodata for o in orthos]
     raised_c = None
     if dsm is not None:
         h = da.asarray(dsm.data if hasattr(dsm, "dims") else dsm).astype(float)
@@ -727,12 +785,10 @@ def mosaic(
             moments[p] = moments[p] + v if p in moments else v
     for k in range(n):
         if counts[k] == 0:
-            raise ValueError(f"orthos[{k}]{_name(orthos[k], is_path[k])} has no valid pixel (all no-data)")
+            raise ValueError(f"orthos[{k}]{_name(orthos[k])} has no valid pixel (all no-data)")
     for k in range(n):
         if n > 1 and not any(moments[p][0][0] > 0 for p in moments if k in p):
-            raise ValueError(
-                f"orthos[{k}]{_name(orthos[k], is_path[k])} overlaps no other ortho: nothing to join it by"
-            )
+            raise ValueError(f"orthos[{k}]{_name(orthos[k])} overlaps no other ortho: nothing to join it by")
     groups = _components(n, [p for p in moments if moments[p][0][0] > 0])
     if len(groups) > 1:
         sets = " and ".join("{" + ", ".join(f"orthos[{k}]" for k in g) + "}" for g in groups)
@@ -765,12 +821,12 @@ def mosaic(
             gains[:, b], offs[:, b] = _balance(
                 n,
                 {p: tuple(x[b] for x in v) for p, v in canon.items()},
-                [f"orthos[{k}]{_name(orthos[k], is_path[k])}" for k in order],
+                [f"orthos[{k}]{_name(orthos[k])}" for k in order],
             )
         for k in range(n):
             if np.any(gains[pos[k]] <= 0):
                 raise ValueError(
-                    f"balancing gives orthos[{k}]{_name(orthos[k], is_path[k])} a gain of "
+                    f"balancing gives orthos[{k}]{_name(orthos[k])} a gain of "
                     f"{np.min(gains[pos[k]]):.3g} (<= 0): its grey values do not match the "
                     "others' in the overlaps; mosaic without balancing"
                 )
@@ -817,7 +873,7 @@ def mosaic(
     data = da.block(list(rows.values()))
     arr = dataarray(data[0] if nb == 1 else data, Grid(transform, shape, crs), np.asarray(np.nan), "mosaic")
     given = np.where(labels >= 0, np.asarray(order)[labels], -1)
-    names = [orthos[k].encoding.get("source") if is_path[k] else None for k in range(n)]
+    names = [o.source for o in orthos]
     inputs = [x for x in names if x]
     if source_index is not None:
         _write_source_index(source_index, given, s, Grid(transform, shape, crs), chunks, inputs)
