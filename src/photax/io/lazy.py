@@ -190,6 +190,7 @@ def _write_local(data, path, options: dict, mask=None) -> None:
     import dask
     import dask.array as da
     import dask.local
+    import dask.threaded
     import rasterio
     from dask.base import get_scheduler
 
@@ -214,9 +215,10 @@ def _write_local(data, path, options: dict, mask=None) -> None:
             sources.append(da.asarray(mask).rechunk(sources[0].chunks[-2:]))
             targets.append(writer.mask)
         try:
-            da.store(
-                sources, targets, lock=False, scheduler="sync" if sync else "threads", num_workers=max(threads - 1, 1)
-            )
+            # The schedulers' functions, not their names: a name makes Dask look for a distributed client
+            # (importing distributed: 0.3 s).
+            scheduler = dask.local.get_sync if sync else dask.threaded.get
+            da.store(sources, targets, lock=False, scheduler=scheduler, num_workers=max(threads - 1, 1))
         finally:
             writer.close()
 
