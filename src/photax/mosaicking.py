@@ -34,7 +34,8 @@ images) in every band.
    plus a large penalty on raised objects (``dsm - dem`` above ``raised``)
    so the seam goes round buildings and trees; terminals are the overlap
    pixels touching either image's own area.  Each cut works in the next
-   image's footprint window only.  ``method="voronoi"``: each pixel from the
+   image's footprint window only; above 2048 overlap cells it goes coarse
+   to fine (the cut of 2 x 2 blocks, refined in a band round it).  ``method="voronoi"``: each pixel from the
    image whose nadir is nearest (the simple option).
 3. **Feathering**, per output chunk at full resolution: across each seam
    the images are blended linearly over ``feather`` pixels on either side
@@ -73,6 +74,8 @@ _SEAM_PIXELS = 1 << 22  # default seam grid: at most 4 Mpx (s = 1 up to that) ..
 # ... and at most this many cells in the bounding box of any two orthos' overlap: scipy's maximum flow
 # grows faster than linearly (NGI, 5 m: 0.03 s for 8k cells, 0.2 s for 34k, 6 s for 139k).
 _SEAM_OVERLAP = 1 << 13
+_CUT_CELLS = 2048  # seam cuts of larger overlaps go coarse to fine (_min_cut), ...
+_CUT_BAND = 8  # ... the fine cut within this many cells of the coarse one
 _PERSIST_BYTES = 1 << 30  # raster files and lazy orthos, up to this in all, are read (computed) once and kept
 
 
@@ -258,9 +261,8 @@ def _values(v, chunks: int, off=(0, 0)):
     import dask.array as da
 
     if not isinstance(v, da.Array):
-        v = da.from_array(
-            np.asarray(v), chunks=(-1, _edges(off[0], v.shape[1], chunks), _edges(off[1], v.shape[2], chunks))
-        )
+        edges = (-1, _edges(off[0], v.shape[1], chunks), _edges(off[1], v.shape[2], chunks))
+        v = da.from_array(np.asarray(v), chunks=edges, name=False)  # a random name: no hash of the whole ortho
     return v
 
 
@@ -423,7 +425,57 @@ def _balance(n: int, moments: dict, names=None):
 def _min_cut(cost_h, cost_v, region, src, snk):
     """Labels of ``region`` pixels: True on the source side of the minimum
     cut separating ``src`` from ``snk`` pixels (4-neighbour graph, capacities
-    ``cost_h`` between (r, c) and (r, c+1), ``cost_v`` between (r, c) and (r+1, c))."""
+    ``cost_h`` between (r, c) and (r, c+1), ``cost_v`` between (r, c) and (r+1, c)).
+
+    Coarse to fine above ``_CUT_CELLS`` region cells: the cut of the graph of 2 x 2 blocks (an edge
+    between blocks carries the capacities of the edges it stands for), then, at full resolution, the
+    cut within ``_CUT_BAND`` cells of the coarse seam, the cells beyond it held to their coarse side.
+    The maximum flow's cost grows faster than the graph (scipy: 28 ms for the NGI block's largest
+    overlap, 8.5k cells; 12 ms so, and the same cut on all three of its overlaps; on overlaps of
+    pure texture differences, the worst case, a cut within 6 % of the minimum's cost)."""
+    if region.sum() <= _CUT_CELLS:
+        return _max_flow_cut(cost_h, cost_v, region, src, snk)
+    from scipy import ndimage
+
+    (h, w), (hc, wc) = region.shape, (-(-region.shape[0] // 2), -(-region.shape[1] // 2))
+
+    def blocks(x, fn):
+        pad = np.zeros((2 * hc, 2 * wc), x.dtype)
+        pad[: x.shape[0], : x.shape[1]] = x
+        return pad, fn(pad.reshape(hc, 2, wc, 2), axis=(1, 3))
+
+    _, reg_c = blocks(region, np.any)
+    src_c, snk_c = blocks(src & region, np.any)[1], blocks(snk & region, np.any)[1]
+    src_c, snk_c = src_c & ~snk_c, snk_c & ~src_c
+    if not src_c.any() or not snk_c.any():
+        return _max_flow_cut(cost_h, cost_v, region, src, snk)
+    # The fine edges between region cells crossing from one block to the next (odd column / row).
+    eh = blocks(np.where(region[:, :-1] & region[:, 1:], cost_h, 0), np.sum)[0][:, 1::2]
+    ev = blocks(np.where(region[:-1] & region[1:], cost_v, 0), np.sum)[0][1::2, :]
+    ch = np.minimum(eh.reshape(hc, 2, wc).sum(1)[:, : wc - 1], 2**30)
+    cv = np.minimum(ev.reshape(hc, wc, 2).sum(2)[: hc - 1], 2**30)
+    side = np.repeat(np.repeat(_min_cut(ch, cv, reg_c, src_c, snk_c), 2, 0), 2, 1)[:h, :w] & region
+    dh = (side[:, :-1] != side[:, 1:]) & region[:, :-1] & region[:, 1:]
+    dv = (side[:-1] != side[1:]) & region[:-1] & region[1:]
+    seam = np.zeros((h, w), bool)  # cells on the coarse cut
+    seam[:, :-1] |= dh
+    seam[:, 1:] |= dh
+    seam[:-1] |= dv
+    seam[1:] |= dv
+    free = ndimage.binary_dilation(seam, iterations=_CUT_BAND) & region
+    near = ndimage.binary_dilation(free, structure=ndimage.generate_binary_structure(2, 1)) & region
+    ring = near & ~free  # held to their coarse side
+    src2, snk2 = (src & near) | (ring & side & ~snk), (snk & near) | (ring & ~side & ~src)
+    src2, snk2 = src2 & ~snk2, snk2 & ~src2
+    if not free.any():
+        return side
+    side[near] = _max_flow_cut(cost_h, cost_v, near, src2, snk2)[near]
+    return side
+
+
+def _max_flow_cut(cost_h, cost_v, region, src, snk):
+    """:func:`_min_cut` at full resolution: scipy's maximum flow, then the cells reachable from the
+    source in the residual graph."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import breadth_first_order, maximum_flow
 
