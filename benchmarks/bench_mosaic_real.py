@@ -1,10 +1,10 @@
 """Mosaicking the real NGI block: photax.mosaic against rasterio.merge on the same four orthos (issue 21).
 
-    python benchmarks/bench_mosaic_real.py [--repeat N] [--data DIR]
+    python benchmarks/bench_mosaic_real.py [--repeat N] [--data DIR] [--no-processes]
 
 The four NGI frames of orthority's corpus (``DIR/orthority``, default ../shared/data) are orthorectified
-once by photax at 5 m onto one pixel lattice (not timed).  Then, interleaved (``_common.median_times``),
-the median of ``--repeat`` runs of, from the same files to a GeoTIFF:
+once by photax at 5 m onto one pixel lattice (not timed).  Then, interleaved (one round runs each once,
+in turn), ``--repeat`` rounds of, from the same files to a file:
 
 * ``rasterio.merge``: ``rasterio.merge.merge(paths)`` (first wins, no balancing, no seams) written as a
   deflate GeoTIFF (uint8, nodata 0, like the orthos);
@@ -14,7 +14,13 @@ the median of ``--repeat`` runs of, from the same files to a GeoTIFF:
   on its own, as ``photax.mosaic (COG)``);
 * the seam cut alone (``mosaic`` up to the lazy result: reading, overlap moments, balance, seams).
 
-Then the CPU times (all threads) of merge and of photax to GeoTIFF, medians of ``--repeat`` runs each.
+Each ratio is the median over the rounds of photax / merge in the same round, with its range.  Then
+the CPU times (all threads) of merge and of photax to GeoTIFF, medians of ``--repeat`` runs each.
+
+Whole processes (unless ``--no-processes``), interleaved likewise: ``python -m photax.cli mosaic ...``
+(a COG, start-up included: Python, NumPy, Dask, xarray, rioxarray, SciPy) against a Python script
+calling ``rasterio.merge`` and writing a deflate GeoTIFF, and the same script writing a COG
+(``driver="COG"``, the CLI's output format).
 
 Issue 21's target: the whole photax mosaic within 4x rasterio.merge's wall time (it was ~400x: the seam
 cut alone took 223 s).  The figures go to ``benchmarks/results/bench_mosaic_real.json``.
@@ -25,12 +31,50 @@ from __future__ import annotations
 import argparse
 import os
 import pathlib
+import statistics
 import sys
 import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(__file__))
-from _common import median_time, median_times, ratio_line, record, start
+from _common import load_now, median_time, ratio_line, record, run_process, start
+
+MERGE_SCRIPT = """
+import sys, rasterio, rasterio.merge
+driver, out, paths = sys.argv[1], sys.argv[2], sys.argv[3:]
+arr, transform = rasterio.merge.merge(paths)
+with rasterio.open(paths[0]) as ds:
+    profile = ds.profile
+profile.update(driver=driver, height=arr.shape[1], width=arr.shape[2], transform=transform, compress="deflate")
+if driver == "GTiff":
+    profile.update(tiled=True, blockxsize=256, blockysize=256)
+else:
+    profile = {k: v for k, v in profile.items() if k not in ("tiled", "blockxsize", "blockysize", "interleave")}
+with rasterio.open(out, "w", **profile) as dst:
+    dst.write(arr)
+"""
+
+
+def rounds(fns: dict, repeat: int, timed: bool = False) -> dict[str, list[float]]:
+    """Each function once in turn, ``repeat`` rounds after a warm-up round (a change of the machine's
+    load hits all alike): their wall times (or what they return, with ``timed``), a list each."""
+    for fn in fns.values():
+        fn()
+    out = {k: [] for k in fns}
+    for _ in range(repeat):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            dt = fn()
+            out[k].append(dt if timed else time.perf_counter() - t0)
+    return out
+
+
+def ratio_range(name: str, ours: list[float], peer: list[float]) -> str:
+    """The median times and the median (min-max) over the rounds of ours / peer in the same round."""
+    r = sorted(a / b for a, b in zip(ours, peer))
+    line = ratio_line(name, statistics.median(ours), statistics.median(peer))
+    record(name, ratio_per_round=statistics.median(r), ratio_min=r[0], ratio_max=r[-1])
+    return f"{line}; per round {statistics.median(r):.2f} ({r[0]:.2f}-{r[-1]:.2f})"
 
 
 def make_orthos(data: pathlib.Path, folder: pathlib.Path) -> list[str]:
@@ -67,6 +111,7 @@ def make_orthos(data: pathlib.Path, folder: pathlib.Path) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--no-processes", dest="processes", action="store_false", help="no whole-process comparison")
     ap.add_argument(
         "--data",
         default=str(pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"),
@@ -111,14 +156,14 @@ def main() -> None:
                 cog=cog,
             )
 
-        t = median_times(
+        t = rounds(
             {
                 "merge": merge,
                 "photax": ours,
                 "photax_cog": lambda: ours(True),
                 "seams": lambda: mosaic(paths),
             },
-            repeat=args.repeat,
+            args.repeat,
         )
         print(f"load average {[round(v, 2) for v in os.getloadavg()]} (1, 5, 15 min) at the end")
         with rasterio.open(tmp / "mosaic.tif") as ds:
@@ -127,21 +172,12 @@ def main() -> None:
             f"NGI mosaic {shape[1]} x {shape[0]} px, 3 bands, {dtype}, seam grid {info['seam_scale']} px; gains "
             + ", ".join("/".join(f"{x:.3f}" for x in g) for g in info["gains"])
         )
-        print(ratio_line("photax.mosaic vs rasterio.merge (to GeoTIFF)", t["photax"], t["merge"]) + "  (target <= 4)")
-        print(
-            ratio_line(
-                "photax.mosaic (COG, as the CLI writes) vs rasterio.merge",
-                t["photax_cog"],
-                t["merge"],
-            )
-        )
-        print(
-            ratio_line(
-                "photax.mosaic up to the lazy result (seams) vs rasterio.merge",
-                t["seams"],
-                t["merge"],
-            )
-        )
+        for key, name in (
+            ("photax", "photax.mosaic vs rasterio.merge (to GeoTIFF)"),
+            ("photax_cog", "photax.mosaic (COG, as the CLI writes) vs rasterio.merge"),
+            ("seams", "photax.mosaic up to the lazy result (seams) vs rasterio.merge"),
+        ):
+            print(ratio_range(name, t[key], t["merge"]) + ("  (target <= 4)" if key == "photax" else ""))
         # CPU time (all threads, user + system): less sensitive than wall time to the other jobs of a busy machine.
         cpu = {
             k: median_time(fn, repeat=args.repeat, clock=time.process_time)
@@ -154,6 +190,24 @@ def main() -> None:
                 cpu["merge"],
             )
         )
+        if args.processes:
+            py = [sys.executable]
+            w = rounds(
+                {
+                    "cli": lambda: run_process(
+                        [*py, "-m", "photax.cli", "mosaic", *paths, "-o", str(tmp / "cli.tif"), "--no-progress"]
+                    )[0],  # fmt: skip
+                    "merge": lambda: run_process([*py, "-c", MERGE_SCRIPT, "GTiff", str(tmp / "m.tif"), *paths])[0],
+                    "merge_cog": lambda: run_process([*py, "-c", MERGE_SCRIPT, "COG", str(tmp / "m.tif"), *paths])[0],
+                },
+                args.repeat,
+                timed=True,
+            )
+            print(f"whole processes: load {load_now()} at the end")
+            print(ratio_range("whole process: photax mosaic (COG) vs a rasterio.merge script (GeoTIFF)", w["cli"],
+                              w["merge"]) + "  (target <= 4)")  # fmt: skip
+            print(ratio_range("whole process: photax mosaic (COG) vs a rasterio.merge script (COG)", w["cli"],
+                              w["merge_cog"]))  # fmt: skip
         record(
             "ngi",
             mosaic_px=list(shape),

@@ -10,16 +10,16 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rasterio import Affine
 
-from .camera import FrameCamera
-from .collinearity import ExteriorOrientation
-from .dem import DEM
 from .io.crs import check_dem, describe, require_same
-from .sensor import FrameSensor, GroundSensor, sensor_of, utm_crs
+
+if TYPE_CHECKING:  # the sensor models (JAX) are imported where used: a Grid alone needs no JAX
+    from .collinearity import ExteriorOrientation
+    from .dem import DEM
 
 
 @dataclasses.dataclass(frozen=True)
@@ -144,6 +144,8 @@ def check_resolution(resolution, gsd: float, bounds, what: str = "the image") ->
 def _footprint_outline(sensor, dem: DEM, per_side: int):
     """``(ground (4 per_side, 2), pixel outline (4 per_side, 2))`` of the image's outer pixel edges
     (``sensor``: :mod:`photax.sensor`; ground in its map CRS)."""
+    from .sensor import FrameSensor
+
     if sensor.image_size is None:
         raise ValueError("camera must have an image_size to find the image footprint")
     if isinstance(sensor, FrameSensor):
@@ -168,6 +170,9 @@ def _footprint_outline(sensor, dem: DEM, per_side: int):
 def _sensor(exterior, camera, dem: DEM, crs):
     """The sensor (:func:`photax.sensor.sensor_of`) and the grid's CRS: for a frame the DEM's (or
     ``crs``), for an RPC ``crs`` or else the UTM zone of the scene's centre."""
+    from .camera import FrameCamera
+    from .sensor import GroundSensor, sensor_of, utm_crs
+
     if isinstance(camera, GroundSensor):
         return camera, camera.crs
     if exterior is None and crs is None and not isinstance(camera, FrameCamera):
