@@ -404,3 +404,18 @@ def test_function_and_module_have_different_names():
     for name in ("Grid", "rectify", "orthorectify", "rectify_file", "orthorectify_file"):
         assert getattr(photax, name) is getattr(module, name)
     assert callable(photax.rectify) and not isinstance(photax.rectify, types.ModuleType)
+
+
+def test_kernel_tiles_waste_little_and_a_block_shares_one_shape():
+    # Edge tiles run at the bucketed kernel shape and are cropped: the pixels computed per pixel
+    # kept must stay small for awkward sizes (a 4097-px grid ran its 832-px tiles at 896: 20 %
+    # more work), while the NGI block's frames (tiles 704 x 784, 704 x 800, 688 x 784) must still
+    # share one compiled kernel shape.
+    from photax.rectification._tiling import _layout, tile_windows
+
+    for n in (1000, 4097, 5000, 10001):
+        tiles = list(tile_windows((n, n), 1024))
+        side = _layout(*tiles[0][2:])[0][0]
+        computed = side * len({t[0] for t in tiles})  # kernel rows per column of tiles
+        assert n <= computed <= 1.07 * n, (n, side, computed)
+    assert len({_layout(*shape) for shape in [(704, 784), (704, 800), (688, 784)]}) == 1

@@ -73,12 +73,11 @@ def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, me
 
         return jax.lax.fori_loop(0, (tr // s) * nc, body, jnp.empty((flat.shape[0], tr, tc), dtype=out_dtype))
 
-    def interpolated():
-        # No chunk needs the exact mapping: the whole tile in one fused pass,
-        # positions made from the lattice where they are used.  Measured
-        # faster than any loop over strips: XLA:CPU's in-place
-        # dynamic-update-slice of each strip's result is not vectorised.
-        p = _lattice_cells(plan[0], s)
+    def interpolated(p):
+        # No chunk needs the exact mapping: the whole tile in one pass over
+        # the lattice's positions.  Measured faster than any loop over
+        # strips: XLA:CPU's in-place dynamic-update-slice of each strip's
+        # result is not vectorised.
         v = interpolate(
             flat,
             p[0],
@@ -98,7 +97,16 @@ def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, me
     if approx is None:
         out = loop(True)
     else:
-        out = jax.lax.cond(jnp.any(bad), lambda: loop(False), interpolated)
+        # The lattice's positions are made in one lax.cond and resampled in
+        # another: a cond's operands and results are stored, anything else XLA
+        # fuses, and LLVM vectorises neither the loop that makes the positions
+        # from the f64 plan nor one that also gathers (nearest ran 2x slower
+        # per pixel than bilinear, whose positions XLA happened to store).
+        some_bad = jnp.any(bad)
+        cells = jax.lax.cond(
+            some_bad, lambda r: jnp.zeros((2, tr // s, s, tc), jnp.float32), lambda r: _lattice_cells(r, s), plan[0]
+        )
+        out = jax.lax.cond(some_bad, lambda _: loop(False), interpolated, cells)
     return out, plan[3], jnp.sum(bad)
 
 
