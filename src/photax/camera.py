@@ -51,7 +51,9 @@ from jax import Array
 
 
 def _f64(x) -> Array:
-    return jnp.asarray(x, dtype=float)
+    # numpy first: jnp.asarray of a Python number or list is an eager program of its own (lowered and
+    # looked up in the compile cache in every process); a float64 numpy array is a plain transfer.
+    return jnp.asarray(x if isinstance(x, jax.Array) else np.asarray(x, dtype=float), dtype=float)
 
 
 def _like(v: Array, x: Array) -> Array:

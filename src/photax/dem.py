@@ -43,8 +43,8 @@ class DEM(eqx.Module):
             raise ValueError(f"transform must be finite, got {t.tolist()}")
         if abs(t[0] * t[4] - t[1] * t[3]) == 0:
             raise ValueError("transform is singular")
-        self.heights = jnp.asarray(h)
-        self.transform = jnp.asarray(t)
+        self.heights = jnp.asarray(h, dtype=float)  # with a dtype: a transfer, not an eager program
+        self.transform = jnp.asarray(t, dtype=float)
         self.crs = crs
 
     @classmethod

@@ -178,7 +178,9 @@ class FrameSensor(eqx.Module):
         return jnp.where(ok[:, None], pix, jnp.nan).reshape(*ground.shape[:-1], 2)
 
     def footprint(self, pixel, dem: DEM) -> np.ndarray:
-        ground, flat = (np.asarray(g) for g in _footprint_cached(jnp.asarray(pixel), self.exterior, self.camera, dem))
+        ground, flat = (
+            np.asarray(g) for g in _footprint_cached(jnp.asarray(pixel, dtype=float), self.exterior, self.camera, dem)
+        )
         return np.where(np.isfinite(ground), ground, flat)[:, :2]
 
 
