@@ -43,6 +43,7 @@ from jax import Array
 
 from ._aot import disk_cached
 from ._float64 import as_float64
+from ._linalg import solve2
 
 # Coefficient rows of RPCCamera.coefficients, and the keys GDAL / rasterio / orthority give them.
 COEFFICIENT_KEYS = ("line_num_coeff", "line_den_coeff", "samp_num_coeff", "samp_den_coeff")
@@ -106,10 +107,11 @@ class RPCCamera(eqx.Module):
         k = np.zeros((2, 3)) if correction is None else as_float64(correction, "correction")
         if k.shape != (2, 3):
             raise ValueError(f"correction: expected shape (2, 3), got {k.shape}")
-        self.coefficients = jnp.asarray(c)
-        self.offsets = jnp.asarray(o)
-        self.scales = jnp.asarray(s)
-        self.correction = jnp.asarray(k)
+        # with a dtype: transfers, not eager programs (each lowered and looked up in every process)
+        self.coefficients = jnp.asarray(c, dtype=float)
+        self.offsets = jnp.asarray(o, dtype=float)
+        self.scales = jnp.asarray(s, dtype=float)
+        self.correction = jnp.asarray(k, dtype=float)
         self.image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
 
     # --- construction ---------------------------------------------------------------------------
@@ -172,12 +174,12 @@ class RPCCamera(eqx.Module):
 
     def ground_box(self):
         """``((lon, lat), (dlon, dlat))``: the validity box's centre and half-sides (deg): offsets +- scales."""
-        return np.asarray(self.offsets[:2]), np.asarray(self.scales[:2])
+        return np.asarray(self.offsets)[:2], np.asarray(self.scales)[:2]  # sliced in numpy: no eager program
 
     @property
     def height_range(self) -> tuple[float, float]:
         """The heights the RPC was fitted for (m): height offset +- scale."""
-        off, scale = float(self.offsets[2]), float(self.scales[2])
+        off, scale = float(np.asarray(self.offsets)[2]), float(np.asarray(self.scales)[2])
         return off - scale, off + scale
 
     def invert(self, pixel: Array, h: Array):
@@ -267,7 +269,7 @@ def newton_inverse(camera: RPCCamera, pixel: Array, h: Array, max_steps: int = 2
     def one(p, hh):
         def body(state):
             ll, step, i = state
-            d = jnp.linalg.solve(jac(ll, hh), p - f(ll, hh))
+            d = solve2(jac(ll, hh), p - f(ll, hh))
             return ll + d, jnp.max(jnp.abs(d)), i + 1
 
         def cond(state):

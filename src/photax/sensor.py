@@ -114,7 +114,8 @@ class LocalTransform(eqx.Module):
                 f"{bounds} (a degree-{_DEGREE} polynomial is off by {err:.3g}, {err / extent:.2g} of the "
                 "extent): is the area too large, or does it cross a zone edge or a pole?"
             )
-        return cls(jnp.asarray(center), jnp.asarray(half), jnp.asarray(origin), jnp.asarray(coef), err)
+        f64 = lambda a: jnp.asarray(a, dtype=float)  # noqa: E731 - with a dtype: a transfer, not an eager program
+        return cls(f64(center), f64(half), f64(origin), f64(coef), err)
 
     def __call__(self, xy: Array) -> Array:
         xy = jnp.asarray(xy, dtype=jnp.float64)
@@ -249,8 +250,8 @@ class GroundSensor(eqx.Module):
         if dem.crs is not None and not _same(dem.crs, WGS84):
             (lon, lat), (dl, dp) = np.asarray(self.centre), 1.2 * np.asarray(self.half)
             to_dem = LocalTransform.fit(WGS84, _crs_text(dem.crs), (lon - dl, lat - dp, lon + dl, lat + dp))
-        h0 = jnp.full(len(pixel), _start_height(self.camera, dem))
-        llh, status = (np.asarray(v) for v in _on_dem_cached(self.camera, to_dem, dem, jnp.asarray(pixel), h0))
+        h0 = np.full(len(pixel), _start_height(self.camera, dem))
+        llh, status = (np.asarray(v) for v in _on_dem_cached(self.camera, to_dem, dem, pixel, h0))
         failed = status >= 2
         if failed.any():
             warnings.warn(
@@ -381,7 +382,7 @@ def _heights_under(dem: DEM, grid, crs: str, n: int = 64) -> np.ndarray:
     xy = np.stack([xoff + a * c + b * r, yoff + d * c + e * r], -1).reshape(-1, 2)
     if dem.crs is not None:
         xy = _pyproj(xy, crs, _crs_text(dem.crs))
-    return np.asarray(dem.height(jnp.asarray(xy[:, 0]), jnp.asarray(xy[:, 1])))
+    return np.asarray(dem.height(jnp.asarray(xy[:, 0], dtype=float), jnp.asarray(xy[:, 1], dtype=float)))
 
 
 def _vertical(crs):
