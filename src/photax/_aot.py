@@ -147,23 +147,24 @@ def disk_cached(fn, name: str, compiler_options: dict | None = None):
     ``compiler_options``: those ``fn`` was jitted with, for the exported
     program's compilation.
     """
-    import equinox as eqx
     import jax
+
+    from ._pytree import is_array
 
     memory: dict[str, object] = {}
     locks: dict[str, threading.Lock] = {}  # one per key: two programs are made at once
 
     def _key(args):
         """``(key, path, leaves, treedef, static)`` or None when ``args`` have no safe key."""
-        dyn, static = eqx.partition(args, eqx.is_array)
-        leaves, treedef = jax.tree_util.tree_flatten(dyn)
-        static_leaves, static_def = jax.tree_util.tree_flatten(static)
+        every, treedef = jax.tree_util.tree_flatten(args)
+        arrays = tuple(is_array(x) for x in every)  # traced; the other leaves are static (equinox's partition)
+        leaves = [x for x, a in zip(every, arrays) if a]
+        static = (arrays, [x for x, a in zip(every, arrays) if not a])
         description = repr(
             (
                 name,
                 treedef,
-                static_def,
-                static_leaves,
+                static,
                 compiler_options,
                 [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves],
             )
@@ -223,7 +224,6 @@ def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static, compiler_o
     """``jit(exported.call)`` for the serialised StableHLO at ``path``, made
     (traced once, exported, written) when missing or unreadable; ``fn``
     itself when the function cannot be exported."""
-    import equinox as eqx
     import jax
     from jax import export
 
@@ -236,7 +236,10 @@ def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static, compiler_o
         inner = fn.__wrapped__ if compiler_options else fn
 
         def pure(dyn_leaves):
-            return inner(*eqx.combine(jax.tree_util.tree_unflatten(treedef, dyn_leaves), static))
+            arrays, others = static
+            dyn, rest = iter(dyn_leaves), iter(others)
+            every = [next(dyn) if a else next(rest) for a in arrays]
+            return inner(*jax.tree_util.tree_unflatten(treedef, every))
 
         try:
             exported = export.export(jax.jit(pure))(leaves)

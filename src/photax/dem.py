@@ -8,14 +8,15 @@ stored as ``(a, b, xoff, d, e, yoff)`` (``rasterio.Affine`` order).  A height
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ._pytree import Module, field
 
-class DEM(eqx.Module):
+
+class DEM(Module):
     """A gridded height model, sampled bilinearly.
 
     Attributes:
@@ -26,7 +27,7 @@ class DEM(eqx.Module):
 
     heights: Array
     transform: Array
-    crs: str | None = eqx.field(static=True, default=None)
+    crs: str | None = field(static=True, default=None)
 
     def __init__(self, heights, transform, crs: str | None = None, nodata: float | None = None):
         h = np.asarray(heights, dtype=float)

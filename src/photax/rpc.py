@@ -35,7 +35,6 @@ import math
 import pathlib
 from typing import Literal
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -44,6 +43,7 @@ from jax import Array
 from ._aot import disk_cached
 from ._float64 import as_float64
 from ._linalg import solve2
+from ._pytree import Module, field, filter_jit
 
 # Coefficient rows of RPCCamera.coefficients, and the keys GDAL / rasterio / orthority give them.
 COEFFICIENT_KEYS = ("line_num_coeff", "line_den_coeff", "samp_num_coeff", "samp_den_coeff")
@@ -67,7 +67,7 @@ def _monomials(lph: Array) -> Array:
     )  # fmt: skip
 
 
-class RPCCamera(eqx.Module):
+class RPCCamera(Module):
     """An RPC sensor model (module docstring: the equations and conventions).
 
     Attributes:
@@ -86,7 +86,7 @@ class RPCCamera(eqx.Module):
     offsets: Array
     scales: Array
     correction: Array
-    image_size: tuple[int, int] | None = eqx.field(static=True, default=None)
+    image_size: tuple[int, int] | None = field(static=True, default=None)
 
     def __init__(self, coefficients, offsets, scales, correction=None, image_size=None):
         c = as_float64(coefficients, "coefficients")
@@ -256,7 +256,7 @@ class RPCCamera(eqx.Module):
 GROUND_STATUS = ("converged", "off the DEM", "no convergence (inverse)", "no convergence (height)")
 
 
-@eqx.filter_jit
+@filter_jit
 def newton_inverse(camera: RPCCamera, pixel: Array, h: Array, max_steps: int = 20, tol: float = 1e-12):
     """``(n, 2)`` pixels at ``(n,)`` heights -> ``((n, 2)`` lon, lat, ``(n,)`` converged): Newton's method
     from the scene centre, jittable (:meth:`RPCCamera.to_ground_status` is its checked entry point)."""
@@ -286,7 +286,7 @@ def newton_inverse(camera: RPCCamera, pixel: Array, h: Array, max_steps: int = 2
 _to_ground_cached = disk_cached(newton_inverse, "rpc_to_ground")  # traced once per machine, not per process
 
 
-_forward = disk_cached(eqx.filter_jit(RPCCamera.__call__), "rpc_forward")  # one program, not op by op
+_forward = disk_cached(filter_jit(RPCCamera.__call__), "rpc_forward")  # one program, not op by op
 
 
 # --- readers ------------------------------------------------------------------------------------

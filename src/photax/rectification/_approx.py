@@ -14,11 +14,12 @@ near the tile's positions (ample: 2^-24 relative).
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
+
+from .._pytree import filter_jit
 
 
 def _map_xy(transform: Array, r: Array, c: Array) -> Array:
@@ -27,7 +28,7 @@ def _map_xy(transform: Array, r: Array, c: Array) -> Array:
     return jnp.stack([xoff + a * c[None, :] + b * r[:, None], yoff + d * c[None, :] + e * r[:, None]], axis=-1)
 
 
-@eqx.filter_jit
+@filter_jit
 def _map_tile(model, transform: Array, offset: Array, shape: tuple[int, int]) -> tuple[Array, Array]:
     """Exact input pixel (cols, rows), each ``shape``, of an output tile at ``offset`` (row, col)."""
     r = offset[0] + jnp.arange(shape[0], dtype=float) + 0.5
@@ -154,7 +155,7 @@ def _bounds(origin, size, dtype):
     return lo, hi
 
 
-@eqx.filter_jit
+@filter_jit
 def _tile_positions(model, transform, offset, layout, approx, size):
     """The positions of :func:`_rectify_tile` without resampling (for the
     file path, which must know the input window first): ``(pos, origin, err,
