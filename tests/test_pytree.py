@@ -92,3 +92,12 @@ def test_photax_types_keep_their_static_fields_out_of_the_leaves():
     assert again[0].image_size == (640, 480) and again[1].convention == "omega-phi-kappa"
     assert again[2].crs == "EPSG:32735"
     np.testing.assert_allclose(again[0].image_to_pixel(jnp.zeros(2)), cam.image_to_pixel(jnp.zeros(2)))
+
+
+def test_equality_is_equinox_tree_equal():
+    a, b = Mine(jnp.ones(2), jnp.zeros(3), "n"), Theirs(jnp.ones(2), jnp.zeros(3), "n")
+    assert a == Mine(jnp.ones(2), jnp.zeros(3), "n") and b == Theirs(jnp.ones(2), jnp.zeros(3), "n")
+    assert a != Mine(jnp.ones(2), jnp.ones(3), "n") and b != Theirs(jnp.ones(2), jnp.ones(3), "n")
+    assert a != Mine(jnp.ones(2), jnp.zeros(3), "m") and b != Theirs(jnp.ones(2), jnp.zeros(3), "m")
+    cam = FrameCamera.from_pixels(1000.0, (640, 480))
+    assert cam == FrameCamera.from_pixels(1000.0, (640, 480)) and cam != FrameCamera.from_pixels(999.0, (640, 480))

@@ -7,8 +7,8 @@ tenth of a warm ``photax ortho`` process, which runs only programs photax._aot l
 ``field(static=True)`` (or ``equinox.field(static=True)``: the same metadata), which are its
 auxiliary data, as in equinox; a class may define its own ``__init__`` (setting its fields), and
 is frozen once it returns.  ``equinox`` functions (``filter_jit``, ``tree_at``, ``partition``)
-work on these as on any pytree.  Unlike ``equinox.Module``: equality and hashing are by identity,
-and methods are plain Python methods (not pytrees themselves).  :func:`filter_jit` is
+work on these as on any pytree, and ``==`` is equinox's ``tree_equal`` (equinox imported then).
+Unlike ``equinox.Module``: methods are plain Python methods (not pytrees themselves).  :func:`filter_jit` is
 ``equinox.filter_jit`` made at the first call.
 
 Private utility module: other photax units import its names directly
@@ -77,6 +77,14 @@ class Module:
         if "_initialising" not in self.__dict__:
             raise dataclasses.FrozenInstanceError(f"cannot assign to field {name!r} of a {type(self).__name__}")
         object.__setattr__(self, name, value)
+
+    def __eq__(self, other):
+        import equinox as eqx  # here: == is not on the ortho path
+
+        return eqx.tree_equal(self, other)  # equinox.Module's: same structure, equal leaves
+
+    def __hash__(self):
+        return hash(tuple(jax.tree_util.tree_leaves(self)))  # equinox.Module's
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({', '.join(f'{f.name}={getattr(self, f.name, None)!r}' for f in dataclasses.fields(self))})"
