@@ -140,3 +140,33 @@ _aot.disk_cached(jax.jit(slow), "slow").prefetch(jnp.zeros(3))
     proc = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "photax-aot").glob("slow-*.bin"))) == 1
+
+
+def test_lapack_is_initialised_only_for_programs_that_call_it(tmp_path):
+    """A program without a custom call is loaded in a new process without JAX's LAPACK
+    initialisation (which imports scipy.linalg: a tenth of a warm ``photax ortho``); one that
+    calls LAPACK (a linear solve) still gets it and computes the right answer when loaded
+    from disk by a new process (uninitialised, it would crash or give garbage)."""
+    import subprocess
+    import sys
+
+    script = f"""
+import sys, jax, jax.numpy as jnp, numpy as np
+jax.config.update("jax_enable_x64", True)
+jax.config.update("jax_compilation_cache_dir", {str(tmp_path)!r})
+from photax import _aot
+_aot.enable()
+x = np.linspace(0.0, 1.0, 5)
+np.testing.assert_allclose(_aot.disk_cached(jax.jit(lambda v: jnp.sin(v) * 2.0), "plain")(x), np.sin(x) * 2.0)
+print("scipy.linalg" in sys.modules)
+if sys.argv[1] == "solve":
+    a = np.array([[4.0, 1.0, 0.0], [1.0, 3.0, 1.0], [0.0, 1.0, 2.0]])
+    got = _aot.disk_cached(jax.jit(jnp.linalg.solve), "solve")(a, np.arange(3.0))
+    np.testing.assert_allclose(got, np.linalg.solve(a, np.arange(3.0)), rtol=1e-12)
+"""
+    runs = [subprocess.run([sys.executable, "-c", script, part], capture_output=True, text=True, timeout=120)
+            for part in ("plain", "solve", "plain", "solve")]  # fmt: skip
+    for proc in runs:
+        assert proc.returncode == 0, proc.stderr
+    assert len(list((tmp_path / "photax-aot").glob("*.bin"))) == 2
+    assert runs[2].stdout.split() == ["False"]  # loaded from disk: no LAPACK, no scipy.linalg

@@ -119,6 +119,7 @@ PRIVATE_UTILITIES = (
     "photax._lazy",
     "photax._linalg",
     "photax._triangulation",
+    "photax._pytree",
 )
 
 

@@ -96,6 +96,37 @@ def enable() -> None:
     (in ``<jax_compilation_cache_dir>/photax-aot``, when that is set)."""
     global _ENABLED
     _ENABLED = True
+    _lapack_on_demand()
+
+
+# Set while this thread lowers an exported program that has no custom call at all.
+_PLAIN = threading.local()
+
+
+def _lapack_on_demand() -> None:
+    """Lowering any exported call makes JAX initialise LAPACK for CPU programs
+    (``jax._src.export._export._ensure_backends_initialized``), which imports
+    ``scipy.linalg``: 0.1-0.15 s of CPU in every process, a tenth of a warm
+    ``photax ortho``, for programs that call no LAPACK routine.  A LAPACK routine
+    is only ever reached through a custom call, so a program whose serialised
+    module has none (:func:`_load_or_compile` looks) is lowered without it; any
+    other program, and every ``jax.jit`` of photax or of the user, initialises
+    LAPACK as before.  This is JAX's private function: where it is gone, nothing
+    changes but the time."""
+    try:
+        from jax._src.export import _export
+    except ImportError:
+        return
+    original = getattr(_export, "_ensure_backends_initialized", None)
+    if original is None or getattr(original, "photax_plain", False):
+        return
+
+    def ensure(platforms):
+        if not getattr(_PLAIN, "active", False):
+            original(platforms)
+
+    ensure.photax_plain = True
+    _export._ensure_backends_initialized = ensure
 
 
 def _folder() -> pathlib.Path | None:
@@ -116,23 +147,24 @@ def disk_cached(fn, name: str, compiler_options: dict | None = None):
     ``compiler_options``: those ``fn`` was jitted with, for the exported
     program's compilation.
     """
-    import equinox as eqx
     import jax
+
+    from ._pytree import is_array
 
     memory: dict[str, object] = {}
     locks: dict[str, threading.Lock] = {}  # one per key: two programs are made at once
 
     def _key(args):
         """``(key, path, leaves, treedef, static)`` or None when ``args`` have no safe key."""
-        dyn, static = eqx.partition(args, eqx.is_array)
-        leaves, treedef = jax.tree_util.tree_flatten(dyn)
-        static_leaves, static_def = jax.tree_util.tree_flatten(static)
+        every, treedef = jax.tree_util.tree_flatten(args)
+        arrays = tuple(is_array(x) for x in every)  # traced; the other leaves are static (equinox's partition)
+        leaves = [x for x, a in zip(every, arrays) if a]
+        static = (arrays, [x for x, a in zip(every, arrays) if not a])
         description = repr(
             (
                 name,
                 treedef,
-                static_def,
-                static_leaves,
+                static,
                 compiler_options,
                 [(x.shape, str(x.dtype), bool(getattr(x, "weak_type", False))) for x in leaves],
             )
@@ -192,29 +224,43 @@ def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static, compiler_o
     """``jit(exported.call)`` for the serialised StableHLO at ``path``, made
     (traced once, exported, written) when missing or unreadable; ``fn``
     itself when the function cannot be exported."""
-    import equinox as eqx
     import jax
     from jax import export
 
     try:
-        exported = export.deserialize(bytearray(path.read_bytes()))
+        data = path.read_bytes()
+        exported = export.deserialize(bytearray(data))
     except Exception:  # missing, truncated, or from an incompatible JAX: export again
         # jax.jit refuses compiler options on an inner jit: with options, export the function fn wraps
         # (the options then apply to the exported program's own compilation, below).
         inner = fn.__wrapped__ if compiler_options else fn
 
         def pure(dyn_leaves):
-            return inner(*eqx.combine(jax.tree_util.tree_unflatten(treedef, dyn_leaves), static))
+            arrays, others = static
+            dyn, rest = iter(dyn_leaves), iter(others)
+            every = [next(dyn) if a else next(rest) for a in arrays]
+            return inner(*jax.tree_util.tree_unflatten(treedef, every))
 
         try:
             exported = export.export(jax.jit(pure))(leaves)
         except Exception:  # e.g. a custom call JAX does not guarantee stable: no disk entry
             return fn
+        data = None
         try:
+            data = exported.serialize()
             path.parent.mkdir(parents=True, exist_ok=True)
             with tempfile.NamedTemporaryFile(dir=path.parent, delete=False) as fh:  # atomic: no half-written entry
-                fh.write(exported.serialize())
+                fh.write(data)
             os.replace(fh.name, path)
         except (OSError, ImportError):  # a read-only cache, or no flatbuffers: still compute
             pass
-    return jax.jit(exported.call, compiler_options=compiler_options)
+    jitted = jax.jit(exported.call, compiler_options=compiler_options)
+    if data is None or b"custom_call" in data:
+        return jitted
+    # No custom call, so no LAPACK call: compiled here (lowered without initialising LAPACK,
+    # _lapack_on_demand); the key fixes every argument's shape and type, so one executable serves.
+    _PLAIN.active = True
+    try:
+        return jitted.lower(leaves).compile()
+    finally:
+        _PLAIN.active = False

@@ -41,3 +41,10 @@ def cho_solve(a: jax.Array, b: jax.Array) -> jax.Array:
     d = 1.0 / jnp.sqrt(jnp.diagonal(a, axis1=-2, axis2=-1))
     low = jnp.linalg.cholesky(a * d[..., :, None] * d[..., None, :])
     return jax.scipy.linalg.cho_solve((low, True), b * d[..., :, None]) * d[..., :, None]
+
+
+def solve2(m: jax.Array, b: jax.Array) -> jax.Array:
+    """``m^-1 b`` for one ``(2, 2)`` matrix by Cramer's rule: no LAPACK call, so a program using it
+    loads without JAX's LAPACK initialisation (photax._aot); singular ``m`` -> inf or NaN."""
+    det = m[0, 0] * m[1, 1] - m[0, 1] * m[1, 0]
+    return jnp.stack([m[1, 1] * b[0] - m[0, 1] * b[1], m[0, 0] * b[1] - m[1, 0] * b[0]]) / det

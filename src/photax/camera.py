@@ -43,15 +43,18 @@ from __future__ import annotations
 import functools
 import types
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ._pytree import Module, field
+
 
 def _f64(x) -> Array:
-    return jnp.asarray(x, dtype=float)
+    # numpy first: jnp.asarray of a Python number or list is an eager program of its own (lowered and
+    # looked up in the compile cache in every process); a float64 numpy array is a plain transfer.
+    return jnp.asarray(x if isinstance(x, jax.Array) else np.asarray(x, dtype=float), dtype=float)
 
 
 def _like(v: Array, x: Array) -> Array:
@@ -330,7 +333,7 @@ def _undistort_fisheye(xd, distortion, iterations):
     return jnp.where(inside[..., None], xd * scale[..., None], jnp.nan)
 
 
-class FrameCamera(eqx.Module):
+class FrameCamera(Module):
     """A frame (pinhole) camera with optional lens distortion (Brown–Conrady,
     OpenCV's full model or a Kannala–Brandt fisheye: the module docstring).
 
@@ -352,7 +355,7 @@ class FrameCamera(eqx.Module):
     principal_point: Array
     distortion: Array
     pixel_size: Array | None
-    image_size: tuple[int, int] | None = eqx.field(static=True)
+    image_size: tuple[int, int] | None = field(static=True)
 
     def __init__(
         self,

@@ -16,12 +16,12 @@ a DEM.
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax import Array
 
 from ._float64 import as_float64
+from ._pytree import Module, field
 from .camera import FrameCamera, distort, distortion_jacobian
 from .dem import DEM
 from .rotation import (
@@ -32,7 +32,7 @@ from .rotation import (
 )
 
 
-class ExteriorOrientation(eqx.Module):
+class ExteriorOrientation(Module):
     """Projection centre and attitude of an image.
 
     Attributes:
@@ -48,7 +48,7 @@ class ExteriorOrientation(eqx.Module):
 
     position: Array
     angles: Array
-    convention: str = eqx.field(static=True, default="phi-omega-kappa")
+    convention: str = field(static=True, default="phi-omega-kappa")
 
     def __init__(self, position, angles, convention: Convention = "phi-omega-kappa"):
         if not isinstance(position, jax.core.Tracer):  # a float32 position has lost digits: say so

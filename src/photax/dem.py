@@ -8,14 +8,15 @@ stored as ``(a, b, xoff, d, e, yoff)`` (``rasterio.Affine`` order).  A height
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ._pytree import Module, field
 
-class DEM(eqx.Module):
+
+class DEM(Module):
     """A gridded height model, sampled bilinearly.
 
     Attributes:
@@ -26,7 +27,7 @@ class DEM(eqx.Module):
 
     heights: Array
     transform: Array
-    crs: str | None = eqx.field(static=True, default=None)
+    crs: str | None = field(static=True, default=None)
 
     def __init__(self, heights, transform, crs: str | None = None, nodata: float | None = None):
         h = np.asarray(heights, dtype=float)
@@ -43,8 +44,8 @@ class DEM(eqx.Module):
             raise ValueError(f"transform must be finite, got {t.tolist()}")
         if abs(t[0] * t[4] - t[1] * t[3]) == 0:
             raise ValueError("transform is singular")
-        self.heights = jnp.asarray(h)
-        self.transform = jnp.asarray(t)
+        self.heights = jnp.asarray(h, dtype=float)  # with a dtype: a transfer, not an eager program
+        self.transform = jnp.asarray(t, dtype=float)
         self.crs = crs
 
     @classmethod

@@ -29,7 +29,6 @@ from __future__ import annotations
 import functools
 from typing import Literal, get_args
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax import Array
@@ -134,6 +133,8 @@ def angles_from_matrix(matrix: Array, convention: Convention = "phi-omega-kappa"
         raise ValueError(f"matrix must have shape (..., 3, 3), got {matrix.shape}")
     angles, cos_middle = angles_from_matrix_unchecked(matrix, convention)
     middle = "omega" if convention == "phi-omega-kappa" else "phi"
+    import equinox as eqx  # here: not on the import path of photax ortho (photax._pytree)
+
     return eqx.error_if(
         angles,
         cos_middle < _GIMBAL_COS,

@@ -35,7 +35,6 @@ import math
 import pathlib
 from typing import Literal
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -43,6 +42,8 @@ from jax import Array
 
 from ._aot import disk_cached
 from ._float64 import as_float64
+from ._linalg import solve2
+from ._pytree import Module, field, filter_jit
 
 # Coefficient rows of RPCCamera.coefficients, and the keys GDAL / rasterio / orthority give them.
 COEFFICIENT_KEYS = ("line_num_coeff", "line_den_coeff", "samp_num_coeff", "samp_den_coeff")
@@ -66,7 +67,7 @@ def _monomials(lph: Array) -> Array:
     )  # fmt: skip
 
 
-class RPCCamera(eqx.Module):
+class RPCCamera(Module):
     """An RPC sensor model (module docstring: the equations and conventions).
 
     Attributes:
@@ -85,7 +86,7 @@ class RPCCamera(eqx.Module):
     offsets: Array
     scales: Array
     correction: Array
-    image_size: tuple[int, int] | None = eqx.field(static=True, default=None)
+    image_size: tuple[int, int] | None = field(static=True, default=None)
 
     def __init__(self, coefficients, offsets, scales, correction=None, image_size=None):
         c = as_float64(coefficients, "coefficients")
@@ -106,10 +107,11 @@ class RPCCamera(eqx.Module):
         k = np.zeros((2, 3)) if correction is None else as_float64(correction, "correction")
         if k.shape != (2, 3):
             raise ValueError(f"correction: expected shape (2, 3), got {k.shape}")
-        self.coefficients = jnp.asarray(c)
-        self.offsets = jnp.asarray(o)
-        self.scales = jnp.asarray(s)
-        self.correction = jnp.asarray(k)
+        # with a dtype: transfers, not eager programs (each lowered and looked up in every process)
+        self.coefficients = jnp.asarray(c, dtype=float)
+        self.offsets = jnp.asarray(o, dtype=float)
+        self.scales = jnp.asarray(s, dtype=float)
+        self.correction = jnp.asarray(k, dtype=float)
         self.image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
 
     # --- construction ---------------------------------------------------------------------------
@@ -172,12 +174,12 @@ class RPCCamera(eqx.Module):
 
     def ground_box(self):
         """``((lon, lat), (dlon, dlat))``: the validity box's centre and half-sides (deg): offsets +- scales."""
-        return np.asarray(self.offsets[:2]), np.asarray(self.scales[:2])
+        return np.asarray(self.offsets)[:2], np.asarray(self.scales)[:2]  # sliced in numpy: no eager program
 
     @property
     def height_range(self) -> tuple[float, float]:
         """The heights the RPC was fitted for (m): height offset +- scale."""
-        off, scale = float(self.offsets[2]), float(self.scales[2])
+        off, scale = float(np.asarray(self.offsets)[2]), float(np.asarray(self.scales)[2])
         return off - scale, off + scale
 
     def invert(self, pixel: Array, h: Array):
@@ -254,7 +256,7 @@ class RPCCamera(eqx.Module):
 GROUND_STATUS = ("converged", "off the DEM", "no convergence (inverse)", "no convergence (height)")
 
 
-@eqx.filter_jit
+@filter_jit
 def newton_inverse(camera: RPCCamera, pixel: Array, h: Array, max_steps: int = 20, tol: float = 1e-12):
     """``(n, 2)`` pixels at ``(n,)`` heights -> ``((n, 2)`` lon, lat, ``(n,)`` converged): Newton's method
     from the scene centre, jittable (:meth:`RPCCamera.to_ground_status` is its checked entry point)."""
@@ -267,7 +269,7 @@ def newton_inverse(camera: RPCCamera, pixel: Array, h: Array, max_steps: int = 2
     def one(p, hh):
         def body(state):
             ll, step, i = state
-            d = jnp.linalg.solve(jac(ll, hh), p - f(ll, hh))
+            d = solve2(jac(ll, hh), p - f(ll, hh))
             return ll + d, jnp.max(jnp.abs(d)), i + 1
 
         def cond(state):
@@ -284,7 +286,7 @@ def newton_inverse(camera: RPCCamera, pixel: Array, h: Array, max_steps: int = 2
 _to_ground_cached = disk_cached(newton_inverse, "rpc_to_ground")  # traced once per machine, not per process
 
 
-_forward = disk_cached(eqx.filter_jit(RPCCamera.__call__), "rpc_forward")  # one program, not op by op
+_forward = disk_cached(filter_jit(RPCCamera.__call__), "rpc_forward")  # one program, not op by op
 
 
 # --- readers ------------------------------------------------------------------------------------

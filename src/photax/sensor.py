@@ -33,13 +33,13 @@ from __future__ import annotations
 import warnings
 from typing import Protocol, runtime_checkable
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
 from ._aot import disk_cached
+from ._pytree import Module, field, filter_jit
 from .camera import FrameCamera, distort, distortion_jacobian
 from .collinearity import ExteriorOrientation, image_to_ground
 from .dem import DEM
@@ -71,7 +71,7 @@ def _terms(u: Array, xp=jnp) -> Array:
     return xp.stack([x**i * y ** (d - i) for d in range(_DEGREE + 1) for i in range(d + 1)], axis=-1)
 
 
-class LocalTransform(eqx.Module):
+class LocalTransform(Module):
     """A CRS transformation (pyproj) over a box, as a polynomial of degree 5 in JAX: jittable,
     differentiable, cached with the compiled code (a pyproj call inside it would be a host callback,
     which JAX neither caches on disk nor runs safely on its threads).
@@ -86,7 +86,7 @@ class LocalTransform(eqx.Module):
     half: Array  # (2,) half-sides of the box
     origin: Array  # (2,) the target of the centre
     coefficients: Array  # (21, 2)
-    error: float = eqx.field(static=True)  # the largest error found by the check, target units
+    error: float = field(static=True)  # the largest error found by the check, target units
 
     @classmethod
     def fit(cls, src: str, dst: str, bounds, n: int = 25) -> LocalTransform:
@@ -114,7 +114,8 @@ class LocalTransform(eqx.Module):
                 f"{bounds} (a degree-{_DEGREE} polynomial is off by {err:.3g}, {err / extent:.2g} of the "
                 "extent): is the area too large, or does it cross a zone edge or a pole?"
             )
-        return cls(jnp.asarray(center), jnp.asarray(half), jnp.asarray(origin), jnp.asarray(coef), err)
+        f64 = lambda a: jnp.asarray(a, dtype=float)  # noqa: E731 - with a dtype: a transfer, not an eager program
+        return cls(f64(center), f64(half), f64(origin), f64(coef), err)
 
     def __call__(self, xy: Array) -> Array:
         xy = jnp.asarray(xy, dtype=jnp.float64)
@@ -136,7 +137,7 @@ def _crs_text(crs) -> str:
     return CRS.from_user_input(crs).to_wkt()
 
 
-@eqx.filter_jit
+@filter_jit
 def _footprint(px: Array, exterior: ExteriorOrientation, camera: FrameCamera, dem: DEM) -> tuple[Array, Array]:
     """``(n, 3)`` ground points of the ``(n, 2)`` pixels ``px`` on the DEM,
     and on the plane at the DEM's mean height: one compiled call (kept on
@@ -151,7 +152,7 @@ def _footprint(px: Array, exterior: ExteriorOrientation, camera: FrameCamera, de
 _footprint_cached = disk_cached(_footprint, "ortho_footprint")
 
 
-class FrameSensor(eqx.Module):
+class FrameSensor(Module):
     """A frame camera: the collinearity equations (``docs/conventions.md``); NaN behind the camera and
     past the fold of its lens distortion."""
 
@@ -178,7 +179,9 @@ class FrameSensor(eqx.Module):
         return jnp.where(ok[:, None], pix, jnp.nan).reshape(*ground.shape[:-1], 2)
 
     def footprint(self, pixel, dem: DEM) -> np.ndarray:
-        ground, flat = (np.asarray(g) for g in _footprint_cached(jnp.asarray(pixel), self.exterior, self.camera, dem))
+        ground, flat = (
+            np.asarray(g) for g in _footprint_cached(jnp.asarray(pixel, dtype=float), self.exterior, self.camera, dem)
+        )
         return np.where(np.isfinite(ground), ground, flat)[:, :2]
 
 
@@ -198,7 +201,7 @@ class GroundCamera(Protocol):
     def to_ground(self, pixel: Array, height) -> Array: ...  # (..., 2) -> (..., 2) lon, lat, NaN if not found
 
 
-class GroundSensor(eqx.Module):
+class GroundSensor(Module):
     """A ground camera (:class:`GroundCamera`: an RPC, a push-broom model) seen from a map CRS (module
     docstring): ground ``(X, Y)`` of ``crs`` -> lon, lat (a :class:`LocalTransform` fitted over the
     camera's validity box), ``Z`` the ellipsoidal height; NaN outside the lon, lat validity box widened
@@ -208,7 +211,7 @@ class GroundSensor(eqx.Module):
     to_lonlat: LocalTransform
     centre: Array  # (2,) lon, lat of the camera's validity box (GroundCamera.ground_box)
     half: Array  # (2,) its half-sides (deg)
-    crs: str = eqx.field(static=True)
+    crs: str = field(static=True)
 
     def __init__(self, camera: GroundCamera, crs):
         if crs is None:
@@ -247,8 +250,8 @@ class GroundSensor(eqx.Module):
         if dem.crs is not None and not _same(dem.crs, WGS84):
             (lon, lat), (dl, dp) = np.asarray(self.centre), 1.2 * np.asarray(self.half)
             to_dem = LocalTransform.fit(WGS84, _crs_text(dem.crs), (lon - dl, lat - dp, lon + dl, lat + dp))
-        h0 = jnp.full(len(pixel), _start_height(self.camera, dem))
-        llh, status = (np.asarray(v) for v in _on_dem_cached(self.camera, to_dem, dem, jnp.asarray(pixel), h0))
+        h0 = np.full(len(pixel), _start_height(self.camera, dem))
+        llh, status = (np.asarray(v) for v in _on_dem_cached(self.camera, to_dem, dem, pixel, h0))
         failed = status >= 2
         if failed.any():
             warnings.warn(
@@ -280,7 +283,7 @@ def _same(a, b) -> bool:
     return same_crs(a, b)
 
 
-@eqx.filter_jit
+@filter_jit
 def _on_dem(camera: GroundCamera, to_dem, dem: DEM, pixel: Array, h: Array, max_steps: int = 50, tol: float = 1e-3):
     """``(n, 3)`` lon, lat, h on the DEM of ``(n, 2)`` pixels and ``(n,)`` status (0 converged, 1 off
     the DEM, 2 inverse not converged, 3 height not settled): the iteration of
@@ -379,7 +382,7 @@ def _heights_under(dem: DEM, grid, crs: str, n: int = 64) -> np.ndarray:
     xy = np.stack([xoff + a * c + b * r, yoff + d * c + e * r], -1).reshape(-1, 2)
     if dem.crs is not None:
         xy = _pyproj(xy, crs, _crs_text(dem.crs))
-    return np.asarray(dem.height(jnp.asarray(xy[:, 0]), jnp.asarray(xy[:, 1])))
+    return np.asarray(dem.height(jnp.asarray(xy[:, 0], dtype=float), jnp.asarray(xy[:, 1], dtype=float)))
 
 
 def _vertical(crs):

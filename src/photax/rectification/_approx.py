@@ -14,10 +14,12 @@ near the tile's positions (ample: 2^-24 relative).
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
+
+from .._pytree import filter_jit
 
 
 def _map_xy(transform: Array, r: Array, c: Array) -> Array:
@@ -26,7 +28,7 @@ def _map_xy(transform: Array, r: Array, c: Array) -> Array:
     return jnp.stack([xoff + a * c[None, :] + b * r[:, None], yoff + d * c[None, :] + e * r[:, None]], axis=-1)
 
 
-@eqx.filter_jit
+@filter_jit
 def _map_tile(model, transform: Array, offset: Array, shape: tuple[int, int]) -> tuple[Array, Array]:
     """Exact input pixel (cols, rows), each ``shape``, of an output tile at ``offset`` (row, col)."""
     r = offset[0] + jnp.arange(shape[0], dtype=float) + 0.5
@@ -50,18 +52,22 @@ def _plan(model, transform, offset, layout, approx, size):
     mr, mc = tr // s, tc // s
     r = offset[0] + s * jnp.arange(mr + 1, dtype=float) + 0.5
     c = offset[1] + s * jnp.arange(mc + 1, dtype=float) + 0.5
-    nodes = jnp.asarray(model(_map_xy(transform, r, c)), dtype=float)
     rm, cm = r[:-1] + s / 2, c[:-1] + s / 2  # cell mid-rows and mid-columns
-    # Check positions: the cell centres and the edge midpoints, with the
-    # bilinear (on edges: linear) interpolation of the nodes there.
-    checks = [
-        (model(_map_xy(transform, rm, cm)), 0.25 * (nodes[:-1, :-1] + nodes[1:, :-1] + nodes[:-1, 1:] + nodes[1:, 1:])),
-        (model(_map_xy(transform, r, cm)), 0.5 * (nodes[:, :-1] + nodes[:, 1:])),  # (mr+1, mc): horizontal edges
-        (model(_map_xy(transform, rm, c)), 0.5 * (nodes[:-1, :] + nodes[1:, :])),  # (mr, mc+1): vertical edges
+    # The nodes, then the check positions: the cell centres and the edge midpoints (horizontal edges
+    # (mr+1, mc), vertical edges (mr, mc+1)).  One call of the model on all of them: each call is a
+    # copy of the model in the compiled program, whose size is what a new process pays to load it.
+    sets = [_map_xy(transform, a, b) for a, b in ((r, c), (rm, cm), (r, cm), (rm, c))]
+    ends = np.cumsum([x.shape[0] * x.shape[1] for x in sets])[:-1].tolist()
+    mapped = jnp.asarray(model(jnp.concatenate([x.reshape(-1, 2) for x in sets])), dtype=float)
+    nodes, *exacts = (m.reshape(x.shape) for m, x in zip(jnp.split(mapped, ends), sets))
+    # ... with the bilinear (on edges: linear) interpolation of the nodes there.
+    interps = [
+        0.25 * (nodes[:-1, :-1] + nodes[1:, :-1] + nodes[:-1, 1:] + nodes[1:, 1:]),
+        0.5 * (nodes[:, :-1] + nodes[:, 1:]),
+        0.5 * (nodes[:-1, :] + nodes[1:, :]),
     ]
     errs = []
-    for exact, interp in checks:
-        exact = jnp.asarray(exact, dtype=float)
+    for exact, interp in zip(exacts, interps):
         e = jnp.max(jnp.abs(exact - interp), axis=-1)
         f = jnp.all(jnp.isfinite(exact), axis=-1) & jnp.all(jnp.isfinite(interp), axis=-1)
         n = ~(jnp.any(jnp.isfinite(exact), axis=-1) | jnp.any(jnp.isfinite(interp), axis=-1))
@@ -147,7 +153,7 @@ def _bounds(origin, size, dtype):
     return lo, hi
 
 
-@eqx.filter_jit
+@filter_jit
 def _tile_positions(model, transform, offset, layout, approx, size):
     """The positions of :func:`_rectify_tile` without resampling (for the
     file path, which must know the input window first): ``(pos, origin, err,

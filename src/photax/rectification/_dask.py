@@ -33,10 +33,10 @@ from __future__ import annotations
 import math
 import uuid
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
+from .._pytree import filter_jit
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
 from ..grid import Grid
@@ -49,7 +49,7 @@ _EDGE_POINTS = 9  # points per chunk edge projected to find its window
 _SLACK = 2  # extra input pixels around the window (lens distortion bends the chunk's edges)
 
 
-@eqx.filter_jit
+@filter_jit
 def _project_heights(sensor, xy, heights):
     """``(n, k, 2)`` ground ``xy`` at ``(n, 2)`` heights (low, high) ->
     ``(n, 2, k, 2)`` pixels, NaN where the sensor cannot image the point (:mod:`photax.sensor`)."""

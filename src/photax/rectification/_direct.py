@@ -5,17 +5,17 @@ from __future__ import annotations
 
 import math
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._pytree import filter_jit
 from ..grid import Grid
 from ._approx import _map_tile
 from ._tiling import _check_model, _progress, tile_windows
 
 
-@eqx.filter_jit
+@filter_jit
 def _forward_rows(inverse, offset: Array, shape: tuple[int, int]) -> Array:
     r = offset + jnp.arange(shape[0], dtype=float)
     c = jnp.arange(shape[1], dtype=float)

@@ -10,12 +10,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Literal
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._pytree import filter_jit
 from ..grid import Grid
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
@@ -34,7 +34,7 @@ from ._tiling import (
 )
 
 
-@eqx.filter_jit
+@filter_jit
 def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, method, compute, out_dtype):
     """One output tile, mapping and resampling fused: ``(block, err, n_exact)``.
 
@@ -110,7 +110,7 @@ def _rectify_tile(model, flat, transform, offset, fill, layout, approx, size, me
     return out, plan[3], jnp.sum(bad)
 
 
-@eqx.filter_jit
+@filter_jit
 def _resample_tile(flat, pos, origin, offset, fill, size, window, method, compute, out_dtype):
     """Resample the window ``flat`` (prepared, ``window`` = (h, w)) at
     ``pos`` relative to ``origin`` (image pixels); ``offset`` = origin minus

@@ -3,11 +3,11 @@ and a DEM (:class:`OrthoModel`)."""
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._pytree import Module
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
 from ..grid import Grid, gsd_hint, ortho_grid
@@ -18,7 +18,7 @@ from ..sensor import FrameSensor, GroundSensor, LocalTransform, check_rpc_dem, s
 from ._indirect import rectify
 
 
-class OrthoModel(eqx.Module):
+class OrthoModel(Module):
     """Ground ``(X, Y)`` -> image pixel ``(col, row)`` through a DEM.
 
     ``Z = dem.height(X, Y)`` (bilinear), then the sensor (:mod:`photax.sensor`): for a frame camera
