@@ -118,6 +118,11 @@ ROWS = {
     "bundle-blocks": "bench_bundle.py --grid 10 20 30 --ceres-up-to 30 --no-scipy",
     "scale": "bench_scale.py --size 20000 --chunks 1024 512 2048",
     "uncertainty": "bench_uncertainty.py --repeat 9",
+    "ties": "bench_ties_real.py --repeat 3",
+    "rpc": "bench_rpc.py --repeat 7",
+    "mosaic": "bench_mosaic_real.py --repeat 7",
+    "sharpen": "bench_sharpen.py --repeat 5",
+    "coregister": "bench_coregister.py --repeat 5",
 }
 
 
