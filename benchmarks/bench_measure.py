@@ -22,9 +22,9 @@ directions).  Same parameters for every library where they have them:
   image in float32 (its map is scikit-image's float64 one, F1 printed);
   OpenCV's blur rounds to uint8 and its Canny works on int16 gradients.
 * Prewitt: ``cv2.filter2D`` x, y (CV_64F) + ``cv2.magnitude``.
-* LoG, sigma 2: photax ``log`` (float64 response and its zero crossings) vs
-  two ``cv2.sepFilter2D`` with scipy's kernels (CV_64F: the same filter) and
-  vs ``cv2.GaussianBlur`` (the same 17 taps) + ``cv2.Laplacian`` ksize 1
+* LoG, sigma 2: photax ``log`` (response, float32 for this 8-bit image, and
+  its zero crossings) vs two ``cv2.sepFilter2D`` with scipy's kernels (CV_64F:
+  the same filter; CV_32F on a float32 copy printed too) and vs ``cv2.GaussianBlur`` (the same 17 taps) + ``cv2.Laplacian`` ksize 1
   (OpenCV's usual LoG, a different discretisation: the difference is printed).
 
 Prints first-call (compile + run) and warm times (median of --repeat runs;
@@ -360,6 +360,13 @@ def operators(n: int, rep: int) -> None:
             f_img, cv2.CV_64F, k2, k0, borderType=cv2.BORDER_REFLECT
         )
 
+    f32_img = img.astype(np.float32)
+
+    def cv_log32():  # the same, in float32 as photax computes it for an 8-bit image
+        return cv2.sepFilter2D(f32_img, cv2.CV_32F, k0, k2, borderType=cv2.BORDER_REFLECT) + cv2.sepFilter2D(
+            f32_img, cv2.CV_32F, k2, k0, borderType=cv2.BORDER_REFLECT
+        )
+
     def cv_blur_laplacian():  # OpenCV's own LoG: the same Gaussian (17 taps), then its 3 x 3 Laplacian
         blur = cv2.GaussianBlur(f_img, (len(k0), len(k0)), 2.0, borderType=cv2.BORDER_REFLECT)
         return cv2.Laplacian(blur, cv2.CV_64F, ksize=1, borderType=cv2.BORDER_REFLECT)
@@ -388,7 +395,14 @@ def operators(n: int, rep: int) -> None:
                 "  " + ratio_line("vs GaussianBlur+Laplacian", t_ours, t_bl),
                 f"| CPU-time ratio {c_ours / c_bl:.2f} | response differs by {rel:.1%} of its range",
             )
-            extra = {"opencv_blur_laplacian_s": t_bl, "ratio_blur_laplacian": t_ours / t_bl}
+            t_32, c_32 = wall_and_cpu(cv_log32, rep)
+            print("  " + ratio_line("vs OpenCV in float32", t_ours, t_32), f"| CPU-time ratio {c_ours / c_32:.2f}")
+            extra = {
+                "opencv_blur_laplacian_s": t_bl,
+                "ratio_blur_laplacian": t_ours / t_bl,
+                "opencv_float32_s": t_32,
+                "ratio_opencv_float32": t_ours / t_32,
+            }
         record(
             name.split()[0].lower(),
             photax_first_s=first,

@@ -372,4 +372,42 @@ def test_log_matches_scipy_in_every_border_mode_and_below_the_kernel_size(mode):
         )
         u = (x * 2).astype(np.uint8)
         want = ndi.gaussian_laplace(u.astype(np.float64), 1.3, mode=mode)
-        np.testing.assert_allclose(np.asarray(M.log(u, 1.3, mode=mode)[0]), want, atol=1e-10)
+        got = M.log(u, 1.3, mode=mode)[0]
+        assert got.dtype == np.float32  # 8-bit images are filtered in float32, as Canny smooths them
+        np.testing.assert_allclose(np.asarray(got), want, atol=_f32_log_tol(u, 1.3))
+
+
+def _f32_log_tol(image, sigma):
+    """Rounding bound of a float32 LoG: each output is a sum of products of grey values and kernel
+    weights, so its error is at most a few float32 epsilons (1.19e-7) times sum |weights| (the two
+    separable terms: 2 sum|k2| sum|k0|) times the largest grey value; 4 eps for the two passes and the sum."""
+    k0, k2 = np.abs(ndi_kernel(sigma, 0)), np.abs(ndi_kernel(sigma, 2))
+    return 4 * np.finfo(np.float32).eps * 2 * k2.sum() * k0.sum() * float(np.max(np.abs(image)))
+
+
+def ndi_kernel(sigma, order, truncate=4.0):
+    """scipy.ndimage's 1-D Gaussian (derivative) kernel: its response to a unit impulse."""
+    r = int(truncate * sigma + 0.5)
+    e = np.zeros(2 * r + 1)
+    e[r] = 1.0
+    return ndi.gaussian_filter1d(e, sigma, order=order, truncate=truncate, mode="constant")
+
+
+@pytest.mark.parametrize(
+    "dtype", [np.uint8, np.int8, np.uint16, np.int16, np.float16, np.float32, np.float64, np.int32]
+)
+def test_log_works_in_float32_for_8_16_bit_and_float32_images_float64_otherwise(dtype):
+    """The LoG's working type is Canny's: float32 where it holds the grey values exactly. Against
+    scipy's float64 gaussian_laplace: float32 at the float32 rounding bound, float64 at 1e-10; the
+    zero crossings of a textured image are the float64 ones, pixel for pixel."""
+    x = ndi.gaussian_filter(np.random.default_rng(5).random((64, 72)), 2.0)
+    x = (x - x.min()) / (x.max() - x.min()) * (100 if np.dtype(dtype).itemsize == 1 else 1000)
+    im = x.astype(dtype)
+    resp, edges = M.log(im, 2.0, threshold=0.01)
+    want = ndi.gaussian_laplace(im.astype(np.float64), 2.0)
+    f32 = dtype not in (np.float64, np.int32)
+    assert resp.dtype == (np.float32 if f32 else np.float64)
+    np.testing.assert_allclose(np.asarray(resp), want, atol=_f32_log_tol(im, 2.0) if f32 else 1e-10, rtol=0)
+    _, edges64 = M.log(im.astype(np.float64), 2.0, threshold=0.01)
+    assert np.asarray(edges).sum() > 100
+    np.testing.assert_array_equal(np.asarray(edges), np.asarray(edges64))
