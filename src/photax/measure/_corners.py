@@ -88,12 +88,15 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
     # side's positions are recomputed in the same pass (cheaper than reading them).
     g3 = jnp.stack([gxx, gxy, gyy])
 
-    def solve(c):  # c from cf
+    def weights(c):  # c from cf
         d2 = (px - c[0]) ** 2 + (py - c[1]) ** 2
         # Gauss-Markov weight 1 / (d^2 + d0^2) of an equation with a position and a direction error
         lever = 1.0 if math.isinf(d0) else (exclude**2 + d0**2) / (jnp.maximum(d2, exclude**2) + d0**2)
         ramp = jnp.clip(jnp.sqrt(d2) - exclude + 1.0, 0.0, 1.0) * lever
-        w = jnp.where(disk, ramp, 0.0) if exclude > 0 else disk.astype(_F)
+        return jnp.where(disk, ramp, 0.0) if exclude > 0 else disk.astype(_F)
+
+    def solve(c):
+        w = weights(c)
         s = jnp.sum(g3 * w[None], axis=(1, 2))
         n = jnp.array([[s[0], s[1]], [s[1], s[2]]])
         b = jnp.sum(jnp.stack([g3[0] * px + g3[1] * py, g3[1] * px + g3[2] * py]) * w[None], axis=(1, 2))
@@ -102,21 +105,25 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
         safe = det > 1e-9 * tr**2
         det_s = jnp.where(safe, det, 1.0)
         c_new = jnp.array([n[1, 1] * b[0] - n[0, 1] * b[1], n[0, 0] * b[1] - n[0, 1] * b[0]]) / det_s
-        return jnp.where(safe, c_new, c), n, det, tr, w
+        return jnp.where(safe, c_new, c), (n, det, tr)
 
+    # Each iteration carries its normal matrix: the covariance takes the last one (the
+    # weights of the estimate before the last step, < 1e-4 px away), not a final solve.
     def body(state):
-        c, _, k, _ = state
-        c_new = solve(c)[0]
+        c, _, k, _, _ = state
+        c_new, last = solve(c)
         step = jnp.max(jnp.abs(c_new - c))
-        return c_new, step, k + 1, jnp.all(jnp.isfinite(c_new))
+        return c_new, step, k + 1, jnp.all(jnp.isfinite(c_new)), last
 
     def cond(state):
-        _, step, k, ok = state
+        _, step, k, ok, _ = state
         return (k < iterations) & (step > 1e-4) & ok
 
     c0 = (xy0 - cf).astype(_F) if exclude > 0 else jnp.zeros(2, _F)
-    c, step, k, _ = jax.lax.while_loop(cond, body, (jnp.where(jnp.isfinite(c0), c0, 0.0), jnp.inf, 0, True))
-    _, n, det, tr, w = solve(c)
+    last0 = (jnp.zeros((2, 2), _F), jnp.zeros((), _F), jnp.zeros((), _F))  # iterations=0: NOT_CONVERGED
+    init = (jnp.where(jnp.isfinite(c0), c0, 0.0), jnp.inf, 0, True, last0)
+    c, step, k, ok, (n, det, tr) = jax.lax.while_loop(cond, body, init)
+    w = weights(c)
     # is there a point at all? Förstner's roundness of the plain window's structure matrix
     ww = disk.astype(_F)
     n0 = jnp.array([jnp.sum(ww * gxx), jnp.sum(ww * gxy), jnp.sum(ww * gyy)])
@@ -133,7 +140,7 @@ def _corner_one(img, xy0, *, half, exclude, iterations, q_min, smooth, d0):
             ~finite,
             tr0 <= 1e-12 * (1.0 + jnp.max(jnp.abs(p)) ** 2),
             q < q_min,
-            ~(det > 1e-9 * tr**2) | (step > 1e-4),
+            ~(det > 1e-9 * tr**2) | (step > 1e-4) | ~ok,
             jnp.max(jnp.abs(c.astype(jnp.float64) + cf - xy0)) > half,
         ],
         [
