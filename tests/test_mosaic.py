@@ -405,3 +405,22 @@ def test_grow_and_box_share_are_scipy_ndimage_s():
         mask = rng.random(shape) > 0.9
         for n in (1, 3):
             np.testing.assert_array_equal(_grow(mask, n), ndimage.binary_dilation(mask, iterations=n))
+
+
+def test_cli_mosaic_of_ortho_files_imports_neither_jax_nor_distributed(scene, tmp_path):
+    """A mosaic of ortho files needs no sensor model: ``photax mosaic`` (a fresh process) loads neither
+    JAX (0.4 s of start-up) nor dask.distributed (0.3-0.9 s), as Python's own import log shows (issue 21's
+    whole-process comparison with rasterio.merge); the mosaic is written."""
+    import subprocess
+    import sys
+
+    a, b, _, _ = scene
+    for name, o in (("a", a), ("b", b)):
+        o.rio.to_raster(tmp_path / f"{name}.tif")
+    out = tmp_path / "m.tif"
+    cmd = [sys.executable, "-X", "importtime", "-m", "photax.cli", "mosaic", "a.tif", "b.tif", "-o", str(out)]
+    run = subprocess.run([*cmd, "--no-progress"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    imported = {line.split("|")[-1].strip() for line in run.stderr.splitlines() if line.startswith("import time:")}
+    assert "photax.mosaicking" in imported and out.exists()  # the log is read, the mosaic made
+    assert "jax" not in imported and "distributed" not in imported

@@ -36,15 +36,13 @@ def input_file(path, what: str) -> pathlib.Path:
         ValueError: one line naming ``what`` (e.g. "GCP file") and the path:
             missing, a folder where a file is expected, or not readable.
     """
-    from ..io.orientation import opensfm_frame
+    from ..io.files import check_regular, opensfm_frame  # not io.orientation: it imports JAX (0.4 s)
 
     p = pathlib.Path(opensfm_frame(path)[1])  # grid:FILE, topocentric:FILE (a reconstruction.json's frame)
     if not p.exists():
         raise ValueError(f"{what} {p}: no such file")
     if p.is_dir():
         raise ValueError(f"{what} {p}: is a folder, expected a file")
-    from ..io.files import check_regular
-
     try:
         check_regular(p, what)  # a FIFO would block the open() below, a device never end
     except ValueError as exc:

@@ -376,3 +376,15 @@ def load_json(path, text: str):
         raise file_error(path, text.count("\n", 0, at) + 1 if at >= 0 else None, f"not valid JSON: {exc}") from None
     except ValueError as exc:  # an integer with too many digits
         raise file_error(path, None, f"not valid JSON: {exc}") from None
+
+
+def opensfm_frame(path) -> tuple[str | None, object]:
+    """``(frame, file)`` of ``grid:FILE`` or ``topocentric:FILE`` (a ``reconstruction.json``
+    whose frame its ``gps_position`` do not tell: :func:`photax.io.read_opensfm_shots`),
+    ``(None, path)`` for anything else (a file of that very name included)."""
+    text = path if isinstance(path, str) else None
+    if text is not None and not os.path.exists(text):
+        for frame in ("grid", "topocentric"):
+            if text.startswith(frame + ":") and os.path.isfile(text[len(frame) + 1 :]):
+                return frame, text[len(frame) + 1 :]
+    return None, path

@@ -32,7 +32,7 @@ from ..collinearity import ExteriorOrientation
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
 from .exif import read_exif_exteriors
-from .files import MAX_BYTES, check_regular, excerpt, file_error, load_json, load_yaml, read_text
+from .files import MAX_BYTES, check_regular, excerpt, file_error, load_json, load_yaml, opensfm_frame, read_text
 from .odm import is_odm_cameras, read_odm_cameras
 from .opensfm import is_reconstruction, read_opensfm_cameras, read_opensfm_shots
 from .orthority import read_orthority_exterior_crs, read_orthority_geojson, read_orthority_interior
@@ -299,20 +299,6 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
             raise ValueError(f"{path}: no orientation for image {stem!r}")
         table[n] = rows[stem]
     return table, crs
-
-
-def opensfm_frame(path) -> tuple[str | None, object]:
-    """``(frame, file)`` of ``grid:FILE`` or ``topocentric:FILE`` (a ``reconstruction.json``
-    whose frame its ``gps_position`` do not tell: :func:`photax.io.read_opensfm_shots`),
-    ``(None, path)`` for anything else (a file of that very name included)."""
-    import os
-
-    text = path if isinstance(path, str) else None
-    if text is not None and not os.path.exists(text):
-        for frame in ("grid", "topocentric"):
-            if text.startswith(frame + ":") and os.path.isfile(text[len(frame) + 1 :]):
-                return frame, text[len(frame) + 1 :]
-    return None, path
 
 
 def exif_attitude(path) -> str | None:
