@@ -717,64 +717,55 @@ def _frame(exterior, covariance, camera, camera_covariance, image):
 def _rpc(refinement, covariance, camera, grid):
     """An RPC's sensor (in the grid's CRS) and the ``(6, 6)`` covariance of its correction."""
     if isinstance(refinement, RPCRefinement):
-        if camera is not None and camera is not refinement.camera:
-            raise ValueError("camera: give None with an RPCRefinement (its refined camera is used)")
-        camera = refinement.camera
         terms = {"shift": [0], "shift-drift": [0, 2], "affine": [0, 1, 2]}[refinement.model]
-        index = terms + [3 + t for t in terms]
-        cov = np.zeros((6, 6))
-        if covariance is None:
-            if not np.all(np.isfinite(refinement.covariance)):
-                raise ValueError("the refinement has no finite covariance (no redundancy)")
-            cov[np.ix_(index, index)] = refinement.covariance
-        else:
-            cov = np.asarray(covariance, dtype=float)
-    elif refinement is not None:
-        raise ValueError("exterior: None or an RPCRefinement with an RPC camera (it carries its own orientation)")
+        adjusted = terms + [3 + t for t in terms]
     else:
-        cov = np.asarray(covariance, dtype=float) if covariance is not None else None
-    if cov is None or cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
-        got = None if cov is None else cov.shape
-        raise ValueError(
-            f"covariance: an RPC's is the finite (6, 6) one of its correction (a0, a1, a2, b0, b1, b2), got {got}"
-        )
-    if np.min(np.linalg.eigvalsh(0.5 * (cov + cov.T))) < -1e-12 * max(np.abs(cov).max(), 1e-300):
-        raise ValueError("covariance must be symmetric positive semi-definite")
-    if camera.image_size is None:
-        raise ValueError("the RPC camera must have an image_size")
-    return GroundSensor(camera, grid.crs), cov
+        adjusted = None
+    return _ground_sensor(
+        refinement, RPCRefinement, "refinement", adjusted, covariance, camera, grid,
+        names=("a0", "a1", "a2", "b0", "b1", "b2"), what="an RPC's", of="its correction",
+    )  # fmt: skip
 
 
 def _pushbroom(resection, covariance, camera, grid):
     """A push-broom model's sensor (in the grid's CRS) and the ``(P, P)`` covariance of all its
     parameters (:attr:`photax.PushbroomCamera.parameter_names`): a resection's covariance of those it
     adjusted, zeros for those it held."""
-    if isinstance(resection, PushbroomResection):
-        if camera is not None and camera is not resection.camera:
-            raise ValueError("camera: give None with a PushbroomResection (its adjusted camera is used)")
-        camera = resection.camera
-        names = camera.parameter_names
-        index = [names.index(p) for p in resection.parameters]
-        cov = np.zeros((len(names), len(names)))
+    names = (resection.camera if isinstance(resection, PushbroomResection) else camera).parameter_names
+    adjusted = [names.index(p) for p in resection.parameters] if isinstance(resection, PushbroomResection) else None
+    return _ground_sensor(
+        resection, PushbroomResection, "resection", adjusted, covariance, camera, grid,
+        names=tuple(names), what="a push-broom model's", of="its parameters",
+    )  # fmt: skip
+
+
+def _ground_sensor(result, kind, noun, adjusted, covariance, camera, grid, *, names, what, of):
+    """A ground camera's sensor and the covariance of its ``names``: ``covariance`` when given, else
+    ``result``'s (a ``kind``: its camera, its covariance of the parameters ``adjusted``, zeros for the
+    rest); every covariance checked finite, of the right size and positive semi-definite."""
+    n = len(names)
+    if isinstance(result, kind):
+        if camera is not None and camera is not result.camera:
+            raise ValueError(f"camera: give None with a {kind.__name__} (its camera is used)")
+        camera = result.camera
         if covariance is None:
-            if not np.all(np.isfinite(resection.covariance)):
-                raise ValueError("the resection has no finite covariance (no redundancy, no a-priori sigma)")
-            cov[np.ix_(index, index)] = resection.covariance
+            if not np.all(np.isfinite(result.covariance)):
+                raise ValueError(f"the {noun} has no finite covariance (no redundancy)")
+            cov = np.zeros((n, n))
+            cov[np.ix_(adjusted, adjusted)] = result.covariance
         else:
             cov = np.asarray(covariance, dtype=float)
-    elif resection is not None:
-        raise ValueError("exterior: None or a PushbroomResection with a push-broom camera (it carries its orientation)")
+    elif result is not None:
+        raise ValueError(f"exterior: None or a {kind.__name__} with this camera (it carries its own orientation)")
     else:
         cov = np.asarray(covariance, dtype=float) if covariance is not None else None
-    p = len(camera.parameter_names)
-    if cov is None or cov.shape != (p, p) or not np.all(np.isfinite(cov)):
+    if cov is None or cov.shape != (n, n) or not np.all(np.isfinite(cov)):
         got = None if cov is None else cov.shape
-        raise ValueError(
-            f"covariance: a push-broom model's is the finite ({p}, {p}) one of its parameters "
-            f"({', '.join(camera.parameter_names)}), got {got}"
-        )
+        raise ValueError(f"covariance: {what} is the finite ({n}, {n}) one of {of} ({', '.join(names)}), got {got}")
     if np.min(np.linalg.eigvalsh(0.5 * (cov + cov.T))) < -1e-12 * max(np.abs(cov).max(), 1e-300):
         raise ValueError("covariance must be symmetric positive semi-definite")
+    if getattr(camera, "image_size", 0) is None:
+        raise ValueError("the camera must have an image_size")
     return GroundSensor(camera, grid.crs), cov
 
 
