@@ -204,6 +204,20 @@ def _sane_camera(cam) -> None:
         assert min(cam.image_size) > 0
 
 
+def _sane_cameras(cams) -> None:
+    """A non-empty mapping of sane cameras."""
+    assert cams
+    for cam in cams.values():
+        _sane_camera(cam)
+
+
+def _sane_orientations(eos) -> None:
+    """A non-empty mapping of orientations with finite positions and angles."""
+    assert eos
+    for eo in eos.values():
+        _finite(eo.position, eo.angles)
+
+
 @pytest.fixture(scope="module")
 def work(tmp_path_factory):
     return tmp_path_factory.mktemp("fuzz")
@@ -340,12 +354,7 @@ def test_fuzz_read_orthority_interior(work, data):
     path = work / "int_param.yaml"
     path.write_bytes(data)
 
-    def sane(cams):
-        assert cams
-        for cam in cams.values():
-            _sane_camera(cam)
-
-    _expect_valueerror_or_sane(read_orthority_interior, path, sane)
+    _expect_valueerror_or_sane(read_orthority_interior, path, _sane_cameras)
 
 
 @FUZZ
@@ -354,12 +363,9 @@ def test_fuzz_read_orthority_exterior(work, data):
     path = work / "xyz_opk.csv"
     path.write_bytes(data)
 
-    def sane(eos):
-        assert eos
-        for eo in eos.values():
-            _finite(eo.position, eo.angles)
-
-    _expect_valueerror_or_sane(read_orthority_exterior, path, sane, r": no exterior orientations$", lines=True)
+    _expect_valueerror_or_sane(
+        read_orthority_exterior, path, _sane_orientations, r": no exterior orientations$", lines=True
+    )
 
 
 ORTHO_LLA = [
@@ -881,12 +887,7 @@ def test_fuzz_read_metashape_calibration(work, data):
     path = work / "calib.xml"
     path.write_bytes(data)
 
-    def sane(cams):
-        assert cams
-        for cam in cams.values():
-            _sane_camera(cam)
-
-    _expect_valueerror_or_sane(read_metashape_calibration, path, sane)
+    _expect_valueerror_or_sane(read_metashape_calibration, path, _sane_cameras)
 
 
 @FUZZ
@@ -897,12 +898,7 @@ def test_fuzz_read_opk_export(work, data):
     path = work / "opk.txt"
     path.write_bytes(data)
 
-    def sane(table):
-        assert table
-        for eo in table.values():
-            _finite(eo.position, eo.angles)
-
-    _expect_valueerror_or_sane(read_opk_export, path, sane, r": no camera orientations$", lines=True)
+    _expect_valueerror_or_sane(read_opk_export, path, _sane_orientations, r": no camera orientations$", lines=True)
 
 
 PIX4D_CAMS = [
