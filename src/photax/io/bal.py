@@ -320,6 +320,19 @@ def bal_problem(data: BALData) -> BundleProblem:
     )  # fmt: skip
 
 
+def block_state(problem_or_result):
+    """``(problem, cameras, rotations world_from_camera, centres, points)`` of a
+    :class:`photax.BundleProblem` (its start) or a :class:`photax.BundleResult` (adjusted): what the
+    block writers (BAL, COLMAP) write."""
+    if isinstance(problem_or_result, BundleResult):
+        res = problem_or_result
+        return res.problem, res.cameras, res.rotation, res.exterior.position, res.points
+    if isinstance(problem_or_result, BundleProblem):
+        prob = problem_or_result
+        return prob, prob.cameras, prob.exterior.rotation, prob.exterior.position, prob.points
+    raise ValueError(f"expected a BundleProblem or BundleResult, got {type(problem_or_result).__name__}")
+
+
 def write_bal(problem_or_result, path, inputs=()) -> pathlib.Path:
     """Write a :class:`photax.BundleProblem` or an adjusted
     :class:`photax.BundleResult` as a BAL file (atomically), e.g. to hand an
@@ -329,17 +342,7 @@ def write_bal(problem_or_result, path, inputs=()) -> pathlib.Path:
     camera); a result writes its adjusted cameras, orientations and points.
     ``inputs``: files the output may not overwrite.
     """
-    if isinstance(problem_or_result, BundleResult):
-        res = problem_or_result
-        prob = res.problem
-        cams, rot, centres, points = res.cameras, res.rotation, res.exterior.position, res.points
-    elif isinstance(problem_or_result, BundleProblem):
-        prob = problem_or_result
-        cams, rot, centres, points = prob.cameras, prob.exterior.rotation, prob.exterior.position, prob.points
-    else:
-        raise ValueError(
-            f"problem_or_result must be a BundleProblem or BundleResult, got {type(problem_or_result).__name__}"
-        )
+    prob, cams, rot, centres, points = block_state(problem_or_result)
     if not np.array_equal(prob.image_camera, np.arange(prob.n_images)):
         raise ValueError("BAL needs one camera per image (image_camera = arange(n_images))")
     data = BALData(

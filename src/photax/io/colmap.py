@@ -62,7 +62,7 @@ import warnings
 import numpy as np
 
 from ..camera import FrameCamera
-from .files import excerpt, file_error, read_bytes, read_text, split_lines
+from .files import excerpt, file_error, head_text, read_bytes, read_text, split_lines
 
 #: COLMAP's camera models: ``name -> (model id, parameter names)``
 #: (``src/colmap/sensor/models.h``, COLMAP 4).
@@ -785,17 +785,9 @@ def colmap_model_from_problem(problem_or_result) -> ColmapModel:
     track their image and index.  Colours are grey 128 and errors -1
     (unknown).
     """
-    from ..bundle import BundleProblem, BundleResult
+    from .bal import block_state
 
-    if isinstance(problem_or_result, BundleResult):
-        res = problem_or_result
-        prob = res.problem
-        cams, rot, centres, points = res.cameras, res.rotation, res.exterior.position, res.points
-    elif isinstance(problem_or_result, BundleProblem):
-        prob = problem_or_result
-        cams, rot, centres, points = prob.cameras, prob.exterior.rotation, prob.exterior.position, prob.points
-    else:
-        raise ValueError(f"expected a BundleProblem or BundleResult, got {type(problem_or_result).__name__}")
+    prob, cams, rot, centres, points = block_state(problem_or_result)
     from ..camera import opencv_extrinsics
 
     cameras = {j + 1: photax_camera_to_colmap(c) for j, c in enumerate(cams)}
@@ -865,12 +857,9 @@ def is_colmap_file(path, kind: str) -> bool:
         return path.is_file()
     if path.suffix.lower() != ".txt" or not path.is_file():
         return False
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(4096).decode("utf-8", "replace")
-    except OSError:
-        return False
-    first = next((ln.split() for ln in head.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), [])
+    first = next(
+        (ln.split() for ln in head_text(path, 4096).splitlines() if ln.strip() and not ln.lstrip().startswith("#")), []
+    )
     if kind == "cameras":
         return len(first) >= 4 and first[0].isdigit() and first[1] in MODELS and first[2].isdigit()
     try:

@@ -388,3 +388,17 @@ def opensfm_frame(path) -> tuple[str | None, object]:
             if text.startswith(frame + ":") and os.path.isfile(text[len(frame) + 1 :]):
                 return frame, text[len(frame) + 1 :]
     return None, path
+
+
+def head_text(path, n: int) -> str:
+    """The first ``n`` bytes of a regular file as text, a byte-order mark dropped ("" for anything
+    else, or a file that cannot be opened: the reader reports it); for the formats' cheap sniffing
+    tests (``is_*``), which never open a FIFO or device."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        return ""
+    try:
+        with path.open("rb") as fh:
+            return fh.read(n).decode("utf-8", "replace").lstrip("\ufeff")
+    except OSError:
+        return ""

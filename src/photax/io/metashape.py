@@ -64,7 +64,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from .files import excerpt, file_error, read_text, split_lines
+from .files import excerpt, file_error, head_text, read_text, split_lines
 
 _TERMS = ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2", "p3", "p4")
 _NOT_CONVERTED = ("k4", "p3", "p4", "b2")
@@ -86,19 +86,8 @@ def is_metashape_xml(path) -> bool:
     path = pathlib.Path(path)
     if path.suffix.lower() != ".xml":
         return False
-    head = _head(path, 4096)
+    head = head_text(path, 4096)
     return "<calibration" in head or "<document" in head
-
-
-def _head(path: pathlib.Path, n: int) -> str:
-    """The first ``n`` bytes of a regular file as text ("" for anything else: the reader reports it)."""
-    if not path.is_file():  # never open a FIFO or device to sniff it
-        return ""
-    try:
-        with path.open("rb") as fh:
-            return fh.read(n).decode("utf-8", "replace").lstrip("\ufeff")
-    except OSError:
-        return ""
 
 
 def _calibration(path, name, cal: ET.Element) -> FrameCamera:
@@ -190,7 +179,7 @@ def read_metashape_calibration(path) -> dict[str | None, FrameCamera]:
 
 def is_opk_export(path) -> bool:
     """Whether ``path`` starts like a Metashape OPK export or a Pix4D external-parameters file."""
-    head = _head(pathlib.Path(path), 2048)
+    head = head_text(path, 2048)
     first = next((ln.strip() for ln in head.splitlines() if ln.strip()), "")
     return first.startswith("# Cameras (") or first.startswith("# PhotoID") or first.lower().startswith("imagename")
 

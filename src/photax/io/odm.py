@@ -27,7 +27,7 @@ import warnings
 import numpy as np
 
 from ..camera import FrameCamera
-from .files import excerpt, file_error, load_json, read_text, split_lines
+from .files import excerpt, file_error, head_text, load_json, read_text, split_lines
 from .gcp import odm_crs_text
 
 
@@ -208,15 +208,7 @@ def write_odm_geo(path, positions, crs, *, inputs=()) -> pathlib.Path:
 def is_odm_geo(path) -> bool:
     """Whether ``path`` starts like ODM's ``geo.txt``: a CRS line, then ``image_name geo_x geo_y ...``
     (a name, not a number, first: ODM's ``gcp_list.txt`` starts its lines with coordinates)."""
-    path = pathlib.Path(path)
-    if not path.is_file():
-        return False
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(4096).decode("utf-8", "replace").lstrip("\ufeff")
-    except OSError:
-        return False
-    lines = [t for t in head.splitlines() if t.strip() and not t.lstrip().startswith("#")][:2]
+    lines = [t for t in head_text(path, 4096).splitlines() if t.strip() and not t.lstrip().startswith("#")][:2]
     if len(lines) < 2:
         return False
     first, second = lines[0].strip(), lines[1].split()

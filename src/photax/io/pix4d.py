@@ -59,7 +59,7 @@ import re
 import numpy as np
 
 from ..camera import FrameCamera
-from .files import excerpt, file_error, read_text, split_lines
+from .files import excerpt, file_error, head_text, read_text, split_lines
 
 MAGIC = "Pix4D camera calibration file"
 _KEYS = ("F", "Px", "Py", "K1", "K2", "K3", "T1", "T2")
@@ -68,15 +68,7 @@ _SENSOR = re.compile(r"#\s*Focal Length.*sensor width of\s+(\S+?)\s*x\s*(\S+?)\s
 
 def is_pix4d_cam(path) -> bool:
     """Whether ``path`` starts like a Pix4D ``.cam`` (its first line, cheaply)."""
-    path = pathlib.Path(path)
-    if not path.is_file():
-        return False
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(256).decode("utf-8", "replace").lstrip("\ufeff")
-    except OSError:
-        return False
-    return head.lstrip().startswith(MAGIC)
+    return head_text(path, 256).lstrip().startswith(MAGIC)
 
 
 def read_pix4d_cam(path, image_size: tuple[int, int] | None = None) -> FrameCamera:
