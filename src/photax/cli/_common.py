@@ -69,6 +69,14 @@ def input_folder(path, what: str) -> pathlib.Path:
     return p
 
 
+def output_folder(path, what: str) -> pathlib.Path:
+    """``path`` as a Path after checking it is a folder or nothing yet (the writers make it)."""
+    p = pathlib.Path(path)
+    if p.exists() and not p.is_dir():
+        raise ValueError(f"{what} {p}: is a file, expected a folder")
+    return p
+
+
 def read_gcps_3d(path, format: str = "auto"):
     """:func:`photax.io.read_gcps` for a command that needs heights: a 2-D file (QGIS ``.points``)
     is refused."""

@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     from ..io.orientation import read_interior
     from ..io.raster import read_dem, read_geotiff
     from ..io.results import write_json
-    from ._common import check_crs, input_file, read_gcps_3d
+    from ._common import check_crs, input_file, output_folder, read_gcps_3d
 
     gcp_path = input_file(args.gcps, "GCP file")
     input_file(args.camera, "camera file")
@@ -92,9 +92,7 @@ def run(args: argparse.Namespace) -> int:
         input_file(args.image, "image")
     inputs = [p for p in (args.gcps, args.camera, args.dem, args.image) if p]
     if args.out_dir is not None:
-        out = pathlib.Path(args.out_dir)
-        if out.exists() and not out.is_dir():
-            raise ValueError(f"--out-dir {out}: is a file, expected a folder")
+        out = output_folder(args.out_dir, "--out-dir")
         for name in ("comparison.md", "comparison.json", "error_maps.png", "rmse.png", "rectified.png"):
             check_output_path(out / name, inputs)  # fail before the work, not after
     if args.resolution is not None and not args.resolution > 0:

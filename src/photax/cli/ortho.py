@@ -33,7 +33,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from ._common import NODATA_HELP, RESAMPLING, nodata_value
+from ._common import NODATA_HELP, RESAMPLING, nodata_value, output_folder
 
 
 def add_parser(sub) -> None:
@@ -249,9 +249,7 @@ def _block_outputs(args: argparse.Namespace, inputs: list) -> list:
 
     from ..io.atomic import check_output_path, output_name
 
-    folder = pathlib.Path(args.out_dir)
-    if folder.exists() and not folder.is_dir():
-        raise ValueError(f"--out-dir {folder}: is a file, expected a folder")
+    folder = output_folder(args.out_dir, "--out-dir")
     outputs = [folder / f"{output_name(pathlib.Path(i).stem, 'image name')}_ortho.tif" for i in args.image]
     seen = {}
     for image, out in zip(args.image, outputs):
@@ -315,15 +313,12 @@ def _read_camera(args: argparse.Namespace, images: list):
 
 def _export_params(args: argparse.Namespace, camera, exteriors: dict, crs) -> None:
     """``--export-params DIR``: the orientations used, as orthority's files (before the orthos)."""
-    import pathlib
 
     from ..io.orthority import write_orthority_exterior, write_orthority_geojson, write_orthority_interior
 
     if args.export_params is None:
         return
-    folder = pathlib.Path(args.export_params)
-    if folder.exists() and not folder.is_dir():
-        raise ValueError(f"--export-params {folder}: is a file, expected a folder")
+    folder = output_folder(args.export_params, "--export-params")
     inputs = [*(args.image if isinstance(args.image, list) else [args.image]), args.camera, args.exterior]
     inputs += [args.dem] if args.dem is not None else []
     name = args.camera_name or "photax_camera"
@@ -341,9 +336,7 @@ def _export_rpcs(args: argparse.Namespace, cameras: dict, inputs: list) -> None:
 
     from ..io.orthority import write_orthority_rpc
 
-    folder = pathlib.Path(args.export_params)
-    if folder.exists() and not folder.is_dir():
-        raise ValueError(f"--export-params {folder}: is a file, expected a folder")
+    folder = output_folder(args.export_params, "--export-params")
     if cameras:
         named = {pathlib.Path(image).name: camera for image, camera in cameras.items()}
         written = write_orthority_rpc(folder / "rpc_param.yaml", named, inputs=[*args.image, *inputs])
