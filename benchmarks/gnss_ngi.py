@@ -95,11 +95,32 @@ def _sift_tracks(images: list[np.ndarray], ratio: float = 0.8):
     return tracks, pairs
 
 
+def _compare(res, names, pos, ang, label: str) -> np.ndarray:
+    """Print each image's position and angle errors against camera_pos_ori.txt, in m / deg and in
+    the reported sigmas, and the largest against the targets; return the angle errors (deg)."""
+    dpos = np.asarray(res.exterior.position) - pos
+    dang = np.degrees((np.asarray(res.exterior.angles) - ang + np.pi) % (2 * np.pi) - np.pi)
+    sp, sa = res.exterior_std[:, :3], np.degrees(res.exterior_std[:, 3:])
+    print(f"--- {label}: sigma0 {res.sigma0:.3f}")
+    for i, n in enumerate(names):
+        print(f"{n}: dXYZ {np.round(dpos[i], 2)} m (sigma {np.round(sp[i], 2)}), "
+              f"dangles {np.round(dang[i], 4)} deg (sigma {np.round(sa[i], 4)})")  # fmt: skip
+    print(
+        f"{label}: max |dXYZ| {np.abs(dpos).max():.2f} m (target 4), max |dangle| {np.abs(dang).max():.4f} deg "
+        f"(target 0.05); max |d|/sigma positions {np.max(np.abs(dpos) / sp):.2f}, "
+        f"angles {np.max(np.abs(dang) / sa):.2f} (target 3); median angle sigma "
+        f"{np.round(np.median(sa, axis=0), 4)} deg"
+    )
+    return dang
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--ties", choices=("photax", "sift"), default="photax", help="tie matcher (default photax)")
     ap.add_argument("--points", type=int, default=300, help="photax ties: interest points per image (max_points)")
+    ap.add_argument("--dem-sigma", type=float, default=None,
+                    help="also adjust with the tie points' heights as observations of dem.tif of this sigma (m)")  # fmt: skip
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     ngi = DATA / "ngi"
@@ -169,23 +190,31 @@ def main() -> None:
     print(
         f"sigma0 of the first least-squares pass: {second.sigma0:.3f}; tie residuals {np.sqrt(np.mean(r**2)):.3f} px RMS"
     )
-    res = ptx.bundle_adjust(second.to_problem().replace(obs_sigma=sigma[keep] * second.sigma0), throw=False)
+    final = second.to_problem().replace(obs_sigma=sigma[keep] * second.sigma0)
+    res = ptx.bundle_adjust(final, throw=False)
     r = np.linalg.norm(res.residuals, axis=1) / pixel
     print(f"final tie residuals {np.sqrt(np.mean(r**2)):.3f} px RMS (target 0.3)")
     print(res.report(unit="m"))
     if res.exterior_std is None:
         return
-    dpos = np.asarray(res.exterior.position) - pos
-    dang = np.degrees((np.asarray(res.exterior.angles) - ang + np.pi) % (2 * np.pi) - np.pi)
-    sp, sa = res.exterior_std[:, :3], np.degrees(res.exterior_std[:, 3:])
-    for i, n in enumerate(names):
-        print(f"{n}: dXYZ {np.round(dpos[i], 2)} m (sigma {np.round(sp[i], 2)}), "
-              f"dangles {np.round(dang[i], 4)} deg (sigma {np.round(sa[i], 4)})")  # fmt: skip
-    print(
-        f"max |dXYZ| {np.abs(dpos).max():.2f} m (target 4), max |dangle| {np.abs(dang).max():.4f} deg "
-        f"(target 0.05); max |d|/sigma positions {np.max(np.abs(dpos) / sp):.2f}, "
-        f"angles {np.max(np.abs(dang) / sa):.2f} (target 3)"
-    )
+    dang = _compare(res, names, pos, ang, "GNSS only")
+    if args.dem_sigma is not None:
+        from photax.io import read_dem
+
+        dem = read_dem(ngi / "dem.tif")
+        # The DEM's error at the ties, measured independently of the adjustment: the ties intersected
+        # with the survey's orientations (camera_pos_ori.txt, held), their heights against the DEM's.
+        survey = ptx.bundle_adjust(final.replace(exterior=ptx.ExteriorOrientation(pos, ang, "omega-phi-kappa"),
+                                               fixed_exterior=np.ones((len(names), 6), bool),
+                                               gnss_position=None, gnss_sigma=None), throw=False)  # fmt: skip
+        dz = survey.points[:, 2] - np.asarray(dem.height(survey.points[:, 0], survey.points[:, 1]))
+        dz = dz[np.isfinite(dz)]
+        print(f"ties intersected with camera_pos_ori.txt vs the DEM ({len(dz)} points): Z - DEM mean {dz.mean():+.2f} m, "
+              f"std {dz.std():.2f} m, RMS {np.sqrt(np.mean(dz**2)):.2f} m, median |dZ| {np.median(np.abs(dz)):.2f} m")  # fmt: skip
+        with_dem = ptx.bundle_adjust(final.replace(dem=dem, dem_sigma=args.dem_sigma), throw=False)
+        print(with_dem.report(unit="m"))
+        if with_dem.exterior_std is not None:
+            _compare(with_dem, names, pos, ang, f"GNSS + DEM (sigma {args.dem_sigma:g} m)")
     # What the GNSS alone lets the block determine: a rigid block (perfect ties) still turns about its
     # centroid as the 2 m GNSS noise allows, sigma^2 = 2 m^2 (sum |c|^2 I - c c^T)^-1 (c: the cameras from
     # their centroid; the least-squares rotation of a rigid fit); omega, phi, kappa turn about E, N, up at

@@ -53,6 +53,29 @@ def _prior_residuals(state: _State, s: _Structure) -> Array:
     return (state.xyz - s.prior_xyz) * jnp.sqrt(s.prior_w)
 
 
+def _dem_residuals(state: _State, s: _Structure, jacobians: bool = False):
+    """``(n_pts,)`` weighted residuals ``(Z - DEM(X, Y)) / sigma`` of the tie
+    points' DEM height observations (0 where a point has none) and, with
+    ``jacobians``, their Jacobian ``(n_pts, 3)`` w.r.t. the point,
+    ``(-dDEM/dX, -dDEM/dY, 1) / sigma`` (the bilinear slopes, by JAX).  A
+    point that leaves the DEM gets a NaN residual: the step that moved it
+    there has no finite cost and is rejected."""
+    x, y = state.xyz[:, 0], state.xyz[:, 1]
+    seen = s.dem_w > 0
+    xs, ys = jnp.where(seen, x, s.dem.transform[2]), jnp.where(seen, y, s.dem.transform[5])  # unseen: a finite post
+
+    def height(x, y):
+        return s.dem.height(x, y)
+
+    h, dhdx = jax.jvp(height, (xs, ys), (jnp.ones_like(xs), jnp.zeros_like(ys)))
+    r = jnp.where(seen, (state.xyz[:, 2] - h) * s.dem_w, 0.0)
+    if not jacobians:
+        return r
+    _, dhdy = jax.jvp(height, (xs, ys), (jnp.zeros_like(xs), jnp.ones_like(ys)))
+    j = jnp.stack([-dhdx, -dhdy, jnp.ones_like(h)], axis=1) * s.dem_w[:, None] * s.mask_p
+    return r, jnp.where(seen[:, None], j, 0.0)
+
+
 def _cross_matrix(v: Array) -> Array:
     """``(n, 3, 3)`` ``[v]x`` (``[v]x u = v x u``) of ``v`` ``(n, 3)``: its columns are ``v x e_k``."""
     return jnp.swapaxes(jnp.cross(v[:, None, :], jnp.eye(3)[None]), 1, 2)
@@ -95,7 +118,7 @@ def _cost(state: _State, s: _Structure, loss: Array, scale: Array) -> Array:
     r = _residuals(state, s)
     rho, _, _ = _rho(jnp.sum(r * r, axis=1), loss, scale)
     prior = jnp.sum(_prior_residuals(state, s) ** 2) + jnp.sum(_camera_prior(state, s) ** 2)
-    return 0.5 * jnp.sum(rho) + 0.5 * prior
+    return 0.5 * jnp.sum(rho) + 0.5 * prior + 0.5 * jnp.sum(_dem_residuals(state, s) ** 2)
 
 
 def _outer_sum(a: Array, b: Array) -> Array:
@@ -183,6 +206,9 @@ def _finish_lin(state, s, n_c, cost_obs, r0, weight, jc, jp, u_diag, v, g_img, g
     pw = s.prior_w * s.mask_p
     v = v + pw[:, :, None] * jnp.eye(3)[None, :, :]
     g_p = g_p + pw * (state.xyz - s.prior_xyz)
+    rd, jd = _dem_residuals(state, s, jacobians=True)  # the DEM heights: the point blocks of V and g_p
+    v = v + jd[:, :, None] * jd[:, None, :]
+    g_p = g_p + jd * rd[:, None]
     flat = s.image_ext.ravel()
     g_c = jnp.zeros(n_c).at[flat].add(g_img.ravel())
     # LM damping D: the diagonal of the normal matrix J~^T J~ (Ceres).
@@ -190,7 +216,7 @@ def _finish_lin(state, s, n_c, cost_obs, r0, weight, jc, jp, u_diag, v, g_img, g
     d_p = jnp.diagonal(v, axis1=1, axis2=2)
     clamp = functools.partial(jnp.clip, min=1e-6, max=1e32)
     gmax = jnp.maximum(jnp.max(jnp.abs(g_c), initial=0.0), jnp.max(jnp.abs(g_p), initial=0.0))
-    cost = cost_obs + 0.5 * jnp.sum(rp * rp) + 0.5 * jnp.sum(rc * rc)
+    cost = cost_obs + 0.5 * jnp.sum(rp * rp) + 0.5 * jnp.sum(rc * rc) + 0.5 * jnp.sum(rd * rd)
     return _Lin(cost, r0, weight, jc, jp, u_diag, v, g_img, g_c, g_p, clamp(d_c), clamp(d_p), gmax, u_cam)
 
 

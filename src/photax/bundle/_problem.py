@@ -81,6 +81,18 @@ class BundleProblem:
         lever_arm: ``(3,)`` or ``(n_images, 3)`` antenna offset from the
             projection centre in the camera frame (x right, y up, z back;
             ground unit).  Default 0.
+        dem: a :class:`photax.DEM` of the ground, in the points' CRS and
+            height system: each tie point's height is an observation of it,
+            ``Z - DEM(X, Y) = 0`` with ``dem_sigma`` (Ames Stereo Pipeline's
+            ``bundle_adjust --heights-from-dem``), bilinear heights and
+            slopes at the point's adjusted ``(X, Y)``.  Tie points off the
+            DEM or on its nodata at the start values get no observation
+            (counted in the result).  The terrain's relief then holds the
+            block's tilt and height (and, on sloping ground, its shift).
+        dem_sigma: scalar or ``(n_points,)`` standard deviation of the DEM's
+            height at the tie points, ground unit, > 0.  Needed with ``dem``.
+        crs: the ground CRS of points and positions (text: WKT, EPSG...), or
+            None; with ``dem`` the two horizontal CRSs must agree.
     """
 
     def __init__(
@@ -105,6 +117,9 @@ class BundleProblem:
         attitude=None,
         attitude_sigma=None,
         lever_arm=None,
+        dem=None,
+        dem_sigma=None,
+        crs: str | None = None,
     ):
         cams = (cameras,) if isinstance(cameras, FrameCamera) else tuple(cameras)
         if not cams or not all(isinstance(c, FrameCamera) for c in cams):
@@ -137,6 +152,8 @@ class BundleProblem:
         self.gnss_position, self.gnss_sigma = _camera_observations(gnss_position, gnss_sigma, n_img, "gnss")
         self.attitude, self.attitude_sigma = _camera_observations(attitude, attitude_sigma, n_img, "attitude")
         self.lever_arm = _lever_arm(lever_arm, n_img, self.gnss_position)
+        self.dem, self.dem_sigma = _dem_observations(dem, dem_sigma, n_pts, crs)
+        self.crs = crs
         self.cameras: tuple[FrameCamera, ...] = cams
         self.exterior = eo
         self.points = pts
@@ -168,8 +185,11 @@ class BundleProblem:
             free_intrinsics=self.free_intrinsics, fixed_exterior=self.fixed_exterior,
             image_names=self.image_names, point_names=self.point_names, gnss_position=self.gnss_position,
             gnss_sigma=self.gnss_sigma, attitude=self.attitude, attitude_sigma=self.attitude_sigma,
-            lever_arm=self.lever_arm,
+            lever_arm=self.lever_arm, dem=self.dem, dem_sigma=self.dem_sigma, crs=self.crs,
         )  # fmt: skip
+        sig = self.dem_sigma
+        if sig is not None and len(sig) and np.all(sig == sig[0]):
+            args["dem_sigma"] = float(sig[0])  # one sigma for all: still so when points are added or dropped
         args.update(changes)
         new = BundleProblem(**args)
         if self._topology is not None and _same_topology(self, new):
@@ -201,6 +221,7 @@ class BundleProblem:
         n_chk = int(np.sum(self.roles == "check"))
         n_gnss, n_att = int(self.gnss_observed.sum()), int(self.attitude_observed.sum())
         extra = (f", {n_gnss} GNSS positions" if n_gnss else "") + (f", {n_att} attitudes" if n_att else "")
+        extra += ", DEM heights" if self.dem is not None else ""
         return (
             f"BundleProblem({self.n_images} images, {self.n_cameras} cameras, {self.n_points} points "
             f"({n_ctrl} control, {n_chk} check), {self.n_observations} observations{extra})"
@@ -330,6 +351,58 @@ def _lever_arm(lever_arm, n_img: int, gnss: np.ndarray) -> np.ndarray:
     if np.any(arm != 0) and not np.any(np.isfinite(gnss)):
         raise ValueError("lever_arm is given without gnss_position (it offsets the GNSS antenna)")
     return arm
+
+
+def _dem_observations(dem, dem_sigma, n_pts: int, crs):
+    """The DEM (a :class:`photax.DEM`, or None) and ``(n_pts,)`` sigmas of its
+    height observations (> 0 and finite); its horizontal CRS must be ``crs``'s
+    where both are known."""
+    if dem is None:
+        if dem_sigma is not None:
+            raise ValueError("dem_sigma is given without dem")
+        return None, None
+    from ..dem import DEM
+
+    if not isinstance(dem, DEM):
+        raise ValueError(f"dem must be a photax.DEM (photax.io.read_dem reads one), got {type(dem).__name__}")
+    if dem_sigma is None:
+        raise ValueError("dem needs dem_sigma (the standard deviation of its heights, ground unit)")
+    sig = np.asarray(dem_sigma, dtype=float)
+    if sig.ndim > 1 or (sig.ndim == 1 and sig.shape != (n_pts,)):
+        raise ValueError(f"dem_sigma must be a scalar or (n_points,) = ({n_pts},), got shape {sig.shape}")
+    sig = np.broadcast_to(sig, (n_pts,)).copy()
+    if not np.all(np.isfinite(sig) & (sig > 0)):
+        raise ValueError(f"dem_sigma must be positive and finite, got {sig[~(np.isfinite(sig) & (sig > 0))][0]:g}")
+    if crs is not None and dem.crs is not None and not same_horizontal_crs(crs, dem.crs):
+        raise ValueError(f"the DEM's CRS ({_crs_name(dem.crs)}) is not the block's ({_crs_name(crs)}): "
+                         "reproject one of them")  # fmt: skip
+    return dem, sig
+
+
+def _horizontal(crs):
+    """The horizontal part of a pyproj CRS (a compound CRS's first member)."""
+    return crs.sub_crs_list[0] if crs.is_compound else crs
+
+
+def same_horizontal_crs(a: str, b: str) -> bool:
+    """Whether two CRSs (text) have the same horizontal CRS (a compound CRS's
+    vertical part is ignored: heights are the caller's business)."""
+    import pyproj
+
+    try:
+        ca, cb = (_horizontal(pyproj.CRS.from_user_input(c)) for c in (a, b))
+    except pyproj.exceptions.CRSError:
+        return a == b
+    return ca.equals(cb, ignore_axis_order=True)
+
+
+def _crs_name(crs: str) -> str:
+    import pyproj
+
+    try:
+        return pyproj.CRS.from_user_input(crs).name
+    except pyproj.exceptions.CRSError:
+        return crs[:60]
 
 
 def _check_datum(obs_point: np.ndarray, role: np.ndarray, pts: np.ndarray, point_names) -> None:

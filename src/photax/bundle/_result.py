@@ -60,6 +60,9 @@ class BundleResult:
             unit; NaN rows for images without one.
         attitude_residuals: ``(n_images, 3)`` adjusted minus observed
             attitude angles (radians, wrapped); NaN rows where none.
+        dem_residuals: ``(n_points,)`` adjusted height minus the DEM's at
+            the adjusted ``(X, Y)`` of each tie point with a DEM height
+            observation, ground unit; NaN for the others; None without a DEM.
     """
 
     exterior: ExteriorOrientation
@@ -87,6 +90,7 @@ class BundleResult:
     orientation_cov: np.ndarray | None = None
     gnss_residuals: np.ndarray | None = None
     attitude_residuals: np.ndarray | None = None
+    dem_residuals: np.ndarray | None = None
 
     @property
     def parts(self) -> list[list[int]]:
@@ -191,6 +195,14 @@ class BundleResult:
                 f"  {what} ({int(seen.sum())}): residual RMS {rms[0]:.4g}, {rms[1]:.4g}, "
                 f"{rms[2]:.4g}{unit}; max |r| {np.max(np.abs(r)):.4g}{unit} ({names[worst]})"
             )
+        if self.dem_residuals is not None:
+            r = self.dem_residuals[np.isfinite(self.dem_residuals)]
+            n_tie = int(np.sum(self.problem.roles == "tie"))
+            lines.append(
+                f"  DEM heights ({len(r)} of {n_tie} tie points; {n_tie - len(r)} off the DEM or on nodata): "
+                f"Z - DEM RMS {np.sqrt(np.mean(r**2)):.4g} {u}, mean {np.mean(r):+.4g} {u}, max |r| "
+                f"{np.max(np.abs(r)):.4g} {u} (sigma {np.median(self.problem.dem_sigma):.4g} {u})"
+            )
         return lines
 
     def to_dict(self) -> dict:
@@ -223,6 +235,13 @@ class BundleResult:
                 img["gnss_residual"] = self.gnss_residuals[i].tolist()
             if self.attitude_residuals is not None and p.attitude_observed[i]:
                 img["attitude_residual_rad"] = self.attitude_residuals[i].tolist()
+        if self.dem_residuals is not None:
+            seen = np.isfinite(self.dem_residuals)
+            out["dem_heights"] = {
+                "observed": int(seen.sum()), "not_observed": int(np.sum(p.roles == "tie") - seen.sum()),
+                "rms": float(np.sqrt(np.mean(self.dem_residuals[seen] ** 2))),
+                "mean": float(np.mean(self.dem_residuals[seen])),
+            }  # fmt: skip
         return out
 
 

@@ -103,7 +103,7 @@ from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..errors import RESULTS, ConvergenceError
 from ..rotation import angles_from_matrix_unchecked, rotation_matrix
-from ._linearise import LIN_WHOLE, _camera_prior, _linearise, _prior_residuals, _project_obs
+from ._linearise import LIN_WHOLE, _camera_prior, _dem_residuals, _linearise, _prior_residuals, _project_obs
 from ._precision import _covariances, _covariances_band, _orientation_covariances, _standard_deviations
 from ._problem import BundleProblem, Gauge, Loss
 from ._result import BundleResult, _image_parts, stop_message
@@ -473,11 +473,13 @@ POINT_STEPS = (0.0, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0)
 @jax.jit
 def _point_costs(state: _State, s, loss, scale):
     """``(n_pts,)`` each point's share of the cost: ``0.5 sum rho`` over its
-    observations plus its control prior.  They sum to the cost."""
+    observations plus its control prior and DEM height.  With the cameras'
+    observations they sum to the cost."""
     r = (_project_obs(state, s) - s.obs_xy) / s.obs_sigma
     rho, _, _ = _rho(jnp.sum(r * r, axis=1), loss, scale)
     per_point = jax.ops.segment_sum(0.5 * rho, s.obs_point, num_segments=state.xyz.shape[0])
-    return per_point + 0.5 * jnp.sum(_prior_residuals(state, s) ** 2, axis=1)  # GNSS: _point_pass adds it
+    prior = 0.5 * jnp.sum(_prior_residuals(state, s) ** 2, axis=1) + 0.5 * _dem_residuals(state, s) ** 2
+    return per_point + prior  # GNSS: _point_pass adds it
 
 
 @jax.jit
@@ -486,7 +488,7 @@ def _point_pass(state: _State, s, loss, scale):
 
     Per point ``p``, with the cameras of ``state`` fixed: the reweighted
     Gauss–Newton step ``dX_p = -V_p^-1 g_p`` (``V_p = sum J~^T J~`` and
-    ``g_p = sum rho' J^T r`` over its observations, plus its prior, as in
+    ``g_p = sum rho' J^T r`` over its observations, plus its prior and DEM height, as in
     :func:`photax.bundle._linearise._linearise`; fixed coordinates masked),
     then ``X_p + a dX_p`` for the ``a`` of :data:`POINT_STEPS` with the
     lowest cost of that point, among those that move it by at most half its
@@ -503,9 +505,10 @@ def _point_pass(state: _State, s, loss, scale):
     segp = functools.partial(jax.ops.segment_sum, segment_ids=s.obs_point, num_segments=n_pts)
     m, pw = s.mask_p, s.prior_w * s.mask_p
     eye = jnp.eye(3)[None, :, :]
-    v = segp(jnp.einsum("kri,krj->kij", jt, jt)) + pw[:, :, None] * eye
+    rd, jd = _dem_residuals(state, s, jacobians=True)
+    v = segp(jnp.einsum("kri,krj->kij", jt, jt)) + pw[:, :, None] * eye + jd[:, :, None] * jd[:, None, :]
     v = v * m[:, :, None] * m[:, None, :] + (1.0 - m)[:, :, None] * eye  # fixed coordinates: identity rows
-    g = (segp(jnp.einsum("kri,kr->ki", j, r * rho1[:, None])) + pw * (state.xyz - s.prior_xyz)) * m
+    g = (segp(jnp.einsum("kri,kr->ki", j, r * rho1[:, None])) + pw * (state.xyz - s.prior_xyz) + jd * rd[:, None]) * m
     dx = -jnp.einsum("pij,pj->pi", jax.vmap(inv3)(v), g)
     dx = jnp.where(jnp.all(jnp.isfinite(dx), axis=1, keepdims=True), dx, 0.0)
     # A point moves at most half its distance to the nearest camera that sees
@@ -552,6 +555,7 @@ def _print_step(bar, it, cost, old, gmax, step, mu, accepted, new_cost) -> None:
 
 # Jitted once: eagerly, each of their few dozen jnp operations compiles on first use.
 _camera_prior_jit = jax.jit(_camera_prior)
+_dem_residuals_jit = jax.jit(_dem_residuals)
 _rotation = jax.jit(rotation_matrix, static_argnames="convention")
 _angles = jax.jit(angles_from_matrix_unchecked, static_argnames="convention")
 
@@ -584,13 +588,17 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
     n_free = int(np.asarray(s.mask_c).sum() + np.asarray(s.mask_p).sum())
     # GNSS positions and attitudes are observations: 3 each in the redundancy, their residuals in sigma0
     n_cam_obs = 3 * int(problem.gnss_observed.sum() + problem.attitude_observed.sum())
-    n_prior = int(np.sum(np.asarray(s.prior_w) > 0)) + n_cam_obs
+    # ... and so are the tie points' DEM heights, one each
+    n_prior = int(np.sum(np.asarray(s.prior_w) > 0)) + n_cam_obs + int(np.sum(np.asarray(s.dem_w) > 0))
     redundancy = 2 * problem.n_observations + n_prior - n_free + (7 if gauge == "damped" else 0)
     wsq = float(
         np.sum(weight[:, None] * np.asarray(lin.r) ** 2)
         + np.sum((np.asarray(state.xyz) - np.asarray(s.prior_xyz)) ** 2 * np.asarray(s.prior_w))
     )
     wsq += float(np.sum(np.asarray(_camera_prior_jit(state, s)) ** 2))
+    r_dem, w_dem = np.asarray(_dem_residuals_jit(state, s)), np.asarray(s.dem_w)
+    wsq += float(np.sum(r_dem**2))
+    dem_res = np.where(w_dem > 0, r_dem / np.maximum(w_dem, 1e-300), np.nan) if problem.dem is not None else None
     sigma0 = math.sqrt(wsq / redundancy) if redundancy > 0 else float("nan")
     eo_std = cam_std = pt_std = pt_cov = eo_cov = None
     if precision and gauge != "damped":
@@ -615,6 +623,7 @@ def _finish(problem, state, lin, s, n_c, origin, gauge, precision, cost, initial
         seconds=seconds, result=RESULTS(code), orientation_cov=eo_cov,
         gnss_residuals=_gnss_residuals(problem, eo.position, rot),
         attitude_residuals=_attitude_residuals(problem, eo),
+        dem_residuals=dem_res,
     )  # fmt: skip
     if throw and not result.converged:
         raise ConvergenceError(f"bundle adjustment failed: {message}")

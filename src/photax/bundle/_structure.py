@@ -21,6 +21,7 @@ import numpy as np
 from jax import Array
 
 from .._triangulation import observation_pairs
+from ..dem import DEM
 from ..rotation import angles_from_matrix_unchecked, axis_angle_to_matrix, rotation_matrix
 from ._sparse import band_layout
 
@@ -42,6 +43,8 @@ class _Structure(NamedTuple):
     lever: Array  # (n_img, 3) antenna offset in the camera frame
     att_rot: Array  # (n_img, 3, 3) observed attitude as world_from_camera (identity where none)
     att_map: Array  # (n_img, 3, 3) diag(1/sigma) d(angles)/d(rotation vector) at att_rot, 0 where none
+    dem: DEM  # the DEM of the tie points' height observations, local origin (heights too), cropped
+    dem_w: Array  # (n_pts,) 1/sigma of each point's DEM height observation, 0 where none
     pair_a: Array  # (n_pairs,) observations a < b of the same point (covariances)
     pair_b: Array
     chunk_a: Array  # (n_pieces, piece, CHUNK) observation pairs (a, b) of one block of S; k = padding
@@ -229,10 +232,11 @@ def _analyse(problem, fixed_extra: np.ndarray, origin: np.ndarray, topology: _To
     prior_w = np.where(soft, 1.0 / np.where(soft, problem.point_sigma, 1.0) ** 2, 0.0)
     prior = np.where(ctrl[:, None], problem.points - origin[None, :], 0.0)
     gnss, att = _camera_priors(problem, origin)
+    dem, dem_w = _dem_structure(problem, origin)
     s = _Structure(
         t.obs_image, t.obs_point, jnp.asarray(problem.obs_xy), jnp.asarray(problem.obs_sigma), t.image_ext,
         jnp.asarray(mask_c, dtype=float), jnp.asarray(~hard, dtype=float), jnp.asarray(prior), jnp.asarray(prior_w),
-        *gnss, *att,
+        *gnss, *att, dem, jnp.asarray(dem_w),
         t.pair_a, t.pair_b, t.chunk_a, t.chunk_b, t.chunk_key, t.key_a, t.key_b, t.key_off, t.image_chunk,
         t.image_of_chunk, t.active, t.image_camera, t.band_perm, t.band_border, t.band_chunk, t.band_offset,
     )  # fmt: skip
@@ -272,6 +276,59 @@ def _camera_priors(problem, origin: np.ndarray):
         jac = np.asarray(_angle_jacobian(jnp.asarray(r_obs), conv))
         amap[seen] = jac / problem.attitude_sigma[seen][:, :, None]
     return gnss, (jnp.asarray(rot), jnp.asarray(amap))
+
+
+def dem_observed(problem, points: np.ndarray | None = None) -> np.ndarray:
+    """``(n_pts,)`` bool: the tie points of ``problem`` whose height is a DEM
+    observation: finite ``points`` (default the problem's) where the DEM has a
+    height (inside its outer pixel centres, no nodata corner)."""
+    pts = problem.points if points is None else points
+    if problem.dem is None:
+        return np.zeros(len(pts), bool)
+    ok = (problem.roles == "tie") & np.all(np.isfinite(pts), axis=1)
+    z = np.full(len(pts), np.nan)
+    if np.any(ok):
+        z[ok] = np.asarray(problem.dem.height(jnp.asarray(pts[ok, 0]), jnp.asarray(pts[ok, 1])))
+    return ok & np.isfinite(z)
+
+
+def _dem_structure(problem, origin: np.ndarray):
+    """The structure's DEM -- the problem's, cropped to its observed points
+    with a margin of half their extent (at least 8 posts), in the local
+    origin (``X``, ``Y`` and the heights less ``origin``) -- and the
+    ``(n_pts,)`` weights ``1/sigma`` of its height observations (0 where
+    none).  Without a DEM, a flat 2 x 2 grid and no weight (one pytree
+    shape: the jitted steps need no second form).  ValueError when a DEM is
+    given and no tie point lies on it."""
+    if problem.dem is None:
+        return DEM(np.zeros((2, 2)), (1.0, 0.0, -1.0, 0.0, -1.0, 1.0)), np.zeros(problem.n_points)
+    seen = dem_observed(problem)
+    if not np.any(seen):
+        pts = problem.points[np.all(np.isfinite(problem.points), axis=1)]
+        lo, hi = (pts.min(axis=0)[:2], pts.max(axis=0)[:2]) if len(pts) else (np.full(2, np.nan),) * 2
+        raise ValueError(
+            f"no tie point of the block lies on the DEM (its bounds {tuple(round(v, 1) for v in problem.dem.bounds)}, "
+            f"the points' X {lo[0]:.1f}..{hi[0]:.1f}, Y {lo[1]:.1f}..{hi[1]:.1f}; nodata cells give no height): "
+            "a DEM of the block's area and CRS is needed"
+        )
+    dem = problem.dem
+    heights = np.asarray(dem.heights)
+    a, b, c, d, e, f = np.asarray(dem.transform)
+    xy = problem.points[seen, :2]
+    margin = 0.5 * (xy.max(axis=0) - xy.min(axis=0))
+    corners = np.array([[x, y] for x in (xy[:, 0].min() - margin[0], xy[:, 0].max() + margin[0])
+                        for y in (xy[:, 1].min() - margin[1], xy[:, 1].max() + margin[1])])  # fmt: skip
+    col, row = (np.asarray(v) for v in dem.ground_to_pixel(jnp.asarray(corners[:, 0]), jnp.asarray(corners[:, 1])))
+    rows, cols = heights.shape
+    c0 = int(np.clip(np.floor(col.min()) - 8, 0, cols - 2))
+    c1 = int(np.clip(np.ceil(col.max()) + 9, c0 + 2, cols))
+    r0 = int(np.clip(np.floor(row.min()) - 8, 0, rows - 2))
+    r1 = int(np.clip(np.ceil(row.max()) + 9, r0 + 2, rows))
+    # The crop's corner pixel (c0, r0) at ground (a c0 + b r0 + c, d c0 + e r0 + f), less the origin.
+    x0 = a * c0 + b * r0 + c - origin[0]
+    y0 = d * c0 + e * r0 + f - origin[1]
+    local = DEM(heights[r0:r1, c0:c1] - origin[2], (a, b, x0, d, e, y0))
+    return local, np.where(seen, 1.0 / problem.dem_sigma, 0.0)
 
 
 class Analysis(NamedTuple):

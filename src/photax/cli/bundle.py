@@ -24,6 +24,7 @@ def add_parser(sub) -> None:
         epilog="examples:\n  photax bundle data/block --loss huber -o block.json\n"
         "  photax bundle problem-49-7776-pre.txt --gauge damped\n"
         "  photax bundle data/block --position-sigma 3 --attitude-sigma 0.1   # GNSS/INS-aided, no control\n"
+        "  photax bundle BLOCK --position-sigma 2 --dem dem.tif --dem-sigma 3   # tie heights from a DEM\n"
         "  photax bundle colmap/sparse/0 --gcps gcp_list.txt --colmap-out georef   # georeference a COLMAP model\n",
     )
     p.add_argument("file", metavar="FILE", help="a BAL file (.txt or .txt.bz2), a block folder (block.json, "
@@ -45,6 +46,16 @@ def add_parser(sub) -> None:
     p.add_argument("--lever-arm", type=float, nargs=3, metavar=("X", "Y", "Z"),
                    help="GNSS antenna offset from the projection centre in the camera frame (x right, y up, "
                    "z back; ground unit), with --position-sigma")  # fmt: skip
+    p.add_argument("--dem", metavar="DEM",
+                   help="a DEM raster of the block's area in its CRS and height system: each tie point's height "
+                   "is an observation of it (Z - DEM(X, Y) = 0, sigma --dem-sigma), so the terrain's relief holds "
+                   "the block's tilt and height; ties off the DEM or on nodata are counted in the report")  # fmt: skip
+    p.add_argument(
+        "--dem-sigma",
+        type=float,
+        metavar="SIGMA",
+        help="with --dem: standard deviation of the DEM's heights at the tie points (ground unit, > 0)",
+    )
     p.add_argument(
         "--max-steps",
         "--max-iterations",
@@ -114,6 +125,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--gnss needs --position-sigma (the GNSS positions' standard deviation, ground unit)")
     problem = _with_camera_observations(problem, args, start_positions=not args.gnss)
     gcps, gnss, crs = _georeference_inputs(args, inputs)
+    problem = _with_dem(problem, args, crs, inputs)
     if args.colmap_out:
         from ..io.atomic import check_output_path as _check
         from ..io.colmap import photax_camera_to_colmap
@@ -264,6 +276,26 @@ def _with_camera_observations(problem, args, start_positions: bool = True):
             raise ValueError("--lever-arm needs --position-sigma (it offsets the GNSS antenna)")
         changes["lever_arm"] = args.lever_arm
     return problem.replace(**changes) if changes else problem
+
+
+def _with_dem(problem, args, crs, inputs: list):
+    """The problem with the tie points' heights as observations of ``--dem``
+    (sigma ``--dem-sigma``); the DEM's CRS is checked against ``crs`` (that of
+    ``--gcps`` / ``--gnss``) where both are known."""
+    if args.dem is None:
+        if args.dem_sigma is not None:
+            raise ValueError("--dem-sigma needs --dem")
+        return problem
+    if args.dem_sigma is None:
+        raise ValueError("--dem needs --dem-sigma (the standard deviation of its heights, ground unit)")
+    if not (math.isfinite(args.dem_sigma) and args.dem_sigma > 0):
+        raise ValueError(f"--dem-sigma must be a positive number, got {args.dem_sigma:g}")
+    from ..io.raster import read_dem
+    from ._common import input_file
+
+    dem = read_dem(input_file(args.dem, "DEM"))
+    inputs.append(pathlib.Path(args.dem))
+    return problem.replace(dem=dem, dem_sigma=args.dem_sigma, crs=crs or problem.crs)
 
 
 def _camera_outputs(out, fmt: str, folder: pathlib.Path, problem, inputs: list) -> list:
