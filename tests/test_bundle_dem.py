@@ -265,3 +265,50 @@ def test_replace_keeps_one_dem_sigma_when_points_change(terrain_block):
                       obs_xy=p.obs_xy[keep], obs_sigma=p.obs_sigma[keep], roles=p.roles[:-1],
                       point_sigma=p.point_sigma[:-1], point_names=p.point_names[:-1])  # fmt: skip
     assert fewer.dem_sigma.shape == (p.n_points - 1,) and np.all(fewer.dem_sigma == 2.0)
+
+
+def test_ngi_block_with_gnss_and_its_dem():
+    """The real NGI block (four frames, two strips flown opposite ways):
+    ties from photax.match_ties (100 points per image, start orientations =
+    GNSS + attitudes 0.15 deg off), GNSS = camera_pos_ori.txt + N(0, 2 m),
+    sigma 2 m, and NGI's DEM at sigma 3 m (the RMS of Z - DEM measured for
+    ties intersected with the survey's orientations, benchmarks/gnss_ngi.py).
+    Every tie lies on the DEM; the DEM lowers each image's omega and phi
+    sigma at least 2x (kappa's less: the slopes alone hold it); every angle is within 0.05 deg and every position within 4 m
+    of camera_pos_ori.txt; the DEM residuals' RMS is about its sigma.  A block
+    CRS other than the DEM's (geographic WGS 84) is refused."""
+    import cv2
+    from conftest import shared_file
+
+    from photax.io import read_dem
+    from photax.io.orthority import read_orthority_interior
+    from photax.matching import bundle_problem
+
+    ngi = shared_file("orthority/ngi/camera_pos_ori.txt").parent
+    rows = [ln.split() for ln in (ngi / "camera_pos_ori.txt").read_text().splitlines() if ln.strip()]
+    names = [r[0] for r in rows]
+    pos = np.array([[float(v) for v in r[1:4]] for r in rows])
+    ang = np.radians(np.array([[float(v) for v in r[4:7]] for r in rows]))
+    cam = next(iter(read_orthority_interior(shared_file("orthority/io/ngi_int_param.yaml")).values()))
+    images = [cv2.imread(str(shared_file(f"orthority/ngi/{n}.tif")), cv2.IMREAD_GRAYSCALE).astype(float) for n in names]
+    dem = read_dem(shared_file("orthority/ngi/dem.tif"))
+    rng = np.random.default_rng(0)
+    gnss = pos + 2.0 * rng.standard_normal(pos.shape)
+    start_ang = ang + np.radians(0.15) * rng.standard_normal(ang.shape)
+    start = ptx.ExteriorOrientation(gnss, start_ang, "omega-phi-kappa")
+    starts = [ptx.ExteriorOrientation(g, a, "omega-phi-kappa") for g, a in zip(gnss, start_ang)]
+    ties = ptx.match_ties(images, cam, starts, dem, max_points=100, min_rho=0.6)
+    problem = bundle_problem(cam, start, ties, image_names=names).replace(gnss_position=gnss, gnss_sigma=2.0)
+    plain = ptx.bundle_adjust(problem, initialize=True)
+    res = ptx.bundle_adjust(problem.replace(dem=dem, dem_sigma=3.0), initialize=True)
+    assert res.converged and 0.8 < res.sigma0 < 1.2
+    assert np.all(np.isfinite(res.dem_residuals))
+    # the tilts (omega, phi) at least 2x; kappa, held by the slopes alone, less
+    assert np.all(res.exterior_std[:, 3:5] < 0.5 * plain.exterior_std[:, 3:5])
+    assert np.all(res.exterior_std[:, 5] < 0.75 * plain.exterior_std[:, 5])
+    dang = np.degrees(np.asarray(res.exterior.angles) - ang)
+    assert np.abs(dang).max() < 0.05, dang
+    assert np.abs(np.asarray(res.exterior.position) - pos).max() < 4.0
+    assert 1.5 < np.sqrt(np.mean(res.dem_residuals**2)) < 4.5
+    with pytest.raises(ValueError, match="the DEM's CRS"):
+        problem.replace(dem=dem, dem_sigma=3.0, crs="EPSG:4326")
