@@ -312,3 +312,14 @@ def test_ngi_block_with_gnss_and_its_dem():
     assert 1.5 < np.sqrt(np.mean(res.dem_residuals**2)) < 4.5
     with pytest.raises(ValueError, match="the DEM's CRS"):
         problem.replace(dem=dem, dem_sigma=3.0, crs="EPSG:4326")
+
+
+@pytest.mark.parametrize("given", [DEM_SIGMA, 3.0 * DEM_SIGMA])
+def test_the_dem_sigma_estimate_finds_the_dem_error(terrain_block, given):
+    """The variance component of the DEM heights estimates the DEM's true
+    error at the ties (2/3 m: posts with 1 m noise, bilinear) whether the
+    sigma given is right or 3x too large; the report prints it."""
+    problem, _ = terrain_block
+    res = ptx.bundle_adjust(problem.replace(dem=_dem(), dem_sigma=given))
+    assert res.dem_sigma_estimate == pytest.approx(DEM_SIGMA, rel=0.25)
+    assert f"estimated {res.dem_sigma_estimate:.3g}" in res.report()

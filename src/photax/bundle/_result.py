@@ -93,6 +93,33 @@ class BundleResult:
     dem_residuals: np.ndarray | None = None
 
     @property
+    def dem_sigma_estimate(self) -> float | None:
+        """The DEM heights' sigma as the adjustment estimates it (one variance
+        component): ``dem_sigma * sqrt(sum (v / dem_sigma)^2 / sum r)`` over the
+        observed ties, with each observation's redundancy number
+        ``r = 1 - a^T Q a / dem_sigma^2`` (``a = (-dDEM/dX, -dDEM/dY, 1)``, ``Q``
+        the point's cofactor block).  Near the given ``dem_sigma`` when it fits
+        the data; None without a DEM, an observed tie or the precision."""
+        if self.dem_residuals is None or self.point_cov is None or not np.isfinite(self.sigma0) or self.sigma0 <= 0:
+            return None
+        seen = np.isfinite(self.dem_residuals)
+        if not np.any(seen):
+            return None
+        import jax
+        import jax.numpy as jnp
+
+        x, y = (jnp.asarray(self.points[seen, k]) for k in (0, 1))
+        dem = self.problem.dem
+        _, dx = jax.jvp(dem.height, (x, y), (jnp.ones_like(x), jnp.zeros_like(y)))
+        _, dy = jax.jvp(dem.height, (x, y), (jnp.zeros_like(x), jnp.ones_like(y)))
+        a = np.column_stack([-np.asarray(dx), -np.asarray(dy), np.ones(int(seen.sum()))])
+        sig = self.problem.dem_sigma[seen]
+        q = self.point_cov[seen] / self.sigma0**2
+        r = 1.0 - np.einsum("ni,nij,nj->n", a, q, a) / sig**2
+        scale = float(np.median(sig))
+        return scale * float(np.sqrt(np.sum((self.dem_residuals[seen] / sig) ** 2) / np.sum(r)))
+
+    @property
     def parts(self) -> list[list[int]]:
         """The images grouped into parts that share tie, control or check
         points (one part for a connected block); parts beyond the first are
@@ -201,7 +228,8 @@ class BundleResult:
             lines.append(
                 f"  DEM heights ({len(r)} of {n_tie} tie points; {n_tie - len(r)} off the DEM or on nodata): "
                 f"Z - DEM RMS {np.sqrt(np.mean(r**2)):.4g} {u}, mean {np.mean(r):+.4g} {u}, max |r| "
-                f"{np.max(np.abs(r)):.4g} {u} (sigma {np.median(self.problem.dem_sigma):.4g} {u})"
+                f"{np.max(np.abs(r)):.4g} {u} (sigma {np.median(self.problem.dem_sigma):.4g} {u}"
+                + (f", estimated {est:.3g} {u})" if (est := self.dem_sigma_estimate) is not None else ")")
             )
         return lines
 
@@ -240,7 +268,7 @@ class BundleResult:
             out["dem_heights"] = {
                 "observed": int(seen.sum()), "not_observed": int(np.sum(p.roles == "tie") - seen.sum()),
                 "rms": float(np.sqrt(np.mean(self.dem_residuals[seen] ** 2))),
-                "mean": float(np.mean(self.dem_residuals[seen])),
+                "mean": float(np.mean(self.dem_residuals[seen])), "sigma_estimate": self.dem_sigma_estimate,
             }  # fmt: skip
         return out
 
