@@ -323,3 +323,23 @@ def test_the_dem_sigma_estimate_finds_the_dem_error(terrain_block, given):
     res = ptx.bundle_adjust(problem.replace(dem=_dem(), dem_sigma=given))
     assert res.dem_sigma_estimate == pytest.approx(DEM_SIGMA, rel=0.25)
     assert f"estimated {res.dem_sigma_estimate:.3g}" in res.report()
+
+
+def test_cli_refuses_a_dem_in_another_crs(terrain_block, tmp_path, capsys):
+    """A block folder whose block.json names its CRS (kept by write_block /
+    read_block) and a DEM in another: exit 2, both CRSs named."""
+    from photax.io import write_geotiff
+    from photax.io.block import read_block
+
+    problem, _ = terrain_block
+    block = tmp_path / "block"
+    write_block(problem.replace(gnss_position=None, gnss_sigma=None, crs="EPSG:32632"), block)
+    assert read_block(block).crs == "EPSG:32632"
+    dem = _dem()
+    tif = write_geotiff(
+        tmp_path / "dem.tif", np.asarray(dem.heights), tuple(np.asarray(dem.transform)), crs="EPSG:32633"
+    )
+    args = ["bundle", str(block), "--position-sigma", "2", "--dem", str(tif), "--dem-sigma", "1", "--quiet"]
+    assert main([*args, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert "the DEM's CRS (WGS 84 / UTM zone 33N) is not the block's (WGS 84 / UTM zone 32N)" in err

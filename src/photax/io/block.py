@@ -42,6 +42,7 @@ def read_block(folder) -> BundleProblem:
                      "scan": {"file": "scan_camera.yaml", "free": ["f"]}},  # or a camera file
                      # (photax.io.camera_file, path relative to the folder; e.g. a scanned camera
                      # written by photax fiducials --camera-out, whose pixels go through its scan block)
+         "crs": "EPSG:32632",                      # optional: the ground CRS (checked against a DEM's)
          "images": [{"name": "IMG_1", "camera": "cam",
                      "position": [X, Y, Z], "angles": [a1, a2, a3],   # or null: resected
                      "fixed": false}]}
@@ -84,6 +85,9 @@ def read_block(folder) -> BundleProblem:
     cameras, images = meta.get("cameras"), meta.get("images")
     if not isinstance(cameras, dict) or not cameras or not isinstance(images, list) or not images:
         raise meta_file.bad("needs a non-empty object 'cameras' and a non-empty list 'images'")
+    crs = meta.get("crs")
+    if crs is not None and not (isinstance(crs, str) and crs.strip()):
+        raise meta_file.bad(f"'crs' must be a CRS as text (EPSG code, WKT, PROJ), got {crs!r}")
     cam_names = list(cameras)
     cams, free = _read_cameras(meta_file, cameras)
     names, img_cam, pos, ang, fixed = _read_images(meta_file, images, cam_names, unit)
@@ -95,7 +99,7 @@ def read_block(folder) -> BundleProblem:
             cams, ExteriorOrientation(np.array(pos, dtype=float), np.array(ang, dtype=float), conv),
             np.array(xyz, dtype=float), oi, op, xy, obs_sigma=ps, image_camera=np.array(img_cam), roles=roles,
             point_sigma=np.array(psig), free_intrinsics=free, fixed_exterior=np.array(fixed), image_names=names,
-            point_names=pnames,
+            point_names=pnames, crs=crs,
         )  # fmt: skip
     except ValueError as exc:  # e.g. a tie point seen in one image only
         raise ValueError(f"{folder}: {exc}") from None
@@ -376,6 +380,8 @@ def write_block(problem: BundleProblem, folder, *, units=None, inputs=()) -> pat
             for i, (n, c) in enumerate(zip(p.image_names, p.image_camera))
         ]
         meta = {"convention": eo.convention, "angle_unit": "radians", "cameras": cameras, "images": images}
+        if p.crs is not None:
+            meta["crs"] = p.crs
         (tmp / "block.json").write_text(json.dumps(meta, indent=1) + "\n")
         g = lambda v: "" if np.isnan(v) else repr(float(v))  # noqa: E731 - repr: 17 digits, exact round trip
         rows = ["name,X,Y,Z,role,sigma"] + [
