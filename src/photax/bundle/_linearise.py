@@ -60,9 +60,8 @@ def _dem_residuals(state: _State, s: _Structure, jacobians: bool = False):
     ``(-dDEM/dX, -dDEM/dY, 1) / sigma`` (the bilinear slopes, by JAX).  A
     point that leaves the DEM gets a NaN residual: the step that moved it
     there has no finite cost and is rejected."""
-    x, y = state.xyz[:, 0], state.xyz[:, 1]
+    xs, ys = state.xyz[:, 0], state.xyz[:, 1]  # the points without an observation: NaN or not, masked below
     seen = s.dem_w > 0
-    xs, ys = jnp.where(seen, x, s.dem.transform[2]), jnp.where(seen, y, s.dem.transform[5])  # unseen: a finite post
 
     def height(x, y):
         return s.dem.height(x, y)

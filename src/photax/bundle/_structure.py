@@ -278,11 +278,11 @@ def _camera_priors(problem, origin: np.ndarray):
     return gnss, (jnp.asarray(rot), jnp.asarray(amap))
 
 
-def dem_observed(problem, points: np.ndarray | None = None) -> np.ndarray:
+def dem_observed(problem) -> np.ndarray:
     """``(n_pts,)`` bool: the tie points of ``problem`` whose height is a DEM
-    observation: finite ``points`` (default the problem's) where the DEM has a
-    height (inside its outer pixel centres, no nodata corner)."""
-    pts = problem.points if points is None else points
+    observation: finite start values where the DEM has a height (inside its
+    outer pixel centres, no nodata corner)."""
+    pts = problem.points
     if problem.dem is None:
         return np.zeros(len(pts), bool)
     ok = (problem.roles == "tie") & np.all(np.isfinite(pts), axis=1)
