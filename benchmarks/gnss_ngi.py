@@ -58,7 +58,10 @@ with the DEM:
 * in sigmas: positions 1.96, 2.07, 1.73, 2.82, 2.72, 2.74 (target 3: met), angles 2.36, 4.20, 3.07,
   3.94, 2.27, 3.31 (target 3: missed for seeds 1, 2, 3, 5);
 * the angle sigma (omega, phi, kappa; median) falls from 0.029, 0.046, 0.026 to 0.0085, 0.012, 0.010 deg;
-  sigma0 0.93-0.95; the DEM residuals' RMS 2.1-2.3 m against the sigma of 3 m.
+  sigma0 0.93-0.95; the DEM residuals' RMS 2.1-2.3 m against the sigma of 3 m, whose variance component
+  (``BundleResult.dem_sigma_estimate``, in the report) the adjustment puts at 2.29-2.52 m.  Adjusting with
+  that (2.5 m), or dropping the DEM residuals over 3 sigma (2 per seed), moves the angles by <= 0.003 deg
+  (tried on seeds 1 and 3): neither the sigma's choice nor the DEM's outliers decide the result.
 
 Why the angles miss 3 sigma: the DEM-aided sigma (0.008-0.012 deg) is now below what ``camera_pos_ori.txt``
 itself can check.  With the positions held at the survey's the ties alone give angles that differ from the
