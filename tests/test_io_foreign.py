@@ -24,6 +24,7 @@ from conftest import shared_file
 
 import photax
 from photax.io import read_exteriors, read_interior
+from photax.io.crs import same_crs
 from photax.io.opensfm import read_opensfm_cameras, read_opensfm_shots
 from photax.io.orientation import camera_in_pixels, read_camera_unit
 from photax.io.orthority import read_orthority_exterior_crs, read_orthority_interior
@@ -359,6 +360,10 @@ def test_cli_ties_with_an_orthority_interior(tmp_path):
     problem = read_block(out)
     camera, block_camera = read_interior(interior), problem.cameras[0]
     assert block_camera.image_size == camera.image_size == (640, 1152)
+    # the block names its ground CRS (the DEM's), so `bundle --dem` can refuse a DEM in another one
+    assert problem.crs is not None
+    assert same_crs(problem.crs, shared_file("orthority/io/ngi_xyz_opk.prj").read_text())
+    assert not same_crs(problem.crs, "EPSG:32735")
     pts = np.random.default_rng(4).normal(0, 1, (20, 3)) - [0, 0, 3]
     np.testing.assert_allclose(
         np.asarray(block_camera.image_to_pixel(block_camera.project(pts))),

@@ -373,36 +373,11 @@ def _dem_observations(dem, dem_sigma, n_pts: int, crs):
     sig = np.broadcast_to(sig, (n_pts,)).copy()
     if not np.all(np.isfinite(sig) & (sig > 0)):
         raise ValueError(f"dem_sigma must be positive and finite, got {sig[~(np.isfinite(sig) & (sig > 0))][0]:g}")
-    if crs is not None and dem.crs is not None and not same_horizontal_crs(crs, dem.crs):
-        raise ValueError(f"the DEM's CRS ({_crs_name(dem.crs)}) is not the block's ({_crs_name(crs)}): "
-                         "reproject one of them")  # fmt: skip
+    if crs is not None and dem.crs is not None:
+        from ..io.crs import require_same
+
+        require_same(crs, "the block", dem.crs, "the DEM")  # the horizontal parts; heights are the user's
     return dem, sig
-
-
-def _horizontal(crs):
-    """The horizontal part of a pyproj CRS (a compound CRS's first member)."""
-    return crs.sub_crs_list[0] if crs.is_compound else crs
-
-
-def same_horizontal_crs(a: str, b: str) -> bool:
-    """Whether two CRSs (text) have the same horizontal CRS (a compound CRS's
-    vertical part is ignored: heights are the caller's business)."""
-    import pyproj
-
-    try:
-        ca, cb = (_horizontal(pyproj.CRS.from_user_input(c)) for c in (a, b))
-    except pyproj.exceptions.CRSError:
-        return a == b
-    return ca.equals(cb, ignore_axis_order=True)
-
-
-def _crs_name(crs: str) -> str:
-    import pyproj
-
-    try:
-        return pyproj.CRS.from_user_input(crs).name
-    except pyproj.exceptions.CRSError:
-        return crs[:60]
 
 
 def _check_datum(obs_point: np.ndarray, role: np.ndarray, pts: np.ndarray, point_names) -> None:

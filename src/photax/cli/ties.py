@@ -69,9 +69,8 @@ def run(args: argparse.Namespace) -> int:
         check_output_path(out, files)
     if not 0.0 < args.min_rho < 1.0:
         raise ValueError(f"--min-rho: must lie between 0 and 1, got {args.min_rho}")
-    ties = match_ties(
-        images, camera, exterior, read_dem(args.dem), max_points=args.points, search=args.search, min_rho=args.min_rho
-    )
+    dem = read_dem(args.dem)
+    ties = match_ties(images, camera, exterior, dem, max_points=args.points, search=args.search, min_rho=args.min_rho)
     for k, s in enumerate(ties.image_status):
         if s != "ok":
             print(f"{names[k]}: {s}")
@@ -86,7 +85,9 @@ def run(args: argparse.Namespace) -> int:
         gcps = read_gcps_3d(args.gcps)
         gcps = gcps.subset(np.array([pathlib.Path(str(s)).stem in names for s in gcps.images], dtype=bool))
         gcps = dataclasses.replace(gcps, images=np.array([pathlib.Path(str(s)).stem for s in gcps.images], dtype=str))
-    problem = bundle_problem(camera, exterior, ties, gcps, image_names=names)
+    # the ground CRS is the DEM's (read_oriented_images checked the orientations against it): block.json keeps it,
+    # so that `photax bundle --dem` refuses a DEM in another CRS
+    problem = bundle_problem(camera, exterior, ties, gcps, image_names=names).replace(crs=dem.crs)
     if bal:
         # BAL stores one camera per image and no point roles: GCPs go in as (surveyed) points only
         problem = problem.replace(cameras=(camera,) * len(names), image_camera=np.arange(len(names)))
