@@ -1162,7 +1162,7 @@ def mosaic_to_raster(
     eager = (
         all(o.data is None or isinstance(o.data, np.ndarray) for o in orthos)
         and sum(_nbytes(o) for o in orthos) <= _PERSIST_BYTES
-        and all(h is None or isinstance(getattr(h, "data", h), np.ndarray) for h in (dsm, dem))
+        and all(isinstance(h.data if hasattr(h, "dims") else h, (np.ndarray, type(None))) for h in (dsm, dem))
     )
     options = dict(
         method=method,
