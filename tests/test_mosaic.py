@@ -457,6 +457,8 @@ def test_mosaic_to_raster_writes_the_lazy_mosaic_without_dask(scene, tmp_path, m
         m.setattr(mosaicking, "_lazy", lambda plan: pytest.fail("a Dask graph"))
         mosaic_to_raster(paths, tmp_path / "m.tif", cog=False, info=(info := {}), **opts)
     np.testing.assert_array_equal(info["labels"], ref_info["labels"])
+    with pytest.raises(TypeError, match="does not take: no_such"):
+        mosaic_to_raster(paths, tmp_path / "x.tif", no_such=1)
     with rasterio.open(tmp_path / "m.tif") as ds:
         np.testing.assert_array_equal(ds.read(), ref)
         assert np.isnan(ds.nodata) and np.isnan(ref_profile.pop("nodata")) and ds.descriptions == ("mosaic",)

@@ -1109,26 +1109,7 @@ def _dask_progress(bar):
     return Callback(start=start, posttask=lambda *a: bar.update())
 
 
-def mosaic_to_raster(
-    orthos,
-    path,
-    *,
-    method: str = "seamline",
-    nadirs=None,
-    dsm=None,
-    dem=None,
-    raised: float = 2.0,
-    balance: bool = True,
-    feather: int = 8,
-    chunks: int = 1024,
-    seam_scale: int | None = None,
-    info: dict | None = None,
-    seamlines=None,
-    source_index=None,
-    cog: bool = True,
-    inputs=(),
-    progress=None,
-):
+def mosaic_to_raster(orthos, path, *, cog: bool = True, inputs=(), progress=None, **options):
     """:func:`mosaic` written to a raster file in the orthos' type, atomically (what ``photax mosaic`` does).
 
     Orthos that are raster files or NumPy-backed DataArrays, at most ``_PERSIST_BYTES`` (1 GiB) in all,
@@ -1139,21 +1120,27 @@ def mosaic_to_raster(
     Dask's threads unless Dask is configured otherwise.
 
     Args:
-        orthos, method, nadirs, dsm, dem, raised, balance, feather, chunks, seam_scale, info, seamlines,
-            source_index: as for :func:`mosaic`.
+        orthos: as for :func:`mosaic`.
         path: the output GeoTIFF: integer orthos (e.g. uint8 RGB) give a mosaic of their type, rounded
             and clipped, with their nodata value (the type's minimum if none, kept out of the data);
             float orthos float32 with NaN.
         cog: a Cloud-Optimized GeoTIFF (with overviews), else a tiled GeoTIFF; deflate-compressed.
         inputs: paths ``path`` must not overwrite (besides the orthos).
         progress: a progress bar (``total`` and ``update()``, e.g. tqdm's) counting the tiles, or None.
+        options: :func:`mosaic`'s keyword arguments (``method``, ``dsm``, ``feather``, ``chunks``,
+            ``info``, ``seamlines``, ``source_index``, ...), its defaults where not given.
 
     Returns:
         ``path``.
 
     Raises:
         ValueError: as :func:`mosaic`.
+        TypeError: an option :func:`mosaic` does not take.
     """
+    if unknown := sorted(set(options) - set(mosaic.__kwdefaults__)):
+        raise TypeError(f"mosaic_to_raster() got options mosaic() does not take: {', '.join(unknown)}")
+    options = {**mosaic.__kwdefaults__, **options}
+    dsm, dem, chunks = options["dsm"], options["dem"], options["chunks"]
     orthos = [_open(o, k) for k, o in enumerate(orthos)]
     if not orthos:
         raise ValueError("orthos must hold at least one ortho")
@@ -1163,20 +1150,6 @@ def mosaic_to_raster(
         all(o.data is None or isinstance(o.data, np.ndarray) for o in orthos)
         and sum(_nbytes(o) for o in orthos) <= _PERSIST_BYTES
         and all(isinstance(h.data if hasattr(h, "dims") else h, (np.ndarray, type(None))) for h in (dsm, dem))
-    )
-    options = dict(
-        method=method,
-        nadirs=nadirs,
-        dsm=dsm,
-        dem=dem,
-        raised=raised,
-        balance=balance,
-        feather=feather,
-        chunks=chunks,
-        seam_scale=seam_scale,
-        info=info,
-        seamlines=seamlines,
-        source_index=source_index,
     )
     if eager:
         from .io.lazy import write_tiles
