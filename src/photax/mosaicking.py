@@ -59,6 +59,14 @@ Both passes are one task per tile (NumPy on the tile's slices of the
 orthos): the first sums the overlap moments and the seam grid, the second
 blends the output chunk.  Write the result with :func:`photax.to_raster`
 (``cog=True``: a tiled, compressed Cloud-Optimized GeoTIFF with overviews).
+
+:func:`mosaic_to_raster` goes from orthos to a file in one call (what ``photax mosaic`` runs): for
+raster files or NumPy orthos up to ``_PERSIST_BYTES`` in all it runs the same plan (:func:`_plan`) and
+per-tile functions (:func:`_tile_stats`, :func:`_blend_chunk`) on NumPy arrays and a thread per CPU,
+writing the chunks as they come (:func:`photax.io.lazy.write_tiles`): no Dask graph, and Dask, xarray,
+pandas and rioxarray are not imported (0.8 s of a 1.8 s command-line mosaic of the NGI block).  The file
+is the lazy mosaic's written by :func:`photax.to_raster`, byte for byte (tested); larger or Dask-backed
+orthos take the lazy way.
 """
 
 from __future__ import annotations

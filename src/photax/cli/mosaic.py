@@ -18,8 +18,9 @@ Then gains and offsets are balanced in the overlaps, seamlines of least
 difference cut (kept off raised objects with ``--dsm``), the images
 feathered across them and the mosaic written chunk by chunk as a
 Cloud-Optimized GeoTIFF, atomically (:func:`photax.io.block_images`,
-:func:`photax.rectification.orthorectify_block`, :func:`photax.mosaic`,
-:func:`photax.to_raster`).  Exit codes: 0 done, 2 bad input.
+:func:`photax.rectification.orthorectify_block`, :func:`photax.mosaic_to_raster`: up to 1 GiB of
+orthos on NumPy arrays and threads, without importing Dask or xarray; beyond, :func:`photax.mosaic` on
+Dask).  Exit codes: 0 done, 2 bad input.
 """
 
 from __future__ import annotations
