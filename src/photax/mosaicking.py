@@ -968,16 +968,19 @@ def _threads(fn, tasks, bar=None):
         bar.total = (bar.total or 0) + len(tasks)
     with ThreadPoolExecutor(workers, thread_name_prefix="photax-mosaic") as pool:
         pending = collections.deque()
+
+        def done():
+            result = pending.popleft().result()
+            if bar is not None:
+                bar.update()  # before the yield: the consumer may not ask again after the last
+            return result
+
         for task in tasks:
             pending.append(pool.submit(fn, *task))
             if len(pending) >= 2 * workers:
-                yield pending.popleft().result()
-                if bar is not None:
-                    bar.update()
+                yield done()
         while pending:
-            yield pending.popleft().result()
-            if bar is not None:
-                bar.update()
+            yield done()
 
 
 def _lazy(plan: _Plan):
@@ -1171,7 +1174,7 @@ def mosaic_to_raster(orthos, path, *, cog: bool = True, inputs=(), progress=None
 
         blocks = _threads(chunk, plan.blends, progress)
         grid = plan.grid
-        tiles = (((t[0], t[1]), b) for (t, _), b in zip(plan.blends, blocks))
+        tiles = (((t[0], t[1]), b) for b, (t, _) in zip(blocks, plan.blends))  # blocks first: run to its end
         return write_tiles(
             path,
             tiles,
