@@ -17,7 +17,10 @@ workers write (rioxarray's way, under a distributed lock; the file must be
 where they can reach it).
 
 Dask, xarray, rioxarray and rasterio are imported inside the functions
-(the optional ``dask`` extra).
+(the optional ``dask`` extra).  :func:`write_tiles` writes NumPy tiles given
+by the caller into the same file (tiles, COG copy, atomic rename) with
+rasterio alone: the in-memory paths that need no Dask (``photax mosaic`` of
+ortho files, :func:`photax.mosaic_to_raster`).
 """
 
 from __future__ import annotations
