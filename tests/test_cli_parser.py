@@ -108,9 +108,11 @@ def test_a_mistyped_option_shows_the_subcommands_usage(capsys):
 
 
 def test_a_missing_optional_dependency_names_the_extra(tmp_path, capsys, monkeypatch):
-    """Without the dask extra ``photax mosaic`` of ortho files runs (NumPy, no Dask: issue 21), and what
-    needs the extra (``--dsm``, resampled onto the mosaic grid by rioxarray) is a usage error naming
-    it (was "unexpected ModuleNotFoundError ... (PHOTAX_TRACEBACK=1 shows where)")."""
+    """Without the dask extra ``photax mosaic`` of ortho files runs, ``--dsm`` included (NumPy and rasterio,
+    no Dask: issue 21), and what needs the extra (orthos over the memory budget: the Dask way) is a usage
+    error naming it (was "unexpected ModuleNotFoundError ... (PHOTAX_TRACEBACK=1 shows where)")."""
+    import photax.mosaicking as mosaicking
+
     for module in ("dask", "xarray", "rioxarray", "distributed"):
         monkeypatch.setitem(sys.modules, module, None)  # "not installed": importing it raises
     for module in [m for m in sys.modules if m.startswith(("dask.", "xarray.", "rioxarray."))]:
@@ -123,12 +125,17 @@ def test_a_missing_optional_dependency_names_the_extra(tmp_path, capsys, monkeyp
         transform = rasterio.transform.from_origin(500_000 + 2.0 * c0, 4_000_000, 2.0, 2.0)
         with rasterio.open(paths[-1], "w", transform=transform, **profile) as dst:
             dst.write(field[:, c0 : c0 + 60], 1)
+    flat = dict(profile, width=100, dtype="float32", nodata=None)  # a flat DSM on the union grid
+    with rasterio.open(tmp_path / "dsm.tif", "w", transform=rasterio.transform.from_origin(500_000, 4_000_000, 2.0, 2.0),
+                       **flat) as dst:  # fmt: skip
+        dst.write(np.zeros((60, 100), np.float32), 1)
     out = tmp_path / "m.tif"
-    assert main(["mosaic", *paths, "-o", str(out), "--no-progress"]) == 0
+    assert main(["mosaic", *paths, "--dsm", str(tmp_path / "dsm.tif"), "-o", str(out), "--no-progress"]) == 0
     with rasterio.open(out) as ds:
         assert ds.shape == (60, 100) and ds.dtypes[0] == "uint8"
     out.unlink()
-    assert main(["mosaic", *paths, "--dsm", paths[0], "-o", str(out), "--no-progress"]) == 2
+    monkeypatch.setattr(mosaicking, "_PERSIST_BYTES", 0)
+    assert main(["mosaic", *paths, "-o", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert re.fullmatch(r'photax mosaic: error: needs \w+, in the dask extra: pip install "photax\[dask\]"\n', err), err
     assert not out.exists()

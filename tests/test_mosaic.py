@@ -422,22 +422,27 @@ def test_grow_and_box_share_are_scipy_ndimage_s():
 
 def test_cli_mosaic_of_ortho_files_imports_neither_jax_nor_distributed(scene, tmp_path):
     """A mosaic of ortho files needs no sensor model: ``photax mosaic`` (a fresh process) loads neither
-    JAX (0.4 s of start-up) nor dask.distributed (0.3-0.9 s), as Python's own import log shows (issue 21's
-    whole-process comparison with rasterio.merge); the mosaic is written."""
+    JAX (0.4 s of start-up) nor dask.distributed (0.3-0.9 s) nor, --dsm included, Dask, xarray, pandas or
+    rioxarray, as Python's own import log shows (issue 21's whole-process comparison with
+    rasterio.merge); the mosaic is written."""
     import subprocess
     import sys
 
-    a, b, _, _ = scene
+    a, b, dsm, _ = scene
     for name, o in (("a", a), ("b", b)):
         o.rio.to_raster(tmp_path / f"{name}.tif")
+    grid = Grid((RES, 0, X0, 0, -RES, Y1), (ROWS, COLS), crs="EPSG:32633")
+    dataarray(dsm, grid, np.asarray(np.nan), "dsm").rio.to_raster(tmp_path / "dsm.tif")  # with --dsm
     out = tmp_path / "m.tif"
-    cmd = [sys.executable, "-X", "importtime", "-m", "photax.cli", "mosaic", "a.tif", "b.tif", "-o", str(out)]
+    cmd = [sys.executable, "-X", "importtime", "-m", "photax.cli", "mosaic", "a.tif", "b.tif", "--dsm", "dsm.tif"]
+    cmd += ["-o", str(out)]
     run = subprocess.run([*cmd, "--no-progress"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-2000:]
     imported = {line.split("|")[-1].strip() for line in run.stderr.splitlines() if line.startswith("import time:")}
     assert "photax.mosaicking" in imported and out.exists()  # the log is read, the mosaic made
     assert "jax" not in imported and "distributed" not in imported
-    # Nor Dask, xarray, pandas or rioxarray (0.8 s of a 1.8 s NGI mosaic): mosaic_to_raster's NumPy way.
+    # Nor Dask, xarray, pandas or rioxarray (0.8 s of a 1.8 s NGI mosaic): mosaic_to_raster's NumPy way,
+    # the DSM resampled by rasterio.
     assert not imported & {"dask", "xarray", "pandas", "rioxarray"}, imported & {"dask", "xarray", "pandas"}
 
 

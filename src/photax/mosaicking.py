@@ -135,25 +135,38 @@ def mosaic_grid(orthos):
 
 
 def heights_on_grid(path, grid) -> np.ndarray:
-    """``(rows, cols)`` a single-band height raster (DSM, DEM) of any georeference resampled onto
-    ``grid`` (rioxarray's ``reproject_match``; in memory: one array of the grid's size), as
-    :func:`mosaic`'s ``dsm`` and ``dem`` want it on :func:`mosaic_grid`.
+    """``(rows, cols)`` float64 a single-band height raster (DSM, DEM) of any georeference resampled onto
+    ``grid`` (nearest neighbour, by :func:`rasterio.warp.reproject`: what rioxarray's ``reproject_match``
+    gives, without importing it; NaN where the raster has no data; in memory: one array of the grid's
+    size), as :func:`mosaic`'s ``dsm`` and ``dem`` want it on :func:`mosaic_grid`.
 
     Raises:
-        ValueError: a raster with more than one band, naming it.
+        ValueError: a raster with more than one band, or located by ground control points, naming it.
     """
-    import rioxarray
+    from rasterio.enums import Resampling
+    from rasterio.warp import reproject
 
-    from .io.lazy import dataarray
     from .io.raster import open_raster
 
-    with open_raster(path):  # a clear error for a missing or unreadable file
-        pass
-    arr = rioxarray.open_rasterio(path, masked=True)
-    if arr.sizes.get("band", 1) != 1:
-        raise ValueError(f"{path}: {arr.sizes['band']} bands; a height raster has one")
-    template = dataarray(np.zeros(grid.shape), grid, np.asarray(np.nan), "t")
-    return arr.squeeze("band", drop=True).rio.reproject_match(template).values
+    with open_raster(path) as ds:  # a clear error for a missing or unreadable file
+        if ds.count != 1:
+            raise ValueError(f"{path}: {ds.count} bands; a height raster has one")
+        if ds.gcps[0]:
+            raise ValueError(f"{path}: located by ground control points; give a georeferenced height raster")
+        heights = np.ma.filled(ds.read(1, masked=True).astype(float), np.nan)
+        out = np.full(grid.shape, np.nan)
+        reproject(
+            heights,
+            out,
+            src_transform=ds.transform,
+            src_crs=ds.crs,
+            dst_transform=grid.transform,
+            dst_crs=grid.crs,
+            src_nodata=np.nan,
+            dst_nodata=np.nan,
+            resampling=Resampling.nearest,
+        )
+    return out
 
 
 class _Ortho(NamedTuple):
