@@ -27,10 +27,11 @@ deflate GeoTIFF, and the same script writing a COG (``driver="COG"``, the CLI's 
 Issue 21's target: the whole photax mosaic within 4x rasterio.merge's wall time (it was ~400x: the seam
 cut alone took 223 s).  The figures go to ``benchmarks/results/bench_mosaic_real.json``.
 
-Measured 2026-11-27 14:38-14:40, ``--repeat 5``, load 6.4-7.1 on 2 cores: the whole process 2.56x per
-round (2.15-4.45) the script writing a GeoTIFF, 1.99x (1.31-2.67) the one writing a COG (with Dask,
-xarray and rioxarray imported, before ``mosaic_to_raster``: 4.29x, 3.69-4.46, at load 1.6); in one
-process ``mosaic_to_raster`` 2.24x (1.81-3.05) to a GeoTIFF, 3.52x to the COG, the lazy way 2.37x.
+Measured 2026-11-27 14:50-14:52, ``--repeat 5``, load 6.7-7.5 on 2 cores: the whole process 2.81x per
+round (1.92-2.90) the script writing a GeoTIFF (an earlier run, load 6.4-7.1: 2.56x, 2.15-4.45), 1.91x
+(1.31-2.18) the one writing a COG (with Dask, xarray and rioxarray imported, before ``mosaic_to_raster``:
+4.29x, 3.69-4.46, at load 1.6); in one process ``mosaic_to_raster`` 2.37x (2.06-2.87) to a GeoTIFF,
+3.73x to the COG, the lazy way 2.42x.
 """
 
 from __future__ import annotations
