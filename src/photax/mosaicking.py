@@ -1031,7 +1031,8 @@ def mosaic(
     seamlines=None,
     source_index=None,
 ):
-    """Join orthophotos into one mosaic without visible seams, lazily.
+    """Join orthophotos into one mosaic without visible seams, lazily (:func:`mosaic_to_raster` writes
+    it to a file, without Dask where the orthos fit in memory).
 
     Args:
         orthos: a sequence of ``xarray.DataArray`` (``y, x`` or ``band, y,
