@@ -8,22 +8,30 @@ in turn), ``--repeat`` rounds of, from the same files to a file:
 
 * ``rasterio.merge``: ``rasterio.merge.merge(paths)`` (first wins, no balancing, no seams) written as a
   deflate GeoTIFF (uint8, nodata 0, like the orthos);
-* ``photax.mosaic``: the default options (gain/offset balancing, seamlines of least difference,
-  8 px feathering) in the orthos' type as ``photax mosaic`` writes it (uint8, nodata 0), written by
-  ``photax.to_raster`` as a deflate GeoTIFF (``cog=False``; the CLI's COG, with overviews, is timed
-  on its own, as ``photax.mosaic (COG)``);
+* ``photax.mosaic_to_raster`` (what ``photax mosaic`` runs): the default options (gain/offset balancing,
+  seamlines of least difference, 8 px feathering) in the orthos' type (uint8, nodata 0), the orthos read
+  whole into NumPy arrays, each tile on a thread, no Dask, written as a deflate GeoTIFF (``cog=False``;
+  the CLI's COG, with overviews, is timed on its own, as ``photax.mosaic_to_raster (COG)``);
+* the lazy way: ``photax.mosaic`` (a Dask graph of the same per-tile functions) in the same type,
+  written by ``photax.to_raster`` as a deflate GeoTIFF;
 * the seam cut alone (``mosaic`` up to the lazy result: reading, overlap moments, balance, seams).
 
 Each ratio is the median over the rounds of photax / merge in the same round, with its range.  Then
-the CPU times (all threads) of merge and of photax to GeoTIFF, medians of ``--repeat`` runs each.
+the CPU times (all threads) of merge and of ``mosaic_to_raster`` to GeoTIFF, medians of ``--repeat`` runs.
 
 Whole processes (unless ``--no-processes``), interleaved likewise: ``python -m photax.cli mosaic ...``
-(a COG, start-up included: Python, NumPy, Dask, xarray, rioxarray, SciPy) against a Python script
-calling ``rasterio.merge`` and writing a deflate GeoTIFF, and the same script writing a COG
-(``driver="COG"``, the CLI's output format).
+(a COG, start-up included: Python, NumPy, rasterio, SciPy's sparse graphs; since ``mosaic_to_raster``
+no Dask, xarray, pandas or rioxarray) against a Python script calling ``rasterio.merge`` and writing a
+deflate GeoTIFF, and the same script writing a COG (``driver="COG"``, the CLI's output format).
 
 Issue 21's target: the whole photax mosaic within 4x rasterio.merge's wall time (it was ~400x: the seam
 cut alone took 223 s).  The figures go to ``benchmarks/results/bench_mosaic_real.json``.
+
+Measured 2026-11-27 14:50-14:52, ``--repeat 5``, load 6.7-7.5 on 2 cores: the whole process 2.81x per
+round (1.92-2.90) the script writing a GeoTIFF (an earlier run, load 6.4-7.1: 2.56x, 2.15-4.45), 1.91x
+(1.31-2.18) the one writing a COG (with Dask, xarray and rioxarray imported, before ``mosaic_to_raster``:
+4.29x, 3.69-4.46, at load 1.6); in one process ``mosaic_to_raster`` 2.37x (2.06-2.87) to a GeoTIFF,
+3.73x to the COG, the lazy way 2.42x.
 """
 
 from __future__ import annotations
@@ -121,11 +129,12 @@ def main() -> None:
     if not (data / "orthority" / "ngi" / "dem.tif").is_file():
         sys.exit(f"{data}/orthority is not present")
     start("bench_mosaic_real")
+    import numpy as np
     import rasterio
     import rasterio.merge
 
-    from photax import mosaic, to_raster
-    from photax.cli.mosaic import _in_dtype
+    from photax import mosaic, mosaic_to_raster, to_raster
+    from photax.mosaicking import _out_type, _to_type
 
     with tempfile.TemporaryDirectory() as tmp:
         tmp = pathlib.Path(tmp)
@@ -149,18 +158,21 @@ def main() -> None:
 
         info = {}
 
-        def ours(cog=False):
-            to_raster(
-                _in_dtype(mosaic(paths, info=info), paths[0]),
-                tmp / "mosaic.tif",
-                cog=cog,
-            )
+        def ours(cog=False):  # what photax mosaic runs: NumPy on threads, no Dask
+            mosaic_to_raster(paths, tmp / "mosaic.tif", cog=cog, info=info)
+
+        def lazy():  # the lazy mosaic (Dask) in the orthos' type, written by to_raster
+            out = mosaic(paths)
+            dtype, nodata, lo, hi = _out_type(np.uint8, 0)
+            data = out.data.map_blocks(_to_type, dtype, nodata, lo, hi, dtype=dtype)
+            to_raster(out.copy(data=data).rio.write_nodata(nodata, encoded=False), tmp / "lazy.tif")
 
         t = rounds(
             {
                 "merge": merge,
                 "photax": ours,
                 "photax_cog": lambda: ours(True),
+                "lazy": lazy,
                 "seams": lambda: mosaic(paths),
             },
             args.repeat,
@@ -173,8 +185,9 @@ def main() -> None:
             + ", ".join("/".join(f"{x:.3f}" for x in g) for g in info["gains"])
         )
         for key, name in (
-            ("photax", "photax.mosaic vs rasterio.merge (to GeoTIFF)"),
-            ("photax_cog", "photax.mosaic (COG, as the CLI writes) vs rasterio.merge"),
+            ("photax", "photax.mosaic_to_raster vs rasterio.merge (to GeoTIFF)"),
+            ("photax_cog", "photax.mosaic_to_raster (COG, as the CLI writes) vs rasterio.merge"),
+            ("lazy", "photax.mosaic (lazy, Dask) + to_raster vs rasterio.merge (to GeoTIFF)"),
             ("seams", "photax.mosaic up to the lazy result (seams) vs rasterio.merge"),
         ):
             print(ratio_range(name, t[key], t["merge"]) + ("  (target <= 4)" if key == "photax" else ""))
@@ -185,7 +198,7 @@ def main() -> None:
         }
         print(
             ratio_line(
-                "CPU time: photax.mosaic vs rasterio.merge (to GeoTIFF)",
+                "CPU time: photax.mosaic_to_raster vs rasterio.merge (to GeoTIFF)",
                 cpu["photax"],
                 cpu["merge"],
             )

@@ -108,22 +108,34 @@ def test_a_mistyped_option_shows_the_subcommands_usage(capsys):
 
 
 def test_a_missing_optional_dependency_names_the_extra(tmp_path, capsys, monkeypatch):
-    """``photax mosaic`` without the dask extra: a usage error naming it (was "unexpected
-    ModuleNotFoundError ... (PHOTAX_TRACEBACK=1 shows where)")."""
+    """Without the dask extra ``photax mosaic`` of ortho files runs, ``--dsm`` included (NumPy and rasterio,
+    no Dask: issue 21), and what needs the extra (orthos over the memory budget: the Dask way) is a usage
+    error naming it (was "unexpected ModuleNotFoundError ... (PHOTAX_TRACEBACK=1 shows where)")."""
+    import photax.mosaicking as mosaicking
+
     for module in ("dask", "xarray", "rioxarray", "distributed"):
         monkeypatch.setitem(sys.modules, module, None)  # "not installed": importing it raises
     for module in [m for m in sys.modules if m.startswith(("dask.", "xarray.", "rioxarray."))]:
         monkeypatch.delitem(sys.modules, module)
+    field = np.random.default_rng(3).integers(1, 255, (60, 100)).astype(np.uint8)
+    paths = []
+    for name, c0 in (("a", 0), ("b", 40)):  # two orthos on one lattice, 20 columns of overlap
+        paths.append(str(tmp_path / f"{name}.tif"))
+        profile = dict(driver="GTiff", width=60, height=60, count=1, dtype="uint8", crs="EPSG:32633", nodata=0)
+        transform = rasterio.transform.from_origin(500_000 + 2.0 * c0, 4_000_000, 2.0, 2.0)
+        with rasterio.open(paths[-1], "w", transform=transform, **profile) as dst:
+            dst.write(field[:, c0 : c0 + 60], 1)
+    flat = dict(profile, width=100, dtype="float32", nodata=None)  # a flat DSM on the union grid
+    with rasterio.open(tmp_path / "dsm.tif", "w", transform=rasterio.transform.from_origin(500_000, 4_000_000, 2.0, 2.0),
+                       **flat) as dst:  # fmt: skip
+        dst.write(np.zeros((60, 100), np.float32), 1)
     out = tmp_path / "m.tif"
-    argv = [
-        "mosaic",
-        str(DATA / "sample_image.tif"),
-        str(DATA / "sample_image.tif"),
-        "-o",
-        str(out),
-        "--no-progress",
-    ]
-    assert main(argv) == 2
+    assert main(["mosaic", *paths, "--dsm", str(tmp_path / "dsm.tif"), "-o", str(out), "--no-progress"]) == 0
+    with rasterio.open(out) as ds:
+        assert ds.shape == (60, 100) and ds.dtypes[0] == "uint8"
+    out.unlink()
+    monkeypatch.setattr(mosaicking, "_PERSIST_BYTES", 0)
+    assert main(["mosaic", *paths, "-o", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err
     assert re.fullmatch(r'photax mosaic: error: needs \w+, in the dask extra: pip install "photax\[dask\]"\n', err), err
     assert not out.exists()

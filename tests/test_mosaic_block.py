@@ -203,6 +203,18 @@ def test_block_library_calls(block, tmp_path, monkeypatch):
     h = heights_on_grid(
         block / "dem.tif", photax.Grid(grid.transform, grid.shape, dem_file.crs)
     )  # the coordinates' CRS
+    # what rioxarray's reproject_match gives (heights_on_grid used it; now rasterio's reproject alone)
+    import rioxarray
+
+    from photax.io.lazy import dataarray
+
+    template = dataarray(
+        np.zeros(grid.shape), photax.Grid(grid.transform, grid.shape, dem_file.crs), np.asarray(np.nan), "t"
+    )
+    ref = (
+        rioxarray.open_rasterio(block / "dem.tif", masked=True).squeeze("band", drop=True).rio.reproject_match(template)
+    )
+    np.testing.assert_array_equal(h, ref.values)
     xy = grid.xy()
     plane = 20 + 0.03 * (xy[..., 0] - X0) - 0.02 * (xy[..., 1] - Y0)
     ok = np.isfinite(h)

@@ -165,3 +165,33 @@ def test_ngi_cli_mosaic_writes_seamlines_and_source_index(orthos, tmp_path, caps
     assert np.array_equal(written == 0, ~ok)
     np.testing.assert_array_equal(written[ok], np.clip(np.round(ref[ok]), 1, 255))
     assert main(args[:-5] + ["--seamlines", str(out), "--no-progress"]) == 2  # one file for two outputs
+
+
+def test_ngi_mosaic_to_raster_is_byte_identical_to_the_lazy_mosaic(orthos, tmp_path, monkeypatch):
+    """``photax mosaic``'s way (mosaic_to_raster: NumPy arrays and threads, no Dask graph; issue 21's
+    whole-process speed) writes, for the NGI block, the very file of the lazy mosaic (Dask) rounded into
+    uint8 (1..255, 0 no data, as the orthos) and written as a COG by to_raster, byte for byte; the same
+    seamlines; a source index that is the seam-grid labels at full resolution."""
+    import photax.mosaicking as mosaicking
+    from photax import mosaic, mosaic_to_raster, to_raster
+
+    paths, _ = orthos
+    out = mosaic(paths, info=(ref_info := {}), seamlines=tmp_path / "ref.geojson")
+    rounded = out.data.map_blocks(lambda v: np.where(np.isnan(v), 0, np.clip(np.rint(v), 1, 255)).astype(np.uint8))
+    to_raster(out.copy(data=rounded).rio.write_nodata(0, encoded=False), tmp_path / "ref.tif", cog=True)
+    monkeypatch.setattr(mosaicking, "_lazy", lambda plan: pytest.fail("a Dask graph"))
+    mosaic_to_raster(
+        paths,
+        tmp_path / "m.tif",
+        info=(info := {}),
+        seamlines=tmp_path / "m.geojson",
+        source_index=tmp_path / "i.tif",
+    )
+    assert (tmp_path / "m.tif").read_bytes() == (tmp_path / "ref.tif").read_bytes()
+    assert json.loads((tmp_path / "m.geojson").read_text()) == json.loads((tmp_path / "ref.geojson").read_text())
+    np.testing.assert_array_equal(info["labels"], ref_info["labels"])
+    s = info["seam_scale"]
+    with rasterio.open(tmp_path / "i.tif") as ds, rasterio.open(tmp_path / "m.tif") as m:
+        assert ds.dtypes[0] == "int16" and ds.nodata == -1 and ds.transform == m.transform and ds.shape == m.shape
+        full = np.repeat(np.repeat(info["labels"], s, 0), s, 1)[: ds.shape[0], : ds.shape[1]]
+        np.testing.assert_array_equal(ds.read(1), full)

@@ -117,6 +117,7 @@ from .morphing import morph as morph
 from .morphing import morph_sequence as morph_sequence
 from .morphing import write_sequence as write_sequence
 from .mosaicking import mosaic as mosaic
+from .mosaicking import mosaic_to_raster as mosaic_to_raster
 from .polynomial import (
     PiecewiseAffineModel as PiecewiseAffineModel,
 )

@@ -59,6 +59,14 @@ Both passes are one task per tile (NumPy on the tile's slices of the
 orthos): the first sums the overlap moments and the seam grid, the second
 blends the output chunk.  Write the result with :func:`photax.to_raster`
 (``cog=True``: a tiled, compressed Cloud-Optimized GeoTIFF with overviews).
+
+:func:`mosaic_to_raster` goes from orthos to a file in one call (what ``photax mosaic`` runs): for
+raster files or NumPy orthos up to ``_PERSIST_BYTES`` in all it runs the same plan (:func:`_plan`) and
+per-tile functions (:func:`_tile_stats`, :func:`_blend_chunk`) on NumPy arrays and a thread per CPU,
+writing the chunks as they come (:func:`photax.io.lazy.write_tiles`): no Dask graph, and Dask, xarray,
+pandas and rioxarray are not imported (0.8 s of a 1.8 s command-line mosaic of the NGI block).  The file
+is the lazy mosaic's written by :func:`photax.to_raster`, byte for byte (tested); larger or Dask-backed
+orthos take the lazy way.
 """
 
 from __future__ import annotations
@@ -127,25 +135,38 @@ def mosaic_grid(orthos):
 
 
 def heights_on_grid(path, grid) -> np.ndarray:
-    """``(rows, cols)`` a single-band height raster (DSM, DEM) of any georeference resampled onto
-    ``grid`` (rioxarray's ``reproject_match``; in memory: one array of the grid's size), as
-    :func:`mosaic`'s ``dsm`` and ``dem`` want it on :func:`mosaic_grid`.
+    """``(rows, cols)`` float64 a single-band height raster (DSM, DEM) of any georeference resampled onto
+    ``grid`` (nearest neighbour, by :func:`rasterio.warp.reproject`: what rioxarray's ``reproject_match``
+    gives, without importing it; NaN where the raster has no data; in memory: one array of the grid's
+    size), as :func:`mosaic`'s ``dsm`` and ``dem`` want it on :func:`mosaic_grid`.
 
     Raises:
-        ValueError: a raster with more than one band, naming it.
+        ValueError: a raster with more than one band, or located by ground control points, naming it.
     """
-    import rioxarray
+    from rasterio.enums import Resampling
+    from rasterio.warp import reproject
 
-    from .io.lazy import dataarray
     from .io.raster import open_raster
 
-    with open_raster(path):  # a clear error for a missing or unreadable file
-        pass
-    arr = rioxarray.open_rasterio(path, masked=True)
-    if arr.sizes.get("band", 1) != 1:
-        raise ValueError(f"{path}: {arr.sizes['band']} bands; a height raster has one")
-    template = dataarray(np.zeros(grid.shape), grid, np.asarray(np.nan), "t")
-    return arr.squeeze("band", drop=True).rio.reproject_match(template).values
+    with open_raster(path) as ds:  # a clear error for a missing or unreadable file
+        if ds.count != 1:
+            raise ValueError(f"{path}: {ds.count} bands; a height raster has one")
+        if ds.gcps[0]:
+            raise ValueError(f"{path}: located by ground control points; give a georeferenced height raster")
+        heights = np.ma.filled(ds.read(1, masked=True).astype(float), np.nan)
+        out = np.full(grid.shape, np.nan)
+        reproject(
+            heights,
+            out,
+            src_transform=ds.transform,
+            src_crs=ds.crs,
+            dst_transform=grid.transform,
+            dst_crs=grid.crs,
+            src_nodata=np.nan,
+            dst_nodata=np.nan,
+            resampling=Resampling.nearest,
+        )
+    return out
 
 
 class _Ortho(NamedTuple):
@@ -655,24 +676,33 @@ def _blend_chunk(tile, parts, places, idx, nodata, gains, offsets, lab, lab_orig
     return out
 
 
+def _index_tile(labels, s: int, tile) -> np.ndarray:
+    """The source index on ``tile`` ``(r0, c0, h, w)`` of the union grid: the ``labels`` of its seam cells
+    (``s`` px) at full resolution, int16."""
+    r0, c0, h, w = tile
+    return labels[np.ix_(np.arange(r0, r0 + h) // s, np.arange(c0, c0 + w) // s)].astype(np.int16)
+
+
 def _write_source_index(path, labels, s, grid, chunks, inputs):
     """The source-index GeoTIFF: ``labels`` (seam grid, cells of ``s`` px) at full resolution on ``grid``,
-    int16, -1 (its nodata) for no image; written chunk by chunk, atomically."""
-    import dask.array as da
-
-    from .io.lazy import dataarray, to_raster
+    int16, -1 (its nodata) for no image; written chunk by chunk, atomically (from the labels in memory)."""
+    from .io.lazy import write_tiles
 
     if labels.max() >= np.iinfo(np.int16).max:
         raise ValueError(f"a source index holds at most {np.iinfo(np.int16).max} orthos, got {labels.max() + 1}")
-    lab = da.from_array(labels.astype(np.int16), chunks=max(1, chunks // s))
-    if s > 1:
-        lab = lab.map_blocks(
-            lambda b: np.repeat(np.repeat(b, s, 0), s, 1),
-            chunks=tuple(tuple(c * s for c in cs) for cs in lab.chunks),
-            dtype=np.int16,
-        )
-    lab = lab[: grid.shape[0], : grid.shape[1]].rechunk(chunks)
-    to_raster(dataarray(lab, grid, np.int16(-1), "source_index"), path, inputs=inputs)
+    tiles = (((t[0], t[1]), _index_tile(labels, s, t)) for t in _tiles(grid.shape, chunks))
+    write_tiles(
+        path,
+        tiles,
+        shape=(1, *grid.shape),
+        dtype=np.int16,
+        transform=grid.transform,
+        crs=grid.crs,
+        nodata=-1,
+        name="source_index",
+        chunks=chunks,
+        inputs=inputs,
+    )
 
 
 def _write_seamlines(path, labels, transform, crs, names, inputs):
@@ -705,80 +735,45 @@ def _write_seamlines(path, labels, transform, crs, names, inputs):
         json.dump(doc, fh)
 
 
-def mosaic(
+class _Plan(NamedTuple):
+    """What :func:`_plan` leaves for the output: its ``grid``, number of bands ``nb``, ``chunks``, whether
+    the orthos are NumPy arrays (``eager``) and, per output chunk ``(r0, c0, h, w)``, the arguments of
+    :func:`_blend_chunk` (None: no ortho meets it)."""
+
+    grid: Any
+    nb: int
+    chunks: int
+    eager: bool
+    blends: list
+
+
+def _plan(
     orthos,
     *,
-    method: str = "seamline",
-    nadirs=None,
-    dsm=None,
-    dem=None,
-    raised: float = 2.0,
-    balance: bool = True,
-    feather: int = 8,
-    chunks: int = 1024,
-    seam_scale: int | None = None,
-    info: dict | None = None,
-    seamlines=None,
-    source_index=None,
-):
-    """Join orthophotos into one mosaic without visible seams, lazily.
-
-    Args:
-        orthos: a sequence of ``xarray.DataArray`` (``y, x`` or ``band, y,
-            x``; NumPy- or Dask-backed) with a rioxarray georeference, or
-            raster paths (all bands, opened lazily in ``chunks``); one CRS,
-            one pixel lattice and one number of bands, NaN (or their
-            ``rio.nodata``) outside their footprint.
-        method: ``"seamline"`` (minimum-difference cuts, default) or
-            ``"voronoi"`` (nearest nadir).
-        nadirs: ``(n, 2)`` ground ``(X, Y)`` of each image's nadir (for
-            ``"voronoi"`` and the canonical order); default each ortho's
-            footprint centre.
-        dsm, dem: 2-D arrays (NumPy, Dask or DataArray) on the mosaic's
-            union grid: pixels with ``dsm - dem > raised`` (metres) are raised
-            objects the seams avoid (by ``feather + 1`` px).  ``dem`` may be
-            omitted if ``dsm`` is already a height above ground.
-        balance: estimate a gain and offset per image in the overlaps.
-        feather: half-width in pixels of the linear blend across seams (0:
-            hard seams).
-        chunks: Dask chunk edge of the returned array (and of path inputs).
-        seam_scale: cell edge ``s`` in pixels of the grid the seams are cut
-            on (default the smallest with at most 4 Mpx on the union grid and
-            8192 cells in any two orthos' overlap box; 1 for full resolution).
-        info: a dict to receive ``gains`` and ``offsets`` ``(n,)`` (per
-            ortho, in the order given; ``(n, bands)`` with several bands), ``labels`` (the index of the ortho
-            each seam-grid cell comes from, -1 for none; at full resolution
-            when ``seam_scale == 1``), ``seam_scale`` and ``order`` (the
-            canonical order the seams were made in).
-        seamlines: a path: write the seamlines there as GeoJSON, one
-            (multi)polygon per ortho (the area it is the source of, on the
-            seam grid; properties ``index``, in the order given, and
-            ``source``, its file), in the orthos' CRS.
-        source_index: a path: write a GeoTIFF on the mosaic grid there, int16,
-            the index (in the order given) of the ortho each pixel comes from
-            (its seam-grid cell's label; within ``feather`` px of a seam the
-            pixel blends it with its neighbour), -1 for none.
-
-    Returns:
-        Lazy ``xarray.DataArray`` (float32, Dask chunks of ``chunks``) on the
-        union grid, ``(y, x)`` for single-band orthos, else ``(band, y,
-        x)``; CRS and transform on the rioxarray conventions,
-        NaN for no data.
-
-    Raises:
-        ValueError: no orthos, orthos in different CRSs, resolutions or pixel
-            lattices, an ortho with no valid pixel, an ortho that overlaps no
-            other, groups of orthos with no overlap between them, a gain the
-            balancing leaves undetermined or makes <= 0, bad arguments.
-    """
-    # Over 80 lines: the docstring documents every argument; the body reads top to bottom:
-    # inputs, one pass for moments and the seam grid, seams, then the output graph.
-    import dask
-    import dask.array as da
+    eager,
+    method,
+    nadirs,
+    dsm,
+    dem,
+    raised,
+    balance,
+    feather,
+    chunks,
+    seam_scale,
+    info,
+    seamlines,
+    source_index,
+    bar=None,
+) -> _Plan:
+    """:func:`mosaic` up to the output chunks' tasks: the inputs, one pass for the overlap moments and the
+    seam grid, the balance and the seams (written on request).  ``eager``: the orthos (``_Ortho`` tuples, or
+    what :func:`mosaic` takes) are read into NumPy arrays and the pass runs on threads (``bar`` counting
+    its tiles), no Dask; else, as Dask arrays and tasks."""
+    # Over 80 lines: it reads top to bottom: inputs, one pass for moments and the seam grid, seams, the
+    # output chunks' arguments.
     from rasterio import Affine
 
     from .grid import Grid
-    from .io.lazy import dataarray
 
     orthos = list(orthos)
     if not orthos:
@@ -789,7 +784,7 @@ def mosaic(
         raise ValueError(f"chunks must be a positive number of pixels, got {chunks!r}")
     if isinstance(feather, bool) or not isinstance(feather, (int, np.integer)) or feather < 0:
         raise ValueError(f"feather must be a number of pixels >= 0, got {feather!r}")
-    orthos = [_open(o, k) for k, o in enumerate(orthos)]
+    orthos = [o if isinstance(o, _Ortho) else _open(o, k) for k, o in enumerate(orthos)]
     nb = orthos[0].shape[0]
     for k, o in enumerate(orthos):
         if o.shape[0] != nb:
@@ -798,14 +793,17 @@ def mosaic(
     # Raster files and lazy DataArrays, up to _PERSIST_BYTES in all, are read (computed) once here and
     # kept for both passes below (Dask ones chunk by chunk, in chunks on the output's: a chunk of the
     # output then reads whole input chunks, no concatenation); larger ones are read twice.
-    lazy = [k for k, o in enumerate(orthos) if o.data is None or isinstance(o.data, da.Array)]
-    keep = sum(_nbytes(orthos[k]) for k in lazy) <= _PERSIST_BYTES
+    lazy = [k for k, o in enumerate(orthos) if o.data is None or not isinstance(o.data, np.ndarray)]
+    keep = eager or sum(_nbytes(orthos[k]) for k in lazy) <= _PERSIST_BYTES
     for k in lazy:
         if orthos[k].data is None:
             orthos[k] = _load(orthos[k], keep, offsets[k], chunks)
-    computed = [k for k in lazy if keep and isinstance(orthos[k].data, da.Array)]
-    for k, v in zip(computed, dask.persist(*(_align(orthos[k].data, offsets[k], chunks) for k in computed))):
-        orthos[k] = orthos[k]._replace(data=v)
+    if not eager:
+        import dask
+
+        computed = [k for k in lazy if keep and not isinstance(orthos[k].data, np.ndarray)]
+        for k, v in zip(computed, dask.persist(*(_align(orthos[k].data, offsets[k], chunks) for k in computed))):
+            orthos[k] = orthos[k]._replace(data=v)
     n = len(orthos)
     boxes = [(r, c, o.shape[-2], o.shape[-1]) for o, (r, c) in zip(orthos, offsets)]
     if seam_scale is None:
@@ -816,31 +814,25 @@ def mosaic(
     else:
         s = int(seam_scale)
     shape_c = (-(-shape[0] // s), -(-shape[1] // s))
-    vals = [_values(o.data, chunks, off) for o, off in zip(orthos, offsets)]
+    vals = [np.asarray(o.data) if eager else _values(o.data, chunks, off) for o, off in zip(orthos, offsets)]
     nodata = [o.nodata for o in orthos]
-    raised_c = None
-    if dsm is not None:
-        h = da.asarray(dsm.data if hasattr(dsm, "dims") else dsm).astype(float)
-        if dem is not None:
-            h = h - da.asarray(dem.data if hasattr(dem, "dims") else dem).astype(float)
-        if h.shape != shape:
-            raise ValueError(f"dsm must be on the mosaic grid, shape {shape}, got {h.shape}")
-        up = da.nan_to_num(h) > raised
-        if s > 1:
-            up = da.pad(up, ((0, shape_c[0] * s - shape[0]), (0, shape_c[1] * s - shape[1])), constant_values=False)
-            up = da.coarsen(np.any, up.rechunk(max(s, chunks // s * s)), {0: s, 1: s})
-        raised_c = up
+    raised_c = None if dsm is None else _raised_cells(dsm, dem, raised, shape, s, chunks, eager)
     # One pass over the inputs, a task per tile (whole seam cells): the seam grid, the overlap
     # moments, the valid pixel counts; and the raised cells.
     step = max(s, chunks // s * s)
-    stats = dask.delayed(_tile_stats, pure=True)
     tiles, tasks = [], []
     for tile in _tiles(shape, step):
         parts, places, idx = _meeting(vals, boxes, tile, range(n))
         if idx:
             tiles.append(tile)
-            tasks.append(stats(tile, parts, places, idx, [nodata[k] for k in idx], s))
-    results, raised_c = dask.compute(tasks, raised_c)
+            tasks.append((tile, parts, places, idx, [nodata[k] for k in idx], s))
+    if eager:
+        results = list(_threads(_tile_stats, tasks, bar))
+    else:
+        import dask
+
+        stats = dask.delayed(_tile_stats, pure=True)
+        results, raised_c = dask.compute([stats(*t) for t in tasks], raised_c)
     seam_off = [(b[0] // s, b[1] // s) for b in boxes]
     cells = [
         np.full((nb, -(-(b[0] + b[2]) // s) - r, -(-(b[1] + b[3]) // s) - c), np.nan)
@@ -913,21 +905,20 @@ def mosaic(
     labels = _seamlines(
         seam_cells, [seam_off[k] for k in order], shape_c, np.ones(n), np.zeros(n), up, nadirs[order], tc, method
     )
-    # The output graph: one task per chunk on the slices of the orthos it meets.
+    # The output chunks: the arguments of _blend_chunk on the slices of the orthos each meets.
     grow = feather + 1
-    blend = dask.delayed(_blend_chunk, pure=True)
-    rows = {}
+    blends = []
     for tile in _tiles(shape, chunks):
         r0, c0, h, w = tile
         parts, places, idx = _meeting(vals, boxes, tile, order)
         if not idx:
-            rows.setdefault(r0, []).append(da.full((nb, h, w), np.nan, dtype=np.float32, chunks=(nb, h, w)))
+            blends.append((tile, None))
             continue
         wr0, wr1 = max(r0 - grow, 0), min(r0 + h + grow, shape[0])
         wc0, wc1 = max(c0 - grow, 0), min(c0 + w + grow, shape[1])
         lab = labels[wr0 // s : (wr1 - 1) // s + 1, wc0 // s : (wc1 - 1) // s + 1]
         p = pos[idx]  # canonical
-        task = blend(
+        args = (
             tile,
             parts,
             places,
@@ -941,17 +932,292 @@ def mosaic(
             s,
             feather if n > 1 else 0,
         )
-        rows.setdefault(r0, []).append(da.from_delayed(task, (nb, h, w), dtype=np.float32))
-    data = da.block(list(rows.values()))
-    arr = dataarray(data[0] if nb == 1 else data, Grid(transform, shape, crs), np.asarray(np.nan), "mosaic")
+        blends.append((tile, args))
+    grid = Grid(transform, shape, crs)
     given = np.where(labels >= 0, np.asarray(order)[labels], -1)
     names = [o.source for o in orthos]
     inputs = [x for x in names if x]
     if source_index is not None:
-        _write_source_index(source_index, given, s, Grid(transform, shape, crs), chunks, inputs)
+        _write_source_index(source_index, given, s, grid, chunks, inputs)
     if seamlines is not None:
         _write_seamlines(seamlines, given, tc, crs, names, inputs)
     if info is not None:
         g, o = (gains[pos, 0], offs[pos, 0]) if nb == 1 else (gains[pos], offs[pos])
         info.update(gains=g, offsets=o, labels=given, order=order, seam_scale=s)
-    return arr
+    return _Plan(grid, nb, chunks, eager, blends)
+
+
+def _raised_cells(dsm, dem, raised, shape, s, chunks, eager):
+    """Seam cells holding a raised object (``dsm - dem > raised``) on the seam grid (bool; Dask unless
+    ``eager``)."""
+    if eager:
+        xp = np
+    else:
+        import dask.array as xp
+    h = xp.asarray(dsm.data if hasattr(dsm, "dims") else dsm).astype(float)
+    if dem is not None:
+        h = h - xp.asarray(dem.data if hasattr(dem, "dims") else dem).astype(float)
+    if h.shape != shape:
+        raise ValueError(f"dsm must be on the mosaic grid, shape {shape}, got {h.shape}")
+    up = xp.nan_to_num(h) > raised
+    if s == 1:
+        return up
+    rc, cc = -(-shape[0] // s), -(-shape[1] // s)
+    up = xp.pad(up, ((0, rc * s - shape[0]), (0, cc * s - shape[1])), constant_values=False)
+    if eager:
+        return up.reshape(rc, s, cc, s).any(axis=(1, 3))
+    return xp.coarsen(np.any, up.rechunk(max(s, chunks // s * s)), {0: s, 1: s})
+
+
+def _threads(fn, tasks, bar=None):
+    """``fn(*task)`` for each of ``tasks``, on a thread per CPU (NumPy releases the GIL), yielded in
+    order; at most two per thread ahead of the consumer (bounded memory); ``bar`` counts them."""
+    import collections
+    import os
+    from concurrent.futures import ThreadPoolExecutor
+
+    workers = os.cpu_count() or 1
+    if bar is not None:
+        bar.total = (bar.total or 0) + len(tasks)
+    with ThreadPoolExecutor(workers, thread_name_prefix="photax-mosaic") as pool:
+        pending = collections.deque()
+
+        def done():
+            result = pending.popleft().result()
+            if bar is not None:
+                bar.update()  # before the yield: the consumer may not ask again after the last
+            return result
+
+        for task in tasks:
+            pending.append(pool.submit(fn, *task))
+            if len(pending) >= 2 * workers:
+                yield done()
+        while pending:
+            yield done()
+
+
+def _lazy(plan: _Plan):
+    """The mosaic of ``plan`` as a lazy DataArray: a Dask task per output chunk (:func:`_blend_chunk`)."""
+    import dask
+    import dask.array as da
+
+    from .io.lazy import dataarray
+
+    blend = dask.delayed(_blend_chunk, pure=True)
+    rows = {}
+    for (r0, _c0, h, w), args in plan.blends:
+        if args is None:
+            chunk = da.full((plan.nb, h, w), np.nan, dtype=np.float32, chunks=(plan.nb, h, w))
+        else:
+            chunk = da.from_delayed(blend(*args), (plan.nb, h, w), dtype=np.float32)
+        rows.setdefault(r0, []).append(chunk)
+    data = da.block(list(rows.values()))
+    return dataarray(data[0] if plan.nb == 1 else data, plan.grid, np.asarray(np.nan), "mosaic")
+
+
+def mosaic(
+    orthos,
+    *,
+    method: str = "seamline",
+    nadirs=None,
+    dsm=None,
+    dem=None,
+    raised: float = 2.0,
+    balance: bool = True,
+    feather: int = 8,
+    chunks: int = 1024,
+    seam_scale: int | None = None,
+    info: dict | None = None,
+    seamlines=None,
+    source_index=None,
+):
+    """Join orthophotos into one mosaic without visible seams, lazily (:func:`mosaic_to_raster` writes
+    it to a file, without Dask where the orthos fit in memory).
+
+    Args:
+        orthos: a sequence of ``xarray.DataArray`` (``y, x`` or ``band, y,
+            x``; NumPy- or Dask-backed) with a rioxarray georeference, or
+            raster paths (all bands, opened lazily in ``chunks``); one CRS,
+            one pixel lattice and one number of bands, NaN (or their
+            ``rio.nodata``) outside their footprint.
+        method: ``"seamline"`` (minimum-difference cuts, default) or
+            ``"voronoi"`` (nearest nadir).
+        nadirs: ``(n, 2)`` ground ``(X, Y)`` of each image's nadir (for
+            ``"voronoi"`` and the canonical order); default each ortho's
+            footprint centre.
+        dsm, dem: 2-D arrays (NumPy, Dask or DataArray) on the mosaic's
+            union grid: pixels with ``dsm - dem > raised`` (metres) are raised
+            objects the seams avoid (by ``feather + 1`` px).  ``dem`` may be
+            omitted if ``dsm`` is already a height above ground.
+        balance: estimate a gain and offset per image in the overlaps.
+        feather: half-width in pixels of the linear blend across seams (0:
+            hard seams).
+        chunks: Dask chunk edge of the returned array (and of path inputs).
+        seam_scale: cell edge ``s`` in pixels of the grid the seams are cut
+            on (default the smallest with at most 4 Mpx on the union grid and
+            8192 cells in any two orthos' overlap box; 1 for full resolution).
+        info: a dict to receive ``gains`` and ``offsets`` ``(n,)`` (per
+            ortho, in the order given; ``(n, bands)`` with several bands), ``labels`` (the index of the ortho
+            each seam-grid cell comes from, -1 for none; at full resolution
+            when ``seam_scale == 1``), ``seam_scale`` and ``order`` (the
+            canonical order the seams were made in).
+        seamlines: a path: write the seamlines there as GeoJSON, one
+            (multi)polygon per ortho (the area it is the source of, on the
+            seam grid; properties ``index``, in the order given, and
+            ``source``, its file), in the orthos' CRS.
+        source_index: a path: write a GeoTIFF on the mosaic grid there, int16,
+            the index (in the order given) of the ortho each pixel comes from
+            (its seam-grid cell's label; within ``feather`` px of a seam the
+            pixel blends it with its neighbour), -1 for none.
+
+    Returns:
+        Lazy ``xarray.DataArray`` (float32, Dask chunks of ``chunks``) on the
+        union grid, ``(y, x)`` for single-band orthos, else ``(band, y,
+        x)``; CRS and transform on the rioxarray conventions,
+        NaN for no data.
+
+    Raises:
+        ValueError: no orthos, orthos in different CRSs, resolutions or pixel
+            lattices, an ortho with no valid pixel, an ortho that overlaps no
+            other, groups of orthos with no overlap between them, a gain the
+            balancing leaves undetermined or makes <= 0, bad arguments.
+    """
+    plan = _plan(
+        orthos,
+        eager=False,
+        method=method,
+        nadirs=nadirs,
+        dsm=dsm,
+        dem=dem,
+        raised=raised,
+        balance=balance,
+        feather=feather,
+        chunks=chunks,
+        seam_scale=seam_scale,
+        info=info,
+        seamlines=seamlines,
+        source_index=source_index,
+    )
+    return _lazy(plan)
+
+
+def _out_type(dtype, nodata):
+    """The type ``(dtype, nodata, lo, hi)`` a mosaic of orthos of ``dtype`` (with ``nodata``) is written
+    in: integer orthos (e.g. uint8 RGB) give that type, rounded and clipped to ``lo..hi``, with their nodata
+    value (the type's minimum if none; kept out of the data); float orthos give float32 with NaN."""
+    dtype = np.dtype(dtype)
+    if not np.issubdtype(dtype, np.integer):
+        return np.dtype(np.float32), np.nan, None, None
+    lo, hi = np.iinfo(dtype).min, np.iinfo(dtype).max
+    nodata = lo if nodata is None or not lo <= nodata <= hi else int(nodata)
+    lo, hi = (lo + 1, hi) if nodata == lo else (lo, hi - 1) if nodata == hi else (lo, hi)
+    return dtype, nodata, lo, hi
+
+
+def _to_type(v, dtype, nodata, lo, hi):
+    """A mosaic chunk ``v`` (float32, NaN for no data) in the type of :func:`_out_type`."""
+    if lo is None:
+        return v.astype(dtype, copy=False)
+    r = np.rint(v)
+    np.minimum(np.maximum(r, lo, out=r), hi, out=r)
+    r[np.isnan(v)] = nodata
+    return r.astype(dtype)
+
+
+def _dask_progress(bar):
+    """A Dask callback advancing ``bar`` by one per task (its total grows by each graph's size)."""
+    from dask.callbacks import Callback
+
+    def start(dsk):
+        bar.total = (bar.total or 0) + len(dsk)
+
+    return Callback(start=start, posttask=lambda *a: bar.update())
+
+
+def mosaic_to_raster(orthos, path, *, cog: bool = True, inputs=(), progress=None, **options):
+    """:func:`mosaic` written to a raster file in the orthos' type, atomically (what ``photax mosaic`` does).
+
+    Orthos that are raster files or NumPy-backed DataArrays, at most ``_PERSIST_BYTES`` (1 GiB) in all,
+    with NumPy ``dsm`` and ``dem``, are mosaicked without Dask, xarray or rioxarray (their imports are
+    most of a command-line mosaic's time): read whole, each pass and output chunk on a thread per CPU,
+    the chunks written as they come (:func:`photax.io.lazy.write_tiles`); the same functions per tile,
+    the same file as :func:`mosaic` then :func:`photax.to_raster`.  Others take that lazy way, on
+    Dask's threads unless Dask is configured otherwise.
+
+    Args:
+        orthos: as for :func:`mosaic`.
+        path: the output GeoTIFF: integer orthos (e.g. uint8 RGB) give a mosaic of their type, rounded
+            and clipped, with their nodata value (the type's minimum if none, kept out of the data);
+            float orthos float32 with NaN.
+        cog: a Cloud-Optimized GeoTIFF (with overviews), else a tiled GeoTIFF; deflate-compressed.
+        inputs: paths ``path`` must not overwrite (besides the orthos).
+        progress: a progress bar (``total`` and ``update()``, e.g. tqdm's) counting the tiles, or None.
+        options: :func:`mosaic`'s keyword arguments (``method``, ``dsm``, ``feather``, ``chunks``,
+            ``info``, ``seamlines``, ``source_index``, ...), its defaults where not given.
+
+    Returns:
+        ``path``.
+
+    Raises:
+        ValueError: as :func:`mosaic`.
+        TypeError: an option :func:`mosaic` does not take.
+    """
+    if unknown := sorted(set(options) - set(mosaic.__kwdefaults__)):
+        raise TypeError(f"mosaic_to_raster() got options mosaic() does not take: {', '.join(unknown)}")
+    options = {**mosaic.__kwdefaults__, **options}
+    dsm, dem, chunks = options["dsm"], options["dem"], options["chunks"]
+    orthos = [_open(o, k) for k, o in enumerate(orthos)]
+    if not orthos:
+        raise ValueError("orthos must hold at least one ortho")
+    dtype, nodata, lo, hi = _out_type(orthos[0].dtype, orthos[0].nodata)
+    inputs = [*inputs, *(o.source for o in orthos if o.source)]
+    eager = (
+        all(o.data is None or isinstance(o.data, np.ndarray) for o in orthos)
+        and sum(_nbytes(o) for o in orthos) <= _PERSIST_BYTES
+        and all(isinstance(h.data if hasattr(h, "dims") else h, (np.ndarray, type(None))) for h in (dsm, dem))
+    )
+    if eager:
+        from .io.lazy import write_tiles
+
+        plan = _plan(orthos, eager=True, bar=progress, **options)
+
+        def chunk(tile, args):
+            if args is None:
+                return _to_type(np.full((plan.nb, tile[2], tile[3]), np.nan, np.float32), dtype, nodata, lo, hi)
+            return _to_type(_blend_chunk(*args), dtype, nodata, lo, hi)
+
+        blocks = _threads(chunk, plan.blends, progress)
+        grid = plan.grid
+        tiles = (((t[0], t[1]), b) for b, (t, _) in zip(blocks, plan.blends))  # blocks first: run to its end
+        return write_tiles(
+            path,
+            tiles,
+            shape=(plan.nb, *grid.shape),
+            dtype=dtype,
+            transform=grid.transform,
+            crs=grid.crs,
+            nodata=nodata,
+            name="mosaic",
+            chunks=chunks,
+            cog=cog,
+            inputs=inputs,
+        )
+    import contextlib
+
+    import dask
+    import dask.threaded
+
+    from .io.lazy import to_raster
+
+    # Dask's threads unless configured otherwise: this process may have no dask.distributed client, and
+    # asking for one (a scheduler given by name does) imports distributed (0.3-0.9 s of a 1 s mosaic).
+    scheduler = dask.config.get("scheduler", None) or dask.threaded.get
+    with (
+        _dask_progress(progress) if progress is not None else contextlib.nullcontext(),
+        dask.config.set(scheduler=scheduler),
+    ):
+        out = _lazy(_plan(orthos, eager=False, **options))
+        if lo is not None:
+            data = out.data.map_blocks(_to_type, dtype, nodata, lo, hi, dtype=dtype)
+            out = out.copy(data=data).rio.write_nodata(nodata, encoded=False)
+        return to_raster(out, path, cog=cog, inputs=inputs)

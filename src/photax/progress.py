@@ -13,9 +13,10 @@ Long functions (:func:`photax.rectify`, :func:`photax.rectify_file`,
   rectifying with six models) shows one bar, not one per stage.  The caller
   sets its total.
 
-Bars come from ``tqdm.auto``: a widget in Jupyter (needs ``ipywidgets``,
-in the ``notebooks`` and ``test`` extras; without it tqdm falls back to
-text and warns with ``TqdmWarning``), text on stderr elsewhere.
+Bars are ``tqdm.auto``'s choice (imported as it does, without its asyncio
+mix-in): a widget in Jupyter (needs ``ipywidgets``, in the ``notebooks`` and
+``test`` extras; without it tqdm falls back to text and warns with
+``TqdmWarning``), text on stderr elsewhere.
 """
 
 from __future__ import annotations
@@ -77,7 +78,13 @@ def progress_bar(progress, total: int | None, *, desc: str, unit: str = "it"):
 def _bar(total, label: str, unit: str):
     """A tqdm bar kept on screen when its work is done, wiped when it fails: an error
     ends in its one-line message, not in a bar's fragment ("mosaic: 0step")."""
-    from tqdm.auto import tqdm
+    import warnings
+
+    from tqdm.std import TqdmExperimentalWarning
+
+    with warnings.catch_warnings():  # tqdm.auto's own import: its choice of bar, without the asyncio
+        warnings.simplefilter("ignore", TqdmExperimentalWarning)  # mix-in (importing asyncio: 36 ms a command)
+        from tqdm.autonotebook import tqdm
 
     bar = tqdm(total=total, desc=label, unit=unit, dynamic_ncols=True)
     try:

@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="photax",
         description="Photogrammetry on JAX: resection, bundle adjustment, rectification.",
     )
-    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    parser.add_argument("--version", action=_Version, help="show the installed photax version and exit")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=_Parser)
     for name in SUBCOMMANDS:
         importlib.import_module(f"{__name__}.{name}").add_parser(sub)
@@ -77,6 +77,18 @@ class _Parser(argparse.ArgumentParser):
         finally:
             self.epilog = epilog
         return f"{text}\n{epilog.strip(chr(10))}\n" if epilog else text
+
+
+class _Version(argparse.Action):
+    """``--version``: argparse's, the version looked up only when asked (importlib.metadata, with the
+    email package, is ~45 ms of every command's start-up)."""
+
+    def __init__(self, option_strings, dest, **kwargs):
+        super().__init__(option_strings, argparse.SUPPRESS, nargs=0, default=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"{parser.prog} {_version()}")
+        parser.exit()
 
 
 def _version() -> str:

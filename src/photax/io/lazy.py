@@ -17,7 +17,10 @@ workers write (rioxarray's way, under a distributed lock; the file must be
 where they can reach it).
 
 Dask, xarray, rioxarray and rasterio are imported inside the functions
-(the optional ``dask`` extra).
+(the optional ``dask`` extra).  :func:`write_tiles` writes NumPy tiles given
+by the caller into the same file (tiles, COG copy, atomic rename) with
+rasterio alone: the in-memory paths that need no Dask (``photax mosaic`` of
+ortho files, :func:`photax.mosaic_to_raster`).
 """
 
 from __future__ import annotations
@@ -258,7 +261,6 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
     Returns:
         ``path``.
     """
-    import rasterio
     import rioxarray  # noqa: F401
 
     if data.ndim not in (2, 3) or tuple(data.dims[-2:]) != (data.rio.y_dim, data.rio.x_dim):
@@ -273,26 +275,17 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
             raise ValueError(f"mask must be (y, x) = {tuple(data.shape[-2:])}, got shape {tuple(mask.shape)}")
         if on_cluster:
             raise ValueError("to_raster: mask= is written by the local schedulers only, not by a distributed client")
-    options = dict(driver="GTiff", tiled=True, BIGTIFF="IF_SAFER", blockxsize=256, blockysize=256)
-    if hasattr(data.data, "chunks"):  # tiles dividing the chunks
-        ys, xs = data.data.chunks[-2:]
-        options.update(blockysize=_tile_edge(ys), blockxsize=_tile_edge(xs))
-    if compress:
-        options["compress"] = compress
-    options.update(kwargs)
+    ys, xs = data.data.chunks[-2:] if hasattr(data.data, "chunks") else ((data.shape[-2],), (data.shape[-1],))
+    options = _options(ys, xs, compress, hasattr(data.data, "chunks"), kwargs)
     bands = data.shape[0] if data.ndim == 3 else 1
     check_output_size(
         data.shape[-2:], bands + (mask is not None), data.dtype, path=path, compressed=bool(compress or cog)
     )
     if mask is not None:
         options["nodata"] = None  # the mask band, not a value, says where there is no data
-    # GDAL's block cache bounded for the write (default: 5 % of the RAM): two
-    # chunks' bytes, at least 16 MiB.  GDAL's COG copy reads the whole raster
-    # through the cache: 172 MiB for a 100 MPix uint8 ortho by default, 55 MiB so.
     chunk = data.data.chunksize if hasattr(data.data, "chunksize") else data.shape
-    cache = max(16 << 20, 2 * math.prod(chunk) * data.dtype.itemsize)
 
-    def write(target):
+    def write(target, options):
         if not on_cluster:
             _write_local(data, target, options, mask)
             return
@@ -302,28 +295,100 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
 
     # Uncompressed, the size is known: refused before the work when the disk cannot hold it.
     size = None if compress or cog else data.size * data.dtype.itemsize
-    env = rasterio.Env(GDAL_CACHEMAX=cache, GDAL_TIFF_INTERNAL_MASK=True)
+    _atomic_geotiff(path, write, options, compress, cog, inputs, size, math.prod(chunk) * data.dtype.itemsize)
+    return path
+
+
+def _options(ys, xs, compress, tiles_from_chunks: bool, kwargs) -> dict:
+    """The GeoTIFF creation options of :func:`to_raster` for chunks ``ys``, ``xs`` (edges along y and x):
+    tiled, its tiles dividing the chunks (``tiles_from_chunks``; else 256 px), ``compress``, ``kwargs``."""
+    options = dict(driver="GTiff", tiled=True, BIGTIFF="IF_SAFER", blockxsize=256, blockysize=256)
+    if tiles_from_chunks:
+        options.update(blockysize=_tile_edge(ys), blockxsize=_tile_edge(xs))
+    if compress:
+        options["compress"] = compress
+    options.update(kwargs)
+    return options
+
+
+def _atomic_geotiff(path, write, options, compress, cog, inputs, size, chunk_bytes) -> None:
+    """``write(target, options)`` a GeoTIFF into a temporary file renamed onto ``path`` once written
+    (and, with ``cog``, copied by GDAL's COG driver first), GDAL's block cache bounded to two chunks."""
+    import rasterio
+
+    # GDAL's block cache bounded for the write (default: 5 % of the RAM): two
+    # chunks' bytes, at least 16 MiB.  GDAL's COG copy reads the whole raster
+    # through the cache: 172 MiB for a 100 MPix uint8 ortho by default, 55 MiB so.
+    env = rasterio.Env(GDAL_CACHEMAX=max(16 << 20, 2 * chunk_bytes), GDAL_TIFF_INTERNAL_MASK=True)
     with atomic_path(path, inputs=inputs, size=size) as tmp, env:
         if not cog:
-            write(tmp)
-        else:
-            import rasterio.shutil
+            write(tmp, options)
+            return
+        import rasterio.shutil
 
-            from .raster import gdal_errors
+        from .raster import gdal_errors
 
-            # The intermediate GeoTIFF, read once by the copy, is compressed fast (ZSTD level 1: a quarter
-            # of deflate's CPU time, at about its size); the COG copy compresses on every CPU.
-            fast = dict(compress="zstd", zstd_level=1) if _has_zstd() else {}
-            with temporary(tmp.with_name(tmp.name + ".gtiff")) as plain:
-                options.update(fast)
-                write(plain)
-                with gdal_errors():
-                    rasterio.shutil.copy(
-                        plain,
-                        tmp,
-                        driver="COG",
-                        compress=compress or "deflate",
-                        overviews="AUTO",
-                        num_threads="ALL_CPUS",
-                    )
+        # The intermediate GeoTIFF, read once by the copy, is compressed fast (ZSTD level 1: a quarter
+        # of deflate's CPU time, at about its size); the COG copy compresses on every CPU.
+        fast = dict(compress="zstd", zstd_level=1) if _has_zstd() else {}
+        with temporary(tmp.with_name(tmp.name + ".gtiff")) as plain:
+            write(plain, {**options, **fast})
+            with gdal_errors():
+                rasterio.shutil.copy(
+                    plain,
+                    tmp,
+                    driver="COG",
+                    compress=compress or "deflate",
+                    overviews="AUTO",
+                    num_threads="ALL_CPUS",
+                )
+
+
+def write_tiles(
+    path, tiles, *, shape, dtype, transform, crs, nodata, name, chunks: int, compress="deflate", cog=False, inputs=()
+):
+    """Write a raster given tile by tile, NumPy blocks from this thread, as :func:`to_raster` writes the
+    same array in Dask chunks of ``chunks`` (its GeoTIFF tiles, compression, COG copy, atomic rename):
+    for the in-memory paths that need no Dask (e.g. ``photax mosaic`` of ortho files).
+
+    Args:
+        path: the output file.
+        tiles: iterable of ``((row, col), block)``: ``block`` ``(bands, h, w)`` (or ``(h, w)`` for one band)
+            at ``(row, col)`` of the raster, in any order, covering it.
+        shape: ``(bands, rows, cols)``.
+        dtype, transform, crs, nodata: the raster's.
+        name: each band's description.
+        chunks: the blocks' edge (GeoTIFF tiles divide it).
+        compress, cog, inputs: as for :func:`to_raster`.
+
+    Returns:
+        ``path``.
+    """
+    import rasterio
+    from rasterio.windows import Window
+
+    from .raster import gdal_errors
+
+    bands, rows, cols = shape
+    ys, xs = _axis_chunks(rows, chunks), _axis_chunks(cols, chunks)
+    options = _options(ys, xs, compress, True, {})
+    check_output_size((rows, cols), bands, np.dtype(dtype), path=path, compressed=bool(compress or cog))
+    profile = dict(width=cols, height=rows, count=bands, dtype=dtype, crs=crs, transform=transform, nodata=nodata)
+
+    def write(target, options):
+        with gdal_errors(), rasterio.open(target, "w", **profile, **options) as ds:
+            ds.descriptions = (name,) * bands
+            for (r, c), block in tiles:
+                block = block.reshape(-1, *block.shape[-2:])
+                ds.write(block, window=Window(c, r, block.shape[2], block.shape[1]))
+
+    size = None if compress or cog else rows * cols * bands * np.dtype(dtype).itemsize
+    _atomic_geotiff(
+        path, write, options, compress, cog, inputs, size, chunks * chunks * bands * np.dtype(dtype).itemsize
+    )
     return path
+
+
+def _axis_chunks(size: int, chunks: int) -> tuple[int, ...]:
+    """Dask's chunks of an axis of ``size`` in chunks of ``chunks``."""
+    return (chunks,) * (size // chunks) + ((size % chunks,) if size % chunks else ())
