@@ -11,11 +11,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from bundle_steps import LAMBDA, apply, one_step
 
 import photax as ptx
-from photax.bundle._linearise import _linearise, _residuals
-from photax.bundle._schur import _trial
-from photax.bundle._structure import _analyse, _State
+from photax.bundle._linearise import _residuals
 from photax.cli import main
 from photax.io.block import write_block
 from photax.scene import synthetic_block
@@ -91,31 +90,15 @@ def test_schur_step_with_dem_equals_dense_normal_equations(terrain_block, solver
     pts = problem.points.copy()
     pts[:5, 0] -= 5000.0  # off the DEM: no observation (and moved back by the ties alone)
     problem = problem.replace(points=pts, dem=dem, dem_sigma=sig)
-    origin = np.round(problem.points.mean(0))
-    s, n_c, _ = _analyse(problem, np.zeros((n_img, 6), bool), origin)
+    s, n_c, origin, state, lin, new = one_step(problem, solver)
     assert np.count_nonzero(np.asarray(s.dem_w)) == n_pts - 5
-    intr = np.stack([np.r_[float(c.focal_length), np.asarray(c.principal_point), np.asarray(c.distortion)]
-                     for c in problem.cameras])  # fmt: skip
-    state = _State(
-        jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
-        jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]),
-    )  # fmt: skip
-    lam, none, one = 1e-3, jnp.asarray(0), jnp.asarray(1.0)
-    lin = _linearise(state, s, none, one, n_c)
-    new, *_ = _trial(state, lin, s, jnp.asarray(lam), none, one, n_c, solver=solver)
 
     seen = np.ones(n_pts, bool)
     seen[:5] = False
     g_local = jnp.asarray(problem.gnss_position - origin[None, :])
 
-    def apply(x):
-        dimg = x[: 6 * n_img].reshape(n_img, 6)
-        rot = state.rot @ ptx.axis_angle_to_matrix(dimg[:, :3])
-        centre = state.centre + jnp.einsum("nij,nkj,nk->ni", rot, state.rot, dimg[:, 3:])
-        return _State(rot, centre, state.intr, state.xyz + x[n_c:].reshape(n_pts, 3))
-
     def residual(x):
-        st = apply(x)
+        st = apply(state, x, n_img, n_c)
         world = st.xyz + jnp.asarray(origin)[None, :]  # the problem's DEM itself, in world coordinates
         r_dem = ((world[:, 2] - dem.height(world[:, 0], world[:, 1])) / sig)[seen]
         r_g = (st.centre - g_local) / 2.0
@@ -126,8 +109,8 @@ def test_schur_step_with_dem_equals_dense_normal_equations(terrain_block, solver
     r = np.asarray(jax.jit(residual)(x0))
     assert float(lin.cost) == pytest.approx(0.5 * float(r @ r), rel=1e-10)
     h = J.T @ J
-    dx = np.linalg.solve(h + lam * np.diag(np.clip(np.diag(h), 1e-6, 1e32)), -J.T @ r)
-    ref = apply(jnp.asarray(dx))
+    dx = np.linalg.solve(h + LAMBDA * np.diag(np.clip(np.diag(h), 1e-6, 1e32)), -J.T @ r)
+    ref = apply(state, jnp.asarray(dx), n_img, n_c)
     tol = (
         {"centre": 1e-6, "rot": 1e-10, "xyz": 1e-6} if solver != "cg" else {"centre": 2e-3, "rot": 1e-6, "xyz": 2e-3}
     )  # CG: its own tolerance

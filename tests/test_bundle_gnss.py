@@ -11,11 +11,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from bundle_steps import LAMBDA, apply, one_step
 
 import photax as ptx
-from photax.bundle._linearise import _linearise, _prior_residuals, _residuals
-from photax.bundle._schur import _trial
-from photax.bundle._structure import _analyse, _State
+from photax.bundle._linearise import _prior_residuals, _residuals
 from photax.cli import main
 from photax.io.block import write_block
 from photax.scene import synthetic_block
@@ -52,29 +51,13 @@ def test_schur_step_with_gnss_equals_dense_normal_equations(solver):
     a_sig = rng.uniform(0.001, 0.004, (n_img, 3))
     lever = np.array([0.2, -0.4, 1.3])
     problem = problem.replace(gnss_position=gnss, gnss_sigma=g_sig, attitude=att, attitude_sigma=a_sig, lever_arm=lever)
-    origin = np.round(problem.points.mean(0))
-    s, n_c, _ = _analyse(problem, np.zeros((n_img, 6), bool), origin)
-    intr = np.stack([np.r_[float(c.focal_length), np.asarray(c.principal_point), np.asarray(c.distortion)]
-                     for c in problem.cameras])  # fmt: skip
-    state = _State(
-        jnp.asarray(problem.exterior.rotation), jnp.asarray(problem.exterior.position) - origin[None, :],
-        jnp.asarray(intr), jnp.asarray(problem.points - origin[None, :]),
-    )  # fmt: skip
-    lam, none, one = 1e-3, jnp.asarray(0), jnp.asarray(1.0)
-    lin = _linearise(state, s, none, one, n_c)
-    new, *_ = _trial(state, lin, s, jnp.asarray(lam), none, one, n_c, solver=solver)
+    s, n_c, origin, state, lin, new = one_step(problem, solver)
 
     n_pts = problem.n_points
     conv = problem.exterior.convention
     seen_g, seen_a = np.isfinite(gnss).all(1), np.isfinite(att).all(1)
     g_local = jnp.asarray(np.nan_to_num(gnss) - origin[None, :])
     r_obs = ptx.rotation_matrix(jnp.asarray(np.nan_to_num(att)), conv)
-
-    def apply(x):  # the solver's update (see test_bundle.test_schur_step_equals_dense_normal_equations)
-        dimg = x[: 6 * n_img].reshape(n_img, 6)
-        rot = state.rot @ ptx.axis_angle_to_matrix(dimg[:, :3])
-        centre = state.centre + jnp.einsum("nij,nkj,nk->ni", rot, state.rot, dimg[:, 3:])
-        return _State(rot, centre, state.intr, state.xyz + x[n_c:].reshape(n_pts, 3))
 
     def angle_rows(
         rot,
@@ -85,7 +68,7 @@ def test_schur_step_with_gnss_equals_dense_normal_equations(solver):
         return jnp.einsum("nij,nj->ni", jac, e)
 
     def residual(x):
-        st = apply(x)
+        st = apply(state, x, n_img, n_c)
         antenna = st.centre + jnp.einsum("nij,j->ni", st.rot, jnp.asarray(lever))
         r_g = ((antenna - g_local) / g_sig)[seen_g]
         r_a = (angle_rows(st.rot) / a_sig)[seen_a]
@@ -98,8 +81,8 @@ def test_schur_step_with_gnss_equals_dense_normal_equations(solver):
     assert float(lin.cost) == pytest.approx(0.5 * float(r @ r), rel=1e-10)
     H = J.T @ J
     dx = np.zeros(len(free))
-    dx[free] = np.linalg.solve(H + lam * np.diag(np.clip(np.diag(H), 1e-6, 1e32)), -J.T @ r)
-    ref = apply(jnp.asarray(dx))
+    dx[free] = np.linalg.solve(H + LAMBDA * np.diag(np.clip(np.diag(H), 1e-6, 1e32)), -J.T @ r)
+    ref = apply(state, jnp.asarray(dx), n_img, n_c)
     tol = {"centre": 1e-7, "rot": 1e-11, "xyz": 1e-7} if solver != "cg" else {"centre": 2e-3, "rot": 1e-7, "xyz": 2e-3}
     np.testing.assert_allclose(new.centre, ref.centre, atol=tol["centre"])
     np.testing.assert_allclose(new.rot, ref.rot, atol=tol["rot"])
