@@ -119,7 +119,7 @@ the block in parts that only the GNSS observations hold together; the bundle say
     ties = ptx.match_ties(grey, camera, start, dem)
     for (i, j), s in sorted(ties.pair_status.items()):
         if s != "no overlap":
-            print(f"{short[i]} - {short[j]}: {ties.pair_counts.get((i, j), 0):3d} ties ({s})")
+            print(f"{short[i]} - {short[j]}: {ties.pair_ties.get((i, j), 0):3d} tracks seen in both ({s})")
     print(f"{ties.n_tracks} tie tracks, {len(ties.obs_xy)} observations")
 
     w, h = camera.image_size
@@ -137,11 +137,12 @@ the block in parts that only the GNSS observations hold together; the bundle say
     first = np.asarray([ties.obs_image[ties.obs_point == t].min() for t in range(ties.n_tracks)])
     ax.scatter(ties.ground[:, 0], ties.ground[:, 1], s=10, c=colours[first], edgecolors="k", linewidths=0.3,
                zorder=3)
-    most = max(ties.pair_counts.values(), default=1)
-    for (i, j), count in ties.pair_counts.items():
+    most = max(ties.pair_ties.values(), default=1)
+    for (i, j), count in ties.pair_ties.items():
         if ties.pair_status[(i, j)] == "ok":
             ax.plot(*centres[[i, j]].T, color="k", lw=1 + 5 * count / most, zorder=4)
-            ax.annotate(str(count), centres[[i, j]].mean(axis=0), ha="center", va="center", zorder=5,
+            at = 0.6 * centres[i] + 0.4 * centres[j]  # off the middle: crossing lines keep their labels apart
+            ax.annotate(str(count), at, ha="center", va="center", zorder=5,
                         bbox=dict(boxstyle="round", fc="w", ec="k", lw=0.5))
     for (i, j), status in ties.pair_status.items():
         if status not in ("ok", "no overlap"):  # overlapping, but no accepted ties
