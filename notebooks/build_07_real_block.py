@@ -24,7 +24,8 @@ see `SOURCES.md` there). A surveyor's chain, each step with what it tells about 
    (`ptx.match_ties`);
 3. a **GNSS/INS-aided bundle adjustment**: the start positions are observations with sigma 2 m,
    the angles loose ones with sigma 1 deg; no ground control. Its report, the residual vectors and
-   the sigma of every camera;
+   the sigma of every camera; then the same adjustment with the DEM's heights as observations of
+   the tie points (sigma 3 m, the DEM's measured error), and what that changes per camera;
 4. the **orthos** of the four frames in one call, and one **mosaic** with its seamlines;
 5. the drone images of the same corpus (ODM's `reconstruction.json`) orthorectified as they are.
 
@@ -118,7 +119,7 @@ the block in parts that only the GNSS observations hold together; the bundle say
     ties = ptx.match_ties(grey, camera, start, dem)
     for (i, j), s in sorted(ties.pair_status.items()):
         if s != "no overlap":
-            print(f"{short[i]} - {short[j]}: {ties.pair_counts.get((i, j), 0):3d} ties ({s})")
+            print(f"{short[i]} - {short[j]}: {ties.pair_ties.get((i, j), 0):3d} tracks seen in both ({s})")
     print(f"{ties.n_tracks} tie tracks, {len(ties.obs_xy)} observations")
 
     w, h = camera.image_size
@@ -136,11 +137,12 @@ the block in parts that only the GNSS observations hold together; the bundle say
     first = np.asarray([ties.obs_image[ties.obs_point == t].min() for t in range(ties.n_tracks)])
     ax.scatter(ties.ground[:, 0], ties.ground[:, 1], s=10, c=colours[first], edgecolors="k", linewidths=0.3,
                zorder=3)
-    most = max(ties.pair_counts.values(), default=1)
-    for (i, j), count in ties.pair_counts.items():
+    most = max(ties.pair_ties.values(), default=1)
+    for (i, j), count in ties.pair_ties.items():
         if ties.pair_status[(i, j)] == "ok":
             ax.plot(*centres[[i, j]].T, color="k", lw=1 + 5 * count / most, zorder=4)
-            ax.annotate(str(count), centres[[i, j]].mean(axis=0), ha="center", va="center", zorder=5,
+            at = 0.6 * centres[i] + 0.4 * centres[j]  # off the middle: crossing lines keep their labels apart
+            ax.annotate(str(count), at, ha="center", va="center", zorder=5,
                         bbox=dict(boxstyle="round", fc="w", ec="k", lw=0.5))
     for (i, j), status in ties.pair_status.items():
         if status not in ("ok", "no overlap"):  # overlapping, but no accepted ties
@@ -248,6 +250,94 @@ the adjustment's covariance.""",
     ),
     (
         "md",
+        """### The same adjustment with the DEM's heights
+
+The DEM is one more observation the block already has: each tie point lies on the terrain, so its
+height is an observation of the DEM at its position (`Z - DEM(X, Y) = 0`, `BundleProblem(dem=,
+dem_sigma=)`; `photax bundle BLOCK --dem DEM --dem-sigma S`). The terrain's relief then holds the
+block's tilt and height, where the four GNSS positions alone leave it free to turn.
+
+Its sigma, **3 m**, is the DEM's error at the ties measured independently of any adjustment, not
+tuned: `benchmarks/gnss_ngi.py --dem-sigma` intersects the ties with the survey's orientations
+(`camera_pos_ori.txt`, held) and finds them 2.7-3.1 m RMS off the DEM (std 2.7-3.0 m, mean -0.3 to
+-0.6 m, heavy tails from trees and buildings; six seeds). The cell below repeats that measurement on
+this notebook's ties, then adjusts the same block, ties, GNSS and INS observations once more, now
+with the DEM; its report ends with the DEM heights' residual RMS and the sigma the adjustment
+estimates for them (a variance component: near 3 m if the 3 m was right).""",
+    ),
+    (
+        "code",
+        """if have:
+    # The survey's own adjustment, camera_pos_ori.txt (X Y Z omega phi kappa, degrees): the reference.
+    lines = (NGI / "camera_pos_ori.txt").read_text().splitlines()
+    ref = {ln.split()[0]: np.array(ln.split()[1:7], float) for ln in lines if ln.strip()}
+    ref_pos = np.stack([ref[n][:3] for n in names])
+    ref_ang = np.stack([ref[n][3:] for n in names])
+    # The DEM's error at these ties, independent of the adjustment: the ties intersected with the
+    # survey's orientations (held: only the points are adjusted), their heights against the DEM's.
+    held = ptx.bundle_adjust(problem.replace(
+        exterior=ptx.ExteriorOrientation(ref_pos, np.radians(ref_ang), convention=start[0].convention),
+        fixed_exterior=np.ones((len(names), 6), bool), gnss_position=None, gnss_sigma=None, attitude=None,
+        attitude_sigma=None))
+    dz = held.points[:, 2] - np.asarray(dem.height(held.points[:, 0], held.points[:, 1]))
+    dz = dz[np.isfinite(dz)]
+    print(f"these ties intersected with camera_pos_ori.txt ({len(dz)} on the DEM): Z - DEM RMS "
+          f"{np.sqrt(np.mean(dz**2)):.2f} m, mean {dz.mean():+.2f} m, median |dZ| {np.median(np.abs(dz)):.2f} m")
+
+    DEM_SIGMA = 3.0  # m: measured by benchmarks/gnss_ngi.py as above, not tuned
+    with_dem = ptx.bundle_adjust(problem.replace(dem=dem, dem_sigma=DEM_SIGMA, crs=crs))
+    print(with_dem.report(unit="m"))""",
+    ),
+    (
+        "md",
+        """**What the DEM changes, image by image.** Top: the sigma of each camera's position and angles
+from the adjustment's covariance, without the DEM (pale, hatched) and with it (solid). Bottom: how
+far the recovered positions and angles are from the survey's adjustment (`camera_pos_ori.txt`,
+itself an adjustment, so not exact truth), with and without the DEM, each with its reported sigma as
+an error bar; the dotted lines are the issue's targets (4 m, 0.05 deg). With the DEM the angles'
+sigma falls below what the survey can check: with the positions held at the survey's, the ties alone
+already differ from its angles by 0.015-0.02 deg (`benchmarks/gnss_ngi.py`), so an angle 2-3 sigma
+off is that disagreement, not the DEM's.""",
+    ),
+    (
+        "code",
+        """if have:
+    runs = {"without DEM": result, "with DEM": with_dem}
+    comps = (("X", "Y", "Z"), ("omega", "phi", "kappa"))
+    diffs, stds = {}, {}
+    for label, r in runs.items():
+        d_ang = (np.degrees(np.asarray(r.exterior.angles)) - ref_ang + 180) % 360 - 180
+        diffs[label] = (np.asarray(r.exterior.position) - ref_pos, d_ang)
+        s = np.asarray(r.exterior_std)
+        stds[label] = (s[:, :3], np.degrees(s[:, 3:]))
+    x = np.arange(len(names))
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8), sharex=True)
+    for col, (unit, target) in enumerate((("m", 4.0), ("deg", 0.05))):
+        for i, lab in enumerate(comps[col]):
+            for half, (label, alpha, hatch) in enumerate((("without DEM", 0.35, "//"), ("with DEM", 1.0, None))):
+                at = x + (i - 1) * 0.27 + (half - 0.5) * 0.13
+                kw = dict(color=f"C{i}", alpha=alpha, hatch=hatch, edgecolor=f"C{i}", lw=0.5)
+                axes[0, col].bar(at, stds[label][col][:, i], 0.13, label=f"{lab}, {label}", **kw)
+                axes[1, col].bar(at, diffs[label][col][:, i], 0.13, yerr=stds[label][col][:, i],
+                                 error_kw=dict(lw=0.8, capsize=2), **kw)
+        axes[0, col].set_ylabel(unit)
+        axes[0, col].set_title(f"sigma of each camera's {'position' if col == 0 else 'angles'}")
+        axes[0, col].margins(y=0.3)  # room for the legend above the bars
+        axes[0, col].legend(fontsize=7, ncol=3)
+        axes[1, col].axhline(0, color="k", lw=0.5)
+        for sign in (-1, 1):
+            axes[1, col].axhline(sign * target, color="k", ls=":", lw=1)
+        axes[1, col].set_ylabel(unit)
+        axes[1, col].set_title(f"recovered {'position' if col == 0 else 'angles'} - camera_pos_ori.txt (bars: ±1 sigma)")
+        axes[1, col].set_xticks(x, short)
+    fig.tight_layout()
+    for label in runs:
+        print(f"{label}: median sigma omega, phi, kappa {np.round(np.median(stds[label][1], axis=0), 4)} deg, "
+              f"X, Y, Z {np.round(np.median(stds[label][0], axis=0), 2)} m; largest difference to the survey "
+              f"{np.abs(diffs[label][1]).max():.3f} deg, {np.abs(diffs[label][0]).max():.2f} m")""",
+    ),
+    (
+        "md",
         """## 4. Orthos of the block in one call, and one mosaic with its seamlines
 
 `ptx.orthorectify_files` writes every frame's ortho (each atomically) with the adjusted
@@ -335,10 +425,12 @@ CRS); the orthos at 0.5 m, side by side.""",
         """**What to take from it.** The ties decide the relative orientation of the frames they connect;
 GNSS gives the block its place, scale and, with the loose attitudes, its rotation where the ties
 leave it free (between strips without cross-strip ties the block falls into parts, and the
-report says so). Each step's own measure of quality -- tie counts per pair, sigma0, GNSS
-residuals, sigma per camera, the seams -- is what a surveyor checks before trusting the mosaic.
-`tests/test_real_block.py` checks the same chain from the shell and photax's orthos against
-orthority's (mean absolute difference <= 0.3 grey levels, offset <= 0.05 px).""",
+report says so). Four GNSS positions hold that rotation only loosely; the DEM's heights at the
+ties, at their measured sigma, hold the angles two to three times tighter here. Each step's own
+measure of quality -- tie counts per pair, sigma0, GNSS and DEM residuals, sigma per camera, the
+seams -- is what a surveyor checks before trusting the mosaic. `tests/test_real_block.py` checks
+the same chain from the shell (the bundle with the DEM) and photax's orthos against orthority's
+(mean absolute difference <= 0.3 grey levels, offset <= 0.05 px).""",
     ),
 ]
 

@@ -1,8 +1,9 @@
 """The real-data tier (issue 21 item 6): orthority's test corpus in ``../shared/data/orthority``
 (skipped cleanly when absent).
 
-* The README's real-block chain (ties -> GNSS-aided bundle -> orthos of the block in one process ->
-  mosaic with seamlines and source index) runs as written, from a folder beside ``shared/``.
+* The README's real-block chain (ties -> GNSS-aided bundle with the DEM's heights -> orthos of the
+  block in one process -> mosaic with seamlines and source index) runs as written, from a folder
+  beside ``shared/``.
 * photax's orthos of the four NGI frames and of the four drone images against orthority's
   (``oty frame``, ``oty odm``: an independent orthorectifier), same inputs, resolution and kernels:
   mean absolute difference <= 0.3 grey levels, grey-level bias < 0.05 and geometric offset
@@ -79,6 +80,22 @@ def test_readme_real_block_chain_runs_as_written(tmp_path, monkeypatch, capsys):
     survey = {ln.split()[0]: np.array(ln.split()[1:4], float) for ln in lines if ln.strip()}
     for name, img in images.items():
         assert np.all(np.abs(np.asarray(img["position"]) - survey[name]) < 3 * 2.0), name
+    # The DEM's heights: every tie lies on the DEM, and the adjusted heights lie within the DEM's own
+    # error at the ties (3 m RMS, measured independently: the ties intersected with the survey's
+    # orientations, benchmarks/gnss_ngi.py) -- a DEM in another height system or a wrong DEM term
+    # leaves them tens of metres off.
+    dem = result["dem_heights"]
+    n_ties = (out / "ngi-block" / "points.csv").read_text().count(",tie,")
+    assert dem["observed"] == n_ties > 0 and dem["not_observed"] == 0, dem
+    assert dem["rms"] < 3.0, dem
+    # ... and they hold the block's angles tighter than the GNSS alone: the same bundle without them.
+    (bundle,) = [shlex.split(c)[1:] for c in cmds if c.split()[1] == "bundle"]  # options: one value each
+    alone = {a: v for a, v in zip(bundle[2::2], bundle[3::2]) if a not in ("--dem", "--dem-sigma")}
+    alone |= {"-o": "out/ngi-bundle-gnss.json"}
+    assert main(bundle[:2] + [x for kv in alone.items() for x in kv] + ["--no-progress"]) == 0
+    gnss_only = {img["name"]: img for img in json.loads((out / "ngi-bundle-gnss.json").read_text())["images"]}
+    for name, img in images.items():
+        assert np.all(np.asarray(img["std"][3:]) < np.asarray(gnss_only[name]["std"][3:])), name
     assert sorted(p.name for p in (out / "ngi-orthos").iterdir()) == [f"{n}_ortho.tif" for n in NGI_NAMES]
     with rasterio.open(out / "ngi-mosaic.tif") as ds, rasterio.open(out / "ngi-source.tif") as src:
         mosaic, index = ds.read(1), src.read(1)
