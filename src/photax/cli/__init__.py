@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import importlib
 import os
 import signal
@@ -176,7 +177,6 @@ def _not_now(frame) -> bool:
     """Whether a ``KeyboardInterrupt`` raised in ``frame`` would crash or vanish: inside
     the start of a C extension module (``import jaxlib``...) or a garbage-collector
     callback (Python ignores their exceptions)."""
-    import gc
     from importlib.machinery import ExtensionFileLoader
 
     callbacks = {getattr(cb, "__code__", None) for cb in gc.callbacks}
@@ -230,9 +230,16 @@ def main(argv: list[str] | None = None) -> int:
     temporary name, synced and renamed at the end; nothing is renamed after a
     Ctrl-C, and a command that fails takes back the outputs it had finished).
     Set ``PHOTAX_TRACEBACK=1`` to see the traceback of an unexpected error.
+
+    As the process's entry point (``argv`` None) it runs the command's start-up without
+    Python's cyclic garbage collector, until :func:`photax.cli._common.start_gc`.
     """
     from ..io.atomic import cleanup_temporaries
+    from ._common import _GC_PAUSED
 
+    if argv is None and gc.isenabled():  # the process is this command: no cyclic GC in its start-up
+        gc.disable()
+        _GC_PAUSED[0] = True
     handler, previous = None, None
     if threading.current_thread() is threading.main_thread():
         handler = _CtrlC()
@@ -299,7 +306,10 @@ def _main(argv: list[str] | None) -> int:
             if getattr(args, "compiles", True):  # a command that compiles nothing need not import JAX for it
                 _enable_compilation_cache()
             from ..io.files import recording_inputs
+            from ._common import start_gc
 
+            if not getattr(args, "starts_gc", False):  # else the command says when its start-up ends
+                start_gc()
             with recording_inputs():  # every file read is an input: never an output (photax.io.atomic)
                 status = int(args.func(args) or 0)
     except KeyboardInterrupt:
