@@ -70,3 +70,52 @@ def test_an_in_process_main_leaves_the_collector_alone(tmp_path):
     assert p.returncode == 0, p.stderr
     assert "{'start-up': True, 'work': True, 'frozen': False}" in p.stdout, (p.stdout, p.stderr)
     assert "{'after': True, 'frozen': False}" in p.stdout
+
+
+# JAX imported as the command line imports it (photax._aot.import_jax), beside a plain import: how
+# many distributions' METADATA files are read, and whether a (fake) ROCm plugin is still found.
+_ROCM_SCRIPT = """
+import importlib.metadata as metadata, sys
+sys.path.append(sys.argv[2])  # after site-packages: JAX's scan stops at the plugin it finds
+reads = []
+read_text = metadata.PathDistribution.read_text
+def counting(self, name):
+    if name == "METADATA":
+        reads.append(self._path.name)
+    return read_text(self, name)
+metadata.PathDistribution.read_text = counting
+every = metadata.distributions
+if sys.argv[1] == "photax":
+    from photax import _aot
+    _aot.import_jax()
+else:
+    import jax
+import jax._src.numpy.array_constructors as ac
+print(len(reads), getattr(ac.rocm_plugin_extension, "FAKE", None), metadata.distributions is every)
+"""
+
+
+def test_jax_imported_without_reading_every_package_metadata(tmp_path):
+    # a fake ROCm plugin: a distribution named jax-rocm9-plugin and its extension module
+    dist = tmp_path / "jax_rocm9_plugin-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: jax-rocm9-plugin\nVersion: 0.1\n")
+    (tmp_path / "jax_rocm9_plugin").mkdir()
+    (tmp_path / "jax_rocm9_plugin" / "__init__.py").write_text("")
+    (tmp_path / "jax_rocm9_plugin" / "rocm_plugin_extension.py").write_text("FAKE = 'found'\n")
+    env = {"PYTHONPATH": str(ROOT / "src"), "PATH": ""}
+    counts = {}
+    for how in ("plain", "photax"):
+        p = subprocess.run(
+            [sys.executable, "-c", _ROCM_SCRIPT, how, str(tmp_path)],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=300,
+        )
+        assert p.returncode == 0, p.stderr
+        n, found, restored = p.stdout.split()
+        assert found == "found" and restored == "True", p.stdout  # the plugin is found either way
+        counts[how] = int(n)
+    assert counts["plain"] >= 10, counts  # the environment's packages (numpy, jax, rasterio...): all read
+    assert counts["photax"] <= 2, counts  # only the plugin's (and at most one other read)

@@ -129,6 +129,37 @@ def _lapack_on_demand() -> None:
     _export._ensure_backends_initialized = ensure
 
 
+def import_jax() -> None:
+    """``import jax`` for a program that opts in (the command line), without JAX's scan of
+    every installed distribution for a ROCm plugin.
+
+    At import, ``jax._src.numpy.array_constructors`` reads the metadata of every
+    installed distribution (``importlib.metadata.distributions()``, ~160 ``METADATA``
+    files through the e-mail parser here) to find one named ``jax-rocm*-plugin``: 40-50 ms
+    of CPU in every process.  During this import that caller alone is given only the
+    distributions whose folder name could be such a plugin's (normalised ``jax_rocm...``;
+    any distribution without a folder name is kept), and JAX checks their metadata as
+    before: an installed ROCm plugin is still found.  Every other caller gets the full
+    list.  Nothing when JAX is imported already."""
+    import importlib.metadata as metadata
+    import sys
+
+    if "jax" in sys.modules:
+        return
+    every = metadata.distributions
+
+    def distributions(**kwargs):
+        if kwargs or sys._getframe(1).f_globals.get("__name__") != "jax._src.numpy.array_constructors":
+            return every(**kwargs)
+        return [d for d in every() if (getattr(d, "_normalized_name", None) or "jax_rocm").startswith("jax_rocm")]
+
+    metadata.distributions = distributions
+    try:
+        import jax  # noqa: F401
+    finally:
+        metadata.distributions = every
+
+
 def _folder() -> pathlib.Path | None:
     import jax
 

@@ -104,9 +104,10 @@ def _enable_compilation_cache() -> None:
     caches every compilation (``JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS``
     set in the environment still wins).
     """
-    import jax
-
     from .. import _aot
+
+    _aot.import_jax()
+    import jax
 
     _aot.enable()  # and the kernels' traced programs (photax._aot)
     if "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS" not in os.environ:
