@@ -197,26 +197,6 @@ def test_check_output_path_refuses_sidecars(tmp_path, pattern):
     check_output_path(tmp_path / "sub" / out.name, [src])  # so is the same name elsewhere
 
 
-def test_check_output_path_refuses_an_input_or_sidecar_under_another_path(tmp_path):
-    # the same file reached through a hard link or a folder's symbolic link: still an input
-    (tmp_path / "sub").mkdir()
-    src = tmp_path / "image.tif"
-    src.write_bytes(b"x")
-    (tmp_path / "image.tfw").write_text("1\n0\n0\n-1\n0\n0\n")
-    os.link(src, tmp_path / "sub" / "copy.tif")
-    os.link(tmp_path / "image.tfw", tmp_path / "sub" / "world.txt")
-    (tmp_path / "alias").symlink_to(tmp_path, target_is_directory=True)
-    for out, what in [
-        (tmp_path / "sub" / "copy.tif", "an input of this run"),
-        (tmp_path / "sub" / "world.txt", "image.tfw, read with the input"),
-        (tmp_path / "alias" / "image.TFW", "image.tfw, read with the input"),
-        (tmp_path / "alias" / "image.tif", "an input of this run"),
-    ]:
-        with pytest.raises(ValueError, match=what):
-            check_output_path(out, [src])
-    check_output_path(tmp_path / "sub" / "image.tfw", [src])  # a new file of that name elsewhere is fine
-
-
 @pytest.mark.parametrize(
     "which,pattern",
     [

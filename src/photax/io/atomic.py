@@ -46,14 +46,11 @@ def commit(tmp, out) -> None:
     os.replace(tmp, out)
 
 
-def _file_id(path: pathlib.Path) -> tuple[int, int] | None:
-    """``(device, inode)`` of the file ``path`` names (links followed), None where there is none:
-    two paths name the same file when their ids are equal (``os.path.samefile``)."""
+def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
     try:
-        st = os.stat(path)
-    except (OSError, ValueError):
-        return None
-    return st.st_dev, st.st_ino
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def sidecars(path) -> list[pathlib.Path]:
@@ -87,6 +84,13 @@ def sidecars(path) -> list[pathlib.Path]:
     return [p.with_name(n) for n in dict.fromkeys(names)]
 
 
+def _same_place(a: pathlib.Path, b: pathlib.Path) -> bool:
+    """Same file, or same folder and the same name up to case (GDAL tries .TFW and .tfw)."""
+    if _same_file(a, b):
+        return True
+    return a.parent.resolve() == b.parent.resolve() and a.name.lower() == b.name.lower()
+
+
 def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
     """Refuse an output path that is one of the inputs; return it as a Path.
 
@@ -104,24 +108,16 @@ def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
         raise ValueError(f"refusing to write {out}: it is a folder")
     from .files import inputs_read  # here: the CLI imports this module before numpy
 
-    # A sidecar is the output when it is the same file, or in the same folder with the same name
-    # up to case (GDAL tries .TFW and .tfw); each folder resolved once, not once per sidecar.
-    out_id, out_name, out_resolved, out_folder = _file_id(out), out.name.lower(), out.resolve(), out.parent.resolve()
     for src in [*inputs, *inputs_read()]:
         if src is None:
             continue
         src = pathlib.Path(src)
-        if (out_id is not None and _file_id(src) == out_id) or out_resolved == src.resolve():
+        if _same_file(out, src) or out.resolve() == src.resolve():
             raise ValueError(f"refusing to write {out}: it is an input of this run")
         if src.is_dir():  # a folder input lists the files it reads (e.g. a block's) as inputs too
             continue
-        folder = None  # the sidecars' folder (src's), resolved where a name matches
         for side in sidecars(src):
-            if side.name.lower() == out_name:
-                folder = folder or side.parent.resolve()
-            if (side.name.lower() == out_name and folder == out_folder) or (
-                out_id is not None and _file_id(side) == out_id
-            ):
+            if _same_place(out, side):
                 raise ValueError(f"refusing to write {out}: it is {side.name}, read with the input {src}")
     return out
 
