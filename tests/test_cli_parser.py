@@ -189,3 +189,11 @@ def test_ortho_height_equals_an_ortho_on_a_constant_dem_file(tmp_path, capsys):
         assert (a.read() != 0).mean() > 0.3  # an ortho (a footprint turned 35 degrees), not nodata
     with pytest.raises(SystemExit):  # one of --dem and --height
         main(["ortho", *common, "--dem", str(flat), "--height", "1", "-o", str(tmp_path / "x.tif")])
+
+
+@pytest.mark.parametrize("name", SUBCOMMANDS)
+def test_a_run_builds_only_its_subcommand_as_the_full_parser_has_it(name):
+    one = build_parser(name)
+    assert list(one.subcommands) == [name]
+    assert one.subcommands[name].format_help() == PARSERS[name].format_help()
+    assert one.subcommands[name].format_usage() == PARSERS[name].format_usage()

@@ -33,7 +33,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from ._common import NODATA_HELP, RESAMPLING, nodata_value, output_folder
+from ._common import NODATA_HELP, RESAMPLING, nodata_value, output_folder, start_gc
 
 
 def add_parser(sub) -> None:
@@ -108,11 +108,12 @@ def add_parser(sub) -> None:
     p.add_argument("--refine", choices=("shift", "shift-drift", "affine"), default=None,
                    help="with --gcps: the image-space correction refined (default: shift; at least 1, 2, 3 GCPs)")  # fmt: skip
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, starts_gc=True)  # start_gc() once the inputs are read
 
 
 def run(args: argparse.Namespace) -> int:
     if _is_ground(args.camera):
+        start_gc()  # refining RPCs traces JAX functions: their cyclic garbage is collected
         return _run_ground(args)
     rpc_only = [o for o, v in (("--crs", args.crs), ("--gcps", args.gcps), ("--refine", args.refine)) if v is not None]
     if rpc_only:
@@ -168,6 +169,7 @@ def _run_one(args: argparse.Namespace) -> int:
         check_crs(crs, f"the orientation ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
     grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
     _export_params(args, camera, {pathlib.Path(args.image).name: exterior}, crs)
+    start_gc()
     orthorectify_file(
         image,
         args.out,
@@ -222,6 +224,7 @@ def _run_block(args: argparse.Namespace) -> int:
         dem = _flat_dem(args.height, exteriors) if exteriors else None
     if exteriors:
         _export_params(args, camera, {pathlib.Path(args.image[k]).name: table[args.image[k]] for k in todo}, crs)
+    start_gc()
     results = (
         orthorectify_files(
             [args.image[k] for k in todo],
