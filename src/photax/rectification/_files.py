@@ -36,21 +36,31 @@ _tile_positions = disk_cached(_tile_positions, "rectify_tile_positions")
 _resample_tile = disk_cached(_resample_tile, "rectify_resample_tile")
 
 
-def _source_window(cols: np.ndarray, rows: np.ndarray, width: int, height: int, margin: int, bucket: int = 256):
+def _source_window(pos: np.ndarray, origin, width: int, height: int, margin: int, bucket: int = 256):
     """The input window ``(row_off, col_off, h, w)`` an output tile needs, or None.
 
-    Sizes are rounded up to multiples of ``bucket`` (shifting the window
+    ``pos`` ``(2, h, w)`` are the tile's positions (col, row) relative to the integer ``origin``
+    (col, row).  Sizes are rounded up to multiples of ``bucket`` (shifting the window
     back inside the image rather than padding it) so the jitted resampler
     sees few distinct shapes.
     """
-    ok = np.isfinite(cols) & np.isfinite(rows)
-    ok &= (cols > -margin) & (cols < width - 1 + margin) & (rows > -margin) & (rows < height - 1 + margin)
+    o = [int(v) for v in origin]
+    # The bounds moved to the positions' side and compared in their dtype, where they are exact
+    # (integers): no float64 copy of the positions.  NaN and infinities fail one of the two tests.
+    bounds = [(-margin - o[k], n - 1 + margin - o[k]) for k, n in ((0, width), (1, height))]
+    exact = max(abs(b) for pair in bounds for b in pair) < 2**24 or pos.dtype == np.float64
+    ok = np.ones(pos.shape[1:], dtype=bool)
+    for k, (lo, hi) in enumerate(bounds):
+        v = pos[k] if exact else pos[k].astype(np.float64)  # Python ints: compared in v's dtype
+        ok &= (v > lo) & (v < hi)
     if not ok.any():
         return None
     out = []
-    for v, n in ((rows[ok], height), (cols[ok], width)):
-        lo = max(int(np.floor(v.min())) - margin, 0)
-        hi = min(int(np.ceil(v.max())) + margin + 1, n)
+    keep = ok.ravel()
+    for k, n in ((1, height), (0, width)):
+        v = np.compress(keep, pos[k].ravel())  # min + o: exact in float64, as the float64 sums were
+        lo = max(int(np.floor(float(v.min()) + o[k])) - margin, 0)
+        hi = min(int(np.ceil(float(v.max()) + o[k])) + margin + 1, n)
         size = min(-(-(hi - lo) // bucket) * bucket, n)
         out.append((min(lo, n - size), size))
     (r0, h), (c0, w) = out
@@ -174,7 +184,7 @@ def rectify_file(
             )
             p, o = np.asarray(pos)[:, :h, :w], np.asarray(origin)
             # The window from the very positions resampled: none falls outside it.
-            win = _source_window(p[0] + o[0], p[1] + o[1], src.width, src.height, Resampling(resampling).margin)
+            win = _source_window(p, o, src.width, src.height, Resampling(resampling).margin)
             if win is None:
                 empty = np.full((src.count, h, w), fill, dtype=fill.dtype)
                 return (empty, np.zeros((h, w), bool)), err, n_exact
