@@ -78,6 +78,43 @@ def test_a_bad_image_exits_1_and_the_others_are_written(images, tmp_path, capsys
     assert not list((tmp_path / "block").glob(".*part"))  # no temporary left
 
 
+def test_an_image_failing_mid_ortho_exits_1_and_the_others_are_written(images, tmp_path, capsys):
+    # Its header reads (its grid is made) but its pixels do not: it fails while the next image is
+    # already being computed (two images in flight), and only it is missing.
+    broken = images[1]
+    broken.write_bytes(broken.read_bytes()[: broken.stat().st_size // 2])
+    rc = main(["ortho", *map(str, images), "--out-dir", str(tmp_path / "block"), *_common()])
+    captured = capsys.readouterr()
+    assert rc == 1
+    assert f"{broken} failed" in captured.err and "1 of 3 images failed" in captured.err
+    assert [line.split(":")[0] for line in captured.out.splitlines()] == [
+        f"wrote {tmp_path / 'block' / (image.stem + '_ortho.tif')}" for image in (images[0], images[2])
+    ]
+    assert sorted(p.name for p in (tmp_path / "block").iterdir()) == sorted(
+        f"{image.stem}_ortho.tif" for image in (images[0], images[2])
+    )  # no temporary left, nothing of the broken image
+    singles = _singles([images[0], images[2]], tmp_path / "single")
+    for image in (images[0], images[2]):
+        assert filecmp.cmp(tmp_path / "block" / f"{image.stem}_ortho.tif", singles[image.stem], shallow=False)
+
+
+def test_ctrl_c_while_two_images_are_in_flight_leaves_no_file(images, tmp_path, capsys, monkeypatch):
+    import photax.rectification._files as files
+
+    real, calls = files._resample_tile, []
+
+    def interrupted(*args, **kwargs):  # Ctrl-C in the second image's tiles
+        calls.append(1)
+        if len(calls) >= 2:
+            raise KeyboardInterrupt
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(files, "_resample_tile", interrupted)
+    assert main(["ortho", *map(str, images), "--out-dir", str(tmp_path / "block"), *_common()]) == 130
+    assert "interrupted" in capsys.readouterr().err
+    assert not (tmp_path / "block").exists() or not any((tmp_path / "block").iterdir())  # no ortho, no .part
+
+
 def test_block_usage_errors_exit_2(images, tmp_path, capsys):
     assert main(["ortho", *map(str, images[:2]), "-o", str(tmp_path / "x.tif"), *_common()]) == 2
     assert "--out-dir" in capsys.readouterr().err

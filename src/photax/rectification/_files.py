@@ -4,7 +4,9 @@ output tile only the input window it needs is read (rasterio windows)."""
 from __future__ import annotations
 
 import threading
+from collections import deque
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from jax import Array
@@ -369,7 +371,8 @@ def orthorectify_files(
     their tiles.  An image that fails does not stop the others: its exception is its result.
 
     Unlike :func:`orthorectify_block` (one shared lattice for a mosaic), each ortho is what
-    ``photax ortho IMAGE -o OUT`` writes for that image, bit for bit.
+    ``photax ortho IMAGE -o OUT`` writes for that image, bit for bit.  Two images are in flight at
+    a time (threads): one is compressed and written while the next one's tiles are computed.
 
     Args:
         images: the image files.
@@ -407,27 +410,53 @@ def orthorectify_files(
         except (ValueError, OSError) as exc:
             results.append(exc)
     total = sum(len(list(tile_windows(g.shape, tile))) for g in results if isinstance(g, Grid))
-    with progress_bar(progress, total, desc="ortho", unit="tile") as bar:
-        for k, (image, out, e, cam, d) in enumerate(zip(images, outputs, exteriors, cameras, dems)):
-            if not isinstance(results[k], Grid):
-                continue
-            try:
-                orthorectify_file(
-                    image,
-                    out,
-                    e,
-                    cam,
-                    d,
-                    results[k],
-                    resampling=resampling,
-                    nodata=nodata,
-                    tile=tile,
-                    progress=bar,
-                    compress=compress,
-                )
-            except (ValueError, OSError) as exc:  # this image's; KeyboardInterrupt and bugs stop the run
-                results[k] = exc
+
+    def one(k, bar):
+        try:
+            return orthorectify_file(
+                images[k],
+                outputs[k],
+                exteriors[k],
+                cameras[k],
+                dems[k],
+                results[k],
+                resampling=resampling,
+                nodata=nodata,
+                tile=tile,
+                progress=bar,
+                compress=compress,
+            )
+        except (ValueError, OSError) as exc:  # this image's; KeyboardInterrupt and bugs stop the run
+            return exc
+
+    # Two images in flight: while one is compressed, synced and renamed (one thread, the GIL
+    # released) or its window read, the other's tiles are computed.  Each image is still written
+    # by one thread, as alone (the same bytes); results are kept in the images' order.
+    todo = [k for k, g in enumerate(results) if isinstance(g, Grid)]
+    with progress_bar(progress, total, desc="ortho", unit="tile") as bar, ThreadPoolExecutor(2) as pool:
+        bar, running = _SharedBar(bar), deque()
+        for k in [*todo, None]:
+            if k is not None:
+                running.append((k, pool.submit(one, k, bar)))
+            while running and (len(running) == 2 or k is None):
+                j, future = running.popleft()
+                results[j] = future.result()
     return results
+
+
+class _SharedBar:
+    """A progress bar advanced by several threads (:func:`orthorectify_files`' images)."""
+
+    def __init__(self, bar):
+        self._bar, self._lock = bar, threading.Lock()
+
+    def update(self, n=1):
+        with self._lock:
+            self._bar.update(n)
+
+    def set_postfix(self, *args, **kwargs):
+        with self._lock:
+            self._bar.set_postfix(*args, **kwargs)
 
 
 def _per_image(value, n: int, what: str) -> list:
