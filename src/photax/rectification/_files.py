@@ -222,7 +222,9 @@ def rectify_file(
                 dst.write_mask(np.where(valid, np.uint8(255), np.uint8(0)), window=window)
 
         chunks = (layout[0][0] // layout[1]) * (layout[0][1] // layout[2])
-        with gdal_errors(), rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), rasterio.open(tmp, "w", **profile) as dst:
+        # GDAL_NUM_THREADS: the blocks are compressed on all cores (as oty does), written in their order.
+        env = rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True, GDAL_NUM_THREADS="ALL_CPUS")
+        with gdal_errors(), env, rasterio.open(tmp, "w", **profile) as dst:
             if cmap is not None:
                 dst.write_colormap(1, cmap)
             _run_tiles(one, tiles, progress, "rectify", info, approx, chunks, sink)
