@@ -7,6 +7,7 @@ written.  Timing beside ``oty frame``: ``benchmarks/bench_ortho_block.py``.
 """
 
 import filecmp
+import pathlib
 import shutil
 
 import pytest
@@ -113,6 +114,25 @@ def test_ctrl_c_while_two_images_are_in_flight_leaves_no_file(images, tmp_path, 
     assert main(["ortho", *map(str, images), "--out-dir", str(tmp_path / "block"), *_common()]) == 130
     assert "interrupted" in capsys.readouterr().err
     assert not (tmp_path / "block").exists() or not any((tmp_path / "block").iterdir())  # no ortho, no .part
+
+
+def test_each_images_write_is_checked_against_every_input_of_the_command(images, tmp_path, monkeypatch):
+    # The images run on threads: the record of the command's inputs (a context variable) goes with
+    # them, so each output's last check (in atomic_path, on that thread) still sees every input read.
+    import photax.io.atomic as atomic
+    from photax.io.files import inputs_read
+
+    real, seen = atomic.check_output_path, []
+
+    def check(out, inputs=()):
+        seen.append({pathlib.Path(p).absolute() for p in (*inputs, *inputs_read()) if p is not None})
+        return real(out, inputs)
+
+    monkeypatch.setattr(atomic, "check_output_path", check)
+    assert main(["ortho", *map(str, images), "--out-dir", str(tmp_path / "block"), *_common()]) == 0
+    read = {p.absolute() for p in (*images, NGI / "dem.tif", IO / "ngi_int_param.yaml", IO / "ngi_xyz_opk.csv")}
+    assert len(seen) == 2 * len(images)  # before any work, then at each write
+    assert all(read <= s for s in seen), [read - s for s in seen]
 
 
 def test_block_usage_errors_exit_2(images, tmp_path, capsys):

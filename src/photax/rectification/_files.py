@@ -3,6 +3,7 @@ output tile only the input window it needs is read (rasterio windows)."""
 
 from __future__ import annotations
 
+import contextvars
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -438,8 +439,8 @@ def orthorectify_files(
     with progress_bar(progress, total, desc="ortho", unit="tile") as bar, ThreadPoolExecutor(2) as pool:
         bar, running = _SharedBar(bar), deque()
         for k in [*todo, None]:
-            if k is not None:
-                running.append((k, pool.submit(one, k, bar)))
+            if k is not None:  # in this thread's context: the command's record of its inputs (io.files)
+                running.append((k, pool.submit(contextvars.copy_context().run, one, k, bar)))
             while running and (len(running) == 2 or k is None):
                 j, future = running.popleft()
                 results[j] = future.result()
