@@ -18,6 +18,7 @@ import stat
 import tempfile
 import threading
 import time
+import unicodedata
 from collections.abc import Iterable, Iterator
 from typing import IO
 
@@ -91,6 +92,24 @@ def _stat(p) -> os.stat_result | None:
         return None
 
 
+def _name_key(name: str) -> str:
+    """A file name as a case-insensitive (and, on macOS, normalising) file system may match it."""
+    return name.lower() if name.isascii() else unicodedata.normalize("NFC", name).casefold()
+
+
+def _listing(listings: dict, folder: str) -> set | None:
+    """The names in ``folder`` (:func:`_name_key`), listed once per check and kept in ``listings``;
+    None where it cannot be listed.  Spares one ``stat`` per sidecar that is not there: the 16 names
+    of each input, for each output of a block."""
+    if folder not in listings:
+        try:
+            with os.scandir(folder) as entries:
+                listings[folder] = {_name_key(e.name) for e in entries}
+        except OSError:
+            listings[folder] = None
+    return listings[folder]
+
+
 def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
     """Refuse an output path that is one of the inputs; return it as a Path.
 
@@ -112,6 +131,7 @@ def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
     # before any file system call: a block of n images checks n outputs against n images' sidecars
     # (16 each), and re-resolving ``out`` for each of them was most of the block's per-image time.
     out_stat, name, folder = _stat(out), out.name.lower(), None
+    listings: dict = {}  # an input's folder -> the names in it (_name_key), None where it cannot be listed
     for src in [*inputs, *inputs_read()]:
         if src is None:
             continue
@@ -126,13 +146,15 @@ def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
             raise ValueError(f"refusing to write {out}: it is an input of this run")
         if src_stat is not None and stat.S_ISDIR(src_stat.st_mode):
             continue  # a folder input lists the files it reads (e.g. a block's) as inputs too
+        parent = src.parent
+        here = _listing(listings, str(parent)) if out_stat is not None else None
         for side in _sidecar_names(src):
             # Same folder and the same name up to case (GDAL tries .TFW and .tfw), or the same file.
             same = False
             if side.lower() == name:
                 folder = out.parent.resolve() if folder is None else folder
-                same = src.parent.resolve() == folder
-            if not same and out_stat is not None:
+                same = parent.resolve() == folder
+            if not same and out_stat is not None and (here is None or _name_key(side) in here):
                 st = _stat(src.with_name(side))
                 same = st is not None and os.path.samestat(out_stat, st)
             if same:
