@@ -85,6 +85,31 @@ def test_every_file_a_reader_opens_is_an_input(tmp_path):
     check_output_path(cam)  # the record ends with the command
 
 
+def test_an_input_or_sidecar_reached_by_another_name_is_an_input(tmp_path):
+    # What the file system says is one file (a hard link, a symbolic link, a path through a linked
+    # folder) is refused whatever its name; the same names elsewhere are not.
+    image = tmp_path / "image.tif"
+    image.write_bytes(b"x")
+    (tmp_path / "image.prj").write_text("PROJCS[...]")
+    (tmp_path / "linked").symlink_to(tmp_path, target_is_directory=True)
+    os.link(image, tmp_path / "hard.tif")
+    (tmp_path / "soft.tif").symlink_to(tmp_path / "image.prj")
+    for out, why in [
+        (tmp_path / "hard.tif", "it is an input of this run"),
+        (tmp_path / "linked" / "image.tif", "it is an input of this run"),
+        (tmp_path / "soft.tif", "it is image.prj, read with the input"),
+        (tmp_path / "linked" / "IMAGE.PRJ", "it is image.prj, read with the input"),
+        (tmp_path / "linked" / "image.tfw", "it is image.tfw, read with the input"),  # not there yet
+    ]:
+        with pytest.raises(ValueError, match=why):
+            check_output_path(out, [image])
+    (tmp_path / "sub").mkdir()
+    for out in (tmp_path / "sub" / "image.tif", tmp_path / "sub" / "image.prj", tmp_path / "other.tif"):
+        check_output_path(out, [image])
+    with pytest.raises(ValueError, match="it is an input of this run"):  # an input not there: by path
+        check_output_path(tmp_path / "linked" / "gone.tif", [tmp_path / "gone.tif"])
+
+
 # --- writes outside the folder asked for ---------------------------------------------
 
 

@@ -14,9 +14,11 @@ import os
 import pathlib
 import re
 import shutil
+import stat
 import tempfile
 import threading
 import time
+import unicodedata
 from collections.abc import Iterable, Iterator
 from typing import IO
 
@@ -46,13 +48,6 @@ def commit(tmp, out) -> None:
     os.replace(tmp, out)
 
 
-def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
-    try:
-        return a.exists() and b.exists() and os.path.samefile(a, b)
-    except OSError:
-        return False
-
-
 def sidecars(path) -> list[pathlib.Path]:
     """Files GDAL and friends read beside ``path``: they are inputs too.
 
@@ -62,6 +57,11 @@ def sidecars(path) -> list[pathlib.Path]:
     ``x.imd``, ``x.rpb``, ``x_rpc.txt``.  Existing or not.
     """
     p = pathlib.Path(path)
+    return [p.with_name(n) for n in _sidecar_names(p)]
+
+
+def _sidecar_names(p: pathlib.Path) -> list[str]:
+    """The file names of :func:`sidecars` (strings: no path is made for a name that is not a candidate)."""
     stem, name, ext = p.stem, p.name, p.suffix.lower().lstrip(".")
     names = [
         f"{stem}.prj",
@@ -81,14 +81,33 @@ def sidecars(path) -> list[pathlib.Path]:
     ]
     if len(ext) >= 2:
         names += [f"{stem}.{ext[0]}{ext[-1]}w", f"{stem}.{ext}w"]
-    return [p.with_name(n) for n in dict.fromkeys(names)]
+    return list(dict.fromkeys(names))
 
 
-def _same_place(a: pathlib.Path, b: pathlib.Path) -> bool:
-    """Same file, or same folder and the same name up to case (GDAL tries .TFW and .tfw)."""
-    if _same_file(a, b):
-        return True
-    return a.parent.resolve() == b.parent.resolve() and a.name.lower() == b.name.lower()
+def _stat(p) -> os.stat_result | None:
+    """``os.stat`` (symbolic links followed), None where it fails."""
+    try:
+        return os.stat(p)
+    except (OSError, ValueError):
+        return None
+
+
+def _name_key(name: str) -> str:
+    """A file name as a case-insensitive (and, on macOS, normalising) file system may match it."""
+    return name.lower() if name.isascii() else unicodedata.normalize("NFC", name).casefold()
+
+
+def _listing(listings: dict, folder: str) -> set | None:
+    """The names in ``folder`` (:func:`_name_key`), listed once per check and kept in ``listings``;
+    None where it cannot be listed.  Spares one ``stat`` per sidecar that is not there: the 16 names
+    of each input, for each output of a block."""
+    if folder not in listings:
+        try:
+            with os.scandir(folder) as entries:
+                listings[folder] = {_name_key(e.name) for e in entries}
+        except OSError:
+            listings[folder] = None
+    return listings[folder]
 
 
 def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
@@ -108,17 +127,38 @@ def check_output_path(out, inputs: Iterable = ()) -> pathlib.Path:
         raise ValueError(f"refusing to write {out}: it is a folder")
     from .files import inputs_read  # here: the CLI imports this module before numpy
 
+    # ``out``'s side of each comparison is made once, each input's sidecars are compared by name
+    # before any file system call: a block of n images checks n outputs against n images' sidecars
+    # (16 each), and re-resolving ``out`` for each of them was most of the block's per-image time.
+    out_stat, name, folder = _stat(out), out.name.lower(), None
+    listings: dict = {}  # an input's folder -> the names in it (_name_key), None where it cannot be listed
     for src in [*inputs, *inputs_read()]:
         if src is None:
             continue
         src = pathlib.Path(src)
-        if _same_file(out, src) or out.resolve() == src.resolve():
+        src_stat = _stat(src)
+        # Both existing: one file, whatever the paths (links); an input not there: compare the paths.
+        if src_stat is None:
+            same = out.resolve() == src.resolve()
+        else:
+            same = out_stat is not None and os.path.samestat(out_stat, src_stat)
+        if same:
             raise ValueError(f"refusing to write {out}: it is an input of this run")
-        if src.is_dir():  # a folder input lists the files it reads (e.g. a block's) as inputs too
-            continue
-        for side in sidecars(src):
-            if _same_place(out, side):
-                raise ValueError(f"refusing to write {out}: it is {side.name}, read with the input {src}")
+        if src_stat is not None and stat.S_ISDIR(src_stat.st_mode):
+            continue  # a folder input lists the files it reads (e.g. a block's) as inputs too
+        parent = src.parent
+        here = _listing(listings, str(parent)) if out_stat is not None else None
+        for side in _sidecar_names(src):
+            # Same folder and the same name up to case (GDAL tries .TFW and .tfw), or the same file.
+            same = False
+            if side.lower() == name:
+                folder = out.parent.resolve() if folder is None else folder
+                same = parent.resolve() == folder
+            if not same and out_stat is not None and (here is None or _name_key(side) in here):
+                st = _stat(src.with_name(side))
+                same = st is not None and os.path.samestat(out_stat, st)
+            if same:
+                raise ValueError(f"refusing to write {out}: it is {side}, read with the input {src}")
     return out
 
 

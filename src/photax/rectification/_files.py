@@ -3,8 +3,11 @@ output tile only the input window it needs is read (rasterio windows)."""
 
 from __future__ import annotations
 
+import contextvars
 import threading
+from collections import deque
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from jax import Array
@@ -36,21 +39,31 @@ _tile_positions = disk_cached(_tile_positions, "rectify_tile_positions")
 _resample_tile = disk_cached(_resample_tile, "rectify_resample_tile")
 
 
-def _source_window(cols: np.ndarray, rows: np.ndarray, width: int, height: int, margin: int, bucket: int = 256):
+def _source_window(pos: np.ndarray, origin, width: int, height: int, margin: int, bucket: int = 256):
     """The input window ``(row_off, col_off, h, w)`` an output tile needs, or None.
 
-    Sizes are rounded up to multiples of ``bucket`` (shifting the window
+    ``pos`` ``(2, h, w)`` are the tile's positions (col, row) relative to the integer ``origin``
+    (col, row).  Sizes are rounded up to multiples of ``bucket`` (shifting the window
     back inside the image rather than padding it) so the jitted resampler
     sees few distinct shapes.
     """
-    ok = np.isfinite(cols) & np.isfinite(rows)
-    ok &= (cols > -margin) & (cols < width - 1 + margin) & (rows > -margin) & (rows < height - 1 + margin)
+    o = [int(v) for v in origin]
+    # The bounds moved to the positions' side and compared in their dtype, where they are exact
+    # (integers): no float64 copy of the positions.  NaN and infinities fail one of the two tests.
+    bounds = [(-margin - o[k], n - 1 + margin - o[k]) for k, n in ((0, width), (1, height))]
+    exact = max(abs(b) for pair in bounds for b in pair) < 2**24 or pos.dtype == np.float64
+    ok = np.ones(pos.shape[1:], dtype=bool)
+    for k, (lo, hi) in enumerate(bounds):
+        v = pos[k] if exact else pos[k].astype(np.float64)  # Python ints: compared in v's dtype
+        ok &= (v > lo) & (v < hi)
     if not ok.any():
         return None
     out = []
-    for v, n in ((rows[ok], height), (cols[ok], width)):
-        lo = max(int(np.floor(v.min())) - margin, 0)
-        hi = min(int(np.ceil(v.max())) + margin + 1, n)
+    keep = ok.ravel()
+    for k, n in ((1, height), (0, width)):
+        v = np.compress(keep, pos[k].ravel())  # min + o: exact in float64, as the float64 sums were
+        lo = max(int(np.floor(float(v.min()) + o[k])) - margin, 0)
+        hi = min(int(np.ceil(float(v.max()) + o[k])) + margin + 1, n)
         size = min(-(-(hi - lo) // bucket) * bucket, n)
         out.append((min(lo, n - size), size))
     (r0, h), (c0, w) = out
@@ -174,7 +187,7 @@ def rectify_file(
             )
             p, o = np.asarray(pos)[:, :h, :w], np.asarray(origin)
             # The window from the very positions resampled: none falls outside it.
-            win = _source_window(p[0] + o[0], p[1] + o[1], src.width, src.height, Resampling(resampling).margin)
+            win = _source_window(p, o, src.width, src.height, Resampling(resampling).margin)
             if win is None:
                 empty = np.full((src.count, h, w), fill, dtype=fill.dtype)
                 return (empty, np.zeros((h, w), bool)), err, n_exact
@@ -210,7 +223,9 @@ def rectify_file(
                 dst.write_mask(np.where(valid, np.uint8(255), np.uint8(0)), window=window)
 
         chunks = (layout[0][0] // layout[1]) * (layout[0][1] // layout[2])
-        with gdal_errors(), rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True), rasterio.open(tmp, "w", **profile) as dst:
+        # GDAL_NUM_THREADS: the blocks are compressed on all cores (as oty does), written in their order.
+        env = rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True, GDAL_NUM_THREADS="ALL_CPUS")
+        with gdal_errors(), env, rasterio.open(tmp, "w", **profile) as dst:
             if cmap is not None:
                 dst.write_colormap(1, cmap)
             _run_tiles(one, tiles, progress, "rectify", info, approx, chunks, sink)
@@ -359,7 +374,8 @@ def orthorectify_files(
     their tiles.  An image that fails does not stop the others: its exception is its result.
 
     Unlike :func:`orthorectify_block` (one shared lattice for a mosaic), each ortho is what
-    ``photax ortho IMAGE -o OUT`` writes for that image, bit for bit.
+    ``photax ortho IMAGE -o OUT`` writes for that image, bit for bit.  Two images are in flight at
+    a time (threads): one is compressed and written while the next one's tiles are computed.
 
     Args:
         images: the image files.
@@ -397,27 +413,53 @@ def orthorectify_files(
         except (ValueError, OSError) as exc:
             results.append(exc)
     total = sum(len(list(tile_windows(g.shape, tile))) for g in results if isinstance(g, Grid))
-    with progress_bar(progress, total, desc="ortho", unit="tile") as bar:
-        for k, (image, out, e, cam, d) in enumerate(zip(images, outputs, exteriors, cameras, dems)):
-            if not isinstance(results[k], Grid):
-                continue
-            try:
-                orthorectify_file(
-                    image,
-                    out,
-                    e,
-                    cam,
-                    d,
-                    results[k],
-                    resampling=resampling,
-                    nodata=nodata,
-                    tile=tile,
-                    progress=bar,
-                    compress=compress,
-                )
-            except (ValueError, OSError) as exc:  # this image's; KeyboardInterrupt and bugs stop the run
-                results[k] = exc
+
+    def one(k, bar):
+        try:
+            return orthorectify_file(
+                images[k],
+                outputs[k],
+                exteriors[k],
+                cameras[k],
+                dems[k],
+                results[k],
+                resampling=resampling,
+                nodata=nodata,
+                tile=tile,
+                progress=bar,
+                compress=compress,
+            )
+        except (ValueError, OSError) as exc:  # this image's; KeyboardInterrupt and bugs stop the run
+            return exc
+
+    # Two images in flight: while one is compressed, synced and renamed (one thread, the GIL
+    # released) or its window read, the other's tiles are computed.  Each image is still written
+    # by one thread, as alone (the same bytes); results are kept in the images' order.
+    todo = [k for k, g in enumerate(results) if isinstance(g, Grid)]
+    with progress_bar(progress, total, desc="ortho", unit="tile") as bar, ThreadPoolExecutor(2) as pool:
+        bar, running = _SharedBar(bar), deque()
+        for k in [*todo, None]:
+            if k is not None:  # in this thread's context: the command's record of its inputs (io.files)
+                running.append((k, pool.submit(contextvars.copy_context().run, one, k, bar)))
+            while running and (len(running) == 2 or k is None):
+                j, future = running.popleft()
+                results[j] = future.result()
     return results
+
+
+class _SharedBar:
+    """A progress bar advanced by several threads (:func:`orthorectify_files`' images)."""
+
+    def __init__(self, bar):
+        self._bar, self._lock = bar, threading.Lock()
+
+    def update(self, n=1):
+        with self._lock:
+            self._bar.update(n)
+
+    def set_postfix(self, *args, **kwargs):
+        with self._lock:
+            self._bar.set_postfix(*args, **kwargs)
 
 
 def _per_image(value, n: int, what: str) -> list:
