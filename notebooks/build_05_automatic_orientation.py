@@ -166,13 +166,13 @@ err = table.pixel - true_px[table.images.astype(int), [int(s[3:]) - 1 for s in t
 print(f"GCPs: {len(table)} measurements of {len(set(table.names.tolist()))} points, "
       f"{np.sqrt(np.mean(err**2)):.3f} px rms from the truth")
 print(f"ties: {ties.n_tracks} tracks, {len(ties.obs_image)} observations; pairs:",
-      {f"{i}-{j}": f"{ties.pair_counts.get((i, j), 0)} ({s})" for (i, j), s in ties.pair_status.items() if s != "no overlap"})""",
+      {f"{i}-{j}": f"{ties.pair_ties[i, j]} ({s})" for (i, j), s in ties.pair_status.items() if s != "no overlap"})""",
     ),
     (
         "md",
         """The tie-point graph: every track on the ground (coloured by the number of images that see
-it), the camera stations, and a line for every matched image pair, as thick as its number
-of matches. The GCPs are triangles (control) and circles (check).""",
+it), the camera stations, and a line for every tied image pair, as thick as the number of tracks
+the two images share. The GCPs are triangles (control) and circles (check).""",
     ),
     (
         "code",
@@ -182,7 +182,7 @@ rays = np.bincount(ties.obs_point, minlength=ties.n_tracks)
 sc = ax.scatter(ties.ground[:, 0] - X0, ties.ground[:, 1] - Y0, c=rays, s=8, cmap="viridis", vmin=2, vmax=rays.max())
 fig.colorbar(sc, ax=ax, label="images per tie point", shrink=0.8)
 pos = np.array([np.asarray(e.position) for e in start]) - [X0, Y0, 0]
-counts = {pr: c for pr, c in ties.pair_counts.items() if ties.pair_status[pr] == "ok"}
+counts = {pr: c for pr, c in ties.pair_ties.items() if ties.pair_status[pr] == "ok"}
 segs = [[pos[i, :2], pos[j, :2]] for i, j in counts]
 ax.add_collection(LineCollection(segs, linewidths=[0.5 + 4 * c / max(counts.values()) for c in counts.values()],
                                  colors="tab:red", alpha=0.7))
