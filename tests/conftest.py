@@ -55,6 +55,17 @@ def needs(*modules: str):
     return pytest.mark.skipif(bool(missing), reason=f"{', '.join(missing)} not installed (the dask extra)")
 
 
+def sample_ortho(resolution="4", exterior=None) -> list[str]:
+    """``photax ortho`` of the bundled sample (``data/sample_*``: image, DEM, camera and its true
+    orientation, or ``exterior``) at ``resolution`` with no bar: the arguments after ``photax``."""
+    data = ROOT / "data"
+    return [
+        "ortho", str(data / "sample_image.tif"), "--dem", str(data / "sample_dem.tif"),
+        "--camera", str(data / "sample_camera.yaml"), "--exterior", str(exterior or data / "sample_truth.json"),
+        "--resolution", str(resolution), "--no-progress",
+    ]  # fmt: skip
+
+
 def shared_file(name: str) -> pathlib.Path:
     """A file of ../shared/data, or a clean skip when it is absent."""
     path = SHARED_DATA / name

@@ -4,9 +4,7 @@ call, and that the outputs do not change."""
 import subprocess
 import sys
 
-from conftest import ROOT
-
-DATA = ROOT / "data"
+from conftest import ROOT, sample_ortho
 
 # photax ortho's work (orthorectify_file / orthorectify_files) replaced by a probe of the garbage
 # collector's state: paused through the start-up, on (with start-up's objects frozen) for the work.
@@ -37,20 +35,7 @@ else:
 
 
 def _probe(tmp_path, kind, *out):
-    args = [
-        "ortho",
-        str(DATA / "sample_image.tif"),
-        "--dem",
-        str(DATA / "sample_dem.tif"),
-        "--camera",
-        str(DATA / "sample_camera.yaml"),
-        "--exterior",
-        str(DATA / "sample_truth.json"),
-        "--resolution",
-        "4",
-        "--no-progress",
-        *out,
-    ]
+    args = [*sample_ortho(), *out]
     env = {"PYTHONPATH": str(ROOT / "src"), "PATH": "", "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
     p = subprocess.run(
         [sys.executable, "-c", _GC_SCRIPT, kind, *args], capture_output=True, text=True, env=env, timeout=300

@@ -20,25 +20,14 @@ import time
 
 import numpy as np
 import pytest
+from conftest import sample_ortho
 
 import photax.cli
 from photax.cli import main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = ROOT / "data"
-ORTHO = [
-    "ortho",
-    str(DATA / "sample_image.tif"),
-    "--dem",
-    str(DATA / "sample_dem.tif"),
-    "--camera",
-    str(DATA / "sample_camera.yaml"),
-    "--exterior",
-    str(DATA / "sample_truth.json"),
-    "--resolution",
-    "0.5",
-    "--no-progress",
-]
+ORTHO = sample_ortho(resolution="0.5")
 OLD = b"the previous result\n"
 PHOTAX = [sys.executable, "-c", "import sys, photax.cli; sys.exit(photax.cli.main(sys.argv[1:]))"]
 
