@@ -64,7 +64,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
-from .files import excerpt, file_error, head_text, read_text, split_lines
+from .files import excerpt, file_error, head_text, number, read_text, split_lines
 
 _TERMS = ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2", "p3", "p4")
 _NOT_CONVERTED = ("k4", "p3", "p4", "b2")
@@ -107,13 +107,7 @@ def _calibration(path, name, cal: ET.Element) -> FrameCamera:
         if text is None:
             values[key] = None if key == "f" else 0.0
             continue
-        try:
-            v = float(text)
-        except ValueError:
-            raise file_error(path, None, f"{at}<{key}> is not a number: {excerpt(text.strip())}") from None
-        if not math.isfinite(v):
-            raise file_error(path, None, f"{at}<{key}> is not finite")
-        values[key] = v
+        values[key] = number(path, None, text.strip(), f"{at}<{key}>")
     res = cal.find("resolution")
     size = []
     for key in ("width", "height"):

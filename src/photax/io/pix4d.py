@@ -59,7 +59,7 @@ import re
 import numpy as np
 
 from ..camera import FrameCamera
-from .files import excerpt, file_error, head_text, read_text, split_lines
+from .files import excerpt, file_error, head_text, number, read_text, split_lines
 
 MAGIC = "Pix4D camera calibration file"
 _KEYS = ("F", "Px", "Py", "K1", "K2", "K3", "T1", "T2")
@@ -99,7 +99,7 @@ def read_pix4d_cam(path, image_size: tuple[int, int] | None = None) -> FrameCame
             if m is not None:
                 if sensor is not None:
                     raise file_error(path, n, "the sensor size is given twice")
-                sensor = (_number(path, n, m.group(1), "the sensor width"), _number(path, n, m.group(2), "height"))
+                sensor = (number(path, n, m.group(1), "the sensor width"), number(path, n, m.group(2), "height"))
                 if not (0 < sensor[0] < 1e6 and 0 < sensor[1] < 1e6):
                     raise file_error(path, n, f"the sensor size must be positive mm, got {sensor[0]:g} x {sensor[1]:g}")
             elif "fisheye" in s.lower():
@@ -116,7 +116,7 @@ def read_pix4d_cam(path, image_size: tuple[int, int] | None = None) -> FrameCame
             raise file_error(path, n, f"expected '{key} <number>', got {len(fields)} fields")
         if key in values:
             raise file_error(path, n, f"{key} is given twice")
-        values[key] = _number(path, n, fields[1], key)
+        values[key] = number(path, n, fields[1], key)
     missing = [k for k in _KEYS if k not in values]
     if missing:
         raise file_error(path, None, f"no {', '.join(missing)} (a Pix4D .cam has F, Px, Py, K1-K3, T1, T2)")
@@ -139,16 +139,6 @@ def read_pix4d_cam(path, image_size: tuple[int, int] | None = None) -> FrameCame
     if not (w >= 1 and h >= 1 and (w, h) == tuple(image_size)):
         raise ValueError(f"{path}: image_size must be two positive whole numbers, got {image_size!r}")
     return FrameCamera(f, pp, dist, pixel_size=(w_mm / w, h_mm / h), image_size=(w, h))
-
-
-def _number(path, n: int, text: str, what: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise file_error(path, n, f"{what} is not a number: {excerpt(text)}") from None
-    if not math.isfinite(v):
-        raise file_error(path, n, f"{what} is not finite")
-    return v
 
 
 def _is_number(text: str) -> bool:
