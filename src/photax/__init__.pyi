@@ -39,6 +39,14 @@ from .earth import correct_image as correct_image
 from .earth import refraction_coefficient as refraction_coefficient
 from .errors import RESULTS as RESULTS
 from .errors import ConvergenceError as ConvergenceError
+from .errors import CRSMismatchError as CRSMismatchError
+from .errors import DegenerateGeometryError as DegenerateGeometryError
+from .errors import NoEntryError as NoEntryError
+from .errors import NotConvergedError as NotConvergedError
+from .errors import OutsideValidityError as OutsideValidityError
+from .errors import PhotaxError as PhotaxError
+from .errors import UnreadableFileError as UnreadableFileError
+from .errors import UnsupportedFormatError as UnsupportedFormatError
 from .fusion import pansharpen as pansharpen
 from .fusion import pansharpen_dask as pansharpen_dask
 from .grid import Grid as Grid

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from rasterio import Affine
 
+from .errors import DegenerateGeometryError
 from .io.crs import check_dem, describe, require_same
 
 if TYPE_CHECKING:  # the sensor models (JAX) are imported where used: a Grid alone needs no JAX
@@ -44,7 +45,7 @@ class Grid:
         if len(t) != 6 or not all(math.isfinite(v) for v in t):
             raise ValueError(f"transform must hold 6 finite affine coefficients, got {self.transform!r}")
         if t[0] * t[4] - t[1] * t[3] == 0:
-            raise ValueError(f"transform is singular: {t}")
+            raise DegenerateGeometryError(f"transform is singular: {t}")
         shape = tuple(int(n) for n in self.shape)
         if len(shape) != 2 or min(shape) < 1:
             raise ValueError(f"shape must be (rows, cols) with both >= 1, got {self.shape!r}")

@@ -77,6 +77,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .errors import CRSMismatchError
+
 _SCALE = 1000  # integer edge capacities: cost units per grey-value unit
 _SEAM_PIXELS = 1 << 22  # default seam grid: at most 4 Mpx (s = 1 up to that) ...
 # ... and at most this many cells in the bounding box of any two orthos' overlap: scipy's maximum flow
@@ -99,7 +101,7 @@ def _lattice(orthos):
     boxes = []
     for k, o in enumerate(orthos):
         if o.crs != crs:
-            raise ValueError(f"orthos[{k}] is in {o.crs}, orthos[0] in {crs}: reproject them to one CRS first")
+            raise CRSMismatchError(f"orthos[{k}] is in {o.crs}, orthos[0] in {crs}: reproject them to one CRS first")
         t = o.transform
         if not (math.isclose(t.a, t0.a, rel_tol=1e-9) and math.isclose(t.e, t0.e, rel_tol=1e-9) and t.b == t.d == 0):
             raise ValueError(f"orthos[{k}] has pixel size {(t.a, t.e)}, orthos[0] {(t0.a, t0.e)}: one resolution only")

@@ -335,7 +335,9 @@ def _read_orthority_yaml(path: pathlib.Path, image: str | None) -> RPCCamera:
             raise ValueError(f"{path}: holds {len(doc)} images ({', '.join(doc)}): pass image=")
         image = next(iter(doc))
     if image not in doc:
-        raise ValueError(f"{path}: no entry {image!r} (it has {', '.join(doc)})")
+        from .errors import NoEntryError
+
+        raise NoEntryError(f"{path}: no entry {image!r} (it has {', '.join(doc)})")
     entry = doc[image]
     if not isinstance(entry, dict) or not isinstance(entry.get("rpc"), dict):
         raise ValueError(f"{path}: entry {image!r} has no 'rpc' mapping")

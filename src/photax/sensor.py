@@ -43,6 +43,7 @@ from ._pytree import Module, field, filter_jit
 from .camera import FrameCamera, distort, distortion_jacobian
 from .collinearity import ExteriorOrientation, image_to_ground
 from .dem import DEM
+from .errors import CRSMismatchError, NotConvergedError
 
 WGS84 = "EPSG:4326"
 # An RPC is evaluated within its validity volume (offsets +- scales) widened by this factor; beyond,
@@ -215,7 +216,7 @@ class GroundSensor(Module):
 
     def __init__(self, camera: GroundCamera, crs):
         if crs is None:
-            raise ValueError(f"an {type(camera).__name__} needs the output grid's CRS (its ground is lon, lat)")
+            raise CRSMismatchError(f"an {type(camera).__name__} needs the output grid's CRS (its ground is lon, lat)")
         self.camera = camera
         self.crs = _crs_text(crs)
         self.centre, self.half = (jnp.asarray(v, dtype=jnp.float64) for v in camera.ground_box())
@@ -265,7 +266,7 @@ class GroundSensor(Module):
             mean = float(np.nanmean(h)) if np.isfinite(h).any() else _start_height(self.camera, dem)
             llh[miss, :2] = np.asarray(self.camera.to_ground(pixel[miss], mean))
         if not np.isfinite(llh[:, :2]).all():
-            raise ValueError("the RPC's inverse does not converge on the image outline: is the RPC valid?")
+            raise NotConvergedError("the RPC's inverse does not converge on the image outline: is the RPC valid?")
         return _pyproj(llh[:, :2], WGS84, self.crs)
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 import pathlib
 
+from ..errors import UnreadableFileError
+
 # Choices of --convention and --resampling, written out here so that building
 # the parser (``photax --help``) imports neither JAX nor numpy; they must equal
 # photax.rotation.CONVENTIONS and photax.resampling.RESAMPLING (a test checks).
@@ -71,9 +73,9 @@ def input_file(path, what: str) -> pathlib.Path:
         with open(p, "rb"):
             pass
     except PermissionError:
-        raise ValueError(f"{what} {p}: permission denied (cannot read it)") from None
+        raise UnreadableFileError(f"{what} {p}: permission denied (cannot read it)") from None
     except OSError as exc:
-        raise ValueError(f"{what} {p}: cannot read it ({exc.strerror or exc})") from None
+        raise UnreadableFileError(f"{what} {p}: cannot read it ({exc.strerror or exc})") from None
     return p
 
 
@@ -85,7 +87,7 @@ def input_folder(path, what: str) -> pathlib.Path:
     if not p.is_dir():
         raise ValueError(f"{what} {p}: is a file, expected a folder")
     if not os.access(p, os.R_OK | os.X_OK):
-        raise ValueError(f"{what} {p}: permission denied (cannot read it)")
+        raise UnreadableFileError(f"{what} {p}: permission denied (cannot read it)")
     return p
 
 

@@ -454,7 +454,9 @@ def _run_ground(args: argparse.Namespace) -> int:
                 try:
                     cameras[image] = _refine(cameras[image], args.gcps, image, args.refine or "shift", not single)
                 except ValueError as exc:
-                    raise ValueError(str(exc) if single else f"{image}: {exc}") from None
+                    if single:
+                        raise
+                    raise _about(exc, image) from None
         cams = [cameras[args.image[k]] for k in todo]
         dem = read_dem(args.dem) if args.dem is not None else [_flat_ground(args.height, c, args.crs) for c in cams]
         results = orthorectify_files(
@@ -481,11 +483,21 @@ def _run_ground(args: argparse.Namespace) -> int:
     return 0
 
 
+def _about(exc: ValueError, image) -> ValueError:
+    """``exc`` with ``IMAGE: `` before its message, of the same type where that type takes one message
+    (so that the exit status, chosen by type, is the same for one image of a block as for a lone one)."""
+    try:
+        return type(exc)(f"{image}: {exc}")
+    except TypeError:  # a type with another signature: a plain ValueError
+        return ValueError(f"{image}: {exc}")
+
+
 def _image_camera(source, image, several: bool, pushbroom: bool):
     """IMAGE's camera: a push-broom camera file (``pushbroom``); or its RPC: from the image (``source``
     None: its metadata or the side files GDAL reads), its entry of an orthority ``rpc_param.yaml`` (by
     file name; a one-entry file named otherwise for a lone image), or a ``.RPB`` / ``_RPC.TXT`` file;
     its image size the image's where the file has none."""
+    from ..errors import NoEntryError
     from ..io.pushbroom_file import read_pushbroom
     from ..io.raster import open_raster
     from ..rpc import read_rpc
@@ -497,8 +509,8 @@ def _image_camera(source, image, several: bool, pushbroom: bool):
     elif source.suffix.lower() in (".yaml", ".yml"):
         try:
             camera = read_rpc(source, image.name)
-        except ValueError as exc:
-            if several or "no entry" not in str(exc):
+        except NoEntryError:
+            if several:
                 raise
             camera = read_rpc(source)  # a file of one entry named otherwise
     else:

@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import CRSMismatchError, OutsideValidityError
+
 
 def _parse(crs):
     from rasterio.crs import CRS
@@ -62,7 +64,7 @@ def require_projected(crs, what: str) -> None:
     """ValueError when ``crs`` (of ``what``, e.g. "the DEM") is geographic."""
     c = _parse(crs)
     if c is not None and c.is_geographic:
-        raise ValueError(
+        raise CRSMismatchError(
             f"{what} is in a geographic CRS ({describe(crs)}, degrees); photax needs ground "
             "coordinates in metres: reproject it to a projected CRS (e.g. its UTM zone)"
         )
@@ -73,7 +75,7 @@ def require_same(a, what_a: str, b, what_b: str) -> None:
     ca, cb = _parse(a), _parse(b)
     if ca is None or cb is None or ca == cb or _same_horizontal(ca, cb):
         return
-    raise ValueError(
+    raise CRSMismatchError(
         f"{what_a} is in {describe(a)} but {what_b} in {describe(b)}; photax does not reproject "
         f"between them (a DEM: gdalwarp -t_srs {describe(a)} dem.tif dem_reprojected.tif)"
     )
@@ -191,7 +193,7 @@ def _move_heights(lat, lon, h, crs, inverse: bool) -> np.ndarray:
         out = transformer.transform(lon, lat, h)[2]
     out = np.asarray(out, dtype=float)
     if not np.all(np.isfinite(out)):
-        raise ValueError(f"heights outside the area of the grid of {vertical.name!r}")
+        raise OutsideValidityError(f"heights outside the area of the grid of {vertical.name!r}")
     return out
 
 

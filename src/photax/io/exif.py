@@ -47,6 +47,7 @@ import re
 import numpy as np
 
 from ..collinearity import ExteriorOrientation
+from ..errors import UnsupportedFormatError
 from .files import check_regular
 
 _DJI = "{http://www.dji.com/drone-dji/1.0/}"
@@ -164,7 +165,7 @@ def read_drone_tags(path) -> DroneTags:
                 xmp_text = ds.tags(ns="xml:XMP").get("xml:XMP", "")
                 size = (int(ds.width), int(ds.height))
     except RasterioIOError as exc:
-        raise ValueError(f"{path}: not an image GDAL reads ({' '.join(str(exc).split())[:120]})") from None
+        raise UnsupportedFormatError(f"{path}: not an image GDAL reads ({' '.join(str(exc).split())[:120]})") from None
     xmp = _xmp(path, xmp_text) if xmp_text else {}
 
     def one(value, key, lo=-math.inf, hi=math.inf):

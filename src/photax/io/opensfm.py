@@ -69,6 +69,7 @@ import numpy as np
 
 from ..camera import DISTORTION_MODELS, FrameCamera, from_opencv_extrinsics, opencv_extrinsics
 from ..collinearity import ExteriorOrientation
+from ..errors import OutsideValidityError
 from ..rotation import angles_from_matrix, axis_angle_to_matrix, matrix_to_axis_angle
 from ._geo import (
     project_lla,
@@ -461,7 +462,7 @@ def _to_lla(xyz, crs) -> tuple[float, float, float]:
     t = pyproj.Transformer.from_crs(crs, "EPSG:4979", always_xy=True)
     lon, lat, h = (float(v) for v in t.transform(*xyz))
     if not all(np.isfinite((lon, lat, h))):
-        raise ValueError(f"positions outside the area of {crs.name!r}")
+        raise OutsideValidityError(f"positions outside the area of {crs.name!r}")
     return lon, lat, h
 
 
