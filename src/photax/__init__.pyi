@@ -49,6 +49,7 @@ from .errors import UnreadableFileError as UnreadableFileError
 from .errors import UnsupportedFormatError as UnsupportedFormatError
 from .fusion import pansharpen as pansharpen
 from .fusion import pansharpen_dask as pansharpen_dask
+from .geo import utm_crs as utm_crs
 from .grid import Grid as Grid
 from .interior import (
     InteriorOrientation as InteriorOrientation,
@@ -204,7 +205,6 @@ from .scene import relief_scene as relief_scene
 from .sensor import FrameSensor as FrameSensor
 from .sensor import GroundCamera as GroundCamera
 from .sensor import GroundSensor as GroundSensor
-from .sensor import utm_crs as utm_crs
 from .uncertainty import OrthoUncertainty as OrthoUncertainty
 from .uncertainty import ortho_uncertainty as ortho_uncertainty
 

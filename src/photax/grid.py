@@ -16,7 +16,7 @@ import numpy as np
 from rasterio import Affine
 
 from .errors import DegenerateGeometryError
-from .io.crs import check_dem, describe, require_same
+from .geo import check_dem, describe, require_same
 
 if TYPE_CHECKING:  # the sensor models (JAX) are imported where used: a Grid alone needs no JAX
     from .collinearity import ExteriorOrientation
@@ -172,7 +172,8 @@ def _sensor(exterior, camera, dem: DEM, crs):
     """The sensor (:func:`photax.sensor.sensor_of`) and the grid's CRS: for a frame the DEM's (or
     ``crs``), for an RPC ``crs`` or else the UTM zone of the scene's centre."""
     from .camera import FrameCamera
-    from .sensor import GroundSensor, sensor_of, utm_crs
+    from .geo import utm_crs
+    from .sensor import GroundSensor, sensor_of
 
     if isinstance(camera, GroundSensor):
         return camera, camera.crs

@@ -44,6 +44,7 @@ from .camera import FrameCamera, distort, distortion_jacobian
 from .collinearity import ExteriorOrientation, image_to_ground
 from .dem import DEM
 from .errors import CRSMismatchError, NotConvergedError
+from .geo import utm_crs as utm_crs  # noqa: F401 -- its old home, public: photax.sensor.utm_crs
 
 WGS84 = "EPSG:4326"
 # An RPC is evaluated within its validity volume (offsets +- scales) widened by this factor; beyond,
@@ -126,7 +127,7 @@ class LocalTransform(Module):
 
 
 def _short(crs) -> str:
-    from .io.crs import describe
+    from .geo import describe
 
     return describe(crs)
 
@@ -279,7 +280,7 @@ def _start_height(camera: GroundCamera, dem: DEM) -> float:
 
 
 def _same(a, b) -> bool:
-    from .io.crs import same_crs
+    from .geo import same_crs
 
     return same_crs(a, b)
 
@@ -410,11 +411,3 @@ def _ellipsoidal(crs) -> bool:
 def _vertical_name(crs) -> str:
     v = _vertical(crs)
     return f"{v.name}" if v is not None else "the DEM's CRS names no vertical datum"
-
-
-def utm_crs(lon: float, lat: float) -> str:
-    """The WGS84 UTM zone of a point (lon, lat in degrees), as ``EPSG:326zz`` (north) or ``EPSG:327zz``."""
-    if not (-180 <= lon <= 180 and -80 <= lat <= 84):
-        raise ValueError(f"no UTM zone at lon {lon}, lat {lat}")
-    zone = min(int((lon + 180) // 6) + 1, 60)
-    return f"EPSG:{(32600 if lat >= 0 else 32700) + zone}"

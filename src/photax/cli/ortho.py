@@ -526,7 +526,8 @@ def _flat_ground(height: float, camera, crs):
     """``--height`` under a ground camera: flat ground over its validity box, in the output CRS
     (``crs``, default the UTM zone of its scene, as :func:`photax.ortho_grid` takes it)."""
     from ..dem import DEM
-    from ..sensor import GroundSensor, utm_crs
+    from ..geo import utm_crs
+    from ..sensor import GroundSensor
 
     crs = crs if crs is not None else utm_crs(*(float(v) for v in camera.ground_box()[0]))
     dem = DEM.flat(height, GroundSensor(camera, crs).box())

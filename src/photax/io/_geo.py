@@ -35,14 +35,6 @@ def projected_crs(text, what: str = "crs"):
     return crs
 
 
-def utm_crs(latitude: float, longitude: float):
-    """The WGS84 UTM zone of a point (EPSG:326zz north, 327zz south), as orthority and ODM choose it."""
-    import pyproj
-
-    zone = int(np.floor((longitude + 180.0) / 6.0) % 60) + 1
-    return pyproj.CRS.from_epsg((32600 if latitude >= 0 else 32700) + zone)
-
-
 def _check_lla(lat, lon, h, what):
     lat, lon, h = (np.asarray(v, dtype=float) for v in (lat, lon, h))
     if not (np.all(np.abs(lat) <= 90) and np.all(np.abs(lon) <= 360) and np.all(np.isfinite(h))):

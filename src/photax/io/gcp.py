@@ -292,7 +292,8 @@ def _projected(path, ground, source_text, target_text, lines, unit="line") -> tu
     their mean position) and the CRS text; heights unchanged."""
     import pyproj
 
-    from ._geo import projected_crs, utm_crs
+    from ..geo import utm_crs
+    from ._geo import projected_crs
 
     target = None if target_text is None else projected_crs(target_text, "crs")
     source = None if source_text is None else _parse_crs(source_text)
@@ -316,7 +317,7 @@ def _projected(path, ground, source_text, target_text, lines, unit="line") -> tu
                 f"but x {lon[i]:g}, y {lat[i]:g} is not a longitude, latitude in degrees"
             )
         if target is None:
-            target = utm_crs(float(np.mean(lat)), float(np.mean(lon)))
+            target = projected_crs(utm_crs(lon=np.mean(lon), lat=np.mean(lat)))
     elif target is None or target == source:
         return ground, source_text
     t = pyproj.Transformer.from_crs(source, target, always_xy=True)
