@@ -19,6 +19,16 @@ class ConvergenceError(RuntimeError):
     """
 
 
+class UnsupportedFormatError(ValueError):
+    """A file of no format photax reads for what was asked; the message names the file and the formats
+    looked for (``photax.io.satellite.FORMATS`` for RPC files)."""
+
+
+class MalformedFileError(ValueError):
+    """A file of a format photax reads, with a bad or missing value; the message names the file and the
+    line (text) or key (XML, JSON)."""
+
+
 _SINGULAR = "the normal equations became singular (the control points do not determine the orientation from there)"
 
 
