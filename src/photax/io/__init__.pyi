@@ -96,10 +96,10 @@ from .raster import (
 from .raster import (
     write_geotiff as write_geotiff,
 )
+from .results import read_json as read_json
+from .results import write_json as write_json
 from .satellite import read_rpc as read_rpc
 from .satellite import read_sensor as read_sensor
 from .satellite import rpc_format as rpc_format
 from .satellite import rpc_images as rpc_images
 from .satellite import write_rpc as write_rpc
-from .results import read_json as read_json
-from .results import write_json as write_json

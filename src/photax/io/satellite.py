@@ -75,7 +75,9 @@ class Head:
 
 
 # the first element after the prolog, comments, processing instructions and a DOCTYPE
-_XML_ROOT = re.compile(r"\s*(?:(?:<\?.*?\?>|<!--.*?-->|<!DOCTYPE[^>]*>)\s*)*<([A-Za-z_][\w.:-]*)", re.S)
+_XML_ROOT = re.compile(
+    r"\s*(?:(?:<\?.*?\?>|<!--.*?-->|<!DOCTYPE[^\[>]*(?:\[.*?\])?\s*>)\s*)*<([A-Za-z_][\w.:-]*)", re.S
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -406,26 +408,23 @@ def _sniff_rpb(head: Head) -> bool:
     return head.xml_root is None and bool(_RPB_SNIFF.search(head.text))
 
 
+_RPB_STATEMENT = re.compile(r"(\w+)[ \t]*=[ \t]*(\([^)]*\)|[^;\n]*);")  # a list may span lines, a value not
+
+
 def _read_rpb(path, image=None, band=None) -> RPCCamera:
     _no_entries(path, image, ".RPB")
     text = _text(path)
     parts: dict = {}
     seen: dict[str, int] = {}
-    pos = 0
-    for statement in text.split(";"):
-        line = text.count("\n", 0, pos + len(statement) - len(statement.lstrip())) + 1
-        pos += len(statement) + 1
-        key, sep, value = statement.partition("=")
-        key = key.strip()
-        if not sep or key not in _RPB_KEYS:
+    for m in _RPB_STATEMENT.finditer(text):
+        key, value = m.group(1), m.group(2).strip()
+        if key not in _RPB_KEYS:
             continue
+        line = text.count("\n", 0, m.start(1)) + 1
         if key in seen:
             raise _bad(path, line, f"{key} given twice (first on line {seen[key]})")
         seen[key] = line
-        value = value.strip()
         if value.startswith("("):
-            if not value.endswith(")"):
-                raise _bad(path, line, f"{key}: a list of coefficients without its closing ')'")
             parts[_RPB_KEYS[key]] = [_num(path, line, v, key) for v in value[1:-1].split(",") if v.strip()]
         else:
             parts[_RPB_KEYS[key]] = _num(path, line, value, key)
@@ -493,10 +492,12 @@ def _find(node, *names):
     return None
 
 
-def _xml_line(text: str, tag: str) -> int | None:
-    i = text.find(f"<{tag}>")
+def _xml_line(text: str, tag: str, within: str = "") -> int | None:
+    """The line of the first ``<tag>`` after the first ``<within>`` (the element's section)."""
+    start = max(text.find(f"<{within}"), 0) if within else 0
+    i = text.find(f"<{tag}>", start)
     if i < 0:
-        i = text.find(f"<{tag}")
+        i = text.find(f"<{tag}", start)
     return None if i < 0 else text.count("\n", 0, i) + 1
 
 
@@ -504,7 +505,7 @@ def _xml_value(path, text, node, tag: str, where: str) -> float | None:
     el = _child(node, tag) if node is not None else None
     if el is None:
         return None
-    return _num(path, _xml_line(text, tag), (el.text or "").strip(), f"{where}/{tag}")
+    return _num(path, _xml_line(text, tag, where.split("/")[-1]), (el.text or "").strip(), f"{where}/{tag}")
 
 
 def _sniff_dimap(head: Head) -> bool:
@@ -596,7 +597,7 @@ def _read_maxar(path, image=None, band=None) -> RPCCamera:
         el = _child(lst, tag) if lst is not None else None
         if el is None:
             continue
-        line = _xml_line(text, tag)
+        line = _xml_line(text, tag, "RPB")
         parts[k] = [_num(path, line, v, f"RPB/IMAGE/{tag}List/{tag}") for v in (el.text or "").split()]
     where = {**_ISD_KEYS, **{k: f"{v}List/{v}" for k, v in _ISD_COEFFS.items()}}
     return _camera(path, parts, lambda k: "RPB/IMAGE/" + where[k])
@@ -667,7 +668,7 @@ def _read_orthority(path, image=None, band=None) -> RPCCamera:
     ):  # fmt: skip
         raise _bad(path, line, f"entry {files.excerpt(str(image))}: im_size must be two positive integers")
     try:
-        return _camera(path, parts, lambda k: f"[{image}] rpc.{k}", None if size is None else size_arr.astype(int))
+        return _camera(path, parts, lambda k: f"rpc.{k}", None if size is None else size_arr.astype(int))
     except MalformedFileError as exc:
         raise MalformedFileError(str(exc).replace(f"{path}: ", f"{path} [{image}]: ", 1)) from None
 
