@@ -976,7 +976,17 @@ def _rpc_seeds(folder) -> dict[str, list[bytes]]:
     xml = [isd]
     if (SHARED_DATA / "satellite/rpc_PLEIADES.xml").is_file():
         xml.append((SHARED_DATA / "satellite/rpc_PLEIADES.xml").read_bytes())
-    return {"text": text, "rpb": [rpb], "xml": xml}
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        profile = dict(
+            driver="GTiff", width=4, height=3, count=1, dtype="uint8", rpcs=rasterio.rpc.RPC(**cam.to_dict())
+        )
+        with rasterio.open(folder / "seed.tif", "w", **profile) as dst:
+            dst.write(np.zeros((1, 3, 4), np.uint8))
+    return {"text": text, "rpb": [rpb], "xml": xml, "raster": [(folder / "seed.tif").read_bytes()]}
 
 
 @pytest.fixture(scope="module")
@@ -999,7 +1009,7 @@ def _expect_photax_error_or_sane_rpc(path) -> None:
     assert np.all(np.asarray(cam.scales) != 0)
 
 
-@pytest.mark.parametrize("family, examples", [("text", 300), ("rpb", 150), ("xml", 150)])
+@pytest.mark.parametrize("family, examples", [("text", 300), ("rpb", 150), ("xml", 150), ("raster", 100)])
 def test_fuzz_read_rpc(work, rpc_seeds, family, examples):
     """The satellite RPC readers on mutated KEY: value text (IKONOS, GDAL _RPC.TXT), .RPB and XML
     (Maxar ISD, DIMAP): only photax's typed errors escape, whatever the content sniffs as."""
@@ -1017,7 +1027,7 @@ def test_fuzz_read_rpc(work, rpc_seeds, family, examples):
 def test_rpc_seeds_are_valid(work, rpc_seeds):
     from photax.io.satellite import read_rpc, rpc_format
 
-    expected = {"text": "rpc-txt", "rpb": "rpb", "xml": ("maxar-xml", "dimap")}
+    expected = {"text": "rpc-txt", "rpb": "rpb", "xml": ("maxar-xml", "dimap"), "raster": "raster"}
     for family, seeds in rpc_seeds.items():
         for raw in seeds:
             path = work / f"seed_{family}"

@@ -117,15 +117,16 @@ def run(args: argparse.Namespace) -> int:
     if _is_ground(args.camera):
         start_gc()  # refining RPCs traces JAX functions: their cyclic garbage is collected
         return _run_ground(args)
+    import os
+
+    from ..io.satellite import families
+
+    # a camera file that is not an RPC: say so, with what photax recognises as one
+    rpc = f"; {args.camera} is no RPC file photax reads ({families()})" if os.path.isfile(args.camera) else ""
     rpc_only = [o for o, v in (("--crs", args.crs), ("--gcps", args.gcps), ("--refine", args.refine)) if v is not None]
     if rpc_only:
-        raise ValueError(f"{', '.join(rpc_only)}: for an RPC camera only (a frame's CRS is its orientation's)")
+        raise ValueError(f"{', '.join(rpc_only)}: for an RPC camera only (a frame's CRS is its orientation's{rpc})")
     if args.exterior is None:
-        import os
-
-        from ..io.satellite import families
-
-        rpc = f"; {args.camera} is no RPC file photax reads ({families()})" if os.path.isfile(args.camera) else ""
         raise ValueError(
             f"--exterior is required with a frame camera (only an RPC camera carries its orientation{rpc})"
         )

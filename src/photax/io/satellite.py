@@ -53,7 +53,6 @@ from ..rpc import COEFFICIENT_KEYS, DIRECT_KEYS, OFFSET_KEYS, SCALE_KEYS, RPCCam
 from . import files
 
 WHAT = "RPC file"
-files.MAX_BYTES.setdefault(WHAT, 256 * files.MiB)  # a Maxar ISD with its ephemeris and attitude: a few MiB
 _HEAD = 65536  # bytes looked at to recognise a file
 
 
@@ -811,7 +810,7 @@ def _write_geotiff(rpc: RPCCamera, path: pathlib.Path) -> None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", NotGeoreferencedWarning)
                 with rasterio.open(tmp, "r+") as dst:
-                    dst.rpcs = RPC(**rpc.to_dict(), err_bias=-1.0, err_rand=-1.0)
+                    dst.rpcs = RPC(**rpc.to_dict())
     except RasterioError as exc:
         raise MalformedFileError(f"{path}: GDAL cannot write its RPC tags ({files.excerpt(str(exc), 80)})") from None
 
