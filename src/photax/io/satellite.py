@@ -123,6 +123,18 @@ def rpc_format(path) -> str:
     Raises:
         UnsupportedFormatError: of no family photax reads (the message lists them).
         FileNotFoundError: no such file.
+
+    Examples:
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "notes.txt"
+        >>> _ = path.write_text("LINE_OFF: 12.5 pixels")  # the key family, even if incomplete
+        >>> ptx.rpc_format(path)
+        'rpc-txt'
+        >>> _ = path.write_text("hello")
+        >>> ptx.rpc_format(path)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        photax.errors.UnsupportedFormatError: ...notes.txt: not an RPC file photax reads; it reads ...
     """
     return _format_of(_path(path)).name
 
@@ -136,13 +148,28 @@ def _format_of(path: pathlib.Path) -> RPCFormat:
 
 
 def families() -> str:
-    """The families photax reads, in words (for messages)."""
+    """The families photax reads, in words (for messages).
+
+    Examples:
+        >>> from photax.io.satellite import families
+        >>> "DIMAP v2/v3 XML" in families() and "KEY: value RPC text" in families()
+        True
+    """
     return "; ".join(f.description for f in FORMATS)
 
 
 def rpc_images(path) -> tuple[str, ...] | None:
     """The image names of a file holding one RPC per image (orthority's ``rpc_param.yaml``, s2p's
-    ``config.json``), or None for a file of one RPC."""
+    ``config.json``), or None for a file of one RPC.
+
+    Examples:
+        >>> import json, pathlib, tempfile
+        >>> from photax.io.satellite import rpc_images
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "config.json"
+        >>> _ = path.write_text(json.dumps({"images": [{"img": "in/a.tif", "rpc": {}}, {"img": "b.tif", "rpc": {}}]}))
+        >>> rpc_images(path)
+        ('a.tif', 'b.tif')
+    """
     path = _path(path)
     fmt = _format_of(path)
     return None if fmt.entries is None else fmt.entries(path)
@@ -165,11 +192,19 @@ def read_rpc(path, image: str | None = None, *, band: int | None = None) -> RPCC
         FileNotFoundError: no such file.
 
     Examples:
+        An RPC (column ~ longitude, row ~ -latitude) written as GDAL's ``_RPC.TXT`` text under a name
+        that says nothing, and read back by its content:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
         >>> import photax as ptx
-        >>> from conftest import SHARED_DATA  # doctest: +SKIP
-        >>> rpc = ptx.read_rpc(SHARED_DATA / "satellite" / "rpc_PLEIADES.xml")  # doctest: +SKIP
-        >>> rpc.direct is not None, rpc.localization  # doctest: +SKIP
-        (True, 'direct')
+        >>> c = np.zeros((4, 20)); c[[1, 3], 0] = 1.0; c[0, 2] = -1.0; c[2, 1] = 1.0
+        >>> rpc = ptx.RPCCamera(c, [2.35, 48.85, 100.0, 5000.0, 5000.0], [0.05, 0.05, 500.0, 5000.0, 5000.0])
+        >>> path = ptx.write_rpc(rpc, pathlib.Path(tempfile.mkdtemp()) / "scene metadata")
+        >>> ptx.rpc_format(path)
+        'rpc-txt'
+        >>> [round(float(v), 6) for v in ptx.read_rpc(path)([2.375, 48.85, 100.0])]  # column, row (px)
+        [7500.0, 5000.0]
     """
     path = _path(path)
     fmt = _format_of(path)
@@ -190,6 +225,16 @@ def read_sensor(path, crs=None, *, image: str | None = None):
 
     Raises:
         UnsupportedFormatError: neither (the message lists the families looked for).
+
+    Examples:
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> c = np.zeros((4, 20)); c[[1, 3], 0] = 1.0; c[0, 2] = -1.0; c[2, 1] = 1.0
+        >>> rpc = ptx.RPCCamera(c, [2.35, 48.85, 100.0, 5000.0, 5000.0], [0.05, 0.05, 500.0, 5000.0, 5000.0])
+        >>> sensor = ptx.read_sensor(ptx.write_rpc(rpc, pathlib.Path(tempfile.mkdtemp()) / "x.RPB", "rpb"))
+        >>> type(sensor).__name__, sensor.camera.image_size
+        ('GroundSensor', None)
     """
     from ..sensor import GroundSensor, utm_crs
     from .pushbroom_file import is_pushbroom_file, read_pushbroom
@@ -225,6 +270,19 @@ def write_rpc(rpc: RPCCamera, path, format: str = "rpc-txt") -> pathlib.Path:
 
     Returns:
         the path written.
+
+    Examples:
+        A shift refined on GCPs, folded into the offsets of the ``.RPB`` written:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> c = np.zeros((4, 20)); c[[1, 3], 0] = 1.0; c[0, 2] = -1.0; c[2, 1] = 1.0
+        >>> rpc = ptx.RPCCamera(c, [2.35, 48.85, 100.0, 5000.0, 5000.0], [0.05, 0.05, 500.0, 5000.0, 5000.0])
+        >>> refined = rpc.replace(correction=[[2.5, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+        >>> back = ptx.read_rpc(ptx.write_rpc(refined, pathlib.Path(tempfile.mkdtemp()) / "x.RPB", "rpb"))
+        >>> [float(v) for v in back.offsets[3:]], [float(v) for v in back([2.35, 48.85, 100.0])]
+        ([5002.5, 4999.0], [5002.5, 4999.0])
     """
     if format not in WRITE_FORMATS:
         raise ValueError(f"format: expected one of {', '.join(WRITE_FORMATS)}, got {format!r}")
@@ -235,7 +293,18 @@ def write_rpc(rpc: RPCCamera, path, format: str = "rpc-txt") -> pathlib.Path:
 
 
 def folded(rpc: RPCCamera) -> RPCCamera:
-    """``rpc`` with its image-space correction folded into the RPC itself (:func:`write_rpc`)."""
+    """``rpc`` with its image-space correction folded into the RPC itself (:func:`write_rpc`).
+
+    Examples:
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io.satellite import folded
+        >>> c = np.zeros((4, 20)); c[[1, 3], 0] = 1.0; c[0, 2] = -1.0; c[2, 1] = 1.0
+        >>> rpc = ptx.RPCCamera(c, [2.35, 48.85, 100.0, 5000.0, 5000.0], [0.05, 0.05, 500.0, 5000.0, 5000.0])
+        >>> plain = folded(rpc.replace(correction=[[1.0, 0.01, 0.0], [0.0, 0.0, 0.0]]))
+        >>> [float(v) for v in plain.offsets[3:]], [float(v) for v in plain.scales[3:]], float(np.abs(plain.correction).max())
+        ([5051.0, 5000.0], [5050.0, 5000.0], 0.0)
+    """
     k = np.asarray(rpc.correction)
     if not np.any(k):
         return rpc
