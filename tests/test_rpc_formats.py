@@ -447,3 +447,41 @@ def test_docs_list_every_family():
         assert f"`{fmt.name}`" in text, fmt.name
     for name in WRITE_FORMATS:
         assert f"`{name}`" in text, name
+
+
+@pytest.mark.parametrize("name", ["read_rpc", "write_rpc", "rpc_format", "read_sensor"])
+def test_examples_run(name):
+    """The Examples of the public entry points run (as tests/test_doctests.py runs the others')."""
+    import doctest
+
+    function = getattr(ptx, name)
+    assert "\n    Examples:\n" in function.__doc__, name
+    tests = doctest.DocTestFinder(recurse=False).find(function, name, globs={})
+    assert sum(len(t.examples) for t in tests) >= 3
+    report: list[str] = []
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    for test in tests:
+        runner.run(test, out=report.append)
+    assert runner.failures == 0, "".join(report)
+
+
+def test_direct_model_on_a_dem_and_bad_choice():
+    """Onto a DEM (GDAL's RPC_DEM iteration) the direct model is used too, and Newton on request; both
+    land on the DEM's surface, a millimetre apart."""
+    cam = read_rpc(shared_file("satellite/rpc_PLEIADES.xml"))
+    lon, lat = (float(v) for v in np.asarray(cam.offsets)[:2])
+    heights = np.add.outer(np.linspace(40.0, 90.0, 41), np.linspace(0.0, 30.0, 41))
+    step = 0.3 / 40
+    dem = ptx.DEM(heights, (step, 0.0, lon - 0.15, 0.0, -step, lat + 0.15))  # lon, lat grid (crs None)
+    pixel = np.array([[1000.0, 2000.0], [20000.0, 18000.0], [39000.0, 35000.0]])
+    direct, status = cam.to_ground_dem_status(pixel, dem)
+    newton = cam.to_ground_dem(pixel, dem, method="newton")
+    assert np.all(status == 0)
+    on_dem = np.asarray(dem.height(direct[:, 0], direct[:, 1]))
+    np.testing.assert_allclose(direct[:, 2], on_dem, atol=1e-5)
+    assert 0 < np.max(np.abs(direct[:, :2] - newton[:, :2])) < 1e-7  # deg: ~1 cm
+    np.testing.assert_allclose(np.asarray(cam(direct)), pixel, atol=0.01)  # the vendor's two fits agree
+    with pytest.raises(ValueError, match="localization: expected 'direct' or 'newton', got 'exact'"):
+        cam.with_localization("exact")
+    with pytest.raises(ValueError, match="replace: no field colour"):
+        cam.replace(colour=1)
