@@ -437,6 +437,12 @@ def test_cli_ortho_reads_any_rpc_file(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--exterior is required with a frame camera" in err and "is no RPC file photax reads" in err
     assert "DIMAP" in err
+    broken = tmp_path / "RPC_broken.XML"
+    text = shared_file("satellite/rpc_PLEIADES.xml").read_text()
+    broken.write_text(text.replace("<LAT_SCALE>0.08714875721540594</LAT_SCALE>", ""))
+    assert main([*args, "--camera", str(broken), "-o", str(tmp_path / "q.tif")]) == 2
+    err = capsys.readouterr().err
+    assert f"{broken}: missing RFM_Validity/LAT_SCALE" in err and err.count("\n") == 1, err
 
 
 def test_docs_list_every_family():
