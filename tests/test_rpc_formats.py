@@ -365,6 +365,8 @@ def test_malformed_files_name_the_line_or_key(tmp_path):
                         r", line 100: Inverse_Model/SAMP_NUM_COEFF_1 is not finite"),
         "cut": (pleiades[:5000], r", line \d+: not well-formed XML"),
         "no model": (pleiades.replace("Inverse_Model>", "Other>"), r"without a Rational_Function_Model"),
+        "v1": ('<?xml version="1.0"?>\n<Dimap_Document name="SPOT5"><Metadata_Id><METADATA_FORMAT version="1.1">DIMAP'
+               "</METADATA_FORMAT></Metadata_Id></Dimap_Document>", r"DIMAP v1 \(SPOT 1-5, Formosat\) carries a physical"),
         "entity": (pleiades.replace("<Dimap_Document>", '<!DOCTYPE d [<!ENTITY a "aaaa">]><Dimap_Document>'), r"entity declaration"),
     }  # fmt: skip
     for name, (text, pattern) in xml_cases.items():

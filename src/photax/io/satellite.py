@@ -8,7 +8,7 @@ it, how it is written.  :func:`rpc_format` names a file's family, :func:`read_rp
 :func:`read_sensor` gives the sensor of a file (``photax.read_sensor``).  The families
 (``docs/formats.md``):
 
-- ``dimap``: Airbus DIMAP v2/v3 XML (Pleiades, SPOT 6/7: ``Inverse_Model`` and ``Direct_Model``;
+- ``dimap``: Airbus DIMAP v2/v3 XML (a DIMAP v1 file, SPOT 1-5, has no RPC: refused saying so) (Pleiades, SPOT 6/7: ``Inverse_Model`` and ``Direct_Model``;
   Pleiades Neo: ``GroundtoImage_Values`` and ``ImagetoGround_Values``); both models are kept (the
   direct one localizes by default, :class:`photax.RPCCamera`).  DIMAP counts pixels from (1, 1)
   (v2; v3 says where it starts in ``ImagetoGround_Validity_Domain/FIRST_COL``), photax from
@@ -603,8 +603,13 @@ def _read_dimap(path, image=None, band=None, *, _followed: bool = False) -> RPCC
                     if target.is_file():
                         return _read_dimap(target, None, band, _followed=True)
                     raise MalformedFileError(f"{path}: names its RPC file {files.excerpt(href)}, which is not there")
+        fmt = _find(root, "METADATA_FORMAT")
+        v1 = fmt is not None and str(fmt.get("version", "")).startswith("1")
         raise _bad(
-            path, None, "a DIMAP document without a Rational_Function_Model (Inverse_Model or GroundtoImage_Values)"
+            path,
+            None,
+            "a DIMAP document without a Rational_Function_Model (Inverse_Model or GroundtoImage_Values)"
+            + ("; DIMAP v1 (SPOT 1-5, Formosat) carries a physical sensor model, not an RPC" if v1 else ""),
         )
     inv, dire, lon_prefix, lat_prefix, inv_name, dir_name = models
     parts: dict = {}
