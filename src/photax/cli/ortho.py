@@ -14,7 +14,8 @@ bit for bit what the command writes for that image alone; the orientation file i
 Exit codes: 0 done, 1 some image failed (named on stderr; the others are written), 2 bad input.
 
 A satellite image with an RPC (``--camera rpc``: the RPC in IMAGE's metadata or side files, as GDAL
-reads them; or ``--camera`` an orthority ``rpc_param.yaml``, a ``.RPB`` or a ``_RPC.TXT``) needs no
+reads them; or ``--camera`` any RPC file, recognised by content: DIMAP, Maxar ISD XML, ``KEY: value`` text,
+``.RPB``, orthority's ``rpc_param.yaml``, rpcm/s2p JSON; ``docs/formats.md``) needs no
 ``--exterior``: the ortho is made in ``--crs`` (default the UTM zone of the scene), optionally after
 refining the RPC on ``--gcps`` (``--refine``, :func:`photax.rpc.refine_rpc`, whose report is
 printed). The DEM's heights must be ellipsoidal (a warning says when its CRS does not say so).
@@ -70,8 +71,9 @@ def add_parser(sub) -> None:
                    help="photax camera file (see photax resect --help), orthority interior YAML, "
                    "OpenSfM/ODM reconstruction.json or ODM cameras.json, or exif: the camera the image's "
                    "tags describe (DJI DewarpData, else EXIF focal length), as orthority reads it "
-                   "(--interior is an alias); or an RPC: 'rpc' (the one in IMAGE's metadata), an orthority "
-                   "rpc_param.yaml, a .RPB or a _RPC.TXT file; or a photax push-broom camera file (type: "
+                   "(--interior is an alias); or an RPC: 'rpc' (the one in IMAGE's metadata) or any RPC file "
+                   "(DIMAP, Maxar XML, KEY: value text, .RPB, orthority rpc_param.yaml, rpcm/s2p JSON; read "
+                   "by content); or a photax push-broom camera file (type: "
                    "pushbroom)")  # fmt: skip
     p.add_argument("--exterior",
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
@@ -115,11 +117,19 @@ def run(args: argparse.Namespace) -> int:
     if _is_ground(args.camera):
         start_gc()  # refining RPCs traces JAX functions: their cyclic garbage is collected
         return _run_ground(args)
+    import os
+
+    from ..io.satellite import families
+
+    # a camera file that is not an RPC: say so, with what photax recognises as one
+    rpc = f"; {args.camera} is no RPC file photax reads ({families()})" if os.path.isfile(args.camera) else ""
     rpc_only = [o for o, v in (("--crs", args.crs), ("--gcps", args.gcps), ("--refine", args.refine)) if v is not None]
     if rpc_only:
-        raise ValueError(f"{', '.join(rpc_only)}: for an RPC camera only (a frame's CRS is its orientation's)")
+        raise ValueError(f"{', '.join(rpc_only)}: for an RPC camera only (a frame's CRS is its orientation's{rpc})")
     if args.exterior is None:
-        raise ValueError("--exterior is required with a frame camera (only an RPC camera carries its orientation)")
+        raise ValueError(
+            f"--exterior is required with a frame camera (only an RPC camera carries its orientation{rpc})"
+        )
     if args.out_dir is not None:
         return _run_block(args)
     if len(args.image) > 1:
@@ -364,26 +374,25 @@ def _flat_dem(height: float, exterior):
 
 
 def _is_ground(camera: str) -> bool:
-    """``--camera rpc``, a ``.RPB`` / ``_RPC.TXT`` file, a YAML file of orthority's RPC format, or a
-    photax push-broom camera file: a camera that carries its own orientation."""
+    """``--camera rpc``, a file of any RPC family photax reads (by content:
+    :data:`photax.io.satellite.FORMATS`), or a photax push-broom camera file: a camera that carries its
+    own orientation."""
     import pathlib
 
+    from ..errors import UnsupportedFormatError
     from ..io.pushbroom_file import is_pushbroom_file
+    from ..io.satellite import rpc_format
 
     path = pathlib.Path(camera)
-    if camera == "rpc" or path.suffix.lower() == ".rpb" or path.name.upper().endswith("_RPC.TXT"):
+    if camera == "rpc" or is_pushbroom_file(path):
         return True
-    if is_pushbroom_file(path):
-        return True
-    if path.suffix.lower() not in (".yaml", ".yml") or not path.is_file():
-        return False
-    import yaml
-
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+    if not path.is_file():
         return False  # the frame readers say what is wrong with it
-    return isinstance(doc, dict) and any(isinstance(v, dict) and "rpc" in v for v in doc.values())
+    try:
+        rpc_format(path)
+    except (UnsupportedFormatError, OSError, ValueError):
+        return False  # not an RPC file: a frame camera file, whose readers say what is wrong with it
+    return True
 
 
 def _run_ground(args: argparse.Namespace) -> int:
@@ -396,6 +405,7 @@ def _run_ground(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.pushbroom_file import is_pushbroom_file
     from ..io.raster import read_dem
+    from ..io.satellite import rpc_images
     from ..rectification import orthorectify_files
     from ._common import ground_unit, input_file
 
@@ -423,11 +433,11 @@ def _run_ground(args: argparse.Namespace) -> int:
             "--gcps: refines an RPC; a push-broom model's orbit and attitude are adjusted on GCPs by "
             "photax.resect_pushbroom (Python), whose camera write_pushbroom writes for --camera"
         )
-    if source is not None and len(args.image) > 1 and (pushbroom or source.suffix.lower() not in (".yaml", ".yml")):
+    if source is not None and len(args.image) > 1 and (pushbroom or rpc_images(source) is None):
         raise ValueError(
             f"--camera {source}: one {'push-broom camera' if pushbroom else 'RPC'} for {len(args.image)} images; "
             "give each image its own (--camera rpc: the RPC in each image or in the .RPB / _RPC.TXT beside it; "
-            "or a rpc_param.yaml naming every image)"
+            "or a file naming every image: orthority's rpc_param.yaml, s2p's config.json)"
         )
     inputs = [args.dem, source, args.gcps]
     if args.out_dir is not None:
@@ -494,31 +504,30 @@ def _about(exc: ValueError, image) -> ValueError:
 
 def _image_camera(source, image, several: bool, pushbroom: bool):
     """IMAGE's camera: a push-broom camera file (``pushbroom``); or its RPC: from the image (``source``
-    None: its metadata or the side files GDAL reads), its entry of an orthority ``rpc_param.yaml`` (by
-    file name; a one-entry file named otherwise for a lone image), or a ``.RPB`` / ``_RPC.TXT`` file;
+    None: its metadata or the side files GDAL reads), its entry of a file of one RPC per image
+    (orthority's ``rpc_param.yaml``, s2p's ``config.json``: by file name; a one-entry file named
+    otherwise for a lone image), or any other RPC file (by content, :func:`photax.io.satellite.read_rpc`);
     its image size the image's where the file has none."""
-    from ..errors import NoEntryError
     from ..io.pushbroom_file import read_pushbroom
     from ..io.raster import open_raster
-    from ..rpc import read_rpc
+    from ..io.satellite import read_rpc, rpc_images
 
     if pushbroom:
         return read_pushbroom(source)
     if source is None:
         camera = read_rpc(image)
-    elif source.suffix.lower() in (".yaml", ".yml"):
-        try:
-            camera = read_rpc(source, image.name)
-        except NoEntryError:
-            if several:
-                raise
-            camera = read_rpc(source)  # a file of one entry named otherwise
     else:
-        camera = read_rpc(source)
+        names = rpc_images(source)
+        if names is None:
+            camera = read_rpc(source)
+        elif image.name in names or several or len(names) != 1:
+            camera = read_rpc(source, image.name)
+        else:
+            camera = read_rpc(source)  # a file of one entry named otherwise
     if camera.image_size is None:
         with open_raster(image) as src:
             size = (src.width, src.height)
-        camera = type(camera)(camera.coefficients, camera.offsets, camera.scales, camera.correction, size)
+        camera = camera.replace(image_size=size)
     return camera
 
 
