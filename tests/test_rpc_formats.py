@@ -20,7 +20,7 @@ import pytest
 from conftest import ROOT, shared_file
 
 import photax as ptx
-from photax.errors import MalformedFileError, UnsupportedFormatError
+from photax.errors import MalformedFileError, NoEntryError, UnsupportedFormatError
 from photax.io.satellite import read_rpc, rpc_format, rpc_images, write_rpc
 
 rasterio = pytest.importorskip("rasterio")
@@ -211,7 +211,7 @@ def test_geoeye_style_isd_and_rpcm_json(rpcm, tmp_path):
     np.testing.assert_allclose(d, np.broadcast_to([10.0, 0.0], d.shape), atol=1e-9)
     with pytest.raises(MalformedFileError, match=r"holds 2 images \('im1.tif', 'im2.tif'\): pass image="):
         read_rpc(s2p)
-    with pytest.raises(MalformedFileError, match="no entry 'im3.tif'"):
+    with pytest.raises(NoEntryError, match="no entry 'im3.tif'"):
         read_rpc(s2p, "im3.tif")
 
 

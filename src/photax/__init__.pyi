@@ -41,8 +41,8 @@ from .errors import RESULTS as RESULTS
 from .errors import ConvergenceError as ConvergenceError
 from .errors import CRSMismatchError as CRSMismatchError
 from .errors import DegenerateGeometryError as DegenerateGeometryError
-from .errors import NoEntryError as NoEntryError
 from .errors import MalformedFileError as MalformedFileError
+from .errors import NoEntryError as NoEntryError
 from .errors import NotConvergedError as NotConvergedError
 from .errors import OutsideValidityError as OutsideValidityError
 from .errors import PhotaxError as PhotaxError
