@@ -42,6 +42,7 @@ from .errors import ConvergenceError as ConvergenceError
 from .fusion import pansharpen as pansharpen
 from .fusion import pansharpen_dask as pansharpen_dask
 from .grid import Grid as Grid
+from .grid import GridSpec as GridSpec
 from .interior import (
     InteriorOrientation as InteriorOrientation,
 )

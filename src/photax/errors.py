@@ -19,6 +19,11 @@ class ConvergenceError(RuntimeError):
     """
 
 
+class OutputCRSError(ValueError):
+    """The output CRS asked for is not one this sensor model can give the output in (a frame
+    image's ortho is in its orientation's CRS); the message names both CRSs."""
+
+
 _SINGULAR = "the normal equations became singular (the control points do not determine the orientation from there)"
 
 

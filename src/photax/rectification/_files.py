@@ -16,7 +16,7 @@ from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
-from ..grid import Grid, gsd_hint, ortho_grid
+from ..grid import Grid, GridSpec, gsd_hint, ortho_grid
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ._approx import _tile_positions
@@ -368,6 +368,7 @@ def orthorectify_files(
     tile: int = 1024,
     compress: str | None = "deflate",
     progress: bool | str = False,
+    spec: GridSpec | None = None,
 ) -> list:
     """Many images orthorectified in one call, each exactly as :func:`orthorectify_file` does it
     alone (its own footprint grid from :func:`photax.ortho_grid`), under one progress bar over all
@@ -389,12 +390,17 @@ def orthorectify_files(
         crs: the grids' CRS (the orientation file's); default the DEM's (a ground camera: the UTM
             zone of its scene).
         nodata: as in :func:`rectify_file`.
+        spec: the output grid asked for (:class:`photax.GridSpec`: gdalwarp's ``-te``, ``-tr``,
+            ``-tap``, ``-ts``, a raster's grid), as :func:`photax.ortho_grid` takes it; with it,
+            ``resolution`` must be None (it is ``spec.resolution``).
 
     Returns:
         per image, its output :class:`photax.Grid`, or the exception that stopped it.
     """
     from ..progress import progress_bar
 
+    if spec is not None and resolution is not None:
+        raise ValueError("give the resolution in spec (GridSpec.resolution), not also as resolution=")
     images, outputs = list(images), list(outputs)
     exteriors = [None] * len(images) if exteriors is None else list(exteriors)
     cameras, dems = (_per_image(v, len(images), what) for v, what in ((camera, "cameras"), (dem, "DEMs")))
@@ -409,7 +415,10 @@ def orthorectify_files(
         try:
             with open_raster(image) as src:
                 _check_image_size((src.height, src.width), cam)
-            results.append(ortho_grid(e, cam, d, resolution, crs=crs))
+            if spec is None:
+                results.append(ortho_grid(e, cam, d, resolution, crs=crs))
+            else:
+                results.append(ortho_grid(e, cam, d, crs=crs, spec=spec))
         except (ValueError, OSError) as exc:
             results.append(exc)
     total = sum(len(list(tile_windows(g.shape, tile))) for g in results if isinstance(g, Grid))
