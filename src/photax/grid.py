@@ -52,7 +52,7 @@ class Grid:
         object.__setattr__(self, "shape", shape)
 
     @classmethod
-    def from_bounds(cls, bounds, resolution=None, size=None, crs=None, *, target_aligned: bool = False) -> Grid:
+    def from_bounds(cls, bounds, resolution=None, crs=None, *, size=None, target_aligned: bool = False) -> Grid:
         """A north-up grid over ``bounds``, as ``gdalwarp -te`` makes it with ``-tr``, ``-ts`` and ``-tap``.
 
         Args:
@@ -60,7 +60,7 @@ class Grid:
             resolution: pixel size, a scalar or ``(x_size, y_size)``, > 0 (``-tr``).
             size: ``(width, height)`` in pixels (``-ts``); one of them 0: from the other, square
                 pixels.  Not with ``resolution``.
-            crs: the map CRS.
+            crs: the map CRS (the third argument, where it was before ``size`` came).
             target_aligned: snap the edges outwards to whole multiples of the resolution
                 (``-tap``), so that grids of one resolution line up pixel for pixel; needs
                 ``resolution``.
@@ -245,7 +245,7 @@ class GridSpec:
             return Grid.from_bounds(footprint, res, crs=crs, target_aligned=True)
         if self.size is not None or self.resolution is not None:
             return Grid.from_bounds(
-                self.bounds, self.resolution, self.size, crs=crs, target_aligned=self.target_aligned
+                self.bounds, self.resolution, crs, size=self.size, target_aligned=self.target_aligned
             )
         if default_resolution is None:
             raise ValueError("the grid over the bounds needs a resolution or a size")
