@@ -16,8 +16,10 @@ import subprocess
 import numpy as np
 import pytest
 import rasterio
+import test_mosaic_block as tb
 from conftest import ROOT, shared_file
 from rasterio.transform import from_origin
+from test_mosaic_block import block  # noqa: F401 -- its rendered strip, a fixture here too
 
 import photax
 from photax.cli import main
@@ -293,3 +295,98 @@ def test_cli_rectify_bounds_target_aligned_is_gdalwarps_grid(tmp_path):
         pass
     same(_written(out), gdalwarp_grid(src, tmp_path, "-te", *bounds, "-tr", 2, 2, "-tap"))
     assert _written(out).crs == rasterio.CRS.from_user_input(CRS)
+
+
+# --- photax mosaic -----------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def orthos(tmp_path_factory):
+    """Two overlapping float32 orthos on one 3 m lattice whose origin is a multiple of 3 (so the
+    target-aligned grid of 3 m is their lattice), and their mosaic on the union grid."""
+    tmp = tmp_path_factory.mktemp("mosaic_grid")
+    rng = np.random.default_rng(37)
+    x0, y1, res = 500_001.0, 4_000_362.0, 3.0
+    paths = []
+    for name, c0, gain in (("a", 0, 1.0), ("b", 70, 1.1)):
+        v = (rng.random((60, 130)) * gain).astype(np.float32)
+        path = tmp / f"{name}.tif"
+        with rasterio.open(path, "w", driver="GTiff", width=130, height=60, count=1, dtype="float32", crs=CRS,
+                           transform=from_origin(x0 + c0 * res, y1, res, res), nodata=np.nan) as dst:  # fmt: skip
+            dst.write(v[None])
+        paths.append(path)
+    union = tmp / "union.tif"
+    assert main(["mosaic", *map(str, paths), "-o", str(union), "--no-progress"]) == 0
+    return tmp, paths, union
+
+
+def test_cli_mosaic_on_the_target_aligned_grid_copies_its_lattice(orthos, tmp_path):
+    tmp, paths, union = orthos
+    bounds = (500_100.2, 4_000_250.7, 500_500.9, 4_000_340.1)
+    out = tmp_path / "m.tif"
+    argv = ["mosaic", *map(str, paths), "-o", str(out), "--no-progress"]
+    assert main([*argv, "--bounds", *map(str, bounds), "--resolution", "3", "--target-aligned"]) == 0
+    got = _written(out)
+    if GDALWARP is not None:
+        same(got, gdalwarp_grid(union, tmp_path, "-te", *bounds, "-tr", 3, 3, "-tap"))
+    same(got, Grid.from_bounds(bounds, 3.0, target_aligned=True))
+    with rasterio.open(union) as u, rasterio.open(out) as m:
+        window = rasterio.windows.from_bounds(*got.bounds, transform=u.transform).round_offsets().round_lengths()
+        np.testing.assert_array_equal(m.read(1), u.read(1, window=window))  # the same pixels, not resampled
+
+
+@needs_gdalwarp
+def test_cli_mosaic_off_the_lattice_is_resampled_as_gdalwarp(orthos, tmp_path):
+    """--bounds without --target-aligned (origin at XMIN, YMAX: off the orthos' lattice): the mosaic
+    is resampled by GDAL's warper, pixel for pixel what gdalwarp makes of the union mosaic."""
+    tmp, paths, union = orthos
+    bounds = (500_100.2, 4_000_250.7, 500_500.9, 4_000_340.1)
+    out = tmp_path / "m.tif"
+    argv = ["mosaic", *map(str, paths), "-o", str(out), "--no-progress", "--bounds", *map(str, bounds)]
+    assert main([*argv, "--resolution", "2.5"]) == 0
+    ref = tmp_path / "ref.tif"
+    subprocess.run([GDALWARP, "-q", "-te", *map(str, bounds), "-tr", "2.5", "2.5", "-r", "bilinear", str(union),
+                    str(ref)], check=True)  # fmt: skip
+    same(_written(out), _written(ref))
+    with rasterio.open(out) as m, rasterio.open(ref) as r:
+        a, b = m.read(1), r.read(1)
+    both = np.isfinite(a) & np.isfinite(b)
+    assert both.mean() > 0.9
+    np.testing.assert_allclose(a[both], b[both], rtol=0, atol=1e-5)
+
+
+def test_cli_mosaic_like_and_contradictions(orthos, tmp_path, capsys):
+    tmp, paths, union = orthos
+    like = tmp_path / "like.tif"
+    grid = Grid.from_bounds((500_030.0, 4_000_200.0, 500_300.0, 4_000_350.0), 3.0)
+    with rasterio.open(like, "w", driver="GTiff", width=grid.width, height=grid.height, count=1, dtype="uint8",
+                       crs=CRS, transform=grid.transform):  # fmt: skip
+        pass
+    out = tmp_path / "l.tif"
+    argv = ["mosaic", *map(str, paths), "-o", str(out), "--no-progress"]
+    assert main([*argv, "--like", str(like)]) == 0
+    same(_written(out), grid)
+    assert main([*argv, "--like", str(like), "--resolution", "3"]) == 2
+    assert "--like takes RASTER's CRS" in capsys.readouterr().err
+    assert main([*argv, "--size", "10", "10", "--resolution", "3"]) == 2
+    assert "--size and --resolution exclude each other" in capsys.readouterr().err
+
+
+def test_cli_mosaic_block_on_a_given_grid(block, tmp_path):  # noqa: F811 -- the imported fixture
+    """``photax mosaic --block ... --bounds B --resolution 2 --target-aligned``: the orthos are made
+    on the mosaic's own lattice (no second resampling) and the mosaic is the texture the block saw
+    (tests/test_mosaic_block.py's rendered strip and truth)."""
+    bounds = (tb.X0 - 150.3, tb.Y0 - 80.7, tb.X0 + 170.9, tb.Y0 + 60.2)
+    out = tmp_path / "m.tif"
+    argv = ["mosaic", "--block", str(block / "bundle.json"), "--images", str(block / "images"), "--camera",
+            str(block / "camera.yaml"), "--dem", str(block / "dem.tif"), "-o", str(out), "--chunks", "64",
+            "--no-progress", "--bounds", *map(str, bounds), "--resolution", "2", "--target-aligned"]  # fmt: skip
+    assert main(argv) == 0
+    got = _written(out)
+    same(got, Grid.from_bounds(bounds, 2.0, target_aligned=True))
+    if GDALWARP is not None:
+        same(got, gdalwarp_grid(block / "dem.tif", tmp_path, "-te", *bounds, "-tr", 2, 2, "-tap"))
+    with rasterio.open(out) as ds:
+        v = ds.read(1, masked=True).filled(np.nan).astype(float)
+    rms, ok = tb._rms_vs_truth(v, got.transform)
+    assert ok.mean() > 0.9 and rms < 0.01, (ok.mean(), rms)
