@@ -13,6 +13,11 @@ under one progress bar (:func:`photax.orthorectify_files`): each ortho is ``DIR/
 bit for bit what the command writes for that image alone; the orientation file is parsed once.
 Exit codes: 0 done, 1 some image failed (named on stderr; the others are written), 2 bad input.
 
+The output grid is gdalwarp's (docs/output-grid.md): ``--bounds`` (``-te``), ``--resolution``
+(``-tr``), ``--target-aligned`` (``-tap``), ``--size`` (``-ts``), ``--like RASTER``, ``--crs``
+(``-t_srs``; a frame image's ortho stays in its orientation's CRS: another one is refused with
+:class:`photax.errors.OutputCRSError`).  Without ``--bounds`` the grid covers the footprint, target aligned.
+
 A satellite image with an RPC (``--camera rpc``: the RPC in IMAGE's metadata or side files, as GDAL
 reads them; or ``--camera`` an orthority ``rpc_param.yaml``, a ``.RPB`` or a ``_RPC.TXT``) needs no
 ``--exterior``: the ortho is made in ``--crs`` (default the UTM zone of the scene), optionally after
