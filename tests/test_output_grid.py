@@ -390,3 +390,18 @@ def test_cli_mosaic_block_on_a_given_grid(block, tmp_path):  # noqa: F811 -- the
         v = ds.read(1, masked=True).filled(np.nan).astype(float)
     rms, ok = tb._rms_vs_truth(v, got.transform)
     assert ok.mean() > 0.9 and rms < 0.01, (ok.mean(), rms)
+
+
+def test_cli_rectify_like_and_size(tmp_path):
+    data = ROOT / "data"
+    argv = ["rectify", str(data / "sample_image.tif"), "--gcps", str(data / "sample_gcps.csv"), "--no-progress"]
+    like = tmp_path / "like.tif"
+    grid = Grid.from_bounds((511950.0, 4103850.0, 512100.0, 4104000.0), (3.0, 2.0), CRS)
+    with rasterio.open(like, "w", driver="GTiff", width=grid.width, height=grid.height, count=1, dtype="uint8",
+                       crs=CRS, transform=grid.transform):  # fmt: skip
+        pass
+    assert main([*argv, "-o", str(tmp_path / "l.tif"), "--like", str(like)]) == 0
+    same(_written(tmp_path / "l.tif"), grid)
+    bounds = (511950.31, 4103850.77, 512101.09, 4103999.43)
+    assert main([*argv, "-o", str(tmp_path / "s.tif"), "--bounds", *map(str, bounds), "--size", "64", "0"]) == 0
+    same(_written(tmp_path / "s.tif"), Grid.from_bounds(bounds, size=(64, 0)))
