@@ -44,6 +44,7 @@ from .errors import DegenerateGeometryError as DegenerateGeometryError
 from .errors import MalformedFileError as MalformedFileError
 from .errors import NoEntryError as NoEntryError
 from .errors import NotConvergedError as NotConvergedError
+from .errors import OutputCRSError as OutputCRSError
 from .errors import OutsideValidityError as OutsideValidityError
 from .errors import PhotaxError as PhotaxError
 from .errors import UnreadableFileError as UnreadableFileError
@@ -52,6 +53,7 @@ from .fusion import pansharpen as pansharpen
 from .fusion import pansharpen_dask as pansharpen_dask
 from .geo import utm_crs as utm_crs
 from .grid import Grid as Grid
+from .grid import GridSpec as GridSpec
 from .interior import (
     InteriorOrientation as InteriorOrientation,
 )

@@ -10,6 +10,7 @@ words::
     │   └── NoEntryError         (a file of several entries has none of that name; also LookupError)
     ├── MalformedFileError       (ValueError; a file of a format photax reads, a bad value: names line or key)
     ├── CRSMismatchError         (ValueError)
+    │   └── OutputCRSError       (an output CRS the sensor model cannot give: a frame ortho's is its orientation's)
     ├── OutsideValidityError     (ValueError)
     ├── DegenerateGeometryError  (ValueError)
     └── NotConvergedError        (ValueError)
@@ -93,6 +94,11 @@ class ConvergenceError(NotConvergedError, RuntimeError):
 class MalformedFileError(PhotaxError, ValueError):
     """A file of a format photax reads, with a bad or missing value; the message names the file and the
     line (text) or key (XML, JSON)."""
+
+
+class OutputCRSError(CRSMismatchError):
+    """The output CRS asked for is not one this sensor model can give the output in (a frame
+    image's ortho is in its orientation's CRS); the message names both CRSs."""
 
 
 _SINGULAR = "the normal equations became singular (the control points do not determine the orientation from there)"

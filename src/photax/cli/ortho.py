@@ -13,6 +13,11 @@ under one progress bar (:func:`photax.orthorectify_files`): each ortho is ``DIR/
 bit for bit what the command writes for that image alone; the orientation file is parsed once.
 Exit codes: 0 done, 1 some image failed (named on stderr; the others are written), 2 bad input.
 
+The output grid is gdalwarp's (docs/output-grid.md): ``--bounds`` (``-te``), ``--resolution``
+(``-tr``), ``--target-aligned`` (``-tap``), ``--size`` (``-ts``), ``--like RASTER``, ``--crs``
+(``-t_srs``; a frame image's ortho stays in its orientation's CRS: another one is refused with
+:class:`photax.errors.OutputCRSError`).  Without ``--bounds`` the grid covers the footprint, target aligned.
+
 A satellite image with an RPC (``--camera rpc``: the RPC in IMAGE's metadata or side files, as GDAL
 reads them; or ``--camera`` any RPC file, recognised by content: DIMAP, Maxar ISD XML, ``KEY: value`` text,
 ``.RPB``, orthority's ``rpc_param.yaml``, rpcm/s2p JSON; ``docs/formats.md``) needs no
@@ -34,7 +39,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from ._common import NODATA_HELP, RESAMPLING, nodata_value, output_folder, start_gc
+from ._common import NODATA_HELP, RESAMPLING, add_grid_options, grid_spec, nodata_value, output_folder, start_gc
 
 
 def add_parser(sub) -> None:
@@ -85,7 +90,13 @@ def add_parser(sub) -> None:
     out = p.add_mutually_exclusive_group(required=True)
     out.add_argument("-o", "--out", metavar="OUT_TIF", help="output GeoTIFF (one IMAGE)")
     out.add_argument("--out-dir", metavar="DIR", help="output folder: DIR/STEM_ortho.tif for each IMAGE")
-    p.add_argument("--resolution", type=float, help="ground pixel size (default: the mean ground sampling distance)")
+    add_grid_options(
+        p,
+        resolution_help="ground pixel size (gdalwarp -tr; default: the mean ground sampling distance)",
+        crs_help="output CRS (EPSG code, PROJ or WKT): for an RPC or push-broom image any (default the WGS84 UTM "
+        "zone of the scene); a frame image's ortho is in its orientation's CRS (another one is refused: reproject "
+        "the ortho afterwards)",
+    )
     p.add_argument(
         "--resampling",
         choices=RESAMPLING,
@@ -102,8 +113,6 @@ def add_parser(sub) -> None:
         "DIR/ext_param.csv (+ .prj) and, with a CRS, DIR/ext_param.geojson (oty ortho reads them); RPC images: "
         "their raw RPCs as DIR/rpc_param.yaml (oty rpc --rpc-file)",
     )
-    p.add_argument("--crs", help="RPC camera only: the output CRS (EPSG code, PROJ or WKT; default the "
-                   "WGS84 UTM zone of the scene)")  # fmt: skip
     p.add_argument("--gcps", metavar="GCP_FILE", help="RPC camera only: GCPs to refine the RPC with (any "
                    "format photax reads: orthority GeoJSON, CSV, ODM; those of IMAGE, or without an image name for one "
                    "IMAGE; with several, each refined on its own)")  # fmt: skip
@@ -123,9 +132,9 @@ def run(args: argparse.Namespace) -> int:
 
     # a camera file that is not an RPC: say so, with what photax recognises as one
     rpc = f"; {args.camera} is no RPC file photax reads ({families()})" if os.path.isfile(args.camera) else ""
-    rpc_only = [o for o, v in (("--crs", args.crs), ("--gcps", args.gcps), ("--refine", args.refine)) if v is not None]
+    rpc_only = [o for o, v in (("--gcps", args.gcps), ("--refine", args.refine)) if v is not None]
     if rpc_only:
-        raise ValueError(f"{', '.join(rpc_only)}: for an RPC camera only (a frame's CRS is its orientation's{rpc})")
+        raise ValueError(f"{', '.join(rpc_only)}: for an RPC camera only{rpc}")
     if args.exterior is None:
         raise ValueError(
             f"--exterior is required with a frame camera (only an RPC camera carries its orientation{rpc})"
@@ -177,7 +186,7 @@ def _run_one(args: argparse.Namespace) -> int:
     dem = dem if dem is not None else _flat_dem(args.height, exterior)
     if args.dem is not None:
         check_crs(crs, f"the orientation ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
-    grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
+    grid = ortho_grid(exterior, camera, dem, crs=crs, spec=grid_spec(args))
     _export_params(args, camera, {pathlib.Path(args.image).name: exterior}, crs)
     start_gc()
     orthorectify_file(
@@ -200,12 +209,14 @@ def _run_block(args: argparse.Namespace) -> int:
     """Every IMAGE into --out-dir, in one process: a failed image is named, the others written (exit 1)."""
     import pathlib
 
+    from ..grid import check_frame_crs
     from ..io.orientation import read_exterior, read_exteriors
     from ..io.raster import read_dem
     from ..rectification import orthorectify_files
     from ._common import check_crs, input_file
 
     _check_inputs(args)
+    spec = grid_spec(args)
     outputs = _block_outputs(args, [args.dem, args.camera, args.exterior])
     camera = _read_camera(args, args.image)
     dem = read_dem(args.dem) if args.dem is not None else None
@@ -230,7 +241,8 @@ def _run_block(args: argparse.Namespace) -> int:
     exteriors = [table[args.image[k]] for k in todo]
     if dem is not None:
         check_crs(crs, f"the orientations ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
-    else:
+    check_frame_crs(spec, crs if crs is not None or dem is None else dem.crs)  # a usage error, not each image's
+    if dem is None:
         dem = _flat_dem(args.height, exteriors) if exteriors else None
     if exteriors:
         _export_params(args, camera, {pathlib.Path(args.image[k]).name: table[args.image[k]] for k in todo}, crs)
@@ -242,12 +254,12 @@ def _run_block(args: argparse.Namespace) -> int:
             exteriors,
             camera,
             dem,
-            resolution=args.resolution,
             crs=crs,
             resampling=args.resampling,
             nodata=args.nodata,
             tile=args.tile,
             progress=args.progress and args.command,
+            spec=spec,
         )
         if todo
         else []
@@ -419,8 +431,8 @@ def _run_ground(args: argparse.Namespace) -> int:
         input_file(args.dem, "DEM")
     elif not math.isfinite(args.height):
         raise ValueError(f"--height must be a finite number, got {args.height}")
-    if args.resolution is not None and not args.resolution > 0:
-        raise ValueError(f"--resolution must be positive, got {args.resolution}")
+    spec = grid_spec(args)
+    crs = spec.like.crs if spec.like is not None else args.crs
     source = None if args.camera == "rpc" else input_file(args.camera, "camera file")
     pushbroom = source is not None and is_pushbroom_file(source)
     if args.export_params is not None and (pushbroom or args.gcps is not None):
@@ -468,15 +480,15 @@ def _run_ground(args: argparse.Namespace) -> int:
                         raise
                     raise _about(exc, image) from None
         cams = [cameras[args.image[k]] for k in todo]
-        dem = read_dem(args.dem) if args.dem is not None else [_flat_ground(args.height, c, args.crs) for c in cams]
+        dem = read_dem(args.dem) if args.dem is not None else [_flat_ground(args.height, c, crs) for c in cams]
         results = orthorectify_files(
             [args.image[k] for k in todo],
             [outputs[k] for k in todo],
             None,
             cams,
             dem,
-            resolution=args.resolution,
-            crs=args.crs,
+            spec=spec,
+            crs=crs,
             resampling=args.resampling,
             nodata=args.nodata,
             tile=args.tile,
