@@ -10,6 +10,9 @@ mode=STEREO_SGBM_MODE_SGBM_3WAY)`` (output / 16, negative = invalid), photax wit
 bad-2.0 (|d - GT| > 2 px) of each method's own estimates and of all ground-truth pixels (a missing value
 counts as bad).  Time: warm, median of ``--repeat`` runs interleaved in one process, and the ratio
 photax / SGBM; the CPU model, thread settings and the load before and after are printed beside them.
+Memory (``--big N``, default 2048; 0 skips it): an N x N synthetic pair (tests/test_disparity.py's
+smooth field) over the same 64 disparities, cut into tiles automatically: its peak resident memory
+above the start and its time (one run), beside the size one untiled int16 cost volume would have.
 Writes ``benchmarks/results/bench_stereo.json``.
 """
 
@@ -17,11 +20,17 @@ from __future__ import annotations
 
 import argparse
 import os
+import pathlib
+import sys
+import time
 
 import numpy as np
-from _common import load_now, median_times, record, start
+from _common import load_now, median_times, mib, peak_memory, record, start
 
-import photax as ptx
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
+from test_disparity import _smooth_pair  # noqa: E402 -- the tests' exact synthetic pair
+
+import photax as ptx  # noqa: E402
 
 
 def _scores(d, gt):
@@ -38,6 +47,7 @@ def _scores(d, gt):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3, help="runs per method (median)")
+    parser.add_argument("--big", type=int, default=2048, help="side of the memory check's pair (0: skip)")
     args = parser.parse_args()
     import cv2
     import jax
@@ -85,6 +95,15 @@ def main() -> None:
         cpu_model=run["machine"]["cpu_model"],
         **{k: str(v) for k, v in threads.items()},
     )
+    if args.big:
+        left, right, _ = _smooth_pair(h=args.big, w=args.big)
+        t0 = time.perf_counter()
+        _, peak = peak_memory(lambda: ptx.disparity(left, right, disparity_range=(0, 63)))
+        dt = time.perf_counter() - t0
+        volume = args.big * args.big * 64 * 2
+        print(f"{args.big} x {args.big} pair, 64 disparities, automatic tiles: peak memory {mib(peak)} above the "
+              f"start (one untiled int16 cost volume alone: {mib(volume)}), {dt:.1f} s incl. compiling")  # fmt: skip
+        record(f"memory_{args.big}", peak_bytes=peak, untiled_volume_bytes=volume, seconds=dt)
 
 
 if __name__ == "__main__":

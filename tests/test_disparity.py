@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import photax as ptx
+import photax.matching.sgm as sgm
 from photax.matching.sgm import disparity_range_from_ties
 
 
@@ -94,8 +95,6 @@ def test_tiled_equals_untiled_inside():
 
 
 def test_big_images_are_tiled_automatically(monkeypatch):
-    import photax.matching.sgm as sgm
-
     left, right, _ = _smooth_pair(h=96, w=128, seed=3)
     one = ptx.disparity(left, right, disparity_range=(0, 12), speckle_size=0)
     calls = []
@@ -121,6 +120,17 @@ def test_range_from_ties():
     ref = ptx.disparity(left, right, disparity_range=(lo, hi))
     np.testing.assert_array_equal(np.isnan(got), np.isnan(ref))
     np.testing.assert_allclose(got[np.isfinite(got)], ref[np.isfinite(ref)])
+
+
+def test_auto_range_coarse_to_fine():
+    left, right, d = _smooth_pair(h=96, w=160, seed=4)
+    d = d + 10  # the range is no longer near 0
+    y, x = np.mgrid[0:96, 0:160].astype(float)
+    left = _texture(4, x - d, y)
+    lo, hi = sgm._coarse_range(left.astype(np.float32), right.astype(np.float32), cost="census")
+    assert lo <= d.min() and hi >= d.max() and hi - lo < 40
+    got = ptx.disparity(left, right, disparity_range="auto")
+    assert np.nanmedian(np.abs(got - d)[3:-3, 24:-3]) < 0.25
 
 
 def test_nan_input_gives_nan_output():
@@ -165,6 +175,8 @@ def test_motorcycle_against_ground_truth_and_sgbm():
         (np.zeros((10, 20, 3)), np.zeros((10, 20, 3)), dict(disparity_range=(0, 4)), "2-D"),
         (np.zeros((10, 20)), np.zeros((10, 20)), dict(disparity_range=(5, 2)), "empty"),
         (np.zeros((10, 20)), np.zeros((10, 20)), dict(), "disparity_range"),
+        (np.zeros((10, 20)), np.zeros((10, 20)), dict(disparity_range="wide"), "'auto'"),
+        (np.zeros((10, 20)), np.zeros((10, 20)), dict(disparity_range="auto"), "at least"),
         (np.zeros((10, 20)), np.zeros((10, 20)), dict(disparity_range=(0, 4), cost="sad"), "cost"),
         (np.zeros((10, 20)), np.zeros((10, 20)), dict(disparity_range=(0, 4), paths=6), "paths"),
         (np.zeros((10, 20)), np.zeros((10, 20)), dict(disparity_range=(0, 4), window=4), "window"),

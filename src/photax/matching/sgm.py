@@ -56,6 +56,7 @@ tile's core is kept), so memory is bounded whatever the image size.
 
 from __future__ import annotations
 
+import warnings
 from functools import partial
 
 import jax
@@ -295,6 +296,36 @@ def disparity_range_from_ties(ties, *, percentiles=(1.0, 99.0), margin: float = 
     return int(np.floor(lo - m)), int(np.ceil(hi + m))
 
 
+def _reduce(a, f: int) -> np.ndarray:
+    """Block means of ``f x f`` pixels (NaN where a block holds no data)."""
+    h, w = (a.shape[0] // f) * f, (a.shape[1] // f) * f
+    b = a[:h, :w].reshape(h // f, f, w // f, f)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(b, axis=(1, 3)).astype(np.float32)
+
+
+def _coarse_range(left, right, *, cost: str, factor: int = 4) -> tuple[int, int]:
+    """The disparity range of a pair from a match of its ``factor`` x reduced
+    images over +-1/4 of their width (the coarse level of a pyramid): the 1st
+    and 99th percentiles of the coarse disparities, times ``factor``, widened
+    by ``2 factor`` px on each side.
+
+    Raises:
+        ValueError: the images are too small to reduce, or the coarse match found nothing.
+    """
+    lc, rc = _reduce(left, factor), _reduce(right, factor)
+    if min(lc.shape) < 8:
+        raise ValueError(f"disparity_range='auto' needs images of at least {8 * factor} px a side, got {left.shape}")
+    half = max(lc.shape[1] // 4, 2)
+    d = disparity(lc, rc, disparity_range=(-half, half), cost=cost, speckle_size=10)
+    d = d[np.isfinite(d)]
+    if d.size < 10:
+        raise ValueError("disparity_range='auto': the coarse match found no reliable disparity; give the range")
+    lo, hi = np.percentile(d, (1.0, 99.0))
+    return int(np.floor(factor * lo - 2 * factor)), int(np.ceil(factor * hi + 2 * factor))
+
+
 def _as_image(a, name: str) -> np.ndarray:
     a = np.asarray(a)
     if a.ndim != 2:
@@ -313,7 +344,7 @@ def disparity(
     left,
     right,
     *,
-    disparity_range: tuple[int, int] | None = None,
+    disparity_range: tuple[int, int] | str | None = None,
     ties=None,
     cost: str = "census",
     window: int | None = None,
@@ -338,7 +369,9 @@ def disparity(
         left, right: ``(rows, cols)`` grey images (any real dtype), the same
             number of rows; NaN marks pixels without data (no match there).
         disparity_range: ``(dmin, dmax)`` integer disparities searched, both
-            included (``dmax - dmin + 1`` candidates).
+            included (``dmax - dmin + 1`` candidates); ``"auto"``: coarse to
+            fine, the range of a match of both images reduced 4 x over
+            +-1/4 of their width (:func:`_coarse_range`).
         ties: instead of a range, ``(n, 2)`` tie points ``(x_left, x_right)``:
             the range is :func:`disparity_range_from_ties` of them.
         cost: ``"census"`` (Hamming distance of ``window`` x ``window`` census
@@ -406,6 +439,10 @@ def disparity(
         disparity_range = disparity_range_from_ties(ties)
     elif ties is not None:
         raise ValueError("give disparity_range or ties, not both")
+    elif isinstance(disparity_range, str):
+        if disparity_range != "auto":
+            raise ValueError(f"disparity_range must be (dmin, dmax), 'auto' or None, got {disparity_range!r}")
+        disparity_range = _coarse_range(left, right, cost=cost)
     try:
         dmin, dmax = (int(v) for v in disparity_range)
     except (TypeError, ValueError):
