@@ -9,7 +9,7 @@ mode=STEREO_SGBM_MODE_SGBM_3WAY)`` (output / 16, negative = invalid), photax wit
 (census 5 x 5, 8 paths, uniqueness 0.02, left-right check 1 px, speckles < 50 px).  Accuracy: density,
 bad-2.0 (|d - GT| > 2 px) of each method's own estimates and of all ground-truth pixels (a missing value
 counts as bad).  Time: warm, median of ``--repeat`` runs interleaved in one process, and the ratio
-photax / SGBM; the CPU model, thread settings and the load before and after are printed beside them.
+photax / SGBM, in wall time and in process CPU time (steadier on a shared machine); the CPU model, thread settings and the load before and after are printed beside them.
 Memory (``--big N``, default 2048; 0 skips it): an N x N synthetic pair (tests/test_disparity.py's
 smooth field) over the same 64 disparities, cut into tiles automatically: its peak resident memory
 above the start and its time (one run), beside the size one untiled int16 cost volume would have.
@@ -25,7 +25,7 @@ import sys
 import time
 
 import numpy as np
-from _common import load_now, median_times, mib, peak_memory, record, start
+from _common import load_now, median_cpu_time, median_times, mib, peak_memory, record, start
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
 from test_disparity import _smooth_pair  # noqa: E402 -- the tests' exact synthetic pair
@@ -78,18 +78,23 @@ def main() -> None:
     print("threads:", ", ".join(f"{k}={v}" for k, v in threads.items()))
     s_ours, s_peer = _scores(ours(), gt), _scores(peer(), gt)
     t = median_times({"photax": ours, "sgbm": peer}, repeat=args.repeat, warmup=1)
+    cpu = {"photax": median_cpu_time(ours, args.repeat, 0), "sgbm": median_cpu_time(peer, args.repeat, 0)}
     end = load_now()
     for name, s, dt in (("photax.disparity", s_ours, t["photax"]), ("OpenCV SGBM 3-way", s_peer, t["sgbm"])):
         print(f"{name:18s}: density {s['density']:.3f}, bad-2.0 {100 * s['bad2_own']:.1f} % of its estimates, "
-              f"{100 * s['bad2_all']:.1f} % of all GT pixels (missing = bad), {dt * 1e3:.0f} ms")  # fmt: skip
+              f"{100 * s['bad2_all']:.1f} % of all GT pixels (missing = bad), {dt * 1e3:.0f} ms wall")  # fmt: skip
     ratio = t["photax"] / t["sgbm"]
-    print(f"time ratio photax / SGBM {ratio:.1f} (warm, median of {args.repeat}, interleaved, one process)")
+    print(f"time ratio photax / SGBM {ratio:.1f} wall (warm, median of {args.repeat}, interleaved, one process); "
+          f"CPU time (all threads) {cpu['photax'] * 1e3:.0f} vs {cpu['sgbm'] * 1e3:.0f} ms, "
+          f"ratio {cpu['photax'] / cpu['sgbm']:.1f}")  # fmt: skip
     print(f"load average {end['load_average']} (1, 5, 15 min) at the end, CPUs busy {100 * end['busy']:.0f} %")
     record(
         "motorcycle_0_63",
         photax_s=t["photax"],
         peer_s=t["sgbm"],
         ratio=ratio,
+        photax_cpu_s=cpu["photax"],
+        peer_cpu_s=cpu["sgbm"],
         **{f"photax_{k}": v for k, v in s_ours.items()},
         **{f"sgbm_{k}": v for k, v in s_peer.items()},
         cpu_model=run["machine"]["cpu_model"],
