@@ -133,6 +133,12 @@ def test_auto_range_coarse_to_fine():
     assert np.nanmedian(np.abs(got - d)[3:-3, 24:-3]) < 0.25
 
 
+def test_textureless_image_gives_no_disparity():
+    flat = np.full((40, 60), 7.0)  # every disparity fits equally: no answer, not dmin
+    assert np.all(np.isnan(ptx.disparity(flat, flat, disparity_range=(2, 9))))
+    assert np.all(np.isnan(ptx.disparity(flat, flat, disparity_range=(2, 9), uniqueness=0.0)))
+
+
 def test_nan_input_gives_nan_output():
     left, right, d = _smooth_pair()
     left[20:30, 40:60] = np.nan

@@ -142,6 +142,12 @@ def _cost_volume(left, right, dmin: int, ndisp: int, cost: str, window: int):
         srs = shifted(sr, 0.0)
         rho = (jnp.moveaxis(cross, 2, 1) - ml[:, None, :] * mrs) / jnp.maximum(sl[:, None, :] * srs, 1e-6)
         c = jnp.round(jnp.clip(1.0 - rho, 0.0, 2.0) * (nbits / 2.0)).astype(jnp.int16)
+    # a perfectly flat window matches every disparity alike: no match there (not the range's edge)
+    r = window // 2
+    win = (window, window)
+    hi_, lo_ = (jax.lax.reduce_window(left, v, op, win, (1, 1), [(r, r), (r, r)])
+                for v, op in ((-jnp.inf, jax.lax.max), (jnp.inf, jax.lax.min)))  # fmt: skip
+    okl = okl & (hi_ > lo_)
     ok = shifted(okr, False) & okl[:, None, :]
     return jnp.where(ok, c, jnp.int16(nbits // 2)), okl
 
@@ -213,7 +219,7 @@ def _wta(s, dmin: int, uniqueness):
     off = jnp.where(inner, (sm - sp) / jnp.where(inner, 2.0 * den, 1.0), 0.0)
     far = jnp.abs(jnp.arange(n)[None, :, None] - k[:, None, :]) > 1
     second = jnp.where(far, s, jnp.inf).min(1)
-    unique = second * (1.0 - uniqueness) >= s0
+    unique = second * (1.0 - uniqueness) > s0  # strict: a tie (a flat, textureless stretch) is no match
     return (dmin + k).astype(jnp.float32) + jnp.clip(off, -0.5, 0.5), unique
 
 
@@ -387,7 +393,8 @@ def disparity(
         paths: 4 (horizontal and vertical) or 8 (and the diagonals).
         subpixel: parabola fit through the aggregated costs; else integers.
         uniqueness: reject when a disparity more than 1 px from the winner
-            costs less than ``winner / (1 - uniqueness)``; 0 turns it off.
+            costs at most ``winner / (1 - uniqueness)``; with 0 only ties
+            are rejected (a textureless stretch gets NaN, not ``dmin``).
         lr_check: keep a disparity when the right image's own disparity at
             ``col - d`` agrees to this many px; None turns it off.
         speckle_size: regions of similar disparity smaller than this many
