@@ -92,6 +92,22 @@ def test_tiled_equals_untiled_inside():
     assert (np.isfinite(one) == np.isfinite(tiled)).mean() > 0.98
     assert both.mean() > 0.8
     assert np.mean(np.abs(one - tiled)[both] < 0.05) > 0.98
+    one = ptx.disparity(left, right, disparity_range=(0, 12))  # speckles removed per tile
+    tiled = ptx.disparity(left, right, disparity_range=(0, 12), tile=(40, 48), overlap=24)
+    assert (np.isfinite(one) == np.isfinite(tiled)).mean() > 0.98
+
+
+def test_speckle_removal_matches_opencv_filter_speckles():
+    cv2 = pytest.importorskip("cv2")
+    rng = np.random.default_rng(2)
+    d = np.kron(rng.integers(0, 6, (12, 16)), np.ones((5, 5))).astype(np.int16)  # 5 x 5 blocks
+    d[rng.random(d.shape) < 0.05] = rng.integers(10, 40, 1)  # scattered outliers
+    d[rng.random(d.shape) < 0.05] = -1  # invalid
+    ref = d.copy()
+    cv2.filterSpeckles(ref, -1, 30, 1)
+    ours = sgm._remove_speckles(np.where(d < 0, np.nan, d).astype(np.float32), 30, 1.0)
+    assert (ref < 0).sum() > (d < 0).sum() + 50  # it did remove speckles
+    np.testing.assert_array_equal(np.isnan(ours), ref < 0)
 
 
 def test_big_images_are_tiled_automatically(monkeypatch):
@@ -100,7 +116,7 @@ def test_big_images_are_tiled_automatically(monkeypatch):
     calls = []
     monkeypatch.setattr(sgm, "_TILE_BUDGET", 64 * 64 * 13)  # a 64 x 64 tile's volume: tiles of 64 - 2 overlap
     original = sgm._tiled
-    monkeypatch.setattr(sgm, "_tiled", lambda *a: calls.append(a[-3:]) or original(*a))
+    monkeypatch.setattr(sgm, "_tiled", lambda *a: calls.append(a[-4:-1]) or original(*a))
     auto = ptx.disparity(left, right, disparity_range=(0, 12), speckle_size=0, overlap=16)
     assert calls and calls[0][0] < 96 and calls[0][1] < 128  # it did cut the image
     both = np.isfinite(one) & np.isfinite(auto)

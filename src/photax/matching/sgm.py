@@ -485,18 +485,20 @@ def disparity(
         th, tw = int(th), int(tw)
         if th < 1 or tw < 1:
             raise ValueError(f"tile must be positive, got {tile!r}")
+
+    def finish(d):
+        d = d if subpixel else np.round(d)
+        return _remove_speckles(d, int(speckle_size), float(speckle_range))
+
     if th >= h and tw >= w:
-        out = np.asarray(_sgm(left, right, *args, dmin=dmin, **kw))
-    else:
-        out = _tiled(left, right, dmin, dmax, args, kw, min(th, h), min(tw, w), int(overlap))
-    if not subpixel:
-        out = np.round(out)
-    return _remove_speckles(out, int(speckle_size), float(speckle_range)).astype(np.float32)
+        return finish(np.asarray(_sgm(left, right, *args, dmin=dmin, **kw))).astype(np.float32)
+    return _tiled(left, right, dmin, dmax, args, kw, min(th, h), min(tw, w), int(overlap), finish)
 
 
-def _tiled(left, right, dmin, dmax, args, kw, th, tw, ov):
+def _tiled(left, right, dmin, dmax, args, kw, th, tw, ov, finish):
     """Tiles of ``th x tw`` cores with ``ov`` px context, each one :func:`_sgm`
-    call of one shape (NaN padding), stitched from their cores."""
+    call of one shape (NaN padding), finished (rounding, speckles) on the
+    whole tile so that memory stays a tile's, stitched from their cores."""
     h, w = left.shape
     wr = right.shape[1]
     span = dmax - dmin
@@ -515,7 +517,7 @@ def _tiled(left, right, dmin, dmax, args, kw, th, tw, ov):
             if qb > qa:
                 rt[ra - (r0 - ov) : rb - (r0 - ov), qa - x0 : qb - x0] = right[ra:rb, qa:qb]
             # local disparity: (col - (c0 - ov)) - (col_r - x0) = d - dmax
-            d = np.asarray(_sgm(lt, rt, *args, dmin=dmin - dmax, **kw)) + np.float32(dmax)
+            d = finish(np.asarray(_sgm(lt, rt, *args, dmin=dmin - dmax, **kw)) + np.float32(dmax))
             rows, cols = min(th, h - r0), min(tw, w - c0)
             out[r0 : r0 + rows, c0 : c0 + cols] = d[ov : ov + rows, ov : ov + cols]
     return out
