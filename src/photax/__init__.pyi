@@ -41,8 +41,10 @@ from .errors import RESULTS as RESULTS
 from .errors import ConvergenceError as ConvergenceError
 from .errors import CRSMismatchError as CRSMismatchError
 from .errors import DegenerateGeometryError as DegenerateGeometryError
+from .errors import MalformedFileError as MalformedFileError
 from .errors import NoEntryError as NoEntryError
 from .errors import NotConvergedError as NotConvergedError
+from .errors import OutputCRSError as OutputCRSError
 from .errors import OutsideValidityError as OutsideValidityError
 from .errors import PhotaxError as PhotaxError
 from .errors import UnreadableFileError as UnreadableFileError
@@ -51,6 +53,7 @@ from .fusion import pansharpen as pansharpen
 from .fusion import pansharpen_dask as pansharpen_dask
 from .geo import utm_crs as utm_crs
 from .grid import Grid as Grid
+from .grid import GridSpec as GridSpec
 from .interior import (
     InteriorOrientation as InteriorOrientation,
 )
@@ -95,6 +98,10 @@ from .io import (
     write_json as write_json,
 )
 from .io.lazy import to_raster as to_raster
+from .io.satellite import read_rpc as read_rpc
+from .io.satellite import read_sensor as read_sensor
+from .io.satellite import rpc_format as rpc_format
+from .io.satellite import write_rpc as write_rpc
 from .matching import CoRegistration as CoRegistration
 from .matching import (
     EpipolarPair as EpipolarPair,
@@ -196,7 +203,6 @@ from .rotation import (
 )
 from .rpc import RPCCamera as RPCCamera
 from .rpc import RPCRefinement as RPCRefinement
-from .rpc import read_rpc as read_rpc
 from .rpc import refine_rpc as refine_rpc
 from .scene import PushbroomScene as PushbroomScene
 from .scene import Scene as Scene

@@ -8,7 +8,9 @@ words::
     ├── UnreadableFileError      (also OSError and ValueError)
     ├── UnsupportedFormatError   (ValueError)
     │   └── NoEntryError         (a file of several entries has none of that name; also LookupError)
+    ├── MalformedFileError       (ValueError; a file of a format photax reads, a bad value: names line or key)
     ├── CRSMismatchError         (ValueError)
+    │   └── OutputCRSError       (an output CRS the sensor model cannot give: a frame ortho's is its orientation's)
     ├── OutsideValidityError     (ValueError)
     ├── DegenerateGeometryError  (ValueError)
     └── NotConvergedError        (ValueError)
@@ -57,7 +59,8 @@ class UnreadableFileError(PhotaxError, OSError, ValueError):
 
 
 class UnsupportedFormatError(PhotaxError, ValueError):
-    """A file (or a ``format=``) photax does not read: the message names what was looked for."""
+    """A file (or a ``format=``) photax does not read: the message names the file and what was looked for
+    (``photax.io.satellite.FORMATS`` for RPC files)."""
 
 
 class NoEntryError(UnsupportedFormatError, LookupError):
@@ -86,6 +89,16 @@ class ConvergenceError(NotConvergedError, RuntimeError):
     Raised only with ``throw=True``; with ``throw=False`` the result carries
     ``converged=False`` and the same message instead.
     """
+
+
+class MalformedFileError(PhotaxError, ValueError):
+    """A file of a format photax reads, with a bad or missing value; the message names the file and the
+    line (text) or key (XML, JSON)."""
+
+
+class OutputCRSError(CRSMismatchError):
+    """The output CRS asked for is not one this sensor model can give the output in (a frame
+    image's ortho is in its orientation's CRS); the message names both CRSs."""
 
 
 _SINGULAR = "the normal equations became singular (the control points do not determine the orientation from there)"
