@@ -506,7 +506,7 @@ def ortho_grid(
 def check_frame_crs(spec: GridSpec, crs) -> None:
     """A frame image's grid is in its orientation's CRS: refuse another one."""
     from .errors import OutputCRSError
-    from .io.crs import same_crs
+    from .geo import same_crs
 
     asked, what = (spec.like.crs, "the like raster's CRS") if spec.like is not None else (spec.crs, "the output CRS")
     if asked is not None and not same_crs(asked, crs):
