@@ -114,6 +114,10 @@ def orthorectify(
         >>> seen = np.isfinite(ortho)  # NaN outside the image
         >>> bool(np.corrcoef(ortho[seen], scene.ortho[seen])[0, 1] > 0.95)
         True
+        >>> sensor = ptx.FrameSensor(scene.exterior, scene.camera)  # any photax.Sensor: frame, RPC, push-broom
+        >>> same, _ = ptx.orthorectify(scene.image, sensor, scene.dem, grid)
+        >>> bool(np.array_equal(same, ortho, equal_nan=True))
+        True
         >>> _, own = ptx.orthorectify(scene.image, scene.exterior, scene.camera, scene.dem, resolution=15.0)
         >>> own.transform.a, own.shape  # a grid of its own: the footprint at 15 m
         (15.0, (...))
