@@ -213,6 +213,8 @@ from .scene import relief_scene as relief_scene
 from .sensor import FrameSensor as FrameSensor
 from .sensor import GroundCamera as GroundCamera
 from .sensor import GroundSensor as GroundSensor
+from .sensor import Sensor as Sensor
+from .sensor import Validity as Validity
 from .uncertainty import OrthoUncertainty as OrthoUncertainty
 from .uncertainty import ortho_uncertainty as ortho_uncertainty
 

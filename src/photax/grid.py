@@ -19,7 +19,6 @@ from .errors import DegenerateGeometryError
 from .geo import check_dem, describe, require_same
 
 if TYPE_CHECKING:  # the sensor models (JAX) are imported where used: a Grid alone needs no JAX
-    from .collinearity import ExteriorOrientation
     from .dem import DEM
 
 
@@ -341,11 +340,9 @@ def check_resolution(resolution, gsd: float, bounds, what: str = "the image") ->
 def _footprint_outline(sensor, dem: DEM, per_side: int):
     """``(ground (4 per_side, 2), pixel outline (4 per_side, 2))`` of the image's outer pixel edges
     (``sensor``: :mod:`photax.sensor`; ground in its map CRS)."""
-    from .sensor import FrameSensor
-
     if sensor.image_size is None:
         raise ValueError("camera must have an image_size to find the image footprint")
-    if isinstance(sensor, FrameSensor):
+    if sensor.kind == "frame":
         check_dem(dem)  # a geographic DEM's degrees are not the orientation's metres
     w, h = sensor.image_size
     t = np.linspace(0.0, 1.0, per_side, endpoint=False)
@@ -367,25 +364,46 @@ def _footprint_outline(sensor, dem: DEM, per_side: int):
 def _sensor(exterior, camera, dem: DEM, crs):
     """The sensor (:func:`photax.sensor.sensor_of`) and the grid's CRS: for a frame the DEM's (or
     ``crs``), for an RPC ``crs`` or else the UTM zone of the scene's centre."""
-    from .camera import FrameCamera
     from .geo import utm_crs
-    from .sensor import GroundSensor, sensor_of
+    from .sensor import camera_kind, is_sensor, sensor_of
 
-    if isinstance(camera, GroundSensor):
+    if is_sensor(camera) and camera.kind != "frame":
         return camera, camera.crs
-    if exterior is None and crs is None and not isinstance(camera, FrameCamera):
+    if exterior is None and crs is None and camera_kind(camera) != "frame":  # a ground camera
         crs = utm_crs(*camera.ground_box()[0])
     sensor = sensor_of(exterior, camera, crs)
     return sensor, (crs if crs is not None else dem.crs)
 
 
-def ground_sampling_distance(exterior, camera, dem: DEM, *, per_side: int = 16, crs=None) -> float:
-    """The image's mean ground sampling distance on ``dem``: ``sqrt(footprint area / image area in pixels)``
+def ground_sampling_distance(exterior, camera=None, dem: DEM | None = None, *, per_side: int = 16, crs=None) -> float:
+    """The image's mean ground sampling distance on ``dem``: ``sqrt(footprint area / image area in pixels)``;
+    ``ground_sampling_distance(sensor, dem)`` for any :class:`photax.sensor.Sensor`, or ``(exterior, camera, dem)``
     (ground units per pixel; ``exterior=None`` and an :class:`photax.rpc.RPCCamera`: in ``crs``, as in
     :func:`ortho_grid`)."""
+    exterior, camera, dem, crs = _from_sensor(exterior, camera, dem, crs)
     sensor, _ = _sensor(exterior, camera, dem, crs)
     ground, px = _footprint_outline(sensor, dem, per_side)
     return math.sqrt(_shoelace(ground) / _shoelace(px))
+
+
+def _from_sensor(exterior, camera, dem, crs, resolution=None):
+    """``(exterior, camera, dem, crs)`` of the older signature for the sensor form ``(sensor, dem, ...)``
+    (:func:`photax.sensor.sensor_arguments`; the grid's CRS the sensor's where not given), or as given;
+    with ``resolution`` the slot a shifted call left it in is returned after them."""
+    from .sensor import is_sensor, sensor_arguments
+
+    if not is_sensor(exterior):
+        return (exterior, camera, dem, crs) if resolution is None else (exterior, camera, dem, crs, resolution[0])
+    sensor = exterior
+    exterior, camera, dem, _, rest = sensor_arguments(sensor, (camera, dem, *(resolution or ())))
+    crs = crs if crs is not None else sensor.crs
+    if crs is not None:
+        from .sensor import check_sensor_crs
+
+        check_sensor_crs(sensor, crs)
+    if resolution is None:
+        return exterior, camera, dem, crs
+    return exterior, camera, dem, crs, (rest[0] if rest else None)
 
 
 def gsd_hint(exterior, camera, dem, grid) -> str:
@@ -395,9 +413,9 @@ def gsd_hint(exterior, camera, dem, grid) -> str:
 
 
 def ortho_grid(
-    exterior: ExteriorOrientation | None,
-    camera,
-    dem: DEM,
+    exterior,
+    camera=None,
+    dem: DEM | None = None,
     resolution=None,
     *,
     crs=None,
@@ -408,7 +426,8 @@ def ortho_grid(
     like=None,
     spec: GridSpec | None = None,
 ) -> Grid:
-    """The grid covering an image's footprint on a DEM.
+    """The grid covering an image's footprint on a DEM: ``ortho_grid(sensor, dem, resolution=None, ...)``
+    for any :class:`photax.sensor.Sensor` (its CRS the grid's), or ``(exterior, camera, dem, ...)``.
 
     The image outline (``per_side`` points per edge, on the outer pixel
     edges) is cut with the DEM by :func:`photax.image_to_ground`; rays that
@@ -441,6 +460,7 @@ def ortho_grid(
     UTM zone of the scene's centre); the DEM may be in another CRS (its bounds are transformed).
     Likewise a :class:`photax.PushbroomCamera` (any :class:`photax.sensor.GroundCamera`).
     """
+    exterior, camera, dem, crs, resolution = _from_sensor(exterior, camera, dem, crs, (resolution,))
     if spec is None:
         spec = GridSpec(bounds, resolution, size, target_aligned, None, like)
     elif (resolution, bounds, size, like) != (None, None, None, None) or target_aligned:

@@ -9,6 +9,10 @@ A *sensor* is an :class:`equinox.Module` with
 * ``footprint(pixel, dem)``: ``(n, 2)`` pixels -> ``(n, 2)`` ground ``(X, Y)`` on the DEM (on a
   plane at its mean height where the ray misses it), for the default output grid.
 
+Every sensor implements the one :class:`Sensor` protocol (``project``, ``localize``, ``image_size``,
+``crs``, ``footprint``, ``validity``, ``kind``), which the products (:func:`photax.orthorectify`,
+:func:`photax.ortho_grid`, :func:`photax.ortho_uncertainty`) take in place of ``(exterior, camera)``.
+
 Two kinds (:func:`sensor_of` picks one from what the user holds):
 
 * :class:`FrameSensor`: an exterior orientation and a :class:`photax.FrameCamera`, the collinearity
@@ -30,8 +34,9 @@ Two kinds (:func:`sensor_of` picks one from what the user holds):
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
-from typing import Protocol, runtime_checkable
+from typing import Literal, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -154,16 +159,80 @@ def _footprint(px: Array, exterior: ExteriorOrientation, camera: FrameCamera, de
 _footprint_cached = disk_cached(_footprint, "ortho_footprint")
 
 
+@dataclasses.dataclass(frozen=True)
+class Validity:
+    """Where a sensor's model holds.
+
+    Attributes:
+        height_range: ``(h_min, h_max)`` of the ground heights it serves (an RPC's offset +- scale, m), or
+            None for any height (a rigorous model: a frame, a push-broom camera).
+        ground_box: ``(xmin, ymin, xmax, ymax)`` in the sensor's ``crs`` outside which it gives NaN (an
+            RPC's or a push-broom model's lon, lat box widened by :data:`RPC_MARGIN`), or None (a frame:
+            everything in front of the camera).
+    """
+
+    height_range: tuple[float, float] | None
+    ground_box: tuple[float, float, float, float] | None
+
+
+@runtime_checkable
+class Sensor(Protocol):
+    """One image's sensor: what every product asks of a frame, an RPC or a push-broom image.
+
+    Ground is ``(X, Y, Z)`` in :attr:`crs` (a frame: its orientation's CRS; an RPC or a push-broom
+    model: the map CRS it was built for, ``Z`` ellipsoidal); pixels are ``(column, row)``
+    (``docs/conventions.md``).  Implemented by :class:`FrameSensor` and :class:`GroundSensor`;
+    :func:`sensor_of` builds one from ``(exterior, camera, crs)``.
+    """
+
+    @property
+    def kind(self) -> Literal["frame", "rpc", "pushbroom"]: ...
+
+    @property
+    def image_size(self) -> tuple[int, int] | None: ...
+
+    @property
+    def crs(self) -> str | None: ...
+
+    @property
+    def validity(self) -> Validity: ...
+
+    def project(self, ground: Array) -> Array: ...  # (..., 3) -> (..., 2), NaN where not imaged
+
+    def localize(self, pixel: Array, height) -> tuple[Array, Array]: ...  # (n, 2), h -> (n, 3), (n,) converged
+
+    def footprint(self, pixel, dem: DEM) -> np.ndarray: ...  # (n, 2) pixels -> (n, 2) ground (X, Y) on the DEM
+
+
 class FrameSensor(Module):
     """A frame camera: the collinearity equations (``docs/conventions.md``); NaN behind the camera and
-    past the fold of its lens distortion."""
+    past the fold of its lens distortion.  ``crs``: the orientation's CRS, where known (the products
+    then check the DEM's and the grid's against it)."""
 
     exterior: ExteriorOrientation
     camera: FrameCamera
+    crs: str | None = field(static=True, default=None)
+
+    kind = "frame"
 
     @property
     def image_size(self):
         return self.camera.image_size
+
+    @property
+    def validity(self) -> Validity:
+        return Validity(None, None)
+
+    def project(self, ground: Array) -> Array:
+        """``(..., 3)`` ground -> ``(..., 2)`` pixels, NaN behind the camera (the collinearity equations)."""
+        return self(ground)
+
+    def localize(self, pixel: Array, height) -> tuple[Array, Array]:
+        """``(n, 2)`` pixels -> ``(n, 3)`` ground on the plane ``Z = height`` (:func:`photax.image_to_ground`,
+        jittable) and ``(n,)`` converged: False where the ray misses the plane (NaN)."""
+        img = self.camera.pixel_to_image(jnp.asarray(pixel, dtype=jnp.float64))
+        ground = image_to_ground(img, self.exterior, self.camera, height=height)
+        return ground, jnp.all(jnp.isfinite(ground), axis=-1)
 
     def __call__(self, ground: Array) -> Array:
         ground = jnp.asarray(ground, dtype=jnp.float64)
@@ -211,6 +280,7 @@ class GroundSensor(Module):
 
     camera: GroundCamera
     to_lonlat: LocalTransform
+    from_lonlat: LocalTransform  # lon, lat -> (X, Y) of crs over the same box: localize's last step, in JAX
     centre: Array  # (2,) lon, lat of the camera's validity box (GroundCamera.ground_box)
     half: Array  # (2,) its half-sides (deg)
     crs: str = field(static=True)
@@ -222,6 +292,8 @@ class GroundSensor(Module):
         self.crs = _crs_text(crs)
         self.centre, self.half = (jnp.asarray(v, dtype=jnp.float64) for v in camera.ground_box())
         self.to_lonlat = LocalTransform.fit(self.crs, WGS84, self.box())
+        (lon, lat), (dl, dp) = np.asarray(self.centre), 1.2 * np.asarray(self.half)
+        self.from_lonlat = LocalTransform.fit(WGS84, self.crs, (lon - dl, lat - dp, lon + dl, lat + dp))
 
     def box(self, margin: float = 1.2):
         """The camera's lon, lat validity box (an RPC's offsets +- ``margin`` scales) as bounds of ``crs``."""
@@ -233,6 +305,33 @@ class GroundSensor(Module):
     @property
     def image_size(self):
         return self.camera.image_size
+
+    @property
+    def kind(self) -> str:
+        """``"pushbroom"`` for a :class:`photax.PushbroomCamera`, else ``"rpc"``."""
+        from .pushbroom import PushbroomCamera
+
+        return "pushbroom" if isinstance(self.camera, PushbroomCamera) else "rpc"
+
+    @property
+    def validity(self) -> Validity:
+        hr = getattr(self.camera, "height_range", None)
+        box = tuple(float(v) for v in self.box(RPC_MARGIN))
+        return Validity(None if hr is None else tuple(float(v) for v in hr), box)
+
+    def project(self, ground: Array) -> Array:
+        """``(..., 3)`` ground of :attr:`crs` (``Z`` ellipsoidal) -> ``(..., 2)`` pixels, NaN outside the box."""
+        return self(ground)
+
+    def localize(self, pixel: Array, height) -> tuple[Array, Array]:
+        """``(n, 2)`` pixels -> ``(n, 3)`` ground of :attr:`crs` at the ellipsoidal ``height`` and ``(n,)``
+        converged (the camera's ``invert`` and the lon, lat -> map :class:`LocalTransform` fitted over the
+        validity box: jittable; NaN where it did not converge)."""
+        pixel = jnp.asarray(pixel, dtype=jnp.float64)
+        h = jnp.broadcast_to(jnp.asarray(height, dtype=jnp.float64), pixel.shape[:1])
+        lonlat, ok = self.camera.invert(pixel, h)
+        ground = jnp.concatenate([self.from_lonlat(lonlat), h[:, None]], axis=-1)
+        return jnp.where(ok[:, None], ground, jnp.nan), ok
 
     def __call__(self, ground: Array) -> Array:
         ground = jnp.asarray(ground, dtype=jnp.float64)
@@ -336,7 +435,76 @@ def sensor_of(exterior, camera, crs=None):
         )
     if exterior is None:
         raise ValueError("a frame camera needs its exterior orientation")
-    return FrameSensor(exterior, camera)
+    return FrameSensor(exterior, camera)  # no CRS: the products' older path, as before (FrameSensor(..., crs) has one)
+
+
+def as_exterior_camera(sensor) -> tuple[ExteriorOrientation | None, object]:
+    """The ``(exterior, camera)`` pair of the products' older signature for a :class:`Sensor`: a frame's
+    orientation and camera, or ``(None, sensor)`` for a ground sensor (which :func:`sensor_of` takes back
+    as it is).  ``TypeError`` for anything else."""
+    if isinstance(sensor, FrameSensor):
+        return sensor.exterior, sensor.camera
+    if isinstance(sensor, GroundSensor):
+        return None, sensor
+    raise TypeError(f"not a photax sensor: {type(sensor).__name__} (photax.sensor_of builds one)")
+
+
+def sensor_arguments(sensor, slots, crs_of=None):
+    """The products' ``(..., sensor, dem, grid, ...)`` form, read into their older ``(exterior, camera,
+    dem, grid)`` slots: ``slots`` the values the caller's parameters after ``exterior`` received (the
+    ``camera`` slot first); with a sensor they hold the DEM, the grid and the rest shifted by one, so
+    the DEM and the :class:`photax.Grid` are picked by type and the others kept in order.  Returns
+    ``(exterior, camera, dem, grid, rest)``, the sensor's CRS checked against the grid's (and a frame's
+    against the DEM's): :class:`photax.errors.CRSMismatchError`."""
+    dem = next((v for v in slots if isinstance(v, DEM)), None)
+    # a photax.Grid (not imported: photax.grid imports this module): a transform and a shape, no heights
+    grid = next((v for v in slots if hasattr(v, "transform") and hasattr(v, "shape") and v is not dem), None)
+    rest = [v for v in slots if v is not None and v is not dem and v is not grid]
+    if dem is None:
+        raise TypeError("with a sensor, give the DEM next: (image, sensor, dem, grid=None, ...)")
+    if grid is not None:
+        check_sensor_crs(sensor, grid.crs)
+    if isinstance(sensor, FrameSensor):
+        check_sensor_crs(sensor, dem.crs, "the DEM")
+    exterior, camera = as_exterior_camera(sensor)
+    return exterior, camera, dem, grid, rest
+
+
+def camera_kind(camera) -> str | None:
+    """``"frame"``, ``"rpc"`` or ``"pushbroom"`` for a camera model (a :class:`photax.FrameCamera`, an
+    :class:`photax.rpc.RPCCamera`, a :class:`photax.PushbroomCamera`) or a sensor; None for anything
+    else.  The one place that tells the kinds apart by their classes."""
+    from .pushbroom import PushbroomCamera
+    from .rpc import RPCCamera
+
+    if isinstance(camera, (FrameSensor, GroundSensor)):
+        return camera.kind
+    if isinstance(camera, FrameCamera):
+        return "frame"
+    if isinstance(camera, PushbroomCamera):
+        return "pushbroom"
+    if isinstance(camera, RPCCamera):
+        return "rpc"
+    return None
+
+
+def is_sensor(obj) -> bool:
+    """Whether ``obj`` is a photax sensor (:class:`FrameSensor`, :class:`GroundSensor`): the products'
+    test for their ``(image, sensor, dem, ...)`` form."""
+    return isinstance(obj, (FrameSensor, GroundSensor))
+
+
+def check_sensor_crs(sensor, crs, what: str = "the output grid") -> None:
+    """:class:`photax.errors.CRSMismatchError` where ``sensor`` has a CRS and ``crs`` (a grid's, a DEM's)
+    is known and another one."""
+    from .geo import describe, same_crs
+
+    own = getattr(sensor, "crs", None)
+    if own is not None and crs is not None and not same_crs(own, crs):
+        raise CRSMismatchError(
+            f"the sensor is in {describe(own)} but {what} in {describe(crs)}: build the sensor for that CRS "
+            "(photax.sensor_of(exterior, camera, crs))"
+        )
 
 
 def check_rpc_dem(sensor, dem: DEM, grid) -> None:

@@ -62,14 +62,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .camera import FrameCamera, intrinsics_jacobian
+from .camera import intrinsics_jacobian
 from .collinearity import ExteriorOrientation, angle_axes, collinearity_jacobian
 from .dem import DEM
 from .geo import check_dem
 from .grid import Grid
-from .pushbroom import PushbroomCamera, PushbroomResection
-from .rpc import RPCCamera, RPCRefinement
-from .sensor import FrameSensor, GroundSensor
+from .pushbroom import PushbroomResection
+from .rpc import RPCRefinement
+from .sensor import FrameSensor, GroundSensor, camera_kind, is_sensor, sensor_arguments
 
 _BLOCK = 1 << 14  # points per jitted call (padded): one compilation, bounded memory
 _STRIP = 1 << 19  # pixels per strip at most: its intermediates stay small
@@ -78,9 +78,9 @@ _STRIP = 1 << 19  # pixels per strip at most: its intermediates stay small
 def _node_planes(sensor, g, cov):
     """The planes of :func:`_frame_planes`, :func:`_rpc_planes` or :func:`_pushbroom_planes`, by the
     sensor's kind."""
-    if isinstance(sensor, GroundSensor):
-        if isinstance(sensor.camera, PushbroomCamera):
-            return _pushbroom_planes(sensor, g, cov)
+    if sensor.kind == "pushbroom":
+        return _pushbroom_planes(sensor, g, cov)
+    if sensor.kind == "rpc":
         return _rpc_planes(sensor, g, cov)
     return _frame_planes(sensor.exterior, sensor.camera, g, cov)
 
@@ -498,9 +498,9 @@ def _coarse(grid: Grid, factor: int) -> Grid:
 def ortho_uncertainty(
     exterior,
     covariance,
-    camera,
-    dem: DEM,
-    grid: Grid,
+    camera=None,
+    dem: DEM | None = None,
+    grid: Grid | None = None,
     *,
     camera_covariance=None,
     dem_sigma=0.0,
@@ -508,7 +508,10 @@ def ortho_uncertainty(
     step: int = 16,
     image: int = 0,
 ) -> OrthoUncertainty:
-    """Per-pixel standard deviations and error ellipses of an ortho's geolocation.
+    """Per-pixel standard deviations and error ellipses of an ortho's geolocation:
+    ``ortho_uncertainty(sensor, covariance, dem, grid, ...)`` for any :class:`photax.sensor.Sensor`
+    (``covariance`` that of its kind, below; the grid in the sensor's CRS), or the older
+    ``(exterior, covariance, camera, dem, grid, ...)``.
 
     First-order propagation (module docstring) of the exterior orientation's
     covariance, the intrinsics' and the DEM's height error to the image
@@ -580,17 +583,24 @@ def ortho_uncertainty(
         True
     """
     # Over 80 lines because the docstring documents every argument; the body is ~55 lines.
+    if is_sensor(exterior):
+        exterior, camera, dem, grid, _ = sensor_arguments(exterior, (camera, dem, grid))
+        if exterior is None:  # a ground sensor: its camera, in the grid's CRS (checked the sensor's)
+            camera = camera.camera
+        if grid is None:
+            raise TypeError("ortho_uncertainty(sensor, covariance, dem, grid): give the ortho's grid")
     ground_kinds = (RPCRefinement, PushbroomResection)
-    if not isinstance(exterior, ground_kinds) and not isinstance(camera, (FrameCamera, RPCCamera, PushbroomCamera)):
+    kind = camera_kind(camera)
+    if not isinstance(exterior, ground_kinds) and kind is None:
         raise ValueError(
             f"ortho_uncertainty: a frame camera, an RPC or a push-broom model, not a {type(camera).__name__}"
         )
     check_dem(dem, grid)
-    if isinstance(exterior, PushbroomResection) or isinstance(camera, PushbroomCamera):
+    if isinstance(exterior, PushbroomResection) or kind == "pushbroom":
         sensor, joint = _pushbroom(exterior, covariance, camera, grid)
         if camera_covariance is not None:
             raise ValueError("camera_covariance: give a push-broom model's in covariance (over its parameters)")
-    elif isinstance(exterior, RPCRefinement) or isinstance(camera, RPCCamera):
+    elif isinstance(exterior, RPCRefinement) or kind == "rpc":
         sensor, joint = _rpc(exterior, covariance, camera, grid)
         if camera_covariance is not None:
             raise ValueError("camera_covariance: an RPC has no intrinsics (its covariance is the correction's)")
@@ -691,7 +701,7 @@ def _dem_window(grid: Grid, dem: DEM, rows: int) -> int | None:
 def _frame(exterior, covariance, camera, camera_covariance, image):
     """A frame's sensor and ``(6 + n, 6 + n)`` joint covariance of its exterior and ``n`` intrinsics."""
     exterior, covariance = _orientation(exterior, covariance, image)
-    if not isinstance(camera, FrameCamera) or camera.image_size is None or camera.pixel_size is None:
+    if camera_kind(camera) != "frame" or camera.image_size is None or camera.pixel_size is None:
         raise ValueError("camera must have a pixel grid (pixel_size and image_size)")
     cov = np.asarray(covariance, dtype=float)
     n_intr = len(camera.intrinsic_names)

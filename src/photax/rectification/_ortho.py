@@ -8,13 +8,12 @@ import numpy as np
 from jax import Array
 
 from .._pytree import Module
-from ..collinearity import ExteriorOrientation
 from ..dem import DEM
 from ..geo import check_dem, same_crs
 from ..grid import Grid, gsd_hint, ortho_grid
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
-from ..sensor import FrameSensor, GroundSensor, LocalTransform, check_rpc_dem, sensor_of
+from ..sensor import FrameSensor, GroundSensor, LocalTransform, check_rpc_dem, is_sensor, sensor_arguments, sensor_of
 from ._indirect import rectify
 
 
@@ -40,7 +39,7 @@ class OrthoModel(Module):
         self.sensor = sensor_of(exterior, camera, dem.crs if crs is None else crs)
         self.dem = dem
         self.to_dem = None
-        if isinstance(self.sensor, GroundSensor) and dem.crs is not None and not same_crs(dem.crs, self.sensor.crs):
+        if self.sensor.kind != "frame" and dem.crs is not None and not same_crs(dem.crs, self.sensor.crs):
             self.to_dem = LocalTransform.fit(self.sensor.crs, dem.crs, self.sensor.box())
 
     def __call__(self, xy: Array) -> Array:
@@ -54,9 +53,9 @@ class OrthoModel(Module):
 
 def orthorectify(
     image,
-    exterior: ExteriorOrientation | None,
-    camera,
-    dem: DEM,
+    exterior,
+    camera=None,
+    dem: DEM | None = None,
     grid: Grid | None = None,
     *,
     resolution=None,
@@ -67,7 +66,11 @@ def orthorectify(
     approx: float | None = 0.125,
     info: dict | None = None,
 ) -> tuple[np.ndarray, Grid]:
-    """Orthorectify a frame image with its orientation and a DEM, or a satellite image with its RPC.
+    """Orthorectify an image with its sensor and a DEM: ``orthorectify(image, sensor, dem, grid=None, ...)``.
+
+    ``sensor`` any :class:`photax.sensor.Sensor` (a frame, an RPC, a push-broom model, one signature);
+    the older ``orthorectify(image, exterior, camera, dem, grid=None, ...)`` (``exterior`` None for an
+    RPC or a push-broom camera) is the same computation, the sensor built from the pair.
 
     For every ground pixel centre ``(X, Y)`` of the output grid:
     ``Z = DEM(X, Y)`` (bilinear), ``(x, y) = project((X, Y, Z))`` by the
@@ -111,10 +114,19 @@ def orthorectify(
         >>> seen = np.isfinite(ortho)  # NaN outside the image
         >>> bool(np.corrcoef(ortho[seen], scene.ortho[seen])[0, 1] > 0.95)
         True
+        >>> sensor = ptx.FrameSensor(scene.exterior, scene.camera)  # any photax.Sensor: frame, RPC, push-broom
+        >>> same, _ = ptx.orthorectify(scene.image, sensor, scene.dem, grid)
+        >>> bool(np.array_equal(same, ortho, equal_nan=True))
+        True
         >>> _, own = ptx.orthorectify(scene.image, scene.exterior, scene.camera, scene.dem, resolution=15.0)
         >>> own.transform.a, own.shape  # a grid of its own: the footprint at 15 m
         (15.0, (...))
     """
+    if is_sensor(exterior):
+        sensor = exterior
+        exterior, camera, dem, grid, _ = sensor_arguments(sensor, (camera, dem, grid))
+        if grid is None:
+            grid = ortho_grid(exterior, camera, dem, resolution, crs=sensor.crs)
     image = jnp.asarray(image)
     _check_image_size(image.shape, camera)
     if grid is None:
@@ -132,7 +144,7 @@ def check_ortho_inputs(exterior, camera, dem: DEM, grid: Grid) -> OrthoModel:
     """The model of an ortho after the DEM's checks: a frame's DEM projected and in the grid's CRS
     (:func:`photax.io.crs.check_dem`), an RPC's heights in its range (:func:`photax.sensor.check_rpc_dem`)."""
     model = OrthoModel(exterior, camera, dem, grid.crs)
-    if isinstance(model.sensor, GroundSensor):
+    if model.sensor.kind != "frame":
         check_rpc_dem(model.sensor, dem, grid)
     else:
         check_dem(dem, grid)
