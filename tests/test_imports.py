@@ -290,10 +290,7 @@ HIGHER = ("photax.io", "photax.cli", "photax.rectification", "photax.matching", 
 
 
 # Known upward arrows, each with its way out (issue 34's package split moves them); nothing else may join.
-ALLOWED_UPWARD = {
-    "photax.grid -> photax.io": "Grid.like(path) reads a raster's grid; it belongs in io with the package split",
-    "photax.grid -> photax.io.raster": "the same",
-}
+ALLOWED_UPWARD: dict[str, str] = {}
 
 
 def _upward(graph: dict[str, set[str]]) -> list[str]:
