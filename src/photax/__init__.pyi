@@ -39,9 +39,11 @@ from .earth import correct_image as correct_image
 from .earth import refraction_coefficient as refraction_coefficient
 from .errors import RESULTS as RESULTS
 from .errors import ConvergenceError as ConvergenceError
+from .errors import PartialDEMWarning as PartialDEMWarning
 from .fusion import pansharpen as pansharpen
 from .fusion import pansharpen_dask as pansharpen_dask
 from .grid import Grid as Grid
+from .grid import dem_coverage as dem_coverage
 from .interior import (
     InteriorOrientation as InteriorOrientation,
 )

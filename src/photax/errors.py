@@ -19,6 +19,19 @@ class ConvergenceError(RuntimeError):
     """
 
 
+class PartialDEMWarning(UserWarning):
+    """The DEM covers only part of an image's footprint (:func:`photax.dem_coverage` below
+    :data:`photax.grid.PARTIAL_DEM`): the ortho is nodata where the DEM has no height.
+
+    Attributes:
+        coverage: the covered share of the image, 0 .. 1.
+    """
+
+    def __init__(self, message: str, coverage: float):
+        super().__init__(message)
+        self.coverage = float(coverage)
+
+
 _SINGULAR = "the normal equations became singular (the control points do not determine the orientation from there)"
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -167,14 +168,64 @@ def _footprint_outline(sensor, dem: DEM, per_side: int):
     return ground, px
 
 
+PARTIAL_DEM = 0.95  # a DEM covering less of an image than this share: a PartialDEMWarning
+
+
+def dem_coverage(exterior, camera, dem: DEM, *, samples: int = 32, crs=None) -> float:
+    """The share of an image whose ground lies on the DEM (0 .. 1): of a ``samples x samples`` lattice
+    of pixels spread evenly over the image (cell centres), those whose ray (frame camera:
+    :func:`photax.image_to_ground`) or RPC / push-broom line of sight (the fixed-point iteration of
+    :meth:`photax.rpc.RPCCamera.to_ground_dem`) meets a height of the DEM; NaN heights (nodata, holes)
+    and ground beyond the DEM's raster count as not covered. ``exterior, camera`` as in
+    :func:`ortho_grid` (``exterior=None`` with a ground camera, or a sensor of :mod:`photax.sensor`).
+
+    :func:`photax.orthorectify` warns (:class:`photax.errors.PartialDEMWarning`) below
+    :data:`PARTIAL_DEM` and refuses an image the DEM does not cover at all.
+    """
+    if int(samples) < 2:
+        raise ValueError(f"samples: expected at least 2, got {samples}")
+    sensor, _ = _sensor(exterior, camera, dem, crs)
+    if sensor.image_size is None:
+        raise ValueError("camera must have an image_size to find the covered share of the image")
+    w, h = sensor.image_size
+    t = (np.arange(samples) + 0.5) / samples
+    px = np.stack(np.meshgrid(t * w - 0.5, t * h - 0.5), -1).reshape(-1, 2)
+    ground = sensor.on_dem(px, dem)
+    return float(np.mean(np.all(np.isfinite(ground), axis=1)))
+
+
+def check_coverage(sensor, dem: DEM, *, stacklevel: int = 3) -> float:
+    """:func:`dem_coverage` of ``sensor``: a :class:`photax.errors.PartialDEMWarning` with the share
+    below :data:`PARTIAL_DEM`, a ValueError when it is nothing. Returns the share."""
+    share = dem_coverage(None, sensor, dem)
+    if share == 0:
+        raise ValueError(
+            "the DEM covers none of the image (no height under any of its pixels: nodata there, or the DEM "
+            f"lies elsewhere; DEM bounds {tuple(round(v, 1) for v in dem.bounds)}, {describe(dem.crs)})"
+        )
+    if share < PARTIAL_DEM:
+        from .errors import PartialDEMWarning
+
+        warnings.warn(
+            PartialDEMWarning(
+                f"the DEM covers {share:.1%} of the image's footprint: the ortho is nodata where it has no height",
+                share,
+            ),
+            stacklevel=stacklevel,
+        )
+    return share
+
+
 def _sensor(exterior, camera, dem: DEM, crs):
     """The sensor (:func:`photax.sensor.sensor_of`) and the grid's CRS: for a frame the DEM's (or
     ``crs``), for an RPC ``crs`` or else the UTM zone of the scene's centre."""
     from .camera import FrameCamera
-    from .sensor import GroundSensor, sensor_of, utm_crs
+    from .sensor import FrameSensor, GroundSensor, sensor_of, utm_crs
 
     if isinstance(camera, GroundSensor):
         return camera, camera.crs
+    if isinstance(camera, FrameSensor):
+        return camera, dem.crs if crs is None else crs
     if exterior is None and crs is None and not isinstance(camera, FrameCamera):
         crs = utm_crs(*camera.ground_box()[0])
     sensor = sensor_of(exterior, camera, crs)
