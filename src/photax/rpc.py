@@ -515,7 +515,9 @@ def _apply(k: np.ndarray, cr: np.ndarray) -> np.ndarray:
     return cr + cr @ k[:, 1:].T + k[:, 0]
 
 
-def check_gcps(camera: RPCCamera, ground, pixel, names=None, *, who: str = "GCPs", stacklevel: int = 2) -> None:
+def check_gcps(
+    camera: RPCCamera, ground, pixel, names=None, *, who: str = "GCPs", warn: bool = True, stacklevel: int = 2
+) -> None:
     """Refuse GCPs that cannot belong to ``camera``'s image, warn of those just outside it.
 
     * The ground ``(n, 3)`` lon, lat, h must lie in the RPC's validity volume, its ground offsets
@@ -523,8 +525,8 @@ def check_gcps(camera: RPCCamera, ground, pixel, names=None, *, who: str = "GCPs
       a ValueError naming them.
     * With ``camera.image_size`` (``w x h``): a pixel ``(n, 2)`` more than the image's own size beyond
       its edges is a blunder or another image's measurement (a ValueError); one outside the image but
-      nearer is used, with a warning (measured on the full scene this file is cut from: orthority's
-      QuickBird sample has two). The image is the one given, not the RPC's offsets: a crop's RPC
+      nearer is used, with a warning unless ``warn=False`` (measured on the full scene this file is
+      cut from: orthority's QuickBird sample has two). The image is the one given, not the RPC's offsets: a crop's RPC
       (:meth:`RPCCamera.crop`) keeps the full scene's scales, its offsets lie tens of scales away.
     * Without ``image_size``: the RPC's own pixel box, its line and sample offsets +- 1.5 scales.
     """
@@ -565,7 +567,7 @@ def check_gcps(camera: RPCCamera, ground, pixel, names=None, *, who: str = "GCPs
             f"another image's measurement?): {listing(out, pixel)}"
         )
     out = np.flatnonzero(np.any((pixel < -0.5) | (pixel > size - 0.5), axis=1))
-    if out.size:  # inside the RPC's volume: measured on the full scene this file is cut from
+    if out.size and warn:  # inside the RPC's volume: measured on the full scene this file is cut from
         import warnings
 
         warnings.warn(

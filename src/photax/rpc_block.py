@@ -246,7 +246,9 @@ def adjust_rpc_block(
             sel = g_obs[:, 1] == i
             if np.any(sel):
                 idx = g_obs[sel, 0].astype(int)
-                check_gcps(cam, g_ground[idx], g_obs[sel, 2:], [f"GCP {k}" for k in idx], who=f"gcps in image {i}")
+                check_gcps(
+                    cam, g_ground[idx], g_obs[sel, 2:], [f"GCP {k}" for k in idx], who=f"gcps in image {i}", warn=False
+                )
     check = np.zeros(len(g_ground), bool) if check is None else np.asarray(check, bool)
     if check.shape != (len(g_ground),):
         raise ValueError(f"check: expected {len(g_ground)} booleans (one per GCP), got shape {check.shape}")
