@@ -303,3 +303,39 @@ def test_coregister_orthos_over_a_dem_with_holes(qb):
     assert reg.counts["ok"] >= 0.8 * len(reg.centres) and err < 0.1
     with pytest.raises(ValueError, match="only 0 reliable windows"):
         ptx.coregister(a, b, window=64, max_nodata=0.05)  # the old rule: every window has holes
+
+
+def test_frame_dem_coverage_and_warning():
+    """A frame over relief (photax.relief_scene), its DEM blanked west of the image centre's ground: the
+    covered share against an independent count (the lattice's rays cut with the whole DEM by
+    image_to_ground, kept where the blanked DEM has a height there), the PartialDEMWarning of
+    orthorectify, nodata in the blanked part; a DEM with no height under the image is refused."""
+    import photax as ptx
+    from photax.collinearity import image_to_ground
+
+    scene = ptx.relief_scene(200.0, seed=1, image_size=(400, 300), focal_px=400.0)
+    dem = scene.dem
+    w, h = scene.camera.image_size
+    full = dem_coverage(scene.exterior, scene.camera, dem)
+    t = np.asarray(dem.transform)
+    mid = image_to_ground(scene.camera.pixel_to_image(np.array([[w / 2 - 0.5, h / 2 - 0.5]])),
+                          scene.exterior, scene.camera, dem=dem)[0]  # fmt: skip
+    heights = np.array(dem.heights)
+    heights[:, t[2] + t[0] * (np.arange(heights.shape[1]) + 0.5) < float(mid[0])] = np.nan
+    half = DEM(heights, t, dem.crs)
+    share = dem_coverage(scene.exterior, scene.camera, half, samples=24)
+    u = (np.arange(24) + 0.5) / 24
+    px = np.stack(np.meshgrid(u * w - 0.5, u * h - 0.5), -1).reshape(-1, 2)
+    g = np.asarray(image_to_ground(scene.camera.pixel_to_image(px), scene.exterior, scene.camera, dem=dem))
+    expected = np.mean(np.isfinite(np.asarray(half.height(g[:, 0], g[:, 1]))))
+    print(f"frame: covered share {share:.4f}, independent count {expected:.4f}, whole DEM {full:.3f}")
+    assert full == 1.0 and abs(share - expected) <= 2 / 24**2 and 0.3 < share < 0.7
+    grid = Grid(scene.ortho_transform, scene.ortho.shape)
+    with pytest.warns(PartialDEMWarning, match="the DEM covers"):
+        ortho, _ = orthorectify(scene.image, scene.exterior, scene.camera, half, grid)
+    xy = grid.xy().reshape(-1, 2)
+    off = ~np.isfinite(np.asarray(half.height(xy[:, 0], xy[:, 1])))
+    assert off.mean() > 0.2 and np.isnan(ortho.reshape(-1)[off]).all()
+    none = DEM(np.full(heights.shape, np.nan), t, dem.crs)
+    with pytest.raises(ValueError, match="the DEM covers none of the image"):
+        orthorectify(scene.image, scene.exterior, scene.camera, none, grid)
