@@ -37,15 +37,12 @@ def qb():
 
 def _half_dem(dem: DEM, camera: RPCCamera) -> DEM:
     """The DEM blanked (NaN) south of the ground under the image's centre: it covers half the image."""
-    from photax.sensor import GroundSensor
-
     w, h = camera.image_size
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        centre = GroundSensor(camera, dem.crs).footprint(np.array([[w / 2 - 0.5, h / 2 - 0.5]]), dem)[0]
+    lon, lat, _ = camera.to_ground_dem(np.array([w / 2 - 0.5, h / 2 - 0.5]), dem)
+    _, y = pyproj.Transformer.from_crs("EPSG:4326", dem.crs, always_xy=True).transform(lon, lat)
     heights, t = np.array(dem.heights), np.asarray(dem.transform)
     ys = t[5] + t[4] * (np.arange(heights.shape[0]) + 0.5)
-    heights[ys < centre[1]] = np.nan
+    heights[ys < y] = np.nan
     return DEM(heights, t, dem.crs)
 
 

@@ -171,10 +171,11 @@ def _footprint_outline(sensor, dem: DEM, per_side: int):
 PARTIAL_DEM = 0.95  # a DEM covering less of an image than this share: a PartialDEMWarning
 
 
-def dem_coverage(exterior, camera, dem: DEM, *, samples: int = 32, crs=None) -> float:
+def dem_coverage(exterior, camera, dem: DEM, *, samples: int = 8, crs=None) -> float:
     """The share of an image whose ground lies on the DEM (0 .. 1): of a ``samples x samples`` lattice
-    of pixels spread evenly over the image (cell centres), those whose ray (frame camera:
-    :func:`photax.image_to_ground`) or RPC / push-broom line of sight (the fixed-point iteration of
+    of pixels spread evenly over the image (cell centres; the default 8 x 8 = 64 points reuse the
+    compiled program of :func:`ortho_grid`'s outline, 16 points a side, and give the share to 1/64),
+    those whose ray (frame camera: :func:`photax.image_to_ground`) or RPC / push-broom line of sight (the fixed-point iteration of
     :meth:`photax.rpc.RPCCamera.to_ground_dem`) meets a height of the DEM; NaN heights (nodata, holes)
     and ground beyond the DEM's raster count as not covered. ``exterior, camera`` as in
     :func:`ortho_grid` (``exterior=None`` with a ground camera, or a sensor of :mod:`photax.sensor`).
