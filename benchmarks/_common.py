@@ -7,6 +7,14 @@ reproduces the run, the machine and its load, and at exit writes every
 figure given to :func:`ratio_line` or :func:`record` to
 ``benchmarks/results/<name>.json`` (``python benchmarks/report.py`` turns
 those files into the README's table).
+
+Every run also records how honest its figures can be (issue 37): the CPU model and core count, the
+thread settings of both sides (:func:`threads`: the OpenMP / MKL / OpenBLAS / GDAL / OpenCV
+variables, ``cv2.getNumThreads()``, ``XLA_FLAGS``, the BLAS pools threadpoolctl sees) and the
+1-minute load before and after.  ``report.py`` writes no README row from a run whose 1-minute
+load was above :data:`QUIET_LOAD` at its start.  Where peers use all cores, :func:`add_threads_option`
+gives a script ``--threads all|one|both``: all cores each (the default), one thread each (every
+pool of both sides set to one thread, in a fresh process), or both, one after the other.
 """
 
 from __future__ import annotations
@@ -26,6 +34,116 @@ from collections.abc import Callable
 
 RESULTS = pathlib.Path(__file__).resolve().parent / "results"
 _RUN: dict = {}
+#: the highest 1-minute load average at a run's start whose figures may go into the README
+QUIET_LOAD = 0.5
+#: the environment variables that set the thread pools of photax (XLA) and of its peers
+THREAD_VARIABLES = (
+    "OMP_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "NUMEXPR_NUM_THREADS",
+    "VECLIB_MAXIMUM_THREADS",
+    "GDAL_NUM_THREADS",
+    "OPENCV_FOR_THREADS_NUM",
+    "XLA_FLAGS",
+    "JAX_PLATFORMS",
+)
+#: one thread each: every pool of both sides (XLA's Eigen pool and its intra-op parallelism included)
+ONE_THREAD_ENV = {
+    "OMP_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "NUMEXPR_NUM_THREADS": "1",
+    "VECLIB_MAXIMUM_THREADS": "1",
+    "GDAL_NUM_THREADS": "1",
+    "OPENCV_FOR_THREADS_NUM": "1",
+    "XLA_FLAGS": "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1",
+}
+_MODE = ["all"]  # --threads of this process (add_threads_option)
+
+
+def threads() -> dict:
+    """The thread settings both sides run with: the :data:`THREAD_VARIABLES` (None: unset), the
+    CPUs this process may use, ``cv2.getNumThreads()`` (when OpenCV is installed) and the
+    native pools threadpoolctl finds loaded (BLAS, OpenMP: library, version, threads)."""
+    out: dict = {"mode": _MODE[0], "env": {k: os.environ.get(k) for k in THREAD_VARIABLES}}
+    try:
+        out["usable_cpus"] = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        out["usable_cpus"] = os.cpu_count()
+    try:
+        import cv2
+
+        out["cv2_threads"] = cv2.getNumThreads()
+    except ImportError:
+        out["cv2_threads"] = None
+    try:
+        from threadpoolctl import threadpool_info
+
+        out["pools"] = [
+            dict(
+                api=p.get("internal_api"),
+                library=os.path.basename(p.get("filepath", "")),
+                version=p.get("version"),
+                threads=p.get("num_threads"),
+            )  # fmt: skip
+            for p in threadpool_info()
+        ]
+    except ImportError:
+        out["pools"] = None
+    return out
+
+
+def threads_text(t: dict) -> str:
+    """One line: the mode, OpenCV's threads, the pools and the variables that are set."""
+    env = ", ".join(f"{k}={v}" for k, v in t["env"].items() if v is not None) or "no thread variables set"
+    pools = ", ".join(f"{p['library']} {p['threads']}" for p in t.get("pools") or []) or "none seen"
+    return (
+        f"threads: {t['mode']} ({t['usable_cpus']} usable CPUs), cv2.getNumThreads() {t['cv2_threads']}, "
+        f"native pools: {pools}; {env}"
+    )
+
+
+def add_threads_option(ap) -> None:
+    """``--threads all|one|both`` on a benchmark whose peers use all cores (see :func:`apply_threads`)."""
+    ap.add_argument(
+        "--threads",
+        choices=("all", "one", "both"),
+        default="all",
+        help="all cores each (default), one thread each (OpenMP/MKL/OpenBLAS/GDAL/OpenCV and XLA's pools "
+        "set to 1, in a fresh process), or both runs one after the other",
+    )
+
+
+def apply_threads(args) -> None:
+    """Act on ``args.threads`` before :func:`start`: ``both`` runs this script twice (``--threads
+    all``, then ``one``) and exits with the worse exit status; ``one`` re-executes it with
+    :data:`ONE_THREAD_ENV` (XLA reads its flags when it starts, OpenMP when it loads), then sets
+    ``cv2.setNumThreads(1)``.  The run's results file gets ``_1thread`` after its name."""
+    mode = getattr(args, "threads", "all")
+    if mode == "both":
+        base, argv = [], iter(sys.argv[1:])
+        for a in argv:  # this script's arguments less --threads both / --threads=both
+            if a == "--threads":
+                next(argv, None)
+            elif not a.startswith("--threads="):
+                base.append(a)
+        codes = [
+            subprocess.run([sys.executable, sys.argv[0], *base, "--threads", m]).returncode for m in ("all", "one")
+        ]
+        sys.exit(max(codes))
+    if mode == "one":
+        if any(os.environ.get(k) != v for k, v in ONE_THREAD_ENV.items()):
+            os.environ.update(ONE_THREAD_ENV)
+            sys.stdout.flush()
+            os.execv(sys.executable, [sys.executable, *sys.argv])
+        try:
+            import cv2
+
+            cv2.setNumThreads(1)
+        except ImportError:
+            pass
+    _MODE[0] = mode
 
 
 def machine() -> dict:
@@ -94,23 +212,30 @@ def start(name: str) -> dict:
     """Begin a benchmark run: print how to reproduce it and the machine's
     load; at exit write the recorded figures to ``results/<name>.json``."""
     command = "python " + " ".join(shlex.quote(a) for a in [os.path.relpath(sys.argv[0])] + sys.argv[1:])
+    name = name + ("_1thread" if _MODE[0] == "one" else "")
     _RUN.clear()
     _RUN.update(
         benchmark=name,
         command=command,
         date=datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         machine=machine(),
+        threads=threads(),
         figures={},
     )
     m = _RUN["machine"]
     now = load_now()
     m["steal"], m["busy"] = now["steal"], now["busy"]
+    _RUN["load_1min_start"] = m["load_average"][0]
+    _RUN["quiet"] = m["load_average"][0] <= QUIET_LOAD
     _RUN["cpu_times_start"] = cpu_times()
     print(f"reproduce with: {command}")
     print(
         f"{m['cpus']} x {m['cpu_model']}, load average {m['load_average']} (1, 5, 15 min), "
         f"CPU steal {100 * now['steal']:.0f} %, CPUs busy {100 * now['busy']:.0f} % at the start"
     )
+    print(threads_text(_RUN["threads"]))
+    if not _RUN["quiet"]:
+        print(f"LOADED: 1-minute load {m['load_average'][0]} > {QUIET_LOAD} at the start: not a README figure")
     atexit.register(_write)
     return _RUN
 
@@ -125,6 +250,8 @@ def _write() -> None:
     if not _RUN or not _RUN["figures"]:
         return
     _RUN["load_average_end"] = [round(v, 2) for v in os.getloadavg()]
+    _RUN["load_1min_end"] = _RUN["load_average_end"][0]
+    _RUN["threads_end"] = threads()  # a pool a peer started during the run (cv2, BLAS) shows here
     _RUN["steal_during"] = round(steal_between(_RUN.pop("cpu_times_start", cpu_times()), cpu_times()), 3)
     RESULTS.mkdir(exist_ok=True)
     path = RESULTS / f"{_RUN['benchmark']}.json"

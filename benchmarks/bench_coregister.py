@@ -21,7 +21,7 @@ import pathlib
 import sys
 
 import numpy as np
-from _common import median_times, record, start
+from _common import add_threads_option, apply_threads, median_times, record, start
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
 from test_coregister import _cells, _pair  # noqa: E402 -- the tests' exact synthetic pairs
@@ -33,7 +33,9 @@ from photax.matching.coregister import phase_correlation  # noqa: E402
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5, help="runs per function (median)")
+    add_threads_option(parser)
     args = parser.parse_args()
+    apply_threads(args)
     from skimage.registration import phase_cross_correlation
 
     start("bench_coregister")

@@ -64,7 +64,7 @@ import scipy.ndimage as ndi
 from skimage import feature, filters
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _common import median_time, mib, peak_memory, ratio_line, record, start  # noqa: E402
+from _common import add_threads_option, apply_threads, median_time, mib, peak_memory, ratio_line, record, start  # noqa: E402
 
 import photax as ptx  # noqa: E402
 from photax.measure import locate_corners, match_lsm, match_ncc  # noqa: E402
@@ -286,7 +286,9 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=7)
     ap.add_argument("--only", choices=["operators", "corners", "locators"], help="run one part (corners: no matching)")
     ap.add_argument("--points", type=int, default=10_000)
+    add_threads_option(ap)
     args = ap.parse_args(argv)
+    apply_threads(args)
     n, rep = args.size, args.repeat
     sys.stdout.reconfigure(line_buffering=True)
     start("bench_measure")

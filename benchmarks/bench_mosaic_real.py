@@ -45,7 +45,7 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(__file__))
-from _common import load_now, median_time, ratio_line, record, run_process, start
+from _common import add_threads_option, apply_threads, load_now, median_time, ratio_line, record, run_process, start
 
 MERGE_SCRIPT = """
 import sys, rasterio, rasterio.merge
@@ -124,7 +124,9 @@ def main() -> None:
         "--data",
         default=str(pathlib.Path(__file__).resolve().parents[1].parent / "shared" / "data"),
     )
+    add_threads_option(ap)
     args = ap.parse_args()
+    apply_threads(args)
     data = pathlib.Path(args.data)
     if not (data / "orthority" / "ngi" / "dem.tif").is_file():
         sys.exit(f"{data}/orthority is not present")

@@ -31,7 +31,7 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(__file__))
-from _common import record, start
+from _common import add_threads_option, apply_threads, record, start
 from bench_startup import BIN, REPO, interleaved, load, oty_frame, show
 
 NAMES = [
@@ -129,7 +129,9 @@ def main():
     )
     ap.add_argument("--baseline", metavar="SRC", help="also time the photax package of this src folder")
     ap.add_argument("--copies", type=int, default=1, help="also a block of 4 x COPIES images (copies of the frames)")
+    add_threads_option(ap)
     args = ap.parse_args()
+    apply_threads(args)
     start("bench_ortho_block")
     data = pathlib.Path(args.data)
     if not (data / "ngi" / "dem.tif").is_file():

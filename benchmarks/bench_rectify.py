@@ -63,7 +63,19 @@ import jax.numpy as jnp
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(__file__))
-from _common import median_cpu_time, median_time, median_times, mib, peak_memory, ratio_line, record, run_process, start  # noqa: E402
+from _common import (
+    add_threads_option,
+    apply_threads,
+    median_cpu_time,
+    median_time,
+    median_times,
+    mib,
+    peak_memory,
+    ratio_line,
+    record,
+    run_process,
+    start,
+)  # noqa: E402
 
 import photax  # noqa: E402
 from photax.rectification import Grid, OrthoModel, ortho_grid  # noqa: E402
@@ -542,7 +554,9 @@ def main():
     ap.add_argument(
         "--only", choices=("poly", "breakdown", "ortho", "ngi", "big"), action="append", help="run only these parts"
     )
+    add_threads_option(ap)
     args = ap.parse_args()
+    apply_threads(args)
     start("_".join(["bench_rectify"] + (["quick"] if args.quick else []) + sorted(args.only or [])))
     n = 1024 if args.quick else 4096
     repeat, slow = (5, 1) if not args.quick else (5, 2)

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _common import busy_threads, load_now, record, start  # noqa: E402
+from _common import add_threads_option, apply_threads, busy_threads, load_now, record, start  # noqa: E402
 
 KERNELS = ("nearest", "bilinear", "cubic", "lanczos4")
 TARGETS = {"nearest": 1.5, "bilinear": 1.5, "cubic": 1.0, "lanczos4": 2.0}  # issue 25
@@ -47,7 +47,7 @@ def one_process(size: int, calls: int) -> dict:
     image = synthetic_image(size)
     model, grid, _, _ = polynomial_case(size)
     c32, r32 = cv2_maps(*maps(model, grid))
-    out = {"steal_load": load_now(0.2)}
+    out = {"steal_load": load_now(0.2), "cv2_threads": cv2.getNumThreads()}
     for k in KERNELS:
         t0 = time.perf_counter()
         photax.rectify(image, model, grid, resampling=k)
@@ -78,13 +78,16 @@ def main(argv=None) -> int:
     ap.add_argument("--processes", type=int, default=3, help="fresh processes per load level")
     ap.add_argument("--busy", type=int, nargs="+", default=[0, 1, 2], help="busy background processes, per level")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    add_threads_option(ap)
     args = ap.parse_args(argv)
+    apply_threads(args)
     if args.child:
         print(json.dumps(one_process(args.size, args.calls)))
         return 0
     sys.stdout.reconfigure(line_buffering=True)
     start("bench_remap")
     cmd = [sys.executable, __file__, "--child", "--size", str(args.size), "--calls", str(args.calls)]
+    cmd += ["--threads", "one"] if args.threads == "one" else []  # the child sets cv2's threads too
     for nb in args.busy:
         worst = dict.fromkeys(KERNELS, 0.0)
         with busy_threads(nb):
@@ -97,7 +100,8 @@ def main(argv=None) -> int:
                     for k in KERNELS
                 )
                 print(
-                    f"busy {nb}, process {i + 1}: load {sl['load_average'][0]}, steal {100 * sl['steal']:.0f} %: {line}"
+                    f"busy {nb}, process {i + 1}: load {sl['load_average'][0]}, steal {100 * sl['steal']:.0f} %, "
+                    f"cv2 threads {res['cv2_threads']}: {line}"
                 )
                 for k in KERNELS:
                     worst[k] = max(worst[k], res[k]["ratio"])

@@ -31,7 +31,18 @@ import jax
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _common import median_cpu_time, median_time, mib, peak_memory, peak_rss, ratio_line, record, start  # noqa: E402
+from _common import (
+    add_threads_option,
+    apply_threads,
+    median_cpu_time,
+    median_time,
+    mib,
+    peak_memory,
+    peak_rss,
+    ratio_line,
+    record,
+    start,
+)  # noqa: E402
 
 import photax as ptx  # noqa: E402
 
@@ -89,7 +100,9 @@ def opencv(ground, pixel, flag):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--images", type=int, default=10_000)
+    add_threads_option(ap)
     args = ap.parse_args()
+    apply_threads(args)
     start(f"bench_resection_{args.images}")
     rng = np.random.default_rng(0)
     xy, ground, pixel, truth = scenes(rng, args.images)

@@ -36,7 +36,7 @@ import tempfile
 import warnings
 
 sys.path.insert(0, os.path.dirname(__file__))
-from _common import median_times, record, start
+from _common import add_threads_option, apply_threads, median_times, record, start
 from bench_startup import BIN, REPO, interleaved, load, show
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "tests"))
@@ -186,7 +186,9 @@ def main():
     ap.add_argument("--data", default=str(REPO.parent / "shared" / "data" / "orthority"),
                     help="orthority's test data (rpc/ and ngi/)")  # fmt: skip
     ap.add_argument("--speed-only", action="store_true", help="only the whole-process timings (no accuracy)")
+    add_threads_option(ap)
     args = ap.parse_args()
+    apply_threads(args)
     start("bench_rpc")
     data = pathlib.Path(args.data).resolve()
     if not (data / "rpc" / "qb2_basic1b.tif").is_file() or not (data / "ngi" / "dem.tif").is_file():

@@ -26,7 +26,7 @@ import statistics
 import sys
 import tempfile
 
-from _common import record, run_process, start
+from _common import add_threads_option, apply_threads, record, run_process, start
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PAIR = ROOT.parent / "shared" / "data" / "orthority" / "pan_sharp"
@@ -37,7 +37,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5, help="fresh processes per program (median; >= 3)")
     parser.add_argument("--tiles", type=int, default=4, help="the pair tiled N x N times for the Dask row (0: none)")
+    add_threads_option(parser)
     args = parser.parse_args()
+    apply_threads(args)
     if not (PAIR / "pan.tif").is_file():
         sys.exit(f"{PAIR}: not present")
     start("bench_sharpen")

@@ -49,7 +49,7 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(__file__))
-from _common import mib, record, start  # noqa: E402
+from _common import add_threads_option, apply_threads, mib, record, start  # noqa: E402
 
 HERE = pathlib.Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -412,7 +412,9 @@ def main():
     ap.add_argument("--data", default=str(REPO.parent / "shared" / "data"), help="folder with the NGI files")
     parts_all = ("import", "help", "ortho", "resect", "rectify", "bundle", "breakdown")
     ap.add_argument("--only", choices=parts_all, action="append", help="run only these parts")
+    add_threads_option(ap)
     args = ap.parse_args()
+    apply_threads(args)
     start("bench_startup" + "".join("_" + p for p in sorted(args.only or [])))
     parts = set(args.only or parts_all)
     with tempfile.TemporaryDirectory(prefix="photax-startup-") as tmp:

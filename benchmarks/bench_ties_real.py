@@ -25,7 +25,7 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(__file__))
-from _common import median_times, ratio_line, record, start
+from _common import add_threads_option, apply_threads, median_times, ratio_line, record, start
 
 
 def _cpu_ticks() -> tuple[int, int]:
@@ -51,7 +51,9 @@ def main() -> None:
     ap.add_argument(
         "--data", type=pathlib.Path, default=pathlib.Path(__file__).resolve().parents[2] / "shared" / "data"
     )
+    add_threads_option(ap)
     args = ap.parse_args()
+    apply_threads(args)
     ngi = args.data / "orthority"
     start("bench_ties_real")
     steal0 = _cpu_ticks()

@@ -9,13 +9,19 @@ steal before each run, then prints each figure of the runs: its value where
 the runs agree within 30 %, else the range ``min-max``.
 
 Each JSON is one benchmark run (``_common.start``): its command, date,
-machine and load average, and its figures.  Prints a Markdown table per run
+machine and load average, thread settings, and its figures.  Prints a Markdown table per run
 with the ratio photax / peer and, where issue 8 set one, the target.
+
+Only quiet runs make README rows (issue 37): a run whose 1-minute load average was above
+``_common.QUIET_LOAD`` (0.5) at its start is refused (named on stderr, exit status 1).
+``--loaded`` appends such runs to the history in ``docs/performance.md`` instead, marked
+**loaded** with their load; ``--history`` appends the quiet ones there too.
 """
 
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import os
 import pathlib
@@ -24,6 +30,8 @@ import sys
 import time
 
 HERE = pathlib.Path(__file__).resolve().parent
+PERFORMANCE = HERE.parent / "docs" / "performance.md"
+HISTORY = "## History written by benchmarks/report.py"
 # figure name (or its start) -> largest acceptable ratio photax / peer, and the
 # issue that set it; a figure whose name starts with a key gets that target
 TARGETS = {
@@ -56,11 +64,37 @@ def _fmt(v) -> str:
     return str(v)
 
 
+def start_load(run: dict) -> float:
+    """The 1-minute load average at the run's start."""
+    return float(run.get("load_1min_start", run["machine"]["load_average"][0]))
+
+
+def is_quiet(run: dict) -> bool:
+    sys.path.insert(0, str(HERE))
+    from _common import QUIET_LOAD
+
+    return start_load(run) <= QUIET_LOAD
+
+
+def threads_line(run: dict) -> str:
+    """The thread settings both sides ran with (runs before issue 37 did not record them)."""
+    t = run.get("threads")
+    if t is None:
+        return "thread settings not recorded"
+    sys.path.insert(0, str(HERE))
+    from _common import threads_text
+
+    return threads_text(t)
+
+
 def table(run: dict) -> str:
     m = run["machine"]
+    state = "quiet" if is_quiet(run) else "**loaded**"
     lines = [
         f"`{run['command']}` on {run['date'][:16].replace('T', ' ')} UTC, {m['cpus']} x {m['cpu_model']}, "
-        f"load average {m['load_average'][0]} at the start, {run.get('load_average_end', ['?'])[0]} at the end",
+        f"{state}: load average {m['load_average'][0]} at the start, {run.get('load_average_end', ['?'])[0]} at the end",
+        "",
+        threads_line(run),
         "",
         "| figure | photax | peer | ratio photax/peer | target |",
         "|---|---|---|---|---|",
@@ -147,7 +181,10 @@ def spread(runs: list[dict]) -> str:
         lo, hi = min(v), max(v)
         text = f"{lo:.3g}" if (lo == hi or (lo > 0 and hi / lo <= 1.3)) else f"{lo:.3g}-{hi:.3g} (range)"
         lines.append(f"| {name} {k} | {text} | {len(v)} |")
-    loads = ", ".join(f"load {r['machine']['load_average'][0]}, steal {r['machine'].get('steal', '?')}" for r in runs)
+    loads = ", ".join(
+        f"load {start_load(r)}{'' if is_quiet(r) else ' (LOADED)'}, steal {r['machine'].get('steal', '?')}"
+        for r in runs
+    )
     return f"{loads}\n\n" + "\n".join(lines)
 
 
@@ -174,23 +211,66 @@ def run_rows(keys, times: int) -> None:
                 print(f"### {stem}, {len(rs)} run(s)\n\n{spread(rs)}\n")
 
 
-def main(argv) -> None:
+def append_history(stem: str, run: dict, path: pathlib.Path | None = None) -> None:
+    """Append the run's table to the history section of ``docs/performance.md``, marked quiet or
+    **loaded** with its load."""
+    path = PERFORMANCE if path is None else path
+    text = path.read_text() if path.exists() else "# Performance: the measurement log\n"
+    if HISTORY not in text:
+        text = (
+            text.rstrip("\n")
+            + f"\n\n{HISTORY}\n\nEach run as `benchmarks/report.py` tabulated it; runs above load 0.5 at their start are marked **loaded** and never quoted in the README.\n"
+        )
+    state = "quiet" if is_quiet(run) else f"LOADED (1-minute load {start_load(run)} at the start)"
+    added = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M")
+    text = (
+        text.rstrip("\n")
+        + f"\n\n### {stem}, {run['date'][:16].replace('T', ' ')} UTC, {state}\n\n{table(run)}\n\n(added {added} UTC)\n"
+    )
+    path.write_text(text)
+
+
+def main(argv) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("paths", nargs="*", help="result files to tabulate (default: all)")
     ap.add_argument("--run", action="store_true", help="run the README rows' commands first")
     ap.add_argument("--times", type=int, default=2, help="runs of each command with --run")
     ap.add_argument("--only", nargs="+", choices=sorted(ROWS), help="with --run: only these rows")
+    ap.add_argument("--loaded", action="store_true",
+                    help="runs loaded at their start (1-minute load > 0.5): append them to docs/performance.md's "
+                    "history, marked loaded, instead of refusing them")  # fmt: skip
+    ap.add_argument("--history", action="store_true", help="also append the quiet runs to docs/performance.md")
     args = ap.parse_args(argv)
     if args.run:
         run_rows(args.only or list(ROWS), args.times)
-        return
+        return 0
     paths = [pathlib.Path(p) for p in args.paths] or sorted((HERE / "results").glob("*.json"))
+    refused = []
     for p in paths:
         run = json.loads(p.read_text())
         if "figures" not in run:  # a per-block detail file of bench_bundle --grid, in its run's table
             continue
+        if not is_quiet(run):
+            if args.loaded:
+                append_history(p.stem, run)
+                print(
+                    f"{p.stem}: loaded (load {start_load(run)} at the start): appended to {PERFORMANCE}, marked loaded"
+                )
+            else:
+                refused.append(f"{p.stem} (load {start_load(run)})")
+            continue
         print(f"### {p.stem}\n\n{table(run)}\n")
+        if args.history:
+            append_history(p.stem, run)
+    if refused:
+        print(
+            f"report.py: no README row from {len(refused)} run(s) loaded above 0.5 at their start: "
+            f"{', '.join(refused)}; rerun them on a quiet machine, or --loaded to keep them in docs/performance.md",
+            file=sys.stderr,
+        )
+        return 1
+    return 0
 
 
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    sys.exit(main(sys.argv[1:]))

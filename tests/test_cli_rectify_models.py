@@ -22,7 +22,8 @@ def test_cli_output_equals_the_library(tmp_path, capsys, name, fit):
     table = read_gcps(DATA / "sample_gcps.csv")
     control = ~table.check
     ground, pixel = table.ground[control, :2], table.pixel[control]
-    grid = ptx.Grid.from_bounds((*ground.min(axis=0), *ground.max(axis=0)), RES, crs=table.crs)
+    # the command's grid over the GCPs' footprint is target aligned (gdalwarp -tap)
+    grid = ptx.Grid.from_bounds((*ground.min(axis=0), *ground.max(axis=0)), RES, crs=table.crs, target_aligned=True)
     image = ptx.read_geotiff(DATA / "sample_image.tif")[0][0]
     written, profile = ptx.read_geotiff(out)
     written = written[0]

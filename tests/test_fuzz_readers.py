@@ -943,3 +943,94 @@ def test_fuzz_pix4d_image_size_beside(work, data):
 
     whole = r": (no 'fileName imageWidth imageHeight' line.*|images of \d+ sizes.*)$"
     _expect_valueerror_or_sane(lambda p: image_size_beside(cam), path, sane, whole, lines=True)
+
+
+# --- satellite RPC files (photax.io.satellite: every family, by content) -----------------------
+
+
+def _rpc_seeds(folder) -> dict[str, list[bytes]]:
+    """Valid files of the text and XML families, made from a synthetic RPC (nothing outside the
+    repository needed), plus the real IKONOS and Pleiades files of ../shared/data when present."""
+    from photax.io.satellite import write_rpc
+    from photax.rpc import RPCCamera
+
+    rng = np.random.default_rng(1)
+    coeffs = rng.normal(0, 1e-4, (4, 20))
+    coeffs[0, :4] += [0.0, 0.03, -1.04, 0.01]
+    coeffs[2, :4] += [0.0, 1.02, 0.0, 0.013]
+    coeffs[[1, 3], 0] = 1.0
+    cam = RPCCamera(coeffs, [24.4, -33.7, 700.0, 640.0, 400.0], [0.1, 0.07, 500.0, 1400.0, 1200.0], direct=coeffs)
+    txt = write_rpc(cam, folder / "seed_RPC.TXT").read_bytes()
+    rpb = write_rpc(cam, folder / "seed.RPB", "rpb").read_bytes()
+    o, s = np.asarray(cam.offsets), np.asarray(cam.scales)
+    body = "".join(f"<{t}>{v!r}</{t}>\n" for t, v in zip(("LONGOFFSET", "LATOFFSET", "HEIGHTOFFSET", "SAMPOFFSET",
+                                                           "LINEOFFSET"), o.tolist(), strict=True))  # fmt: skip
+    body += "".join(f"<{t}>{v!r}</{t}>\n" for t, v in zip(("LONGSCALE", "LATSCALE", "HEIGHTSCALE", "SAMPSCALE",
+                                                           "LINESCALE"), s.tolist(), strict=True))  # fmt: skip
+    for tag, row in zip(("LINENUMCOEF", "LINEDENCOEF", "SAMPNUMCOEF", "SAMPDENCOEF"), coeffs, strict=True):
+        body += f"<{tag}List><{tag}>{' '.join(repr(float(c)) for c in row)}</{tag}></{tag}List>\n"
+    isd = f'<?xml version="1.0"?>\n<isd>\n<RPB>\n<IMAGE>\n{body}</IMAGE>\n</RPB>\n</isd>\n'.encode()
+    text = [txt]
+    if (SHARED_DATA / "satellite/rpc_IKONOS.txt").is_file():
+        text.append((SHARED_DATA / "satellite/rpc_IKONOS.txt").read_bytes())
+    xml = [isd]
+    if (SHARED_DATA / "satellite/rpc_PLEIADES.xml").is_file():
+        xml.append((SHARED_DATA / "satellite/rpc_PLEIADES.xml").read_bytes())
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        profile = dict(
+            driver="GTiff", width=4, height=3, count=1, dtype="uint8", rpcs=rasterio.rpc.RPC(**cam.to_dict())
+        )
+        with rasterio.open(folder / "seed.tif", "w", **profile) as dst:
+            dst.write(np.zeros((1, 3, 4), np.uint8))
+    return {"text": text, "rpb": [rpb], "xml": xml, "raster": [(folder / "seed.tif").read_bytes()]}
+
+
+@pytest.fixture(scope="module")
+def rpc_seeds(tmp_path_factory):
+    return _rpc_seeds(tmp_path_factory.mktemp("rpc_seeds"))
+
+
+def _expect_photax_error_or_sane_rpc(path) -> None:
+    """``read_rpc(path)``: a sane RPC (finite numbers, non-zero scales) or one of photax's two file
+    errors, naming the file on one line; nothing else (no XML, YAML, JSON, rasterio, numpy error)."""
+    from photax.errors import MalformedFileError, UnsupportedFormatError
+    from photax.io.satellite import read_rpc
+
+    try:
+        cam = read_rpc(path)
+    except (MalformedFileError, UnsupportedFormatError) as exc:
+        _check_message(str(exc), path, None, None)
+        return
+    _finite(cam.coefficients, cam.offsets, cam.scales, cam.direct)
+    assert np.all(np.asarray(cam.scales) != 0)
+
+
+@pytest.mark.parametrize("family, examples", [("text", 300), ("rpb", 150), ("xml", 150), ("raster", 100)])
+def test_fuzz_read_rpc(work, rpc_seeds, family, examples):
+    """The satellite RPC readers on mutated KEY: value text (IKONOS, GDAL _RPC.TXT), .RPB and XML
+    (Maxar ISD, DIMAP): only photax's typed errors escape, whatever the content sniffs as."""
+
+    @settings(FUZZ, max_examples=examples)
+    @given(data=mutated(rpc_seeds[family]))
+    def run(data):
+        path = work / "rpc_file"  # no suffix: the family is the content's
+        path.write_bytes(data)
+        _expect_photax_error_or_sane_rpc(path)
+
+    run()
+
+
+def test_rpc_seeds_are_valid(work, rpc_seeds):
+    from photax.io.satellite import read_rpc, rpc_format
+
+    expected = {"text": "rpc-txt", "rpb": "rpb", "xml": ("maxar-xml", "dimap"), "raster": "raster"}
+    for family, seeds in rpc_seeds.items():
+        for raw in seeds:
+            path = work / f"seed_{family}"
+            path.write_bytes(raw)
+            assert rpc_format(path) in expected[family]
+            read_rpc(path)

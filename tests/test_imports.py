@@ -270,3 +270,62 @@ def test_import_photax_and_help_load_no_heavy_module():
     ).stdout.split()
     # and 64-bit mode is still on when JAX comes later
     assert out == ["[]", "[]", "True", "float64"], out
+
+
+# --- stages: imports point one way ----------------------------------------------
+
+# The floor: CRS rules and errors (photax.geo), which import nothing of photax but the errors.
+FLOOR = {"photax.geo": {"photax.errors"}, "photax.errors": set()}
+# The models and the estimators: none of them reads or writes a file, makes a product or parses a command
+# line, so none imports those stages (issue 34: bundle/_problem imported io/crs, the one upward arrow).
+MODELS_AND_ESTIMATORS = (
+    "photax.geo", "photax.rotation", "photax.camera", "photax.collinearity", "photax.dem", "photax.earth",
+    "photax.rpc", "photax.rpc_block", "photax.pushbroom", "photax.sensor", "photax.grid", "photax.polynomial",
+    "photax.resection", "photax.bundle", "photax.intersection", "photax.kernels", "photax.resampling",
+    "photax.measure", "photax.interior",
+)  # fmt: skip
+HIGHER = ("photax.io", "photax.cli", "photax.rectification", "photax.matching", "photax.mosaicking",
+          "photax.fusion", "photax.compare", "photax.demo", "photax.uncertainty", "photax.plot", "photax.scene",
+          "photax.georeferencing", "photax.morphing")  # fmt: skip
+
+
+def _upward(graph: dict[str, set[str]]) -> list[str]:
+    """``"importer -> imported"`` for every edge from a lower stage to a higher one, and from the floor
+    to anything of photax but what :data:`FLOOR` allows (private utilities aside)."""
+    found = []
+    for m, edges in graph.items():
+        unit = _unit(m)
+        for e in sorted(edges):
+            if _unit(e) == unit or e in PRIVATE_UTILITIES:
+                continue
+            if unit in FLOOR and e not in FLOOR[unit]:
+                found.append(f"{m} -> {e}")
+            elif unit in MODELS_AND_ESTIMATORS and _unit(e) in HIGHER:
+                found.append(f"{m} -> {e}")
+    return sorted(found)
+
+
+def test_upward_finder_finds_planted_arrows():
+    planted = {
+        "photax.bundle._problem": {"photax.io.crs", "photax.geo", "photax.camera"},
+        "photax.geo": {"photax.errors", "photax.camera"},
+        "photax.io.gcp": {"photax.bundle", "photax.geo"},  # io above the models: allowed
+    }
+    assert _upward(planted) == ["photax.bundle._problem -> photax.io.crs", "photax.geo -> photax.camera"]
+
+
+def test_no_lower_stage_imports_a_higher_one():
+    assert _upward(_graph()) == []
+
+
+def test_one_utm_crs():
+    # one rule, keyword-friendly, (lon, lat); its old public home is the same object
+    import photax.sensor
+    from photax.geo import utm_crs
+
+    assert photax.utm_crs is photax.sensor.utm_crs is utm_crs
+    defs = [p for p in SRC.rglob("*.py") if "def utm_crs" in p.read_text()]
+    assert defs == [SRC / "geo.py"]
+    assert utm_crs(lon=15.2, lat=45.8) == utm_crs(15.2, 45.8) == "EPSG:32633"  # zone 33: 12..18 E
+    assert utm_crs(lon=-0.1, lat=-0.1) == "EPSG:32730" and utm_crs(lon=0.0, lat=0.0) == "EPSG:32631"
+    assert utm_crs(lon=180.0, lat=10.0) == "EPSG:32660"

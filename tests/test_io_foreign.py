@@ -222,11 +222,14 @@ def test_odm_gps_positions_are_topocentric():
     land on the same GNSS fixes of odm_lla_rpy.csv projected to UTM, to their
     rounding (8 decimals of a degree, 2 of a metre): the exact conversion is right,
     and the ~2 m between gps_position and the shots is ODM's frame, not photax's."""
-    from photax.io._geo import project_lla, topocentric_to_projected, utm_crs
+    import pyproj
+
+    from photax.geo import utm_crs
+    from photax.io._geo import project_lla, topocentric_to_projected
 
     rec = json.loads(shared_file("orthority/odm/opensfm/reconstruction.json").read_text())[0]
     ref = [rec["reference_lla"][k] for k in ("latitude", "longitude", "altitude")]
-    crs = utm_crs(ref[0], ref[1])
+    crs = pyproj.CRS(utm_crs(lon=ref[1], lat=ref[0]))
     lines = shared_file("orthority/io/odm_lla_rpy.csv").read_text().splitlines()[1:]
     fixes = {ln.split()[0].split(".")[0]: [float(v) for v in ln.split()[1:4]] for ln in lines}
     for name, shot in rec["shots"].items():

@@ -45,7 +45,7 @@ GRID = Grid.from_bounds((1000.0, 4980.0, 1260.0, 5200.0), 2.0, crs="EPSG:32633")
 
 
 def test_grid_matches_rasterio():
-    g = Grid.from_bounds((1000.3, 4980.2, 1259.1, 5199.5), (2.0, 2.5), crs="EPSG:32633")
+    g = Grid.from_bounds((1000.3, 4980.2, 1259.1, 5199.5), (2.0, 2.5), crs="EPSG:32633", target_aligned=True)
     assert g.bounds == (1000.0, 4980.0, 1260.0, 5200.0)
     assert g.shape == (88, 130)
     rows, cols = np.mgrid[3:7, 10:14]

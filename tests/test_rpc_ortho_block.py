@@ -84,7 +84,9 @@ def test_rpc_block_usage_errors_exit_2(scene, tmp_path, capsys):
         del f["properties"]["filename"]
     (tmp_path / "unnamed.geojson").write_text(json.dumps(unnamed))
     rpb = tmp_path / "one.RPB"
-    rpb.write_text("")
+    from photax.io.satellite import read_rpc, write_rpc
+
+    write_rpc(read_rpc(a), rpb, "rpb")  # an RPC file (by content), one for two images
     out = ["--out-dir", str(tmp_path / "o")]
     common = _common(dem, gcps)
     cases = [

@@ -39,10 +39,22 @@ from .earth import correct_image as correct_image
 from .earth import refraction_coefficient as refraction_coefficient
 from .errors import RESULTS as RESULTS
 from .errors import ConvergenceError as ConvergenceError
+from .errors import CRSMismatchError as CRSMismatchError
+from .errors import DegenerateGeometryError as DegenerateGeometryError
+from .errors import MalformedFileError as MalformedFileError
+from .errors import NoEntryError as NoEntryError
+from .errors import NotConvergedError as NotConvergedError
+from .errors import OutputCRSError as OutputCRSError
+from .errors import OutsideValidityError as OutsideValidityError
 from .errors import PartialDEMWarning as PartialDEMWarning
+from .errors import PhotaxError as PhotaxError
+from .errors import UnreadableFileError as UnreadableFileError
+from .errors import UnsupportedFormatError as UnsupportedFormatError
 from .fusion import pansharpen as pansharpen
 from .fusion import pansharpen_dask as pansharpen_dask
+from .geo import utm_crs as utm_crs
 from .grid import Grid as Grid
+from .grid import GridSpec as GridSpec
 from .grid import dem_coverage as dem_coverage
 from .interior import (
     InteriorOrientation as InteriorOrientation,
@@ -88,6 +100,10 @@ from .io import (
     write_json as write_json,
 )
 from .io.lazy import to_raster as to_raster
+from .io.satellite import read_rpc as read_rpc
+from .io.satellite import read_sensor as read_sensor
+from .io.satellite import rpc_format as rpc_format
+from .io.satellite import write_rpc as write_rpc
 from .matching import CoRegistration as CoRegistration
 from .matching import (
     EpipolarPair as EpipolarPair,
@@ -189,7 +205,6 @@ from .rotation import (
 )
 from .rpc import RPCCamera as RPCCamera
 from .rpc import RPCRefinement as RPCRefinement
-from .rpc import read_rpc as read_rpc
 from .rpc import refine_rpc as refine_rpc
 from .scene import PushbroomScene as PushbroomScene
 from .scene import Scene as Scene
@@ -198,7 +213,6 @@ from .scene import relief_scene as relief_scene
 from .sensor import FrameSensor as FrameSensor
 from .sensor import GroundCamera as GroundCamera
 from .sensor import GroundSensor as GroundSensor
-from .sensor import utm_crs as utm_crs
 from .uncertainty import OrthoUncertainty as OrthoUncertainty
 from .uncertainty import ortho_uncertainty as ortho_uncertainty
 

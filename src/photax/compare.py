@@ -47,6 +47,7 @@ from ._deprecation import alias
 from .camera import FrameCamera
 from .collinearity import ExteriorOrientation, project_jacobian
 from .dem import DEM
+from .errors import CRSMismatchError
 from .grid import Grid, ortho_grid
 from .polynomial import (
     PolynomialModel,
@@ -495,7 +496,7 @@ def compare_models(
         if exterior is not None:
             raise ValueError("exterior: an RPC camera carries its own orientation; leave it out")
         if dem.crs is None:
-            raise ValueError("dem: an RPC camera needs the DEM's CRS (the ground points' map CRS)")
+            raise CRSMismatchError("dem: an RPC camera needs the DEM's CRS (the ground points' map CRS)")
         sensor = GroundSensor(camera, dem.crs)
         llh = lambda g: np.column_stack([np.asarray(sensor.to_lonlat(g[:, :2])), g[:, 2]])  # noqa: E731
         resection = refine_rpc(camera, llh(gg), gp, refine, names=gcp_names)

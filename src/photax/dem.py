@@ -14,6 +14,7 @@ import numpy as np
 from jax import Array
 
 from ._pytree import Module, field
+from .errors import DegenerateGeometryError
 
 
 class DEM(Module):
@@ -43,7 +44,7 @@ class DEM(Module):
         if not np.all(np.isfinite(t)):
             raise ValueError(f"transform must be finite, got {t.tolist()}")
         if abs(t[0] * t[4] - t[1] * t[3]) == 0:
-            raise ValueError("transform is singular")
+            raise DegenerateGeometryError("transform is singular")
         self.heights = jnp.asarray(h, dtype=float)  # with a dtype: a transfer, not an eager program
         self.transform = jnp.asarray(t, dtype=float)
         self.crs = crs

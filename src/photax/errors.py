@@ -1,9 +1,42 @@
-"""Exceptions photax raises besides ValueError, and the outcome codes of its solvers.
+"""photax's exception types, and the outcome codes of its solvers.
+
+The exceptions form one small hierarchy under :class:`PhotaxError`, so that a
+caller (the CLI among them) decides on the *type* of a failure, never on its
+words::
+
+    PhotaxError
+    ├── UnreadableFileError      (also OSError and ValueError)
+    ├── UnsupportedFormatError   (ValueError)
+    │   └── NoEntryError         (a file of several entries has none of that name; also LookupError)
+    ├── MalformedFileError       (ValueError; a file of a format photax reads, a bad value: names line or key)
+    ├── CRSMismatchError         (ValueError)
+    │   └── OutputCRSError       (an output CRS the sensor model cannot give: a frame ortho's is its orientation's)
+    ├── OutsideValidityError     (ValueError)
+    ├── DegenerateGeometryError  (ValueError)
+    └── NotConvergedError        (ValueError)
+        └── ConvergenceError     (also RuntimeError; a solver's ``throw=True``)
+
+and one warning, :class:`PartialDEMWarning` (a ``UserWarning``: the DEM covers part of an image, its
+``coverage`` the share).
+
+Each is a subclass of the built-in exception photax raised for it before, so
+``except ValueError`` (and ``pytest.raises(ValueError)``) still catches it.
+Plain ``ValueError`` remains the error of a malformed argument (a wrong shape,
+an unknown option name), naming the argument.
 
 Outcomes and ``throw`` (docs/architecture.md): every solver result carries
 ``result`` (a :class:`RESULTS` code) next to ``converged`` and ``message``.
 With ``throw=True`` a failure raises :class:`ConvergenceError` with the same
 message; with ``throw=False`` the result comes back flagged, values finite.
+
+Examples
+--------
+>>> from photax.errors import PhotaxError, UnreadableFileError
+>>> try:
+...     raise UnreadableFileError("x.tif: cannot read the image (permission denied)")
+... except ValueError as exc:  # what photax raised before, still caught
+...     isinstance(exc, (PhotaxError, OSError))
+True
 """
 
 from __future__ import annotations
@@ -11,12 +44,64 @@ from __future__ import annotations
 import enum
 
 
-class ConvergenceError(RuntimeError):
+class PhotaxError(Exception):
+    """Base of every error photax raises on purpose: the input, not a bug, is at fault."""
+
+
+class UnreadableFileError(PhotaxError, OSError, ValueError):
+    """A file that cannot be read: missing, not a regular file, no permission, damaged.
+
+    ``str(exc)`` is photax's whole message (``OSError``'s ``errno`` /
+    ``strerror`` are not set: the message already names the file and why)."""
+
+    def __init__(self, *args):
+        Exception.__init__(self, *args)  # not OSError's (errno, strerror) signature
+
+    def __str__(self) -> str:
+        return Exception.__str__(self)
+
+
+class UnsupportedFormatError(PhotaxError, ValueError):
+    """A file (or a ``format=``) photax does not read: the message names the file and what was looked for
+    (``photax.io.satellite.FORMATS`` for RPC files)."""
+
+
+class NoEntryError(UnsupportedFormatError, LookupError):
+    """A file of several entries (an orthority ``rpc_param.yaml``, a camera file) has none of the name asked for."""
+
+
+class CRSMismatchError(PhotaxError, ValueError):
+    """Inputs in different (or missing, or unusable) coordinate reference systems."""
+
+
+class OutsideValidityError(PhotaxError, ValueError):
+    """Points outside where a model holds: a sensor's height range or ground box, a CRS's or a grid's area."""
+
+
+class DegenerateGeometryError(PhotaxError, ValueError):
+    """A configuration that does not determine the answer: collinear points, a singular transform."""
+
+
+class NotConvergedError(PhotaxError, ValueError):
+    """An iteration (an estimate, an RPC's inverse) did not converge; the message says why."""
+
+
+class ConvergenceError(NotConvergedError, RuntimeError):
     """An estimate did not converge; the message says why.
 
     Raised only with ``throw=True``; with ``throw=False`` the result carries
     ``converged=False`` and the same message instead.
     """
+
+
+class MalformedFileError(PhotaxError, ValueError):
+    """A file of a format photax reads, with a bad or missing value; the message names the file and the
+    line (text) or key (XML, JSON)."""
+
+
+class OutputCRSError(CRSMismatchError):
+    """The output CRS asked for is not one this sensor model can give the output in (a frame
+    image's ortho is in its orientation's CRS); the message names both CRSs."""
 
 
 class PartialDEMWarning(UserWarning):

@@ -77,6 +77,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from .errors import CRSMismatchError
+
 _SCALE = 1000  # integer edge capacities: cost units per grey-value unit
 _SEAM_PIXELS = 1 << 22  # default seam grid: at most 4 Mpx (s = 1 up to that) ...
 # ... and at most this many cells in the bounding box of any two orthos' overlap: scipy's maximum flow
@@ -99,7 +101,7 @@ def _lattice(orthos):
     boxes = []
     for k, o in enumerate(orthos):
         if o.crs != crs:
-            raise ValueError(f"orthos[{k}] is in {o.crs}, orthos[0] in {crs}: reproject them to one CRS first")
+            raise CRSMismatchError(f"orthos[{k}] is in {o.crs}, orthos[0] in {crs}: reproject them to one CRS first")
         t = o.transform
         if not (math.isclose(t.a, t0.a, rel_tol=1e-9) and math.isclose(t.e, t0.e, rel_tol=1e-9) and t.b == t.d == 0):
             raise ValueError(f"orthos[{k}] has pixel size {(t.a, t.e)}, orthos[0] {(t0.a, t0.e)}: one resolution only")
@@ -1221,3 +1223,77 @@ def mosaic_to_raster(orthos, path, *, cog: bool = True, inputs=(), progress=None
             data = out.data.map_blocks(_to_type, dtype, nodata, lo, hi, dtype=dtype)
             out = out.copy(data=data).rio.write_nodata(nodata, encoded=False)
         return to_raster(out, path, cog=cog, inputs=inputs)
+
+
+_GDAL_RESAMPLING = {"nearest": "nearest", "bilinear": "bilinear", "cubic": "cubic", "lanczos": "lanczos",
+                    "lanczos4": "lanczos", "bspline": "cubic_spline"}  # fmt: skip
+
+
+def warp_to_grid(
+    src_path, dst_path, grid, *, resampling: str = "bilinear", chunks: int = 1024, inputs=(), name: str = "mosaic"
+):
+    """A raster (a mosaic on its orthos' union grid) put on another ``grid`` (the one
+    ``photax mosaic --bounds/--like/--size`` asks for), tile by tile, as a Cloud-Optimized GeoTIFF,
+    atomically; no data (the file's nodata) outside the raster.
+
+    On the same CRS, resolution and pixel lattice (whole-pixel offsets) the pixels are copied as
+    they are (nearest neighbour hits every centre); otherwise they are resampled by GDAL
+    (:func:`rasterio.warp.reproject`, ``resampling``; photax's ``lanczos4`` and ``bspline`` are
+    GDAL's ``lanczos`` and ``cubic_spline``).
+
+    Returns:
+        ``dst_path``.
+    """
+    import rasterio
+    from rasterio import Affine
+    from rasterio.enums import Resampling as GdalResampling
+    from rasterio.warp import reproject
+
+    from .io.crs import same_crs
+    from .io.lazy import write_tiles
+
+    with rasterio.open(src_path) as src:
+        a, e = src.transform.a, src.transform.e
+        ga, ge = grid.transform.a, grid.transform.e
+        col = (grid.transform.c - src.transform.c) / a
+        row = (grid.transform.f - src.transform.f) / e
+        lattice = (
+            same_crs(src.crs, grid.crs)
+            and (a, e) == (ga, ge)
+            and src.transform.b == grid.transform.b == 0
+            and src.transform.d == grid.transform.d == 0
+            and abs(col - round(col)) < 1e-6
+            and abs(row - round(row)) < 1e-6
+        )
+        method = GdalResampling.nearest if lattice else GdalResampling[_GDAL_RESAMPLING[resampling]]
+        nodata = src.nodata
+        fill = nodata if nodata is not None else 0
+        dtype, bands = src.dtypes[0], src.count
+
+        def tiles():
+            for r0, c0, h, w in _tiles(grid.shape, chunks):
+                block = np.full((bands, h, w), fill, dtype=dtype)
+                reproject(
+                    rasterio.band(src, list(range(1, bands + 1))),
+                    block,
+                    dst_transform=grid.transform * Affine.translation(c0, r0),
+                    dst_crs=grid.crs if grid.crs is not None else src.crs,
+                    dst_nodata=nodata,
+                    src_nodata=nodata,
+                    resampling=method,
+                )
+                yield (r0, c0), block
+
+        return write_tiles(
+            dst_path,
+            tiles(),
+            shape=(bands, *grid.shape),
+            dtype=dtype,
+            transform=grid.transform,
+            crs=grid.crs if grid.crs is not None else src.crs,
+            nodata=nodata,
+            name=name,
+            chunks=chunks,
+            cog=True,
+            inputs=inputs,
+        )

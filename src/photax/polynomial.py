@@ -45,7 +45,7 @@ import numpy as np
 from jax import Array
 
 from ._float64 import as_float64
-from .errors import RESULTS, ConvergenceError, from_optimistix
+from .errors import RESULTS, ConvergenceError, DegenerateGeometryError, from_optimistix
 
 MAX_ORDER = 5
 
@@ -100,7 +100,7 @@ def _normaliser(p: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
     scale = np.abs(p - centre).max(axis=0)
     if (scale == 0).any():
         axis = "xy"[int(np.argmin(scale))]
-        raise ValueError(f"{name} points all have the same {axis}: the fit is degenerate")
+        raise DegenerateGeometryError(f"{name} points all have the same {axis}: the fit is degenerate")
     return centre, scale
 
 
@@ -507,7 +507,7 @@ def fit_projective(src_xy, dst_xy, *, weights=None, refine: bool = True, throw: 
     a = np.concatenate([rows_x * sw, rows_y * sw])
     _, sv, vt = np.linalg.svd(a)
     if sv[7] <= 1e-10 * sv[0]:
-        raise ValueError("degenerate configuration for a projective transform: 3 or more points collinear")
+        raise DegenerateGeometryError("degenerate configuration for a projective transform: 3 or more points collinear")
     hn = vt[-1].reshape(3, 3)
     hn = hn / hn[2, 2] if abs(hn[2, 2]) > 1e-12 * np.abs(hn).max() else hn / np.abs(hn).max()
     code = RESULTS.successful

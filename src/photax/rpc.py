@@ -14,8 +14,18 @@ lon, lat in degrees (WGS84), h ellipsoidal height in metres (a DEM on a geoid mu
 first), pixel coordinates (column, row) with the centre of the top-left pixel at (0, 0), photax's
 convention everywhere -- GDAL's RPC transformer counts from the pixel's corner (0.5 more).
 
-Inverse (:meth:`RPCCamera.to_ground`): Newton's method on (lon, lat) at a given height, the 2 x 2
-Jacobian by ``jax.jacfwd``.
+Inverse (:meth:`RPCCamera.to_ground`, image -> ground at a given height): the vendor's *direct*
+model where the file carries one (DIMAP's ``Direct_Model`` / ``ImagetoGround_Values``, the "extended
+IKONOS" ``LON_NUM_COEFF_n`` ...), the same cubic ratios with the roles swapped::
+
+    C = (column - SAMP_OFF) / SAMP_SCALE,  R = (row - LINE_OFF) / LINE_SCALE,  H as above
+    lon = LONG_OFF + LONG_SCALE * num_lon(C, R, H) / den_lon(C, R, H)
+    lat = LAT_OFF  + LAT_SCALE  * num_lat(C, R, H) / den_lat(C, R, H)
+
+(terms in the RPC00B order with C in L's place and R in P's, as rpcm and GDAL's DIMAP reader take
+them); otherwise, or with ``localization="newton"``, Newton's method on (lon, lat) inverting the
+ground -> image model, the 2 x 2 Jacobian by ``jax.jacfwd``.  The two differ by the vendor's fit
+(1 mm on the shared Pleiades file, ``tests/test_rpc_formats.py``).
 
 Refinement (:func:`refine_rpc`, Grodecki & Dial 2003; Hanley & Fraser 2004): an image-space
 correction added to the RPC's pixel position, of increasing order::
@@ -32,7 +42,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import pathlib
 from typing import Literal
 
 import jax
@@ -44,9 +53,13 @@ from ._aot import disk_cached
 from ._float64 import as_float64
 from ._linalg import solve2
 from ._pytree import Module, field, filter_jit
+from .errors import OutsideValidityError
 
 # Coefficient rows of RPCCamera.coefficients, and the keys GDAL / rasterio / orthority give them.
 COEFFICIENT_KEYS = ("line_num_coeff", "line_den_coeff", "samp_num_coeff", "samp_den_coeff")
+# Rows of RPCCamera.direct (the image -> ground model), and their keys (rpcm's, lower case).
+DIRECT_KEYS = ("lon_num_coeff", "lon_den_coeff", "lat_num_coeff", "lat_den_coeff")
+Localization = Literal["direct", "newton"]
 # Entries of RPCCamera.offsets / .scales, and their keys.
 OFFSET_KEYS = ("long_off", "lat_off", "height_off", "samp_off", "line_off")
 SCALE_KEYS = ("long_scale", "lat_scale", "height_scale", "samp_scale", "line_scale")
@@ -80,6 +93,11 @@ class RPCCamera(Module):
             RPC's (column, row): ``dc = a0 + a1 c + a2 r``, ``dr = b0 + b1 c + b2 r`` (zero unless refined,
             :func:`refine_rpc`).
         image_size: ``(width, height)`` in pixels, or None when unknown.
+        direct: ``(4, 20)`` the vendor's image -> ground model, rows lon numerator, lon denominator,
+            lat numerator, lat denominator (:data:`DIRECT_KEYS`), on the same offsets and scales
+            (module docstring), or None when the file has none.
+        localization: ``"direct"`` (image -> ground by ``direct`` where there is one, else Newton) or
+            ``"newton"`` (always Newton's inverse of the ground -> image model); :meth:`with_localization`.
     """
 
     coefficients: Array
@@ -87,8 +105,12 @@ class RPCCamera(Module):
     scales: Array
     correction: Array
     image_size: tuple[int, int] | None = field(static=True, default=None)
+    direct: Array | None = None
+    localization: str = field(static=True, default="direct")
 
-    def __init__(self, coefficients, offsets, scales, correction=None, image_size=None):
+    def __init__(
+        self, coefficients, offsets, scales, correction=None, image_size=None, *, direct=None, localization="direct"
+    ):
         c = as_float64(coefficients, "coefficients")
         o = as_float64(offsets, "offsets")
         s = as_float64(scales, "scales")
@@ -113,6 +135,41 @@ class RPCCamera(Module):
         self.scales = jnp.asarray(s, dtype=float)
         self.correction = jnp.asarray(k, dtype=float)
         self.image_size = None if image_size is None else (int(image_size[0]), int(image_size[1]))
+        if direct is not None:
+            d = as_float64(direct, "direct")
+            if d.shape != (4, 20):
+                raise ValueError(f"direct: expected shape (4, 20), got {d.shape}")
+            bad = [f"{DIRECT_KEYS[i]}[{j}]" for i, j in zip(*np.nonzero(~np.isfinite(d)), strict=True)]
+            if bad:
+                raise ValueError(f"RPC: non-finite values in {', '.join(bad)}")
+            direct = jnp.asarray(d, dtype=float)
+        self.direct = direct
+        if localization not in ("direct", "newton"):
+            raise ValueError(f"localization: expected 'direct' or 'newton', got {localization!r}")
+        self.localization = localization
+
+    def replace(self, **changes) -> RPCCamera:
+        """A copy with some fields changed (``correction=``, ``image_size=``, ``offsets=``, ...), every other
+        field, the direct model included, kept."""
+        names = ("coefficients", "offsets", "scales", "correction", "image_size", "direct", "localization")
+        unknown = sorted(set(changes) - set(names))
+        if unknown:
+            raise ValueError(f"replace: no field {', '.join(unknown)} (fields: {', '.join(names)})")
+        kw = {n: changes.get(n, getattr(self, n)) for n in names}
+        return RPCCamera(
+            kw["coefficients"], kw["offsets"], kw["scales"], kw["correction"], kw["image_size"],
+            direct=kw["direct"], localization=kw["localization"],
+        )  # fmt: skip
+
+    def with_localization(self, localization: Localization) -> RPCCamera:
+        """The same RPC localizing (image -> ground) by ``"direct"`` (the vendor's direct model, where
+        there is one) or ``"newton"`` (Newton's inverse of the ground -> image model)."""
+        return self.replace(localization=localization)
+
+    @property
+    def localizes_directly(self) -> bool:
+        """Whether image -> ground uses the vendor's direct model (one is present and not declined)."""
+        return self.direct is not None and self.localization == "direct"
 
     # --- construction ---------------------------------------------------------------------------
 
@@ -172,7 +229,7 @@ class RPCCamera(Module):
         if self.image_size is not None:
             w, h = self.image_size
             if c0 < 0 or r0 < 0 or c0 + width > w or r0 + height > h:
-                raise ValueError(
+                raise OutsideValidityError(
                     f"crop: the window at ({c0:g}, {r0:g}) of {int(width)} x {int(height)} pixels is not inside "
                     f"the {w} x {h} pixel image"
                 )
@@ -215,30 +272,41 @@ class RPCCamera(Module):
         return off - scale, off + scale
 
     def invert(self, pixel: Array, h: Array):
-        """``(n, 2)`` pixels at ``(n,)`` heights -> ``((n, 2)`` lon, lat, ``(n,)`` converged); jittable."""
-        return newton_inverse(self, pixel, h)
+        """``(n, 2)`` pixels at ``(n,)`` heights -> ``((n, 2)`` lon, lat, ``(n,)`` converged); jittable
+        (the direct model where :attr:`localizes_directly`, else Newton)."""
+        return localize_inverse(self, pixel, h)
 
-    def to_ground(self, pixel: Array, height, *, max_steps: int = 20, tol: float = 1e-12):
+    def to_ground(
+        self, pixel: Array, height, *, max_steps: int = 20, tol: float = 1e-12, method: Localization | None = None
+    ):
         """``(..., 2)`` column, row and ellipsoidal height(s) ``(...)`` -> ``(..., 2)`` lon, lat (deg).
 
-        Newton's method on (lon, lat) from the scene centre, the Jacobian by ``jax.jacfwd``;
-        stops after the step is below ``tol`` degrees (1e-12 deg ~ 0.1 um) or ``max_steps``.
+        The vendor's direct model where the RPC has one (the image-space correction undone first),
+        unless ``method="newton"`` or the camera's :attr:`localization` is ``"newton"``; otherwise
+        Newton's method on (lon, lat) from the scene centre, the Jacobian by ``jax.jacfwd``,
+        stopping after the step is below ``tol`` degrees (1e-12 deg ~ 0.1 um) or ``max_steps``.
         Points that did not converge come back NaN (:meth:`to_ground_status` gives the flags).
         """
-        lonlat, ok = self.to_ground_status(pixel, height, max_steps=max_steps, tol=tol)
+        lonlat, ok = self.to_ground_status(pixel, height, max_steps=max_steps, tol=tol, method=method)
         return jnp.where(ok[..., None], lonlat, jnp.nan)
 
-    def to_ground_status(self, pixel: Array, height, *, max_steps: int = 20, tol: float = 1e-12):
+    localize = to_ground
+
+    def to_ground_status(
+        self, pixel: Array, height, *, max_steps: int = 20, tol: float = 1e-12, method: Localization | None = None
+    ):
         """As :meth:`to_ground`, returning ``(lonlat, converged)`` with the unconverged values kept."""
+        if method is not None and method != self.localization:
+            return self.with_localization(method).to_ground_status(pixel, height, max_steps=max_steps, tol=tol)
         pixel = jnp.asarray(as_float64(pixel, "pixel"))
         if pixel.shape[-1:] != (2,):
             raise ValueError(f"pixel: expected shape (..., 2), got {pixel.shape}")
         h = jnp.broadcast_to(jnp.asarray(as_float64(height, "height")), pixel.shape[:-1])
         flat_p, flat_h = pixel.reshape(-1, 2), h.reshape(-1)
-        lonlat, ok = newton_inverse(self, flat_p, flat_h, max_steps, tol)
+        lonlat, ok = localize_inverse(self, flat_p, flat_h, max_steps, tol)
         return lonlat.reshape(pixel.shape), ok.reshape(pixel.shape[:-1])
 
-    def to_ground_dem(self, pixel, dem, *, max_steps: int = 50, tol: float = 1e-6) -> np.ndarray:
+    def to_ground_dem(self, pixel, dem, *, max_steps: int = 50, tol: float = 1e-6, method=None) -> np.ndarray:
         """``(..., 2)`` column, row -> ``(..., 3)`` lon, lat, h on a :class:`photax.DEM` (GDAL's ``RPC_DEM``).
 
         Fixed-point iteration: the ground point at height ``h`` (:meth:`to_ground`), then ``h`` from
@@ -248,14 +316,16 @@ class RPCCamera(Module):
         the DEM or the iteration does not settle in ``max_steps`` (it converges while the terrain's slope
         times the view's tangent stays below 1); :meth:`to_ground_dem_status` says which.
         """
-        return self.to_ground_dem_status(pixel, dem, max_steps=max_steps, tol=tol)[0]
+        return self.to_ground_dem_status(pixel, dem, max_steps=max_steps, tol=tol, method=method)[0]
 
-    def to_ground_dem_status(self, pixel, dem, *, max_steps: int = 50, tol: float = 1e-6):
+    def to_ground_dem_status(self, pixel, dem, *, max_steps: int = 50, tol: float = 1e-6, method=None):
         """As :meth:`to_ground_dem`, returning ``(lon_lat_h, status)``: ``status`` ``(...)`` per point,
         one of :data:`GROUND_STATUS` (0 converged, 1 off the DEM, 2 Newton's inverse did not converge,
-        3 the height iteration did not settle)."""
+        3 the height iteration did not settle); ``method`` as :meth:`to_ground`'s."""
         import pyproj
 
+        if method is not None and method != self.localization:
+            return self.with_localization(method).to_ground_dem_status(pixel, dem, max_steps=max_steps, tol=tol)
         pixel = as_float64(pixel, "pixel")
         if pixel.shape[-1:] != (2,):
             raise ValueError(f"pixel: expected shape (..., 2), got {pixel.shape}")
@@ -315,116 +385,48 @@ def newton_inverse(camera: RPCCamera, pixel: Array, h: Array, max_steps: int = 2
     return jax.vmap(one)(pixel, h)
 
 
-_to_ground_cached = disk_cached(newton_inverse, "rpc_to_ground")  # traced once per machine, not per process
+@filter_jit
+def direct_inverse(camera: RPCCamera, pixel: Array, h: Array):
+    """``(n, 2)`` pixels at ``(n,)`` heights -> ``((n, 2)`` lon, lat, ``(n,)`` finite) by the camera's direct
+    (image -> ground) model (module docstring), its image-space correction undone first; jittable."""
+    a = camera.correction[:, 1:] + jnp.eye(2)
+    det = a[0, 0] * a[1, 1] - a[0, 1] * a[1, 0]
+    inv = jnp.stack([jnp.stack([a[1, 1], -a[0, 1]]), jnp.stack([-a[1, 0], a[0, 0]])]) / det
+    cr = (pixel - camera.correction[:, 0].reshape(1, 2)) @ inv.T  # the RPC's own position
+    o, s = camera.offsets, camera.scales
+    crh = jnp.stack([(cr[:, 0] - o[3]) / s[3], (cr[:, 1] - o[4]) / s[4], (h - o[2]) / s[2]], axis=-1)
+    p = jnp.einsum("nt,kt->nk", _monomials(crh), camera.direct)
+    lonlat = jnp.stack([p[:, 0] / p[:, 1], p[:, 2] / p[:, 3]], axis=-1) * s[:2].reshape(1, 2) + o[:2].reshape(1, 2)
+    return lonlat, jnp.all(jnp.isfinite(lonlat), axis=-1)
+
+
+def localize_inverse(camera: RPCCamera, pixel: Array, h: Array, max_steps: int = 20, tol: float = 1e-12):
+    """Image -> ground at heights: :func:`direct_inverse` where ``camera.localizes_directly``, else
+    :func:`newton_inverse` (``max_steps``, ``tol`` are Newton's); jittable (the choice is static)."""
+    if camera.localizes_directly:
+        return direct_inverse(camera, pixel, h)
+    return newton_inverse(camera, pixel, h, max_steps, tol)
+
+
+_to_ground_cached = disk_cached(
+    filter_jit(localize_inverse), "rpc_to_ground"
+)  # traced once per machine, not per process
 
 
 _forward = disk_cached(filter_jit(RPCCamera.__call__), "rpc_forward")  # one program, not op by op
 
 
-# --- readers ------------------------------------------------------------------------------------
+# --- readers ---------------------------------------------------------------------------------
 
 
-def read_rpc(path, image: str | None = None) -> RPCCamera:
-    """An :class:`RPCCamera` from a file: orthority's ``rpc_param.yaml`` (``.yaml``/``.yml``; ``image``
-    names the entry when it holds several), a DigitalGlobe ``.RPB`` or a ``_RPC.TXT`` file (as GDAL
-    writes and reads them beside an image), or an image with RPC metadata GDAL reads (GeoTIFF RPC tags,
-    or those side files), through rasterio."""
-    path = pathlib.Path(path)
-    suffix = path.suffix.lower()
-    if suffix in (".yaml", ".yml"):
-        return _read_orthority_yaml(path, image)
-    if suffix == ".rpb" or path.name.upper().endswith("_RPC.TXT"):
-        try:
-            return RPCCamera.from_dict(_parse_rpb(path) if suffix == ".rpb" else _parse_rpc_txt(path))
-        except ValueError as e:
-            raise ValueError(f"{path}: {e}") from None
-    import warnings
+def __getattr__(name):
+    """``photax.rpc.read_rpc``: the readers moved to :mod:`photax.io.satellite` (every vendor's family, by
+    content; ``photax.read_rpc``); the old name still reaches them."""
+    if name == "read_rpc":
+        import photax
 
-    import rasterio
-    from rasterio.errors import NotGeoreferencedWarning
-
-    with warnings.catch_warnings():  # an image without RPCs is an error below, not a warning here
-        warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        src = rasterio.open(path)
-    with src:
-        if src.rpcs is None:
-            raise ValueError(f"{path}: has no RPC metadata")
-        try:
-            return RPCCamera.from_rasterio(src.rpcs, (src.width, src.height))
-        except ValueError as e:
-            raise ValueError(f"{path}: {e}") from None
-
-
-def _read_orthority_yaml(path: pathlib.Path, image: str | None) -> RPCCamera:
-    import yaml
-
-    with open(path) as f:
-        doc = yaml.safe_load(f)
-    if not isinstance(doc, dict) or not doc:
-        raise ValueError(f"{path}: not an orthority RPC file (expected a mapping of image names)")
-    if image is None:
-        if len(doc) > 1:
-            raise ValueError(f"{path}: holds {len(doc)} images ({', '.join(doc)}): pass image=")
-        image = next(iter(doc))
-    if image not in doc:
-        raise ValueError(f"{path}: no entry {image!r} (it has {', '.join(doc)})")
-    entry = doc[image]
-    if not isinstance(entry, dict) or not isinstance(entry.get("rpc"), dict):
-        raise ValueError(f"{path}: entry {image!r} has no 'rpc' mapping")
-    try:
-        return RPCCamera.from_dict(entry["rpc"], entry.get("im_size"))
-    except ValueError as e:
-        raise ValueError(f"{path} [{image}]: {e}") from None
-
-
-# .RPB keys (DigitalGlobe, ``key = value;``, coefficients as ``( c1, ..., c20);``) -> GDAL's keys.
-_RPB_KEYS = {
-    "lineOffset": "line_off", "sampOffset": "samp_off", "latOffset": "lat_off", "longOffset": "long_off",
-    "heightOffset": "height_off", "lineScale": "line_scale", "sampScale": "samp_scale",
-    "latScale": "lat_scale", "longScale": "long_scale", "heightScale": "height_scale",
-    "lineNumCoef": "line_num_coeff", "lineDenCoef": "line_den_coeff",
-    "sampNumCoef": "samp_num_coeff", "sampDenCoef": "samp_den_coeff",
-}  # fmt: skip
-
-
-def _number(text: str, key: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise ValueError(f"{key}: not a number: {text!r}") from None
-
-
-def _parse_rpb(path: pathlib.Path) -> dict:
-    """The RPC of a ``.RPB`` file, with GDAL's keys (missing ones are left for ``from_dict`` to name)."""
-    out = {}
-    for statement in path.read_text().split(";"):
-        key, sep, value = statement.partition("=")
-        key = key.strip()
-        if not sep or key not in _RPB_KEYS:
-            continue
-        value = value.strip()
-        if value.startswith("("):
-            out[_RPB_KEYS[key]] = [_number(v, key) for v in value.strip("()").split(",") if v.strip()]
-        else:
-            out[_RPB_KEYS[key]] = _number(value, key)
-    return out
-
-
-def _parse_rpc_txt(path: pathlib.Path) -> dict:
-    """The RPC of a ``_RPC.TXT`` file (``LINE_OFF: 399.45``, ``LINE_NUM_COEFF_1: ...`` to ``_20``)."""
-    fields = {}
-    for line in path.read_text().splitlines():
-        key, sep, value = line.partition(":")
-        if sep:
-            fields[key.strip().upper()] = value.strip().split()[0] if value.strip() else ""
-    scalars = [k for k in (*OFFSET_KEYS, *SCALE_KEYS) if k.upper() in fields]
-    out = {k: _number(fields[k.upper()], k.upper()) for k in scalars}
-    for k in COEFFICIENT_KEYS:
-        names = [f"{k.upper()}_{i}" for i in range(1, 21)]
-        present = [n for n in names if n in fields]
-        if present:
-            out[k] = [_number(fields[n], n) if n in fields else float("nan") for n in names]
-    return out
+        return photax.read_rpc
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 # --- refinement ---------------------------------------------------------------------------------
@@ -543,7 +545,7 @@ def check_gcps(
     if out.size:
         lo, hi = off[:3] - RPC_MARGIN * np.abs(scale[:3]), off[:3] + RPC_MARGIN * np.abs(scale[:3])
         which = ", ".join(f"{label(i)} at ({ground[i, 0]:.6f}, {ground[i, 1]:.6f}, {ground[i, 2]:.1f} m)" for i in out)
-        raise ValueError(
+        raise OutsideValidityError(
             f"{who}: {out.size} GCP(s) outside the RPC's validity volume (lon {lo[0]:.6f} .. {hi[0]:.6f}, lat "
             f"{lo[1]:.6f} .. {hi[1]:.6f}, h {lo[2]:.1f} .. {hi[2]:.1f} m: its offsets +- {RPC_MARGIN} scales): "
             f"{which}; another scene's GCPs, or lon and lat swapped?"
@@ -552,7 +554,7 @@ def check_gcps(
         box_off, box = off[3:], 1.5 * np.abs(scale[3:])
         out = np.flatnonzero(np.any(np.abs(pixel - box_off) > box, axis=1))
         if out.size:  # not an image of this RPC: a blunder or another image's measurement
-            raise ValueError(
+            raise OutsideValidityError(
                 f"{who}: {out.size} GCP(s) outside the RPC's image (columns {box_off[0] - box[0]:.0f} .. "
                 f"{box_off[0] + box[0]:.0f}, rows {box_off[1] - box[1]:.0f} .. {box_off[1] + box[1]:.0f}): "
                 f"{listing(out, pixel)}"
@@ -562,7 +564,7 @@ def check_gcps(
     size = np.array([w, h], dtype=float)
     out = np.flatnonzero(np.any((pixel < -0.5 - size) | (pixel > size - 0.5 + size), axis=1))
     if out.size:
-        raise ValueError(
+        raise OutsideValidityError(
             f"{who}: {out.size} GCP(s) outside the {w} x {h} pixel image by more than its size (a blunder or "
             f"another image's measurement?): {listing(out, pixel)}"
         )
@@ -633,7 +635,7 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *,
             keep = np.arange(n) != i
             ki, _ = _fit_correction(cr[keep], pixel[keep], terms)
             loo[i] = _apply(ki, cr[i : i + 1])[0] - pixel[i]
-    refined = RPCCamera(camera.coefficients, camera.offsets, camera.scales, k, camera.image_size)
+    refined = camera.replace(correction=k)  # the direct model, if any, kept
     return RPCRefinement(refined, model, k, cov, residuals, cr - pixel, loo, sigma0, r, standardized, names)
 
 

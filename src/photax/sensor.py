@@ -43,6 +43,8 @@ from ._pytree import Module, field, filter_jit
 from .camera import FrameCamera, distort, distortion_jacobian
 from .collinearity import ExteriorOrientation, image_to_ground
 from .dem import DEM
+from .errors import CRSMismatchError, NotConvergedError
+from .geo import utm_crs as utm_crs  # noqa: F401 -- its old home, public: photax.sensor.utm_crs
 
 WGS84 = "EPSG:4326"
 # An RPC is evaluated within its validity volume (offsets +- scales) widened by this factor; beyond,
@@ -125,7 +127,7 @@ class LocalTransform(Module):
 
 
 def _short(crs) -> str:
-    from .io.crs import describe
+    from .geo import describe
 
     return describe(crs)
 
@@ -220,7 +222,7 @@ class GroundSensor(Module):
 
     def __init__(self, camera: GroundCamera, crs):
         if crs is None:
-            raise ValueError(f"an {type(camera).__name__} needs the output grid's CRS (its ground is lon, lat)")
+            raise CRSMismatchError(f"an {type(camera).__name__} needs the output grid's CRS (its ground is lon, lat)")
         self.camera = camera
         self.crs = _crs_text(crs)
         self.centre, self.half = (jnp.asarray(v, dtype=jnp.float64) for v in camera.ground_box())
@@ -266,7 +268,7 @@ class GroundSensor(Module):
             mean = float(np.nanmean(h)) if np.isfinite(h).any() else _start_height(self.camera, dem)
             llh[miss, :2] = np.asarray(self.camera.to_ground(pixel[miss], mean))
         if not np.isfinite(llh[:, :2]).all():
-            raise ValueError("the RPC's inverse does not converge on the image outline: is the RPC valid?")
+            raise NotConvergedError("the RPC's inverse does not converge on the image outline: is the RPC valid?")
         return _pyproj(llh[:, :2], WGS84, self.crs)
 
     def _on_dem_status(self, pixel: np.ndarray, dem: DEM):
@@ -299,7 +301,7 @@ def _start_height(camera: GroundCamera, dem: DEM) -> float:
 
 
 def _same(a, b) -> bool:
-    from .io.crs import same_crs
+    from .geo import same_crs
 
     return same_crs(a, b)
 
@@ -430,11 +432,3 @@ def _ellipsoidal(crs) -> bool:
 def _vertical_name(crs) -> str:
     v = _vertical(crs)
     return f"{v.name}" if v is not None else "the DEM's CRS names no vertical datum"
-
-
-def utm_crs(lon: float, lat: float) -> str:
-    """The WGS84 UTM zone of a point (lon, lat in degrees), as ``EPSG:326zz`` (north) or ``EPSG:327zz``."""
-    if not (-180 <= lon <= 180 and -80 <= lat <= 84):
-        raise ValueError(f"no UTM zone at lon {lon}, lat {lat}")
-    zone = min(int((lon + 180) // 6) + 1, 60)
-    return f"EPSG:{(32600 if lat >= 0 else 32700) + zone}"

@@ -65,8 +65,8 @@ import numpy as np
 from .camera import FrameCamera, intrinsics_jacobian
 from .collinearity import ExteriorOrientation, angle_axes, collinearity_jacobian
 from .dem import DEM
+from .geo import check_dem
 from .grid import Grid
-from .io.crs import check_dem
 from .pushbroom import PushbroomCamera, PushbroomResection
 from .rpc import RPCCamera, RPCRefinement
 from .sensor import FrameSensor, GroundSensor

@@ -374,7 +374,7 @@ def _dem_observations(dem, dem_sigma, n_pts: int, crs):
     if not np.all(np.isfinite(sig) & (sig > 0)):
         raise ValueError(f"dem_sigma must be positive and finite, got {sig[~(np.isfinite(sig) & (sig > 0))][0]:g}")
     if crs is not None and dem.crs is not None:
-        from ..io.crs import require_same
+        from ..geo import require_same
 
         require_same(crs, "the block", dem.crs, "the DEM")  # the horizontal parts; heights are the user's
     return dem, sig

@@ -136,6 +136,25 @@ def _enable_compilation_cache() -> None:
 _EXTRAS = {"dask": "dask", "xarray": "dask", "rioxarray": "dask", "distributed": "dask", "odc": "bench"}
 
 
+# Exit status of a command that failed, by the type of what it raised (the first that matches), never by
+# its words (photax.errors).  A NotConvergedError is "ran, not solved" (1) as a solver's status is; input
+# and usage errors of every kind, and an output that could not be written, are 2.
+_EXIT_STATUS = (
+    ("NotConvergedError", 1),
+    ("PhotaxError", 2),
+)
+
+
+def _exit_status(exc: BaseException) -> int:
+    """The exit status for ``exc``, from its type alone (:data:`_EXIT_STATUS`; 2 otherwise)."""
+    from .. import errors
+
+    for name, status in _EXIT_STATUS:
+        if isinstance(exc, getattr(errors, name)):
+            return status
+    return 2
+
+
 def _one_line(exc: BaseException) -> str:
     """An exception as one line of text, in photax's words where we can."""
     if isinstance(exc, OSError) and exc.strerror and not isinstance(exc, FileExistsError):
@@ -234,10 +253,13 @@ def _all_or_nothing(command: list[str]):
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``photax`` console script.
 
-    Exit status: 0 when everything requested was done (every image solved,
-    the adjustment converged); 1 when a run finished but some image was not
-    solved or the adjustment did not converge (its outputs are still
-    written, with a status); 2 for usage and input errors (one line on
+    Exit status, chosen by the outcome or by the type of the error (never
+    its words; :mod:`photax.errors`): 0 when everything requested was done
+    (every image solved, the adjustment converged); 1 when a run finished
+    but some image was not solved or the adjustment did not converge (its
+    outputs are still written, with a status), or when an estimate the
+    command needs did not converge (:class:`photax.errors.NotConvergedError`:
+    nothing written); 2 for usage and input errors (one line on
     stderr, no output written), and for an output that could not be written
     (a full disk, ``ulimit -f``: the message says what was needed and what is
     free; the previous file is kept); 130 on Ctrl-C, at any moment, 143 on
@@ -336,7 +358,7 @@ def _main(argv: list[str] | None) -> int:
         if os.environ.get("PHOTAX_TRACEBACK"):
             raise
         print(f"{command[0]}: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
+        return _exit_status(exc)
     except Exception as exc:  # a bug or a dependency's failure: still one line, no traceback
         if interrupted.is_set():  # e.g. ImportError from a Ctrl-C inside a C extension's start
             return stopped()

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import math
 import os
 import pathlib
+
+from ..errors import UnreadableFileError
 
 # Choices of --convention and --resampling, written out here so that building
 # the parser (``photax --help``) imports neither JAX nor numpy; they must equal
@@ -71,9 +74,9 @@ def input_file(path, what: str) -> pathlib.Path:
         with open(p, "rb"):
             pass
     except PermissionError:
-        raise ValueError(f"{what} {p}: permission denied (cannot read it)") from None
+        raise UnreadableFileError(f"{what} {p}: permission denied (cannot read it)") from None
     except OSError as exc:
-        raise ValueError(f"{what} {p}: cannot read it ({exc.strerror or exc})") from None
+        raise UnreadableFileError(f"{what} {p}: cannot read it ({exc.strerror or exc})") from None
     return p
 
 
@@ -85,7 +88,7 @@ def input_folder(path, what: str) -> pathlib.Path:
     if not p.is_dir():
         raise ValueError(f"{what} {p}: is a file, expected a folder")
     if not os.access(p, os.R_OK | os.X_OK):
-        raise ValueError(f"{what} {p}: permission denied (cannot read it)")
+        raise UnreadableFileError(f"{what} {p}: permission denied (cannot read it)")
     return p
 
 
@@ -174,3 +177,50 @@ def check_crs(orientation_crs, what_orientation: str, dem_crs, what_dem: str) ->
     require_projected(orientation_crs, what_orientation)
     require_projected(dem_crs, what_dem)
     require_same(orientation_crs, what_orientation, dem_crs, what_dem)
+
+
+def add_grid_options(p, *, resolution_help: str, crs_help: str):
+    """The output grid's options, gdalwarp's: ``--resolution`` (``-tr``), ``--bounds`` (``-te``),
+    ``--target-aligned`` (``-tap``), ``--size`` (``-ts``), ``--like`` (a raster's CRS, transform and
+    shape) and ``--crs`` (``-t_srs``), read back by :func:`grid_spec`.  Returns their argument group."""
+    g = p.add_argument_group("output grid (as gdalwarp's -tr, -te, -tap, -ts, -t_srs)")
+    g.add_argument("--resolution", type=float, metavar="RES", help=resolution_help)
+    g.add_argument("--bounds", nargs=4, type=float, metavar=("XMIN", "YMIN", "XMAX", "YMAX"),
+                   help="output extent in the output CRS (gdalwarp -te): the grid covers it whole, its origin at "
+                   "(XMIN, YMAX); with --resolution the far edges are rounded to whole pixels")  # fmt: skip
+    g.add_argument("--target-aligned", action="store_true",
+                   help="with --resolution: edges snapped outwards to multiples of it (gdalwarp -tap), so grids "
+                   "of one resolution line up; a grid over the image's footprint always is")  # fmt: skip
+    g.add_argument("--size", nargs=2, type=int, metavar=("W", "H"),
+                   help="output size in pixels (gdalwarp -ts; one of them 0: square pixels); not with --resolution")  # fmt: skip
+    g.add_argument("--like", metavar="RASTER", help="the CRS, transform and shape of RASTER (no other grid option)")
+    g.add_argument("--crs", metavar="CRS", help=crs_help)
+    return g
+
+
+def grid_spec(args):
+    """The :class:`photax.GridSpec` of :func:`add_grid_options`' options, refusing contradictions
+    (named as the options): ``--size`` with ``--resolution``, ``--target-aligned`` without
+    ``--resolution``, ``--like`` with any other grid option, a resolution not positive."""
+    from ..grid import Grid, GridSpec
+
+    res, bounds, size, like, crs = args.resolution, args.bounds, args.size, args.like, args.crs
+    if res is not None and not (res > 0 and math.isfinite(res)):
+        raise ValueError(f"--resolution must be positive, got {res}")
+    if like is not None:
+        given = [o for o, v in (("--resolution", res), ("--bounds", bounds), ("--size", size), ("--crs", crs)) if v]
+        given += ["--target-aligned"] if args.target_aligned else []
+        if given:
+            raise ValueError(f"--like takes RASTER's CRS, transform and shape: leave out {', '.join(given)}")
+        return GridSpec(like=Grid.like(input_file(like, "--like raster")))
+    if size is not None and res is not None:
+        raise ValueError("--size and --resolution exclude each other (gdalwarp: -ts and -tr)")
+    if args.target_aligned and res is None:
+        raise ValueError("--target-aligned needs --resolution (gdalwarp: -tap needs -tr)")
+    if size is not None and (min(size) < 0 or max(size) == 0):
+        raise ValueError(f"--size W H: whole numbers >= 0, not both 0, got {size[0]} {size[1]}")
+    if bounds is not None and not (bounds[2] > bounds[0] and bounds[3] > bounds[1]):
+        raise ValueError(
+            f"--bounds XMIN YMIN XMAX YMAX: need XMAX > XMIN and YMAX > YMIN, got {' '.join(map(str, bounds))}"
+        )
+    return GridSpec(bounds=bounds, resolution=res, size=size, target_aligned=args.target_aligned, crs=crs)

@@ -14,6 +14,8 @@ import argparse
 import math
 import pathlib
 
+from ..errors import CRSMismatchError
+
 
 def add_parser(sub) -> None:
     p = sub.add_parser(
@@ -220,7 +222,7 @@ def _georeference_inputs(args, inputs: list):
             gnss = {name: eo.position for name, eo in table.items()}
         inputs.append(pathlib.Path(args.gnss))
         if crs is not None and gnss_crs is not None and not _same_crs(crs, gnss_crs):
-            raise ValueError(f"--gnss {args.gnss} is in {gnss_crs}, the GCPs in {crs}: give both in one CRS")
+            raise CRSMismatchError(f"--gnss {args.gnss} is in {gnss_crs}, the GCPs in {crs}: give both in one CRS")
         crs = crs or gnss_crs
     return gcps, gnss, crs
 

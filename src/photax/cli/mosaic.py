@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import pathlib
 
-from ._common import RESAMPLING, input_file, input_folder, plural
+from ._common import RESAMPLING, add_grid_options, grid_spec, input_file, input_folder, plural
 
 
 def add_parser(sub) -> None:
@@ -95,8 +95,15 @@ def add_parser(sub) -> None:
         help="photax camera file or orthority interior YAML",
     )
     b.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
-    b.add_argument("--resolution", type=float, help="ground pixel size (default: the median ground sampling distance)")
-    b.add_argument("--resampling", choices=RESAMPLING, default="bilinear", help="interpolation of the grey values")
+    b.add_argument("--resampling", choices=RESAMPLING, default="bilinear", help="interpolation of the grey values "
+                   "(also of ORTHOs put on another output grid)")  # fmt: skip
+    add_grid_options(
+        p,
+        resolution_help="ground pixel size: of --block's orthos (default: the median ground sampling distance); "
+        "ORTHOs are resampled to it",
+        crs_help="the mosaic's CRS (ORTHOs are reprojected to it; a --block's frames are orthorectified in their "
+        "orientations' CRS, another one is refused)",
+    )
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run, compiles=False)  # but --block does: run() enables the cache then
 
@@ -108,7 +115,7 @@ def run(args) -> int:
     import rasterio
 
     from ..io.atomic import check_output_path
-    from ..mosaicking import heights_on_grid, mosaic_grid, mosaic_to_raster
+    from ..mosaicking import heights_on_grid, mosaic_grid, mosaic_to_raster, warp_to_grid
     from ..progress import progress_bar
 
     if args.chunks < 16:
@@ -128,18 +135,21 @@ def run(args) -> int:
     else:
         if not args.orthos:
             raise ValueError("give the ORTHO files to join, or --block with --images, --camera and --dem")
-        if args.resolution is not None or args.camera or args.images:
-            raise ValueError("--images, --camera and --resolution belong to --block")
+        if args.camera or args.images:
+            raise ValueError("--images and --camera belong to --block")
         inputs = [str(input_file(p, "ortho")) for p in args.orthos]
     for f in (args.dsm, args.dem):
         if f:
             inputs.append(str(input_file(f, "DSM/DEM")))
+    spec = grid_spec(args)  # the output grid, gdalwarp's way: --bounds, --resolution, --target-aligned, --size, --like
+    asked = spec != type(spec)()  # any grid option given
     outs = [o for o in (args.out, args.seamlines, args.source_index) if o]
     if len({pathlib.Path(o).resolve() for o in outs}) < len(outs):
         raise ValueError("-o, --seamlines and --source-index must be different files")
     for o in outs:
         check_output_path(o, inputs)  # fail before the work, not after
     if args.block:  # only here JAX is imported (a mosaic of orthos needs none: ~0.5 s of start-up)
+        from ..grid import check_frame_crs
         from ..io.orientation import block_images, read_interior
         from ..io.raster import read_dem
         from ..rectification import orthorectify_block
@@ -153,6 +163,9 @@ def run(args) -> int:
         for o in outs:
             check_output_path(o, inputs)
         check_crs(crs, f"the block's orientations ({args.block})", dem.crs, f"the DEM ({args.dem})")
+        check_frame_crs(spec, crs if crs is not None else dem.crs)
+        if spec.size is not None and spec.bounds is None:
+            raise ValueError("--size with --block needs --bounds (the orthos' resolution comes from them)")
     out_dir = pathlib.Path(args.out).resolve().parent
     # One bar, "mosaic": the block's images, then every tile (or Dask task) of the mosaic and of its writing.
     with (
@@ -161,13 +174,17 @@ def run(args) -> int:
     ):
         if args.block:
             bar.total = (bar.total or 0) + len(images)
+            fixed = (
+                spec.grid(crs=crs if crs is not None else dem.crs) if spec.fixed else None
+            )  # the orthos made on the mosaic's own lattice
             paths = orthorectify_block(
                 images,
                 exteriors,
                 camera,
                 dem,
                 tmp,
-                resolution=args.resolution,
+                resolution=None if fixed is not None else spec.resolution,
+                grid=fixed,
                 crs=crs,
                 resampling=args.resampling,
                 tile=args.chunks,
@@ -180,12 +197,20 @@ def run(args) -> int:
             grid = mosaic_grid(paths)
             dsm = heights_on_grid(args.dsm, grid)
             dem_on_grid = heights_on_grid(args.dem, grid) if args.dem else None
+        if not paths:
+            raise ValueError("no image of the block overlaps the output grid")
+        target = None
+        if asked:  # the mosaic is made on the orthos' union grid, then put on the grid asked for
+            union = mosaic_grid(paths)
+            target = spec.grid(union.bounds, (abs(union.transform.a), abs(union.transform.e)), union.crs)
+            target = None if target == union else target
+        index = pathlib.Path(tmp) / "index.tif"
         info = {}
         # Orthos up to 1 GiB in all are mosaicked in memory without Dask, xarray or rioxarray (their
         # imports were ~0.8 s of a 1.8 s mosaic of the NGI block); larger ones chunk by chunk on Dask's threads.
         mosaic_to_raster(
             [str(p) for p in paths],
-            args.out,
+            args.out if target is None else pathlib.Path(tmp) / "union.tif",
             method=args.method,
             dsm=dsm,
             dem=dem_on_grid,
@@ -195,10 +220,16 @@ def run(args) -> int:
             chunks=args.chunks,
             info=info,
             seamlines=args.seamlines,
-            source_index=args.source_index,
+            source_index=args.source_index if target is None or not args.source_index else index,
             inputs=inputs,
             progress=bar,
         )
+        if target is not None:
+            warp_to_grid(pathlib.Path(tmp) / "union.tif", args.out, target, resampling=args.resampling,
+                         chunks=args.chunks, inputs=inputs)  # fmt: skip
+            if args.source_index:
+                warp_to_grid(index, args.source_index, target, resampling="nearest", chunks=args.chunks,
+                             inputs=inputs, name="source_index")  # fmt: skip
     with rasterio.open(args.out) as ds:
         nb, rows, cols = ds.count, ds.height, ds.width
     gains = ", ".join("/".join(f"{x:.3f}" for x in np.atleast_1d(g)) for g in info["gains"])  # per band: a/b/c

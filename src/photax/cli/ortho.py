@@ -13,8 +13,14 @@ under one progress bar (:func:`photax.orthorectify_files`): each ortho is ``DIR/
 bit for bit what the command writes for that image alone; the orientation file is parsed once.
 Exit codes: 0 done, 1 some image failed (named on stderr; the others are written), 2 bad input.
 
+The output grid is gdalwarp's (docs/output-grid.md): ``--bounds`` (``-te``), ``--resolution``
+(``-tr``), ``--target-aligned`` (``-tap``), ``--size`` (``-ts``), ``--like RASTER``, ``--crs``
+(``-t_srs``; a frame image's ortho stays in its orientation's CRS: another one is refused with
+:class:`photax.errors.OutputCRSError`).  Without ``--bounds`` the grid covers the footprint, target aligned.
+
 A satellite image with an RPC (``--camera rpc``: the RPC in IMAGE's metadata or side files, as GDAL
-reads them; or ``--camera`` an orthority ``rpc_param.yaml``, a ``.RPB`` or a ``_RPC.TXT``) needs no
+reads them; or ``--camera`` any RPC file, recognised by content: DIMAP, Maxar ISD XML, ``KEY: value`` text,
+``.RPB``, orthority's ``rpc_param.yaml``, rpcm/s2p JSON; ``docs/formats.md``) needs no
 ``--exterior``: the ortho is made in ``--crs`` (default the UTM zone of the scene), optionally after
 refining the RPC on ``--gcps`` (``--refine``, :func:`photax.rpc.refine_rpc`, whose report is
 printed). The DEM's heights must be ellipsoidal (a warning says when its CRS does not say so).
@@ -33,7 +39,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from ._common import NODATA_HELP, RESAMPLING, nodata_value, output_folder, start_gc
+from ._common import NODATA_HELP, RESAMPLING, add_grid_options, grid_spec, nodata_value, output_folder, start_gc
 
 
 def add_parser(sub) -> None:
@@ -70,8 +76,9 @@ def add_parser(sub) -> None:
                    help="photax camera file (see photax resect --help), orthority interior YAML, "
                    "OpenSfM/ODM reconstruction.json or ODM cameras.json, or exif: the camera the image's "
                    "tags describe (DJI DewarpData, else EXIF focal length), as orthority reads it "
-                   "(--interior is an alias); or an RPC: 'rpc' (the one in IMAGE's metadata), an orthority "
-                   "rpc_param.yaml, a .RPB or a _RPC.TXT file; or a photax push-broom camera file (type: "
+                   "(--interior is an alias); or an RPC: 'rpc' (the one in IMAGE's metadata) or any RPC file "
+                   "(DIMAP, Maxar XML, KEY: value text, .RPB, orthority rpc_param.yaml, rpcm/s2p JSON; read "
+                   "by content); or a photax push-broom camera file (type: "
                    "pushbroom)")  # fmt: skip
     p.add_argument("--exterior",
                    help="photax resect or bundle -o result (the image named like IMAGE when it holds "
@@ -83,7 +90,13 @@ def add_parser(sub) -> None:
     out = p.add_mutually_exclusive_group(required=True)
     out.add_argument("-o", "--out", metavar="OUT_TIF", help="output GeoTIFF (one IMAGE)")
     out.add_argument("--out-dir", metavar="DIR", help="output folder: DIR/STEM_ortho.tif for each IMAGE")
-    p.add_argument("--resolution", type=float, help="ground pixel size (default: the mean ground sampling distance)")
+    add_grid_options(
+        p,
+        resolution_help="ground pixel size (gdalwarp -tr; default: the mean ground sampling distance)",
+        crs_help="output CRS (EPSG code, PROJ or WKT): for an RPC or push-broom image any (default the WGS84 UTM "
+        "zone of the scene); a frame image's ortho is in its orientation's CRS (another one is refused: reproject "
+        "the ortho afterwards)",
+    )
     p.add_argument(
         "--resampling",
         choices=RESAMPLING,
@@ -100,8 +113,6 @@ def add_parser(sub) -> None:
         "DIR/ext_param.csv (+ .prj) and, with a CRS, DIR/ext_param.geojson (oty ortho reads them); RPC images: "
         "their raw RPCs as DIR/rpc_param.yaml (oty rpc --rpc-file)",
     )
-    p.add_argument("--crs", help="RPC camera only: the output CRS (EPSG code, PROJ or WKT; default the "
-                   "WGS84 UTM zone of the scene)")  # fmt: skip
     p.add_argument("--gcps", metavar="GCP_FILE", help="RPC camera only: GCPs to refine the RPC with (any "
                    "format photax reads: orthority GeoJSON, CSV, ODM; those of IMAGE, or without an image name for one "
                    "IMAGE; with several, each refined on its own)")  # fmt: skip
@@ -115,11 +126,19 @@ def run(args: argparse.Namespace) -> int:
     if _is_ground(args.camera):
         start_gc()  # refining RPCs traces JAX functions: their cyclic garbage is collected
         return _run_ground(args)
-    rpc_only = [o for o, v in (("--crs", args.crs), ("--gcps", args.gcps), ("--refine", args.refine)) if v is not None]
+    import os
+
+    from ..io.satellite import families
+
+    # a camera file that is not an RPC: say so, with what photax recognises as one
+    rpc = f"; {args.camera} is no RPC file photax reads ({families()})" if os.path.isfile(args.camera) else ""
+    rpc_only = [o for o, v in (("--gcps", args.gcps), ("--refine", args.refine)) if v is not None]
     if rpc_only:
-        raise ValueError(f"{', '.join(rpc_only)}: for an RPC camera only (a frame's CRS is its orientation's)")
+        raise ValueError(f"{', '.join(rpc_only)}: for an RPC camera only{rpc}")
     if args.exterior is None:
-        raise ValueError("--exterior is required with a frame camera (only an RPC camera carries its orientation)")
+        raise ValueError(
+            f"--exterior is required with a frame camera (only an RPC camera carries its orientation{rpc})"
+        )
     if args.out_dir is not None:
         return _run_block(args)
     if len(args.image) > 1:
@@ -167,7 +186,7 @@ def _run_one(args: argparse.Namespace) -> int:
     dem = dem if dem is not None else _flat_dem(args.height, exterior)
     if args.dem is not None:
         check_crs(crs, f"the orientation ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
-    grid = ortho_grid(exterior, camera, dem, args.resolution, crs=crs)
+    grid = ortho_grid(exterior, camera, dem, crs=crs, spec=grid_spec(args))
     _export_params(args, camera, {pathlib.Path(args.image).name: exterior}, crs)
     start_gc()
     orthorectify_file(
@@ -190,12 +209,14 @@ def _run_block(args: argparse.Namespace) -> int:
     """Every IMAGE into --out-dir, in one process: a failed image is named, the others written (exit 1)."""
     import pathlib
 
+    from ..grid import check_frame_crs
     from ..io.orientation import read_exterior, read_exteriors
     from ..io.raster import read_dem
     from ..rectification import orthorectify_files
     from ._common import check_crs, input_file
 
     _check_inputs(args)
+    spec = grid_spec(args)
     outputs = _block_outputs(args, [args.dem, args.camera, args.exterior])
     camera = _read_camera(args, args.image)
     dem = read_dem(args.dem) if args.dem is not None else None
@@ -220,7 +241,8 @@ def _run_block(args: argparse.Namespace) -> int:
     exteriors = [table[args.image[k]] for k in todo]
     if dem is not None:
         check_crs(crs, f"the orientations ({args.exterior})", dem.crs, f"the DEM ({args.dem})")
-    else:
+    check_frame_crs(spec, crs if crs is not None or dem is None else dem.crs)  # a usage error, not each image's
+    if dem is None:
         dem = _flat_dem(args.height, exteriors) if exteriors else None
     if exteriors:
         _export_params(args, camera, {pathlib.Path(args.image[k]).name: table[args.image[k]] for k in todo}, crs)
@@ -232,12 +254,12 @@ def _run_block(args: argparse.Namespace) -> int:
             exteriors,
             camera,
             dem,
-            resolution=args.resolution,
             crs=crs,
             resampling=args.resampling,
             nodata=args.nodata,
             tile=args.tile,
             progress=args.progress and args.command,
+            spec=spec,
         )
         if todo
         else []
@@ -364,26 +386,25 @@ def _flat_dem(height: float, exterior):
 
 
 def _is_ground(camera: str) -> bool:
-    """``--camera rpc``, a ``.RPB`` / ``_RPC.TXT`` file, a YAML file of orthority's RPC format, or a
-    photax push-broom camera file: a camera that carries its own orientation."""
+    """``--camera rpc``, a file of any RPC family photax reads (by content:
+    :data:`photax.io.satellite.FORMATS`), or a photax push-broom camera file: a camera that carries its
+    own orientation."""
     import pathlib
 
+    from ..errors import UnsupportedFormatError
     from ..io.pushbroom_file import is_pushbroom_file
+    from ..io.satellite import rpc_format
 
     path = pathlib.Path(camera)
-    if camera == "rpc" or path.suffix.lower() == ".rpb" or path.name.upper().endswith("_RPC.TXT"):
+    if camera == "rpc" or is_pushbroom_file(path):
         return True
-    if is_pushbroom_file(path):
-        return True
-    if path.suffix.lower() not in (".yaml", ".yml") or not path.is_file():
-        return False
-    import yaml
-
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+    if not path.is_file():
         return False  # the frame readers say what is wrong with it
-    return isinstance(doc, dict) and any(isinstance(v, dict) and "rpc" in v for v in doc.values())
+    try:
+        rpc_format(path)
+    except (UnsupportedFormatError, OSError, ValueError):
+        return False  # not an RPC file: a frame camera file, whose readers say what is wrong with it
+    return True
 
 
 def _run_ground(args: argparse.Namespace) -> int:
@@ -396,6 +417,7 @@ def _run_ground(args: argparse.Namespace) -> int:
     from ..io.atomic import check_output_path
     from ..io.pushbroom_file import is_pushbroom_file
     from ..io.raster import read_dem
+    from ..io.satellite import rpc_images
     from ..rectification import orthorectify_files
     from ._common import ground_unit, input_file
 
@@ -409,8 +431,8 @@ def _run_ground(args: argparse.Namespace) -> int:
         input_file(args.dem, "DEM")
     elif not math.isfinite(args.height):
         raise ValueError(f"--height must be a finite number, got {args.height}")
-    if args.resolution is not None and not args.resolution > 0:
-        raise ValueError(f"--resolution must be positive, got {args.resolution}")
+    spec = grid_spec(args)
+    crs = spec.like.crs if spec.like is not None else args.crs
     source = None if args.camera == "rpc" else input_file(args.camera, "camera file")
     pushbroom = source is not None and is_pushbroom_file(source)
     if args.export_params is not None and (pushbroom or args.gcps is not None):
@@ -423,11 +445,11 @@ def _run_ground(args: argparse.Namespace) -> int:
             "--gcps: refines an RPC; a push-broom model's orbit and attitude are adjusted on GCPs by "
             "photax.resect_pushbroom (Python), whose camera write_pushbroom writes for --camera"
         )
-    if source is not None and len(args.image) > 1 and (pushbroom or source.suffix.lower() not in (".yaml", ".yml")):
+    if source is not None and len(args.image) > 1 and (pushbroom or rpc_images(source) is None):
         raise ValueError(
             f"--camera {source}: one {'push-broom camera' if pushbroom else 'RPC'} for {len(args.image)} images; "
             "give each image its own (--camera rpc: the RPC in each image or in the .RPB / _RPC.TXT beside it; "
-            "or a rpc_param.yaml naming every image)"
+            "or a file naming every image: orthority's rpc_param.yaml, s2p's config.json)"
         )
     inputs = [args.dem, source, args.gcps]
     if args.out_dir is not None:
@@ -454,17 +476,19 @@ def _run_ground(args: argparse.Namespace) -> int:
                 try:
                     cameras[image] = _refine(cameras[image], args.gcps, image, args.refine or "shift", not single)
                 except ValueError as exc:
-                    raise ValueError(str(exc) if single else f"{image}: {exc}") from None
+                    if single:
+                        raise
+                    raise _about(exc, image) from None
         cams = [cameras[args.image[k]] for k in todo]
-        dem = read_dem(args.dem) if args.dem is not None else [_flat_ground(args.height, c, args.crs) for c in cams]
+        dem = read_dem(args.dem) if args.dem is not None else [_flat_ground(args.height, c, crs) for c in cams]
         results = orthorectify_files(
             [args.image[k] for k in todo],
             [outputs[k] for k in todo],
             None,
             cams,
             dem,
-            resolution=args.resolution,
-            crs=args.crs,
+            spec=spec,
+            crs=crs,
             resampling=args.resampling,
             nodata=args.nodata,
             tile=args.tile,
@@ -481,32 +505,41 @@ def _run_ground(args: argparse.Namespace) -> int:
     return 0
 
 
+def _about(exc: ValueError, image) -> ValueError:
+    """``exc`` with ``IMAGE: `` before its message, of the same type where that type takes one message
+    (so that the exit status, chosen by type, is the same for one image of a block as for a lone one)."""
+    try:
+        return type(exc)(f"{image}: {exc}")
+    except TypeError:  # a type with another signature: a plain ValueError
+        return ValueError(f"{image}: {exc}")
+
+
 def _image_camera(source, image, several: bool, pushbroom: bool):
     """IMAGE's camera: a push-broom camera file (``pushbroom``); or its RPC: from the image (``source``
-    None: its metadata or the side files GDAL reads), its entry of an orthority ``rpc_param.yaml`` (by
-    file name; a one-entry file named otherwise for a lone image), or a ``.RPB`` / ``_RPC.TXT`` file;
+    None: its metadata or the side files GDAL reads), its entry of a file of one RPC per image
+    (orthority's ``rpc_param.yaml``, s2p's ``config.json``: by file name; a one-entry file named
+    otherwise for a lone image), or any other RPC file (by content, :func:`photax.io.satellite.read_rpc`);
     its image size the image's where the file has none."""
     from ..io.pushbroom_file import read_pushbroom
     from ..io.raster import open_raster
-    from ..rpc import read_rpc
+    from ..io.satellite import read_rpc, rpc_images
 
     if pushbroom:
         return read_pushbroom(source)
     if source is None:
         camera = read_rpc(image)
-    elif source.suffix.lower() in (".yaml", ".yml"):
-        try:
-            camera = read_rpc(source, image.name)
-        except ValueError as exc:
-            if several or "no entry" not in str(exc):
-                raise
-            camera = read_rpc(source)  # a file of one entry named otherwise
     else:
-        camera = read_rpc(source)
+        names = rpc_images(source)
+        if names is None:
+            camera = read_rpc(source)
+        elif image.name in names or several or len(names) != 1:
+            camera = read_rpc(source, image.name)
+        else:
+            camera = read_rpc(source)  # a file of one entry named otherwise
     if camera.image_size is None:
         with open_raster(image) as src:
             size = (src.width, src.height)
-        camera = type(camera)(camera.coefficients, camera.offsets, camera.scales, camera.correction, size)
+        camera = camera.replace(image_size=size)
     return camera
 
 
@@ -514,7 +547,8 @@ def _flat_ground(height: float, camera, crs):
     """``--height`` under a ground camera: flat ground over its validity box, in the output CRS
     (``crs``, default the UTM zone of its scene, as :func:`photax.ortho_grid` takes it)."""
     from ..dem import DEM
-    from ..sensor import GroundSensor, utm_crs
+    from ..geo import utm_crs
+    from ..sensor import GroundSensor
 
     crs = crs if crs is not None else utm_crs(*(float(v) for v in camera.ground_box()[0]))
     dem = DEM.flat(height, GroundSensor(camera, crs).box())

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from ._common import NODATA_HELP, RESAMPLING, nodata_value
+from ._common import NODATA_HELP, RESAMPLING, add_grid_options, grid_spec, nodata_value
 
 MODELS = ("polynomial", "tps", "piecewise-affine")
 
@@ -40,7 +40,12 @@ def add_parser(sub) -> None:
     )
     p.add_argument("--order", type=int, default=None, help="polynomial order 1-5 (default 1); --model polynomial only")
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output GeoTIFF")
-    p.add_argument("--resolution", type=float, help="map pixel size (default: the mean GCP scale)")
+    add_grid_options(
+        p,
+        resolution_help="map pixel size (gdalwarp -tr; default: the mean GCP scale)",
+        crs_help="projected CRS of the output, the GCPs reprojected to it (default: the GCPs' own; "
+        "longitude/latitude GCPs go to the UTM zone of the points)",
+    )
     p.add_argument(
         "--resampling",
         choices=RESAMPLING,
@@ -48,12 +53,6 @@ def add_parser(sub) -> None:
         help="resampling kernel (default: bilinear; nearest for a palette image, which takes no other)",
     )
     p.add_argument("--image-name", metavar="NAME", help="which image of a multi-image GCP file")
-    p.add_argument(
-        "--crs",
-        metavar="CRS",
-        help="projected CRS of the output, the GCPs reprojected to it (default: the GCPs' own; "
-        "longitude/latitude GCPs go to the UTM zone of the points)",
-    )
     p.add_argument("--nodata", type=nodata_value, metavar="VALUE", help=NODATA_HELP)
     p.add_argument("--tile", type=int, default=1024, help="output tile size in pixels (memory ~ tile^2)")
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
@@ -65,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from ..grid import Grid, check_resolution
+    from ..grid import check_resolution
     from ..io.atomic import check_output_path
     from ..io.gcp import read_gcps
     from ..polynomial import fit_piecewise_affine, fit_polynomial, fit_tps
@@ -77,8 +76,9 @@ def run(args: argparse.Namespace) -> int:
     order = 1 if args.order is None else args.order
     image = input_file(args.image, "image")
     gcp_path = input_file(args.gcps, "GCP file")
+    spec = grid_spec(args)
     check_output_path(args.out, [image, gcp_path])  # fail before the work, not after
-    table = read_gcps(gcp_path, crs=args.crs)
+    table = read_gcps(gcp_path, crs=spec.like.crs if spec.like is not None else args.crs)
     names = table.image_names
     if args.image_name is not None or len(names) > 1:
         stem = pathlib.Path(args.image).name
@@ -102,13 +102,11 @@ def run(args: argparse.Namespace) -> int:
     # Map units per pixel from the GCP spread (square root of the area ratio): the image's sampling distance.
     span = np.ptp(ground, axis=0).prod() / max(np.ptp(pixel, axis=0).prod(), 1e-12)
     gsd = float(np.sqrt(span))
-    resolution = gsd if args.resolution is None else args.resolution
-    if not resolution > 0:
-        raise ValueError(f"--resolution must be positive, got {resolution}")
     bounds = (*ground.min(axis=0), *ground.max(axis=0))
-    if args.resolution is not None:
-        check_resolution(resolution, gsd, bounds, "the GCPs' footprint")
-    grid = Grid.from_bounds(bounds, resolution, crs=table.crs)
+    if args.resolution is not None and spec.bounds is None:
+        check_resolution(args.resolution, gsd, bounds, "the GCPs' footprint")
+    grid = spec.grid(bounds, gsd, table.crs)
+    resolution = abs(grid.transform.a)
     rectify_file(
         image,
         args.out,

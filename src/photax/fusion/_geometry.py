@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import CRSMismatchError
+
 
 def _affine(transform):
     from rasterio import Affine
@@ -45,7 +47,7 @@ def _to_pixels(x, y, transform):
 def _reproject_points(x, y, src_crs, dst_crs):
     if src_crs is None or dst_crs is None:
         if (src_crs is None) != (dst_crs is None):
-            raise ValueError("one raster has a CRS and the other none: give both or neither")
+            raise CRSMismatchError("one raster has a CRS and the other none: give both or neither")
         return x, y
     from rasterio.crs import CRS
     from rasterio.warp import transform

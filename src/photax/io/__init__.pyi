@@ -98,3 +98,8 @@ from .raster import (
 )
 from .results import read_json as read_json
 from .results import write_json as write_json
+from .satellite import read_rpc as read_rpc
+from .satellite import read_sensor as read_sensor
+from .satellite import rpc_format as rpc_format
+from .satellite import rpc_images as rpc_images
+from .satellite import write_rpc as write_rpc

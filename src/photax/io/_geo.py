@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import CRSMismatchError, OutsideValidityError
+
 #: WGS84 ellipsoid (EPSG:7030).
 _A, _F = 6378137.0, 1.0 / 298.257223563
 _E2 = _F * (2.0 - _F)
@@ -25,20 +27,12 @@ def projected_crs(text, what: str = "crs"):
     try:
         crs = pyproj.CRS.from_user_input(text)
     except pyproj.exceptions.CRSError as exc:
-        raise ValueError(f"{what}: not a CRS ({' '.join(str(exc).split())[:120]})") from None
+        raise CRSMismatchError(f"{what}: not a CRS ({' '.join(str(exc).split())[:120]})") from None
     if crs.is_compound:  # a DEM's horizontal + vertical CRS: positions go to the horizontal one
         crs = crs.sub_crs_list[0]
     if not crs.is_projected:
-        raise ValueError(f"{what}: {crs.name!r} is not a projected CRS (x, y in metres are needed)")
+        raise CRSMismatchError(f"{what}: {crs.name!r} is not a projected CRS (x, y in metres are needed)")
     return crs
-
-
-def utm_crs(latitude: float, longitude: float):
-    """The WGS84 UTM zone of a point (EPSG:326zz north, 327zz south), as orthority and ODM choose it."""
-    import pyproj
-
-    zone = int(np.floor((longitude + 180.0) / 6.0) % 60) + 1
-    return pyproj.CRS.from_epsg((32600 if latitude >= 0 else 32700) + zone)
 
 
 def _check_lla(lat, lon, h, what):
@@ -87,7 +81,7 @@ def project_lla(lat, lon, h, crs) -> np.ndarray:
     x, y, z = t.transform(lon, lat, h)
     out = np.stack(np.broadcast_arrays(x, y, z), axis=-1).astype(float)
     if not np.all(np.isfinite(out)):
-        raise ValueError(f"positions outside the area of {crs.name!r}")
+        raise OutsideValidityError(f"positions outside the area of {crs.name!r}")
     return out
 
 
@@ -153,5 +147,5 @@ def projected_to_topocentric(xyz, reference_lla, crs) -> np.ndarray:
     t = pyproj.Transformer.from_crs(crs, "EPSG:4979", always_xy=True)
     lon, lat, h = (np.asarray(v) for v in t.transform(xyz[..., 0], xyz[..., 1], xyz[..., 2]))
     if not (np.all(np.isfinite(lat)) and np.all(np.isfinite(lon)) and np.all(np.isfinite(h))):
-        raise ValueError(f"positions outside the area of {crs.name!r}")
+        raise OutsideValidityError(f"positions outside the area of {crs.name!r}")
     return (ecef(lat, lon, h) - ecef(lat0, lon0, h0)) @ ecef_from_enu(lat0, lon0)

@@ -37,6 +37,7 @@ import numpy as np
 from ..bundle import BundleProblem, BundleResult
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
+from ..errors import UnreadableFileError
 from ..rotation import angles_from_matrix, axis_angle_to_matrix, matrix_to_axis_angle
 from .atomic import atomic_write
 from .files import MAX_BYTES, excerpt, read_bytes, where
@@ -86,7 +87,7 @@ def _read_bytes(path: pathlib.Path) -> bytes:
                 f"{path}: decompresses to over {limit / 2**30:.3g} GiB, too large for a BAL file"
             ) from None
         except (OSError, ValueError, EOFError) as exc:
-            raise ValueError(f"{path}: not a readable bzip2 file ({exc})") from None
+            raise UnreadableFileError(f"{path}: not a readable bzip2 file ({exc})") from None
         return b"".join(out)
     return raw
 

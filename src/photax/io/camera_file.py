@@ -70,6 +70,7 @@ import numpy as np
 import yaml
 
 from ..camera import DISTORTION_MODELS, FrameCamera
+from ..errors import DegenerateGeometryError
 from .atomic import atomic_write
 from .files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, where
 
@@ -290,7 +291,7 @@ def _scanned(path, data, f, distortion, pixel_size, size, unit):
     with np.errstate(divide="ignore", invalid="ignore"):
         mean_scale = transform.scale()
     if not (np.isfinite(mean_scale) and mean_scale > 0):
-        raise ValueError(f"{_at(path, scan, 'params')}: scan.params is a singular transformation")
+        raise DegenerateGeometryError(f"{_at(path, scan, 'params')}: scan.params is a singular transformation")
     return ScannedCamera(
         f, pp, distortion, transform=transform, image_size=size, pixel_size=None if pixel_size is None else pixel_size
     )

@@ -33,80 +33,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..errors import OutsideValidityError
 
-def _parse(crs):
-    from rasterio.crs import CRS
-    from rasterio.errors import CRSError
-
-    if crs is None or crs == "":
-        return None
-    try:
-        return CRS.from_user_input(crs)
-    except (CRSError, ValueError, TypeError):
-        return None
-
-
-def describe(crs) -> str:
-    """A short name of ``crs``: ``EPSG:32633`` when it has a code, else its PROJ string or text."""
-    c = _parse(crs)
-    if c is None:
-        return "no CRS" if crs is None or crs == "" else str(crs)[:80]
-    code = c.to_epsg()
-    if code is not None:
-        return f"EPSG:{code}"
-    text = c.to_proj4() or c.to_string()
-    return text if len(text) <= 80 else text[:77] + "..."
-
-
-def require_projected(crs, what: str) -> None:
-    """ValueError when ``crs`` (of ``what``, e.g. "the DEM") is geographic."""
-    c = _parse(crs)
-    if c is not None and c.is_geographic:
-        raise ValueError(
-            f"{what} is in a geographic CRS ({describe(crs)}, degrees); photax needs ground "
-            "coordinates in metres: reproject it to a projected CRS (e.g. its UTM zone)"
-        )
-
-
-def require_same(a, what_a: str, b, what_b: str) -> None:
-    """ValueError naming both when ``a`` and ``b`` are both known and differ."""
-    ca, cb = _parse(a), _parse(b)
-    if ca is None or cb is None or ca == cb or _same_horizontal(ca, cb):
-        return
-    raise ValueError(
-        f"{what_a} is in {describe(a)} but {what_b} in {describe(b)}; photax does not reproject "
-        f"between them (a DEM: gdalwarp -t_srs {describe(a)} dem.tif dem_reprojected.tif)"
-    )
-
-
-def _horizontal(crs):
-    """The horizontal part of a rasterio CRS, as a pyproj CRS (a compound CRS's first component)."""
-    import pyproj
-
-    c = pyproj.CRS.from_wkt(crs.to_wkt())
-    return c.sub_crs_list[0] if c.is_compound else c
-
-
-def _same_horizontal(a, b) -> bool:
-    try:
-        return _horizontal(a).equals(_horizontal(b), ignore_axis_order=True)
-    except Exception:  # noqa: BLE001 -- a CRS pyproj cannot read: not the same
-        return False
-
-
-def check_dem(dem, grid=None) -> None:
-    """A DEM for the collinearity equations: projected, and in the output grid's CRS when both have one."""
-    require_projected(dem.crs, "the DEM")
-    if grid is not None:
-        require_same(dem.crs, "the DEM", grid.crs, "the output grid")
-
-
-def same_crs(a, b) -> bool:
-    """Whether two CRSs are the same (rasterio equality, or the same horizontal part); an unknown one
-    (None, unreadable) is the same as anything, as in :func:`require_same`."""
-    ca, cb = _parse(a), _parse(b)
-    return ca is None or cb is None or ca == cb or _same_horizontal(ca, cb)
-
+# The comparisons live in photax.geo (the models' and estimators' floor, which imports no io); re-exported
+# here, where the readers and the CLI have always found them.
+from ..geo import check_dem, describe, require_projected, require_same, same_crs  # noqa: F401
 
 # --- vertical datums -------------------------------------------------------------------------
 
@@ -191,7 +122,7 @@ def _move_heights(lat, lon, h, crs, inverse: bool) -> np.ndarray:
         out = transformer.transform(lon, lat, h)[2]
     out = np.asarray(out, dtype=float)
     if not np.all(np.isfinite(out)):
-        raise ValueError(f"heights outside the area of the grid of {vertical.name!r}")
+        raise OutsideValidityError(f"heights outside the area of the grid of {vertical.name!r}")
     return out
 
 

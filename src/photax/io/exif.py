@@ -47,6 +47,7 @@ import re
 import numpy as np
 
 from ..collinearity import ExteriorOrientation
+from ..errors import UnsupportedFormatError
 from .files import check_regular
 
 _DJI = "{http://www.dji.com/drone-dji/1.0/}"
@@ -164,7 +165,7 @@ def read_drone_tags(path) -> DroneTags:
                 xmp_text = ds.tags(ns="xml:XMP").get("xml:XMP", "")
                 size = (int(ds.width), int(ds.height))
     except RasterioIOError as exc:
-        raise ValueError(f"{path}: not an image GDAL reads ({' '.join(str(exc).split())[:120]})") from None
+        raise UnsupportedFormatError(f"{path}: not an image GDAL reads ({' '.join(str(exc).split())[:120]})") from None
     xmp = _xmp(path, xmp_text) if xmp_text else {}
 
     def one(value, key, lo=-math.inf, hi=math.inf):
@@ -271,7 +272,8 @@ def exterior_from_tags(tags, attitude: str = "gimbal", crs=None) -> tuple[dict[s
     Raises:
         ValueError: naming the image: no position or no such attitude tagged.
     """
-    from ._geo import projected_crs, utm_crs
+    from ..geo import utm_crs
+    from ._geo import projected_crs
     from .orthority import BODY_FROM_CAMERA, lla_rpy_to_xyz_opk
 
     if attitude not in ATTITUDES:
@@ -294,7 +296,9 @@ def exterior_from_tags(tags, attitude: str = "gimbal", crs=None) -> tuple[dict[s
         lla.append((t.latitude, t.longitude, t.altitude))
         rpy.append(angles)
     lla, rpy = np.asarray(lla, dtype=float), np.radians(np.asarray(rpy, dtype=float))
-    target = projected_crs(crs) if crs is not None else utm_crs(lla[:, 0].mean(), lla[:, 1].mean())
+    target = (
+        projected_crs(crs) if crs is not None else projected_crs(utm_crs(lon=lla[:, 1].mean(), lat=lla[:, 0].mean()))
+    )
     mount = GIMBAL_FROM_CAMERA if attitude == "gimbal" else BODY_FROM_CAMERA
     try:
         xyz, opk = lla_rpy_to_xyz_opk(lla, rpy, target, body_from_camera=mount)

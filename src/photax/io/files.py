@@ -23,6 +23,8 @@ import stat
 import numpy as np
 import yaml
 
+from ..errors import UnreadableFileError
+
 
 def where(path, line: int | None = None) -> str:
     """``"path, line n"``, or ``"path"`` when ``line`` is None."""
@@ -103,11 +105,11 @@ def check_regular(path, what: str = "file", st: os.stat_result | None = None) ->
         except FileNotFoundError:
             raise FileNotFoundError(f"{path}: no such {what}") from None
         except OSError as exc:
-            raise ValueError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+            raise UnreadableFileError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
     if stat.S_ISDIR(st.st_mode):
-        raise ValueError(f"{path}: is a folder, expected a {what}")
+        raise UnreadableFileError(f"{path}: is a folder, expected a {what}")
     if not stat.S_ISREG(st.st_mode):
-        raise ValueError(f"{path}: {_kind(st.st_mode)}, not a regular file; expected a {what}")
+        raise UnreadableFileError(f"{path}: {_kind(st.st_mode)}, not a regular file; expected a {what}")
     return st
 
 
@@ -142,7 +144,7 @@ def read_bytes(path, what: str = "file") -> bytes:
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: no such {what}") from None
     except OSError as exc:  # PermissionError, EIO, ...
-        raise ValueError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+        raise UnreadableFileError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
     with open(fd, "rb", closefd=True) as fh:
         st = check_regular(path, what, os.fstat(fd))
         if st.st_size > limit:
@@ -150,7 +152,7 @@ def read_bytes(path, what: str = "file") -> bytes:
         try:
             raw = fh.read(limit + 1)  # a file growing while read is still bounded
         except OSError as exc:
-            raise ValueError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
+            raise UnreadableFileError(f"{path}: cannot read the {what} ({exc.strerror or exc})") from None
     if len(raw) > limit:
         raise _too_large(path, what, limit, limit, over=True)
     return raw

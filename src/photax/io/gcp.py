@@ -80,6 +80,7 @@ from typing import Literal
 
 import numpy as np
 
+from ..errors import CRSMismatchError, OutsideValidityError, UnsupportedFormatError
 from .files import as_numbers, excerpt, file_error, number, read_text, split_lines
 
 _ROLES = ("control", "check")
@@ -220,7 +221,7 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm", "qgis", "geojson"] 
     lines = split_lines(text)
     numbered = [(i + 1, s) for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")]
     if format not in _FORMATS:
-        raise ValueError(f"format must be one of {', '.join(map(repr, _FORMATS))}, got {format!r}")
+        raise UnsupportedFormatError(f"format must be one of {', '.join(map(repr, _FORMATS))}, got {format!r}")
     if format == "auto" and text.lstrip().startswith("{"):
         format = "geojson"
     if format == "geojson":
@@ -291,18 +292,21 @@ def _projected(path, ground, source_text, target_text, lines, unit="line") -> tu
     their mean position) and the CRS text; heights unchanged."""
     import pyproj
 
-    from ._geo import projected_crs, utm_crs
+    from ..geo import utm_crs
+    from ._geo import projected_crs
 
     target = None if target_text is None else projected_crs(target_text, "crs")
     source = None if source_text is None else _parse_crs(source_text)
     if source is None:
         if source_text is not None and target is not None:
-            raise ValueError(f"{path}: its CRS {excerpt(source_text)} is not one pyproj reads; cannot reproject it")
+            raise CRSMismatchError(
+                f"{path}: its CRS {excerpt(source_text)} is not one pyproj reads; cannot reproject it"
+            )
         if source_text is None and target is not None:  # the caller says what the coordinates are
             return ground, str(target_text)
         return ground, source_text
     if not (source.is_geographic or source.is_projected):
-        raise ValueError(f"{path}: CRS {source.name!r} is neither geographic nor projected")
+        raise CRSMismatchError(f"{path}: CRS {source.name!r} is neither geographic nor projected")
     if source.is_geographic:
         lon, lat = ground[:, 0], ground[:, 1]
         bad = ~((np.abs(lat) <= 90) & (np.abs(lon) <= 360))
@@ -313,7 +317,7 @@ def _projected(path, ground, source_text, target_text, lines, unit="line") -> tu
                 f"but x {lon[i]:g}, y {lat[i]:g} is not a longitude, latitude in degrees"
             )
         if target is None:
-            target = utm_crs(float(np.mean(lat)), float(np.mean(lon)))
+            target = projected_crs(utm_crs(lon=np.mean(lon), lat=np.mean(lat)))
     elif target is None or target == source:
         return ground, source_text
     t = pyproj.Transformer.from_crs(source, target, always_xy=True)
@@ -322,7 +326,7 @@ def _projected(path, ground, source_text, target_text, lines, unit="line") -> tu
     bad = ~np.all(np.isfinite(out[:, :2]), axis=1)
     if bad.any():
         where = lines[int(np.flatnonzero(bad)[0])]
-        raise ValueError(f"{path}, {unit} {where}: outside the area of {target.name!r}")
+        raise OutsideValidityError(f"{path}, {unit} {where}: outside the area of {target.name!r}")
     epsg = target.to_epsg()
     return out, (f"EPSG:{epsg}" if epsg is not None else target.to_wkt())
 
@@ -728,7 +732,7 @@ def write_gcps(path, table: GCPTable, *, format: str = "auto", inputs=()) -> pat
         suffix = pathlib.Path(path).suffix.lower()
         format = {".points": "qgis", ".geojson": "geojson", ".json": "geojson"}.get(suffix, "csv")
     if format not in ("csv", "qgis", "geojson"):
-        raise ValueError(f"format must be 'auto', 'csv', 'qgis' or 'geojson', got {format!r}")
+        raise UnsupportedFormatError(f"format must be 'auto', 'csv', 'qgis' or 'geojson', got {format!r}")
     if not isinstance(table, GCPTable):
         raise ValueError(f"table: expected a GCPTable, got {type(table).__name__}")
     pix = table.pixel is not None

@@ -64,6 +64,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
+from ..errors import UnsupportedFormatError
 from .files import excerpt, file_error, head_text, number, read_text, split_lines
 
 _TERMS = ("f", "cx", "cy", "b1", "b2", "k1", "k2", "k3", "k4", "p1", "p2", "p3", "p4")
@@ -283,7 +284,7 @@ def write_opk_export(table: dict, path, *, format: str = "metashape", inputs=())
     from .atomic import atomic_write
 
     if format not in ("metashape", "pix4d"):
-        raise ValueError(f"format must be 'metashape' or 'pix4d', got {format!r}")
+        raise UnsupportedFormatError(f"format must be 'metashape' or 'pix4d', got {format!r}")
     if not table:
         raise ValueError("no orientations to write")
     lines = []

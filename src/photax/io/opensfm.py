@@ -69,6 +69,8 @@ import numpy as np
 
 from ..camera import DISTORTION_MODELS, FrameCamera, from_opencv_extrinsics, opencv_extrinsics
 from ..collinearity import ExteriorOrientation
+from ..errors import OutsideValidityError
+from ..geo import utm_crs
 from ..rotation import angles_from_matrix, axis_angle_to_matrix, matrix_to_axis_angle
 from ._geo import (
     project_lla,
@@ -76,7 +78,6 @@ from ._geo import (
     projected_to_topocentric,
     reproject,
     topocentric_to_projected,
-    utm_crs,
 )
 from .files import as_numbers, excerpt, file_error, load_json, read_text
 
@@ -223,7 +224,7 @@ def read_opensfm_shots(
                 path, None, f"reconstruction {k}: 'reference_lla' must hold a latitude, longitude and altitude"
             )
         if target is None:
-            target = projected_crs(crs, "crs") if crs is not None else utm_crs(lla[0], lla[1])
+            target = projected_crs(crs, "crs") if crs is not None else projected_crs(utm_crs(lon=lla[1], lat=lla[0]))
         names, rvecs, tvecs, gps = [], [], [], []
         for name, shot in rec["shots"].items():
             stem = pathlib.PurePath(str(name)).stem
@@ -267,7 +268,7 @@ def read_opensfm_shots(
 def _to_grid(centre, r_frame, gps, lla, crs, frame):
     """Shot centres and world_from_camera rotations in the reconstruction's frame ->
     projected positions and rotations in ``crs`` (module docstring)."""
-    utm = utm_crs(lla[0], lla[1])  # ODM's grid-aligned frame is its UTM zone's
+    utm = projected_crs(utm_crs(lon=lla[1], lat=lla[0]))  # ODM's grid-aligned frame is its UTM zone's
     xyz_t, grid_from_topo = topocentric_to_projected(centre, lla, utm)
     xyz_g = project_lla(*lla, utm) + centre
     if frame is None:
@@ -461,7 +462,7 @@ def _to_lla(xyz, crs) -> tuple[float, float, float]:
     t = pyproj.Transformer.from_crs(crs, "EPSG:4979", always_xy=True)
     lon, lat, h = (float(v) for v in t.transform(*xyz))
     if not all(np.isfinite((lon, lat, h))):
-        raise ValueError(f"positions outside the area of {crs.name!r}")
+        raise OutsideValidityError(f"positions outside the area of {crs.name!r}")
     return lon, lat, h
 
 
@@ -469,7 +470,7 @@ def _from_grid(xyz, rotation, lla, crs, frame):
     """Projected positions and world_from_camera rotations in ``crs`` -> shot centres,
     rotations and topocentric GNSS positions in the reconstruction's ``frame``: the
     inverse of :func:`_to_grid`."""
-    utm = utm_crs(lla[0], lla[1])
+    utm = projected_crs(utm_crs(lon=lla[1], lat=lla[0]))
     if crs != utm:
         xyz, turn = reproject(xyz, crs, utm)
         rotation = turn @ rotation

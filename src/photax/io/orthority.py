@@ -292,10 +292,11 @@ def _read_csv(path: pathlib.Path, crs=None):
         return {
             k: ExteriorOrientation(v[:3], np.radians(v[3:]), "omega-phi-kappa") for k, v in zip(names, values)
         }, read_orthority_crs(path)
-    from ._geo import projected_crs, utm_crs
+    from ..geo import utm_crs
+    from ._geo import projected_crs
 
     lat, lon = values[:, 0], values[:, 1]
-    target = projected_crs(crs) if crs is not None else utm_crs(lat.mean(), lon.mean())
+    target = projected_crs(crs) if crs is not None else projected_crs(utm_crs(lon=lon.mean(), lat=lat.mean()))
     try:
         xyz, opk = lla_rpy_to_xyz_opk(values[:, :3], np.radians(values[:, 3:]), target)
     except ValueError as exc:

@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..errors import UnreadableFileError, UnsupportedFormatError
 from .atomic import atomic_path
 
 if TYPE_CHECKING:
@@ -46,7 +47,7 @@ def open_raster(path):
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
             return rasterio.open(path)
     except rasterio.errors.RasterioIOError as exc:
-        raise ValueError(f"{path}: not a raster GDAL can read ({exc})") from None
+        raise UnsupportedFormatError(f"{path}: not a raster GDAL can read ({exc})") from None
 
 
 def read_geotiff(path, *, masked: bool = False) -> tuple[np.ndarray, dict]:
@@ -114,7 +115,9 @@ def _damaged(path):
     try:
         yield
     except (RasterioError, CPLE_BaseError) as exc:
-        raise ValueError(f"{path}: a damaged raster, GDAL cannot read it ({' '.join(str(exc).split())})") from None
+        raise UnreadableFileError(
+            f"{path}: a damaged raster, GDAL cannot read it ({' '.join(str(exc).split())})"
+        ) from None
 
 
 def read_dem(path, band: int = 1) -> DEM:

@@ -26,6 +26,7 @@ import numpy as np
 
 from ..camera import FrameCamera
 from ..dem import DEM
+from ..errors import OutsideValidityError, UnsupportedFormatError
 from ._predict import check_block, frame_pad, inside, match_sigma, match_warped, padded, project_pixels, views, warpable
 
 __all__ = ["Transfer", "transfer_points", "write_odm_gcps"]
@@ -73,7 +74,7 @@ class Transfer:
             return write_gcps(path, self.table)
         if format == "odm":
             return write_odm_gcps(path, self.table, crs=crs)
-        raise ValueError(f"format: expected 'csv' or 'odm', got {format!r}")
+        raise UnsupportedFormatError(f"format: expected 'csv' or 'odm', got {format!r}")
 
 
 def write_odm_gcps(path, table, *, crs: str | None = None) -> pathlib.Path:
@@ -194,7 +195,7 @@ def transfer_points(
         raise ValueError("reference_xy: a point with a reference image needs a finite pixel")
     outside = np.flatnonzero((ref_i >= 0) & ~inside(ref_xy, camera.image_size, 0.0))
     if len(outside):
-        raise ValueError(f"reference_xy: points {outside.tolist()} lie outside their reference images")
+        raise OutsideValidityError(f"reference_xy: points {outside.tolist()} lie outside their reference images")
     size = camera.image_size
     pad = frame_pad(window, search)
     pred = project_pixels(g, eo, camera)  # (m, n, 2)

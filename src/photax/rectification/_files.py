@@ -16,7 +16,7 @@ from .._aot import disk_cached
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
-from ..grid import Grid, gsd_hint, ortho_grid
+from ..grid import Grid, GridSpec, gsd_hint, ortho_grid
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ._approx import _tile_positions
@@ -317,6 +317,7 @@ def orthorectify_block(
     resampling: Resampling | str = "bilinear",
     tile: int = 1024,
     callback: Callable[[int], None] | None = None,
+    grid: Grid | None = None,
 ) -> list:
     """Every image of a block orthorectified into ``folder``, all on one pixel lattice (ready for
     :func:`photax.mosaic`): :func:`orthorectify_file` per image.
@@ -330,9 +331,13 @@ def orthorectify_block(
             sampling distances (one resolution: :meth:`Grid.from_bounds` snaps every grid to it).
         crs: the grids' CRS (the orientation file's); default the DEM's.
         callback: called with ``k`` after image ``k`` is written (progress).
+        grid: the mosaic's grid (e.g. :meth:`photax.GridSpec.grid` of gdalwarp's ``-te``/``-tr``):
+            each ortho is its part over the image's footprint (:meth:`Grid.crop`: on its lattice,
+            at its resolution, in its CRS); images wholly outside it are left out.  Not with
+            ``resolution``.
 
     Returns:
-        the ortho paths, in the order of ``images``.
+        the ortho paths, in the order of ``images`` (with ``grid``: of those it overlaps).
     """
     import pathlib
 
@@ -341,14 +346,21 @@ def orthorectify_block(
         raise ValueError(f"exteriors: {len(exteriors)} orientations for {len(images)} images")
     if not images:
         raise ValueError("images: a block needs at least one image")
-    if resolution is None:
+    if grid is not None:
+        if resolution is not None:
+            raise ValueError("give resolution or grid (whose resolution it is), not both")
+        resolution = (abs(grid.transform.a), abs(grid.transform.e))
+    elif resolution is None:
         resolution = float(np.median([abs(ortho_grid(e, camera, dem).transform.a) for e in exteriors]))
     paths = []
     for k, (image, e) in enumerate(zip(images, exteriors)):
         out = pathlib.Path(folder) / f"{k:05d}-{pathlib.Path(image).stem}.tif"
-        grid = ortho_grid(e, camera, dem, resolution, crs=crs)
-        orthorectify_file(image, out, e, camera, dem, grid, resampling=resampling, tile=tile)
-        paths.append(out)
+        own = ortho_grid(e, camera, dem, resolution, crs=crs)
+        b, g = own.bounds, (grid or own).bounds
+        if b[0] < g[2] and g[0] < b[2] and b[1] < g[3] and g[1] < b[3]:  # else no part in the mosaic's grid
+            own = own if grid is None else grid.crop(b)
+            orthorectify_file(image, out, e, camera, dem, own, resampling=resampling, tile=tile)
+            paths.append(out)
         if callback is not None:
             callback(k)
     return paths
@@ -368,6 +380,7 @@ def orthorectify_files(
     tile: int = 1024,
     compress: str | None = "deflate",
     progress: bool | str = False,
+    spec: GridSpec | None = None,
 ) -> list:
     """Many images orthorectified in one call, each exactly as :func:`orthorectify_file` does it
     alone (its own footprint grid from :func:`photax.ortho_grid`), under one progress bar over all
@@ -389,12 +402,17 @@ def orthorectify_files(
         crs: the grids' CRS (the orientation file's); default the DEM's (a ground camera: the UTM
             zone of its scene).
         nodata: as in :func:`rectify_file`.
+        spec: the output grid asked for (:class:`photax.GridSpec`: gdalwarp's ``-te``, ``-tr``,
+            ``-tap``, ``-ts``, a raster's grid), as :func:`photax.ortho_grid` takes it; with it,
+            ``resolution`` must be None (it is ``spec.resolution``).
 
     Returns:
         per image, its output :class:`photax.Grid`, or the exception that stopped it.
     """
     from ..progress import progress_bar
 
+    if spec is not None and resolution is not None:
+        raise ValueError("give the resolution in spec (GridSpec.resolution), not also as resolution=")
     images, outputs = list(images), list(outputs)
     exteriors = [None] * len(images) if exteriors is None else list(exteriors)
     cameras, dems = (_per_image(v, len(images), what) for v, what in ((camera, "cameras"), (dem, "DEMs")))
@@ -409,7 +427,10 @@ def orthorectify_files(
         try:
             with open_raster(image) as src:
                 _check_image_size((src.height, src.width), cam)
-            results.append(ortho_grid(e, cam, d, resolution, crs=crs))
+            if spec is None:
+                results.append(ortho_grid(e, cam, d, resolution, crs=crs))
+            else:
+                results.append(ortho_grid(e, cam, d, crs=crs, spec=spec))
         except (ValueError, OSError) as exc:
             results.append(exc)
     total = sum(len(list(tile_windows(g.shape, tile))) for g in results if isinstance(g, Grid))

@@ -10,8 +10,8 @@ from jax import Array
 from .._pytree import Module
 from ..collinearity import ExteriorOrientation
 from ..dem import DEM
+from ..geo import check_dem, same_crs
 from ..grid import Grid, check_coverage, gsd_hint, ortho_grid
-from ..io.crs import check_dem, same_crs
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ..sensor import FrameSensor, GroundSensor, LocalTransform, check_rpc_dem, sensor_of

@@ -42,6 +42,7 @@ from ._checks import (
     _plausibility,
     _point_label,
     implausible,
+    units_wrong,
     validate,
 )
 from ._result import ResectionResult
@@ -475,7 +476,8 @@ def resect(
     res = _resect_one(image_xy, ground_xyz, fallback=True, **settings)
     if res.converged:
         res = _mirror_test(res, np.asarray(image_xy, float), np.asarray(ground_xyz, float), settings)
-    if not res.converged and initial is None and "wrong units (e.g." not in res.message:  # units: no swap helps
+    units = res.result == RESULTS.implausible and _units_wrong(image_xy, ground_xyz, settings)
+    if not res.converged and initial is None and not units:  # wrong units: no swap helps
         hint = _swap_hint(np.asarray(image_xy, float), np.asarray(ground_xyz, float), settings)
         if hint:
             res = dataclasses.replace(res, message=f"{hint}; {res.message}")
@@ -536,6 +538,16 @@ def _mirror_test(res: ResectionResult, xy, ground, settings) -> ResectionResult:
         result=RESULTS.implausible,
         message=f"{why}; {CAUSES} (the adjustment itself: {res.message})",
     )
+
+
+def _units_wrong(image_xy, ground_xyz, settings) -> bool:
+    """Whether the image coordinates are in a wrong unit (:func:`._checks.units_wrong`):
+    decided on the points, not on the failure's message."""
+    s = settings
+    prep = validate(image_xy, ground_xyz, s["camera"], s["sigma"], s["check"], s["names"], s["initial"],
+                    s["convention"], s["alpha"], batch=False)  # fmt: skip
+    half, f = _camera_info(s["camera"])[:2]
+    return units_wrong(prep.xy[0], ~prep.is_check[0], half, f)
 
 
 def _swap_hint(xy, ground, settings) -> str | None:

@@ -24,6 +24,7 @@ import numpy as np
 from .._float64 import as_float64
 from ..camera import FrameCamera
 from ..collinearity import ExteriorOrientation
+from ..errors import DegenerateGeometryError
 from ..rotation import check_convention
 
 _PLANAR = 0.1  # smallest / largest spread of the GCPs below this: "planar" for the 4-point minimum
@@ -168,6 +169,21 @@ def _frame(camera: FrameCamera) -> tuple[np.ndarray | None, float]:
     if camera.pixel_size is None or camera.image_size is None:
         return None, f
     return 0.5 * np.asarray(camera.image_size, float) * np.asarray(camera.pixel_size, float), f
+
+
+def units_wrong(xy, ctrl, half, f) -> bool:
+    """Whether the control points' image coordinates are in a wrong unit -- the
+    decision behind :func:`_plausibility`'s "wrong units" reasons, so that a
+    caller decides on it, not on the words (``xy`` (n, 2), ``ctrl`` (n,) mask,
+    ``half`` half frame or None, ``f`` focal length)."""
+    c = np.asarray(xy, float)[np.asarray(ctrl, bool)]
+    spread = np.ptp(c, axis=0).max() if len(c) else 0.0
+    if half is not None:
+        out = np.abs(c) > _FRAME_MARGIN * half[None, :]
+        if np.any(out):
+            return not np.all(np.abs(c[:, ::-1]) <= _FRAME_MARGIN * half[None, :])
+        return bool(spread < _MIN_SPREAD * 2.0 * half.max())
+    return bool(np.any(np.hypot(*c.T) > _MAX_FIELD * f) or spread < _MIN_SPREAD_F * f)
 
 
 def _plausibility(xy, ctrl, outliers, centre, axis, normal, planar, rms, half, f):
@@ -376,7 +392,7 @@ def _batch_geometry(ground: np.ndarray, origin: np.ndarray, need_init: bool) -> 
     s, vt = _principal_axes(ground - origin[:, None, :])
     collinear = (s[:, 0] == 0) | (s[:, 1] < 1e-6 * s[:, 0])
     if np.any(collinear):
-        raise ValueError(f"collinear control points in images {np.flatnonzero(collinear)[:10].tolist()}")
+        raise DegenerateGeometryError(f"collinear control points in images {np.flatnonzero(collinear)[:10].tolist()}")
     flat = s[:, 2] < _PLANAR * s[:, 0]
     if need_init and n < 6:
         if not np.all(flat):
