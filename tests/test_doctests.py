@@ -17,7 +17,7 @@ import photax
 
 ENTRY_POINTS = [
     "resect", "resect_batch", "intersect", "fit_polynomial", "fit_projective", "rectify", "orthorectify",
-    "compare_models", "bundle_adjust", "register_to_ortho", "ortho_uncertainty",
+    "compare_models", "bundle_adjust", "register_to_ortho", "ortho_uncertainty", "disparity",
 ]  # fmt: skip
 
 

@@ -119,10 +119,19 @@ class Grid:
         Raises:
             ValueError: the file is not a raster, or has no georeference.
         """
-        from .io.raster import open_raster
+        import warnings
 
-        with open_raster(path) as src:
-            transform, shape, crs = src.transform, (src.height, src.width), src.crs
+        import rasterio
+
+        from .errors import UnreadableFileError
+
+        try:  # rasterio itself, not photax.io: the grid is a lower stage than the readers
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+                with rasterio.open(path) as src:
+                    transform, shape, crs = src.transform, (src.height, src.width), src.crs
+        except rasterio.errors.RasterioIOError as exc:
+            raise UnreadableFileError(f"{path}: not a raster GDAL can read ({exc})") from None
         if transform == Affine.identity():
             raise ValueError(f"{path}: has no georeference (no geotransform); cannot take its grid")
         return cls(transform, shape, crs.to_wkt() if crs is not None else None)
@@ -538,7 +547,7 @@ def ortho_grid(
 def check_frame_crs(spec: GridSpec, crs) -> None:
     """A frame image's grid is in its orientation's CRS: refuse another one."""
     from .errors import OutputCRSError
-    from .io.crs import same_crs
+    from .geo import same_crs
 
     asked, what = (spec.like.crs, "the like raster's CRS") if spec.like is not None else (spec.crs, "the output CRS")
     if asked is not None and not same_crs(asked, crs):
