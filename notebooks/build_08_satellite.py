@@ -218,6 +218,56 @@ fig.colorbar(sc, ax=ax, shrink=0.8)
 print(f"RPC fit: {fit.points} fit points, RMS {fit.rmse:.1e} px; {fit.check_points} check points, "
       f"RMS {fit.check_rmse:.1e} px, largest {fit.check_max_error:.1e} px")""",
     ),
+    (
+        "md",
+        """## 6. A crop of the scene, as vendors ship them, on a DEM that covers half of it
+
+Vendors (and `gdal_translate -srcwin`) deliver a cut of a scene with the scene's RPC, its sample and
+line offsets moved by the cut's origin (`SAMP_OFF - col_off`, `LINE_OFF - row_off`): the offsets can lie
+far outside the crop. `RPCCamera.crop` writes that RPC. Here a 800 x 300 px crop holding the three GCPs
+inside the file is orthorectified onto the DEM blanked south of the crop's centre: the ortho is nodata
+where the DEM has no height, and photax says which share of the crop it covers (`ptx.dem_coverage`, a
+`PartialDEMWarning` below 95 %). Its RPC is then refined on the GCPs inside it, in its own pixels: the
+result is the crop's RPC still (its offsets and size), and the scene's shift refined on the same GCPs.""",
+    ),
+    (
+        "code",
+        """if have_qb:
+    c0, r0, w, h = 40, 20, 800, 300
+    crop = rpc.crop(c0, r0, w, h)
+    print(f"scene SAMP_OFF, LINE_OFF {float(rpc.offsets[3]):.2f}, {float(rpc.offsets[4]):.2f} -> "
+          f"crop {float(crop.offsets[3]):.2f}, {float(crop.offsets[4]):.2f}; image {crop.image_size}")
+    centre = crop.to_ground_dem(np.array([[w / 2 - 0.5, h / 2 - 0.5]]), dem)[0]
+    cx, cy = pyproj.Transformer.from_crs("EPSG:4326", dem.crs, always_xy=True).transform(*centre[:2])
+    heights = np.array(dem.heights)
+    t = np.asarray(dem.transform)
+    heights[t[5] + t[4] * (np.arange(heights.shape[0]) + 0.5) < cy] = np.nan  # south of the crop's centre
+    half = ptx.DEM(heights, t, dem.crs)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        crop_grid = ortho_grid(None, crop, half, 5.0, crs=dem.crs)
+        crop_ortho, _ = orthorectify(image[r0 : r0 + h, c0 : c0 + w], None, crop, half, crop_grid, nodata=0)
+    partial = [x.message for x in caught if isinstance(x.message, ptx.PartialDEMWarning)]
+    print(f"PartialDEMWarning: {partial[0]} (coverage {partial[0].coverage:.3f}; ptx.dem_coverage: "
+          f"{ptx.dem_coverage(None, crop, half):.3f})")
+    inside = np.all((pixel >= [c0, r0]) & (pixel < [c0 + w, r0 + h]), axis=1)
+    crop_fit = ptx.refine_rpc(crop, ground[inside], pixel[inside] - [c0, r0], "shift",
+                              names=[n for n, k in zip(names, inside) if k])
+    scene_fit = ptx.refine_rpc(rpc, ground[inside], pixel[inside], "shift")
+    print(crop_fit.report())
+    same = np.abs(np.asarray(crop_fit.camera(ground)) - np.asarray(scene_fit.camera.crop(c0, r0, w, h)(ground))).max()
+    print(f"refined crop RPC: offsets {np.asarray(crop_fit.camera.offsets)[3:]}, image {crop_fit.camera.image_size}; "
+          f"against the scene's refinement cropped: {same:.1e} px")
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), gridspec_kw={"width_ratios": [1.6, 1]})
+    axes[0].imshow(image[r0 : r0 + h, c0 : c0 + w], cmap="gray")
+    axes[0].plot(*(pixel[inside] - [c0, r0]).T, "r+", ms=12, mew=2)
+    axes[0].set_title(f"the crop ({w} x {h} px at {c0}, {r0}) and its GCPs")
+    axes[1].imshow(np.where(crop_ortho > 0, crop_ortho, np.nan), cmap="gray",
+                   extent=np.array(crop_grid.bounds)[[0, 2, 1, 3]] / 1000)
+    axes[1].set_title(f"its ortho on the half DEM ({partial[0].coverage:.0%} covered)")
+    axes[1].set_xlabel("E (km, Lo25)")
+    fig.tight_layout()""",
+    ),
 ]
 
 if __name__ == "__main__":

@@ -194,17 +194,25 @@ def test_bad_input():
 
 
 def test_no_data_heavy_windows_are_counted_and_left_out():
-    """A strip of no data (NaN) in the target: the windows it covers by more than 5 % are "no data", the
-    rest still fit the shift."""
+    """A strip of no data (NaN) in the target: the windows it covers by more than ``max_nodata`` are
+    "no data", the rest still fit the shift; those it covers less are measured on their valid pixels
+    (masked correlation) as well as the whole ones."""
     ref, tgt, truth, _, _ = _pair(256, 64, (1.3, 0.8))
     tgt = tgt.copy()
     tgt[:, 100:140] = np.nan  # the second column of windows (64-127) is 56 % no data, the third 20 %
-    reg = ptx.coregister(ref, tgt, window=64)
+    reg = ptx.coregister(ref, tgt, window=64, max_nodata=0.05)
     cells = np.array(_cells(reg, 64))
     assert set(reg.status[cells[:, 1] == 1]) == {"no data"} and set(reg.status[cells[:, 1] == 2]) == {"no data"}
     assert reg.counts["no data"] == 8 and reg.counts["ok"] == 8
     ok = reg.reliable
     np.testing.assert_allclose(reg.shifts[ok], truth(reg.centres[ok]), atol=0.03)
+    reg = ptx.coregister(ref, tgt, window=64)  # the default 40 %: the third column is measured
+    cells = np.array(_cells(reg, 64))
+    assert set(reg.status[cells[:, 1] == 1]) == {"no data"} and set(reg.status[cells[:, 1] == 2]) == {"ok"}
+    third = cells[:, 1] == 2
+    np.testing.assert_allclose(reg.shifts[third], truth(reg.centres[third]), atol=0.03)
+    with pytest.raises(ValueError, match="max_nodata"):
+        ptx.coregister(ref, tgt, max_nodata=1.0)
 
 
 def test_a_window_without_any_data_is_no_data_not_a_warning():

@@ -46,6 +46,7 @@ from .errors import NoEntryError as NoEntryError
 from .errors import NotConvergedError as NotConvergedError
 from .errors import OutputCRSError as OutputCRSError
 from .errors import OutsideValidityError as OutsideValidityError
+from .errors import PartialDEMWarning as PartialDEMWarning
 from .errors import PhotaxError as PhotaxError
 from .errors import UnreadableFileError as UnreadableFileError
 from .errors import UnsupportedFormatError as UnsupportedFormatError
@@ -54,6 +55,7 @@ from .fusion import pansharpen_dask as pansharpen_dask
 from .geo import utm_crs as utm_crs
 from .grid import Grid as Grid
 from .grid import GridSpec as GridSpec
+from .grid import dem_coverage as dem_coverage
 from .interior import (
     InteriorOrientation as InteriorOrientation,
 )

@@ -16,6 +16,9 @@ words::
     └── NotConvergedError        (ValueError)
         └── ConvergenceError     (also RuntimeError; a solver's ``throw=True``)
 
+and one warning, :class:`PartialDEMWarning` (a ``UserWarning``: the DEM covers part of an image, its
+``coverage`` the share).
+
 Each is a subclass of the built-in exception photax raised for it before, so
 ``except ValueError`` (and ``pytest.raises(ValueError)``) still catches it.
 Plain ``ValueError`` remains the error of a malformed argument (a wrong shape,
@@ -99,6 +102,19 @@ class MalformedFileError(PhotaxError, ValueError):
 class OutputCRSError(CRSMismatchError):
     """The output CRS asked for is not one this sensor model can give the output in (a frame
     image's ortho is in its orientation's CRS); the message names both CRSs."""
+
+
+class PartialDEMWarning(UserWarning):
+    """The DEM covers only part of an image's footprint (:func:`photax.dem_coverage` below
+    :data:`photax.grid.PARTIAL_DEM`): the ortho is nodata where the DEM has no height.
+
+    Attributes:
+        coverage: the covered share of the image, 0 .. 1.
+    """
+
+    def __init__(self, message: str, coverage: float):
+        super().__init__(message)
+        self.coverage = float(coverage)
 
 
 _SINGULAR = "the normal equations became singular (the control points do not determine the orientation from there)"

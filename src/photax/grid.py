@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from rasterio import Affine
 
-from .errors import DegenerateGeometryError
+from .errors import DegenerateGeometryError, OutsideValidityError
 from .geo import check_dem, describe, require_same
 
 if TYPE_CHECKING:  # the sensor models (JAX) are imported where used: a Grid alone needs no JAX
@@ -361,6 +362,55 @@ def _footprint_outline(sensor, dem: DEM, per_side: int):
     return ground, px
 
 
+PARTIAL_DEM = 0.95  # a DEM covering less of an image than this share: a PartialDEMWarning
+
+
+def dem_coverage(exterior, camera, dem: DEM, *, samples: int = 8, crs=None) -> float:
+    """The share of an image whose ground lies on the DEM (0 .. 1): of a ``samples x samples`` lattice
+    of pixels spread evenly over the image (cell centres; the default 8 x 8 = 64 points reuse the
+    compiled program of :func:`ortho_grid`'s outline, 16 points a side, and give the share to 1/64),
+    those whose ray (frame camera: :func:`photax.image_to_ground`) or RPC / push-broom line of sight (the fixed-point iteration of
+    :meth:`photax.rpc.RPCCamera.to_ground_dem`) meets a height of the DEM; NaN heights (nodata, holes)
+    and ground beyond the DEM's raster count as not covered. ``exterior, camera`` as in
+    :func:`ortho_grid` (``exterior=None`` with a ground camera, or a sensor of :mod:`photax.sensor`).
+
+    :func:`photax.orthorectify` warns (:class:`photax.errors.PartialDEMWarning`) below
+    :data:`PARTIAL_DEM` and refuses an image the DEM does not cover at all.
+    """
+    if int(samples) < 2:
+        raise ValueError(f"samples: expected at least 2, got {samples}")
+    sensor, _ = _sensor(exterior, camera, dem, crs)
+    if sensor.image_size is None:
+        raise ValueError("camera must have an image_size to find the covered share of the image")
+    w, h = sensor.image_size
+    t = (np.arange(samples) + 0.5) / samples
+    px = np.stack(np.meshgrid(t * w - 0.5, t * h - 0.5), -1).reshape(-1, 2)
+    ground = sensor.on_dem(px, dem)
+    return float(np.mean(np.all(np.isfinite(ground), axis=1)))
+
+
+def check_coverage(sensor, dem: DEM, *, stacklevel: int = 3) -> float:
+    """:func:`dem_coverage` of ``sensor``: a :class:`photax.errors.PartialDEMWarning` with the share
+    below :data:`PARTIAL_DEM`, a ValueError when it is nothing. Returns the share."""
+    share = dem_coverage(None, sensor, dem)
+    if share == 0:
+        raise OutsideValidityError(
+            "the DEM covers none of the image (no height under any of its pixels: nodata there, or the DEM "
+            f"lies elsewhere; DEM bounds {tuple(round(v, 1) for v in dem.bounds)}, {describe(dem.crs)})"
+        )
+    if share < PARTIAL_DEM:
+        from .errors import PartialDEMWarning
+
+        warnings.warn(
+            PartialDEMWarning(
+                f"the DEM covers {share:.1%} of the image's footprint: the ortho is nodata where it has no height",
+                share,
+            ),
+            stacklevel=stacklevel,
+        )
+    return share
+
+
 def _sensor(exterior, camera, dem: DEM, crs):
     """The sensor (:func:`photax.sensor.sensor_of`) and the grid's CRS: for a frame the DEM's (or
     ``crs``), for an RPC ``crs`` or else the UTM zone of the scene's centre."""
@@ -369,6 +419,8 @@ def _sensor(exterior, camera, dem: DEM, crs):
 
     if is_sensor(camera) and camera.kind != "frame":
         return camera, camera.crs
+    if is_sensor(camera):  # a frame sensor: the asked CRS, else its own, else the DEM's
+        return camera, crs if crs is not None else (camera.crs if camera.crs is not None else dem.crs)
     if exterior is None and crs is None and camera_kind(camera) != "frame":  # a ground camera
         crs = utm_crs(*camera.ground_box()[0])
     sensor = sensor_of(exterior, camera, crs)

@@ -53,6 +53,7 @@ from ._aot import disk_cached
 from ._float64 import as_float64
 from ._linalg import solve2
 from ._pytree import Module, field, filter_jit
+from .errors import OutsideValidityError
 
 # Coefficient rows of RPCCamera.coefficients, and the keys GDAL / rasterio / orthority give them.
 COEFFICIENT_KEYS = ("line_num_coeff", "line_den_coeff", "samp_num_coeff", "samp_den_coeff")
@@ -205,6 +206,38 @@ class RPCCamera(Module):
         d.update({k: float(v) for k, v in zip(OFFSET_KEYS, self.offsets, strict=True)})
         d.update({k: float(v) for k, v in zip(SCALE_KEYS, self.scales, strict=True)})
         return d
+
+    def crop(self, col_off, row_off, width: int, height: int) -> RPCCamera:
+        """The RPC of a crop of this image: the window of ``width x height`` pixels whose top-left pixel is
+        ``(col_off, row_off)`` of this one (a :class:`rasterio.windows.Window`'s ``col_off, row_off,
+        width, height``), with its pixel coordinates counted from the crop's corner, as vendors and GDAL
+        (``gdal_translate -srcwin``) write a cut scene's RPC: ``SAMP_OFF - col_off``, ``LINE_OFF - row_off``,
+        the scales, coefficients and ground offsets unchanged (a crop's offsets can lie far outside it,
+        tens of its own sizes: the full scene's centre). A refinement's correction ``dc = a0 + a1 c +
+        a2 r`` is carried over to the crop's pixels (``a0 += a1 col_off + a2 row_off``, likewise ``b0``),
+        so the crop images every ground point where the whole image did, shifted by the origin.
+
+        Raises:
+            ValueError: a non-finite origin, a size not a positive integer, or (with ``image_size``) a
+                window not inside the image.
+        """
+        c0, r0 = float(col_off), float(row_off)
+        if not (math.isfinite(c0) and math.isfinite(r0)):
+            raise ValueError(f"crop: col_off, row_off must be finite, got {col_off}, {row_off}")
+        if int(width) != width or int(height) != height or width < 1 or height < 1:
+            raise ValueError(f"crop: width, height must be positive integers, got {width}, {height}")
+        if self.image_size is not None:
+            w, h = self.image_size
+            if c0 < 0 or r0 < 0 or c0 + width > w or r0 + height > h:
+                raise OutsideValidityError(
+                    f"crop: the window at ({c0:g}, {r0:g}) of {int(width)} x {int(height)} pixels is not inside "
+                    f"the {w} x {h} pixel image"
+                )
+        offsets = np.asarray(self.offsets).copy()
+        offsets[3:] -= (c0, r0)
+        k = np.asarray(self.correction).copy()
+        k[:, 0] += k[:, 1] * c0 + k[:, 2] * r0
+        return RPCCamera(self.coefficients, offsets, self.scales, k, (int(width), int(height)))
 
     # --- projection -----------------------------------------------------------------------------
 
@@ -484,6 +517,68 @@ def _apply(k: np.ndarray, cr: np.ndarray) -> np.ndarray:
     return cr + cr @ k[:, 1:].T + k[:, 0]
 
 
+def check_gcps(
+    camera: RPCCamera, ground, pixel, names=None, *, who: str = "GCPs", warn: bool = True, stacklevel: int = 2
+) -> None:
+    """Refuse GCPs that cannot belong to ``camera``'s image, warn of those just outside it.
+
+    * The ground ``(n, 3)`` lon, lat, h must lie in the RPC's validity volume, its ground offsets
+      +- :data:`photax.sensor.RPC_MARGIN` scales (beyond, the polynomial is extrapolated and may fold):
+      a ValueError naming them.
+    * With ``camera.image_size`` (``w x h``): a pixel ``(n, 2)`` more than the image's own size beyond
+      its edges is a blunder or another image's measurement (a ValueError); one outside the image but
+      nearer is used, with a warning unless ``warn=False`` (measured on the full scene this file is
+      cut from: orthority's QuickBird sample has two). The image is the one given, not the RPC's offsets: a crop's RPC
+      (:meth:`RPCCamera.crop`) keeps the full scene's scales, its offsets lie tens of scales away.
+    * Without ``image_size``: the RPC's own pixel box, its line and sample offsets +- 1.5 scales.
+    """
+    from .sensor import RPC_MARGIN
+
+    label = (lambda i: names[i]) if names else (lambda i: f"GCP {i}")
+
+    def listing(idx, what):
+        return ", ".join(f"{label(i)} at ({what[i, 0]:.1f}, {what[i, 1]:.1f})" for i in idx)
+
+    off, scale = np.asarray(camera.offsets), np.asarray(camera.scales)
+    far = np.abs(ground - off[:3]) > RPC_MARGIN * np.abs(scale[:3])
+    out = np.flatnonzero(far.any(axis=1))
+    if out.size:
+        lo, hi = off[:3] - RPC_MARGIN * np.abs(scale[:3]), off[:3] + RPC_MARGIN * np.abs(scale[:3])
+        which = ", ".join(f"{label(i)} at ({ground[i, 0]:.6f}, {ground[i, 1]:.6f}, {ground[i, 2]:.1f} m)" for i in out)
+        raise OutsideValidityError(
+            f"{who}: {out.size} GCP(s) outside the RPC's validity volume (lon {lo[0]:.6f} .. {hi[0]:.6f}, lat "
+            f"{lo[1]:.6f} .. {hi[1]:.6f}, h {lo[2]:.1f} .. {hi[2]:.1f} m: its offsets +- {RPC_MARGIN} scales): "
+            f"{which}; another scene's GCPs, or lon and lat swapped?"
+        )
+    if camera.image_size is None:
+        box_off, box = off[3:], 1.5 * np.abs(scale[3:])
+        out = np.flatnonzero(np.any(np.abs(pixel - box_off) > box, axis=1))
+        if out.size:  # not an image of this RPC: a blunder or another image's measurement
+            raise OutsideValidityError(
+                f"{who}: {out.size} GCP(s) outside the RPC's image (columns {box_off[0] - box[0]:.0f} .. "
+                f"{box_off[0] + box[0]:.0f}, rows {box_off[1] - box[1]:.0f} .. {box_off[1] + box[1]:.0f}): "
+                f"{listing(out, pixel)}"
+            )
+        return
+    w, h = camera.image_size
+    size = np.array([w, h], dtype=float)
+    out = np.flatnonzero(np.any((pixel < -0.5 - size) | (pixel > size - 0.5 + size), axis=1))
+    if out.size:
+        raise OutsideValidityError(
+            f"{who}: {out.size} GCP(s) outside the {w} x {h} pixel image by more than its size (a blunder or "
+            f"another image's measurement?): {listing(out, pixel)}"
+        )
+    out = np.flatnonzero(np.any((pixel < -0.5) | (pixel > size - 0.5), axis=1))
+    if out.size and warn:  # inside the RPC's volume: measured on the full scene this file is cut from
+        import warnings
+
+        warnings.warn(
+            f"{out.size} GCP(s) outside the {w} x {h} pixel image, inside the RPC's validity volume: "
+            f"{listing(out, pixel)}; used (measured on the full scene?)",
+            stacklevel=stacklevel,
+        )
+
+
 def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *, names=None) -> RPCRefinement:
     """Refine ``camera`` on GCPs by an image-space correction (module docstring; Grodecki & Dial 2003).
 
@@ -494,9 +589,12 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *,
         model: ``"shift"`` (1 GCP at least), ``"shift-drift"`` (2), ``"affine"`` (3).
         names: the GCPs' names, for the messages and :meth:`RPCRefinement.report`.
 
-    GCPs far outside the RPC's image (line and sample offsets +- 1.5 scales) are refused, naming them;
-    outside ``camera.image_size`` but inside the RPC's image (a file cut from the scene the GCPs were
-    measured on: orthority's QuickBird sample has two) they are used, with a warning naming them.
+    GCPs are checked by :func:`check_gcps`: outside the RPC's validity volume (ground offsets +- 1.1
+    scales) or far outside the image (beyond ``camera.image_size`` by more than its size) they are
+    refused, naming them; just outside the image (a file cut from the scene the GCPs were measured on:
+    orthority's QuickBird sample has two) they are used, with a warning naming them. A crop's RPC
+    (:meth:`RPCCamera.crop`) is refined in its own pixels and stays a crop's RPC (its offsets and
+    ``image_size`` kept).
 
     Equal weights; the normal equations of the two axes are separate (the correction of each axis
     is linear in its own parameters), so each is an ordinary least-squares fit of the RPC's misfit.
@@ -514,27 +612,7 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *,
     names = None if names is None else tuple(str(v) for v in names)
     if names is not None and len(names) != len(ground):
         raise ValueError(f"names: {len(names)} for {len(ground)} GCPs")
-    label = (lambda i: names[i]) if names else (lambda i: f"GCP {i}")
-    off, scale = np.asarray(camera.offsets[3:]), 1.5 * np.asarray(camera.scales[3:])
-    out = np.flatnonzero(np.any(np.abs(pixel - off) > scale, axis=1))
-    if out.size:  # not an image of this RPC: a blunder or another image's measurement
-        which = ", ".join(f"{label(i)} at ({pixel[i, 0]:.1f}, {pixel[i, 1]:.1f})" for i in out)
-        raise ValueError(
-            f"refine_rpc: {out.size} GCP(s) outside the RPC's image (columns {off[0] - scale[0]:.0f} .. "
-            f"{off[0] + scale[0]:.0f}, rows {off[1] - scale[1]:.0f} .. {off[1] + scale[1]:.0f}): {which}"
-        )
-    if camera.image_size is not None:
-        w, h = camera.image_size
-        out = np.flatnonzero((pixel < -0.5).any(axis=1) | (pixel[:, 0] > w - 0.5) | (pixel[:, 1] > h - 0.5))
-        if out.size:  # inside the RPC's image: measured on the full scene this file is cut from
-            import warnings
-
-            which = ", ".join(f"{label(i)} at ({pixel[i, 0]:.1f}, {pixel[i, 1]:.1f})" for i in out)
-            warnings.warn(
-                f"{out.size} GCP(s) outside the {w} x {h} pixel image, inside the RPC's: {which}; used "
-                "(measured on the full scene?)",
-                stacklevel=2,
-            )
+    check_gcps(camera, ground, pixel, names, who="refine_rpc", stacklevel=3)
     terms = _REFINE_TERMS[model]
     n, u = len(ground), 2 * len(terms)
     if n < len(terms):

@@ -33,7 +33,7 @@ import numpy as np
 from ._float64 import as_float64
 from .earth import radii_of_curvature
 from .errors import ConvergenceError
-from .rpc import RPCCamera
+from .rpc import RPCCamera, check_gcps
 
 _TERMS = {"shift": (0,), "shift-drift": (0, 2), "affine": (0, 1, 2)}  # as refine_rpc's models
 
@@ -207,7 +207,10 @@ def adjust_rpc_block(
         ties: ``(k, 4)`` rows ``point, image, column, row``: tie point ``point`` (an integer id) measured
             at ``(column, row)`` in ``cameras[image]``; each tie point in two images at least.
         gcps: ``(ground, observations)``: ``(g, 3)`` lon, lat, ellipsoidal h and ``(k, 4)`` rows
-            ``gcp, image, column, row`` (``gcp`` indexes ``ground``), or None.
+            ``gcp, image, column, row`` (``gcp`` indexes ``ground``), or None; checked against each
+            image's RPC as :func:`photax.refine_rpc` checks them (:func:`photax.rpc.check_gcps`: its
+            validity volume and the image given, so a crop's RPC, :meth:`photax.RPCCamera.crop`, takes
+            the GCPs measured on the crop).
         model: ``"shift"``, ``"shift-drift"`` or ``"affine"``, for every image.
         check: ``(g,)`` booleans: GCPs kept out of the adjustment as check points.
         pixel_sigma: a-priori standard deviation of an image measurement (px).
@@ -239,6 +242,13 @@ def adjust_rpc_block(
         g_obs = _observations(gcps[1], "gcps observations", m)
         if np.any((g_obs[:, 0] < 0) | (g_obs[:, 0] >= len(g_ground))):
             raise ValueError(f"gcps: observation gcp indices must be in [0, {len(g_ground)})")
+        for i, cam in enumerate(cameras):  # as refine_rpc: the RPC's validity volume and the image given
+            sel = g_obs[:, 1] == i
+            if np.any(sel):
+                idx = g_obs[sel, 0].astype(int)
+                check_gcps(
+                    cam, g_ground[idx], g_obs[sel, 2:], [f"GCP {k}" for k in idx], who=f"gcps in image {i}", warn=False
+                )
     check = np.zeros(len(g_ground), bool) if check is None else np.asarray(check, bool)
     if check.shape != (len(g_ground),):
         raise ValueError(f"check: expected {len(g_ground)} booleans (one per GCP), got shape {check.shape}")

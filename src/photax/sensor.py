@@ -255,6 +255,11 @@ class FrameSensor(Module):
         )
         return np.where(np.isfinite(ground), ground, flat)[:, :2]
 
+    def on_dem(self, pixel, dem: DEM) -> np.ndarray:
+        """``(n, 2)`` pixels -> ``(n, 3)`` ground points on the DEM, NaN where the ray misses it (the
+        covered share of an image: :func:`photax.grid.dem_coverage`)."""
+        return np.asarray(_footprint_cached(jnp.asarray(pixel, dtype=float), self.exterior, self.camera, dem)[0])
+
 
 @runtime_checkable
 class GroundCamera(Protocol):
@@ -347,12 +352,8 @@ class GroundSensor(Module):
         outline only bounds the grid); at the DEM's mean height where it fails (off the DEM, or no
         convergence: counted in a warning)."""
         pixel = np.asarray(pixel, dtype=float)
-        to_dem = None
-        if dem.crs is not None and not _same(dem.crs, WGS84):
-            (lon, lat), (dl, dp) = np.asarray(self.centre), 1.2 * np.asarray(self.half)
-            to_dem = LocalTransform.fit(WGS84, _crs_text(dem.crs), (lon - dl, lat - dp, lon + dl, lat + dp))
-        h0 = np.full(len(pixel), _start_height(self.camera, dem))
-        llh, status = (np.asarray(v) for v in _on_dem_cached(self.camera, to_dem, dem, pixel, h0))
+        llh, status = self._on_dem_status(pixel, dem)
+        llh = np.array(llh)  # a writable copy (np.asarray of a JAX array is read-only): filled below
         failed = status >= 2
         if failed.any():
             warnings.warn(
@@ -368,6 +369,26 @@ class GroundSensor(Module):
         if not np.isfinite(llh[:, :2]).all():
             raise NotConvergedError("the RPC's inverse does not converge on the image outline: is the RPC valid?")
         return _pyproj(llh[:, :2], WGS84, self.crs)
+
+    def _on_dem_status(self, pixel: np.ndarray, dem: DEM):
+        """``(n, 3)`` lon, lat, h on the DEM and ``(n,)`` status of :func:`_on_dem`."""
+        to_dem = None
+        if dem.crs is not None and not _same(dem.crs, WGS84):
+            (lon, lat), (dl, dp) = np.asarray(self.centre), 1.2 * np.asarray(self.half)
+            to_dem = LocalTransform.fit(WGS84, _crs_text(dem.crs), (lon - dl, lat - dp, lon + dl, lat + dp))
+        h0 = np.full(len(pixel), _start_height(self.camera, dem))
+        return (np.asarray(v) for v in _on_dem_cached(self.camera, to_dem, dem, pixel, h0))
+
+    def on_dem(self, pixel, dem: DEM) -> np.ndarray:
+        """``(n, 2)`` pixels -> ``(n, 3)`` map ``(X, Y)`` and height on the DEM, NaN where the point is off
+        it or the iteration did not converge (the covered share of an image: :func:`photax.grid.dem_coverage`)."""
+        llh, status = self._on_dem_status(np.asarray(pixel, dtype=float), dem)
+        on = status == 0
+        out = np.full((len(llh), 3), np.nan)
+        if on.any():
+            out[on, :2] = _pyproj(llh[on, :2], WGS84, self.crs)
+            out[on, 2] = llh[on, 2]
+        return out
 
 
 def _start_height(camera: GroundCamera, dem: DEM) -> float:

@@ -50,6 +50,7 @@ pixel coordinates; raster georeference at pixel corners).
 
 from ..grid import Grid as Grid
 from ..grid import check_resolution as check_resolution
+from ..grid import dem_coverage as dem_coverage
 from ..grid import ground_sampling_distance as ground_sampling_distance
 from ..grid import ortho_grid as ortho_grid
 from ..resampling import Resampling as Resampling

@@ -10,7 +10,7 @@ from jax import Array
 from .._pytree import Module
 from ..dem import DEM
 from ..geo import check_dem, same_crs
-from ..grid import Grid, gsd_hint, ortho_grid
+from ..grid import Grid, check_coverage, gsd_hint, ortho_grid
 from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ..sensor import FrameSensor, GroundSensor, LocalTransform, check_rpc_dem, is_sensor, sensor_arguments, sensor_of
@@ -142,12 +142,16 @@ def orthorectify(
 
 def check_ortho_inputs(exterior, camera, dem: DEM, grid: Grid) -> OrthoModel:
     """The model of an ortho after the DEM's checks: a frame's DEM projected and in the grid's CRS
-    (:func:`photax.io.crs.check_dem`), an RPC's heights in its range (:func:`photax.sensor.check_rpc_dem`)."""
+    (:func:`photax.io.crs.check_dem`), an RPC's heights in its range (:func:`photax.sensor.check_rpc_dem`),
+    the share of the image the DEM covers (:func:`photax.grid.check_coverage`: a warning below 95 %,
+    an error at none)."""
     model = OrthoModel(exterior, camera, dem, grid.crs)
     if model.sensor.kind != "frame":
         check_rpc_dem(model.sensor, dem, grid)
     else:
         check_dem(dem, grid)
+    if model.sensor.image_size is not None:
+        check_coverage(model.sensor, dem, stacklevel=4)  # a DEM on part of the image: a warning with the share
     return model
 
 
