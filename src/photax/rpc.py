@@ -55,6 +55,10 @@ from ._linalg import solve2
 from ._pytree import Module, field, filter_jit
 from .errors import OutsideValidityError
 
+# An RPC is evaluated within its validity volume (offsets +- scales) widened by this factor; beyond,
+# a rational polynomial can fold far-away ground back into the image, so those points are NaN.
+RPC_MARGIN = 1.1
+
 # Coefficient rows of RPCCamera.coefficients, and the keys GDAL / rasterio / orthority give them.
 COEFFICIENT_KEYS = ("line_num_coeff", "line_den_coeff", "samp_num_coeff", "samp_den_coeff")
 # Rows of RPCCamera.direct (the image -> ground model), and their keys (rpcm's, lower case).
@@ -523,7 +527,7 @@ def check_gcps(
     """Refuse GCPs that cannot belong to ``camera``'s image, warn of those just outside it.
 
     * The ground ``(n, 3)`` lon, lat, h must lie in the RPC's validity volume, its ground offsets
-      +- :data:`photax.sensor.RPC_MARGIN` scales (beyond, the polynomial is extrapolated and may fold):
+      +- :data:`RPC_MARGIN` scales (beyond, the polynomial is extrapolated and may fold):
       a ValueError naming them.
     * With ``camera.image_size`` (``w x h``): a pixel ``(n, 2)`` more than the image's own size beyond
       its edges is a blunder or another image's measurement (a ValueError); one outside the image but
@@ -532,7 +536,6 @@ def check_gcps(
       (:meth:`RPCCamera.crop`) keeps the full scene's scales, its offsets lie tens of scales away.
     * Without ``image_size``: the RPC's own pixel box, its line and sample offsets +- 1.5 scales.
     """
-    from .sensor import RPC_MARGIN
 
     label = (lambda i: names[i]) if names else (lambda i: f"GCP {i}")
 

@@ -50,11 +50,9 @@ from .collinearity import ExteriorOrientation, image_to_ground
 from .dem import DEM
 from .errors import CRSMismatchError, NotConvergedError
 from .geo import utm_crs as utm_crs  # noqa: F401 -- its old home, public: photax.sensor.utm_crs
+from .rpc import RPC_MARGIN
 
 WGS84 = "EPSG:4326"
-# An RPC is evaluated within its validity volume (offsets +- scales) widened by this factor; beyond,
-# a rational polynomial can fold far-away ground back into the image, so those points are NaN.
-RPC_MARGIN = 1.1
 
 
 def _pyproj(xy: np.ndarray, src: str, dst: str) -> np.ndarray:
