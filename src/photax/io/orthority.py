@@ -480,7 +480,7 @@ def write_orthority_exterior(path, table, crs=None, *, inputs=()) -> pathlib.Pat
 
 def write_orthority_geojson(path, table, crs, camera=None, *, inputs=()) -> pathlib.Path:
     """Write ``table`` (``{image name: ExteriorOrientation}``) as orthority's exterior
-    GeoJSON (what ``oty ... --export-params`` writes): ``world_crs`` (``crs``, a
+    GeoJSON (what orthority's ``--export-params`` writes): ``world_crs`` (``crs``, a
     projected CRS), each feature's ``filename``, ``camera`` (the camera name in the
     interior file, or null), ``xyz`` and ``opk`` (radians) and a WGS84 point
     (lon, lat, h).  :func:`read_orthority_geojson` reads back the same."""
