@@ -120,6 +120,19 @@ class LocalFrame:
 
     Example: ``frame = LocalFrame(10.0, 45.0); enu = frame.from_geographic(lon, lat, h)``;
     ``frame.from_crs("EPSG:32632", x, y, h)`` from a projected CRS (heights ellipsoidal, as given).
+
+    Examples:
+        A local east-north-up frame at a point: that point is the origin, and a point 1 km north is
+        1 km along +y (to the metre; the earth's curvature lowers it by about 0.08 m):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> frame = ptx.LocalFrame(15.0, 45.0, 100.0)
+        >>> print(np.round(np.asarray(frame.from_geographic(15.0, 45.0, 100.0)), 6) + 0.0)
+        [0. 0. 0.]
+        >>> e, n, u = np.asarray(frame.from_geographic(15.0, 45.0 + 1000.0 / 111132.0, 100.0))
+        >>> print(f"{e:.3f} {n:.0f} {u:.2f}")
+        0.000 1000 -0.08
     """
 
     lon0: float
@@ -216,6 +229,15 @@ def refraction_coefficient(camera_height, ground_height, model: Refraction = "be
             micro-radians with H, h in km (Bertram 1966, as Wolf & DeWitt give it), valid to
             about 9 km; ``"icao"``: the mean refractivity of the ICAO standard atmosphere between the two
             heights above its value at the camera, integrated in closed form (to 20 km).
+
+    Examples:
+        Bertram's formula by hand for a camera at 3 km over ground at sea level:
+        ``K = 2410 H / (H^2 - 6 H + 250)`` micro-radians (H in km), 2410 * 3 / 241 = 30 urad:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> print(f"{float(np.squeeze(ptx.refraction_coefficient(3000.0, 0.0))) * 1e6:.3f} urad")
+        30.000 urad
     """
     big_h = np.asarray(camera_height, float)
     h = np.asarray(ground_height, float)

@@ -28,6 +28,13 @@ class RESULTS(enum.IntEnum):
     Integer-valued, so compiled code returns them as ``int`` arrays (one per
     image of a batch) and ``RESULTS(code)`` names them.  ``successful`` is 0;
     :attr:`text` is the reason shown in messages.
+
+    Examples:
+        Solver outcomes as codes, each with its message:
+
+        >>> import photax as ptx
+        >>> ptx.RESULTS(0) is ptx.RESULTS.successful, int(ptx.RESULTS.max_steps_reached) > 0
+        (True, True)
     """
 
     successful = 0

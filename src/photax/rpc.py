@@ -80,6 +80,23 @@ class RPCCamera(Module):
             RPC's (column, row): ``dc = a0 + a1 c + a2 r``, ``dr = b0 + b1 c + b2 r`` (zero unless refined,
             :func:`refine_rpc`).
         image_size: ``(width, height)`` in pixels, or None when unknown.
+
+    Examples:
+        A toy RPC by hand: column and row linear in longitude and latitude (``col = samp_off +
+        samp_scale L``, ``L = (lon - long_off) / long_scale``; rows grow southward), and back:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> one, lon, lat = np.eye(20)[0], np.eye(20)[1], -np.eye(20)[2]  # 1, L, -P of the 20 terms
+        >>> rpc = ptx.RPCCamera.from_dict(dict(
+        ...     samp_num_coeff=lon, samp_den_coeff=one, line_num_coeff=lat, line_den_coeff=one,
+        ...     long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
+        ...     long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0,
+        ... ), image_size=(1000, 1000))
+        >>> print(np.asarray(rpc(np.array([[10.005, 45.005, 100.0]]))))  # lon, lat, h -> column, row
+        [[750. 250.]]
+        >>> print(np.round(np.asarray(rpc.to_ground(np.array([[750.0, 250.0]]), 100.0)), 9))
+        [[10.005 45.005]]
     """
 
     coefficients: Array
@@ -296,7 +313,27 @@ def read_rpc(path, image: str | None = None) -> RPCCamera:
     """An :class:`RPCCamera` from a file: orthority's ``rpc_param.yaml`` (``.yaml``/``.yml``; ``image``
     names the entry when it holds several), a DigitalGlobe ``.RPB`` or a ``_RPC.TXT`` file (as GDAL
     writes and reads them beside an image), or an image with RPC metadata GDAL reads (GeoTIFF RPC tags,
-    or those side files), through rasterio."""
+    or those side files), through rasterio.
+
+    Examples:
+        An RPC from orthority's ``rpc_param.yaml`` (written here by
+        :func:`photax.io.write_orthority_rpc`; ``.RPB``, ``_RPC.TXT`` and GeoTIFF RPC tags read the same way):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> one, lon, lat = np.eye(20)[0], np.eye(20)[1], -np.eye(20)[2]  # 1, L, -P of the 20 terms
+        >>> rpc = ptx.RPCCamera.from_dict(dict(
+        ...     samp_num_coeff=lon, samp_den_coeff=one, line_num_coeff=lat, line_den_coeff=one,
+        ...     long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
+        ...     long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0,
+        ... ), image_size=(1000, 1000))
+        >>> import pathlib, tempfile
+        >>> from photax.io import write_orthority_rpc
+        >>> path = write_orthority_rpc(pathlib.Path(tempfile.mkdtemp()) / "rpc_param.yaml", {"scene.tif": rpc})
+        >>> back = ptx.read_rpc(path, "scene.tif")
+        >>> bool(np.allclose(back.coefficients, rpc.coefficients)), back.image_size
+        (True, (1000, 1000))
+    """
     path = pathlib.Path(path)
     suffix = path.suffix.lower()
     if suffix in (".yaml", ".yml"):
@@ -499,6 +536,24 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *,
 
     Equal weights; the normal equations of the two axes are separate (the correction of each axis
     is linear in its own parameters), so each is an ordinary least-squares fit of the RPC's misfit.
+
+    Examples:
+        GCPs measured 2.5 columns and -1.25 rows away from where the RPC puts them: the ``shift``
+        refinement finds the bias, and the refined camera fits them to rounding:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> one, lon, lat = np.eye(20)[0], np.eye(20)[1], -np.eye(20)[2]  # 1, L, -P of the 20 terms
+        >>> rpc = ptx.RPCCamera.from_dict(dict(
+        ...     samp_num_coeff=lon, samp_den_coeff=one, line_num_coeff=lat, line_den_coeff=one,
+        ...     long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
+        ...     long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0,
+        ... ), image_size=(1000, 1000))
+        >>> ground = np.array([[10.002, 45.001, 50.0], [10.007, 44.996, 80.0], [9.995, 45.004, 20.0]])
+        >>> pixel = np.asarray(rpc(ground)) + [2.5, -1.25]
+        >>> ref = ptx.refine_rpc(rpc, ground, pixel, "shift")
+        >>> print(f"{ref.raw_rmse:.3f} -> {ref.rmse:.6f} px")
+        2.795 -> 0.000000 px
     """
     if model not in _REFINE_TERMS:
         raise ValueError(f"model: expected one of {', '.join(_REFINE_TERMS)}, got {model!r}")

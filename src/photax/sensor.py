@@ -412,7 +412,15 @@ def _vertical_name(crs) -> str:
 
 
 def utm_crs(lon: float, lat: float) -> str:
-    """The WGS84 UTM zone of a point (lon, lat in degrees), as ``EPSG:326zz`` (north) or ``EPSG:327zz``."""
+    """The WGS84 UTM zone of a point (lon, lat in degrees), as ``EPSG:326zz`` (north) or ``EPSG:327zz``.
+
+    Examples:
+        The UTM zone of a longitude and latitude, as an EPSG code (north 326xx, south 327xx):
+
+        >>> import photax as ptx
+        >>> ptx.utm_crs(15.1, 37.1), ptx.utm_crs(18.4, -33.9)
+        ('EPSG:32633', 'EPSG:32734')
+    """
     if not (-180 <= lon <= 180 and -80 <= lat <= 84):
         raise ValueError(f"no UTM zone at lon {lon}, lat {lat}")
     zone = min(int((lon + 180) // 6) + 1, 60)

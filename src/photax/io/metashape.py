@@ -250,6 +250,19 @@ def write_metashape_calibration(camera: FrameCamera, path, *, inputs=()) -> path
 
     Raises:
         ValueError: a camera without a pixel grid (``pixel_size``, ``image_size``) or a scan.
+
+    Examples:
+        A camera as a Metashape calibration XML, read back (``{sensor name or None: camera}``):
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_metashape_calibration, write_metashape_calibration
+        >>> cam = ptx.FrameCamera.from_pixels(3000.0, (4000, 3000), distortion=[-0.05, 0.0, 0.0, 0.0, 0.0])  # k1 k2 k3 p1 p2
+        >>> path = write_metashape_calibration(cam, pathlib.Path(tempfile.mkdtemp()) / "calibration.xml")
+        >>> (back,) = read_metashape_calibration(path).values()
+        >>> back.image_size, bool(np.isclose(back.focal_length, cam.focal_length)), float(back.distortion[0])
+        ((4000, 3000), True, -0.05)
     """
     from .atomic import atomic_write
 
@@ -279,7 +292,21 @@ def write_opk_export(table: dict, path, *, format: str = "metashape", inputs=())
     """Write ``{image name: ExteriorOrientation}`` as a Metashape "Omega Phi Kappa" export
     (``format="metashape"``: tab-separated, with r11..r33) or a Pix4D external parameters file
     (``"pix4d"``), atomically; angles in degrees, omega-phi-kappa, 17 significant digits.
-    :func:`read_opk_export` reads either back."""
+    :func:`read_opk_export` reads either back.
+
+    Examples:
+        Orientations as a Metashape *Omega Phi Kappa* export (or Pix4D's), read back equal:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_opk_export, write_opk_export
+        >>> eo = ptx.ExteriorOrientation([512300.0, 4103800.0, 450.0], np.radians([1.0, -2.0, 30.0]), "omega-phi-kappa")
+        >>> path = write_opk_export({"IMG_1": eo}, pathlib.Path(tempfile.mkdtemp()) / "cameras_opk.txt")
+        >>> back = read_opk_export(path)["IMG_1"]
+        >>> bool(np.allclose(back.position, eo.position) and np.allclose(back.rotation, eo.rotation))
+        True
+    """
     from .atomic import atomic_write
 
     if format not in ("metashape", "pix4d"):

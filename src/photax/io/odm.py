@@ -93,6 +93,22 @@ def read_odm_geo(path, crs=None) -> tuple[dict[str, np.ndarray], str | None, dic
         ValueError: naming the file and line: no CRS line, a CRS pyproj does not
             read, a line without a name and two numbers, a latitude out of
             range, a repeated image.
+
+    Examples:
+        Longitude, latitude and height, projected into the UTM zone of the points:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> from photax.io import read_odm_geo
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "geo.txt"
+        >>> _ = path.write_text("EPSG:4326\\nIMG_1.JPG 15.0 37.0 450.0 0 0 0 2.5 5.0\\n")
+        >>> positions, crs, accuracy = read_odm_geo(path)
+        >>> crs, accuracy["IMG_1"]
+        ('EPSG:32633', (2.5, 5.0))
+        >>> from pyproj import Transformer  # the same point projected by PROJ
+        >>> e, n = Transformer.from_crs("EPSG:4326", "EPSG:32633", always_xy=True).transform(15.0, 37.0)
+        >>> bool(np.allclose(positions["IMG_1"], [e, n, 450.0]))
+        True
     """
     from .gcp import _projected
 
@@ -173,6 +189,18 @@ def write_odm_geo(path, positions, crs, *, inputs=()) -> pathlib.Path:
         ValueError: no positions; a name that is empty, has spaces or repeats a
             stem; an x or y that is not finite, a height that is infinite; a CRS
             pyproj does not read, or one with neither an EPSG code nor a PROJ string.
+
+    Examples:
+        Positions in a projected CRS written as ODM's ``geo.txt`` and read back:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> from photax.io import read_odm_geo, write_odm_geo
+        >>> positions = {"IMG_1": (512300.0, 4103800.0, 450.0), "IMG_2": (512400.5, 4103800.25, 451.0)}
+        >>> path = write_odm_geo(pathlib.Path(tempfile.mkdtemp()) / "geo.txt", positions, "EPSG:32633")
+        >>> back, crs, accuracy = read_odm_geo(path)
+        >>> sorted(back), bool(np.allclose(back["IMG_2"], positions["IMG_2"])), accuracy
+        (['IMG_1', 'IMG_2'], True, {})
     """
     from .atomic import atomic_write
     from .gcp import _parse_crs

@@ -139,6 +139,15 @@ def camera_to_orthority(camera: FrameCamera) -> dict:
         ValueError: a camera without a pixel grid, or a scanned one (its
             pixels go through a fitted transformation orthority has no
             place for).
+
+    Examples:
+        The orthority parameters of a camera (pixels become orthority's sensor size):
+
+        >>> import photax as ptx
+        >>> from photax.io import camera_to_orthority
+        >>> params = camera_to_orthority(ptx.FrameCamera(8.8, pixel_size=0.0176, image_size=(1000, 750)))
+        >>> params["type"], params["im_size"], [round(v, 6) for v in params["sensor_size"]]
+        ('brown', [1000, 750], [17.6, 13.2])
     """
     if camera.pixel_size is None or camera.image_size is None or getattr(camera, "transform", None) is not None:
         raise ValueError("an orthority camera needs a pixel grid (pixel_size and image_size) and no scan transform")
@@ -169,6 +178,17 @@ def read_orthority_interior(path) -> dict[str, FrameCamera]:
     k4, k5, k6, s1 ... s4 (``"opencv"``; a tilt ``tx``, ``ty`` other than 0
     is refused), ``fisheye`` k1 ... k4 (``"fisheye"``).  The photax camera
     works in the focal length's unit (e.g. mm).
+
+    Examples:
+        orthority's interior parameter file: ``{camera name: FrameCamera}``:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_orthority_interior
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "int_param.yaml"
+        >>> _ = path.write_text("cam:\\n  type: pinhole\\n  im_size: [1000, 750]\\n  focal_len: 8.8\\n  sensor_size: [17.6, 13.2]\\n")
+        >>> cam = read_orthority_interior(path)["cam"]
+        >>> cam.image_size, round(float(cam.focal_length / cam.pixel_size[0]), 6)  # f in pixels: 8.8 / 0.0176
+        ((1000, 750), 500.0)
     """
     path = pathlib.Path(path)
     data = load_yaml(path, read_text(path, "orthority interior file"))
@@ -419,6 +439,19 @@ def write_orthority_interior(path, cameras, *, inputs=()) -> pathlib.Path:
     Raises:
         ValueError: a camera without a pixel grid, a scanned camera, or a camera named
             ``camera`` (orthority's legacy key).
+
+    Examples:
+        A camera as orthority's interior YAML, read back equal:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_orthority_interior, write_orthority_interior
+        >>> cam = ptx.FrameCamera.from_pixels(2904.0, (4000, 3000))
+        >>> path = write_orthority_interior(pathlib.Path(tempfile.mkdtemp()) / "int_param.yaml", {"drone": cam})
+        >>> back = read_orthority_interior(path)["drone"]
+        >>> back.image_size, bool(np.isclose(back.focal_length / back.pixel_size[0], 2904.0))
+        ((4000, 3000), True)
     """
     import yaml
 
@@ -453,7 +486,21 @@ def write_orthority_exterior(path, table, crs=None, *, inputs=()) -> pathlib.Pat
     as orthority's exterior CSV: a header ``filename x y z omega phi kappa``,
     angles in degrees (orthority's omega-phi-kappa = photax's), full precision;
     with ``crs``, its WKT in the ``.prj`` beside the file (both written
-    atomically).  :func:`read_orthority_exterior_crs` reads back the same."""
+    atomically).  :func:`read_orthority_exterior_crs` reads back the same.
+
+    Examples:
+        Orientations as orthority's exterior CSV (with its ``.prj``), read back equal:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_orthority_exterior, write_orthority_exterior
+        >>> eo = ptx.ExteriorOrientation([512300.0, 4103800.0, 450.0], np.radians([1.0, -2.0, 30.0]), "omega-phi-kappa")
+        >>> path = write_orthority_exterior(pathlib.Path(tempfile.mkdtemp()) / "ext.csv", {"IMG_1": eo}, "EPSG:32633")
+        >>> back = read_orthority_exterior(path)["IMG_1"]
+        >>> bool(np.allclose(back.position, eo.position) and np.allclose(back.rotation, eo.rotation))
+        True
+    """
     import pyproj
 
     from .atomic import atomic_write
@@ -516,7 +563,26 @@ def write_orthority_rpc(path, cameras, *, inputs=()) -> pathlib.Path:
     """Write RPCs (:class:`photax.rpc.RPCCamera`, ``{image file name: camera}``) as orthority's
     ``rpc_param.yaml`` (each entry ``im_size`` and ``rpc`` with GDAL's keys), atomically:
     ``oty rpc --rpc-file`` and :func:`photax.rpc.read_rpc` read it back (a refined RPC's image-space
-    correction is not part of the format: refused)."""
+    correction is not part of the format: refused).
+
+    Examples:
+        RPCs as orthority's ``rpc_param.yaml``, read back by :func:`photax.read_rpc`:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> one, lon, lat = np.eye(20)[0], np.eye(20)[1], -np.eye(20)[2]  # 1, L, -P of the 20 terms
+        >>> rpc = ptx.RPCCamera.from_dict(dict(
+        ...     samp_num_coeff=lon, samp_den_coeff=one, line_num_coeff=lat, line_den_coeff=one,
+        ...     long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
+        ...     long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0,
+        ... ), image_size=(1000, 1000))
+        >>> import pathlib, tempfile
+        >>> from photax.io import write_orthority_rpc
+        >>> path = write_orthority_rpc(pathlib.Path(tempfile.mkdtemp()) / "rpc_param.yaml", {"scene.tif": rpc})
+        >>> back = ptx.read_rpc(path)
+        >>> print(np.asarray(back(np.array([[10.005, 45.005, 100.0]]))), back.image_size)
+        [[750. 250.]] (1000, 1000)
+    """
     import yaml
 
     from .atomic import atomic_write

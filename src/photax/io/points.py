@@ -23,7 +23,19 @@ from .gcp import read_gcps
 
 
 def read_named_points(path, columns: tuple[str, str], what: str) -> tuple[list[str], np.ndarray]:
-    """``name,a,b`` rows of a CSV with a header naming those columns (file and line in errors)."""
+    """``name,a,b`` rows of a CSV with a header naming those columns (file and line in errors).
+
+    Examples:
+        A ``name,x,y`` list (fiducial marks in mm, say):
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_named_points
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "fiducials.csv"
+        >>> _ = path.write_text("name,x,y\\nF1,-106.0,-106.0\\nF2,106.0,106.0\\n")
+        >>> names, xy = read_named_points(path, ("x", "y"), "fiducial")
+        >>> names, xy.tolist()
+        (['F1', 'F2'], [[-106.0, -106.0], [106.0, 106.0]])
+    """
     rows = []
     for k, line in enumerate(split_lines(read_text(path, what)), start=1):
         try:

@@ -141,6 +141,17 @@ def hough_lines(
 
     Returns:
         :class:`HoughLines` (numpy arrays).  No edge pixel: no line.
+
+    Examples:
+        A straight line of edge pixels, column = row + 5 (normal at -45 degrees), found back:
+
+        >>> import numpy as np
+        >>> from photax.measure import hough_lines
+        >>> edges = np.zeros((60, 60), bool)
+        >>> edges[np.arange(50), np.arange(50) + 5] = True
+        >>> lines = hough_lines(edges, max_lines=1)
+        >>> print(f"{np.degrees(lines.theta[0]) % 180:.1f} deg, |rho| {abs(lines.rho[0]):.2f} px")  # 5 / sqrt(2) = 3.54
+        135.0 deg, |rho| 3.54 px
     """
     shape, xy, wts, (xs, ys, ws) = _edge_points(edges)
     if not (theta_step > 0 and rho_step > 0):

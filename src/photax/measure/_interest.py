@@ -253,6 +253,16 @@ def non_maximum_suppression(response, size: int = 3, threshold: float = 0.0):
 
     Returns:
         Boolean map of the shape of ``response``.
+
+    Examples:
+        The local maxima of a response above a threshold, as a mask:
+
+        >>> import numpy as np
+        >>> from photax.measure import non_maximum_suppression
+        >>> response = np.zeros((9, 9)); response[2, 3] = 5.0; response[2, 4] = 4.0; response[6, 6] = 1.0
+        >>> keep = np.asarray(non_maximum_suppression(response, 3, threshold=2.0))
+        >>> np.argwhere(keep).tolist()
+        [[2, 3]]
     """
     size = check_odd_window(size, "size")
     resp, b = as_image(response, "response")

@@ -255,6 +255,18 @@ def match_ncc(
         :class:`LocateResult` (``xy`` in the search image; ``sigma0`` is the
         noise level ``sigma_n`` in grey values; a peak on the border of the
         search range gets ``Status.LEFT_WINDOW``), and ``rho`` if asked.
+
+    Examples:
+        A template found in a shifted copy of its image (by 3 columns, -2 rows), to the pixel:
+
+        >>> import numpy as np
+        >>> from photax.measure import match_ncc
+        >>> rng = np.random.default_rng(0)
+        >>> a = rng.normal(size=(60, 60))
+        >>> b = np.roll(a, (-2, 3), axis=(0, 1))
+        >>> res = match_ncc(a, np.array([[30.0, 30.0]]), b, np.array([[31.0, 29.0]]), window=8, search=4)
+        >>> print(np.round(np.asarray(res.xy), 1) + 0.0)
+        [[33. 28.]]
     """
     res, rho = _pair(
         template_image,
