@@ -16,6 +16,13 @@ class ConvergenceError(RuntimeError):
 
     Raised only with ``throw=True``; with ``throw=False`` the result carries
     ``converged=False`` and the same message instead.
+
+    Examples:
+        Raised by an estimate that did not converge when ``throw=True``:
+
+        >>> import photax as ptx
+        >>> issubclass(ptx.ConvergenceError, RuntimeError)
+        True
     """
 
 

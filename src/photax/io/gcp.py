@@ -105,6 +105,20 @@ class GCPTable:
         crs: the ground CRS as text (EPSG code or PROJ string), or ``None``.
         lines: ``(n,)`` line numbers in the source file (0 when built in memory).
         source: the file it was read from, if any (for messages).
+
+    Examples:
+        Built in memory, or read by :func:`photax.read_gcps`; ``image_plane`` converts its pixels
+        with a camera:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import GCPTable
+        >>> table = GCPTable(names=np.array(["A"]), images=np.array(["IMG"]), ground=np.array([[100.0, 200.0, 10.0]]),
+        ...                  pixel=np.array([[499.5, 374.5]]), image_xy=None, sigma=np.array([0.3]),
+        ...                  role=np.array(["control"]))
+        >>> cam = ptx.FrameCamera(8.8, pixel_size=0.0176, image_size=(1000, 750))
+        >>> print(np.round(np.asarray(table.image_plane(cam)), 9) + 0.0)  # the image centre
+        [[0. 0.]]
     """
 
     names: np.ndarray

@@ -97,7 +97,17 @@ def roberts(image):
     2 x 2 kernels of seed 004 as ``skimage.filters.roberts`` applies them
     (``scipy.ndimage.convolve``, mode ``"reflect"``).  The difference
     belongs to the half-pixel position (c + 1/2, r + 1/2) and is stored at
-    pixel (c, r).  Shapes as :func:`sobel`."""
+    pixel (c, r).  Shapes as :func:`sobel`.
+
+    Examples:
+        On a ramp of 3 grey levels per column both diagonal differences are 3 in size, so the
+        magnitude ``sqrt((d1^2 + d2^2) / 2)`` is 3:
+
+        >>> import numpy as np
+        >>> from photax.measure import roberts
+        >>> print(np.round(np.asarray(roberts(np.tile(3.0 * np.arange(6.0), (5, 1))))[2, 1:4], 6))
+        [3. 3. 3.]
+    """
     img, b = as_image(image)
     return batched(_roberts, img, b)
 
@@ -189,6 +199,18 @@ def log(image, sigma: float = 2.0, *, threshold: float = 0.0, mode: Mode = "refl
         image gives no edge and a response of about -1.7e-4 times its grey
         value at sigma 2, as scipy's: the sampled, truncated second-derivative
         kernels do not sum to exactly zero.
+
+    Examples:
+        The response equals SciPy's ``gaussian_laplace`` (the same sampled kernels and border mode);
+        ``(response, zero crossings)``:
+
+        >>> import numpy as np
+        >>> from scipy import ndimage
+        >>> from photax.measure import log
+        >>> image = np.random.default_rng(0).uniform(0, 1, (32, 32))
+        >>> response, crossings = log(image, sigma=2.0)
+        >>> bool(np.allclose(np.asarray(response), ndimage.gaussian_laplace(image, 2.0), atol=1e-12))
+        True
     """
     img, b = as_image(image, convert=False)
     sigma = float(sigma)

@@ -265,6 +265,18 @@ def hough_circles(
 
     Returns:
         :class:`HoughCircles` (numpy arrays).
+
+    Examples:
+        A circle of radius 8 drawn around (30, 25), found back among radii 6-10:
+
+        >>> import numpy as np
+        >>> from photax.measure import hough_circles
+        >>> t = np.linspace(0, 2 * np.pi, 400)
+        >>> edges = np.zeros((60, 60), bool)
+        >>> edges[np.round(25 + 8 * np.sin(t)).astype(int), np.round(30 + 8 * np.cos(t)).astype(int)] = True
+        >>> circles = hough_circles(edges, np.arange(6, 11), max_circles=1)
+        >>> print(np.round(circles.xy, 0) + 0.0, np.round(circles.radius, 0))
+        [[30. 25.]] [8.]
     """
     shape, xy, wts, (xs, ys, ws) = _edge_points(edges)
     radii = np.atleast_1d(np.asarray(radii, dtype=np.float64))
