@@ -38,8 +38,11 @@ source_suffix = {".rst": "restructuredtext", ".md": "myst-nb", ".ipynb": "myst-n
 exclude_patterns = ["_build", "**.ipynb_checkpoints", "_ext"]
 root_doc = "index"
 
-# Notebooks: their stored outputs only (tests/test_notebooks.py executes them).
-nb_execution_mode = "off"
+# Notebooks: their stored outputs only (tests/test_notebooks.py executes them).  The notebooks are
+# committed without outputs, so their figures appear only in a build that runs them:
+# PHOTAX_DOCS_EXECUTE=1 sphinx-build ... (myst-nb's "cache" mode, minutes; needs ../shared/data for 07, 08).
+nb_execution_mode = "cache" if os.environ.get("PHOTAX_DOCS_EXECUTE") == "1" else "off"
+nb_execution_timeout = 900
 myst_enable_extensions = ["dollarmath", "amsmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
 # The notebooks' and the pages' headings skip levels in places; that is not an error of the docs.

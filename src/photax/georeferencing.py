@@ -42,6 +42,16 @@ class Similarity:
         rotation: ``(3, 3)`` proper rotation.
         translation: ``(3,)``.
         residuals: ``(n, 3)`` fitted minus target of the pairs it was fitted to.
+
+    Examples:
+        What :func:`similarity_transform` returns: ``apply`` maps points, ``rms`` the fit's residual:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> source = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 10.0, 0.0], [0.0, 0.0, 10.0]])
+        >>> sim = ptx.similarity_transform(source, 2.0 * source + [100.0, 200.0, 300.0])
+        >>> print(np.round(np.asarray(sim.apply(np.array([[1.0, 1.0, 1.0]]))), 6), f"{sim.rms:.6f}")
+        [[102. 202. 302.]] 0.000000
     """
 
     scale: float

@@ -217,6 +217,18 @@ def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation
     omega-phi-kappa, which is photax's ``"omega-phi-kappa"`` convention
     unchanged (module docstring).  Keys are file names without extension, as
     orthority matches them.
+
+    Examples:
+        orthority's ``filename x y z omega phi kappa`` CSV (angles in degrees): ``{stem: orientation}``:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> from photax.io import read_orthority_exterior
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "ext.csv"
+        >>> _ = path.write_text("filename,x,y,z,omega,phi,kappa\\nIMG_1.tif,512300.0,4103800.0,450.0,1.0,-2.0,30.0\\n")
+        >>> eo = read_orthority_exterior(path)["IMG_1"]
+        >>> eo.convention, np.asarray(eo.position).tolist(), np.round(np.degrees(np.asarray(eo.angles)), 6).tolist()
+        ('omega-phi-kappa', [512300.0, 4103800.0, 450.0], [1.0, -2.0, 30.0])
     """
     table, _ = _read_csv(pathlib.Path(csv_path))
     if prj is not None and not pathlib.Path(prj).is_file():

@@ -82,6 +82,19 @@ def read_pix4d_cam(path, image_size: tuple[int, int] | None = None) -> FrameCame
             fisheye camera, an unknown or repeated key, a value that is not a
             finite number, a missing term, a sensor or focal length that is
             not positive; an ``image_size`` that is not two positive integers.
+
+    Examples:
+        Pix4D's ``.cam`` file (mm on the sensor; written here by :func:`write_pix4d_cam`), with the
+        image's pixel count:
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> from photax.io import read_pix4d_cam, write_pix4d_cam
+        >>> cam = ptx.FrameCamera(8.8, pixel_size=0.0176, image_size=(1000, 750))
+        >>> path = write_pix4d_cam(cam, pathlib.Path(tempfile.mkdtemp()) / "p_pix4d_calibrated_internal_camera_parameters.cam")
+        >>> back = read_pix4d_cam(path, (1000, 750))
+        >>> round(float(back.focal_length / back.pixel_size[0]), 6), back.image_size
+        (500.0, (1000, 750))
     """
     path = pathlib.Path(path)
     lines = split_lines(read_text(path, "camera file"))

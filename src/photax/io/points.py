@@ -72,7 +72,19 @@ def read_named_points(path, columns: tuple[str, str], what: str) -> tuple[list[s
 
 def read_pixel_points(path, image_name: str | None = None):
     """``(names, approx (n, 2), table)`` from a GCP file or a ``name,col,row`` CSV
-    (``table`` is the GCP table, or None for a plain list)."""
+    (``table`` is the GCP table, or None for a plain list).
+
+    Examples:
+        Approximate image positions as ``name,col,row`` (or any GCP file):
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_pixel_points
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "approx.csv"
+        >>> _ = path.write_text("name,col,row\\nT1,100.5,200.0\\nT2,310.0,45.25\\n")
+        >>> names, xy, table = read_pixel_points(path)
+        >>> names.tolist(), xy.tolist(), table is None
+        (['T1', 'T2'], [[100.5, 200.0], [310.0, 45.25]], True)
+    """
     path = pathlib.Path(path)
     lines = [
         (i + 1, s)

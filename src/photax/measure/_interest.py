@@ -224,6 +224,17 @@ def harris(
 
     Returns:
         float64 response (grey^4 for ``"k"``) of the shape of ``image``.
+
+    Examples:
+        The Harris response of a bright square is largest at its corners, negative on its edges:
+
+        >>> import numpy as np
+        >>> from photax.measure import harris
+        >>> image = np.zeros((40, 40)); image[10:30, 10:30] = 1.0
+        >>> response = np.asarray(harris(image, sigma=1.5))
+        >>> r, c = np.unravel_index(np.argmax(response), response.shape)
+        >>> bool(min(abs(r - 10), abs(r - 29)) <= 1 and min(abs(c - 10), abs(c - 29)) <= 1), bool(response[20, 10] < 0)
+        (True, True)
     """
     img, b = as_image(image)
     if method not in ("k", "eps"):
