@@ -29,6 +29,18 @@ class InteriorOrientation:
         critical: the critical value of ``sqrt(T_i)`` in the final fit.
         redundancy: ``2 n_used - k``.
         message: what happened, in words.
+
+    Examples:
+        What :func:`interior_orientation` returns: the fitted transformation, its residuals and
+        test, and a camera that goes through it (a :class:`ScannedCamera`):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> film = np.array([[-106.0, -106.0], [106.0, -106.0], [106.0, 106.0], [-106.0, 106.0], [0.0, 110.0]])
+        >>> pixel = film * [50.0, -50.0] + [5600.0, 5620.0]
+        >>> io = ptx.interior_orientation(pixel, film, "similarity")
+        >>> print(f"{io.rmse:.6f}", np.round(np.asarray(io.pixel_from_film(np.array([[0.0, 0.0]]))), 6))
+        0.000000 [[5600. 5620.]]
     """
 
     model: str

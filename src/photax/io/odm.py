@@ -57,6 +57,19 @@ def write_odm_cameras(path, cameras, *, inputs=()) -> pathlib.Path:
 
     Raises:
         ValueError: a camera OpenSfM cannot hold (:func:`photax.io.opensfm.camera_to_opensfm`).
+
+    Examples:
+        Cameras as ODM's ``cameras.json``, read back equal (in pixels):
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_odm_cameras, write_odm_cameras
+        >>> cam = ptx.FrameCamera.from_pixels(2904.0, (4000, 3000), distortion=[-0.05, 0.01, 0.0, 0.0, 0.0])
+        >>> path = write_odm_cameras(pathlib.Path(tempfile.mkdtemp()) / "cameras.json", {"dji": cam})
+        >>> back = read_odm_cameras(path)["dji"]
+        >>> bool(np.isclose(back.focal_length, 2904.0)), np.round(np.asarray(back.distortion), 6).tolist()[:2]
+        (True, [-0.05, 0.01])
     """
     import json
 

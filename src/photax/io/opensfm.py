@@ -323,6 +323,15 @@ def camera_to_opensfm(camera: FrameCamera) -> dict:
     Raises:
         ValueError: a camera without a pixel grid, a scanned one, or an
             ``opencv`` camera with terms beyond OpenSfM's ``brown`` (k4-k6, s1-s4).
+
+    Examples:
+        OpenSfM's camera entry: focal length and principal point normalised by the larger image side:
+
+        >>> import photax as ptx
+        >>> from photax.io import camera_to_opensfm
+        >>> entry = camera_to_opensfm(ptx.FrameCamera.from_pixels(3000.0, (4000, 3000)))
+        >>> entry["projection_type"], entry["width"], entry["height"], round(entry["focal_x"], 6)
+        ('brown', 4000, 3000, 0.75)
     """
     if camera.pixel_size is None or camera.image_size is None or getattr(camera, "transform", None) is not None:
         raise ValueError("an OpenSfM camera needs a pixel grid (pixel_size and image_size) and no scan transform")

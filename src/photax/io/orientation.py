@@ -140,6 +140,18 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
     Raises:
         ValueError: a malformed file (naming file and line), or ``name``
             missing or unknown for a multi-camera file (listing the names).
+
+    Examples:
+        A camera from a photax camera file or an orthority interior file, told apart by content:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_interior
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> _ = (folder / "photax.yaml").write_text("focal_length_px: 500.0\\nimage_size: [1000, 750]\\n")
+        >>> _ = (folder / "int_param.yaml").write_text(
+        ...     "cam:\\n  type: pinhole\\n  im_size: [1000, 750]\\n  focal_len: 8.8\\n  sensor_size: [17.6, 13.2]\\n")
+        >>> [read_interior(folder / f).image_size for f in ("photax.yaml", "int_param.yaml")]
+        [(1000, 750), (1000, 750)]
     """
     path = pathlib.Path(path)
     from .colmap import is_colmap_file, read_colmap_cameras
@@ -358,7 +370,19 @@ def read_camera_unit(path) -> str | None:
     ``"px"``), ``"px"`` for the ``focal_length_px`` shorthand and for an
     OpenSfM/ODM ``reconstruction.json`` (read in pixels); None if not given, as
     for an orthority interior file (its focal length and sensor size share a
-    unit it does not name: :func:`camera_in_pixels`); ``"mm"`` for a Pix4D ``.cam``."""
+    unit it does not name: :func:`camera_in_pixels`); ``"mm"`` for a Pix4D ``.cam``.
+
+    Examples:
+        The unit a camera file's lengths are in:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_camera_unit
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> _ = (folder / "mm.yaml").write_text("focal_length: 8.8\\nunit: mm\\npixel_size: 0.0176\\nimage_size: [1000, 750]\\n")
+        >>> _ = (folder / "px.yaml").write_text("focal_length_px: 500.0\\nimage_size: [1000, 750]\\n")
+        >>> read_camera_unit(folder / "mm.yaml"), read_camera_unit(folder / "px.yaml")
+        ('mm', 'px')
+    """
     path = pathlib.Path(path)
     from .colmap import is_colmap_file
     from .metashape import is_metashape_xml

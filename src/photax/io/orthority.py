@@ -542,7 +542,21 @@ def write_orthority_geojson(path, table, crs, camera=None, *, inputs=()) -> path
     GeoJSON (what orthority's ``--export-params`` writes): ``world_crs`` (``crs``, a
     projected CRS), each feature's ``filename``, ``camera`` (the camera name in the
     interior file, or null), ``xyz`` and ``opk`` (radians) and a WGS84 point
-    (lon, lat, h).  :func:`read_orthority_geojson` reads back the same."""
+    (lon, lat, h).  :func:`read_orthority_geojson` reads back the same.
+
+    Examples:
+        Orientations as orthority's exterior GeoJSON, read back equal with their CRS:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_orthority_geojson, write_orthority_geojson
+        >>> eo = ptx.ExteriorOrientation([512300.0, 4103800.0, 450.0], np.radians([1.0, -2.0, 30.0]), "omega-phi-kappa")
+        >>> path = write_orthority_geojson(pathlib.Path(tempfile.mkdtemp()) / "ext.geojson", {"IMG_1": eo}, "EPSG:32633")
+        >>> table, crs = read_orthority_geojson(path)
+        >>> bool(np.allclose(table["IMG_1"].position, eo.position) and np.allclose(table["IMG_1"].rotation, eo.rotation))
+        True
+    """
     import json
 
     import pyproj

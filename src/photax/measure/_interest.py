@@ -326,6 +326,18 @@ def interest_points(
     Returns:
         :class:`InterestPoints` with ``xy`` (n, 2: column, row) and
         ``strength`` (n,).  No texture (a constant image): n = 0.
+
+    Examples:
+        Förstner interest points of a chequerboard: its inner crossings:
+
+        >>> import numpy as np
+        >>> from photax.measure import interest_points
+        >>> r, c = np.mgrid[0:48, 0:48]
+        >>> board = 200.0 * (((r // 12) + (c // 12)) % 2) + 20.0
+        >>> pts = interest_points(board, "foerstner", min_distance=5)
+        >>> found = {tuple(int(v) for v in np.round(p / 12.0) * 12) for p in pts.xy}
+        >>> {(12, 12), (24, 24), (36, 12)} <= found
+        True
     """
     img, b = as_image(image)
     if b:

@@ -18,7 +18,15 @@ from jax import Array
 
 
 class Status(enum.IntEnum):
-    """Per-point outcome of a locator (``LocateResult.status``)."""
+    """Per-point outcome of a locator (``LocateResult.status``).
+
+    Examples:
+        Each locator's per-point outcome; ``OK`` is 0:
+
+        >>> from photax.measure import Status
+        >>> int(Status.OK), Status(1).name
+        (0, 'OUTSIDE')
+    """
 
     OK = 0
     OUTSIDE = 1  # the measuring window (plus interpolation margin) is not inside the image
