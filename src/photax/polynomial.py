@@ -426,6 +426,20 @@ class ProjectiveModel(eqx.Module):
         result: the :class:`photax.RESULTS` code of the geometric
             refinement (``successful`` without one); ``converged`` and
             ``message`` say the same.
+
+    Examples:
+        What :func:`fit_projective` returns: callable on ``(n, 2)`` points, with its residuals:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> src = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+        >>> dst = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 2.0], [1.5, 1.2]])  # four points fix a homography
+        >>> model = ptx.fit_projective(src, dst)
+        >>> print(np.round(np.asarray(model(src)), 6) + 0.0, f"{float(model.rmse):.6f}")
+        [[0.  0. ]
+         [2.  0. ]
+         [0.  2. ]
+         [1.5 1.2]] 0.000000
     """
 
     h_normalised: Array

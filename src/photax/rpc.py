@@ -456,6 +456,22 @@ class RPCRefinement:
             ``v_i / (sigma0 sqrt(1 - h_ii))`` with ``h_ii`` the GCP's leverage (Pope's tau statistic);
             the largest beyond about 3 marks a blunder (data snooping, Baarda 1968). NaN without
             redundancy or where a GCP alone determines a parameter (``h_ii = 1``).
+
+    Examples:
+        What :func:`refine_rpc` returns: the refined camera and the fit before and after, per GCP
+        and with each left out:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> one, lon, lat = np.eye(20)[0], np.eye(20)[1], -np.eye(20)[2]
+        >>> rpc = ptx.RPCCamera.from_dict(dict(
+        ...     samp_num_coeff=lon, samp_den_coeff=one, line_num_coeff=lat, line_den_coeff=one,
+        ...     long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
+        ...     long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0))
+        >>> ground = np.array([[10.002, 45.001, 50.0], [10.007, 44.996, 80.0], [9.995, 45.004, 20.0]])
+        >>> ref = ptx.refine_rpc(rpc, ground, np.asarray(rpc(ground)) + [1.0, 0.0], names=["A", "B", "C"])
+        >>> list(ref.names), f"{ref.raw_rmse:.3f}", f"{ref.rmse:.6f}", f"{ref.loo_rmse:.6f}"
+        (['A', 'B', 'C'], '1.000', '0.000000', '0.000000')
     """
 
     camera: RPCCamera

@@ -239,6 +239,20 @@ def read_exterior(path, image, crs=None) -> tuple[ExteriorOrientation, str | Non
     Raises:
         ValueError: naming the file: malformed, no (solved) orientation for
             ``image``, or several candidates.
+
+    Examples:
+        One image's orientation from a ``photax resect``/``bundle`` JSON result or an orthority file;
+        here a JSON orientation as ``data/sample_truth.json`` holds it:
+
+        >>> import json, pathlib, tempfile
+        >>> import numpy as np
+        >>> from photax.io import read_exterior
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "truth.json"
+        >>> _ = path.write_text(json.dumps({"convention": "phi-omega-kappa", "position": [512308.0, 4103788.0, 450.0],
+        ...                                 "angles_rad": [0.02, -0.01, 0.61], "crs": "EPSG:32633"}))
+        >>> eo, crs = read_exterior(path, "IMG_0001.tif")
+        >>> np.asarray(eo.position).tolist(), eo.convention
+        ([512308.0, 4103788.0, 450.0], 'phi-omega-kappa')
     """
     if exif_attitude(path) is not None:  # the image's own GPS and attitude tags
         # heights as tagged: not moved into a vertical datum (their own datum is not known)
@@ -273,6 +287,17 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
     Raises:
         ValueError: naming the file: malformed, no images, or no (solved)
             orientation for one of ``names``.
+
+    Examples:
+        Every image of an orientation file, parsed once (here orthority's CSV with a ``.prj``):
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_exteriors
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> _ = (folder / "ext.csv").write_text("A.tif 100 200 300 0 0 0\\nB.tif 150 200 300 0 0 90\\n")
+        >>> table, crs = read_exteriors(folder / "ext.csv")
+        >>> sorted(table), crs
+        (['A', 'B'], None)
     """
     if exif_attitude(path) is not None:  # each image's own tags, into one CRS
         if names is None:

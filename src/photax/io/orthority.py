@@ -246,7 +246,20 @@ def read_orthority_exterior_crs(csv_path, crs=None) -> tuple[dict[str, ExteriorO
     camera with the meridian convergence, as orthority (and Pix4D) do, or
     into ``crs`` (a projected CRS) when given; ``crs`` is not used for an
     ``x y z`` file, whose CRS is its ``.prj``'s.  Heights stay as given
-    (ellipsoidal for GNSS)."""
+    (ellipsoidal for GNSS).
+
+    Examples:
+        orthority's drone CSV (latitude, longitude, altitude, roll, pitch, yaw) projected into the
+        UTM zone of its mean position:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_orthority_exterior_crs
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "lla_rpy.csv"
+        >>> _ = path.write_text("filename,latitude,longitude,altitude,roll,pitch,yaw\\nDJI_1.JPG,37.0,15.0,500.0,0,0,0\\n")
+        >>> table, crs = read_orthority_exterior_crs(path)
+        >>> crs, [round(float(v), 1) for v in table["DJI_1"].position][::2]  # on the zone's central meridian: E 500000
+        ('EPSG:32633', [500000.0, 500.0])
+    """
     return _read_csv(pathlib.Path(csv_path), crs)
 
 

@@ -108,6 +108,19 @@ def read_grey(path, band: int | None = None) -> np.ndarray:
 
     Raises:
         ValueError: ``band`` not in the file, naming it.
+
+    Examples:
+        One grey image from a raster: its only band, a chosen band, or the mean of RGB:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_grey
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "rgb.tif"
+        >>> rgb = np.stack([np.full((4, 5), v, np.uint8) for v in (30, 60, 90)])
+        >>> _ = ptx.write_geotiff(path, rgb, None)
+        >>> float(read_grey(path)[0, 0]), int(read_grey(path, band=3)[0, 0])
+        (60.0, 90)
     """
     data, _ = read_geotiff(path)
     if band is not None:

@@ -181,6 +181,17 @@ def foerstner(image, window: int = 5, *, sigma: float | None = None):
     Returns:
         ``(w, q)``, float64 of the shape of ``image``; ``w`` in grey^2,
         ``q`` in [0, 1].
+
+    Examples:
+        Förstner's roundness ``q`` is near 1 at a corner and near 0 along a straight edge:
+
+        >>> import numpy as np
+        >>> from photax.measure import foerstner
+        >>> image = np.zeros((40, 40)); image[20:, 20:] = 1.0
+        >>> w, q = foerstner(image, 5)
+        >>> q = np.asarray(q)
+        >>> bool(q[19, 19] > 0.5), bool(q[30, 19] < 0.1)
+        (True, True)
     """
     window = check_odd_window(window)
     img, b = as_image(image)
