@@ -293,7 +293,18 @@ def non_maximum_suppression(response, size: int = 3, threshold: float = 0.0):
 
 
 class InterestPoints(NamedTuple):
-    """Interest points, strongest first."""
+    """Interest points, strongest first.
+
+    Examples:
+        What :func:`interest_points` returns: ``xy`` (column, row) and each point's strength:
+
+        >>> import numpy as np
+        >>> from photax.measure import interest_points
+        >>> image = np.zeros((40, 40)); image[10:30, 10:30] = 1.0
+        >>> pts = interest_points(image, "harris", min_distance=5)
+        >>> pts.xy.shape[1], len(pts.xy) == len(pts.strength), len(pts.xy) >= 4  # at least the square's corners
+        (2, True, True)
+    """
 
     xy: np.ndarray  #: (n, 2) pixel positions (column, row)
     strength: np.ndarray  #: (n,) the operator's value at each point

@@ -54,6 +54,19 @@ class Scene:
         gcp_pixel_true, check_pixel_true: ``(n, 2)`` noise-free projections.
         noise_px: standard deviation of the pixel noise per coordinate.
         gsd: ground sampling distance at the datum, metres per pixel.
+
+    Examples:
+        What :func:`relief_scene` returns: an image with its camera, true orientation and DEM, GCPs
+        and check points with their measured and true pixels:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> scene = ptx.relief_scene(100.0, seed=2, image_size=(200, 150), focal_px=200.0, n_gcp=8, n_check=4)
+        >>> scene.gcp_ground.shape, scene.check_ground.shape, scene.image.shape
+        ((8, 3), (4, 3), (150, 200))
+        >>> noise = scene.gcp_pixel - scene.gcp_pixel_true
+        >>> bool(0 < np.abs(noise).max() < 6 * scene.noise_px)  # the measurements carry the stated noise
+        True
     """
 
     image: np.ndarray
