@@ -37,6 +37,16 @@ def read_odm_cameras(path) -> dict[str, FrameCamera]:
     Raises:
         ValueError: naming the file: not a mapping of camera ids to OpenSfM
             camera parameters, or a camera model photax cannot represent.
+
+    Examples:
+        ODM's ``cameras.json`` (written here by :func:`write_odm_cameras`): ``{camera id: camera}``:
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> from photax.io import read_odm_cameras, write_odm_cameras
+        >>> path = write_odm_cameras(pathlib.Path(tempfile.mkdtemp()) / "cameras.json", ptx.FrameCamera.from_pixels(2904.0, (4000, 3000)))
+        >>> {k: v.image_size for k, v in read_odm_cameras(path).items()}
+        {'photax_camera': (4000, 3000)}
     """
     from .opensfm import _camera
 

@@ -380,7 +380,22 @@ def read_orthority_geojson(path) -> tuple[dict[str, ExteriorOrientation], str]:
     """orthority's exterior GeoJSON (``--export-params``): ``({file stem:
     ExteriorOrientation}, crs)``; each feature's ``properties`` hold
     ``filename``, ``xyz`` (in ``world_crs``) and ``opk`` (radians, orthority's
-    omega-phi-kappa = photax's); the point geometry (lon, lat) is not used."""
+    omega-phi-kappa = photax's); the point geometry (lon, lat) is not used.
+
+    Examples:
+        orthority's exterior GeoJSON (written here by :func:`write_orthority_geojson`):
+        ``({stem: orientation}, crs)``:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_orthority_geojson, write_orthority_geojson
+        >>> eo = ptx.ExteriorOrientation([512300.0, 4103800.0, 450.0], np.radians([1.0, -2.0, 30.0]), "omega-phi-kappa")
+        >>> path = write_orthority_geojson(pathlib.Path(tempfile.mkdtemp()) / "ext.geojson", {"IMG_1.tif": eo}, "EPSG:32633")
+        >>> table, crs = read_orthority_geojson(path)
+        >>> list(table), table["IMG_1"].convention
+        (['IMG_1'], 'omega-phi-kappa')
+    """
     path = pathlib.Path(path)
     data = load_json(path, read_text(path, "orthority exterior file"))
     if (
@@ -424,7 +439,22 @@ def read_orthority_geojson(path) -> tuple[dict[str, ExteriorOrientation], str]:
 
 
 def read_orthority_crs(csv_path, prj=None) -> str | None:
-    """The CRS text of an exterior CSV: ``prj`` or the ``.prj`` beside it, else None."""
+    """The CRS text of an exterior CSV: ``prj`` or the ``.prj`` beside it, else None.
+
+    Examples:
+        The CRS of an exterior CSV: the ``.prj`` beside it, or None:
+
+        >>> import pathlib, tempfile
+        >>> from pyproj import CRS
+        >>> from photax.io import read_orthority_crs
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> _ = (folder / "ext.csv").write_text("A.tif 100 200 300 0 0 0\\n")
+        >>> read_orthority_crs(folder / "ext.csv") is None
+        True
+        >>> _ = (folder / "ext.prj").write_text(CRS.from_epsg(32633).to_wkt())
+        >>> CRS.from_user_input(read_orthority_crs(folder / "ext.csv")).to_epsg()
+        32633
+    """
     prj = pathlib.Path(prj) if prj is not None else pathlib.Path(csv_path).with_suffix(".prj")
     if not prj.is_file():
         return None

@@ -94,6 +94,17 @@ def moravec(image, window: int = 5, *, method: Literal["seed", "shift"] = "seed"
     Returns:
         float64 interest values (grey^2) of the shape of ``image``; zero
         where the window does not fit.
+
+    Examples:
+        Moravec's interest value (the smallest directional variance): 0 in flat areas and along a
+        straight edge, large at a corner:
+
+        >>> import numpy as np
+        >>> from photax.measure import moravec
+        >>> image = np.zeros((30, 30)); image[15:, 15:] = 100.0
+        >>> v = np.asarray(moravec(image, 5))
+        >>> float(v[5, 5]), float(v[22, 15]), bool(v[15, 15] > 0)
+        (0.0, 0.0, True)
     """
     window = check_odd_window(window)
     img, b = as_image(image)
