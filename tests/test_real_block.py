@@ -1,7 +1,7 @@
 """The real-data tier (issue 21 item 6): orthority's test corpus in ``../shared/data/orthority``
 (skipped cleanly when absent).
 
-* The README's real-block chain (ties -> GNSS-aided bundle with the DEM's heights -> orthos of the
+* The real-block chain of docs/cli.md (ties -> GNSS-aided bundle with the DEM's heights -> orthos of the
   block in one process -> mosaic with seamlines and source index) runs as written, from a folder
   beside ``shared/``.
 * photax's orthos of the four NGI frames and of the four drone images against orthority's
@@ -49,10 +49,11 @@ def _oty() -> str:
 
 
 def readme_chain() -> list[str]:
-    """The indented ``photax`` commands that follow the README's "real-block chain" paragraph."""
-    text = (ROOT / "README.md").read_text()
+    """The indented ``photax`` commands that follow the "real-block chain" paragraph of the CLI page
+    (docs/cli.md; it was the README's)."""
+    text = (ROOT / "docs" / "cli.md").read_text()
     block = re.search(r"real-block chain.*?\n\n((?:    photax [^\n]*\n)+)", text, flags=re.S)
-    assert block, "README: no real-block chain"
+    assert block, "docs/cli.md: no real-block chain"
     return [ln.strip() for ln in block.group(1).splitlines()]
 
 

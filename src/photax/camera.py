@@ -349,6 +349,19 @@ class FrameCamera(Module):
         pixel_size: ``(2,)`` image-plane units per pixel along columns and
             rows, or ``None`` if the camera is not tied to a pixel grid.
         image_size: ``(width, height)`` in pixels, or ``None``.
+
+    Examples:
+        A camera in millimetres (8.8 mm lens, 17.6 um pixels, 1000 x 750 px): the image centre is
+        pixel (499.5, 374.5) (pixel centres at integers, row down), the image-plane origin:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> cam = ptx.FrameCamera(focal_length=8.8, pixel_size=0.0176, image_size=(1000, 750))
+        >>> print(np.round(np.asarray(cam.image_to_pixel(np.array([[0.0, 0.0], [0.176, 0.176]]))), 6))
+        [[499.5 374.5]
+         [509.5 364.5]]
+        >>> print(f"{float(cam.focal_length) / 0.0176:.1f} px")  # f in pixels
+        500.0 px
     """
 
     focal_length: Array

@@ -24,6 +24,18 @@ class DEM(Module):
         heights: ``(rows, cols)`` heights; nodata cells hold NaN.
         transform: ``(6,)`` affine ``(a, b, xoff, d, e, yoff)`` of the grid.
         crs: the CRS as text (WKT, PROJ or EPSG), or ``None``.
+
+    Examples:
+        Heights on a grid with its affine georeference (5 m cells from (1000, 2000), row down),
+        read at any ground point by bilinear interpolation; a plane is reproduced exactly:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> rows, cols = np.mgrid[0:20, 0:30]
+        >>> x, y = 1000.0 + 5.0 * (cols + 0.5), 2000.0 - 5.0 * (rows + 0.5)  # cell centres
+        >>> dem = ptx.DEM(0.1 * x - 0.05 * y, (5.0, 0.0, 1000.0, 0.0, -5.0, 2000.0))
+        >>> print(np.round(np.asarray(dem.height(np.array([1033.3, 1101.7]), np.array([1977.0, 1960.2]))), 6))  # 0.1 x - 0.05 y
+        [ 4.48 12.16]
     """
 
     heights: Array

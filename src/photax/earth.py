@@ -120,6 +120,19 @@ class LocalFrame:
 
     Example: ``frame = LocalFrame(10.0, 45.0); enu = frame.from_geographic(lon, lat, h)``;
     ``frame.from_crs("EPSG:32632", x, y, h)`` from a projected CRS (heights ellipsoidal, as given).
+
+    Examples:
+        A local east-north-up frame at a point: that point is the origin, and a point 1 km north is
+        1 km along +y (to the metre; the earth's curvature lowers it by about 0.08 m):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> frame = ptx.LocalFrame(15.0, 45.0, 100.0)
+        >>> print(np.round(np.asarray(frame.from_geographic(15.0, 45.0, 100.0)), 6) + 0.0)
+        [0. 0. 0.]
+        >>> e, n, u = np.asarray(frame.from_geographic(15.0, 45.0 + 1000.0 / 111132.0, 100.0))
+        >>> print(f"{e:.3f} {n:.0f} {u:.2f}")
+        0.000 1000 -0.08
     """
 
     lon0: float
@@ -216,6 +229,15 @@ def refraction_coefficient(camera_height, ground_height, model: Refraction = "be
             micro-radians with H, h in km (Bertram 1966, as Wolf & DeWitt give it), valid to
             about 9 km; ``"icao"``: the mean refractivity of the ICAO standard atmosphere between the two
             heights above its value at the camera, integrated in closed form (to 20 km).
+
+    Examples:
+        Bertram's formula by hand for a camera at 3 km over ground at sea level:
+        ``K = 2410 H / (H^2 - 6 H + 250)`` micro-radians (H in km), 2410 * 3 / 241 = 30 urad:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> print(f"{float(np.squeeze(ptx.refraction_coefficient(3000.0, 0.0))) * 1e6:.3f} urad")
+        30.000 urad
     """
     big_h = np.asarray(camera_height, float)
     h = np.asarray(ground_height, float)
@@ -250,6 +272,14 @@ class ImageCorrections:
         earth_radius: the sphere's radius when ``latitude`` is None (m; the IUGG mean radius).
         height_origin: height above sea level of ``Z = 0`` of the ground frame (m): 0 for heights
             above sea level, the origin's height for a local frame (refraction only).
+
+    Examples:
+        Earth curvature and refraction as corrections of the image coordinates (off by default):
+
+        >>> import photax as ptx
+        >>> corr = ptx.ImageCorrections(earth_curvature=True, refraction="icao", latitude=45.0)
+        >>> corr.earth_curvature, corr.refraction
+        (True, 'icao')
     """
 
     earth_curvature: bool = False
@@ -312,6 +342,21 @@ def correct_image(image_xy, exterior, camera, ground_height, corrections: ImageC
 
     Returns:
         ``(n, 2)`` corrected image coordinates; NaN where a ray misses the earth.
+
+    Examples:
+        The earth's curvature moves an image point outward: from 5 km over flat ground, 4 km off
+        nadir, about ``dr = r^3 H / (2 R f^2)`` (the textbooks' first-order formula, Wolf & DeWitt):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> f, H, R = 0.15, 5000.0, 6371008.8
+        >>> camera = ptx.FrameCamera(focal_length=f)
+        >>> exterior = ptx.ExteriorOrientation(position=[0.0, 0.0, H], angles=[0.0, 0.0, 0.0])
+        >>> xy = np.array([[f * 4000.0 / H, 0.0]])  # 0.12 m from the principal point
+        >>> corrected = ptx.correct_image(xy, exterior, camera, 0.0, ptx.ImageCorrections(earth_curvature=True))
+        >>> r = xy[0, 0]
+        >>> print(f"{abs(corrected[0, 0] - r) * 1e6:.1f} um; the first-order formula {r**3 * H / (2 * R * f**2) * 1e6:.1f} um")
+        30.2 um; the first-order formula 30.1 um
     """
     xy = np.asarray(image_xy, float)
     if xy.ndim != 2 or xy.shape[1] != 2:

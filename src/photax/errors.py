@@ -91,6 +91,13 @@ class ConvergenceError(NotConvergedError, RuntimeError):
 
     Raised only with ``throw=True``; with ``throw=False`` the result carries
     ``converged=False`` and the same message instead.
+
+    Examples:
+        Raised by an estimate that did not converge when ``throw=True``:
+
+        >>> import photax as ptx
+        >>> issubclass(ptx.ConvergenceError, RuntimeError)
+        True
     """
 
 
@@ -126,6 +133,13 @@ class RESULTS(enum.IntEnum):
     Integer-valued, so compiled code returns them as ``int`` arrays (one per
     image of a batch) and ``RESULTS(code)`` names them.  ``successful`` is 0;
     :attr:`text` is the reason shown in messages.
+
+    Examples:
+        Solver outcomes as codes, each with its message:
+
+        >>> import photax as ptx
+        >>> ptx.RESULTS(0) is ptx.RESULTS.successful, int(ptx.RESULTS.max_steps_reached) > 0
+        (True, True)
     """
 
     successful = 0

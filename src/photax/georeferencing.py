@@ -42,6 +42,16 @@ class Similarity:
         rotation: ``(3, 3)`` proper rotation.
         translation: ``(3,)``.
         residuals: ``(n, 3)`` fitted minus target of the pairs it was fitted to.
+
+    Examples:
+        What :func:`similarity_transform` returns: ``apply`` maps points, ``rms`` the fit's residual:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> source = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0], [0.0, 10.0, 0.0], [0.0, 0.0, 10.0]])
+        >>> sim = ptx.similarity_transform(source, 2.0 * source + [100.0, 200.0, 300.0])
+        >>> print(np.round(np.asarray(sim.apply(np.array([[1.0, 1.0, 1.0]]))), 6), f"{sim.rms:.6f}")
+        [[102. 202. 302.]] 0.000000
     """
 
     scale: float
@@ -74,6 +84,19 @@ def similarity_transform(source, target) -> Similarity:
     Raises:
         ValueError: fewer than 3 pairs, or source points on one line (the
             rotation about it is then undetermined).
+
+    Examples:
+        A 7-parameter (Helmert) similarity found back from points it moved:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> rng = np.random.default_rng(1)
+        >>> source = rng.uniform(-100, 100, (6, 3))
+        >>> R = np.asarray(ptx.rotation_matrix(np.radians([1.0, 2.0, 30.0])))
+        >>> target = 1.5 * source @ R.T + [500000.0, 4100000.0, 200.0]
+        >>> sim = ptx.similarity_transform(source, target)
+        >>> print(f"{sim.scale:.6f}", bool(np.allclose(sim.rotation, R)), bool(np.allclose(sim.residuals, 0, atol=1e-6)))
+        1.500000 True True
     """
     s, t = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
     if s.shape != t.shape or s.ndim != 2 or s.shape[1] != 3:

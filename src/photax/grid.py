@@ -34,6 +34,16 @@ class Grid:
             ``[row, col]`` is at ``transform * (col + 0.5, row + 0.5)``.
         shape: ``(rows, cols)``.
         crs: the map CRS (anything rasterio accepts), or ``None``.
+
+    Examples:
+        An output raster: its affine transform, shape and CRS; ``xy`` gives the pixel centres:
+
+        >>> import photax as ptx
+        >>> grid = ptx.Grid.from_bounds((1000.0, 2000.0, 1100.0, 2050.0), resolution=10.0, crs="EPSG:32633")
+        >>> grid.shape
+        (5, 10)
+        >>> grid.xy()[0, 0].tolist()  # the centre of the top-left pixel
+        [1005.0, 2045.0]
     """
 
     transform: Affine

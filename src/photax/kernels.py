@@ -31,6 +31,13 @@ class Resampling(str, enum.Enum):  # noqa: UP042 -- str() of a member stays "Res
             the image's, is padded before the prefilter).
         prefilter: the kernel works on prefiltered coefficients (B-spline),
             not on the grey values themselves.
+
+    Examples:
+        The kernels by name; functions take the name or the member:
+
+        >>> import photax as ptx
+        >>> ptx.Resampling("cubic") is ptx.Resampling.cubic, [k.value for k in ptx.Resampling]
+        (True, ['nearest', 'bilinear', 'cubic', 'lanczos', 'lanczos4', 'bspline'])
     """
 
     def __new__(cls, name: str, taps: int, margin: int, prefilter: bool):

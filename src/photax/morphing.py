@@ -115,6 +115,17 @@ def morph(
     Raises:
         ValueError: ``t`` outside [0, 1], images of different shapes, lines of zero length, fewer than 3
             points, or features of different shapes.
+
+    Examples:
+        At ``t = 0`` the frame is image A, at ``t = 1`` image B (here with three control points that
+        do not move, so the warp is the identity and only the cross-dissolve is left):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> a, b = np.zeros((20, 30)), np.full((20, 30), 100.0)
+        >>> pts = np.array([[5.0, 5.0], [25.0, 15.0], [5.0, 15.0]])
+        >>> [float(np.asarray(ptx.morph(a, b, pts, pts, t))[10, 15]) for t in (0.0, 0.25, 1.0)]
+        [0.0, 25.0, 100.0]
     """
     from .resampling import resample
 
@@ -157,6 +168,19 @@ def write_sequence(frames, out, *, duration: float = 0.1, loop: bool = True, inp
 
     Values are scaled to 0-255 by the sequence's common minimum and maximum (uint8 as it is); NaN is black.
     ``duration``: seconds per GIF frame.
+
+    Examples:
+        Frames written as an animated GIF (or a folder of PNGs), read back by Pillow:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> from PIL import Image
+        >>> import photax as ptx
+        >>> frames = [np.full((16, 16), v, np.uint8) for v in (0, 128, 255)]
+        >>> path = ptx.write_sequence(frames, pathlib.Path(tempfile.mkdtemp()) / "morph.gif")
+        >>> with Image.open(path) as gif:
+        ...     print(gif.n_frames, gif.size)
+        3 (16, 16)
     """
     from PIL import Image
 

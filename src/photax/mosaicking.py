@@ -1163,6 +1163,23 @@ def mosaic_to_raster(orthos, path, *, cog: bool = True, inputs=(), progress=None
     Raises:
         ValueError: as :func:`mosaic`.
         TypeError: an option :func:`mosaic` does not take.
+
+    Examples:
+        Two overlapping orthos (GeoTIFFs on one 1 m grid) joined into one raster; where only one
+        covers, the mosaic is that ortho:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> yy, xx = np.mgrid[0:40, 0:60]
+        >>> scene = (100 + 50 * np.sin(xx / 5.0) * np.cos(yy / 7.0)).astype(np.uint8)
+        >>> a = ptx.write_geotiff(folder / "a.tif", scene[:, :40], (1.0, 0.0, 0.0, 0.0, -1.0, 40.0), "EPSG:32633", nodata=0)
+        >>> b = ptx.write_geotiff(folder / "b.tif", scene[:, 20:], (1.0, 0.0, 20.0, 0.0, -1.0, 40.0), "EPSG:32633", nodata=0)
+        >>> out = ptx.mosaic_to_raster([a, b], folder / "m.tif", cog=False)
+        >>> bands, profile = ptx.read_geotiff(out)
+        >>> bands.shape, bool(np.array_equal(bands[0][:, :15], scene[:, :15]))
+        ((1, 40, 60), True)
     """
     if unknown := sorted(set(options) - set(mosaic.__kwdefaults__)):
         raise TypeError(f"mosaic_to_raster() got options mosaic() does not take: {', '.join(unknown)}")

@@ -149,6 +149,18 @@ class PolynomialModel(eqx.Module):
             of the model fitted without point ``i`` minus ``dst_i``, computed as
             ``v_i / (1 - h_ii)`` from the hat matrix; NaN where point ``i`` is
             needed to determine the fit (``h_ii = 1``).
+
+    Examples:
+        What :func:`fit_polynomial` returns: callable on ``(n, 2)`` points, with its fit statistics
+        (here an exact affine map, so the residuals vanish):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> rng = np.random.default_rng(0)
+        >>> src = rng.uniform(0, 1000, (10, 2))
+        >>> model = ptx.fit_polynomial(src, src @ np.array([[0.5, 0.1], [-0.1, 0.5]]) + [20.0, 30.0], order=1)
+        >>> model.order, f"{float(model.rmse):.6f}", np.round(np.asarray(model(np.array([[100.0, 200.0]]))), 6).tolist()
+        (1, '0.000000', [[50.0, 140.0]])
     """
 
     order: int = eqx.field(static=True)
@@ -414,6 +426,20 @@ class ProjectiveModel(eqx.Module):
         result: the :class:`photax.RESULTS` code of the geometric
             refinement (``successful`` without one); ``converged`` and
             ``message`` say the same.
+
+    Examples:
+        What :func:`fit_projective` returns: callable on ``(n, 2)`` points, with its residuals:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> src = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+        >>> dst = np.array([[0.0, 0.0], [2.0, 0.0], [0.0, 2.0], [1.5, 1.2]])  # four points fix a homography
+        >>> model = ptx.fit_projective(src, dst)
+        >>> print(np.round(np.asarray(model(src)), 6) + 0.0, f"{float(model.rmse):.6f}")
+        [[0.  0. ]
+         [2.  0. ]
+         [0.  2. ]
+         [1.5 1.2]] 0.000000
     """
 
     h_normalised: Array
@@ -585,6 +611,17 @@ class TPSModel(eqx.Module):
         loo_residuals: ``(n, 2)`` leave-one-out residuals: the spline fitted without point ``i``,
             evaluated at it, minus ``dst_i`` (NaN where the other points cannot carry a spline).
         src_xy, dst_xy: the control points.
+
+    Examples:
+        What :func:`fit_tps` returns: a map through every control point, smooth between them:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> src = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0], [5.0, 5.0]])
+        >>> dst = src + [[0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 0.0], [1.0, -1.0]]  # the middle one moved
+        >>> tps = ptx.fit_tps(src, dst)
+        >>> print(np.round(np.asarray(tps(src[4:])), 6))
+        [[6. 4.]]
     """
 
     centres: Array
@@ -652,6 +689,19 @@ def fit_tps(src_xy, dst_xy, smoothing: float = 0.0) -> TPSModel:
     Raises:
         ValueError: wrong shapes, NaN/inf, duplicated or fewer than 3 points, points all on one line, or a
             negative smoothing.
+
+    Examples:
+        A thin-plate spline passes through every control point (no smoothing) and reproduces an
+        affine map exactly:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> rng = np.random.default_rng(0)
+        >>> src = rng.uniform(0, 100, (12, 2))
+        >>> dst = src @ np.array([[1.1, 0.2], [-0.1, 0.9]]) + [5.0, -3.0]
+        >>> tps = ptx.fit_tps(src, dst)
+        >>> bool(np.allclose(tps(src), dst)), bool(np.allclose(tps(np.array([[50.0, 50.0]])), [[55.0, 52.0]]))
+        (True, True)
     """
     if not (np.isfinite(smoothing) and smoothing >= 0):
         raise ValueError(f"smoothing must be finite and >= 0, got {smoothing!r}")
@@ -711,6 +761,18 @@ class PiecewiseAffineModel(eqx.Module):
             without point ``i``, evaluated at it, minus ``dst_i`` (NaN for a hull vertex, which lies outside
             the others' hull, and where the other points cannot be triangulated).
         src_xy, dst_xy: the control points.
+
+    Examples:
+        What :func:`fit_piecewise_affine` returns; outside the triangles of the control points
+        (their convex hull) it gives NaN:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> src = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+        >>> model = ptx.fit_piecewise_affine(src, src + 1.0)
+        >>> print(np.asarray(model(np.array([[2.0, 2.0], [20.0, 20.0]]))))
+        [[ 3.  3.]
+         [nan nan]]
     """
 
     corners: Array
@@ -804,6 +866,19 @@ def fit_piecewise_affine(src_xy, dst_xy) -> PiecewiseAffineModel:
 
     Raises:
         ValueError: wrong shapes, NaN/inf, duplicated or fewer than 3 points, points all on one line.
+
+    Examples:
+        One affine map per Delaunay triangle of the control points: exact at the points, and inside
+        a triangle the affine map of its corners:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> src = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0], [10.0, 10.0]])
+        >>> dst = 2.0 * src + [1.0, 1.0]
+        >>> model = ptx.fit_piecewise_affine(src, dst)
+        >>> print(np.asarray(model(np.array([[2.5, 5.0], [10.0, 10.0]]))))
+        [[ 6. 11.]
+         [21. 21.]]
     """
     src, dst, _ = _check_pairs(src_xy, dst_xy, None, 3, "a piecewise-affine map")
     centre = src.mean(axis=0)

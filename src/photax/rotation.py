@@ -67,6 +67,19 @@ def rotation_matrix(angles: Array, convention: Convention = "phi-omega-kappa") -
 
     Returns:
         ``(..., 3, 3)`` rotation matrices.
+
+    Examples:
+        A rotation of 90 degrees in kappa alone turns the image x axis onto the ground's Y axis:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> R = ptx.rotation_matrix(np.radians([0.0, 0.0, 90.0]))  # phi, omega, kappa
+        >>> print(np.round(np.asarray(R), 6) + 0.0)
+        [[ 0. -1.  0.]
+         [ 1.  0.  0.]
+         [ 0.  0.  1.]]
+        >>> bool(np.allclose(np.asarray(R) @ np.asarray(R).T, np.eye(3)))  # orthonormal
+        True
     """
     check_convention(convention)
     angles = jnp.asarray(angles)
@@ -127,6 +140,16 @@ def angles_from_matrix(matrix: Array, convention: Convention = "phi-omega-kappa"
 
     Returns:
         ``(..., 3)`` radians in the convention's order.
+
+    Examples:
+        The angles back from their matrix, in either convention:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> angles = np.radians([2.0, -1.5, 30.0])
+        >>> R = ptx.rotation_matrix(angles, "omega-phi-kappa")
+        >>> print(np.round(np.degrees(np.asarray(ptx.angles_from_matrix(R, "omega-phi-kappa"))), 6))
+        [ 2.  -1.5 30. ]
     """
     matrix = jnp.asarray(matrix)
     if matrix.shape[-2:] != (3, 3):
@@ -145,7 +168,18 @@ def angles_from_matrix(matrix: Array, convention: Convention = "phi-omega-kappa"
 
 
 def convert_angles(angles: Array, source: Convention, target: Convention) -> Array:
-    """Re-express attitude angles from one convention in the other."""
+    """Re-express attitude angles from one convention in the other.
+
+    Examples:
+        The same attitude in the other angle order: both give one rotation matrix.
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> pok = np.radians([3.0, -2.0, 45.0])
+        >>> opk = ptx.convert_angles(pok, "phi-omega-kappa", "omega-phi-kappa")
+        >>> bool(np.allclose(ptx.rotation_matrix(pok), ptx.rotation_matrix(opk, "omega-phi-kappa")))
+        True
+    """
     return angles_from_matrix(rotation_matrix(angles, source), target)
 
 
@@ -172,6 +206,19 @@ def axis_angle_to_matrix(rotvec: Array) -> Array:
 
     Returns:
         ``(..., 3, 3)`` rotation matrices.
+
+    Examples:
+        A rotation vector of length pi/2 along z (Rodrigues' formula), and the identity at zero:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> R = ptx.axis_angle_to_matrix(np.array([0.0, 0.0, np.pi / 2]))
+        >>> print(np.round(np.asarray(R), 6) + 0.0)
+        [[ 0. -1.  0.]
+         [ 1.  0.  0.]
+         [ 0.  0.  1.]]
+        >>> bool(np.allclose(ptx.axis_angle_to_matrix(np.zeros(3)), np.eye(3)))
+        True
     """
     rotvec = jnp.asarray(rotvec)
     theta2 = jnp.sum(rotvec * rotvec, axis=-1)
@@ -192,6 +239,15 @@ def matrix_to_axis_angle(matrix: Array) -> Array:
     Through the unit quaternion (Shepperd's method, which picks the best
     conditioned of four formulas), then ``2 atan2(|v|, w) v/|v|`` with a
     Taylor series for small ``|v|``.
+
+    Examples:
+        The inverse of :func:`axis_angle_to_matrix`:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> v = np.array([0.1, -0.2, 0.3])
+        >>> print(np.round(np.asarray(ptx.matrix_to_axis_angle(ptx.axis_angle_to_matrix(v))), 6))
+        [ 0.1 -0.2  0.3]
     """
     m = jnp.asarray(matrix)
     if m.shape[-2:] != (3, 3):

@@ -102,6 +102,23 @@ class RPCCamera(Module):
             (module docstring), or None when the file has none.
         localization: ``"direct"`` (image -> ground by ``direct`` where there is one, else Newton) or
             ``"newton"`` (always Newton's inverse of the ground -> image model); :meth:`with_localization`.
+
+    Examples:
+        A toy RPC by hand: column and row linear in longitude and latitude (``col = samp_off +
+        samp_scale L``, ``L = (lon - long_off) / long_scale``; rows grow southward), and back:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> one, lon, lat = np.eye(20)[0], np.eye(20)[1], -np.eye(20)[2]  # 1, L, -P of the 20 terms
+        >>> rpc = ptx.RPCCamera.from_dict(dict(
+        ...     samp_num_coeff=lon, samp_den_coeff=one, line_num_coeff=lat, line_den_coeff=one,
+        ...     long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
+        ...     long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0,
+        ... ), image_size=(1000, 1000))
+        >>> print(np.asarray(rpc(np.array([[10.005, 45.005, 100.0]]))))  # lon, lat, h -> column, row
+        [[750. 250.]]
+        >>> print(np.round(np.asarray(rpc.to_ground(np.array([[750.0, 250.0]]), 100.0)), 9))
+        [[10.005 45.005]]
     """
 
     coefficients: Array
@@ -457,6 +474,22 @@ class RPCRefinement:
             ``v_i / (sigma0 sqrt(1 - h_ii))`` with ``h_ii`` the GCP's leverage (Pope's tau statistic);
             the largest beyond about 3 marks a blunder (data snooping, Baarda 1968). NaN without
             redundancy or where a GCP alone determines a parameter (``h_ii = 1``).
+
+    Examples:
+        What :func:`refine_rpc` returns: the refined camera and the fit before and after, per GCP
+        and with each left out:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> one, lon, lat = np.eye(20)[0], np.eye(20)[1], -np.eye(20)[2]
+        >>> rpc = ptx.RPCCamera.from_dict(dict(
+        ...     samp_num_coeff=lon, samp_den_coeff=one, line_num_coeff=lat, line_den_coeff=one,
+        ...     long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
+        ...     long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0))
+        >>> ground = np.array([[10.002, 45.001, 50.0], [10.007, 44.996, 80.0], [9.995, 45.004, 20.0]])
+        >>> ref = ptx.refine_rpc(rpc, ground, np.asarray(rpc(ground)) + [1.0, 0.0], names=["A", "B", "C"])
+        >>> list(ref.names), f"{ref.raw_rmse:.3f}", f"{ref.rmse:.6f}", f"{ref.loo_rmse:.6f}"
+        (['A', 'B', 'C'], '1.000', '0.000000', '0.000000')
     """
 
     camera: RPCCamera
@@ -601,6 +634,24 @@ def refine_rpc(camera: RPCCamera, ground, pixel, model: Refinement = "shift", *,
 
     Equal weights; the normal equations of the two axes are separate (the correction of each axis
     is linear in its own parameters), so each is an ordinary least-squares fit of the RPC's misfit.
+
+    Examples:
+        GCPs measured 2.5 columns and -1.25 rows away from where the RPC puts them: the ``shift``
+        refinement finds the bias, and the refined camera fits them to rounding:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> one, lon, lat = np.eye(20)[0], np.eye(20)[1], -np.eye(20)[2]  # 1, L, -P of the 20 terms
+        >>> rpc = ptx.RPCCamera.from_dict(dict(
+        ...     samp_num_coeff=lon, samp_den_coeff=one, line_num_coeff=lat, line_den_coeff=one,
+        ...     long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
+        ...     long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0,
+        ... ), image_size=(1000, 1000))
+        >>> ground = np.array([[10.002, 45.001, 50.0], [10.007, 44.996, 80.0], [9.995, 45.004, 20.0]])
+        >>> pixel = np.asarray(rpc(ground)) + [2.5, -1.25]
+        >>> ref = ptx.refine_rpc(rpc, ground, pixel, "shift")
+        >>> print(f"{ref.raw_rmse:.3f} -> {ref.rmse:.6f} px")
+        2.795 -> 0.000000 px
     """
     if model not in _REFINE_TERMS:
         raise ValueError(f"model: expected one of {', '.join(_REFINE_TERMS)}, got {model!r}")

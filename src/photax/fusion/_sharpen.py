@@ -79,7 +79,18 @@ class Sharpened:
 
 def mtf_sigma(ratio: float, nyquist_gain: float) -> float:
     """The standard deviation (PAN pixels) of the Gaussian whose frequency response
-    ``exp(-2 pi^2 sigma^2 f^2)`` equals ``nyquist_gain`` at the MS Nyquist frequency ``f = 1 / (2 ratio)``."""
+    ``exp(-2 pi^2 sigma^2 f^2)`` equals ``nyquist_gain`` at the MS Nyquist frequency ``f = 1 / (2 ratio)``.
+
+    Examples:
+        The Gaussian's sigma by hand: ``exp(-2 pi^2 sigma^2 f^2) = g`` at ``f = 1 / (2 ratio)``:
+
+        >>> import numpy as np
+        >>> from photax.fusion import mtf_sigma
+        >>> ratio, gain = 4, 0.3
+        >>> by_hand = np.sqrt(-np.log(gain) / (2 * np.pi**2)) * 2 * ratio
+        >>> print(f"{mtf_sigma(ratio, gain):.6f} {by_hand:.6f}")
+        1.975757 1.975757
+    """
     if not 0 < nyquist_gain < 1:
         raise ValueError(f"nyquist_gain must be in (0, 1), got {nyquist_gain}")
     return float(ratio * np.sqrt(-2.0 * np.log(nyquist_gain)) / np.pi)
@@ -164,6 +175,21 @@ def pansharpen(
         ValueError: the images do not overlap, the MS has one band with a component-substitution method
             (it would return the PAN rescaled), its pixels are not larger than the PAN's, too few pixels
             are valid in both to estimate the statistics, or a bad argument.
+
+    Examples:
+        A PAN image at 4x the MS resolution whose detail the MS lacks: the sharpened bands take the
+        PAN's detail and keep each band's mean (component substitution, Gram-Schmidt):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> rng = np.random.default_rng(0)
+        >>> pan = rng.uniform(50, 150, (64, 64))
+        >>> ms = np.stack([k * pan.reshape(16, 4, 16, 4).mean(axis=(1, 3)) for k in (0.8, 1.0, 1.2)])  # (3, 16, 16)
+        >>> out = ptx.pansharpen(pan, ms, "gs")
+        >>> out.image.shape
+        (3, 64, 64)
+        >>> bool(np.corrcoef(np.asarray(out.image[1]).ravel(), pan.ravel())[0, 1] > 0.9)
+        True
     """
     pan = np.asarray(pan)
     if pan.ndim == 3 and pan.shape[0] == 1:

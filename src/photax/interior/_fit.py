@@ -29,6 +29,18 @@ class InteriorOrientation:
         critical: the critical value of ``sqrt(T_i)`` in the final fit.
         redundancy: ``2 n_used - k``.
         message: what happened, in words.
+
+    Examples:
+        What :func:`interior_orientation` returns: the fitted transformation, its residuals and
+        test, and a camera that goes through it (a :class:`ScannedCamera`):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> film = np.array([[-106.0, -106.0], [106.0, -106.0], [106.0, 106.0], [-106.0, 106.0], [0.0, 110.0]])
+        >>> pixel = film * [50.0, -50.0] + [5600.0, 5620.0]
+        >>> io = ptx.interior_orientation(pixel, film, "similarity")
+        >>> print(f"{io.rmse:.6f}", np.round(np.asarray(io.pixel_from_film(np.array([[0.0, 0.0]]))), 6))
+        0.000000 [[5600. 5620.]]
     """
 
     model: str
@@ -92,6 +104,20 @@ def interior_orientation(
     Raises:
         ValueError: bad shapes, an unknown model, or fewer usable marks than
             the model needs (``k / 2``: 2, 3, 4, 4).
+
+    Examples:
+        The affine film -> scan transformation from four fiducial marks of a scan at 50 px/mm, turned
+        by half a degree and offset (the marks' measurements exact here, so the residuals vanish):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> film = np.array([[-106.0, -106.0], [106.0, -106.0], [106.0, 106.0], [-106.0, 106.0]])  # mm, y up
+        >>> a = np.radians(0.5)
+        >>> rot = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        >>> pixel = (film * [1.0, -1.0]) @ rot.T * 50.0 + [5600.0, 5620.0]  # column right, row down
+        >>> io = ptx.interior_orientation(pixel, film, "affine")
+        >>> print(f"{io.rmse:.6f}", np.round(np.asarray(io.film_from_pixel(pixel[:1])), 6))
+        0.000000 [[-106. -106.]]
     """
     # Over 80 lines because the docstring documents every argument; the body is ~60 lines.
     if model not in N_PARAMS:

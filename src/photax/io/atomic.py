@@ -187,6 +187,19 @@ def atomic_path(out, inputs: Iterable = (), *, size: int | None = None, folder: 
         OSError: ``errno.ENOSPC``, ``EFBIG``, ``EDQUOT`` or ``EIO`` with
             ``filename`` ``out`` and a message saying what was needed and
             what is free, when the output could not be written.
+
+    Examples:
+        A temporary path to write to (by any library), renamed onto the target on success:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import atomic_path
+        >>> out = pathlib.Path(tempfile.mkdtemp()) / "data.bin"
+        >>> with atomic_path(out) as tmp:
+        ...     _ = tmp.write_bytes(b"\\x00\\x01")
+        ...     print(out.exists(), tmp.name.endswith(".part"))
+        False True
+        >>> out.read_bytes()
+        b'\\x00\\x01'
     """
     out = pathlib.Path(out) if folder else check_output_path(out, inputs)
     parent = out.parent
@@ -227,7 +240,27 @@ def atomic_write(
     out, mode: str = "w", inputs: Iterable = (), *, size: int | None = None, **open_kwargs
 ) -> Iterator[IO]:
     """``open()`` for writing, atomically (see :func:`atomic_path`); a failing
-    write or close raises (``OSError``) and leaves ``out`` as it was."""
+    write or close raises (``OSError``) and leaves ``out`` as it was.
+
+    Examples:
+        ``open()`` whose file appears only when the block ends without error:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import atomic_write
+        >>> out = pathlib.Path(tempfile.mkdtemp()) / "report.txt"
+        >>> with atomic_write(out) as f:
+        ...     _ = f.write("sigma0 1.02\\n")
+        >>> out.read_text()
+        'sigma0 1.02\\n'
+        >>> try:
+        ...     with atomic_write(out) as f:
+        ...         _ = f.write("half a report")
+        ...         raise RuntimeError("interrupted")
+        ... except RuntimeError:
+        ...     pass
+        >>> out.read_text(), sorted(p.name for p in out.parent.iterdir())  # the old file kept, no temporary left
+        ('sigma0 1.02\\n', ['report.txt'])
+    """
     with atomic_path(out, inputs, size=size) as tmp, open(tmp, mode, **open_kwargs) as fh:
         yield fh
 

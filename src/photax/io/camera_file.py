@@ -184,6 +184,20 @@ def read_camera(path) -> FrameCamera:
     Raises:
         ValueError: naming the file and the offending key (or line for a
             syntax error).
+
+    Examples:
+        A camera file in millimetres (``docs/conventions.md``), read into a :class:`FrameCamera`:
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "camera.yaml"
+        >>> _ = path.write_text(
+        ...     "focal_length: 8.8\\nunit: mm\\nprincipal_point: [0.011, -0.0066]\\n"
+        ...     "pixel_size: 0.0176\\nimage_size: [1000, 750]\\ndistortion: {k1: -0.02}\\n"
+        ... )
+        >>> cam = ptx.read_camera(path)
+        >>> float(cam.focal_length), cam.image_size, cam.has_distortion
+        (8.8, (1000, 750), True)
     """
     path = pathlib.Path(path)
     data = _load(path)
@@ -340,6 +354,20 @@ def write_camera(camera: FrameCamera, path, *, unit: str | None = None, inputs=(
     """Write ``camera`` as YAML (``.yaml``/``.yml``) or JSON (``.json``), atomically.
 
     ``unit`` as in :func:`camera_to_dict`.  Returns the path written.
+
+    Examples:
+        A camera written and read back equal (here in pixels):
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> cam = ptx.FrameCamera.from_pixels(2904.0, (4000, 3000))
+        >>> path = ptx.write_camera(cam, pathlib.Path(tempfile.mkdtemp()) / "cam.yaml")
+        >>> back = ptx.read_camera(path)
+        >>> float(back.focal_length) == float(cam.focal_length), back.image_size
+        (True, (4000, 3000))
+        >>> bool(np.allclose(back.principal_point, cam.principal_point))
+        True
     """
     path = pathlib.Path(path)
     data = camera_to_dict(camera, unit)

@@ -106,6 +106,20 @@ class GCPTable:
         crs: the ground CRS as text (EPSG code or PROJ string), or ``None``.
         lines: ``(n,)`` line numbers in the source file (0 when built in memory).
         source: the file it was read from, if any (for messages).
+
+    Examples:
+        Built in memory, or read by :func:`photax.read_gcps`; ``image_plane`` converts its pixels
+        with a camera:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import GCPTable
+        >>> table = GCPTable(names=np.array(["A"]), images=np.array(["IMG"]), ground=np.array([[100.0, 200.0, 10.0]]),
+        ...                  pixel=np.array([[499.5, 374.5]]), image_xy=None, sigma=np.array([0.3]),
+        ...                  role=np.array(["control"]))
+        >>> cam = ptx.FrameCamera(8.8, pixel_size=0.0176, image_size=(1000, 750))
+        >>> print(np.round(np.asarray(table.image_plane(cam)), 9) + 0.0)  # the image centre
+        [[0. 0.]]
     """
 
     names: np.ndarray
@@ -215,6 +229,25 @@ def read_gcps(path, *, format: Literal["auto", "csv", "odm", "qgis", "geojson"] 
 
     Raises:
         ValueError: naming the file and line of the first malformed line.
+
+    Examples:
+        A CSV with a header (name, image, ground E N h, pixel column row, sigma, role); lines starting
+        with ``#`` are comments, and ``# crs:`` names the ground CRS:
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "gcps.csv"
+        >>> _ = path.write_text(
+        ...     "# crs: EPSG:32633\\n"
+        ...     "name,image,E,N,h,col,row,sigma,role\\n"
+        ...     "P1,IMG_1,511890.627,4103806.525,48.276,81.112,44.633,0.3,control\\n"
+        ...     "P2,IMG_1,512075.985,4103928.086,57.478,355.060,44.955,0.3,check\\n"
+        ... )
+        >>> gcps = ptx.read_gcps(path)
+        >>> gcps.names.tolist(), gcps.role.tolist(), gcps.crs
+        (['P1', 'P2'], ['control', 'check'], 'EPSG:32633')
+        >>> gcps.ground[1].tolist(), gcps.pixel[0].tolist()
+        ([512075.985, 4103928.086, 57.478], [81.112, 44.633])
     """
     path = pathlib.Path(path)
     text = read_text(path, "GCP file")
@@ -725,6 +758,23 @@ def write_gcps(path, table: GCPTable, *, format: str = "auto", inputs=()) -> pat
     of ``r.sigma`` (``read_gcps`` and :func:`photax.resect` take one sigma per point).
 
     Returns the path written.
+
+    Examples:
+        What :func:`photax.read_gcps` reads back equal:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> from photax.io import GCPTable, read_gcps, write_gcps
+        >>> table = GCPTable(names=np.array(["A", "B"]), images=np.array(["IMG", "IMG"]),
+        ...                  ground=np.array([[100.0, 200.0, 10.0], [150.0, 260.0, 12.5]]),
+        ...                  pixel=np.array([[10.5, 20.25], [300.0, 400.0]]), image_xy=None,
+        ...                  sigma=np.array([0.5, 0.5]), role=np.array(["control", "check"]), crs="EPSG:32633")
+        >>> path = write_gcps(pathlib.Path(tempfile.mkdtemp()) / "gcps.csv", table)
+        >>> back = read_gcps(path)
+        >>> bool(np.array_equal(back.ground, table.ground) and np.array_equal(back.pixel, table.pixel))
+        True
+        >>> back.role.tolist(), back.crs
+        (['control', 'check'], 'EPSG:32633')
     """
     from .atomic import atomic_write
 

@@ -147,6 +147,20 @@ def read_metashape_calibration(path) -> dict[str | None, FrameCamera]:
         ValueError: naming the file: not XML, no calibration, a projection
             other than frame, a term photax cannot hold (named), a value
             that is not a finite number.
+
+    Examples:
+        A Metashape calibration XML (written here by :func:`write_metashape_calibration`):
+        ``{sensor label or None: FrameCamera}`` in pixels:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_metashape_calibration, write_metashape_calibration
+        >>> cam = ptx.FrameCamera.from_pixels(3000.0, (4000, 3000), principal_point_px=(2010.0, 1490.0))
+        >>> path = write_metashape_calibration(cam, pathlib.Path(tempfile.mkdtemp()) / "calibration.xml")
+        >>> (back,) = read_metashape_calibration(path).values()
+        >>> print(np.round(np.asarray(back.principal_point), 6))  # from the image centre, x right, y up (px)
+        [10.5  9.5]
     """
     path = pathlib.Path(path)
     root = _parse_xml(path)
@@ -187,6 +201,19 @@ def read_opk_export(path) -> dict[str, ExteriorOrientation]:
         ValueError: naming the file and line: a wrong number of values, a
             value that is not a finite number, a name twice, a Metashape
             matrix that disagrees with its angles.
+
+    Examples:
+        A Metashape *Omega Phi Kappa* export (written here by :func:`write_opk_export`) read back:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_opk_export, write_opk_export
+        >>> eo = ptx.ExteriorOrientation([512300.0, 4103800.0, 450.0], np.radians([1.0, -2.0, 30.0]), "omega-phi-kappa")
+        >>> path = write_opk_export({"IMG_1": eo}, pathlib.Path(tempfile.mkdtemp()) / "cameras_opk.txt", format="pix4d")
+        >>> back = read_opk_export(path)
+        >>> list(back), np.round(np.degrees(np.asarray(back["IMG_1"].angles)), 6).tolist()
+        (['IMG_1'], [1.0, -2.0, 30.0])
     """
     path = pathlib.Path(path)
     lines = split_lines(read_text(path, "orientation file"))
@@ -251,6 +278,19 @@ def write_metashape_calibration(camera: FrameCamera, path, *, inputs=()) -> path
 
     Raises:
         ValueError: a camera without a pixel grid (``pixel_size``, ``image_size``) or a scan.
+
+    Examples:
+        A camera as a Metashape calibration XML, read back (``{sensor name or None: camera}``):
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_metashape_calibration, write_metashape_calibration
+        >>> cam = ptx.FrameCamera.from_pixels(3000.0, (4000, 3000), distortion=[-0.05, 0.0, 0.0, 0.0, 0.0])  # k1 k2 k3 p1 p2
+        >>> path = write_metashape_calibration(cam, pathlib.Path(tempfile.mkdtemp()) / "calibration.xml")
+        >>> (back,) = read_metashape_calibration(path).values()
+        >>> back.image_size, bool(np.isclose(back.focal_length, cam.focal_length)), float(back.distortion[0])
+        ((4000, 3000), True, -0.05)
     """
     from .atomic import atomic_write
 
@@ -280,7 +320,21 @@ def write_opk_export(table: dict, path, *, format: str = "metashape", inputs=())
     """Write ``{image name: ExteriorOrientation}`` as a Metashape "Omega Phi Kappa" export
     (``format="metashape"``: tab-separated, with r11..r33) or a Pix4D external parameters file
     (``"pix4d"``), atomically; angles in degrees, omega-phi-kappa, 17 significant digits.
-    :func:`read_opk_export` reads either back."""
+    :func:`read_opk_export` reads either back.
+
+    Examples:
+        Orientations as a Metashape *Omega Phi Kappa* export (or Pix4D's), read back equal:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_opk_export, write_opk_export
+        >>> eo = ptx.ExteriorOrientation([512300.0, 4103800.0, 450.0], np.radians([1.0, -2.0, 30.0]), "omega-phi-kappa")
+        >>> path = write_opk_export({"IMG_1": eo}, pathlib.Path(tempfile.mkdtemp()) / "cameras_opk.txt")
+        >>> back = read_opk_export(path)["IMG_1"]
+        >>> bool(np.allclose(back.position, eo.position) and np.allclose(back.rotation, eo.rotation))
+        True
+    """
     from .atomic import atomic_write
 
     if format not in ("metashape", "pix4d"):

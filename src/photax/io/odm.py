@@ -37,6 +37,16 @@ def read_odm_cameras(path) -> dict[str, FrameCamera]:
     Raises:
         ValueError: naming the file: not a mapping of camera ids to OpenSfM
             camera parameters, or a camera model photax cannot represent.
+
+    Examples:
+        ODM's ``cameras.json`` (written here by :func:`write_odm_cameras`): ``{camera id: camera}``:
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> from photax.io import read_odm_cameras, write_odm_cameras
+        >>> path = write_odm_cameras(pathlib.Path(tempfile.mkdtemp()) / "cameras.json", ptx.FrameCamera.from_pixels(2904.0, (4000, 3000)))
+        >>> {k: v.image_size for k, v in read_odm_cameras(path).items()}
+        {'photax_camera': (4000, 3000)}
     """
     from .opensfm import _camera
 
@@ -57,6 +67,19 @@ def write_odm_cameras(path, cameras, *, inputs=()) -> pathlib.Path:
 
     Raises:
         ValueError: a camera OpenSfM cannot hold (:func:`photax.io.opensfm.camera_to_opensfm`).
+
+    Examples:
+        Cameras as ODM's ``cameras.json``, read back equal (in pixels):
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_odm_cameras, write_odm_cameras
+        >>> cam = ptx.FrameCamera.from_pixels(2904.0, (4000, 3000), distortion=[-0.05, 0.01, 0.0, 0.0, 0.0])
+        >>> path = write_odm_cameras(pathlib.Path(tempfile.mkdtemp()) / "cameras.json", {"dji": cam})
+        >>> back = read_odm_cameras(path)["dji"]
+        >>> bool(np.isclose(back.focal_length, 2904.0)), np.round(np.asarray(back.distortion), 6).tolist()[:2]
+        (True, [-0.05, 0.01])
     """
     import json
 
@@ -93,6 +116,22 @@ def read_odm_geo(path, crs=None) -> tuple[dict[str, np.ndarray], str | None, dic
         ValueError: naming the file and line: no CRS line, a CRS pyproj does not
             read, a line without a name and two numbers, a latitude out of
             range, a repeated image.
+
+    Examples:
+        Longitude, latitude and height, projected into the UTM zone of the points:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> from photax.io import read_odm_geo
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "geo.txt"
+        >>> _ = path.write_text("EPSG:4326\\nIMG_1.JPG 15.0 37.0 450.0 0 0 0 2.5 5.0\\n")
+        >>> positions, crs, accuracy = read_odm_geo(path)
+        >>> crs, accuracy["IMG_1"]
+        ('EPSG:32633', (2.5, 5.0))
+        >>> from pyproj import Transformer  # the same point projected by PROJ
+        >>> e, n = Transformer.from_crs("EPSG:4326", "EPSG:32633", always_xy=True).transform(15.0, 37.0)
+        >>> bool(np.allclose(positions["IMG_1"], [e, n, 450.0]))
+        True
     """
     from .gcp import _projected
 
@@ -173,6 +212,18 @@ def write_odm_geo(path, positions, crs, *, inputs=()) -> pathlib.Path:
         ValueError: no positions; a name that is empty, has spaces or repeats a
             stem; an x or y that is not finite, a height that is infinite; a CRS
             pyproj does not read, or one with neither an EPSG code nor a PROJ string.
+
+    Examples:
+        Positions in a projected CRS written as ODM's ``geo.txt`` and read back:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> from photax.io import read_odm_geo, write_odm_geo
+        >>> positions = {"IMG_1": (512300.0, 4103800.0, 450.0), "IMG_2": (512400.5, 4103800.25, 451.0)}
+        >>> path = write_odm_geo(pathlib.Path(tempfile.mkdtemp()) / "geo.txt", positions, "EPSG:32633")
+        >>> back, crs, accuracy = read_odm_geo(path)
+        >>> sorted(back), bool(np.allclose(back["IMG_2"], positions["IMG_2"])), accuracy
+        (['IMG_1', 'IMG_2'], True, {})
     """
     from .atomic import atomic_write
     from .gcp import _parse_crs

@@ -324,6 +324,15 @@ def camera_to_opensfm(camera: FrameCamera) -> dict:
     Raises:
         ValueError: a camera without a pixel grid, a scanned one, or an
             ``opencv`` camera with terms beyond OpenSfM's ``brown`` (k4-k6, s1-s4).
+
+    Examples:
+        OpenSfM's camera entry: focal length and principal point normalised by the larger image side:
+
+        >>> import photax as ptx
+        >>> from photax.io import camera_to_opensfm
+        >>> entry = camera_to_opensfm(ptx.FrameCamera.from_pixels(3000.0, (4000, 3000)))
+        >>> entry["projection_type"], entry["width"], entry["height"], round(entry["focal_x"], 6)
+        ('brown', 4000, 3000, 0.75)
     """
     if camera.pixel_size is None or camera.image_size is None or getattr(camera, "transform", None) is not None:
         raise ValueError("an OpenSfM camera needs a pixel grid (pixel_size and image_size) and no scan transform")
@@ -402,6 +411,25 @@ def write_opensfm_reconstruction(
     Raises:
         ValueError: no orientations, a camera OpenSfM cannot hold, an image without a
             camera, two images of one name, a CRS that is not projected, a bad frame.
+
+    Examples:
+        Cameras and orientations as an OpenSfM/ODM ``reconstruction.json``, read back (the shots in
+        the projected CRS; here ODM's grid frame, parallel to the UTM grid):
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_opensfm_cameras, read_opensfm_shots, write_opensfm_reconstruction
+        >>> cam = ptx.FrameCamera.from_pixels(3000.0, (4000, 3000))
+        >>> eo = ptx.ExteriorOrientation([500100.0, 4096000.0, 400.0], np.radians([1.0, -2.0, 30.0]), "omega-phi-kappa")
+        >>> path = write_opensfm_reconstruction(pathlib.Path(tempfile.mkdtemp()) / "reconstruction.json",
+        ...                                     {"cam": cam}, {"IMG_1.JPG": eo}, "EPSG:32633", frame="grid")
+        >>> (back_cam,) = read_opensfm_cameras(path).values()
+        >>> shots, crs, _ = read_opensfm_shots(path, crs="EPSG:32633", frame="grid")
+        >>> bool(np.isclose(back_cam.focal_length, 3000.0)), bool(np.allclose(shots["IMG_1"].position, eo.position, atol=1e-6))
+        (True, True)
+        >>> bool(np.allclose(shots["IMG_1"].rotation, eo.rotation, atol=1e-9))
+        True
     """
     import json
 

@@ -140,6 +140,18 @@ def read_interior(path, name: str | None = None) -> FrameCamera:
     Raises:
         ValueError: a malformed file (naming file and line), or ``name``
             missing or unknown for a multi-camera file (listing the names).
+
+    Examples:
+        A camera from a photax camera file or an orthority interior file, told apart by content:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_interior
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> _ = (folder / "photax.yaml").write_text("focal_length_px: 500.0\\nimage_size: [1000, 750]\\n")
+        >>> _ = (folder / "int_param.yaml").write_text(
+        ...     "cam:\\n  type: pinhole\\n  im_size: [1000, 750]\\n  focal_len: 8.8\\n  sensor_size: [17.6, 13.2]\\n")
+        >>> [read_interior(folder / f).image_size for f in ("photax.yaml", "int_param.yaml")]
+        [(1000, 750), (1000, 750)]
     """
     path = pathlib.Path(path)
     from .colmap import is_colmap_file, read_colmap_cameras
@@ -227,6 +239,20 @@ def read_exterior(path, image, crs=None) -> tuple[ExteriorOrientation, str | Non
     Raises:
         ValueError: naming the file: malformed, no (solved) orientation for
             ``image``, or several candidates.
+
+    Examples:
+        One image's orientation from a ``photax resect``/``bundle`` JSON result or an orthority file;
+        here a JSON orientation as ``data/sample_truth.json`` holds it:
+
+        >>> import json, pathlib, tempfile
+        >>> import numpy as np
+        >>> from photax.io import read_exterior
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "truth.json"
+        >>> _ = path.write_text(json.dumps({"convention": "phi-omega-kappa", "position": [512308.0, 4103788.0, 450.0],
+        ...                                 "angles_rad": [0.02, -0.01, 0.61], "crs": "EPSG:32633"}))
+        >>> eo, crs = read_exterior(path, "IMG_0001.tif")
+        >>> np.asarray(eo.position).tolist(), eo.convention
+        ([512308.0, 4103788.0, 450.0], 'phi-omega-kappa')
     """
     if exif_attitude(path) is not None:  # the image's own GPS and attitude tags
         # heights as tagged: not moved into a vertical datum (their own datum is not known)
@@ -261,6 +287,17 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
     Raises:
         ValueError: naming the file: malformed, no images, or no (solved)
             orientation for one of ``names``.
+
+    Examples:
+        Every image of an orientation file, parsed once (here orthority's CSV with a ``.prj``):
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_exteriors
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> _ = (folder / "ext.csv").write_text("A.tif 100 200 300 0 0 0\\nB.tif 150 200 300 0 0 90\\n")
+        >>> table, crs = read_exteriors(folder / "ext.csv")
+        >>> sorted(table), crs
+        (['A', 'B'], None)
     """
     if exif_attitude(path) is not None:  # each image's own tags, into one CRS
         if names is None:
@@ -358,7 +395,19 @@ def read_camera_unit(path) -> str | None:
     ``"px"``), ``"px"`` for the ``focal_length_px`` shorthand and for an
     OpenSfM/ODM ``reconstruction.json`` (read in pixels); None if not given, as
     for an orthority interior file (its focal length and sensor size share a
-    unit it does not name: :func:`camera_in_pixels`); ``"mm"`` for a Pix4D ``.cam``."""
+    unit it does not name: :func:`camera_in_pixels`); ``"mm"`` for a Pix4D ``.cam``.
+
+    Examples:
+        The unit a camera file's lengths are in:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_camera_unit
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> _ = (folder / "mm.yaml").write_text("focal_length: 8.8\\nunit: mm\\npixel_size: 0.0176\\nimage_size: [1000, 750]\\n")
+        >>> _ = (folder / "px.yaml").write_text("focal_length_px: 500.0\\nimage_size: [1000, 750]\\n")
+        >>> read_camera_unit(folder / "mm.yaml"), read_camera_unit(folder / "px.yaml")
+        ('mm', 'px')
+    """
     path = pathlib.Path(path)
     from .colmap import is_colmap_file
     from .metashape import is_metashape_xml

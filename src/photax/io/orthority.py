@@ -139,6 +139,15 @@ def camera_to_orthority(camera: FrameCamera) -> dict:
         ValueError: a camera without a pixel grid, or a scanned one (its
             pixels go through a fitted transformation orthority has no
             place for).
+
+    Examples:
+        The orthority parameters of a camera (pixels become orthority's sensor size):
+
+        >>> import photax as ptx
+        >>> from photax.io import camera_to_orthority
+        >>> params = camera_to_orthority(ptx.FrameCamera(8.8, pixel_size=0.0176, image_size=(1000, 750)))
+        >>> params["type"], params["im_size"], [round(v, 6) for v in params["sensor_size"]]
+        ('brown', [1000, 750], [17.6, 13.2])
     """
     if camera.pixel_size is None or camera.image_size is None or getattr(camera, "transform", None) is not None:
         raise ValueError("an orthority camera needs a pixel grid (pixel_size and image_size) and no scan transform")
@@ -169,6 +178,17 @@ def read_orthority_interior(path) -> dict[str, FrameCamera]:
     k4, k5, k6, s1 ... s4 (``"opencv"``; a tilt ``tx``, ``ty`` other than 0
     is refused), ``fisheye`` k1 ... k4 (``"fisheye"``).  The photax camera
     works in the focal length's unit (e.g. mm).
+
+    Examples:
+        orthority's interior parameter file: ``{camera name: FrameCamera}``:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_orthority_interior
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "int_param.yaml"
+        >>> _ = path.write_text("cam:\\n  type: pinhole\\n  im_size: [1000, 750]\\n  focal_len: 8.8\\n  sensor_size: [17.6, 13.2]\\n")
+        >>> cam = read_orthority_interior(path)["cam"]
+        >>> cam.image_size, round(float(cam.focal_length / cam.pixel_size[0]), 6)  # f in pixels: 8.8 / 0.0176
+        ((1000, 750), 500.0)
     """
     path = pathlib.Path(path)
     data = load_yaml(path, read_text(path, "orthority interior file"))
@@ -197,6 +217,18 @@ def read_orthority_exterior(csv_path, prj=None) -> dict[str, ExteriorOrientation
     omega-phi-kappa, which is photax's ``"omega-phi-kappa"`` convention
     unchanged (module docstring).  Keys are file names without extension, as
     orthority matches them.
+
+    Examples:
+        orthority's ``filename x y z omega phi kappa`` CSV (angles in degrees): ``{stem: orientation}``:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> from photax.io import read_orthority_exterior
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "ext.csv"
+        >>> _ = path.write_text("filename,x,y,z,omega,phi,kappa\\nIMG_1.tif,512300.0,4103800.0,450.0,1.0,-2.0,30.0\\n")
+        >>> eo = read_orthority_exterior(path)["IMG_1"]
+        >>> eo.convention, np.asarray(eo.position).tolist(), np.round(np.degrees(np.asarray(eo.angles)), 6).tolist()
+        ('omega-phi-kappa', [512300.0, 4103800.0, 450.0], [1.0, -2.0, 30.0])
     """
     table, _ = _read_csv(pathlib.Path(csv_path))
     if prj is not None and not pathlib.Path(prj).is_file():
@@ -214,7 +246,20 @@ def read_orthority_exterior_crs(csv_path, crs=None) -> tuple[dict[str, ExteriorO
     camera with the meridian convergence, as orthority (and Pix4D) do, or
     into ``crs`` (a projected CRS) when given; ``crs`` is not used for an
     ``x y z`` file, whose CRS is its ``.prj``'s.  Heights stay as given
-    (ellipsoidal for GNSS)."""
+    (ellipsoidal for GNSS).
+
+    Examples:
+        orthority's drone CSV (latitude, longitude, altitude, roll, pitch, yaw) projected into the
+        UTM zone of its mean position:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_orthority_exterior_crs
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "lla_rpy.csv"
+        >>> _ = path.write_text("filename,latitude,longitude,altitude,roll,pitch,yaw\\nDJI_1.JPG,37.0,15.0,500.0,0,0,0\\n")
+        >>> table, crs = read_orthority_exterior_crs(path)
+        >>> crs, [round(float(v), 1) for v in table["DJI_1"].position][::2]  # on the zone's central meridian: E 500000
+        ('EPSG:32633', [500000.0, 500.0])
+    """
     return _read_csv(pathlib.Path(csv_path), crs)
 
 
@@ -336,7 +381,22 @@ def read_orthority_geojson(path) -> tuple[dict[str, ExteriorOrientation], str]:
     """orthority's exterior GeoJSON (``--export-params``): ``({file stem:
     ExteriorOrientation}, crs)``; each feature's ``properties`` hold
     ``filename``, ``xyz`` (in ``world_crs``) and ``opk`` (radians, orthority's
-    omega-phi-kappa = photax's); the point geometry (lon, lat) is not used."""
+    omega-phi-kappa = photax's); the point geometry (lon, lat) is not used.
+
+    Examples:
+        orthority's exterior GeoJSON (written here by :func:`write_orthority_geojson`):
+        ``({stem: orientation}, crs)``:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_orthority_geojson, write_orthority_geojson
+        >>> eo = ptx.ExteriorOrientation([512300.0, 4103800.0, 450.0], np.radians([1.0, -2.0, 30.0]), "omega-phi-kappa")
+        >>> path = write_orthority_geojson(pathlib.Path(tempfile.mkdtemp()) / "ext.geojson", {"IMG_1.tif": eo}, "EPSG:32633")
+        >>> table, crs = read_orthority_geojson(path)
+        >>> list(table), table["IMG_1"].convention
+        (['IMG_1'], 'omega-phi-kappa')
+    """
     path = pathlib.Path(path)
     data = load_json(path, read_text(path, "orthority exterior file"))
     if (
@@ -380,7 +440,22 @@ def read_orthority_geojson(path) -> tuple[dict[str, ExteriorOrientation], str]:
 
 
 def read_orthority_crs(csv_path, prj=None) -> str | None:
-    """The CRS text of an exterior CSV: ``prj`` or the ``.prj`` beside it, else None."""
+    """The CRS text of an exterior CSV: ``prj`` or the ``.prj`` beside it, else None.
+
+    Examples:
+        The CRS of an exterior CSV: the ``.prj`` beside it, or None:
+
+        >>> import pathlib, tempfile
+        >>> from pyproj import CRS
+        >>> from photax.io import read_orthority_crs
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> _ = (folder / "ext.csv").write_text("A.tif 100 200 300 0 0 0\\n")
+        >>> read_orthority_crs(folder / "ext.csv") is None
+        True
+        >>> _ = (folder / "ext.prj").write_text(CRS.from_epsg(32633).to_wkt())
+        >>> CRS.from_user_input(read_orthority_crs(folder / "ext.csv")).to_epsg()
+        32633
+    """
     prj = pathlib.Path(prj) if prj is not None else pathlib.Path(csv_path).with_suffix(".prj")
     if not prj.is_file():
         return None
@@ -420,6 +495,19 @@ def write_orthority_interior(path, cameras, *, inputs=()) -> pathlib.Path:
     Raises:
         ValueError: a camera without a pixel grid, a scanned camera, or a camera named
             ``camera`` (orthority's legacy key).
+
+    Examples:
+        A camera as orthority's interior YAML, read back equal:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_orthority_interior, write_orthority_interior
+        >>> cam = ptx.FrameCamera.from_pixels(2904.0, (4000, 3000))
+        >>> path = write_orthority_interior(pathlib.Path(tempfile.mkdtemp()) / "int_param.yaml", {"drone": cam})
+        >>> back = read_orthority_interior(path)["drone"]
+        >>> back.image_size, bool(np.isclose(back.focal_length / back.pixel_size[0], 2904.0))
+        ((4000, 3000), True)
     """
     import yaml
 
@@ -454,7 +542,21 @@ def write_orthority_exterior(path, table, crs=None, *, inputs=()) -> pathlib.Pat
     as orthority's exterior CSV: a header ``filename x y z omega phi kappa``,
     angles in degrees (orthority's omega-phi-kappa = photax's), full precision;
     with ``crs``, its WKT in the ``.prj`` beside the file (both written
-    atomically).  :func:`read_orthority_exterior_crs` reads back the same."""
+    atomically).  :func:`read_orthority_exterior_crs` reads back the same.
+
+    Examples:
+        Orientations as orthority's exterior CSV (with its ``.prj``), read back equal:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_orthority_exterior, write_orthority_exterior
+        >>> eo = ptx.ExteriorOrientation([512300.0, 4103800.0, 450.0], np.radians([1.0, -2.0, 30.0]), "omega-phi-kappa")
+        >>> path = write_orthority_exterior(pathlib.Path(tempfile.mkdtemp()) / "ext.csv", {"IMG_1": eo}, "EPSG:32633")
+        >>> back = read_orthority_exterior(path)["IMG_1"]
+        >>> bool(np.allclose(back.position, eo.position) and np.allclose(back.rotation, eo.rotation))
+        True
+    """
     import pyproj
 
     from .atomic import atomic_write
@@ -481,10 +583,24 @@ def write_orthority_exterior(path, table, crs=None, *, inputs=()) -> pathlib.Pat
 
 def write_orthority_geojson(path, table, crs, camera=None, *, inputs=()) -> pathlib.Path:
     """Write ``table`` (``{image name: ExteriorOrientation}``) as orthority's exterior
-    GeoJSON (what ``oty ... --export-params`` writes): ``world_crs`` (``crs``, a
+    GeoJSON (what orthority's ``--export-params`` writes): ``world_crs`` (``crs``, a
     projected CRS), each feature's ``filename``, ``camera`` (the camera name in the
     interior file, or null), ``xyz`` and ``opk`` (radians) and a WGS84 point
-    (lon, lat, h).  :func:`read_orthority_geojson` reads back the same."""
+    (lon, lat, h).  :func:`read_orthority_geojson` reads back the same.
+
+    Examples:
+        Orientations as orthority's exterior GeoJSON, read back equal with their CRS:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_orthority_geojson, write_orthority_geojson
+        >>> eo = ptx.ExteriorOrientation([512300.0, 4103800.0, 450.0], np.radians([1.0, -2.0, 30.0]), "omega-phi-kappa")
+        >>> path = write_orthority_geojson(pathlib.Path(tempfile.mkdtemp()) / "ext.geojson", {"IMG_1": eo}, "EPSG:32633")
+        >>> table, crs = read_orthority_geojson(path)
+        >>> bool(np.allclose(table["IMG_1"].position, eo.position) and np.allclose(table["IMG_1"].rotation, eo.rotation))
+        True
+    """
     import json
 
     import pyproj
@@ -517,7 +633,26 @@ def write_orthority_rpc(path, cameras, *, inputs=()) -> pathlib.Path:
     """Write RPCs (:class:`photax.rpc.RPCCamera`, ``{image file name: camera}``) as orthority's
     ``rpc_param.yaml`` (each entry ``im_size`` and ``rpc`` with GDAL's keys), atomically:
     ``oty rpc --rpc-file`` and :func:`photax.rpc.read_rpc` read it back (a refined RPC's image-space
-    correction is not part of the format: refused)."""
+    correction is not part of the format: refused).
+
+    Examples:
+        RPCs as orthority's ``rpc_param.yaml``, read back by :func:`photax.read_rpc`:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> one, lon, lat = np.eye(20)[0], np.eye(20)[1], -np.eye(20)[2]  # 1, L, -P of the 20 terms
+        >>> rpc = ptx.RPCCamera.from_dict(dict(
+        ...     samp_num_coeff=lon, samp_den_coeff=one, line_num_coeff=lat, line_den_coeff=one,
+        ...     long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
+        ...     long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0,
+        ... ), image_size=(1000, 1000))
+        >>> import pathlib, tempfile
+        >>> from photax.io import write_orthority_rpc
+        >>> path = write_orthority_rpc(pathlib.Path(tempfile.mkdtemp()) / "rpc_param.yaml", {"scene.tif": rpc})
+        >>> back = ptx.read_rpc(path)
+        >>> print(np.asarray(back(np.array([[10.005, 45.005, 100.0]]))), back.image_size)
+        [[750. 250.]] (1000, 1000)
+    """
     import yaml
 
     from .atomic import atomic_write

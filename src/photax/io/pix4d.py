@@ -82,6 +82,19 @@ def read_pix4d_cam(path, image_size: tuple[int, int] | None = None) -> FrameCame
             fisheye camera, an unknown or repeated key, a value that is not a
             finite number, a missing term, a sensor or focal length that is
             not positive; an ``image_size`` that is not two positive integers.
+
+    Examples:
+        Pix4D's ``.cam`` file (mm on the sensor; written here by :func:`write_pix4d_cam`), with the
+        image's pixel count:
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> from photax.io import read_pix4d_cam, write_pix4d_cam
+        >>> cam = ptx.FrameCamera(8.8, pixel_size=0.0176, image_size=(1000, 750))
+        >>> path = write_pix4d_cam(cam, pathlib.Path(tempfile.mkdtemp()) / "p_pix4d_calibrated_internal_camera_parameters.cam")
+        >>> back = read_pix4d_cam(path, (1000, 750))
+        >>> round(float(back.focal_length / back.pixel_size[0]), 6), back.image_size
+        (500.0, (1000, 750))
     """
     path = pathlib.Path(path)
     lines = split_lines(read_text(path, "camera file"))
@@ -161,6 +174,19 @@ def write_pix4d_cam(camera: FrameCamera, path, *, inputs=()) -> pathlib.Path:
         ValueError: not a Brown-Conrady :class:`photax.FrameCamera` with a pixel
             grid; non-square pixels (Pix4D has one focal length); a value that
             is not finite.
+
+    Examples:
+        A camera as Pix4D's ``.cam`` file (mm on the sensor), read back with its pixel count:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_pix4d_cam, write_pix4d_cam
+        >>> cam = ptx.FrameCamera(8.8, principal_point=(0.011, -0.0066), pixel_size=0.0176, image_size=(1000, 750))
+        >>> path = write_pix4d_cam(cam, pathlib.Path(tempfile.mkdtemp()) / "p_pix4d_calibrated_internal_camera_parameters.cam")
+        >>> back = read_pix4d_cam(path, (1000, 750))
+        >>> bool(np.allclose(np.asarray(back.image_to_pixel(np.array([[0.1, 0.2]]))), np.asarray(cam.image_to_pixel(np.array([[0.1, 0.2]])))))
+        True
     """
     from .atomic import atomic_write
 

@@ -23,7 +23,19 @@ from .gcp import read_gcps
 
 
 def read_named_points(path, columns: tuple[str, str], what: str) -> tuple[list[str], np.ndarray]:
-    """``name,a,b`` rows of a CSV with a header naming those columns (file and line in errors)."""
+    """``name,a,b`` rows of a CSV with a header naming those columns (file and line in errors).
+
+    Examples:
+        A ``name,x,y`` list (fiducial marks in mm, say):
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_named_points
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "fiducials.csv"
+        >>> _ = path.write_text("name,x,y\\nF1,-106.0,-106.0\\nF2,106.0,106.0\\n")
+        >>> names, xy = read_named_points(path, ("x", "y"), "fiducial")
+        >>> names, xy.tolist()
+        (['F1', 'F2'], [[-106.0, -106.0], [106.0, 106.0]])
+    """
     rows = []
     for k, line in enumerate(split_lines(read_text(path, what)), start=1):
         try:
@@ -60,7 +72,19 @@ def read_named_points(path, columns: tuple[str, str], what: str) -> tuple[list[s
 
 def read_pixel_points(path, image_name: str | None = None):
     """``(names, approx (n, 2), table)`` from a GCP file or a ``name,col,row`` CSV
-    (``table`` is the GCP table, or None for a plain list)."""
+    (``table`` is the GCP table, or None for a plain list).
+
+    Examples:
+        Approximate image positions as ``name,col,row`` (or any GCP file):
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_pixel_points
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "approx.csv"
+        >>> _ = path.write_text("name,col,row\\nT1,100.5,200.0\\nT2,310.0,45.25\\n")
+        >>> names, xy, table = read_pixel_points(path)
+        >>> names.tolist(), xy.tolist(), table is None
+        (['T1', 'T2'], [[100.5, 200.0], [310.0, 45.25]], True)
+    """
     path = pathlib.Path(path)
     lines = [
         (i + 1, s)

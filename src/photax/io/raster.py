@@ -61,6 +61,18 @@ def read_geotiff(path, *, masked: bool = False) -> tuple[np.ndarray, dict]:
         ``(array, profile)``: ``array`` is ``(bands, rows, cols)`` in the
         file's dtype; ``profile`` is rasterio's profile dict (``transform``
         as ``rasterio.Affine``, ``crs``, ``nodata``, ``dtype``, ...).
+
+    Examples:
+        ``(bands, rows, cols)`` and rasterio's profile (transform, CRS, dtype...):
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "rgb.tif"
+        >>> _ = ptx.write_geotiff(path, np.zeros((3, 20, 30), np.uint8), (2.0, 0.0, 0.0, 0.0, -2.0, 40.0), "EPSG:32633")
+        >>> bands, profile = ptx.read_geotiff(path)
+        >>> bands.shape, profile["count"], profile["transform"].a
+        ((3, 20, 30), 3, 2.0)
     """
     with open_raster(path) as src, _damaged(path):
         return src.read(masked=masked), dict(src.profile)
@@ -97,6 +109,19 @@ def read_grey(path, band: int | None = None) -> np.ndarray:
 
     Raises:
         ValueError: ``band`` not in the file, naming it.
+
+    Examples:
+        One grey image from a raster: its only band, a chosen band, or the mean of RGB:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_grey
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "rgb.tif"
+        >>> rgb = np.stack([np.full((4, 5), v, np.uint8) for v in (30, 60, 90)])
+        >>> _ = ptx.write_geotiff(path, rgb, None)
+        >>> float(read_grey(path)[0, 0]), int(read_grey(path, band=3)[0, 0])
+        (60.0, 90)
     """
     data, _ = read_geotiff(path)
     if band is not None:
@@ -125,6 +150,19 @@ def read_dem(path, band: int = 1) -> DEM:
 
     The CRS is kept as WKT text.  Only heights and the georeference are
     used: vertical datum conversions (geoid/ellipsoid) are up to the caller.
+
+    Examples:
+        A DEM from a GeoTIFF: its heights, transform and CRS, read at ground points:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> heights = np.full((10, 10), 75.0, np.float32)
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "dem.tif"
+        >>> _ = ptx.write_geotiff(path, heights, (5.0, 0.0, 1000.0, 0.0, -5.0, 2000.0), "EPSG:32633")
+        >>> dem = ptx.read_dem(path)
+        >>> print(np.asarray(dem.height(np.array([1020.0]), np.array([1980.0]))), dem.crs.split('"')[1])
+        [75.] WGS 84 / UTM zone 33N
     """
     with open_raster(path) as src, _damaged(path):
         if not 1 <= band <= src.count:
@@ -162,6 +200,19 @@ def write_geotiff(
         mask: ``(rows, cols)`` bool, True where the pixels hold data: written as GDAL's internal
             per-dataset mask band (rasterio's ``read_masks``, ``read(masked=True)``), which, unlike a
             nodata value, takes no grey value away from the data.
+
+    Examples:
+        An array with its affine georeference and CRS, written atomically and read back:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> array = np.arange(12, dtype=np.uint8).reshape(3, 4)
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "a.tif"
+        >>> _ = ptx.write_geotiff(path, array, (10.0, 0.0, 500000.0, 0.0, -10.0, 4100000.0), "EPSG:32633")
+        >>> bands, profile = ptx.read_geotiff(path)
+        >>> bands.shape, bool(np.array_equal(bands[0], array)), profile["crs"].to_epsg()
+        ((1, 3, 4), True, 32633)
     """
     import rasterio
     from rasterio import Affine

@@ -53,6 +53,16 @@ def write_json(obj, path, *, inputs=()) -> pathlib.Path:
 
     Returns:
         the path written.
+
+    Examples:
+        Results as JSON (NumPy and JAX arrays become lists), read back by :func:`read_json`:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> path = ptx.write_json({"sigma0": np.float64(1.25), "xyz": np.array([1.0, 2.0])}, pathlib.Path(tempfile.mkdtemp()) / "r.json")
+        >>> ptx.read_json(path)
+        {'sigma0': 1.25, 'xyz': [1.0, 2.0]}
     """
     text = json.dumps(to_jsonable(obj), indent=2, allow_nan=False) + "\n"
     data = text.encode("utf-8")  # its size known: refused at once when the disk cannot hold it
@@ -69,6 +79,16 @@ def read_json(path):
         ValueError: naming the file (and line, for a syntax error); a folder
             or an unreadable file is a ValueError naming the path too.
         FileNotFoundError: no such file.
+
+    Examples:
+        The inverse of :func:`write_json`:
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "r.json"
+        >>> _ = path.write_text('{"images": {"IMG_1": {"sigma0": 0.9}}}')
+        >>> ptx.read_json(path)["images"]["IMG_1"]["sigma0"]
+        0.9
     """
     path = pathlib.Path(path)
     return load_json(path, read_text(path, "JSON file"))

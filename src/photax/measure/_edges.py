@@ -54,6 +54,14 @@ def sobel(image, *, mode: Mode = "reflect"):
     Returns:
         float64 magnitude of the shape of ``image``: ``sqrt(2) |grad g|``
         (grey values per pixel) on a linear ramp.
+
+    Examples:
+        On a ramp of 2 grey levels per column the magnitude is ``sqrt(2) |grad g| = 2 sqrt(2)``:
+
+        >>> import numpy as np
+        >>> from photax.measure import sobel
+        >>> print(np.round(np.asarray(sobel(np.tile(2.0 * np.arange(8.0), (6, 1))))[3, 2:6], 6))  # 2 sqrt(2)
+        [2.828427 2.828427 2.828427 2.828427]
     """
     img, b = as_image(image, convert=False)
     return _sobel(img, mode) if not b else jax.vmap(lambda i: _sobel(i, mode))(img)
@@ -62,7 +70,16 @@ def sobel(image, *, mode: Mode = "reflect"):
 def prewitt(image, *, mode: Mode = "reflect"):
     """Prewitt edge magnitude ``sqrt((Gx^2 + Gy^2) / 2)``, ``G = [1 0 -1] x
     [1 1 1]/3`` (seed 004; the scale of ``skimage.filters.prewitt``).
-    Shapes as :func:`sobel`."""
+    Shapes as :func:`sobel`.
+
+    Examples:
+        The same ramp as :func:`sobel`'s example, Prewitt's weights:
+
+        >>> import numpy as np
+        >>> from photax.measure import prewitt
+        >>> print(np.round(np.asarray(prewitt(np.tile(2.0 * np.arange(8.0), (6, 1))))[3, 2:6], 6))  # 2 sqrt(2)
+        [2.828427 2.828427 2.828427 2.828427]
+    """
     img, b = as_image(image, convert=False)
     return _prewitt(img, mode) if not b else jax.vmap(lambda i: _prewitt(i, mode))(img)
 
@@ -80,7 +97,17 @@ def roberts(image):
     2 x 2 kernels of seed 004 as ``skimage.filters.roberts`` applies them
     (``scipy.ndimage.convolve``, mode ``"reflect"``).  The difference
     belongs to the half-pixel position (c + 1/2, r + 1/2) and is stored at
-    pixel (c, r).  Shapes as :func:`sobel`."""
+    pixel (c, r).  Shapes as :func:`sobel`.
+
+    Examples:
+        On a ramp of 3 grey levels per column both diagonal differences are 3 in size, so the
+        magnitude ``sqrt((d1^2 + d2^2) / 2)`` is 3:
+
+        >>> import numpy as np
+        >>> from photax.measure import roberts
+        >>> print(np.round(np.asarray(roberts(np.tile(3.0 * np.arange(6.0), (5, 1))))[2, 1:4], 6))
+        [3. 3. 3.]
+    """
     img, b = as_image(image)
     return batched(_roberts, img, b)
 
@@ -94,7 +121,17 @@ def laplace(image, *, mode: Mode = "reflect"):
     """Laplace operator ``4 g[r, c] - g[r-1, c] - g[r+1, c] - g[r, c-1] -
     g[r, c+1]`` (seed 004, 拉普拉斯算子; ``skimage.filters.laplace`` with
     ``ksize=3``: note the sign, minus the second derivative).
-    Shapes as :func:`sobel`."""
+    Shapes as :func:`sobel`.
+
+    Examples:
+        Minus the Laplacian: on ``x**2 + y**2`` it is -4 everywhere inside:
+
+        >>> import numpy as np
+        >>> from photax.measure import laplace
+        >>> r, c = np.mgrid[0:7, 0:7].astype(float)
+        >>> print(np.round(np.asarray(laplace(c**2 + r**2))[2:5, 3], 6))
+        [-4. -4. -4.]
+    """
     img, b = as_image(image)
     return _laplace(img, mode) if not b else jax.vmap(lambda i: _laplace(i, mode))(img)
 
@@ -162,6 +199,18 @@ def log(image, sigma: float = 2.0, *, threshold: float = 0.0, mode: Mode = "refl
         image gives no edge and a response of about -1.7e-4 times its grey
         value at sigma 2, as scipy's: the sampled, truncated second-derivative
         kernels do not sum to exactly zero.
+
+    Examples:
+        The response equals SciPy's ``gaussian_laplace`` (the same sampled kernels and border mode);
+        ``(response, zero crossings)``:
+
+        >>> import numpy as np
+        >>> from scipy import ndimage
+        >>> from photax.measure import log
+        >>> image = np.random.default_rng(0).uniform(0, 1, (32, 32))
+        >>> response, crossings = log(image, sigma=2.0)
+        >>> bool(np.allclose(np.asarray(response), ndimage.gaussian_laplace(image, 2.0), atol=1e-12))
+        True
     """
     img, b = as_image(image, convert=False)
     sigma = float(sigma)
@@ -392,6 +441,16 @@ def canny(
             (for accelerators), but on CPU it needs one full-image sweep per
             few pixels of the longest chain: ~13 s instead of ~20 ms on a
             1024 x 1024 image (measured), so not the default.
+
+    Examples:
+        The edges of a bright square: found on its border, none in its flat inside:
+
+        >>> import numpy as np
+        >>> from photax.measure import canny
+        >>> image = np.zeros((40, 40)); image[10:30, 10:30] = 1.0
+        >>> edges = np.asarray(canny(image, sigma=1.0))
+        >>> bool(edges[10:30, 9:11].any()), bool(edges[15:25, 15:25].any())
+        (True, False)
     """
     if hysteresis not in ("host", "jax"):
         raise ValueError(f"hysteresis: expected 'host' or 'jax', got {hysteresis!r}")

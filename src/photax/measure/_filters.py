@@ -283,6 +283,16 @@ def gradient(
         ``(gx, gy)``, each float64 of the shape of ``image`` (smaller for
         ``"valid"``).  A linear ramp ``g = a c + b r`` gives exactly
         ``(a, b)`` away from the border, for every method.
+
+    Examples:
+        Derivatives along columns and rows of a plane ``g = 3 col - 2 row`` (grey levels per pixel):
+
+        >>> import numpy as np
+        >>> from photax.measure import gradient
+        >>> r, c = np.mgrid[0:8, 0:8].astype(float)
+        >>> gx, gy = gradient(3.0 * c - 2.0 * r)
+        >>> print(np.round(np.asarray(gx)[4, 4], 6), np.round(np.asarray(gy)[4, 4], 6))
+        3.0 -2.0
     """
     img, is_batch = as_image(image)
     return batched(lambda im: _gradient2d(im, method, mode, sigma), img, is_batch)

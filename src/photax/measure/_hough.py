@@ -28,7 +28,19 @@ class HoughLines(NamedTuple):
     """Lines ``rho = x cos(theta) + y sin(theta)`` in pixel coordinates
     (x = column, y = row, origin at the centre of the top-left pixel;
     theta in [0, pi) radians from the column axis towards the row axis,
-    rho in pixels, signed)."""
+    rho in pixels, signed).
+
+    Examples:
+        What :func:`hough_lines` returns: each line's normal angle ``theta`` and distance ``rho``
+        (``col cos(theta) + row sin(theta) = rho``), its strength, and the accumulator:
+
+        >>> import numpy as np
+        >>> from photax.measure import hough_lines
+        >>> edges = np.zeros((40, 40), bool); edges[:, 12] = True  # the column 12
+        >>> lines = hough_lines(edges, max_lines=1)
+        >>> print(f"{np.degrees(lines.theta[0]):.1f} {lines.rho[0]:.2f}")
+        0.0 12.00
+    """
 
     theta: np.ndarray  #: (n,) radians, refined
     rho: np.ndarray  #: (n,) pixels, refined
@@ -39,7 +51,20 @@ class HoughLines(NamedTuple):
 
 
 class HoughCircles(NamedTuple):
-    """Circles of the given radii; centres in pixel coordinates (column, row)."""
+    """Circles of the given radii; centres in pixel coordinates (column, row).
+
+    Examples:
+        What :func:`hough_circles` returns: centres ``xy`` (column, row), radii and strengths:
+
+        >>> import numpy as np
+        >>> from photax.measure import hough_circles
+        >>> t = np.linspace(0, 2 * np.pi, 300)
+        >>> edges = np.zeros((40, 40), bool)
+        >>> edges[np.round(20 + 7 * np.sin(t)).astype(int), np.round(18 + 7 * np.cos(t)).astype(int)] = True
+        >>> found = hough_circles(edges, [6, 7, 8], max_circles=1)
+        >>> found.xy.shape, np.round(found.xy[0]).tolist(), float(np.round(found.radius[0]))
+        ((1, 2), [18.0, 20.0], 7.0)
+    """
 
     xy: np.ndarray  #: (n, 2) centres, refined
     radius: np.ndarray  #: (n,) radius (one of ``radii``)
@@ -141,6 +166,17 @@ def hough_lines(
 
     Returns:
         :class:`HoughLines` (numpy arrays).  No edge pixel: no line.
+
+    Examples:
+        A straight line of edge pixels, column = row + 5 (normal at -45 degrees), found back:
+
+        >>> import numpy as np
+        >>> from photax.measure import hough_lines
+        >>> edges = np.zeros((60, 60), bool)
+        >>> edges[np.arange(50), np.arange(50) + 5] = True
+        >>> lines = hough_lines(edges, max_lines=1)
+        >>> print(f"{np.degrees(lines.theta[0]) % 180:.1f} deg, |rho| {abs(lines.rho[0]):.2f} px")  # 5 / sqrt(2) = 3.54
+        135.0 deg, |rho| 3.54 px
     """
     shape, xy, wts, (xs, ys, ws) = _edge_points(edges)
     if not (theta_step > 0 and rho_step > 0):
@@ -254,6 +290,18 @@ def hough_circles(
 
     Returns:
         :class:`HoughCircles` (numpy arrays).
+
+    Examples:
+        A circle of radius 8 drawn around (30, 25), found back among radii 6-10:
+
+        >>> import numpy as np
+        >>> from photax.measure import hough_circles
+        >>> t = np.linspace(0, 2 * np.pi, 400)
+        >>> edges = np.zeros((60, 60), bool)
+        >>> edges[np.round(25 + 8 * np.sin(t)).astype(int), np.round(30 + 8 * np.cos(t)).astype(int)] = True
+        >>> circles = hough_circles(edges, np.arange(6, 11), max_circles=1)
+        >>> print(np.round(circles.xy, 0) + 0.0, np.round(circles.radius, 0))
+        [[30. 25.]] [8.]
     """
     shape, xy, wts, (xs, ys, ws) = _edge_points(edges)
     radii = np.atleast_1d(np.asarray(radii, dtype=np.float64))

@@ -94,6 +94,17 @@ def moravec(image, window: int = 5, *, method: Literal["seed", "shift"] = "seed"
     Returns:
         float64 interest values (grey^2) of the shape of ``image``; zero
         where the window does not fit.
+
+    Examples:
+        Moravec's interest value (the smallest directional variance): 0 in flat areas and along a
+        straight edge, large at a corner:
+
+        >>> import numpy as np
+        >>> from photax.measure import moravec
+        >>> image = np.zeros((30, 30)); image[15:, 15:] = 100.0
+        >>> v = np.asarray(moravec(image, 5))
+        >>> float(v[5, 5]), float(v[22, 15]), bool(v[15, 15] > 0)
+        (0.0, 0.0, True)
     """
     window = check_odd_window(window)
     img, b = as_image(image)
@@ -181,6 +192,17 @@ def foerstner(image, window: int = 5, *, sigma: float | None = None):
     Returns:
         ``(w, q)``, float64 of the shape of ``image``; ``w`` in grey^2,
         ``q`` in [0, 1].
+
+    Examples:
+        Förstner's roundness ``q`` is near 1 at a corner and near 0 along a straight edge:
+
+        >>> import numpy as np
+        >>> from photax.measure import foerstner
+        >>> image = np.zeros((40, 40)); image[20:, 20:] = 1.0
+        >>> w, q = foerstner(image, 5)
+        >>> q = np.asarray(q)
+        >>> bool(q[19, 19] > 0.5), bool(q[30, 19] < 0.1)
+        (True, True)
     """
     window = check_odd_window(window)
     img, b = as_image(image)
@@ -224,6 +246,17 @@ def harris(
 
     Returns:
         float64 response (grey^4 for ``"k"``) of the shape of ``image``.
+
+    Examples:
+        The Harris response of a bright square is largest at its corners, negative on its edges:
+
+        >>> import numpy as np
+        >>> from photax.measure import harris
+        >>> image = np.zeros((40, 40)); image[10:30, 10:30] = 1.0
+        >>> response = np.asarray(harris(image, sigma=1.5))
+        >>> r, c = np.unravel_index(np.argmax(response), response.shape)
+        >>> bool(min(abs(r - 10), abs(r - 29)) <= 1 and min(abs(c - 10), abs(c - 29)) <= 1), bool(response[20, 10] < 0)
+        (True, True)
     """
     img, b = as_image(image)
     if method not in ("k", "eps"):
@@ -253,6 +286,16 @@ def non_maximum_suppression(response, size: int = 3, threshold: float = 0.0):
 
     Returns:
         Boolean map of the shape of ``response``.
+
+    Examples:
+        The local maxima of a response above a threshold, as a mask:
+
+        >>> import numpy as np
+        >>> from photax.measure import non_maximum_suppression
+        >>> response = np.zeros((9, 9)); response[2, 3] = 5.0; response[2, 4] = 4.0; response[6, 6] = 1.0
+        >>> keep = np.asarray(non_maximum_suppression(response, 3, threshold=2.0))
+        >>> np.argwhere(keep).tolist()
+        [[2, 3]]
     """
     size = check_odd_window(size, "size")
     resp, b = as_image(response, "response")
@@ -261,7 +304,18 @@ def non_maximum_suppression(response, size: int = 3, threshold: float = 0.0):
 
 
 class InterestPoints(NamedTuple):
-    """Interest points, strongest first."""
+    """Interest points, strongest first.
+
+    Examples:
+        What :func:`interest_points` returns: ``xy`` (column, row) and each point's strength:
+
+        >>> import numpy as np
+        >>> from photax.measure import interest_points
+        >>> image = np.zeros((40, 40)); image[10:30, 10:30] = 1.0
+        >>> pts = interest_points(image, "harris", min_distance=5)
+        >>> pts.xy.shape[1], len(pts.xy) == len(pts.strength), len(pts.xy) >= 4  # at least the square's corners
+        (2, True, True)
+    """
 
     xy: np.ndarray  #: (n, 2) pixel positions (column, row)
     strength: np.ndarray  #: (n,) the operator's value at each point
@@ -305,6 +359,18 @@ def interest_points(
     Returns:
         :class:`InterestPoints` with ``xy`` (n, 2: column, row) and
         ``strength`` (n,).  No texture (a constant image): n = 0.
+
+    Examples:
+        Förstner interest points of a chequerboard: its inner crossings:
+
+        >>> import numpy as np
+        >>> from photax.measure import interest_points
+        >>> r, c = np.mgrid[0:48, 0:48]
+        >>> board = 200.0 * (((r // 12) + (c // 12)) % 2) + 20.0
+        >>> pts = interest_points(board, "foerstner", min_distance=5)
+        >>> found = {tuple(int(v) for v in np.round(p / 12.0) * 12) for p in pts.xy}
+        >>> {(12, 12), (24, 24), (36, 12)} <= found
+        True
     """
     img, b = as_image(image)
     if b:

@@ -255,6 +255,18 @@ def match_ncc(
         :class:`LocateResult` (``xy`` in the search image; ``sigma0`` is the
         noise level ``sigma_n`` in grey values; a peak on the border of the
         search range gets ``Status.LEFT_WINDOW``), and ``rho`` if asked.
+
+    Examples:
+        A template found in a shifted copy of its image (by 3 columns, -2 rows), to the pixel:
+
+        >>> import numpy as np
+        >>> from photax.measure import match_ncc
+        >>> rng = np.random.default_rng(0)
+        >>> a = rng.normal(size=(60, 60))
+        >>> b = np.roll(a, (-2, 3), axis=(0, 1))
+        >>> res = match_ncc(a, np.array([[30.0, 30.0]]), b, np.array([[31.0, 29.0]]), window=8, search=4)
+        >>> print(np.round(np.asarray(res.xy), 1) + 0.0)
+        [[33. 28.]]
     """
     res, rho = _pair(
         template_image,
@@ -418,6 +430,19 @@ def match_lsm(
         ``sigma0`` in grey values; ``iterations`` used.  Points whose
         parameters run away (shift beyond the margin, scale/shear > 0.5,
         gain <= 0) get ``Status.LEFT_WINDOW`` / ``ILL_CONDITIONED``.
+
+    Examples:
+        Least-squares matching finds a sub-pixel shift of a smooth texture to a few thousandths of a
+        pixel (here the search image is the template moved by (1.3, -0.7) px):
+
+        >>> import numpy as np
+        >>> from photax.measure import match_lsm
+        >>> r, c = np.mgrid[0:64, 0:64].astype(float)
+        >>> def texture(c, r):
+        ...     return 100 + 40 * np.sin(c / 3.0) * np.cos(r / 4.0) + 20 * np.sin((c + r) / 5.0)
+        >>> res = match_lsm(texture(c, r), np.array([[32.0, 32.0]]), texture(c - 1.3, r + 0.7), np.array([[33.0, 31.0]]))
+        >>> print(np.round(np.asarray(res.xy), 2), bool(res.valid[0]))
+        [[33.3 31.3]] True
     """
     margin = int(margin) if margin is not None else max(5, window // 2)
     if window < 2:

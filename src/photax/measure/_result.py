@@ -18,7 +18,15 @@ from jax import Array
 
 
 class Status(enum.IntEnum):
-    """Per-point outcome of a locator (``LocateResult.status``)."""
+    """Per-point outcome of a locator (``LocateResult.status``).
+
+    Examples:
+        Each locator's per-point outcome; ``OK`` is 0:
+
+        >>> from photax.measure import Status
+        >>> int(Status.OK), Status(1).name
+        (0, 'OUTSIDE')
+    """
 
     OK = 0
     OUTSIDE = 1  # the measuring window (plus interpolation margin) is not inside the image
@@ -59,6 +67,19 @@ class LocateResult(eqx.Module):
         sigma0: ``(..., n)`` a-posteriori standard deviation of unit weight
             of each point's adjustment (the locator's unit; NaN if failed).
         iterations: ``(..., n)`` iterations used (0 for direct methods).
+
+    Examples:
+        What every locator returns; a point that fails is NaN with its status, never a silent guess:
+
+        >>> import numpy as np
+        >>> from photax.measure import Status, locate_targets
+        >>> r, c = np.mgrid[0:41, 0:41]
+        >>> image = 20.0 + 200.0 * np.exp(-((c - 20.3) ** 2 + (r - 19.6) ** 2) / (2 * 2.5**2))
+        >>> res = locate_targets(image, np.array([[21.0, 19.0], [100.0, 100.0]]), 6.0, method="centroid")
+        >>> res.valid.tolist(), Status(int(res.status[1])).name, bool(np.isnan(res.xy[1]).all())
+        ([True, False], 'OUTSIDE', True)
+        >>> res.covariance.shape
+        (2, 2, 2)
     """
 
     xy: Array

@@ -217,7 +217,19 @@ def _ring_scores(images, xy, radius):
 
 def target_kind(image, approx_xy, radius: float) -> Literal["quartered", "disc"]:
     """``"quartered"`` when most approximate positions look like quartered
-    targets (four alternating sectors on rings around them, module docstring), else ``"disc"``."""
+    targets (four alternating sectors on rings around them, module docstring), else ``"disc"``.
+
+    Examples:
+        Which kind of survey target is at a point: a quartered (checker) target or a plain disc:
+
+        >>> import numpy as np
+        >>> from photax.measure import target_kind
+        >>> r, c = np.mgrid[0:41, 0:41] - 20.0
+        >>> disc = np.where(r**2 + c**2 < 8.0**2, 220.0, 30.0)
+        >>> quartered = np.where(r**2 + c**2 < 8.0**2, np.where(r * c > 0, 220.0, 30.0), 120.0)
+        >>> target_kind(disc, np.array([[20.0, 20.0]]), 8.0), target_kind(quartered, np.array([[20.0, 20.0]]), 8.0)
+        ('disc', 'quartered')
+    """
     images, batched = as_images(image)
     xy = as_points(approx_xy, images.shape[0], batched)
     if xy.shape[1] == 0:
@@ -286,6 +298,17 @@ def locate_targets(
         outside the image, flat window, no target or one touching the window
         border, a centre further than ``radius`` from the approximation) are
         NaN with ``valid = False``.
+
+    Examples:
+        The sub-pixel centre of a bright blob from an approximate position 1.5 px off:
+
+        >>> import numpy as np
+        >>> from photax.measure import locate_targets
+        >>> r, c = np.mgrid[0:41, 0:41]
+        >>> image = 20.0 + 200.0 * np.exp(-((c - 20.3) ** 2 + (r - 19.6) ** 2) / (2 * 2.5**2))
+        >>> res = locate_targets(image, np.array([[21.5, 18.5]]), 6.0, method="centroid")
+        >>> print(np.round(np.asarray(res.xy), 1), bool(res.valid[0]))
+        [[20.3 19.6]] True
     """
     if method not in ("wong-trinder", "centroid", "ellipse", "quartered", "auto"):
         raise ValueError(
