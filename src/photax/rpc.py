@@ -124,16 +124,42 @@ class RPCCamera(Module):
         missing = [k for k in keys if rpc.get(k) is None]
         if missing:
             raise ValueError(f"RPC: missing {', '.join(missing)}")
+        from .io.files import as_numbers, excerpt
+
+        def numbers(key, value, what):  # a list, mapping, text or null is the RPC's error, not numpy's
+            v = as_numbers(value)
+            if v is None:
+                raise ValueError(f"RPC: {key} must be {what}, got {excerpt(value)}")
+            return v
+
         coeffs = []
         for k in COEFFICIENT_KEYS:
-            row = np.asarray(rpc[k], dtype=float).ravel()
+            row = numbers(k, rpc[k], "20 numbers").ravel()
             if row.shape != (20,):
                 raise ValueError(f"RPC: {k} has {row.size} coefficients, expected 20")
             coeffs.append(row)
+        scalars = {k: numbers(k, rpc[k], "a number") for k in (*OFFSET_KEYS, *SCALE_KEYS)}
+        bad = [k for k, v in scalars.items() if v.shape != ()]
+        if bad:
+            raise ValueError(f"RPC: {bad[0]} must be a number, got {excerpt(rpc[bad[0]])}")
+        if image_size is not None:
+            size = as_numbers(image_size)
+            if (
+                size is None
+                or size.shape != (2,)
+                or not np.all(np.isfinite(size))
+                or np.any(size < 1)
+                or np.any(size != np.round(size))
+                or np.any(size > 2**31 - 1)
+            ):
+                raise ValueError(
+                    f"RPC: the image size must be [width, height] in whole pixels, got {excerpt(image_size)}"
+                )
+            image_size = (int(size[0]), int(size[1]))
         return cls(
             np.stack(coeffs),
-            [float(rpc[k]) for k in OFFSET_KEYS],
-            [float(rpc[k]) for k in SCALE_KEYS],
+            [float(scalars[k]) for k in OFFSET_KEYS],
+            [float(scalars[k]) for k in SCALE_KEYS],
             image_size=image_size,
         )
 
@@ -324,25 +350,28 @@ def read_rpc(path, image: str | None = None) -> RPCCamera:
 
 
 def _read_orthority_yaml(path: pathlib.Path, image: str | None) -> RPCCamera:
-    import yaml
+    from .io.files import at_line, excerpt, file_error, load_yaml, read_text
 
-    with open(path) as f:
-        doc = yaml.safe_load(f)
+    # photax's YAML reading (issue 38): a syntax error, binary content or a huge file is the file's
+    # error naming the line, as every reader's, never yaml's or the decoder's own exception.
+    doc = load_yaml(path, read_text(path, "RPC file"))
     if not isinstance(doc, dict) or not doc:
         raise ValueError(f"{path}: not an orthority RPC file (expected a mapping of image names)")
+    names = ", ".join(excerpt(n) if not isinstance(n, str) else n for n in doc)
     if image is None:
         if len(doc) > 1:
-            raise ValueError(f"{path}: holds {len(doc)} images ({', '.join(doc)}): pass image=")
+            raise ValueError(f"{path}: holds {len(doc)} images ({names}): pass image=")
         image = next(iter(doc))
     if image not in doc:
-        raise ValueError(f"{path}: no entry {image!r} (it has {', '.join(doc)})")
+        raise ValueError(f"{path}: no entry {image!r} (it has {names})")
     entry = doc[image]
+    line = at_line(doc, image)
     if not isinstance(entry, dict) or not isinstance(entry.get("rpc"), dict):
-        raise ValueError(f"{path}: entry {image!r} has no 'rpc' mapping")
+        raise file_error(path, line, f"entry {excerpt(image)} has no 'rpc' mapping")
     try:
         return RPCCamera.from_dict(entry["rpc"], entry.get("im_size"))
     except ValueError as e:
-        raise ValueError(f"{path} [{image}]: {e}") from None
+        raise file_error(path, line, f"[{excerpt(image)}] {e}") from None
 
 
 # .RPB keys (DigitalGlobe, ``key = value;``, coefficients as ``( c1, ..., c20);``) -> GDAL's keys.
