@@ -29,6 +29,32 @@ if _FAST_COMPILE not in os.environ.get("XLA_FLAGS", ""):  # the xdist workers in
 
 import jax  # noqa: E402 -- after XLA_FLAGS is set
 import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+# Property tests (docs/testing.md).  "ci", the default: a fixed seed (derandomize), so a run
+# draws the same examples every time and the suite never fails at random; a crash the
+# fuzzers find is kept as an explicit @example.  "deep", on demand: 10 times the examples
+# and a new random seed each run, to find new crashes (pytest --hypothesis-profile=deep).
+# Each test's budget is `fuzz_budget(n)`: its "ci" count, times the profile's factor.
+CI_EXAMPLES = 100
+_PROFILE = dict(deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+settings.register_profile("ci", max_examples=CI_EXAMPLES, derandomize=True, **_PROFILE)
+settings.register_profile("deep", max_examples=10 * CI_EXAMPLES, derandomize=False, **_PROFILE)
+settings.load_profile(os.environ.get("PHOTAX_HYPOTHESIS_PROFILE", "ci"))
+
+
+def fuzz_budget(n: int) -> int:
+    """``n`` examples under the "ci" profile, scaled by the loaded profile's ``max_examples``
+    (10 x under "deep")."""
+    return max(1, n * settings.default.max_examples // CI_EXAMPLES)
+
+
+def pytest_configure(config):
+    # --hypothesis-profile wins over the default, whichever plugin is configured first.
+    profile = config.getoption("--hypothesis-profile", None)
+    if profile:
+        settings.load_profile(profile)
+
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")
