@@ -8,6 +8,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import scaled
 
 from photax import _aot
 
@@ -137,7 +138,9 @@ def slow(x):
     return jnp.cos(x)
 _aot.disk_cached(jax.jit(slow), "slow").prefetch(jnp.zeros(3))
 """
-    proc = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=scaled(120)
+    )
     assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "photax-aot").glob("slow-*.bin"))) == 1
 
@@ -164,7 +167,7 @@ if sys.argv[1] == "solve":
     got = _aot.disk_cached(jax.jit(jnp.linalg.solve), "solve")(a, np.arange(3.0))
     np.testing.assert_allclose(got, np.linalg.solve(a, np.arange(3.0)), rtol=1e-12)
 """
-    runs = [subprocess.run([sys.executable, "-c", script, part], capture_output=True, text=True, timeout=120)
+    runs = [subprocess.run([sys.executable, "-c", script, part], capture_output=True, text=True, timeout=scaled(120))
             for part in ("plain", "solve", "plain", "solve")]  # fmt: skip
     for proc in runs:
         assert proc.returncode == 0, proc.stderr

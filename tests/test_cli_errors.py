@@ -11,7 +11,7 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import ROOT
+from conftest import ROOT, scaled
 
 import photax.cli._common as common
 import photax.rectification._files
@@ -343,7 +343,7 @@ def test_ctrl_c_at_any_moment_of_a_real_run(tmp_path):
         assert proc.stderr.readline() == "started\n"
         time.sleep(delay)
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
+        _, err = proc.communicate(timeout=scaled(60))
         if out.exists() and "interrupted" not in err:  # the run had ended before the signal (a quiet machine)
             assert proc.returncode in (0, -signal.SIGINT), (delay, proc.returncode, err)
             break

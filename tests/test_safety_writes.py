@@ -224,7 +224,7 @@ def test_json_over_the_file_size_limit_is_refused_before_writing(tmp_path):
         capture_output=True,
         text=True,
         env=_env(),
-        timeout=120,
+        timeout=scaled(120),
         check=False,
     )
     assert p.returncode == 1
@@ -268,7 +268,9 @@ def test_cli_rectify_past_the_file_size_limit_exits_2_and_keeps_the_old_file(tmp
         "--out",
         str(out),
     ]
-    p = subprocess.run(_limited(50_000, cmd), capture_output=True, text=True, env=_env(), timeout=600, check=False)
+    p = subprocess.run(
+        _limited(50_000, cmd), capture_output=True, text=True, env=_env(), timeout=scaled(600), check=False
+    )
     # (the output is about 140 kB)
     assert p.returncode == 2, p.stdout + p.stderr
     assert "wrote" not in p.stdout
