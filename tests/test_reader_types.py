@@ -64,11 +64,31 @@ def _replaced(doc, path, value):
     return doc
 
 
+# YAML keys need not be text: each key of a YAML seed is also replaced by one of these.
+KEY_SUBSTITUTES = [None, True, 0, 1.5]
+
+
+def _renamed(doc, path, new_key):
+    doc = json.loads(json.dumps(doc))
+    node = doc
+    for key in path[:-1]:
+        node = node[key]
+    if not isinstance(node, dict):
+        return None
+    node[new_key] = node.pop(path[-1])
+    return doc
+
+
 def _cases(seed: bytes, yaml_seed: bool):
     doc = yaml.safe_load(seed) if yaml_seed else json.loads(seed)
     for path in _paths(doc):
         for value in SUBSTITUTES:
             yield path, value, _replaced(doc, path, value)
+        if yaml_seed:
+            for key in KEY_SUBSTITUTES:
+                renamed = _renamed(doc, path, key)
+                if renamed is not None:
+                    yield (*path, "<key>"), key, renamed
 
 
 def _dump(doc, yaml_seed: bool) -> str:
