@@ -421,3 +421,38 @@ def test_main_restores_the_signal_handlers():
     with photax.cli._all_or_nothing(["photax"]):
         assert signal.getsignal(signal.SIGTERM) is not before[signal.SIGTERM]
     assert {s: signal.getsignal(s) for s in before} == before
+
+
+def test_a_raster_write_stops_between_strips_after_a_ctrl_c(tmp_path, monkeypatch):
+    """issue 38: ``write_geotiff`` writes strip by strip (Python's signal handlers run between
+    them) and stops at the first strip after a Ctrl-C (``photax.io.atomic.interrupted``), even
+    one a dependency swallowed: KeyboardInterrupt, the previous file kept, no temporary."""
+    import rasterio
+
+    from photax.io import atomic
+    from photax.io.raster import STRIP_ROWS, write_geotiff
+
+    out = tmp_path / "o.tif"
+    out.write_bytes(OLD)
+    pixels = np.arange(3 * 4 * STRIP_ROWS * 300, dtype=np.uint16).reshape(3, 4 * STRIP_ROWS, 300)
+    calls = []
+    real_write = rasterio.io.DatasetWriter.write
+
+    def write(self, arr, *args, **kwargs):  # the Ctrl-C arrives during the second strip
+        calls.append(arr.shape)
+        if len(calls) == 2:
+            atomic.interrupted.set()
+        return real_write(self, arr, *args, **kwargs)
+
+    monkeypatch.setattr(rasterio.io.DatasetWriter, "write", write)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            write_geotiff(out, pixels, (0.5, 0, 500000, 0, -0.5, 4000000), crs="EPSG:32633")
+    finally:
+        atomic.interrupted.clear()
+    assert calls == [(3, STRIP_ROWS, 300)] * 2  # stopped before the third strip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.tif"] and out.read_bytes() == OLD
+    monkeypatch.undo()
+    write_geotiff(out, pixels, (0.5, 0, 500000, 0, -0.5, 4000000), crs="EPSG:32633")  # and whole, strip by strip
+    with rasterio.open(out) as src:
+        np.testing.assert_array_equal(src.read(), pixels)

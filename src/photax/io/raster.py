@@ -188,7 +188,9 @@ def write_geotiff(
         mask = np.asarray(mask)
         if mask.shape != a.shape[1:]:
             raise ValueError(f"mask must be (rows, cols) = {a.shape[1:]}, got shape {mask.shape}")
-    env = rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True)
+    # A small block cache: the strips' blocks are written as they come, not all in the close (one
+    # C call where a signal waits; photax.rectification's rectify_file, issue 38).
+    env = rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True, GDAL_CACHEMAX=64)
     with atomic_path(path, inputs, size=None if compress else a.nbytes) as tmp, warnings.catch_warnings(), env:
         if transform is None:
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
