@@ -669,10 +669,15 @@ def tif_seeds(tmp_path_factory) -> list[bytes]:
 
 def test_fuzz_read_raster(work, tif_seeds):
     """GeoTIFF and DEM readers: random bytes, truncated and corrupted GeoTIFFs."""
-    from photax.io.raster import read_dem, read_geotiff
+    from photax.io.raster import read_dem, read_geotiff, write_geotiff
+
+    # Crash found by the deep profile (issue 38): pixels of 3e231 m, whose area overflowed
+    # (RuntimeWarning: overflow encountered in scalar multiply, in DEM).
+    huge = write_geotiff(work / "huge.tif", np.zeros((6, 8), np.float32), (-3.1e231, 0, 0, 0, -3.1e231, 0)).read_bytes()
 
     @settings(FUZZ, max_examples=fuzz_budget(150))
     @given(raw=mutated(tif_seeds), dem=st.booleans())
+    @example(raw=huge, dem=True)
     def run(raw, dem):
         path = work / "raster.tif"
         path.write_bytes(raw)
