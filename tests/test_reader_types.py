@@ -41,6 +41,8 @@ from test_fuzz_readers import (
 
 # One value of each kind a YAML or JSON file can hold, and a few edge cases of each.
 SUBSTITUTES = [None, True, False, 0, -1, 1.5, 10**400, "", "x", "1.5", [], [1, 2], ["a", "b"], [[1]], {}, {"a": 1}]
+# One of each type, for the readers whose every call is dear (a CRS transformation per file).
+TYPES = [None, True, 1.5, "x", [], [1, 2], {}]
 
 
 def _paths(node, prefix=()):
@@ -79,10 +81,14 @@ def _renamed(doc, path, new_key):
     return doc
 
 
-def _cases(seed: bytes, yaml_seed: bool):
+def _cases(seed: bytes, yaml_seed: bool, where=None, substitutes=SUBSTITUTES):
+    """``(path, value, document)`` for each value of ``seed`` (at a path ``where`` accepts) replaced
+    by each of ``substitutes``, and, in YAML, each key by each of :data:`KEY_SUBSTITUTES`."""
     doc = yaml.safe_load(seed) if yaml_seed else json.loads(seed)
     for path in _paths(doc):
-        for value in SUBSTITUTES:
+        if where is not None and not where(path):
+            continue
+        for value in substitutes:
             yield path, value, _replaced(doc, path, value)
         if yaml_seed:
             for key in KEY_SUBSTITUTES:
@@ -140,7 +146,17 @@ def _readers():
         ("orthority_interior", read_orthority_interior, "int_param.yaml", ORTHO_INT[:2], True, _sane_cameras),
         ("orthority_geojson", read_orthority_geojson, "ext.geojson", ORTHO_GEOJSON[:1], False, _sane_pair),
         ("opensfm_cameras", read_opensfm_cameras, "reconstruction.json", OPENSFM, False, _sane_cameras),
-        ("opensfm_shots", read_opensfm_shots, "reconstruction.json", OPENSFM, False, _sane_shots),
+        # the shots' reader: everything but the cameras (read_opensfm_cameras' above), one value of each type
+        (
+            "opensfm_shots",
+            read_opensfm_shots,
+            "reconstruction.json",
+            OPENSFM,
+            False,
+            _sane_shots,
+            lambda path: len(path) < 2 or path[1] != "cameras",
+            TYPES,
+        ),
         ("gcps_geojson", lambda p: read_gcps(p, format="geojson"), "gcps.geojson", GCP_GEOJSON[:1], False, _sane_gcps),
         ("exteriors_json", read_exteriors, "block.json", EXTERIORS_JSON, False, _sane_pair),
         ("odm_cameras", read_odm_cameras, "cameras.json", [odm], False, _sane_cameras),
@@ -150,11 +166,14 @@ def _readers():
     if rpc.is_file():
         from photax.rpc import read_rpc
 
-        rows.append(("rpc_orthority_yaml", read_rpc, "rpc_param.yaml", [rpc.read_bytes()], True, _sane_rpc))
+        # an RPCCamera of JAX arrays per read: one value of each type
+        rows.append(
+            ("rpc_orthority_yaml", read_rpc, "rpc_param.yaml", [rpc.read_bytes()], True, _sane_rpc, None, TYPES)
+        )
     return rows
 
 
-READERS = {row[0]: row[1:] for row in _readers()}
+READERS = {row[0]: (*row[1:], None, SUBSTITUTES)[:7] for row in _readers()}
 
 
 def _check(read, path: pathlib.Path, text: str, sane) -> str:
@@ -175,13 +194,13 @@ def _check(read, path: pathlib.Path, text: str, sane) -> str:
 
 @pytest.mark.parametrize("name", list(READERS))
 def test_every_value_of_every_type(tmp_path, name):
-    read, file_name, seeds, yaml_seed, sane = READERS[name]
+    read, file_name, seeds, yaml_seed, sane, where, substitutes = READERS[name]
     path = tmp_path / file_name
     for seed in seeds:  # the seeds are read
         assert _check(read, path, seed.decode(), sane) == "read", seed[:80]
     outcomes = {"error": 0, "read": 0}
     for seed in seeds:
-        for key, value, doc in _cases(seed, yaml_seed):
+        for key, value, doc in _cases(seed, yaml_seed, where, substitutes):
             try:
                 outcomes[_check(read, path, _dump(doc, yaml_seed), sane)] += 1
             except Exception as exc:  # name the substitution that crashed
