@@ -3,6 +3,7 @@
 import importlib.util
 import os
 import pathlib
+import subprocess
 import tempfile
 
 # One persistent compilation cache for the whole session, inherited by the
@@ -29,6 +30,80 @@ if _FAST_COMPILE not in os.environ.get("XLA_FLAGS", ""):  # the xdist workers in
 
 import jax  # noqa: E402 -- after XLA_FLAGS is set
 import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+# Property tests (docs/testing.md).  "ci", the default: a fixed seed (derandomize), so a run
+# draws the same examples every time and the suite never fails at random; a crash the
+# fuzzers find is kept as an explicit @example.  "deep", on demand: 10 times the examples
+# and a new random seed each run, to find new crashes (pytest --hypothesis-profile=deep).
+# Each test's budget is `fuzz_budget(n)`: its "ci" count, times the profile's factor.
+CI_EXAMPLES = 100
+_PROFILE = dict(deadline=None, database=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+settings.register_profile("ci", max_examples=CI_EXAMPLES, derandomize=True, **_PROFILE)
+settings.register_profile("deep", max_examples=10 * CI_EXAMPLES, derandomize=False, **_PROFILE)
+settings.load_profile(os.environ.get("PHOTAX_HYPOTHESIS_PROFILE", "ci"))
+
+
+def fuzz_budget(n: int) -> int:
+    """``n`` examples under the "ci" profile, scaled by the loaded profile's ``max_examples``
+    (10 x under "deep")."""
+    return max(1, n * settings.default.max_examples // CI_EXAMPLES)
+
+
+def load_factor() -> float:
+    """How much slower than an idle machine this one runs now: the 1-minute load average per
+    CPU (at least 1), times ``PHOTAX_TIMEOUT_SCALE`` when set (a slow emulator, a sanitiser)."""
+    try:
+        load = os.getloadavg()[0]
+    except (OSError, AttributeError):  # no load average (Windows)
+        load = 0.0
+    factor = max(1.0, load / (os.cpu_count() or 1))
+    return factor * float(os.environ.get("PHOTAX_TIMEOUT_SCALE", "1") or 1)
+
+
+def scaled(seconds: float) -> float:
+    """A time limit of ``seconds`` on an idle machine, scaled to this one's load
+    (:func:`load_factor`, at most 20 x): a test's ``timeout=`` is a bound on a hang, not a
+    benchmark, and a busy machine (CI's neighbours, two busy processes beside the suite)
+    must not fail it (docs/testing.md)."""
+    return seconds * min(load_factor(), 20.0)
+
+
+@pytest.fixture
+def spawn():
+    """``subprocess.Popen`` for a test: a process still running when the test ends (a failed
+    ``communicate(timeout=...)``) is killed and reaped then, not left for a later test's
+    teardown to warn about (``ResourceWarning: subprocess ... is still running``, an error
+    under -W error, blamed on whichever test ran next: issue 38's test_scale failure)."""
+    procs = []
+
+    def start(*args, **kwargs):
+        procs.append(subprocess.Popen(*args, **kwargs))
+        return procs[-1]
+
+    yield start
+    for p in procs:
+        if p.poll() is None:
+            p.kill()
+        try:
+            p.communicate(timeout=60)  # reaped, its pipes closed
+        except subprocess.TimeoutExpired:
+            pass
+
+
+def pytest_configure(config):
+    # --hypothesis-profile wins over the default, whichever plugin is configured first.
+    profile = config.getoption("--hypothesis-profile", None)
+    if profile:
+        settings.load_profile(profile)
+
+
+# The xdist workers, notebook kernels and CLI subprocesses share the cache above: its entries are
+# written atomically (photax._aot.atomic_jax_cache, as the CLI does), so that no process reads a
+# half-written one (JAX warned, an error under -W error).
+from photax import _aot  # noqa: E402
+
+_aot.atomic_jax_cache()
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_rank_promotion", "raise")

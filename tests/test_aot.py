@@ -8,6 +8,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from conftest import scaled
 
 from photax import _aot
 
@@ -137,7 +138,9 @@ def slow(x):
     return jnp.cos(x)
 _aot.disk_cached(jax.jit(slow), "slow").prefetch(jnp.zeros(3))
 """
-    proc = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=scaled(120)
+    )
     assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "photax-aot").glob("slow-*.bin"))) == 1
 
@@ -164,9 +167,66 @@ if sys.argv[1] == "solve":
     got = _aot.disk_cached(jax.jit(jnp.linalg.solve), "solve")(a, np.arange(3.0))
     np.testing.assert_allclose(got, np.linalg.solve(a, np.arange(3.0)), rtol=1e-12)
 """
-    runs = [subprocess.run([sys.executable, "-c", script, part], capture_output=True, text=True, timeout=120)
+    runs = [subprocess.run([sys.executable, "-c", script, part], capture_output=True, text=True, timeout=scaled(120))
             for part in ("plain", "solve", "plain", "solve")]  # fmt: skip
     for proc in runs:
         assert proc.returncode == 0, proc.stderr
     assert len(list((tmp_path / "photax-aot").glob("*.bin"))) == 2
     assert runs[2].stdout.split() == ["False"]  # loaded from disk: no LAPACK, no scipy.linalg
+
+
+def test_jax_cache_entries_are_whole_or_absent_for_a_concurrent_reader(tmp_path, monkeypatch):
+    """issue 38: JAX's file cache wrote an entry in place, so a process starting at the same
+    moment read half of it (JAX warned "Error reading persistent compilation cache entry").
+    After :func:`photax._aot.atomic_jax_cache` a reader polling the entry while it is written
+    sees nothing or all of it; an entry that vanishes between JAX's exists() and read is a miss."""
+    import threading
+
+    from jax._src.lru_cache import LRUCache
+
+    _aot.atomic_jax_cache()
+    _aot.atomic_jax_cache()  # once only: not wrapped twice
+    cache = LRUCache(str(tmp_path), max_size=-1)
+    value = np.random.default_rng(0).bytes(64 << 20)  # 64 MiB: a write takes milliseconds
+    seen, done = [], threading.Event()
+
+    def read():
+        while not done.is_set():
+            got = cache.get("k")
+            seen.append(None if got is None else len(got))
+
+    reader = threading.Thread(target=read)
+    reader.start()
+    try:
+        cache.put("k", value)
+    finally:
+        done.set()
+        reader.join()
+    assert cache.get("k") == value
+    assert set(seen) <= {None, len(value)}, sorted({s for s in seen if s is not None})[:5]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["k-cache"]  # no temporary left
+
+    # removed by another process between JAX's exists() and its read_bytes(): a miss
+    monkeypatch.setattr(type(tmp_path), "exists", lambda self: True)
+    assert cache.get("gone") is None
+
+
+def test_write_atomically_leaves_nothing_when_it_cannot_write(tmp_path):
+    import os
+
+    target = tmp_path / "ro" / "entry.bin"
+    target.parent.mkdir()
+    assert _aot.write_atomically(target, b"abc") and target.read_bytes() == b"abc"
+    assert _aot.write_atomically(target, b"abcd") and target.read_bytes() == b"abcd"  # replaced whole
+    os.chmod(target.parent, 0o500)
+    try:
+        if os.access(target.parent, os.W_OK):  # root writes anyway: a folder that is a file instead
+            blocked = tmp_path / "file"
+            blocked.write_text("x")
+            assert not _aot.write_atomically(blocked / "entry.bin", b"abc")
+        else:
+            assert not _aot.write_atomically(target, b"new")
+            assert target.read_bytes() == b"abcd"
+    finally:
+        os.chmod(target.parent, 0o700)
+    assert sorted(p.name for p in target.parent.iterdir()) == ["entry.bin"]

@@ -13,7 +13,7 @@ import sys
 
 import cv2
 import numpy as np
-from conftest import ROOT, shared_file
+from conftest import ROOT, scaled, shared_file
 
 import photax as ptx
 import photax.demo
@@ -182,7 +182,7 @@ def test_console_script_subprocess(tmp_path):
         capture_output=True,
         text=True,
         env=env,
-        timeout=600,
+        timeout=scaled(600),
     )
     assert proc.returncode == 0, proc.stderr
     assert "Space resection: converged" in proc.stdout and "OUTLIER" not in proc.stdout

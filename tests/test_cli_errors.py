@@ -11,7 +11,7 @@ import shutil
 
 import numpy as np
 import pytest
-from conftest import ROOT
+from conftest import ROOT, scaled
 
 import photax.cli._common as common
 import photax.rectification._files
@@ -316,7 +316,7 @@ def test_bundle_report_plurals_and_units():
     assert np.any([" m, angles" in ln for ln in text.splitlines()])
 
 
-def test_ctrl_c_at_any_moment_of_a_real_run(tmp_path):
+def test_ctrl_c_at_any_moment_of_a_real_run(tmp_path, spawn):
     """Ctrl-C sent to a real ``photax bundle --json`` process at 10 moments of its first seconds (JAX's
     import, XLA's start, compilation, the adjustment): exit 130 with one message each time, nothing
     written.  Before: a segfault (-11) now and then, exit 0 with the JSON written after the Ctrl-C, or
@@ -332,7 +332,7 @@ def test_ctrl_c_at_any_moment_of_a_real_run(tmp_path):
     code = "import sys; from photax.cli import main; print('started', file=sys.stderr, flush=True); sys.exit(main())"
     inside = 0  # signals that arrived while the command ran
     for delay in (0.05, 0.2, 0.35, 0.5, 0.7, 0.9, 1.2, 1.6, 2.2, 3.0):
-        proc = subprocess.Popen(
+        proc = spawn(
             [sys.executable, "-c", code, "bundle", str(DATA / "block"), "-o", str(out), "--quiet", "--no-progress"],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
@@ -343,7 +343,7 @@ def test_ctrl_c_at_any_moment_of_a_real_run(tmp_path):
         assert proc.stderr.readline() == "started\n"
         time.sleep(delay)
         proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
+        _, err = proc.communicate(timeout=scaled(60))
         if out.exists() and "interrupted" not in err:  # the run had ended before the signal (a quiet machine)
             assert proc.returncode in (0, -signal.SIGINT), (delay, proc.returncode, err)
             break

@@ -5,7 +5,7 @@ usual where a dependency's worker thread still runs (only the interpreter's shut
 import subprocess
 import sys
 
-from conftest import ROOT
+from conftest import ROOT, scaled
 
 _SCRIPT = """
 import atexit, sys, threading, time
@@ -26,7 +26,9 @@ sys.exit(4)  # only where _exit left it to the interpreter
 
 def _run(kind):
     env = {"PYTHONPATH": str(ROOT / "src"), "PATH": ""}
-    return subprocess.run([sys.executable, "-c", _SCRIPT, kind], capture_output=True, text=True, env=env, timeout=60)
+    return subprocess.run(
+        [sys.executable, "-c", _SCRIPT, kind], capture_output=True, text=True, env=env, timeout=scaled(60)
+    )
 
 
 def test_the_process_ends_after_its_threads_and_atexit_with_its_status():

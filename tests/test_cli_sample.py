@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 import pytest
 import rasterio
-from conftest import ROOT
+from conftest import ROOT, scaled
 
 import photax as ptx
 from photax.cli import main
@@ -136,7 +136,7 @@ def test_resect_then_ortho_subprocesses_match_the_true_orientation(tmp_path):
         capture_output=True,
         text=True,
         env=env,
-        timeout=600,
+        timeout=scaled(600),
     )
     assert p.returncode == 0, p.stderr
     assert f"blunder: {SAMPLE_BLUNDER[0]} excluded" in p.stdout
@@ -145,7 +145,7 @@ def test_resect_then_ortho_subprocesses_match_the_true_orientation(tmp_path):
         capture_output=True,
         text=True,
         env=env,
-        timeout=600,
+        timeout=scaled(600),
     )
     assert p.returncode == 0, p.stderr
     assert "pixels of 4 m" in p.stdout and "Traceback" not in p.stderr

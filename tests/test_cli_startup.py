@@ -4,7 +4,7 @@ call, and that the outputs do not change."""
 import subprocess
 import sys
 
-from conftest import ROOT, sample_ortho
+from conftest import ROOT, sample_ortho, scaled
 
 # photax ortho's work (orthorectify_file / orthorectify_files) replaced by a probe of the garbage
 # collector's state: paused through the start-up, on (with start-up's objects frozen) for the work.
@@ -38,7 +38,7 @@ def _probe(tmp_path, kind, *out):
     args = [*sample_ortho(), *out]
     env = {"PYTHONPATH": str(ROOT / "src"), "PATH": "", "JAX_COMPILATION_CACHE_DIR": str(tmp_path / "cache")}
     p = subprocess.run(
-        [sys.executable, "-c", _GC_SCRIPT, kind, *args], capture_output=True, text=True, env=env, timeout=300
+        [sys.executable, "-c", _GC_SCRIPT, kind, *args], capture_output=True, text=True, env=env, timeout=scaled(300)
     )
     return p
 

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 import rasterio
 import rasterio.errors
-from conftest import SHARED_DATA, shared_file
+from conftest import SHARED_DATA, fuzz_budget, shared_file
 
 import photax
 from photax.io.exif import DroneTags, exterior_from_tags, read_drone_tags, read_exif_exteriors
@@ -202,7 +202,7 @@ def test_fuzz_read_drone_tags(tmp_path):
     fields = [m.group(1) for m in __import__("re").finditer(r'drone-dji:(\w+)="', XMP)]
     counter = iter(range(10**6))
 
-    @settings(max_examples=60, derandomize=True, deadline=None, database=None)
+    @settings(max_examples=fuzz_budget(60), deadline=None, database=None)  # seed: the profile's (conftest)
     @given(st.dictionaries(st.sampled_from(fields + list(EXIF)), st.sampled_from(HOSTILE), max_size=4))
     def check(changes):
         import re

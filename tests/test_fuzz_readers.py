@@ -30,8 +30,8 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import SHARED_DATA
-from hypothesis import HealthCheck, given, settings
+from conftest import SHARED_DATA, fuzz_budget
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from photax.io.bal import BALData, read_bal, read_bal_arrays, write_bal_arrays
@@ -50,9 +50,10 @@ from photax.io.results import read_json
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DATA = ROOT / "data"
 
+# The seed and the budget come from the hypothesis profile (tests/conftest.py, docs/testing.md):
+# "ci" (the default) a fixed seed and these counts, "deep" a random seed and 10 times as many.
 FUZZ = settings(
-    max_examples=300,
-    derandomize=True,
+    max_examples=fuzz_budget(300),
     deadline=None,
     database=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
@@ -294,6 +295,12 @@ def test_fuzz_read_gcps_qgis(work, data):
 
 @FUZZ
 @given(data=mutated(GCP_GEOJSON))
+# Crash found (issue 38): a null crs.properties (AttributeError).
+@example(
+    data=GCP_GEOJSON[0].replace(
+        b'"crs": {"type": "name", "properties": {', b'"crs": {"type": "name", "properties": null, "x": {'
+    )
+)
 def test_fuzz_read_gcps_geojson(work, data):
     path = work / "gcps.geojson"
     path.write_bytes(data)
@@ -350,6 +357,10 @@ ORTHO_EXT = [
 
 @FUZZ
 @given(data=mutated(ORTHO_INT))
+# Crashes found (issue 38): a list as the type, named or unnamed (TypeError: unhashable type: 'list').
+@example(data=b"type: []\nim_size: [400, 300]\nfocal_len: 0.8\n")
+@example(data=b"cam:\n    type: [1, 2]\n    im_size: [400, 300]\n    focal_len: 0.8\n")
+@example(data=b"cam:\n    type: {}\n    im_size: [400, 300]\n    focal_len: 0.8\n")
 def test_fuzz_read_orthority_interior(work, data):
     path = work / "int_param.yaml"
     path.write_bytes(data)
@@ -498,6 +509,8 @@ OPENSFM = [  # gps_position: the shots' centres (-R^T t) to a mm, so the frame i
 
 @FUZZ
 @given(data=mutated(OPENSFM))
+# Crash found (issue 38): a list as the projection type (TypeError: unhashable type: 'list').
+@example(data=OPENSFM[1].replace(b'"perspective"', b"[]"))
 def test_fuzz_read_opensfm(work, data):
     path = work / "reconstruction.json"
     path.write_bytes(data)
@@ -549,7 +562,7 @@ def test_fuzz_read_bal(work, bal_seed, data):
 def test_fuzz_read_bal_problem(work, bal_seed):
     """``read_bal`` (which builds the JAX problem) on a few mutations: the same contract."""
 
-    @settings(FUZZ, max_examples=40)
+    @settings(FUZZ, max_examples=fuzz_budget(40))
     @given(raw=mutated([bal_seed]))
     def run(raw):
         path = work / "problem2.txt"
@@ -593,7 +606,7 @@ def test_fuzz_read_block(tmp_path_factory, name):
     seed = (DATA / "block" / name).read_bytes()
 
     # 100 per file: 300 for the reader, as for the others.
-    @settings(FUZZ, max_examples=100)
+    @settings(FUZZ, max_examples=fuzz_budget(100))
     @given(raw=mutated([seed]))
     def run(raw):
         (folder / name).write_bytes(raw)
@@ -656,10 +669,15 @@ def tif_seeds(tmp_path_factory) -> list[bytes]:
 
 def test_fuzz_read_raster(work, tif_seeds):
     """GeoTIFF and DEM readers: random bytes, truncated and corrupted GeoTIFFs."""
-    from photax.io.raster import read_dem, read_geotiff
+    from photax.io.raster import read_dem, read_geotiff, write_geotiff
 
-    @settings(FUZZ, max_examples=150)
+    # Crash found by the deep profile (issue 38): pixels of 3e231 m, whose area overflowed
+    # (RuntimeWarning: overflow encountered in scalar multiply, in DEM).
+    huge = write_geotiff(work / "huge.tif", np.zeros((6, 8), np.float32), (-3.1e231, 0, 0, 0, -3.1e231, 0)).read_bytes()
+
+    @settings(FUZZ, max_examples=fuzz_budget(150))
     @given(raw=mutated(tif_seeds), dem=st.booleans())
+    @example(raw=huge, dem=True)
     def run(raw, dem):
         path = work / "raster.tif"
         path.write_bytes(raw)
@@ -734,6 +752,9 @@ EXTERIORS_JSON = [
 
 @FUZZ
 @given(data=mutated(EXTERIORS_JSON))
+# Found: a crs of true returned as the CRS (issue 38); a huge integer position (OverflowError, 30c628a).
+@example(data=EXTERIORS_JSON[0].replace(b'"crs": "EPSG:32633"', b'"crs": true'))
+@example(data=EXTERIORS_JSON[0].replace(b"500000.0", b"9" * 400))
 def test_fuzz_read_exteriors(work, data):
     from photax.io import read_exteriors
 
@@ -742,7 +763,7 @@ def test_fuzz_read_exteriors(work, data):
 
     def sane(result):
         table, crs = result
-        assert table and (crs is None or isinstance(crs, str) or crs)
+        assert table and (crs is None or isinstance(crs, str))
         for eo in table.values():
             _finite(eo.position, eo.angles)
 
@@ -757,6 +778,8 @@ NAMED = [
 
 @FUZZ
 @given(data=mutated(NAMED))
+# Crash found (30c628a): a carriage return inside a line (csv.Error).
+@example(data=b"name,x,y\nF1,-106.0,\r-106.0\nF2,106.0,106.0\n")
 def test_fuzz_read_named_points(work, data):
     from photax.io.points import read_named_points
 
@@ -825,7 +848,7 @@ def test_fuzz_read_colmap(tmp_path_factory, name):
         folder = folder / "bin"
     seed = (folder / name).read_bytes()
 
-    @settings(FUZZ, max_examples=60 if name.endswith(".bin") else 100)
+    @settings(FUZZ, max_examples=fuzz_budget(60 if name.endswith(".bin") else 100))
     @given(raw=mutated([seed]))
     def run(raw):
         (folder / name).write_bytes(raw)
@@ -1014,7 +1037,7 @@ def test_fuzz_read_rpc(work, rpc_seeds, family, examples):
     """The satellite RPC readers on mutated KEY: value text (IKONOS, GDAL _RPC.TXT), .RPB and XML
     (Maxar ISD, DIMAP): only photax's typed errors escape, whatever the content sniffs as."""
 
-    @settings(FUZZ, max_examples=examples)
+    @settings(FUZZ, max_examples=fuzz_budget(examples))
     @given(data=mutated(rpc_seeds[family]))
     def run(data):
         path = work / "rpc_file"  # no suffix: the family is the content's
@@ -1034,3 +1057,13 @@ def test_rpc_seeds_are_valid(work, rpc_seeds):
             path.write_bytes(raw)
             assert rpc_format(path) in expected[family]
             read_rpc(path)
+
+
+def test_fuzz_profile():
+    """The fuzz tests take their seed and budget from the hypothesis profile (conftest.py):
+    "ci" (the default) draws the same examples every run; "deep" ten times as many, at random."""
+    name = settings.get_current_profile_name()
+    if name == "ci":
+        assert FUZZ.derandomize and FUZZ.max_examples == 300 and FUZZ.database is None
+    elif name == "deep":
+        assert not FUZZ.derandomize and FUZZ.max_examples == 3000

@@ -19,6 +19,7 @@ import subprocess
 import sys
 
 import pytest
+from conftest import scaled
 
 import photax
 
@@ -265,7 +266,7 @@ def test_import_photax_and_help_load_no_heavy_module():
         capture_output=True,
         text=True,
         env=env,
-        timeout=120,
+        timeout=scaled(120),
         check=True,
     ).stdout.split()
     # and 64-bit mode is still on when JAX comes later

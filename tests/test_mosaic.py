@@ -10,7 +10,7 @@ import pytest
 import rasterio
 import rasterio.merge
 import xarray as xr
-from conftest import needs
+from conftest import needs, scaled
 
 from photax.rectification import Grid
 from photax.scene import texture
@@ -436,7 +436,7 @@ def test_cli_mosaic_of_ortho_files_imports_neither_jax_nor_distributed(scene, tm
     out = tmp_path / "m.tif"
     cmd = [sys.executable, "-X", "importtime", "-m", "photax.cli", "mosaic", "a.tif", "b.tif", "--dsm", "dsm.tif"]
     cmd += ["-o", str(out)]
-    run = subprocess.run([*cmd, "--no-progress"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    run = subprocess.run([*cmd, "--no-progress"], cwd=tmp_path, capture_output=True, text=True, timeout=scaled(300))
     assert run.returncode == 0, run.stderr[-2000:]
     imported = {line.split("|")[-1].strip() for line in run.stderr.splitlines() if line.startswith("import time:")}
     assert "photax.mosaicking" in imported and out.exists()  # the log is read, the mosaic made

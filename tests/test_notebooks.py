@@ -20,7 +20,7 @@ import pathlib
 import sys
 
 import pytest
-from conftest import ROOT
+from conftest import ROOT, scaled
 
 nbformat = pytest.importorskip("nbformat")
 nbclient = pytest.importorskip("nbclient")
@@ -62,7 +62,9 @@ async def _run_all(kernel_dir: pathlib.Path) -> dict:
             # First a reset; last, prove the kernel is this interpreter.
             nb.cells.insert(0, nbformat.v4.new_code_cell(_RESET))
             nb.cells.append(nbformat.v4.new_code_cell("import sys; print(sys.executable)"))
-            client = nbclient.NotebookClient(nb, km=km, timeout=600, resources={"metadata": {"path": str(NB_DIR)}})
+            client = nbclient.NotebookClient(
+                nb, km=km, timeout=scaled(600), resources={"metadata": {"path": str(NB_DIR)}}
+            )
             try:
                 done[path] = await client.async_execute(cleanup_kc=False)
             except Exception as exc:  # reported by that notebook's test

@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 import pyproj
 import pytest
-from conftest import SHARED_DATA, shared_file
+from conftest import SHARED_DATA, fuzz_budget, shared_file
 
 import photax
 from photax.io import read_exteriors, read_interior
@@ -138,7 +138,7 @@ def test_fuzz_read_odm_geo_and_cameras(tmp_path):
     hostile = ["nan", "-1", "0", "1e999", "9" * 400, "", "x", "WGS84 UTM 0N", "EPSG:99999", '"', "{", "null", "[]"]
     counter = iter(range(10**6))
 
-    @settings(max_examples=80, derandomize=True, deadline=None, database=None)
+    @settings(max_examples=fuzz_budget(80), deadline=None, database=None)  # seed: the profile's (conftest)
     @given(st.sampled_from([geo, cams]), st.lists(st.tuples(st.integers(0, 200), st.sampled_from(hostile)), max_size=3))
     def check(seed, edits):
         text = seed

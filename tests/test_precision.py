@@ -14,6 +14,7 @@ import warnings
 
 import numpy as np
 import pytest
+from conftest import scaled
 
 import photax as ptx
 from photax._float64 import PrecisionWarning
@@ -87,5 +88,7 @@ ref = ptx.resect(xy, np.asarray(ground, np.float64), cam)
 assert any(issubclass(x.category, ptx._float64.PrecisionWarning) for x in w), [str(x.message) for x in w]
 assert np.abs(np.asarray(r.exterior.position) - np.asarray(ref.exterior.position)).max() < 1e-9
 """
-    proc = subprocess.run([sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run(
+        [sys.executable, "-c", script], check=False, capture_output=True, text=True, timeout=scaled(300)
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -10,7 +10,7 @@ scipy, OpenCV and orthority in test_rectify.py / test_ortho_real.py).
 import numpy as np
 import pytest
 import rasterio
-from conftest import needs
+from conftest import needs, scaled
 
 import photax
 from photax.io.raster import write_geotiff
@@ -169,7 +169,7 @@ def test_dead_worker_is_retried_and_a_failed_write_leaves_nothing(scene, cluster
     out = tmp_path / "o.tif"
     to_raster(arr.copy(data=arr.data.map_blocks(die_once, marker, meta=arr.data._meta)), out)
     assert os.path.exists(marker)
-    client.wait_for_workers(2, timeout=30)
+    client.wait_for_workers(2, timeout=scaled(30))
     assert len(set(client.run(os.getpid).values()) - pids) == 1  # one worker process was replaced
     with rasterio.open(out) as ds:
         np.testing.assert_array_equal(ds.read(1), ref)

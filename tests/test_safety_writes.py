@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 import pytest
-from conftest import sample_ortho
+from conftest import sample_ortho, scaled
 
 import photax.cli
 from photax.cli import main
@@ -224,7 +224,7 @@ def test_json_over_the_file_size_limit_is_refused_before_writing(tmp_path):
         capture_output=True,
         text=True,
         env=_env(),
-        timeout=120,
+        timeout=scaled(120),
         check=False,
     )
     assert p.returncode == 1
@@ -268,7 +268,9 @@ def test_cli_rectify_past_the_file_size_limit_exits_2_and_keeps_the_old_file(tmp
         "--out",
         str(out),
     ]
-    p = subprocess.run(_limited(50_000, cmd), capture_output=True, text=True, env=_env(), timeout=600, check=False)
+    p = subprocess.run(
+        _limited(50_000, cmd), capture_output=True, text=True, env=_env(), timeout=scaled(600), check=False
+    )
     # (the output is about 140 kB)
     assert p.returncode == 2, p.stdout + p.stderr
     assert "wrote" not in p.stdout
@@ -320,10 +322,10 @@ with _all_or_nothing(["photax test"]):
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP, signal.SIGINT])
-def test_a_signal_during_a_write_removes_the_temporary_and_takes_back_the_run(tmp_path, sig):
+def test_a_signal_during_a_write_removes_the_temporary_and_takes_back_the_run(tmp_path, sig, spawn):
     first, second = tmp_path / "a.txt", tmp_path / "b.txt"
     first.write_bytes(OLD)
-    p = subprocess.Popen(
+    p = spawn(
         [sys.executable, "-c", _WRITER, str(first), str(second)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -333,7 +335,7 @@ def test_a_signal_during_a_write_removes_the_temporary_and_takes_back_the_run(tm
     assert first.read_text() == "new"
     assert len([q for q in tmp_path.iterdir() if q.name.endswith(".part")]) == 1  # a 10 MB temporary
     p.send_signal(sig)
-    _, err = p.communicate(timeout=60)
+    _, err = p.communicate(timeout=scaled(60))
     # SIGINT: KeyboardInterrupt, uncaught here, so Python ends by SIGINT (-2)
     assert p.returncode == (-sig if sig == signal.SIGINT else 128 + sig), err
     assert sorted(q.name for q in tmp_path.iterdir()) == ["a.txt"] and first.read_bytes() == OLD
@@ -360,22 +362,33 @@ def test_a_run_that_fails_writes_nothing(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "kept.json"]
 
 
-def test_sigterm_during_a_large_ortho_leaves_no_temporary(tmp_path):
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_during_a_large_ortho_is_acted_on_at_once_and_leaves_no_temporary(tmp_path, sig, spawn):
     # issue 27: `timeout` during a large ortho left hidden .o.tif.*.part files (up to 68 MB).
+    # issue 38: Ctrl-C during the write was acted on only when the write ended (the tiles in
+    # flight all computed first): now within a second (on an idle machine; scaled to the load).
+    # The console script's own entry (argv None: the process ends with os._exit).
     out = tmp_path / "o.tif"
     out.write_bytes(OLD)
     argv = [*ORTHO[:-3], "--resolution", "0.1", "--no-progress", "--out", str(out)]  # 99 MPix: many seconds
-    p = subprocess.Popen([*PHOTAX, *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env())
-    deadline = time.monotonic() + 300
+    p = spawn([sys.executable, "-m", "photax.cli", *argv], stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env())
+    deadline = time.monotonic() + scaled(300)
     while not [q for q in tmp_path.iterdir() if q.name.endswith(".part") and q.stat().st_size > 0]:
         if p.poll() is not None or time.monotonic() > deadline:
-            p.kill()
-            pytest.fail(f"the ortho ended before its temporary was seen: {p.communicate()}")
-        time.sleep(0.05)
-    p.send_signal(signal.SIGTERM)
-    _, err = p.communicate(timeout=120)
+            pytest.fail(f"the ortho ended before its temporary was seen: {p.returncode}")
+        time.sleep(0.01)
+    time.sleep(0.5)  # well into the tiles' write
+    assert p.poll() is None, "the ortho ended before the signal: make it larger"
+    sent = time.monotonic()
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=scaled(120))
+    latency = time.monotonic() - sent
     assert sorted(q.name for q in tmp_path.iterdir()) == ["o.tif"] and out.read_bytes() == OLD
-    assert p.returncode == 128 + signal.SIGTERM and b"stopped by SIGTERM; nothing written" in err, err
+    if sig == signal.SIGINT:
+        assert p.returncode == 130 and b"interrupted; nothing written" in err, err
+    else:
+        assert p.returncode == 128 + signal.SIGTERM and b"stopped by SIGTERM; nothing written" in err, err
+    assert latency < scaled(1.0), f"{signal.Signals(sig).name} acted on after {latency:.2f} s"
 
 
 def test_stale_temporaries_are_removed_on_the_next_write(tmp_path):
@@ -408,3 +421,38 @@ def test_main_restores_the_signal_handlers():
     with photax.cli._all_or_nothing(["photax"]):
         assert signal.getsignal(signal.SIGTERM) is not before[signal.SIGTERM]
     assert {s: signal.getsignal(s) for s in before} == before
+
+
+def test_a_raster_write_stops_between_strips_after_a_ctrl_c(tmp_path, monkeypatch):
+    """issue 38: ``write_geotiff`` writes strip by strip (Python's signal handlers run between
+    them) and stops at the first strip after a Ctrl-C (``photax.io.atomic.interrupted``), even
+    one a dependency swallowed: KeyboardInterrupt, the previous file kept, no temporary."""
+    import rasterio
+
+    from photax.io import atomic
+    from photax.io.raster import STRIP_ROWS, write_geotiff
+
+    out = tmp_path / "o.tif"
+    out.write_bytes(OLD)
+    pixels = np.arange(3 * 4 * STRIP_ROWS * 300, dtype=np.uint16).reshape(3, 4 * STRIP_ROWS, 300)
+    calls = []
+    real_write = rasterio.io.DatasetWriter.write
+
+    def write(self, arr, *args, **kwargs):  # the Ctrl-C arrives during the second strip
+        calls.append(arr.shape)
+        if len(calls) == 2:
+            atomic.interrupted.set()
+        return real_write(self, arr, *args, **kwargs)
+
+    monkeypatch.setattr(rasterio.io.DatasetWriter, "write", write)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            write_geotiff(out, pixels, (0.5, 0, 500000, 0, -0.5, 4000000), crs="EPSG:32633")
+    finally:
+        atomic.interrupted.clear()
+    assert calls == [(3, STRIP_ROWS, 300)] * 2  # stopped before the third strip
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o.tif"] and out.read_bytes() == OLD
+    monkeypatch.undo()
+    write_geotiff(out, pixels, (0.5, 0, 500000, 0, -0.5, 4000000), crs="EPSG:32633")  # and whole, strip by strip
+    with rasterio.open(out) as src:
+        np.testing.assert_array_equal(src.read(), pixels)

@@ -7,6 +7,7 @@ them): what is tested is that the fast paths give the slow paths' answers.
 
 import numpy as np
 import pytest
+from conftest import scaled
 from scipy import special
 
 import photax as ptx
@@ -203,7 +204,7 @@ def test_resect_of_3000_gcps_exits_cleanly(tmp_path):
         check=False,
         capture_output=True,
         text=True,
-        timeout=600,
+        timeout=scaled(600),
         cwd=tmp_path,
     )
     assert proc.returncode == 0, proc.stderr[-2000:]

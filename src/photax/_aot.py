@@ -49,6 +49,7 @@ Private utility module: other photax units import its names directly
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import os
@@ -97,6 +98,68 @@ def enable() -> None:
     global _ENABLED
     _ENABLED = True
     _lapack_on_demand()
+    atomic_jax_cache()
+
+
+def write_atomically(path: pathlib.Path, data: bytes) -> bool:
+    """Write ``data`` to ``path`` through a temporary file beside it and ``os.replace``: a reader
+    in another process sees the whole entry or none, never a part.  Two writers of the same
+    entry write the same bytes; the last rename wins.  False (and no temporary left) when it
+    cannot be written: a cache that cannot be written is still no error."""
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tempfile.NamedTemporaryFile(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp", delete=False) as fh:
+            tmp = fh.name
+            fh.write(data)
+        os.replace(tmp, path)
+        return True
+    except OSError:  # a read-only or full cache
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        return False
+
+
+def atomic_jax_cache() -> None:
+    """JAX's persistent compilation cache, safe for processes sharing it (issue 38).
+
+    Its file cache (``jax._src.lru_cache.LRUCache``, without eviction) writes an entry with
+    ``write_bytes`` in place: a process starting at the same moment read the half-written
+    entry and JAX warned "Error reading persistent compilation cache entry" (an error under
+    the tests' ``-W error``), and ``exists()`` then ``read_bytes()`` raced a replacement
+    (``FileNotFoundError``).  Here entries are written atomically (:func:`write_atomically`)
+    and an entry that vanished is a miss.  JAX's private class: where it is gone or
+    different, nothing changes."""
+    try:
+        from jax._src import lru_cache
+    except ImportError:
+        return
+    cls = getattr(lru_cache, "LRUCache", None)
+    suffix = getattr(lru_cache, "_CACHE_SUFFIX", None)
+    if cls is None or suffix is None or getattr(cls.put, "photax_atomic", False):
+        return
+    put, get = cls.put, cls.get
+
+    def atomic_put(self, key: str, value: bytes) -> None:
+        if (
+            getattr(self, "eviction_enabled", True)
+            or not key
+            or not isinstance(getattr(self, "path", None), pathlib.Path)
+        ):
+            return put(self, key, value)  # eviction: JAX's own file lock orders the writers
+        path = self.path / f"{key}{suffix}"
+        if not path.exists():
+            write_atomically(path, value)
+
+    def safe_get(self, key: str):
+        try:
+            return get(self, key)
+        except FileNotFoundError:  # removed between JAX's exists() and its read: a miss
+            return None
+
+    atomic_put.photax_atomic = True
+    cls.put, cls.get = atomic_put, safe_get
 
 
 # Set while this thread lowers an exported program that has no custom call at all.
@@ -248,12 +311,10 @@ def _load_or_compile(fn, path: pathlib.Path, leaves, treedef, static, compiler_o
         data = None
         try:
             data = exported.serialize()
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.NamedTemporaryFile(dir=path.parent, delete=False) as fh:  # atomic: no half-written entry
-                fh.write(data)
-            os.replace(fh.name, path)
-        except (OSError, ImportError):  # a read-only cache, or no flatbuffers: still compute
+        except ImportError:  # no flatbuffers: still compute
             pass
+        if data is not None:  # atomic: another process reads the whole entry or none
+            write_atomically(path, data)
     jitted = jax.jit(exported.call, compiler_options=compiler_options)
     if data is None or b"custom_call" in data:
         return jitted

@@ -55,8 +55,12 @@ class DEM(Module):
             raise ValueError("heights must be finite, or NaN for nodata; got an infinite height")
         if not np.all(np.isfinite(t)):
             raise ValueError(f"transform must be finite, got {t.tolist()}")
-        if abs(t[0] * t[4] - t[1] * t[3]) == 0:
+        with np.errstate(over="ignore", under="ignore"):  # a pixel of 1e200 m: no RuntimeWarning
+            det = t[0] * t[4] - t[1] * t[3]
+        if det == 0:
             raise DegenerateGeometryError("transform is singular")
+        if not np.isfinite(det):
+            raise DegenerateGeometryError(f"transform out of range (pixel area overflows), got {t.tolist()}")
         self.heights = jnp.asarray(h, dtype=float)  # with a dtype: a transfer, not an eager program
         self.transform = jnp.asarray(t, dtype=float)
         self.crs = crs

@@ -202,16 +202,42 @@ class RPCCamera(Module):
         missing = [k for k in keys if rpc.get(k) is None]
         if missing:
             raise ValueError(f"RPC: missing {', '.join(missing)}")
+        from .io.files import as_numbers, excerpt
+
+        def numbers(key, value, what):  # a list, mapping, text or null is the RPC's error, not numpy's
+            v = as_numbers(value)
+            if v is None:
+                raise ValueError(f"RPC: {key} must be {what}, got {excerpt(value)}")
+            return v
+
         coeffs = []
         for k in COEFFICIENT_KEYS:
-            row = np.asarray(rpc[k], dtype=float).ravel()
+            row = numbers(k, rpc[k], "20 numbers").ravel()
             if row.shape != (20,):
                 raise ValueError(f"RPC: {k} has {row.size} coefficients, expected 20")
             coeffs.append(row)
+        scalars = {k: numbers(k, rpc[k], "a number") for k in (*OFFSET_KEYS, *SCALE_KEYS)}
+        bad = [k for k, v in scalars.items() if v.shape != ()]
+        if bad:
+            raise ValueError(f"RPC: {bad[0]} must be a number, got {excerpt(rpc[bad[0]])}")
+        if image_size is not None:
+            size = as_numbers(image_size)
+            if (
+                size is None
+                or size.shape != (2,)
+                or not np.all(np.isfinite(size))
+                or np.any(size < 1)
+                or np.any(size != np.round(size))
+                or np.any(size > 2**31 - 1)
+            ):
+                raise ValueError(
+                    f"RPC: the image size must be [width, height] in whole pixels, got {excerpt(image_size)}"
+                )
+            image_size = (int(size[0]), int(size[1]))
         return cls(
             np.stack(coeffs),
-            [float(rpc[k]) for k in OFFSET_KEYS],
-            [float(rpc[k]) for k in SCALE_KEYS],
+            [float(scalars[k]) for k in OFFSET_KEYS],
+            [float(scalars[k]) for k in SCALE_KEYS],
             image_size=image_size,
         )
 

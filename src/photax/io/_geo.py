@@ -10,6 +10,8 @@ vertical datum is converted here.
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 
 from ..errors import CRSMismatchError, OutsideValidityError
@@ -62,11 +64,34 @@ def ecef(lat_deg, lon_deg, h) -> np.ndarray:
     )
 
 
-def geodetic_from_ecef(xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(lat, lon, h)`` (degrees, metres) of ``(..., 3)`` geocentric points, through PROJ."""
+_TRANSFORMERS = threading.local()
+
+
+def transformer(source, target):
+    """``pyproj.Transformer.from_crs(source, target, always_xy=True)``, made once per thread
+    (making one costs ~40 ms: an OpenSfM reconstruction's reader made 9 a file; a pyproj
+    Transformer is not shared between threads)."""
     import pyproj
 
-    t = pyproj.Transformer.from_crs("EPSG:4978", "EPSG:4979", always_xy=True)
+    cache = getattr(_TRANSFORMERS, "cache", None)
+    if cache is None:
+        cache = _TRANSFORMERS.cache = {}
+    key = (source, target)
+    try:
+        made = cache.get(key)
+    except TypeError:  # an unhashable CRS description
+        return pyproj.Transformer.from_crs(source, target, always_xy=True)
+    if made is None:
+        if len(cache) >= 64:
+            cache.clear()
+        made = cache[key] = pyproj.Transformer.from_crs(source, target, always_xy=True)
+    return made
+
+
+def geodetic_from_ecef(xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(lat, lon, h)`` (degrees, metres) of ``(..., 3)`` geocentric points, through PROJ."""
+
+    t = transformer("EPSG:4978", "EPSG:4979")
     xyz = np.asarray(xyz, dtype=float)
     lon, lat, h = t.transform(xyz[..., 0], xyz[..., 1], xyz[..., 2])
     return np.asarray(lat), np.asarray(lon), np.asarray(h)
@@ -74,10 +99,9 @@ def geodetic_from_ecef(xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def project_lla(lat, lon, h, crs) -> np.ndarray:
     """``(..., 3)`` positions in the projected ``crs`` of WGS84 (EPSG:4979) points; heights unchanged."""
-    import pyproj
 
     lat, lon, h = _check_lla(lat, lon, h, "geographic position")
-    t = pyproj.Transformer.from_crs("EPSG:4979", crs, always_xy=True)
+    t = transformer("EPSG:4979", crs)
     x, y, z = t.transform(lon, lat, h)
     out = np.stack(np.broadcast_arrays(x, y, z), axis=-1).astype(float)
     if not np.all(np.isfinite(out)):
@@ -126,10 +150,9 @@ def reproject(xyz, source, target) -> tuple[np.ndarray, np.ndarray]:
     """``(..., 3)`` positions in the projected ``source`` CRS -> ``target``, with the
     ``(..., 3, 3)`` rotation from ``source``'s grid frame to ``target``'s at each point
     (the difference of their meridian convergences); heights unchanged."""
-    import pyproj
 
     xyz = np.asarray(xyz, dtype=float)
-    t = pyproj.Transformer.from_crs(source, "EPSG:4979", always_xy=True)
+    t = transformer(source, "EPSG:4979")
     lon, lat, h = (np.asarray(v) for v in t.transform(xyz[..., 0], xyz[..., 1], xyz[..., 2]))
     out = project_lla(lat, lon, h, target)
     turn = grid_from_enu(lat, lon, target) @ np.swapaxes(grid_from_enu(lat, lon, source), -1, -2)
@@ -140,11 +163,10 @@ def projected_to_topocentric(xyz, reference_lla, crs) -> np.ndarray:
     """``(..., 3)`` positions in the projected ``crs`` -> the topocentric (east-north-up)
     frame at ``reference_lla`` = ``(lat, lon, h)``, exactly (through geodetic and
     geocentric coordinates): the inverse of :func:`topocentric_to_projected`'s positions."""
-    import pyproj
 
     lat0, lon0, h0 = _check_lla(*reference_lla, "reference_lla")
     xyz = np.asarray(xyz, dtype=float)
-    t = pyproj.Transformer.from_crs(crs, "EPSG:4979", always_xy=True)
+    t = transformer(crs, "EPSG:4979")
     lon, lat, h = (np.asarray(v) for v in t.transform(xyz[..., 0], xyz[..., 1], xyz[..., 2]))
     if not (np.all(np.isfinite(lat)) and np.all(np.isfinite(lon)) and np.all(np.isfinite(h))):
         raise OutsideValidityError(f"positions outside the area of {crs.name!r}")

@@ -234,6 +234,74 @@ def number(path, line: int | None, text, what: str) -> float:
     return value
 
 
+# --- The type of a value read from a YAML / JSON file ---------------------------------
+
+#: The kinds of value :func:`expect` checks, as a file's author would name them.
+_KINDS = {
+    "text": (lambda v: isinstance(v, str), "text"),
+    "mapping": (lambda v: isinstance(v, dict), "a mapping"),
+    "list": (lambda v: isinstance(v, list), "a list"),
+    "number": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool), "a number"),
+    "integer": (lambda v: isinstance(v, int) and not isinstance(v, bool), "a whole number"),
+    "boolean": (lambda v: isinstance(v, bool), "true or false"),
+    "null": (lambda v: v is None, "null"),
+}
+
+
+def kind_of(value) -> str:
+    """What ``value`` is, in a file's terms: ``"null"``, ``"true or false"``, ``"a number"``,
+    ``"text"``, ``"a list"``, ``"a mapping"`` (else its Python type's name)."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true or false"
+    if isinstance(value, (int, float)):
+        return "a number"
+    for name in ("text", "list", "mapping"):
+        if _KINDS[name][0](value):
+            return _KINDS[name][1]
+    return type(value).__name__
+
+
+def at_line(data, key, default: int | None = None) -> int | None:
+    """The line of ``key`` in ``data`` (a :class:`Mapping` read from YAML), else ``default``."""
+    line = data.line(key) if isinstance(data, Mapping) else None
+    return default if line is None else line
+
+
+def expect(value, kind: str | tuple[str, ...], key, path, line: int | None = None, what: str | None = None):
+    """``value`` (read from ``path`` under ``key``) if it is of ``kind`` (one of
+    ``"text"``, ``"mapping"``, ``"list"``, ``"number"``, ``"integer"``,
+    ``"boolean"``, ``"null"``, or a tuple of them), else the reader's
+    :func:`file_error` naming ``key`` (and ``line``; with a :class:`Mapping`
+    ``line`` may be the mapping: the key's line is taken from it) and what
+    was found instead: ``"path, line 3: type must be text, got a list: []"``.
+    ``what`` prefixes the message (``"camera 'cam'"``).  The one check every
+    reader makes before using a value as a key, text or number, so that a
+    list, mapping, null or number where another kind is expected is the
+    file's error, never ``TypeError`` (issue 38).
+
+    >>> expect("pinhole", "text", "type", "int.yaml")
+    'pinhole'
+    >>> expect([], "text", "type", "int.yaml", 3)
+    Traceback (most recent call last):
+    ...
+    ValueError: int.yaml, line 3: type must be text, got a list: []
+    """
+    kinds = (kind,) if isinstance(kind, str) else tuple(kind)
+    if any(_KINDS[k][0](value) for k in kinds):
+        return value
+    if isinstance(line, Mapping):
+        line = line.line(key)
+    want = " or ".join(_KINDS[k][1] for k in kinds)
+    got = kind_of(value)
+    shown = "" if value is None or isinstance(value, bool) else f": {excerpt(value)}"
+    prefix = f"{what}: " if what else ""
+    raise file_error(
+        path, line, f"{prefix}{excerpt(key) if not isinstance(key, str) else key} must be {want}, got {got}{shown}"
+    )
+
+
 # --- YAML and JSON ------------------------------------------------------------------
 
 

@@ -419,8 +419,9 @@ def _parse_geojson(path, text) -> tuple[dict, str]:
     crs = "EPSG:4326"  # RFC 7946; the old "crs" member when a file names one
     named = doc.get("crs")
     if named is not None:
-        name = named.get("properties", {}).get("name") if isinstance(named, dict) else None
-        if not isinstance(name, str) or not isinstance(named.get("properties"), dict):
+        props = named.get("properties") if isinstance(named, dict) else None
+        name = props.get("name") if isinstance(props, dict) else None
+        if not isinstance(name, str):
             raise ValueError(f"{path}: the 'crs' member has no properties.name")
         crs = name
     rows = _empty_rows()

@@ -206,9 +206,10 @@ def _write_local(data, path, options: dict, mask=None) -> None:
         if tags:
             ds.update_tags(**tags)
         if not hasattr(data.data, "dask") and not hasattr(mask, "dask"):
-            ds.write(np.asarray(data.data), None if data.ndim == 3 else 1)
-            if mask is not None:
-                ds.write_mask(np.where(np.asarray(mask), np.uint8(255), np.uint8(0)))
+            from .raster import write_in_strips  # a signal is acted on between strips
+
+            a = np.asarray(data.data)
+            write_in_strips(ds, a if a.ndim == 3 else a[None], None if mask is None else np.asarray(mask))
             return
         sync = get_scheduler() is dask.local.get_sync
         threads = int(dask.config.get("num_workers", None) or os.cpu_count() or 1)

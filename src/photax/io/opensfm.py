@@ -79,7 +79,7 @@ from ._geo import (
     reproject,
     topocentric_to_projected,
 )
-from .files import as_numbers, excerpt, file_error, load_json, read_text
+from .files import as_numbers, excerpt, expect, file_error, load_json, read_text
 
 _WHAT = "OpenSfM reconstruction"
 _KEYS = {
@@ -127,6 +127,8 @@ def _camera(path, name, p) -> FrameCamera:
     if not isinstance(p, dict):
         raise file_error(path, None, f"camera {excerpt(name)} is not an object")
     kind = p.get("projection_type")
+    if "projection_type" in p:
+        expect(kind, "text", "projection_type", path, None, f"camera {excerpt(name)}")
     if kind not in _KEYS:
         raise file_error(
             path,

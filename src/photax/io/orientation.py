@@ -32,7 +32,7 @@ from ..collinearity import ExteriorOrientation
 from .camera_file import _load as _load_camera_mapping
 from .camera_file import read_camera
 from .exif import read_exif_exteriors
-from .files import MAX_BYTES, check_regular, excerpt, file_error, load_json, load_yaml, opensfm_frame, read_text
+from .files import MAX_BYTES, check_regular, excerpt, expect, file_error, load_json, load_yaml, opensfm_frame, read_text
 from .odm import is_odm_cameras, read_odm_cameras
 from .opensfm import is_reconstruction, read_opensfm_cameras, read_opensfm_shots
 from .orthority import read_orthority_exterior_crs, read_orthority_geojson, read_orthority_interior
@@ -323,7 +323,7 @@ def read_exteriors(path, names=None, crs=None) -> tuple[dict[str, ExteriorOrient
             table = {pathlib.Path(n).stem: exterior_from_result(path, data, n)[0] for n in names}
         else:
             table = {n: exterior_from_result(path, data, n)[0] for n in names}
-        return table, data.get("crs") if isinstance(data, dict) else None
+        return table, _result_crs(path, data)
     rows, crs = _table(path, data, crs, frame)
     if names is None:
         if not rows:
@@ -363,10 +363,16 @@ def block_images(path, folder, crs=None) -> tuple[list[pathlib.Path], list[Exter
     return [files[n] for n in table], list(table.values()), crs
 
 
+def _result_crs(path, data) -> str | None:
+    """The ``crs`` of a photax result (text, or None when absent or null)."""
+    crs = data.get("crs") if isinstance(data, dict) else None
+    return expect(crs, ("text", "null"), "crs", path)
+
+
 def exterior_from_result(path, data, image) -> tuple[ExteriorOrientation, str | None]:
     """:func:`read_exterior` of the already parsed JSON ``data`` of ``path`` (a
     caller reading many images of one file parses it once)."""
-    crs = data.get("crs") if isinstance(data, dict) else None
+    crs = _result_crs(path, data)
     convention = data.get("convention") if isinstance(data, dict) else None  # a bundle's, for all its images
     if isinstance(data, dict) and data.get("converged") is False:  # a bundle adjustment's own status
         why = data.get("message") or "not converged"

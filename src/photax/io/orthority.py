@@ -30,7 +30,19 @@ import numpy as np
 
 from ..camera import DISTORTION_MODELS, FrameCamera
 from ..collinearity import ExteriorOrientation
-from .files import Mapping, as_numbers, excerpt, file_error, load_json, load_yaml, read_text, split_lines, where
+from .files import (
+    Mapping,
+    as_numbers,
+    at_line,
+    excerpt,
+    expect,
+    file_error,
+    load_json,
+    load_yaml,
+    read_text,
+    split_lines,
+    where,
+)
 
 #: orthority's camera types -> photax's distortion model and its coefficients read from the file
 #: (photax.camera.DISTORTION_MODELS; pinhole: none, brown).
@@ -42,6 +54,8 @@ _TILT = ("tx", "ty")  # OpenCV's tilted sensor: not in photax's models
 def _camera_from_params(path, name, p: dict, line: int | None = None) -> FrameCamera:
     # Messages point at the key's line, or at the camera's for a missing key.
     at = lambda key: where(path, p.line(key) if isinstance(p, Mapping) and key in p else line)  # noqa: E731
+    if "type" in p:
+        expect(p["type"], "text", "type", path, at_line(p, "type", line), f"camera {excerpt(name)}")
     kind = p.get("type")
     kind = kind.lower() if isinstance(kind, str) else kind
     if kind not in _TYPES:

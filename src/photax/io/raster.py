@@ -242,15 +242,43 @@ def write_geotiff(
         mask = np.asarray(mask)
         if mask.shape != a.shape[1:]:
             raise ValueError(f"mask must be (rows, cols) = {a.shape[1:]}, got shape {mask.shape}")
-    env = rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True)
+    # A small block cache: the strips' blocks are written as they come, not all in the close (one
+    # C call where a signal waits; photax.rectification's rectify_file, issue 38).
+    env = rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True, GDAL_CACHEMAX=64)
     with atomic_path(path, inputs, size=None if compress else a.nbytes) as tmp, warnings.catch_warnings(), env:
         if transform is None:
             warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
         with gdal_errors(), rasterio.open(tmp, "w", **profile) as dst:
-            dst.write(a)
-            if mask is not None:
-                dst.write_mask(np.where(mask, np.uint8(255), np.uint8(0)))
+            write_in_strips(dst, a, mask)
     return pathlib.Path(path)
+
+
+#: Rows written by one GDAL call in :func:`write_in_strips` (a row of the 256-pixel tiles).
+STRIP_ROWS = 256
+
+
+def write_in_strips(dst, array, mask=None, rows: int = STRIP_ROWS) -> None:
+    """Write ``array`` ``(bands, rows, cols)`` (and ``mask``, ``(rows, cols)`` True where valid,
+    to the mask band) into the open rasterio dataset ``dst`` a strip of ``rows`` rows at a time.
+
+    Python runs signal handlers only between its own steps: one GDAL call compressing a
+    large array kept a Ctrl-C or SIGTERM waiting until the whole raster was written (issue 38).
+    Between strips the handlers run, and a Ctrl-C that was swallowed
+    (:data:`photax.io.atomic.interrupted`) stops the write.
+    """
+    from rasterio.windows import Window
+
+    from .atomic import interrupted
+
+    _, height, width = array.shape
+    for r in range(0, height, rows):
+        if interrupted.is_set():
+            raise KeyboardInterrupt
+        h = min(rows, height - r)
+        window = Window(0, r, width, h)
+        dst.write(array[:, r : r + h], window=window)
+        if mask is not None:
+            dst.write_mask(np.where(mask[r : r + h], np.uint8(255), np.uint8(0)), window=window)
 
 
 # rasterio's GDAL error handler (active while a dataset is open) logs each

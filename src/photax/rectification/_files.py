@@ -92,6 +92,10 @@ def _geotiff_profile(grid: Grid, count: int, dtype, fill: np.ndarray | None, com
     return profile
 
 
+#: GDAL's block cache while an ortho is written, MB (see :func:`rectify_file`).
+WRITE_CACHE_MB = 64
+
+
 def rectify_file(
     src_path,
     dst_path,
@@ -224,7 +228,12 @@ def rectify_file(
 
         chunks = (layout[0][0] // layout[1]) * (layout[0][1] // layout[2])
         # GDAL_NUM_THREADS: the blocks are compressed on all cores (as oty does), written in their order.
-        env = rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True, GDAL_NUM_THREADS="ALL_CPUS")
+        # GDAL_CACHEMAX: with GDAL's default block cache (5 % of the memory) every block of the
+        # output stayed in it until the dataset closed, which then compressed and wrote them all
+        # in one C call: 4-5 s for a 99 MPix ortho on a busy machine, during which a Ctrl-C or
+        # SIGTERM waited (issue 38).  A small cache writes the blocks as their tiles come (each
+        # tile covers whole blocks), so the close is short (0.2-0.5 s measured) and the run no slower.
+        env = rasterio.Env(GDAL_TIFF_INTERNAL_MASK=True, GDAL_NUM_THREADS="ALL_CPUS", GDAL_CACHEMAX=WRITE_CACHE_MB)
         with gdal_errors(), env, rasterio.open(tmp, "w", **profile) as dst:
             if cmap is not None:
                 dst.write_colormap(1, cmap)

@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from ..io.atomic import interrupted
 from ..resampling import Resampling
 
 _STEP = 16  # lattice spacing in output pixels (cost of the lattice: ~2/256 of exact)
@@ -74,19 +75,30 @@ def _run_tiles(fn, tiles, progress, desc: str, info: dict | None, approx: float,
 
     worst, exact = 0.0, 0
     threads = max(1, min(THREADS, len(tiles)))
-    with _progress(len(tiles), progress, desc) as bar, ThreadPoolExecutor(threads) as pool:
-        running = deque()
-        for i in range(len(tiles) + 1):
-            if i < len(tiles):
-                running.append((tiles[i], pool.submit(fn, tiles[i])))
-            while running and (len(running) >= 2 * threads or i == len(tiles)):
-                t, future = running.popleft()
-                block, err, n_exact = future.result()
-                sink(t, block)
-                worst, exact = max(worst, float(err)), exact + int(n_exact)
-                if approx:
-                    bar.set_postfix(max_err=f"{worst:.3f}px", refresh=False)
-                bar.update()
+    pool = ThreadPoolExecutor(threads)
+    try:
+        with _progress(len(tiles), progress, desc) as bar:
+            running = deque()
+            for i in range(len(tiles) + 1):
+                if interrupted.is_set():  # a Ctrl-C a dependency swallowed: stop between tiles
+                    raise KeyboardInterrupt
+                if i < len(tiles):
+                    running.append((tiles[i], pool.submit(fn, tiles[i])))
+                while running and (len(running) >= 2 * threads or i == len(tiles)):
+                    t, future = running.popleft()
+                    block, err, n_exact = future.result()
+                    sink(t, block)
+                    worst, exact = max(worst, float(err)), exact + int(n_exact)
+                    if approx:
+                        bar.set_postfix(max_err=f"{worst:.3f}px", refresh=False)
+                    bar.update()
+    except BaseException:
+        # A Ctrl-C, a signal or an error: the tiles queued are dropped, only those computing are
+        # waited for (they read the source dataset, closed after), so that the command stops in
+        # about one tile's time, not after every tile in flight (issue 38: up to 7 s under load).
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
     if info is not None:
         info.update(approx=approx, approx_error=worst, exact_fraction=exact / max(chunks * len(tiles), 1))
 
