@@ -67,6 +67,8 @@ from ._files import (
     rectify_file as rectify_file,
 )
 from ._indirect import rectify as rectify
+from ._occlusion import occlusion_mask as occlusion_mask
+from ._occlusion import true_ortho as true_ortho
 from ._ortho import OrthoModel as OrthoModel
 from ._ortho import orthorectify as orthorectify
 from ._tiling import tile_windows as tile_windows

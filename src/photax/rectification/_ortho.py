@@ -66,6 +66,7 @@ def orthorectify(
     progress: bool | str = False,
     approx: float | None = 0.125,
     info: dict | None = None,
+    occlusion: str | None = None,
 ) -> tuple[np.ndarray, Grid]:
     """Orthorectify a frame image with its orientation and a DEM, or a satellite image with its RPC.
 
@@ -76,8 +77,10 @@ def orthorectify(
     the point falls outside the image, where the DEM is nodata or absent,
     behind the camera, and past the fold of the lens distortion (:class:`OrthoModel`).
 
-    Occlusion is NOT handled: ground hidden from the camera by relief gets
-    the grey value of the surface that hides it (double mapping).
+    By default occlusion is NOT handled: ground hidden from the camera by relief gets
+    the grey value of the surface that hides it (double mapping, "ghosts").  With
+    ``occlusion="mark"`` and a DSM, the hidden cells (:func:`photax.occlusion_mask`, a z-buffer)
+    are ``nodata``; :func:`photax.true_ortho` fills them from other images of a block.
 
     Args:
         image: ``(..., H, W)`` with ``(W, H) == camera.image_size``.
@@ -94,6 +97,8 @@ def orthorectify(
         resampling, nodata, tile, progress, approx, info: as in :func:`rectify`
             (the approximate mapping's check catches rough DEMs: chunks
             whose check error exceeds ``approx`` are mapped exactly).
+        occlusion: ``None`` (no test) or ``"mark"``: cells the DEM (a DSM) hides from the image
+            become ``nodata`` (:func:`photax.occlusion_mask` with its defaults).
 
     Returns:
         ``(ortho, grid)``: the ``(..., rows, cols)`` orthophoto in the input
@@ -122,9 +127,16 @@ def orthorectify(
     model = check_ortho_inputs(exterior, camera, dem, grid)
     bands = int(np.prod(image.shape[:-2], dtype=np.int64))
     check_output_size(grid.shape, bands, image.dtype, hint=lambda: gsd_hint(exterior, camera, dem, grid))
+    if occlusion not in (None, "mark"):
+        raise ValueError(f"occlusion must be None or 'mark', got {occlusion!r}")
     out = rectify(
         image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress, approx=approx, info=info
     )
+    if occlusion == "mark":
+        from ._occlusion import occlusion_mask
+        from ._tiling import _fill_value
+
+        out[..., occlusion_mask(exterior, camera, dem, grid)] = _fill_value(out.dtype, nodata)
     return out, grid
 
 

@@ -1,0 +1,173 @@
+"""True orthophotos: z-buffer occlusion (photax.occlusion_mask) and the block's true ortho
+(photax.true_ortho) on a synthetic block with a box building.
+
+The truth is independent of the code under test: the images are ray-traced analytically in NumPy
+(each pixel's ray cut with the ground plane and the box by the slab test, the nearer hit wins), the
+reference visibility is marched along each cell's ray to the camera over the DSM (NumPy, bilinear
+heights by scipy), and the hidden strip is the box's analytic shadow seen from the camera.
+"""
+
+import numpy as np
+import pytest
+from scipy.ndimage import binary_dilation, binary_erosion, map_coordinates
+
+import photax as ptx
+from photax.collinearity import look_at
+
+X0, Y0 = 500_000.0, 4_000_000.0  # UTM-like: code that forgets to reduce coordinates shows it
+BOX = (-20.0, 20.0, -20.0, 20.0, 20.0)  # building: x0, x1, y0, y1 (local m), height
+FLY = 150.0
+ROOF, WALL = 0.9, 0.7
+SIZE, FOCAL = (640, 480), 400.0
+
+
+def ground_texture(x, y):
+    """Smooth ground grey (local m), resolvable on 1 m cells; darker than the roof everywhere."""
+    return 0.35 + 0.15 * np.sin(2 * np.pi * x / 7.0) * np.cos(2 * np.pi * y / 9.0)
+
+
+def _slab(origin, direction, lo, hi):
+    """Ray-box slab test: ``(t_near, t_far)`` per ray (t_near > t_far: a miss)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0 = (lo - origin) / direction
+        t1 = (hi - origin) / direction
+    tmin, tmax = np.minimum(t0, t1), np.maximum(t0, t1)
+    tmin = np.where(np.isnan(tmin), -np.inf, tmin)
+    tmax = np.where(np.isnan(tmax), np.inf, tmax)
+    return tmin.max(axis=-1), tmax.min(axis=-1)
+
+
+def _render(exterior, camera, ss=2):
+    """The image: ray-traced ground plane and box, ``ss x ss`` samples per pixel averaged."""
+    w, h = camera.image_size
+    sub = (np.arange(ss) + 0.5) / ss - 0.5
+    cc, rr = np.meshgrid((np.arange(w)[:, None] + sub).ravel(), (np.arange(h)[:, None] + sub).ravel())
+    img = np.asarray(camera.pixel_to_image(np.column_stack([cc.ravel(), rr.ravel()])))
+    # Collinearity (docs/conventions.md): a camera-frame ray (x - x0, y - y0, -f); R from the
+    # orientation's own points_in_camera at the unit vectors.
+    c = np.asarray(exterior.position)
+    rot = np.asarray(exterior.points_in_camera(c[None] + np.eye(3))).T  # columns R e_i
+    xn = (img - np.asarray(camera.principal_point)) / float(camera.focal_length)
+    d = np.column_stack([xn, -np.ones(len(xn))]) @ rot  # R^T d_cam, rows
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    c = c - [X0, Y0, 0]
+    t_ground = -c[2] / d[:, 2]
+    bx0, bx1, by0, by1, bh = BOX
+    tn, tf = _slab(c[None], d, np.array([bx0, by0, 0.0]), np.array([bx1, by1, bh]))
+    hit = (tn <= tf) & (tf > 0)
+    p_ground = c + t_ground[:, None] * d
+    grey = ground_texture(p_ground[:, 0], p_ground[:, 1])
+    z_hit = c[2] + tn * d[:, 2]
+    grey = np.where(hit, np.where(np.abs(z_hit - bh) < 1e-6, ROOF, WALL), grey)
+    return grey.reshape(h, ss, w, ss).mean(axis=(1, 3))
+
+
+@pytest.fixture(scope="module")
+def block():
+    camera = ptx.FrameCamera.from_pixels(FOCAL, SIZE)
+    exteriors = [look_at(np.array([X0 + dx, Y0, FLY]), np.array([X0 + dx, Y0 + 1e-3, 0.0])) for dx in (-60.0, 60.0)]
+    images = [_render(e, camera) for e in exteriors]
+    # DSM: 1 m cells, 20 m on the box's cells, 0 elsewhere.
+    half = 80
+    xc = -half + np.arange(2 * half) + 0.5
+    inside = lambda v, lo, hi: (v > lo) & (v < hi)  # noqa: E731
+    heights = np.where(inside(xc[None], BOX[0], BOX[1]) & inside(-xc[:, None], BOX[2], BOX[3]), BOX[4], 0.0)
+    dsm = ptx.DEM(heights, (1.0, 0.0, X0 - half, 0.0, -1.0, Y0 + half))
+    grid = ptx.Grid((1.0, 0.0, X0 - 50, 0.0, -1.0, Y0 + 50), (100, 100))
+    gx = -50 + np.arange(100) + 0.5
+    gx, gy = np.meshgrid(gx, -gx)  # local cell centres
+    return camera, exteriors, images, dsm, heights, grid, gx, gy
+
+
+def _marched(exterior, heights, gx, gy, steps=600):
+    """Reference visibility: march from each cell's surface point towards the camera over the
+    bilinear DSM until the ray is above its highest point; hidden where the DSM rises above it."""
+    c = np.asarray(exterior.position) - [X0, Y0, 0]
+    z0 = map_coordinates(heights, [80 - gy - 0.5, gx + 80 - 0.5], order=1)
+    top = heights.max()
+    t_end = np.clip((top - z0) / (c[2] - z0), 0, 1)
+    t = np.linspace(0, 1, steps)[1:, None, None] * t_end[None] + 1e-4
+    x = gx + t * (c[0] - gx)
+    y = gy + t * (c[1] - gy)
+    z = z0 + t * (c[2] - z0)
+    surface = map_coordinates(heights, [(80 - y - 0.5).ravel(), (x + 80 - 0.5).ravel()], order=1).reshape(x.shape)
+    return np.any(surface > z + 1e-6, axis=0)
+
+
+def _shadow(exterior, gx, gy):
+    """Analytic hidden strip: ground cells (outside the box) whose segment to the camera cuts the box."""
+    c = np.asarray(exterior.position) - [X0, Y0, 0]
+    p = np.stack([gx, gy, np.zeros_like(gx)], axis=-1).reshape(-1, 3)
+    d = c[None] - p
+    bx0, bx1, by0, by1, bh = BOX
+    tn, tf = _slab(p, d, np.array([bx0, by0, 0.0]), np.array([bx1, by1, bh]))
+    footprint = (gx > bx0) & (gx < bx1) & (gy > by0) & (gy < by1)
+    return ((tn <= tf) & (tf > 0) & (tn < 1)).reshape(gx.shape) & ~footprint
+
+
+def test_mask_agrees_with_ray_marching(block):
+    camera, exteriors, _, dsm, heights, grid, gx, gy = block
+    for e in exteriors:
+        mask = ptx.occlusion_mask(e, camera, dsm, grid)
+        ref = _marched(e, heights, gx, gy)
+        agree = np.mean(mask == ref)
+        print(f"hidden {ref.sum()} cells (ray marching), z-buffer {mask.sum()}, agreement {agree:.4f}")
+        assert ref.sum() > 300  # the building does hide a strip
+        assert agree >= 0.99
+
+
+def test_mark_is_the_hidden_strip(block):
+    camera, exteriors, images, dsm, _, grid, gx, gy = block
+    for e, img in zip(exteriors, images):
+        ortho, _ = ptx.orthorectify(img, e, camera, dsm, grid, occlusion="mark")
+        marked = np.isnan(ortho)
+        strip = _shadow(e, gx, gy)
+        assert strip.sum() > 300
+        # exactly the analytic strip, +- 1 cell
+        assert not np.any(marked & ~binary_dilation(strip))
+        assert not np.any(binary_erosion(strip) & ~marked)
+
+
+def test_true_ortho_has_no_ghosts(block):
+    camera, exteriors, images, dsm, _, grid, gx, gy = block
+    truth = ground_texture(gx, gy)
+    footprint = (gx > BOX[0]) & (gx < BOX[1]) & (gy > BOX[2]) & (gy < BOX[3])
+    near = binary_dilation(footprint, iterations=2)  # the edge cells the resampling blends with the roof
+    plain, _ = ptx.orthorectify(images[0], exteriors[0], camera, dsm, grid)
+    info = {}
+    true = ptx.true_ortho(images, exteriors, camera, dsm, grid, info=info)
+    hidden = [_shadow(e, gx, gy) for e in exteriors]
+    strip = hidden[0] & ~hidden[1] & ~near  # image 0's hidden strip that image 1 sees
+    ghost = np.mean(np.abs(plain[strip] - truth[strip]))
+    after = np.mean(np.abs(true[strip] - truth[strip]))
+    print(f"ghosting error in image 0's hidden strip ({strip.sum()} cells): plain {ghost:.3f}, true ortho {after:.4f}")
+    assert ghost > 0.3  # the plain ortho shows the roof (or wall) there
+    assert after < 0.02 and ghost / after > 20
+    assert np.all(info["source"][strip] == 1)  # taken from the image that sees it
+    # behind the walls both cameras face side-on (y = +-20 m) ground hidden from both: nodata, +- 1 cell
+    both = hidden[0] & hidden[1]
+    assert both.sum() > 50
+    assert not np.any(np.isnan(true) & ~footprint & ~binary_dilation(both))
+    assert np.all(np.isnan(true[binary_erosion(both)]))
+    # elsewhere on the ground the true ortho is the ground truth too (both images' hidden strips filled)
+    ground = ~footprint & ~near & np.isfinite(true)
+    assert np.mean(ground) > 0.8
+    assert np.percentile(np.abs(true[ground] - truth[ground]), 99) < 0.03
+    # the roof is the roof
+    roof = binary_erosion(footprint, iterations=2)
+    assert np.allclose(true[roof], ROOF, atol=1e-6)
+
+
+def test_mark_block_and_bad_input(block):
+    camera, exteriors, images, dsm, _, grid, _, _ = block
+    marked = ptx.true_ortho(images, exteriors, camera, dsm, grid, occlusion="mark")
+    one, _ = ptx.orthorectify(images[0], exteriors[0], camera, dsm, grid, occlusion="mark")
+    np.testing.assert_array_equal(marked, one)
+    with pytest.raises(ValueError, match="occlusion"):
+        ptx.true_ortho(images, exteriors, camera, dsm, grid, occlusion="zbuffer")
+    with pytest.raises(ValueError, match="occlusion"):
+        ptx.orthorectify(images[0], exteriors[0], camera, dsm, grid, occlusion="fill")
+    with pytest.raises(ValueError, match="tolerance"):
+        ptx.occlusion_mask(exteriors[0], camera, dsm, grid, tolerance=-1.0)
+    with pytest.raises(ValueError, match="2 images but 1"):
+        ptx.true_ortho(images, exteriors[:1], [camera], dsm, grid)
