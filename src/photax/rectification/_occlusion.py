@@ -1,5 +1,5 @@
-"""True orthophotos: z-buffer visibility of a DSM (:func:`occlusion_mask`) and the block's true
-ortho (:func:`true_ortho`), each cell from an image that sees it.
+"""True orthophotos: z-buffer visibility of a DSM (:func:`occluded`, public as
+:func:`photax.occlusion_mask`); the block's true ortho is :mod:`._true_ortho`.
 
 Z-buffer (Amhar, Jansa & Ries 1998; Rau, Chen & Chen 2002): the DSM surface is sampled on the
 output grid's lattice refined ``supersample`` times per axis (heights bilinear, so a wall between a
@@ -26,17 +26,13 @@ tolerance are not detected; an occluder outside the DSM is not seen.
 
 from __future__ import annotations
 
-from typing import Literal
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from .._pytree import filter_jit
-from ..dem import DEM
 from ..grid import Grid
 from ..sensor import FrameSensor
-from ._ortho import OrthoModel, check_ortho_inputs, orthorectify
 
 _STRIP = 1 << 16  # surface samples per compiled scatter call
 
@@ -54,14 +50,14 @@ def _centres(grid: Grid, rows, cols) -> np.ndarray:
 
 
 @filter_jit
-def _heights(model: OrthoModel, xy):
+def _heights(model, xy):
     """``(n,)`` DSM heights at ``(n, 2)`` grid-CRS points."""
     at = xy if model.to_dem is None else model.to_dem(xy)
     return model.dem.height(at[:, 0], at[:, 1])
 
 
 @filter_jit
-def _project(model: OrthoModel, p):
+def _project(model, p):
     """``(n, 3)`` ground -> ``(n, 2)`` pixel and ``(n,)`` depth (module docstring), NaN where not imaged."""
     pix = model.sensor(p)
     if isinstance(model.sensor, FrameSensor):
@@ -90,7 +86,7 @@ def _chunked(fn, model, points: np.ndarray):
     return out if len(out) > 1 else out[0]
 
 
-def _surface(model: OrthoModel, xy: np.ndarray):
+def _surface(model, xy: np.ndarray):
     """``(n, 2)`` ground -> pixel, depth of the DSM point above it."""
     z = _chunked(_heights, model, xy)
     return _chunked(_project, model, np.column_stack([xy, z]))
@@ -113,7 +109,7 @@ def _scatter_min(buffer, idx, depth):
     return buffer.at[jnp.where(keep, idx, buffer.size - 1)].min(jnp.where(keep, depth, jnp.inf))
 
 
-def _ground_lean(model: OrthoModel, xy: np.ndarray) -> np.ndarray:
+def ground_lean(model, xy: np.ndarray) -> np.ndarray:
     """``(n,)`` ground shift of the imaged point per metre of height (``tan`` of the off-nadir angle)
     at ``(n, 2)`` ground points, from the sensor's Jacobian by finite differences: any sensor."""
     xy = np.asarray(xy, dtype=float)
@@ -130,23 +126,19 @@ def _ground_lean(model: OrthoModel, xy: np.ndarray) -> np.ndarray:
     return np.hypot(shift[:, 0], shift[:, 1])
 
 
-def occlusion_mask(
-    exterior,
-    camera,
-    dsm: DEM,
+def occluded(
+    model,
     grid: Grid,
     *,
     supersample: int = 2,
     tolerance: float | None = None,
     buffer_cell: int | None = None,
 ) -> np.ndarray:
-    """Which cells of an output grid are hidden from an image by the DSM (z-buffer, module docstring).
+    """Which cells of ``grid`` the ortho ``model``'s DSM hides from its sensor (z-buffer, module
+    docstring; :func:`photax.occlusion_mask` is the public form).
 
     Args:
-        exterior, camera: the image's orientation, as in :func:`photax.orthorectify` (a frame
-            camera and its exterior orientation; or ``None`` and an RPC / push-broom camera).
-        dsm: the surface model (buildings, trees: a DSM, not a bare-earth DEM), in the frame's
-            ground CRS (an RPC's: ellipsoidal heights, any CRS).
+        model: a :class:`photax.rectification.OrthoModel` whose DEM is the DSM, checked.
         grid: the output grid.
         supersample: surface samples per grid cell along each axis (walls are sampled by the
             bilinear DSM at these points).
@@ -160,11 +152,9 @@ def occlusion_mask(
         False where it is visible and where it is not imaged at all (off the image, no DSM height:
         the ortho is nodata there anyway).
     """
-    if not isinstance(grid, Grid):
-        raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
     if int(supersample) < 1:
         raise ValueError(f"supersample must be >= 1, got {supersample}")
-    model = check_ortho_inputs(exterior, camera, dsm, grid)
+    dsm = model.dem
     if model.sensor.image_size is None:
         raise ValueError("the camera needs an image_size for the z-buffer")
     if tolerance is not None and not (np.isfinite(tolerance) and tolerance >= 0):
@@ -185,7 +175,7 @@ def occlusion_mask(
         raise ValueError(f"buffer_cell must be >= 1 pixel, got {buffer_cell}")
     heights = np.asarray(dsm.heights)
     span = float(np.nanmax(heights) - np.nanmin(heights)) if np.isfinite(heights).any() else 0.0
-    lean = np.nanmax(_ground_lean(model, probe), initial=0.0)
+    lean = np.nanmax(ground_lean(model, probe), initial=0.0)
     margin = int(np.ceil(min(span * (lean if np.isfinite(lean) else 0.0) / cell, 4 * max(rows, cols)))) + 1
     if tolerance is None:
         tolerance = 2.0 * max(cell, s / scale)
@@ -213,82 +203,3 @@ def occlusion_mask(
 def _pad(v: np.ndarray, n: int) -> np.ndarray:
     """``v`` padded to ``n`` by repeating its last value: every strip one compiled shape."""
     return np.concatenate([v, np.repeat(v[-1:], n - len(v))]) if len(v) < n else v
-
-
-def true_ortho(
-    images,
-    exteriors,
-    cameras,
-    dsm: DEM,
-    grid: Grid,
-    *,
-    occlusion: Literal["fill", "mark"] = "fill",
-    resampling="bilinear",
-    nodata=None,
-    supersample: int = 2,
-    tolerance: float | None = None,
-    info: dict | None = None,
-) -> np.ndarray:
-    """The true orthophoto of a block on a DSM: each image's ortho (:func:`photax.orthorectify`)
-    with its hidden cells (:func:`occlusion_mask`) removed, and every cell from the most nadir image
-    that sees it (the smallest ground lean, ``tan`` of the off-nadir angle, at the cell).
-
-    Args:
-        images: a sequence of ``(..., H, W)`` images (one band layout for all).
-        exteriors, cameras: per image, as in :func:`photax.orthorectify` (a single camera is used
-            for all); ``exteriors`` ``None`` (or a list of ``None``) for RPC / push-broom cameras.
-        dsm: the surface model; grid: the output grid.
-        occlusion: ``"fill"`` (the block's true ortho) or ``"mark"`` (only the first image, its
-            hidden cells ``nodata``).
-        resampling, nodata: as in :func:`photax.orthorectify`; supersample, tolerance: as in
-            :func:`occlusion_mask`.
-        info: a dict to receive ``source`` (``(rows, cols)`` int, the image each cell comes from,
-            ``-1`` for none) and ``occluded`` (``(n, rows, cols)`` bool, each image's mask).
-
-    Returns:
-        ``(..., rows, cols)`` array in the images' dtype, ``nodata`` where no image sees the cell.
-    """
-    images = list(images) if not hasattr(images, "shape") else [images]
-    n = len(images)
-    if n == 0:
-        raise ValueError("true_ortho needs at least one image")
-    if occlusion not in ("fill", "mark"):
-        raise ValueError(f"occlusion must be 'fill' or 'mark', got {occlusion!r}")
-    exteriors = [exteriors] * n if exteriors is None or not isinstance(exteriors, (list, tuple)) else list(exteriors)
-    cameras = list(cameras) if isinstance(cameras, (list, tuple)) else [cameras] * n
-    if len(exteriors) != n or len(cameras) != n:
-        raise ValueError(f"{n} images but {len(exteriors)} exteriors and {len(cameras)} cameras")
-    if occlusion == "mark":
-        n = 1
-    xy = _centres(grid, np.arange(grid.shape[0]), np.arange(grid.shape[1])).reshape(-1, 2)
-    best = np.full(grid.shape, np.inf)
-    source = np.full(grid.shape, -1, dtype=np.int64)
-    out, masks = None, []
-    for i in range(n):
-        ortho, _ = orthorectify(
-            images[i], exteriors[i], cameras[i], dsm, grid, resampling=resampling, nodata=nodata, approx=0.125
-        )
-        hidden = occlusion_mask(exteriors[i], cameras[i], dsm, grid, supersample=supersample, tolerance=tolerance)
-        masks.append(hidden)
-        if out is None:
-            from ._tiling import _fill_value
-
-            fill = _fill_value(ortho.dtype, nodata)
-            out = np.full(ortho.shape, fill, dtype=ortho.dtype)
-        valid = ~hidden & _has_data(ortho, fill)
-        lean = _ground_lean(OrthoModel(exteriors[i], cameras[i], dsm, grid.crs), xy).reshape(grid.shape)
-        take = valid & (lean < best)
-        best = np.where(take, lean, best)
-        source = np.where(take, i, source)
-        out[..., take] = ortho[..., take]
-    if info is not None:
-        info["source"] = source
-        info["occluded"] = np.stack(masks)
-    return out
-
-
-def _has_data(ortho: np.ndarray, fill) -> np.ndarray:
-    lead = tuple(range(ortho.ndim - 2))
-    if np.isnan(fill):
-        return np.all(np.isfinite(ortho), axis=lead) if lead else np.isfinite(ortho)
-    return np.all(ortho != fill, axis=lead) if lead else ortho != fill

@@ -16,6 +16,7 @@ from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ..sensor import FrameSensor, GroundSensor, LocalTransform, check_rpc_dem, sensor_of
 from ._indirect import rectify
+from ._occlusion import occluded
 
 
 class OrthoModel(Module):
@@ -133,11 +134,47 @@ def orthorectify(
         image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress, approx=approx, info=info
     )
     if occlusion == "mark":
-        from ._occlusion import occlusion_mask
         from ._tiling import _fill_value
 
-        out[..., occlusion_mask(exterior, camera, dem, grid)] = _fill_value(out.dtype, nodata)
+        out[..., occluded(model, grid)] = _fill_value(out.dtype, nodata)
     return out, grid
+
+
+def occlusion_mask(
+    exterior,
+    camera,
+    dsm: DEM,
+    grid: Grid,
+    *,
+    supersample: int = 2,
+    tolerance: float | None = None,
+    buffer_cell: int | None = None,
+) -> np.ndarray:
+    """Which cells of an output grid a DSM hides from an image: a z-buffer of the DSM's surface
+    in the image (:mod:`photax.rectification._occlusion`).
+
+    Args:
+        exterior, camera: the image's orientation, as in :func:`orthorectify` (a frame camera and
+            its exterior orientation, depth = distance to the projection centre; or ``None`` and an
+            RPC / push-broom camera, depth = -height along its nearly parallel rays).
+        dsm: the surface model (buildings, trees: a DSM, not a bare-earth DEM), in the frame's
+            ground CRS (an RPC's: ellipsoidal heights, any CRS).
+        grid: the output grid.
+        supersample: surface samples per grid cell along each axis (walls are sampled by the
+            bilinear DSM at these points).
+        tolerance: depth margin (m) before a cell counts as hidden; default twice the larger of
+            the grid cell and the buffer cell's ground size.
+        buffer_cell: buffer cell edge in image pixels; default about one grid cell's image size.
+
+    Returns:
+        ``(rows, cols)`` bool, True where the cell's surface point is hidden by a nearer surface;
+        False where it is visible and where it is not imaged at all (off the image, no DSM height:
+        the ortho is nodata there anyway).
+    """
+    if not isinstance(grid, Grid):
+        raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
+    model = check_ortho_inputs(exterior, camera, dsm, grid)
+    return occluded(model, grid, supersample=supersample, tolerance=tolerance, buffer_cell=buffer_cell)
 
 
 def check_ortho_inputs(exterior, camera, dem: DEM, grid: Grid) -> OrthoModel:
