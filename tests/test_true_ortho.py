@@ -171,3 +171,45 @@ def test_mark_block_and_bad_input(block):
         ptx.occlusion_mask(exteriors[0], camera, dsm, grid, tolerance=-1.0)
     with pytest.raises(ValueError, match="2 images but 1"):
         ptx.true_ortho(images, exteriors[:1], [camera], dsm, grid)
+
+
+@pytest.mark.filterwarnings("ignore:the camera .RPC, push-broom. needs ellipsoidal")
+def test_pushbroom_mask_agrees_with_its_line_of_sight():
+    """A push-broom satellite 20 deg off nadir over a 60 m box: the z-buffer with depth = -height
+    against a march along the line of sight (its direction from the camera's own to_ground at two
+    heights, constant over the 600 m grid: 620 km away), 4 m cells."""
+    import pyproj
+
+    from photax.scene import pushbroom_scene
+    from photax.sensor import utm_crs
+
+    scene = pushbroom_scene(roll=20.0, gsd=4.0, image_size=(300, 300), n_gcp=6, n_check=0)
+    cam = scene.camera
+    crs = utm_crs(10.0, 45.0)
+    to_utm = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    cx, cy = (float(v) for v in to_utm.transform(10.0, 45.0))
+    cx, cy = round(cx), round(cy)
+    half, cell, box, top = 500, 4.0, 80.0, 60.0
+    xc = -half + cell * (np.arange(int(2 * half / cell)) + 0.5)
+    heights = np.where((np.abs(xc[None]) < box) & (np.abs(xc[:, None]) < box), top, 0.0)
+    dsm = ptx.DEM(heights, (cell, 0.0, cx - half, 0.0, -cell, cy + half), crs=crs)
+    grid = ptx.Grid((cell, 0.0, cx - 300, 0.0, -cell, cy + 300), (150, 150), crs=crs)
+    mask = ptx.occlusion_mask(None, cam, dsm, grid)
+    # the line of sight at the grid's centre: ground shift per metre of height
+    lon, lat = 10.0, 45.0
+    pix = np.asarray(cam(np.array([[lon, lat, 0.0]])))
+    ends = [np.asarray(cam.to_ground(pix, h))[0] for h in (0.0, 100.0)]
+    (x0, y0), (x1, y1) = (to_utm.transform(*e) for e in ends)
+    d = np.array([x1 - x0, y1 - y0]) / 100.0
+    assert 0.3 < np.hypot(*d) < 0.5  # about tan(20 deg) on the ground
+    gx = -300 + cell * (np.arange(150) + 0.5)
+    gx, gy = np.meshgrid(gx, -gx)
+    z0 = np.where((np.abs(gx) < box) & (np.abs(gy) < box), top, 0.0)
+    z = z0[None] + np.linspace(0, top, 241)[1:, None, None] * (z0[None] < top)
+    x, y = gx + d[0] * (z - z0), gy + d[1] * (z - z0)
+    surface = map_coordinates(heights, [half / cell - y / cell - 0.5, x / cell + half / cell - 0.5], order=1)
+    ref = np.any(surface > z + 1e-6, axis=0)
+    agree = np.mean(mask == ref)
+    print(f"push-broom: hidden {ref.sum()} cells (line of sight), z-buffer {mask.sum()}, agreement {agree:.4f}")
+    assert ref.sum() > 150
+    assert agree >= 0.99
