@@ -213,3 +213,28 @@ def test_pushbroom_mask_agrees_with_its_line_of_sight():
     print(f"push-broom: hidden {ref.sum()} cells (line of sight), z-buffer {mask.sum()}, agreement {agree:.4f}")
     assert ref.sum() > 150
     assert agree >= 0.99
+
+
+@pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")
+def test_file_ortho_marks_the_same_cells(block, tmp_path):
+    import rasterio
+
+    camera, exteriors, images, dsm, _, grid, _, _ = block
+    src = tmp_path / "img.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=SIZE[0], height=SIZE[1], count=1, dtype="float64") as dst:
+        dst.write(images[0], 1)
+    ptx.orthorectify_file(src, tmp_path / "o.tif", exteriors[0], camera, dsm, grid, occlusion="mark")
+    with rasterio.open(tmp_path / "o.tif") as ds:
+        on_file = ds.read(1)
+    in_memory, _ = ptx.orthorectify(images[0], exteriors[0], camera, dsm, grid, occlusion="mark")
+    np.testing.assert_array_equal(np.isnan(on_file), np.isnan(in_memory))
+    assert np.isnan(on_file).sum() > 300
+    np.testing.assert_allclose(on_file, in_memory, atol=1e-6)
+
+
+def test_cli_occlusion_needs_one_frame_image_and_a_dsm(tmp_path, capsys):
+    from photax.cli import main
+
+    args = ["ortho", "a.tif", "b.tif", "--camera", "c.yaml", "--exterior", "e.csv", "--dem", "d.tif"]
+    assert main([*args, "--out-dir", str(tmp_path), "--occlusion", "mark"]) == 2
+    assert "--occlusion mark: one frame IMAGE" in capsys.readouterr().err
