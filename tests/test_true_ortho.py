@@ -238,3 +238,34 @@ def test_cli_occlusion_needs_one_frame_image_and_a_dsm(tmp_path, capsys):
     args = ["ortho", "a.tif", "b.tif", "--camera", "c.yaml", "--exterior", "e.csv", "--dem", "d.tif"]
     assert main([*args, "--out-dir", str(tmp_path), "--occlusion", "mark"]) == 2
     assert "--occlusion mark: one frame IMAGE" in capsys.readouterr().err
+
+
+@pytest.mark.filterwarnings("ignore::rasterio.errors.NotGeoreferencedWarning")
+def test_cli_occlusion_mark(block, tmp_path):
+    import rasterio
+
+    from photax.cli import main
+    from photax.io import write_camera
+    from photax.io.orthority import write_orthority_exterior
+
+    camera, exteriors, images, dsm, heights, _, _, _ = block
+    crs = "EPSG:32633"
+    src, dem_path = tmp_path / "img.tif", tmp_path / "dsm.tif"
+    with rasterio.open(src, "w", driver="GTiff", width=SIZE[0], height=SIZE[1], count=1, dtype="float64") as dst:
+        dst.write(images[0], 1)
+    profile = dict(driver="GTiff", width=160, height=160, count=1, dtype="float64", crs=crs)
+    with rasterio.open(dem_path, "w", transform=rasterio.Affine(*np.asarray(dsm.transform)), **profile) as dst:
+        dst.write(heights, 1)
+    write_camera(camera, tmp_path / "cam.yaml")
+    write_orthority_exterior(tmp_path / "ext.csv", {"img.tif": exteriors[0]}, crs)
+    args = ["ortho", str(src), "--camera", str(tmp_path / "cam.yaml"), "--exterior", str(tmp_path / "ext.csv")]
+    args += ["--dem", str(dem_path), "--resolution", "1", "--no-progress"]
+    assert main([*args, "--occlusion", "mark", "-o", str(tmp_path / "true.tif")]) == 0
+    assert main([*args, "-o", str(tmp_path / "plain.tif")]) == 0
+    with rasterio.open(tmp_path / "true.tif") as t, rasterio.open(tmp_path / "plain.tif") as p:
+        true, plain = t.read(1), p.read(1)
+        grid = ptx.Grid(t.transform, (t.height, t.width), crs=crs)
+    hidden = ptx.occlusion_mask(exteriors[0], camera, ptx.read_dem(dem_path), grid)
+    assert hidden.sum() > 300
+    np.testing.assert_array_equal(np.isnan(true), np.isnan(plain) | hidden)
+    np.testing.assert_array_equal(true[~hidden], plain[~hidden])
