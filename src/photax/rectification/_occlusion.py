@@ -1,8 +1,9 @@
 """True orthophotos: z-buffer visibility of a DSM (:func:`occluded`, public as
 :func:`photax.occlusion_mask`); the block's true ortho is :mod:`._true_ortho`.
 
-Z-buffer (Amhar, Jansa & Ries 1998; Rau, Chen & Chen 2002): the DSM surface is sampled on the
-output grid's lattice refined ``supersample`` times per axis (heights bilinear, so a wall between a
+Z-buffer (Amhar, Jansa & Ries 1998; Rau, Chen & Chen 2002): the DSM surface is sampled on a
+lattice aligned with the output grid, its step ``1/supersample`` of the finer of the DSM cell and
+the buffer cell's ground size (heights bilinear, so a wall between a
 roof cell and a ground cell is a steep slope sampled at the intermediate points) and widened by the
 relief displacement of its height range; every sample is projected into the image and the buffer
 keeps, per buffer cell (``s x s`` image pixels, ``s`` about one grid cell's image size so every cell
@@ -181,10 +182,14 @@ def occluded(
         tolerance = 2.0 * max(cell, s / scale)
     shape = (int(np.ceil(h / s)) + 1, int(np.ceil(w / s)) + 1)
     buffer = jnp.full(shape[0] * shape[1] + 1, jnp.inf)
-    k = int(supersample)
-    sub_c = -margin + (np.arange((cols + 2 * margin) * k) + 0.5) / k - 0.5
+    # Sample step: 1/supersample of the finer of the DSM cell and the buffer cell's ground size (a
+    # grid finer than the image and the DSM needs no more samples than they resolve).
+    step = min(_dsm_cell(model, cell), s / scale)
+    f = step / cell / int(supersample)
+    n_c, n_r = int(np.ceil((cols + 2 * margin) / f)), int(np.ceil((rows + 2 * margin) / f))
+    sub_c = -margin + (np.arange(n_c) + 0.5) * f - 0.5
     per = max(1, _STRIP // len(sub_c))
-    sub_r = -margin + (np.arange((rows + 2 * margin) * k) + 0.5) / k - 0.5
+    sub_r = -margin + (np.arange(n_r) + 0.5) * f - 0.5
     for a in range(0, len(sub_r), per):
         pix, depth = _surface(model, _centres(grid, sub_r[a : a + per], sub_c).reshape(-1, 2))
         idx = _buffer_index(pix, s, shape)
@@ -198,6 +203,14 @@ def occluded(
     with np.errstate(invalid="ignore"):
         hidden = (idx >= 0) & np.isfinite(depth) & (depth > nearest + tolerance)
     return hidden.reshape(rows, cols)
+
+
+def _dsm_cell(model, cell: float) -> float:
+    """The DSM's cell size in the grid's units (the grid's own where the DSM is in another CRS)."""
+    if model.to_dem is not None:
+        return cell
+    a, b, _, d, e, _ = np.asarray(model.dem.transform)
+    return float(max(np.hypot(a, d), np.hypot(b, e)))
 
 
 def _pad(v: np.ndarray, n: int) -> np.ndarray:
