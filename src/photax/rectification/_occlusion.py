@@ -141,8 +141,8 @@ def occluded(
     Args:
         model: a :class:`photax.rectification.OrthoModel` whose DEM is the DSM, checked.
         grid: the output grid.
-        supersample: surface samples per grid cell along each axis (walls are sampled by the
-            bilinear DSM at these points).
+        supersample: surface samples per DSM cell (or per buffer cell, the finer) along each
+            axis (walls are sampled by the bilinear DSM at these points).
         tolerance: depth margin (m) before a cell counts as hidden; default twice the larger of
             the grid cell and the buffer cell's ground size.
         buffer_cell: buffer cell edge in image pixels; default about one grid cell's image size

@@ -160,8 +160,8 @@ def occlusion_mask(
         dsm: the surface model (buildings, trees: a DSM, not a bare-earth DEM), in the frame's
             ground CRS (an RPC's: ellipsoidal heights, any CRS).
         grid: the output grid.
-        supersample: surface samples per grid cell along each axis (walls are sampled by the
-            bilinear DSM at these points).
+        supersample: surface samples per DSM cell (or per buffer cell, the finer) along each
+            axis (walls are sampled by the bilinear DSM at these points).
         tolerance: depth margin (m) before a cell counts as hidden; default twice the larger of
             the grid cell and the buffer cell's ground size.
         buffer_cell: buffer cell edge in image pixels; default about one grid cell's image size.
