@@ -168,6 +168,9 @@ from .pushbroom import RPCFit as RPCFit
 from .pushbroom import fit_rpc as fit_rpc
 from .pushbroom import resect_pushbroom as resect_pushbroom
 from .rectification import (
+    occlusion_mask as occlusion_mask,
+)
+from .rectification import (
     orthorectify as orthorectify,
 )
 from .rectification import (
@@ -184,6 +187,9 @@ from .rectification import (
 )
 from .rectification import (
     rectify_file as rectify_file,
+)
+from .rectification import (
+    true_ortho as true_ortho,
 )
 from .resampling import Resampling as Resampling
 from .resampling import resample as resample

@@ -118,11 +118,19 @@ def add_parser(sub) -> None:
                    "IMAGE; with several, each refined on its own)")  # fmt: skip
     p.add_argument("--refine", choices=("shift", "shift-drift", "affine"), default=None,
                    help="with --gcps: the image-space correction refined (default: shift; at least 1, 2, 3 GCPs)")  # fmt: skip
+    p.add_argument("--occlusion", choices=("mark",), default=None,
+                   help="with --dem a DSM (buildings, trees): cells it hides from the camera are nodata (a z-buffer: "
+                   "a true ortho without ghosts; one frame IMAGE, docs/true-ortho.md)")  # fmt: skip
     p.add_argument("--no-progress", dest="progress", action="store_false", help="no progress bar")
     p.set_defaults(func=run, starts_gc=True)  # start_gc() once the inputs are read
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "occlusion", None) is not None and (
+        args.dem is None or _is_ground(args.camera) or args.out_dir is not None or len(args.image) > 1
+    ):
+        # The z-buffer needs a surface model; the streamed RPC and --out-dir paths do not take it yet.
+        raise ValueError("--occlusion mark: one frame IMAGE with -o and a --dem (a DSM) only")
     if _is_ground(args.camera):
         start_gc()  # refining RPCs traces JAX functions: their cyclic garbage is collected
         return _run_ground(args)
@@ -200,6 +208,7 @@ def _run_one(args: argparse.Namespace) -> int:
         nodata=args.nodata,
         tile=args.tile,
         progress=args.progress and args.command,  # one bar, labelled "ortho"
+        occlusion=getattr(args, "occlusion", None),
     )
     print(f"wrote {args.out}: {grid.width} x {grid.height} pixels of {abs(grid.transform.a):g} {ground_unit(grid.crs)}")
     return 0

@@ -44,7 +44,8 @@ pixel coordinates; raster georeference at pixel corners).
 # (input positions: lattice, checks, exact fallback), _indirect (rectify),
 # _direct (direct mapping), _ortho (OrthoModel, orthorectify), _files
 # (rectify_file, orthorectify_file, orthorectify_block: windowed reads),
-# _dask (orthorectify_dask: one Dask task per chunk).  The output grid (Grid,
+# _dask (orthorectify_dask: one Dask task per chunk), _occlusion (z-buffer visibility),
+# _true_ortho (true_ortho: a block's true ortho).  The output grid (Grid,
 # ortho_grid) lives in photax.grid (re-exported here), the resampling kernels
 # in photax.resampling.
 
@@ -69,5 +70,7 @@ from ._files import (
 )
 from ._indirect import rectify as rectify
 from ._ortho import OrthoModel as OrthoModel
+from ._ortho import occlusion_mask as occlusion_mask
 from ._ortho import orthorectify as orthorectify
 from ._tiling import tile_windows as tile_windows
+from ._true_ortho import true_ortho as true_ortho

@@ -21,6 +21,7 @@ from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ._approx import _tile_positions
 from ._indirect import _resample_tile
+from ._occlusion import occluded
 from ._ortho import _check_image_size, check_ortho_inputs
 from ._tiling import (
     _approx_arg,
@@ -111,6 +112,7 @@ def rectify_file(
     approx: float | None = 0.125,
     info: dict | None = None,
     hint: Callable[[], str] | None = None,
+    hidden: np.ndarray | None = None,
 ) -> Grid:
     """:func:`rectify` from one raster file to a GeoTIFF, window by window.
 
@@ -139,6 +141,8 @@ def rectify_file(
         approx, info: as in :func:`rectify`.
         hint: called only when the output cannot fit on the disk (checked before any work: uncompressed
             size against ``shutil.disk_usage``); its sentence ends the error message.
+        hidden: ``grid.shape`` bool, cells written as no data whatever the image holds there (the
+            cells a DSM hides from the camera: :func:`photax.occlusion_mask`).
 
     Returns:
         ``grid``.
@@ -160,6 +164,8 @@ def rectify_file(
     tile = int(tile)
     if tile < 1:
         raise ValueError(f"tile must be a positive number of pixels, got {tile!r}")
+    if hidden is not None and np.shape(hidden) != tuple(grid.shape):
+        raise ValueError(f"hidden must have the grid's shape {tuple(grid.shape)}, got {np.shape(hidden)}")
     with open_raster(src_path) as src, atomic_path(dst_path, inputs=(src_path, *inputs)) as tmp:
         if auto and colormap(src) is not None:
             resampling = _check_resampling("nearest")
@@ -215,7 +221,9 @@ def rectify_file(
             )
             block = np.asarray(block)[:, :h, :w]
             valid = _valid(p, o, size, win, src_mask)
-            if src_mask is not None:
+            if hidden is not None:
+                valid &= ~hidden[r0 : r0 + h, c0 : c0 + w]
+            if src_mask is not None or hidden is not None:
                 block = np.where(valid, block, fill)
             return (block, valid), err, n_exact
 
@@ -272,6 +280,7 @@ def orthorectify_file(
     compress: str | None = "deflate",
     approx: float | None = 0.125,
     info: dict | None = None,
+    occlusion: str | None = None,
 ) -> Grid:
     """:func:`orthorectify` from an image file to a GeoTIFF, window by window.
 
@@ -280,6 +289,8 @@ def orthorectify_file(
     output CRS is ``grid.crs`` (default the DEM's).  See
     :func:`rectify_file` for the streaming and atomic writing.  ``exterior=None`` and an
     :class:`photax.rpc.RPCCamera`: as in :func:`orthorectify` (default grid CRS the scene's UTM zone).
+    ``occlusion="mark"``: the cells the DEM (a DSM) hides from the camera are no data
+    (:func:`photax.occlusion_mask`, in memory over the grid), as in :func:`orthorectify`.
 
     Returns:
         the output grid.
@@ -297,6 +308,9 @@ def orthorectify_file(
     if grid is None:
         grid = ortho_grid(exterior, camera, dem, resolution)
     model = check_ortho_inputs(exterior, camera, dem, grid)
+    if occlusion not in (None, "mark"):
+        raise ValueError(f"occlusion must be None or 'mark', got {occlusion!r}")
+    hidden = occluded(model, grid) if occlusion == "mark" else None
     return rectify_file(
         src_path,
         dst_path,
@@ -311,6 +325,7 @@ def orthorectify_file(
         approx=approx,
         info=info,
         hint=lambda: gsd_hint(exterior, camera, dem, grid),
+        hidden=hidden,
     )
 
 

@@ -15,6 +15,7 @@ from ..io.sizes import check_output_size
 from ..resampling import Resampling
 from ..sensor import FrameSensor, GroundSensor, LocalTransform, check_rpc_dem, is_sensor, sensor_arguments, sensor_of
 from ._indirect import rectify
+from ._occlusion import occluded
 
 
 class OrthoModel(Module):
@@ -65,6 +66,7 @@ def orthorectify(
     progress: bool | str = False,
     approx: float | None = 0.125,
     info: dict | None = None,
+    occlusion: str | None = None,
 ) -> tuple[np.ndarray, Grid]:
     """Orthorectify an image with its sensor and a DEM: ``orthorectify(image, sensor, dem, grid=None, ...)``.
 
@@ -79,8 +81,10 @@ def orthorectify(
     the point falls outside the image, where the DEM is nodata or absent,
     behind the camera, and past the fold of the lens distortion (:class:`OrthoModel`).
 
-    Occlusion is NOT handled: ground hidden from the camera by relief gets
-    the grey value of the surface that hides it (double mapping).
+    By default occlusion is NOT handled: ground hidden from the camera by relief gets
+    the grey value of the surface that hides it (double mapping, "ghosts").  With
+    ``occlusion="mark"`` and a DSM, the hidden cells (:func:`photax.occlusion_mask`, a z-buffer)
+    are ``nodata``; :func:`photax.true_ortho` fills them from other images of a block.
 
     Args:
         image: ``(..., H, W)`` with ``(W, H) == camera.image_size``.
@@ -97,6 +101,8 @@ def orthorectify(
         resampling, nodata, tile, progress, approx, info: as in :func:`rectify`
             (the approximate mapping's check catches rough DEMs: chunks
             whose check error exceeds ``approx`` are mapped exactly).
+        occlusion: ``None`` (no test) or ``"mark"``: cells the DEM (a DSM) hides from the image
+            become ``nodata`` (:func:`photax.occlusion_mask` with its defaults).
 
     Returns:
         ``(ortho, grid)``: the ``(..., rows, cols)`` orthophoto in the input
@@ -134,10 +140,53 @@ def orthorectify(
     model = check_ortho_inputs(exterior, camera, dem, grid)
     bands = int(np.prod(image.shape[:-2], dtype=np.int64))
     check_output_size(grid.shape, bands, image.dtype, hint=lambda: gsd_hint(exterior, camera, dem, grid))
+    if occlusion not in (None, "mark"):
+        raise ValueError(f"occlusion must be None or 'mark', got {occlusion!r}")
     out = rectify(
         image, model, grid, resampling=resampling, nodata=nodata, tile=tile, progress=progress, approx=approx, info=info
     )
+    if occlusion == "mark":
+        from ._tiling import _fill_value
+
+        out[..., occluded(model, grid)] = _fill_value(out.dtype, nodata)
     return out, grid
+
+
+def occlusion_mask(
+    exterior,
+    camera,
+    dsm: DEM,
+    grid: Grid,
+    *,
+    supersample: int = 2,
+    tolerance: float | None = None,
+    buffer_cell: int | None = None,
+) -> np.ndarray:
+    """Which cells of an output grid a DSM hides from an image: a z-buffer of the DSM's surface
+    in the image (:mod:`photax.rectification._occlusion`).
+
+    Args:
+        exterior, camera: the image's orientation, as in :func:`orthorectify` (a frame camera and
+            its exterior orientation, depth = distance to the projection centre; or ``None`` and an
+            RPC / push-broom camera, depth = -height along its nearly parallel rays).
+        dsm: the surface model (buildings, trees: a DSM, not a bare-earth DEM), in the frame's
+            ground CRS (an RPC's: ellipsoidal heights, any CRS).
+        grid: the output grid.
+        supersample: surface samples per DSM cell (or per buffer cell, the finer) along each
+            axis (walls are sampled by the bilinear DSM at these points).
+        tolerance: depth margin (m) before a cell counts as hidden; default twice the larger of
+            the grid cell and the buffer cell's ground size.
+        buffer_cell: buffer cell edge in image pixels; default about one grid cell's image size.
+
+    Returns:
+        ``(rows, cols)`` bool, True where the cell's surface point is hidden by a nearer surface;
+        False where it is visible and where it is not imaged at all (off the image, no DSM height:
+        the ortho is nodata there anyway).
+    """
+    if not isinstance(grid, Grid):
+        raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
+    model = check_ortho_inputs(exterior, camera, dsm, grid)
+    return occluded(model, grid, supersample=supersample, tolerance=tolerance, buffer_cell=buffer_cell)
 
 
 def check_ortho_inputs(exterior, camera, dem: DEM, grid: Grid) -> OrthoModel:
