@@ -30,8 +30,8 @@ SRC = ROOT / "src" / "photax"
 STAGES = [
     ("Model: cameras, orientations, rotations, terrain",
      "The ground floor: camera models, exterior orientation and the collinearity equations, rotation "
-     "conventions, the DEM and the output grid, satellite sensors and the earth.",
-     ["camera", "collinearity", "rotation", "dem", "grid", "sensor", "earth", "rpc", "pushbroom"]),
+     "conventions, the DEM and the output grid, satellite sensors, the earth and its coordinate systems.",
+     ["camera", "collinearity", "rotation", "dem", "grid", "sensor", "earth", "geo", "rpc", "pushbroom"]),
     ("Estimation: resection, intersection, bundle adjustment",
      "Orientations and their precision from measurements: space resection, intersection, interior "
      "orientation of scans, bundle adjustment, georeferencing, RPC refinement and block adjustment.",
@@ -52,6 +52,9 @@ STAGES = [
      "Points found between images: GCP transfer, tie points, epipolar pairs, registration to an "
      "ortho and image-to-image co-registration.",
      ["matching"]),
+    ("Surfaces: dense stereo, point clouds, DSMs",
+     "Disparities of epipolar pairs triangulated into points, rasterised into DSMs and fused.",
+     ["stereo"]),
     ("Image measurement (photax.measure)",
      "Edge and interest operators, the Hough transform and the sub-pixel locators.",
      ["measure"]),
