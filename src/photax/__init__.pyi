@@ -2,6 +2,7 @@
 
 from . import fusion as fusion
 from . import measure as measure
+from . import stereo as stereo
 from .bundle import (
     BundleProblem as BundleProblem,
 )
@@ -86,6 +87,7 @@ from .io import (
     write_json as write_json,
 )
 from .io.lazy import to_raster as to_raster
+from .matching import AffineEpipolarPair as AffineEpipolarPair
 from .matching import CoRegistration as CoRegistration
 from .matching import (
     EpipolarPair as EpipolarPair,
