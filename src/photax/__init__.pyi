@@ -102,6 +102,8 @@ from .matching import (
     Transfer as Transfer,
 )
 from .matching import coregister as coregister
+from .matching import disparity as disparity
+from .matching import disparity_range_from_ties as disparity_range_from_ties
 from .matching import (
     epipolar_pair as epipolar_pair,
 )

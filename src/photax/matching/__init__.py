@@ -16,7 +16,8 @@ measurement (:mod:`photax.measure`'s operators) and bundle adjustment.
 * :mod:`.epipolar_affine` -- the same for two RPC / push-broom images over a tile: s2p's local affine
   rectification, with its residual vertical disparity (:class:`AffineEpipolarPair`);
 * :mod:`.coregister` -- image-to-image registration: global and local shifts by phase correlation,
-  reliability tests, an affine / polynomial / TPS model (:func:`coregister`).
+  reliability tests, an affine / polynomial / TPS model (:func:`coregister`);
+* :mod:`.sgm` -- dense disparity maps of epipolar pairs by semi-global matching (:func:`disparity`).
 """
 
 from ._predict import monoplot_pixels as monoplot_pixels
@@ -29,6 +30,8 @@ from .epipolar import epipolar_pair as epipolar_pair
 from .epipolar_affine import AffineEpipolarPair as AffineEpipolarPair
 from .registration import Registration as Registration
 from .registration import register_to_ortho as register_to_ortho
+from .sgm import disparity as disparity
+from .sgm import disparity_range_from_ties as disparity_range_from_ties
 from .ties import TiePoints as TiePoints
 from .ties import bundle_problem as bundle_problem
 from .ties import match_ties as match_ties
