@@ -13,6 +13,9 @@ from ._dsm import fill_holes as fill_holes
 from ._dsm import fuse_dsms as fuse_dsms
 from ._dsm import rasterize_points as rasterize_points
 from ._dsm import write_cog as write_cog
+from ._pipeline import frame_disparity_range as frame_disparity_range
+from ._pipeline import pair_points as pair_points
+from ._pipeline import reduce as reduce
 from ._points import PointCloud as PointCloud
 from ._points import read_ply as read_ply
 from ._triangulate import SIGMA_DISPARITY as SIGMA_DISPARITY

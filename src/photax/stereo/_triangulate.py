@@ -194,16 +194,21 @@ def default_crs(pair):
     return utm_crs(*np.asarray(pair.camera_left.ground_box()[0], dtype=float))
 
 
-def _matches(pair, disparity, step):
+def _matches(pair, disparity, step, zoom):
     d = np.asarray(disparity, dtype=float)
     shape = np.shape(pair.left)[-2:]
-    if d.shape != shape:
-        raise ValueError(f"disparity has shape {d.shape}, the left epipolar image {shape}")
-    rows, cols = np.mgrid[0 : shape[0] : step, 0 : shape[1] : step]
+    want = (shape[0] // zoom, shape[1] // zoom)
+    if d.shape != want:
+        raise ValueError(
+            f"disparity has shape {d.shape}, the left epipolar image {shape}"
+            + (f" reduced {zoom} times: {want}" if zoom > 1 else "")
+        )
+    rows, cols = np.mgrid[0 : d.shape[0] : step, 0 : d.shape[1] : step]
     dd = d[rows, cols]
     ok = np.isfinite(dd)
-    left = np.column_stack([cols[ok], rows[ok]]).astype(float)
-    return left, dd[ok], (rows[ok], cols[ok])
+    # a reduced pixel is the mean of zoom x zoom full pixels: its centre is at (c + 0.5) zoom - 0.5
+    left = (np.column_stack([cols[ok], rows[ok]]).astype(float) + 0.5) * zoom - 0.5
+    return left, dd[ok] * zoom, (rows[ok], cols[ok])
 
 
 def disparity_to_points(
@@ -214,6 +219,7 @@ def disparity_to_points(
     colour=None,
     crs=None,
     step: int = 1,
+    zoom: int = 1,
     max_residual: float | None = 1.0,
 ) -> PointCloud:
     """The points of a disparity map of an epipolar pair (``d = col_left - col_right``, NaN invalid).
@@ -229,6 +235,9 @@ def disparity_to_points(
         crs: ground cameras: the points' map CRS (default the UTM zone of the scene); frame: the
             orientations' CRS, recorded as it is.
         step: every ``step``-th row and column.
+        zoom: the disparity map is of the epipolar pair reduced ``zoom`` times (block means:
+            :func:`reduce`): its pixel ``(c, r)`` is the full array's ``((c + 0.5) zoom - 0.5, ...)`` and
+            its disparities are in reduced pixels; ``colour`` then defaults to none.
         max_residual: points with a larger intersection residual (px) are dropped (None: keep all).
 
     Returns:
@@ -239,9 +248,11 @@ def disparity_to_points(
 
     if not sigma_disparity > 0:
         raise ValueError(f"sigma_disparity must be > 0, got {sigma_disparity}")
-    if int(step) < 1:
-        raise ValueError(f"step must be >= 1, got {step}")
-    left, d, (ri, ci) = _matches(pair, disparity, int(step))
+    if int(step) < 1 or int(zoom) < 1:
+        raise ValueError(f"step and zoom must be >= 1, got {step}, {zoom}")
+    if colour is None and int(zoom) > 1:
+        colour = False
+    left, d, (ri, ci) = _matches(pair, disparity, int(step), int(zoom))
     xyz, residual, zs = _triangulate_epipolar(pair, left, d, sigma_disparity, crs)
     keep = np.all(np.isfinite(xyz), axis=1)
     if max_residual is not None:
@@ -250,6 +261,8 @@ def disparity_to_points(
     if colour is not False:
         src = np.asarray(pair.left if colour is None else colour, dtype=float)
         src = src[None] if src.ndim == 2 else src
+        if src.shape[-2:] != np.shape(disparity):
+            raise ValueError(f"colour has shape {src.shape}, the disparity map {np.shape(disparity)}")
         vals = src[:, ri, ci].T
         if vals.shape[1] == 1:
             vals = np.repeat(vals, 3, axis=1)
