@@ -35,7 +35,7 @@ def test_dsm_of_the_drone_images_against_odm(tmp_path, capsys):
     out = tmp_path / "dsm.tif"
     rc = main([
         "dsm", *map(str, images), "--camera", str(recon), "--exterior", str(recon), "--heights", "40", "140",
-        "--zoom", "2", "--resolution", str(transform.a), "--bounds", *map(str, bounds), "-o", str(out),
+        "--zoom", "4", "--resolution", str(transform.a), "--bounds", *map(str, bounds), "-o", str(out),
         "--no-progress",
     ])  # fmt: skip
     text = capsys.readouterr()

@@ -10,6 +10,8 @@ into the GeoTIFFs, as satellite images come; ``photax dsm --camera rpc`` sees on
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import rasterio
@@ -121,3 +123,25 @@ def test_dsm_blank_and_bad_input(rendered, tmp_path, capsys):
     assert main(["dsm", str(a), str(b), "--camera", "rpc", "--exterior", str(a), "-o", str(out)]) == 2
     err = capsys.readouterr().err
     assert "at least two images" in err and "H_MAX" in err and "own orientation" in err
+
+
+def test_epipolar_command_with_rpcs(rendered, tmp_path, capsys):
+    (a, b), cams, _, _ = rendered
+    prefix = tmp_path / "pair"
+    rc = main(["epipolar", str(a), str(b), "--camera", "rpc", "--bounds", "0", "0", "99", "99",
+               "--heights", "100", "260", "-o", str(prefix)])  # fmt: skip
+    assert rc == 0, capsys.readouterr().err
+    assert "residual vertical disparity" in capsys.readouterr().out
+    info = json.loads((tmp_path / "pair.json").read_text())
+    assert info["vertical_residual_px"] <= 0.5
+    # the affine maps put a rigorous correspondence on one row (the cameras' own geometry, not the RPCs')
+    h_l, h_r = np.asarray(info["affine_left"]), np.asarray(info["affine_right"])
+    px = np.array([[50.0, 50.0]])
+    ll = np.asarray(cams[0].to_ground(px, np.array([180.0])))
+    pr = np.asarray(cams[1](np.column_stack([ll, [180.0]])))
+    row_l = (h_l @ np.r_[px[0], 1.0])[1]
+    row_r = (h_r @ np.r_[pr[0], 1.0])[1]
+    assert abs(row_l - row_r) <= 0.5
+    with rasterio.open(tmp_path / "pair_left.tif") as src:
+        assert src.count == 1 and src.height > 50
+    assert main(["epipolar", str(a), str(b), "--camera", "rpc", "--exterior", str(a), "-o", str(prefix)]) == 2

@@ -193,6 +193,7 @@ def epipolar_pair(
     camera_right=None,
     bounds=None,
     heights=None,
+    max_area: float = _MAX_AREA,
 ):
     """Resample two images of one camera into an epipolar (normalised) pair.
 
@@ -212,6 +213,8 @@ def epipolar_pair(
         exterior_left, exterior_right: the two images' exterior orientations.
         resampling: kernel of :func:`photax.resample` (default cubic convolution).
         nodata: value outside the original images (default NaN / 0 for integers).
+        max_area: the largest epipolar image allowed, in original image areas (default 4:
+            convergent oblique views, whose epipolar images grow large, need more).
 
     Returns:
         :class:`EpipolarPair`.
@@ -226,8 +229,10 @@ def epipolar_pair(
     if not isinstance(camera, FrameCamera) or camera_right is not None:
         return _ground_pair(
             image_left, image_right, camera, camera_right, exterior_left, exterior_right,
-            resampling=resampling, nodata=nodata, bounds=bounds, heights=heights,
+            resampling=resampling, nodata=nodata, bounds=bounds, heights=heights, max_area=max_area,
         )  # fmt: skip
+    if not max_area > 0:
+        raise ValueError(f"max_area must be > 0, got {max_area}")
     if bounds is not None or heights is not None:
         raise ValueError("bounds= and heights= are for two ground cameras (RPC, push-broom), not a frame pair")
     if exterior_left is None or exterior_right is None:
@@ -264,7 +269,7 @@ def epipolar_pair(
     for side, img in (("left", image_left), ("right", image_right)):
         x_lo, x_hi = extent[side][:2]
         cols = int(np.ceil(x_hi - x_lo)) + 1
-        if cols * rows > _MAX_AREA * w * h:
+        if cols * rows > max_area * w * h:
             raise ValueError(
                 f"the {side} epipolar image would be {cols} x {rows} px for a {w} x {h} image: "
                 "the views are too oblique or convergent for epipolar resampling"
@@ -307,4 +312,5 @@ def _ground_pair(image_left, image_right, camera, camera_right, exterior_left, e
             )
     if exterior_left is not None or exterior_right is not None:
         raise ValueError("RPC and push-broom cameras carry their own orientation: pass no exterior orientations")
+    options.pop("max_area", None)
     return affine_epipolar_pair(image_left, image_right, camera, camera_right, **options)

@@ -80,6 +80,7 @@ def pair_points(
     crs=None,
     sigma_disparity: float = 0.3,
     matcher: dict | None = None,
+    max_area: float = 16.0,
 ) -> tuple[PointCloud, dict]:
     """Points of one stereo pair (module docstring).
 
@@ -92,6 +93,8 @@ def pair_points(
             pixels needs no full-resolution matching, and the search range shrinks as much.
         crs: the points' CRS (RPC: the map CRS they are transformed into).
         matcher: keyword arguments for :func:`photax.disparity`.
+        max_area: a frame pair's largest epipolar image, in original image areas (convergent
+            oblique views need more than :func:`photax.epipolar_pair`'s default 4).
 
     Returns:
         ``(PointCloud, info)``, ``info`` with ``disparity_range`` (reduced px), ``valid`` (share of the
@@ -103,13 +106,13 @@ def pair_points(
     zoom = int(zoom)
     if zoom < 1:
         raise ValueError(f"zoom must be >= 1, got {zoom}")
-    images = [np.asarray(i, dtype=np.float32) for i in (image_left, image_right)]
+    images = [_grey(i).astype(np.float32) for i in (image_left, image_right)]  # one band resampled, not three
     if isinstance(camera, tuple) or camera_right is not None:
         pair = epipolar_pair(*images, camera, None, None, camera_right=camera_right, bounds=bounds, heights=heights)
     else:
         if bounds is not None:
             raise ValueError("bounds= is for RPC / push-broom pairs")
-        pair = epipolar_pair(*images, camera, exterior_left, exterior_right)
+        pair = epipolar_pair(*images, camera, exterior_left, exterior_right, max_area=max_area)
     if isinstance(pair, EpipolarPair):
         d_lo, d_hi = frame_disparity_range(pair, heights)
     else:
