@@ -163,7 +163,6 @@ def test_nan_input_gives_nan_output():
     assert np.nanmedian(np.abs(got - d)[3:-3, 70:-3]) < 0.25
 
 
-@pytest.mark.slow  # 37 s measured on the 2-core machine at load 13 (most of it compiling the 741 x 500 x 64 volume)
 def test_motorcycle_against_ground_truth_and_sgbm():
     """Middlebury Motorcycle (741 x 500, disparities 7-60 px, the issue's pair): bad-2.0 within the
     issue's bounds (<= 5 % of photax's own estimates, <= 15 % of all ground-truth pixels with a missing

@@ -2,6 +2,7 @@
 
 from . import fusion as fusion
 from . import measure as measure
+from . import stereo as stereo
 from .bundle import (
     BundleProblem as BundleProblem,
 )
@@ -104,6 +105,7 @@ from .io.satellite import read_rpc as read_rpc
 from .io.satellite import read_sensor as read_sensor
 from .io.satellite import rpc_format as rpc_format
 from .io.satellite import write_rpc as write_rpc
+from .matching import AffineEpipolarPair as AffineEpipolarPair
 from .matching import CoRegistration as CoRegistration
 from .matching import (
     EpipolarPair as EpipolarPair,

@@ -32,6 +32,7 @@ SUBCOMMANDS = [
     "measure",
     "fiducials",
     "epipolar",
+    "dsm",
     "transfer",
     "ties",
     "register",

@@ -9,7 +9,14 @@ with ``--exterior-left`` / ``--exterior-right``).  Writes
 rows are epipolar lines; their transform is the pixel grid itself, x = col,
 y = row) and ``OUT.json`` with the epipolar
 rotation, principal distance, baseline and each side's pixel offsets
-(:class:`photax.EpipolarPair`).  Exit codes: 0 done, 2 bad input.
+(:class:`photax.EpipolarPair`).
+
+Two satellite images (``--camera rpc``: each image's own RPC, or a ``rpc_param.yaml`` naming both;
+no exterior) are rectified over a tile of the left image (``--bounds COL0 ROW0 COL1 ROW1``, default
+all of it) for terrain within ``--heights H_MIN H_MAX`` (default the RPCs' validity range) by s2p's
+local affine approximation (:class:`photax.AffineEpipolarPair`); ``OUT.json`` then holds both
+sides' affine maps (original pixel -> epipolar pixel), the disparity range and the residual
+vertical disparity, which the command also prints.  Exit codes: 0 done, 2 bad input.
 """
 
 from __future__ import annotations
@@ -36,8 +43,12 @@ def add_parser(sub) -> None:
         dest="camera",
         required=True,
         metavar="CAMERA_FILE",
-        help="photax camera file or orthority interior YAML",
+        help="photax camera file or orthority interior YAML; or 'rpc' (each image's RPC) or a rpc_param.yaml",
     )
+    p.add_argument("--bounds", type=float, nargs=4, metavar=("COL0", "ROW0", "COL1", "ROW1"),
+                   help="RPC images: the left tile to rectify (left pixels; default the whole image)")  # fmt: skip
+    p.add_argument("--heights", type=float, nargs=2, metavar=("H_MIN", "H_MAX"),
+                   help="RPC images: the terrain's ellipsoidal height range (default the RPCs' validity range)")  # fmt: skip
     p.add_argument("--exterior", help="orientation file holding both images (resect -o or orthority CSV)")
     p.add_argument("--exterior-left", metavar="FILE", help="the left image's orientation file")
     p.add_argument("--exterior-right", metavar="FILE", help="the right image's orientation file")
@@ -61,6 +72,12 @@ def run(args: argparse.Namespace) -> int:
 
     input_file(args.left, "left image")
     input_file(args.right, "right image")
+    from .ortho import _is_ground
+
+    if _is_ground(args.camera):
+        return _run_rpc(args)
+    if args.bounds is not None or args.heights is not None:
+        raise ValueError("--bounds and --heights: for RPC images only")
     input_file(args.camera, "camera file")
     if (args.exterior is None) == (args.exterior_left is None and args.exterior_right is None):
         raise ValueError("give --exterior (both images) or --exterior-left and --exterior-right")
@@ -107,5 +124,60 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"wrote {outs[0]} ({pair.left.shape[-1]} x {pair.left.shape[-2]}), {outs[1]} "
         f"({pair.right.shape[-1]} x {pair.right.shape[-2]}) and {outs[2]}; baseline {pair.baseline:.4g}"
+    )
+    return 0
+
+
+def _run_rpc(args: argparse.Namespace) -> int:
+    """Two RPC images: the affine epipolar pair of a tile (module docstring)."""
+    import numpy as np
+
+    from ..io.atomic import check_output_path
+    from ..io.raster import read_geotiff, write_geotiff
+    from ..io.results import write_json
+    from ..matching import epipolar_pair
+    from ._common import input_file
+    from .ortho import _image_camera
+
+    if args.exterior or args.exterior_left or args.exterior_right:
+        raise ValueError("--exterior: RPC images carry their own orientation")
+    source = None if args.camera == "rpc" else input_file(args.camera, "camera file")
+    if source is not None and source.suffix.lower() not in (".yaml", ".yml"):
+        raise ValueError(f"--camera {source}: one RPC file for two images; use --camera rpc or a rpc_param.yaml")
+    left, right = pathlib.Path(args.left), pathlib.Path(args.right)
+    cameras = [_image_camera(source, image, True, False) for image in (left, right)]
+    inputs = [args.left, args.right, *([source] if source else [])]
+    out = pathlib.Path(args.out)
+    outs = [out.with_name(out.name + s) for s in ("_left.tif", "_right.tif", ".json")]
+    for o in outs:
+        check_output_path(o, inputs)
+    img_l, _ = read_geotiff(args.left)
+    img_r, _ = read_geotiff(args.right)
+    pair = epipolar_pair(
+        img_l.astype(np.float32), img_r.astype(np.float32), cameras[0], None, None, camera_right=cameras[1],
+        bounds=args.bounds, heights=args.heights, resampling=args.resampling,
+    )  # fmt: skip
+    pixel = (1.0, 0.0, -0.5, 0.0, 1.0, -0.5)
+    write_geotiff(outs[0], pair.left.astype(np.float32), pixel, nodata=np.nan, inputs=inputs)
+    write_geotiff(outs[1], pair.right.astype(np.float32), pixel, nodata=np.nan, inputs=inputs)
+    write_json(
+        {
+            "affine_left": pair.homography_left,
+            "affine_right": pair.homography_right,
+            "bounds_left": list(pair.bounds),
+            "heights": list(pair.heights),
+            "disparity_range": list(pair.disparity_range),
+            "vertical_residual_px": pair.vertical_residual,
+            "vertical_rms_px": pair.vertical_rms,
+            "pixels": "epipolar (col, row, 1) = affine @ original (col, row, 1); d = col_left - col_right",
+        },
+        outs[2],
+        inputs=inputs,
+    )
+    print(
+        f"wrote {outs[0]} ({pair.left.shape[-1]} x {pair.left.shape[-2]}), {outs[1]} "
+        f"({pair.right.shape[-1]} x {pair.right.shape[-2]}) and {outs[2]}; disparities "
+        f"{pair.disparity_range[0]}..{pair.disparity_range[1]}, residual vertical disparity "
+        f"{pair.vertical_residual:.3f} px (RMS {pair.vertical_rms:.3f})"
     )
     return 0

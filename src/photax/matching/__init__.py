@@ -13,6 +13,8 @@ measurement (:mod:`photax.measure`'s operators) and bundle adjustment.
   its exterior orientation (:func:`register_to_ortho`);
 * :mod:`.epipolar` -- epipolar (normalised) image pairs, where stereo
   correspondences lie on rows, and points from x-parallax (:func:`epipolar_pair`);
+* :mod:`.epipolar_affine` -- the same for two RPC / push-broom images over a tile: s2p's local affine
+  rectification, with its residual vertical disparity (:class:`AffineEpipolarPair`);
 * :mod:`.coregister` -- image-to-image registration: global and local shifts by phase correlation,
   reliability tests, an affine / polynomial / TPS model (:func:`coregister`);
 * :mod:`.sgm` -- dense disparity maps of epipolar pairs by semi-global matching (:func:`disparity`).
@@ -25,6 +27,7 @@ from .coregister import coregister as coregister
 from .coregister import phase_correlation as phase_correlation
 from .epipolar import EpipolarPair as EpipolarPair
 from .epipolar import epipolar_pair as epipolar_pair
+from .epipolar_affine import AffineEpipolarPair as AffineEpipolarPair
 from .registration import Registration as Registration
 from .registration import register_to_ortho as register_to_ortho
 from .sgm import disparity as disparity

@@ -184,14 +184,26 @@ def epipolar_frame(exterior_left: ExteriorOrientation, exterior_right: ExteriorO
 def epipolar_pair(
     image_left,
     image_right,
-    camera: FrameCamera,
-    exterior_left: ExteriorOrientation,
-    exterior_right: ExteriorOrientation,
+    camera,
+    exterior_left: ExteriorOrientation | None = None,
+    exterior_right: ExteriorOrientation | None = None,
     *,
     resampling: Resampling | str = "cubic",
     nodata=None,
-) -> EpipolarPair:
+    camera_right=None,
+    bounds=None,
+    heights=None,
+    max_area: float = _MAX_AREA,
+):
     """Resample two images of one camera into an epipolar (normalised) pair.
+
+    Two satellite images (``camera`` and ``camera_right`` ground cameras: :class:`photax.RPCCamera`,
+    :class:`photax.PushbroomCamera`; no exterior orientations) are rectified over a tile of the left
+    image (``bounds`` ``(col0, row0, col1, row1)``, default all of it) by the local affine
+    approximation of s2p, for terrain within ``heights`` ``(h_min, h_max)`` (default the RPCs'
+    validity range): :func:`photax.matching.epipolar_affine.affine_epipolar_pair`, which returns an
+    :class:`~photax.matching.epipolar_affine.AffineEpipolarPair` reporting the residual vertical
+    disparity.  ``camera`` may also be the pair ``(camera_left, camera_right)``.
 
     Args:
         image_left, image_right: ``(..., H, W)`` images, ``(W, H) ==
@@ -201,6 +213,8 @@ def epipolar_pair(
         exterior_left, exterior_right: the two images' exterior orientations.
         resampling: kernel of :func:`photax.resample` (default cubic convolution).
         nodata: value outside the original images (default NaN / 0 for integers).
+        max_area: the largest epipolar image allowed, in original image areas (default 4:
+            convergent oblique views, whose epipolar images grow large, need more).
 
     Returns:
         :class:`EpipolarPair`.
@@ -210,6 +224,19 @@ def epipolar_pair(
             baseline along the viewing direction, or epipolar images more
             than 4 times the originals' area.
     """
+    if isinstance(camera, tuple) and len(camera) == 2 and camera_right is None:
+        camera, camera_right = camera
+    if not isinstance(camera, FrameCamera) or camera_right is not None:
+        return _ground_pair(
+            image_left, image_right, camera, camera_right, exterior_left, exterior_right,
+            resampling=resampling, nodata=nodata, bounds=bounds, heights=heights, max_area=max_area,
+        )  # fmt: skip
+    if not max_area > 0:
+        raise ValueError(f"max_area must be > 0, got {max_area}")
+    if bounds is not None or heights is not None:
+        raise ValueError("bounds= and heights= are for two ground cameras (RPC, push-broom), not a frame pair")
+    if exterior_left is None or exterior_right is None:
+        raise ValueError("a frame camera needs exterior_left and exterior_right")
     method = Resampling.check(resampling)
     if camera.image_size is None or camera.pixel_size is None:
         raise ValueError("camera must have a pixel grid (image_size and pixel_size)")
@@ -242,7 +269,7 @@ def epipolar_pair(
     for side, img in (("left", image_left), ("right", image_right)):
         x_lo, x_hi = extent[side][:2]
         cols = int(np.ceil(x_hi - x_lo)) + 1
-        if cols * rows > _MAX_AREA * w * h:
+        if cols * rows > max_area * w * h:
             raise ValueError(
                 f"the {side} epipolar image would be {cols} x {rows} px for a {w} x {h} image: "
                 "the views are too oblique or convergent for epipolar resampling"
@@ -266,3 +293,24 @@ def epipolar_pair(
         exterior_left=exterior_left,
         exterior_right=exterior_right,
     )
+
+
+def _ground_pair(image_left, image_right, camera, camera_right, exterior_left, exterior_right, **options):
+    """:func:`epipolar_pair` of two ground cameras, their arguments checked."""
+    from ..sensor import GroundCamera
+    from .epipolar_affine import affine_epipolar_pair
+
+    for name, cam in (("camera", camera), ("camera_right", camera_right)):
+        if cam is None:
+            raise ValueError(
+                f"an {type(camera).__name__} pair needs camera_right= (each satellite image has its own camera)"
+            )
+        if isinstance(cam, FrameCamera) or not isinstance(cam, GroundCamera):
+            raise ValueError(
+                f"{name} must be a FrameCamera (with exteriors), or both RPCCamera / PushbroomCamera, "
+                f"got {type(cam).__name__}"
+            )
+    if exterior_left is not None or exterior_right is not None:
+        raise ValueError("RPC and push-broom cameras carry their own orientation: pass no exterior orientations")
+    options.pop("max_area", None)
+    return affine_epipolar_pair(image_left, image_right, camera, camera_right, **options)
