@@ -40,7 +40,7 @@ root_doc = "index"
 
 # Notebooks: their stored outputs only (tests/test_notebooks.py executes them).  The notebooks are
 # committed without outputs, so their figures appear only in a build that runs them:
-# PHOTAX_DOCS_EXECUTE=1 sphinx-build ... (myst-nb's "cache" mode, minutes; needs ../shared/data for 07, 08).
+# PHOTAX_DOCS_EXECUTE=1 sphinx-build ... (myst-nb's "cache" mode, minutes; 07 and 08 need the public data sets).
 nb_execution_mode = "cache" if os.environ.get("PHOTAX_DOCS_EXECUTE") == "1" else "off"
 nb_execution_timeout = 900
 myst_enable_extensions = ["dollarmath", "amsmath", "colon_fence", "deflist"]

@@ -39,11 +39,11 @@ from photax.scene import render_image
 X0, Y0, FLY = 500_000.0, 4_000_000.0, 320.0  # UTM-like ground origin, flying height (m)
 W, H = 360, 240
 camera = ptx.FrameCamera.from_pixels(300.0, (W, H))  # 300 px principal distance: ~1 m per pixel
-cell, n = 2.0, 240
-c = -240 + cell * (np.arange(n) + 0.5)
+cell, n = 2.0, 360  # +-360 m: the DEM covers every frame's whole footprint (no PartialDEMWarning)
+c = -360 + cell * (np.arange(n) + 0.5)
 xx, yy = c[None, :], c[:, None]
 heights = 20 + 15 * np.exp(-((xx - 40) ** 2 + (yy + 30) ** 2) / (2 * 90.0**2)) + 0.02 * xx  # a hill
-dem = ptx.DEM(heights, (cell, 0.0, X0 - 240, 0.0, -cell, Y0 + 240), crs="EPSG:32633")
+dem = ptx.DEM(heights, (cell, 0.0, X0 - 360, 0.0, -cell, Y0 + 360), crs="EPSG:32633")
 
 # Three frames along a strip, 60 % forward overlap, slightly tilted; each with its own
 # exposure (gain 1.0, 1.1, 0.95) -- the radiometric difference a mosaic has to hide.

@@ -37,6 +37,7 @@ The same chain from the shell is in the README ("real-block chain"). Resolutions
         """import json
 import pathlib
 import tempfile
+import warnings
 
 import matplotlib.pyplot as plt
 import numpy as np
@@ -407,8 +408,14 @@ CRS); the orthos at 0.5 m, side by side.""",
     shots, drone_crs, _ = read_opensfm_shots(rec, crs=dsm.crs)
     drone = sorted((ODM / "images").glob("*.tif"))
     d_outs = [work / f"{p.stem}_ortho.tif" for p in drone]
-    d_grids = ptx.orthorectify_files(drone, d_outs, [shots[p.stem] for p in drone], drone_cam, dsm,
-                                     resolution=0.5, crs=drone_crs)
+    # ODM's DSM covers the ground it reconstructed, not each image's whole footprint: the orthos are
+    # nodata beyond it (the share below; orthorectify says so with a PartialDEMWarning, expected here)
+    print("the DSM covers", ", ".join(f"{ptx.dem_coverage(shots[p.stem], drone_cam, dsm):.0%}" for p in drone),
+          "of the four images")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", ptx.PartialDEMWarning)
+        d_grids = ptx.orthorectify_files(drone, d_outs, [shots[p.stem] for p in drone], drone_cam, dsm,
+                                         resolution=0.5, crs=drone_crs)
     fig, axes = plt.subplots(1, len(drone), figsize=(14, 4))
     for ax, p, out in zip(axes, drone, d_outs):
         with rasterio.open(out) as src:

@@ -10,6 +10,7 @@ import re
 import numpy as np
 import pytest
 import rasterio
+from conftest import SHARED_DATA
 
 import photax
 
@@ -51,7 +52,7 @@ def test_resection_and_rectification_snippets_run(monkeypatch):
 
 def test_bal_snippet_names_a_file_that_exists_from_the_clone_root():
     code = _snippets()[2]
-    path = re.search(r'read_bal\("([^"]+)"\)', code).group(1)
-    if path.startswith("../shared/") and not (ROOT / path).exists():
-        pytest.skip(f"{path}: the shared data is beside the main checkout, not this worktree")
-    assert os.path.isfile(ROOT / path)
+    name = re.search(r'read_bal\(data / "([^"]+)"\)', code).group(1)  # data: the public data sets' folder
+    if not SHARED_DATA.is_dir():
+        pytest.skip(f"{SHARED_DATA}: the public data sets are not beside this checkout")
+    assert os.path.isfile(SHARED_DATA / name)

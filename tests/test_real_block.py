@@ -13,6 +13,7 @@
 
 import glob
 import json
+import os
 import pathlib
 import re
 import shlex
@@ -65,10 +66,11 @@ def test_readme_real_block_chain_runs_as_written(tmp_path, monkeypatch, capsys):
     (tmp_path / "shared").symlink_to(SHARED_DATA.parent, target_is_directory=True)
     (tmp_path / "clone").mkdir()
     monkeypatch.chdir(tmp_path / "clone")
+    monkeypatch.setenv("DATA", "../shared/data")  # the page's $DATA: the public data sets, beside the clone
     draws_bar = {k for k, p in build_parser().subcommands.items() if "--no-progress" in p._option_string_actions}
     for cmd in cmds:
         argv = []
-        for arg in shlex.split(cmd)[1:]:  # the shell's glob expansion
+        for arg in map(os.path.expandvars, shlex.split(cmd)[1:]):  # the shell's $DATA and glob expansion
             argv += sorted(glob.glob(arg)) or [arg] if "*" in arg else [arg]
         assert main(argv + ["--no-progress"] * (argv[0] in draws_bar)) == 0, cmd
     out = pathlib.Path("out")

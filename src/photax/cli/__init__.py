@@ -15,6 +15,7 @@ import os
 import signal
 import sys
 import threading
+import warnings
 
 # Imported here, not in the handler: a Ctrl-C while main() imported it made the handler's own
 # import fail ("partially initialized module").  Cheap: pathlib, tempfile, threading.
@@ -327,6 +328,27 @@ def _exit(status: int) -> None:
     os._exit(status)
 
 
+@contextlib.contextmanager
+def _told(command: str):
+    """photax's warnings about the run (:class:`photax.errors.PartialDEMWarning`: the DEM covers part of
+    an image, which is nodata there) are one line on stderr each, ``COMMAND: warning: ...``, whatever the
+    interpreter's warning filters (``-W error`` included): the run goes on and its exit status stands."""
+    from ..errors import PartialDEMWarning
+
+    with warnings.catch_warnings():  # restores the filters and showwarning on the way out
+        warnings.simplefilter("always", PartialDEMWarning)
+        others = warnings.showwarning
+
+        def show(message, category, *rest, **kw):
+            if issubclass(category, PartialDEMWarning):
+                print(f"{command}: warning: {message}", file=sys.stderr)
+            else:
+                others(message, category, *rest, **kw)
+
+        warnings.showwarning = show
+        yield
+
+
 def _main(argv: list[str] | None) -> int:
     command = ["photax"]  # a list: the SIGTERM handler sees the subcommand once it is known
 
@@ -349,7 +371,7 @@ def _main(argv: list[str] | None) -> int:
 
             if not getattr(args, "starts_gc", False):  # else the command says when its start-up ends
                 start_gc()
-            with recording_inputs():  # every file read is an input: never an output (photax.io.atomic)
+            with recording_inputs(), _told(command[0]):  # every file read is an input (photax.io.atomic)
                 status = int(args.func(args) or 0)
     except KeyboardInterrupt:
         return stopped()
