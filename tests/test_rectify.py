@@ -238,10 +238,10 @@ def test_orthorectify_masks_nodata_dem_and_behind_camera():
     xy = grid.xy()
     assert np.all(np.isnan(ortho[xy[..., 0] < -55.0]))  # DEM nodata (incl. its bilinear rim)
     assert np.all(ortho[(xy[..., 0] > -40.0) & (np.abs(xy[..., 0]) < 50) & (np.abs(xy[..., 1]) < 40)] == 9.0)
-    # A camera below the ground looking down: everything is behind it.
+    # A camera below the ground looking down: everything is behind it, an all-nodata ortho: refused.
     under = photax.look_at([0.0, 0.0, -50.0], [0.0, 0.0, -100.0])
-    out, _ = photax.orthorectify(image, under, camera, dem, grid)
-    assert np.all(np.isnan(out))
+    with pytest.raises(photax.OutsideValidityError, match="the DEM covers none of the image"):
+        photax.orthorectify(image, under, camera, dem, grid)
     with pytest.raises(ValueError, match="image_size"):
         photax.orthorectify(image.T, exterior, camera, dem, grid)
 
