@@ -115,6 +115,7 @@ def test_no_import_cycle():
 # Private utility modules other units may import from (each says so in its docstring).
 PRIVATE_UTILITIES = (
     "photax._aot",
+    "photax._values",
     "photax._deprecation",
     "photax._float64",
     "photax._lazy",

@@ -63,7 +63,7 @@ async def _run_all(kernel_dir: pathlib.Path) -> dict:
             nb.cells.insert(0, nbformat.v4.new_code_cell(_RESET))
             nb.cells.append(nbformat.v4.new_code_cell("import sys; print(sys.executable)"))
             client = nbclient.NotebookClient(
-                nb, km=km, timeout=scaled(600), resources={"metadata": {"path": str(NB_DIR)}}
+                nb, km=km, timeout=int(scaled(600)), resources={"metadata": {"path": str(NB_DIR)}}
             )
             try:
                 done[path] = await client.async_execute(cleanup_kc=False)

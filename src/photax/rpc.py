@@ -202,7 +202,7 @@ class RPCCamera(Module):
         missing = [k for k in keys if rpc.get(k) is None]
         if missing:
             raise ValueError(f"RPC: missing {', '.join(missing)}")
-        from .io.files import as_numbers, excerpt
+        from ._values import as_numbers, excerpt
 
         def numbers(key, value, what):  # a list, mapping, text or null is the RPC's error, not numpy's
             v = as_numbers(value)

@@ -20,9 +20,9 @@ import pathlib
 import re
 import stat
 
-import numpy as np
 import yaml
 
+from .._values import as_numbers, excerpt  # noqa: F401 -- io's names too; below io, for the models
 from ..errors import UnreadableFileError
 
 
@@ -158,18 +158,6 @@ def read_bytes(path, what: str = "file") -> bytes:
     return raw
 
 
-def excerpt(value, n: int = 40) -> str:
-    """A short printable quotation of ``value`` for an error message: ``repr``
-    of its text with control and other unprintable characters escaped, cut
-    after ``n`` characters (``'abc…'``).  Quote file content only through this,
-    and only from a file that is of the expected format."""
-    if not isinstance(value, str):  # a number, a list: its repr (which escapes what it quotes), cut
-        text = repr(value)
-        return text if len(text) <= n else text[:n] + "…"
-    body = repr(value[:n])
-    return body if len(value) <= n else body[:-1] + "…" + body[-1]
-
-
 # Parser messages quote the text they stopped at; of a file that did not parse
 # only a character or a token name (``'\t'``, ``'<scalar>'``) is kept.
 _QUOTED = re.compile(r"(['\"])(?!<)[^'\"]{5,}\1")
@@ -202,25 +190,6 @@ def split_lines(text: str) -> list[str]:
     dropped (``str.splitlines`` also splits at form feeds, ``\\x1c``, U+2028, ...,
     which would make every line number after them wrong)."""
     return [ln[:-1] if ln.endswith("\r") else ln for ln in text.split("\n")]
-
-
-def as_numbers(value):
-    """``value`` (a number or nested lists of numbers) as float64, or None if
-    it is not one.  Text that reads as a number counts (PyYAML follows YAML
-    1.1, where ``1e-5`` without a dot is a string); booleans and nulls do not
-    (``true`` is not 1)."""
-
-    def conv(v):
-        if isinstance(v, (list, tuple)):
-            return [conv(x) for x in v]
-        if isinstance(v, bool) or not isinstance(v, (int, float, str)):
-            raise TypeError
-        return float(v) if isinstance(v, str) else v
-
-    try:
-        return np.asarray(conv(value), dtype=float)
-    except (TypeError, ValueError, OverflowError, RecursionError):
-        return None
 
 
 def number(path, line: int | None, text, what: str) -> float:
