@@ -1,5 +1,6 @@
 """Test configuration: float64 and strict promotion, as optimistix does."""
 
+import gc
 import importlib.util
 import os
 import pathlib
@@ -89,6 +90,31 @@ def spawn():
             p.communicate(timeout=60)  # reaped, its pipes closed
         except subprocess.TimeoutExpired:
             pass
+
+
+def _mappings() -> int:
+    """How many memory mappings this process has (Linux; 0 elsewhere)."""
+    try:
+        with open("/proc/self/maps", "rb") as fh:
+            return fh.read().count(b"\n")
+    except OSError:
+        return 0
+
+
+@pytest.hookimpl(trylast=True)  # after the module's fixtures are finalised
+def pytest_runtest_teardown(item, nextitem):
+    """Compiled code released between test modules, and whenever a worker holds many mappings.
+
+    Each XLA:CPU executable maps its code into the process, and JAX keeps every executable a jitted
+    function has made.  A long-lived xdist worker that ran hundreds of tests' own ``jax.jit``s
+    reached Linux's ``vm.max_map_count`` (65,530 mappings): the next compilation's mmap failed,
+    XLA threw, and pyceres' glog failure handler, asked for a backtrace inside the unwinder,
+    deadlocked: CI hung for 80 minutes in test_pushbroom_uncertainty (found with py-spy,
+    65,444 mappings).  Clearing JAX's caches keeps a worker near 3,000-7,000 mappings; a later
+    module that needs a program again finds it in the persistent compilation cache."""
+    if nextitem is None or nextitem.module is not item.module or _mappings() > 30_000:
+        jax.clear_caches()
+        gc.collect()
 
 
 def pytest_configure(config):
