@@ -116,6 +116,7 @@ def test_no_import_cycle():
 PRIVATE_UTILITIES = (
     "photax._aot",
     "photax._values",
+    "photax._rasterio",
     "photax._deprecation",
     "photax._float64",
     "photax._lazy",

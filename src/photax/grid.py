@@ -128,17 +128,14 @@ class Grid:
         Raises:
             ValueError: the file is not a raster, or has no georeference.
         """
-        import warnings
-
         import rasterio
 
+        from ._rasterio import open_quietly
         from .errors import UnreadableFileError
 
-        try:  # rasterio itself, not photax.io: the grid is a lower stage than the readers
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-                with rasterio.open(path) as src:
-                    transform, shape, crs = src.transform, (src.height, src.width), src.crs
+        try:  # not photax.io: the grid is a lower stage than the readers
+            with open_quietly(path) as src:
+                transform, shape, crs = src.transform, (src.height, src.width), src.crs
         except rasterio.errors.RasterioIOError as exc:
             raise UnreadableFileError(f"{path}: not a raster GDAL can read ({exc})") from None
         if transform == Affine.identity():

@@ -18,13 +18,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._rasterio import open_quietly
 from ..errors import UnreadableFileError, UnsupportedFormatError
 from .atomic import atomic_path
 
 if TYPE_CHECKING:
     from ..dem import DEM
-
-_WARNINGS_LOCK = threading.Lock()
 
 
 def open_raster(path):
@@ -41,11 +40,7 @@ def open_raster(path):
     except FileNotFoundError:
         raise FileNotFoundError(f"no such raster file: {path}") from None
     try:
-        # catch_warnings swaps process-wide filters: two threads (Dask workers
-        # reading windows) interleaving it could restore the other's filters mid-open.
-        with _WARNINGS_LOCK, warnings.catch_warnings():
-            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
-            return rasterio.open(path)
+        return open_quietly(path)
     except rasterio.errors.RasterioIOError as exc:
         raise UnsupportedFormatError(f"{path}: not a raster GDAL can read ({exc})") from None
 
