@@ -209,3 +209,20 @@ def test_motorcycle_against_ground_truth_and_sgbm():
 def test_bad_input_is_refused(left, right, kw, match):
     with pytest.raises(ValueError, match=match):
         ptx.disparity(left, right, **kw)
+
+
+def test_whole_range_leaves_the_band_without_every_candidate_empty():
+    """Left columns whose true match lies outside the right image (``col < d``): with ``whole_range``
+    every column where some candidate ``col - d`` falls outside the right image is NaN, and the
+    disparities elsewhere are the same as without it (the cost volume and aggregation do not change)."""
+    rng = np.random.default_rng(3)
+    right = rng.random((40, 100))
+    left = np.roll(right, 20, axis=1)  # left col c = right col c - 20; cols < 20 come from right's far end
+    base = ptx.disparity(left, right, disparity_range=(0, 30), speckle_size=0)
+    whole = ptx.disparity(left, right, disparity_range=(0, 30), speckle_size=0, whole_range=True)
+    assert np.isnan(whole[:, :30]).all()  # col - 30 < 0 there
+    inner = (slice(2, -2), slice(30, -2))  # the census window's border rows and columns are no match
+    both = np.isfinite(base[inner]) & np.isfinite(whole[inner])
+    assert both.mean() > 0.9
+    np.testing.assert_array_equal(whole[inner][both], base[inner][both])
+    assert np.nanmax(np.abs(whole - 20)) < 0.5

@@ -100,7 +100,8 @@ def _box(a, r: int):
 
 
 def _cost_volume(left, right, dmin: int, ndisp: int, cost: str, window: int):
-    """``(C (h, n, wl) int16, left validity (h, wl))`` for the disparities
+    """``(C (h, n, wl) int16, left validity (h, wl), every candidate on the right image's data (h, wl))``
+    for the disparities
     ``dmin + k``, ``k < n`` (right column = left column - d), disparity-major
     so that the aggregation's minima over ``d`` run across contiguous rows."""
     h, wl = left.shape
@@ -148,8 +149,9 @@ def _cost_volume(left, right, dmin: int, ndisp: int, cost: str, window: int):
     hi_, lo_ = (jax.lax.reduce_window(left, v, op, win, (1, 1), [(r, r), (r, r)])
                 for v, op in ((-jnp.inf, jax.lax.max), (jnp.inf, jax.lax.min)))  # fmt: skip
     okl = okl & (hi_ > lo_)
-    ok = shifted(okr, False) & okl[:, None, :]
-    return jnp.where(ok, c, jnp.int16(nbits // 2)), okl
+    seen = shifted(okr, False)  # (h, n, wl): the candidate's right pixel has data
+    ok = seen & okl[:, None, :]
+    return jnp.where(ok, c, jnp.int16(nbits // 2)), okl, seen.all(1)
 
 
 def _aggregate_step(prev, c, p1, p2):
@@ -223,11 +225,13 @@ def _wta(s, dmin: int, uniqueness):
     return (dmin + k).astype(jnp.float32) + jnp.clip(off, -0.5, 0.5), unique
 
 
-@partial(jax.jit, static_argnames=("dmin", "ndisp", "cost", "window", "paths"))
-def _sgm(left, right, p1, p2, g, uniqueness, lr_check, *, dmin, ndisp, cost, window, paths):
+@partial(jax.jit, static_argnames=("dmin", "ndisp", "cost", "window", "paths", "whole_range"))
+def _sgm(left, right, p1, p2, g, uniqueness, lr_check, *, dmin, ndisp, cost, window, paths, whole_range=False):
     """Disparities ``(h, wl)`` float32 (NaN invalid) of ``left`` against ``right``
     for ``d = dmin + k``, ``k < ndisp``, before speckle removal."""
-    c, okl = _cost_volume(left, right, dmin, ndisp, cost, window)
+    c, okl, whole = _cost_volume(left, right, dmin, ndisp, cost, window)
+    if whole_range:
+        okl = okl & whole
     s = _aggregate(c, left, p1, p2, g, paths)
     dl, unique = _wta(s, dmin, uniqueness)
     h, n, wl = s.shape
@@ -364,6 +368,7 @@ def disparity(
     speckle_range: float = 2.0,
     tile: int | tuple[int, int] | None = None,
     overlap: int = 32,
+    whole_range: bool = False,
 ) -> np.ndarray:
     """Dense disparity map of a rectified (epipolar) pair by semi-global matching.
 
@@ -405,6 +410,15 @@ def disparity(
             (64 MiB of int16; the whole call then peaks near 0.5 GiB), else square tiles of about that volume.
         overlap: pixels of context on every side of a tile (the aggregation
             paths cross it; only the core is kept).
+        whole_range: keep a disparity only where every candidate of the range
+            was compared, i.e. the right image has data at ``col - d`` for
+            every ``d`` (OpenCV's SGBM leaves the same band invalid).  At the
+            right image's edge (a stereo pair's overlap ends there) or a hole,
+            the true match may be among the candidates not compared, and the
+            winner of the others is then a wrong disparity that the left-right
+            check does not always catch: a wrong height in a surface model,
+            not a missing one.  ``photax.stereo`` turns it on; off, the band
+            is matched as well as it can be (Middlebury's scores count it).
 
     Returns:
         ``(rows, cols)`` float32 disparities of the left image, NaN where
@@ -471,7 +485,7 @@ def disparity(
     gx = gx[np.isfinite(gx)]
     g = float(max(np.median(gx), 1e-3 * (np.nanmax(np.abs(left)) or 1.0))) if gx.size else 1.0
     lr = np.inf if lr_check is None else float(lr_check)
-    kw = dict(ndisp=ndisp, cost=cost, window=window, paths=paths)
+    kw = dict(ndisp=ndisp, cost=cost, window=window, paths=paths, whole_range=bool(whole_range))
     args = (p1, p2, g, float(uniqueness), lr)
 
     if tile is None:
