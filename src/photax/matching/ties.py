@@ -5,9 +5,10 @@ without hand measurement (seed 004, image matching):
 
 1. interest points (Förstner) in every image, away from its border, spread
    over the part of the image that a later image sees;
-2. each point is monoplotted onto the DEM with its image's approximate
-   orientation (:func:`photax.image_to_ground`) and projected into every other
-   image: the predicted position, i.e. the point of the epipolar line where the
+2. each point is monoplotted onto the DEM by its image's sensor (a frame's
+   approximate orientation, :func:`photax.image_to_ground`; an RPC's or a
+   push-broom model's fixed point on the height: ``Sensor.on_dem``) and
+   projected into every other image by its sensor (``Sensor.project``): the predicted position, i.e. the point of the epipolar line where the
    ray meets the terrain.  Four neighbours of the point (``window`` px away)
    go the same way: their projections give the *local affine map* from the
    image to the other (``A = d x_j / d x_i``: the rotation, scale and shear
