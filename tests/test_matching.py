@@ -106,6 +106,17 @@ def test_transferred_gcps_and_ties_match_the_truth(block):
     assert np.max(np.abs(e)) <= 0.2 and np.sqrt(np.mean(e**2)) <= 0.03, (np.abs(e).max(), np.sqrt(np.mean(e**2)))
 
 
+def test_the_sensor_form_gives_the_frame_forms_ties(block):
+    # match_ties(images, sensors, dem) with one FrameSensor per start orientation is the frame form
+    # match_ties(images, camera, exterior, dem): the same tracks, pixels, sigmas and statuses
+    dem, _, start, images, _, _, ties = block
+    sensors = [photax.FrameSensor(e, CAM, "EPSG:32633") for e in start]
+    new = match_ties(images, sensors, dem, search=SEARCH)
+    for f in dataclasses.fields(ties):
+        a, b = getattr(ties, f.name), getattr(new, f.name)
+        assert np.array_equal(a, b) if isinstance(a, np.ndarray) else a == b, f.name
+
+
 def test_bundle_recovers_the_rendering_orientations(block):
     _, truth, start, _, gcp, transfer, ties = block
     problem = bundle_problem(CAM, start, ties, transfer.table)

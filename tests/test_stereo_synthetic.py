@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import rasterio
 from rasterio.rpc import RPC
-from scipy import ndimage
+from rpc_pair import render, surface, texture
 
 from photax.cli import main
 from photax.pushbroom import fit_rpc
@@ -26,31 +26,6 @@ from photax.stereo import read_ply
 
 SIZE = (200, 200)
 HEIGHTS = (0.0, 400.0)
-
-
-def _surface(x, y, x0, y0):
-    return 150.0 + 0.05 * (x - x0) + 40.0 * np.exp(-((x - x0 - 20) ** 2 + (y - y0 + 15) ** 2) / (2 * 60.0**2))
-
-
-def _render(cam, crs, x0, y0, tex, ss=1):
-    w, h = SIZE
-    o = (np.arange(ss) + 0.5) / ss - 0.5
-    cc, rr = np.meshgrid(np.arange(w, dtype=float), np.arange(h, dtype=float))
-    img = np.zeros((h, w))
-    for du in o:
-        for dv in o:
-            px = np.column_stack([cc.ravel() + du, rr.ravel() + dv])
-            hh = np.full(len(px), 170.0)
-            for _ in range(40):
-                ll = np.asarray(cam.to_ground(px, hh))
-                xy = _pyproj(ll, WGS84, crs)
-                new = _surface(xy[:, 0], xy[:, 1], x0, y0)
-                done = np.nanmax(np.abs(new - hh)) < 1e-3
-                hh = new
-                if done:
-                    break
-            img += ndimage.map_coordinates(tex, [600 + y0 - xy[:, 1], xy[:, 0] - x0 + 600], order=1).reshape(h, w)
-    return img / ss**2
 
 
 @pytest.fixture(scope="module")
@@ -64,12 +39,10 @@ def rendered(tmp_path_factory):
     centre = np.asarray(rpcs[0].ground_box()[0], dtype=float)
     crs = utm_crs(*centre)
     x0, y0 = _pyproj(centre[None], WGS84, crs)[0]
-    rng = np.random.default_rng(7)
-    tex = ndimage.gaussian_filter(rng.random((1200, 1200)), 2.0)  # 1 m cells, x0 - 600 .. x0 + 600
-    tex = 100 + 40 * (tex - tex.mean()) / tex.std()
+    tex = texture(7)  # 1 m cells, x0 - 600 .. x0 + 600
     paths = []
     for k, (s, rpc) in enumerate(zip(scenes, rpcs)):
-        img = _render(s.camera, crs, x0, y0, tex).astype(np.float32)
+        img = render(s.camera, crs, x0, y0, tex, SIZE).astype(np.float32)
         path = folder / f"img_{k}.tif"
         profile = dict(driver="GTiff", width=SIZE[0], height=SIZE[1], count=1, dtype="float32")
         with rasterio.open(path, "w", rpcs=RPC(**rpc.to_dict()), **profile) as dst:
@@ -92,7 +65,7 @@ def test_dsm_of_a_rendered_rpc_pair(rendered, tmp_path, capsys):
         assert src.crs == rasterio.crs.CRS.from_user_input(crs) and np.isnan(src.nodata)
     rows, cols = np.mgrid[0 : dsm.shape[0], 0 : dsm.shape[1]]
     x, y = transform * (cols + 0.5, rows + 0.5)
-    truth = _surface(x, y, x0, y0)
+    truth = surface(x, y, x0, y0)
     # the common footprint: cells whose surface point both rigorous cameras see 3 px inside their images
     llh = np.column_stack([*_pyproj(np.column_stack([x.ravel(), y.ravel()]), crs, WGS84).T, truth.ravel()])
     seen = np.ones(len(llh), bool)

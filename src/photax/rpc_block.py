@@ -34,6 +34,7 @@ from ._float64 import as_float64
 from .earth import radii_of_curvature
 from .errors import ConvergenceError
 from .rpc import RPCCamera, check_gcps
+from .sensor import is_sensor
 
 _TERMS = {"shift": (0,), "shift-drift": (0, 2), "affine": (0, 1, 2)}  # as refine_rpc's models
 
@@ -203,9 +204,12 @@ def adjust_rpc_block(
     (module docstring; Grodecki & Dial 2003).
 
     Args:
-        cameras: the images' :class:`photax.RPCCamera` (an existing ``correction`` is replaced).
+        cameras: the images' :class:`photax.RPCCamera` (an existing ``correction`` is replaced), or
+            their :class:`photax.GroundSensor` s (those :func:`photax.match_ties` took).
         ties: ``(k, 4)`` rows ``point, image, column, row``: tie point ``point`` (an integer id) measured
-            at ``(column, row)`` in ``cameras[image]``; each tie point in two images at least.
+            at ``(column, row)`` in ``cameras[image]``; each tie point in two images at least.  Or the
+            :class:`photax.TiePoints` of :func:`photax.match_ties` on these images (its
+            :meth:`~photax.TiePoints.as_rows`); its sigmas are not used (``pixel_sigma`` weighs all).
         gcps: ``(ground, observations)``: ``(g, 3)`` lon, lat, ellipsoidal h and ``(k, 4)`` rows
             ``gcp, image, column, row`` (``gcp`` indexes ``ground``), or None; checked against each
             image's RPC as :func:`photax.refine_rpc` checks them (:func:`photax.rpc.check_gcps`: its
@@ -223,16 +227,45 @@ def adjust_rpc_block(
         ValueError: bad input; a block without GCPs and without ``correction_sigma`` (no datum); a
             block whose normal equations are singular (say what is missing).
         ConvergenceError: Gauss-Newton did not settle in ``max_iterations``.
+
+    Examples:
+        Two toy RPCs that see heights as column parallax, the second one off by a known shift: ties
+        and two GCPs measured where the true geometry puts them, the block finds the shift (ties from
+        images: :func:`photax.match_ties` on their :class:`photax.GroundSensor` s, passed as they come):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> e = np.eye(20)  # RPC00B terms: 1, L, P, H, ...
+        >>> def toy(tilt):  # column L + tilt H, row -P
+        ...     return ptx.RPCCamera.from_dict(dict(
+        ...         samp_num_coeff=e[1] + tilt * e[3], samp_den_coeff=e[0], line_num_coeff=-e[2], line_den_coeff=e[0],
+        ...         long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
+        ...         long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0))
+        >>> cams, shift = [toy(0.3), toy(-0.3)], np.array([2.0, -1.5])  # px: image 1 is there, its RPC not
+        >>> rng = np.random.default_rng(0)
+        >>> ground = np.column_stack([10 + rng.uniform(-0.008, 0.008, 14), 45 + rng.uniform(-0.008, 0.008, 14),
+        ...                           rng.uniform(0.0, 300.0, 14)])
+        >>> rows = np.array([[k, i, *(np.asarray(cams[i](g)) + (shift if i else 0))]
+        ...                  for k, g in enumerate(ground) for i in (0, 1)])
+        >>> gcp = rows[rows[:, 0] >= 12] - [12, 0, 0, 0]  # the last two points are GCPs
+        >>> res = ptx.adjust_rpc_block(cams, rows[rows[:, 0] < 12], (ground[12:], gcp))
+        >>> [f"{v:.4f}" for v in np.round(res.corrections[:, :, 0].ravel(), 4) + 0.0]  # image 0, image 1
+        ['0.0000', '0.0000', '2.0000', '-1.5000']
     """
     if model not in _TERMS:
         raise ValueError(f"model: expected one of {', '.join(_TERMS)}, got {model!r}")
-    cameras = list(cameras)
+    cameras = [c.camera if is_sensor(c) else c for c in cameras]  # a GroundSensor's RPC
     if not cameras or not all(isinstance(c, RPCCamera) for c in cameras):
-        raise ValueError("cameras: expected a non-empty sequence of RPCCamera")
+        kinds = sorted({type(c).__name__ for c in cameras if not isinstance(c, RPCCamera)})
+        raise ValueError(
+            f"cameras: expected a non-empty sequence of RPCCamera (or their GroundSensors), got {', '.join(kinds)}"
+            " (a push-broom model: photax.fit_rpc gives its RPC)"
+        )
     m, terms = len(cameras), _TERMS[model]
     nt = len(terms)
     raw_cams = [RPCCamera(c.coefficients, c.offsets, c.scales, image_size=c.image_size) for c in cameras]
-    ties = _observations(ties, "ties", m)
+    rows = getattr(ties, "as_rows", None)  # a photax.TiePoints
+    ties = _observations(rows() if callable(rows) else ties, "ties", m)
     if gcps is None:
         g_ground, g_obs = np.zeros((0, 3)), np.zeros((0, 4))
     else:

@@ -10,8 +10,9 @@ A *sensor* is an :class:`equinox.Module` with
   plane at its mean height where the ray misses it), for the default output grid.
 
 Every sensor implements the one :class:`Sensor` protocol (``project``, ``localize``, ``image_size``,
-``crs``, ``footprint``, ``validity``, ``kind``), which the products (:func:`photax.orthorectify`,
-:func:`photax.ortho_grid`, :func:`photax.ortho_uncertainty`) take in place of ``(exterior, camera)``.
+``crs``, ``footprint``, ``on_dem``, ``validity``, ``kind``), which the products (:func:`photax.orthorectify`,
+:func:`photax.ortho_grid`, :func:`photax.ortho_uncertainty`, :func:`photax.match_ties`) take in place of
+``(exterior, camera)``.
 
 Two kinds (:func:`sensor_of` picks one from what the user holds):
 
@@ -200,6 +201,8 @@ class Sensor(Protocol):
     def localize(self, pixel: Array, height) -> tuple[Array, Array]: ...  # (n, 2), h -> (n, 3), (n,) converged
 
     def footprint(self, pixel, dem: DEM) -> np.ndarray: ...  # (n, 2) pixels -> (n, 2) ground (X, Y) on the DEM
+
+    def on_dem(self, pixel, dem: DEM) -> np.ndarray: ...  # (n, 2) pixels -> (n, 3) ground on the DEM, NaN off it
 
 
 class FrameSensor(Module):

@@ -1,7 +1,9 @@
 """What tie matching and GCP transfer share: predicting where a ground point
 images with the approximate orientations (and where an image point meets the
 DEM), the local affine map between two views predicted from the DEM
-(:func:`views`: :func:`offsets`, :func:`local_affine`, :func:`warpable`), and
+(:func:`views`, and :func:`sensor_views` for any :class:`photax.Sensor`: the same
+maps through the sensors' ``on_dem`` and ``project``; :func:`offsets`,
+:func:`local_affine`, :func:`warpable`), and
 matching with templates warped by it (:func:`match_warped`: NCC, then LSM with
 gain and offset, optionally back), so that opposite strips and rotated images
 match like parallel ones and both callers share one compilation.
@@ -71,8 +73,42 @@ def monoplot_pixels(px, exterior: ExteriorOrientation, camera: FrameCamera, dem:
     return out
 
 
+@eqx.filter_jit
+def _sensor_project(sensor, ground):
+    return sensor.project(ground)
+
+
+def project_sensors(ground, sensors) -> np.ndarray:
+    """``(n, 3)`` ground points (the sensors' CRS) into each of ``m`` sensors' images: ``(m, n, 2)``
+    pixels (column, row), NaN where a sensor cannot image a point (:meth:`photax.Sensor.project`)."""
+    g = np.asarray(ground, dtype=float)
+    n = len(g)
+    pad = np.zeros((_bucket(n), 3))
+    pad[:n] = np.nan_to_num(g)
+    dev = jnp.asarray(pad)
+    out = np.stack([np.asarray(_sensor_project(s, dev))[:n] for s in sensors])
+    out[:, ~np.all(np.isfinite(g), axis=1)] = np.nan
+    return out
+
+
+def monoplot_sensors(px, sensors, dem: DEM) -> np.ndarray:
+    """``(m, n, 2)`` pixels of each sensor's image -> ``(m, n, 3)`` ground on the DEM in the sensors'
+    CRS (the sensor's ``on_dem``: a frame's ray cut with the DEM, an RPC's or a push-broom model's
+    fixed point on the height), NaN where it misses the DEM."""
+    px = np.asarray(px, dtype=float)
+    m, n = px.shape[:2]
+    out = np.full((m, n, 3), np.nan)
+    for k, s in enumerate(sensors):
+        pad = np.zeros((_bucket(n), 2))
+        pad[:n] = np.nan_to_num(px[k])
+        out[k] = np.asarray(s.on_dem(pad, dem))[:n]
+    out[~np.all(np.isfinite(px), axis=2)] = np.nan
+    return out
+
+
 def inside(px, size, margin: float) -> np.ndarray:
-    """Whether pixels ``(..., 2)`` lie at least ``margin`` px inside an image of ``size`` ``(w, h)``."""
+    """Whether pixels ``(..., 2)`` lie at least ``margin`` px inside an image of ``size`` ``(w, h)``
+    (scalars, or arrays broadcasting with the pixels' leading axes: one size per image)."""
     w, h = size
     px = np.asarray(px)
     with np.errstate(invalid="ignore"):
@@ -154,18 +190,31 @@ def local_affine(pred, n: int, step: float = STEP) -> np.ndarray:
 
 def views(px, eo: ExteriorOrientation, camera: FrameCamera, dem: DEM, *, step: float = STEP, extra=None):
     """Where the points ``px (m, n, 2)`` of each image meet the DEM, where they image in every image,
-    and the local affine maps between the views, in one monoplot and one projection call.
+    and the local affine maps between the views, in one monoplot and one projection call
+    (:func:`sensor_views` with the batched frame functions).
 
     Returns ``ground (m, n, 3)``, ``pred (m, m, n, 2)`` (``[j, i, p]``: point ``p`` of image ``i``
     in image ``j``), ``affine (m, m, n, 2, 2)`` (``[j, i, p]`` maps pixel offsets in ``i`` to
     offsets in ``j``, :func:`local_affine` with neighbours ``step`` px away) and the projections
     ``(m, m, q, 2)`` of ``extra (m, q, 2)`` pixels monoplotted alike (None without ``extra``).
     NaN points (unused slots) stay NaN."""
+    return _views(
+        px, lambda p: monoplot_pixels(p, eo, camera, dem), lambda g: project_pixels(g, eo, camera), step, extra
+    )
+
+
+def sensor_views(px, sensors, dem: DEM, *, step: float = STEP, extra=None):
+    """:func:`views` for ``m`` sensors (:class:`photax.Sensor`: frames, RPCs, push-broom models alike):
+    the points monoplotted by each sensor's ``on_dem`` and projected by every sensor's ``project``."""
+    return _views(px, lambda p: monoplot_sensors(p, sensors, dem), lambda g: project_sensors(g, sensors), step, extra)
+
+
+def _views(px, monoplot, project, step, extra):
     px = np.asarray(px, dtype=float)
     n = px.shape[1]
     allpx = offsets(px, step) if extra is None else np.concatenate([offsets(px, step), extra], axis=1)
-    ground = monoplot_pixels(allpx, eo, camera, dem)
-    proj = project_pixels(ground.reshape(-1, 3), eo, camera).reshape(len(px), len(px), -1, 2)
+    ground = monoplot(allpx)
+    proj = project(ground.reshape(-1, 3)).reshape(len(px), len(px), -1, 2)
     affine = local_affine(proj[:, :, : 5 * n], n, step)
     return ground[:, :n], proj[:, :, :n], affine, None if extra is None else proj[:, :, 5 * n :]
 

@@ -5,9 +5,10 @@ without hand measurement (seed 004, image matching):
 
 1. interest points (Förstner) in every image, away from its border, spread
    over the part of the image that a later image sees;
-2. each point is monoplotted onto the DEM with its image's approximate
-   orientation (:func:`photax.image_to_ground`) and projected into every other
-   image: the predicted position, i.e. the point of the epipolar line where the
+2. each point is monoplotted onto the DEM by its image's sensor (a frame's
+   approximate orientation, :func:`photax.image_to_ground`; an RPC's or a
+   push-broom model's fixed point on the height: ``Sensor.on_dem``) and
+   projected into every other image by its sensor (``Sensor.project``): the predicted position, i.e. the point of the epipolar line where the
    ray meets the terrain.  Four neighbours of the point (``window`` px away)
    go the same way: their projections give the *local affine map* from the
    image to the other (``A = d x_j / d x_i``: the rotation, scale and shear
@@ -46,22 +47,26 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..camera import FrameCamera
 from ..collinearity import stack_exteriors
 from ..dem import DEM
+from ..errors import CRSMismatchError
+from ..geo import describe, same_crs
+from ..sensor import FrameSensor, check_sensor_crs, is_sensor
 from ._predict import (
     check_block,
     frame_pad,
     inside,
     match_sigma,
     match_warped,
-    monoplot_pixels,
+    monoplot_sensors,
     padded,
-    project_pixels,
-    views,
+    project_sensors,
+    sensor_views,
     warpable,
 )
 
@@ -126,6 +131,11 @@ class TiePoints:
     def n_tracks(self) -> int:
         return len(self.ground)
 
+    def as_rows(self) -> np.ndarray:
+        """``(k, 4)`` rows ``point, image, column, row``: the observations as :func:`photax.adjust_rpc_block`
+        takes its ties (which also takes the :class:`TiePoints` itself)."""
+        return np.column_stack([self.obs_point, self.obs_image, self.obs_xy]).astype(float).reshape(-1, 4)
+
     def image_plane(self, camera: FrameCamera) -> tuple[np.ndarray, np.ndarray]:
         """Observations and sigmas in image-plane units (what :class:`photax.BundleProblem` takes)."""
         xy = np.asarray(camera.pixel_to_image(jnp.asarray(self.obs_xy))) if len(self.obs_xy) else np.zeros((0, 2))
@@ -153,16 +163,17 @@ def _spread(xy: np.ndarray, size, n: int) -> np.ndarray:
     return xy[np.sort(order)]
 
 
-def _seen_by(xy: list, eo, camera: FrameCamera, dem: DEM, size) -> tuple[list, np.ndarray]:
+def _seen_by(xy: list, sensors, dem: DEM, size) -> tuple[list, np.ndarray]:
     """For each image's points ``xy[k] (n_k, 2)``, ``(n_k, m)``: whether image ``j`` sees its ground point
-    (False for all ``j`` where the ray misses the DEM), and whether any ray of the image meets the DEM."""
+    (False for all ``j`` where the ray misses the DEM), and whether any ray of the image meets the DEM.
+    ``size``: the images' ``(w, h)`` as ``(m, 1, 1)`` arrays (one per image ``j``)."""
     m = len(xy)
     n = max(max(len(p) for p in xy), 1)
     px = np.full((m, n, 2), np.nan)
     for k, p in enumerate(xy):
         px[k, : len(p)] = p
-    ground = monoplot_pixels(px, eo, camera, dem)
-    pred = project_pixels(ground.reshape(-1, 3), eo, camera).reshape(m, m, n, 2)
+    ground = monoplot_sensors(px, sensors, dem)
+    pred = project_sensors(ground.reshape(-1, 3), sensors).reshape(m, m, n, 2)
     seen = inside(pred, size, 0.0)  # [j, i, p]
     hits = np.all(np.isfinite(ground), axis=2).any(axis=1)
     return [seen[:, k, : len(p)].T for k, p in enumerate(xy)], hits
@@ -170,16 +181,57 @@ def _seen_by(xy: list, eo, camera: FrameCamera, dem: DEM, size) -> tuple[list, n
 
 def _overlap(pred_grid: np.ndarray, size) -> np.ndarray:
     """``(m, m)`` predicted overlap: the share of image ``i``'s grid points whose ground point images
-    inside ``j`` (``pred_grid[j, i]``), averaged with the reverse share."""
+    inside ``j`` (``pred_grid[j, i]``; ``size`` as :func:`_seen_by`'s), averaged with the reverse share."""
     share = inside(pred_grid, size, 0.0).mean(axis=-1).T  # [i, j]
     return (share + share.T) / 2
 
 
+def _frame_sensors(images, camera: FrameCamera, exterior) -> tuple[np.ndarray, list]:
+    """The older frame form ``(images, camera, exterior)``: the stack and one :class:`photax.FrameSensor` each."""
+    stack, eo = check_block(images, camera, exterior)
+    return stack, [FrameSensor(jax.tree.map(lambda a, k=k: a[k], eo), camera) for k in range(len(stack))]
+
+
+def _sensor_stack(images, sensors, dem) -> np.ndarray:
+    """``m`` images of ``m`` sensors as one zero-filled ``(m, h_max, w_max)`` float64 stack, the
+    sensors checked: photax sensors, one per image, of the image's size, in one CRS (a frame's the DEM's)."""
+    sensors = list(sensors)
+    imgs = [np.asarray(im, dtype=float) for im in images]
+    if len(sensors) != len(imgs):
+        raise ValueError(f"sensors: {len(sensors)} sensors for {len(imgs)} images (one per image)")
+    for k, (s, im) in enumerate(zip(sensors, imgs)):
+        if not is_sensor(s):
+            raise ValueError(
+                f"sensors[{k}]: expected a photax sensor (FrameSensor, GroundSensor: photax.sensor_of builds one), "
+                f"got {type(s).__name__}"
+            )
+        if s.image_size is None:
+            raise ValueError(f"sensors[{k}]: its camera has no image_size (the image's (width, height))")
+        w, h = s.image_size
+        if im.shape != (h, w):
+            raise ValueError(f"images[{k}]: shape {im.shape}, but sensors[{k}].image_size is (w, h) = {(w, h)}")
+    crs = [s.crs for s in sensors]
+    for k, c in enumerate(crs):
+        if (c is None) != (crs[0] is None) or (c is not None and not same_crs(c, crs[0])):
+            name = lambda v: "no CRS" if v is None else describe(v)  # noqa: E731
+            raise CRSMismatchError(
+                f"sensors[{k}] is in {name(c)} but sensors[0] in {name(crs[0])}: tie matching predicts each "
+                "image's points in the others through one ground frame (build the sensors for one CRS)"
+            )
+        if sensors[k].kind == "frame":  # a ground sensor samples a DEM in any CRS; a frame's rays are in the DEM's
+            check_sensor_crs(sensors[k], dem.crs, "the DEM")
+    hmax, wmax = max(im.shape[0] for im in imgs), max(im.shape[1] for im in imgs)
+    stack = np.zeros((len(imgs), hmax, wmax))
+    for k, im in enumerate(imgs):
+        stack[k, : im.shape[0], : im.shape[1]] = im
+    return stack
+
+
 def match_ties(
     images,
-    camera: FrameCamera,
-    exterior,
-    dem: DEM,
+    camera,
+    exterior=None,
+    dem: DEM | None = None,
     *,
     max_points: int = 150,
     window: int = 8,
@@ -192,16 +244,27 @@ def match_ties(
 ) -> TiePoints:
     """Tie points between overlapping images, guided by approximate orientations and the DEM.
 
+    Two forms: ``match_ties(images, sensors, dem)``, one :class:`photax.Sensor` per image (frames,
+    RPCs and push-broom models alike, in one CRS: :func:`photax.sensor_of`), and the frame form
+    ``match_ties(images, camera, exterior, dem)`` (one :class:`photax.FrameCamera`, ``m``
+    orientations), which is the first with a :class:`photax.FrameSensor` per orientation.  Every
+    prediction goes through the sensors: a point is carried to the DEM by its sensor's ``on_dem``
+    and into the others by their ``project`` (the predicted position, the local affine maps of its
+    neighbours and the overlap grid alike), so an RPC pair is matched as a frame pair is.
+
     Args:
-        images: ``m`` grey images ``(h, w)`` of one camera.
-        camera: their camera (``image_size`` required).
-        exterior: ``m`` approximate orientations (a list or a batched one).
-        dem: terrain the rays are cut with (predictions, overlap, local affine maps).
+        images: ``m`` grey images ``(h, w)``.
+        camera: ``m`` sensors (a list), or the frame form's one camera (``image_size`` required).
+        exterior: the frame form's ``m`` approximate orientations (a list or a batched one); with
+            sensors, the DEM may come here (``match_ties(images, sensors, dem)``).
+        dem: terrain the rays are cut with (predictions, overlap, local affine maps); in the frames'
+            CRS (a ground sensor's DEM may be in any CRS, as the products take it), heights
+            ellipsoidal for an RPC or a push-broom model.
         max_points: interest points per image (strongest Förstner points,
             spread over the part of the image a later image sees).
         window: half-size of the matching window (``2 window + 1`` px square).
         search: NCC search radius around the prediction, px; must cover the
-            prediction error of the approximate orientations.
+            prediction error of the approximate orientations (an RPC's bias).
         min_rho: smallest accepted NCC peak.
         back_tol: two-way consistency, px.
         guide_tol: smallest outlier threshold of the guided test, px.
@@ -214,42 +277,80 @@ def match_ties(
             windows (the views must then be nearly parallel).
 
     Returns:
-        :class:`TiePoints` (tracks seen in >= 2 images).
+        :class:`TiePoints` (tracks seen in >= 2 images); pixels of each image, ground in the
+        sensors' CRS.  :meth:`TiePoints.as_rows` gives the rows :func:`photax.adjust_rpc_block` takes.
 
     Raises:
-        ValueError: images / camera / orientations that do not fit together.
+        ValueError: images / sensors (camera / orientations) that do not fit together.
+        photax.errors.CRSMismatchError: sensors in different CRSs, or a frame's and the DEM's differ.
+
+    Examples:
+        Two frames 40 m apart over flat ground, rendered (:func:`photax.scene.render_image`); the
+        frame form and the sensor form give the same ties, and each tie lands where the true
+        orientations put the ground point of its first image's point:
+
+        >>> import numpy as np, photax
+        >>> from photax.scene import render_image
+        >>> x0, y0 = 500_000.0, 4_000_000.0
+        >>> dem = photax.DEM.flat(20.0, (x0 - 300, y0 - 300, x0 + 300, y0 + 300))
+        >>> cam = photax.FrameCamera.from_pixels(300.0, (160, 120))
+        >>> eos = [photax.ExteriorOrientation([x0 + dx, y0, 320.0], [0.0, 0.0, 0.0]) for dx in (0.0, 40.0)]
+        >>> images = [render_image(cam, e, dem, origin=(x0, y0), supersample=2) for e in eos]
+        >>> ties = photax.match_ties(images, cam, eos, dem, max_points=40)
+        >>> sensors = [photax.FrameSensor(e, cam) for e in eos]
+        >>> same = photax.match_ties(images, sensors, dem, max_points=40)
+        >>> bool(np.array_equal(ties.obs_xy, same.obs_xy)), ties.pair_status[0, 1]
+        (True, 'ok')
+        >>> xy = [ties.obs_xy[ties.obs_image == k] for k in (0, 1)]  # one track per point, in order
+        >>> ground, _ = sensors[0].localize(xy[0], 20.0)
+        >>> float(np.abs(np.asarray(sensors[1].project(ground)) - xy[1]).max()) < 0.1
+        True
     """
     # Over 80 lines: one pipeline (interest points, predictions, candidate pairs, batched
     # warped NCC/LSM, two-way check, guided outlier test, chained matches) whose arrays flow
     # from step to step.
     from ..measure import interest_points
 
-    stack, eo = check_block(images, camera, exterior)
+    if isinstance(camera, FrameCamera):  # the frame form
+        if dem is None:
+            raise ValueError("dem: the frame form is match_ties(images, camera, exterior, dem)")
+        stack, sensors = _frame_sensors(images, camera, exterior)
+    else:
+        if dem is None and isinstance(exterior, DEM):
+            exterior, dem = None, exterior
+        if exterior is not None or not isinstance(dem, DEM):
+            raise ValueError("with sensors, give the DEM next: match_ties(images, sensors, dem)")
+        if is_sensor(camera) or not isinstance(camera, (list, tuple)):
+            raise ValueError(f"sensors: expected a list of one photax sensor per image, got {type(camera).__name__}")
+        sensors = list(camera)
+        stack = _sensor_stack(images, sensors, dem)
     m = len(stack)
-    size = camera.image_size
+    sizes = np.array([s.image_size for s in sensors], dtype=float)  # (m, 2) width, height
+    per_view = (sizes[:, 0, None, None], sizes[:, 1, None, None])  # the size of image j of a [j, i, p] array
     # candidate interest points, monoplotted: an image keeps those a later image sees, spread over that area
     cand_xy = []
     for k in range(m):
         ip = interest_points(stack[k], "foerstner", window=5, min_distance=window // 2 + 2, max_points=20 * max_points)
-        cand_xy.append(ip.xy[inside(ip.xy, size, window + 4)])
-    seen_by, hits = _seen_by(cand_xy, eo, camera, dem, size)
-    pts = [_spread(cand_xy[k][seen_by[k][:, k + 1 :].any(axis=1)], size, max_points) for k in range(m)]
+        cand_xy.append(ip.xy[inside(ip.xy, sizes[k], window + 4)])
+    seen_by, hits = _seen_by(cand_xy, sensors, dem, per_view)
+    pts = [_spread(cand_xy[k][seen_by[k][:, k + 1 :].any(axis=1)], sizes[k], max_points) for k in range(m)]
     status = ["textureless" if not len(cand_xy[k]) else "ok" if hits[k] else "sees no DEM" for k in range(m)]
     n = max(max(len(p) for p in pts), 1)
     px = np.full((m, n, 2), np.nan)
     for k, p in enumerate(pts):
         px[k, : len(p)] = p
     # the points, their neighbours (local affine maps) and a grid (overlap) monoplotted and projected at once
-    w, h = size
-    gx, gy = np.meshgrid(np.linspace(0, w - 1, 16), np.linspace(0, h - 1, 16))
-    grid = np.broadcast_to(np.stack([gx.ravel(), gy.ravel()], axis=1), (m, 256, 2))
-    ground, pred, affine, pred_grid = views(px, eo, camera, dem, step=window, extra=grid)  # pred [j, i, p]: i in j
-    overlap = _overlap(pred_grid, size)
+    grid = np.stack(
+        [np.stack([g.ravel() for g in np.meshgrid(np.linspace(0, w - 1, 16), np.linspace(0, h - 1, 16))], 1)
+         for w, h in sizes]
+    )  # fmt: skip
+    ground, pred, affine, pred_grid = sensor_views(px, sensors, dem, step=window, extra=grid)  # pred [j, i, p]
+    overlap = _overlap(pred_grid, per_view)
     affine = affine if warp else np.broadcast_to(np.eye(2), (m, m, n, 2, 2))
     usable = warpable(affine)
     reach = int(np.ceil(np.sqrt(2) * (window + 2)))
     ok_img = np.array([s == "ok" for s in status])
-    cand = inside(pred, size, reach + 1) & usable & ok_img[:, None, None] & ok_img[None, :, None]  # [j, i, p]
+    cand = inside(pred, per_view, reach + 1) & usable & ok_img[:, None, None] & ok_img[None, :, None]  # [j, i, p]
     pairs = [(i, j) for i in range(m) for j in range(i + 1, m)]
     pair_overlap = {pr: float(overlap[pr]) for pr in pairs}
     pair_status = {pr: "no overlap" if overlap[pr] == 0 else "too few matches" for pr in pairs}
@@ -269,7 +370,7 @@ def match_ties(
             & (np.nan_to_num(mt.rho[:, 0]) >= min_rho)
             & mt.lsm_valid[:, 0]
             & mt.back_valid[:, 0]
-            & inside(fxy, size, window + 1)
+            & inside(fxy, (sizes[bj, 0], sizes[bj, 1]), window + 1)
         )
         with np.errstate(invalid="ignore"):
             ok &= np.linalg.norm(mt.back_xy[:, 0] - pad - txy, axis=-1) <= back_tol
