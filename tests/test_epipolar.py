@@ -196,3 +196,25 @@ def test_cli_epipolar(scene, tmp_path):
         )
         == 2
     )  # no orientation given
+
+
+def test_a_pair_of_sensors_is_the_pair_of_their_cameras(scene):
+    """``epipolar_pair(a, b, FrameSensor, FrameSensor)`` is the ``(camera, exterior, exterior)`` call,
+    array for array; a frame pair of two different cameras, and a sensor beside a camera, are refused."""
+    import equinox as eqx
+
+    from photax.sensor import FrameSensor
+
+    _, img, _, _ = scene
+    old = epipolar_pair(img["left"], img["along"], CAM, LEFT, RIGHT["along"])
+    new = epipolar_pair(img["left"], img["along"], FrameSensor(LEFT, CAM), FrameSensor(RIGHT["along"], CAM))
+    np.testing.assert_array_equal(new.left, old.left)
+    np.testing.assert_array_equal(new.right, old.right)
+    np.testing.assert_array_equal(new.baseline, old.baseline)
+    other = eqx.tree_at(lambda c: c.focal_length, CAM, CAM.focal_length * 1.01)
+    with pytest.raises(ValueError, match="one camera"):
+        epipolar_pair(img["left"], img["along"], FrameSensor(LEFT, CAM), FrameSensor(RIGHT["along"], other))
+    with pytest.raises(ValueError, match="two sensors"):
+        epipolar_pair(img["left"], img["along"], FrameSensor(LEFT, CAM), RIGHT["along"])
+    with pytest.raises(ValueError, match="pass no exterior"):
+        epipolar_pair(img["left"], img["along"], FrameSensor(LEFT, CAM), FrameSensor(RIGHT["along"], CAM), LEFT)

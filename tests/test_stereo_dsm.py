@@ -164,6 +164,7 @@ def test_rendered_frame_pair_to_a_dsm_of_its_terrain():
     import equinox as eqx
 
     from photax.scene import render_image
+    from photax.sensor import FrameSensor
     from photax.stereo import pair_points
 
     s = photax.relief_scene(250.0, seed=3, image_size=(480, 360), focal_px=525.0, flying_height=2500.0,
@@ -174,8 +175,11 @@ def test_rendered_frame_pair_to_a_dsm_of_its_terrain():
     per_px = 2500.0 / (base / s.gsd)  # height of one disparity pixel at the datum, m
     bad = {}
     for whole in (True, False):
-        pts, info = pair_points(s.image, right, s.camera, s.exterior, ext, heights=(0.0, 250.0), crs=CRS,
-                                matcher={"whole_range": whole})  # fmt: skip
+        # the pair as two sensors once, as camera and exteriors once (photax.epipolar_pair takes both)
+        views = (
+            (FrameSensor(s.exterior, s.camera), FrameSensor(ext, s.camera)) if whole else (s.camera, s.exterior, ext)
+        )
+        pts, info = pair_points(s.image, right, *views, heights=(0.0, 250.0), crs=CRS, matcher={"whole_range": whole})
         grid = photax.Grid.from_bounds((X0 - 700, Y0 - 600, X0 + 700, Y0 + 600), 2 * s.gsd, CRS)
         dsm = rasterize_points(pts, grid)
         xy = grid.xy()

@@ -130,3 +130,23 @@ def test_triangulate_pair_closed_form(scenes):
     assert np.max(res) < 1e-6
     with pytest.raises(ValueError, match="shape"):
         triangulate_pair(rpc_a, rpc_b, np.zeros((3, 2)), np.zeros((2, 2)))
+
+
+def test_a_pair_of_ground_sensors_is_the_pair_of_their_cameras(scenes):
+    """``epipolar_pair(a, b, GroundSensor, GroundSensor)`` is the ``camera, camera_right=`` call; a frame
+    sensor and a ground sensor are no pair."""
+    from photax.sensor import FrameSensor, GroundSensor
+
+    _, _, (rpc_a, rpc_b) = scenes
+    crs = utm_crs(*np.asarray(rpc_a.ground_box()[0], dtype=float))
+    img = np.random.default_rng(0).random(SIZE[::-1])
+    kw = dict(bounds=(50, 50, 350, 350), heights=HEIGHTS)
+    old = photax.epipolar_pair(img, img, rpc_a, None, None, camera_right=rpc_b, **kw)
+    new = photax.epipolar_pair(img, img, GroundSensor(rpc_a, crs), GroundSensor(rpc_b, crs), **kw)
+    np.testing.assert_array_equal(new.left, old.left)
+    np.testing.assert_array_equal(new.right, old.right)
+    assert new.disparity_range == old.disparity_range and new.vertical_residual == old.vertical_residual
+    cam = photax.FrameCamera.from_pixels(300.0, SIZE)
+    frame = FrameSensor(photax.ExteriorOrientation([0.0, 0.0, 500.0], [0.0, 0.0, 0.0]), cam)
+    with pytest.raises(ValueError, match="no stereo pair"):
+        photax.epipolar_pair(img, img, GroundSensor(rpc_a, crs), frame)

@@ -210,7 +210,10 @@ def epipolar_pair(
             camera.image_size``.
         camera: the interior orientation (with a pixel grid; distortion is
             removed by the resampling).
-        exterior_left, exterior_right: the two images' exterior orientations.
+        exterior_left, exterior_right: the two images' exterior orientations.  Or two
+            :class:`photax.Sensor` objects in the ``camera, exterior_left`` places
+            (``epipolar_pair(left, right, sensor_left, sensor_right)``): two frames of one camera, or
+            two ground sensors (RPC, push-broom).
         resampling: kernel of :func:`photax.resample` (default cubic convolution).
         nodata: value outside the original images (default NaN / 0 for integers).
         max_area: the largest epipolar image allowed, in original image areas (default 4:
@@ -224,6 +227,9 @@ def epipolar_pair(
             baseline along the viewing direction, or epipolar images more
             than 4 times the originals' area.
     """
+    camera, exterior_left, exterior_right, camera_right = sensor_arguments(
+        camera, exterior_left, exterior_right, camera_right
+    )
     if isinstance(camera, tuple) and len(camera) == 2 and camera_right is None:
         camera, camera_right = camera
     if not isinstance(camera, FrameCamera) or camera_right is not None:
@@ -293,6 +299,44 @@ def epipolar_pair(
         exterior_left=exterior_left,
         exterior_right=exterior_right,
     )
+
+
+def sensor_arguments(camera, exterior_left=None, exterior_right=None, camera_right=None):
+    """``(camera, exterior_left, exterior_right, camera_right)`` of a pair given as two
+    :class:`photax.Sensor` objects in the ``camera, exterior_left`` places (``epipolar_pair(a, b,
+    sensor_a, sensor_b)``); any other arguments are returned as they came.
+
+    Two frame sensors must share one camera (the frame pair is two images of one camera); a frame
+    and a ground sensor (RPC, push-broom) are no pair.
+
+    Raises:
+        ValueError: a sensor pair with more arguments, a frame and a ground sensor, two frames of
+            different cameras.
+    """
+    from ..sensor import FrameSensor, GroundSensor
+
+    sensors = (FrameSensor, GroundSensor)
+    if not (isinstance(camera, sensors) or isinstance(exterior_left, sensors)):
+        return camera, exterior_left, exterior_right, camera_right
+    left, right = camera, exterior_left
+    if not (isinstance(left, sensors) and isinstance(right, sensors)):
+        raise ValueError(
+            f"give two sensors (photax.Sensor: FrameSensor, GroundSensor), got {type(left).__name__} "
+            f"and {type(right).__name__}"
+        )
+    if exterior_right is not None or camera_right is not None:
+        raise ValueError("two sensors carry their cameras and orientations: pass no exterior or camera_right")
+    if type(left) is not type(right):
+        raise ValueError(
+            f"a {left.kind} sensor and a {right.kind} sensor are no stereo pair (two frames or two ground)"
+        )
+    if isinstance(left, GroundSensor):
+        return left.camera, None, None, right.camera
+    import equinox as eqx
+
+    if not eqx.tree_equal(left.camera, right.camera):
+        raise ValueError("a frame pair is two images of one camera: the two frame sensors have different cameras")
+    return left.camera, left.exterior, right.exterior, None
 
 
 def _ground_pair(image_left, image_right, camera, camera_right, exterior_left, exterior_right, **options):

@@ -87,7 +87,8 @@ def pair_points(
     Args:
         image_left, image_right: ``(bands, H, W)`` or ``(H, W)`` images (bands are averaged to grey
             for the matching and kept as the points' colour).
-        camera, exterior_left, exterior_right, camera_right, bounds: as :func:`photax.epipolar_pair`.
+        camera, exterior_left, exterior_right, camera_right, bounds: as :func:`photax.epipolar_pair`
+            (two :class:`photax.Sensor` objects in the ``camera, exterior_left`` places too).
         heights: ``(h_min, h_max)`` of the terrain (sets the disparity search range).
         zoom: match the epipolar images reduced ``zoom`` times (block means): a DSM cell of several
             pixels needs no full-resolution matching, and the search range shrinks as much.
@@ -101,8 +102,12 @@ def pair_points(
         ``(PointCloud, info)``, ``info`` with ``disparity_range`` (reduced px), ``valid`` (share of the
         left epipolar image's data pixels matched) and, for an RPC pair, ``vertical_residual`` (px).
     """
-    from ..matching.epipolar import EpipolarPair, epipolar_pair
+    from ..matching.epipolar import EpipolarPair, epipolar_pair, sensor_arguments
     from ..matching.sgm import disparity
+
+    camera, exterior_left, exterior_right, camera_right = sensor_arguments(
+        camera, exterior_left, exterior_right, camera_right
+    )
 
     zoom = int(zoom)
     if zoom < 1:
