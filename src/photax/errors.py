@@ -205,7 +205,22 @@ class MalformedFileError(PhotaxError, ValueError):
 
 class OutputCRSError(CRSMismatchError):
     """The output CRS asked for is not one this sensor model can give the output in (a frame
-    image's ortho is in its orientation's CRS); the message names both CRSs."""
+    image's ortho is in its orientation's CRS); the message names both CRSs.
+
+    Examples:
+        A frame image oriented in UTM 33N asked for an ortho grid in longitude and latitude:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.grid import ortho_grid
+        >>> camera = ptx.FrameCamera.from_pixels(100.0, (100, 100))
+        >>> exterior = ptx.ExteriorOrientation([500000.0, 4000000.0, 100.0], [0.0, 0.0, 0.0])
+        >>> dem = ptx.DEM(np.zeros((101, 101)), (1.0, 0.0, 499950.0, 0.0, -1.0, 4000050.0), crs="EPSG:32633")
+        >>> ortho_grid(exterior, camera, dem, spec=ptx.GridSpec(crs="EPSG:4326"))
+        Traceback (most recent call last):
+        ...
+        photax.errors.OutputCRSError: the output CRS (EPSG:4326) is not the frame orientation's (EPSG:32633): ...
+    """
 
 
 class PartialDEMWarning(UserWarning):
@@ -214,6 +229,22 @@ class PartialDEMWarning(UserWarning):
 
     Attributes:
         coverage: the covered share of the image, 0 .. 1.
+
+    Examples:
+        A nadir image 100 m on a side orthorectified on a DEM of its western half only
+        (:func:`photax.dem_coverage`'s example): the ortho comes with a warning of the share:
+
+        >>> import warnings
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> camera = ptx.FrameCamera.from_pixels(100.0, (100, 100))
+        >>> exterior = ptx.ExteriorOrientation([0.0, 0.0, 100.0], [0.0, 0.0, 0.0])
+        >>> west = ptx.DEM(np.zeros((101, 51)), (1.0, 0.0, -50.0, 0.0, -1.0, 50.0))  # x from -50 to 1 m
+        >>> with warnings.catch_warnings(record=True) as caught:
+        ...     warnings.simplefilter("always")
+        ...     _ = ptx.orthorectify(np.ones((100, 100)), exterior, camera, west)
+        >>> [(type(w.message).__name__, w.message.coverage) for w in caught]
+        [('PartialDEMWarning', 0.5)]
     """
 
     def __init__(self, message: str, coverage: float):
