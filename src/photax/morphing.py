@@ -170,7 +170,6 @@ def morph_sequence(image_a, image_b, lines_a, lines_b, frames: int = 10, **kwarg
         >>> frames.shape, frames[:, 10, 15].tolist()
         ((5, 20, 30), [0.0, 25.0, 50.0, 75.0, 100.0])
     """
-
     if int(frames) < 2:
         raise ValueError(f"frames must be >= 2, got {frames}")
     return np.stack([morph(image_a, image_b, lines_a, lines_b, t, **kwargs) for t in np.linspace(0, 1, int(frames))])

@@ -931,7 +931,6 @@ def write_colmap(problem_or_result, folder, *, binary: bool = False, inputs=()) 
         >>> len(model.images), len(model.points), model.images[1].name
         (8, 100, 'S1_1')
     """
-
     return write_colmap_model(colmap_model_from_problem(problem_or_result), folder, binary=binary, inputs=inputs)
 
 

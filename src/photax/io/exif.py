@@ -388,7 +388,6 @@ def camera_from_tags(tags: DroneTags):
         (8.8, [0.0033, 0.0033], (4000, 3000))
         >>> equivalent = DroneTags(pathlib.Path("b.jpg"), (4000, 3000), focal_length_35mm=24.0)
         >>> round(float(camera_from_tags(equivalent).focal_length), 6)
-
         2666.666667
     """
 

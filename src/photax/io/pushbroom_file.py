@@ -175,11 +175,9 @@ def write_pushbroom(camera, path, *, name: str | None = None, inputs=()) -> path
         >>> same = lambda b: bool(np.array_equal(b.position, camera.position) and np.array_equal(b.angles, camera.angles))
         >>> [same(b) for b in backs]
         [True, True]
-
         >>> (folder / "c.yaml").read_text().splitlines()[1]
         'type: pushbroom'
     """
-
     path = pathlib.Path(path)
     data = pushbroom_to_dict(camera, name)
     with atomic_write(path, inputs=inputs) as fh:
