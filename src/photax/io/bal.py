@@ -57,16 +57,23 @@ class BALData:
         observations: ``(k, 2)`` pixels, origin at the image centre, y up.
 
     Examples:
-        The arrays of a two-camera, two-point file as they stand in it (:func:`read_bal_arrays`):
+        BAL's arrays in memory, the second camera turned by ``r = (0, 0, pi/2)`` (camera_from_world),
+        which sees point ``(1, 2, 0)`` at ``R X + t = (-2, 1, -10)``, pixel ``100 (-0.2, 0.1)``; as a
+        block (:func:`photax.io.bal.bal_problem`) the turn is photax's world_from_camera kappa of -90 deg:
 
-        >>> import pathlib, tempfile
-        >>> from photax.io import read_bal_arrays
-        >>> path = pathlib.Path(tempfile.mkdtemp()) / "problem.txt"
-        >>> _ = path.write_text("2 2 4\\n0 0 10 20\\n1 0 0 20\\n0 1 0 0\\n1 1 -10 0\\n"
-        ...                     "0 0 0 0 0 -10 100 0 0\\n0 0 0 -1 0 -10 100 0 0\\n1 2 0\\n0 0 0\\n")
-        >>> data = read_bal_arrays(path)
-        >>> data.cameras[:, 3:7].tolist(), data.camera_index.tolist(), data.point_index.tolist()  # t and f
-        ([[0.0, 0.0, -10.0, 100.0], [-1.0, 0.0, -10.0, 100.0]], [0, 1, 0, 1], [0, 0, 1, 1])
+        >>> import numpy as np
+        >>> from photax.io import BALData
+        >>> from photax.io.bal import bal_problem
+        >>> data = BALData(cameras=np.array([[0, 0, 0, 0, 0, -10, 100, 0, 0], [0, 0, np.pi / 2, 0, 0, -10, 100, 0, 0]]),
+        ...                points=np.array([[1.0, 2.0, 0.0], [0.0, 0.0, 0.0]]),
+        ...                camera_index=np.array([0, 1, 0, 1]), point_index=np.array([0, 0, 1, 1]),
+        ...                observations=np.array([[10.0, 20.0], [-20.0, 10.0], [0.0, 0.0], [0.0, 0.0]]))
+
+        >>> problem = bal_problem(data)
+        >>> print(np.round(np.degrees(np.asarray(problem.exterior.angles)), 6) + 0.0, problem.exterior.convention)
+        [[  0.   0.   0.]
+         [  0.   0. -90.]] omega-phi-kappa
+
     """
 
     cameras: np.ndarray
