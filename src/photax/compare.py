@@ -153,6 +153,25 @@ class ModelComparison:
             that all models see the same points.  A polynomial cannot tell
             a blunder from relief displacement; collinearity with the DEM can.
         gcp_names: the GCPs' names, when given (reports name them).
+
+    Examples:
+        The comparison of :func:`compare_models` over 300 m of relief: each model by name, the
+        relief displacement a flat-terrain model ignores, and the GCP data snooping left out:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> scene = ptx.relief_scene(300.0, seed=0, image_size=(400, 300), focal_px=400.0)
+        >>> c = ptx.compare_models(scene.gcp_ground, scene.gcp_pixel, scene.camera, scene.dem, orders=(1, 3),
+        ...                        check_ground=scene.check_ground, check_pixel=scene.check_pixel)
+        >>> c["polynomial 3"].name, c.skipped
+        ('polynomial 3', {})
+        >>> shift = c.relief_displacement()
+        >>> shift.shape == c.grid.shape + (2,), bool(np.hypot(*shift.reshape(-1, 2).T).max() > 10)  # px
+        (True, True)
+        >>> np.flatnonzero(c.excluded).tolist() == np.flatnonzero(c.resection.outliers).tolist()
+        True
+        >>> c.table("text").split()[:4]
+        ['model', 'params', 'redundancy', 'condition']
     """
 
     models: list[ModelResult]

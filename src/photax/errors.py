@@ -45,14 +45,36 @@ import enum
 
 
 class PhotaxError(Exception):
-    """Base of every error photax raises on purpose: the input, not a bug, is at fault."""
+    """Base of every error photax raises on purpose: the input, not a bug, is at fault.
+
+    Examples:
+        One ``except`` for every input photax refuses; the type tells what was wrong:
+
+        >>> import photax as ptx
+        >>> try:
+        ...     ptx.utm_crs(lon=0.0, lat=88.0)
+        ... except ptx.PhotaxError as exc:
+        ...     print(type(exc).__name__, "-", exc)
+        OutsideValidityError - no UTM zone at lon 0.0, lat 88.0 (UTM covers lat 80 S to 84 N)
+    """
 
 
 class UnreadableFileError(PhotaxError, OSError, ValueError):
     """A file that cannot be read: missing, not a regular file, no permission, damaged.
 
     ``str(exc)`` is photax's whole message (``OSError``'s ``errno`` /
-    ``strerror`` are not set: the message already names the file and why)."""
+    ``strerror`` are not set: the message already names the file and why).
+
+    Examples:
+        A folder where a file was expected:
+
+        >>> import tempfile
+        >>> import photax as ptx
+        >>> ptx.read_gcps(tempfile.mkdtemp())
+        Traceback (most recent call last):
+        ...
+        photax.errors.UnreadableFileError: ...: is a folder, expected a GCP file
+    """
 
     def __init__(self, *args):
         Exception.__init__(self, *args)  # not OSError's (errno, strerror) signature
@@ -63,23 +85,85 @@ class UnreadableFileError(PhotaxError, OSError, ValueError):
 
 class UnsupportedFormatError(PhotaxError, ValueError):
     """A file (or a ``format=``) photax does not read: the message names the file and what was looked for
-    (``photax.io.satellite.FORMATS`` for RPC files)."""
+    (``photax.io.satellite.FORMATS`` for RPC files).
+
+    Examples:
+        A text file that is no RPC file of any family photax reads (the message lists them):
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "notes.txt"
+        >>> _ = path.write_text("hello\\n")
+        >>> ptx.read_rpc(path)
+        Traceback (most recent call last):
+        ...
+        photax.errors.UnsupportedFormatError: ...notes.txt: not an RPC file photax reads; it reads ...
+    """
 
 
 class NoEntryError(UnsupportedFormatError, LookupError):
-    """A file of several entries (an orthority ``rpc_param.yaml``, a camera file) has none of the name asked for."""
+    """A file of several entries (an orthority ``rpc_param.yaml``, a camera file) has none of the name asked for.
+
+    Examples:
+        An orthority ``rpc_param.yaml`` with one image, asked for another:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import write_orthority_rpc
+        >>> t = np.eye(20)  # terms 1, L, P of the 20: column = 500 + 500 L, row = 500 - 500 P
+        >>> rpc = ptx.RPCCamera([-t[2], t[0], t[1], t[0]], [10.0, 45.0, 0.0, 500.0, 500.0],
+        ...                     [0.01, 0.01, 500.0, 500.0, 500.0], image_size=(1000, 1000))
+        >>> path = write_orthority_rpc(pathlib.Path(tempfile.mkdtemp()) / "rpc_param.yaml", {"scene.tif": rpc})
+        >>> ptx.read_rpc(path, "other.tif")
+        Traceback (most recent call last):
+        ...
+        photax.errors.NoEntryError: ...rpc_param.yaml: no entry 'other.tif' (it has 1)
+    """
 
 
 class CRSMismatchError(PhotaxError, ValueError):
-    """Inputs in different (or missing, or unusable) coordinate reference systems."""
+    """Inputs in different (or missing, or unusable) coordinate reference systems.
+
+    Examples:
+        photax does not reproject between two CRSs it is handed; it names both:
+
+        >>> from photax.geo import require_same
+        >>> require_same("EPSG:32632", "the DEM", "EPSG:32633", "the GCPs")
+        Traceback (most recent call last):
+        ...
+        photax.errors.CRSMismatchError: the DEM is in EPSG:32632 but the GCPs in EPSG:32633; ...
+    """
 
 
 class OutsideValidityError(PhotaxError, ValueError):
-    """Points outside where a model holds: a sensor's height range or ground box, a CRS's or a grid's area."""
+    """Points outside where a model holds: a sensor's height range or ground box, a CRS's or a grid's area.
+
+    Examples:
+        UTM stops at 84 N:
+
+        >>> import photax as ptx
+        >>> ptx.utm_crs(lon=10.0, lat=85.0)
+        Traceback (most recent call last):
+        ...
+        photax.errors.OutsideValidityError: no UTM zone at lon 10.0, lat 85.0 (UTM covers lat 80 S to 84 N)
+    """
 
 
 class DegenerateGeometryError(PhotaxError, ValueError):
-    """A configuration that does not determine the answer: collinear points, a singular transform."""
+    """A configuration that does not determine the answer: collinear points, a singular transform.
+
+    Examples:
+        Four points on one line do not fix a projective transform:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> line = np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0], [3.0, 3.0]])
+        >>> ptx.fit_projective(line, np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]]))
+        Traceback (most recent call last):
+        ...
+        photax.errors.DegenerateGeometryError: degenerate configuration for a projective transform: ...
+    """
 
 
 class NotConvergedError(PhotaxError, ValueError):
@@ -103,12 +187,40 @@ class ConvergenceError(NotConvergedError, RuntimeError):
 
 class MalformedFileError(PhotaxError, ValueError):
     """A file of a format photax reads, with a bad or missing value; the message names the file and the
-    line (text) or key (XML, JSON)."""
+    line (text) or key (XML, JSON).
+
+    Examples:
+        A ``KEY: value`` RPC text without its coefficients:
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "scene_RPC.TXT"
+        >>> _ = path.write_text("LINE_OFF: 500\\nSAMP_OFF: 500\\n")
+        >>> ptx.read_rpc(path)
+        Traceback (most recent call last):
+        ...
+        photax.errors.MalformedFileError: ...scene_RPC.TXT: missing LINE_NUM_COEFF_1 .. _20, ...
+    """
 
 
 class OutputCRSError(CRSMismatchError):
     """The output CRS asked for is not one this sensor model can give the output in (a frame
-    image's ortho is in its orientation's CRS); the message names both CRSs."""
+    image's ortho is in its orientation's CRS); the message names both CRSs.
+
+    Examples:
+        A frame image oriented in UTM 33N asked for an ortho grid in longitude and latitude:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.grid import ortho_grid
+        >>> camera = ptx.FrameCamera.from_pixels(100.0, (100, 100))
+        >>> exterior = ptx.ExteriorOrientation([500000.0, 4000000.0, 100.0], [0.0, 0.0, 0.0])
+        >>> dem = ptx.DEM(np.zeros((101, 101)), (1.0, 0.0, 499950.0, 0.0, -1.0, 4000050.0), crs="EPSG:32633")
+        >>> ortho_grid(exterior, camera, dem, spec=ptx.GridSpec(crs="EPSG:4326"))
+        Traceback (most recent call last):
+        ...
+        photax.errors.OutputCRSError: the output CRS (EPSG:4326) is not the frame orientation's (EPSG:32633): ...
+    """
 
 
 class PartialDEMWarning(UserWarning):
@@ -117,6 +229,22 @@ class PartialDEMWarning(UserWarning):
 
     Attributes:
         coverage: the covered share of the image, 0 .. 1.
+
+    Examples:
+        A nadir image 100 m on a side orthorectified on a DEM of its western half only
+        (:func:`photax.dem_coverage`'s example): the ortho comes with a warning of the share:
+
+        >>> import warnings
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> camera = ptx.FrameCamera.from_pixels(100.0, (100, 100))
+        >>> exterior = ptx.ExteriorOrientation([0.0, 0.0, 100.0], [0.0, 0.0, 0.0])
+        >>> west = ptx.DEM(np.zeros((101, 51)), (1.0, 0.0, -50.0, 0.0, -1.0, 50.0))  # x from -50 to 1 m
+        >>> with warnings.catch_warnings(record=True) as caught:
+        ...     warnings.simplefilter("always")
+        ...     _ = ptx.orthorectify(np.ones((100, 100)), exterior, camera, west)
+        >>> [(type(w.message).__name__, w.message.coverage) for w in caught]
+        [('PartialDEMWarning', 0.5)]
     """
 
     def __init__(self, message: str, coverage: float):

@@ -40,7 +40,15 @@ def utm_crs(lon: float, lat: float) -> str:
     the Norway and Svalbard exceptions, as orthority and ODM choose it.
     Raises :class:`photax.errors.OutsideValidityError` outside UTM's latitudes
     (80 S to 84 N) or longitudes, or for a non-finite point.
+
+    Examples:
+        Milan (9.19 E, 45.46 N) is in zone 32 north, Santiago de Chile (70.6 W, 33.4 S) in 19 south:
+
+        >>> import photax as ptx
+        >>> ptx.utm_crs(lon=9.19, lat=45.46), ptx.utm_crs(lon=-70.6, lat=-33.4)
+        ('EPSG:32632', 'EPSG:32719')
     """
+
     lon, lat = float(lon), float(lat)
     if not (math.isfinite(lon) and math.isfinite(lat) and -180 <= lon <= 180 and -80 <= lat <= 84):
         raise OutsideValidityError(f"no UTM zone at lon {lon}, lat {lat} (UTM covers lat 80 S to 84 N)")

@@ -139,6 +139,22 @@ class Georeferenced:
         result: the adjustment of ``problem`` (None with ``adjust=False``).
         notes: what was left out and why (GCP rows of images not in the model,
             check points seen in fewer than two images, ...).
+
+    Examples:
+        A block whose GNSS positions are its own centres moved 100 m east and 200 m north: the
+        similarity is that shift (scale 1), and the report says so:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.scene import synthetic_block
+        >>> problem, _ = synthetic_block(0, n_control=0, n_check=0)
+        >>> centres = np.asarray(problem.exterior.position)
+        >>> gnss = {name: c + [100.0, 200.0, 0.0] for name, c in zip(problem.image_names, centres)}
+        >>> geo = ptx.georeference(problem, gnss=gnss, gnss_sigma=0.05, adjust=False)
+        >>> print(np.round(geo.similarity.translation, 6) + 0.0, geo.result, geo.notes)
+        [100. 200.   0.] None ()
+        >>> print(geo.report().split(";")[0])
+        similarity model -> ground: scale 1, rotation ... deg, translation [ 1.00e+02,  2.00e+02, ...]
     """
 
     similarity: Similarity
@@ -235,7 +251,26 @@ def georeference(
         ValueError: too few points for the similarity, a GCP named like a tie
             point, GNSS positions without ``gnss_sigma``, an unknown image
             for every GCP row.
+
+    Examples:
+        A block at 1 : 100 in its own frame (a photograph does not know its scale: the same image
+        coordinates) put back on its images' GNSS positions; ``adjust=False`` stops after the
+        similarity:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.scene import synthetic_block
+        >>> problem, _ = synthetic_block(0, n_control=0, n_check=0)
+        >>> e = problem.exterior
+        >>> small = ptx.ExteriorOrientation(np.asarray(e.position) / 100, e.angles, e.convention)
+        >>> model = problem.replace(exterior=small, points=problem.points / 100)
+        >>> gnss = dict(zip(problem.image_names, np.asarray(e.position)))
+        >>> geo = ptx.georeference(model, gnss=gnss, gnss_sigma=0.05, adjust=False)
+        >>> back = bool(np.allclose(geo.problem.points, problem.points, rtol=0, atol=1e-6))
+        >>> print(f"{geo.similarity.scale:.6f}", back)
+        100.000000 True
     """
+
     if gcps is None and not gnss:
         raise ValueError("georeference needs GCPs (gcps=) or GNSS positions of the images (gnss=)")
     find = _image_index(problem.image_names)

@@ -210,6 +210,20 @@ class GridSpec:
 
     A grid made from the footprint (no ``bounds``) is always target aligned, so that orthos of
     one resolution share one pixel lattice (what :func:`photax.mosaic` needs).
+
+    Examples:
+        ``-tr 10 -tap`` over an image's footprint snaps it outwards to whole 10 m pixels; ``-ts``
+        divides given bounds into a size:
+
+        >>> import photax as ptx
+        >>> footprint = (1003.0, 2001.0, 1096.0, 2047.0)
+        >>> g = ptx.GridSpec(resolution=10.0).grid(footprint)
+        >>> g.shape, g.transform[2], g.transform[5]  # rows, cols; the top-left corner
+        ((5, 10), 1000.0, 2050.0)
+        >>> ptx.GridSpec(bounds=(0.0, 0.0, 100.0, 50.0), size=(4, 2)).grid().transform[0]  # 100 m / 4
+        25.0
+        >>> ptx.GridSpec(bounds=(0.0, 0.0, 100.0, 50.0)).fixed  # without a resolution: it waits for the image's
+        False
     """
 
     bounds: tuple | None = None
@@ -383,7 +397,19 @@ def dem_coverage(exterior, camera, dem: DEM, *, samples: int = 8, crs=None) -> f
 
     :func:`photax.orthorectify` warns (:class:`photax.errors.PartialDEMWarning`) below
     :data:`PARTIAL_DEM` and refuses an image the DEM does not cover at all.
+
+    Examples:
+        A nadir image 100 m on a side (100 px, f = 100 px, 100 m up) over a DEM of its western half:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> camera = ptx.FrameCamera.from_pixels(100.0, (100, 100))
+        >>> exterior = ptx.ExteriorOrientation([0.0, 0.0, 100.0], [0.0, 0.0, 0.0])
+        >>> west = ptx.DEM(np.zeros((101, 51)), (1.0, 0.0, -50.0, 0.0, -1.0, 50.0))  # x from -50 to 1 m
+        >>> ptx.dem_coverage(exterior, camera, west)
+        0.5
     """
+
     if int(samples) < 2:
         raise ValueError(f"samples: expected at least 2, got {samples}")
     sensor, _ = _sensor(exterior, camera, dem, crs)

@@ -156,7 +156,20 @@ def morph(
 
 
 def morph_sequence(image_a, image_b, lines_a, lines_b, frames: int = 10, **kwargs) -> np.ndarray:
-    """``(frames, ..., H, W)``: :func:`morph` at ``t = 0, 1/(frames-1), ..., 1`` (``frames >= 2``)."""
+    """``(frames, ..., H, W)``: :func:`morph` at ``t = 0, 1/(frames-1), ..., 1`` (``frames >= 2``).
+
+    Examples:
+        Five frames from black to grey 100 (control points that stay put: a pure cross-dissolve),
+        ``t`` in steps of 1/4:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> a, b = np.zeros((20, 30)), np.full((20, 30), 100.0)
+        >>> pts = np.array([[5.0, 5.0], [25.0, 15.0], [5.0, 15.0]])
+        >>> frames = ptx.morph_sequence(a, b, pts, pts, frames=5)
+        >>> frames.shape, frames[:, 10, 15].tolist()
+        ((5, 20, 30), [0.0, 25.0, 50.0, 75.0, 100.0])
+    """
     if int(frames) < 2:
         raise ValueError(f"frames must be >= 2, got {frames}")
     return np.stack([morph(image_a, image_b, lines_a, lines_b, t, **kwargs) for t in np.linspace(0, 1, int(frames))])

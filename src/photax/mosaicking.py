@@ -1083,6 +1083,28 @@ def mosaic(
             lattices, an ortho with no valid pixel, an ortho that overlaps no
             other, groups of orthos with no overlap between them, a gain the
             balancing leaves undetermined or makes <= 0, bad arguments.
+
+    Examples:
+        Two orthos of one scene overlapping by 20 columns, joined by nearest nadir: the left of the
+        mosaic comes from the first, the right from the second, and both agree with the scene
+        (the balancing finds gain 1, offset 0):
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> yy, xx = np.mgrid[0:40, 0:60]
+        >>> scene = (100 + 50 * np.sin(xx / 5.0) * np.cos(yy / 7.0)).astype(np.uint8)
+        >>> a = ptx.write_geotiff(folder / "a.tif", scene[:, :40], (1.0, 0.0, 0.0, 0.0, -1.0, 40.0), "EPSG:32633", nodata=0)
+        >>> b = ptx.write_geotiff(folder / "b.tif", scene[:, 20:], (1.0, 0.0, 20.0, 0.0, -1.0, 40.0), "EPSG:32633", nodata=0)
+        >>> info = {}
+        >>> m = ptx.mosaic([a, b], method="voronoi", info=info)  # lazy: computed below
+        >>> m.shape, str(m.rio.crs), info["gains"].tolist(), info["offsets"].tolist()
+        ((40, 60), 'EPSG:32633', [1.0, 1.0], [0.0, 0.0])
+        >>> np.unique(info["labels"][:, :25]).tolist(), np.unique(info["labels"][:, 35:]).tolist()
+        ([0], [1])
+        >>> bool(np.allclose(m.compute().values, scene, atol=1e-3))
+        True
     """
     plan = _plan(
         orthos,

@@ -102,6 +102,25 @@ class RPCBlock:
         sigma0: a posteriori standard deviation of unit weight (NaN without redundancy).
         redundancy: observations (including priors and weighted GCPs) minus unknowns.
         iterations: Gauss-Newton iterations.
+
+    Examples:
+        Two toy RPCs, the second looking obliquely (its column grows with height), three tie points
+        measured without error and no GCPs (the corrections' prior is the datum): the ties are
+        intersected at their true lon, lat, h, and nothing is left to correct:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> t = np.eye(20)  # terms 1, L, P, H of the 20: column = 500 + 500 (L + k H), row = 500 - 500 P
+        >>> off, scale = [10.0, 45.0, 0.0, 500.0, 500.0], [0.01, 0.01, 500.0, 500.0, 500.0]
+        >>> cams = [ptx.RPCCamera([-t[2], t[0], t[1] + k * t[3], t[0]], off, scale, image_size=(1000, 1000))
+        ...         for k in (0.0, 0.2)]
+        >>> truth = np.array([[10.004, 45.003, 300.0], [9.998, 44.998, 200.0], [10.001, 44.995, 50.0]])
+        >>> ties = np.array([[k, i, *np.asarray(c(truth))[k]] for k in range(3) for i, c in enumerate(cams)])
+        >>> block = ptx.adjust_rpc_block(cams, ties, correction_sigma=1.0)
+        >>> block.tie_ids.tolist(), bool(np.allclose(block.tie_ground, truth, rtol=0, atol=1e-6))
+        ([0, 1, 2], True)
+        >>> bool(np.abs(block.corrections).max() < 1e-9), block.residuals.shape, block.redundancy
+        (True, (6, 2), 3)
     """
 
     cameras: list
@@ -229,29 +248,31 @@ def adjust_rpc_block(
         ConvergenceError: Gauss-Newton did not settle in ``max_iterations``.
 
     Examples:
-        Two toy RPCs that see heights as column parallax, the second one off by a known shift: ties
-        and two GCPs measured where the true geometry puts them, the block finds the shift (ties from
-        images: :func:`photax.match_ties` on their :class:`photax.GroundSensor` s, passed as they come):
+        Two toy RPCs (the second oblique: its column grows with height) whose measurements are off by
+        2 columns in the first image and -1 row in the second; four GCPs and two tie points find the
+        two shifts, and the ties' true positions (ties from images: :func:`photax.match_ties` on their
+        :class:`photax.GroundSensor` s, passed as they come):
 
         >>> import numpy as np
         >>> import photax as ptx
-        >>> e = np.eye(20)  # RPC00B terms: 1, L, P, H, ...
-        >>> def toy(tilt):  # column L + tilt H, row -P
-        ...     return ptx.RPCCamera.from_dict(dict(
-        ...         samp_num_coeff=e[1] + tilt * e[3], samp_den_coeff=e[0], line_num_coeff=-e[2], line_den_coeff=e[0],
-        ...         long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
-        ...         long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0))
-        >>> cams, shift = [toy(0.3), toy(-0.3)], np.array([2.0, -1.5])  # px: image 1 is there, its RPC not
-        >>> rng = np.random.default_rng(0)
-        >>> ground = np.column_stack([10 + rng.uniform(-0.008, 0.008, 14), 45 + rng.uniform(-0.008, 0.008, 14),
-        ...                           rng.uniform(0.0, 300.0, 14)])
-        >>> rows = np.array([[k, i, *(np.asarray(cams[i](g)) + (shift if i else 0))]
-        ...                  for k, g in enumerate(ground) for i in (0, 1)])
-        >>> gcp = rows[rows[:, 0] >= 12] - [12, 0, 0, 0]  # the last two points are GCPs
-        >>> res = ptx.adjust_rpc_block(cams, rows[rows[:, 0] < 12], (ground[12:], gcp))
-        >>> [f"{v:.4f}" for v in np.round(res.corrections[:, :, 0].ravel(), 4) + 0.0]  # image 0, image 1
-        ['0.0000', '0.0000', '2.0000', '-1.5000']
+        >>> t = np.eye(20)  # terms 1, L, P, H of the 20: column = 500 + 500 (L + k H), row = 500 - 500 P
+        >>> off, scale = [10.0, 45.0, 0.0, 500.0, 500.0], [0.01, 0.01, 500.0, 500.0, 500.0]
+        >>> cams = [ptx.RPCCamera([-t[2], t[0], t[1] + k * t[3], t[0]], off, scale, image_size=(1000, 1000))
+        ...         for k in (0.0, 0.2)]
+        >>> bias = np.array([[2.0, 0.0], [0.0, -1.0]])
+        >>> measure = lambda points: np.array([[k, i, *(np.asarray(c(points))[k] + bias[i])]
+        ...                                    for k in range(len(points)) for i, c in enumerate(cams)])
+        >>> gcps = np.array([[10.002, 45.001, 50.0], [10.007, 44.996, 80.0], [9.995, 45.004, 20.0],
+        ...                  [9.993, 44.994, 120.0]])
+        >>> tie_truth = np.array([[10.004, 45.003, 300.0], [9.998, 44.998, 200.0]])
+        >>> block = ptx.adjust_rpc_block(cams, measure(tie_truth), (gcps, measure(gcps)), model="shift")
+        >>> print(np.round(block.corrections[:, :, 0], 6) + 0.0)  # a0, b0 of each image (px)
+        [[ 2.  0.]
+         [ 0. -1.]]
+        >>> bool(np.allclose(block.tie_ground, tie_truth, rtol=0, atol=1e-6))
+        True
     """
+
     if model not in _TERMS:
         raise ValueError(f"model: expected one of {', '.join(_TERMS)}, got {model!r}")
     cameras = [c.camera if is_sensor(c) else c for c in cameras]  # a GroundSensor's RPC

@@ -168,6 +168,20 @@ class Validity:
         ground_box: ``(xmin, ymin, xmax, ymax)`` in the sensor's ``crs`` outside which it gives NaN (an
             RPC's or a push-broom model's lon, lat box widened by :data:`RPC_MARGIN`), or None (a frame:
             everything in front of the camera).
+
+    Examples:
+        A frame holds everywhere in front of it; a push-broom model within a lon, lat box around
+        its scene (here in the scene's UTM zone), at any height:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> frame = ptx.FrameSensor(ptx.ExteriorOrientation([0.0, 0.0, 100.0], [0.0, 0.0, 0.0]),
+        ...                         ptx.FrameCamera.from_pixels(100.0, (100, 100)))
+        >>> frame.validity
+        Validity(height_range=None, ground_box=None)
+        >>> v = ptx.GroundSensor(ptx.pushbroom_scene(image_size=(2000, 2000)).camera, ptx.utm_crs(10.0, 45.0)).validity
+        >>> v.height_range, len(v.ground_box), bool(v.ground_box[0] < 578000 < v.ground_box[2])  # E of 10 E, 45 N
+        (None, 4, True)
     """
 
     height_range: tuple[float, float] | None
@@ -182,6 +196,19 @@ class Sensor(Protocol):
     model: the map CRS it was built for, ``Z`` ellipsoidal); pixels are ``(column, row)``
     (``docs/conventions.md``).  Implemented by :class:`FrameSensor` and :class:`GroundSensor`;
     :func:`sensor_of` builds one from ``(exterior, camera, crs)``.
+
+    Examples:
+        A protocol, checked at run time: a frame sensor is one, a bare camera is not until
+        :func:`sensor_of` gives it its orientation:
+
+        >>> import photax as ptx
+        >>> from photax.sensor import sensor_of
+        >>> camera = ptx.FrameCamera.from_pixels(100.0, (100, 100))
+        >>> exterior = ptx.ExteriorOrientation([0.0, 0.0, 100.0], [0.0, 0.0, 0.0])
+        >>> isinstance(camera, ptx.Sensor), isinstance(sensor_of(exterior, camera), ptx.Sensor)
+        (False, True)
+        >>> sensor_of(exterior, camera).kind
+        'frame'
     """
 
     @property
@@ -208,7 +235,24 @@ class Sensor(Protocol):
 class FrameSensor(Module):
     """A frame camera: the collinearity equations (``docs/conventions.md``); NaN behind the camera and
     past the fold of its lens distortion.  ``crs``: the orientation's CRS, where known (the products
-    then check the DEM's and the grid's against it)."""
+    then check the DEM's and the grid's against it).
+
+    Examples:
+        A nadir camera 100 m up (f = 100 px): the nadir images at the centre pixel, a point 10 m east
+        and 20 m north 10 columns right and 20 rows up, a point above the camera nowhere; and back:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> sensor = ptx.FrameSensor(ptx.ExteriorOrientation([0.0, 0.0, 100.0], [0.0, 0.0, 0.0]),
+        ...                          ptx.FrameCamera.from_pixels(100.0, (100, 100)), crs="EPSG:32633")
+        >>> print(np.asarray(sensor.project(np.array([[0.0, 0.0, 0.0], [10.0, 20.0, 0.0], [0.0, 0.0, 200.0]]))))
+        [[49.5 49.5]
+         [59.5 29.5]
+         [ nan  nan]]
+        >>> ground, ok = sensor.localize(np.array([[59.5, 29.5]]), 0.0)
+        >>> print(np.asarray(ground), np.asarray(ok))
+        [[10. 20.  0.]] [ True]
+    """
 
     exterior: ExteriorOrientation
     camera: FrameCamera
@@ -265,7 +309,16 @@ class FrameSensor(Module):
 @runtime_checkable
 class GroundCamera(Protocol):
     """What :class:`GroundSensor` asks of a camera whose ground is lon, lat (deg) and ellipsoidal height
-    (m): :class:`photax.rpc.RPCCamera`, :class:`photax.PushbroomCamera`."""
+    (m): :class:`photax.rpc.RPCCamera`, :class:`photax.PushbroomCamera`.
+
+    Examples:
+        A push-broom camera is one (its ground is lon, lat, h), a frame camera is not:
+
+        >>> import photax as ptx
+        >>> pushbroom = ptx.pushbroom_scene(image_size=(2000, 2000)).camera
+        >>> isinstance(pushbroom, ptx.GroundCamera), isinstance(ptx.FrameCamera(0.1), ptx.GroundCamera)
+        (True, False)
+    """
 
     image_size: tuple[int, int] | None
 
@@ -282,7 +335,26 @@ class GroundSensor(Module):
     """A ground camera (:class:`GroundCamera`: an RPC, a push-broom model) seen from a map CRS (module
     docstring): ground ``(X, Y)`` of ``crs`` -> lon, lat (a :class:`LocalTransform` fitted over the
     camera's validity box), ``Z`` the ellipsoidal height; NaN outside the lon, lat validity box widened
-    by :data:`RPC_MARGIN` (an RPC's heights beyond its range are extrapolated: :func:`check_rpc_dem` warns)."""
+    by :data:`RPC_MARGIN` (an RPC's heights beyond its range are extrapolated: :func:`check_rpc_dem` warns).
+
+    Examples:
+        A toy RPC (column ``500 + 500 L``, row ``500 - 500 P``) seen from UTM zone 32: the point at
+        10.005 E, 45.005 N goes to pixel (750, 250) from its UTM coordinates, and back:
+
+        >>> import numpy as np
+        >>> from pyproj import Transformer
+        >>> import photax as ptx
+        >>> t = np.eye(20)
+        >>> rpc = ptx.RPCCamera([-t[2], t[0], t[1], t[0]], [10.0, 45.0, 0.0, 500.0, 500.0],
+        ...                     [0.01, 0.01, 500.0, 500.0, 500.0], image_size=(1000, 1000))
+        >>> sensor = ptx.GroundSensor(rpc, "EPSG:32632")
+        >>> e, n = Transformer.from_crs("EPSG:4326", "EPSG:32632", always_xy=True).transform(10.005, 45.005)
+        >>> print(np.round(np.asarray(sensor.project(np.array([[e, n, 100.0]]))), 6), sensor.kind)
+        [[750. 250.]] rpc
+        >>> ground, ok = sensor.localize(np.array([[750.0, 250.0]]), 100.0)
+        >>> bool(np.allclose(ground, [[e, n, 100.0]], rtol=0, atol=1e-6)), sensor.validity.height_range
+        (True, (-500.0, 500.0))
+    """
 
     camera: GroundCamera
     to_lonlat: LocalTransform

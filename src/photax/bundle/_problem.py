@@ -93,6 +93,25 @@ class BundleProblem:
             height at the tie points, ground unit, > 0.  Needed with ``dem``.
         crs: the ground CRS of points and positions (text: WKT, EPSG...), or
             None; with ``dem`` the two horizontal CRSs must agree.
+
+    Examples:
+        Two nadir images 600 m apart, 1000 m up, seeing four control points and one tie point; the
+        observations are the points' projections, listed image by image:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> camera = ptx.FrameCamera(focal_length=0.1)
+        >>> exterior = [ptx.ExteriorOrientation([x, 0.0, 1000.0], [0.0, 0.0, 0.0]) for x in (0.0, 600.0)]
+        >>> points = np.array([[-200.0, -200, 0], [800, -200, 10], [800, 200, 0], [-200, 200, 30], [300, 0, 20]])
+        >>> xy = np.concatenate([np.asarray(ptx.project(points, e, camera)) for e in exterior])
+        >>> problem = ptx.BundleProblem(camera, exterior, points, [0] * 5 + [1] * 5, [0, 1, 2, 3, 4] * 2, xy,
+        ...                             obs_sigma=5e-6, roles=["control"] * 4 + ["tie"])
+        >>> problem
+        BundleProblem(2 images, 1 cameras, 5 points (4 control, 0 check), 10 observations)
+        >>> problem.obs_sigma[0].tolist(), problem.image_camera.tolist()  # per observation; one shared camera
+        ([5e-06, 5e-06], [0, 0])
+        >>> problem.replace(point_sigma=0.05).point_sigma[0].tolist()  # control weighted, not fixed
+        [0.05, 0.05, 0.05]
     """
 
     def __init__(

@@ -22,7 +22,28 @@ def initialize_block(problem: BundleProblem, *, min_control: int = 4) -> BundleP
     and check points whose coordinates are NaN are intersected
     (:func:`photax.intersect`) from all oriented images that see them.
     Check points are never used as control here.
+
+    Examples:
+        Two images of unknown orientation (NaN) and a tie point of unknown position: each image is
+        resected from the four control points it sees, then the tie point intersected; exact
+        observations give the truth back:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> camera = ptx.FrameCamera(focal_length=0.1)
+        >>> truth = [ptx.ExteriorOrientation([x, 0.0, 1000.0], [0.0, 0.0, 0.0]) for x in (0.0, 600.0)]
+        >>> points = np.array([[-200.0, -200, 0], [800, -200, 10], [800, 200, 0], [-200, 200, 30], [300, 0, 20]])
+        >>> xy = np.concatenate([np.asarray(ptx.project(points, e, camera)) for e in truth])
+        >>> unknown = ptx.ExteriorOrientation(np.full((2, 3), np.nan), np.full((2, 3), np.nan))
+        >>> start = np.vstack([points[:4], [np.nan] * 3])
+        >>> problem = ptx.BundleProblem(camera, unknown, start, [0] * 5 + [1] * 5, [0, 1, 2, 3, 4] * 2, xy,
+        ...                             roles=["control"] * 4 + ["tie"])
+        >>> filled = ptx.initialize_block(problem)
+        >>> print(np.round(np.asarray(filled.exterior.position), 6) + 0.0, np.round(filled.points[4], 6) + 0.0)
+        [[   0.    0. 1000.]
+         [ 600.    0. 1000.]] [300.   0.  20.]
     """
+
     pos = np.array(problem.exterior.position)
     ang = np.array(problem.exterior.angles)
     conv = problem.exterior.convention

@@ -227,7 +227,22 @@ def pansharpen_dask(
     Raises:
         ValueError: a bad argument, or no overlap, when the graph is built (from the geometry alone);
             the data's errors (too few valid pixels, a constant PAN) when it is computed.
+
+    Examples:
+        A lazy result in 32 x 32 px chunks, equal to the in-memory fusion once computed:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> pan = np.random.default_rng(0).uniform(50, 150, (64, 64))
+        >>> ms = np.stack([k * pan.reshape(16, 4, 16, 4).mean(axis=(1, 3)) for k in (0.8, 1.0, 1.2)])
+        >>> lazy = ptx.pansharpen_dask(pan, ms, "gs", chunks=32)
+        >>> lazy.dims, lazy.chunks
+        (('band', 'y', 'x'), ((3,), (32, 32), (32, 32)))
+        >>> gap = np.abs(lazy.compute().values - ptx.pansharpen(pan, ms, "gs").image).max()
+        >>> bool(gap < 1e-4)
+        True
     """
+
     import dask
     import dask.array as da
     from rasterio import Affine

@@ -63,6 +63,22 @@ class Sharpened:
         gains: ``(bands,)`` the injection gains ``g_k`` (additive methods) or ``s_k / s_P`` (MRA).
         ratio: the PAN/MS pixel-size ratio (> 1).
         clipped: how many output values fell outside the dtype's range and were clipped.
+
+    Examples:
+        What :func:`photax.pansharpen` returns besides the image: the method, the size ratio,
+        where the output lies in the PAN and is valid, and the intensity's band weights (estimated,
+        or as given, normalised to sum to 1):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> pan = np.random.default_rng(0).uniform(50, 150, (64, 64))
+        >>> ms = np.stack([k * pan.reshape(16, 4, 16, 4).mean(axis=(1, 3)) for k in (0.8, 1.0, 1.2)])
+        >>> out = ptx.pansharpen(pan, ms, "gs")
+        >>> out.method, out.ratio, out.window, bool(out.valid.all()), out.clipped
+        ('gs', 4.0, (0, 0), True, 0)
+        >>> print(f"{out.weights.sum():.6f}", ptx.pansharpen(pan, ms, "gs", weights=[1, 2, 1]).weights.tolist())
+        1.000000 [0.25, 0.5, 0.25]
+
     """
 
     image: np.ndarray

@@ -130,6 +130,25 @@ class ScannedCamera(FrameCamera):
     camera inside the film (focal length, principal point, distortion) and
     keeps the transform (the scanner is not adjusted).  A camera file's
     ``scan`` block stores it (:mod:`photax.io.camera_file`).
+
+    Examples:
+        A scan at 50 px/mm whose film centre lies at pixel (5600, 5620): the camera's pixels go to
+        the film through the fitted transformation and back, and it projects like any frame camera:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> film = np.array([[-106.0, -106.0], [106.0, -106.0], [106.0, 106.0], [-106.0, 106.0], [0.0, 110.0]])
+        >>> io = ptx.interior_orientation(film * [50.0, -50.0] + [5600.0, 5620.0], film, "similarity")
+
+        >>> camera = io.camera(152.0, image_size=(11200, 11240))
+        >>> type(camera).__name__, round(float(np.mean(camera.pixel_size)), 9)  # mm per pixel
+        ('ScannedCamera', 0.02)
+        >>> print(np.round(np.asarray(camera.pixel_to_image(np.array([[5600.0, 5620.0], [5650.0, 5620.0]]))), 9) + 0.0)
+        [[0. 0.]
+         [1. 0.]]
+        >>> back = camera.image_to_pixel(camera.pixel_to_image(np.array([[123.0, 4567.0]])))
+        >>> print(np.round(np.asarray(back), 6))
+        [[ 123. 4567.]]
     """
 
     transform: PixelTransform

@@ -55,6 +55,25 @@ class BALData:
         camera_index: ``(k,)`` int, camera of each observation.
         point_index: ``(k,)`` int, point of each observation.
         observations: ``(k, 2)`` pixels, origin at the image centre, y up.
+
+    Examples:
+        BAL's arrays in memory, the second camera turned by ``r = (0, 0, pi/2)`` (camera_from_world),
+        which sees point ``(1, 2, 0)`` at ``R X + t = (-2, 1, -10)``, pixel ``100 (-0.2, 0.1)``; as a
+        block (:func:`photax.io.bal.bal_problem`) the turn is photax's world_from_camera kappa of -90 deg:
+
+        >>> import numpy as np
+        >>> from photax.io import BALData
+        >>> from photax.io.bal import bal_problem
+        >>> data = BALData(cameras=np.array([[0, 0, 0, 0, 0, -10, 100, 0, 0], [0, 0, np.pi / 2, 0, 0, -10, 100, 0, 0]]),
+        ...                points=np.array([[1.0, 2.0, 0.0], [0.0, 0.0, 0.0]]),
+        ...                camera_index=np.array([0, 1, 0, 1]), point_index=np.array([0, 0, 1, 1]),
+        ...                observations=np.array([[10.0, 20.0], [-20.0, 10.0], [0.0, 0.0], [0.0, 0.0]]))
+
+        >>> problem = bal_problem(data)
+        >>> print(np.round(np.degrees(np.asarray(problem.exterior.angles)), 6) + 0.0, problem.exterior.convention)
+        [[  0.   0.   0.]
+         [  0.   0. -90.]] omega-phi-kappa
+
     """
 
     cameras: np.ndarray
@@ -138,6 +157,19 @@ def read_bal_arrays(path) -> BALData:
             observation line without 4 fields, an index out of range, a value
             that is not a finite number, a non-positive focal length, or too
             few / too many values.
+
+    Examples:
+        Header, four observations, two cameras of 9 values (no rotation, ``t``, ``f = 100``, no
+        distortion), two points; camera 0 sees point ``(1, 2, 0)`` at ``100 (1, 2) / 10 = (10, 20)``:
+
+        >>> import pathlib, tempfile
+        >>> from photax.io import read_bal_arrays
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "problem.txt"
+        >>> _ = path.write_text("2 2 4\\n0 0 10 20\\n1 0 0 20\\n0 1 0 0\\n1 1 -10 0\\n"
+        ...                     "0 0 0 0 0 -10 100 0 0\\n0 0 0 -1 0 -10 100 0 0\\n1 2 0\\n0 0 0\\n")
+        >>> data = read_bal_arrays(path)
+        >>> data.cameras.shape, data.points.tolist(), data.observations[0].tolist()
+        ((2, 9), [[1.0, 2.0, 0.0], [0.0, 0.0, 0.0]], [10.0, 20.0])
     """
     path = pathlib.Path(path)
     tokens, lines = _tokens(_read_bytes(path))
@@ -297,6 +329,25 @@ def read_bal(path) -> BundleProblem:
     cost is BAL's ``0.5 sum |r|^2`` in pixels^2.  BAL has no control points:
     adjust with ``photax.bundle_adjust(problem, gauge="damped")`` (the LM
     damping handles the 7-parameter datum defect, as Ceres does).
+
+    Examples:
+        Two cameras at ``t = (0, 0, -10)`` and ``(-1, 0, -10)``, no rotation: photax's projection
+        centres are ``C = -R^T t``, the cameras ``f = 100`` px with ``f, k1, k2`` free:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "problem.txt"
+        >>> _ = path.write_text("2 2 4\\n0 0 10 20\\n1 0 0 20\\n0 1 0 0\\n1 1 -10 0\\n"
+        ...                     "0 0 0 0 0 -10 100 0 0\\n0 0 0 -1 0 -10 100 0 0\\n1 2 0\\n0 0 0\\n")
+        >>> problem = ptx.read_bal(path)
+        >>> problem.n_images, problem.n_points, problem.n_observations
+        (2, 2, 4)
+        >>> print(np.asarray(problem.exterior.position) + 0.0, float(problem.cameras[1].focal_length))
+        [[ 0.  0. 10.]
+         [ 1.  0. 10.]] 100.0
+        >>> problem.free_intrinsics[0].tolist()  # f x0 y0 k1 k2 k3 p1 p2
+        [True, False, False, True, True, False, False, False]
     """
     data = read_bal_arrays(path)
     try:
@@ -342,7 +393,24 @@ def write_bal(problem_or_result, path, inputs=()) -> pathlib.Path:
     The problem needs one camera per image with only ``f, k1, k2`` (BAL's
     camera); a result writes its adjusted cameras, orientations and points.
     ``inputs``: files the output may not overwrite.
+
+    Examples:
+        A round trip: the problem read from a BAL file writes the same cameras back (photax's
+        ``C, R`` converted to BAL's ``r, t``):
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.io import read_bal_arrays
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> _ = (folder / "in.txt").write_text("2 2 4\\n0 0 10 20\\n1 0 0 20\\n0 1 0 0\\n1 1 -10 0\\n"
+        ...                                    "0 0 0.1 0 0 -10 100 0 0\\n0 0 0 -1 0 -10 100 0 0\\n1 2 0\\n0 0 0\\n")
+        >>> out = ptx.write_bal(ptx.read_bal(folder / "in.txt"), folder / "out.txt")
+        >>> a, b = read_bal_arrays(folder / "in.txt"), read_bal_arrays(out)
+        >>> bool(np.allclose(a.cameras, b.cameras, atol=1e-12)), bool(np.array_equal(a.observations, b.observations))
+        (True, True)
     """
+
     prob, cams, rot, centres, points = block_state(problem_or_result)
     if not np.array_equal(prob.image_camera, np.arange(prob.n_images)):
         raise ValueError("BAL needs one camera per image (image_camera = arange(n_images))")

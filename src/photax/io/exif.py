@@ -84,6 +84,17 @@ class DroneTags:
         tag_image_size: EXIF ``PixelXDimension``, ``PixelYDimension`` (the size
             the camera wrote; the raster may be a reduced copy).
         sensor_size_mm: from EXIF ``FocalPlaneX/YResolution`` and its unit.
+
+    Examples:
+        Tags as :func:`read_drone_tags` returns them, or made by hand to try the orientation and
+        camera they give:
+
+        >>> import pathlib
+        >>> from photax.io import DroneTags
+        >>> tags = DroneTags(pathlib.Path("DJI_0001.JPG"), (4000, 3000), make="DJI", latitude=45.0, longitude=9.0,
+        ...                  altitude=250.0, gimbal_rpy=(0.0, -90.0, 0.0))
+        >>> tags.path.stem, tags.gimbal_rpy[1], tags.flight_rpy  # pitch -90: the gimbal looks straight down
+        ('DJI_0001', -90.0, None)
     """
 
     path: pathlib.Path
@@ -147,6 +158,25 @@ def read_drone_tags(path) -> DroneTags:
         ValueError: naming the file: not a raster, or a tag present but
             malformed (a latitude out of range, an XMP packet that is not XML,
             an angle that is not a number).
+
+    Examples:
+        A small GeoTIFF given EXIF GPS tags (45 deg 30 min N, 9 deg E, 250 m) and a 35 mm
+        equivalent focal length, as GDAL names them:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import rasterio
+        >>> from photax.io import read_drone_tags
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "IMG_1.tif"
+        >>> with rasterio.open(path, "w", driver="GTiff", width=40, height=30, count=1, dtype="uint8",
+        ...                    transform=rasterio.Affine(1.0, 0.0, 0.0, 0.0, -1.0, 30.0)) as ds:
+        ...     ds.write(np.zeros((1, 30, 40), np.uint8))
+        ...     ds.update_tags(EXIF_GPSLatitude="(45) (30) (0)", EXIF_GPSLatitudeRef="N",
+        ...                    EXIF_GPSLongitude="(9) (0) (0)", EXIF_GPSLongitudeRef="E",
+        ...                    EXIF_GPSAltitude="(250)", EXIF_FocalLengthIn35mmFilm="(24)")
+        >>> tags = read_drone_tags(path)
+        >>> tags.image_size, tags.latitude, tags.longitude, tags.altitude, tags.focal_length_35mm, tags.gimbal_rpy
+        ((40, 30), 45.5, 9.0, 250.0, 24.0, None)
     """
     import warnings
 
@@ -271,6 +301,21 @@ def exterior_from_tags(tags, attitude: str = "gimbal", crs=None) -> tuple[dict[s
 
     Raises:
         ValueError: naming the image: no position or no such attitude tagged.
+
+    Examples:
+        A nadir image (gimbal pitch -90 deg, yaw 0: north up) at 9 E, 45 N, 250 m: in its UTM zone
+        (32, whose central meridian is 9 E) at E 500 000, looking straight down:
+
+        >>> import pathlib
+        >>> import numpy as np
+        >>> from photax.io import DroneTags, exterior_from_tags
+        >>> tags = DroneTags(pathlib.Path("DJI_0001.JPG"), (4000, 3000), latitude=45.0, longitude=9.0, altitude=250.0,
+        ...                  gimbal_rpy=(0.0, -90.0, 0.0))
+        >>> exteriors, crs = exterior_from_tags(tags)
+        >>> crs, np.round(np.asarray(exteriors["DJI_0001"].position), 2).tolist()
+        ('EPSG:32632', [500000.0, 4982950.4, 250.0])
+        >>> bool(np.allclose(exteriors["DJI_0001"].angles, 0.0, atol=1e-9))
+        True
     """
     from ..geo import utm_crs
     from ._geo import projected_crs
@@ -330,7 +375,22 @@ def camera_from_tags(tags: DroneTags):
 
     Raises:
         ValueError: naming the image: none of these tags, or values that make no camera.
+
+    Examples:
+        An 8.8 mm lens on a 13.2 mm wide sensor of 4000 px: pixels of 13.2 / 4000 = 0.0033 mm; or
+        from the 35 mm equivalent alone, ``24 / 36`` of the larger side, in pixels:
+
+        >>> import pathlib
+        >>> from photax.io import DroneTags, camera_from_tags
+        >>> tags = DroneTags(pathlib.Path("a.jpg"), (4000, 3000), focal_length_mm=8.8, sensor_size_mm=(13.2, 9.9))
+        >>> c = camera_from_tags(tags)
+        >>> float(c.focal_length), [round(float(p), 9) for p in c.pixel_size], c.image_size
+        (8.8, [0.0033, 0.0033], (4000, 3000))
+        >>> equivalent = DroneTags(pathlib.Path("b.jpg"), (4000, 3000), focal_length_35mm=24.0)
+        >>> round(float(camera_from_tags(equivalent).focal_length), 6)
+        2666.666667
     """
+
     from .orthority import _camera_from_params
 
     w, h = tags.image_size

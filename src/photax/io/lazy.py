@@ -261,7 +261,25 @@ def to_raster(data, path, *, compress: str | None = "deflate", cog: bool = False
 
     Returns:
         ``path``.
+
+    Examples:
+        A chunked DataArray with a rioxarray georeference, written chunk by chunk and read back:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import rioxarray  # noqa: F401  (the .rio accessor)
+        >>> import xarray as xr
+        >>> import photax as ptx
+        >>> data = xr.DataArray(np.arange(64 * 48, dtype=np.float32).reshape(48, 64), dims=("y", "x")).chunk(16)
+        >>> grid = ptx.Grid.from_bounds((0.0, 0.0, 64.0, 48.0), 1.0)  # 1 m pixels, top-left corner (0, 48)
+        >>> data = data.rio.write_crs("EPSG:32633").rio.write_transform(grid.transform)
+        >>> path = ptx.to_raster(data, pathlib.Path(tempfile.mkdtemp()) / "out.tif")
+        >>> bands, profile = ptx.read_geotiff(path)
+        >>> bool(np.array_equal(bands[0], data.values)), str(profile["crs"]), profile["transform"][:6]
+        (True, 'EPSG:32633', (1.0, 0.0, 0.0, 0.0, -1.0, 48.0))
+
     """
+
     import rioxarray  # noqa: F401
 
     if data.ndim not in (2, 3) or tuple(data.dims[-2:]) != (data.rio.y_dim, data.rio.x_dim):

@@ -180,6 +180,19 @@ def read_opensfm_cameras(path) -> dict[str, FrameCamera]:
     Raises:
         ValueError: naming the file: not a reconstruction, or a camera model
             photax cannot represent (named).
+
+    Examples:
+        OpenSfM's focal length is a share of the larger image side: 0.75 of 4000 px is 3000 px:
+
+        >>> import json, pathlib, tempfile
+        >>> from photax.io import read_opensfm_cameras
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "reconstruction.json"
+        >>> camera = {"projection_type": "perspective", "width": 4000, "height": 3000, "focal": 0.75, "k1": -0.01}
+        >>> _ = path.write_text(json.dumps([{"cameras": {"v2 dji 4000 3000 perspective 0.75": camera}, "shots": {},
+        ...                                  "reference_lla": {"latitude": 45.0, "longitude": 9.0, "altitude": 0.0}}]))
+        >>> cameras = read_opensfm_cameras(path)  # names without OpenSfM's "v2 "
+        >>> {name: (float(c.focal_length), c.image_size, float(c.distortion[0])) for name, c in cameras.items()}
+        {'dji 4000 3000 perspective 0.75': (3000.0, (4000, 3000), -0.01)}
     """
     path = pathlib.Path(path)
     out: dict[str, FrameCamera] = {}
@@ -210,7 +223,27 @@ def read_opensfm_shots(
     Raises:
         ValueError: naming the file: malformed, no shots, a shot name twice,
             or a frame that cannot be decided.
+
+    Examples:
+        One nadir shot (OpenSfM turns its camera by 180 deg about x to look down) 100 m above the
+        reference point 9 E 45 N at 120 m: in UTM zone 32 that is on the central meridian, E 500 000:
+
+        >>> import json, pathlib, tempfile
+        >>> import numpy as np
+        >>> from photax.io import read_opensfm_shots
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "reconstruction.json"
+        >>> camera = {"projection_type": "perspective", "width": 4000, "height": 3000, "focal": 0.75}
+        >>> shot = {"camera": "v2 cam", "rotation": [np.pi, 0.0, 0.0], "translation": [0.0, 0.0, 100.0]}
+        >>> _ = path.write_text(json.dumps([{"cameras": {"v2 cam": camera}, "shots": {"IMG_1.JPG": shot},
+        ...                                  "reference_lla": {"latitude": 45.0, "longitude": 9.0, "altitude": 120}}]))
+
+        >>> shots, crs, cameras = read_opensfm_shots(path)
+        >>> crs, cameras, np.round(np.asarray(shots["IMG_1"].position), 2).tolist()
+        ('EPSG:32632', {'IMG_1': 'cam'}, [500000.0, 4982950.4, 220.0])
+        >>> bool(np.allclose(shots["IMG_1"].angles, 0.0, atol=1e-12))  # photax's nadir: no rotation
+        True
     """
+
     if frame not in (None, "topocentric", "grid"):
         raise ValueError(f"frame must be 'topocentric', 'grid' or None, got {frame!r}")
     path = pathlib.Path(path)

@@ -354,8 +354,25 @@ def block_images(path, folder, crs=None) -> tuple[list[pathlib.Path], list[Exter
     Raises:
         ValueError: naming the file: no orientations, or an image missing
             from ``folder``.
+
+    Examples:
+        Two orientations (a Metashape export) and a folder of images: each orientation gets the
+        file of its stem, in the export's order; other files are ignored:
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> from photax.io import block_images, write_opk_export
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> for name in ("IMG_2.tif", "IMG_1.tif", "notes.txt"):
+        ...     _ = (folder / name).write_bytes(b"")
+        >>> eo = {n: ptx.ExteriorOrientation([512300.0 + x, 4103800.0, 450.0], [0.0, 0.0, 0.0], "omega-phi-kappa")
+        ...       for n, x in (("IMG_1", 0.0), ("IMG_2", 100.0))}
+        >>> files, exteriors, crs = block_images(write_opk_export(eo, folder / "opk.txt"), folder)
+        >>> [f.name for f in files], [float(e.position[0]) for e in exteriors], crs
+        (['IMG_1.tif', 'IMG_2.tif'], [512300.0, 512400.0], None)
     """
     table, crs = read_exteriors(path, crs=crs)
+
     files = {p.stem: p for p in sorted(pathlib.Path(folder).iterdir()) if p.is_file()}
     missing = [n for n in table if n not in files]
     if missing:

@@ -654,12 +654,9 @@ def write_orthority_rpc(path, cameras, *, inputs=()) -> pathlib.Path:
 
         >>> import numpy as np
         >>> import photax as ptx
-        >>> one, lon, lat = np.eye(20)[0], np.eye(20)[1], -np.eye(20)[2]  # 1, L, -P of the 20 terms
-        >>> rpc = ptx.RPCCamera.from_dict(dict(
-        ...     samp_num_coeff=lon, samp_den_coeff=one, line_num_coeff=lat, line_den_coeff=one,
-        ...     long_off=10.0, lat_off=45.0, height_off=0.0, samp_off=500.0, line_off=500.0,
-        ...     long_scale=0.01, lat_scale=0.01, height_scale=500.0, samp_scale=500.0, line_scale=500.0,
-        ... ), image_size=(1000, 1000))
+        >>> t = np.eye(20)  # terms 1, L, P of the 20: column = 500 + 500 L, row = 500 - 500 P
+        >>> rpc = ptx.RPCCamera([-t[2], t[0], t[1], t[0]], [10.0, 45.0, 0.0, 500.0, 500.0],
+        ...                     [0.01, 0.01, 500.0, 500.0, 500.0], image_size=(1000, 1000))
         >>> import pathlib, tempfile
         >>> from photax.io import write_orthority_rpc
         >>> path = write_orthority_rpc(pathlib.Path(tempfile.mkdtemp()) / "rpc_param.yaml", {"scene.tif": rpc})

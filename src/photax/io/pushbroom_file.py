@@ -76,6 +76,25 @@ def read_pushbroom(path):
 
     Raises:
         ValueError: naming the file and the offending key (YAML: its line; a syntax error's line).
+
+    Examples:
+        A camera file by hand: an array 1000 px wide, 100 lines, 620 km above the equator at 0 E
+        looking down (the reference turns the camera's -z onto -X, its y onto north), flying north
+        3 km from the first line to the middle one:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "scene.yaml"
+        >>> _ = path.write_text("type: pushbroom\\nimage_size: [1000, 100]\\nfocal_length: 310000.0\\n"
+        ...                     "reference: [[0, 0, 1], [1, 0, 0], [0, 1, 0]]\\n"
+        ...                     "position: [[6998137.0, 0.0, 0.0], [0.0, 0.0, 3000.0]]\\nangles: [[0.0, 0.0, 0.0]]\\n")
+
+        >>> camera = ptx.read_pushbroom(path)
+        >>> camera.image_size, float(camera.focal_length)
+        ((1000, 100), 310000.0)
+        >>> print(np.round(np.asarray(camera(np.array([[0.0, 0.0, 0.0]]))), 6) + 0.0)  # the nadir point
+        [[499.5  49.5]]
     """
     from ..pushbroom import PushbroomCamera
     from ..rotation import CONVENTIONS
@@ -142,7 +161,23 @@ def pushbroom_to_dict(camera, name: str | None = None) -> dict:
 
 def write_pushbroom(camera, path, *, name: str | None = None, inputs=()) -> pathlib.Path:
     """Write ``camera`` (a :class:`photax.PushbroomCamera`) as YAML (``.yaml``/``.yml``) or JSON
-    (``.json``), atomically; ``inputs``: paths it may not overwrite.  Returns the path written."""
+    (``.json``), atomically; ``inputs``: paths it may not overwrite.  Returns the path written.
+
+    Examples:
+        Written and read back, as YAML or JSON: the same camera, bit for bit:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> camera = ptx.pushbroom_scene(image_size=(2000, 2000)).camera
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> backs = [ptx.read_pushbroom(ptx.write_pushbroom(camera, folder / name)) for name in ("c.yaml", "c.json")]
+        >>> same = lambda b: bool(np.array_equal(b.position, camera.position) and np.array_equal(b.angles, camera.angles))
+        >>> [same(b) for b in backs]
+        [True, True]
+        >>> (folder / "c.yaml").read_text().splitlines()[1]
+        'type: pushbroom'
+    """
     path = pathlib.Path(path)
     data = pushbroom_to_dict(camera, name)
     with atomic_write(path, inputs=inputs) as fh:

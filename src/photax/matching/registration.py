@@ -60,6 +60,24 @@ class Registration:
             ``nonfinite`` (a step became NaN), ``implausible`` (the image
             sees almost nothing of the ortho, or the final correlation is
             below ``min_correlation``: a wrong match).
+
+    Examples:
+        :func:`register_to_ortho`'s example, step by step: one entry of ``steps`` and ``rmse`` per
+        level (coarsest first), and within each level the grey residuals shrink:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> scene = ptx.relief_scene(300.0, seed=0, image_size=(400, 300), focal_px=400.0)
+        >>> start = ptx.ExteriorOrientation(np.asarray(scene.exterior.position) + [20.0, -15.0, 0.0],
+        ...                                 scene.exterior.angles)
+        >>> reg = ptx.register_to_ortho(scene.image, scene.camera, start, scene.ortho, scene.ortho_transform,
+        ...                             scene.dem, levels=(4, 2, 1))
+        >>> len(reg.steps), len(reg.rmse), len(reg.history) == sum(reg.steps)
+        (3, 3, True)
+        >>> first = {h["level"]: h["rmse"] for h in reversed(reg.history)}  # before each level's first step
+        >>> [bool(first[level] > end) for level, end in zip((4, 2, 1), reg.rmse)], bool(reg.correlation > 0.9)
+        ([True, True, True], True)
+
     """
 
     exterior: ExteriorOrientation

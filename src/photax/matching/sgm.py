@@ -293,8 +293,21 @@ def disparity_range_from_ties(ties, *, percentiles=(1.0, 99.0), margin: float = 
 
     Raises:
         ValueError: ``ties`` not ``(n, 2)`` with at least one finite pair.
+
+    Examples:
+        Disparities 10 .. 30 px, widened by 2 px on each side (10 % of 20 px is less than 2); a
+        blunder of 500 px, beyond the default 99th percentile, leaves the range as it was:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> ties = np.column_stack([np.linspace(110.0, 130.0, 101), np.full(101, 100.0)])
+        >>> ptx.disparity_range_from_ties(ties, percentiles=(0, 100))
+        (8, 32)
+        >>> ptx.disparity_range_from_ties(np.vstack([ties, [[600.0, 100.0]]]))
+        (8, 32)
     """
     t = np.asarray(ties, dtype=np.float64)
+
     if t.ndim != 2 or t.shape[1] != 2:
         raise ValueError(f"ties must be an (n, 2) array of (x_left, x_right) columns, got shape {t.shape}")
     d = t[:, 0] - t[:, 1]

@@ -114,6 +114,24 @@ class TiePoints:
             image's area whose ground point (on the DEM, approximate
             orientations) images inside the other, the mean of both ways.
         pair_ties: ``{(i, j): tracks seen in both images}`` for every pair ``i < j``.
+
+    Examples:
+        One track seen in two images, its observations in pixels; :meth:`image_plane` gives them in
+        the camera's unit, as :class:`photax.BundleProblem` takes them (the image centre is 0, 0):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.matching import TiePoints
+        >>> ties = TiePoints(obs_image=np.array([0, 1]), obs_point=np.array([0, 0]),
+        ...                  obs_xy=np.array([[499.5, 374.5], [399.5, 374.5]]), obs_sigma=np.array([0.5, 0.5]),
+        ...                  ground=np.array([[0.0, 0.0, 0.0]]), pair_counts={(0, 1): 1},
+        ...                  pair_status={(0, 1): "too few matches"}, image_status=["ok", "ok"])
+        >>> xy, sigma = ties.image_plane(ptx.FrameCamera(8.8, pixel_size=0.0176, image_size=(1000, 750)))
+        >>> print(np.round(xy, 9) + 0.0, np.round(sigma, 9))  # mm: 100 px * 0.0176 mm to the left
+        [[ 0.    0.  ]
+         [-1.76  0.  ]] [0.0088 0.0088]
+        >>> ties.n_tracks
+        1
     """
 
     obs_image: np.ndarray

@@ -350,6 +350,25 @@ def ellipse_centre_offset(homography, radius) -> np.ndarray:
     measured centre with ``xy - ellipse_centre_offset(H, r)``.  ``H`` is
     needed only near each target (e.g. ``K [r1 r2 t]`` from a camera and
     exterior orientation, with the plane's origin at the target).
+
+    Examples:
+        Under a perspective homography the ellipse's centre is not the centre's image; an
+        ellipse's extents are symmetric about its centre, so dense samples of the image of the unit
+        circle find it independently:
+
+        >>> import numpy as np
+        >>> from photax.measure import ellipse_centre_offset
+        >>> H = np.array([[100.0, 10.0, 500.0], [5.0, 90.0, 400.0], [0.02, 0.01, 1.0]])
+        >>> t = np.linspace(0.0, 2.0 * np.pi, 200001)
+        >>> col, row, w = H @ np.stack([np.cos(t), np.sin(t), np.ones_like(t)])
+        >>> sampled = [(v.max() + v.min()) / 2 for v in (col / w, row / w)] - H[:2, 2]  # H (0, 0) = (500, 400)
+        >>> print(np.round(sampled, 6), np.round(ellipse_centre_offset(H, 1.0), 6))
+        [-1.850925 -0.8004  ] [-1.850925 -0.8004  ]
+        >>> affine = H.copy()
+        >>> affine[2] = [0.0, 0.0, 1.0]  # no perspective: an affine map keeps centres
+        >>> print(ellipse_centre_offset(affine, 1.0))
+        [0. 0.]
+
     """
     h = np.asarray(homography, dtype=np.float64)
     if h.shape[-2:] != (3, 3):
@@ -397,8 +416,26 @@ def target_homography(camera, exterior, centre, normal=(0.0, 0.0, 1.0)) -> np.nd
         ``(3, 3)`` or ``(n, 3, 3)``, plane ``(u, v, 1)`` -> pixel ``(col, row, 1)``,
         for :func:`ellipse_centre_offset` (``radius`` in ground units) and
         :func:`photax.scene.patterns.projected_disc`.
+
+    Examples:
+        A level target 100 m below a tilted camera: the homography takes the plane's origin to the
+        target centre's pixel, and plane point ``(u, v)`` to that of ``centre + u e1 + v e2``
+        (here ``e1 = -Y``, ``e2 = X``):
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> from photax.measure import target_homography
+        >>> camera = ptx.FrameCamera.from_pixels(1000.0, (1000, 800))
+        >>> exterior = ptx.ExteriorOrientation([0.0, 0.0, 100.0], np.radians([10.0, 5.0, 0.0]))
+        >>> centre = np.array([20.0, -10.0, 0.0])
+        >>> H = target_homography(camera, exterior, centre)
+        >>> pixel = lambda g: np.asarray(camera.image_to_pixel(ptx.project(g[None], exterior, camera)))[0]
+        >>> plane = lambda u, v: (H @ [u, v, 1.0])[:2] / (H @ [u, v, 1.0])[2]
+        >>> bool(np.allclose(plane(0, 0), pixel(centre))), bool(np.allclose(plane(2, 3), pixel(centre + [3, -2, 0])))
+        (True, True)
     """
     c = np.asarray(centre, dtype=np.float64)
+
     n = np.asarray(normal, dtype=np.float64)
     if c.shape[-1:] != (3,) or c.ndim > 2:
         raise ValueError(f"centre: expected (3,) or (n, 3) ground coordinates, got {c.shape}")

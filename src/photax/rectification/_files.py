@@ -146,6 +146,23 @@ def rectify_file(
 
     Returns:
         ``grid``.
+
+    Examples:
+        :func:`photax.rectify`'s example from a file to a GeoTIFF: the same pixels, georeferenced:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> flat = ptx.relief_scene(0.0, seed=1, image_size=(400, 300), focal_px=400.0)
+        >>> model = ptx.fit_projective(flat.gcp_ground[:, :2], flat.gcp_pixel)
+        >>> grid = ptx.Grid(flat.ortho_transform, flat.ortho.shape)
+        >>> src = ptx.write_geotiff(folder / "image.tif", flat.image, None)
+        >>> _ = ptx.rectify_file(src, folder / "rectified.tif", model, grid, resampling="cubic")
+        >>> bands, profile = ptx.read_geotiff(folder / "rectified.tif")
+        >>> same = np.array_equal(bands[0], ptx.rectify(flat.image, model, grid, resampling="cubic"), equal_nan=True)
+        >>> bool(same), profile["transform"][:6] == tuple(grid.transform)[:6]
+        (True, True)
     """
     # Over 80 lines only by its docstring; the per-tile work is the closure
     # ``one`` (window, read, resample), the rest is setup.
@@ -294,6 +311,22 @@ def orthorectify_file(
 
     Returns:
         the output grid.
+
+    Examples:
+        :func:`photax.orthorectify`'s example from a file to a GeoTIFF, bit for bit:
+
+        >>> import pathlib, tempfile
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> scene = ptx.relief_scene(300.0, seed=0, image_size=(400, 300), focal_px=400.0)
+        >>> grid = ptx.Grid(scene.ortho_transform, scene.ortho.shape)
+        >>> src = ptx.write_geotiff(folder / "frame.tif", scene.image, None)
+        >>> _ = ptx.orthorectify_file(src, folder / "ortho.tif", scene.exterior, scene.camera, scene.dem, grid)
+        >>> bands, _ = ptx.read_geotiff(folder / "ortho.tif")
+        >>> ortho, _ = ptx.orthorectify(scene.image, scene.exterior, scene.camera, scene.dem, grid)
+        >>> bool(np.array_equal(bands[0], ortho, equal_nan=True))
+        True
     """
     from ..io.raster import open_raster
 
@@ -432,7 +465,26 @@ def orthorectify_files(
 
     Returns:
         per image, its output :class:`photax.Grid`, or the exception that stopped it.
+
+    Examples:
+        Two images, one that is no raster: the first is orthorectified on its own 15 m footprint grid
+        (as ``orthorectify(..., resolution=15.0)`` makes it), the second's error is its result:
+
+        >>> import pathlib, tempfile
+        >>> import photax as ptx
+        >>> folder = pathlib.Path(tempfile.mkdtemp())
+        >>> scene = ptx.relief_scene(300.0, seed=0, image_size=(400, 300), focal_px=400.0)
+        >>> good = ptx.write_geotiff(folder / "frame.tif", scene.image, None)
+        >>> _ = (folder / "bad.tif").write_text("not a raster")
+        >>> results = ptx.orthorectify_files([good, folder / "bad.tif"], [folder / "o1.tif", folder / "o2.tif"],
+        ...                                  [scene.exterior] * 2, scene.camera, scene.dem, resolution=15.0)
+        >>> _, own = ptx.orthorectify(scene.image, scene.exterior, scene.camera, scene.dem, resolution=15.0)
+        >>> results[0].shape == own.shape, tuple(results[0].transform) == tuple(own.transform)
+        (True, True)
+        >>> isinstance(results[1], ptx.PhotaxError), (folder / "o2.tif").exists()
+        (True, False)
     """
+
     from ..progress import progress_bar
 
     if spec is not None and resolution is not None:

@@ -182,7 +182,23 @@ def occlusion_mask(
         ``(rows, cols)`` bool, True where the cell's surface point is hidden by a nearer surface;
         False where it is visible and where it is not imaged at all (off the image, no DSM height:
         the ortho is nodata there anyway).
+
+    Examples:
+        A 20 m block from x = -30 to -20 m under a nadir camera 100 m up: it hides the ground behind
+        it out to ``x = -30 * 100 / (100 - 20) = -37.5`` m:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> camera = ptx.FrameCamera.from_pixels(100.0, (100, 100))
+        >>> exterior = ptx.ExteriorOrientation([0.0, 0.0, 100.0], [0.0, 0.0, 0.0])
+        >>> heights = np.zeros((100, 100))
+        >>> heights[40:60, 20:30] = 20.0  # 1 m cells from (-50, 50): y 10 .. -10, x -30 .. -20
+        >>> dsm = ptx.DEM(heights, (1.0, 0.0, -50.0, 0.0, -1.0, 50.0))
+        >>> hidden = ptx.occlusion_mask(exterior, camera, dsm, ptx.Grid.from_bounds((-50.0, -50.0, 50.0, 50.0), 1.0))
+        >>> (np.flatnonzero(hidden[50]) - 50 + 0.5).tolist()  # the cell centres hidden along y = -0.5
+        [-36.5, -35.5, -34.5, -33.5, -32.5, -31.5, -30.5]
     """
+
     if not isinstance(grid, Grid):
         raise ValueError(f"grid must be a photax Grid, got {type(grid).__name__}")
     model = check_ortho_inputs(exterior, camera, dsm, grid)

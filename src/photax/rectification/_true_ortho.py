@@ -46,7 +46,28 @@ def true_ortho(
 
     Returns:
         ``(..., rows, cols)`` array in the images' dtype, ``nodata`` where no image sees the cell.
+
+    Examples:
+        :func:`occlusion_mask`'s 20 m block, seen by the nadir image (grey 1) and by one 80 m west
+        (grey 2): along y = -0.5 the cells from x = -39.5 m take the nadir image, the ground the
+        block hides from it (out to -37.5 m) the western one, the block's top the nadir one again:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> camera = ptx.FrameCamera.from_pixels(100.0, (100, 100))
+        >>> heights = np.zeros((200, 200))
+        >>> heights[90:110, 120:130] = 20.0  # 1 m cells from (-150, 100): y 10 .. -10, x -30 .. -20
+        >>> dsm = ptx.DEM(heights, (1.0, 0.0, -150.0, 0.0, -1.0, 100.0))
+        >>> exteriors = [ptx.ExteriorOrientation([x, 0.0, 100.0], [0.0, 0.0, 0.0]) for x in (0.0, -80.0)]
+        >>> info = {}
+        >>> out = ptx.true_ortho([np.full((100, 100), 1.0), np.full((100, 100), 2.0)], exteriors, camera, dsm,
+        ...                      ptx.Grid.from_bounds((-50.0, -50.0, 50.0, 50.0), 1.0), info=info)
+        >>> out[50, 10:23].tolist()  # x = -39.5 .. -27.5 m
+        [1.0, 1.0, 1.0, 2.0, 2.0, 2.0, 2.0, 2.0, 2.0, 2.0, 1.0, 1.0, 1.0]
+        >>> bool(np.array_equal(info["source"][50, 10:23] + 1, out[50, 10:23]))
+        True
     """
+
     images = list(images) if not hasattr(images, "shape") else [images]
     n = len(images)
     if n == 0:

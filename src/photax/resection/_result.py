@@ -56,6 +56,21 @@ class ResectionResult:
             the corrected image coordinates.
         image_corrections: ``(n, 2)`` corrected minus observed image
             coordinates (image-plane units), or None.
+
+    Examples:
+        A resection whose first control point was measured 15 px off: data snooping rejects it,
+        its residual shows the blunder, and the report names it:
+
+        >>> import numpy as np
+        >>> import photax as ptx
+        >>> scene = ptx.relief_scene(300.0, seed=0, image_size=(400, 300), focal_px=400.0)
+        >>> xy = np.array(scene.camera.pixel_to_image(scene.gcp_pixel))
+        >>> xy[0, 0] += 15.0  # the camera is in pixels
+        >>> res = ptx.resect(xy, scene.gcp_ground, scene.camera, sigma=scene.noise_px)
+        >>> res.names[0], bool(res.outliers[0]), f"{res.residuals[0, 0]:.0f} px"
+        ('P0', True, '-15 px')
+        >>> [line.split()[:2] for line in res.summary().splitlines() if line.strip().startswith("P0 ")]
+        [['P0', 'OUTLIER']]
     """
 
     exterior: ExteriorOrientation
