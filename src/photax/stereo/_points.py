@@ -115,7 +115,7 @@ class PointCloud:
         offset the cloud's minimum rounded down to a whole unit: each coordinate within half a millimetre.
         The CRS goes in an OGC WKT VLR (WKT1, WKT2 where WKT1 cannot express it), the colour as 16-bit
         RGB (``c * 257``), ``residual`` and ``sigma_z`` as float32 extra bytes dimensions of those names
-        (:mod:`photax.stereo._las` for the layout).  What ODM, PDAL, CloudCompare, QGIS and lidR read.
+        (the layout: docs/formats.md, *Point clouds*).  What ODM, PDAL, CloudCompare, QGIS and lidR read.
 
         Args:
             path: the output; ``.laz`` compressed (lazrs), any other suffix uncompressed LAS.
