@@ -20,7 +20,7 @@ laspy = pytest.importorskip("laspy")
 pyproj = pytest.importorskip("pyproj")
 
 from photax.cli import main  # noqa: E402
-from photax.errors import MalformedFileError, UnreadableFileError  # noqa: E402
+from photax.errors import CRSMismatchError, MalformedFileError, UnreadableFileError  # noqa: E402
 from photax.stereo import PointCloud, read_las, read_ply  # noqa: E402
 
 CRS = "EPSG:32633"
@@ -174,6 +174,8 @@ def test_refusals(tmp_path, monkeypatch):
         PointCloud([[X0, Y0, np.nan], [X0, Y0, 1.0]], [0, 0], [0, 0]).write_las(out)
     with pytest.raises(ValueError, match="32-bit"):  # 3000 km at 1 mm: more than 2**31 steps
         PointCloud([[0.0, 0.0, 0.0], [3e6, 0.0, 0.0]], [0, 0], [0, 0]).write_las(out)
+    with pytest.raises(CRSMismatchError, match="not one pyproj reads"):
+        PointCloud([[X0, Y0, 1.0]], [0], [0], crs="EPSG:no such code").write_las(out)
     assert not out.exists()
     with pytest.raises(ValueError, match="input"):
         utm_cloud(10).write_las(out, inputs=[out])

@@ -60,7 +60,12 @@ def _laz_backend(lp):
 def _pyproj_crs(crs):
     import pyproj
 
-    return pyproj.CRS.from_user_input(crs)
+    from ..errors import CRSMismatchError
+
+    try:
+        return pyproj.CRS.from_user_input(crs)
+    except pyproj.exceptions.CRSError as exc:
+        raise CRSMismatchError(f"the point cloud's CRS {crs!r} is not one pyproj reads ({exc})") from exc
 
 
 def _wkt(crs) -> str:

@@ -124,6 +124,7 @@ class PointCloud:
         Raises:
             ValueError: a cloud with no points, a point not finite, or one spanning more than 32-bit
                 integers hold at 1 mm (2147 km).
+            CRSMismatchError: a CRS pyproj cannot read.
             ModuleNotFoundError: laspy (or for ``.laz`` lazrs) missing; the message names the extra.
 
         Examples:
