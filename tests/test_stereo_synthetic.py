@@ -10,6 +10,7 @@ into the GeoTIFFs, as satellite images come; ``photax dsm --camera rpc`` sees on
 
 from __future__ import annotations
 
+import importlib.util
 import json
 
 import numpy as np
@@ -53,9 +54,12 @@ def rendered(tmp_path_factory):
 
 def test_dsm_of_a_rendered_rpc_pair(rendered, tmp_path, capsys):
     (a, b), cams, crs, (x0, y0) = rendered
-    out, ply = tmp_path / "dsm.tif", tmp_path / "pts.ply"
+    out, ply, laz = tmp_path / "dsm.tif", tmp_path / "pts.ply", tmp_path / "pts.laz"
+    # the points also as LAZ where laspy and its LAZ backend are there (the las extra; CI has it)
+    with_laz = importlib.util.find_spec("laspy") is not None and importlib.util.find_spec("lazrs") is not None
     rc = main(["dsm", str(a), str(b), "--camera", "rpc", "--heights", "100", "260", "--crs", crs,
-               "--resolution", "2", "--tile", "100", "-o", str(out), "--ply", str(ply), "--no-progress"])  # fmt: skip
+               "--resolution", "2", "--tile", "100", "-o", str(out), "--ply", str(ply), "--no-progress",
+               *(["--points", str(laz)] if with_laz else [])])  # fmt: skip
     cap = capsys.readouterr()
     text = cap.out
     assert rc == 0, cap.err
@@ -81,6 +85,18 @@ def test_dsm_of_a_rendered_rpc_pair(rendered, tmp_path, capsys):
     assert median <= 0.5
     pts = read_ply(ply)
     assert len(pts["x"]) > 1000 and np.all(pts["sigma_z"] > 0)
+    if with_laz:  # the LAZ: what laspy reads is the PLY's points (1 mm integers), on the true surface
+        import laspy
+        import pyproj
+
+        las = laspy.read(laz)
+        assert las.header.parse_crs().equals(pyproj.CRS.from_user_input(crs))
+        for axis in "xyz":
+            np.testing.assert_allclose(np.asarray(las[axis]), pts[axis], atol=0.5e-3 + 1e-9, rtol=0)
+        np.testing.assert_array_equal(las.sigma_z, pts["sigma_z"])
+        dz = np.abs(np.asarray(las.z) - surface(np.asarray(las.x), np.asarray(las.y), x0, y0))
+        print(f"LAZ: {len(las.points)} points, median |dz| {np.median(dz):.3f} m against the surface")
+        assert np.median(dz) <= 0.5
 
 
 def test_dsm_blank_and_bad_input(rendered, tmp_path, capsys):

@@ -135,7 +135,15 @@ def _enable_compilation_cache() -> None:
 
 
 # Optional dependencies -> the extra of pyproject.toml that brings them.
-_EXTRAS = {"dask": "dask", "xarray": "dask", "rioxarray": "dask", "distributed": "dask", "odc": "bench"}
+_EXTRAS = {
+    "dask": "dask",
+    "xarray": "dask",
+    "rioxarray": "dask",
+    "distributed": "dask",
+    "odc": "bench",
+    "laspy": "las",
+    "lazrs": "las",
+}
 
 
 # Exit status of a command that failed, by the type of what it raised (the first that matches), never by

@@ -13,9 +13,11 @@ images reduced ``--zoom`` times, and triangulated (:mod:`photax.stereo`); each p
 rasterised onto one grid (``--resolution``, ``--crs``, ``--bounds``; default: the points' extent
 at 4 times the matching's ground spacing), small holes filled, and the pairs fused by the median
 per cell.  Writes OUT (a Cloud-Optimized GeoTIFF, float32, NaN nodata, the grid's CRS), optionally
-``--ply`` (all pairs' points with colour, residual and height sigma).  ``--heights H_MIN H_MAX``
-(the terrain's heights, ellipsoidal for satellites) bound the disparity search; required for frame
-images, default the RPCs' validity range for satellites.  A report gives each pair's points, the
+the points of all pairs (colour, residual and height sigma; the CRS): ``--points`` by its suffix
+(``.ply`` binary PLY, ``.las`` LAS 1.4, ``.laz`` LAZ; LAS and LAZ need the ``las`` extra),
+``--ply`` a binary PLY whatever the name.  ``--heights H_MIN H_MAX`` (the terrain's heights,
+ellipsoidal for satellites) bound the disparity search; required for frame images, default the
+RPCs' validity range for satellites.  A report gives each pair's points, the
 DSM's completeness and median height sigma.  Exit codes: 0 written, 1 no height at all (a blank
 DSM: nothing written), 2 bad input.
 """
@@ -36,7 +38,7 @@ def add_parser(sub) -> None:
         epilog="examples:\n"
         "  photax dsm a.tif b.tif c.tif --camera reconstruction.json --exterior reconstruction.json "
         "--heights 40 140 --resolution 0.8 -o dsm.tif\n"
-        "  photax dsm left.tif right.tif --camera rpc --heights 0 500 --crs EPSG:32633 -o dsm.tif --ply pts.ply\n",
+        "  photax dsm left.tif right.tif --camera rpc --heights 0 500 --crs EPSG:32633 -o dsm.tif --points pts.laz\n",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("image", metavar="IMAGE", nargs="+", help="two or more images (any GDAL raster)")
@@ -46,7 +48,11 @@ def add_parser(sub) -> None:
     p.add_argument("--exterior", help="frame images: the orientation file (as photax ortho)")
     p.add_argument("--camera-name", metavar="NAME", help="camera name in a multi-camera orthority interior file")
     p.add_argument("-o", "--out", required=True, metavar="OUT_TIF", help="output DSM (Cloud-Optimized GeoTIFF)")
-    p.add_argument("--ply", metavar="PLY", help="also write the points as a binary PLY")
+    p.add_argument("--points", metavar="POINTS",
+                   help="also write the points, the format by the suffix: .ply binary PLY, .las LAS 1.4, .laz LAZ "
+                   '(LAS/LAZ: x y z to 1 mm, RGB, residual and sigma_z extra bytes, the CRS as WKT; '
+                   'pip install "photax[las]")')  # fmt: skip
+    p.add_argument("--ply", metavar="PLY", help="also write the points as a binary PLY (whatever the name)")
     p.add_argument("--resolution", type=float, help="DSM cell size (default 4 x the matching's ground spacing)")
     p.add_argument("--crs", help="the DSM's CRS (satellite images; default the UTM zone of the scene)")
     p.add_argument("--bounds", type=float, nargs=4, metavar=("XMIN", "YMIN", "XMAX", "YMAX"),
@@ -101,6 +107,9 @@ def run(args: argparse.Namespace) -> int:
     inputs = [*args.image, *(f for f in (None if args.camera == "rpc" else args.camera, args.exterior) if f)]
     out = check_output_path(pathlib.Path(args.out), inputs)
     ply = check_output_path(pathlib.Path(args.ply), inputs) if args.ply else None
+    points = _points_output(args.points, inputs) if args.points else None
+    if ply is not None and points is not None and ply.resolve() == points.resolve():
+        raise ValueError(f"--ply and --points name one file: {ply}")
     if ground:
         if args.exterior is not None:
             raise ValueError("--exterior: satellite images (RPC, push-broom) carry their own orientation")
@@ -168,15 +177,36 @@ def run(args: argparse.Namespace) -> int:
         print(f"{args.command}: the DSM has no height on its grid: nothing written", file=sys.stderr)
         return 1
     dsm.write(out, inputs=inputs)
-    if ply is not None:
-        allpts.write_ply(ply)
+    for path in (p for p in (ply, points) if p is not None):
+        if path is ply or path.suffix.lower() == ".ply":
+            allpts.write_ply(path)
+        else:
+            allpts.write_las(path, inputs=inputs)
     sig = dsm.sigma[np.isfinite(dsm.heights) & np.isfinite(dsm.sigma)]
     print(
         f"wrote {out}: {grid.width} x {grid.height} cells of {abs(grid.transform.a):g}, "
         f"completeness {dsm.completeness:.1%}, median height sigma {np.median(sig) if sig.size else float('nan'):.3g} "
-        f"(from {len(allpts)} points of {len(models)} pair(s))" + (f"; points in {ply}" if ply else "")
+        f"(from {len(allpts)} points of {len(models)} pair(s))"
+        + "".join(f"; points in {p}" for p in (ply, points) if p is not None)
     )
     return 0
+
+
+def _points_output(path, inputs) -> pathlib.Path:
+    """``--points``: the path, checked before any matching (its suffix; for LAS / LAZ that laspy, and
+    lazrs for LAZ, are installed)."""
+    from ..io.atomic import check_output_path
+
+    path = check_output_path(pathlib.Path(path), inputs)
+    suffix = path.suffix.lower()
+    if suffix not in (".ply", ".las", ".laz"):
+        raise ValueError(f"--points {path}: the suffix says the format: .ply, .las or .laz")
+    if suffix != ".ply":
+        import laspy  # ModuleNotFoundError: the CLI names the las extra
+
+        if suffix == ".laz" and not laspy.LazBackend.detect_available():
+            raise ModuleNotFoundError("no LAZ backend for laspy", name="lazrs")
+    return path
 
 
 def _grid(args, pts, crs):
