@@ -29,8 +29,10 @@ The algorithm:
    difference of the left image, so the same on every tile), ``S = sum_r L_r``.
    Every path is one :func:`jax.lax.scan` over rows or columns, vectorised
    over the other axis and the disparities (no Python loop over pixels):
-   the 6 vertical and diagonal paths share one scan over the rows, the 2
-   horizontal ones one scan over the columns;
+   the 3 vertical and diagonal paths of one direction share one scan over
+   the rows (a carry each, the cost row and the running sum read once for
+   all three), each horizontal path is one scan over the columns of the
+   transposed volume;
 3. winner-take-all ``d* = argmin_d S(p, d)``; sub-pixel by the parabola
    through ``S(d*-1), S(d*), S(d*+1)``; rejected when another disparity
    ``|d - d*| > 1`` has ``S(d) * (1 - uniqueness) < S(d*)``;
@@ -172,40 +174,45 @@ def _shift(a, dx: int, fill=0):
     return jnp.concatenate([z, a[..., :-1]], -1) if dx > 0 else jnp.concatenate([a[..., 1:], z], -1)
 
 
-def _paths(c, img, total, p1, p2, g, dx: int, reverse: bool):
-    """``total + L_r`` for the path stepping one row along the leading axis
-    of ``c`` ``(m, n, k)`` (backwards when ``reverse``) and ``dx`` along ``k``."""
+def _paths(c, img, total, p1, p2, g, dxs: tuple, reverse: bool):
+    """``total + sum_r L_r`` (``total`` None: 0) for the paths stepping one row along the leading axis
+    of ``c`` ``(m, n, k)`` (backwards when ``reverse``) and ``dx`` along ``k``, one per ``dxs``, in
+    one scan: a carry per path, the cost row and the running total read once per step for all of them."""
     _, n, k = c.shape
+    p1i = jnp.int16(round(p1))
 
     def body(carry, x):
-        prev, prev_img = carry
-        cr, tr, ir = x
-        pen = jnp.maximum(p2 / (1.0 + jnp.abs(ir - _shift(prev_img, dx)) / g), p1)
-        pen = jnp.round(pen).astype(jnp.int16)[None, :]
-        new = _aggregate_step(_shift(prev, dx), cr, jnp.int16(round(p1)), pen)
-        return (new, ir), tr + new
+        prevs, prev_img = carry
+        (cr, ir), tr = x[:2], (x[2] if total is not None else None)
+        news = []
+        for prev, dx in zip(prevs, dxs):
+            pen = jnp.maximum(p2 / (1.0 + jnp.abs(ir - _shift(prev_img, dx)) / g), p1)
+            pen = jnp.round(pen).astype(jnp.int16)[None, :]
+            news.append(_aggregate_step(_shift(prev, dx), cr, p1i, pen))
+        out = sum(news[1:], news[0]) if tr is None else sum(news, tr)
+        return (tuple(news), ir), out
 
-    init = (jnp.zeros((n, k), jnp.int16), img[-1 if reverse else 0])
-    return jax.lax.scan(body, init, (c, total, img), reverse=reverse)[1]
+    init = (tuple(jnp.zeros((n, k), jnp.int16) for _ in dxs), img[-1 if reverse else 0])
+    xs = (c, img) if total is None else (c, img, total)
+    return jax.lax.scan(body, init, xs, reverse=reverse)[1]
 
 
 def _aggregate(c, image, p1, p2, g, paths: int):
     """``S = sum_r L_r`` ``(h, n, w)`` int16 over 4 or 8 paths of the costs ``c`` ``(h, n, w)`` int16.
 
-    One :func:`jax.lax.scan` per path with a ``(n, w)`` carry: the vertical and
-    diagonal paths step over the rows (a diagonal shifts the carry by one
-    column per row), the horizontal ones over the columns of the transposed
-    volume.  Each scan adds its ``L_r`` to the running total row by row."""
+    One :func:`jax.lax.scan` per direction with a ``(n, w)`` carry per path: the vertical and
+    diagonal paths of one direction step over the rows together (a diagonal shifts its carry by one
+    column per row), the horizontal ones over the columns of the transposed volume.  Each scan adds
+    its paths' ``L_r`` to the running total row by row (the sum of int16 is exact, so the order of
+    the additions does not matter)."""
     img = jnp.where(jnp.isfinite(image), image, 0.0).astype(jnp.float32)
     dxs = (0,) if paths == 4 else (0, 1, -1)
     ct = jnp.transpose(c, (2, 1, 0))  # (w, n, h)
-    st = jnp.zeros_like(ct)
-    for reverse in (False, True):
-        st = _paths(ct, img.T, st, p1, p2, g, 0, reverse)
+    st = _paths(ct, img.T, None, p1, p2, g, (0,), False)
+    st = _paths(ct, img.T, st, p1, p2, g, (0,), True)
     s = jnp.transpose(st, (2, 1, 0))
-    for dx in dxs:
-        for reverse in (False, True):
-            s = _paths(c, img, s, p1, p2, g, dx, reverse)
+    for reverse in (False, True):
+        s = _paths(c, img, s, p1, p2, g, dxs, reverse)
     return s
 
 
