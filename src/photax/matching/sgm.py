@@ -216,18 +216,33 @@ def _aggregate(c, image, p1, p2, g, paths: int):
     return s
 
 
-def _wta(s, dmin: int, uniqueness):
-    """Sub-pixel winner along axis 1 of ``s`` ``(h, n, w)`` and its uniqueness flag ``(h, w)``."""
-    n = s.shape[1]
-    k = jnp.argmin(s, 1)
-    s = s.astype(jnp.float32)
-    take = lambda i: jnp.take_along_axis(s, jnp.clip(i, 0, n - 1)[:, None, :], 1)[:, 0]  # noqa: E731
-    s0, sm, sp = take(k), take(k - 1), take(k + 1)
+def _wta(row, n: int, dmin: int, uniqueness):
+    """Sub-pixel winner over the disparities ``k < n`` of the costs ``row(k)`` ``(h, w)`` int16 and its
+    uniqueness flag ``(h, w)``.
+
+    Two passes over the ``n`` slices, elementwise over ``(h, w)`` (which vectorises; reductions over
+    the volume's middle axis and argmin's (value, index) reduction do not, 5-10x slower): the least
+    cost and its first ``k`` (:func:`jnp.argmin`'s), then the costs at ``k -+ 1`` and the least
+    one more than 1 px from ``k``."""
+    itype = jnp.int16 if n < 32000 else jnp.int32
+    s0 = row(0)
+    k = jnp.zeros(s0.shape, itype)
+    for i in range(1, n):
+        si = row(i)
+        better = si < s0  # strict: the first of equal minima, as argmin
+        s0, k = jnp.where(better, si, s0), jnp.where(better, itype(i), k)
+    none = jnp.int16(jnp.iinfo(jnp.int16).max)  # above any S (< 32000, the right image's padding included)
+    sm = sp = s0  # the costs at k - 1 and k + 1 where those exist (unused where not)
+    second = jnp.full(s0.shape, none)
+    for i in range(n):
+        si = row(i)
+        sm, sp = jnp.where(k == i + 1, si, sm), jnp.where(k == i - 1, si, sp)
+        second = jnp.where(jnp.abs(k - itype(i)) > 1, jnp.minimum(second, si), second)
+    s0, sm, sp = (a.astype(jnp.float32) for a in (s0, sm, sp))
     den = sm - 2.0 * s0 + sp
     inner = (k > 0) & (k < n - 1) & (den > 0)
     off = jnp.where(inner, (sm - sp) / jnp.where(inner, 2.0 * den, 1.0), 0.0)
-    far = jnp.abs(jnp.arange(n)[None, :, None] - k[:, None, :]) > 1
-    second = jnp.where(far, s, jnp.inf).min(1)
+    second = jnp.where(second == none, jnp.inf, second.astype(jnp.float32))
     unique = second * (1.0 - uniqueness) > s0  # strict: a tie (a flat, textureless stretch) is no match
     return (dmin + k).astype(jnp.float32) + jnp.clip(off, -0.5, 0.5), unique
 
@@ -240,16 +255,15 @@ def _sgm(left, right, p1, p2, g, uniqueness, lr_check, *, dmin, ndisp, cost, win
     if whole_range:
         okl = okl & whole
     s = _aggregate(c, left, p1, p2, g, paths)
-    dl, unique = _wta(s, dmin, uniqueness)
     h, n, wl = s.shape
+    dl, unique = _wta(lambda k: s[:, k], n, dmin, uniqueness)
     wr = right.shape[1]
     # the right image's disparities by the same S: S_R(q, k) = S(q + dmin + k, k), q < wr
     lo = max(-dmin, 0)
     hi = max(wr + dmin + n - 1 - wl, 0)
     sp = jnp.pad(s, [(0, 0), (0, 0), (lo, hi)], constant_values=jnp.int16(32000))
-    ks = jnp.arange(n)[:, None]
-    sr = sp[:, ks, lo + dmin + ks + jnp.arange(wr)[None, :]]  # (h, n, wr)
-    dr, _ = _wta(sr, dmin, 0.0)
+    a = lo + dmin
+    dr, _ = _wta(lambda k: sp[:, k, a + k : a + k + wr], n, dmin, 0.0)
     x = jnp.arange(wl, dtype=jnp.float32)[None, :]
     q = jnp.round(x - dl).astype(jnp.int32)
     qin = (q >= 0) & (q < wr)
