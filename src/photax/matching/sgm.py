@@ -115,7 +115,7 @@ def _cost_volume(left, right, dmin: int, ndisp: int, cost: str, window: int):
     lo = max(dmin + ndisp - 1, 0)  # columns needed left of 0
     hi = max(wl - dmin - wr, 0)  # and right of wr - 1
 
-    # (n, wl) column of the padded right image for each candidate: one gather (64 slices and a stack are 3x slower)
+    # (n, wl) column of the padded right image for each candidate (zncc): one gather (64 slices and a stack are 3x slower)
     idx = lo - dmin - jnp.arange(ndisp)[:, None] + jnp.arange(wl)[None, :]
 
     def shifted(a, fill):
@@ -123,17 +123,44 @@ def _cost_volume(left, right, dmin: int, ndisp: int, cost: str, window: int):
         a = jnp.pad(a, [(0, 0), (lo, hi)], constant_values=fill)
         return a[:, idx]
 
+    # a perfectly flat window matches every disparity alike: no match there (not the range's edge)
+    r = window // 2
+    win = (window, window)
+    hi_, lo_ = (jax.lax.reduce_window(left, v, op, win, (1, 1), [(r, r), (r, r)])
+                for v, op in ((-jnp.inf, jax.lax.max), (jnp.inf, jax.lax.min)))  # fmt: skip
+    flat = hi_ <= lo_
+    none = jnp.int16(nbits // 2)  # the cost of a candidate without data
     if cost == "census":
         cl, okl = _census(left, vl, window)
         cr, okr = _census(right, vr, window)
-        c = sum(
-            jax.lax.population_count(cl[:, None, :, j] ^ shifted(cr[..., j], 0)).astype(jnp.int16)
-            for j in range(cl.shape[-1])
-        )
+        okl = okl & ~flat
+        words = cl.shape[-1]
+        flag = nbits - 32 * (words - 1) < 32  # a free bit in the last word: the right pixel's "no data" there
+        if flag:  # the candidate's bits and whether it has data in one slice (bit 31 set: no data)
+            cr = cr.at[..., -1].set(jnp.where(okr, cr[..., -1], cr[..., -1] | jnp.uint32(1 << 31)))
+        fills = [1 << 31 if flag and j == words - 1 else 0 for j in range(words)]
+        crp = [jnp.pad(cr[..., j], [(0, 0), (lo, hi)], constant_values=f) for j, f in zip(range(words), fills)]
+        okp = None if flag else jnp.pad(okr, [(0, 0), (lo, hi)], constant_values=False)
+
+        def one(k, vol):
+            """The costs of disparity ``dmin + k`` written into the volume: a loop over the
+            disparities, whose body XLA cannot fuse the census into (as a gather's operand it was,
+            recomputing it for every candidate: 3x slower)."""
+            start = lo - dmin - k
+            x = [cl[..., j] ^ jax.lax.dynamic_slice_in_dim(a, start, wl, 1) for j, a in enumerate(crp)]
+            if flag:
+                seen = (x[-1] >> 31) == 0
+                x[-1] = x[-1] & jnp.uint32((1 << 31) - 1)
+            else:
+                seen = jax.lax.dynamic_slice_in_dim(okp, start, wl, 1)
+            ck = sum(jax.lax.population_count(v).astype(jnp.int16) for v in x)
+            ck = jnp.where(seen & okl, ck, none)
+            return jax.lax.dynamic_update_index_in_dim(vol, ck, k, 1)
+
+        c = jax.lax.fori_loop(0, ndisp, one, jnp.zeros((h, ndisp, wl), jnp.int16), unroll=8)
     else:  # zncc on window x window patches, 1 - rho scaled to the census' bit count
-        r = window // 2
         n = float(window * window)
-        okl = vl & (_box(vl.astype(jnp.float32), r) == n)
+        okl = vl & (_box(vl.astype(jnp.float32), r) == n) & ~flat
         okr = vr & (_box(vr.astype(jnp.float32), r) == n)
         ml, mr = _box(left, r) / n, _box(right, r) / n
         sl = jnp.sqrt(jnp.maximum(_box(left * left, r) / n - ml * ml, 0.0))
@@ -142,18 +169,15 @@ def _cost_volume(left, right, dmin: int, ndisp: int, cost: str, window: int):
         rs = shifted(right, 0.0)  # (h, n, wl): the right pixel of each candidate
         cross = _box(jnp.moveaxis(left[:, None, :] * rs, 1, 2), r) / n  # (h, wl, n)
         mrs = shifted(mr, 0.0)
-        srs = shifted(sr, 0.0)
+        srs = shifted(jnp.where(okr, sr, jnp.nan), jnp.nan)  # NaN: the candidate has no data
         rho = (jnp.moveaxis(cross, 2, 1) - ml[:, None, :] * mrs) / jnp.maximum(sl[:, None, :] * srs, 1e-6)
         c = jnp.round(jnp.clip(1.0 - rho, 0.0, 2.0) * (nbits / 2.0)).astype(jnp.int16)
-    # a perfectly flat window matches every disparity alike: no match there (not the range's edge)
-    r = window // 2
-    win = (window, window)
-    hi_, lo_ = (jax.lax.reduce_window(left, v, op, win, (1, 1), [(r, r), (r, r)])
-                for v, op in ((-jnp.inf, jax.lax.max), (jnp.inf, jax.lax.min)))  # fmt: skip
-    okl = okl & (hi_ > lo_)
-    seen = shifted(okr, False)  # (h, n, wl): the candidate's right pixel has data
-    ok = seen & okl[:, None, :]
-    return jnp.where(ok, c, jnp.int16(nbits // 2)), okl, seen.all(1)
+        c = jnp.where(jnp.isfinite(srs) & okl[:, None, :], c, none)
+    # every candidate has data: okr over the right columns x - dmin - n + 1 ... x - dmin, a sliding minimum
+    okp = jnp.pad(okr, [(0, 0), (lo, hi)], constant_values=False)
+    whole = jax.lax.reduce_window(okp, True, jax.lax.bitwise_and, (1, ndisp), (1, 1), "valid")
+    whole = whole[:, lo - dmin - ndisp + 1 : lo - dmin - ndisp + 1 + wl]
+    return c, okl, whole
 
 
 def _aggregate_step(prev, c, p1, p2):
@@ -225,19 +249,25 @@ def _wta(row, n: int, dmin: int, uniqueness):
     cost and its first ``k`` (:func:`jnp.argmin`'s), then the costs at ``k -+ 1`` and the least
     one more than 1 px from ``k``."""
     itype = jnp.int16 if n < 32000 else jnp.int32
-    s0 = row(0)
-    k = jnp.zeros(s0.shape, itype)
-    for i in range(1, n):
+
+    def first(i, carry):  # a fori_loop, not n unrolled slices: compiling those grows with n
+        s0, k = carry
         si = row(i)
         better = si < s0  # strict: the first of equal minima, as argmin
-        s0, k = jnp.where(better, si, s0), jnp.where(better, itype(i), k)
+        return jnp.where(better, si, s0), jnp.where(better, i.astype(itype), k)
+
+    s0 = row(0)
+    s0, k = jax.lax.fori_loop(1, n, first, (s0, jnp.zeros(s0.shape, itype)), unroll=16)
     none = jnp.int16(jnp.iinfo(jnp.int16).max)  # above any S (< 32000, the right image's padding included)
-    sm = sp = s0  # the costs at k - 1 and k + 1 where those exist (unused where not)
-    second = jnp.full(s0.shape, none)
-    for i in range(n):
-        si = row(i)
+
+    def rest(i, carry):
+        sm, sp, second = carry
+        si, i = row(i), i.astype(itype)
         sm, sp = jnp.where(k == i + 1, si, sm), jnp.where(k == i - 1, si, sp)
-        second = jnp.where(jnp.abs(k - itype(i)) > 1, jnp.minimum(second, si), second)
+        return sm, sp, jnp.where(jnp.abs(k - i) > 1, jnp.minimum(second, si), second)
+
+    # the costs at k -+ 1 where those exist (s0 where not: unused there)
+    sm, sp, second = jax.lax.fori_loop(0, n, rest, (s0, s0, jnp.full(s0.shape, none)), unroll=16)
     s0, sm, sp = (a.astype(jnp.float32) for a in (s0, sm, sp))
     den = sm - 2.0 * s0 + sp
     inner = (k > 0) & (k < n - 1) & (den > 0)
@@ -256,14 +286,14 @@ def _sgm(left, right, p1, p2, g, uniqueness, lr_check, *, dmin, ndisp, cost, win
         okl = okl & whole
     s = _aggregate(c, left, p1, p2, g, paths)
     h, n, wl = s.shape
-    dl, unique = _wta(lambda k: s[:, k], n, dmin, uniqueness)
+    dl, unique = _wta(lambda k: jax.lax.dynamic_index_in_dim(s, k, 1, False), n, dmin, uniqueness)
     wr = right.shape[1]
     # the right image's disparities by the same S: S_R(q, k) = S(q + dmin + k, k), q < wr
     lo = max(-dmin, 0)
     hi = max(wr + dmin + n - 1 - wl, 0)
     sp = jnp.pad(s, [(0, 0), (0, 0), (lo, hi)], constant_values=jnp.int16(32000))
     a = lo + dmin
-    dr, _ = _wta(lambda k: sp[:, k, a + k : a + k + wr], n, dmin, 0.0)
+    dr, _ = _wta(lambda k: jax.lax.dynamic_slice(sp, (0, k, a + k), (h, 1, wr))[:, 0], n, dmin, 0.0)
     x = jnp.arange(wl, dtype=jnp.float32)[None, :]
     q = jnp.round(x - dl).astype(jnp.int32)
     qin = (q >= 0) & (q < wr)
