@@ -29,8 +29,10 @@ The algorithm:
    difference of the left image, so the same on every tile), ``S = sum_r L_r``.
    Every path is one :func:`jax.lax.scan` over rows or columns, vectorised
    over the other axis and the disparities (no Python loop over pixels):
-   the 6 vertical and diagonal paths share one scan over the rows, the 2
-   horizontal ones one scan over the columns;
+   the 3 vertical and diagonal paths of one direction share one scan over
+   the rows (a carry each, the cost row and the running sum read once for
+   all three), each horizontal path is one scan over the columns of the
+   transposed volume;
 3. winner-take-all ``d* = argmin_d S(p, d)``; sub-pixel by the parabola
    through ``S(d*-1), S(d*), S(d*+1)``; rejected when another disparity
    ``|d - d*| > 1`` has ``S(d) * (1 - uniqueness) < S(d*)``;
@@ -113,7 +115,7 @@ def _cost_volume(left, right, dmin: int, ndisp: int, cost: str, window: int):
     lo = max(dmin + ndisp - 1, 0)  # columns needed left of 0
     hi = max(wl - dmin - wr, 0)  # and right of wr - 1
 
-    # (n, wl) column of the padded right image for each candidate: one gather (64 slices and a stack are 3x slower)
+    # (n, wl) column of the padded right image for each candidate (zncc): one gather (64 slices and a stack are 3x slower)
     idx = lo - dmin - jnp.arange(ndisp)[:, None] + jnp.arange(wl)[None, :]
 
     def shifted(a, fill):
@@ -121,17 +123,44 @@ def _cost_volume(left, right, dmin: int, ndisp: int, cost: str, window: int):
         a = jnp.pad(a, [(0, 0), (lo, hi)], constant_values=fill)
         return a[:, idx]
 
+    # a perfectly flat window matches every disparity alike: no match there (not the range's edge)
+    r = window // 2
+    win = (window, window)
+    hi_, lo_ = (jax.lax.reduce_window(left, v, op, win, (1, 1), [(r, r), (r, r)])
+                for v, op in ((-jnp.inf, jax.lax.max), (jnp.inf, jax.lax.min)))  # fmt: skip
+    flat = hi_ <= lo_
+    none = jnp.int16(nbits // 2)  # the cost of a candidate without data
     if cost == "census":
         cl, okl = _census(left, vl, window)
         cr, okr = _census(right, vr, window)
-        c = sum(
-            jax.lax.population_count(cl[:, None, :, j] ^ shifted(cr[..., j], 0)).astype(jnp.int16)
-            for j in range(cl.shape[-1])
-        )
+        okl = okl & ~flat
+        words = cl.shape[-1]
+        flag = nbits - 32 * (words - 1) < 32  # a free bit in the last word: the right pixel's "no data" there
+        if flag:  # the candidate's bits and whether it has data in one slice (bit 31 set: no data)
+            cr = cr.at[..., -1].set(jnp.where(okr, cr[..., -1], cr[..., -1] | jnp.uint32(1 << 31)))
+        fills = [1 << 31 if flag and j == words - 1 else 0 for j in range(words)]
+        crp = [jnp.pad(cr[..., j], [(0, 0), (lo, hi)], constant_values=f) for j, f in zip(range(words), fills)]
+        okp = None if flag else jnp.pad(okr, [(0, 0), (lo, hi)], constant_values=False)
+
+        def one(k, vol):
+            """The costs of disparity ``dmin + k`` written into the volume: a loop over the
+            disparities, whose body XLA cannot fuse the census into (as a gather's operand it was,
+            recomputing it for every candidate: 3x slower)."""
+            start = lo - dmin - k
+            x = [cl[..., j] ^ jax.lax.dynamic_slice_in_dim(a, start, wl, 1) for j, a in enumerate(crp)]
+            if flag:
+                seen = (x[-1] >> 31) == 0
+                x[-1] = x[-1] & jnp.uint32((1 << 31) - 1)
+            else:
+                seen = jax.lax.dynamic_slice_in_dim(okp, start, wl, 1)
+            ck = sum(jax.lax.population_count(v).astype(jnp.int16) for v in x)
+            ck = jnp.where(seen & okl, ck, none)
+            return jax.lax.dynamic_update_index_in_dim(vol, ck, k, 1)
+
+        c = jax.lax.fori_loop(0, ndisp, one, jnp.zeros((h, ndisp, wl), jnp.int16), unroll=8)
     else:  # zncc on window x window patches, 1 - rho scaled to the census' bit count
-        r = window // 2
         n = float(window * window)
-        okl = vl & (_box(vl.astype(jnp.float32), r) == n)
+        okl = vl & (_box(vl.astype(jnp.float32), r) == n) & ~flat
         okr = vr & (_box(vr.astype(jnp.float32), r) == n)
         ml, mr = _box(left, r) / n, _box(right, r) / n
         sl = jnp.sqrt(jnp.maximum(_box(left * left, r) / n - ml * ml, 0.0))
@@ -140,18 +169,15 @@ def _cost_volume(left, right, dmin: int, ndisp: int, cost: str, window: int):
         rs = shifted(right, 0.0)  # (h, n, wl): the right pixel of each candidate
         cross = _box(jnp.moveaxis(left[:, None, :] * rs, 1, 2), r) / n  # (h, wl, n)
         mrs = shifted(mr, 0.0)
-        srs = shifted(sr, 0.0)
+        srs = shifted(jnp.where(okr, sr, jnp.nan), jnp.nan)  # NaN: the candidate has no data
         rho = (jnp.moveaxis(cross, 2, 1) - ml[:, None, :] * mrs) / jnp.maximum(sl[:, None, :] * srs, 1e-6)
         c = jnp.round(jnp.clip(1.0 - rho, 0.0, 2.0) * (nbits / 2.0)).astype(jnp.int16)
-    # a perfectly flat window matches every disparity alike: no match there (not the range's edge)
-    r = window // 2
-    win = (window, window)
-    hi_, lo_ = (jax.lax.reduce_window(left, v, op, win, (1, 1), [(r, r), (r, r)])
-                for v, op in ((-jnp.inf, jax.lax.max), (jnp.inf, jax.lax.min)))  # fmt: skip
-    okl = okl & (hi_ > lo_)
-    seen = shifted(okr, False)  # (h, n, wl): the candidate's right pixel has data
-    ok = seen & okl[:, None, :]
-    return jnp.where(ok, c, jnp.int16(nbits // 2)), okl, seen.all(1)
+        c = jnp.where(jnp.isfinite(srs) & okl[:, None, :], c, none)
+    # every candidate has data: okr over the right columns x - dmin - n + 1 ... x - dmin, a sliding minimum
+    okp = jnp.pad(okr, [(0, 0), (lo, hi)], constant_values=False)
+    whole = jax.lax.reduce_window(okp, True, jax.lax.bitwise_and, (1, ndisp), (1, 1), "valid")
+    whole = whole[:, lo - dmin - ndisp + 1 : lo - dmin - ndisp + 1 + wl]
+    return c, okl, whole
 
 
 def _aggregate_step(prev, c, p1, p2):
@@ -172,55 +198,81 @@ def _shift(a, dx: int, fill=0):
     return jnp.concatenate([z, a[..., :-1]], -1) if dx > 0 else jnp.concatenate([a[..., 1:], z], -1)
 
 
-def _paths(c, img, total, p1, p2, g, dx: int, reverse: bool):
-    """``total + L_r`` for the path stepping one row along the leading axis
-    of ``c`` ``(m, n, k)`` (backwards when ``reverse``) and ``dx`` along ``k``."""
+def _paths(c, img, total, p1, p2, g, dxs: tuple, reverse: bool):
+    """``total + sum_r L_r`` (``total`` None: 0) for the paths stepping one row along the leading axis
+    of ``c`` ``(m, n, k)`` (backwards when ``reverse``) and ``dx`` along ``k``, one per ``dxs``, in
+    one scan: a carry per path, the cost row and the running total read once per step for all of them."""
     _, n, k = c.shape
+    p1i = jnp.int16(round(p1))
 
     def body(carry, x):
-        prev, prev_img = carry
-        cr, tr, ir = x
-        pen = jnp.maximum(p2 / (1.0 + jnp.abs(ir - _shift(prev_img, dx)) / g), p1)
-        pen = jnp.round(pen).astype(jnp.int16)[None, :]
-        new = _aggregate_step(_shift(prev, dx), cr, jnp.int16(round(p1)), pen)
-        return (new, ir), tr + new
+        prevs, prev_img = carry
+        (cr, ir), tr = x[:2], (x[2] if total is not None else None)
+        news = []
+        for prev, dx in zip(prevs, dxs):
+            pen = jnp.maximum(p2 / (1.0 + jnp.abs(ir - _shift(prev_img, dx)) / g), p1)
+            pen = jnp.round(pen).astype(jnp.int16)[None, :]
+            news.append(_aggregate_step(_shift(prev, dx), cr, p1i, pen))
+        out = sum(news[1:], news[0]) if tr is None else sum(news, tr)
+        return (tuple(news), ir), out
 
-    init = (jnp.zeros((n, k), jnp.int16), img[-1 if reverse else 0])
-    return jax.lax.scan(body, init, (c, total, img), reverse=reverse)[1]
+    init = (tuple(jnp.zeros((n, k), jnp.int16) for _ in dxs), img[-1 if reverse else 0])
+    xs = (c, img) if total is None else (c, img, total)
+    return jax.lax.scan(body, init, xs, reverse=reverse)[1]
 
 
 def _aggregate(c, image, p1, p2, g, paths: int):
     """``S = sum_r L_r`` ``(h, n, w)`` int16 over 4 or 8 paths of the costs ``c`` ``(h, n, w)`` int16.
 
-    One :func:`jax.lax.scan` per path with a ``(n, w)`` carry: the vertical and
-    diagonal paths step over the rows (a diagonal shifts the carry by one
-    column per row), the horizontal ones over the columns of the transposed
-    volume.  Each scan adds its ``L_r`` to the running total row by row."""
+    One :func:`jax.lax.scan` per direction with a ``(n, w)`` carry per path: the vertical and
+    diagonal paths of one direction step over the rows together (a diagonal shifts its carry by one
+    column per row), the horizontal ones over the columns of the transposed volume.  Each scan adds
+    its paths' ``L_r`` to the running total row by row (the sum of int16 is exact, so the order of
+    the additions does not matter)."""
     img = jnp.where(jnp.isfinite(image), image, 0.0).astype(jnp.float32)
     dxs = (0,) if paths == 4 else (0, 1, -1)
     ct = jnp.transpose(c, (2, 1, 0))  # (w, n, h)
-    st = jnp.zeros_like(ct)
-    for reverse in (False, True):
-        st = _paths(ct, img.T, st, p1, p2, g, 0, reverse)
+    st = _paths(ct, img.T, None, p1, p2, g, (0,), False)
+    st = _paths(ct, img.T, st, p1, p2, g, (0,), True)
     s = jnp.transpose(st, (2, 1, 0))
-    for dx in dxs:
-        for reverse in (False, True):
-            s = _paths(c, img, s, p1, p2, g, dx, reverse)
+    for reverse in (False, True):
+        s = _paths(c, img, s, p1, p2, g, dxs, reverse)
     return s
 
 
-def _wta(s, dmin: int, uniqueness):
-    """Sub-pixel winner along axis 1 of ``s`` ``(h, n, w)`` and its uniqueness flag ``(h, w)``."""
-    n = s.shape[1]
-    k = jnp.argmin(s, 1)
-    s = s.astype(jnp.float32)
-    take = lambda i: jnp.take_along_axis(s, jnp.clip(i, 0, n - 1)[:, None, :], 1)[:, 0]  # noqa: E731
-    s0, sm, sp = take(k), take(k - 1), take(k + 1)
+def _wta(row, n: int, dmin: int, uniqueness):
+    """Sub-pixel winner over the disparities ``k < n`` of the costs ``row(k)`` ``(h, w)`` int16 and its
+    uniqueness flag ``(h, w)``.
+
+    Two passes over the ``n`` slices, elementwise over ``(h, w)`` (which vectorises; reductions over
+    the volume's middle axis and argmin's (value, index) reduction do not, 5-10x slower): the least
+    cost and its first ``k`` (:func:`jnp.argmin`'s), then the costs at ``k -+ 1`` and the least
+    one more than 1 px from ``k``."""
+    itype = jnp.int16 if n < 32000 else jnp.int32
+
+    def first(i, carry):  # a fori_loop, not n unrolled slices: compiling those grows with n
+        s0, k = carry
+        si = row(i)
+        better = si < s0  # strict: the first of equal minima, as argmin
+        return jnp.where(better, si, s0), jnp.where(better, i.astype(itype), k)
+
+    s0 = row(0)
+    s0, k = jax.lax.fori_loop(1, n, first, (s0, jnp.zeros(s0.shape, itype)), unroll=16)
+    none = jnp.int16(jnp.iinfo(jnp.int16).max)  # above any S (< 32000, the right image's padding included)
+
+    def rest(i, carry):
+        sm, sp, second = carry
+        si, i = row(i), i.astype(itype)
+        sm, sp = jnp.where(k == i + 1, si, sm), jnp.where(k == i - 1, si, sp)
+        return sm, sp, jnp.where(jnp.abs(k - i) > 1, jnp.minimum(second, si), second)
+
+    # the costs at k -+ 1 where those exist (s0 where not: unused there)
+    sm, sp, second = jax.lax.fori_loop(0, n, rest, (s0, s0, jnp.full(s0.shape, none)), unroll=16)
+    s0, sm, sp = (a.astype(jnp.float32) for a in (s0, sm, sp))
     den = sm - 2.0 * s0 + sp
     inner = (k > 0) & (k < n - 1) & (den > 0)
     off = jnp.where(inner, (sm - sp) / jnp.where(inner, 2.0 * den, 1.0), 0.0)
-    far = jnp.abs(jnp.arange(n)[None, :, None] - k[:, None, :]) > 1
-    second = jnp.where(far, s, jnp.inf).min(1)
+    second = jnp.where(second == none, jnp.inf, second.astype(jnp.float32))
     unique = second * (1.0 - uniqueness) > s0  # strict: a tie (a flat, textureless stretch) is no match
     return (dmin + k).astype(jnp.float32) + jnp.clip(off, -0.5, 0.5), unique
 
@@ -233,16 +285,15 @@ def _sgm(left, right, p1, p2, g, uniqueness, lr_check, *, dmin, ndisp, cost, win
     if whole_range:
         okl = okl & whole
     s = _aggregate(c, left, p1, p2, g, paths)
-    dl, unique = _wta(s, dmin, uniqueness)
     h, n, wl = s.shape
+    dl, unique = _wta(lambda k: jax.lax.dynamic_index_in_dim(s, k, 1, False), n, dmin, uniqueness)
     wr = right.shape[1]
     # the right image's disparities by the same S: S_R(q, k) = S(q + dmin + k, k), q < wr
     lo = max(-dmin, 0)
     hi = max(wr + dmin + n - 1 - wl, 0)
     sp = jnp.pad(s, [(0, 0), (0, 0), (lo, hi)], constant_values=jnp.int16(32000))
-    ks = jnp.arange(n)[:, None]
-    sr = sp[:, ks, lo + dmin + ks + jnp.arange(wr)[None, :]]  # (h, n, wr)
-    dr, _ = _wta(sr, dmin, 0.0)
+    a = lo + dmin
+    dr, _ = _wta(lambda k: jax.lax.dynamic_slice(sp, (0, k, a + k), (h, 1, wr))[:, 0], n, dmin, 0.0)
     x = jnp.arange(wl, dtype=jnp.float32)[None, :]
     q = jnp.round(x - dl).astype(jnp.int32)
     qin = (q >= 0) & (q < wr)
