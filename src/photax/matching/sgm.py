@@ -481,8 +481,10 @@ def disparity(
             the true match may be among the candidates not compared, and the
             winner of the others is then a wrong disparity that the left-right
             check does not always catch: a wrong height in a surface model,
-            not a missing one.  ``photax.stereo`` turns it on; off, the band
-            is matched as well as it can be (Middlebury's scores count it).
+            not a missing one.  ``photax.stereo.pair_points`` turns it on for
+            frame pairs (an RPC tile's right array is cut to hold the whole
+            range); off, the band is matched as well as it can be
+            (Middlebury's scores count it).
 
     Returns:
         ``(rows, cols)`` float32 disparities of the left image, NaN where
